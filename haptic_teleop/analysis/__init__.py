@@ -1,0 +1,1 @@
+"""Offline analysis: reads bags only, never the engine."""

@@ -1,0 +1,1 @@
+"""Pure discrete-time building blocks: no rclpy, no I/O, no wall clock."""

@@ -1,0 +1,97 @@
+"""Simulated human operator: an arm impedance pulled along an intended trajectory.
+
+The hand is a spring-damper (k_h, b_h) between the intended position x_d(t) and the device, plus the
+arm's mass m_h, which moves rigidly with the device and is therefore added to the device's mass by
+the plant (no algebraic loop). The force on the device along each axis is
+
+    F_h = k_h (x_d - x) + b_h (v_d - v)
+
+The intended trajectory acts along axis 0; other axes are held at their start position.
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+PROFILES = ("push", "sinusoid", "hold", "trace")
+
+
+@dataclass(frozen=True)
+class OperatorParams:
+    profile: str = "push"
+    axes: int = 1
+    mass_kg: float = 0.5
+    stiffness_n_per_m: float = 200.0
+    damping_n_s_per_m: float = 10.0
+    start_position_m: float = 0.0
+    start_s: float = 0.5
+    # push: constant velocity for distance_m, then hold
+    speed_m_per_s: float = 0.02
+    distance_m: float = 0.04
+    # sinusoid: x_d = start + amplitude * sin(2 pi f (t - start_s)) after start_s
+    amplitude_m: float = 0.02
+    frequency_hz: float = 0.5
+    # trace: piecewise-linear (time_s, position_m) samples
+    trace_time_s: tuple[float, ...] = ()
+    trace_position_m: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile must be one of {PROFILES}, got {self.profile!r}")
+        if self.profile == "trace":
+            ts = self.trace_time_s
+            if len(ts) < 2 or len(ts) != len(self.trace_position_m):
+                raise ValueError("trace needs at least two (time_s, position_m) rows of equal length")
+            if any(b <= a for a, b in itertools.pairwise(ts)):
+                raise ValueError("trace time_s must be strictly increasing")
+
+
+class Operator:
+    """Intended trajectory and hand force; `hand_force` is called once per tick."""
+
+    __slots__ = ("_b", "_k", "_x0", "params")
+
+    def __init__(self, params: OperatorParams) -> None:
+        self.params = params
+        self._x0 = params.start_position_m
+        self._k = params.stiffness_n_per_m
+        self._b = params.damping_n_s_per_m
+
+    def intended(self, t: float) -> tuple[float, float]:
+        """Intended position (m) and velocity (m/s) along axis 0 at time t."""
+        p = self.params
+        x0 = self._x0
+        tau = t - p.start_s
+        if p.profile == "hold" or (tau < 0.0 and p.profile != "trace"):
+            return x0, 0.0
+        if p.profile == "push":
+            if p.speed_m_per_s == 0.0:
+                return x0, 0.0
+            t_end = abs(p.distance_m / p.speed_m_per_s)
+            if tau >= t_end:
+                return x0 + math.copysign(abs(p.distance_m), p.speed_m_per_s), 0.0
+            return x0 + p.speed_m_per_s * tau, p.speed_m_per_s
+        if p.profile == "sinusoid":
+            w = 2.0 * math.pi * p.frequency_hz
+            return x0 + p.amplitude_m * math.sin(w * tau), p.amplitude_m * w * math.cos(w * tau)
+        ts, xs = p.trace_time_s, p.trace_position_m
+        if t <= ts[0]:
+            return xs[0], 0.0
+        if t >= ts[-1]:
+            return xs[-1], 0.0
+        j = bisect.bisect_right(ts, t) - 1
+        slope = (xs[j + 1] - xs[j]) / (ts[j + 1] - ts[j])
+        return xs[j] + slope * (t - ts[j]), slope
+
+    def hand_force(self, t: float, x: Sequence[float], v: Sequence[float]) -> list[float]:
+        """Force of the hand on the device, per axis (N)."""
+        xd, vd = self.intended(t)
+        k, b, x0 = self._k, self._b, self._x0
+        out = [k * (xd - x[0]) + b * (vd - v[0])]
+        for i in range(1, len(x)):
+            out.append(k * (x0 - x[i]) - b * v[i])
+        return out

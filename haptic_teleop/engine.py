@@ -1,0 +1,347 @@
+"""Deterministic lockstep runner in simulated time: the default main job.
+
+One tick (period T, see DESIGN.md section 2), in this order:
+  1. read both plants (state at t_n); the slave's wall force is MuJoCo's over the last period;
+  2. master controller: control law on the latest backward sample, saturation, energy bound;
+  3. master packet (x_m, v_m) into the forward link; arrivals by t_n go to the slave's buffer;
+  4. slave controller on the sample its buffer releases;
+  5. slave packet (f_env, x_s, v_s) into the backward link; arrivals by t_n go to the master's
+     buffer and are used from the next tick on;
+  6. operator hand force from the master state; both plants step one period with the forces held.
+Recording goes into preallocated numpy columns; the bag is encoded in bulk afterwards (bag.py).
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+
+import numpy as np
+
+from haptic_teleop.bag import BLOCK_TICKS
+from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, TeleopController
+from haptic_teleop.core.network import Link, Packet, build_link
+from haptic_teleop.core.operator import Operator, OperatorParams
+from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
+from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot, SimSettings
+from haptic_teleop.scene import ControllerConfig, LoadedScene
+
+# Per-tick columns, in record order.
+COLUMNS = (
+    "op_x_m", "op_v_m_per_s", "op_force_n",
+    "m_x_m", "m_v_m_per_s", "m_force_n", "m_force_desired_n", "m_energy_j",
+    "s_x_m", "s_v_m_per_s", "s_force_n", "s_force_desired_n", "s_energy_j", "s_contact_n",
+    "fwd_rx_seq", "bwd_rx_seq", "fwd_occupancy", "bwd_occupancy",
+)  # fmt: skip
+COL = {name: i for i, name in enumerate(COLUMNS)}
+
+
+@dataclass
+class RunResult:
+    """What the loop produced: columns, packet logs and timing."""
+
+    scene: LoadedScene
+    ticks: int
+    period_ns: int
+    data: np.ndarray  # (ticks, len(COLUMNS))
+    forward_log: list[Packet]
+    backward_log: list[Packet]
+    loop_wall_s: float
+    interrupted: bool
+    extra: dict[str, float] = field(default_factory=dict)
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[: self.ticks, COL[name]]
+
+
+def _controller(cfg: ControllerConfig, role: str, period_s: float, damping: float) -> TeleopController:
+    params = ControllerParams(
+        role=role,
+        law=cfg.law,
+        stiffness_n_per_m=cfg.stiffness_n_per_m,
+        damping_n_s_per_m=cfg.damping_n_s_per_m,
+        force_gain=cfg.force_gain,
+        force_limit_n=cfg.force_limit_n,
+    )
+    bound = EnergyBoundParams(
+        period_s=period_s,
+        damping_n_s_per_m=(damping,),
+        initial_energy_j=cfg.eba.initial_energy_j,
+        enabled=cfg.eba.enabled,
+    )
+    return TeleopController(params, bound)
+
+
+class Engine:
+    """Builds the parts a scene names and runs them in lockstep."""
+
+    def __init__(self, scene: LoadedScene) -> None:
+        self.scene = scene
+        c = scene.config
+        self.period_s = c.scene.period_s
+        self.period_ns = round(c.scene.period_s * 1e9)
+        self.ticks = int(round(c.scene.duration_s / c.scene.period_s))
+        sim = SimSettings(
+            period_s=c.scene.period_s,
+            substeps=c.simulation.substeps,
+            integrator=c.simulation.integrator,
+            solver_iterations=c.simulation.solver_iterations,
+            solver_tolerance=c.simulation.solver_tolerance,
+        )
+        op = c.operator
+        trace = scene.operator_trace
+        self.operator = Operator(
+            OperatorParams(
+                profile=op.profile,
+                mass_kg=op.mass_kg,
+                stiffness_n_per_m=op.stiffness_n_per_m,
+                damping_n_s_per_m=op.damping_n_s_per_m,
+                start_s=op.start_s,
+                speed_m_per_s=op.speed_m_per_s,
+                distance_m=op.distance_m,
+                amplitude_m=op.amplitude_m,
+                frequency_hz=op.frequency_hz,
+                trace_time_s=trace[0] if trace else (),
+                trace_position_m=trace[1] if trace else (),
+            )
+        )
+        self.master = MujocoDevice(
+            sim,
+            mass_kg=c.master.mass_kg,
+            damping_n_s_per_m=c.master.damping_n_s_per_m,
+            force_limit_n=c.master.force_limit_n,
+            hand_mass_kg=op.mass_kg,
+            model=c.master.model,
+        )
+        self.slave = MujocoWallRobot(
+            sim,
+            mass_kg=c.slave.mass_kg,
+            damping_n_s_per_m=c.slave.damping_n_s_per_m,
+            force_limit_n=c.slave.force_limit_n,
+            wall_position_m=c.slave.wall.position_m,
+            wall_stiffness_n_per_m=c.slave.wall.stiffness_n_per_m,
+            wall_damping_n_s_per_m=c.slave.wall.damping_n_s_per_m,
+            contact_impedance=c.slave.contact_impedance,
+            model=c.slave.model,
+            start_position_m=c.slave.start_position_m,
+        )
+        self.master_ctrl = _controller(c.controllers.master, "master", self.period_s, c.master.damping_n_s_per_m)
+        self.slave_ctrl = _controller(c.controllers.slave, "slave", self.period_s, c.slave.damping_n_s_per_m)
+        seed = c.scene.seed
+        self.forward: Link = build_link(c.network.forward.effects, seed, "forward")
+        self.backward: Link = build_link(c.network.backward.effects, seed, "backward")
+        self.forward_buffer: PlayoutBuffer = build_buffer(c.network.forward.buffer, self.period_ns)
+        self.backward_buffer: PlayoutBuffer = build_buffer(c.network.backward.buffer, self.period_ns)
+        # The transparency-driven buffers need the contact force slope (docs/eba.md): the bounded
+        # coupling stiffness min(c1, 2b/T) times the operator's speed, unless the scene gives it.
+        speed = (
+            abs(op.speed_m_per_s) if op.profile == "push" else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
+        )
+        for buf, bcfg, ctrl, b in (
+            (self.backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
+            (self.forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),
+        ):
+            if isinstance(buf, TransparencyBuffer) and bcfg.force_slope_n_per_s is None:
+                buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / self.period_s), speed))
+        self._stop = False
+
+    def request_stop(self) -> None:
+        """Stop at the end of the current tick (Ctrl-C)."""
+        self._stop = True
+
+    def run(
+        self,
+        progress: Callable[[int], None] | None = None,
+        handle_sigint: bool = True,
+        on_block: Callable[[np.ndarray, int], None] | None = None,
+    ) -> RunResult:
+        """Run every tick (or until a stop request); returns the recorded columns.
+
+        `on_block(data, stop)` is called every BLOCK_TICKS ticks with the column array and the
+        number of ticks done, so a recorder can write while the loop runs. If the loop raises,
+        `self.ticks_done` and `self.data` still hold what was computed, for the recorder to finish.
+        """
+        previous = None
+        if handle_sigint:
+
+            def _on_sigint(signum: int, frame: FrameType | None) -> None:
+                self.request_stop()
+
+            previous = signal.signal(signal.SIGINT, _on_sigint)
+        try:
+            return self._loop(progress, on_block)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+
+    def _loop(
+        self, progress: Callable[[int], None] | None, on_block: Callable[[np.ndarray, int], None] | None
+    ) -> RunResult:
+        n_ticks = self.ticks
+        period_ns = self.period_ns
+        period_s = self.period_s
+        data = self.data = np.zeros((n_ticks, len(COLUMNS)))
+        self.ticks_done = 0
+        # Local bindings: attribute lookups are a measurable part of a 10 us tick.
+        master, slave = self.master, self.slave
+        m_read, s_read = master.read, slave.read
+        m_step, s_step = master.step, slave.step
+        s_contact = slave.contact_force
+        mc, sc = self.master_ctrl, self.slave_ctrl
+        m_bound, s_bound = mc.bound, sc.bound
+        hand = self.operator.hand_force
+        intended = self.operator.intended
+        fwd, bwd = self.forward, self.backward
+        fwd_send, bwd_send = fwd.send, bwd.send
+        fwd_deliver, bwd_deliver = fwd.deliver, bwd.deliver
+        fbuf, bbuf = self.forward_buffer, self.backward_buffer
+        fpush, frelease = fbuf.push, fbuf.release
+        bpush, brelease = bbuf.push, bbuf.release
+        m_set_remote, s_set_remote = mc.set_remote, sc.set_remote
+        fwd_size = _wire_payload_bytes(2)
+        bwd_size = _wire_payload_bytes(3)
+        t0 = time.perf_counter()
+        done = 0
+        try:
+            for n in range(n_ticks):
+                now_ns = n * period_ns
+                t = n * period_s
+                xm, vm = m_read()
+                xs, vs = s_read()
+                fenv = s_contact()
+                # master
+                fm = mc.step(xm, vm)
+                fwd_send(Packet(n, now_ns, (xm[0], vm[0]), fwd_size))
+                for p in fwd_deliver(now_ns):
+                    fpush(p, now_ns)
+                rel = frelease(now_ns)
+                if rel is not None:
+                    s_set_remote(rel.payload)
+                    frx = rel.seq
+                else:
+                    frx = -1
+                # slave
+                fs = sc.step(xs, vs)
+                bwd_send(Packet(n, now_ns, (fenv[0], xs[0], vs[0]), bwd_size))
+                for p in bwd_deliver(now_ns):
+                    bpush(p, now_ns)
+                rel = brelease(now_ns)
+                if rel is not None:
+                    m_set_remote(rel.payload)
+                    brx = rel.seq
+                else:
+                    brx = -1
+                # operator and plants
+                fh = hand(t, xm, vm)
+                xd, vd = intended(t)
+                fm_applied = m_step(fm, fh)
+                fs_applied = s_step(fs)
+                data[n] = (
+                    xd, vd, fh[0],
+                    xm[0], vm[0], fm_applied[0], mc.force_desired[0], m_bound.energy_j[0],
+                    xs[0], vs[0], fs_applied[0], sc.force_desired[0], s_bound.energy_j[0], fenv[0],
+                    frx, brx, fbuf.occupancy, bbuf.occupancy,
+                )  # fmt: skip
+                if (n + 1) % 100 == 0:
+                    self.ticks_done = n + 1
+                    if progress is not None:
+                        progress(n + 1)
+                    if on_block is not None and (n + 1) % BLOCK_TICKS == 0:
+                        on_block(data, n + 1)
+                done = n + 1
+                if self._stop:
+                    break
+        except BaseException:
+            self.ticks_done = done  # the failing tick did not finish: keep the ticks before it
+            self.master.close()
+            self.slave.close()
+            raise
+        self.ticks_done = n = done
+        wall = time.perf_counter() - t0
+        self.master.close()
+        self.slave.close()
+        return RunResult(
+            scene=self.scene,
+            ticks=n,
+            period_ns=period_ns,
+            data=data,
+            forward_log=fwd.log,
+            backward_log=bwd.log,
+            loop_wall_s=wall,
+            interrupted=n < n_ticks,
+        )
+
+
+@dataclass(frozen=True)
+class RunTiming:
+    """Wall-clock facts of one recorded run (kept beside the bag, never in it)."""
+
+    simulated_s: float
+    loop_wall_s: float
+    record_wall_s: float  # loop start to bag closed
+    interrupted: bool
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall second of the loop with recording included."""
+        return self.simulated_s / self.record_wall_s if self.record_wall_s > 0 else float("inf")
+
+    def as_dict(self) -> dict[str, float | bool]:
+        return {
+            "simulated_s": self.simulated_s,
+            "loop_wall_s": self.loop_wall_s,
+            "record_wall_s": self.record_wall_s,
+            "realtime_factor": self.realtime_factor,
+            "loop_realtime_factor": self.simulated_s / self.loop_wall_s if self.loop_wall_s > 0 else float("inf"),
+            "interrupted": self.interrupted,
+        }
+
+
+def record_run(
+    scene: LoadedScene,
+    bag_dir: Path,
+    progress: Callable[[int], None] | None = None,
+    parallel: bool = True,
+    handle_sigint: bool = True,
+) -> tuple[Engine, RunTiming]:
+    """Run a scene and record it: the bag is written by a second process while the loop runs.
+
+    Whatever ends the run (last tick, Ctrl-C, an exception in a tick) the bag is closed with
+    every tick that finished, and is readable.
+    """
+    from haptic_teleop.bag import RunRecorder
+
+    engine = Engine(scene)
+    c = scene.config
+    rec = RunRecorder(
+        bag_dir,
+        scene.to_yaml(),
+        engine.period_ns,
+        c.recording.eba_internals,
+        c.recording.packets,
+        len(COLUMNS),
+        parallel=parallel,
+    )
+    t0 = time.perf_counter()
+    result: RunResult | None = None
+    try:
+        result = engine.run(progress=progress, handle_sigint=handle_sigint, on_block=rec.block)
+    finally:
+        done = getattr(engine, "ticks_done", 0)
+        info = {"ticks": done, "interrupted": done < engine.ticks, "failed": result is None}
+        rec.finish(
+            getattr(engine, "data", np.zeros((0, len(COLUMNS)))), done, engine.forward.log, engine.backward.log, info
+        )
+    wall = time.perf_counter() - t0
+    return engine, RunTiming(done * engine.period_s, result.loop_wall_s, wall, result.interrupted)
+
+
+def _wire_payload_bytes(floats: int) -> int:
+    """Serialized size (CDR) of the sensor_msgs/JointState that carries `floats` values of one axis."""
+    from haptic_teleop.bag import joint_state_size
+
+    return joint_state_size(floats)

@@ -1,0 +1,202 @@
+"""MuJoCo backends: the master haptic device and the slave robot touching a wall.
+
+`mujoco` is imported here, not at package import. Model files live in the package's `models/`
+folder (robot and scene in separate files, the scene includes the robot). Scene values (mass,
+damping, wall position, stiffness, damping) are written into the compiled model, so one MJCF
+serves every scene.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from haptic_teleop.errors import PlantError
+
+INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
+
+
+def models_dir() -> Path:
+    """The installed or source-tree `models/` folder."""
+    env = os.environ.get("HAPTIC_TELEOP_MODELS")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for cand in (here.parents[2] / "models", here.parents[1] / "models"):
+        if cand.is_dir():
+            return cand
+    try:  # installed with colcon / ament: share/haptic_teleop/models
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("haptic_teleop")) / "models"
+    except Exception:  # noqa: BLE001 - any failure means "not installed that way"
+        pass
+    return here.parents[2] / "models"
+
+
+def resolve_model(name: str) -> Path:
+    p = Path(name)
+    if p.is_absolute() or p.exists():
+        return p
+    cand = models_dir() / p.name
+    if cand.exists():
+        return cand
+    raise PlantError(f"model file {name!r} not found (looked in {models_dir()})")
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """Numerical settings shared by both MuJoCo plants."""
+
+    period_s: float = 0.001
+    substeps: int = 1
+    integrator: str = "implicitfast"
+    solver_iterations: int = 100
+    solver_tolerance: float = 1e-8
+
+
+def _load(path: Path, sim: SimSettings):  # type: ignore[no-untyped-def]
+    import mujoco
+
+    try:
+        model = mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as exc:
+        raise PlantError(f"cannot load MuJoCo model {path}: {exc}") from None
+    model.opt.timestep = sim.period_s / sim.substeps
+    model.opt.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{sim.integrator.upper()}")
+    model.opt.iterations = sim.solver_iterations
+    model.opt.tolerance = sim.solver_tolerance
+    return model, mujoco.MjData(model)
+
+
+class MujocoDevice:
+    """Master haptic device: one slide joint, hand motor and device motor on it.
+
+    The operator's arm mass moves with the handle, so it is added to the handle's mass.
+    """
+
+    axes = 1
+
+    def __init__(
+        self,
+        sim: SimSettings,
+        mass_kg: float,
+        damping_n_s_per_m: float,
+        force_limit_n: float,
+        hand_mass_kg: float = 0.0,
+        model: str = "master_device.xml",
+        start_position_m: float = 0.0,
+    ) -> None:
+        import mujoco
+
+        self._mj = mujoco
+        self.model, self.data = _load(resolve_model(model), sim)
+        m = self.model
+        body = m.body("handle").id
+        m.body_mass[body] = mass_kg + hand_mass_kg
+        m.dof_damping[m.joint("master_x").dofadr[0]] = damping_n_s_per_m
+        self._limit = force_limit_n
+        self._substeps = sim.substeps
+        self.data.qpos[0] = start_position_m
+        mujoco.mj_forward(m, self.data)
+        self._qpos = self.data.qpos
+        self._qvel = self.data.qvel
+        self._ctrl = self.data.ctrl
+
+    def read(self) -> tuple[list[float], list[float]]:
+        return [float(self._qpos[0])], [float(self._qvel[0])]
+
+    def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
+        f = actuator_force_n[0]
+        lim = self._limit
+        if not -lim <= f <= lim:  # also catches NaN
+            f = 0.0 if math.isnan(f) else math.copysign(lim, f)
+        self._ctrl[0] = external_force_n[0] if external_force_n is not None else 0.0
+        self._ctrl[1] = f
+        step = self._mj.mj_step
+        for _ in range(self._substeps):
+            step(self.model, self.data)
+        return [f]
+
+    def contact_force(self) -> list[float]:
+        return [0.0]
+
+    def close(self) -> None:
+        self._ctrl[:] = 0.0
+
+
+class MujocoWallRobot:
+    """Slave robot end effector and a wall at `wall_position_m` (tip coordinate at first contact).
+
+    Wall stiffness K (N/m) and damping B (N s/m) are realised exactly by MuJoCo's soft contact with
+    constant impedance d: solref = (-k d^2, -b d) with k = K (1-d) / (d^2 m), b = B (1-d) / (d m),
+    m the end effector's mass (derivation and check in docs/plants.md). The force is MuJoCo's
+    constraint force on the joint, not recomputed by hand.
+    """
+
+    axes = 1
+
+    def __init__(
+        self,
+        sim: SimSettings,
+        mass_kg: float,
+        damping_n_s_per_m: float,
+        force_limit_n: float,
+        wall_position_m: float,
+        wall_stiffness_n_per_m: float,
+        wall_damping_n_s_per_m: float,
+        contact_impedance: float = 0.1,
+        model: str = "wall_scene.xml",
+        start_position_m: float = 0.0,
+    ) -> None:
+        import mujoco
+
+        self._mj = mujoco
+        self.model, self.data = _load(resolve_model(model), sim)
+        m = self.model
+        m.body_mass[m.body("end_effector").id] = mass_kg
+        m.dof_damping[m.joint("slave_x").dofadr[0]] = damping_n_s_per_m
+        tip = m.geom("tip").id
+        wall = m.geom("wall").id
+        m.geom_pos[wall][0] = wall_position_m + m.geom_size[tip][0] + m.geom_size[wall][0]
+        d = contact_impedance
+        k = wall_stiffness_n_per_m * (1.0 - d) / (d * d * mass_kg)
+        b = wall_damping_n_s_per_m * (1.0 - d) / (d * mass_kg)
+        pair = m.pair("tip_wall").id
+        m.pair_solref[pair] = [-k * d * d, -b * d]
+        m.pair_solimp[pair] = [d, d, 0.001, 0.5, 2.0]
+        self._limit = force_limit_n
+        self._substeps = sim.substeps
+        self.data.qpos[0] = start_position_m
+        mujoco.mj_forward(m, self.data)
+        self._qpos = self.data.qpos
+        self._qvel = self.data.qvel
+        self._ctrl = self.data.ctrl
+        self._qfrc = self.data.qfrc_constraint
+        self._contact = 0.0
+
+    def read(self) -> tuple[list[float], list[float]]:
+        return [float(self._qpos[0])], [float(self._qvel[0])]
+
+    def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
+        f = actuator_force_n[0]
+        lim = self._limit
+        if not -lim <= f <= lim:
+            f = 0.0 if math.isnan(f) else math.copysign(lim, f)
+        self._ctrl[0] = f
+        step = self._mj.mj_step
+        n = self._substeps
+        acc = 0.0
+        for _ in range(n):
+            step(self.model, self.data)
+            acc += self._qfrc[0]
+        self._contact = acc / n
+        return [f]
+
+    def contact_force(self) -> list[float]:
+        return [float(self._contact)]
+
+    def close(self) -> None:
+        self._ctrl[:] = 0.0

@@ -1,0 +1,50 @@
+"""Human-readable summary table of a run or a bag."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+ROWS = (
+    ("realtime_factor", "real-time factor (sim s / wall s)", "{:.1f}"),
+    ("force_rms_error_n", "force RMS error, felt vs wall, aligned (N)", "{:.4f}"),
+    ("force_peak_error_n", "force peak error, aligned (N)", "{:.4f}"),
+    ("force_rms_error_unaligned_n", "force RMS error, not aligned (N)", "{:.4f}"),
+    ("force_alignment_lag_s", "alignment lag (s)", "{:.3f}"),
+    ("position_rms_error_m", "position RMS error, slave vs master (m)", "{:.5f}"),
+    ("contact_force_max_n", "peak wall force (N)", "{:.3f}"),
+    ("packets_sent_forward", "packets sent forward", "{}"),
+    ("packets_lost_forward", "packets lost forward", "{}"),
+    ("packets_late_forward", "packets late forward", "{}"),
+    ("packets_sent_backward", "packets sent backward", "{}"),
+    ("packets_lost_backward", "packets lost backward", "{}"),
+    ("packets_late_backward", "packets late backward", "{}"),
+    ("loss_rate_forward", "loss rate forward", "{:.4f}"),
+    ("loss_rate_backward", "loss rate backward", "{:.4f}"),
+    ("delay_forward_p50_s", "network delay forward p50 (s)", "{:.4f}"),
+    ("delay_backward_p50_s", "network delay backward p50 (s)", "{:.4f}"),
+    ("buffering_delay_forward_mean_s", "buffering delay forward mean (s)", "{:.4f}"),
+    ("buffering_delay_backward_mean_s", "buffering delay backward mean (s)", "{:.4f}"),
+    ("wire_bits_per_s_forward", "bits/s on the wire forward", "{:.0f}"),
+    ("master_energy_margin_min_j", "master energy margin min (J)", "{:.4g}"),
+    ("slave_energy_margin_min_j", "slave energy margin min (J)", "{:.4g}"),
+)
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    lines = [
+        f"scene {summary.get('scene')}  seed {summary.get('seed')}  {summary.get('duration_s', 0):.3f} s"
+        + ("  (interrupted)" if summary.get("interrupted") else "")
+    ]
+    width = max(len(label) for _, label, _ in ROWS)
+    for key, label, fmt in ROWS:
+        if key not in summary:
+            continue
+        v = summary[key]
+        text = "n/a" if isinstance(v, float) and math.isnan(v) else fmt.format(v)
+        lines.append(f"  {label:<{width}}  {text}")
+    for side in ("master", "slave"):
+        v = summary.get(f"{side}_energy_margin_min_j")
+        if isinstance(v, float) and v < 0:
+            lines.append(f"  WARNING: the {side} port was not passive (margin {v:.4g} J < 0)")
+    return "\n".join(lines)

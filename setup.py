@@ -1,0 +1,60 @@
+"""ament_python package setup for haptic_teleop (works with colcon and with plain pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "haptic_teleop"
+
+STANDALONE = [
+    # rclpy and the standard message packages as PyPI wheels, for machines without a ROS 2 install.
+    "ros-kilted-rclpy[fastrtps]>=9.1",
+    "ros-kilted-std-msgs>=5.5",
+    "ros-kilted-geometry-msgs>=5.5",
+    "ros-kilted-sensor-msgs>=5.5",
+    "ros-kilted-rosgraph-msgs>=2.3",
+    "ros-kilted-diagnostic-msgs>=5.5",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*_launch.py")),
+        (f"share/{PACKAGE}/config/scenes", glob("config/scenes/*.yaml")),
+        (f"share/{PACKAGE}/models", glob("models/*.xml")),
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=1.24",
+        "pyyaml>=6.0",
+        "mujoco>=3.1",
+        "rosbags>=0.10.4",
+        "matplotlib>=3.7",
+        "tqdm>=4.64",
+    ],
+    extras_require={
+        "standalone": STANDALONE,
+        "test": [
+            "pytest>=8.0",
+            "hypothesis>=6.100",
+            "ruff>=0.17,<0.18",
+            "mypy>=1.10,<3",
+            "types-PyYAML>=6.0",
+        ],
+    },
+    zip_safe=True,
+    maintainer="haptic_teleop maintainers",
+    maintainer_email="haptic-teleop@example.org",
+    description="Bilateral haptic teleoperation over imperfect networks (EBA, network shaping, playout).",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "haptic-teleop = haptic_teleop.cli:main",
+        ],
+    },
+)

@@ -1,0 +1,126 @@
+"""Scene validation: every kind of config error names the file, key path, value and what is allowed."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.scene import find_scene, load_scene
+
+DEFAULT = find_scene("wall_contact")
+
+
+def _write(tmp_path: Path, data: object, name: str = "s.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(data) if not isinstance(data, str) else data)
+    return p
+
+
+def _base() -> dict:
+    return yaml.safe_load(DEFAULT.read_text())
+
+
+def test_default_scene_is_valid():
+    s = load_scene(DEFAULT)
+    assert s.config.scene.name == "wall_contact"
+    assert s.config.network.forward.effects.delay is not None
+
+
+@pytest.mark.parametrize(
+    ("mutate", "key", "allowed"),
+    [
+        (lambda d: d["slave"]["wall"].update(stiffnes_n_per_m=1.0), "slave.wall.stiffnes_n_per_m", "unknown key"),
+        (lambda d: d["master"].update(mass_kg="heavy"), "master.mass_kg", "a number"),
+        (lambda d: d["master"].update(mass_kg=-1.0), "master.mass_kg", "> 0.0"),
+        (lambda d: d["scene"].update(seed=1.5), "scene.seed", "an integer"),
+        (
+            lambda d: d["controllers"]["master"]["eba"].update(enabled="yes"),
+            "controllers.master.eba.enabled",
+            "true or false",
+        ),
+        (lambda d: d["operator"].update(profile="dance"), "operator.profile", "one of push"),
+        (lambda d: d["simulation"].update(integrator="rk45"), "simulation.integrator", "one of Euler"),
+        (lambda d: d["slave"]["wall"].update(stiffness_n_per_m=float("nan")), "slave.wall.stiffness_n_per_m", "finite"),
+        (lambda d: d["controllers"]["slave"].update(law="force"), "controllers", "contradiction"),
+        (
+            lambda d: d["controllers"]["master"].update(force_limit_n=100.0),
+            "<top level>",
+            "exceeds master.force_limit_n",
+        ),
+        (lambda d: d["slave"]["wall"].update(position_m=-0.5), "slave", "beyond start_position_m"),
+        (lambda d: d["operator"].update(trace_file="x.csv"), "operator", "only used with profile 'trace'"),
+        (lambda d: d.update(scene=[1, 2]), "scene", "a mapping"),
+    ],
+)
+def test_config_errors_name_key_and_allowed(tmp_path, mutate, key, allowed):
+    data = _base()
+    mutate(data)
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError) as exc:
+        load_scene(path)
+    msg = str(exc.value)
+    assert msg.startswith(str(path)), msg
+    assert f"{key} =" in msg or f": {key}" in msg, msg
+    assert allowed in msg, msg
+
+
+def test_bad_yaml_and_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_scene(_write(tmp_path, "scene: {name: [unclosed"))
+    with pytest.raises(ConfigError, match="existing scene YAML"):
+        load_scene(tmp_path / "nope.yaml")
+    with pytest.raises(ConfigError, match="a mapping of sections"):
+        load_scene(_write(tmp_path, "- 1\n- 2\n"))
+
+
+def test_overrides_and_seed():
+    s = load_scene(DEFAULT, overrides=["slave.wall.stiffness_n_per_m=1e5", "scene.name=other"], seed=7)
+    assert s.config.slave.wall.stiffness_n_per_m == 1e5
+    assert s.config.scene.name == "other"
+    assert s.config.scene.seed == 7
+    with pytest.raises(ConfigError, match=r"KEY\.PATH=VALUE"):
+        load_scene(DEFAULT, overrides=["slave.wall"])
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_scene(DEFAULT, overrides=["slave.wal.position_m=0.1"])
+    with pytest.raises(ConfigError, match="is a value, not a section"):
+        load_scene(DEFAULT, overrides=["scene.name.first=1"])
+
+
+def test_trace_file_errors(tmp_path):
+    data = _base()
+    data["operator"] = {"profile": "trace", "trace_file": "trace.csv"}
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError, match="existing CSV"):
+        load_scene(path)
+    (tmp_path / "trace.csv").write_text("time_s,position_m\n0,0\n1,abc\n")
+    with pytest.raises(ConfigError, match=r"trace\.csv:3"):
+        load_scene(path)
+    (tmp_path / "trace.csv").write_text("time_s,position_m\n0,0\n1,0.01\n2,0.02\n")
+    s = load_scene(path)
+    assert s.operator_trace == ((0.0, 1.0, 2.0), (0.0, 0.01, 0.02))
+
+
+def test_cli_config_error_exit_code_2(tmp_path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "haptic_teleop.cli",
+            "run",
+            str(DEFAULT),
+            "--out",
+            str(tmp_path / "o"),
+            "--set",
+            "master.damping_n_s_per_m=-3",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2
+    assert "master.damping_n_s_per_m = -3" in r.stderr
+    assert "allowed" in r.stderr
+    assert not (tmp_path / "o").exists()
