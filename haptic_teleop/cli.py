@@ -112,9 +112,19 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "live":
+        from haptic_teleop import live_bench
+
+        return live_bench.main(args)
     from haptic_teleop import bench
 
     return bench.main(args)
+
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    from haptic_teleop.launcher import launch_main
+
+    return launch_main(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -139,13 +149,20 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that print figures")
     b.add_argument(
         "what",
-        choices=("speed",),
-        help="speed: real-time factor and cost per tick vs bare mj_step",
+        choices=("speed", "live"),
+        help="speed: real-time factor and cost per tick vs bare mj_step; live: loop rate, jitter, "
+        "relay hop vs bare DDS hop, CPU per node",
     )
     b.add_argument("--scene", default="wall_contact")
     b.add_argument("--repeat", type=int, default=3)
+    b.add_argument("--duration", type=float, default=10.0, help="live: seconds of measurement")
     b.set_defaults(func=cmd_bench)
 
+    from haptic_teleop.launcher import add_arguments as add_launch_arguments
+
+    la = sub.add_parser("launch", help="run a scene live: ROS 2 nodes as processes over DDS")
+    add_launch_arguments(la)
+    la.set_defaults(func=cmd_launch)
     return p
 
 

@@ -1,0 +1,477 @@
+"""`haptic-teleop launch`: the live node set of a scene, each node its own OS process.
+
+The plan (which nodes, their names, executables and parameters) comes from the scene file alone
+(`node_plan`), and parameter files are written as ROS 2 expects them (`node: ros__parameters:`,
+doubles with a decimal point), so `ros2 launch haptic_teleop teleop_launch.py` builds the very
+same processes from the same plan. No ROS 2 install is needed here: each node is started as
+`python -m haptic_teleop.nodes.X --ros-args -r __node:=NAME --params-file FILE`.
+
+Supervision: every output line is prefixed with the node name; SIGINT and SIGTERM are forwarded
+(nodes first, the recorder last so the bag holds everything); a node that exits 0 by itself (the
+operator source, after the scene's duration) ends the run; the first node that exits non-zero is
+a crash: the others get the watchdog bound to reach their safe state, then are stopped, and the
+launcher exits 1.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from haptic_teleop.nodes import EXECUTABLES, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.scene import LoadedScene
+
+SIDES = ("all", "master", "slave")
+# Which side of a two-host setup each node belongs to: relays sit on the sending side, sync
+# buffers on the receiving side.
+MASTER_SIDE = ("operator_source", "master_eba", "forward_relay", "backward_buffer", "recorder")
+SLAVE_SIDE = ("slave_eba", "backward_relay", "forward_buffer")
+STOP_TIMEOUT_S = 10.0
+RECORDER_STOP_TIMEOUT_S = 60.0
+EXIT_OK = 0
+EXIT_FAILURE = 1
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One process of the live node set."""
+
+    name: str  # ROS node name
+    executable: str  # console script in lib/haptic_teleop, and key of EXECUTABLES
+    params: Mapping[str, Any]  # nested, as under ros__parameters
+    remaps: tuple[tuple[str, str], ...] = ()  # topic remappings (from, to)
+
+    @property
+    def module(self) -> str:
+        return EXECUTABLES[self.executable]
+
+
+def local_discovery_env(env: Mapping[str, str] | None = None) -> dict[str, str]:
+    """`env` (default os.environ) with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless already set."""
+    out = dict(os.environ if env is None else env)
+    out.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return out
+
+
+def _section(config: Any, path: str) -> Any:
+    obj = config
+    for part in [p for p in path.split(".") if p]:
+        obj = getattr(obj, part)
+    return obj
+
+
+def _nest(path: str, value: Any) -> dict[str, Any]:
+    out: Any = value
+    for part in reversed([p for p in path.split(".") if p]):
+        out = {part: out}
+    return out
+
+
+def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> dict[str, Any]:
+    for k, v in other.items():
+        if isinstance(v, Mapping) and isinstance(into.get(k), dict):
+            _merge(into[k], v)
+        else:
+            into[k] = dict(v) if isinstance(v, Mapping) else v
+    return into
+
+
+def _drop_none(d: Any) -> Any:
+    if isinstance(d, Mapping):
+        return {k: _drop_none(v) for k, v in d.items() if v is not None and v not in ((), [])}
+    return d
+
+
+def scene_params(scene: LoadedScene, executable: str, direction: str | None = None) -> dict[str, Any]:
+    """The scene sections `executable` reads, as nested parameters (every leaf explicit)."""
+    params: dict[str, Any] = {}
+    for template in SCENE_SECTIONS[executable]:
+        path = template.format(direction=direction)
+        obj = _section(scene.config, path)
+        if path.endswith(".effects"):
+            from haptic_teleop.core.network import resolve_trace_paths
+
+            obj = resolve_trace_paths(obj, Path(scene.source).parent)  # nodes run elsewhere
+        section = dataclasses.asdict(obj)
+        _merge(params, _nest(path, section) if path else section)
+    params = _drop_none(params)
+    op = params.get("operator")
+    if op is not None and op.get("trace_file"):
+        tp = Path(op["trace_file"])
+        if not tp.is_absolute():  # relative to the scene file, as load_scene reads it
+            op["trace_file"] = str((Path(scene.source).parent / tp).resolve())
+    return params
+
+
+def node_plan(
+    scene: LoadedScene,
+    record_dir: str | Path | None = None,
+    side: str = "all",
+    device: str = "plant",
+    watchdog_timeout_s: float = WATCHDOG_TIMEOUT_S,
+    watchdog_fade_s: float = WATCHDOG_FADE_S,
+) -> list[NodeSpec]:
+    """The node set of a scene. `device="topic"` is the hardware variant: the master reads a haptic
+    device driver's topics and there is no simulated operator."""
+    if side not in SIDES:
+        raise ValueError(f"side must be one of {SIDES}, got {side!r}")
+    watchdog = {"watchdog": {"timeout_s": float(watchdog_timeout_s), "fade_s": float(watchdog_fade_s)}}
+    plan: list[NodeSpec] = []
+    if device == "plant":
+        start = {"start": {"min_subscribers": 2 if record_dir is not None else 1}}
+        plan.append(
+            NodeSpec("operator_source", "operator_source", _merge(scene_params(scene, "operator_source"), start))
+        )
+    master = _merge(scene_params(scene, "master_eba"), watchdog)
+    master["device"] = {"source": device}
+    plan.append(NodeSpec("master_eba", "master_eba", master))
+    plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
+    for d in ("forward", "backward"):
+        plan.append(
+            NodeSpec(f"{d}_relay", "network_relay", {"direction": d, **scene_params(scene, "network_relay", d)})
+        )
+        plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", {"direction": d, **scene_params(scene, "sync_buffer", d)}))
+    if record_dir is not None:
+        plan.append(
+            NodeSpec(
+                "recorder",
+                "recorder",
+                {**scene_params(scene, "recorder"), "output_dir": str(Path(record_dir).resolve())},
+            )
+        )
+    if side != "all":
+        keep = MASTER_SIDE if side == "master" else SLAVE_SIDE
+        plan = [s for s in plan if s.name in keep]
+    return plan
+
+
+# ---------------------------------------------------------------------------------------------
+# Parameter files.
+
+
+def format_double(x: float) -> str:
+    """A YAML double that ROS 2 reads as a double: always with a decimal point (`1.0`, `1.0e-08`)."""
+    if not math.isfinite(x):
+        raise ValueError(f"parameters must be finite, got {x}")
+    r = repr(float(x))
+    if "e" in r:
+        mant, _, exp = r.partition("e")
+        if "." not in mant:
+            mant += ".0"
+        return f"{mant}e{exp}"
+    return r if "." in r else r + ".0"
+
+
+def _scalar(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return format_double(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a double-quoted YAML string
+    raise TypeError(f"unsupported parameter value {v!r}")
+
+
+def _emit(d: Mapping[str, Any], indent: int, lines: list[str]) -> None:
+    pad = "  " * indent
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            if not v:
+                continue
+            lines.append(f"{pad}{k}:")
+            _emit(v, indent + 1, lines)
+        elif isinstance(v, (list, tuple)):
+            if v:
+                lines.append(f"{pad}{k}: [{', '.join(_scalar(x) for x in v)}]")
+        elif v is not None:
+            lines.append(f"{pad}{k}: {_scalar(v)}")
+
+
+def params_yaml(spec: NodeSpec) -> str:
+    lines = [f"{spec.name}:", "  ros__parameters:"]
+    _emit(spec.params, 2, lines)
+    return "\n".join(lines) + "\n"
+
+
+def write_params_files(plan: Sequence[NodeSpec], directory: str | Path) -> dict[str, Path]:
+    """One `NAME.yaml` per node; returns name -> path."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for spec in plan:
+        p = d / f"{spec.name}.yaml"
+        p.write_text(params_yaml(spec))
+        out[spec.name] = p
+    return out
+
+
+def node_command(spec: NodeSpec, params_file: Path, python: str = sys.executable) -> list[str]:
+    cmd = [python, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}", "--params-file", str(params_file)]
+    for a, b in spec.remaps:
+        cmd += ["-r", f"{a}:={b}"]
+    return cmd
+
+
+# ---------------------------------------------------------------------------------------------
+# Processes.
+
+
+@dataclass
+class Child:
+    spec: NodeSpec
+    proc: subprocess.Popen[bytes]
+    pump: threading.Thread
+    stopped_by_us: bool = False
+    returncode: int | None = None
+    cpu_s: float = 0.0
+
+
+@dataclass
+class LaunchResult:
+    exit_code: int
+    reason: str  # finished | interrupted | crashed | timeout
+    codes: dict[str, int] = field(default_factory=dict)
+    crashed: str | None = None
+
+
+class Launcher:
+    """Starts the plan as processes and supervises them (see module docstring)."""
+
+    def __init__(
+        self,
+        plan: Sequence[NodeSpec],
+        params_dir: str | Path,
+        env: Mapping[str, str] | None = None,
+        out: IO[str] | None = None,
+        crash_grace_s: float = WATCHDOG_TIMEOUT_S + WATCHDOG_FADE_S + 0.5,
+        timeout_s: float | None = None,
+    ) -> None:
+        self.plan = list(plan)
+        self.files = write_params_files(self.plan, params_dir)
+        self.env = local_discovery_env(env)
+        self.env["PYTHONUNBUFFERED"] = "1"
+        self.out = out or sys.stdout
+        self.crash_grace_s = crash_grace_s
+        self.timeout_s = timeout_s
+        self.children: list[Child] = []
+        self._write_lock = threading.Lock()
+        self._interrupt = threading.Event()
+
+    def log(self, text: str) -> None:
+        self._line("launcher", text)
+
+    def _line(self, name: str, text: str) -> None:
+        with self._write_lock:
+            self.out.write(f"[{name}] {text}\n")
+            self.out.flush()
+
+    def _pump(self, name: str, stream: IO[bytes]) -> None:
+        for raw in iter(stream.readline, b""):
+            self._line(name, raw.decode(errors="replace").rstrip("\n"))
+        stream.close()
+
+    def start(self) -> None:
+        for spec in self.plan:
+            cmd = node_command(spec, self.files[spec.name])
+            proc = subprocess.Popen(
+                cmd,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=self.env,
+                start_new_session=True,  # Ctrl-C reaches the launcher, which forwards it in order
+            )
+            assert proc.stdout is not None
+            pump = threading.Thread(target=self._pump, args=(spec.name, proc.stdout), daemon=True)
+            pump.start()
+            self.children.append(Child(spec, proc, pump))
+            self.log(f"started {spec.name} ({spec.executable}) pid {proc.pid}")
+
+    def pids(self) -> dict[str, int]:
+        return {c.spec.name: c.proc.pid for c in self.children}
+
+    def interrupt(self) -> None:
+        """Ask for a clean stop (what SIGINT/SIGTERM to the launcher do)."""
+        self._interrupt.set()
+
+    def _poll(self) -> None:
+        for c in self.children:
+            if c.returncode is None:
+                rc = c.proc.poll()
+                if rc is not None:
+                    c.returncode = rc
+
+    def supervise(self) -> LaunchResult:
+        t0 = time.monotonic()
+        reason = ""
+        crashed: Child | None = None
+        while True:
+            self._poll()
+            if self._interrupt.is_set():
+                reason = "interrupted"
+                self.log("interrupt: stopping every node")
+                break
+            done = [c for c in self.children if c.returncode is not None]
+            bad = [c for c in done if c.returncode != 0]
+            if bad:
+                crashed = bad[0]
+                reason = "crashed"
+                self.log(
+                    f"{crashed.spec.name} exited with code {crashed.returncode}; stopping the rest in "
+                    f"{self.crash_grace_s:.2f} s (watchdog bound)"
+                )
+                end = time.monotonic() + self.crash_grace_s
+                while time.monotonic() < end and not self._interrupt.is_set():
+                    time.sleep(0.02)
+                break
+            if done:
+                reason = "finished"
+                self.log(f"{done[0].spec.name} finished; stopping the rest")
+                break
+            if self.timeout_s is not None and time.monotonic() - t0 > self.timeout_s:
+                reason = "timeout"
+                self.log(f"no node finished within {self.timeout_s:.0f} s; stopping every node")
+                break
+            time.sleep(0.02)
+        self.stop()
+        codes = {c.spec.name: int(c.returncode if c.returncode is not None else -1) for c in self.children}
+        for name, code in codes.items():
+            self.log(f"{name} exited {code}")
+        ok = reason in ("finished", "interrupted") and all(v == 0 for v in codes.values())
+        return LaunchResult(EXIT_OK if ok else EXIT_FAILURE, reason, codes, crashed.spec.name if crashed else None)
+
+    def _stop_group(self, group: list[Child], timeout_s: float) -> None:
+        for c in group:
+            if c.returncode is None and c.proc.poll() is None:
+                c.stopped_by_us = True
+                with contextlib.suppress(ProcessLookupError):
+                    c.proc.send_signal(signal.SIGINT)
+        end = time.monotonic() + timeout_s
+        for c in group:
+            try:
+                c.proc.wait(max(0.0, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.log(f"{c.spec.name} did not stop within {timeout_s:.0f} s; killing it")
+                c.proc.kill()
+                c.proc.wait()
+            c.returncode = c.proc.returncode
+
+    def stop(self) -> None:
+        """SIGINT to every node but the recorder, wait; then the recorder (it writes the bag)."""
+        nodes = [c for c in self.children if c.spec.executable != "recorder"]
+        recorders = [c for c in self.children if c.spec.executable == "recorder"]
+        self._stop_group(nodes, STOP_TIMEOUT_S)
+        self._stop_group(recorders, RECORDER_STOP_TIMEOUT_S)
+        for c in self.children:
+            c.pump.join(2.0)
+
+    def run(self) -> LaunchResult:
+        """start + supervise, with SIGINT/SIGTERM to this process forwarded as a clean stop."""
+        previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                previous[sig] = signal.signal(sig, lambda s, f: self.interrupt())
+        try:
+            self.start()
+            return self.supervise()
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
+# ---------------------------------------------------------------------------------------------
+# Single process.
+
+
+def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path) -> int:
+    """Every node of the plan in this process, one MultiThreadedExecutor (recorder closed last)."""
+    import importlib
+
+    from haptic_teleop.nodes.common import run_nodes
+
+    files = write_params_files(plan, params_dir)
+    ordered = sorted(plan, key=lambda s: s.executable == "recorder")
+    factories = []
+    node_args = []
+    for spec in ordered:
+        module = importlib.import_module(spec.module)
+        cls = next(
+            v
+            for v in vars(module).values()
+            if isinstance(v, type) and getattr(v, "__module__", "") == spec.module and hasattr(v, "default_name")
+        )
+        factories.append(cls)
+        node_args.append(
+            {
+                "node_name": spec.name,
+                "cli_args": ["--ros-args", "--params-file", str(files[spec.name])],
+                "use_global_arguments": False,
+            }
+        )
+    return run_nodes(factories, node_args, args=[], multithreaded=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Command line.
+
+
+def launch_main(args: Any) -> int:
+    """`haptic-teleop launch` (argparse namespace from cli.py)."""
+    from haptic_teleop.errors import HapticTeleopError
+    from haptic_teleop.scene import find_scene, load_scene
+
+    overrides = list(args.set or ())
+    if args.duration is not None:
+        overrides.append(f"scene.duration_s={float(args.duration)}")
+    scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
+    record = Path(args.record) if args.record else None
+    if record is not None and (record / "bag").exists():
+        raise HapticTeleopError(f"{record / 'bag'} exists already; choose a new --record directory")
+    plan = node_plan(scene, record_dir=record, side=args.side)
+    params_dir = Path(args.params_dir) if args.params_dir else Path(tempfile.mkdtemp(prefix="haptic_teleop_params_"))
+    if args.single_process:
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        code = run_single_process(plan, params_dir)
+    else:
+        # Discovery, the operator's settling delay and the scene itself; then give up.
+        timeout = scene.config.scene.duration_s + 60.0 if args.side != "slave" else None
+        result = Launcher(plan, params_dir, timeout_s=timeout).run()
+        code = result.exit_code
+    if record is not None and (record / "bag").exists():
+        from haptic_teleop.cli import write_outputs
+        from haptic_teleop.report import format_summary
+
+        summary = write_outputs(record / "bag", record, plots=not args.no_plots)
+        print(format_summary(summary))
+        print(f"\nbag:     {record / 'bag'}\nsummary: {record / 'summary.json'}")
+    elif record is not None:
+        print(f"haptic-teleop: no bag was written to {record / 'bag'}", file=sys.stderr)
+        code = code or EXIT_FAILURE
+    return code
+
+
+def add_arguments(p: Any) -> None:
+    p.add_argument("scene", help="scene YAML path, or a bundled scene name (e.g. wall_contact)")
+    p.add_argument("--duration", type=float, metavar="S", help="seconds of scene time to run (scene.duration_s)")
+    p.add_argument("--record", metavar="DIR", help="record a bag to DIR/bag, then write DIR/summary.json")
+    p.add_argument("--single-process", action="store_true", help="all nodes in this process (MultiThreadedExecutor)")
+    p.add_argument("--side", choices=SIDES, default="all", help="two hosts: the nodes of one side only")
+    p.add_argument("--seed", type=int, help="override scene.seed")
+    p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")
+    p.add_argument("--params-dir", help="where the parameter files go (default: a temporary directory)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots of the recorded run")

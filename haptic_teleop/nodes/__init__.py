@@ -1,0 +1,30 @@
+"""Live mode: thin rclpy shells around the core objects (see docs/live.md).
+
+The node modules import rclpy; this file does not, so the launcher and the ROS 2 launch files can
+read the node table below without ROS 2 being importable.
+"""
+
+# Executable (console script, also the default node name) -> module with `main()`.
+EXECUTABLES = {
+    "master_eba": "haptic_teleop.nodes.master_eba",
+    "slave_eba": "haptic_teleop.nodes.slave_eba",
+    "network_relay": "haptic_teleop.nodes.network_relay",
+    "sync_buffer": "haptic_teleop.nodes.sync_buffer",
+    "operator_source": "haptic_teleop.nodes.operator_source",
+    "recorder": "haptic_teleop.nodes.recorder",
+}
+
+# The scene sections each executable reads as parameters ("" is the whole scene; {direction}
+# is the node's `direction` parameter).
+SCENE_SECTIONS = {
+    "master_eba": ("scene", "operator", "master", "simulation", "controllers.master"),
+    "slave_eba": ("scene", "slave", "simulation", "controllers.slave"),
+    "network_relay": ("scene", "network.{direction}.effects"),
+    "sync_buffer": ("scene", "network.{direction}.buffer"),
+    "operator_source": ("scene", "operator"),
+    "recorder": ("",),
+}
+
+# Watchdog defaults (docs/live.md): remote data older than this starts a fade to zero force.
+WATCHDOG_TIMEOUT_S = 0.1
+WATCHDOG_FADE_S = 0.05

@@ -1,0 +1,926 @@
+"""Plumbing shared by the live nodes: QoS, parameters from the scene schema, the 1 kHz loop thread,
+the remote-data watchdog, message helpers, diagnostics and the process entry point.
+
+Nothing here computes teleoperation: the nodes wire the core objects (controllers, links,
+buffers, operator, plants) exactly as the engine does, and this module only carries time,
+messages and parameters to and from them.
+"""
+
+from __future__ import annotations
+
+import array
+import ctypes
+import dataclasses
+import math
+import os
+import signal
+import sys
+import threading
+import time
+import types
+import typing
+from collections.abc import Callable, Sequence
+from typing import Any, Union, get_args, get_origin
+
+from haptic_teleop.errors import ConfigError, HapticTeleopError
+
+# ---------------------------------------------------------------------------------------------
+# Environment: DDS stays on this host unless the user chose otherwise.
+
+
+def ensure_local_discovery() -> None:
+    """Nodes started by hand keep DDS on this host too, unless the user chose a range."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+# ---------------------------------------------------------------------------------------------
+# Topics. Names match haptic_teleop.bag where the meaning is the same.
+
+OPERATOR_STATE = "/operator/joint_states"
+MASTER_STATE = "/master/joint_states"
+SLAVE_STATE = "/slave/joint_states"
+SLAVE_CONTACT = "/slave/contact_wrench"
+MASTER_EBA = "/master/eba"
+SLAVE_EBA = "/slave/eba"
+DIAGNOSTICS = "/diagnostics"
+DIRECTIONS = ("forward", "backward")
+EBA_LABELS = ("reservoir_j", "force_desired_n")
+# Joint names and frame: the recorder decodes raw bytes with bag.py's fixed layouts, which
+# were made with exactly these strings.
+OPERATOR_JOINT = "operator_x"
+MASTER_JOINT = "master_x"
+SLAVE_JOINT = "slave_x"
+WALL_FRAME = "wall"
+
+
+def sent_topic(direction: str) -> str:
+    return f"/{direction}/sent"
+
+
+def delivered_topic(direction: str) -> str:
+    """Relay -> sync buffer: what the network delivered, in arrival order."""
+    return f"/{direction}/delivered"
+
+
+def received_topic(direction: str) -> str:
+    """Sync buffer -> controller: the sample released for this tick (as in the bag)."""
+    return f"/{direction}/received"
+
+
+READER_DEPTH = 50  # local history of readers that must not drop samples while busy
+
+
+def packets_topic(direction: str) -> str:
+    return f"/{direction}/packets"
+
+
+# A direction's payload, in the order the core controllers expect (TeleopController docstring),
+# and where each value sits in the sensor_msgs/JointState that carries it.
+PAYLOAD_FIELDS = {
+    "forward": ("position", "velocity"),  # master -> slave: (x_m, v_m)
+    "backward": ("effort", "position", "velocity"),  # slave -> master: (f_env, x_s, v_s)
+}
+DIRECTION_JOINT = {"forward": MASTER_JOINT, "backward": SLAVE_JOINT}
+
+
+def stream_qos(depth: int = 1) -> Any:
+    """1 kHz streams: best effort, keep last, depth 1, volatile (DESIGN.md section 4).
+
+    A reader that must see every sample rather than the newest (relay, sync buffer, recorder)
+    keeps a deeper local history: still compatible with depth-1 writers.
+    """
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def reliable_qos(depth: int = 100) -> Any:
+    """Commands and batched logs: reliable, keep last `depth`, volatile."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Parameters: the scene schema (haptic_teleop.scene) is the one source of names, types, ranges.
+
+LOOP_PRIORITY_PARAM = "loop.realtime_priority"
+DEFAULT_REALTIME_PRIORITY = 40
+_INT64_MIN = -(2**63)
+_INT64_MAX = 2**63 - 1
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamSpec:
+    """One scene leaf as a ROS parameter."""
+
+    name: str  # dotted key path, e.g. controllers.master.stiffness_n_per_m
+    kind: type  # bool, int, float, str, or tuple (array)
+    inner: type | None  # element type of an array
+    metadata: typing.Mapping[str, Any]
+    default: Any
+
+
+def _unwrap_optional(tp: Any) -> Any:
+    if get_origin(tp) in (Union, types.UnionType):
+        args = [a for a in get_args(tp) if a is not type(None)]
+        return args[0]
+    return tp
+
+
+def section_type(path: str) -> type:
+    """The config dataclass at a dotted path of the scene (`""` is the whole scene)."""
+    from haptic_teleop.scene import Scene
+
+    cls: Any = Scene
+    for part in [p for p in path.split(".") if p]:
+        hints = typing.get_type_hints(cls)
+        if part not in hints:
+            raise KeyError(f"{path}: no section {part!r} in {cls.__name__}")
+        cls = _unwrap_optional(hints[part])
+        if not dataclasses.is_dataclass(cls):
+            raise KeyError(f"{path}: {part!r} is a value, not a section")
+    return typing.cast(type, cls)
+
+
+def scene_param_specs(path: str) -> list[ParamSpec]:
+    """Every leaf below the scene section at `path`, as parameter specs."""
+    out: list[ParamSpec] = []
+
+    def walk(cls: Any, prefix: str) -> None:
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            name = f"{prefix}.{f.name}" if prefix else f.name
+            tp = _unwrap_optional(hints[f.name])
+            if dataclasses.is_dataclass(tp):
+                walk(tp, name)
+                continue
+            inner = None
+            kind = tp
+            if get_origin(tp) is tuple:
+                kind, inner = tuple, get_args(tp)[0]
+            default = f.default if f.default is not dataclasses.MISSING else None
+            out.append(ParamSpec(name, kind, inner, f.metadata, default))
+
+    walk(section_type(path), path)
+    return out
+
+
+def _descriptor(spec: ParamSpec) -> Any:
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    meta = spec.metadata
+    lo = meta.get("min", meta.get("gt"))
+    hi = meta.get("max", meta.get("lt"))
+    parts = [str(meta.get("help", ""))]
+    if meta.get("gt") is not None:
+        parts.append(f"> {meta['gt']}")
+    if meta.get("lt") is not None:
+        parts.append(f"< {meta['lt']}")
+    d = ParameterDescriptor(description="; ".join(p for p in parts if p))
+    if meta.get("choices"):
+        d.additional_constraints = "one of: " + ", ".join(map(str, meta["choices"]))
+    element = spec.inner if spec.kind is tuple else spec.kind
+    if element is float and (lo is not None or hi is not None):
+        d.floating_point_range = [
+            FloatingPointRange(
+                from_value=float(lo) if lo is not None else -math.inf,
+                to_value=float(hi) if hi is not None else math.inf,
+                step=0.0,
+            )
+        ]
+    elif element is int and spec.kind is int and (lo is not None or hi is not None):
+        d.integer_range = [
+            IntegerRange(
+                from_value=int(lo) if lo is not None else _INT64_MIN,
+                to_value=int(hi) if hi is not None else _INT64_MAX,
+                step=0,
+            )
+        ]
+    return d
+
+
+def _param_type(spec: ParamSpec) -> Any:
+    from rclpy.parameter import Parameter
+
+    element = spec.inner if spec.kind is tuple else spec.kind
+    if spec.kind is tuple:
+        return {
+            float: Parameter.Type.DOUBLE_ARRAY,
+            int: Parameter.Type.INTEGER_ARRAY,
+            str: Parameter.Type.STRING_ARRAY,
+        }[typing.cast(type, element)]
+    return {
+        bool: Parameter.Type.BOOL,
+        int: Parameter.Type.INTEGER,
+        float: Parameter.Type.DOUBLE,
+        str: Parameter.Type.STRING,
+    }[typing.cast(type, element)]
+
+
+def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str] = ()) -> Any:
+    """Declare every leaf of `sections` (dotted scene paths) as a typed parameter with its range,
+    read those that are set, and validate them as a scene.
+
+    Returns the validated `haptic_teleop.scene.Scene` (sections not declared keep their defaults).
+    ROS rejects a wrong type or an out-of-range value at declaration; the schema then checks what
+    ROS cannot (exclusive bounds, choices, cross-field contradictions). Every error names the
+    parameter. Parameters in the file that no section or `extra_names` declares are errors too.
+    """
+    from haptic_teleop.scene import Scene
+    from haptic_teleop.schema import build
+
+    raw: dict[str, Any] = {}
+    declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM}
+    for section in sections:
+        for spec in scene_param_specs(section):
+            declared.add(spec.name)
+            p = node.declare_parameter(spec.name, _param_type(spec), _descriptor(spec))
+            if int(p.type_) == 0:  # NOT_SET: not in the parameter file, the schema default applies
+                continue
+            value = p.value
+            if spec.kind is tuple:
+                value = list(value)
+            cur = raw
+            parts = spec.name.split(".")
+            for part in parts[:-1]:
+                cur = cur.setdefault(part, {})
+            cur[parts[-1]] = value
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps the file's values here
+    unknown = sorted(
+        n for n in overrides if n not in declared and n != "use_sim_time" and not n.startswith("qos_overrides.")
+    )
+    if unknown:
+        raise ConfigError(
+            f"parameters of node {node.get_name()}",
+            unknown[0],
+            overrides[unknown[0]].value,
+            "unknown parameter for this node; it reads " + ", ".join(sections),
+        )
+    return build(Scene, raw, "", f"parameters of node {node.get_name()}")
+
+
+def declare_value(
+    node: Any,
+    name: str,
+    default: Any,
+    description: str,
+    lo: float | None = None,
+    hi: float | None = None,
+    choices: Sequence[str] | None = None,
+) -> Any:
+    """Declare one node-specific parameter with a descriptor (range or choices) and return its value."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    d = ParameterDescriptor(description=description)
+    if isinstance(default, float) and (lo is not None or hi is not None):
+        d.floating_point_range = [
+            FloatingPointRange(
+                from_value=-math.inf if lo is None else float(lo),
+                to_value=math.inf if hi is None else float(hi),
+                step=0.0,
+            )
+        ]
+    elif isinstance(default, int) and not isinstance(default, bool) and (lo is not None or hi is not None):
+        d.integer_range = [
+            IntegerRange(
+                from_value=_INT64_MIN if lo is None else int(lo), to_value=_INT64_MAX if hi is None else int(hi), step=0
+            )
+        ]
+    if choices:
+        d.additional_constraints = "one of: " + ", ".join(choices)
+    value = node.declare_parameter(name, default, d).value
+    if choices and value not in choices:
+        raise ConfigError(f"parameters of node {node.get_name()}", name, value, "allowed: one of " + ", ".join(choices))
+    return value
+
+
+# ---------------------------------------------------------------------------------------------
+# Watchdog on remote data (pure: time is passed in).
+
+
+class Watchdog:
+    """Age of the newest remote arrival -> a gain in [0, 1] that fades force out and back in.
+
+    While the last arrival is at most `timeout_ns` old the gain rises by period/fade per tick up
+    to 1; once it is older the gain falls by the same step down to 0. So the force is zero at
+    most timeout + fade + one period after the last arrival (the bound in docs/live.md), and it
+    comes back over `fade_ns` when data returns. Before the first arrival the gain is 0.
+    """
+
+    __slots__ = ("_fresh", "_step", "fade_ns", "gain", "last_arrival_ns", "timeout_ns", "trips")
+
+    def __init__(self, timeout_ns: int, fade_ns: int, period_ns: int) -> None:
+        if timeout_ns <= 0 or fade_ns < 0 or period_ns <= 0:
+            raise ValueError("watchdog needs timeout_ns > 0, fade_ns >= 0, period_ns > 0")
+        self.timeout_ns = timeout_ns
+        self.fade_ns = fade_ns
+        self._step = 1.0 if fade_ns == 0 else min(1.0, period_ns / fade_ns)
+        self.gain = 0.0
+        self.last_arrival_ns: int | None = None
+        self.trips = 0  # fresh -> stale transitions
+        self._fresh = False
+
+    def feed(self, arrival_ns: int) -> None:
+        self.last_arrival_ns = arrival_ns
+
+    def update(self, now_ns: int) -> float:
+        last = self.last_arrival_ns
+        fresh = last is not None and now_ns - last <= self.timeout_ns
+        if fresh:
+            g = self.gain + self._step
+            self.gain = 1.0 if g > 1.0 else g
+        else:
+            if self._fresh:
+                self.trips += 1
+            g = self.gain - self._step
+            self.gain = 0.0 if g < 1e-12 else g
+        self._fresh = fresh
+        return self.gain
+
+    @property
+    def stale(self) -> bool:
+        return not self._fresh
+
+    def bound_s(self, period_s: float) -> float:
+        """Longest time from the last arrival to zero force."""
+        return self.timeout_ns * 1e-9 + self.fade_ns * 1e-9 + period_s
+
+
+class ForceFade:
+    """Applies a watchdog gain to a TeleopController by lowering its saturation limit.
+
+    The limit acts before the energy bound, so the reservoir accounts for exactly the force that
+    is applied (scaling the output afterwards would not). At gain 0 the limit is the smallest
+    positive float: the commanded force is zero for every practical purpose.
+    """
+
+    __slots__ = ("_base", "_ctrl", "_gain")
+
+    def __init__(self, controller: Any) -> None:
+        self._ctrl = controller
+        self._base = controller.params
+        self._gain = 1.0
+
+    def set_gain(self, gain: float) -> None:
+        if gain == self._gain:
+            return
+        self._gain = gain
+        if gain >= 1.0:
+            self._ctrl.params = self._base
+        else:
+            limit = max(self._base.force_limit_n * gain, math.ulp(0.0))
+            self._ctrl.params = dataclasses.replace(self._base, force_limit_n=limit)
+
+
+# ---------------------------------------------------------------------------------------------
+# The absolute-deadline loop.
+
+_PR_SET_TIMERSLACK = 29
+_WAIT_MARGIN_NS = 150_000
+
+
+def _tight_timer_slack() -> None:
+    """Ask Linux for 1 us timer slack on this thread (default 50 us): sleeps end closer to the deadline."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_TIMERSLACK, 1000, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+class LoopStats:
+    """Counters of one loop; lateness (wake time - deadline) kept in a ring for percentiles."""
+
+    RING = 1 << 17  # 131 s at 1 kHz
+
+    def __init__(self) -> None:
+        self.ticks = 0
+        self.overruns = 0  # deadlines missed entirely (skipped ticks)
+        self.first_ns = 0
+        self.last_ns = 0
+        self.lateness_ns = array.array("q", bytes(8 * self.RING))
+
+    def rate_hz(self) -> float:
+        span = self.last_ns - self.first_ns
+        return (self.ticks - 1) / (span * 1e-9) if self.ticks > 1 and span > 0 else 0.0
+
+    def lateness_percentiles_us(self, qs: Sequence[float] = (50.0, 99.0)) -> list[float]:
+        import numpy as np
+
+        n = min(self.ticks, self.RING)
+        if n == 0:
+            return [math.nan for _ in qs]
+        a = np.frombuffer(self.lateness_ns, dtype=np.int64)[:n]
+        return [float(v) * 1e-3 for v in np.percentile(a, qs)]
+
+
+class LoopThread:
+    """Runs `tick(index, stamp_ns)` once per period on the absolute grid stamp = index * period.
+
+    Deadlines are absolute (the grid of the clock), so lateness never accumulates into drift. A
+    tick that starts a whole period or more late skips the deadlines it missed and counts them as
+    overruns. With a system clock the thread sleeps until the deadline; with simulated time
+    (use_sim_time) it follows the node's ROS clock, i.e. /clock.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        period_ns: int,
+        tick: Callable[[int, int], None],
+        now_ns: Callable[[], int] | None = None,
+        on_error: Callable[[BaseException], None] | None = None,
+        simulated: bool = False,
+        waiter: Callable[[int], None] | None = None,
+        realtime_priority: int = 0,
+        on_warning: Callable[[str], None] | None = None,
+    ) -> None:
+        self.name = name
+        self.period_ns = period_ns
+        self._tick = tick
+        self._now = now_ns or time.time_ns
+        self._simulated = simulated
+        # waiter(timeout_ns): block at most that long for input events and handle them; the
+        # loop then waits again until its deadline. Without one, the thread just sleeps.
+        self._waiter = waiter
+        self.realtime_priority = realtime_priority
+        self._on_warning = on_warning
+        self.realtime = False
+        self._on_error = on_error
+        self._stop = threading.Event()
+        self.stats = LoopStats()
+        self._thread = threading.Thread(target=self._run, name=f"{name}-loop", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+
+    @property
+    def running(self) -> bool:
+        return self._thread.is_alive()
+
+    def _wait_until(self, deadline_ns: int) -> int:
+        now = self._now
+        waiter = self._waiter
+        t = now()
+        while t < deadline_ns and not self._stop.is_set():
+            # Simulated time moves only with /clock: look again every 0.2 ms of wall time.
+            remaining = 200_000 if self._simulated else deadline_ns - t
+            if waiter is not None and remaining > _WAIT_MARGIN_NS:
+                # A DDS wait wakes later than a sleep does: wait for input until shortly
+                # before the deadline, then sleep the rest.
+                waiter(remaining - _WAIT_MARGIN_NS)
+            else:
+                time.sleep(remaining * 1e-9)
+            t = now()
+        if waiter is not None:
+            waiter(0)  # input that came in the last stretch, before the tick
+        return now()
+
+    def _make_realtime(self) -> None:
+        """SCHED_FIFO for this thread (as ros2_control's control thread does), if allowed."""
+        if self.realtime_priority <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
+            self.realtime = True
+        except (OSError, AttributeError) as exc:
+            if self._on_warning is not None:
+                self._on_warning(
+                    f"no SCHED_FIFO priority {self.realtime_priority} for the loop ({exc}); running with normal "
+                    "scheduling, which misses deadlines under load (docs/live.md: real-time priority)"
+                )
+
+    def _run(self) -> None:
+        _tight_timer_slack()
+        self._make_realtime()
+        period = self.period_ns
+        stats = self.stats
+        ring = stats.lateness_ns
+        mask = stats.RING - 1
+        tick = self._tick
+        stop = self._stop
+        try:
+            if self._simulated:
+                while self._now() <= 0 and not stop.is_set():  # no /clock yet
+                    time.sleep(0.001)
+            k = self._now() // period + 1
+            while not stop.is_set():
+                deadline = k * period
+                t = self._wait_until(deadline)
+                if stop.is_set():
+                    break
+                late = t - deadline
+                if late >= period:
+                    skipped = late // period
+                    stats.overruns += skipped
+                    k += skipped
+                    deadline = k * period
+                    late = t - deadline
+                ring[stats.ticks & mask] = late
+                if stats.ticks == 0:
+                    stats.first_ns = t
+                stats.last_ns = t
+                stats.ticks += 1
+                tick(k, deadline)
+                k += 1
+        except BaseException as exc:
+            if self._on_error is not None:
+                self._on_error(exc)
+            else:
+                raise
+
+
+# ---------------------------------------------------------------------------------------------
+# Messages.
+
+
+def split_ns(stamp_ns: int) -> tuple[int, int]:
+    return stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
+
+
+def stamp_ns_of(msg: Any) -> int:
+    s = msg.header.stamp
+    return int(s.sec) * 1_000_000_000 + int(s.nanosec)
+
+
+class JointStateOut:
+    """Publishes one-joint sensor_msgs/JointState, reusing one message object (no allocation per tick)."""
+
+    def __init__(self, node: Any, topic: str, joint: str, fields: Sequence[str], qos: Any = None) -> None:
+        from sensor_msgs.msg import JointState
+
+        self._msg = msg = JointState()
+        msg.name = [joint]
+        self.fields = tuple(fields)
+        for f in self.fields:
+            setattr(msg, f, [0.0])
+        self._arrays = [getattr(msg, f) for f in self.fields]
+        self._stamp = msg.header.stamp
+        self._pub = node.create_publisher(JointState, topic, qos if qos is not None else stream_qos())
+
+    def publish(self, stamp_ns: int, values: Sequence[float]) -> None:
+        st = self._stamp
+        st.sec, st.nanosec = stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
+        for arr, v in zip(self._arrays, values, strict=True):
+            arr[0] = v
+        self._pub.publish(self._msg)
+
+
+def joint_values(msg: Any, fields: Sequence[str]) -> tuple[float, ...]:
+    """Axis-0 values of a JointState in the order of `fields`."""
+    return tuple(float(getattr(msg, f)[0]) for f in fields)
+
+
+class WrenchOut:
+    """Publishes geometry_msgs/WrenchStamped with force.x, reusing one message object."""
+
+    def __init__(self, node: Any, topic: str, frame: str, qos: Any = None) -> None:
+        from geometry_msgs.msg import WrenchStamped
+
+        self._msg = WrenchStamped()
+        self._msg.header.frame_id = frame
+        self._pub = node.create_publisher(WrenchStamped, topic, qos if qos is not None else stream_qos())
+
+    def publish(self, stamp_ns: int, force_x: float) -> None:
+        m = self._msg
+        m.header.stamp.sec, m.header.stamp.nanosec = stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
+        m.wrench.force.x = force_x
+        self._pub.publish(m)
+
+
+class EbaOut:
+    """Publishes [reservoir_j, force_desired_n] as std_msgs/Float64MultiArray (the bag's layout)."""
+
+    def __init__(self, node: Any, topic: str) -> None:
+        from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+        self._msg = Float64MultiArray()
+        self._msg.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1) for lab in EBA_LABELS]
+        self._msg.data = [0.0, 0.0]
+        self._data = self._msg.data
+        self._pub = node.create_publisher(Float64MultiArray, topic, stream_qos())
+
+    def publish(self, reservoir_j: float, force_desired_n: float) -> None:
+        d = self._data
+        d[0] = reservoir_j
+        d[1] = force_desired_n
+        self._pub.publish(self._msg)
+
+
+def _polled_group_class() -> type:
+    from rclpy.callback_groups import CallbackGroup
+
+    class PolledGroup(CallbackGroup):
+        """Entities the executor never waits on nor runs: the node's loop thread takes them.
+
+        An executor wakes for every message of every subscription it holds; at 1 kHz that costs
+        several times what taking the message from the loop does (docs/live.md)."""
+
+        def can_execute(self, entity: Any) -> bool:
+            return False
+
+        def beginning_execution(self, entity: Any) -> bool:
+            return False
+
+        def ending_execution(self, entity: Any) -> None:
+            return None
+
+    return PolledGroup
+
+
+def take_all(sub: Any) -> list[Any]:
+    """Every message waiting in a polled subscription's history, oldest first (what rclpy's
+    executor and wait_for_message do: rclpy has no public take call)."""
+    out = []
+    handle = sub.handle
+    with handle:
+        take = handle.take_message
+        msg_type, raw = sub.msg_type, sub.raw
+        while True:
+            r = take(msg_type, raw)
+            if r is None:
+                return out
+            out.append(r[0])
+
+
+def take_latest(sub: Any) -> Any:
+    """The newest waiting message of a polled subscription, or None."""
+    last = None
+    handle = sub.handle
+    with handle:
+        take = handle.take_message
+        msg_type, raw = sub.msg_type, sub.raw
+        while True:
+            r = take(msg_type, raw)
+            if r is None:
+                return last
+            last = r[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Base node and process entry point.
+
+
+def _ignore(msg: Any) -> None:
+    return None
+
+
+class NodeStopped(HapticTeleopError):
+    """Raised inside a tick to end the node cleanly (exit 0)."""
+
+
+def _base_node_class() -> type:
+    from rclpy.node import Node
+
+    return Node
+
+
+class LiveNode(_base_node_class()):  # type: ignore[misc]
+    """A node with an optional 1 kHz loop, diagnostics once a second and an exit code.
+
+    Subclasses build their parts in __init__ (raising ConfigError for bad parameters), implement
+    `tick(index, stamp_ns)` if they have a loop, and `close()` to release what they hold.
+    """
+
+    default_name = "node"
+    has_loop = True
+
+    def __init__(self, stop_event: threading.Event | None = None, **node_kwargs: Any) -> None:
+        super().__init__(node_kwargs.pop("node_name", self.default_name), **node_kwargs)
+        self.stop_event = stop_event or threading.Event()
+        self.exit_code = 0
+        self.period_ns = 1_000_000
+        self.loop: LoopThread | None = None
+        self._cpu0 = (time.process_time(), time.monotonic())
+        self._diag_pub: Any = None
+        self._polled_group = _polled_group_class()()
+        self._event_subs: list[tuple[Any, Callable[[Any, int], None]]] = []
+        self._wait_set: Any = None
+        self.simulated_time = bool(self.get_parameter("use_sim_time").value)
+        self.now_ns = self._clock_fn()
+
+    def _clock_fn(self) -> Callable[[], int]:
+        if self.simulated_time:
+            clock = self.get_clock()
+            return lambda: int(clock.now().nanoseconds)
+        return time.time_ns
+
+    # -- input
+    def create_polled_subscription(self, msg_type: Any, topic: str, qos: Any, raw: bool = False) -> Any:
+        """A subscription the loop thread takes from (take_latest / take_all), not the executor."""
+        return self.create_subscription(msg_type, topic, _ignore, qos, callback_group=self._polled_group, raw=raw)
+
+    def add_event_subscription(
+        self, msg_type: Any, topic: str, qos: Any, handler: Callable[[Any, int], None], raw: bool = False
+    ) -> Any:
+        """A polled subscription whose messages the loop thread handles as they arrive, between
+        ticks: `handler(msg, arrival_ns)` runs in the loop thread, so no lock is needed."""
+        sub = self.create_polled_subscription(msg_type, topic, qos, raw)
+        self._event_subs.append((sub, handler))
+        return sub
+
+    def _wait_events(self, timeout_ns: int) -> None:
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+        ws = self._wait_set
+        if ws is None:
+            ws = self._wait_set = _rclpy.WaitSet(len(self._event_subs), 0, 0, 0, 0, 0, self.context.handle)
+        ws.clear_entities()
+        for sub, _ in self._event_subs:
+            ws.add_subscription(sub.handle)
+        ws.wait(timeout_ns)
+        ready = ws.get_ready_entities("subscription")
+        if not ready:
+            return
+        now = self.now_ns
+        for sub, handler in self._event_subs:
+            if sub.handle.pointer in ready:
+                for msg in take_all(sub):
+                    handler(msg, now())
+
+    # -- lifecycle
+    def setup_loop(self, period_ns: int) -> None:
+        self.period_ns = period_ns
+        prio = int(
+            declare_value(
+                self,
+                LOOP_PRIORITY_PARAM,
+                DEFAULT_REALTIME_PRIORITY,
+                "SCHED_FIFO priority of the loop thread (0: normal scheduling); needs CAP_SYS_NICE or an rtprio limit",
+                0,
+                98,
+            )
+        )
+        self.loop = LoopThread(
+            self.get_name(),
+            period_ns,
+            self.tick,
+            now_ns=self._clock_fn(),
+            on_error=self._loop_failed,
+            simulated=self.simulated_time,
+            waiter=self._wait_events if self._event_subs else None,
+            realtime_priority=prio,
+            on_warning=self.get_logger().warning,
+        )
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, reliable_qos(10))
+        self.create_timer(1.0, self.publish_diagnostics)
+
+    def start(self) -> None:
+        if self.loop is not None:
+            self.loop.start()
+
+    def tick(self, index: int, stamp_ns: int) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def _loop_failed(self, exc: BaseException) -> None:
+        if isinstance(exc, NodeStopped):
+            self.get_logger().info(str(exc) or "finished")
+            self.exit_code = 0
+        else:
+            import traceback
+
+            self.get_logger().error("loop failed: " + "".join(traceback.format_exception(exc)).rstrip())
+            self.exit_code = 1
+        self.stop_event.set()
+
+    def request_stop(self, code: int = 0) -> None:
+        self.exit_code = code
+        self.stop_event.set()
+
+    def close(self) -> None:
+        if self.loop is not None:
+            self.loop.stop()
+
+    # -- diagnostics
+    def diagnostic_values(self) -> dict[str, float | int | str]:
+        """Node-specific figures added to the loop's (override)."""
+        return {}
+
+    def publish_diagnostics(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        loop = self.loop
+        if loop is None or self._diag_pub is None:
+            return
+        st = loop.stats
+        p50, p99 = st.lateness_percentiles_us()
+        cpu_t, wall_t = time.process_time(), time.monotonic()
+        cpu = (cpu_t - self._cpu0[0]) / max(wall_t - self._cpu0[1], 1e-9) * 100.0
+        values: dict[str, float | int | str] = {
+            "loop_rate_hz": round(st.rate_hz(), 3),
+            "period_s": self.period_ns * 1e-9,
+            "ticks": st.ticks,
+            "overruns": st.overruns,
+            "lateness_p50_us": round(p50, 1),
+            "lateness_p99_us": round(p99, 1),
+            "cpu_percent": round(cpu, 1),
+            "realtime": int(loop.realtime),
+        }
+        values.update(self.diagnostic_values())
+        status = DiagnosticStatus()
+        status.name = f"{self.get_name()}: loop"
+        status.hardware_id = self.get_name()
+        status.level = DiagnosticStatus.OK if st.overruns == 0 else DiagnosticStatus.WARN
+        status.message = f"{values['loop_rate_hz']} Hz, {st.overruns} overruns"
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [status]
+        self._diag_pub.publish(msg)
+
+
+BAD_PARAMETER_EXIT = 2
+
+
+def _bad_parameter_errors() -> tuple[type[BaseException], ...]:
+    from rclpy.exceptions import ParameterException
+
+    return (ConfigError, ParameterException, HapticTeleopError, ValueError, KeyError)
+
+
+def run_nodes(
+    factories: Sequence[Callable[..., LiveNode]],
+    node_args: Sequence[dict[str, Any]] | None = None,
+    args: Sequence[str] | None = None,
+    multithreaded: bool = False,
+) -> int:
+    """Create nodes, spin them, run their loops until SIGINT/SIGTERM or a node stops; exit code.
+
+    A node's constructor failing on a parameter ends the process with code 2 and a message that
+    names the parameter; a loop failing ends it with 1; a signal or a node finishing, with 0.
+    """
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    ensure_local_discovery()
+    # The loop thread and the executor thread share the GIL: switch often so a waking loop
+    # does not wait for a callback's full default 5 ms slice.
+    sys.setswitchinterval(0.0002)
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    rclpy.init(args=list(args) if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
+    nodes: list[LiveNode] = []
+    kwargs_list = list(node_args) if node_args is not None else [{} for _ in factories]
+    try:
+        for factory, kw in zip(factories, kwargs_list, strict=True):
+            nodes.append(factory(stop_event=stop, **kw))
+    except _bad_parameter_errors() as exc:
+        who = kwargs_list[len(nodes)].get("node_name", getattr(factories[len(nodes)], "default_name", "node"))
+        print(f"{who}: bad parameter: {exc}", file=sys.stderr, flush=True)
+        for n in nodes:
+            n.close()
+            n.destroy_node()
+        rclpy.try_shutdown()
+        return BAD_PARAMETER_EXIT
+    executor = MultiThreadedExecutor(num_threads=max(2, len(nodes))) if multithreaded else SingleThreadedExecutor()
+    for n in nodes:
+        executor.add_node(n)
+    spinner = threading.Thread(target=executor.spin, name="executor", daemon=True)
+    spinner.start()
+    for n in nodes:
+        n.start()
+    while not stop.wait(0.1):
+        pass
+    code = 0
+    for n in nodes:
+        try:
+            n.close()
+        except Exception as exc:  # noqa: BLE001 - report, keep closing the others
+            print(f"{n.get_name()}: error while closing: {exc}", file=sys.stderr, flush=True)
+            code = max(code, 1)
+    code = max([code] + [n.exit_code for n in nodes])
+    executor.shutdown(timeout_sec=2.0)
+    spinner.join(2.0)  # a C++ wait still running at exit would abort the process
+    for n in nodes:
+        n.destroy_node()
+    rclpy.try_shutdown()
+    return code
+
+
+def node_main(factory: Callable[..., LiveNode]) -> None:
+    """console_scripts entry point of one node."""
+    sys.exit(run_nodes([factory]))

@@ -1,0 +1,139 @@
+"""operator_source: the simulated operator (the core `Operator`): an arm impedance pulled along
+the scene's intended trajectory, pressing on the master device.
+
+It reads the device state on /master/joint_states and publishes /operator/joint_states each tick
+(position, velocity: intended; effort: the hand force on the device), which master_eba applies.
+Its scene time starts once the node graph is up (the master is publishing, the topics it waits
+for have publishers, enough subscribers listen) plus a settling delay, so the whole push is seen
+by every node and recorded; nothing is published before. After scene.duration_s it exits 0,
+which ends a launched run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.common import (
+    MASTER_STATE,
+    OPERATOR_JOINT,
+    OPERATOR_STATE,
+    JointStateOut,
+    LiveNode,
+    NodeStopped,
+    declare_scene,
+    declare_value,
+    node_main,
+    received_topic,
+    stream_qos,
+    take_latest,
+)
+
+DEFAULT_WAIT_FOR = ("/slave/joint_states", received_topic("forward"), received_topic("backward"))
+_NAMES = ("start.wait_for_publishers", "start.min_subscribers", "start.delay_s", "start.timeout_s", "stop_at_end")
+
+
+class OperatorSource(LiveNode):
+    default_name = "operator_source"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        from sensor_msgs.msg import JointState
+
+        from haptic_teleop.core.operator import Operator, OperatorParams
+        from haptic_teleop.scene import _read_trace
+
+        cfg = declare_scene(self, SCENE_SECTIONS["operator_source"], _NAMES)
+        op = cfg.operator
+        trace = None
+        if op.trace_file:
+            trace = _read_trace(Path(op.trace_file), f"node {self.get_name()}", "operator.trace_file")
+        self.operator = Operator(
+            OperatorParams(
+                profile=op.profile,
+                mass_kg=op.mass_kg,
+                stiffness_n_per_m=op.stiffness_n_per_m,
+                damping_n_s_per_m=op.damping_n_s_per_m,
+                start_s=op.start_s,
+                speed_m_per_s=op.speed_m_per_s,
+                distance_m=op.distance_m,
+                amplitude_m=op.amplitude_m,
+                frequency_hz=op.frequency_hz,
+                trace_time_s=trace[0] if trace else (),
+                trace_position_m=trace[1] if trace else (),
+            )
+        )
+        self.wait_for = list(
+            declare_value(
+                self, "start.wait_for_publishers", list(DEFAULT_WAIT_FOR), "start once these topics have publishers"
+            )
+        )
+        self.min_subscribers = int(
+            declare_value(
+                self, "start.min_subscribers", 1, "start once this many subscribe to /operator/joint_states", 0, 100
+            )
+        )
+        self.start_delay_ns = round(
+            declare_value(self, "start.delay_s", 1.0, "settling time after the graph is up", 0.0, 60.0) * 1e9
+        )
+        self.start_timeout_s = float(
+            declare_value(self, "start.timeout_s", 30.0, "give up (exit 1) if the graph is not up by then", 0.1, 3600.0)
+        )
+        self.stop_at_end = bool(declare_value(self, "stop_at_end", True, "exit 0 after scene.duration_s"))
+        period_ns = round(cfg.scene.period_s * 1e9)
+        self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
+        self._master: tuple[list[float], list[float]] | None = None
+        self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos())
+        self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, ("position", "velocity", "effort"))
+        self.start_index: int | None = None
+        self._ready_ns: int | None = None
+        self._created_ns = self.now_ns()
+        self.setup_loop(period_ns)
+
+    def _graph_ready(self) -> bool:
+        if self._master is None:
+            return False
+        if self.count_subscribers(OPERATOR_STATE) < self.min_subscribers:
+            return False
+        return all(self.count_publishers(t) > 0 for t in self.wait_for)
+
+    def tick(self, index: int, stamp_ns: int) -> None:
+        m = take_latest(self._master_sub)
+        if m is not None:
+            self._master = ([float(m.position[0])], [float(m.velocity[0])])
+        if self.start_index is None:
+            if self._ready_ns is None:
+                if index % 50 == 0 and self._graph_ready():
+                    self._ready_ns = stamp_ns
+                    self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
+                elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
+                    raise RuntimeError(
+                        f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
+                        f"(waiting for /master/joint_states, publishers of {self.wait_for}, "
+                        f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
+                    )
+                return
+            if stamp_ns - self._ready_ns < self.start_delay_ns:
+                return
+            self.start_index = index
+            self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns")
+        n = index - self.start_index
+        if n >= self.duration_ticks and self.stop_at_end:
+            raise NodeStopped(f"scene duration reached ({n} ticks)")
+        t = n * self.period_ns * 1e-9
+        x, v = self._master if self._master is not None else ([0.0], [0.0])
+        fh = self.operator.hand_force(t, x, v)
+        xd, vd = self.operator.intended(t)
+        self.out.publish(stamp_ns, (xd, vd, fh[0]))
+
+    def diagnostic_values(self) -> dict[str, float | int | str]:
+        return {"started": int(self.start_index is not None)}
+
+
+def main() -> None:
+    node_main(OperatorSource)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,89 @@
+"""sync_buffer: the receiving side's haptic synchronization (playout) buffer, the core
+`PlayoutBuffer` the scene names, driven by the node clock.
+
+Once per tick on the absolute grid, what arrived on /<direction>/delivered since the last tick is
+pushed with the tick's time as arrival time (as the engine does; seq = stamp / period, send time
+= the sender's stamp), then the buffer's release decides
+which sample the controller uses, and that sample goes out on /<direction>/received with the
+sender's stamp (made-up samples of `gap: extrapolate` carry the stamp of the slot they fill).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from haptic_teleop.core.network import Packet
+from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.common import (
+    DIRECTION_JOINT,
+    PAYLOAD_FIELDS,
+    READER_DEPTH,
+    JointStateOut,
+    LiveNode,
+    declare_scene,
+    delivered_topic,
+    joint_values,
+    node_main,
+    received_topic,
+    stamp_ns_of,
+    stream_qos,
+    take_all,
+)
+from haptic_teleop.nodes.network_relay import declare_direction
+
+_JOINT_ORDER = ("position", "velocity", "effort")
+
+
+class SyncBuffer(LiveNode):
+    default_name = "sync_buffer"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        from sensor_msgs.msg import JointState
+
+        from haptic_teleop.core.playout import build_buffer
+
+        self.direction = d = declare_direction(self)
+        cfg = declare_scene(self, [s.format(direction=d) for s in SCENE_SECTIONS["sync_buffer"]], ("direction",))
+        period_ns = round(cfg.scene.period_s * 1e9)
+        self.buffer = build_buffer(getattr(cfg.network, d).buffer, period_ns)
+        self._fields = PAYLOAD_FIELDS[d]
+        out_fields = _JOINT_ORDER[: len(self._fields)]
+        self._order = [self._fields.index(f) for f in out_fields]  # payload -> JointState order
+        self.released = 0
+        self.out = JointStateOut(self, received_topic(d), DIRECTION_JOINT[d], out_fields)
+        self._sub = self.create_polled_subscription(JointState, delivered_topic(d), stream_qos(READER_DEPTH))
+        self.setup_loop(period_ns)
+        self.get_logger().info(
+            f"{d}: {delivered_topic(d)} -> {received_topic(d)}, policy {getattr(cfg.network, d).buffer.policy}"
+        )
+
+    def tick(self, index: int, stamp_ns: int) -> None:
+        now = self.now_ns()
+        period, fields, push = self.period_ns, self._fields, self.buffer.push
+        for msg in take_all(self._sub):
+            stamp = stamp_ns_of(msg)
+            push(Packet(stamp // period, stamp, joint_values(msg, fields), 0, now), now)
+        p = self.buffer.release(now)
+        if p is not None:
+            payload = p.payload
+            self.out.publish(p.send_time_ns, [payload[i] for i in self._order])
+            self.released += 1
+
+    def diagnostic_values(self) -> dict[str, float | int | str]:
+        b = self.buffer
+        return {
+            "released": self.released,
+            "late": b.late,
+            "occupancy": getattr(b, "occupancy", 0),
+            "duplicates": getattr(b, "duplicates", 0),
+            "extrapolated": getattr(b, "extrapolated", 0),
+        }
+
+
+def main() -> None:
+    node_main(SyncBuffer)
+
+
+if __name__ == "__main__":
+    main()
