@@ -112,13 +112,11 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.what == "live":
-        from haptic_teleop import live_bench
+    import importlib
 
-        return live_bench.main(args)
-    from haptic_teleop import bench
+    from haptic_teleop.benchmarks import BENCHMARKS
 
-    return bench.main(args)
+    return int(importlib.import_module(BENCHMARKS[args.what]).main(args))
 
 
 def cmd_launch(args: argparse.Namespace) -> int:
@@ -147,16 +145,16 @@ def build_parser() -> argparse.ArgumentParser:
     a.set_defaults(func=cmd_analyze)
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
-    b.add_argument(
-        "what",
-        choices=("speed", "live"),
-        help="speed: real-time factor and cost per tick vs bare mj_step; live: loop rate, jitter, "
-        "relay hop vs bare DDS hop, CPU per node",
-    )
-    b.add_argument("--scene", default="wall_contact")
-    b.add_argument("--repeat", type=int, default=3)
-    b.add_argument("--duration", type=float, default=10.0, help="live: seconds of measurement")
-    b.set_defaults(func=cmd_bench)
+    bsub = b.add_subparsers(dest="what", required=True, metavar="NAME")
+    import importlib
+
+    from haptic_teleop.benchmarks import BENCHMARKS
+
+    for name, module in BENCHMARKS.items():
+        mod = importlib.import_module(module)
+        bp = bsub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        mod.add_arguments(bp)
+        bp.set_defaults(func=cmd_bench)
 
     from haptic_teleop.launcher import add_arguments as add_launch_arguments
 

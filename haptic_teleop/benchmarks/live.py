@@ -141,7 +141,7 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
 
     launcher = Launcher(plan, work / "params", out=_Sink())  # type: ignore[arg-type]
     probe = subprocess.Popen(
-        [sys.executable, "-m", "haptic_teleop.live_bench", "--probe"],
+        [sys.executable, "-m", "haptic_teleop.benchmarks.live", "--probe"],
         env={**local_discovery_env(), "PYTHONUNBUFFERED": "1"},
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -253,6 +253,14 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
         loop_rate_ok=ok_rate,
     )
     return figures
+
+
+HELP = "live node set: loop rate, loop jitter, relay hop vs bare DDS hop, CPU per node"
+
+
+def add_arguments(p: Any) -> None:
+    p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds of measurement")
 
 
 def main(args: Any) -> int:
