@@ -1,10 +1,15 @@
 """ament_python package setup for haptic_teleop (works with colcon and with plain pip)."""
 
+import runpy
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "haptic_teleop"
+# One console script per live node (`ros2 run haptic_teleop master_eba`), from the node table,
+# read without importing the package (it needs numpy and friends, which may not be installed yet).
+NODES = runpy.run_path(str(Path(__file__).parent / PACKAGE / "nodes" / "__init__.py"))["EXECUTABLES"]
 
 STANDALONE = [
     # rclpy and the standard message packages as PyPI wheels, for machines without a ROS 2 install.
@@ -45,6 +50,9 @@ setup(
             "ruff>=0.17,<0.18",
             "mypy>=1.10,<3",
             "types-PyYAML>=6.0",
+            # colcon build of this package in a test (test/test_colcon.py)
+            "colcon-common-extensions>=0.3",
+            "ros-ament-package>=0.17",
         ],
     },
     zip_safe=True,
@@ -55,6 +63,7 @@ setup(
     entry_points={
         "console_scripts": [
             "haptic-teleop = haptic_teleop.cli:main",
+            *(f"{name} = {module}:main" for name, module in NODES.items()),
         ],
     },
 )

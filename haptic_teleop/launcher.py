@@ -35,9 +35,10 @@ from haptic_teleop.nodes import EXECUTABLES, SCENE_SECTIONS, WATCHDOG_FADE_S, WA
 from haptic_teleop.scene import LoadedScene
 
 SIDES = ("all", "master", "slave")
+DEVICES = ("plant", "topic")
 # Which side of a two-host setup each node belongs to: relays sit on the sending side, sync
 # buffers on the receiving side.
-MASTER_SIDE = ("operator_source", "master_eba", "forward_relay", "backward_buffer", "recorder")
+MASTER_SIDE = ("clock_source", "operator_source", "master_eba", "forward_relay", "backward_buffer", "recorder")
 SLAVE_SIDE = ("slave_eba", "backward_relay", "forward_buffer")
 STOP_TIMEOUT_S = 10.0
 RECORDER_STOP_TIMEOUT_S = 60.0
@@ -123,11 +124,19 @@ def node_plan(
     device: str = "plant",
     watchdog_timeout_s: float = WATCHDOG_TIMEOUT_S,
     watchdog_fade_s: float = WATCHDOG_FADE_S,
+    sim_time_rate: float | None = None,
+    device_topics: tuple[str, str] | None = None,
 ) -> list[NodeSpec]:
     """The node set of a scene. `device="topic"` is the hardware variant: the master reads a haptic
-    device driver's topics and there is no simulated operator."""
+    device driver's topics (`device_topics` = (state, command); default the node's) and there is
+    no simulated operator. `sim_time_rate` (simulated s per wall s) adds a clock_source and sets
+    use_sim_time on every node."""
     if side not in SIDES:
         raise ValueError(f"side must be one of {SIDES}, got {side!r}")
+    if device not in DEVICES:
+        raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
+    if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
+        raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
     watchdog = {"watchdog": {"timeout_s": float(watchdog_timeout_s), "fade_s": float(watchdog_fade_s)}}
     plan: list[NodeSpec] = []
     if device == "plant":
@@ -137,6 +146,8 @@ def node_plan(
         )
     master = _merge(scene_params(scene, "master_eba"), watchdog)
     master["device"] = {"source": device}
+    if device_topics is not None:
+        master["device"].update(state_topic=device_topics[0], command_topic=device_topics[1])
     plan.append(NodeSpec("master_eba", "master_eba", master))
     plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
     for d in ("forward", "backward"):
@@ -152,6 +163,10 @@ def node_plan(
                 {**scene_params(scene, "recorder"), "output_dir": str(Path(record_dir).resolve())},
             )
         )
+    if sim_time_rate is not None:
+        plan = [dataclasses.replace(s, params={**s.params, "use_sim_time": True}) for s in plan]
+        clock = {"scene": {"period_s": scene.config.scene.period_s}, "rate": float(sim_time_rate)}
+        plan.insert(0, NodeSpec("clock_source", "clock_source", clock))
     if side != "all":
         keep = MASTER_SIDE if side == "master" else SLAVE_SIDE
         plan = [s for s in plan if s.name in keep]
@@ -442,14 +457,18 @@ def launch_main(args: Any) -> int:
     record = Path(args.record) if args.record else None
     if record is not None and (record / "bag").exists():
         raise HapticTeleopError(f"{record / 'bag'} exists already; choose a new --record directory")
-    plan = node_plan(scene, record_dir=record, side=args.side)
+    rate = args.sim_time_rate
+    try:
+        plan = node_plan(scene, record_dir=record, side=args.side, sim_time_rate=rate)
+    except ValueError as exc:
+        raise HapticTeleopError(str(exc)) from None
     params_dir = Path(args.params_dir) if args.params_dir else Path(tempfile.mkdtemp(prefix="haptic_teleop_params_"))
     if args.single_process:
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         code = run_single_process(plan, params_dir)
     else:
         # Discovery, the operator's settling delay and the scene itself; then give up.
-        timeout = scene.config.scene.duration_s + 60.0 if args.side != "slave" else None
+        timeout = scene.config.scene.duration_s / (rate or 1.0) + 60.0 if args.side != "slave" else None
         result = Launcher(plan, params_dir, timeout_s=timeout).run()
         code = result.exit_code
     if record is not None and (record / "bag").exists():
@@ -475,3 +494,10 @@ def add_arguments(p: Any) -> None:
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")
     p.add_argument("--params-dir", help="where the parameter files go (default: a temporary directory)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots of the recorded run")
+    p.add_argument(
+        "--sim-time-rate",
+        type=float,
+        metavar="R",
+        help="simulated time: a clock_source publishes /clock at R simulated s per wall s (e.g. 0.5 on a "
+        "loaded machine) and every node follows it (use_sim_time)",
+    )

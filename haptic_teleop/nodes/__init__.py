@@ -12,6 +12,7 @@ EXECUTABLES = {
     "sync_buffer": "haptic_teleop.nodes.sync_buffer",
     "operator_source": "haptic_teleop.nodes.operator_source",
     "recorder": "haptic_teleop.nodes.recorder",
+    "clock_source": "haptic_teleop.nodes.clock_source",
 }
 
 # The scene sections each executable reads as parameters ("" is the whole scene; {direction}
@@ -23,6 +24,7 @@ SCENE_SECTIONS = {
     "sync_buffer": ("scene", "network.{direction}.buffer"),
     "operator_source": ("scene", "operator"),
     "recorder": ("",),
+    "clock_source": ("scene",),
 }
 
 # Watchdog defaults (docs/live.md): remote data older than this starts a fade to zero force.

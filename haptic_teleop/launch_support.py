@@ -1,0 +1,104 @@
+"""What the ROS 2 launch files in `launch/` run: the scene's node plan as `launch_ros` Node actions.
+
+The plan is `haptic_teleop.launcher.node_plan`, the one `haptic-teleop launch` starts, so a
+full-ROS user and a PyPI-wheels user get the same processes with the same parameter files.
+`launch` and `launch_ros` are imported inside `launch_actions` only: the rest of this module (and
+its tests) works without them.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.launcher import DEVICES, SIDES, NodeSpec, node_plan, write_params_files
+
+
+def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str | Path) -> list[tuple[NodeSpec, Path]]:
+    """Launch arguments (strings, as `ros2 launch` passes them) -> [(node spec, its parameter file)].
+
+    Raises ConfigError naming the argument for a bad value, as `haptic-teleop launch` would.
+    """
+    from haptic_teleop.scene import find_scene, load_scene
+
+    def arg(name: str) -> str:
+        return str(values.get(name, "")).strip()
+
+    overrides = []
+    if arg("duration"):
+        try:
+            overrides.append(f"scene.duration_s={float(arg('duration'))}")
+        except ValueError:
+            raise ConfigError("launch arguments", "duration", arg("duration"), "allowed: seconds (a number)") from None
+    seed = None
+    if arg("seed"):
+        try:
+            seed = int(arg("seed"))
+        except ValueError:
+            raise ConfigError("launch arguments", "seed", arg("seed"), "allowed: an integer >= 0") from None
+    side = arg("side") or "all"
+    if side not in SIDES:
+        raise ConfigError("launch arguments", "side", side, "allowed: one of " + ", ".join(SIDES))
+    if device not in DEVICES:
+        raise ConfigError("launch file", "device", device, "allowed: one of " + ", ".join(DEVICES))
+    sim = arg("sim_time").lower() or "false"
+    if sim not in ("true", "false"):
+        raise ConfigError("launch arguments", "sim_time", sim, "allowed: true or false")
+    scene = load_scene(find_scene(arg("scene") or "wall_contact"), overrides=overrides, seed=seed)
+    topics = (arg("state_topic"), arg("command_topic")) if device == "topic" and arg("state_topic") else None
+    plan = node_plan(
+        scene,
+        record_dir=arg("record") or None,
+        side=side,
+        device=device,
+        sim_time_rate=1.0 if sim == "true" else None,
+        device_topics=topics,
+    )
+    files = write_params_files(plan, params_dir)
+    return [(spec, files[spec.name]) for spec in plan]
+
+
+def launch_actions(context: Any, device: str = "plant") -> list[Any]:
+    """OpaqueFunction body of the launch files: Node actions plus the shutdown rules.
+
+    The run ends when the operator source exits (scene over); any node exiting non-zero shuts
+    the launch down too (the others then reach their safe state on their watchdogs).
+    """
+    from launch.actions import EmitEvent, LogInfo, RegisterEventHandler, SetEnvironmentVariable
+    from launch.event_handlers import OnProcessExit
+    from launch.events import Shutdown
+    from launch_ros.actions import Node
+
+    values = dict(context.launch_configurations)
+    params_dir = tempfile.mkdtemp(prefix="haptic_teleop_params_")
+    actions: list[Any] = []
+    if "ROS_AUTOMATIC_DISCOVERY_RANGE" not in context.environment:
+        actions.append(SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"))
+    for spec, params_file in plan_from_arguments(values, device, params_dir):
+        node = Node(
+            package="haptic_teleop",
+            executable=spec.executable,
+            name=spec.name,
+            parameters=[str(params_file)],
+            remappings=list(spec.remaps),
+            output="screen",
+            emulate_tty=True,
+        )
+        actions.append(node)
+
+        def on_exit(event: Any, ctx: Any, name: str = spec.name) -> list[Any]:
+            code = event.returncode
+            if name == "operator_source" and code == 0:
+                return [LogInfo(msg="scene finished; stopping every node"), EmitEvent(event=Shutdown(reason="done"))]
+            if code != 0:
+                return [
+                    LogInfo(msg=f"{name} exited with code {code}; stopping every node"),
+                    EmitEvent(event=Shutdown(reason=f"{name} failed")),
+                ]
+            return []
+
+        actions.append(RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit)))
+    return actions
