@@ -430,7 +430,7 @@ class LoopThread:
 
     Deadlines are absolute (the grid of the clock), so lateness never accumulates into drift. A
     tick that starts a whole period or more late skips the deadlines it missed and counts them as
-    overruns. With a system clock the thread sleeps until the deadline; with simulated time
+    overruns (with simulated time it runs them all, late, instead). With a system clock the thread sleeps until the deadline; with simulated time
     (use_sim_time) it follows the node's ROS clock, i.e. /clock.
     """
 
@@ -526,7 +526,9 @@ class LoopThread:
                 if stop.is_set():
                     break
                 late = t - deadline
-                if late >= period:
+                # Wall time: a deadline missed by a whole period is gone (skip, count an overrun).
+                # Simulated time is only a label: run every tick, catching up with /clock.
+                if late >= period and not self._simulated:
                     skipped = late // period
                     stats.overruns += skipped
                     k += skipped
@@ -899,7 +901,16 @@ def run_nodes(
     executor = MultiThreadedExecutor(num_threads=max(2, len(nodes))) if multithreaded else SingleThreadedExecutor()
     for n in nodes:
         executor.add_node(n)
-    spinner = threading.Thread(target=executor.spin, name="executor", daemon=True)
+    def spin() -> None:
+        try:
+            executor.spin()
+        except Exception:
+            # Shutting down destroys guard conditions the executor may still be using; an
+            # error then is part of stopping. Before that, it is a real failure.
+            if not stop.is_set():
+                raise
+
+    spinner = threading.Thread(target=spin, name="executor", daemon=True)
     spinner.start()
     for n in nodes:
         n.start()

@@ -237,7 +237,9 @@ class Recorder(LiveNode):
         try:
             path = self.write()
         except Exception as exc:
-            self.get_logger().error(f"could not write the bag: {exc}")
+            import traceback
+
+            self.get_logger().error(f"could not write the bag: {exc}\n{traceback.format_exc()}")
             raise
         if path is not None:
             self.get_logger().info(f"bag written: {path}")
