@@ -1,0 +1,98 @@
+"""The ROS 2 launch files and the launcher build one node plan from one scene file.
+
+ROS 2's `launch` cannot be installed here, so the launch files themselves are checked for what
+they consume (their arguments) and `launch_support.plan_from_arguments`, which they call, is
+checked against the plan `haptic-teleop launch` starts.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+import yaml
+
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.launch_support import plan_from_arguments
+from haptic_teleop.launcher import format_double, node_plan, params_yaml
+from haptic_teleop.nodes import EXECUTABLES
+from haptic_teleop.scene import find_scene, load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH_FILES = sorted((ROOT / "launch").glob("*_launch.py"))
+
+
+def _arguments(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "ARGUMENTS":
+            return [elt.elts[0].value for elt in node.value.elts]
+    raise AssertionError(f"{path.name}: no ARGUMENTS table")
+
+
+def test_launch_files_exist_and_declare_the_arguments_the_plan_reads():
+    assert [p.name for p in LAUNCH_FILES] == ["teleop_hardware_launch.py", "teleop_launch.py"]
+    src = (ROOT / "haptic_teleop" / "launch_support.py").read_text()
+    for path in LAUNCH_FILES:
+        compile(path.read_text(), str(path), "exec")
+        names = _arguments(path)
+        assert names[:6] == ["scene", "record", "side", "seed", "duration", "sim_time"]
+        for name in names:
+            assert f'"{name}"' in src, f"{path.name}: argument {name} is not read by launch_support"
+
+
+def test_launch_file_plan_is_the_launcher_plan(tmp_path):
+    pairs = plan_from_arguments(
+        {"scene": "wall_contact", "record": str(tmp_path / "rec"), "seed": "7"}, "plant", tmp_path
+    )
+    scene = load_scene(find_scene("wall_contact"), seed=7)
+    want = node_plan(scene, record_dir=tmp_path / "rec")
+    assert [s for s, _ in pairs] == want
+    for spec, path in pairs:
+        assert spec.executable in EXECUTABLES
+        assert path.read_text() == params_yaml(spec)
+        data = yaml.safe_load(path.read_text())
+        assert list(data) == [spec.name] and "ros__parameters" in data[spec.name]
+    master = next(s for s, _ in pairs if s.name == "master_eba")
+    assert master.params["scene"]["seed"] == 7
+
+
+def test_hardware_variant_has_no_simulated_operator_and_uses_the_driver_topics(tmp_path):
+    args = {"scene": "wall_contact", "state_topic": "/dev/js", "command_topic": "/dev/cmd"}
+    pairs = plan_from_arguments(args, "topic", tmp_path)
+    names = [s.name for s, _ in pairs]
+    assert "operator_source" not in names and "master_eba" in names
+    master = next(s for s, _ in pairs if s.name == "master_eba")
+    assert master.params["device"] == {"source": "topic", "state_topic": "/dev/js", "command_topic": "/dev/cmd"}
+
+
+def test_sim_time_adds_a_clock_and_sets_use_sim_time(tmp_path):
+    pairs = plan_from_arguments({"scene": "wall_contact", "sim_time": "true"}, "plant", tmp_path)
+    assert pairs[0][0].executable == "clock_source"
+    assert all(s.params.get("use_sim_time") is True for s, _ in pairs[1:])
+    assert "use_sim_time" not in pairs[0][0].params
+
+
+@pytest.mark.parametrize(
+    ("args", "key"),
+    [
+        ({"side": "both"}, "side"),
+        ({"seed": "x"}, "seed"),
+        ({"duration": "long"}, "duration"),
+        ({"sim_time": "yes"}, "sim_time"),
+        ({"scene": "no_such_scene"}, ""),
+    ],
+)
+def test_bad_launch_arguments_name_what_is_wrong(tmp_path, args, key):
+    with pytest.raises(ConfigError) as exc:
+        plan_from_arguments({"scene": "wall_contact", **args}, "plant", tmp_path)
+    if key:
+        assert key in str(exc.value)
+
+
+def test_parameter_files_write_doubles_as_ros_reads_them():
+    assert format_double(1.0) == "1.0"
+    assert format_double(1e-8) == "1e-08".replace("1e", "1.0e")
+    assert format_double(10000.0) == "10000.0"
+    assert format_double(1e20) == "1.0e+20"
+    with pytest.raises(ValueError):
+        format_double(float("nan"))
