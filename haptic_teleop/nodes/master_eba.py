@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from haptic_teleop.core.watchdog import ForceFade, Watchdog
 from haptic_teleop.nodes import SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
 from haptic_teleop.nodes.common import (
     MASTER_EBA,
@@ -22,10 +23,8 @@ from haptic_teleop.nodes.common import (
     OPERATOR_STATE,
     PAYLOAD_FIELDS,
     EbaOut,
-    ForceFade,
     JointStateOut,
     LiveNode,
-    Watchdog,
     WrenchOut,
     declare_value,
     joint_values,
@@ -63,7 +62,7 @@ class MasterEba(LiveNode):
 
         from haptic_teleop.engine import _controller
         from haptic_teleop.nodes.common import declare_scene
-        from haptic_teleop.plants.mujoco_plant import MujocoDevice, SimSettings
+        from haptic_teleop.plants import build_master_plant
 
         names = ("watchdog.timeout_s", "watchdog.fade_s", "device.source", "device.state_topic", "device.command_topic")
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
@@ -86,21 +85,7 @@ class MasterEba(LiveNode):
         self._hand_n = 0.0
         self._device: tuple[float, float] | None = None
         if self.source == "plant":
-            sim = SimSettings(
-                period_s=cfg.scene.period_s,
-                substeps=cfg.simulation.substeps,
-                integrator=cfg.simulation.integrator,
-                solver_iterations=cfg.simulation.solver_iterations,
-                solver_tolerance=cfg.simulation.solver_tolerance,
-            )
-            self.plant = MujocoDevice(
-                sim,
-                mass_kg=cfg.master.mass_kg,
-                damping_n_s_per_m=cfg.master.damping_n_s_per_m,
-                force_limit_n=cfg.master.force_limit_n,
-                hand_mass_kg=cfg.operator.mass_kg,
-                model=cfg.master.model,
-            )
+            self.plant = build_master_plant(cfg)
             self._hand_sub = self.create_polled_subscription(JointState, OPERATOR_STATE, stream_qos())
             self.command_out = None
         else:

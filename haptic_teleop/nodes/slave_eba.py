@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from haptic_teleop.core.watchdog import ForceFade
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.common import (
     PAYLOAD_FIELDS,
@@ -20,7 +21,6 @@ from haptic_teleop.nodes.common import (
     SLAVE_STATE,
     WALL_FRAME,
     EbaOut,
-    ForceFade,
     JointStateOut,
     LiveNode,
     WrenchOut,
@@ -43,33 +43,15 @@ class SlaveEba(LiveNode):
         from sensor_msgs.msg import JointState
 
         from haptic_teleop.engine import _controller
-        from haptic_teleop.plants.mujoco_plant import MujocoWallRobot, SimSettings
+        from haptic_teleop.plants import build_slave_plant
 
         cfg = declare_scene(self, SCENE_SECTIONS["slave_eba"], ("watchdog.timeout_s", "watchdog.fade_s"))
         period_ns = round(cfg.scene.period_s * 1e9)
         self.watchdog = declare_watchdog(self, period_ns)
         self.ctrl = _controller(cfg.controllers.slave, "slave", cfg.scene.period_s, cfg.slave.damping_n_s_per_m)
         self.fade = ForceFade(self.ctrl)
-        sim = SimSettings(
-            period_s=cfg.scene.period_s,
-            substeps=cfg.simulation.substeps,
-            integrator=cfg.simulation.integrator,
-            solver_iterations=cfg.simulation.solver_iterations,
-            solver_tolerance=cfg.simulation.solver_tolerance,
-        )
         s = cfg.slave
-        self.plant = MujocoWallRobot(
-            sim,
-            mass_kg=s.mass_kg,
-            damping_n_s_per_m=s.damping_n_s_per_m,
-            force_limit_n=s.force_limit_n,
-            wall_position_m=s.wall.position_m,
-            wall_stiffness_n_per_m=s.wall.stiffness_n_per_m,
-            wall_damping_n_s_per_m=s.wall.damping_n_s_per_m,
-            contact_impedance=s.contact_impedance,
-            model=s.model,
-            start_position_m=s.start_position_m,
-        )
+        self.plant = build_slave_plant(cfg)
         self.remote_samples = 0
         self._remote_fields = PAYLOAD_FIELDS["forward"]
         self._remote_sub = self.create_polled_subscription(JointState, received_topic("forward"), stream_qos())
