@@ -584,6 +584,21 @@ def take_all(sub: Any) -> list[Any]:
             out.append(r[0])
 
 
+def take_all_published_ns(sub: Any) -> list[tuple[int, Any]]:
+    """Every waiting message with the time its publisher wrote it (DDS source timestamp, system
+    clock, ns), oldest first."""
+    out = []
+    handle = sub.handle
+    with handle:
+        take = handle.take_message
+        msg_type, raw = sub.msg_type, sub.raw
+        while True:
+            r = take(msg_type, raw)
+            if r is None:
+                return out
+            out.append((int(r[1]["source_timestamp"]), r[0]))
+
+
 def take_latest(sub: Any) -> Any:
     """The newest waiting message of a polled subscription, or None."""
     last = None

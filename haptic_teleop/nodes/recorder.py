@@ -40,6 +40,7 @@ from haptic_teleop.nodes.common import (
     reliable_qos,
     stream_qos,
     take_all,
+    take_all_published_ns,
 )
 
 # Topic -> engine columns it fills (in the topic layout's value order).
@@ -152,11 +153,19 @@ class Recorder(LiveNode):
             self._drain()
 
     def _take(self) -> None:
-        now = self.now_ns()
+        if self.simulated_time:  # source timestamps are wall time: use the take time on /clock
+            now = self.now_ns()
+            for topic, sub in self._subs.items():
+                raws = take_all(sub)
+                if raws:
+                    self._queues[topic].extend((now, r) for r in raws)
+            return
+        # The publisher's write time: for /<dir>/received that is the buffer's release time,
+        # for the EBA arrays (no header) the tick that produced them; not when this loop took them.
         for topic, sub in self._subs.items():
-            raws = take_all(sub)
-            if raws:
-                self._queues[topic].extend((now, r) for r in raws)
+            got = take_all_published_ns(sub)
+            if got:
+                self._queues[topic].extend(got)
 
     def _drain(self) -> None:
         period = self.grid_ns
