@@ -258,12 +258,13 @@ def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_pat
 CROSS_MODE_TOLERANCE = {"contact_force_max_n": 0.10, "force_rms_error_n": 0.25}
 
 
-def test_sigint_every_process_exits_0_and_bag_is_complete(tmp_path, watcher):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_every_process_exits_0_and_bag_is_complete(tmp_path, watcher, sig):
     out = tmp_path / "run"
     launch = Launch("wall_contact", "--duration", "60", "--record", str(out), "--no-plots", cwd=tmp_path)
     launch.wait_for(r"scene time 0 at stamp", 60)
     time.sleep(3.0)
-    launch.proc.send_signal(signal.SIGINT)
+    launch.proc.send_signal(sig)
     code = launch.finish(120)
     assert code == 0, launch.text[-4000:]
     codes = launch.exit_codes()
@@ -347,3 +348,17 @@ def test_simulated_time_follows_clock(tmp_path):
     # Scene time starts at the operator's first simulated tick: a small number of simulated
     # seconds after the clock started at 1 s, not the wall clock's ~1.8e9 s since 1970.
     assert 1.0 <= info["start_stamp_ns"] * 1e-9 < 120.0
+
+
+def test_single_process_runs_every_node_in_one_process(tmp_path):
+    out = tmp_path / "run"
+    launch = Launch("wall_contact", "--duration", "2", "--record", str(out), "--no-plots", "--single-process",
+                    cwd=tmp_path)  # fmt: skip
+    code = launch.finish(180)
+    assert code == 0, launch.text[-4000:]
+    assert "started" not in launch.text  # no child processes
+    from haptic_teleop.analysis.metrics import analyze_bag
+
+    summary, _ = analyze_bag(out / "bag")
+    assert summary["ticks"] >= 1000
+    assert summary["all_finite"] is True
