@@ -13,10 +13,14 @@ class ConfigError(HapticTeleopError):
         self.key_path = key_path
         self.value = value
         self.allowed = allowed
+        where = key_path or "<top level>"
+        if isinstance(value, dict):  # a whole section (a contradiction between its keys): the message names them
+            super().__init__(f"{source}: {where}: {allowed}")
+            return
         shown = repr(value)
         if len(shown) > 80:
             shown = shown[:77] + "..."
-        super().__init__(f"{source}: {key_path or '<top level>'} = {shown}: {allowed}")
+        super().__init__(f"{source}: {where} = {shown}: {allowed}")
 
 
 class BagError(HapticTeleopError):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import csv
 import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,12 +56,135 @@ class OperatorConfig:
 
 
 @dataclass(frozen=True)
+class GravityConfig:
+    """Gravity along the device axis, simulated by MuJoCo (model.opt.gravity)."""
+
+    incline_deg: float = field(
+        metadata={
+            "min": -90.0,
+            "max": 90.0,
+            "help": "angle of the +x axis above the horizontal: > 0 means +x is uphill, gravity pulls toward -x",
+        }
+    )
+    acceleration_m_per_s2: float = field(default=9.81, metadata={"gt": 0.0, "max": 100.0, "help": "g"})
+
+
+@dataclass(frozen=True)
+class FrictionConfig:
+    """Joint friction simulated by MuJoCo: Coulomb (dof_frictionloss) and viscous (dof_damping)."""
+
+    coulomb_n: float = field(default=0.0, metadata={"min": 0.0, "max": 1e4, "help": "dry friction force level"})
+    viscous_n_s_per_m: float = field(
+        default=0.0,
+        metadata={"min": 0.0, "max": 1e5, "help": "added to the side's damping_n_s_per_m; EBA does not count it"},
+    )
+
+    def __post_init__(self) -> None:
+        if self.coulomb_n == 0.0 and self.viscous_n_s_per_m == 0.0:
+            raise ValueError("friction needs coulomb_n > 0 or viscous_n_s_per_m > 0 (leave the section out for none)")
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Zero-mean Gaussian sensor noise per signal; a zero std builds nothing for that signal."""
+
+    position_std_m: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0, "help": "position sensor noise"})
+    velocity_std_m_per_s: float = field(
+        default=0.0, metadata={"min": 0.0, "max": 100.0, "help": "velocity sensor noise"}
+    )
+    force_std_n: float = field(default=0.0, metadata={"min": 0.0, "max": 1e4, "help": "force sensor noise"})
+
+    def __post_init__(self) -> None:
+        if self.position_std_m == 0.0 and self.velocity_std_m_per_s == 0.0 and self.force_std_n == 0.0:
+            raise ValueError(
+                "noise needs at least one of position_std_m, velocity_std_m_per_s, force_std_n > 0 "
+                "(leave the section out for none)"
+            )
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Position encoder quantization."""
+
+    resolution_m: float = field(metadata={"gt": 0.0, "max": 1.0, "help": "one encoder count"})
+
+
+FILTER_TYPES = ("lowpass", "moving_average")
+
+
+@dataclass(frozen=True)
+class ForceFilterConfig:
+    """Filtering of the force sensor reading (the wall force the slave measures)."""
+
+    type: str = field(default="lowpass", metadata={"choices": FILTER_TYPES, "help": "filter kind"})
+    cutoff_hz: float | None = field(default=None, metadata={"gt": 0.0, "help": "lowpass: first-order cutoff"})
+    window_samples: int | None = field(
+        default=None, metadata={"min": 1, "max": 100000, "help": "moving_average: samples averaged"}
+    )
+
+    def __post_init__(self) -> None:
+        if self.type == "lowpass" and (self.cutoff_hz is None or self.window_samples is not None):
+            raise ValueError("force_filter type 'lowpass' needs cutoff_hz and no window_samples")
+        if self.type == "moving_average" and (self.window_samples is None or self.cutoff_hz is not None):
+            raise ValueError("force_filter type 'moving_average' needs window_samples and no cutoff_hz")
+
+
+@dataclass(frozen=True)
+class SaturationConfig:
+    """Actuator saturation: a force limit and/or a slew rate limit on the force applied."""
+
+    force_limit_n: float | None = field(default=None, metadata={"gt": 0.0, "max": 1e5, "help": "clip |F| to this"})
+    slew_rate_n_per_s: float | None = field(
+        default=None, metadata={"gt": 0.0, "max": 1e9, "help": "largest change of the applied force per second"}
+    )
+
+    def __post_init__(self) -> None:
+        if self.force_limit_n is None and self.slew_rate_n_per_s is None:
+            raise ValueError("saturation needs force_limit_n, slew_rate_n_per_s or both")
+
+
+@dataclass(frozen=True)
+class PlantEffectsConfig:
+    """Physical, sensor and actuator effects of one side; absent (None) effects are not built."""
+
+    gravity: GravityConfig | None = None
+    friction: FrictionConfig | None = None
+    noise: NoiseConfig | None = None
+    encoder: EncoderConfig | None = None
+    force_filter: ForceFilterConfig | None = None
+    saturation: SaturationConfig | None = None
+
+    def named(self) -> tuple[str, ...]:
+        """The effects this config names, in declaration order."""
+        return tuple(f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None)
+
+
+def _check_saturation(side: str, effects: PlantEffectsConfig, plant_limit_n: float) -> None:
+    sat = effects.saturation
+    if sat is not None and sat.force_limit_n is not None and sat.force_limit_n >= plant_limit_n:
+        raise ValueError(
+            f"{side}.effects.saturation.force_limit_n ({sat.force_limit_n}) must be below {side}.force_limit_n "
+            f"({plant_limit_n}), where the plant already clips: lower it or leave force_limit_n out"
+        )
+
+
+@dataclass(frozen=True)
 class MasterConfig:
     backend: str = field(default="mujoco", metadata={"choices": ("mujoco",)})
     model: str = "master_device.xml"
     mass_kg: float = field(default=0.2, metadata={"gt": 0.0, "max": 100.0})
     damping_n_s_per_m: float = field(default=1.0, metadata={"gt": 0.0, "max": 1e4, "help": "physical damping b_m"})
     force_limit_n: float = field(default=30.0, metadata={"gt": 0.0, "max": 1e4, "help": "actuator limit"})
+    effects: PlantEffectsConfig = field(default_factory=PlantEffectsConfig)
+
+    def __post_init__(self) -> None:
+        e = self.effects
+        if (e.noise is not None and e.noise.force_std_n > 0.0) or e.force_filter is not None:
+            raise ValueError(
+                "master.effects: the master device has no force sensor, so noise.force_std_n and force_filter "
+                "are not allowed here (they belong under slave.effects)"
+            )
+        _check_saturation("master", e, self.force_limit_n)
 
 
 @dataclass(frozen=True)
@@ -82,8 +206,10 @@ class SlaveConfig:
         default=0.1, metadata={"gt": 0.0, "max": 0.5, "help": "MuJoCo solimp d of the wall contact"}
     )
     wall: WallConfig = field(default_factory=WallConfig)
+    effects: PlantEffectsConfig = field(default_factory=PlantEffectsConfig)
 
     def __post_init__(self) -> None:
+        _check_saturation("slave", self.effects, self.force_limit_n)
         if self.wall.position_m <= self.start_position_m:
             raise ValueError(
                 f"wall.position_m ({self.wall.position_m}) must be beyond start_position_m "
@@ -147,6 +273,9 @@ class RecordingConfig:
     packets: bool = field(default=True, metadata={"help": "record every packet's fate"})
 
 
+WALL_STEP_LIMIT = math.sqrt(2.0)  # largest stable omega * h of the wall contact (docs/robustness.md)
+
+
 @dataclass(frozen=True)
 class Scene:
     """A whole scene. Every default here is the default scene (config/scenes/wall_contact.yaml)."""
@@ -170,6 +299,32 @@ class Scene:
                     f"controllers.{side}.force_limit_n ({ctrl.force_limit_n}) exceeds {side}.force_limit_n "
                     f"({plant.force_limit_n}): the actuator would clip forces the energy bound accounted for"
                 )
+        nyquist_hz = 0.5 / self.scene.period_s
+        for side, effects in (("master", self.master.effects), ("slave", self.slave.effects)):
+            filt = effects.force_filter
+            if filt is not None and filt.cutoff_hz is not None and filt.cutoff_hz >= nyquist_hz:
+                raise ValueError(
+                    f"{side}.effects.force_filter.cutoff_hz ({filt.cutoff_hz}) must be below the Nyquist "
+                    f"frequency 1 / (2 scene.period_s) = {nyquist_hz:g} Hz"
+                )
+        # A wall too stiff for the MuJoCo step makes energy in the plant (below the controllers,
+        # where EBA cannot see it). Measured limit: omega * h <= sqrt(2), omega = sqrt(K (1 - d) / m)
+        # (docs/robustness.md, "A wall too stiff for the step").
+        h = self.scene.period_s / self.simulation.substeps
+        omega = math.sqrt(self.slave.wall.stiffness_n_per_m * (1.0 - self.slave.contact_impedance) / self.slave.mass_kg)
+        if omega * h > WALL_STEP_LIMIT:
+            need = math.ceil(omega * self.scene.period_s / WALL_STEP_LIMIT)
+            raise ValueError(
+                f"slave.wall.stiffness_n_per_m ({self.slave.wall.stiffness_n_per_m:g}) is too stiff for a MuJoCo "
+                f"step of {h * 1e3:g} ms: omega * h = {omega * h:.2f} > {WALL_STEP_LIMIT:.2f} makes the simulated wall "
+                f"active; allowed: simulation.substeps >= {need} for this wall, or a softer wall or heavier robot"
+            )
+        friction = self.slave.effects.friction
+        if friction is not None and friction.coulomb_n > 0.0 and self.simulation.substeps != 1:
+            raise ValueError(
+                "slave.effects.friction.coulomb_n needs simulation.substeps: 1 (the wall force is told "
+                "apart from the joint friction force per MuJoCo step, docs/effects.md)"
+            )
 
 
 @dataclass(frozen=True)

@@ -124,3 +124,14 @@ def test_cli_config_error_exit_code_2(tmp_path):
     assert "master.damping_n_s_per_m = -3" in r.stderr
     assert "allowed" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_wall_too_stiff_for_the_step_is_rejected_with_the_substeps_it_needs():
+    with pytest.raises(ConfigError) as exc:
+        load_scene(find_scene("wall_contact"), overrides=["slave.wall.stiffness_n_per_m=1e7"])
+    msg = str(exc.value)
+    assert "slave.wall.stiffness_n_per_m" in msg and "simulation.substeps >= 3" in msg
+    assert "{" not in msg  # names the keys, does not dump the scene
+    # The remedy it names is accepted, and 1e6 N/m at 1 ms (omega h = 0.95) is fine as it is.
+    load_scene(find_scene("wall_contact"), overrides=["slave.wall.stiffness_n_per_m=1e7", "simulation.substeps=3"])
+    load_scene(find_scene("wall_contact"), overrides=["slave.wall.stiffness_n_per_m=1e6"])

@@ -7,4 +7,7 @@ The table below is the only place that lists them, so the CLI needs no change wh
 BENCHMARKS = {
     "speed": "haptic_teleop.benchmarks.speed",
     "live": "haptic_teleop.benchmarks.live",
+    "effects": "haptic_teleop.benchmarks.effects",
+    "network": "haptic_teleop.benchmarks.network",
+    "accuracy": "haptic_teleop.benchmarks.accuracy",
 }

@@ -6,7 +6,16 @@ inside the backend module, so this package imports without them.
 
 from __future__ import annotations
 
-from typing import Protocol
+import math
+import typing
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
+
+from haptic_teleop.errors import PlantError
+
+if TYPE_CHECKING:
+    from haptic_teleop.plants.mujoco_plant import SimSettings
+    from haptic_teleop.scene import PlantEffectsConfig, Scene
 
 
 class Plant(Protocol):
@@ -34,3 +43,159 @@ class Plant(Protocol):
     def close(self) -> None:
         """Release the device (torque off on hardware)."""
         ...
+
+
+# --------------------------------------------------------------------------------------------
+# The one place plants are built from a scene (the engine and the live nodes both call these).
+# Only the effects the scene names are built; with none named the bare MuJoCo plant is returned,
+# so an effect-free scene pays nothing per tick for the effects machinery.
+
+
+def sim_settings(config: Scene) -> SimSettings:
+    """The MuJoCo settings of a scene."""
+    from haptic_teleop.plants.mujoco_plant import SimSettings
+
+    s = config.simulation
+    return SimSettings(
+        period_s=config.scene.period_s,
+        substeps=s.substeps,
+        integrator=s.integrator,
+        solver_iterations=s.solver_iterations,
+        solver_tolerance=s.solver_tolerance,
+    )
+
+
+def build_master_plant(config: Scene) -> Plant:
+    """The operator's device of `config` (its `master` section), with `master.effects`."""
+    from haptic_teleop.plants.mujoco_plant import MujocoDevice
+
+    m = config.master
+    plant = MujocoDevice(
+        sim_settings(config),
+        mass_kg=m.mass_kg,
+        damping_n_s_per_m=m.damping_n_s_per_m,
+        force_limit_n=m.force_limit_n,
+        hand_mass_kg=config.operator.mass_kg,
+        model=m.model,
+    )
+    return _with_effects(plant, config, "master", m.effects)
+
+
+def build_slave_plant(config: Scene) -> Plant:
+    """The robot and wall of `config` (its `slave` section), with `slave.effects`."""
+    from haptic_teleop.plants.mujoco_plant import MujocoWallRobot
+
+    s = config.slave
+    plant = MujocoWallRobot(
+        sim_settings(config),
+        mass_kg=s.mass_kg,
+        damping_n_s_per_m=s.damping_n_s_per_m,
+        force_limit_n=s.force_limit_n,
+        wall_position_m=s.wall.position_m,
+        wall_stiffness_n_per_m=s.wall.stiffness_n_per_m,
+        wall_damping_n_s_per_m=s.wall.damping_n_s_per_m,
+        contact_impedance=s.contact_impedance,
+        model=s.model,
+        start_position_m=s.start_position_m,
+    )
+    return _with_effects(plant, config, "slave", s.effects)
+
+
+def _with_effects(plant: Any, config: Scene, side: str, effects: PlantEffectsConfig) -> Plant:
+    """Write the physical effects into the MuJoCo model, wrap the sensor/actuator ones."""
+    if effects.gravity is not None:
+        _set_gravity(plant, effects.gravity.incline_deg, effects.gravity.acceleration_m_per_s2)
+    contact_source = None
+    fr = effects.friction
+    if fr is not None:
+        model = plant.model
+        model.dof_frictionloss[:] = fr.coulomb_n
+        # MuJoCo's dry friction is a soft constraint: with its default softness a device held by
+        # half the Coulomb force creeps at about 2.6 mm/s. A time constant of two steps and an
+        # impedance of 0.9999 make sticking stick (creep about 0.5 um/s per N, docs/effects.md).
+        model.dof_solref[:] = (2.0 * model.opt.timestep, 1.0)
+        model.dof_solimp[:] = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+        model.dof_damping[:] += fr.viscous_n_s_per_m
+        if fr.coulomb_n > 0.0 and side == "slave":
+            contact_source = _contact_without_dof_friction(plant)
+    physical = tuple(n for n in ("gravity", "friction") if getattr(effects, n) is not None)
+
+    from haptic_teleop.core import sensing
+
+    seed = config.scene.seed
+    period_s = config.scene.period_s
+    position: list[Any] = []
+    velocity: list[Any] = []
+    force: list[Any] = []
+    actuator: list[Any] = []
+    nz = effects.noise
+    # Order on each signal: noise on the analog value, then the encoder's quantization or the
+    # force filter (the filter smooths the noisy reading), as a real sensor chain does.
+    if nz is not None:
+        for std, name, chain in (
+            (nz.position_std_m, "position_noise", position),
+            (nz.velocity_std_m_per_s, "velocity_noise", velocity),
+            (nz.force_std_n, "force_noise", force),
+        ):
+            if std > 0.0:
+                chain.append(sensing.GaussianNoise(std, sensing.sensing_rng(seed, side, name), name))
+    if effects.encoder is not None:
+        position.append(sensing.Quantizer(effects.encoder.resolution_m))
+    ff = effects.force_filter
+    if ff is not None:
+        if ff.type == "lowpass":
+            assert ff.cutoff_hz is not None
+            force.append(sensing.LowPassFilter(ff.cutoff_hz, period_s))
+        else:
+            assert ff.window_samples is not None
+            force.append(sensing.MovingAverage(ff.window_samples))
+    sat = effects.saturation
+    if sat is not None:
+        actuator.append(sensing.ActuatorLimit(period_s, plant.axes, sat.force_limit_n, sat.slew_rate_n_per_s))
+    if not (position or velocity or force or actuator or contact_source is not None):
+        return typing.cast(Plant, plant)  # nothing per tick to add: the bare plant, no pass-through
+    from haptic_teleop.plants.effects import EffectsPlant
+
+    return EffectsPlant(plant, position, velocity, force, actuator, contact_source, physical)
+
+
+def _set_gravity(plant: Any, incline_deg: float, g_m_per_s2: float) -> None:
+    """World gravity with a component -g sin(incline) along the (single) slide axis."""
+    import mujoco
+    import numpy as np
+
+    model, data = plant.model, plant.data
+    if model.njnt != 1 or model.jnt_type[0] != mujoco.mjtJoint.mjJNT_SLIDE:
+        raise PlantError("gravity needs a model with one slide joint (the device axis)")
+    mujoco.mj_kinematics(model, data)
+    axis = np.array(data.xaxis[0], dtype=float)
+    axis /= np.linalg.norm(axis)
+    # A unit vector across the axis carries the rest of g; on a single slide joint it does nothing.
+    across = np.array([0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    across -= axis * float(across @ axis)
+    across /= np.linalg.norm(across)
+    th = math.radians(incline_deg)
+    model.opt.gravity[:] = -g_m_per_s2 * (math.sin(th) * axis + math.cos(th) * across)
+    mujoco.mj_forward(model, data)
+
+
+def _contact_without_dof_friction(plant: Any) -> Callable[[], list[float]]:
+    """The plant's constraint force on the joint minus MuJoCo's dry-friction rows: the wall force.
+
+    The plant reports `qfrc_constraint`, which holds the joint's friction (dof_frictionloss)
+    as well as the contact; the friction rows' forces of the last step are taken out. Exact for
+    one MuJoCo step per period (the scene requires substeps 1 with slave Coulomb friction)."""
+    import mujoco
+
+    model, data = plant.model, plant.data
+    # MuJoCo orders constraint rows equality, dry friction, limits, contacts, and a dof with
+    # frictionloss > 0 always has its friction row: on this one-dof model it is row 0, every step.
+    mujoco.mj_forward(model, data)
+    if model.nv != 1 or data.nefc < 1 or data.efc_type[0] != mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF:
+        raise PlantError("slave Coulomb friction needs a one-dof model whose first constraint row is its friction")
+    plant_contact = plant.contact_force
+
+    def contact() -> list[float]:
+        return [plant_contact()[0] - float(data.efc_force[0])]
+
+    return contact
