@@ -144,6 +144,12 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--no-plots", action="store_true")
     a.set_defaults(func=cmd_analyze)
 
+    from haptic_teleop import sweep
+
+    sw = sub.add_parser("sweep", help="run every combination of parameter values and seeds; table, CSV, plot")
+    sweep.add_arguments(sw)
+    sw.set_defaults(func=sweep.main)
+
     b = sub.add_parser("bench", help="benchmarks that print figures")
     bsub = b.add_subparsers(dest="what", required=True, metavar="NAME")
     import importlib

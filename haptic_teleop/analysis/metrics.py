@@ -195,6 +195,7 @@ def direction_stats(
         f"reorder_count_{prefix}": _reordered(rows),
         f"duplicates_{prefix}": int(np.count_nonzero(rows[:, 4] == 1.0)) if rows.size else 0,
         f"late_loss_{prefix}": late,
+        f"late_loss_rate_{prefix}": late / sent if sent else math.nan,
         f"buffering_delay_{prefix}_mean_s": float(np.mean(buffering)) if buffering else math.nan,
         f"wire_bits_per_s_{prefix}": wire_bits / duration_s if duration_s > 0 else math.nan,
     }
