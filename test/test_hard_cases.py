@@ -1,0 +1,410 @@
+"""Hard cases: EBA keeps both ports passive; where the unprotected loop fails, it is run and fails.
+
+Each case is a short scene (3 s; 6 s for the 500 ms delay, whose round trip is 1 s) recorded to a
+real bag and analysed from it. Cases, the energy tolerance epsilon and the measured numbers are in
+docs/robustness.md. Run: `.venv/bin/python -m pytest -q -p no:cacheprovider test/test_hard_cases.py`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from haptic_teleop.analysis.metrics import Signals, analyze_bag, port_energy
+from haptic_teleop.engine import COL, Engine, record_run
+from haptic_teleop.plants.mujoco_plant import MujocoWallRobot, SimSettings
+from haptic_teleop.scene import Scene, find_scene, load_scene
+
+UNIT_ROUNDOFF = 2.0**-53  # float64
+
+# Every case: the wall 5 mm ahead, the operator pushing from 0.2 s toward 3 cm (so the robot
+# reaches the wall early in a short scene), default seed and devices unless the case says.
+GEOMETRY = (
+    "slave.wall.position_m=0.005",
+    "operator.start_s=0.2",
+    "operator.speed_m_per_s=0.05",
+    "operator.distance_m=0.03",
+)
+UNPROTECTED = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")
+SIDES = ("master", "slave")
+
+
+def _both(key: str, value: object) -> tuple[str, ...]:
+    return tuple(f"network.{d}.effects.{key}={value}" for d in ("forward", "backward"))
+
+
+def _gains(c1: float, c2: float) -> tuple[str, ...]:
+    return tuple(
+        f"controllers.{side}.{key}={value}"
+        for side in SIDES
+        for key, value in (("stiffness_n_per_m", c1), ("damping_n_s_per_m", c2))
+    )
+
+
+STIFF_GAINS = _gains(4000, 40)  # the stiff_wall scene's coupling
+LARGE_GAINS = _gains(1e4, 100)
+FAST = ("operator.speed_m_per_s=1.0",)
+WALL_1E6 = ("slave.wall.stiffness_n_per_m=1e6",)
+VARYING_DELAY = _both(
+    "delay", "{delay_s: 0.0, jitter_s: 0.005, sinusoid: {min_delay_s: 0.02, max_delay_s: 0.5, period_s: 1.0}}"
+)
+# Gilbert-Elliott with loss 2 % in the good state, 98 % in the bad one, p = r = 5 %: the stationary
+# loss rate (p (1-h) + r (1-k)) / (p + r) is exactly 50 %, in bursts (docs/network.md).
+GE_P, GE_R, GE_LOSS_BAD, GE_LOSS_GOOD = 0.05, 0.05, 0.98, 0.02
+GE_LOSS = _both(
+    "loss",
+    f"{{model: gilbert_elliott, p: {GE_P}, r: {GE_R}, one_minus_h: {GE_LOSS_BAD}, one_minus_k: {GE_LOSS_GOOD}}}",
+)
+REORDER = _both("reorder", "{probability: 0.3}")
+BLACKOUT = _both("blackout", "{starts_s: [1.0], ends_s: [1.5]}")
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    overrides: tuple[str, ...]
+    duration_s: float = 3.0
+    unprotected_fails: bool = False  # EBA off on both sides is run too and must fail
+
+
+CASES = (
+    Case("wall_1e6_impact", WALL_1E6 + LARGE_GAINS + FAST, unprotected_fails=True),
+    Case("delay_500ms_constant", STIFF_GAINS + _both("delay.delay_s", 0.5), duration_s=6.0, unprotected_fails=True),
+    Case("delay_time_varying", STIFF_GAINS + VARYING_DELAY),
+    Case("gilbert_elliott_50pct", STIFF_GAINS + GE_LOSS + _both("delay.delay_s", 0.02)),
+    Case(
+        "reordering",
+        STIFF_GAINS + _both("delay", "{delay_s: 0.05, jitter_s: 0.02, distribution: uniform}") + REORDER,
+    ),
+    Case("operator_1_m_per_s", STIFF_GAINS + FAST, unprotected_fails=True),
+    Case(
+        "tiny_device_damping",
+        (*LARGE_GAINS, "master.damping_n_s_per_m=0.01", "slave.damping_n_s_per_m=0.01"),
+        unprotected_fails=True,
+    ),
+    Case("huge_coupling_gains", _gains(1e6, 1e4), unprotected_fails=True),
+    Case("blackout_recovery", LARGE_GAINS + BLACKOUT + _both("delay.delay_s", 0.02), unprotected_fails=True),
+    Case("everything_at_once", WALL_1E6 + LARGE_GAINS + FAST + VARYING_DELAY + GE_LOSS + REORDER + BLACKOUT),
+)
+CASE = {c.name: c for c in CASES}
+
+
+@dataclass
+class Run:
+    """One recorded run: the scene, the analysis of its bag, and the engine's full columns."""
+
+    config: Scene
+    summary: dict[str, Any]
+    signals: Signals
+    data: np.ndarray
+
+    def col(self, name: str) -> np.ndarray:
+        return self.data[:, COL[name]]
+
+    def side(self, side: str) -> tuple[Any, Any, float]:
+        """(plant config, controller config, E0) of one side."""
+        c = self.config
+        plant = c.master if side == "master" else c.slave
+        ctrl = c.controllers.master if side == "master" else c.controllers.slave
+        return plant, ctrl, ctrl.eba.initial_energy_j
+
+    def absorbed_j(self, side: str) -> np.ndarray:
+        """E0 + energy absorbed at the port so far, from the bag's plant signals (as the analysis)."""
+        sig = self.signals
+        x, f = (sig.master_x_m, sig.master_force_n) if side == "master" else (sig.slave_x_m, sig.slave_force_n)
+        plant, _, e0 = self.side(side)
+        return e0 + port_energy(x, f, plant.damping_n_s_per_m, sig.period_s)
+
+
+def energy_epsilon_j(x_m: np.ndarray, force_n: np.ndarray, damping: float, period_s: float, e0_j: float) -> float:
+    """Tolerance on an energy margin: the floating-point error of summing the port's ledger.
+
+    The margin is E0 plus a running sum of N terms (b/T) dx^2 - F dx. Recursive summation of N
+    terms, each computed with a few roundings, is off by at most about (N + c) u times the sum of
+    the terms' magnitudes (Higham, Accuracy and Stability of Numerical Algorithms, 4.2), u = 2^-53.
+    The controller and the analysis each make that error, so twice it, with c = 10 for the terms'
+    own roundings and the bound's square root. The magnitudes add up to the gross energy that
+    flowed through the port's ledger, E0 + sum (b/T) dx^2 + sum |F dx| (docs/robustness.md).
+    """
+    dx = np.diff(x_m)
+    flow = e0_j + float(np.sum((damping / period_s) * dx * dx) + np.sum(np.abs(force_n[:-1] * dx)))
+    return 2.0 * (x_m.size + 10) * UNIT_ROUNDOFF * flow
+
+
+def side_epsilon_j(run: Run, side: str) -> float:
+    sig = run.signals
+    x, f = (sig.master_x_m, sig.master_force_n) if side == "master" else (sig.slave_x_m, sig.slave_force_n)
+    plant, _, e0 = run.side(side)
+    return energy_epsilon_j(x, f, plant.damping_n_s_per_m, sig.period_s, e0)
+
+
+def plant_energy_excess_j(run: Run) -> float:
+    """max over t of the slave's kinetic energy minus the work its actuator did, scaled by 1/(1-d).
+
+    Robot and wall are passive, so the robot's mechanical energy never exceeds the actuator's
+    work W(t) = sum F_k dx_k (exact for a force held over the period). MuJoCo's soft contact
+    scales the robot's inertia by 1/(1-d) in contact (docs/plants.md), hence the factor. A positive
+    value means the simulated plant made energy itself: something EBA cannot see or stop.
+    """
+    x, v, f = run.col("s_x_m"), run.col("s_v_m_per_s"), run.col("s_force_n")
+    d = run.config.slave.contact_impedance
+    work = np.concatenate([[0.0], np.cumsum(f[:-1] * np.diff(x))])
+    kinetic = 0.5 * run.config.slave.mass_kg * v * v
+    return float(np.max(kinetic - work / (1.0 - d)))
+
+
+def bound_clipped_ticks(run: Run, side: str) -> int:
+    """Ticks at which the energy bound, not the saturation, set the force."""
+    prefix = "m" if side == "master" else "s"
+    _, ctrl, _ = run.side(side)
+    lim = ctrl.force_limit_n
+    wanted = np.clip(run.col(f"{prefix}_force_desired_n"), -lim, lim)
+    return int(np.count_nonzero(np.abs(run.col(f"{prefix}_force_n")) < np.abs(wanted) - 1e-9))
+
+
+def ports_that_gained_energy(run: Run) -> dict[str, tuple[float, float]]:
+    """The unprotected failure, per side: {side: (margin_min_j, delivered_in_last_third_j)}.
+
+    A side fails when its port delivered at least 0.5 J beyond its budget E0 (margin below
+    -0.5 J) and was still delivering in the last third of the run (at least 0.25 J more): a
+    sustained energy source, not one transient.
+    """
+    out = {}
+    for side in SIDES:
+        a = run.absorbed_j(side)
+        margin = float(np.min(a))
+        last_third = float(a[2 * a.size // 3] - a[-1])
+        if margin < -0.5 and last_third > 0.25:
+            out[side] = (margin, last_third)
+    return out
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Run]:
+    """Record each (case, protected) once per module; later tests reuse it."""
+    cache: dict[tuple[str, bool, tuple[str, ...]], Run] = {}
+    root: Path = tmp_path_factory.mktemp("hard_cases")
+
+    def get(case: Case, protected: bool = True, extra: tuple[str, ...] = ()) -> Run:
+        key = (case.name, protected, extra)
+        if key not in cache:
+            overrides = [*GEOMETRY, f"scene.duration_s={case.duration_s}", *case.overrides, *extra]
+            if not protected:
+                overrides += UNPROTECTED
+            scene = load_scene(find_scene("wall_contact"), overrides=overrides)
+            bag = root / f"{case.name}-{'on' if protected else 'off'}-{len(cache)}" / "bag"
+            bag.parent.mkdir(parents=True)
+            engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False)
+            summary, signals = analyze_bag(bag)
+            cache[key] = Run(scene.config, summary, signals, engine.data[: engine.ticks_done].copy())
+        return cache[key]
+
+    return get
+
+
+# --------------------------------------------------------------------------------------------
+# What each case must show, besides the common assertions: that it is the hard case it names.
+
+
+def _ticks(run: Run, t_s: float) -> int:
+    return round(t_s / run.config.scene.period_s)
+
+
+def _check_wall_impact(run: Run) -> None:
+    # The robot hits the 1e6 N/m wall hard: the contact force peaks far above any actuator force.
+    assert run.summary["contact_force_max_n"] > 100.0
+
+
+def _check_delay_500ms(run: Run) -> None:
+    assert run.summary["delay_forward_p50_s"] == pytest.approx(0.5)
+    assert run.summary["delay_backward_p50_s"] == pytest.approx(0.5)
+    assert run.summary["contact_force_max_n"] > 10.0  # the robot pushed the wall
+
+
+def _check_varying_delay(run: Run) -> None:
+    for d in ("forward", "backward"):
+        assert run.summary[f"delay_{d}_p99_s"] > 0.45  # the sinusoid's crest, 0.5 s
+        assert 0.2 < run.summary[f"delay_{d}_mean_s"] < 0.32  # its mean over whole periods: 0.26 s
+        assert run.summary[f"reorder_count_{d}"] > 0  # jitter on a falling delay overtakes
+
+
+def _check_bursty_loss(run: Run) -> None:
+    # Two-state chain: rate q = 1/2; the loss count's variance per packet (docs/network.md)
+    # sigma^2 = q (1-q) + 2 pi_G pi_B (l_B - l_G)^2 lambda / (1 - lambda), lambda = 1 - p - r.
+    p, r, lb, lg = GE_P, GE_R, GE_LOSS_BAD, GE_LOSS_GOOD
+    pi_b = p / (p + r)
+    q = (p * lb + r * lg) / (p + r)
+    lam = 1.0 - p - r
+    var = q * (1 - q) + 2 * (1 - pi_b) * pi_b * (lb - lg) ** 2 * lam / (1 - lam)
+    for d in ("forward", "backward"):
+        n = run.summary[f"packets_sent_{d}"]
+        assert abs(run.summary[f"loss_rate_{d}"] - q) < 4.0 * math.sqrt(var / n)
+        assert run.summary[f"loss_burst_mean_{d}_packets"] > 5.0
+
+
+def _check_reordering(run: Run) -> None:
+    for d in ("forward", "backward"):
+        assert run.summary[f"reorder_count_{d}"] > 100
+        assert run.summary[f"packets_late_{d}"] > 100  # stale samples the buffer refused to play
+
+
+def _check_fast_operator(run: Run) -> None:
+    assert np.max(run.col("op_v_m_per_s")) == pytest.approx(1.0)
+    assert run.summary["contact_force_max_n"] > 20.0
+
+
+def _check_tiny_damping(run: Run) -> None:
+    # 2b/T = 20 N/m: the bound lets almost nothing through although the law asks for a lot.
+    assert np.max(np.abs(run.col("m_force_desired_n"))) > 50.0
+    assert np.max(np.abs(run.col("m_force_n"))) < 1.0
+    assert bound_clipped_ticks(run, "master") > 0.5 * run.data.shape[0]
+
+
+def _check_huge_gains(run: Run) -> None:
+    # The law asks for tens of times the saturation; the saturation and the bound hold.
+    for side, prefix in (("master", "m"), ("slave", "s")):
+        _, ctrl, _ = run.side(side)
+        assert np.max(np.abs(run.col(f"{prefix}_force_desired_n"))) > 10.0 * ctrl.force_limit_n
+    # The slave spends its whole budget E0 and stops there: the margin touches zero.
+    assert run.summary["slave_energy_margin_min_j"] < 1e-6
+
+
+def _check_blackout(run: Run) -> None:
+    # Delay 20 ms: nothing sent in [1.0, 1.5) s arrives, so ticks [1.02, 1.52) s release nothing;
+    # from 1.52 s on every tick releases a fresh sample again (each side recovered).
+    quiet = slice(_ticks(run, 1.02), _ticks(run, 1.52))
+    after = slice(_ticks(run, 1.52), None)
+    for col in ("fwd_rx_seq", "bwd_rx_seq"):
+        assert np.all(run.col(col)[quiet] < 0)
+        assert np.all(run.col(col)[after] >= _ticks(run, 1.5))
+    # ... and settled back into steady contact with the wall.
+    last = slice(-_ticks(run, 0.2), None)
+    assert np.all(np.abs(run.col("s_contact_n")[last]) > 1.0)
+    assert np.max(np.abs(run.col("s_v_m_per_s")[last])) < 1e-3
+
+
+def _check_everything(run: Run) -> None:
+    _check_wall_impact(run)
+    assert run.summary["loss_rate_forward"] > 0.3
+
+
+CHECKS: dict[str, Callable[[Run], None]] = {
+    "wall_1e6_impact": _check_wall_impact,
+    "delay_500ms_constant": _check_delay_500ms,
+    "delay_time_varying": _check_varying_delay,
+    "gilbert_elliott_50pct": _check_bursty_loss,
+    "reordering": _check_reordering,
+    "operator_1_m_per_s": _check_fast_operator,
+    "tiny_device_damping": _check_tiny_damping,
+    "huge_coupling_gains": _check_huge_gains,
+    "blackout_recovery": _check_blackout,
+    "everything_at_once": _check_everything,
+}
+
+
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_eba_holds_in_hard_case(case: Case, runs: Callable[..., Run]) -> None:
+    run = runs(case)
+    s = run.summary
+    # No exception (record_run would raise) and every tick ran.
+    assert s["ticks"] == round(case.duration_s / run.config.scene.period_s) and not s["interrupted"]
+    # Every state finite: every engine column (positions, velocities, forces, reservoirs, ...).
+    bad = [name for name, i in COL.items() if not np.all(np.isfinite(run.data[:, i]))]
+    assert not bad and s["all_finite"], f"non-finite columns: {bad}"
+    for side in SIDES:
+        plant, ctrl, _ = run.side(side)
+        prefix = "m" if side == "master" else "s"
+        # Forces within saturation: the controller's, which the scene keeps <= the actuator's.
+        applied = np.max(np.abs(run.col(f"{prefix}_force_n")))
+        assert applied <= ctrl.force_limit_n <= plant.force_limit_n, (side, applied)
+        # Both energy margins (from the bag's plant signals) at least -epsilon.
+        eps = side_epsilon_j(run, side)
+        assert s[f"{side}_energy_margin_min_j"] >= -eps, (side, s[f"{side}_energy_margin_min_j"], eps)
+        # A second method: the controller's own reservoir, recorded in the bag, is the same ledger.
+        reservoir = run.signals.master_reservoir_j if side == "master" else run.signals.slave_reservoir_j
+        assert reservoir is not None
+        assert np.max(np.abs(run.absorbed_j(side) - reservoir)) <= eps
+    # The slave plant itself stayed passive (a numerically unstable contact would not).
+    assert plant_energy_excess_j(run) <= 1e-12
+    # Not vacuous: the energy bound set the force on some ticks of this case.
+    assert bound_clipped_ticks(run, "master") + bound_clipped_ticks(run, "slave") > 0
+    CHECKS[case.name](run)
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.unprotected_fails], ids=lambda c: c.name)
+def test_unprotected_variant_fails(case: Case, runs: Callable[..., Run]) -> None:
+    protected, unprotected = runs(case, True), runs(case, False)
+    failed = ports_that_gained_energy(unprotected)
+    assert failed, {side: float(np.min(unprotected.absorbed_j(side))) for side in SIDES}
+    # The same predicate on the protected run of the same case passes: the difference is EBA.
+    assert not ports_that_gained_energy(protected)
+    # The failure is energy, not a crash: still finite, still within saturation.
+    assert np.all(np.isfinite(unprotected.data))
+    assert np.max(np.abs(unprotected.col("s_force_n"))) <= unprotected.config.controllers.slave.force_limit_n
+
+
+def test_euler_is_exactly_as_stable_as_implicitfast_at_1e6(runs: Callable[..., Run]) -> None:
+    """MuJoCo's Euler integrates joint damping implicitly too and no integrator treats the contact
+    force implicitly, so for this model Euler and implicitfast are the same computation: no naive
+    integrator failure to show at 1e6 N/m and 1 ms (docs/robustness.md)."""
+    case = CASE["wall_1e6_impact"]
+    implicitfast = runs(case)
+    overrides = [*GEOMETRY, f"scene.duration_s={case.duration_s}", *case.overrides, "simulation.integrator=Euler"]
+    euler = Engine(load_scene(find_scene("wall_contact"), overrides=overrides)).run(handle_sigint=False)
+    assert np.array_equal(euler.data[: euler.ticks], implicitfast.data)
+    assert implicitfast.summary["contact_force_max_n"] > 100.0  # and it is the hard impact
+
+
+@pytest.mark.parametrize(
+    ("stiffness_n_per_m", "substeps", "integrator", "passive"),
+    [
+        (1e6, 1, "Euler", True),
+        (1e6, 1, "implicitfast", True),
+        (1e7, 1, "Euler", False),
+        (1e7, 1, "implicitfast", False),
+        (1e7, 4, "Euler", True),
+        (1e7, 4, "implicitfast", True),
+    ],
+)
+def test_contact_step_too_coarse_for_the_wall_makes_energy(
+    stiffness_n_per_m: float, substeps: int, integrator: str, passive: bool
+) -> None:
+    """The naive discretisation that does fail: one 1 ms step of a 1e7 N/m contact (omega h = 3).
+
+    A constant 10 N pushes the robot from 1 mm into the wall for 1 s. A passive plant's kinetic
+    energy stays below the work 10 N * (x - x0) (times 1/(1-d), the contact's inertia scale).
+    """
+    d = 0.1
+    robot = MujocoWallRobot(
+        SimSettings(period_s=0.001, substeps=substeps, integrator=integrator),
+        mass_kg=1.0,
+        damping_n_s_per_m=5.0,
+        force_limit_n=50.0,
+        wall_position_m=0.001,
+        wall_stiffness_n_per_m=stiffness_n_per_m,
+        wall_damping_n_s_per_m=10.0,
+        contact_impedance=d,
+    )
+    push_n = 10.0
+    x0 = robot.read()[0][0]
+    excess = -math.inf
+    peak_wall_n = 0.0
+    for _ in range(1000):
+        robot.step([push_n])
+        (x,), (v,) = robot.read()
+        excess = max(excess, 0.5 * 1.0 * v * v - push_n * (x - x0) / (1.0 - d))
+        peak_wall_n = max(peak_wall_n, abs(robot.contact_force()[0]))
+    robot.close()
+    if passive:
+        assert excess <= 1e-12 and peak_wall_n < 300.0, (excess, peak_wall_n)
+    else:
+        assert excess > 1.0 and peak_wall_n > 1000.0, (excess, peak_wall_n)
