@@ -16,6 +16,31 @@ from typing import Any
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.launcher import DEVICES, SIDES, NodeSpec, node_plan, write_params_files
 
+# Launch arguments (name, default, description): every launch file takes these...
+ARGUMENTS = (
+    ("scene", "wall_contact", "scene YAML path, or a bundled scene name"),
+    ("record", "", "directory for the bag (DIR/bag); empty: no recording"),
+    ("side", "all", "all | master | slave (two hosts: the nodes of one side)"),
+    ("seed", "", "override scene.seed"),
+    ("duration", "", "override scene.duration_s (seconds)"),
+    ("sim_time", "false", "true: the nodes follow /clock (a clock_source publishes it)"),
+)
+# ... and the hardware variant (device "topic") these too.
+DEVICE_ARGUMENTS = (
+    ("state_topic", "/haptic_device/joint_states", "the device driver's sensor_msgs/JointState"),
+    ("command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"),
+)
+
+
+def launch_description(device: str) -> Any:
+    """The LaunchDescription of a launch file: its arguments and the node set (`launch_actions`)."""
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+
+    table = ARGUMENTS + (DEVICE_ARGUMENTS if device == "topic" else ())
+    args = [DeclareLaunchArgument(name, default_value=default, description=text) for name, default, text in table]
+    return LaunchDescription([*args, OpaqueFunction(function=launch_actions, kwargs={"device": device})])
+
 
 def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str | Path) -> list[tuple[NodeSpec, Path]]:
     """Launch arguments (strings, as `ros2 launch` passes them) -> [(node spec, its parameter file)].

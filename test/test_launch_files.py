@@ -5,14 +5,13 @@ they consume (their arguments) and `launch_support.plan_from_arguments`, which t
 checked against the plan `haptic-teleop launch` starts.
 """
 
-import ast
 from pathlib import Path
 
 import pytest
 import yaml
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.launch_support import plan_from_arguments
+from haptic_teleop.launch_support import ARGUMENTS, DEVICE_ARGUMENTS, plan_from_arguments
 from haptic_teleop.launcher import format_double, node_plan, params_yaml
 from haptic_teleop.nodes import EXECUTABLES
 from haptic_teleop.scene import find_scene, load_scene
@@ -21,23 +20,20 @@ ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = sorted((ROOT / "launch").glob("*_launch.py"))
 
 
-def _arguments(path: Path) -> list[str]:
-    tree = ast.parse(path.read_text())
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "ARGUMENTS":
-            return [elt.elts[0].value for elt in node.value.elts]
-    raise AssertionError(f"{path.name}: no ARGUMENTS table")
-
-
-def test_launch_files_exist_and_declare_the_arguments_the_plan_reads():
+def test_launch_files_exist_and_build_their_variant():
     assert [p.name for p in LAUNCH_FILES] == ["teleop_hardware_launch.py", "teleop_launch.py"]
+    for path, device in zip(LAUNCH_FILES, ("topic", "plant"), strict=True):
+        text = path.read_text()
+        compile(text, str(path), "exec")
+        assert "def generate_launch_description" in text
+        assert f'launch_description(device="{device}")' in text
+
+
+def test_every_launch_argument_is_read_by_the_plan():
     src = (ROOT / "haptic_teleop" / "launch_support.py").read_text()
-    for path in LAUNCH_FILES:
-        compile(path.read_text(), str(path), "exec")
-        names = _arguments(path)
-        assert names[:6] == ["scene", "record", "side", "seed", "duration", "sim_time"]
-        for name in names:
-            assert f'"{name}"' in src, f"{path.name}: argument {name} is not read by launch_support"
+    body = src[src.index("def plan_from_arguments") :]
+    for name, _, _ in ARGUMENTS + DEVICE_ARGUMENTS:
+        assert f'arg("{name}")' in body, f"launch argument {name} is declared but not read"
 
 
 def test_launch_file_plan_is_the_launcher_plan(tmp_path):

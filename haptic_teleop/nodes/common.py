@@ -569,9 +569,9 @@ def _polled_group_class() -> type:
     return PolledGroup
 
 
-def take_all(sub: Any) -> list[Any]:
-    """Every message waiting in a polled subscription's history, oldest first (what rclpy's
-    executor and wait_for_message do: rclpy has no public take call)."""
+def _taken(sub: Any) -> list[tuple[Any, dict[str, Any]]]:
+    """Every message waiting in a polled subscription's history with its message info, oldest
+    first (what rclpy's executor and wait_for_message do: rclpy has no public take call)."""
     out = []
     handle = sub.handle
     with handle:
@@ -581,36 +581,24 @@ def take_all(sub: Any) -> list[Any]:
             r = take(msg_type, raw)
             if r is None:
                 return out
-            out.append(r[0])
+            out.append(r)
+
+
+def take_all(sub: Any) -> list[Any]:
+    """Every waiting message of a polled subscription, oldest first."""
+    return [m for m, _ in _taken(sub)]
 
 
 def take_all_published_ns(sub: Any) -> list[tuple[int, Any]]:
     """Every waiting message with the time its publisher wrote it (DDS source timestamp, system
     clock, ns), oldest first."""
-    out = []
-    handle = sub.handle
-    with handle:
-        take = handle.take_message
-        msg_type, raw = sub.msg_type, sub.raw
-        while True:
-            r = take(msg_type, raw)
-            if r is None:
-                return out
-            out.append((int(r[1]["source_timestamp"]), r[0]))
+    return [(int(info["source_timestamp"]), m) for m, info in _taken(sub)]
 
 
 def take_latest(sub: Any) -> Any:
     """The newest waiting message of a polled subscription, or None."""
-    last = None
-    handle = sub.handle
-    with handle:
-        take = handle.take_message
-        msg_type, raw = sub.msg_type, sub.raw
-        while True:
-            r = take(msg_type, raw)
-            if r is None:
-                return last
-            last = r[0]
+    got = _taken(sub)
+    return got[-1][0] if got else None
 
 
 # ---------------------------------------------------------------------------------------------
