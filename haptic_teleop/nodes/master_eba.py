@@ -14,43 +14,24 @@ from __future__ import annotations
 
 from typing import Any
 
-from haptic_teleop.core.watchdog import ForceFade, Watchdog
-from haptic_teleop.nodes import SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.common import (
-    MASTER_EBA,
     MASTER_JOINT,
     MASTER_STATE,
     OPERATOR_STATE,
     PAYLOAD_FIELDS,
-    EbaOut,
     JointStateOut,
     LiveNode,
     WrenchOut,
     declare_value,
-    joint_values,
     node_main,
-    received_topic,
     sent_topic,
     stream_qos,
     take_latest,
 )
+from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
 
 DEVICE_SOURCES = ("plant", "topic")
-
-
-def declare_watchdog(node: LiveNode, period_ns: int) -> Watchdog:
-    timeout_s = declare_value(
-        node,
-        "watchdog.timeout_s",
-        WATCHDOG_TIMEOUT_S,
-        "remote data older than this (no arrival) starts the fade",
-        0.002,
-        60.0,
-    )
-    fade_s = declare_value(
-        node, "watchdog.fade_s", WATCHDOG_FADE_S, "force fades to zero (and back) over this time", 0.0, 60.0
-    )
-    return Watchdog(round(timeout_s * 1e9), round(fade_s * 1e9), period_ns)
 
 
 class MasterEba(LiveNode):
@@ -60,14 +41,13 @@ class MasterEba(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.engine import _controller
         from haptic_teleop.nodes.common import declare_scene
         from haptic_teleop.plants import build_master_plant
 
-        names = ("watchdog.timeout_s", "watchdog.fade_s", "device.source", "device.state_topic", "device.command_topic")
+        names = (*WATCHDOG_PARAMS, "device.source", "device.state_topic", "device.command_topic")
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.watchdog = declare_watchdog(self, period_ns)
+        self.side = EbaSide(self, "master", cfg.controllers.master, cfg.master.damping_n_s_per_m, cfg.scene.period_s)
         self.source = declare_value(
             self,
             "device.source",
@@ -79,8 +59,6 @@ class MasterEba(LiveNode):
         command_topic = declare_value(
             self, "device.command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"
         )
-        self.ctrl = _controller(cfg.controllers.master, "master", cfg.scene.period_s, cfg.master.damping_n_s_per_m)
-        self.fade = ForceFade(self.ctrl)
         self.plant: Any = None
         self._hand_n = 0.0
         self._device: tuple[float, float] | None = None
@@ -91,16 +69,12 @@ class MasterEba(LiveNode):
         else:
             self._device_sub = self.create_polled_subscription(JointState, state_topic, stream_qos())
             self.command_out = WrenchOut(self, command_topic, MASTER_JOINT)
-        self.remote_samples = 0
-        self._remote_fields = PAYLOAD_FIELDS["backward"]
-        self._remote_sub = self.create_polled_subscription(JointState, received_topic("backward"), stream_qos())
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, ("position", "velocity", "effort"))
         self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, PAYLOAD_FIELDS["forward"])
-        self.eba_out = EbaOut(self, MASTER_EBA)
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"device {self.source}, period {cfg.scene.period_s * 1e3:g} ms, watchdog bound "
-            f"{self.watchdog.bound_s(cfg.scene.period_s) * 1e3:.0f} ms"
+            f"{self.side.bound_ms():.0f} ms"
         )
 
     def tick(self, index: int, stamp_ns: int) -> None:
@@ -116,13 +90,7 @@ class MasterEba(LiveNode):
             if self._device is None:
                 return  # no device yet: nothing to control
             x, v = [self._device[0]], [self._device[1]]
-        remote = take_latest(self._remote_sub)
-        if remote is not None:
-            self.remote_samples += 1
-            self.ctrl.set_remote(joint_values(remote, self._remote_fields))
-            self.watchdog.feed(stamp_ns)
-        self.fade.set_gain(self.watchdog.update(stamp_ns))
-        f = self.ctrl.step(x, v)
+        f = self.side.step(x, v, stamp_ns)
         self.forward_out.publish(stamp_ns, (x[0], v[0]))
         if self.plant is not None:
             applied = self.plant.step(f, [self._hand_n])
@@ -131,11 +99,10 @@ class MasterEba(LiveNode):
             self.command_out.publish(stamp_ns, f[0])
             applied = f
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))
-        self.eba_out.publish(self.ctrl.bound.energy_j[0], self.ctrl.force_desired[0])
+        self.side.publish_internals()
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
-        wd = self.watchdog
-        return {"watchdog_gain": round(wd.gain, 3), "watchdog_trips": wd.trips, "remote_samples": self.remote_samples}
+        return self.side.diagnostic_values()
 
     def close(self) -> None:
         super().close()

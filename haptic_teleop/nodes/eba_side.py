@@ -1,0 +1,75 @@
+"""What master_eba and slave_eba share: one side's TeleopController driven by the newest remote
+sample its sync buffer released, behind the remote-data watchdog, and its EBA internals topic."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from haptic_teleop.core.watchdog import ForceFade, Watchdog
+from haptic_teleop.nodes import WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes.common import (
+    MASTER_EBA,
+    PAYLOAD_FIELDS,
+    SLAVE_EBA,
+    EbaOut,
+    LiveNode,
+    declare_value,
+    joint_values,
+    received_topic,
+    stream_qos,
+    take_latest,
+)
+
+WATCHDOG_PARAMS = ("watchdog.timeout_s", "watchdog.fade_s")
+
+
+def declare_watchdog(node: LiveNode, period_ns: int) -> Watchdog:
+    timeout_s = declare_value(
+        node, "watchdog.timeout_s", WATCHDOG_TIMEOUT_S, "remote data older than this (no arrival) starts the fade",
+        0.002, 60.0,
+    )  # fmt: skip
+    fade_s = declare_value(
+        node, "watchdog.fade_s", WATCHDOG_FADE_S, "force fades to zero (and back) over this time", 0.0, 60.0
+    )
+    return Watchdog(round(timeout_s * 1e9), round(fade_s * 1e9), period_ns)
+
+
+class EbaSide:
+    """Per tick: take the newest released remote sample (if any), feed the watchdog, fade the
+    saturation limit by its gain, run the control law and the energy bound."""
+
+    def __init__(self, node: LiveNode, role: str, controller_config: Any, damping_n_s_per_m: float, period_s: float):
+        from sensor_msgs.msg import JointState
+
+        from haptic_teleop.engine import _controller
+
+        self.period_s = period_s
+        self.watchdog = declare_watchdog(node, round(period_s * 1e9))
+        self.ctrl = _controller(controller_config, role, period_s, damping_n_s_per_m)
+        self.fade = ForceFade(self.ctrl)
+        remote = "backward" if role == "master" else "forward"
+        self._fields = PAYLOAD_FIELDS[remote]
+        self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos())
+        self._eba_out = EbaOut(node, MASTER_EBA if role == "master" else SLAVE_EBA)
+        self.remote_samples = 0
+
+    def step(self, x: Sequence[float], v: Sequence[float], stamp_ns: int) -> list[float]:
+        remote = take_latest(self._sub)
+        if remote is not None:
+            self.remote_samples += 1
+            self.ctrl.set_remote(joint_values(remote, self._fields))
+            self.watchdog.feed(stamp_ns)
+        self.fade.set_gain(self.watchdog.update(stamp_ns))
+        return self.ctrl.step(x, v)
+
+    def publish_internals(self) -> None:
+        self._eba_out.publish(self.ctrl.bound.energy_j[0], self.ctrl.force_desired[0])
+
+    def bound_ms(self) -> float:
+        """The watchdog bound: zero force at most this long after the last arrival."""
+        return self.watchdog.bound_s(self.period_s) * 1e3
+
+    def diagnostic_values(self) -> dict[str, float | int | str]:
+        wd = self.watchdog
+        return {"watchdog_gain": round(wd.gain, 3), "watchdog_trips": wd.trips, "remote_samples": self.remote_samples}
