@@ -13,7 +13,10 @@ Recording goes into preallocated numpy columns; the bag is encoded in bulk after
 
 from __future__ import annotations
 
+import gc
+import math
 import signal
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,12 +26,12 @@ from types import FrameType
 import numpy as np
 
 from haptic_teleop.bag import BLOCK_TICKS
-from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, TeleopController
+from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
 from haptic_teleop.core.network import Link, Packet, build_link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
-from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot, SimSettings
-from haptic_teleop.scene import ControllerConfig, LoadedScene
+from haptic_teleop.plants import build_master_plant, build_slave_plant
+from haptic_teleop.scene import ControllerConfig, LoadedScene, Scene
 
 # Per-tick columns, in record order.
 COLUMNS = (
@@ -58,7 +61,43 @@ class RunResult:
         return self.data[: self.ticks, COL[name]]
 
 
-def _controller(cfg: ControllerConfig, role: str, period_s: float, damping: float) -> TeleopController:
+REMOTE_LIMIT_MARGIN = 10.0  # remote values beyond 10x what the scene can produce are faults
+
+
+def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ...]] | None = None) -> RemoteLimits:
+    """Largest plausible remote values for a scene (docs/eba.md, "Bad values in packets").
+
+    REMOTE_LIMIT_MARGIN times: the workspace (wall position, the operator's reach, the robot's
+    start; at least 0.1 m), the operator's speed (at least 0.1 m/s), and the strongest force
+    limit of the actuators and controllers (a wall force far beyond what any actuator in the loop
+    can push is a sensor fault).
+    """
+    op = config.operator
+    reach = 0.0
+    speed = 0.0
+    if op.profile == "push":
+        reach, speed = abs(op.distance_m), abs(op.speed_m_per_s)
+    elif op.profile == "sinusoid":
+        reach, speed = abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
+    elif op.profile == "trace" and trace is not None:
+        ts, xs = trace
+        reach = max(abs(x) for x in xs)
+        slopes = [abs((xs[i + 1] - xs[i]) / (ts[i + 1] - ts[i])) for i in range(len(ts) - 1)]
+        speed = max(slopes, default=0.0)
+    workspace = max(0.1, abs(config.slave.wall.position_m), reach, abs(config.slave.start_position_m))
+    forces = (
+        config.master.force_limit_n,
+        config.slave.force_limit_n,
+        config.controllers.master.force_limit_n,
+        config.controllers.slave.force_limit_n,
+    )
+    k = REMOTE_LIMIT_MARGIN
+    return RemoteLimits(position_m=k * workspace, velocity_m_per_s=k * max(0.1, speed), force_n=k * max(forces))
+
+
+def _controller(
+    cfg: ControllerConfig, role: str, period_s: float, damping: float, limits: RemoteLimits | None = None
+) -> TeleopController:
     params = ControllerParams(
         role=role,
         law=cfg.law,
@@ -66,6 +105,7 @@ def _controller(cfg: ControllerConfig, role: str, period_s: float, damping: floa
         damping_n_s_per_m=cfg.damping_n_s_per_m,
         force_gain=cfg.force_gain,
         force_limit_n=cfg.force_limit_n,
+        remote_limits=limits,
     )
     bound = EnergyBoundParams(
         period_s=period_s,
@@ -85,13 +125,6 @@ class Engine:
         self.period_s = c.scene.period_s
         self.period_ns = round(c.scene.period_s * 1e9)
         self.ticks = int(round(c.scene.duration_s / c.scene.period_s))
-        sim = SimSettings(
-            period_s=c.scene.period_s,
-            substeps=c.simulation.substeps,
-            integrator=c.simulation.integrator,
-            solver_iterations=c.simulation.solver_iterations,
-            solver_tolerance=c.simulation.solver_tolerance,
-        )
         op = c.operator
         trace = scene.operator_trace
         self.operator = Operator(
@@ -109,28 +142,13 @@ class Engine:
                 trace_position_m=trace[1] if trace else (),
             )
         )
-        self.master = MujocoDevice(
-            sim,
-            mass_kg=c.master.mass_kg,
-            damping_n_s_per_m=c.master.damping_n_s_per_m,
-            force_limit_n=c.master.force_limit_n,
-            hand_mass_kg=op.mass_kg,
-            model=c.master.model,
+        self.master = build_master_plant(c)
+        self.slave = build_slave_plant(c)
+        limits = remote_limits(c, scene.operator_trace)
+        self.master_ctrl = _controller(
+            c.controllers.master, "master", self.period_s, c.master.damping_n_s_per_m, limits
         )
-        self.slave = MujocoWallRobot(
-            sim,
-            mass_kg=c.slave.mass_kg,
-            damping_n_s_per_m=c.slave.damping_n_s_per_m,
-            force_limit_n=c.slave.force_limit_n,
-            wall_position_m=c.slave.wall.position_m,
-            wall_stiffness_n_per_m=c.slave.wall.stiffness_n_per_m,
-            wall_damping_n_s_per_m=c.slave.wall.damping_n_s_per_m,
-            contact_impedance=c.slave.contact_impedance,
-            model=c.slave.model,
-            start_position_m=c.slave.start_position_m,
-        )
-        self.master_ctrl = _controller(c.controllers.master, "master", self.period_s, c.master.damping_n_s_per_m)
-        self.slave_ctrl = _controller(c.controllers.slave, "slave", self.period_s, c.slave.damping_n_s_per_m)
+        self.slave_ctrl = _controller(c.controllers.slave, "slave", self.period_s, c.slave.damping_n_s_per_m, limits)
         seed = c.scene.seed
         self.forward: Link = build_link(c.network.forward.effects, seed, "forward")
         self.backward: Link = build_link(c.network.backward.effects, seed, "backward")
@@ -172,9 +190,16 @@ class Engine:
                 self.request_stop()
 
             previous = signal.signal(signal.SIGINT, _on_sigint)
+        # The tick allocates packets, lists and tuples but makes no reference cycles, so the
+        # cycle collector only rescans the growing packet logs: pause it for the loop (it was
+        # about 3 % of a tick, docs/performance.md) and put it back as it was.
+        gc_was_enabled = gc.isenabled()
+        gc.disable()
         try:
             return self._loop(progress, on_block)
         finally:
+            if gc_was_enabled:
+                gc.enable()
             if previous is not None:
                 signal.signal(signal.SIGINT, previous)
 
@@ -186,15 +211,17 @@ class Engine:
         period_s = self.period_s
         data = self.data = np.zeros((n_ticks, len(COLUMNS)))
         self.ticks_done = 0
-        # Local bindings: attribute lookups are a measurable part of a 10 us tick.
+        # Local bindings: attribute lookups are a measurable part of a 10 us tick (docs/performance.md).
         master, slave = self.master, self.slave
         m_read, s_read = master.read, slave.read
         m_step, s_step = master.step, slave.step
         s_contact = slave.contact_force
         mc, sc = self.master_ctrl, self.slave_ctrl
-        m_bound, s_bound = mc.bound, sc.bound
-        hand = self.operator.hand_force
-        intended = self.operator.intended
+        m_control, s_control = mc.step1, sc.step1  # one axis: the controllers' scalar path
+        # The controllers update these lists in place every tick.
+        m_desired, s_desired = mc.force_desired, sc.force_desired
+        m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
+        hand = self.operator.hand_force_and_intended
         fwd, bwd = self.forward, self.backward
         fwd_send, bwd_send = fwd.send, bwd.send
         fwd_deliver, bwd_deliver = fwd.deliver, bwd.deliver
@@ -204,18 +231,25 @@ class Engine:
         m_set_remote, s_set_remote = mc.set_remote, sc.set_remote
         fwd_size = _wire_payload_bytes(2)
         bwd_size = _wire_payload_bytes(3)
+        # A tick's row goes straight into `data`'s memory: one C call, no tuple, no numpy scalar
+        # conversions (a third of what `data[n] = (...)` costs).
+        pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
+        row_bytes = 8 * len(COLUMNS)
         t0 = time.perf_counter()
         done = 0
         try:
             for n in range(n_ticks):
                 now_ns = n * period_ns
-                t = n * period_s
                 xm, vm = m_read()
                 xs, vs = s_read()
-                fenv = s_contact()
+                x_m = xm[0]
+                v_m = vm[0]
+                x_s = xs[0]
+                v_s = vs[0]
+                f_env = s_contact()[0]
                 # master
-                fm = mc.step(xm, vm)
-                fwd_send(Packet(n, now_ns, (xm[0], vm[0]), fwd_size))
+                fm = m_control(x_m, v_m)
+                fwd_send(Packet(n, now_ns, (x_m, v_m), fwd_size))
                 for p in fwd_deliver(now_ns):
                     fpush(p, now_ns)
                 rel = frelease(now_ns)
@@ -225,8 +259,8 @@ class Engine:
                 else:
                     frx = -1
                 # slave
-                fs = sc.step(xs, vs)
-                bwd_send(Packet(n, now_ns, (fenv[0], xs[0], vs[0]), bwd_size))
+                fs = s_control(x_s, v_s)
+                bwd_send(Packet(n, now_ns, (f_env, x_s, v_s), bwd_size))
                 for p in bwd_deliver(now_ns):
                     bpush(p, now_ns)
                 rel = brelease(now_ns)
@@ -236,14 +270,14 @@ class Engine:
                 else:
                     brx = -1
                 # operator and plants
-                fh = hand(t, xm, vm)
-                xd, vd = intended(t)
-                fm_applied = m_step(fm, fh)
-                fs_applied = s_step(fs)
-                data[n] = (
+                fh, xd, vd = hand(n * period_s, xm, vm)
+                fm_applied = m_step([fm], fh)[0]
+                fs_applied = s_step([fs])[0]
+                pack_row(
+                    data, n * row_bytes,
                     xd, vd, fh[0],
-                    xm[0], vm[0], fm_applied[0], mc.force_desired[0], m_bound.energy_j[0],
-                    xs[0], vs[0], fs_applied[0], sc.force_desired[0], s_bound.energy_j[0], fenv[0],
+                    x_m, v_m, fm_applied, m_desired[0], m_energy[0],
+                    x_s, v_s, fs_applied, s_desired[0], s_energy[0], f_env,
                     frx, brx, fbuf.occupancy, bbuf.occupancy,
                 )  # fmt: skip
                 if (n + 1) % 100 == 0:
@@ -325,6 +359,7 @@ def record_run(
         c.recording.packets,
         len(COLUMNS),
         parallel=parallel,
+        max_ticks=engine.ticks,
     )
     t0 = time.perf_counter()
     result: RunResult | None = None
@@ -332,7 +367,14 @@ def record_run(
         result = engine.run(progress=progress, handle_sigint=handle_sigint, on_block=rec.block)
     finally:
         done = getattr(engine, "ticks_done", 0)
-        info = {"ticks": done, "interrupted": done < engine.ticks, "failed": result is None}
+        info = {
+            "ticks": done,
+            "interrupted": done < engine.ticks,
+            "failed": result is None,
+            # Remote samples each side's guard rejected (the slave checks the forward direction).
+            "rejected_samples_forward": engine.slave_ctrl.rejected_samples,
+            "rejected_samples_backward": engine.master_ctrl.rejected_samples,
+        }
         rec.finish(
             getattr(engine, "data", np.zeros((0, len(COLUMNS)))), done, engine.forward.log, engine.backward.log, info
         )

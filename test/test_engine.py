@@ -187,3 +187,27 @@ def test_cli_sigint_finishes_the_bag(tmp_path):
         n = len(r.read("/master/joint_states").log_ns)
         assert 0 < n < 600_000
         assert json.loads(r.string("/haptic_teleop/run_info"))["interrupted"] is True
+
+
+def test_run_pauses_the_cycle_collector_and_restores_it(monkeypatch):
+    """The loop runs with gc paused (it makes no cycles); afterwards gc is as it was, also after
+    a failing tick."""
+    import gc
+
+    scene = load_scene(DEFAULT, overrides=["scene.duration_s=0.2"])
+    seen = []
+    engine = Engine(scene)
+    engine.run(progress=lambda n: seen.append(gc.isenabled()), handle_sigint=False)
+    assert seen and not any(seen)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        Engine(scene).run(handle_sigint=False)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    failing = Engine(scene)
+    monkeypatch.setattr(failing.slave, "step", None)  # the loop calls it: the first tick fails
+    with pytest.raises(TypeError):
+        failing.run(handle_sigint=False)
+    assert gc.isenabled()

@@ -232,6 +232,15 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         rl = (net.get(prefix) or {}).get("effects", {}).get("rate_limit") or {}
         overhead = float(rl.get("overhead_bytes", DEFAULT_OVERHEAD_BYTES))
         nets.update(direction_stats(rows, played_seq, released, duration, overhead, prefix))
+    # One lag for every playout policy: the median one-way *network* delay of the delivered
+    # backward packets (arrival minus send, before any playout buffer) + 1 tick. Policies release
+    # different samples, so the release-based lag of force_rms_error_n differs between them; this
+    # one depends only on the network draws (the same for every policy with the same seed).
+    bdeliv = sig.backward_packets[~np.isnan(sig.backward_packets[:, 2])] if sig.backward_packets.size else None
+    net_lag = (
+        _lag_ticks(bdeliv[:, 2] - bdeliv[:, 1], T) + 1 if bdeliv is not None and bdeliv.size else sig.backward_lag_ticks
+    )
+    e_net = _aligned_error(sig.master_force_n, sig.contact_n, net_lag)
     lat_f = _quantiles(sig.forward_delays_s)
     lat_b = _quantiles(sig.backward_delays_s)
     finite = all(
@@ -249,6 +258,8 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "force_peak_error_n": float(np.max(np.abs(e))) if e.size else math.nan,
         "force_rms_error_unaligned_n": _rms(e0),
         "force_alignment_lag_s": sig.backward_lag_ticks * T,
+        "force_rms_error_network_lag_n": _rms(e_net),
+        "force_network_lag_s": net_lag * T,
         "position_rms_error_m": _rms(pos),
         "contact_force_max_n": float(np.max(np.abs(sig.contact_n))),
         "master_force_max_n": float(np.max(np.abs(sig.master_force_n))),
@@ -270,6 +281,10 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "master_initial_energy_j": me0,
         "slave_initial_energy_j": se0,
         "all_finite": finite,
+        # Remote samples the receiving controller rejected (NaN, Inf, beyond the scene's limits:
+        # docs/eba.md); from the run facts, 0 for bags written without them.
+        "rejected_samples_forward": int(sig.run_info.get("rejected_samples_forward", 0)),
+        "rejected_samples_backward": int(sig.run_info.get("rejected_samples_backward", 0)),
     }
     return summary
 

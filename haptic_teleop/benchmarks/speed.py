@@ -1,12 +1,25 @@
-"""`haptic-teleop bench speed`: what a simulated second costs, against a bare MuJoCo step."""
+"""`haptic-teleop bench speed`: what a simulated second costs, against a bare MuJoCo step.
+
+Prints the real-time factor (simulated s / wall s) of a scene with bag recording (the writer in a
+second process, and all on one core), the loop alone, the wall time per tick against a bare
+`mujoco.mj_step` of the same two models, and where a tick's time goes. The breakdown replays the
+recorded run through each stage on its own (fresh objects, the same inputs), so the stages can be
+timed without instrumenting the loop; what the stages do not explain is the loop's own glue.
+Every figure is a median over `--repeat` runs: on a shared machine single timings are noise.
+"""
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import struct
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 
 def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float]:
@@ -31,31 +44,222 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float]
     return out[0], out[1]
 
 
-def speed(scene_name: str, repeat: int) -> int:
+# --------------------------------------------------------------------------------------------
+# Stage replays: each takes a fresh Engine (built outside the timing) and the recorded columns,
+# runs one stage over every tick, and returns the wall seconds it took.
+
+Columns = dict[str, list[float]]
+
+
+def _stage_mj_step(e: Any, c: Columns) -> float:
+    import mujoco
+
+    step = mujoco.mj_step
+    mm, md, sm, sd = e.master.model, e.master.data, e.slave.model, e.slave.data
+    md.ctrl[:] = 0.5
+    sd.ctrl[:] = 0.5
+    t0 = time.perf_counter()
+    for _ in range(len(c["m_x_m"])):
+        step(mm, md)
+        step(sm, sd)
+    return time.perf_counter() - t0
+
+
+def _stage_plants(e: Any, c: Columns) -> float:
+    m_read, s_read, s_contact = e.master.read, e.slave.read, e.slave.contact_force
+    m_step, s_step = e.master.step, e.slave.step
+    fm, fh, fs = c["m_force_n"], c["op_force_n"], c["s_force_n"]
+    t0 = time.perf_counter()
+    for n in range(len(fm)):
+        m_read()
+        s_read()
+        s_contact()
+        m_step([fm[n]], [fh[n]])
+        s_step([fs[n]])
+    return time.perf_counter() - t0
+
+
+def _stage_controllers(e: Any, c: Columns) -> float:
+    mc, sc = e.master_ctrl, e.slave_ctrl
+    m_control, s_control = mc.step1, sc.step1
+    m_set, s_set = mc.set_remote, sc.set_remote
+    mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
+    # The samples each side received, from the recorded release columns.
+    frx = [int(k) for k in c["fwd_rx_seq"]]
+    brx = [int(k) for k in c["bwd_rx_seq"]]
+    fwd = [(mx[k], mv[k]) if k >= 0 else None for k in frx]
+    bwd = [(fe[k], sx[k], sv[k]) if k >= 0 else None for k in brx]
+    t0 = time.perf_counter()
+    for n in range(len(mx)):
+        m_control(mx[n], mv[n])
+        p = fwd[n]
+        if p is not None:
+            s_set(p)
+        s_control(sx[n], sv[n])
+        p = bwd[n]
+        if p is not None:
+            m_set(p)
+    return time.perf_counter() - t0
+
+
+def _stage_operator(e: Any, c: Columns) -> float:
+    hand = e.operator.hand_force_and_intended
+    mx, mv = c["m_x_m"], c["m_v_m_per_s"]
+    period_s = e.period_s
+    t0 = time.perf_counter()
+    for n in range(len(mx)):
+        hand(n * period_s, [mx[n]], [mv[n]])
+    return time.perf_counter() - t0
+
+
+def _stage_packets(e: Any, c: Columns) -> float:
+    from haptic_teleop.core.network import Packet
+
+    mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
+    period_ns = e.period_ns
+    t0 = time.perf_counter()
+    for n in range(len(mx)):
+        now_ns = n * period_ns
+        Packet(n, now_ns, (mx[n], mv[n]), 100)
+        Packet(n, now_ns, (fe[n], sx[n], sv[n]), 100)
+    return time.perf_counter() - t0
+
+
+def _packets(e: Any, c: Columns) -> tuple[list[Any], list[Any]]:
+    from haptic_teleop.core.network import Packet
+
+    mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
+    period_ns = e.period_ns
+    fwd = [Packet(n, n * period_ns, (mx[n], mv[n]), 100) for n in range(len(mx))]
+    bwd = [Packet(n, n * period_ns, (fe[n], sx[n], sv[n]), 100) for n in range(len(mx))]
+    return fwd, bwd
+
+
+def _stage_links(e: Any, c: Columns) -> float:
+    fwd_p, bwd_p = _packets(e, c)
+    fs, fd, bs, bd = e.forward.send, e.forward.deliver, e.backward.send, e.backward.deliver
+    period_ns = e.period_ns
+    t0 = time.perf_counter()
+    for n in range(len(fwd_p)):
+        now_ns = n * period_ns
+        fs(fwd_p[n])
+        fd(now_ns)
+        bs(bwd_p[n])
+        bd(now_ns)
+    return time.perf_counter() - t0
+
+
+def _stage_buffers(e: Any, c: Columns) -> float:
+    # The links' deliveries are computed first (untimed); the buffers then take them tick by tick.
+    fwd_p, bwd_p = _packets(e, c)
+    period_ns = e.period_ns
+    arrivals: list[tuple[list[Any], list[Any]]] = []
+    for n in range(len(fwd_p)):
+        now_ns = n * period_ns
+        e.forward.send(fwd_p[n])
+        e.backward.send(bwd_p[n])
+        arrivals.append((e.forward.deliver(now_ns), e.backward.deliver(now_ns)))
+    fbuf, bbuf = e.forward_buffer, e.backward_buffer
+    fpush, frelease, bpush, brelease = fbuf.push, fbuf.release, bbuf.push, bbuf.release
+    t0 = time.perf_counter()
+    for n in range(len(arrivals)):
+        now_ns = n * period_ns
+        f_in, b_in = arrivals[n]
+        for p in f_in:
+            fpush(p, now_ns)
+        frelease(now_ns)
+        for p in b_in:
+            bpush(p, now_ns)
+        brelease(now_ns)
+        fbuf.occupancy  # noqa: B018 - recorded every tick: part of the cost
+        bbuf.occupancy  # noqa: B018
+    return time.perf_counter() - t0
+
+
+def _stage_row(e: Any, c: Columns) -> float:
+    from haptic_teleop.engine import COLUMNS
+
+    n_ticks = len(c["m_x_m"])
+    data = np.zeros((n_ticks, len(COLUMNS)))
+    pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
+    row_bytes = 8 * len(COLUMNS)
+    x = c["m_x_m"]
+    t0 = time.perf_counter()
+    for n in range(n_ticks):
+        a = x[n]
+        pack_row(data, n * row_bytes, a, a, a, a, a, a, a, a, a, a, a, a, a, a, n, n, 0, 0)
+    return time.perf_counter() - t0
+
+
+STAGES: tuple[tuple[str, Callable[[Any, Columns], float]], ...] = (
+    ("MuJoCo mj_step, master + slave", _stage_mj_step),
+    ("plants' Python (read, step, contact)", _stage_plants),  # minus mj_step below
+    ("controllers: law, saturation, EBA", _stage_controllers),
+    ("operator: hand force, intention", _stage_operator),
+    ("Packet objects (2)", _stage_packets),
+    ("network links: send, deliver", _stage_links),
+    ("playout buffers: push, release", _stage_buffers),
+    ("recording the row (pack_into)", _stage_row),
+)
+
+
+def breakdown_us(scene: Any, repeat: int) -> tuple[list[tuple[str, float]], float]:
+    """Per-tick wall time of each stage (us, median of `repeat`) and of the whole loop."""
+    from haptic_teleop.engine import COLUMNS, Engine
+
+    ref = Engine(scene).run(handle_sigint=False)
+    data = ref.data[: ref.ticks]
+    cols = {name: data[:, i].tolist() for i, name in enumerate(COLUMNS)}
+    ticks = ref.ticks
+    rows = []
+    for name, stage in STAGES:
+        times = []
+        for _ in range(repeat):
+            times.append(stage(Engine(scene), cols) / ticks * 1e6)
+        rows.append((name, statistics.median(times)))
+    # The plant stage includes mj_step: report only the Python around it.
+    mj = rows[0][1]
+    rows[1] = (rows[1][0], rows[1][1] - mj)
+    loop = statistics.median(Engine(scene).run(handle_sigint=False).loop_wall_s / ticks * 1e6 for _ in range(repeat))
+    return rows, loop
+
+
+def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     from haptic_teleop.engine import Engine, record_run
     from haptic_teleop.scene import find_scene, load_scene
 
     path = find_scene(scene_name)
     scene = load_scene(path)
-    rtf, per_tick, loop_only = [], [], []
+    rtf, rtf_one_core, per_tick, loop_only = [], [], [], []
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as tmp:
             engine, timing = record_run(scene, Path(tmp) / "bag", handle_sigint=False)
             rtf.append(timing.realtime_factor)
-        e = Engine(scene)
-        r = e.run(handle_sigint=False)
+            per_tick.append(timing.record_wall_s / max(1, engine.ticks_done) * 1e6)
+        with tempfile.TemporaryDirectory() as tmp:
+            _, timing = record_run(scene, Path(tmp) / "bag", handle_sigint=False, parallel=False)
+            rtf_one_core.append(timing.realtime_factor)
+        r = Engine(scene).run(handle_sigint=False)
         loop_only.append(r.loop_wall_s / r.ticks * 1e6)
-        per_tick.append(timing.record_wall_s / max(1, engine.ticks_done) * 1e6)
     m_us, s_us = bare_mj_step_us(path)
     bare = m_us + s_us
     tick = statistics.median(loop_only)
     run = scene.config.scene
     print(f"scene {run.name}: {run.duration_s:g} s at {1 / run.period_s:g} Hz, median of {repeat}")
     print(f"  real-time factor, loop + bag recording   {statistics.median(rtf):8.1f}   (target >= 50)")
+    print(f"  real-time factor, the same on one core   {statistics.median(rtf_one_core):8.1f}   (writer not parallel)")
+    print(f"  real-time factor, loop alone             {1e6 * run.period_s / tick:8.1f}")
     print(f"  wall time per tick, loop + recording     {statistics.median(per_tick):8.2f} us")
     print(f"  wall time per tick, loop alone           {tick:8.2f} us")
     print(f"  bare mj_step, master + slave models      {bare:8.2f} us  ({m_us:.2f} + {s_us:.2f})")
     print(f"  engine tick / bare mj_step               {tick / bare:8.1f} x")
+    if breakdown:
+        rows, loop = breakdown_us(scene, repeat)
+        print(f"where a tick's time goes (each stage replayed alone, median of {repeat}; loop {loop:.2f} us):")
+        for name, us in rows:
+            print(f"  {name:<40} {us:6.2f} us  {100 * us / loop:5.1f} %")
+        rest = loop - sum(us for _, us in rows)
+        print(f"  {'loop glue (the rest)':<40} {rest:6.2f} us  {100 * rest / loop:5.1f} %")
     return 0
 
 
@@ -65,7 +269,10 @@ HELP = "real-time factor of a scene and the engine's cost per tick against a bar
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
     p.add_argument("--repeat", type=int, default=3, help="runs; the median is printed")
+    p.add_argument("--no-breakdown", action="store_true", help="skip the per-stage table")
 
 
 def main(args: argparse.Namespace) -> int:
-    return speed(args.scene, args.repeat)
+    if args.repeat < 1:
+        raise SystemExit(f"--repeat must be >= 1, got {args.repeat}")
+    return speed(args.scene, args.repeat, not args.no_breakdown)

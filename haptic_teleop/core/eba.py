@@ -10,7 +10,9 @@ The bound makes E_i(n+1) >= 0 for *any* next displacement, because min over dx o
 (b/T) dx^2 - F dx is -F^2 T / (4 b).
 
 The tick path works on plain lists of floats: for the one to six axes of a haptic device that is
-several times cheaper than numpy, and it is the same code for every n.
+several times cheaper than numpy, and it is the same code for every n. One axis, the common case,
+also has a scalar path (`step1`) that does the same arithmetic in the same order on floats, so
+it gives the same bits (test_scalar_path_equals_the_general_path) without building lists.
 """
 
 from __future__ import annotations
@@ -51,7 +53,21 @@ class EnergyBoundParams:
 class EnergyBound:
     """One side's reservoirs and force bound; `step` is called once per tick."""
 
-    __slots__ = ("_bound_gain", "_enabled", "_gain", "_held", "_last_x", "energy_j", "params")
+    __slots__ = (
+        "_bound_gain",
+        "_bound_gain1",
+        "_enabled",
+        "_gain",
+        "_gain1",
+        "_has_last1",
+        "_held",
+        "_held1",
+        "_last1",
+        "_last_x",
+        "_scalar",
+        "energy_j",
+        "params",
+    )
 
     def __init__(self, params: EnergyBoundParams) -> None:
         self.params = params
@@ -64,6 +80,33 @@ class EnergyBound:
         self._held = [0.0] * n
         self._last_x: list[float] | None = None
         self._enabled = params.enabled
+        # One axis: `step` goes through `step1`, whose state is these floats (energy stays in energy_j).
+        self._scalar = n == 1
+        self._gain1 = self._gain[0]
+        self._bound_gain1 = self._bound_gain[0]
+        self._held1 = 0.0
+        self._last1 = 0.0
+        self._has_last1 = False
+
+    def step1(self, x: float, force_desired: float) -> float:
+        """`step` for a one-axis bound, on floats: the same arithmetic in the same order."""
+        energy = self.energy_j
+        if self._has_last1:
+            dx = x - self._last1
+            energy[0] += self._gain1 * dx * dx - self._held1 * dx
+        else:
+            self._has_last1 = True
+        self._last1 = x
+        f = force_desired
+        if self._enabled:
+            e = energy[0]
+            limit = math.sqrt(self._bound_gain1 * e) if e > 0.0 else 0.0
+            if f > limit:
+                f = limit
+            elif f < -limit:
+                f = -limit
+        self._held1 = f
+        return f
 
     def step(self, x: Sequence[float], force_desired: Sequence[float]) -> list[float]:
         """Account for the motion since the last tick, then bound the desired force.
@@ -71,6 +114,12 @@ class EnergyBound:
         Returns the force to hold over the next period. With the bound disabled the reservoir is
         still kept (so the unprotected variant can be inspected) but the force passes unchanged.
         """
+        if self._scalar:
+            return [self.step1(x[0], force_desired[0])]
+        return self._step_axes(x, force_desired)
+
+    def _step_axes(self, x: Sequence[float], force_desired: Sequence[float]) -> list[float]:
+        """The general n-axis path (also what `step1` must agree with, bit for bit)."""
         energy = self.energy_j
         held = self._held
         last = self._last_x
@@ -103,6 +152,63 @@ class EnergyBound:
 
 
 @dataclass(frozen=True)
+class RemoteLimits:
+    """The largest magnitudes a remote sample may carry; anything beyond is a fault, not physics.
+
+    A remote sample with a value that is not finite or beyond its limit is rejected by the
+    receiving controller (docs/eba.md, "Bad values in packets"). The engine derives the limits
+    from the scene (`haptic_teleop.engine.remote_limits`).
+    """
+
+    position_m: float  # workspace bound on |x|
+    velocity_m_per_s: float  # bound on |v|
+    force_n: float  # force sensor range: bound on |f_env|
+
+    def __post_init__(self) -> None:
+        for name in ("position_m", "velocity_m_per_s", "force_n"):
+            v = getattr(self, name)
+            if not 0.0 < v < math.inf:
+                raise ValueError(f"{name} must be finite and > 0, got {v}")
+
+
+class SampleGuard:
+    """Checks remote samples element by element against per-element limits; counts rejections.
+
+    `accept(payload)` is False, and `rejected` grows by one, when the payload has the wrong
+    length or any value is NaN, infinite or beyond its element's limit.
+    """
+
+    __slots__ = ("limits", "rejected")
+
+    def __init__(self, limits: Sequence[float]) -> None:
+        if not limits or any(not 0.0 < lim < math.inf for lim in limits):
+            raise ValueError(f"limits must be finite and > 0, got {tuple(limits)}")
+        self.limits = tuple(limits)
+        self.rejected = 0
+
+    def accept(self, payload: Sequence[float]) -> bool:
+        # abs(v) <= limit is False for NaN and +-inf too. The one-axis layouts (2 and 3 values)
+        # are spelled out: a loop (or zip) costs three times as much per sample.
+        lim = self.limits
+        n = len(lim)
+        if len(payload) == n:
+            if n == 2:
+                if abs(payload[0]) <= lim[0] and abs(payload[1]) <= lim[1]:
+                    return True
+            elif n == 3:
+                if abs(payload[0]) <= lim[0] and abs(payload[1]) <= lim[1] and abs(payload[2]) <= lim[2]:
+                    return True
+            else:
+                for i in range(n):
+                    if not abs(payload[i]) <= lim[i]:
+                        break
+                else:
+                    return True
+        self.rejected += 1
+        return False
+
+
+@dataclass(frozen=True)
 class ControllerParams:
     """One side's control law (before the energy bound) and its saturation."""
 
@@ -112,6 +218,7 @@ class ControllerParams:
     damping_n_s_per_m: float = 10.0  # c2
     force_gain: float = 1.0  # force reflection gain (master with law "force")
     force_limit_n: float = 20.0
+    remote_limits: RemoteLimits | None = None  # None: remote samples are not checked
 
     def __post_init__(self) -> None:
         if self.role not in ("master", "slave"):
@@ -133,41 +240,112 @@ class TeleopController:
       the robot (negative when the robot pushes a wall at +x).
     """
 
-    __slots__ = ("_n", "_remote", "bound", "force_applied", "force_desired", "params")
+    __slots__ = (
+        "_c1",
+        "_c2",
+        "_force_law",
+        "_gain",
+        "_limit",
+        "_n",
+        "_off",
+        "_params",
+        "_remote",
+        "bound",
+        "force_applied",
+        "force_desired",
+        "guard",
+    )
 
     def __init__(self, params: ControllerParams, bound: EnergyBoundParams) -> None:
-        self.params = params
         self.bound = EnergyBound(bound)
         self._n = bound.axes
         self._remote: tuple[float, ...] | None = None
+        # The controller's own lists, overwritten in place every tick (copy them to keep a value).
         self.force_desired = [0.0] * self._n
         self.force_applied = [0.0] * self._n
+        self.params = params
+        # Remote payload layout (class docstring): master receives (f_env, x, v), slave (x, v).
+        self.guard: SampleGuard | None = None
+        lim = params.remote_limits
+        if lim is not None:
+            kinds = (lim.force_n, lim.position_m, lim.velocity_m_per_s)
+            per_kind = kinds if params.role == "master" else kinds[1:]
+            self.guard = SampleGuard([k for k in per_kind for _ in range(self._n)])
+
+    @property
+    def rejected_samples(self) -> int:
+        """Remote samples rejected by the guard so far (0 without a guard)."""
+        return 0 if self.guard is None else self.guard.rejected
+
+    @property
+    def params(self) -> ControllerParams:
+        return self._params
+
+    @params.setter
+    def params(self, params: ControllerParams) -> None:
+        """Replace the parameters (a watchdog lowers force_limit_n this way) between ticks."""
+        self._params = params
+        # Constants of the law, looked up once here (the tick reads them as plain attributes).
+        self._force_law = params.law == "force"
+        self._gain = params.force_gain
+        self._c1 = params.stiffness_n_per_m
+        self._c2 = params.damping_n_s_per_m
+        self._limit = params.force_limit_n
+        self._off = self._n if params.role == "master" else 0  # master payload starts with forces
 
     def set_remote(self, payload: tuple[float, ...]) -> None:
-        """The newest remote sample the playout buffer released."""
+        """The newest remote sample the playout buffer released.
+
+        With a guard, a sample carrying a non-finite or out-of-range value is rejected and
+        counted; the controller keeps the sample it had.
+        """
+        guard = self.guard
+        if guard is not None and not guard.accept(payload):
+            return
         self._remote = payload
 
     def desired_force(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """The control law alone (no saturation, no bound)."""
-        p = self.params
         n = self._n
         r = self._remote
         if r is None:
             return [0.0] * n
-        if p.law == "force":
-            g = p.force_gain
+        if self._force_law:
+            g = self._gain
             return [g * r[i] for i in range(n)]
-        off = n if p.role == "master" else 0  # master payload starts with forces
-        c1 = p.stiffness_n_per_m
-        c2 = p.damping_n_s_per_m
+        off = self._off
+        c1 = self._c1
+        c2 = self._c2
         return [c1 * (r[off + i] - x[i]) + c2 * (r[off + n + i] - v[i]) for i in range(n)]
 
     def step(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """One tick: returns the force to apply (held until the next tick)."""
+        if self._n == 1:
+            return [self.step1(x[0], v[0])]
         desired = self.desired_force(x, v)
-        lim = self.params.force_limit_n
+        lim = self._limit
         sat = [lim if f > lim else (-lim if f < -lim else f) for f in desired]
-        self.force_desired = desired
+        self.force_desired[:] = desired
         applied = self.bound.step(x, sat)
-        self.force_applied = applied
+        self.force_applied[:] = applied
         return applied
+
+    def step1(self, x: float, v: float) -> float:
+        """`step` for one axis on floats (same arithmetic, same order): returns the force to apply."""
+        r = self._remote
+        if r is None:
+            f = 0.0
+        elif self._force_law:
+            f = self._gain * r[0]
+        else:
+            off = self._off
+            f = self._c1 * (r[off] - x) + self._c2 * (r[off + 1] - v)
+        self.force_desired[0] = f
+        lim = self._limit
+        if f > lim:
+            f = lim
+        elif f < -lim:
+            f = -lim
+        f = self.bound.step1(x, f)
+        self.force_applied[0] = f
+        return f

@@ -734,7 +734,7 @@ class Link:
         packet.arrival_time_ns = packet.send_time_ns
         self.sent += 1
         self.log.append(packet)
-        for i, apply in enumerate(self._applies, start=1):
+        for i, apply in enumerate(self._applies, 1):
             extra = apply(packet)
             if extra is not None:
                 self._send_copy(extra, i)

@@ -53,29 +53,38 @@ class OperatorParams:
 class Operator:
     """Intended trajectory and hand force; `hand_force` is called once per tick."""
 
-    __slots__ = ("_b", "_k", "_x0", "params")
+    __slots__ = ("_b", "_k", "_profile", "_speed", "_start", "_t_end", "_x0", "_x_end", "params")
 
     def __init__(self, params: OperatorParams) -> None:
         self.params = params
         self._x0 = params.start_position_m
         self._k = params.stiffness_n_per_m
         self._b = params.damping_n_s_per_m
+        self._start = params.start_s
+        # "push" with speed 0 is a hold; the push's end time and end point are fixed numbers.
+        profile = params.profile
+        if profile == "push" and params.speed_m_per_s == 0.0:
+            profile = "hold"
+        self._profile = profile
+        self._speed = params.speed_m_per_s
+        self._t_end = abs(params.distance_m / params.speed_m_per_s) if profile == "push" else 0.0
+        self._x_end = self._x0 + math.copysign(abs(params.distance_m), params.speed_m_per_s)
 
     def intended(self, t: float) -> tuple[float, float]:
         """Intended position (m) and velocity (m/s) along axis 0 at time t."""
-        p = self.params
+        profile = self._profile
+        tau = t - self._start
+        if profile == "push":
+            if tau < 0.0:
+                return self._x0, 0.0
+            if tau >= self._t_end:
+                return self._x_end, 0.0
+            return self._x0 + self._speed * tau, self._speed
         x0 = self._x0
-        tau = t - p.start_s
-        if p.profile == "hold" or (tau < 0.0 and p.profile != "trace"):
+        if profile == "hold" or (tau < 0.0 and profile != "trace"):
             return x0, 0.0
-        if p.profile == "push":
-            if p.speed_m_per_s == 0.0:
-                return x0, 0.0
-            t_end = abs(p.distance_m / p.speed_m_per_s)
-            if tau >= t_end:
-                return x0 + math.copysign(abs(p.distance_m), p.speed_m_per_s), 0.0
-            return x0 + p.speed_m_per_s * tau, p.speed_m_per_s
-        if p.profile == "sinusoid":
+        p = self.params
+        if profile == "sinusoid":
             w = 2.0 * math.pi * p.frequency_hz
             return x0 + p.amplitude_m * math.sin(w * tau), p.amplitude_m * w * math.cos(w * tau)
         ts, xs = p.trace_time_s, p.trace_position_m
@@ -89,9 +98,17 @@ class Operator:
 
     def hand_force(self, t: float, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """Force of the hand on the device, per axis (N)."""
+        return self.hand_force_and_intended(t, x, v)[0]
+
+    def hand_force_and_intended(
+        self, t: float, x: Sequence[float], v: Sequence[float]
+    ) -> tuple[list[float], float, float]:
+        """`hand_force` and the intended position and velocity it used, from one evaluation."""
         xd, vd = self.intended(t)
-        k, b, x0 = self._k, self._b, self._x0
+        k, b = self._k, self._b
         out = [k * (xd - x[0]) + b * (vd - v[0])]
-        for i in range(1, len(x)):
-            out.append(k * (x0 - x[i]) - b * v[i])
-        return out
+        if len(x) > 1:
+            x0 = self._x0
+            for i in range(1, len(x)):
+                out.append(k * (x0 - x[i]) - b * v[i])
+        return out, xd, vd

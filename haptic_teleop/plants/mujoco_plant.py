@@ -68,7 +68,39 @@ def _load(path: Path, sim: SimSettings):  # type: ignore[no-untyped-def]
     model.opt.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{sim.integrator.upper()}")
     model.opt.iterations = sim.solver_iterations
     model.opt.tolerance = sim.solver_tolerance
+    _skip_unused_stages(model)
     return model, mujoco.MjData(model)
+
+
+def _skip_unused_stages(model) -> None:  # type: ignore[no-untyped-def]
+    """Turn off MuJoCo stages that cannot change anything in this model (docs/performance.md).
+
+    - collision detection, when no geom can collide (no contact pair, every contype and
+      conaffinity 0): it finds nothing, at about 1000 instructions a step. Constraints (joint
+      friction, limits) still work: only contacts are skipped.
+    - constraint islands, with a single degree of freedom: there is only ever one island.
+    Both keep every result bit for bit (test_skipped_stages_change_nothing).
+    """
+    import mujoco
+
+    flags = mujoco.mjtDisableBit
+    if model.npair == 0 and not (model.geom_contype.any() or model.geom_conaffinity.any()):
+        model.opt.disableflags |= int(flags.mjDSBL_CONTACT)
+    if model.nv == 1:
+        model.opt.disableflags |= int(flags.mjDSBL_ISLAND)
+
+
+def _bind_state(plant) -> None:  # type: ignore[no-untyped-def]
+    """Per-tick handles on the plant's MjData: memoryviews on its arrays and the step function.
+
+    A memoryview reads a Python float and writes one straight into MuJoCo's memory, several
+    times cheaper than numpy's scalar indexing; `model` and `data` stay public and are the same
+    objects (options set on `plant.model` after construction take effect).
+    """
+    plant._qpos = memoryview(plant.data.qpos)
+    plant._qvel = memoryview(plant.data.qvel)
+    plant._ctrl = memoryview(plant.data.ctrl)
+    plant._mj_step = plant._mj.mj_step
 
 
 class MujocoDevice:
@@ -101,30 +133,31 @@ class MujocoDevice:
         self._substeps = sim.substeps
         self.data.qpos[0] = start_position_m
         mujoco.mj_forward(m, self.data)
-        self._qpos = self.data.qpos
-        self._qvel = self.data.qvel
-        self._ctrl = self.data.ctrl
+        _bind_state(self)
 
     def read(self) -> tuple[list[float], list[float]]:
-        return [float(self._qpos[0])], [float(self._qvel[0])]
+        return [self._qpos[0]], [self._qvel[0]]
 
     def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
         f = actuator_force_n[0]
         lim = self._limit
         if not -lim <= f <= lim:  # also catches NaN
             f = 0.0 if math.isnan(f) else math.copysign(lim, f)
-        self._ctrl[0] = external_force_n[0] if external_force_n is not None else 0.0
-        self._ctrl[1] = f
-        step = self._mj.mj_step
-        for _ in range(self._substeps):
-            step(self.model, self.data)
+        ctrl = self._ctrl
+        ctrl[0] = external_force_n[0] if external_force_n is not None else 0.0
+        ctrl[1] = f
+        if self._substeps == 1:
+            self._mj_step(self.model, self.data)
+        else:
+            for _ in range(self._substeps):
+                self._mj_step(self.model, self.data)
         return [f]
 
     def contact_force(self) -> list[float]:
         return [0.0]
 
     def close(self) -> None:
-        self._ctrl[:] = 0.0
+        self.data.ctrl[:] = 0.0
 
 
 class MujocoWallRobot:
@@ -171,14 +204,12 @@ class MujocoWallRobot:
         self._substeps = sim.substeps
         self.data.qpos[0] = start_position_m
         mujoco.mj_forward(m, self.data)
-        self._qpos = self.data.qpos
-        self._qvel = self.data.qvel
-        self._ctrl = self.data.ctrl
-        self._qfrc = self.data.qfrc_constraint
+        _bind_state(self)
+        self._qfrc = memoryview(self.data.qfrc_constraint)
         self._contact = 0.0
 
     def read(self) -> tuple[list[float], list[float]]:
-        return [float(self._qpos[0])], [float(self._qvel[0])]
+        return [self._qpos[0]], [self._qvel[0]]
 
     def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
         f = actuator_force_n[0]
@@ -186,17 +217,20 @@ class MujocoWallRobot:
         if not -lim <= f <= lim:
             f = 0.0 if math.isnan(f) else math.copysign(lim, f)
         self._ctrl[0] = f
-        step = self._mj.mj_step
         n = self._substeps
+        if n == 1:
+            self._mj_step(self.model, self.data)
+            self._contact = 0.0 + self._qfrc[0]  # 0.0 + : the same value (and zero sign) as the mean below
+            return [f]
         acc = 0.0
         for _ in range(n):
-            step(self.model, self.data)
+            self._mj_step(self.model, self.data)
             acc += self._qfrc[0]
         self._contact = acc / n
         return [f]
 
     def contact_force(self) -> list[float]:
-        return [float(self._contact)]
+        return [self._contact]
 
     def close(self) -> None:
-        self._ctrl[:] = 0.0
+        self.data.ctrl[:] = 0.0

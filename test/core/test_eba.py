@@ -124,3 +124,54 @@ def test_bad_bound_params(kwargs):
     base.update(kwargs)
     with pytest.raises(ValueError):
         EnergyBoundParams(**base)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    steps=st.lists(
+        st.tuples(st.floats(-1e-2, 1e-2), st.floats(-1.0, 1.0), st.floats(-0.05, 0.05), st.floats(-50.0, 50.0)),
+        min_size=1,
+        max_size=60,
+    ),
+    role_law=st.sampled_from([("master", "position"), ("slave", "position"), ("master", "force")]),
+    enabled=st.booleans(),
+    e0=st.floats(0.0, 0.5),
+)
+def test_scalar_path_equals_the_general_path(steps, role_law, enabled, e0):
+    """One axis runs `step1` (floats); two axes run the list path. Axis 0 of a two-axis controller
+    fed the same data must give the same bits: force, desired force and reservoir, every tick."""
+    role, law = role_law
+    params = ControllerParams(role=role, law=law, stiffness_n_per_m=800.0, damping_n_s_per_m=15.0, force_limit_n=7.0)
+    one = TeleopController(params, EnergyBoundParams(T, (1.5,), e0, enabled))
+    two = TeleopController(params, EnergyBoundParams(T, (1.5, 3.0), e0, enabled))
+    x = 0.0
+    for n, (dx, v, remote_x, remote_f) in enumerate(steps):
+        x += dx
+        if n % 3 != 2:  # some ticks bring no new sample
+            if role == "master":
+                one.set_remote((remote_f, remote_x, -v))
+                two.set_remote((remote_f, 0.1, remote_x, 0.2, -v, 0.0))
+            else:
+                one.set_remote((remote_x, -v))
+                two.set_remote((remote_x, 0.3, -v, 0.1))
+        f1 = one.step([x], [v])
+        f2 = two.step([x, -x], [v, 0.5 * v])
+        assert f1[0] == f2[0]
+        assert one.force_desired[0] == two.force_desired[0]
+        assert one.bound.energy_j[0] == two.bound.energy_j[0]
+        assert one.force_applied == f1
+
+
+def test_step1_and_step_share_state():
+    """The list API on one axis goes through the scalar path: mixing the two keeps one state."""
+    params = ControllerParams(role="slave", stiffness_n_per_m=500.0, damping_n_s_per_m=5.0)
+    bound = EnergyBoundParams(T, (2.0,), 0.01)
+    a, b = TeleopController(params, bound), TeleopController(params, bound)
+    for c in (a, b):
+        c.set_remote((0.01, 0.0))
+    for i in range(50):
+        x = 1e-4 * i
+        fa = a.step([x], [0.1])[0] if i % 2 else a.step1(x, 0.1)
+        fb = b.step1(x, 0.1)
+        assert fa == fb
+        assert a.bound.energy_j == b.bound.energy_j
