@@ -156,3 +156,35 @@ def test_rejections_reach_the_bag_and_the_summary(tmp_path, monkeypatch):
     assert summary["rejected_samples_forward"] == _played(d, "fwd_rx_seq", made["forward"].corrupted) > 0
     assert summary["rejected_samples_backward"] == _played(d, "bwd_rx_seq", made["backward"].corrupted) > 0
     assert summary["all_finite"]
+
+
+def test_live_nodes_guard_their_remote_samples_with_the_engines_limits(tmp_path):
+    """master_eba and slave_eba build their controllers with the same packet guard as the engine,
+    from the parameters the launcher writes; a NaN sample is rejected and counted."""
+    rclpy = pytest.importorskip("rclpy")
+    from haptic_teleop.engine import Engine
+    from haptic_teleop.launcher import node_plan, write_params_files
+    from haptic_teleop.nodes.master_eba import MasterEba
+    from haptic_teleop.nodes.slave_eba import SlaveEba
+    from haptic_teleop.scene import find_scene, load_scene
+
+    sc = load_scene(find_scene("wall_contact"))
+    files = write_params_files(node_plan(sc), tmp_path)
+    engine = Engine(sc)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        for cls, name, ref, bad in (
+            (MasterEba, "master_eba", engine.master_ctrl, (float("nan"), 0.0, 0.0)),
+            (SlaveEba, "slave_eba", engine.slave_ctrl, (0.0, float("inf"))),
+        ):
+            node = cls(node_name=name, cli_args=["--ros-args", "--params-file", str(files[name])],
+                       use_global_arguments=False, context=context)  # fmt: skip
+            ctrl = node.side.ctrl
+            assert ctrl.guard is not None and ctrl.guard.limits == ref.guard.limits
+            ctrl.set_remote(bad)
+            assert ctrl.rejected_samples == 1
+            assert node.side.diagnostic_values()["rejected_samples"] == 1
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

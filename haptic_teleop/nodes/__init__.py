@@ -18,8 +18,10 @@ EXECUTABLES = {
 # The scene sections each executable reads as parameters ("" is the whole scene; {direction}
 # is the node's `direction` parameter).
 SCENE_SECTIONS = {
-    "master_eba": ("scene", "operator", "master", "simulation", "controllers.master"),
-    "slave_eba": ("scene", "slave", "simulation", "controllers.slave"),
+    # Both EBA nodes read the whole loop's physical limits: the packet guard's bounds on remote
+    # samples come from the workspace, the operator's speed and every force limit (engine.remote_limits).
+    "master_eba": ("scene", "operator", "master", "slave", "simulation", "controllers"),
+    "slave_eba": ("scene", "operator", "master", "slave", "simulation", "controllers"),
     "network_relay": ("scene", "network.{direction}.effects"),
     "sync_buffer": ("scene", "network.{direction}.buffer"),
     "operator_source": ("scene", "operator"),

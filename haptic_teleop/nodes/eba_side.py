@@ -39,14 +39,28 @@ class EbaSide:
     """Per tick: take the newest released remote sample (if any), feed the watchdog, fade the
     saturation limit by its gain, run the control law and the energy bound."""
 
-    def __init__(self, node: LiveNode, role: str, controller_config: Any, damping_n_s_per_m: float, period_s: float):
+    def __init__(self, node: LiveNode, role: str, config: Any):
+        """`config`: the node's validated scene (haptic_teleop.scene.Scene)."""
+        from pathlib import Path
+
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.engine import _controller
+        from haptic_teleop.engine import _controller, remote_limits
+        from haptic_teleop.scene import _read_trace
 
+        period_s = config.scene.period_s
         self.period_s = period_s
         self.watchdog = declare_watchdog(node, round(period_s * 1e9))
-        self.ctrl = _controller(controller_config, role, period_s, damping_n_s_per_m)
+        op = config.operator
+        trace = (
+            _read_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file")
+            if op.trace_file
+            else None
+        )
+        plant = config.master if role == "master" else config.slave
+        self.ctrl = _controller(
+            getattr(config.controllers, role), role, period_s, plant.damping_n_s_per_m, remote_limits(config, trace)
+        )
         self.fade = ForceFade(self.ctrl)
         remote = "backward" if role == "master" else "forward"
         self._fields = PAYLOAD_FIELDS[remote]
@@ -72,4 +86,9 @@ class EbaSide:
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         wd = self.watchdog
-        return {"watchdog_gain": round(wd.gain, 3), "watchdog_trips": wd.trips, "remote_samples": self.remote_samples}
+        return {
+            "watchdog_gain": round(wd.gain, 3),
+            "watchdog_trips": wd.trips,
+            "remote_samples": self.remote_samples,
+            "rejected_samples": self.ctrl.rejected_samples,
+        }

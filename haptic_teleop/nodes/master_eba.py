@@ -47,7 +47,7 @@ class MasterEba(LiveNode):
         names = (*WATCHDOG_PARAMS, "device.source", "device.state_topic", "device.command_topic")
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.side = EbaSide(self, "master", cfg.controllers.master, cfg.master.damping_n_s_per_m, cfg.scene.period_s)
+        self.side = EbaSide(self, "master", cfg)
         self.source = declare_value(
             self,
             "device.source",

@@ -36,7 +36,7 @@ class SlaveEba(LiveNode):
 
         cfg = declare_scene(self, SCENE_SECTIONS["slave_eba"], WATCHDOG_PARAMS)
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.side = EbaSide(self, "slave", cfg.controllers.slave, cfg.slave.damping_n_s_per_m, cfg.scene.period_s)
+        self.side = EbaSide(self, "slave", cfg)
         s = cfg.slave
         self.plant = build_slave_plant(cfg)
         self.state_out = JointStateOut(self, SLAVE_STATE, SLAVE_JOINT, ("position", "velocity", "effort"))
