@@ -50,6 +50,7 @@ def declare_direction(node: LiveNode) -> str:
 
 class NetworkRelay(LiveNode):
     default_name = "network_relay"
+    loop_phase = 0.25  # after the producers' tick (LiveNode.loop_phase)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)

@@ -36,6 +36,7 @@ _JOINT_ORDER = ("position", "velocity", "effort")
 
 class SyncBuffer(LiveNode):
     default_name = "sync_buffer"
+    loop_phase = 0.5  # after the producers' tick (LiveNode.loop_phase)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
