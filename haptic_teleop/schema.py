@@ -117,6 +117,24 @@ def convert(tp: Any, value: Any, where: str, source: str, meta: Mapping[str, Any
     raise TypeError(f"unsupported config field type {tp!r} at {where}")
 
 
+def _default_section(f: dataclasses.Field[Any]) -> dict[str, Any] | None:
+    """The default of a section-valued field as a plain mapping, or None."""
+    if f.default_factory is not dataclasses.MISSING:
+        obj = f.default_factory()
+    elif f.default is not dataclasses.MISSING:
+        obj = f.default
+    else:
+        return None
+    return dataclasses.asdict(obj) if dataclasses.is_dataclass(obj) and not isinstance(obj, type) else None
+
+
+def _merged(base: Mapping[str, Any], given: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in given.items():
+        out[k] = _merged(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
+    return out
+
+
 def build(cls: type[T], data: Any, where: str = "", source: str = "<config>") -> T:
     """Build config dataclass `cls` from a mapping; unknown keys, bad types and ranges are errors."""
     if data is None:
@@ -134,7 +152,13 @@ def build(cls: type[T], data: Any, where: str = "", source: str = "<config>") ->
     for name, f in fields.items():
         path = f"{where}.{name}" if where else name
         if name in data:
-            kwargs[name] = convert(hints[name], data[name], path, source, f.metadata)
+            value = data[name]
+            base = _default_section(f)
+            if base is not None and isinstance(value, Mapping):
+                # A section given in part keeps its field's own defaults for the rest (the slave
+                # controller's default differs from ControllerConfig's: E0 0.5 J, limit 40 N).
+                value = _merged(base, value)
+            kwargs[name] = convert(hints[name], value, path, source, f.metadata)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             if dataclasses.is_dataclass(hints[name]):
                 kwargs[name] = build(hints[name], {}, path, source)

@@ -135,3 +135,17 @@ def test_a_wall_too_stiff_for_the_step_is_rejected_with_the_substeps_it_needs():
     # The remedy it names is accepted, and 1e6 N/m at 1 ms (omega h = 0.95) is fine as it is.
     load_scene(find_scene("wall_contact"), overrides=["slave.wall.stiffness_n_per_m=1e7", "simulation.substeps=3"])
     load_scene(find_scene("wall_contact"), overrides=["slave.wall.stiffness_n_per_m=1e6"])
+
+
+def test_a_section_given_in_part_keeps_that_sections_own_defaults():
+    """The slave controller's defaults (E0 0.5 J, limit 40 N) differ from ControllerConfig's; a scene
+    or --set naming one slave key must not reset the others to the master's (a robot with E0 = 0
+    never moves)."""
+    s = load_scene(find_scene("varying_delay"), overrides=["controllers.slave.stiffness_n_per_m=300"])
+    slave = s.config.controllers.slave
+    assert slave.stiffness_n_per_m == 300.0
+    assert slave.eba.initial_energy_j == 0.5 and slave.force_limit_n == 40.0
+    s = load_scene(find_scene("varying_delay"), overrides=["controllers.slave.eba.enabled=false"])
+    assert s.config.controllers.slave.eba.initial_energy_j == 0.5
+    with pytest.raises(ConfigError, match="no_such_key"):
+        load_scene(find_scene("varying_delay"), overrides=["controllers.slave.no_such_key=1"])

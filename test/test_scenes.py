@@ -62,9 +62,17 @@ def test_the_passivity_check_fails_without_eba(tmp_path):
     assert min(s["master_energy_margin_min_j"], s["slave_energy_margin_min_j"]) < 0.0
 
 
-def _policy_summary(tmp_path: Path, policy: str, extra: tuple[str, ...] = ()) -> dict:
+def _policy_summary(
+    tmp_path: Path,
+    policy: str,
+    extra: tuple[str, ...] = (),
+    scene: str = "varying_delay",
+    duration_s: float = 4.0,
+    overrides: tuple[str, ...] = (),
+) -> dict:
     ov = [f"network.{d}.buffer.{kv}" for d in ("forward", "backward") for kv in (f"policy={policy}", *extra)]
-    return _summary(tmp_path / f"{policy}-{len(extra)}", "varying_delay", ["scene.duration_s=4.0", *ov])
+    out = tmp_path / f"{scene}-{policy}-{len(extra)}"
+    return _summary(out, scene, [f"scene.duration_s={duration_s}", *ov, *overrides])
 
 
 def test_varying_delay_transparency_buffer_plays_as_early_as_play_on_arrival(tmp_path):
@@ -82,3 +90,41 @@ def test_varying_delay_transparency_buffer_plays_as_early_as_play_on_arrival(tmp
     for s in (none, tb, tb_1s):
         for d in ("forward", "backward"):
             assert s[f"late_loss_rate_{d}"] == s[f"packets_late_{d}"] / s[f"packets_sent_{d}"]
+
+
+def _force_law_policies(tmp_path: Path, overrides: tuple[str, ...] = ()) -> tuple[dict, dict, dict]:
+    """varying_delay_force for 3 s (contact from about 1.6 s): none, transparency, transparency 1 s."""
+    kw = {"scene": "varying_delay_force", "duration_s": 3.0, "overrides": overrides}
+    none = _policy_summary(tmp_path, "none", **kw)
+    tb = _policy_summary(tmp_path, "transparency", **kw)
+    tb_1s = _policy_summary(tmp_path, "transparency", ("contact_horizon_s=1.0",), **kw)
+    return none, tb, tb_1s
+
+
+def test_varying_delay_force_reflection_buffering_does_not_pay(tmp_path):
+    """docs/network.md, "Force reflection": with the master's force law, too, a hold costs the felt
+    force only while it lasts, and play-on-arrival plays the youngest sample at every tick. So the
+    transparency buffer with a one-period horizon ties `none`, and the seed's 1 s horizon, which
+    buffers about 23 ms, feels a larger force error, unaligned and at the common network lag.
+    (With the slave damping at 20 N s/m, the delayed loop rings and the 1 s horizon's extra delay
+    happens to calm it: that variant fails the unaligned assertion, 0.588 against 0.641 N.)
+    """
+    none, tb, tb_1s = _force_law_policies(tmp_path)
+    assert none["contact_force_max_n"] > 1.0
+    assert tb["buffering_delay_backward_mean_s"] < 0.002
+    assert tb_1s["buffering_delay_backward_mean_s"] > 0.01
+    assert tb["force_rms_error_unaligned_n"] == pytest.approx(none["force_rms_error_unaligned_n"], rel=0.01)
+    assert tb_1s["force_rms_error_unaligned_n"] > 1.02 * none["force_rms_error_unaligned_n"]
+    assert tb_1s["force_rms_error_network_lag_n"] > none["force_rms_error_network_lag_n"]
+
+
+def test_network_lag_is_the_same_for_every_policy(tmp_path):
+    """force_rms_error_network_lag_n aligns by the median network delay (before any buffer), so two
+    policies on the same seed share its lag, while the release-based lag of force_rms_error_n moves
+    with the samples each policy releases (the 1 s horizon buffers, and releases many more samples,
+    young ones included, than `none`)."""
+    none = _policy_summary(tmp_path, "none", duration_s=2.0)
+    tb_1s = _policy_summary(tmp_path, "transparency", ("contact_horizon_s=1.0",), duration_s=2.0)
+    assert none["force_network_lag_s"] == tb_1s["force_network_lag_s"]
+    assert none["force_network_lag_s"] == pytest.approx(none["delay_backward_p50_s"] + 0.001, abs=0.0006)
+    assert abs(tb_1s["force_alignment_lag_s"] - none["force_alignment_lag_s"]) > 0.005

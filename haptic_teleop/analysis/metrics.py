@@ -232,14 +232,13 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         rl = (net.get(prefix) or {}).get("effects", {}).get("rate_limit") or {}
         overhead = float(rl.get("overhead_bytes", DEFAULT_OVERHEAD_BYTES))
         nets.update(direction_stats(rows, played_seq, released, duration, overhead, prefix))
-    # One lag for every playout policy: the median one-way *network* delay of the delivered
-    # backward packets (arrival minus send, before any playout buffer) + 1 tick. Policies release
-    # different samples, so the release-based lag of force_rms_error_n differs between them; this
-    # one depends only on the network draws (the same for every policy with the same seed).
-    bdeliv = sig.backward_packets[~np.isnan(sig.backward_packets[:, 2])] if sig.backward_packets.size else None
-    net_lag = (
-        _lag_ticks(bdeliv[:, 2] - bdeliv[:, 1], T) + 1 if bdeliv is not None and bdeliv.size else sig.backward_lag_ticks
-    )
+    # One lag for every playout policy: the median one-way *network* delay of the backward packets
+    # delivered within the run (delay_backward_p50_s: arrival minus send, before any playout buffer)
+    # + 1 tick. Policies release different samples, so the release-based lag of force_rms_error_n
+    # differs between them; this one depends only on the network draws (the same for every policy
+    # with the same seed).
+    p50 = nets.get("delay_backward_p50_s", math.nan)
+    net_lag = int(round(p50 / T)) + 1 if math.isfinite(p50) else sig.backward_lag_ticks
     e_net = _aligned_error(sig.master_force_n, sig.contact_n, net_lag)
     lat_f = _quantiles(sig.forward_delays_s)
     lat_b = _quantiles(sig.backward_delays_s)

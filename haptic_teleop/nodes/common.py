@@ -81,6 +81,10 @@ PAYLOAD_FIELDS = {
     "backward": ("effort", "position", "velocity"),  # slave -> master: (f_env, x_s, v_s)
 }
 DIRECTION_JOINT = {"forward": MASTER_JOINT, "backward": SLAVE_JOINT}
+JOINT_ORDER = ("position", "velocity", "effort")  # JointState's value arrays
+# The JointState fields a direction's messages fill, on /<dir>/sent, /delivered and /received
+# alike (JointState order; PAYLOAD_FIELDS says which value is which).
+WIRE_FIELDS = {"forward": ("position", "velocity"), "backward": ("position", "velocity", "effort")}
 
 
 def stream_qos(depth: int = 1) -> Any:
@@ -490,31 +494,25 @@ def stamp_ns_of(msg: Any) -> int:
 
 
 class JointStateOut:
-    """Publishes one-joint sensor_msgs/JointState, reusing one message object (no allocation per tick)."""
+    """Publishes a one-joint sensor_msgs/JointState as CDR bytes patched into a template
+    (nodes/cdr.py): no message object per tick."""
 
     def __init__(self, node: Any, topic: str, joint: str, fields: Sequence[str], qos: Any = None) -> None:
         from sensor_msgs.msg import JointState
 
-        self._msg = msg = JointState()
-        msg.name = [joint]
+        from haptic_teleop.nodes.cdr import JointStateCodec
+
         self.fields = tuple(fields)
-        for f in self.fields:
-            setattr(msg, f, [0.0])
-        self._arrays = [getattr(msg, f) for f in self.fields]
-        self._stamp = msg.header.stamp
+        self.joint = joint
+        self._encode = JointStateCodec(joint, fields).encode
         self._pub = node.create_publisher(JointState, topic, qos if qos is not None else stream_qos())
 
     def publish(self, stamp_ns: int, values: Sequence[float]) -> None:
-        st = self._stamp
-        st.sec, st.nanosec = stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
-        for arr, v in zip(self._arrays, values, strict=True):
-            arr[0] = v
-        self._pub.publish(self._msg)
+        self._pub.publish(self._encode(stamp_ns, values))
 
-
-def joint_values(msg: Any, fields: Sequence[str]) -> tuple[float, ...]:
-    """Axis-0 values of a JointState in the order of `fields`."""
-    return tuple(float(getattr(msg, f)[0]) for f in fields)
+    def publish_raw(self, raw: bytes) -> None:
+        """Bytes of a JointState as they came (a relay forwarding a message unchanged)."""
+        self._pub.publish(raw)
 
 
 class WrenchOut:

@@ -8,14 +8,16 @@ from typing import Any
 
 from haptic_teleop.core.watchdog import ForceFade, Watchdog
 from haptic_teleop.nodes import WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
+    DIRECTION_JOINT,
     MASTER_EBA,
     PAYLOAD_FIELDS,
     SLAVE_EBA,
+    WIRE_FIELDS,
     EbaOut,
     LiveNode,
     declare_value,
-    joint_values,
     received_topic,
     stream_qos,
     take_latest,
@@ -63,8 +65,8 @@ class EbaSide:
         )
         self.fade = ForceFade(self.ctrl)
         remote = "backward" if role == "master" else "forward"
-        self._fields = PAYLOAD_FIELDS[remote]
-        self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos())
+        self._read = JointStateReader(PAYLOAD_FIELDS[remote], [(DIRECTION_JOINT[remote], WIRE_FIELDS[remote])])
+        self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
         self._eba_out = EbaOut(node, MASTER_EBA if role == "master" else SLAVE_EBA)
         self.remote_samples = 0
 
@@ -72,7 +74,7 @@ class EbaSide:
         remote = take_latest(self._sub)
         if remote is not None:
             self.remote_samples += 1
-            self.ctrl.set_remote(joint_values(remote, self._fields))
+            self.ctrl.set_remote(self._read(remote)[1])
             self.watchdog.feed(stamp_ns)
         self.fade.set_gain(self.watchdog.update(stamp_ns))
         return self.ctrl.step(x, v)

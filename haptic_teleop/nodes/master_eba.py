@@ -15,11 +15,14 @@ from __future__ import annotations
 from typing import Any
 
 from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
+    JOINT_ORDER,
     MASTER_JOINT,
     MASTER_STATE,
+    OPERATOR_JOINT,
     OPERATOR_STATE,
-    PAYLOAD_FIELDS,
+    WIRE_FIELDS,
     JointStateOut,
     LiveNode,
     WrenchOut,
@@ -64,13 +67,15 @@ class MasterEba(LiveNode):
         self._device: tuple[float, float] | None = None
         if self.source == "plant":
             self.plant = build_master_plant(cfg)
-            self._hand_sub = self.create_polled_subscription(JointState, OPERATOR_STATE, stream_qos())
+            self._hand_sub = self.create_polled_subscription(JointState, OPERATOR_STATE, stream_qos(), raw=True)
+            self._read_hand = JointStateReader(("effort",), [(OPERATOR_JOINT, JOINT_ORDER)])
             self.command_out = None
         else:
-            self._device_sub = self.create_polled_subscription(JointState, state_topic, stream_qos())
+            self._device_sub = self.create_polled_subscription(JointState, state_topic, stream_qos(), raw=True)
+            self._read_device = JointStateReader(("position", "velocity"))  # a driver's layout: deserialized
             self.command_out = WrenchOut(self, command_topic, MASTER_JOINT)
-        self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, ("position", "velocity", "effort"))
-        self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, PAYLOAD_FIELDS["forward"])
+        self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
+        self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"device {self.source}, period {cfg.scene.period_s * 1e3:g} ms, watchdog bound "
@@ -82,11 +87,11 @@ class MasterEba(LiveNode):
             x, v = self.plant.read()
             hand = take_latest(self._hand_sub)
             if hand is not None:
-                self._hand_n = float(hand.effort[0])
+                self._hand_n = self._read_hand(hand)[1][0]
         else:
             dev = take_latest(self._device_sub)
             if dev is not None:
-                self._device = (float(dev.position[0]), float(dev.velocity[0]))
+                self._device = self._read_device(dev)[1]
             if self._device is None:
                 return  # no device yet: nothing to control
             x, v = [self._device[0]], [self._device[1]]

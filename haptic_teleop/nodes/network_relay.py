@@ -16,22 +16,22 @@ from typing import Any
 
 from haptic_teleop.core.network import Packet
 from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     DIRECTION_JOINT,
     DIRECTIONS,
     PAYLOAD_FIELDS,
     READER_DEPTH,
+    WIRE_FIELDS,
     JointStateOut,
     LiveNode,
     declare_scene,
     declare_value,
     delivered_topic,
-    joint_values,
     node_main,
     packets_topic,
     reliable_qos,
     sent_topic,
-    stamp_ns_of,
     stream_qos,
 )
 
@@ -65,18 +65,16 @@ class NetworkRelay(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.link = build_link(getattr(cfg.network, d).effects, cfg.scene.seed, d)
         self._fields = PAYLOAD_FIELDS[d]
+        self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], WIRE_FIELDS[d])])
         self._size = joint_state_size(3 if d == "backward" else 2)
         self._msgs: dict[int, Any] = {}
         self._newest = 0
         self.delivered = 0
         self.malformed = 0
-        self._pub = self.create_publisher(JointState, delivered_topic(d), stream_qos())
-        # Rebuilds a message whose original is no longer kept (fields in JointState order).
-        self._rebuild = JointStateOut(
-            self, delivered_topic(d), DIRECTION_JOINT[d], ("position", "velocity", "effort")[: len(self._fields)]
-        )
+        # Forwards the sent bytes; rebuilds a message whose original is no longer kept.
+        self._rebuild = JointStateOut(self, delivered_topic(d), DIRECTION_JOINT[d], WIRE_FIELDS[d])
         self._packets_pub = self.create_publisher(Float64MultiArray, packets_topic(d), reliable_qos(100))
-        self.add_event_subscription(JointState, sent_topic(d), stream_qos(READER_DEPTH), self._on_sent)
+        self.add_event_subscription(JointState, sent_topic(d), stream_qos(READER_DEPTH), self._on_sent, raw=True)
         # Packet fates go out ten times a second: small batches, no long tick.
         self._batch_ticks = max(1, round(0.1e9 / period_ns))
         self.setup_loop(period_ns)
@@ -84,15 +82,16 @@ class NetworkRelay(LiveNode):
             f"{d}: {sent_topic(d)} -> {delivered_topic(d)}, effects: {[e.name for e in self.link.effects]}"
         )
 
-    def _on_sent(self, msg: Any, now: int) -> None:
+    def _on_sent(self, msg: bytes, now: int) -> None:
+        """`msg`: the sent JointState's bytes, forwarded unchanged when the network delivers it."""
         try:
-            payload = joint_values(msg, self._fields)
+            stamp, payload = self._read(msg)
         except IndexError:  # not this direction's layout: drop it, say so once
             if not self.malformed:
                 self.get_logger().warning(f"dropping messages without {self._fields} values")
             self.malformed += 1
             return
-        seq = stamp_ns_of(msg) // self.period_ns
+        seq = stamp // self.period_ns
         self._msgs[seq] = msg
         self._newest = max(self._newest, seq)
         self.link.send(Packet(seq, now, payload, self._size))
@@ -105,7 +104,7 @@ class NetworkRelay(LiveNode):
         for p in packets:
             m = msgs.get(p.seq)
             if m is not None:
-                self._pub.publish(m)
+                self._rebuild.publish_raw(m)
             else:
                 values = dict(zip(self._fields, p.payload, strict=True))
                 self._rebuild.publish(p.seq * self.period_ns, [values[f] for f in self._rebuild.fields])

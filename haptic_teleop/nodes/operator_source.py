@@ -15,7 +15,10 @@ from pathlib import Path
 from typing import Any
 
 from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
+    JOINT_ORDER,
+    MASTER_JOINT,
     MASTER_STATE,
     OPERATOR_JOINT,
     OPERATOR_STATE,
@@ -84,8 +87,9 @@ class OperatorSource(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
         self._master: tuple[list[float], list[float]] | None = None
-        self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos())
-        self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, ("position", "velocity", "effort"))
+        self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
+        self._read_master = JointStateReader(("position", "velocity"), [(MASTER_JOINT, JOINT_ORDER)])
+        self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, JOINT_ORDER)
         self.start_index: int | None = None
         self._ready_ns: int | None = None
         self._created_ns = self.now_ns()
@@ -101,7 +105,8 @@ class OperatorSource(LiveNode):
     def tick(self, index: int, stamp_ns: int) -> None:
         m = take_latest(self._master_sub)
         if m is not None:
-            self._master = ([float(m.position[0])], [float(m.velocity[0])])
+            x, v = self._read_master(m)[1]
+            self._master = ([x], [v])
         if self.start_index is None:
             if self._ready_ns is None:
                 if index % 50 == 0 and self._graph_ready():

@@ -14,24 +14,22 @@ from typing import Any
 
 from haptic_teleop.core.network import Packet
 from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     DIRECTION_JOINT,
     PAYLOAD_FIELDS,
     READER_DEPTH,
+    WIRE_FIELDS,
     JointStateOut,
     LiveNode,
     declare_scene,
     delivered_topic,
-    joint_values,
     node_main,
     received_topic,
-    stamp_ns_of,
     stream_qos,
     take_all,
 )
 from haptic_teleop.nodes.network_relay import declare_direction
-
-_JOINT_ORDER = ("position", "velocity", "effort")
 
 
 class SyncBuffer(LiveNode):
@@ -49,11 +47,12 @@ class SyncBuffer(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.buffer = build_buffer(getattr(cfg.network, d).buffer, period_ns)
         self._fields = PAYLOAD_FIELDS[d]
-        out_fields = _JOINT_ORDER[: len(self._fields)]
+        out_fields = WIRE_FIELDS[d]
         self._order = [self._fields.index(f) for f in out_fields]  # payload -> JointState order
         self.released = 0
         self.out = JointStateOut(self, received_topic(d), DIRECTION_JOINT[d], out_fields)
-        self._sub = self.create_polled_subscription(JointState, delivered_topic(d), stream_qos(READER_DEPTH))
+        self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], out_fields)])
+        self._sub = self.create_polled_subscription(JointState, delivered_topic(d), stream_qos(READER_DEPTH), raw=True)
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"{d}: {delivered_topic(d)} -> {received_topic(d)}, policy {getattr(cfg.network, d).buffer.policy}"
@@ -61,10 +60,13 @@ class SyncBuffer(LiveNode):
 
     def tick(self, index: int, stamp_ns: int) -> None:
         now = self.now_ns()
-        period, fields, push = self.period_ns, self._fields, self.buffer.push
-        for msg in take_all(self._sub):
-            stamp = stamp_ns_of(msg)
-            push(Packet(stamp // period, stamp, joint_values(msg, fields), 0, now), now)
+        period, read, push = self.period_ns, self._read, self.buffer.push
+        for raw in take_all(self._sub):
+            try:
+                stamp, payload = read(raw)
+            except IndexError:  # not this direction's layout
+                continue
+            push(Packet(stamp // period, stamp, payload, 0, now), now)
         p = self.buffer.release(now)
         if p is not None:
             payload = p.payload
