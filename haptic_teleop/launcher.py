@@ -438,7 +438,7 @@ def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path) -> int:
                 "use_global_arguments": False,
             }
         )
-    return run_nodes(factories, node_args, args=[], multithreaded=True)
+    return run_nodes(factories, node_args, args=[], shared_loop=True)
 
 
 # ---------------------------------------------------------------------------------------------

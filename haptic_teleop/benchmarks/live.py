@@ -103,8 +103,12 @@ def _percentiles_us(values: list[int]) -> tuple[float, float, int]:
     return float(np.percentile(a, 50)), float(np.percentile(a, 99)), a.size
 
 
-def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict[str, Any]:
-    """Run the bench; returns the figures it printed."""
+def run_bench(
+    scene_name: str, duration_s: float, out: Any = sys.stdout, single_process: bool = False
+) -> dict[str, Any]:
+    """Run the bench; returns the figures it printed. `single_process`: the scene's node set runs
+    composed in one process with one shared loop thread (`haptic-teleop launch --single-process`);
+    the probe and the bench's relay stay processes of their own."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
@@ -117,6 +121,9 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
     period_s = scene.config.scene.period_s
     work = Path(tempfile.mkdtemp(prefix="haptic_teleop_bench_"))
     plan = node_plan(scene, record_dir=work / "record")
+    composed_names = [spec.name for spec in plan] if single_process else []
+    if single_process:
+        plan = []
     relay_params = {"direction": "forward", "scene": scene_params(scene, "network_relay", "forward")["scene"]}
     plan.append(
         NodeSpec(
@@ -140,6 +147,16 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
             return None
 
     launcher = Launcher(plan, work / "params", out=_Sink())  # type: ignore[arg-type]
+    composed = None
+    if single_process:
+        composed = subprocess.Popen(
+            [sys.executable, "-m", "haptic_teleop.cli", "launch", scene_name, "--single-process", "--no-plots",
+             "--duration", str(duration_s + 60.0), "--record", str(work / "record")],
+            env={**local_discovery_env(), "PYTHONUNBUFFERED": "1"},
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True,
+            start_new_session=True,
+        )  # fmt: skip
+        threading.Thread(target=lambda: log_lines.extend(iter(composed.stdout.readline, "")), daemon=True).start()
     probe = subprocess.Popen(
         [sys.executable, "-m", "haptic_teleop.benchmarks.live", "--probe"],
         env={**local_discovery_env(), "PYTHONUNBUFFERED": "1"},
@@ -160,12 +177,15 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
         launcher.start()
         deadline = time.monotonic() + 60.0
         while not any("scene time 0" in line for line in log_lines):
-            if time.monotonic() > deadline or any(c.proc.poll() is not None for c in launcher.children):
+            gone = any(c.proc.poll() is not None for c in launcher.children)
+            if time.monotonic() > deadline or gone or (composed is not None and composed.poll() is not None):
                 raise RuntimeError("the node set did not start:\n" + "".join(log_lines[-40:]))
             time.sleep(0.05)
         time.sleep(1.0)  # past the operator's first transient
         pids = launcher.pids()
         pids["bench_probe"] = probe.pid
+        if composed is not None:
+            pids["node set (1 process)"] = composed.pid
         cpu0 = {n: _cpu_s(p) for n, p in pids.items()}
         t0 = time.monotonic()
         receiver.recording = True
@@ -177,6 +197,12 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
         diags = dict(receiver.diagnostics)
     finally:
         probe.send_signal(2)
+        if composed is not None:
+            composed.send_signal(2)
+            try:
+                composed.wait(60.0)
+            except subprocess.TimeoutExpired:
+                composed.kill()
         launcher.interrupt()
         launcher.supervise()
         try:
@@ -192,11 +218,11 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
     target_hz = 1.0 / period_s
     rows = []
     ok_rate = True
-    for name in list(pids):
+    for name in composed_names + list(pids):
         d = diags.get(name, {})
         rate = float(d.get("loop_rate_hz", "nan"))
         period = float(d.get("period_s", period_s))
-        is_1khz = abs(period - period_s) < 1e-12 and name != "bench_probe"
+        is_1khz = abs(period - period_s) < 1e-12 and name not in ("bench_probe", "node set (1 process)")
         if is_1khz and not rate >= LOOP_RATE_TARGET * target_hz:
             ok_rate = False
         rows.append(
@@ -206,7 +232,7 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
                 int(d.get("overruns", "0") or 0),
                 float(d.get("lateness_p50_us", "nan")),
                 float(d.get("lateness_p99_us", "nan")),
-                cpu[name],
+                cpu.get(name, float("nan")),
                 1.0 / period if period > 0 else float("nan"),
             )
         )
@@ -224,7 +250,8 @@ def run_bench(scene_name: str, duration_s: float, out: Any = sys.stdout) -> dict
     )
     for name, rate, over, l50, l99, c, tgt in rows:
         p(f"  {name:<16} {rate:>9.1f} {tgt:>7.0f} {over:>8d} {l50:>11.1f} {l99:>11.1f} {c:>6.1f}\n")
-    p(f"  {'total':<16} {'':>9} {'':>7} {'':>8} {'':>11} {'':>11} {sum(r[5] for r in rows):>6.1f}\n\n")
+    total_cpu = sum(r[5] for r in rows if r[5] == r[5])  # NaN: no process of its own
+    p(f"  {'total':<16} {'':>9} {'':>7} {'':>8} {'':>11} {'':>11} {total_cpu:>6.1f}\n\n")
     p("  hop latency (us)          p50      p99   samples\n")
     p(f"  bare rclpy pub->sub  {bare50:>8.0f} {bare99:>8.0f} {nb:>9d}\n")
     p(f"  through relay (0 s)  {rel50:>8.0f} {rel99:>8.0f} {nr:>9d}\n\n")
@@ -261,11 +288,16 @@ HELP = "live node set: loop rate, loop jitter, relay hop vs bare DDS hop, CPU pe
 def add_arguments(p: Any) -> None:
     p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
     p.add_argument("--duration", type=float, default=10.0, help="seconds of measurement")
+    p.add_argument(
+        "--single-process",
+        action="store_true",
+        help="the node set composed in one process with one shared loop thread (launch --single-process)",
+    )
 
 
 def main(args: Any) -> int:
     """`haptic-teleop bench live` (argparse namespace from cli.py)."""
-    run_bench(args.scene, float(args.duration))
+    run_bench(args.scene, float(args.duration), single_process=bool(args.single_process))
     return 0
 
 

@@ -480,6 +480,137 @@ class LoopThread:
                 raise
 
 
+TickFn = Callable[[int, int], None]
+ErrorFn = Callable[[BaseException], None]
+
+
+class SharedLoop:
+    """One thread ticking every node of a process in pipeline order (`--single-process`).
+
+    Each 1 kHz node with its own thread costs a sleep and a wake-up per period, and on a small VM
+    a wake-up is tens of microseconds of CPU (docs/live.md, "CPU per node"). Composed in one
+    process, the nodes share one thread instead: at each deadline k * base period it drains every
+    node's event subscriptions and runs its tick, in order of loop phase (producers, relays,
+    buffers, as the engine orders a tick), each node at its own period (a multiple of the base).
+    A deadline missed by a whole base period is skipped for every node and counted as an overrun.
+    Members look like LoopThreads to their nodes (stats, start, stop, running, realtime).
+    """
+
+    def __init__(self, base_period_ns: int = 1_000_000, realtime_priority: int = 0) -> None:
+        self.base_period_ns = base_period_ns
+        self.realtime_priority = realtime_priority
+        self.realtime = False
+        self.members: list[SharedLoop.Member] = []
+        self._stop = threading.Event()
+        self._lock = threading.Lock()  # held while a member ticks
+        self._thread = threading.Thread(target=self._run, name="shared-loop", daemon=True)
+        self._started = False
+
+    class Member:
+        def __init__(self, group: SharedLoop, name: str, period_ns: int, phase: float, tick: TickFn,
+                     drain: Callable[[], None] | None, on_error: ErrorFn | None) -> None:  # fmt: skip
+            if period_ns % group.base_period_ns:
+                raise ValueError(
+                    f"{name}: period {period_ns} ns is not a multiple of the shared loop's {group.base_period_ns}"
+                )
+            self.group, self.name, self.period_ns, self.phase = group, name, period_ns, phase
+            self.every = period_ns // group.base_period_ns
+            self.tick, self.drain, self.on_error = tick, drain, on_error
+            self.stats = LoopStats()
+            self.active = True
+
+        @property
+        def realtime(self) -> bool:
+            return self.group.realtime
+
+        @property
+        def running(self) -> bool:
+            return self.active and self.group._thread.is_alive()
+
+        def start(self) -> None:
+            self.group.start()
+
+        def stop(self, timeout_s: float = 2.0) -> None:
+            """No more ticks; returns once a tick of this node in progress has finished (its node
+            may then release what the tick uses, e.g. its plant)."""
+            self.active = False
+            if threading.current_thread() is not self.group._thread:
+                with self.group._lock:
+                    pass
+
+    def add(self, name: str, period_ns: int, phase: float, tick: TickFn,
+            drain: Callable[[], None] | None, on_error: ErrorFn | None) -> SharedLoop.Member:  # fmt: skip
+        m = SharedLoop.Member(self, name, period_ns, phase, tick, drain, on_error)
+        self.members.append(m)
+        self.members.sort(key=lambda x: x.phase)  # stable: registration order within a phase
+        return m
+
+    def start(self) -> None:
+        if not self._started:
+            self._started = True
+            self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+
+    def _run(self) -> None:
+        _tight_timer_slack()
+        if self.realtime_priority > 0:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
+                self.realtime = True
+            except (OSError, AttributeError):
+                pass
+        base = self.base_period_ns
+        k = time.time_ns() // base + 1
+        stop = self._stop
+        while not stop.is_set():
+            deadline = k * base
+            t = time.time_ns()
+            while t < deadline and not stop.is_set():
+                time.sleep((deadline - t) * 1e-9)
+                t = time.time_ns()
+            late = t - deadline
+            if late >= base:
+                skipped = late // base
+                for m in self.members:
+                    m.stats.overruns += skipped // m.every
+                k += skipped
+                deadline = k * base
+                late = t - deadline
+            for m in self.members:
+                if k % m.every:
+                    continue
+                with self._lock:
+                    if m.active:
+                        self._tick(m, deadline)
+            k += 1
+
+    def _tick(self, m: SharedLoop.Member, deadline: int) -> None:
+        st = m.stats
+        now = time.time_ns()
+        st.lateness_ns[st.ticks & (st.RING - 1)] = now - deadline
+        if st.ticks == 0:
+            st.first_ns = now
+        st.last_ns = now
+        st.ticks += 1
+        try:
+            if m.drain is not None:
+                m.drain()
+            m.tick(deadline // m.period_ns, deadline)
+        except BaseException as exc:  # reported to its node, which exits non-zero
+            m.active = False
+            if m.on_error is not None:
+                m.on_error(exc)
+            else:
+                raise
+
+
+_SHARED_LOOP: SharedLoop | None = None  # set by run_nodes(shared_loop=True) while nodes are built
+
+
 # ---------------------------------------------------------------------------------------------
 # Messages.
 
@@ -689,6 +820,13 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
                 for msg in take_all(sub):
                     handler(msg, now())
 
+    def _drain_events(self) -> None:
+        """Handle what the event subscriptions hold now (the shared loop's stand-in for waiting)."""
+        now = self.now_ns
+        for sub, handler in self._event_subs:
+            for msg in take_all(sub):
+                handler(msg, now())
+
     # -- lifecycle
     def setup_loop(self, period_ns: int) -> None:
         self.period_ns = period_ns
@@ -702,6 +840,14 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
                 98,
             )
         )
+        group = _SHARED_LOOP
+        if group is not None and not self.simulated_time:
+            self.loop = group.add(
+                self.get_name(), period_ns, self.loop_phase, self.tick,
+                self._drain_events if self._event_subs else None, self._loop_failed,
+            )  # fmt: skip
+            self._setup_diagnostics()
+            return
         self.loop = LoopThread(
             self.get_name(),
             period_ns,
@@ -714,6 +860,9 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
             on_warning=self.get_logger().warning,
             phase_ns=round(self.loop_phase * period_ns),
         )
+        self._setup_diagnostics()
+
+    def _setup_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
 
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, reliable_qos(10))
@@ -797,8 +946,11 @@ def run_nodes(
     node_args: Sequence[dict[str, Any]] | None = None,
     args: Sequence[str] | None = None,
     multithreaded: bool = False,
+    shared_loop: bool = False,
 ) -> int:
     """Create nodes, spin them, run their loops until SIGINT/SIGTERM or a node stops; exit code.
+
+    `shared_loop`: the nodes' loops run in one thread (SharedLoop) instead of one thread each.
 
     A node's constructor failing on a parameter ends the process with code 2 and a message that
     names the parameter; a loop failing ends it with 1; a signal or a node finishing, with 0.
@@ -821,10 +973,14 @@ def run_nodes(
     rclpy.init(args=list(args) if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[LiveNode] = []
     kwargs_list = list(node_args) if node_args is not None else [{} for _ in factories]
+    global _SHARED_LOOP  # noqa: PLW0603 - read by LiveNode.setup_loop while the nodes are built
+    group = SharedLoop(realtime_priority=DEFAULT_REALTIME_PRIORITY) if shared_loop else None
+    _SHARED_LOOP = group
     try:
         for factory, kw in zip(factories, kwargs_list, strict=True):
             nodes.append(factory(stop_event=stop, **kw))
     except _bad_parameter_errors() as exc:
+        _SHARED_LOOP = None
         who = kwargs_list[len(nodes)].get("node_name", getattr(factories[len(nodes)], "default_name", "node"))
         print(f"{who}: bad parameter: {exc}", file=sys.stderr, flush=True)
         for n in nodes:
@@ -832,6 +988,7 @@ def run_nodes(
             n.destroy_node()
         rclpy.try_shutdown()
         return BAD_PARAMETER_EXIT
+    _SHARED_LOOP = None
     executor = MultiThreadedExecutor(num_threads=max(2, len(nodes))) if multithreaded else SingleThreadedExecutor()
     for n in nodes:
         executor.add_node(n)
@@ -858,6 +1015,8 @@ def run_nodes(
         except Exception as exc:  # noqa: BLE001 - report, keep closing the others
             print(f"{n.get_name()}: error while closing: {exc}", file=sys.stderr, flush=True)
             code = max(code, 1)
+    if group is not None:
+        group.stop()
     code = max([code] + [n.exit_code for n in nodes])
     executor.shutdown(timeout_sec=2.0)
     spinner.join(2.0)  # a C++ wait still running at exit would abort the process
