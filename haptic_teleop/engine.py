@@ -31,7 +31,7 @@ from haptic_teleop.core.network import Link, Packet, build_link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.plants import build_master_plant, build_slave_plant
-from haptic_teleop.scene import ControllerConfig, LoadedScene, Scene
+from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, Scene
 
 # Per-tick columns, in record order.
 COLUMNS = (
@@ -116,6 +116,25 @@ def _controller(
     return TeleopController(params, bound)
 
 
+def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[float, ...]] | None) -> Operator:
+    """The core operator model a scene's `operator` section names (engine and operator_source)."""
+    return Operator(
+        OperatorParams(
+            profile=op.profile,
+            mass_kg=op.mass_kg,
+            stiffness_n_per_m=op.stiffness_n_per_m,
+            damping_n_s_per_m=op.damping_n_s_per_m,
+            start_s=op.start_s,
+            speed_m_per_s=op.speed_m_per_s,
+            distance_m=op.distance_m,
+            amplitude_m=op.amplitude_m,
+            frequency_hz=op.frequency_hz,
+            trace_time_s=trace[0] if trace else (),
+            trace_position_m=trace[1] if trace else (),
+        )
+    )
+
+
 class Engine:
     """Builds the parts a scene names and runs them in lockstep."""
 
@@ -127,21 +146,7 @@ class Engine:
         self.ticks = int(round(c.scene.duration_s / c.scene.period_s))
         op = c.operator
         trace = scene.operator_trace
-        self.operator = Operator(
-            OperatorParams(
-                profile=op.profile,
-                mass_kg=op.mass_kg,
-                stiffness_n_per_m=op.stiffness_n_per_m,
-                damping_n_s_per_m=op.damping_n_s_per_m,
-                start_s=op.start_s,
-                speed_m_per_s=op.speed_m_per_s,
-                distance_m=op.distance_m,
-                amplitude_m=op.amplitude_m,
-                frequency_hz=op.frequency_hz,
-                trace_time_s=trace[0] if trace else (),
-                trace_position_m=trace[1] if trace else (),
-            )
-        )
+        self.operator = build_operator(op, trace)
         self.master = build_master_plant(c)
         self.slave = build_slave_plant(c)
         limits = remote_limits(c, scene.operator_trace)

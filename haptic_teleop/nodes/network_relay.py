@@ -40,12 +40,14 @@ from haptic_teleop.nodes.common import (
 _KEEP_TICKS = 30_000
 
 
-def declare_direction(node: LiveNode) -> str:
-    return str(
+def declare_direction_scene(node: LiveNode, executable: str) -> tuple[str, Any]:
+    """The node's `direction` parameter and the scene sections `executable` reads for it."""
+    d = str(
         declare_value(
             node, "direction", "forward", "forward: master to slave; backward: slave to master", choices=DIRECTIONS
         )
     )
+    return d, declare_scene(node, [s.format(direction=d) for s in SCENE_SECTIONS[executable]], ("direction",))
 
 
 class NetworkRelay(LiveNode):
@@ -60,8 +62,8 @@ class NetworkRelay(LiveNode):
         from haptic_teleop.bag import joint_state_size
         from haptic_teleop.core.network import build_link
 
-        self.direction = d = declare_direction(self)
-        cfg = declare_scene(self, [s.format(direction=d) for s in SCENE_SECTIONS["network_relay"]], ("direction",))
+        d, cfg = declare_direction_scene(self, "network_relay")
+        self.direction = d
         period_ns = round(cfg.scene.period_s * 1e9)
         self.link = build_link(getattr(cfg.network, d).effects, cfg.scene.seed, d)
         self._fields = PAYLOAD_FIELDS[d]

@@ -44,7 +44,7 @@ class OperatorSource(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.core.operator import Operator, OperatorParams
+        from haptic_teleop.engine import build_operator
         from haptic_teleop.scene import _read_trace
 
         cfg = declare_scene(self, SCENE_SECTIONS["operator_source"], _NAMES)
@@ -52,21 +52,7 @@ class OperatorSource(LiveNode):
         trace = None
         if op.trace_file:
             trace = _read_trace(Path(op.trace_file), f"node {self.get_name()}", "operator.trace_file")
-        self.operator = Operator(
-            OperatorParams(
-                profile=op.profile,
-                mass_kg=op.mass_kg,
-                stiffness_n_per_m=op.stiffness_n_per_m,
-                damping_n_s_per_m=op.damping_n_s_per_m,
-                start_s=op.start_s,
-                speed_m_per_s=op.speed_m_per_s,
-                distance_m=op.distance_m,
-                amplitude_m=op.amplitude_m,
-                frequency_hz=op.frequency_hz,
-                trace_time_s=trace[0] if trace else (),
-                trace_position_m=trace[1] if trace else (),
-            )
-        )
+        self.operator = build_operator(op, trace)
         self.wait_for = list(
             declare_value(
                 self, "start.wait_for_publishers", list(DEFAULT_WAIT_FOR), "start once these topics have publishers"

@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import Any
 
 from haptic_teleop.core.network import Packet
-from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     DIRECTION_JOINT,
@@ -22,14 +21,13 @@ from haptic_teleop.nodes.common import (
     WIRE_FIELDS,
     JointStateOut,
     LiveNode,
-    declare_scene,
     delivered_topic,
     node_main,
     received_topic,
     stream_qos,
     take_all,
 )
-from haptic_teleop.nodes.network_relay import declare_direction
+from haptic_teleop.nodes.network_relay import declare_direction_scene
 
 
 class SyncBuffer(LiveNode):
@@ -42,8 +40,8 @@ class SyncBuffer(LiveNode):
 
         from haptic_teleop.core.playout import build_buffer
 
-        self.direction = d = declare_direction(self)
-        cfg = declare_scene(self, [s.format(direction=d) for s in SCENE_SECTIONS["sync_buffer"]], ("direction",))
+        d, cfg = declare_direction_scene(self, "sync_buffer")
+        self.direction = d
         period_ns = round(cfg.scene.period_s * 1e9)
         self.buffer = build_buffer(getattr(cfg.network, d).buffer, period_ns)
         self._fields = PAYLOAD_FIELDS[d]
