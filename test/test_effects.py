@@ -324,6 +324,8 @@ def test_per_tick_calls_grow_only_with_the_effects_named():
     assert BENCHMARKS["effects"] == "haptic_teleop.benchmarks.effects"
     bare = calls_per_tick(str(SCENE), NO_NETWORK, ticks=200)
     for physical in ("master.effects.gravity.incline_deg=10", "master.effects.friction.coulomb_n=0.2"):
-        assert abs(calls_per_tick(str(SCENE), (*NO_NETWORK, physical), ticks=200) - bare) <= 1
+        # Not exactly 0: a different motion takes other branches in the controllers (about one
+        # call a tick); a wrapper around the plant would add at least 2 (the noise case below).
+        assert abs(calls_per_tick(str(SCENE), (*NO_NETWORK, physical), ticks=200) - bare) < 1.5
     noisy = calls_per_tick(str(SCENE), (*NO_NETWORK, "slave.effects.noise.force_std_n=0.1"), ticks=200)
     assert bare + 2 <= noisy <= bare + 5
