@@ -325,6 +325,24 @@ def _tight_timer_slack() -> None:
         pass
 
 
+def _enter_realtime(priority: int, on_warning: Callable[[str], None] | None) -> bool:
+    """Tight timer slack, and SCHED_FIFO `priority` for this thread (as ros2_control's control
+    thread has) if allowed and > 0. Returns whether the thread runs real-time."""
+    _tight_timer_slack()
+    if priority <= 0:
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return True
+    except (OSError, AttributeError) as exc:
+        if on_warning is not None:
+            on_warning(
+                f"no SCHED_FIFO priority {priority} for the loop ({exc}); running with normal "
+                "scheduling, which misses deadlines under load (docs/live.md: real-time priority)"
+            )
+        return False
+
+
 class LoopStats:
     """Counters of one loop; lateness (wake time - deadline) kept in a ring for percentiles."""
 
@@ -336,6 +354,14 @@ class LoopStats:
         self.first_ns = 0
         self.last_ns = 0
         self.lateness_ns = array.array("q", bytes(8 * self.RING))
+
+    def record(self, woke_ns: int, deadline_ns: int) -> None:
+        """One tick that woke at `woke_ns` for `deadline_ns`."""
+        self.lateness_ns[self.ticks & (self.RING - 1)] = woke_ns - deadline_ns
+        if self.ticks == 0:
+            self.first_ns = woke_ns
+        self.last_ns = woke_ns
+        self.ticks += 1
 
     def rate_hz(self) -> float:
         span = self.last_ns - self.first_ns
@@ -423,27 +449,10 @@ class LoopThread:
             waiter(0)  # input that came in the last stretch, before the tick
         return now()
 
-    def _make_realtime(self) -> None:
-        """SCHED_FIFO for this thread (as ros2_control's control thread does), if allowed."""
-        if self.realtime_priority <= 0:
-            return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
-            self.realtime = True
-        except (OSError, AttributeError) as exc:
-            if self._on_warning is not None:
-                self._on_warning(
-                    f"no SCHED_FIFO priority {self.realtime_priority} for the loop ({exc}); running with normal "
-                    "scheduling, which misses deadlines under load (docs/live.md: real-time priority)"
-                )
-
     def _run(self) -> None:
-        _tight_timer_slack()
-        self._make_realtime()
+        self.realtime = _enter_realtime(self.realtime_priority, self._on_warning)
         period = self.period_ns
         stats = self.stats
-        ring = stats.lateness_ns
-        mask = stats.RING - 1
         tick = self._tick
         stop = self._stop
         try:
@@ -465,12 +474,7 @@ class LoopThread:
                     stats.overruns += skipped
                     k += skipped
                     deadline = k * period + phase
-                    late = t - deadline
-                ring[stats.ticks & mask] = late
-                if stats.ticks == 0:
-                    stats.first_ns = t
-                stats.last_ns = t
-                stats.ticks += 1
+                stats.record(t, deadline)
                 tick(k, k * period)  # the stamp is on the grid; the phase only moves the wake-up
                 k += 1
         except BaseException as exc:
@@ -556,13 +560,7 @@ class SharedLoop:
             self._thread.join(timeout_s)
 
     def _run(self) -> None:
-        _tight_timer_slack()
-        if self.realtime_priority > 0:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
-                self.realtime = True
-            except (OSError, AttributeError):
-                pass
+        self.realtime = _enter_realtime(self.realtime_priority, None)
         base = self.base_period_ns
         k = time.time_ns() // base + 1
         stop = self._stop
@@ -579,7 +577,6 @@ class SharedLoop:
                     m.stats.overruns += skipped // m.every
                 k += skipped
                 deadline = k * base
-                late = t - deadline
             for m in self.members:
                 if k % m.every:
                     continue
@@ -589,13 +586,7 @@ class SharedLoop:
             k += 1
 
     def _tick(self, m: SharedLoop.Member, deadline: int) -> None:
-        st = m.stats
-        now = time.time_ns()
-        st.lateness_ns[st.ticks & (st.RING - 1)] = now - deadline
-        if st.ticks == 0:
-            st.first_ns = now
-        st.last_ns = now
-        st.ticks += 1
+        m.stats.record(time.time_ns(), deadline)
         try:
             if m.drain is not None:
                 m.drain()
@@ -613,10 +604,6 @@ _SHARED_LOOP: SharedLoop | None = None  # set by run_nodes(shared_loop=True) whi
 
 # ---------------------------------------------------------------------------------------------
 # Messages.
-
-
-def split_ns(stamp_ns: int) -> tuple[int, int]:
-    return stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
 
 
 def stamp_ns_of(msg: Any) -> int:
