@@ -7,7 +7,17 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from haptic_teleop.bag import BagReader, FixedLayout, make_joint_state, topic_specs, typestore, write_run
+from haptic_teleop.bag import (
+    BLOCK_TICKS,
+    PACKET_FIELDS,
+    BagReader,
+    FixedLayout,
+    RunRecorder,
+    make_joint_state,
+    topic_specs,
+    typestore,
+    write_run,
+)
 from haptic_teleop.engine import Engine
 from haptic_teleop.errors import BagError
 from haptic_teleop.scene import find_scene, load_scene
@@ -19,6 +29,12 @@ def short_run():
         find_scene("wall_contact"), overrides=["scene.duration_s=2.5", "network.forward.effects.loss.probability=0.05"]
     )
     return Engine(scene).run(handle_sigint=False)
+
+
+@pytest.fixture(scope="module")
+def clean_run():
+    """No loss: after the first delay every tick releases a sample both ways (the bulk writer's usual block)."""
+    return Engine(load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=2.5"])).run(handle_sigint=False)
 
 
 def _same_tree(a: Path, b: Path) -> bool:
@@ -79,7 +95,10 @@ def test_roundtrip_every_topic(tmp_path, short_run):
 
 
 def short_run_lost(run) -> int:
-    return sum(1 for p in run.forward_log if p.fate == 1 and not p.duplicate)
+    log = run.forward_log  # the link's packets, or their records (bag rows) from the compiled loop
+    if isinstance(log, np.ndarray):
+        return int(np.count_nonzero((log[:, 3] == 1) & (log[:, 4] == 0)))
+    return sum(1 for p in log if p.fate == 1 and not p.duplicate)
 
 
 def test_fixed_layout_matches_full_serialization():
@@ -178,3 +197,260 @@ def test_bulk_message_index_spans_chunks(tmp_path, short_run):
     assert size > 3 * 2**20  # more than three chunks of 1 MiB
     assert counts["/master/joint_states"] == short_run.ticks
     assert counts["/forward/received"] == int(np.count_nonzero(short_run.column("fwd_rx_seq") >= 0))
+
+
+def _record(run, bag_dir: Path, eba: bool, packets: bool, bulk: bool, parallel: bool = False, logs=None) -> Path:
+    """Record a finished run through RunRecorder as the engine does (blocks, then finish); in
+    parallel, blocks go through shared memory as in record_run."""
+    from haptic_teleop.engine import COLUMNS
+
+    rec = RunRecorder(
+        bag_dir,
+        run.scene.to_yaml(),
+        run.period_ns,
+        eba,
+        packets,
+        len(COLUMNS),
+        parallel=parallel,
+        bulk=bulk,
+        max_ticks=run.ticks if parallel else None,
+    )
+    for stop in range(BLOCK_TICKS, run.ticks, BLOCK_TICKS):
+        rec.block(run.data, stop)
+    fwd, bwd = logs if logs is not None else (run.forward_log, run.backward_log)
+    return rec.finish(run.data, run.ticks, fwd, bwd, {"k": 1})
+
+
+@pytest.mark.parametrize(("eba", "packets"), [(True, True), (False, False), (True, False)])
+def test_bulk_writer_equals_the_plain_api_for_every_topic_set(tmp_path, clean_run, short_run, eba, packets):
+    """Every block shape (ticks releasing nothing, one or both directions, a lossy link) and topic
+    set: the bulk records, chunks, message indexes and closing give rosbags' bytes."""
+    for name, run in (("clean", clean_run), ("lossy", short_run)):
+        dirs = {}
+        for mode in ("plain", "bulk", "parallel"):
+            (tmp_path / name / mode).mkdir(parents=True)
+            dirs[mode] = _record(
+                run, tmp_path / name / mode / "bag", eba, packets, bulk=mode != "plain", parallel=mode == "parallel"
+            )
+        assert _same_tree(dirs["plain"], dirs["bulk"]), name
+        assert _same_tree(dirs["plain"], dirs["parallel"]), name
+    with BagReader(dirs["bulk"]) as r:
+        assert r.has("/master/eba") == eba and r.has("/forward/packets") == packets
+
+
+def test_finish_takes_packet_records_as_arrays(tmp_path, short_run):
+    """finish() takes each packet log as a link's Packet list or as ready records (a float64
+    array in _packet_rows' format, used as is): the same bag either way; a wrong array is refused."""
+    from haptic_teleop.bag import _packet_rows
+    from haptic_teleop.core.network import Packet
+
+    rng = np.random.default_rng(11)
+    logs = []
+    for direction in range(2):
+        log = []
+        for i in range(2300 + direction):
+            send = i * 1_000_000
+            p = Packet(i, send, (0.0,), 120, arrival_time_ns=send + int(rng.integers(10**7, 10**8)))
+            p.fate = int(rng.integers(0, 5))
+            p.duplicate = bool(rng.integers(0, 2))
+            log.append(p)
+        logs.append(log)
+    arrays = tuple(_packet_rows(log) for log in logs)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    from_lists = _record(short_run, tmp_path / "a" / "bag", True, True, bulk=True, logs=logs)
+    from_arrays = _record(short_run, tmp_path / "b" / "bag", True, True, bulk=True, logs=arrays)
+    assert _same_tree(from_lists, from_arrays)
+    with BagReader(from_arrays) as r:
+        assert np.array_equal(r.packets("/backward/packets"), arrays[1], equal_nan=True)
+    assert _packet_rows(arrays[0]) is arrays[0]  # used as is, no copy
+    for bad in (arrays[0][:, :5], arrays[0].astype(np.float32), arrays[0].ravel()):
+        with pytest.raises(BagError, match="packet records must be a float64 array"):
+            _packet_rows(bad)
+    # A wrong log still leaves a closed, readable bag (in process and with the writer process).
+    for parallel in (False, True):
+        (tmp_path / f"bad{parallel}").mkdir()
+        with pytest.raises(BagError, match="packet records must be a float64 array"):
+            _record(
+                short_run,
+                tmp_path / f"bad{parallel}" / "bag",
+                True,
+                True,
+                True,
+                parallel,
+                (arrays[0], arrays[1][:, :2]),
+            )
+        with BagReader(tmp_path / f"bad{parallel}" / "bag") as r:
+            assert len(r.read("/master/joint_states").log_ns) == short_run.ticks
+            assert r.packets("/forward/packets").shape == (0, len(PACKET_FIELDS))
+
+
+def test_packet_batches_equal_rosbags_serialization():
+    from haptic_teleop.bag import _multiarray_bytes, _packet_batch_bytes
+
+    rng = np.random.default_rng(2)
+    for n in (1, 2, 7, 999, 1000):
+        rows = rng.normal(size=(n, len(PACKET_FIELDS)))
+        rows[::3, 2] = np.nan
+        assert _packet_batch_bytes(rows) == _multiarray_bytes(rows)
+        assert _packet_batch_bytes(rows[::-1]) == _multiarray_bytes(np.ascontiguousarray(rows[::-1]))
+
+
+def _ruamel_dump(data) -> str:
+    from io import StringIO
+
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    yaml.default_flow_style = False
+    out = StringIO()
+    yaml.dump(data, out)
+    return out.getvalue()
+
+
+def test_metadata_text_equals_ruamel_on_a_real_bag(tmp_path, short_run):
+    """The metadata rosbags writes (through ruamel) for a run's bag, read back and written again
+    by _yaml_block: the same text, and _yaml_block writes it itself (no fallback)."""
+    from ruamel.yaml import YAML
+
+    from haptic_teleop.bag import _yaml_block
+
+    bag = write_run(short_run, tmp_path / "bag", {}, bulk=False)
+    text = (bag / "metadata.yaml").read_text()
+    data = YAML(typ="safe").load(text)
+    assert _yaml_block(data) == text
+    inner = data["rosbag2_bagfile_information"]
+    assert _yaml_block(inner) == _ruamel_dump(inner)
+
+
+def _random_yaml_data(rng, depth: int = 0):
+    words = ["a", "x_y", "/haptic_teleop/scene", "std_msgs/msg/String", "bag.mcap", "RIHS01_" + "ab12" * 16, ""]
+    # Words that do not look plain: ruamel is asked once (written plain or quoted; quoted means fallback).
+    odd = ["2026-11-22.mcap", "2026-11-22", "yes", "-x", "a b", "0x1F", "é", "a:b", "@x", "null", "~"]
+
+    def scalar():
+        k = int(rng.integers(0, 10))
+        if k == 0:
+            return int(rng.integers(-(10**12), 2**63 - 1))
+        if k == 1:
+            return [None, True, False][int(rng.integers(0, 3))]
+        if k <= 5:
+            n = int(rng.integers(1, 95))
+            return "".join(rng.choice(list("abcdefghijklmnopqrstuvwxyz_/."), size=n).tolist()).lstrip("./") or "z"
+        if k <= 8:
+            return words[int(rng.integers(0, len(words)))]
+        return odd[int(rng.integers(0, len(odd)))]
+
+    def key():
+        n = int(rng.integers(1, 40))
+        return "k" + "".join(rng.choice(list("abcdefghijklmnopqrstuvwxyz_"), size=n).tolist())
+
+    def node(d):
+        k = int(rng.integers(0, 5 if d < 4 else 2))
+        if k <= 1:
+            return scalar()
+        if k == 2:
+            return {key(): node(d + 1) for _ in range(int(rng.integers(0, 4)))}
+        if k == 3:
+            return [node(d + 1) for _ in range(int(rng.integers(0, 4)))]
+        return {key(): [node(d + 1) for _ in range(int(rng.integers(0, 3)))] for _ in range(int(rng.integers(1, 3)))}
+
+    return {key(): node(depth) for _ in range(int(rng.integers(1, 6)))}
+
+
+def test_yaml_block_equals_ruamel_on_generated_data():
+    """Whenever _yaml_block writes a document it is ruamel's text, byte for byte (keys sorted,
+    indentation, long values moved to their own line, quoting of empty strings); where it declines
+    (None) the writer uses ruamel. Most generated documents are written by _yaml_block itself."""
+    from haptic_teleop.bag import _yaml_block
+
+    rng = np.random.default_rng(7)
+    written = wrapped = 0
+    for _ in range(400):
+        data = _random_yaml_data(rng)
+        text = _yaml_block(data)
+        if text is not None:
+            written += 1
+            wrapped += ": \n" in text
+            assert text == _ruamel_dump(data), data
+    assert written > 150 and wrapped > 50, (written, wrapped)
+    shared = {"a": 1}
+    assert _yaml_block({"x": shared, "y": shared}) is None  # ruamel writes an anchor and an alias
+    assert _yaml_block({"x": 1.5}) is None  # floats are not in the subset
+    assert _yaml_block({"x": [[1]]}) is None
+
+
+def test_fast_close_equals_rosbags_close(tmp_path):
+    """_close_bag against rosbags' own Writer.close for the same bag: QoS profiles, custom data, a
+    file name ruamel must be asked about, and one it quotes (then Writer.close itself is used)."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from haptic_teleop.bag import _close_bag
+
+    ts = typestore()
+    qos = Qos(
+        QosHistory.KEEP_LAST,
+        10,
+        QosReliability.RELIABLE,
+        QosDurability.VOLATILE,
+        QosTime(1, 2),
+        QosTime(0, 0),
+        QosLiveliness.AUTOMATIC,
+        QosTime(3, 4),
+        False,
+    )
+    for name in ("bag", "2026-11-22_run", "2026-11-22", "a bag"):
+        for how in ("rosbags", "fast"):
+            w = Writer(tmp_path / how / name, version=9, storage_plugin=StoragePlugin.MCAP)
+            w.open()
+            c1 = w.add_connection("/a", STRING_TYPE, typestore=ts, offered_qos_profiles=[qos])
+            c2 = w.add_connection("/b", STRING_TYPE, typestore=ts)
+            w.set_custom_data("note", "x")
+            for i in range(5):
+                w.write(
+                    c1 if i % 2 else c2,
+                    10 + i,
+                    bytes(ts.serialize_cdr(ts.types[STRING_TYPE](data=str(i)), STRING_TYPE)),
+                )
+            if how == "rosbags":
+                w.close()
+            else:
+                _close_bag(w)
+        assert _same_tree(tmp_path / "rosbags" / name, tmp_path / "fast" / name), name
+        assert (tmp_path / "fast" / name / "metadata.yaml").exists()
+
+
+STRING_TYPE = "std_msgs/msg/String"
+
+
+def test_chunk_closes_only_past_one_mebibyte(tmp_path):
+    """rosbags closes a chunk after the message that takes it past 1 MiB: a chunk that ends exactly
+    at 1 MiB stays open. The bulk writer does the same, whether messages come in one call or several."""
+    from haptic_teleop.bag import STRING, _BagSink, _Stream, _string_bytes
+
+    def stream(lengths, t0):
+        blobs = [_string_bytes("x" * n) for n in lengths]
+        return _Stream("/a", STRING, np.arange(t0, t0 + len(blobs)), blobs=blobs)
+
+    trees = []
+    for mode in ("plain", "bulk_one_call", "bulk_calls"):
+        sink = _BagSink(tmp_path / mode / "bag", [("/a", STRING), ("/b", STRING)], bulk=mode != "plain")
+        used = sink.writer.storage.chunk.bio.tell()  # rosbags' schema and channel records
+        lengths = [300_000, 300_000, 300_000]
+        used += sum(31 + len(_string_bytes("x" * n)) for n in lengths)
+        last = 2**20 - used - 31 - len(_string_bytes(""))  # this message ends the chunk at exactly 1 MiB
+        assert used + 31 + len(_string_bytes("x" * last)) == 2**20
+        lengths += [last, 10, 500_000, 600_000, 20]
+        if mode == "bulk_calls":  # the first call ends exactly at 1 MiB
+            sink.write([stream(lengths[:4], 0)])
+            sink.write([stream(lengths[4:], 4)])
+        else:
+            sink.write([stream(lengths, 0)])
+        sink.write([_Stream("/b", STRING, np.array([3]), blobs=[_string_bytes("b")])])
+        sink.close()
+        trees.append(tmp_path / mode / "bag")
+    assert _same_tree(trees[0], trees[1]) and _same_tree(trees[0], trees[2])
+    with Reader(trees[1]) as r:
+        sizes = [len(raw) for c, _, raw in r.messages() if c.topic == "/a"]
+    assert sizes == [len(_string_bytes("x" * n)) for n in lengths]
