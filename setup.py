@@ -41,6 +41,8 @@ setup(
         "rosbags>=0.10.4",
         "matplotlib>=3.7",
         "tqdm>=4.64",
+        # the engine's compiled loop (haptic_teleop/fastloop.py); without it the Python loop runs
+        "numba>=0.60",
     ],
     extras_require={
         "standalone": STANDALONE,

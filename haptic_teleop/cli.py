@@ -33,7 +33,9 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
     summary, sig = analyze_bag(bag_dir)
     timing = Path(bag_dir).parent / TIMING_FILE
     if timing.is_file():
-        summary["realtime_factor"] = json.loads(timing.read_text())["realtime_factor"]
+        t = json.loads(timing.read_text())
+        summary["realtime_factor"] = t["realtime_factor"]
+        summary["engine_loop"] = t.get("loop", "python")
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "summary.json").write_text(json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
     if plots:
@@ -85,7 +87,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     bag_dir = out / "bag"
     try:
-        _, timing = record_run(scene, bag_dir, progress=progress)
+        _, timing = record_run(scene, bag_dir, progress=progress, loop=args.loop)
     finally:
         if bar is not None:
             bar.close()
@@ -136,6 +138,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument(
+        "--loop",
+        choices=("auto", "compiled", "python"),
+        default="auto",
+        help="tick loop: compiled (numba) or python; both give the same bag (auto: compiled if the scene allows)",
+    )
     r.set_defaults(func=cmd_run)
 
     a = sub.add_parser("analyze", help="metrics, summary.json and plots from a bag alone")

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,8 +31,12 @@ from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLi
 from haptic_teleop.core.network import Link, Packet, build_link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
+from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, Scene
+
+if TYPE_CHECKING:
+    from haptic_teleop import fastloop
 
 # Per-tick columns, in record order.
 COLUMNS = (
@@ -51,8 +56,8 @@ class RunResult:
     ticks: int
     period_ns: int
     data: np.ndarray  # (ticks, len(COLUMNS))
-    forward_log: list[Packet]
-    backward_log: list[Packet]
+    forward_log: list[Packet] | np.ndarray  # the link's Packets, or records (bag rows) from the compiled loop
+    backward_log: list[Packet] | np.ndarray
     loop_wall_s: float
     interrupted: bool
     extra: dict[str, float] = field(default_factory=dict)
@@ -135,10 +140,21 @@ def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[flo
     )
 
 
-class Engine:
-    """Builds the parts a scene names and runs them in lockstep."""
+LOOPS = ("auto", "compiled", "python")
+COMPILED_CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
 
-    def __init__(self, scene: LoadedScene) -> None:
+
+class Engine:
+    """Builds the parts a scene names and runs them in lockstep.
+
+    `loop`: "compiled" runs the tick in machine code (haptic_teleop/fastloop.py), "python" in
+    the interpreter, "auto" the compiled loop when the scene allows it. Both give the same
+    columns bit for bit; `loop_kind` says which one runs, `compiled_reason` why not compiled.
+    """
+
+    def __init__(self, scene: LoadedScene, loop: str = "auto") -> None:
+        if loop not in LOOPS:
+            raise ValueError(f"loop must be one of {', '.join(LOOPS)}, got {loop!r}")
         self.scene = scene
         c = scene.config
         self.period_s = c.scene.period_s
@@ -154,23 +170,51 @@ class Engine:
             c.controllers.master, "master", self.period_s, c.master.damping_n_s_per_m, limits
         )
         self.slave_ctrl = _controller(c.controllers.slave, "slave", self.period_s, c.slave.damping_n_s_per_m, limits)
+        self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
+        # Wire sizes of the two packets (setup: the first call loads the message types).
+        self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
+        self._stop = False
+        self._packets: tuple[list[Packet] | np.ndarray, list[Packet] | np.ndarray] | None = None
+        from haptic_teleop import fastloop
+
+        self.compiled_reason = fastloop.compiled_reason(self) if loop != "python" else "loop 'python' asked for"
+        if loop == "compiled" and self.compiled_reason is not None:
+            raise HapticTeleopError(
+                f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
+                "use --loop auto or python"
+            )
+        self.loop_kind = "compiled" if self.compiled_reason is None else "python"
+        if self.loop_kind == "compiled":
+            self._kernel = fastloop.kernel()
+            self._compiled_call(0, 0, np.zeros((1, len(COLUMNS))))  # compile or load now, not in the timed loop
+
+    def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
+        """Fresh links and playout buffers for both directions, as the scene names them."""
+        c = self.scene.config
+        op = c.operator
         seed = c.scene.seed
-        self.forward: Link = build_link(c.network.forward.effects, seed, "forward")
-        self.backward: Link = build_link(c.network.backward.effects, seed, "backward")
-        self.forward_buffer: PlayoutBuffer = build_buffer(c.network.forward.buffer, self.period_ns)
-        self.backward_buffer: PlayoutBuffer = build_buffer(c.network.backward.buffer, self.period_ns)
+        forward = build_link(c.network.forward.effects, seed, "forward")
+        backward = build_link(c.network.backward.effects, seed, "backward")
+        forward_buffer = build_buffer(c.network.forward.buffer, self.period_ns)
+        backward_buffer = build_buffer(c.network.backward.buffer, self.period_ns)
         # The transparency-driven buffers need the contact force slope (docs/eba.md): the bounded
         # coupling stiffness min(c1, 2b/T) times the operator's speed, unless the scene gives it.
         speed = (
             abs(op.speed_m_per_s) if op.profile == "push" else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
         )
         for buf, bcfg, ctrl, b in (
-            (self.backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
-            (self.forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),
+            (backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
+            (forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),
         ):
             if isinstance(buf, TransparencyBuffer) and bcfg.force_slope_n_per_s is None:
                 buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / self.period_s), speed))
-        self._stop = False
+        return forward, backward, forward_buffer, backward_buffer
+
+    def packet_logs(self) -> tuple[list[Packet] | np.ndarray, list[Packet] | np.ndarray]:
+        """Every packet of both directions so far, for the bag: the links' logs, or records (bag rows)."""
+        if self._packets is not None:
+            return self._packets
+        return self.forward.log, self.backward.log
 
     def request_stop(self) -> None:
         """Stop at the end of the current tick (Ctrl-C)."""
@@ -201,6 +245,8 @@ class Engine:
         gc_was_enabled = gc.isenabled()
         gc.disable()
         try:
+            if self.loop_kind == "compiled":
+                return self._compiled_loop(progress, on_block)
             return self._loop(progress, on_block)
         finally:
             if gc_was_enabled:
@@ -234,8 +280,7 @@ class Engine:
         fpush, frelease = fbuf.push, fbuf.release
         bpush, brelease = bbuf.push, bbuf.release
         m_set_remote, s_set_remote = mc.set_remote, sc.set_remote
-        fwd_size = _wire_payload_bytes(2)
-        bwd_size = _wire_payload_bytes(3)
+        fwd_size, bwd_size = self._sizes
         # A tick's row goes straight into `data`'s memory: one C call, no tuple, no numpy scalar
         # conversions (a third of what `data[n] = (...)` costs).
         pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
@@ -314,6 +359,105 @@ class Engine:
             interrupted=n < n_ticks,
         )
 
+    def _compiled_call(self, start: int, stop: int, data: np.ndarray) -> None:
+        """Run ticks [start, stop) in the compiled loop (fastloop.run_ticks), on the arrays set up
+        by `_compiled_loop` (or on empty stand-ins, to compile it)."""
+        from haptic_teleop import fastloop
+
+        a = getattr(self, "_compiled_args", None)
+        if a is None:
+            empty = np.zeros(1, dtype=np.int64)
+            a = (
+                fastloop.model_addresses(self),
+                self.master.data.qpos, self.master.data.qvel, self.master.data.ctrl,  # type: ignore[attr-defined]
+                self.slave.data.qpos, self.slave.data.qvel, self.slave.data.ctrl,  # type: ignore[attr-defined]
+                self.slave.data.qfrc_constraint,  # type: ignore[attr-defined]
+                empty, np.zeros(1), empty, np.zeros(1), np.zeros((1, 2)), np.zeros((1, 3)),
+                fastloop.parameters(self), fastloop.initial_state(self),
+            )  # fmt: skip
+        assert self._kernel is not None
+        self._kernel(start, stop, *a, data)
+
+    def _compiled_loop(
+        self, progress: Callable[[int], None] | None, on_block: Callable[[np.ndarray, int], None] | None
+    ) -> RunResult:
+        from haptic_teleop import fastloop
+
+        n_ticks, period_ns = self.ticks, self.period_ns
+        data = self.data = np.zeros((n_ticks, len(COLUMNS)))
+        self.ticks_done = 0
+        t0 = time.perf_counter()
+        # The network's decisions for the whole run first: they do not depend on payloads.
+        fwd = fastloop.schedule(self.forward, self.forward_buffer, n_ticks, period_ns, self._sizes[0])
+        bwd = fastloop.schedule(self.backward, self.backward_buffer, n_ticks, period_ns, self._sizes[1])
+        S = fastloop.initial_state(self)
+        self._compiled_args = (
+            fastloop.model_addresses(self),
+            self.master.data.qpos, self.master.data.qvel, self.master.data.ctrl,  # type: ignore[attr-defined]
+            self.slave.data.qpos, self.slave.data.qvel, self.slave.data.ctrl,  # type: ignore[attr-defined]
+            self.slave.data.qfrc_constraint,  # type: ignore[attr-defined]
+            fwd.released_seq, fwd.occupancy, bwd.released_seq, bwd.occupancy,
+            np.zeros((n_ticks, 2)), np.zeros((n_ticks, 3)),
+            fastloop.parameters(self), S,
+        )  # fmt: skip
+        done = 0
+        try:
+            while done < n_ticks:
+                stop = min(done + COMPILED_CHUNK_TICKS, n_ticks)
+                with fastloop.mujoco_timers_off():
+                    self._compiled_call(done, stop, data)
+                done = self.ticks_done = stop
+                if progress is not None and done % 100 == 0:
+                    progress(done)
+                if on_block is not None and done % BLOCK_TICKS == 0:
+                    on_block(data, done)
+                if self._stop:
+                    break
+        finally:
+            self._compiled_args = None
+            fastloop.store_state(self, S)
+            self._packets = self._packets_after(fwd, bwd, done)
+            self.master.close()
+            self.slave.close()
+        wall = time.perf_counter() - t0
+        return RunResult(
+            scene=self.scene,
+            ticks=done,
+            period_ns=period_ns,
+            data=data,
+            forward_log=self._packets[0],
+            backward_log=self._packets[1],
+            loop_wall_s=wall,
+            interrupted=done < n_ticks,
+        )
+
+    def _packets_after(
+        self, fwd: fastloop.DirectionSchedule, bwd: fastloop.DirectionSchedule, done: int
+    ) -> tuple[list[Packet] | np.ndarray, list[Packet] | np.ndarray]:
+        """The packet records of the first `done` ticks of a compiled run.
+
+        Records of a vectorized schedule are decided at send time: the first `done` are exact. A
+        schedule ticked through the links and buffers ran ahead of an interrupted loop (a buffer
+        marks a packet late when a newer one arrives), so then the network is ticked again, fresh,
+        for `done` ticks: the records the Python loop would have left."""
+        from haptic_teleop import fastloop
+
+        if done == self.ticks:
+            return fwd.packets, bwd.packets
+        if fwd.vectorized and bwd.vectorized:  # one record per tick
+            return fwd.packets[:done], bwd.packets[:done]
+        links = self._network()
+        out = []
+        for link, buf, sched, size in (
+            (links[0], links[2], fwd, self._sizes[0]),
+            (links[1], links[3], bwd, self._sizes[1]),
+        ):
+            if sched.vectorized:
+                out.append(sched.packets[:done])
+            else:
+                out.append(fastloop.schedule(link, buf, done, self.period_ns, size).packets)
+        return out[0], out[1]
+
 
 @dataclass(frozen=True)
 class RunTiming:
@@ -323,13 +467,14 @@ class RunTiming:
     loop_wall_s: float
     record_wall_s: float  # loop start to bag closed
     interrupted: bool
+    loop: str = "python"  # which loop ran: "compiled" or "python" (Engine.loop_kind)
 
     @property
     def realtime_factor(self) -> float:
         """Simulated seconds per wall second of the loop with recording included."""
         return self.simulated_s / self.record_wall_s if self.record_wall_s > 0 else float("inf")
 
-    def as_dict(self) -> dict[str, float | bool]:
+    def as_dict(self) -> dict[str, float | bool | str]:
         return {
             "simulated_s": self.simulated_s,
             "loop_wall_s": self.loop_wall_s,
@@ -337,6 +482,7 @@ class RunTiming:
             "realtime_factor": self.realtime_factor,
             "loop_realtime_factor": self.simulated_s / self.loop_wall_s if self.loop_wall_s > 0 else float("inf"),
             "interrupted": self.interrupted,
+            "loop": self.loop,
         }
 
 
@@ -346,6 +492,7 @@ def record_run(
     progress: Callable[[int], None] | None = None,
     parallel: bool = True,
     handle_sigint: bool = True,
+    loop: str = "auto",
 ) -> tuple[Engine, RunTiming]:
     """Run a scene and record it: the bag is written by a second process while the loop runs.
 
@@ -354,7 +501,7 @@ def record_run(
     """
     from haptic_teleop.bag import RunRecorder
 
-    engine = Engine(scene)
+    engine = Engine(scene, loop=loop)
     c = scene.config
     rec = RunRecorder(
         bag_dir,
@@ -380,11 +527,9 @@ def record_run(
             "rejected_samples_forward": engine.slave_ctrl.rejected_samples,
             "rejected_samples_backward": engine.master_ctrl.rejected_samples,
         }
-        rec.finish(
-            getattr(engine, "data", np.zeros((0, len(COLUMNS)))), done, engine.forward.log, engine.backward.log, info
-        )
+        rec.finish(getattr(engine, "data", np.zeros((0, len(COLUMNS)))), done, *engine.packet_logs(), info)
     wall = time.perf_counter() - t0
-    return engine, RunTiming(done * engine.period_s, result.loop_wall_s, wall, result.interrupted)
+    return engine, RunTiming(done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind)
 
 
 def _wire_payload_bytes(floats: int) -> int:

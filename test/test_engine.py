@@ -43,7 +43,7 @@ def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
 def test_stop_request_leaves_a_complete_bag(tmp_path):
     scene = load_scene(DEFAULT, overrides=SHORT)
     bag = tmp_path / "bag"
-    engine = Engine(scene)
+    engine = Engine(scene, loop="python")  # wraps the Python loop; the compiled one: test_compiled_loop.py
     original = engine._loop
 
     def stop_midway(progress, on_block):
@@ -59,7 +59,7 @@ def test_stop_request_leaves_a_complete_bag(tmp_path):
 
     rec = RunRecorder(bag, scene.to_yaml(), engine.period_ns, True, True, len(COLUMNS))
     result = engine.run(on_block=rec.block, handle_sigint=False)
-    rec.finish(engine.data, result.ticks, engine.forward.log, engine.backward.log, {"interrupted": True})
+    rec.finish(engine.data, result.ticks, *engine.packet_logs(), {"interrupted": True})
     assert result.interrupted and 1234 <= result.ticks < 1400
     with BagReader(bag) as r:
         assert len(r.read("/master/joint_states").log_ns) == result.ticks
@@ -81,10 +81,28 @@ def test_exception_in_a_tick_still_closes_the_bag(tmp_path, monkeypatch):
 
     monkeypatch.setattr(mujoco_plant.MujocoWallRobot, "step", failing_step)
     with pytest.raises(RuntimeError, match="servo bus fault"):
-        record_run(scene, tmp_path / "bag", handle_sigint=False)
+        record_run(scene, tmp_path / "bag", handle_sigint=False, loop="python")  # the loop that calls step
     with BagReader(tmp_path / "bag") as r:
         assert len(r.read("/slave/joint_states").log_ns) == 1499
         assert json.loads(r.string("/haptic_teleop/run_info"))["failed"] is True
+
+
+def test_exception_between_compiled_chunks_still_closes_the_bag(tmp_path):
+    """The compiled loop returns to Python every 100 ticks; whatever raises there (here the
+    progress callback) ends the run with a closed bag holding the ticks that ran."""
+    scene = load_scene(DEFAULT, overrides=SHORT)
+
+    def progress(n):
+        if n == 1500:
+            raise RuntimeError("display gone")
+
+    with pytest.raises(RuntimeError, match="display gone"):
+        record_run(scene, tmp_path / "bag", progress=progress, handle_sigint=False, loop="compiled")
+    with BagReader(tmp_path / "bag") as r:
+        assert len(r.read("/slave/joint_states").log_ns) == 1500
+        info = json.loads(r.string("/haptic_teleop/run_info"))
+        assert info["failed"] is True and info["ticks"] == 1500
+        assert r.packets("/forward/packets").shape[0] == 1500
 
 
 def test_stiff_wall_long_delay_eba_holds_unprotected_fails(tmp_path):
@@ -206,7 +224,7 @@ def test_run_pauses_the_cycle_collector_and_restores_it(monkeypatch):
         assert not gc.isenabled()
     finally:
         gc.enable()
-    failing = Engine(scene)
+    failing = Engine(scene, loop="python")
     monkeypatch.setattr(failing.slave, "step", None)  # the loop calls it: the first tick fails
     with pytest.raises(TypeError):
         failing.run(handle_sigint=False)

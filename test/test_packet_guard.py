@@ -102,7 +102,7 @@ class _Corruptor:
 
 
 def _corrupted_run(guard: bool):
-    e = Engine(SCENE)
+    e = Engine(SCENE, loop="python")  # the injection wraps the Python loop's link objects
     fwd = _Corruptor(e.forward, every=37, offset=0)
     bwd = _Corruptor(e.backward, every=29, offset=1)
     if not guard:
@@ -149,8 +149,8 @@ def test_rejections_reach_the_bag_and_the_summary(tmp_path, monkeypatch):
         made[direction] = _Corruptor(link, every=37 if direction == "forward" else 29, offset=0)
         return link
 
-    monkeypatch.setattr(engine_module, "build_link", corrupting_build_link)
-    engine, _ = record_run(SCENE, tmp_path / "bag", parallel=False, handle_sigint=False)
+    monkeypatch.setattr(engine_module, "build_link", corrupting_build_link)  # reaches the Python loop
+    engine, _ = record_run(SCENE, tmp_path / "bag", parallel=False, handle_sigint=False, loop="python")
     summary, _ = analyze_bag(tmp_path / "bag")
     d = engine.data[: engine.ticks_done]
     assert summary["rejected_samples_forward"] == _played(d, "fwd_rx_seq", made["forward"].corrupted) > 0

@@ -1,8 +1,10 @@
 """`haptic-teleop bench speed`: what a simulated second costs, against a bare MuJoCo step.
 
-Prints the real-time factor (simulated s / wall s) of a scene with bag recording (the writer in a
-second process, and all on one core), the loop alone, the wall time per tick against a bare
-`mujoco.mj_step` of the same two models, and where a tick's time goes. The breakdown replays the
+Prints, for the compiled loop (when the scene allows it) and the Python loop, the real-time factor
+(simulated s / wall s) of a scene with bag recording (the writer in a second process; and all
+pinned to one CPU, writer in the loop's process), the loop alone, the wall time per tick against
+a bare `mujoco.mj_step` of the same two models (called from Python, and from compiled code), and
+where a Python-loop tick's time goes. The breakdown replays the
 recorded run through each stage on its own (fresh objects, the same inputs), so the stages can be
 timed without instrumenting the loop; what the stages do not explain is the loop's own glue.
 Every figure is a median over `--repeat` runs: on a shared machine single timings are noise.
@@ -22,14 +24,16 @@ from typing import Any
 import numpy as np
 
 
-def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float]:
-    """Time per bare `mujoco.mj_step` of the scene's master and slave models (us), no Python around it."""
+def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float, float | None]:
+    """Time per bare `mujoco.mj_step` of the scene's master and slave models (us): each called
+    from Python, and both called from compiled code (None without the compiled loop)."""
     import mujoco
 
+    from haptic_teleop import fastloop
     from haptic_teleop.engine import Engine
     from haptic_teleop.scene import load_scene
 
-    engine = Engine(load_scene(scene_path))
+    engine = Engine(load_scene(scene_path), loop="python")
     out = []
     for plant in (engine.master, engine.slave):
         m, d = plant.model, plant.data
@@ -41,7 +45,28 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float]
         for _ in range(steps):
             step(m, d)
         out.append((time.perf_counter() - t0) / steps * 1e6)
-    return out[0], out[1]
+    compiled = None
+    if fastloop.kernel() is not None and fastloop.compiled_reason(engine) is None:
+        from haptic_teleop import fastkernel
+
+        models = fastloop.model_addresses(engine)
+        fastkernel.bare_steps(models, 10)
+        t0 = time.perf_counter()
+        fastkernel.bare_steps(models, steps)
+        compiled = (time.perf_counter() - t0) / steps * 1e6
+    return out[0], out[1], compiled
+
+
+def _one_core() -> Callable[[], None] | None:
+    """Pin this process (and children it starts) to one CPU; returns the undo, or None if the OS
+    cannot (then "one core" means the writer runs in the loop's process, nothing more)."""
+    import os
+
+    if not hasattr(os, "sched_setaffinity"):
+        return None
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(before)})
+    return lambda: os.sched_setaffinity(0, before)
 
 
 # --------------------------------------------------------------------------------------------
@@ -207,7 +232,7 @@ def breakdown_us(scene: Any, repeat: int) -> tuple[list[tuple[str, float]], floa
     """Per-tick wall time of each stage (us, median of `repeat`) and of the whole loop."""
     from haptic_teleop.engine import COLUMNS, Engine
 
-    ref = Engine(scene).run(handle_sigint=False)
+    ref = Engine(scene, loop="python").run(handle_sigint=False)
     data = ref.data[: ref.ticks]
     cols = {name: data[:, i].tolist() for i, name in enumerate(COLUMNS)}
     ticks = ref.ticks
@@ -215,51 +240,85 @@ def breakdown_us(scene: Any, repeat: int) -> tuple[list[tuple[str, float]], floa
     for name, stage in STAGES:
         times = []
         for _ in range(repeat):
-            times.append(stage(Engine(scene), cols) / ticks * 1e6)
+            times.append(stage(Engine(scene, loop="python"), cols) / ticks * 1e6)
         rows.append((name, statistics.median(times)))
     # The plant stage includes mj_step: report only the Python around it.
     mj = rows[0][1]
     rows[1] = (rows[1][0], rows[1][1] - mj)
-    loop = statistics.median(Engine(scene).run(handle_sigint=False).loop_wall_s / ticks * 1e6 for _ in range(repeat))
+    loop = statistics.median(
+        Engine(scene, loop="python").run(handle_sigint=False).loop_wall_s / ticks * 1e6 for _ in range(repeat)
+    )
     return rows, loop
 
 
-def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
+def _loop_figures(scene: Any, loop: str, repeat: int) -> dict[str, float]:
+    """Medians over `repeat` runs of one loop: RTF with the writer process, RTF on one core, and
+    the loop alone (us per tick)."""
     from haptic_teleop.engine import Engine, record_run
+
+    rtf, rtf_one_core, per_tick, loop_only = [], [], [], []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            engine, timing = record_run(scene, Path(tmp) / "bag", handle_sigint=False, loop=loop)
+            rtf.append(timing.realtime_factor)
+            per_tick.append(timing.record_wall_s / max(1, engine.ticks_done) * 1e6)
+        undo = _one_core()
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                _, timing = record_run(scene, Path(tmp) / "bag", handle_sigint=False, parallel=False, loop=loop)
+                rtf_one_core.append(timing.realtime_factor)
+        finally:
+            if undo is not None:
+                undo()
+        r = Engine(scene, loop=loop).run(handle_sigint=False)
+        loop_only.append(r.loop_wall_s / r.ticks * 1e6)
+    return {
+        "rtf": statistics.median(rtf),
+        "rtf_one_core": statistics.median(rtf_one_core),
+        "per_tick_recorded_us": statistics.median(per_tick),
+        "tick_us": statistics.median(loop_only),
+    }
+
+
+def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
+    from haptic_teleop.engine import Engine
     from haptic_teleop.scene import find_scene, load_scene
 
     path = find_scene(scene_name)
     scene = load_scene(path)
-    rtf, rtf_one_core, per_tick, loop_only = [], [], [], []
-    for _ in range(repeat):
-        with tempfile.TemporaryDirectory() as tmp:
-            engine, timing = record_run(scene, Path(tmp) / "bag", handle_sigint=False)
-            rtf.append(timing.realtime_factor)
-            per_tick.append(timing.record_wall_s / max(1, engine.ticks_done) * 1e6)
-        with tempfile.TemporaryDirectory() as tmp:
-            _, timing = record_run(scene, Path(tmp) / "bag", handle_sigint=False, parallel=False)
-            rtf_one_core.append(timing.realtime_factor)
-        r = Engine(scene).run(handle_sigint=False)
-        loop_only.append(r.loop_wall_s / r.ticks * 1e6)
-    m_us, s_us = bare_mj_step_us(path)
+    probe = Engine(scene)
+    loops = ["compiled", "python"] if probe.loop_kind == "compiled" else ["python"]
+    figures = {loop: _loop_figures(scene, loop, repeat) for loop in loops}
+    m_us, s_us, compiled_bare = bare_mj_step_us(path)
     bare = m_us + s_us
-    tick = statistics.median(loop_only)
     run = scene.config.scene
+    one_core = "pinned to one CPU" if hasattr(__import__("os"), "sched_setaffinity") else "writer in the loop's process"
     print(f"scene {run.name}: {run.duration_s:g} s at {1 / run.period_s:g} Hz, median of {repeat}")
-    print(f"  real-time factor, loop + bag recording   {statistics.median(rtf):8.1f}   (target >= 50)")
-    print(f"  real-time factor, the same on one core   {statistics.median(rtf_one_core):8.1f}   (writer not parallel)")
-    print(f"  real-time factor, loop alone             {1e6 * run.period_s / tick:8.1f}")
-    print(f"  wall time per tick, loop + recording     {statistics.median(per_tick):8.2f} us")
-    print(f"  wall time per tick, loop alone           {tick:8.2f} us")
-    print(f"  bare mj_step, master + slave models      {bare:8.2f} us  ({m_us:.2f} + {s_us:.2f})")
-    print(f"  engine tick / bare mj_step               {tick / bare:8.1f} x")
+    if probe.loop_kind != "compiled":
+        print(f"  (no compiled loop for this scene: {probe.compiled_reason})")
+    for loop in loops:
+        f = figures[loop]
+        print(f"{loop} loop (haptic-teleop run --loop {loop}{', the default' if loop == loops[0] else ''}):")
+        print(f"  real-time factor, loop + bag recording   {f['rtf']:8.1f}   (writer process; target >= 50)")
+        print(f"  real-time factor, the same on one core   {f['rtf_one_core']:8.1f}   ({one_core}; target >= 100)")
+        print(f"  real-time factor, loop alone             {1e6 * run.period_s / f['tick_us']:8.1f}")
+        print(f"  wall time per tick, loop + recording     {f['per_tick_recorded_us']:8.2f} us")
+        print(f"  wall time per tick, loop alone           {f['tick_us']:8.2f} us")
+    print(f"bare mj_step, master + slave, from Python  {bare:8.2f} us  ({m_us:.2f} + {s_us:.2f})")
+    if compiled_bare is not None:
+        print(f"bare mj_step, master + slave, compiled     {compiled_bare:8.2f} us  (no interpreter at all)")
+    if "compiled" in figures and compiled_bare is not None:
+        print(f"compiled tick / bare compiled mj_step      {figures['compiled']['tick_us'] / compiled_bare:8.2f} x")
+    print(f"Python tick / bare mj_step from Python     {figures['python']['tick_us'] / bare:8.2f} x")
     if breakdown:
-        rows, loop = breakdown_us(scene, repeat)
-        print(f"where a tick's time goes (each stage replayed alone, median of {repeat}; loop {loop:.2f} us):")
+        rows, loop_us = breakdown_us(scene, repeat)
+        print(
+            f"where a Python-loop tick's time goes (stages replayed alone, median of {repeat}; loop {loop_us:.2f} us):"
+        )
         for name, us in rows:
-            print(f"  {name:<40} {us:6.2f} us  {100 * us / loop:5.1f} %")
-        rest = loop - sum(us for _, us in rows)
-        print(f"  {'loop glue (the rest)':<40} {rest:6.2f} us  {100 * rest / loop:5.1f} %")
+            print(f"  {name:<40} {us:6.2f} us  {100 * us / loop_us:5.1f} %")
+        rest = loop_us - sum(us for _, us in rows)
+        print(f"  {'loop glue (the rest)':<40} {rest:6.2f} us  {100 * rest / loop_us:5.1f} %")
     return 0
 
 

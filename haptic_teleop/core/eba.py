@@ -24,6 +24,51 @@ from dataclasses import dataclass
 LAWS = ("position", "force")
 
 
+# --------------------------------------------------------------------------------------------
+# One-axis formulas on floats. The classes below call them on every tick, and the engine's
+# compiled loop (haptic_teleop/fastloop.py) compiles these same functions with numba: each
+# formula exists once. Keep them plain float arithmetic (no Python objects) so both can run them.
+
+
+def reservoir1(energy: float, gain: float, held: float, dx: float) -> float:
+    """E(n) = E(n-1) + (b/T) dx^2 - F(n-1) dx, with gain = b/T and held = F(n-1)."""
+    return energy + (gain * dx * dx - held * dx)
+
+
+def bounded1(force: float, energy: float, bound_gain: float) -> float:
+    """`force` clamped to the EBA bound +-sqrt(4 b E / T) (bound_gain = 4 b / T); 0 when E <= 0."""
+    limit = math.sqrt(bound_gain * energy) if energy > 0.0 else 0.0
+    if force > limit:
+        return limit
+    if force < -limit:
+        return -limit
+    return force
+
+
+def saturated1(force: float, limit: float) -> float:
+    """`force` clamped to +-limit."""
+    if force > limit:
+        return limit
+    if force < -limit:
+        return -limit
+    return force
+
+
+def coupling1(c1: float, c2: float, remote_x: float, remote_v: float, x: float, v: float) -> float:
+    """Position-position coupling: spring c1 and damper c2 towards the remote sample."""
+    return c1 * (remote_x - x) + c2 * (remote_v - v)
+
+
+def within2(a: float, b: float, limit_a: float, limit_b: float) -> bool:
+    """Both values finite and within their limits (abs(v) <= limit is False for NaN and inf)."""
+    return abs(a) <= limit_a and abs(b) <= limit_b
+
+
+def within3(a: float, b: float, c: float, limit_a: float, limit_b: float, limit_c: float) -> bool:
+    """`within2` for three values."""
+    return abs(a) <= limit_a and abs(b) <= limit_b and abs(c) <= limit_c
+
+
 @dataclass(frozen=True)
 class EnergyBoundParams:
     """Parameters of one side's energy bound."""
@@ -92,19 +137,11 @@ class EnergyBound:
         """`step` for a one-axis bound, on floats: the same arithmetic in the same order."""
         energy = self.energy_j
         if self._has_last1:
-            dx = x - self._last1
-            energy[0] += self._gain1 * dx * dx - self._held1 * dx
+            energy[0] = reservoir1(energy[0], self._gain1, self._held1, x - self._last1)
         else:
             self._has_last1 = True
         self._last1 = x
-        f = force_desired
-        if self._enabled:
-            e = energy[0]
-            limit = math.sqrt(self._bound_gain1 * e) if e > 0.0 else 0.0
-            if f > limit:
-                f = limit
-            elif f < -limit:
-                f = -limit
+        f = bounded1(force_desired, energy[0], self._bound_gain1) if self._enabled else force_desired
         self._held1 = f
         return f
 
@@ -126,23 +163,13 @@ class EnergyBound:
         if last is not None:
             gain = self._gain
             for i in range(len(energy)):
-                dx = x[i] - last[i]
-                energy[i] += gain[i] * dx * dx - held[i] * dx
+                energy[i] = reservoir1(energy[i], gain[i], held[i], x[i] - last[i])
         self._last_x = list(x)
         if not self._enabled:
             out = list(force_desired)
         else:
-            out = []
             bound_gain = self._bound_gain
-            for i in range(len(energy)):
-                e = energy[i]
-                limit = math.sqrt(bound_gain[i] * e) if e > 0.0 else 0.0
-                f = force_desired[i]
-                if f > limit:
-                    f = limit
-                elif f < -limit:
-                    f = -limit
-                out.append(f)
+            out = [bounded1(force_desired[i], energy[i], bound_gain[i]) for i in range(len(energy))]
         self._held = out
         return out
 
@@ -193,10 +220,10 @@ class SampleGuard:
         n = len(lim)
         if len(payload) == n:
             if n == 2:
-                if abs(payload[0]) <= lim[0] and abs(payload[1]) <= lim[1]:
+                if within2(payload[0], payload[1], lim[0], lim[1]):
                     return True
             elif n == 3:
-                if abs(payload[0]) <= lim[0] and abs(payload[1]) <= lim[1] and abs(payload[2]) <= lim[2]:
+                if within3(payload[0], payload[1], payload[2], lim[0], lim[1], lim[2]):
                     return True
             else:
                 for i in range(n):
@@ -316,7 +343,7 @@ class TeleopController:
         off = self._off
         c1 = self._c1
         c2 = self._c2
-        return [c1 * (r[off + i] - x[i]) + c2 * (r[off + n + i] - v[i]) for i in range(n)]
+        return [coupling1(c1, c2, r[off + i], r[off + n + i], x[i], v[i]) for i in range(n)]
 
     def step(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """One tick: returns the force to apply (held until the next tick)."""
@@ -324,7 +351,7 @@ class TeleopController:
             return [self.step1(x[0], v[0])]
         desired = self.desired_force(x, v)
         lim = self._limit
-        sat = [lim if f > lim else (-lim if f < -lim else f) for f in desired]
+        sat = [saturated1(f, lim) for f in desired]
         self.force_desired[:] = desired
         applied = self.bound.step(x, sat)
         self.force_applied[:] = applied
@@ -339,13 +366,8 @@ class TeleopController:
             f = self._gain * r[0]
         else:
             off = self._off
-            f = self._c1 * (r[off] - x) + self._c2 * (r[off + 1] - v)
+            f = coupling1(self._c1, self._c2, r[off], r[off + 1], x, v)
         self.force_desired[0] = f
-        lim = self._limit
-        if f > lim:
-            f = lim
-        elif f < -lim:
-            f = -lim
-        f = self.bound.step1(x, f)
+        f = self.bound.step1(x, saturated1(f, self._limit))
         self.force_applied[0] = f
         return f

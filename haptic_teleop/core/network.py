@@ -251,6 +251,17 @@ class Blackout:
         self._ends = [b for _, b in ws]
         self.dropped = 0
 
+    vectorized = True
+
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+        """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
+        starts = np.asarray(self._starts, dtype=np.int64)
+        ends = np.asarray(self._ends, dtype=np.int64)
+        i = np.searchsorted(starts, send_ns, side="right") - 1
+        hit = (i >= 0) & (send_ns < ends[np.maximum(i, 0)]) & (fate == DELIVERED)
+        fate[hit] = LOST_NETWORK
+        self.dropped += int(hit.sum())
+
     def apply(self, packet: Packet) -> Packet | None:
         t = packet.send_time_ns
         i = bisect.bisect_right(self._starts, t) - 1
@@ -364,8 +375,22 @@ class BernoulliLoss:
         if not 0.0 <= probability <= 1.0:
             raise ValueError(f"probability must be in [0, 1], got {probability}")
         self.probability = probability
+        self._rng = rng
         self._u = uniform_source(rng, correlation, correlation_model)
         self.dropped = 0
+        # Uncorrelated draws are plain uniforms: a whole run's can be drawn in one call.
+        self.vectorized = correlation == 0.0
+
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+        """`apply` on every original packet of a run at once, before any `apply` (`Link.schedule_all`).
+
+        `rng.random(n)` gives the numbers `UniformSource` hands out one at a time (it draws the
+        same stream in blocks), so the same packets are lost."""
+        if not self.vectorized:
+            raise ValueError("correlated loss draws depend on the previous draw; it has no vectorized form")
+        hit = (self._rng.random(len(send_ns)) < self.probability) & (fate == DELIVERED)
+        fate[hit] = LOST_NETWORK
+        self.dropped += int(hit.sum())
 
     def apply(self, packet: Packet) -> Packet | None:
         if self._u() < self.probability and packet.fate == DELIVERED:
@@ -561,6 +586,12 @@ class ConstantDelay:
         if not delay_s >= 0.0:
             raise ValueError(f"delay_s must be >= 0, got {delay_s}")
         self.delay_ns = round(delay_s * 1e9)
+
+    vectorized = True
+
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+        """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
+        arrival_ns += self.delay_ns
 
     def apply(self, packet: Packet) -> Packet | None:
         packet.arrival_time_ns += self.delay_ns
@@ -785,6 +816,33 @@ class Link:
     @property
     def in_flight(self) -> int:
         return len(self._fifo) + len(self._heap)
+
+    @property
+    def vectorized(self) -> bool:
+        """True if `schedule_all` can decide a whole run's fates at once (no packet sent yet, and
+        every effect has an `apply_all` whose decisions do not depend on the packets before)."""
+        return self.sent == 0 and all(getattr(e, "vectorized", False) for e in self.effects)
+
+    def schedule_all(self, send_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fates and arrival times of original packets sent at `send_ns`, decided all at once.
+
+        The same decisions, from the same random numbers, as `send` on each packet in turn
+        (test_vectorized_schedule_equals_send). Only for a fresh link whose effects are all
+        `vectorized` (see the property); the packets are not queued or logged. Updates `sent`
+        and `lost`. Returns (arrival_ns, fate) arrays.
+        """
+        if not self.vectorized:
+            raise ValueError(
+                "this link cannot decide a run at once (packets sent already, or an effect without apply_all)"
+            )
+        send_ns = np.asarray(send_ns, dtype=np.int64)
+        arrival = send_ns.copy()
+        fate = np.full(len(send_ns), DELIVERED, dtype=np.int64)
+        for e in self.effects:
+            e.apply_all(send_ns, arrival, fate)  # type: ignore[attr-defined]
+        self.sent += len(send_ns)
+        self.lost += int(np.count_nonzero(fate != DELIVERED))
+        return arrival, fate
 
     def fate_counts(self, include_duplicates: bool = False) -> dict[str, int]:
         """Packets in the log per fate name (originals only unless `include_duplicates`)."""

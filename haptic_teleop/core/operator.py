@@ -20,6 +20,31 @@ from dataclasses import dataclass
 PROFILES = ("push", "sinusoid", "hold", "trace")
 
 
+# One-axis formulas on floats, called by `Operator` and compiled by the engine's compiled loop
+# (haptic_teleop/fastloop.py): each exists once.
+
+
+def push1(tau: float, x0: float, speed: float, t_end: float, x_end: float) -> tuple[float, float]:
+    """Constant-velocity push `tau` s after its start: position and velocity (held at x_end after t_end)."""
+    if tau < 0.0:
+        return x0, 0.0
+    if tau >= t_end:
+        return x_end, 0.0
+    return x0 + speed * tau, speed
+
+
+def sinusoid1(tau: float, x0: float, amplitude: float, w: float) -> tuple[float, float]:
+    """x0 + A sin(w tau) and its derivative; held at x0 before the start (tau < 0)."""
+    if tau < 0.0:
+        return x0, 0.0
+    return x0 + amplitude * math.sin(w * tau), amplitude * w * math.cos(w * tau)
+
+
+def hand1(k: float, b: float, xd: float, vd: float, x: float, v: float) -> float:
+    """The hand's spring-damper force towards the intended position and velocity."""
+    return k * (xd - x) + b * (vd - v)
+
+
 @dataclass(frozen=True)
 class OperatorParams:
     profile: str = "push"
@@ -75,18 +100,13 @@ class Operator:
         profile = self._profile
         tau = t - self._start
         if profile == "push":
-            if tau < 0.0:
-                return self._x0, 0.0
-            if tau >= self._t_end:
-                return self._x_end, 0.0
-            return self._x0 + self._speed * tau, self._speed
+            return push1(tau, self._x0, self._speed, self._t_end, self._x_end)
         x0 = self._x0
-        if profile == "hold" or (tau < 0.0 and profile != "trace"):
+        if profile == "hold":
             return x0, 0.0
         p = self.params
         if profile == "sinusoid":
-            w = 2.0 * math.pi * p.frequency_hz
-            return x0 + p.amplitude_m * math.sin(w * tau), p.amplitude_m * w * math.cos(w * tau)
+            return sinusoid1(tau, x0, p.amplitude_m, 2.0 * math.pi * p.frequency_hz)
         ts, xs = p.trace_time_s, p.trace_position_m
         if t <= ts[0]:
             return xs[0], 0.0
@@ -106,7 +126,7 @@ class Operator:
         """`hand_force` and the intended position and velocity it used, from one evaluation."""
         xd, vd = self.intended(t)
         k, b = self._k, self._b
-        out = [k * (xd - x[0]) + b * (vd - v[0])]
+        out = [hand1(k, b, xd, vd, x[0], v[0])]
         if len(x) > 1:
             x0 = self._x0
             for i in range(1, len(x)):

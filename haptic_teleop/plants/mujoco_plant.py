@@ -46,6 +46,15 @@ def resolve_model(name: str) -> Path:
     raise PlantError(f"model file {name!r} not found (looked in {models_dir()})")
 
 
+def actuator_limited1(force: float, limit: float) -> float:
+    """The force a plant's actuator applies for a command: clamped to +-limit, NaN gives 0.
+
+    Also compiled by the engine's compiled loop (haptic_teleop/fastloop.py)."""
+    if not -limit <= force <= limit:
+        return 0.0 if math.isnan(force) else math.copysign(limit, force)
+    return force
+
+
 @dataclass(frozen=True)
 class SimSettings:
     """Numerical settings shared by both MuJoCo plants."""
@@ -139,10 +148,7 @@ class MujocoDevice:
         return [self._qpos[0]], [self._qvel[0]]
 
     def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
-        f = actuator_force_n[0]
-        lim = self._limit
-        if not -lim <= f <= lim:  # also catches NaN
-            f = 0.0 if math.isnan(f) else math.copysign(lim, f)
+        f = actuator_limited1(actuator_force_n[0], self._limit)
         ctrl = self._ctrl
         ctrl[0] = external_force_n[0] if external_force_n is not None else 0.0
         ctrl[1] = f
@@ -212,10 +218,7 @@ class MujocoWallRobot:
         return [self._qpos[0]], [self._qvel[0]]
 
     def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
-        f = actuator_force_n[0]
-        lim = self._limit
-        if not -lim <= f <= lim:
-            f = 0.0 if math.isnan(f) else math.copysign(lim, f)
+        f = actuator_limited1(actuator_force_n[0], self._limit)
         self._ctrl[0] = f
         n = self._substeps
         if n == 1:

@@ -763,3 +763,36 @@ def test_direct_construction_checks_parameters():
         TokenBucket(0.1, 1500, 10)
     with pytest.raises(ValueError, match="correlation"):
         Delay(0.01, jitter_s=0.01, rng=np.random.default_rng(0), correlation=1.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    p=st.sampled_from([0.0, 0.01, 0.3, 1.0]),
+    delay_ms=st.sampled_from([0.0, 0.4, 1.0, 50.0, 123.4]),
+    blackout=st.booleans(),
+)
+def test_vectorized_schedule_equals_send(seed, p, delay_ms, blackout):
+    """`Link.schedule_all` decides what `send` decides, packet by packet, from the same draws."""
+    effects: dict = {"delay": {"delay_s": delay_ms / 1000}, "loss": {"probability": p}}
+    if blackout:
+        effects["blackout"] = {"starts_s": [0.5, 2.0], "ends_s": [0.7, 2.001]}
+    n = 5000  # more than one block of draws
+    one_by_one = run(effects, n, seed=seed)
+    at_once = make_link(effects, seed=seed)
+    assert at_once.vectorized
+    arrival, fate = at_once.schedule_all(np.arange(n, dtype=np.int64) * MS)
+    assert [q.fate for q in one_by_one.log] == fate.tolist()
+    assert [q.arrival_time_ns for q in one_by_one.log] == arrival.tolist()
+    assert (at_once.sent, at_once.lost) == (one_by_one.sent, one_by_one.lost)
+
+
+def test_schedule_all_refuses_what_it_cannot_decide_at_once():
+    correlated = make_link({"loss": {"probability": 0.1, "correlation": 0.5}})
+    markov = make_link({"loss": {"model": "gilbert_elliott", "p": 0.01, "r": 0.2}})
+    jitter = make_link({"delay": {"delay_s": 0.01, "jitter_s": 0.002}})
+    used = run({"delay": {"delay_s": 0.01}}, 3)
+    for link in (correlated, markov, jitter, used):
+        assert not link.vectorized
+        with pytest.raises(ValueError, match="cannot decide a run at once"):
+            link.schedule_all(np.arange(3, dtype=np.int64))

@@ -1,0 +1,238 @@
+"""The compiled tick loop (numba), imported only by `haptic_teleop.fastloop`; see its docstring.
+
+Importing this module needs numba and links `mj_step` of the libmujoco the `mujoco` bindings
+loaded. Every formula comes from `core` and `plants` and is compiled here from its one
+definition; this module holds only the tick's order, which is `Engine._loop`'s, line for line.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import os
+
+import llvmlite.binding as llvm
+import numba
+import numpy as np
+from numba import types
+
+from haptic_teleop.core import eba
+from haptic_teleop.core import operator as op
+from haptic_teleop.fastloop import (
+    MASTER,
+    OP,
+    P_AMP,
+    P_B,
+    P_BOUND_GAIN,
+    P_C1,
+    P_C2,
+    P_EBA_GAIN,
+    P_EBA_ON,
+    P_FORCE_LAW,
+    P_GAIN,
+    P_GUARD_ON,
+    P_K,
+    P_LIM0,
+    P_LIM1,
+    P_LIM2,
+    P_LIMIT,
+    P_PERIOD_S,
+    P_PLANT_LIMIT,
+    P_PROFILE,
+    P_SPEED,
+    P_START,
+    P_SUBSTEPS,
+    P_T_END,
+    P_W,
+    P_X0,
+    P_X_END,
+    S_CONTACT,
+    S_ENERGY,
+    S_HAS_LAST,
+    S_HAS_REMOTE,
+    S_HELD,
+    S_LAST,
+    S_R0,
+    S_R1,
+    S_R2,
+    S_REJECTED,
+    SLAVE,
+)
+from haptic_teleop.plants import mujoco_plant
+
+
+def _mujoco_library() -> ctypes.CDLL:
+    import mujoco
+
+    here = os.path.dirname(mujoco.__file__)
+    found = sorted(glob.glob(os.path.join(here, "libmujoco.so*")) + glob.glob(os.path.join(here, "libmujoco*.dylib")))
+    if not found:
+        raise RuntimeError(f"no libmujoco shared library next to {mujoco.__file__}")
+    return ctypes.CDLL(found[0])  # already loaded by the bindings: the same library, the same state
+
+
+# mj_step is linked by name: the compiled code (and numba's on-disk cache of it) calls the symbol,
+# resolved here to the bindings' libmujoco. Pointers are passed as integers: the MjModel/MjData
+# addresses the bindings expose (`_address`), the same objects the plants step.
+libmujoco = _mujoco_library()
+llvm.add_symbol("mj_step", ctypes.cast(libmujoco.mj_step, ctypes.c_void_p).value)
+mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
+
+jit = numba.njit(cache=True, nogil=True)
+reservoir1 = jit(eba.reservoir1)
+bounded1 = jit(eba.bounded1)
+saturated1 = jit(eba.saturated1)
+coupling1 = jit(eba.coupling1)
+within2 = jit(eba.within2)
+within3 = jit(eba.within3)
+push1 = jit(op.push1)
+sinusoid1 = jit(op.sinusoid1)
+hand1 = jit(op.hand1)
+actuator_limited1 = jit(mujoco_plant.actuator_limited1)
+
+
+@jit  # type: ignore[misc]
+def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master: bool) -> tuple[float, float]:
+    # TeleopController.step1 then EnergyBound.step1: returns (applied, desired).
+    if S[side + S_HAS_REMOTE] == 0.0:
+        f = 0.0
+    elif P[side + P_FORCE_LAW] != 0.0:
+        f = P[side + P_GAIN] * S[side + S_R0]
+    elif master:  # the master's remote sample is (f_env, x, v)
+        f = coupling1(P[side + P_C1], P[side + P_C2], S[side + S_R1], S[side + S_R2], x, v)
+    else:  # the slave's is (x, v)
+        f = coupling1(P[side + P_C1], P[side + P_C2], S[side + S_R0], S[side + S_R1], x, v)
+    desired = f
+    f = saturated1(f, P[side + P_LIMIT])
+    if S[side + S_HAS_LAST] != 0.0:
+        S[side + S_ENERGY] = reservoir1(
+            S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], x - S[side + S_LAST]
+        )
+    else:
+        S[side + S_HAS_LAST] = 1.0
+    S[side + S_LAST] = x
+    if P[side + P_EBA_ON] != 0.0:
+        f = bounded1(f, S[side + S_ENERGY], P[side + P_BOUND_GAIN])
+    S[side + S_HELD] = f
+    return f, desired
+
+
+@jit  # type: ignore[misc]
+def run_ticks(
+    n0: int,
+    n1: int,
+    models: np.ndarray,  # int64: master model, master data, slave model, slave data addresses
+    mq: np.ndarray,
+    mv: np.ndarray,
+    mctrl: np.ndarray,
+    sq: np.ndarray,
+    sv: np.ndarray,
+    sctrl: np.ndarray,
+    sqfrc: np.ndarray,
+    fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray,
+    bwd_rel: np.ndarray,
+    bwd_occ: np.ndarray,
+    fwd_hist: np.ndarray,
+    bwd_hist: np.ndarray,
+    P: np.ndarray,
+    S: np.ndarray,
+    data: np.ndarray,
+) -> int:
+    period_s = P[P_PERIOD_S]
+    m_steps = int(P[MASTER + P_SUBSTEPS])
+    s_steps = int(P[SLAVE + P_SUBSTEPS])
+    for n in range(n0, n1):
+        x_m = mq[0]
+        v_m = mv[0]
+        x_s = sq[0]
+        v_s = sv[0]
+        f_env = S[SLAVE + S_CONTACT]
+        # master
+        fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
+        fwd_hist[n, 0] = x_m
+        fwd_hist[n, 1] = v_m
+        frx = fwd_rel[n]
+        if frx >= 0:
+            a = fwd_hist[frx, 0]
+            b = fwd_hist[frx, 1]
+            if P[SLAVE + P_GUARD_ON] == 0.0 or within2(a, b, P[SLAVE + P_LIM0], P[SLAVE + P_LIM1]):
+                S[SLAVE + S_HAS_REMOTE] = 1.0
+                S[SLAVE + S_R0] = a
+                S[SLAVE + S_R1] = b
+            else:
+                S[SLAVE + S_REJECTED] += 1.0
+        # slave
+        fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
+        bwd_hist[n, 0] = f_env
+        bwd_hist[n, 1] = x_s
+        bwd_hist[n, 2] = v_s
+        brx = bwd_rel[n]
+        if brx >= 0:
+            a = bwd_hist[brx, 0]
+            b = bwd_hist[brx, 1]
+            c = bwd_hist[brx, 2]
+            if P[MASTER + P_GUARD_ON] == 0.0 or within3(
+                a, b, c, P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]
+            ):
+                S[MASTER + S_HAS_REMOTE] = 1.0
+                S[MASTER + S_R0] = a
+                S[MASTER + S_R1] = b
+                S[MASTER + S_R2] = c
+            else:
+                S[MASTER + S_REJECTED] += 1.0
+        # operator and plants
+        tau = n * period_s - P[OP + P_START]
+        profile = P[OP + P_PROFILE]
+        if profile == 0.0:
+            xd, vd = push1(tau, P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END])
+        elif profile == 1.0:
+            xd, vd = sinusoid1(tau, P[OP + P_X0], P[OP + P_AMP], P[OP + P_W])
+        else:
+            xd, vd = P[OP + P_X0], 0.0
+        fh = hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
+        fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
+        mctrl[0] = fh
+        mctrl[1] = fm_applied
+        for _ in range(m_steps):
+            mj_step(models[0], models[1])
+        fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
+        sctrl[0] = fs_applied
+        if s_steps == 1:
+            mj_step(models[2], models[3])
+            S[SLAVE + S_CONTACT] = 0.0 + sqfrc[0]
+        else:
+            acc = 0.0
+            for _ in range(s_steps):
+                mj_step(models[2], models[3])
+                acc += sqfrc[0]
+            S[SLAVE + S_CONTACT] = acc / s_steps
+        row = data[n]
+        row[0] = xd
+        row[1] = vd
+        row[2] = fh
+        row[3] = x_m
+        row[4] = v_m
+        row[5] = fm_applied
+        row[6] = m_desired
+        row[7] = S[MASTER + S_ENERGY]
+        row[8] = x_s
+        row[9] = v_s
+        row[10] = fs_applied
+        row[11] = s_desired
+        row[12] = S[SLAVE + S_ENERGY]
+        row[13] = f_env
+        row[14] = frx
+        row[15] = brx
+        row[16] = fwd_occ[n]
+        row[17] = bwd_occ[n]
+    return n1
+
+
+@jit  # type: ignore[misc]
+def bare_steps(models: np.ndarray, steps: int) -> None:
+    """`steps` mj_steps of the master model then the slave's, nothing else: the floor under a tick
+    (`bench speed`)."""
+    for _ in range(steps):
+        mj_step(models[0], models[1])
+        mj_step(models[2], models[3])

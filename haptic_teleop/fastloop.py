@@ -1,0 +1,260 @@
+"""The engine's compiled loop: the same tick as `Engine._loop`, compiled with numba.
+
+A tick of the Python loop costs 20 to 50 us on this project's 2-vCPU machine, of which MuJoCo is
+5 to 9 us; the rest is the interpreter (docs/performance.md). This module runs the same tick in
+machine code: the one-axis formulas of `core` (`eba.reservoir1`, `bounded1`, `saturated1`,
+`coupling1`, `within2/3`, `operator.push1`, `sinusoid1`, `hand1`, `plants.actuator_limited1`)
+are compiled by numba from their single definition, and MuJoCo's `mj_step` is called straight
+from the compiled code on the same `MjModel`/`MjData` the plants own.
+
+The network is decided before the loop, because nothing a link or a playout buffer decides
+depends on what a packet carries (fates and arrival times depend on send times, sizes and the
+effects' own random streams; buffers release by sequence number and arrival time). Per
+direction the schedule is: which sequence number the buffer releases at each tick (or none), the
+buffer's occupancy, and every packet's record. It is computed either
+- vectorized (`Link.schedule_all`), when every effect has a vectorized form and the buffer plays
+  on arrival and holds: constant delay, uncorrelated loss, blackouts, policy `none`; or
+- by the very `Link` and `PlayoutBuffer` objects the Python loop uses, ticked in the same order
+  with empty payloads (any other effect chain or policy).
+The loop then looks the released sample up in the sender's history. The result is the same
+columns, bit for bit, as the Python loop (test_compiled_loop.py), and the same bag.
+
+Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
+backends, more than one axis, operator traces, payload-changing effects (corruption),
+extrapolating buffers, and machines without numba.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import functools
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from haptic_teleop.core.network import DELIVERED, LOST_LATE, Link, Packet
+from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
+
+if TYPE_CHECKING:
+    from haptic_teleop.engine import Engine
+
+# Layout of the parameter vector P and the state vector S (float64), one block per side.
+MASTER, SLAVE = 0, 16
+# per side, in P
+P_FORCE_LAW, P_GAIN, P_C1, P_C2, P_LIMIT, P_EBA_GAIN, P_BOUND_GAIN, P_EBA_ON = 0, 1, 2, 3, 4, 5, 6, 7
+P_GUARD_ON, P_LIM0, P_LIM1, P_LIM2, P_PLANT_LIMIT, P_SUBSTEPS = 8, 9, 10, 11, 12, 13
+# the operator and the clock, in P
+OP = 32
+P_PROFILE, P_X0, P_K, P_B, P_START, P_SPEED, P_T_END, P_X_END, P_AMP, P_W = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+P_PERIOD_S = 48
+P_SIZE = 49
+PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
+# per side, in S
+S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED, S_CONTACT = range(10)
+S_SIZE = 32
+
+
+@dataclass
+class DirectionSchedule:
+    """One direction's network decisions for a run: what the receiving side gets at each tick."""
+
+    released_seq: np.ndarray  # int64 per tick: seq the buffer released at that tick, -1 for none
+    occupancy: np.ndarray  # float64 per tick: the buffer's occupancy after the release
+    packets: np.ndarray | list[Packet]  # the packet records (bag rows) or the link's own log
+    vectorized: bool
+
+
+@functools.cache
+def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
+    try:
+        from haptic_teleop import fastkernel
+    except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
+        return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
+    return fastkernel.run_ticks, None
+
+
+def kernel() -> Callable[..., int] | None:
+    """The compiled tick loop, built (or loaded from numba's cache) on first use; None without numba."""
+    return _kernel_or_error()[0]
+
+
+def kernel_error() -> str | None:
+    """Why there is no compiled loop on this machine, or None."""
+    return _kernel_or_error()[1]
+
+
+@contextlib.contextmanager
+def mujoco_timers_off() -> Iterator[None]:
+    """Clear libmujoco's `mjcb_time` for the duration, then put it back.
+
+    The Python bindings install a time callback that MuJoCo calls about 30 times a step to fill
+    its profiling timers (`MjData.timer`); from the compiled loop it was 40 % of a bare step
+    (docs/performance.md). Nothing but the timers reads it: states and forces are unchanged
+    (test_compiled_loop.py compares them with the Python loop's, where the callback is on)."""
+    from haptic_teleop import fastkernel
+
+    slot = ctypes.c_void_p.in_dll(fastkernel.libmujoco, "mjcb_time")
+    before = slot.value
+    slot.value = None
+    try:
+        yield
+    finally:
+        slot.value = before
+
+
+# --------------------------------------------------------------------------------------------
+# What can be compiled.
+
+
+def compiled_reason(engine: Engine) -> str | None:
+    """Why `engine`'s scene cannot run in the compiled loop, or None if it can."""
+    from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
+
+    if type(engine.master) is not MujocoDevice or type(engine.slave) is not MujocoWallRobot:
+        return "plant effects or a non-MuJoCo backend (only the bare MuJoCo plants are compiled)"
+    if not hasattr(engine.master.model, "_address"):  # type: ignore[attr-defined]
+        return "this mujoco's bindings do not expose model addresses (MjModel._address)"
+    if engine.master_ctrl.bound.params.axes != 1 or engine.slave_ctrl.bound.params.axes != 1:
+        return "more than one axis"
+    if engine.operator._profile not in PROFILE_CODES:
+        return f"operator profile {engine.operator._profile!r} (compiled: {', '.join(PROFILE_CODES)})"
+    for name, link, buf in (
+        ("forward", engine.forward, engine.forward_buffer),
+        ("backward", engine.backward, engine.backward_buffer),
+    ):
+        if any(e.name == "corrupt" for e in link.effects):
+            return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
+        if getattr(buf, "_extrapolate", False):
+            return f"{name} buffer extrapolates payloads"
+    return kernel_error()
+
+
+# --------------------------------------------------------------------------------------------
+# The network schedule.
+
+
+def _vectorized(link: Link, buf: PlayoutBuffer) -> bool:
+    return link.vectorized and type(buf) is PlayOnArrival and not buf._extrapolate
+
+
+def schedule(link: Link, buf: PlayoutBuffer, ticks: int, period_ns: int, size_bytes: int) -> DirectionSchedule:
+    """The decisions of `link` and `buf` for `ticks` packets, one per tick (see the module docstring)."""
+    if _vectorized(link, buf):
+        send = np.arange(ticks, dtype=np.int64) * period_ns
+        arrival, fate = link.schedule_all(send)
+        # Played on arrival: a packet arrives at the first tick at or after its arrival time and
+        # is released in that tick. Valid only if no tick gets two packets and arrivals keep
+        # send order (else the buffer would mark some late): checked, never assumed.
+        seqs = np.flatnonzero(fate == DELIVERED)
+        tick_of = -(-arrival[seqs] // period_ns)
+        if len(tick_of) < 2 or bool(np.all(np.diff(tick_of) > 0)):
+            released = np.full(ticks, -1, dtype=np.int64)
+            inside = tick_of < ticks
+            released[tick_of[inside]] = seqs[inside]
+            return DirectionSchedule(released, np.zeros(ticks), packet_rows(send, arrival, fate, size_bytes), True)
+        raise AssertionError("a vectorized link delivered two packets in one tick")  # constant delay cannot
+    released = np.full(ticks, -1, dtype=np.int64)
+    occupancy = np.zeros(ticks)
+    send_one, deliver, push, release = link.send, link.deliver, buf.push, buf.release
+    empty: tuple[float, ...] = ()
+    for n in range(ticks):
+        now = n * period_ns
+        send_one(Packet(n, now, empty, size_bytes))
+        for p in deliver(now):
+            push(p, now)
+        rel = release(now)
+        if rel is not None:
+            released[n] = rel.seq
+        occupancy[n] = buf.occupancy
+    return DirectionSchedule(released, occupancy, link.log, False)
+
+
+def packet_rows(send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, size_bytes: int) -> np.ndarray:
+    """Bag records (bag.PACKET_FIELDS) of original packets: the values `bag._packet_rows` gives
+    for the same `Packet` objects (times in s; arrival NaN unless delivered or late)."""
+    rows = np.zeros((len(send_ns), 6))
+    rows[:, 0] = np.arange(len(send_ns))
+    rows[:, 1] = send_ns.astype(np.float64) * 1e-9
+    arrived = (fate == DELIVERED) | (fate == LOST_LATE)
+    rows[:, 2] = np.where(arrived, arrival_ns.astype(np.float64) * 1e-9, np.nan)
+    rows[:, 3] = fate
+    rows[:, 5] = size_bytes
+    return rows
+
+
+def parameters(engine: Engine) -> np.ndarray:
+    """The parameter vector P of `engine` (layout at the top of this module)."""
+    P = np.zeros(P_SIZE)
+    for side, ctrl, plant in ((MASTER, engine.master_ctrl, engine.master), (SLAVE, engine.slave_ctrl, engine.slave)):
+        p = ctrl.params
+        b = ctrl.bound
+        P[side + P_FORCE_LAW] = 1.0 if p.law == "force" else 0.0
+        P[side + P_GAIN] = p.force_gain
+        P[side + P_C1] = p.stiffness_n_per_m
+        P[side + P_C2] = p.damping_n_s_per_m
+        P[side + P_LIMIT] = p.force_limit_n
+        P[side + P_EBA_GAIN] = b._gain1
+        P[side + P_BOUND_GAIN] = b._bound_gain1
+        P[side + P_EBA_ON] = 1.0 if b.params.enabled else 0.0
+        guard = ctrl.guard
+        if guard is not None:
+            P[side + P_GUARD_ON] = 1.0
+            for i, lim in enumerate(guard.limits):
+                P[side + P_LIM0 + i] = lim
+        P[side + P_PLANT_LIMIT] = plant._limit  # type: ignore[attr-defined]
+        P[side + P_SUBSTEPS] = plant._substeps  # type: ignore[attr-defined]
+    o = engine.operator
+    P[OP + P_PROFILE] = PROFILE_CODES[o._profile]
+    P[OP + P_X0] = o._x0
+    P[OP + P_K] = o._k
+    P[OP + P_B] = o._b
+    P[OP + P_START] = o._start
+    P[OP + P_SPEED] = o._speed
+    P[OP + P_T_END] = o._t_end
+    P[OP + P_X_END] = o._x_end
+    P[OP + P_AMP] = o.params.amplitude_m
+    P[OP + P_W] = 2.0 * np.pi * o.params.frequency_hz if o._profile == "sinusoid" else 0.0
+    P[P_PERIOD_S] = engine.period_s
+    return P
+
+
+def initial_state(engine: Engine) -> np.ndarray:
+    """The state vector S of `engine`'s controllers and slave plant as they are now."""
+    S = np.zeros(S_SIZE)
+    for side, ctrl in ((MASTER, engine.master_ctrl), (SLAVE, engine.slave_ctrl)):
+        b = ctrl.bound
+        S[side + S_ENERGY] = b.energy_j[0]
+        S[side + S_HELD] = b._held1
+        S[side + S_LAST] = b._last1
+        S[side + S_HAS_LAST] = 1.0 if b._has_last1 else 0.0
+        r = ctrl._remote
+        if r is not None:
+            S[side + S_HAS_REMOTE] = 1.0
+            for i, value in enumerate(r):
+                S[side + S_R0 + i] = value
+    S[SLAVE + S_CONTACT] = engine.slave.contact_force()[0]
+    return S
+
+
+def store_state(engine: Engine, S: np.ndarray) -> None:
+    """Write the compiled loop's state back into `engine`'s Python objects (energies, counts, remote)."""
+    for side, ctrl, n_remote in ((MASTER, engine.master_ctrl, 3), (SLAVE, engine.slave_ctrl, 2)):
+        b = ctrl.bound
+        b.energy_j[0] = float(S[side + S_ENERGY])
+        b._held1 = float(S[side + S_HELD])
+        b._last1 = float(S[side + S_LAST])
+        b._has_last1 = bool(S[side + S_HAS_LAST])
+        if S[side + S_HAS_REMOTE]:
+            ctrl._remote = tuple(float(S[side + S_R0 + i]) for i in range(n_remote))
+        if ctrl.guard is not None:
+            ctrl.guard.rejected = int(S[side + S_REJECTED])
+    engine.slave._contact = float(S[SLAVE + S_CONTACT])  # type: ignore[attr-defined]
+
+
+def model_addresses(engine: Engine) -> np.ndarray:
+    m: Any = engine.master
+    s: Any = engine.slave
+    return np.array([m.model._address, m.data._address, s.model._address, s.data._address], dtype=np.int64)
