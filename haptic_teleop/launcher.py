@@ -414,7 +414,8 @@ class Launcher:
 
 
 def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path) -> int:
-    """Every node of the plan in this process, one MultiThreadedExecutor (recorder closed last)."""
+    """Every node of the plan in this process: one executor, one shared loop thread ticking every
+    node in pipeline order (nodes.common.SharedLoop); the recorder is closed last."""
     import importlib
 
     from haptic_teleop.nodes.common import run_nodes
@@ -488,7 +489,12 @@ def add_arguments(p: Any) -> None:
     p.add_argument("scene", help="scene YAML path, or a bundled scene name (e.g. wall_contact)")
     p.add_argument("--duration", type=float, metavar="S", help="seconds of scene time to run (scene.duration_s)")
     p.add_argument("--record", metavar="DIR", help="record a bag to DIR/bag, then write DIR/summary.json")
-    p.add_argument("--single-process", action="store_true", help="all nodes in this process (MultiThreadedExecutor)")
+    p.add_argument(
+        "--single-process",
+        action="store_true",
+        help="all nodes composed in this process, their 1 kHz loops run by one shared thread (recommended on a "
+        "machine with few cores: docs/live.md)",
+    )
     p.add_argument("--side", choices=SIDES, default="all", help="two hosts: the nodes of one side only")
     p.add_argument("--seed", type=int, help="override scene.seed")
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")

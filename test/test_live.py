@@ -7,6 +7,7 @@ DDS stays on this host (conftest: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, own R
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -45,9 +46,10 @@ class Watcher:
     }
 
     def __init__(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.nodes.common import _polled_group_class, stream_qos
+        from haptic_teleop.nodes.common import DIAGNOSTICS, _polled_group_class, reliable_qos, stream_qos
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -58,8 +60,11 @@ class Watcher:
                                              raw=True)
             for t in self.TOPICS
         }  # fmt: skip
+        self.subs[DIAGNOSTICS] = self.node.create_subscription(
+            DiagnosticArray, DIAGNOSTICS, lambda m: None, reliable_qos(1000), callback_group=group, raw=True
+        )
         self.lock = threading.Lock()
-        self.raw: dict[str, list[tuple[int, bytes]]] = {t: [] for t in self.TOPICS}
+        self.raw: dict[str, list[tuple[int, bytes]]] = {t: [] for t in self.subs}
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._poll, daemon=True)
         self.thread.start()
@@ -96,6 +101,21 @@ class Watcher:
             rows.append((arrival, m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
                          float(v[0]) if len(v) else float("nan")))  # fmt: skip
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+    def diagnostics(self) -> dict[str, list[dict[str, str]]]:
+        """The loop reports received on /diagnostics, per node (hardware_id), in arrival order."""
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.serialization import deserialize_message
+
+        from haptic_teleop.nodes.common import DIAGNOSTICS
+
+        with self.lock:
+            items = list(self.raw[DIAGNOSTICS])
+        out: dict[str, list[dict[str, str]]] = {}
+        for _, r in items:
+            for st in deserialize_message(r, DiagnosticArray).status:
+                out.setdefault(st.hardware_id, []).append({kv.key: kv.value for kv in st.values})
+        return out
 
     def close(self) -> None:
         self._stop.set()
@@ -189,6 +209,7 @@ def default_run(tmp_path_factory, watcher):
         "window_ns": (t0, t1),
         "master": watcher.array("/master/joint_states"),
         "slave": watcher.array("/slave/joint_states"),
+        "diagnostics": watcher.diagnostics(),
     }
 
 
@@ -210,6 +231,28 @@ def test_independent_subscriber_sees_1khz_streams(default_run, side):
     inside = rows[(rows[:, 1] >= t0) & (rows[:, 1] < t1)]
     rate_hz = len(np.unique(inside[:, 1])) / ((t1 - t0) * 1e-9)
     assert rate_hz >= 0.9 / PERIOD_S, f"{side}: {rate_hz:.0f} Hz"
+
+
+def test_every_loop_reports_its_figures_on_diagnostics(default_run):
+    """Each node's loop publishes its report about once a second (from the loop thread); the
+    cumulative counters are consistent: every tick counted is in the lateness histogram, and two
+    reports give the figures between them (what `bench live` uses)."""
+    from haptic_teleop.benchmarks.live import window_figures
+
+    reports = default_run["diagnostics"]
+    nodes = ("operator_source", "master_eba", "slave_eba", "forward_relay", "backward_relay",
+             "forward_buffer", "backward_buffer", "recorder")  # fmt: skip
+    for name in nodes:
+        got = reports.get(name, [])
+        assert len(got) >= 3, (name, len(got))
+        for r in got:
+            assert sum(int(v) for v in r["lateness_hist"].split()) == int(r["ticks"]), (name, r)
+            assert int(r["late_ticks"]) <= int(r["ticks"])
+            assert int(r["max_catch_up_periods"]) == 10
+        ticks = [int(r["ticks"]) for r in got]
+        assert ticks == sorted(ticks) and ticks[-1] > ticks[0]
+        f = window_figures([(float(i), r) for i, r in enumerate(got)], 0.0, float(len(got)))
+        assert f is not None and f["ticks"] == ticks[-1] - ticks[0] and f["loop_rate_hz"] > 0
 
 
 def test_contact_force_reaches_the_master(default_run):
@@ -331,6 +374,12 @@ def test_bad_parameter_stops_the_node_and_names_it(tmp_path):
     )  # fmt: skip
     assert r.returncode == 2
     assert "no_such.key" in r.stderr and "unknown parameter" in r.stderr
+    r = subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.nodes.sync_buffer", "--ros-args", "-p", "loop.max_catch_up_periods:=-1"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "loop.max_catch_up_periods" in r.stderr
 
 
 def test_simulated_time_follows_clock(tmp_path):
@@ -358,3 +407,177 @@ def test_simulated_time_follows_clock(tmp_path):
     # Scene time starts at the operator's first simulated tick: a small number of simulated
     # seconds after the clock started at 1 s, not the wall clock's ~1.8e9 s since 1970.
     assert 1.0 <= info["start_stamp_ns"] * 1e-9 < 120.0
+
+
+# ---------------------------------------------------------------------------------------------
+# The loop's timing logic: real LoopThread and SharedLoop objects on a made-up clock, so what they
+# do is fixed by their code, not by this machine's load (no timing is asserted).
+
+P_NS = 1_000_000
+
+
+def test_next_tick_runs_late_ticks_up_to_the_bound_then_skips_to_the_newest():
+    from haptic_teleop.nodes.common import next_tick
+
+    assert next_tick(10, 10 * P_NS + 5, P_NS, 0, 10) == (10, 0)  # on time
+    assert next_tick(10, 17 * P_NS, P_NS, 0, 10) == (10, 0)  # 7 periods late: still run, late
+    assert next_tick(10, 21 * P_NS + 3, P_NS, 0, 10) == (21, 11)  # 11 late: the newest deadline, 11 skipped
+    assert next_tick(10, 11 * P_NS - 1, P_NS, 0, 0) == (10, 0)  # bound 0: skip once a whole period is missed
+    assert next_tick(10, 11 * P_NS, P_NS, 0, 0) == (11, 1)
+    assert next_tick(10, 10**6 * P_NS, P_NS, 0, None) == (10, 0)  # simulated time: never skip
+    phase = P_NS // 4  # deadlines k * period + phase
+    assert next_tick(10, 12 * P_NS + phase, P_NS, phase, 2) == (10, 0)
+    assert next_tick(10, 13 * P_NS + phase, P_NS, phase, 2) == (13, 3)
+
+
+def test_member_ticks_between_counts_a_slower_members_own_deadlines():
+    from haptic_teleop.nodes.common import member_ticks_between
+
+    for k0, k1, every in [(5, 13, 4), (4, 8, 4), (3, 4, 4), (7, 30, 1), (0, 250, 7)]:
+        assert member_ticks_between(k0, k1, every) == sum(1 for k in range(k0, k1) if k % every == 0)
+
+
+class _MadeUpClock:
+    """A clock that moves a quarter period at every reading; a tick can make it jump (a stall)."""
+
+    def __init__(self) -> None:
+        self.t = 10**12
+        self.lock = threading.Lock()
+
+    def __call__(self) -> int:
+        with self.lock:
+            self.t += P_NS // 4
+            return self.t
+
+    def stall(self, periods: int) -> None:
+        with self.lock:
+            self.t += periods * P_NS
+
+
+def _run_loop_thread(max_catch_up: int, stall_periods: int, n: int = 60):
+    from haptic_teleop.nodes.common import LoopThread
+
+    clock = _MadeUpClock()
+    ran: list[int] = []
+    done = threading.Event()
+
+    def tick(k: int, stamp_ns: int) -> None:
+        assert stamp_ns == k * P_NS
+        ran.append(k)
+        if len(ran) == 10:
+            clock.stall(stall_periods)
+        if len(ran) >= n:
+            done.set()
+
+    loop = LoopThread("test", P_NS, tick, now_ns=clock, max_catch_up=max_catch_up)
+    loop.start()
+    assert done.wait(60), "the loop did not run"
+    loop.stop()
+    return ran[:n], loop.stats
+
+
+def test_loop_thread_runs_the_ticks_of_a_stall_late_within_the_bound():
+    ran, stats = _run_loop_thread(max_catch_up=10, stall_periods=6)
+    assert ran == list(range(ran[0], ran[0] + len(ran)))  # every deadline of the grid, none skipped
+    assert stats.overruns == 0
+    assert stats.late_ticks >= 5  # the stall's backlog ran a period or more late
+
+
+def test_loop_thread_skips_beyond_the_bound_and_counts_what_it_skipped():
+    for bound, stall in [(0, 6), (10, 30)]:
+        ran, stats = _run_loop_thread(max_catch_up=bound, stall_periods=stall)
+        gaps = [b - a - 1 for a, b in itertools.pairwise(ran) if b - a > 1]
+        assert len(gaps) == 1 and gaps[0] >= stall - bound - 1, (bound, gaps)
+        assert stats.overruns == sum(gaps)
+        assert stats.ticks + stats.overruns >= ran[-1] - ran[0] + 1
+
+
+def test_shared_loop_catches_up_every_member_and_counts_skips_per_member():
+    from haptic_teleop.nodes.common import SharedLoop
+
+    for bound, stall in [(10, 6), (0, 6)]:
+        clock = _MadeUpClock()
+        group = SharedLoop(now_ns=clock)
+        ran: dict[str, list[int]] = {"fast": [], "slow": []}
+        order: list[str] = []
+        done = threading.Event()
+
+        def ticker(name: str, period: int):
+            def tick(k: int, stamp_ns: int) -> None:
+                assert stamp_ns == k * period
+                ran[name].append(k)
+                order.append(name)
+                if name == "fast" and len(ran["fast"]) == 10:
+                    clock.stall(stall)
+                if len(ran["fast"]) >= 80:
+                    done.set()
+
+            return tick
+
+        slow = group.add("slow", 4 * P_NS, 0.5, ticker("slow", 4 * P_NS), None, None, bound)
+        fast = group.add("fast", P_NS, 0.0, ticker("fast", P_NS), None, None, bound)
+        group.start()
+        assert done.wait(60)
+        group.stop()
+        fast_gaps = sum(b - a - 1 for a, b in itertools.pairwise(ran["fast"]))
+        slow_gaps = sum(b - a - 1 for a, b in itertools.pairwise(ran["slow"]))
+        assert fast.stats.overruns == fast_gaps and slow.stats.overruns == slow_gaps
+        if bound == 10:
+            assert fast_gaps == 0 and slow_gaps == 0 and fast.stats.late_ticks >= 5
+        else:
+            assert fast_gaps >= stall - 1
+        # Pipeline order: in a pass the member with the earlier phase ticks first.
+        pairs = [(a, b) for a, b in itertools.pairwise(order) if "slow" in (a, b)]
+        assert all(a == "fast" for a, b in pairs if b == "slow")
+
+
+def test_loop_stats_reports_give_exact_figures_between_two_reports():
+    """What `bench live` computes from two diagnostics reports: ticks run per second of wall time,
+    late ticks and lateness percentiles of exactly the ticks in between."""
+    from haptic_teleop.benchmarks.live import window_figures
+    from haptic_teleop.nodes.common import LoopStats
+
+    st = LoopStats(P_NS)
+    lateness = [(i * 7919) % 2500 * 1000 + 100 for i in range(3000)]  # 0.1 us to 2.5 ms, fixed
+    t0 = 10**12
+    reports = []
+    for i, late in enumerate(lateness):
+        st.record(t0 + i * P_NS + late, t0 + i * P_NS)
+        if i in (999, 2999):
+            reports.append((float(i), {k: str(v) for k, v in {**st.report(), "period_s": 1e-3}.items()}))
+    f = window_figures(reports, 0.0, 1e9)
+    window = np.array(lateness[1000:], dtype=np.float64)
+    assert f is not None and f["ticks"] == 2000
+    span = 2000 * P_NS + lateness[2999] - lateness[999]
+    assert f["loop_rate_hz"] == pytest.approx(2000 / (span * 1e-9), rel=1e-12)
+    assert f["late_ticks"] == int(np.count_nonzero(window >= P_NS))
+    for key, q in (("lateness_p50_us", 50), ("lateness_p99_us", 99)):
+        exact = float(np.percentile(window * 1e-3, q))
+        assert abs(f[key] - exact) <= 0.1 * exact, (key, f[key], exact)  # within its 9 % bin
+    assert f["lateness_max_us"] == pytest.approx(window.max() * 1e-3)
+
+
+def test_lateness_histogram_bins_are_an_eighth_of_an_octave():
+    from haptic_teleop.nodes.common import LATENESS_BINS, lateness_bins
+
+    us = np.array([0.0, 0.5, 1.0, 2 ** (1 / 8) * 1.0001, 2.0001, 1000.0, 1e9])
+    assert lateness_bins(us * 1e3).tolist() == [0, 0, 0, 1, 8, int(8 * np.log2(1000.0)), LATENESS_BINS - 1]
+
+
+def test_wrench_and_eba_bytes_deserialize_to_the_values_given():
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64MultiArray
+
+    from haptic_teleop.nodes.cdr import multiarray_codec, wrench_codec
+    from haptic_teleop.nodes.common import EBA_LABELS
+
+    stamp = 1_795_000_000_123_456_789
+    w = deserialize_message(wrench_codec("wall").encode(stamp, (-3.25,)), WrenchStamped)
+    assert w.header.frame_id == "wall"
+    assert w.header.stamp.sec * 1_000_000_000 + w.header.stamp.nanosec == stamp
+    assert (w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z) == (-3.25, 0.0, 0.0)
+    a = deserialize_message(multiarray_codec(EBA_LABELS).encode(None, (0.5, -2.0)), Float64MultiArray)
+    assert [d.label for d in a.layout.dim] == list(EBA_LABELS)
+    assert [(d.size, d.stride) for d in a.layout.dim] == [(1, 1), (1, 1)]
+    assert list(a.data) == [0.5, -2.0]

@@ -1,18 +1,26 @@
 """`haptic-teleop bench live`: how the live node set keeps time on this machine.
 
-One run of the scene's full node set (recorder included), plus a measurement hop that shares the
+One run of the scene's full node set (recorder included) per configuration: one process per node
+(what `haptic-teleop launch` starts) and composed in one process with one shared loop thread
+(`launch --single-process`); both by default. Each run adds a measurement hop that shares the
 machine with it: a probe process publishes a sensor_msgs/JointState at 1 kHz on two topics, one
-straight to this process (a bare rclpy publisher-to-subscriber hop), one through a
-network_relay with no configured effects (zero delay) and on to this process. Latency is arrival
-time minus the stamp the probe wrote just before publishing (one host: one clock).
+straight to this process (a bare rclpy publisher-to-subscriber hop), one through a network_relay
+with no configured effects (zero delay) and on to this process. Latency is arrival time minus
+the stamp the probe wrote just before publishing (one host: one clock).
 
-Printed: per node the achieved loop rate, overruns, loop lateness (jitter) p50/p99 from the nodes'
-own diagnostics, and CPU use from /proc over the measurement window; the two hops' p50/p99; and
-whether the targets hold (loop rate >= 99 % of 1/period, relay hop p99 <= 2 x bare hop p99).
+Printed per node, over the measurement window only (from the difference of two of the node's
+own diagnostics reports, which carry cumulative counters; startup is not in it): the loop rate
+(ticks run per second of wall time, each on its own deadline of the grid), the ticks skipped,
+the ticks run a whole period or more late (caught up, `loop.max_catch_up_periods`), loop
+lateness (wake time minus deadline: the jitter) p50/p99/max, the share of wall time spent in the
+node's ticks, and CPU use from /proc (per process). Then the two hops' p50/p99 and whether the
+targets hold (loop rate >= 99 % of 1/period on every 1 kHz node, relay hop p99 <= 2 x bare hop
+p99).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -29,6 +37,12 @@ RELAY_IN = "/bench/relay_in"
 RELAY_OUT = "/bench/relay_out"
 LOOP_RATE_TARGET = 0.99
 HOP_RATIO_TARGET = 2.0
+MODES = ("composed", "processes")
+MODE_TITLES = {
+    "composed": "composed: one process, one shared loop thread (launch --single-process)",
+    "processes": "one process per node (launch)",
+}
+RECOMMENDED = "composed"  # what README and docs/live.md recommend on a machine this small
 
 
 def _probe_classes() -> tuple[type, type]:
@@ -53,7 +67,8 @@ def _probe_classes() -> tuple[type, type]:
                 out.publish(time.time_ns(), (float(index), 0.0))
 
     class HopReceiver(LiveNode):
-        """Arrival minus stamp of both hops (taken as they arrive), and the nodes' diagnostics."""
+        """Arrival minus stamp of both hops (taken as they arrive), and the nodes' diagnostics
+        reports with the time they arrived (monotonic s)."""
 
         default_name = "bench_receiver"
 
@@ -63,7 +78,7 @@ def _probe_classes() -> tuple[type, type]:
 
             self.latency_ns: dict[str, list[int]] = {"bare": [], "relay": []}
             self.recording = False
-            self.diagnostics: dict[str, dict[str, str]] = {}
+            self.reports: dict[str, list[tuple[float, dict[str, str]]]] = {}
             for key, topic in (("bare", BARE_TOPIC), ("relay", RELAY_OUT)):
                 self.add_event_subscription(JointState, topic, stream_qos(50), self._handler(key))
             self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, reliable_qos(50))
@@ -79,8 +94,9 @@ def _probe_classes() -> tuple[type, type]:
             return handle
 
         def _on_diagnostics(self, msg: Any) -> None:
+            now = time.monotonic()
             for st in msg.status:
-                self.diagnostics[st.hardware_id] = {kv.key: kv.value for kv in st.values}
+                self.reports.setdefault(st.hardware_id, []).append((now, {kv.key: kv.value for kv in st.values}))
 
         def tick(self, index: int, stamp_ns: int) -> None:
             return None
@@ -96,6 +112,16 @@ def _cpu_s(pid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _machine_busy_s() -> float:
+    """CPU seconds the whole machine has spent busy (user, nice, system, irq, softirq, steal)."""
+    try:
+        v = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
+    except (OSError, ValueError):
+        return math.nan
+    user, nice, system, _idle, _iowait, irq, softirq, steal = v
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
 def _percentiles_us(values: list[int]) -> tuple[float, float, int]:
     if not values:
         return float("nan"), float("nan"), 0
@@ -103,12 +129,53 @@ def _percentiles_us(values: list[int]) -> tuple[float, float, int]:
     return float(np.percentile(a, 50)), float(np.percentile(a, 99)), a.size
 
 
+def _hist(text: str) -> np.ndarray:
+    from haptic_teleop.nodes.common import LATENESS_BINS
+
+    h = np.zeros(LATENESS_BINS, dtype=np.int64)
+    vals = [int(v) for v in text.split()][:LATENESS_BINS]
+    h[: len(vals)] = vals
+    return h
+
+
+def window_figures(reports: list[tuple[float, dict[str, str]]], t0: float, t1: float) -> dict[str, float] | None:
+    """A node's loop figures between its first diagnostics report at or after `t0` and its last
+    at or before `t1` (arrival times, monotonic s), from the reports' cumulative counters; None
+    without two such reports."""
+    from haptic_teleop.nodes.common import hist_percentiles_us
+
+    inside = [(t, r) for t, r in reports if t0 <= t <= t1 and "last_tick_ns" in r]
+    if len(inside) < 2:
+        return None
+    a, b = inside[0][1], inside[-1][1]
+    span_s = (int(b["last_tick_ns"]) - int(a["last_tick_ns"])) * 1e-9
+    if span_s <= 0:
+        return None
+    ticks = int(b["ticks"]) - int(a["ticks"])
+    p50, p99 = hist_percentiles_us(_hist(b["lateness_hist"]) - _hist(a["lateness_hist"]))
+    worst = max(float(r["lateness_max_us"]) for _, r in inside[1:])
+    tick_s = float(b.get("tick_time_s", "nan")) - float(a.get("tick_time_s", "nan"))
+    return {
+        "span_s": span_s,
+        "loop_rate_hz": ticks / span_s,
+        "period_s": float(b["period_s"]),
+        "ticks": ticks,
+        "skipped": int(b["overruns"]) - int(a["overruns"]),
+        "late_ticks": int(b["late_ticks"]) - int(a["late_ticks"]),
+        "lateness_p50_us": p50,
+        "lateness_p99_us": p99,
+        "lateness_max_us": worst,
+        "tick_time_percent": tick_s / span_s * 100.0,
+        "max_catch_up_periods": int(b.get("max_catch_up_periods", "0")),
+    }
+
+
 def run_bench(
     scene_name: str, duration_s: float, out: Any = sys.stdout, single_process: bool = False
 ) -> dict[str, Any]:
-    """Run the bench; returns the figures it printed. `single_process`: the scene's node set runs
-    composed in one process with one shared loop thread (`haptic-teleop launch --single-process`);
-    the probe and the bench's relay stay processes of their own."""
+    """Run the bench in one configuration; returns the figures it printed. `single_process`: the
+    scene's node set runs composed in one process with one shared loop thread (`haptic-teleop
+    launch --single-process`); the probe and the bench's relay stay processes of their own."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
@@ -121,7 +188,7 @@ def run_bench(
     period_s = scene.config.scene.period_s
     work = Path(tempfile.mkdtemp(prefix="haptic_teleop_bench_"))
     plan = node_plan(scene, record_dir=work / "record")
-    composed_names = [spec.name for spec in plan] if single_process else []
+    node_names = [spec.name for spec in plan]
     if single_process:
         plan = []
     relay_params = {"direction": "forward", "scene": scene_params(scene, "network_relay", "forward")["scene"]}
@@ -172,7 +239,6 @@ def run_bench(
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
     receiver.start()
-    figures: dict[str, Any] = {}
     try:
         launcher.start()
         deadline = time.monotonic() + 60.0
@@ -187,14 +253,16 @@ def run_bench(
         if composed is not None:
             pids["node set (1 process)"] = composed.pid
         cpu0 = {n: _cpu_s(p) for n, p in pids.items()}
+        busy0 = _machine_busy_s()
         t0 = time.monotonic()
         receiver.recording = True
         time.sleep(duration_s)
         receiver.recording = False
-        wall = time.monotonic() - t0
-        cpu = {n: (_cpu_s(p) - cpu0[n]) / wall * 100.0 for n, p in pids.items()}
-        time.sleep(1.2)  # one more round of diagnostics
-        diags = dict(receiver.diagnostics)
+        t1 = time.monotonic()
+        cpu = {n: (_cpu_s(p) - cpu0[n]) / (t1 - t0) * 100.0 for n, p in pids.items()}
+        machine_pct = (_machine_busy_s() - busy0) / (t1 - t0) * 100.0
+        time.sleep(0.3)  # reports sent just before t1 are in
+        reports = {n: list(r) for n, r in receiver.reports.items()}
     finally:
         probe.send_signal(2)
         if composed is not None:
@@ -216,88 +284,112 @@ def run_bench(
         rclpy.try_shutdown()
 
     target_hz = 1.0 / period_s
-    rows = []
-    ok_rate = True
-    for name in composed_names + list(pids):
-        d = diags.get(name, {})
-        rate = float(d.get("loop_rate_hz", "nan"))
-        period = float(d.get("period_s", period_s))
-        is_1khz = abs(period - period_s) < 1e-12 and name not in ("bench_probe", "node set (1 process)")
-        if is_1khz and not rate >= LOOP_RATE_TARGET * target_hz:
-            ok_rate = False
-        rows.append(
-            (
-                name,
-                rate,
-                int(d.get("overruns", "0") or 0),
-                float(d.get("lateness_p50_us", "nan")),
-                float(d.get("lateness_p99_us", "nan")),
-                cpu.get(name, float("nan")),
-                1.0 / period if period > 0 else float("nan"),
-            )
-        )
+    nodes: dict[str, dict[str, float]] = {}
+    lowest = math.inf
+    for name in [*node_names, "bench_relay", "bench_probe", "node set (1 process)"]:
+        if name not in pids and name not in node_names:
+            continue
+        f = window_figures(reports.get(name, []), t0, t1) if name != "node set (1 process)" else None
+        row: dict[str, float] = dict(f) if f is not None else {}
+        row["cpu_percent"] = cpu.get(name, math.nan)
+        nodes[name] = row
+        scene_node = name in node_names
+        if scene_node and abs(row.get("period_s", math.nan) - period_s) < 1e-12:
+            lowest = min(lowest, row["loop_rate_hz"])
+        elif scene_node and f is None and name != "recorder":
+            lowest = -math.inf  # a 1 kHz node without two reports in the window: not measured
+    ok_rate = bool(lowest >= LOOP_RATE_TARGET * target_hz)
     bare50, bare99, nb = _percentiles_us(receiver.latency_ns["bare"])
     rel50, rel99, nr = _percentiles_us(receiver.latency_ns["relay"])
     ratio = rel99 / bare99 if bare99 > 0 else float("nan")
+    mode = "composed" if single_process else "processes"
+    catch_up = max((int(r.get("max_catch_up_periods", 0)) for r in nodes.values()), default=0)
     p = out.write
     p(
-        f"bench live: scene {scene.config.scene.name}, {duration_s:g} s measured, period {period_s * 1e3:g} ms, "
-        f"{os.cpu_count()} cores\n\n"
+        f"bench live, {MODE_TITLES[mode]}: scene {scene.config.scene.name}, {duration_s:g} s measured, "
+        f"period {period_s * 1e3:g} ms, {os.cpu_count()} cores, ticks up to {catch_up} periods late run "
+        "(loop.max_catch_up_periods), further behind skipped\n\n"
     )
     p(
-        f"  {'node':<16} {'loop Hz':>9} {'target':>7} {'overruns':>8} "
-        f"{'late p50 us':>11} {'late p99 us':>11} {'CPU %':>6}\n"
+        f"  {'node':<20} {'loop Hz':>8} {'target':>6} {'skipped':>7} {'late':>6} "
+        f"{'lateness p50':>12} {'p99':>7} {'max us':>7} {'in tick %':>9} {'CPU %':>6}\n"
     )
-    for name, rate, over, l50, l99, c, tgt in rows:
-        p(f"  {name:<16} {rate:>9.1f} {tgt:>7.0f} {over:>8d} {l50:>11.1f} {l99:>11.1f} {c:>6.1f}\n")
-    total_cpu = sum(r[5] for r in rows if r[5] == r[5])  # NaN: no process of its own
-    p(f"  {'total':<16} {'':>9} {'':>7} {'':>8} {'':>11} {'':>11} {total_cpu:>6.1f}\n\n")
+    for name, r in nodes.items():
+        g = r.get
+        target = f"{1.0 / g('period_s'):.0f}" if "period_s" in r else ""
+        p(
+            f"  {name:<20} {g('loop_rate_hz', math.nan):>8.1f} {target:>6} {int(g('skipped', 0)):>7d} "
+            f"{int(g('late_ticks', 0)):>6d} {g('lateness_p50_us', math.nan):>12.0f} "
+            f"{g('lateness_p99_us', math.nan):>7.0f} "
+            f"{g('lateness_max_us', math.nan):>7.0f} {g('tick_time_percent', math.nan):>9.1f} "
+            f"{g('cpu_percent', math.nan):>6.1f}\n"
+        )
+    total_cpu = sum(r["cpu_percent"] for r in nodes.values() if r["cpu_percent"] == r["cpu_percent"])
+    p(f"  {'total CPU':<20} {'':>8} {'':>6} {'':>7} {'':>6} {'':>12} {'':>7} {'':>7} {'':>9} {total_cpu:>6.1f}\n")
+    p(
+        f"  the whole machine, every process (/proc/stat): {machine_pct:.0f} % of one CPU busy, of "
+        f"{(os.cpu_count() or 1) * 100} %\n"
+    )
+    p(
+        "  (loop Hz: ticks run per wall second; late: ticks run a period or more after their deadline;\n"
+        "   lateness: tick start minus deadline; in tick: share of wall time in the node's ticks)\n\n"
+    )
     p("  hop latency (us)          p50      p99   samples\n")
     p(f"  bare rclpy pub->sub  {bare50:>8.0f} {bare99:>8.0f} {nb:>9d}\n")
     p(f"  through relay (0 s)  {rel50:>8.0f} {rel99:>8.0f} {nr:>9d}\n\n")
     p(
         f"  loop rate >= {LOOP_RATE_TARGET:.0%} of {target_hz:.0f} Hz on every 1 kHz node: "
-        f"{'yes' if ok_rate else 'NO'}\n"
+        f"{'yes' if ok_rate else 'NO'} "
+        + (
+            f"(lowest {lowest:.1f} Hz)\n"
+            if lowest > -math.inf
+            else "(a node sent fewer than two reports in the window)\n"
+        )
     )
     p(
         f"  relay hop p99 <= {HOP_RATIO_TARGET:g} x bare hop p99: {'yes' if ratio <= HOP_RATIO_TARGET else 'NO'} "
-        f"(ratio {ratio:.2f})\n"
+        f"(ratio {ratio:.2f})\n\n"
     )
-    figures.update(
-        nodes={
-            r[0]: {
-                "loop_rate_hz": r[1],
-                "overruns": r[2],
-                "lateness_p50_us": r[3],
-                "lateness_p99_us": r[4],
-                "cpu_percent": r[5],
-            }
-            for r in rows
-        },
-        bare_hop_us=(bare50, bare99, nb),
-        relay_hop_us=(rel50, rel99, nr),
-        hop_p99_ratio=ratio,
-        loop_rate_ok=ok_rate,
-    )
-    return figures
+    return {
+        "mode": mode,
+        "nodes": nodes,
+        "bare_hop_us": (bare50, bare99, nb),
+        "relay_hop_us": (rel50, rel99, nr),
+        "hop_p99_ratio": ratio,
+        "loop_rate_ok": ok_rate,
+        "lowest_rate_hz": lowest,
+        "machine_busy_percent": machine_pct,
+    }
 
 
-HELP = "live node set: loop rate, loop jitter, relay hop vs bare DDS hop, CPU per node"
+HELP = "live node set: loop rate, lateness, relay hop vs bare DDS hop, CPU per node (both configurations)"
 
 
 def add_arguments(p: Any) -> None:
     p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
-    p.add_argument("--duration", type=float, default=10.0, help="seconds of measurement")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds of measurement per configuration")
     p.add_argument(
-        "--single-process",
-        action="store_true",
-        help="the node set composed in one process with one shared loop thread (launch --single-process)",
+        "--mode",
+        choices=(*MODES, "both"),
+        default="both",
+        help="composed: the node set in one process with one shared loop thread (launch --single-process); "
+        "processes: one process per node (launch); both (default): one after the other",
     )
+    p.add_argument("--single-process", action="store_true", help="the same as --mode composed")
 
 
 def main(args: Any) -> int:
     """`haptic-teleop bench live` (argparse namespace from cli.py)."""
-    run_bench(args.scene, float(args.duration), single_process=bool(args.single_process))
+    mode = "composed" if args.single_process else args.mode
+    results = {}
+    for m in MODES if mode == "both" else (mode,):
+        results[m] = run_bench(args.scene, float(args.duration), single_process=m == "composed")
+    if RECOMMENDED in results:
+        r = results[RECOMMENDED]
+        print(
+            f"loop-rate target (>= {LOOP_RATE_TARGET:.0%} of 1 kHz) in the recommended configuration "
+            f"({MODE_TITLES[RECOMMENDED]}): {'met' if r['loop_rate_ok'] else 'NOT met'}"
+        )
     return 0
 
 
@@ -312,5 +404,8 @@ if __name__ == "__main__":
     if "--probe" in sys.argv:
         _probe_main()
     else:
-        print("usage: haptic-teleop bench live [--scene S] [--duration S]", file=sys.stderr)
+        print(
+            "usage: haptic-teleop bench live [--scene S] [--duration S] [--mode composed|processes|both]",
+            file=sys.stderr,
+        )
         sys.exit(2)

@@ -11,7 +11,9 @@ the ordinary way, so nothing is misread.
 
 from __future__ import annotations
 
+import operator
 import struct
+import typing
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -19,6 +21,14 @@ _STAMP = struct.Struct("<iI")
 _DOUBLE = struct.Struct("<d")
 
 Decoded = tuple[int, tuple[float, ...]]  # (header.stamp in ns, values in the requested order)
+
+
+def _getter(indices: Sequence[int]) -> Callable[[tuple[Any, ...]], tuple[Any, ...]]:
+    """A function picking `indices` out of a tuple, always as a tuple."""
+    if len(indices) == 1:
+        i = indices[0]
+        return lambda t: (t[i],)
+    return typing.cast(Callable[[tuple[Any, ...]], tuple[Any, ...]], operator.itemgetter(*indices))
 
 
 class JointStateCodec:
@@ -34,17 +44,41 @@ class JointStateCodec:
         self._template = bytes(layout.template)
         self._sec = layout.sec_offset
         self._offsets = tuple(layout.float_offsets)
-        # Everything but the stamp and the values: the frame, the joint name and the array lengths,
-        # i.e. what identifies this layout.
-        variable = sorted([(self._sec, self._sec + 8)] + [(o, o + 8) for o in self._offsets])
-        fixed, pos = [], 0
-        for a, b in variable:
-            if a > pos:
-                fixed.append((pos, a))
-            pos = b
+        # The whole message as one struct: the stamp, the values, and everything else (the frame,
+        # the joint name and the array lengths, i.e. what identifies this layout) as byte strings.
+        # One unpack reads a message and tells whether it has this layout.
+        variable = sorted([(self._sec, "stamp")] + [(o, j) for j, o in enumerate(self._offsets)])
+        fmt, pos, n = "<", 0, 0
+        fixed_idx: list[int] = []
+        fixed_vals: list[bytes] = []
+        value_idx: dict[int, int] = {}
+        stamp_idx = 0
+        for off, what in variable:
+            if off > pos:
+                fmt += f"{off - pos}s"
+                fixed_idx.append(n)
+                fixed_vals.append(self._template[pos:off])
+                n += 1
+            if what == "stamp":
+                fmt += "iI"
+                stamp_idx = n
+                n += 2
+            else:
+                fmt += "d"
+                value_idx[int(what)] = n
+                n += 1
+            pos = off + 8
         if pos < self.size:
-            fixed.append((pos, self.size))
-        self._fixed = tuple((a, b, self._template[a:b]) for a, b in fixed)
+            fmt += f"{self.size - pos}s"
+            fixed_idx.append(n)
+            fixed_vals.append(self._template[pos:])
+        self._whole = struct.Struct(fmt)
+        if self._whole.size != self.size:
+            raise AssertionError(f"{joint}: the layout's struct covers {self._whole.size} of {self.size} bytes")
+        self._identity = _getter(fixed_idx)
+        self._identity_vals = tuple(fixed_vals)
+        self._stamp_idx = stamp_idx
+        self._value_idx = value_idx
 
     def encode(self, stamp_ns: int, values: Sequence[float]) -> bytes:
         buf = bytearray(self._template)
@@ -54,23 +88,64 @@ class JointStateCodec:
         return bytes(buf)
 
     def matches(self, raw: bytes) -> bool:
-        return len(raw) == self.size and all(raw[a:b] == part for a, b, part in self._fixed)
+        return len(raw) == self.size and self._identity(self._whole.unpack(raw)) == self._identity_vals
 
     def reader(self, want: Sequence[str]) -> Callable[[bytes], Decoded] | None:
         """A function reading `want` (in that order) from bytes of this layout, or None if the layout
         does not carry all of them."""
+        read = self._tuple_reader(want)
+        if read is None:
+            return None
+        unpack = self._whole.unpack
+        return lambda raw: read(unpack(raw))
+
+    def _tuple_reader(self, want: Sequence[str]) -> Callable[[tuple[Any, ...]], Decoded] | None:
+        """Like `reader`, on the message already unpacked by `self._whole`."""
         if any(f not in self.fields for f in want):
             return None
-        offsets = [self._offsets[self.fields.index(f)] for f in want]
-        sec_off = self._sec
-        unpack_d = _DOUBLE.unpack_from
-        unpack_stamp = _STAMP.unpack_from
+        values = _getter([self._value_idx[self.fields.index(f)] for f in want])
+        si = self._stamp_idx
 
-        def read(raw: bytes) -> Decoded:
-            sec, nsec = unpack_stamp(raw, sec_off)
-            return sec * 1_000_000_000 + nsec, tuple(unpack_d(raw, o)[0] for o in offsets)
+        def read(t: tuple[Any, ...]) -> Decoded:
+            return t[si] * 1_000_000_000 + t[si + 1], values(t)
 
         return read
+
+
+class FixedCodec:
+    """Encoder of a message type with a fixed layout (`bag.FixedLayout`: e.g. WrenchStamped with
+    force.x, a labelled Float64MultiArray of n values): its serialized template with the stamp, if
+    it has one, and the values patched in at fixed offsets."""
+
+    def __init__(self, layout: Any) -> None:
+        self.size = int(layout.size)
+        self._template = bytes(layout.template)
+        self._sec = int(layout.sec_offset)  # -1: no header
+        self._offsets = tuple(int(o) for o in layout.float_offsets)
+
+    def encode(self, stamp_ns: int | None, values: Sequence[float]) -> bytes:
+        buf = bytearray(self._template)
+        if self._sec >= 0:
+            if stamp_ns is None:
+                raise ValueError("this message type has a header: a stamp is required")
+            _STAMP.pack_into(buf, self._sec, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
+        for off, v in zip(self._offsets, values, strict=True):
+            _DOUBLE.pack_into(buf, off, v)
+        return bytes(buf)
+
+
+def wrench_codec(frame: str) -> FixedCodec:
+    """geometry_msgs/WrenchStamped in `frame` carrying force.x (the rest zero)."""
+    from haptic_teleop.bag import WRENCH, FixedLayout, make_wrench
+
+    return FixedCodec(FixedLayout(WRENCH, make_wrench(frame), 1))
+
+
+def multiarray_codec(labels: Sequence[str]) -> FixedCodec:
+    """std_msgs/Float64MultiArray of one value per label (dimensions of size 1, stride 1)."""
+    from haptic_teleop.bag import MULTIARRAY, FixedLayout, make_multiarray
+
+    return FixedCodec(FixedLayout(MULTIARRAY, make_multiarray(labels), len(labels)))
 
 
 class JointStateReader:
@@ -80,17 +155,21 @@ class JointStateReader:
 
     def __init__(self, want: Sequence[str], known: Sequence[tuple[str, Sequence[str]]] = ()) -> None:
         self.want = tuple(want)
-        self._fast: list[tuple[JointStateCodec, Callable[[bytes], Decoded]]] = []
+        # Per known layout: size, whole-message unpack, identity check, reader of the unpacked tuple.
+        self._fast: list[tuple[int, Any, Any, tuple[bytes, ...], Callable[[tuple[Any, ...]], Decoded]]] = []
         for joint, fields in known:
             codec = JointStateCodec(joint, fields)
-            read = codec.reader(self.want)
+            read = codec._tuple_reader(self.want)
             if read is not None:
-                self._fast.append((codec, read))
+                self._fast.append((codec.size, codec._whole.unpack, codec._identity, codec._identity_vals, read))
 
     def __call__(self, raw: bytes) -> Decoded:
-        for codec, read in self._fast:
-            if codec.matches(raw):
-                return read(raw)
+        n = len(raw)
+        for size, unpack, identity, expected, read in self._fast:
+            if n == size:
+                t = unpack(raw)
+                if identity(t) == expected:
+                    return read(t)
         return self._slow(raw)
 
     def _slow(self, raw: bytes) -> Decoded:

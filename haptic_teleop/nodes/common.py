@@ -11,6 +11,7 @@ from __future__ import annotations
 import array
 import ctypes
 import dataclasses
+import gc
 import math
 import os
 import signal
@@ -245,7 +246,7 @@ def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str]
     from haptic_teleop.schema import build
 
     raw: dict[str, Any] = {}
-    declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM}
+    declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM, LOOP_CATCH_UP_PARAM}
     for section in sections:
         for spec in scene_param_specs(section):
             declared.add(spec.name)
@@ -314,6 +315,37 @@ def declare_value(
 
 _PR_SET_TIMERSLACK = 29
 _WAIT_MARGIN_NS = 150_000
+LOOP_CATCH_UP_PARAM = "loop.max_catch_up_periods"
+# How many whole periods a tick may lag its deadline and still run (late) rather than be skipped.
+# 10: a stall of up to 10 ms (a preempted vCPU, a slow pass) is made up by running the backlog at
+# once; the cost is lateness, reported (docs/live.md, "Late ticks").
+DEFAULT_MAX_CATCH_UP = 10
+# Diagnostics are published by the loop thread itself, after a tick, when the next deadline is at
+# least this share of a period away (or the report is overdue by REPORT_OVERDUE_S): a reporting
+# thread of its own would hold the GIL the loop needs, for milliseconds a second (docs/live.md).
+IDLE_SHARE = 0.4
+REPORT_PERIOD_S = 1.0
+REPORT_OVERDUE_S = 2.0
+IdleFn = Callable[[bool], bool]  # idle(room): background work if due (and room, unless overdue); did it?
+
+
+def next_tick(k: int, now_ns: int, period_ns: int, phase_ns: int, max_catch_up: int | None) -> tuple[int, int]:
+    """The tick a loop runs at `now_ns` when tick `k` (deadline k * period + phase) is the next one
+    due: `(index, skipped)`.
+
+    A tick less than `max_catch_up` + 1 whole periods past its deadline runs, late if need be, so a
+    stall is made up by running the backlog back to back. Further behind, the backlog is dropped:
+    the loop runs the newest deadline already passed and the ticks in between are skipped
+    (overruns). `max_catch_up` 0 skips whenever a whole period was missed; None never skips
+    (simulated time, where a deadline is only a label).
+    """
+    if max_catch_up is None:
+        return k, 0
+    late = now_ns - (k * period_ns + phase_ns)
+    if late < (max_catch_up + 1) * period_ns:
+        return k, 0
+    newest = (now_ns - phase_ns) // period_ns
+    return newest, newest - k
 
 
 def _tight_timer_slack() -> None:
@@ -343,46 +375,156 @@ def _enter_realtime(priority: int, on_warning: Callable[[str], None] | None) -> 
         return False
 
 
+# Lateness histogram: bin b counts lateness in [2^(b/8), 2^((b+1)/8)) us (9 % wide), bin 0 also
+# everything below 1 us, the last bin everything from 2^(127/8) us = 60 ms up.
+LATENESS_BINS = 128
+_BINS_PER_OCTAVE = 8
+
+
+def lateness_bin_edges_us() -> Any:
+    """Edges of the lateness histogram's bins in us (LATENESS_BINS + 1 values; the last is open)."""
+    import numpy as np
+
+    edges = 2.0 ** (np.arange(LATENESS_BINS + 1) / _BINS_PER_OCTAVE)
+    edges[0] = 0.0
+    return edges
+
+
+def lateness_bins(lateness_ns: Any) -> Any:
+    """Histogram bin of each lateness (ns, numpy array)."""
+    import numpy as np
+
+    us = np.maximum(np.asarray(lateness_ns, dtype=np.float64) * 1e-3, 1.0)
+    return np.minimum((np.log2(us) * _BINS_PER_OCTAVE).astype(np.int64), LATENESS_BINS - 1)
+
+
+def hist_percentiles_us(hist: Sequence[int], qs: Sequence[float] = (50.0, 99.0)) -> list[float]:
+    """Percentiles (us) of the lateness a histogram counts, interpolated inside the bin (so to
+    within a bin's 9 %); NaN for an empty histogram."""
+    import numpy as np
+
+    counts = np.zeros(LATENESS_BINS)
+    counts[: len(hist)] = np.asarray(hist, dtype=np.float64)[:LATENESS_BINS]
+    n = counts.sum()
+    if n <= 0:
+        return [math.nan for _ in qs]
+    edges = lateness_bin_edges_us()
+    cum = np.cumsum(counts)
+    out = []
+    for q in qs:
+        rank = q / 100.0 * n
+        b = min(int(np.searchsorted(cum, rank, side="left")), LATENESS_BINS - 1)
+        below = cum[b] - counts[b]
+        frac = (rank - below) / counts[b] if counts[b] > 0 else 0.0
+        out.append(float(edges[b] + frac * (edges[b + 1] - edges[b])))
+    return out
+
+
 class LoopStats:
-    """Counters of one loop; lateness (wake time - deadline) kept in a ring for percentiles."""
+    """Counters of one loop, written (`record`) and reported (`report`) by the loop's own thread, so
+    without locks. Lateness (wake time - deadline) is kept in a ring."""
 
     RING = 1 << 17  # 131 s at 1 kHz
 
-    def __init__(self) -> None:
-        self.ticks = 0
-        self.overruns = 0  # deadlines missed entirely (skipped ticks)
+    def __init__(self, period_ns: int) -> None:
+        self.period_ns = period_ns
+        self.ticks = 0  # ticks run
+        self.overruns = 0  # deadlines skipped (not run at all)
+        self.late_ticks = 0  # ticks run a whole period or more after their deadline (caught up)
+        self.busy_ns = 0  # wall time spent in this loop's ticks
         self.first_ns = 0
-        self.last_ns = 0
+        self.last_ns = 0  # wake time of the newest tick
         self.lateness_ns = array.array("q", bytes(8 * self.RING))
+        # The reporting side: the cumulative lateness histogram, and where the previous report was.
+        import numpy as np
+
+        self.hist = np.zeros(LATENESS_BINS, dtype=np.int64)
+        self._reported = 0
+        self._prev_ticks = 0
+        self._prev_last_ns = 0
+        self._prev_busy_ns = 0
 
     def record(self, woke_ns: int, deadline_ns: int) -> None:
         """One tick that woke at `woke_ns` for `deadline_ns`."""
-        self.lateness_ns[self.ticks & (self.RING - 1)] = woke_ns - deadline_ns
-        if self.ticks == 0:
+        n = self.ticks
+        late = woke_ns - deadline_ns
+        self.lateness_ns[n & (self.RING - 1)] = late
+        if late >= self.period_ns:
+            self.late_ticks += 1
+        if n == 0:
             self.first_ns = woke_ns
         self.last_ns = woke_ns
-        self.ticks += 1
+        self.ticks = n + 1  # last: the entry is written before it is counted
 
     def rate_hz(self) -> float:
+        """Ticks run per second of wall time since the first."""
         span = self.last_ns - self.first_ns
         return (self.ticks - 1) / (span * 1e-9) if self.ticks > 1 and span > 0 else 0.0
 
-    def lateness_percentiles_us(self, qs: Sequence[float] = (50.0, 99.0)) -> list[float]:
+    def report(self) -> dict[str, float | int | str]:
+        """Figures since the previous report (rate, lateness p50/p99/max, share of wall time in
+        ticks) and cumulative ones (ticks, overruns, late ticks, wake time of the newest tick,
+        lateness histogram): two reports' cumulative figures give exact ones over the time between
+        them (what `haptic-teleop bench live` does)."""
         import numpy as np
 
-        n = min(self.ticks, self.RING)
-        if n == 0:
-            return [math.nan for _ in qs]
-        a = np.frombuffer(self.lateness_ns, dtype=np.int64)[:n]
-        return [float(v) * 1e-3 for v in np.percentile(a, qs)]
+        ticks, last_ns, busy = self.ticks, self.last_ns, self.busy_ns
+        start = max(self._reported, ticks - self.RING)
+        ring = np.frombuffer(self.lateness_ns, dtype=np.int64)
+        i0, i1 = start & (self.RING - 1), ticks & (self.RING - 1)
+        if ticks - start == 0:
+            late = ring[:0]
+        elif i0 < i1:
+            late = ring[i0:i1]
+        else:  # wrapped around the ring's end
+            late = np.concatenate((ring[i0:], ring[:i1]))
+        if late.size:
+            self.hist += np.bincount(lateness_bins(late), minlength=LATENESS_BINS)
+            a = np.sort(late)
+            p50, p99 = (_sorted_percentile(a, q) * 1e-3 for q in (50.0, 99.0))
+            worst = float(a[-1]) * 1e-3
+        else:
+            p50 = p99 = worst = math.nan
+        if self._prev_ticks > 0:
+            span, n = last_ns - self._prev_last_ns, ticks - self._prev_ticks
+        else:
+            span, n = last_ns - self.first_ns, ticks - 1
+        rate = n / (span * 1e-9) if span > 0 else 0.0
+        busy_pct = (busy - self._prev_busy_ns) / span * 100.0 if span > 0 else 0.0
+        self._reported = ticks
+        self._prev_ticks, self._prev_last_ns, self._prev_busy_ns = ticks, last_ns, busy
+        used = np.flatnonzero(self.hist)
+        top = int(used[-1]) + 1 if used.size else 0
+        return {
+            "loop_rate_hz": round(rate, 3),
+            "lateness_p50_us": round(p50, 1),
+            "lateness_p99_us": round(p99, 1),
+            "lateness_max_us": round(worst, 1),
+            "tick_time_percent": round(busy_pct, 2),
+            "ticks": ticks,
+            "overruns": self.overruns,
+            "late_ticks": self.late_ticks,
+            "last_tick_ns": last_ns,
+            "tick_time_s": round(busy * 1e-9, 6),
+            "lateness_hist": " ".join(map(str, self.hist[:top].tolist())),
+        }
+
+
+def _sorted_percentile(a: Any, q: float) -> float:
+    """Percentile q of sorted values `a` (linear interpolation, as numpy's default)."""
+    pos = q / 100.0 * (a.size - 1)
+    lo = int(pos)
+    hi = min(lo + 1, a.size - 1)
+    return float(a[lo]) + (pos - lo) * (float(a[hi]) - float(a[lo]))
 
 
 class LoopThread:
     """Runs `tick(index, stamp_ns)` once per period on the absolute grid stamp = index * period.
 
     Deadlines are absolute (the grid of the clock), so lateness never accumulates into drift. A
-    tick that starts a whole period or more late skips the deadlines it missed and counts them as
-    overruns (with simulated time it runs them all, late, instead). With a system clock the
+    tick that starts late still runs, up to `max_catch_up` whole periods late (next_tick): the
+    backlog of a stall is run back to back; further behind, the missed deadlines are skipped and
+    counted as overruns (with simulated time every tick runs, late). With a system clock the
     thread sleeps until the deadline; with simulated time (use_sim_time) it follows the node's
     ROS clock, i.e. /clock.
     """
@@ -399,12 +541,18 @@ class LoopThread:
         realtime_priority: int = 0,
         on_warning: Callable[[str], None] | None = None,
         phase_ns: int = 0,
+        max_catch_up: int = DEFAULT_MAX_CATCH_UP,
+        idle: IdleFn | None = None,
     ) -> None:
         if not 0 <= phase_ns < period_ns:
             raise ValueError(f"phase_ns must be in [0, period_ns), got {phase_ns}")
+        if max_catch_up < 0:
+            raise ValueError(f"max_catch_up must be >= 0 periods, got {max_catch_up}")
         self.name = name
         self.period_ns = period_ns
         self.phase_ns = phase_ns
+        self.max_catch_up = max_catch_up
+        self._idle = idle
         self._tick = tick
         self._now = now_ns or time.time_ns
         self._simulated = simulated
@@ -416,7 +564,7 @@ class LoopThread:
         self.realtime = False
         self._on_error = on_error
         self._stop = threading.Event()
-        self.stats = LoopStats()
+        self.stats = LoopStats(period_ns)
         self._thread = threading.Thread(target=self._run, name=f"{name}-loop", daemon=True)
 
     def start(self) -> None:
@@ -450,11 +598,16 @@ class LoopThread:
         return now()
 
     def _run(self) -> None:
-        self.realtime = _enter_realtime(self.realtime_priority, self._on_warning)
+        # Simulated time has no wall-clock deadlines, and a loop behind /clock runs its ticks back to
+        # back: with SCHED_FIFO that would take a whole CPU from every normal thread, its own
+        # process's signal handling and DDS threads included. Real-time priority only on wall time.
+        self.realtime = _enter_realtime(0 if self._simulated else self.realtime_priority, self._on_warning)
         period = self.period_ns
         stats = self.stats
         tick = self._tick
         stop = self._stop
+        bound = None if self._simulated else self.max_catch_up
+        idle = self._idle
         try:
             if self._simulated:
                 while self._now() <= 0 and not stop.is_set():  # no /clock yet
@@ -462,21 +615,18 @@ class LoopThread:
             phase = self.phase_ns
             k = (self._now() - phase) // period + 1
             while not stop.is_set():
-                deadline = k * period + phase
-                t = self._wait_until(deadline)
+                t = self._wait_until(k * period + phase)
                 if stop.is_set():
                     break
-                late = t - deadline
-                # Wall time: a deadline missed by a whole period is gone (skip, count an overrun).
-                # Simulated time is only a label: run every tick, catching up with /clock.
-                if late >= period and not self._simulated:
-                    skipped = late // period
-                    stats.overruns += skipped
-                    k += skipped
-                    deadline = k * period + phase
-                stats.record(t, deadline)
+                k, skipped = next_tick(k, t, period, phase, bound)
+                stats.overruns += skipped
+                stats.record(t, k * period + phase)
+                t0 = time.perf_counter_ns()
                 tick(k, k * period)  # the stamp is on the grid; the phase only moves the wake-up
+                stats.busy_ns += time.perf_counter_ns() - t0
                 k += 1
+                if idle is not None:
+                    idle(self._simulated or k * period + phase - self._now() >= IDLE_SHARE * period)
         except BaseException as exc:
             if self._on_error is not None:
                 self._on_error(exc)
@@ -488,6 +638,12 @@ TickFn = Callable[[int, int], None]
 ErrorFn = Callable[[BaseException], None]
 
 
+def member_ticks_between(k0: int, k1: int, every: int) -> int:
+    """How many of the base deadlines k0 .. k1 - 1 are ticks of a member that ticks every `every`
+    of them (those with k % every == 0)."""
+    return (k1 - 1) // every - (k0 - 1) // every
+
+
 class SharedLoop:
     """One thread ticking every node of a process in pipeline order (`--single-process`).
 
@@ -496,12 +652,17 @@ class SharedLoop:
     process, the nodes share one thread instead: at each deadline k * base period it drains every
     node's event subscriptions and runs its tick, in order of loop phase (producers, relays,
     buffers, as the engine orders a tick), each node at its own period (a multiple of the base).
-    A deadline missed by a whole base period is skipped for every node and counted as an overrun.
-    Members look like LoopThreads to their nodes (stats, start, stop, running, realtime).
+    A pass that starts late still runs, up to the members' smallest `max_catch_up` whole periods
+    late (next_tick); further behind, the missed deadlines are skipped for every node and counted
+    as its overruns. Members look like LoopThreads to their nodes (stats, start, stop, running,
+    realtime).
     """
 
-    def __init__(self, base_period_ns: int = 1_000_000, realtime_priority: int = 0) -> None:
+    def __init__(
+        self, base_period_ns: int = 1_000_000, realtime_priority: int = 0, now_ns: Callable[[], int] | None = None
+    ) -> None:
         self.base_period_ns = base_period_ns
+        self._now = now_ns or time.time_ns  # the wall clock (another only in tests)
         self.realtime_priority = realtime_priority
         self.realtime = False
         self.members: list[SharedLoop.Member] = []
@@ -512,15 +673,20 @@ class SharedLoop:
 
     class Member:
         def __init__(self, group: SharedLoop, name: str, period_ns: int, phase: float, tick: TickFn,
-                     drain: Callable[[], None] | None, on_error: ErrorFn | None) -> None:  # fmt: skip
+                     drain: Callable[[], None] | None, on_error: ErrorFn | None,
+                     max_catch_up: int = DEFAULT_MAX_CATCH_UP, idle: IdleFn | None = None) -> None:  # fmt: skip
             if period_ns % group.base_period_ns:
                 raise ValueError(
                     f"{name}: period {period_ns} ns is not a multiple of the shared loop's {group.base_period_ns}"
                 )
+            if max_catch_up < 0:
+                raise ValueError(f"{name}: max_catch_up must be >= 0 periods, got {max_catch_up}")
             self.group, self.name, self.period_ns, self.phase = group, name, period_ns, phase
             self.every = period_ns // group.base_period_ns
             self.tick, self.drain, self.on_error = tick, drain, on_error
-            self.stats = LoopStats()
+            self.max_catch_up = max_catch_up
+            self.idle = idle
+            self.stats = LoopStats(period_ns)
             self.active = True
 
         @property
@@ -543,8 +709,9 @@ class SharedLoop:
                     pass
 
     def add(self, name: str, period_ns: int, phase: float, tick: TickFn,
-            drain: Callable[[], None] | None, on_error: ErrorFn | None) -> SharedLoop.Member:  # fmt: skip
-        m = SharedLoop.Member(self, name, period_ns, phase, tick, drain, on_error)
+            drain: Callable[[], None] | None, on_error: ErrorFn | None,
+            max_catch_up: int = DEFAULT_MAX_CATCH_UP, idle: IdleFn | None = None) -> SharedLoop.Member:  # fmt: skip
+        m = SharedLoop.Member(self, name, period_ns, phase, tick, drain, on_error, max_catch_up, idle)
         self.members.append(m)
         self.members.sort(key=lambda x: x.phase)  # stable: registration order within a phase
         return m
@@ -562,31 +729,52 @@ class SharedLoop:
     def _run(self) -> None:
         self.realtime = _enter_realtime(self.realtime_priority, None)
         base = self.base_period_ns
-        k = time.time_ns() // base + 1
+        bound = min((m.max_catch_up for m in self.members), default=DEFAULT_MAX_CATCH_UP)
+        now = self._now
+        k = now() // base + 1
         stop = self._stop
+        lock = self._lock
+        members = self.members
+        rr = 0  # whose background work is looked at first after the next pass
         while not stop.is_set():
             deadline = k * base
-            t = time.time_ns()
+            t = now()
             while t < deadline and not stop.is_set():
                 time.sleep((deadline - t) * 1e-9)
-                t = time.time_ns()
-            late = t - deadline
-            if late >= base:
-                skipped = late // base
-                for m in self.members:
-                    m.stats.overruns += skipped // m.every
-                k += skipped
+                t = now()
+            k_run, skipped = next_tick(k, t, base, 0, bound)
+            if skipped:
+                for m in members:
+                    m.stats.overruns += member_ticks_between(k, k_run, m.every)
+                k = k_run
                 deadline = k * base
-            for m in self.members:
+            for m in members:
                 if k % m.every:
                     continue
-                with self._lock:
+                with lock:
                     if m.active:
                         self._tick(m, deadline)
             k += 1
+            if k % 4 == 0:  # background work looked at every few passes: it is due once a second
+                rr = self._idle_in_turn(k * base - now() >= IDLE_SHARE * base, rr)
+
+    def _idle_in_turn(self, room: bool, rr: int) -> int:
+        """After a pass: at most one member's background work (its due diagnostics), members in
+        turn; returns where to start next time."""
+        members = self.members
+        n = len(members)
+        for i in range(n):
+            m = members[(rr + i) % n]
+            if m.idle is not None and m.active:
+                with self._lock:
+                    if m.active and m.idle(room):
+                        return (rr + i + 1) % n
+        return rr
 
     def _tick(self, m: SharedLoop.Member, deadline: int) -> None:
-        m.stats.record(time.time_ns(), deadline)
+        st = m.stats
+        t0 = self._now()
+        st.record(t0, deadline)
         try:
             if m.drain is not None:
                 m.drain()
@@ -597,6 +785,8 @@ class SharedLoop:
                 m.on_error(exc)
             else:
                 raise
+        finally:
+            st.busy_ns += self._now() - t0
 
 
 _SHARED_LOOP: SharedLoop | None = None  # set by run_nodes(shared_loop=True) while nodes are built
@@ -609,6 +799,17 @@ _SHARED_LOOP: SharedLoop | None = None  # set by run_nodes(shared_loop=True) whi
 def stamp_ns_of(msg: Any) -> int:
     s = msg.header.stamp
     return int(s.sec) * 1_000_000_000 + int(s.nanosec)
+
+
+def raw_publish_fn(pub: Any) -> Callable[[bytes], None]:
+    """Publish serialized bytes on `pub`, one call into rclpy's C++ publisher.
+
+    `Publisher.publish` wraps each call in a context manager on the handle (which defers the
+    handle's destruction while in use) and a type check: three calls through pybind11 where one
+    does, about half the cost of a publish in these loops (measured with callgrind, docs/live.md).
+    Safe as the nodes use it: only a node's loop publishes this way, and run_nodes destroys a node
+    only once its loop has stopped."""
+    return typing.cast(Callable[[bytes], None], pub.handle.publish_raw)
 
 
 class JointStateOut:
@@ -624,49 +825,47 @@ class JointStateOut:
         self.joint = joint
         self._encode = JointStateCodec(joint, fields).encode
         self._pub = node.create_publisher(JointState, topic, qos if qos is not None else stream_qos())
+        self._send = raw_publish_fn(self._pub)
 
     def publish(self, stamp_ns: int, values: Sequence[float]) -> None:
-        self._pub.publish(self._encode(stamp_ns, values))
+        self._send(self._encode(stamp_ns, values))
 
     def publish_raw(self, raw: bytes) -> None:
         """Bytes of a JointState as they came (a relay forwarding a message unchanged)."""
-        self._pub.publish(raw)
+        self._send(raw)
 
 
 class WrenchOut:
-    """Publishes geometry_msgs/WrenchStamped with force.x, reusing one message object."""
+    """Publishes geometry_msgs/WrenchStamped with force.x as CDR bytes (nodes/cdr.py)."""
 
     def __init__(self, node: Any, topic: str, frame: str, qos: Any = None) -> None:
         from geometry_msgs.msg import WrenchStamped
 
-        self._msg = WrenchStamped()
-        self._msg.header.frame_id = frame
+        from haptic_teleop.nodes.cdr import wrench_codec
+
+        self._encode = wrench_codec(frame).encode
         self._pub = node.create_publisher(WrenchStamped, topic, qos if qos is not None else stream_qos())
+        self._send = raw_publish_fn(self._pub)
 
     def publish(self, stamp_ns: int, force_x: float) -> None:
-        m = self._msg
-        m.header.stamp.sec, m.header.stamp.nanosec = stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
-        m.wrench.force.x = force_x
-        self._pub.publish(m)
+        self._send(self._encode(stamp_ns, (force_x,)))
 
 
 class EbaOut:
-    """Publishes [reservoir_j, force_desired_n] as std_msgs/Float64MultiArray (the bag's layout)."""
+    """Publishes [reservoir_j, force_desired_n] as std_msgs/Float64MultiArray CDR bytes (the bag's
+    layout, nodes/cdr.py)."""
 
     def __init__(self, node: Any, topic: str) -> None:
-        from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+        from std_msgs.msg import Float64MultiArray
 
-        self._msg = Float64MultiArray()
-        self._msg.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1) for lab in EBA_LABELS]
-        self._msg.data = [0.0, 0.0]
-        self._data = self._msg.data
+        from haptic_teleop.nodes.cdr import multiarray_codec
+
+        self._encode = multiarray_codec(EBA_LABELS).encode
         self._pub = node.create_publisher(Float64MultiArray, topic, stream_qos())
+        self._send = raw_publish_fn(self._pub)
 
     def publish(self, reservoir_j: float, force_desired_n: float) -> None:
-        d = self._data
-        d[0] = reservoir_j
-        d[1] = force_desired_n
-        self._pub.publish(self._msg)
+        self._send(self._encode(None, (reservoir_j, force_desired_n)))
 
 
 def _polled_group_class() -> type:
@@ -692,17 +891,19 @@ def _polled_group_class() -> type:
 
 def _taken(sub: Any) -> list[tuple[Any, dict[str, Any]]]:
     """Every message waiting in a polled subscription's history with its message info, oldest
-    first (what rclpy's executor and wait_for_message do: rclpy has no public take call)."""
+    first (what rclpy's executor and wait_for_message do: rclpy has no public take call).
+
+    Called on the C++ subscription directly, without rclpy's context manager on the handle (two
+    more calls through pybind11 per poll): only the node's loop takes, and run_nodes destroys a
+    node only once its loop has stopped (raw_publish_fn)."""
     out = []
-    handle = sub.handle
-    with handle:
-        take = handle.take_message
-        msg_type, raw = sub.msg_type, sub.raw
-        while True:
-            r = take(msg_type, raw)
-            if r is None:
-                return out
-            out.append(r)
+    take = sub.handle.take_message
+    msg_type, raw = sub.msg_type, sub.raw
+    while True:
+        r = take(msg_type, raw)
+        if r is None:
+            return out
+        out.append(r)
 
 
 def take_all(sub: Any) -> list[Any]:
@@ -710,16 +911,31 @@ def take_all(sub: Any) -> list[Any]:
     return [m for m, _ in _taken(sub)]
 
 
-def take_all_published_ns(sub: Any) -> list[tuple[int, Any]]:
-    """Every waiting message with the time its publisher wrote it (DDS source timestamp, system
-    clock, ns), oldest first."""
-    return [(int(info["source_timestamp"]), m) for m, info in _taken(sub)]
+def take_all_published_ns(sub: Any, times: list[int], msgs: list[Any]) -> int:
+    """Append every waiting message of a polled subscription to `msgs`, oldest first, and the time
+    its publisher wrote it (DDS source timestamp, system clock, ns) to `times`; returns how many."""
+    got = _taken(sub)
+    for m, info in got:
+        times.append(int(info["source_timestamp"]))
+        msgs.append(m)
+    return len(got)
 
 
 def take_latest(sub: Any) -> Any:
-    """The newest waiting message of a polled subscription, or None."""
-    got = _taken(sub)
-    return got[-1][0] if got else None
+    """The newest waiting message of a polled subscription, or None. A keep-last-1 reader holds at
+    most one: one take, not a second one to find the history empty."""
+    take = sub.handle.take_message
+    msg_type, raw = sub.msg_type, sub.raw
+    r = take(msg_type, raw)
+    if r is None:
+        return None
+    if getattr(sub, "holds_one", False):
+        return r[0]
+    while True:
+        nxt = take(msg_type, raw)
+        if nxt is None:
+            return r[0]
+        r = nxt
 
 
 # ---------------------------------------------------------------------------------------------
@@ -762,6 +978,7 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
         self.loop: LoopThread | None = None
         self._cpu0 = (time.process_time(), time.monotonic())
         self._diag_pub: Any = None
+        self._next_report = time.monotonic() + REPORT_PERIOD_S
         self._polled_group = _polled_group_class()()
         self._event_subs: list[tuple[Any, Callable[[Any, int], None]]] = []
         self._wait_set: Any = None
@@ -777,7 +994,11 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
     # -- input
     def create_polled_subscription(self, msg_type: Any, topic: str, qos: Any, raw: bool = False) -> Any:
         """A subscription the loop thread takes from (take_latest / take_all), not the executor."""
-        return self.create_subscription(msg_type, topic, _ignore, qos, callback_group=self._polled_group, raw=raw)
+        from rclpy.qos import HistoryPolicy
+
+        sub = self.create_subscription(msg_type, topic, _ignore, qos, callback_group=self._polled_group, raw=raw)
+        sub.holds_one = qos.history == HistoryPolicy.KEEP_LAST and qos.depth == 1  # take_latest: one take
+        return sub
 
     def add_event_subscription(
         self, msg_type: Any, topic: str, qos: Any, handler: Callable[[Any, int], None], raw: bool = False
@@ -827,11 +1048,22 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
                 98,
             )
         )
+        catch_up = int(
+            declare_value(
+                self,
+                LOOP_CATCH_UP_PARAM,
+                DEFAULT_MAX_CATCH_UP,
+                "a tick up to this many whole periods late still runs (late); further behind, the missed "
+                "ticks are skipped and counted as overruns (0: skip whenever a period is missed)",
+                0,
+                10_000,
+            )
+        )
         group = _SHARED_LOOP
         if group is not None and not self.simulated_time:
             self.loop = group.add(
                 self.get_name(), period_ns, self.loop_phase, self.tick,
-                self._drain_events if self._event_subs else None, self._loop_failed,
+                self._drain_events if self._event_subs else None, self._loop_failed, catch_up, self._idle,
             )  # fmt: skip
             self._setup_diagnostics()
             return
@@ -846,18 +1078,35 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
             realtime_priority=prio,
             on_warning=self.get_logger().warning,
             phase_ns=round(self.loop_phase * period_ns),
+            max_catch_up=catch_up,
+            idle=self._idle,
         )
         self._setup_diagnostics()
 
     def _setup_diagnostics(self) -> None:
+        """The /diagnostics publisher. Reports go out once a second from the loop thread, in the
+        slack after a tick (`_idle`): not from an executor timer (in a composed process each
+        executor wake-up rebuilds its wait set over every node, about 5 ms of Python holding the
+        GIL the loop needs) nor from a thread of their own (which holds it too)."""
         from diagnostic_msgs.msg import DiagnosticArray
 
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, reliable_qos(10))
-        self.create_timer(1.0, self.publish_diagnostics)
 
     def start(self) -> None:
         if self.loop is not None:
             self.loop.start()
+
+    def _idle(self, room: bool) -> bool:
+        """The loop's background work, run after a tick; `room`: the next deadline is at least
+        IDLE_SHARE of a period away. Publishes the diagnostics when due, if there is room (or once
+        overdue)."""
+        now = time.monotonic()
+        due = self._next_report
+        if now < due or (not room and now < due + REPORT_OVERDUE_S):
+            return False
+        self._next_report = max(due + REPORT_PERIOD_S, now)
+        self.publish_diagnostics()
+        return True
 
     def tick(self, index: int, stamp_ns: int) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -887,31 +1136,31 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
         return {}
 
     def publish_diagnostics(self) -> None:
+        """Publish the loop's figures (LoopStats.report) and the node's own on /diagnostics; called
+        by the loop thread (`_idle`) about once a second."""
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
         loop = self.loop
         if loop is None or self._diag_pub is None:
             return
         st = loop.stats
-        p50, p99 = st.lateness_percentiles_us()
         cpu_t, wall_t = time.process_time(), time.monotonic()
         cpu = (cpu_t - self._cpu0[0]) / max(wall_t - self._cpu0[1], 1e-9) * 100.0
-        values: dict[str, float | int | str] = {
-            "loop_rate_hz": round(st.rate_hz(), 3),
-            "period_s": self.period_ns * 1e-9,
-            "ticks": st.ticks,
-            "overruns": st.overruns,
-            "lateness_p50_us": round(p50, 1),
-            "lateness_p99_us": round(p99, 1),
-            "cpu_percent": round(cpu, 1),
-            "realtime": int(loop.realtime),
-        }
+        values: dict[str, float | int | str] = {"period_s": self.period_ns * 1e-9}
+        values.update(st.report())
+        values.update(
+            max_catch_up_periods=loop.max_catch_up,
+            process_cpu_percent=round(cpu, 1),
+            realtime=int(loop.realtime),
+        )
         values.update(self.diagnostic_values())
         status = DiagnosticStatus()
         status.name = f"{self.get_name()}: loop"
         status.hardware_id = self.get_name()
         status.level = DiagnosticStatus.OK if st.overruns == 0 else DiagnosticStatus.WARN
-        status.message = f"{values['loop_rate_hz']} Hz, {st.overruns} overruns"
+        status.message = (
+            f"{values['loop_rate_hz']} Hz, {st.overruns} overruns, {st.late_ticks} ticks run a period or more late"
+        )
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -991,6 +1240,11 @@ def run_nodes(
 
     spinner = threading.Thread(target=spin, name="executor", daemon=True)
     spinner.start()
+    # What the nodes built (models, messages, modules) lives to the end: out of the collector's
+    # sight, a full collection no longer walks it (measured: 20 to 50 ms pauses of every loop,
+    # twice in 15 s, without this; docs/live.md, "Late ticks").
+    gc.collect()
+    gc.freeze()
     for n in nodes:
         n.start()
     while not stop.wait(0.1):
@@ -1008,6 +1262,12 @@ def run_nodes(
     executor.shutdown(timeout_sec=2.0)
     spinner.join(2.0)  # a C++ wait still running at exit would abort the process
     for n in nodes:
+        if n.loop is not None and n.loop.running:
+            # Its loop did not stop in time: it may still publish or take, straight on the C++
+            # handles (raw_publish_fn), so those must outlive it; the process ends anyway.
+            print(f"{n.get_name()}: loop still running at exit; not destroying the node", file=sys.stderr, flush=True)
+            code = max(code, 1)
+            continue
         n.destroy_node()
     rclpy.try_shutdown()
     return code

@@ -2,10 +2,10 @@
 or SIGTERM.
 
 Subscriptions are raw (serialized bytes: no message object per sample) with a deep reader
-history, taken by the node's loop thread every few ticks (no executor in the path, no wake-up
-per message) and decoded in bulk four times a second with
-bag.py's fixed layouts onto the tick grid (index = stamp / period; the EBA arrays, which have no
-header, by arrival time). On close the grid from the
+history, taken by the node's loop thread (no executor in the path, no wake-up per message): a
+quarter of the topics per recorder tick, each topic every 16 ms; four times a second their queues
+are decoded in bulk, one topic per tick, with bag.py's fixed layouts onto the tick grid (index =
+stamp / period; the EBA arrays, which have no header, by arrival time). On close the grid from the
 operator's first sample (scene time 0) to the last tick every stream reached, at most
 scene.duration_s, is written by `bag.write_run`: the same layout the engine writes, so
 `haptic-teleop analyze` and every metric work on live bags unchanged. A sample lost between a
@@ -27,7 +27,6 @@ from haptic_teleop.nodes.common import (
     MASTER_EBA,
     MASTER_STATE,
     OPERATOR_STATE,
-    READER_DEPTH,
     SLAVE_CONTACT,
     SLAVE_EBA,
     SLAVE_STATE,
@@ -61,7 +60,16 @@ def _stamp_ns(sec_nsec: tuple[int, int]) -> int:
     return sec_nsec[0] * 1_000_000_000 + sec_nsec[1]
 
 
-TAKE_EVERY = 4  # ticks between takes
+TAKE_EVERY = 4  # scene ticks per recorder tick
+# Each recorder tick takes one of POLL_GROUPS groups of topics in turn (every topic every
+# POLL_GROUPS * TAKE_EVERY = 16 ticks) and decodes at most one topic's queue: its work is spread
+# evenly over the ticks rather than coming in one long tick, which in a composed process would
+# make the shared loop late for every node (docs/live.md, "Late ticks").
+POLL_GROUPS = 4
+# The recorder's reader history: samples a 1 kHz topic may send between two takes of it, with room
+# for the recorder's loop to run late (16 ms between takes, up to 10 periods of catch-up, a few
+# milliseconds of a busy machine; measured here: up to 40 ms late with one process per node).
+RECORDER_DEPTH = 200
 END_TOLERANCE_TICKS = 20  # header.stamp right after the 4-byte CDR encapsulation header
 
 
@@ -111,7 +119,10 @@ class Recorder(LiveNode):
             )
         self.grid_ns = round(self.cfg.scene.period_s * 1e9)  # the scene's tick grid
         self._specs = topic_specs()
-        self._queues: dict[str, list[tuple[int, bytes]]] = {}
+        # Per topic, what was taken and not yet decoded: times (ns) and raw bytes in two lists, not
+        # (time, bytes) tuples: ints and bytes are no work for the garbage collector, thousands of
+        # live tuples a second would be (each collection pauses every loop of the process).
+        self._queues: dict[str, tuple[list[int], list[bytes]]] = {}
         self._subs: dict[str, Any] = {}
         self._series: dict[str, _Series] = {}
         from sensor_msgs.msg import JointState
@@ -124,19 +135,21 @@ class Recorder(LiveNode):
             self._series[topic] = _Series(1)  # value: arrival index
         self._packets: dict[str, list[np.ndarray]] = {d: [] for d in PACKETS.values()}
         for topic in list(STATE_COLUMNS) + list(RECEIVED) + list(PACKETS):
-            q: list[tuple[int, bytes]] = []
-            self._queues[topic] = q
+            self._queues[topic] = ([], [])
             if topic in PACKETS:
                 msg_type, qos = Float64MultiArray, reliable_qos(100)
             elif topic in RECEIVED:
-                msg_type, qos = JointState, stream_qos(READER_DEPTH)
+                msg_type, qos = JointState, stream_qos(RECORDER_DEPTH)
             else:
-                msg_type, qos = self._ros_type(types[topic]), stream_qos(READER_DEPTH)
+                msg_type, qos = self._ros_type(types[topic]), stream_qos(RECORDER_DEPTH)
             self._subs[topic] = self.create_polled_subscription(msg_type, topic, qos, raw=True)
         self.received_count = {t: 0 for t in self._queues}
         self._closed = False
-        # Take every TAKE_EVERY ticks (the reader history holds READER_DEPTH samples meanwhile).
+        topics = list(self._subs)
+        self._poll_groups = [topics[i::POLL_GROUPS] for i in range(POLL_GROUPS)]
+        # A decoding round (one topic per tick) starts four times a second.
         self._decode_every = max(1, round(0.25 / (self.cfg.scene.period_s * TAKE_EVERY)))
+        self._to_decode: list[str] = []
         self.setup_loop(self.grid_ns * TAKE_EVERY)
         self.get_logger().info(f"recording to {self.bag_dir}")
 
@@ -148,48 +161,55 @@ class Recorder(LiveNode):
         return getattr(importlib.import_module(f"{pkg}.msg"), cls)
 
     def tick(self, index: int, stamp_ns: int) -> None:
-        self._take()
-        if index % self._decode_every == 0:
-            self._drain()
+        self._take(self._poll_groups[index % POLL_GROUPS])
+        if index % self._decode_every == 0 and not self._to_decode:
+            self._to_decode = list(self._queues)
+        if self._to_decode:
+            self._drain_topic(self._to_decode.pop())
 
-    def _take(self) -> None:
+    def _take(self, topics: list[str] | None = None) -> None:
+        """Take what `topics` (default: all) hold into their queues."""
+        queues = self._queues
+        subs = self._subs
         if self.simulated_time:  # source timestamps are wall time: use the take time on /clock
             now = self.now_ns()
-            for topic, sub in self._subs.items():
-                raws = take_all(sub)
+            for topic in topics if topics is not None else list(subs):
+                raws = take_all(subs[topic])
                 if raws:
-                    self._queues[topic].extend((now, r) for r in raws)
+                    times, q = queues[topic]
+                    times.extend([now] * len(raws))
+                    q.extend(raws)
             return
         # The publisher's write time: for /<dir>/received that is the buffer's release time,
         # for the EBA arrays (no header) the tick that produced them; not when this loop took them.
-        for topic, sub in self._subs.items():
-            got = take_all_published_ns(sub)
-            if got:
-                self._queues[topic].extend(got)
+        for topic in topics if topics is not None else list(subs):
+            times, q = queues[topic]
+            take_all_published_ns(subs[topic], times, q)
 
     def _drain(self) -> None:
+        for topic in self._queues:
+            self._drain_topic(topic)
+
+    def _drain_topic(self, topic: str) -> None:
+        """Decode what `topic`'s queue holds onto its series."""
         period = self.grid_ns
-        for topic, q in self._queues.items():
-            n = len(q)
-            if n == 0:
-                continue
-            items = q[:n]
-            del q[:n]
-            self.received_count[topic] += n
-            recv = np.fromiter((t for t, _ in items), dtype=np.int64, count=n)
-            if topic in PACKETS:
-                self._decode_packets(PACKETS[topic], [r for _, r in items])
-            elif topic in RECEIVED:
-                stamps = np.fromiter(
-                    (_stamp_ns(_STAMP.unpack_from(r, 4)) for _, r in items),
-                    dtype=np.int64,
-                    count=n,
-                )
-                self._series[topic].add(stamps // period, (recv // period).reshape(-1, 1).astype(np.float64))
-            else:
-                vals, stamps = self._decode_fixed(topic, [r for _, r in items])
-                idx = (stamps if stamps is not None else recv) // period
-                self._series[topic].add(idx, vals)
+        times, q = self._queues[topic]
+        n = len(q)
+        if n == 0:
+            return
+        raws = q[:n]
+        recv = np.array(times[:n], dtype=np.int64)
+        del q[:n], times[:n]
+        self.received_count[topic] += n
+        if topic in PACKETS:
+            self._decode_packets(PACKETS[topic], raws)
+        elif topic in RECEIVED:
+            stamps = np.fromiter((_stamp_ns(_STAMP.unpack_from(r, 4)) for r in raws), dtype=np.int64, count=n)
+            self._series[topic].add(stamps // period, (recv // period).reshape(-1, 1).astype(np.float64))
+        else:
+            vals, stamps = self._decode_fixed(topic, raws)
+            idx = (stamps if stamps is not None else recv) // period
+            self._series[topic].add(idx, vals)
 
     def _decode_fixed(self, topic: str, raws: list[bytes]) -> tuple[np.ndarray, np.ndarray | None]:
         layout = self._specs[topic].layout
