@@ -7,6 +7,7 @@ from typing import Any
 
 ROWS = (
     ("realtime_factor", "real-time factor (sim s / wall s)", "{:.1f}"),
+    ("engine_loop", "tick loop", "{}"),
     ("force_rms_error_n", "force RMS error, felt vs wall, aligned (N)", "{:.4f}"),
     ("force_peak_error_n", "force peak error, aligned (N)", "{:.4f}"),
     ("force_rms_error_unaligned_n", "force RMS error, not aligned (N)", "{:.4f}"),
