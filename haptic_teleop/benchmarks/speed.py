@@ -308,7 +308,7 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     print(f"bare mj_step, master + slave, from Python  {bare:8.2f} us  ({m_us:.2f} + {s_us:.2f})")
     if compiled_bare is not None:
         print(
-            f"bare mj_step, master + slave, compiled     {compiled_bare:8.2f} us  (no interpreter, timers off; in contact every step)"
+            f"bare mj_step, master + slave, compiled     {compiled_bare:8.2f} us  (timers off, in contact every step)"
         )
     if "compiled" in figures and compiled_bare is not None:
         print(f"compiled tick / bare compiled mj_step      {figures['compiled']['tick_us'] / compiled_bare:8.2f} x")
