@@ -186,7 +186,9 @@ class Engine:
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
             self._kernel = fastloop.kernel()
-            self._compiled_call(0, 0, np.zeros((1, len(COLUMNS))))  # compile or load now, not in the timed loop
+            assert self._kernel is not None  # compiled_reason is None only with a kernel
+            # Compile (or load from numba's cache) now, not in the timed loop: zero ticks.
+            self._kernel(0, 0, *self._kernel_args(None, None, 1), np.zeros((1, len(COLUMNS))))
 
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
         """Fresh links and playout buffers for both directions, as the scene names them."""
@@ -359,24 +361,23 @@ class Engine:
             interrupted=n < n_ticks,
         )
 
-    def _compiled_call(self, start: int, stop: int, data: np.ndarray) -> None:
-        """Run ticks [start, stop) in the compiled loop (fastloop.run_ticks), on the arrays set up
-        by `_compiled_loop` (or on empty stand-ins, to compile it)."""
+    def _kernel_args(
+        self, fwd: fastloop.DirectionSchedule | None, bwd: fastloop.DirectionSchedule | None, ticks: int
+    ) -> tuple[object, ...]:
+        """The compiled loop's arguments after the tick range, before `data` (fastkernel.run_ticks):
+        the plants' MuJoCo arrays, both schedules (None: none released, to compile the loop),
+        the senders' histories, the parameters and a fresh state vector (last)."""
         from haptic_teleop import fastloop
 
-        a = getattr(self, "_compiled_args", None)
-        if a is None:
-            empty = np.zeros(1, dtype=np.int64)
-            a = (
-                fastloop.model_addresses(self),
-                self.master.data.qpos, self.master.data.qvel, self.master.data.ctrl,  # type: ignore[attr-defined]
-                self.slave.data.qpos, self.slave.data.qvel, self.slave.data.ctrl,  # type: ignore[attr-defined]
-                self.slave.data.qfrc_constraint,  # type: ignore[attr-defined]
-                empty, np.zeros(1), empty, np.zeros(1), np.zeros((1, 2)), np.zeros((1, 3)),
-                fastloop.parameters(self), fastloop.initial_state(self),
-            )  # fmt: skip
-        assert self._kernel is not None
-        self._kernel(start, stop, *a, data)
+        m, s = self.master.data, self.slave.data  # type: ignore[attr-defined]
+        none = fastloop.DirectionSchedule(np.full(ticks, -1, dtype=np.int64), np.zeros(ticks), [], True)
+        fwd, bwd = fwd or none, bwd or none
+        return (
+            fastloop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint,
+            fwd.released_seq, fwd.occupancy, bwd.released_seq, bwd.occupancy,
+            np.zeros((ticks, 2)), np.zeros((ticks, 3)),
+            fastloop.parameters(self), fastloop.initial_state(self),
+        )  # fmt: skip
 
     def _compiled_loop(
         self, progress: Callable[[int], None] | None, on_block: Callable[[np.ndarray, int], None] | None
@@ -390,31 +391,24 @@ class Engine:
         # The network's decisions for the whole run first: they do not depend on payloads.
         fwd = fastloop.schedule(self.forward, self.forward_buffer, n_ticks, period_ns, self._sizes[0])
         bwd = fastloop.schedule(self.backward, self.backward_buffer, n_ticks, period_ns, self._sizes[1])
-        S = fastloop.initial_state(self)
-        self._compiled_args = (
-            fastloop.model_addresses(self),
-            self.master.data.qpos, self.master.data.qvel, self.master.data.ctrl,  # type: ignore[attr-defined]
-            self.slave.data.qpos, self.slave.data.qvel, self.slave.data.ctrl,  # type: ignore[attr-defined]
-            self.slave.data.qfrc_constraint,  # type: ignore[attr-defined]
-            fwd.released_seq, fwd.occupancy, bwd.released_seq, bwd.occupancy,
-            np.zeros((n_ticks, 2)), np.zeros((n_ticks, 3)),
-            fastloop.parameters(self), S,
-        )  # fmt: skip
+        args = self._kernel_args(fwd, bwd, n_ticks)
+        S = args[-1]
+        run_ticks = self._kernel
+        assert run_ticks is not None
         done = 0
         try:
-            while done < n_ticks:
-                stop = min(done + COMPILED_CHUNK_TICKS, n_ticks)
-                with fastloop.mujoco_timers_off():
-                    self._compiled_call(done, stop, data)
-                done = self.ticks_done = stop
-                if progress is not None and done % 100 == 0:
-                    progress(done)
-                if on_block is not None and done % BLOCK_TICKS == 0:
-                    on_block(data, done)
-                if self._stop:
-                    break
+            with fastloop.mujoco_timers_off():
+                while done < n_ticks:
+                    stop = min(done + COMPILED_CHUNK_TICKS, n_ticks)
+                    run_ticks(done, stop, *args, data)
+                    done = self.ticks_done = stop
+                    if progress is not None and done % 100 == 0:
+                        progress(done)
+                    if on_block is not None and done % BLOCK_TICKS == 0:
+                        on_block(data, done)
+                    if self._stop:
+                        break
         finally:
-            self._compiled_args = None
             fastloop.store_state(self, S)
             self._packets = self._packets_after(fwd, bwd, done)
             self.master.close()

@@ -2,7 +2,7 @@
 
 Each case runs a scene in both loops and compares every recorded column, every packet record,
 the guards' rejection counts and the controllers' final state. The cases cover what the compiled
-loop takes: both laws, EBA on and off, the three operator profiles, substeps, gravity, zero
+loop takes: both laws, EBA on and off, the three operator profiles, saturating controllers, substeps, gravity, zero
 delay, the vectorized network (constant delay, uncorrelated loss, blackouts, policy `none`) and
 the network ticked through the Python objects (bursty loss, jitter with reordering, every
 scheduled buffer policy).
@@ -28,6 +28,7 @@ CASES = {
     "force_law_loss": ("wall_contact", ["controllers.master.law=force", f"{FWD}.effects.loss.probability=0.2"]),
     "eba_off_stiff": ("stiff_wall", ["controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false"]),
     "substeps": ("wall_contact", ["simulation.substeps=3"]),
+    "saturation": ("wall_contact", ["controllers.master.force_limit_n=0.5", "controllers.slave.force_limit_n=2.0"]),
     "gravity": ("wall_contact", ["master.effects.gravity.incline_deg=10", "slave.effects.gravity.incline_deg=-5"]),
     "zero_delay": ("wall_contact", [f"{FWD}.effects.delay.delay_s=0", f"{BWD}.effects.delay.delay_s=0.0005"]),
     "blackout": ("blackout", ["scene.duration_s=4.0"]),
