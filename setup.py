@@ -11,6 +11,9 @@ PACKAGE = "haptic_teleop"
 # read without importing the package (it needs numpy and friends, which may not be installed yet).
 NODES = runpy.run_path(str(Path(__file__).parent / PACKAGE / "nodes" / "__init__.py"))["EXECUTABLES"]
 
+SCENES, MODELS = "scenes/*.yaml", "models/*.xml"  # inside the package folder
+DATA = [SCENES, MODELS]
+
 STANDALONE = [
     # rclpy and the standard message packages as PyPI wheels, for machines without a ROS 2 install.
     "ros-kilted-rclpy[fastrtps]>=9.1",
@@ -25,13 +28,16 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["py.typed"]},
+    # The bundled scenes and models live once, inside the package, so every install (wheel, sdist,
+    # editable, colcon) carries them next to the code (found by haptic_teleop/resources.py) ...
+    package_data={PACKAGE: ["py.typed", *DATA]},
+    # ... and a ROS 2 install also has them where ROS 2 tools look: share/haptic_teleop/...
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/launch", glob("launch/*_launch.py")),
-        (f"share/{PACKAGE}/config/scenes", glob("config/scenes/*.yaml")),
-        (f"share/{PACKAGE}/models", glob("models/*.xml")),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*_launch.py"))),
+        (f"share/{PACKAGE}/config/scenes", sorted(glob(f"{PACKAGE}/{SCENES}"))),
+        (f"share/{PACKAGE}/models", sorted(glob(f"{PACKAGE}/{MODELS}"))),
     ],
     python_requires=">=3.10",
     install_requires=[
@@ -57,7 +63,7 @@ setup(
             "ros-ament-package>=0.17",
         ],
     },
-    zip_safe=True,
+    zip_safe=False,  # MuJoCo reads the models (and their includes) from files
     maintainer="haptic_teleop maintainers",
     maintainer_email="haptic-teleop@example.org",
     description="Bilateral haptic teleoperation over imperfect networks (EBA, network shaping, playout).",

@@ -278,7 +278,7 @@ WALL_STEP_LIMIT = math.sqrt(2.0)  # largest stable omega * h of the wall contact
 
 @dataclass(frozen=True)
 class Scene:
-    """A whole scene. Every default here is the default scene (config/scenes/wall_contact.yaml)."""
+    """A whole scene. Every default here is the default scene (haptic_teleop/scenes/wall_contact.yaml)."""
 
     scene: RunConfig = field(default_factory=RunConfig)
     operator: OperatorConfig = field(default_factory=OperatorConfig)
@@ -444,22 +444,16 @@ def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None
 
 
 def scenes_dir() -> Path:
-    here = Path(__file__).resolve()
-    cand = here.parents[1] / "config" / "scenes"
-    if cand.is_dir():
-        return cand
-    try:
-        from ament_index_python.packages import get_package_share_directory
+    """The bundled scenes' folder, wherever the package is installed (haptic_teleop.resources)."""
+    from haptic_teleop.resources import scenes_dir as bundled
 
-        return Path(get_package_share_directory("haptic_teleop")) / "config" / "scenes"
-    except Exception:  # noqa: BLE001
-        return cand
+    return bundled()
 
 
 def find_scene(name: str) -> Path:
     """A path, or the name of a bundled scene (`wall_contact` or `wall_contact.yaml`)."""
     p = Path(name)
-    if p.exists():
+    if p.is_file():
         return p
     stem = p.name if p.suffix else p.name + ".yaml"
     cand = scenes_dir() / stem

@@ -1,5 +1,6 @@
 """colcon build of this package into a temporary directory: the install tree a ROS 2 user gets."""
 
+import json
 import os
 import shutil
 import subprocess
@@ -38,17 +39,27 @@ def test_install_tree_has_executables_launch_config_models(install):
     share = install / "share" / "haptic_teleop"
     assert (share / "package.xml").is_file()
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "haptic_teleop").is_file()
-    for folder, pattern in (("launch", "*_launch.py"), ("config/scenes", "*.yaml"), ("models", "*.xml")):
-        want = sorted(p.name for p in (ROOT / folder).glob(pattern))
+    for source, folder, pattern in (
+        ("launch", "launch", "*_launch.py"),
+        ("haptic_teleop/scenes", "config/scenes", "*.yaml"),
+        ("haptic_teleop/models", "models", "*.xml"),
+    ):
+        want = sorted(p.name for p in (ROOT / source).glob(pattern))
         got = sorted(p.name for p in (share / folder).glob(pattern))
         assert want and got == want, f"{folder}: {got} != {want}"
 
 
-def test_installed_package_finds_its_share_files(install):
-    """Run from the install tree alone (not the source tree): scenes and models come from share/."""
+def _install_env(install: Path) -> tuple[Path, dict[str, str]]:
+    """The install's site-packages and the environment `source install/setup.bash` gives (in short)."""
     site = next((install / "lib").glob("python3*/site-packages"))
     env = dict(os.environ, PYTHONPATH=str(site), AMENT_PREFIX_PATH=str(install))
     env.pop("HAPTIC_TELEOP_MODELS", None)
+    return site, env
+
+
+def test_installed_package_finds_its_share_files(install):
+    """Run from the install tree alone (not the source tree): scenes and models come from share/."""
+    site, env = _install_env(install)
     code = (
         "import haptic_teleop, sys;"
         "from haptic_teleop.scene import scenes_dir;"
@@ -63,3 +74,15 @@ def test_installed_package_finds_its_share_files(install):
     assert Path(scenes) == share / "config" / "scenes"
     assert Path(models) == share / "models"
     assert (Path(scenes) / "wall_contact.yaml").is_file()
+
+
+def test_installed_executable_runs_a_bundled_scene_from_another_directory(install, tmp_path):
+    """`haptic-teleop run wall_contact` from the colcon install, in a directory that is not the checkout."""
+    _, env = _install_env(install)
+    out = tmp_path / "out"
+    cmd = [str(install / "lib" / "haptic_teleop" / "haptic-teleop"), "run", "wall_contact",
+           "--set", "scene.duration_s=0.2", "--out", str(out), "--no-plots"]  # fmt: skip
+    r = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert json.loads((out / "summary.json").read_text())["packets_sent_forward"] > 0
+    assert (out / "bag" / "metadata.yaml").is_file()

@@ -1,15 +1,14 @@
 """MuJoCo backends: the master haptic device and the slave robot touching a wall.
 
 `mujoco` is imported here, not at package import. Model files live in the package's `models/`
-folder (robot and scene in separate files, the scene includes the robot). Scene values (mass,
-damping, wall position, stiffness, damping) are written into the compiled model, so one MJCF
-serves every scene.
+folder (found by haptic_teleop.resources; robot and scene in separate files, the scene includes
+the robot by a relative path). Scene values (mass, damping, wall position, stiffness, damping)
+are written into the compiled model, so one MJCF serves every scene.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,26 +18,15 @@ INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 
 
 def models_dir() -> Path:
-    """The installed or source-tree `models/` folder."""
-    env = os.environ.get("HAPTIC_TELEOP_MODELS")
-    if env:
-        return Path(env)
-    here = Path(__file__).resolve()
-    for cand in (here.parents[2] / "models", here.parents[1] / "models"):
-        if cand.is_dir():
-            return cand
-    try:  # installed with colcon / ament: share/haptic_teleop/models
-        from ament_index_python.packages import get_package_share_directory
+    """The bundled models' folder, wherever the package is installed (haptic_teleop.resources)."""
+    from haptic_teleop.resources import models_dir as bundled
 
-        return Path(get_package_share_directory("haptic_teleop")) / "models"
-    except Exception:  # noqa: BLE001 - any failure means "not installed that way"
-        pass
-    return here.parents[2] / "models"
+    return bundled()
 
 
 def resolve_model(name: str) -> Path:
     p = Path(name)
-    if p.is_absolute() or p.exists():
+    if p.is_absolute() or p.is_file():
         return p
     cand = models_dir() / p.name
     if cand.exists():

@@ -1,0 +1,67 @@
+"""Where the bundled scenes and MuJoCo models are, however the package was installed.
+
+The files live once, inside the package (`haptic_teleop/scenes/*.yaml`, `haptic_teleop/models/*.xml`),
+so a wheel or sdist install carries them next to the code and finds them from any directory. The
+same files are also installed as ROS 2 share data (`share/haptic_teleop/config/scenes`,
+`share/haptic_teleop/models`, see setup.py): when the ament index knows this package and this very
+module was installed under that prefix (a colcon install), the share folders are used; otherwise
+(a wheel in a venv, an editable or `colcon build --symlink-install` install, or an ament index that
+holds another copy of the package) the package's own folders are. `HAPTIC_TELEOP_MODELS` names
+another models folder.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE = "haptic_teleop"
+PACKAGE_DIR = Path(__file__).resolve().parent
+# kind -> (folder inside the package, folder inside share/haptic_teleop)
+FOLDERS = {"scenes": ("scenes", "config/scenes"), "models": ("models", "models")}
+MODELS_ENV = "HAPTIC_TELEOP_MODELS"
+
+
+def ament_share() -> Path | None:
+    """`share/haptic_teleop` of the ament install this module belongs to, or None.
+
+    None when ament_index_python is missing, the index does not know the package, or the index's
+    copy is not the one running (another prefix): its files could be another version's."""
+    try:
+        from ament_index_python.packages import get_package_prefix, get_package_share_directory
+    except ImportError:
+        return None
+    try:
+        prefix = Path(get_package_prefix(PACKAGE)).resolve()
+        share = Path(get_package_share_directory(PACKAGE))
+    except (LookupError, OSError, ValueError):  # not indexed, AMENT_PREFIX_PATH unset, bad name
+        return None
+    if not PACKAGE_DIR.is_relative_to(prefix):
+        return None
+    return share
+
+
+def _folder(kind: str) -> Path:
+    inside, shared = FOLDERS[kind]
+    share = ament_share()
+    if share is not None and (share / shared).is_dir():
+        return share / shared
+    return PACKAGE_DIR / inside
+
+
+def scenes_dir() -> Path:
+    """The folder of the bundled scene files (`wall_contact.yaml`, ...)."""
+    return _folder("scenes")
+
+
+def models_dir() -> Path:
+    """The folder of the bundled MJCF models (`$HAPTIC_TELEOP_MODELS` if set)."""
+    env = os.environ.get(MODELS_ENV)
+    if env:
+        return Path(env)
+    return _folder("models")
+
+
+def bundled_scenes() -> list[str]:
+    """Names of the bundled scenes, sorted (what `haptic-teleop run NAME` accepts)."""
+    return sorted(p.stem for p in scenes_dir().glob("*.yaml"))
