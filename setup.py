@@ -40,12 +40,15 @@ setup(
         (f"share/{PACKAGE}/models", sorted(glob(f"{PACKAGE}/{MODELS}"))),
     ],
     python_requires=">=3.10",
+    # Lower bounds: the oldest releases this package was tested with (README, "Install"). numpy 1.25:
+    # Generator.spawn; mujoco 3.3.6: mjtDisableBit.mjDSBL_ISLAND; numba 0.60: numpy 2 support.
+    # mujoco, rosbags and numba have no usable rosdep key: a ROS 2 workspace installs them with pip.
     install_requires=[
-        "numpy>=1.24",
+        "numpy>=1.25",
         "pyyaml>=6.0",
-        "mujoco>=3.1",
+        "mujoco>=3.3.6",
         "rosbags>=0.10.4",
-        "matplotlib>=3.7",
+        "matplotlib>=3.6",
         "tqdm>=4.64",
         # the engine's compiled loop (haptic_teleop/fastloop.py); without it the Python loop runs
         "numba>=0.60",

@@ -74,6 +74,9 @@ def test_installed_package_finds_its_share_files(install):
     assert Path(scenes) == share / "config" / "scenes"
     assert Path(models) == share / "models"
     assert (Path(scenes) / "wall_contact.yaml").is_file()
+    # the package's own copies too (used when the ament index points at another install)
+    assert (site / "haptic_teleop" / "scenes" / "wall_contact.yaml").is_file()
+    assert (site / "haptic_teleop" / "models" / "wall_scene.xml").is_file()
 
 
 def test_installed_executable_runs_a_bundled_scene_from_another_directory(install, tmp_path):

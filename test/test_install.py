@@ -8,8 +8,10 @@ backend. The checkout must not be importable from the venv: the test checks wher
 
 from __future__ import annotations
 
+import ast
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -163,3 +165,35 @@ def test_ament_share_is_used_only_for_this_install(tmp_path, monkeypatch):
     assert resources.models_dir() == other / "share" / "haptic_teleop" / "models"
     monkeypatch.setenv("HAPTIC_TELEOP_MODELS", str(tmp_path))
     assert resources.models_dir() == tmp_path
+
+
+def _install_requires() -> dict[str, str]:
+    """setup.py's install_requires, name -> requirement, read without running setup()."""
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.keyword) and node.arg == "install_requires":
+            reqs = ast.literal_eval(node.value)
+            return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower(): r for r in reqs}
+    raise AssertionError("setup.py has no install_requires")
+
+
+def test_readme_ros2_pip_command_has_the_bounds_of_setup_py():
+    """The README's pip line for a ROS 2 workspace installs what rosdep cannot, with setup.py's bounds."""
+    requires = _install_requires()
+    lines = [line for line in (ROOT / "README.md").read_text().splitlines() if line.startswith("venv/bin/pip install ")]
+    assert len(lines) == 1, lines
+    specs = re.findall(r"'([^']+)'", lines[0])
+    by_name = {re.split(r"[<>=!~\[; ]", s, maxsplit=1)[0].lower(): s for s in specs}
+    assert set(by_name) == {"mujoco", "rosbags", "numba"}, specs
+    for name, spec in by_name.items():
+        assert spec.replace(" ", "") == requires[name].replace(" ", ""), f"README {spec!r}, setup.py {requires[name]!r}"
+    # everything else in install_requires has a rosdep key declared in package.xml
+    declared = set(re.findall(r"<exec_depend>([^<]+)</exec_depend>", (ROOT / "package.xml").read_text()))
+    keys = {
+        "numpy": "python3-numpy",
+        "pyyaml": "python3-yaml",
+        "matplotlib": "python3-matplotlib",
+        "tqdm": "python3-tqdm",
+    }
+    assert set(requires) - set(by_name) == set(keys), sorted(requires)
+    assert set(keys.values()) <= declared, sorted(declared)
