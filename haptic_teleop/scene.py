@@ -512,6 +512,21 @@ def _resolve_traces(config: Scene, base: Path, source: str) -> Scene:
     return dataclasses.replace(config, network=dataclasses.replace(net, **dirs))
 
 
+def _check_models(config: Scene, source: str) -> None:
+    """The plants' model files exist (a path, or a bundled model's name): found now, not when a
+    plant is built after the outputs were opened."""
+    from haptic_teleop.errors import PlantError
+    from haptic_teleop.plants.mujoco_plant import models_dir, resolve_model
+
+    for side in ("master", "slave"):
+        name = getattr(config, side).model
+        try:
+            resolve_model(name)
+        except (PlantError, OSError, ValueError):  # ValueError: a NUL in the name
+            allowed = f"no such model file; allowed: a MuJoCo XML path, or a bundled model's name (in {models_dir()})"
+            raise ConfigError(source, f"{side}.model", name, allowed) from None
+
+
 def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None = None) -> LoadedScene:
     """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed.
 
@@ -537,6 +552,7 @@ def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None
     raw = apply_overrides(raw, ovs)
     try:
         config = build(Scene, raw, "", source)
+        _check_models(config, source)
     except ConfigError as exc:
         raise _blame(exc, ovs) from None
     config = _resolve_traces(config, p.parent, source)

@@ -173,6 +173,9 @@ _values = st.recursive(
 )
 
 
+_EDGES = [10**400, -(10**400), 5e-324, -5e-324, 1e308, float("nan"), float("inf"), 2**63, -1, 0, "", [], {}, None]
+
+
 def _mutated_default(draw_path: list[str], value: object) -> dict:
     data = _base()
     node = data
@@ -188,6 +191,7 @@ _scene_paths = st.sampled_from([path.split(".") for path, _, _ in describe(Scene
 _documents = st.one_of(
     _values.map(yaml.safe_dump),
     st.builds(_mutated_default, _scene_paths, _values).map(yaml.safe_dump),
+    st.builds(_mutated_default, _scene_paths, st.sampled_from(_EDGES)).map(yaml.safe_dump),  # one leaf, an edge
     st.text(max_size=200),  # mostly not YAML at all
     st.binary(max_size=100).map(lambda b: b.decode("latin-1")),
 )
