@@ -112,6 +112,41 @@ def test_a_second_signal_aborts_at_once_without_a_traceback(tmp_path):
     assert not list(out.glob(".*.tmp"))
 
 
+def _popen_until_phase(argv: list[str], phase: str) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONUNBUFFERED="1", HAPTIC_TELEOP_TEST_PAUSE=phase)
+    p = subprocess.Popen([*CLI, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    assert p.stderr is not None
+    seen = []
+    for line in p.stderr:
+        seen.append(line)
+        if f"haptic-teleop: phase {phase}" in line:
+            return p
+    p.kill()
+    pytest.fail(f"no phase line {phase!r}; stderr: {''.join(seen)}")
+
+
+def test_sigint_in_a_sweep_keeps_the_runs_done(tmp_path):
+    out = tmp_path / "sweep"
+    argv = ["sweep", "wall_contact", "--set", "scene.duration_s=0.3", "--param", "scene.seed=1,2,3", "--out", str(out)]
+    p = _popen_until_phase([*argv, "--no-plots"], "sweep-run")  # after the first run
+    p.send_signal(signal.SIGINT)
+    _, stderr = p.communicate(timeout=240)
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr and "sweep interrupted after 1 of 3 runs" in stderr
+    assert len((out / "sweep.csv").read_text().splitlines()) == 2  # header and the one run done
+    assert sorted(d.name for d in (out / "runs").iterdir()) == ["000-seed1"]
+
+
+def test_sigterm_in_analyze_still_writes_the_summary(tmp_path, small_bag):
+    out = tmp_path / "an"
+    p = _popen_until_phase(["analyze", str(small_bag), "--out", str(out), "--no-plots"], "summary")
+    p.send_signal(signal.SIGTERM)
+    _, stderr = p.communicate(timeout=240)
+    assert p.returncode == 143, stderr
+    assert "Traceback" not in stderr
+    assert json.loads((out / "summary.json").read_text())["interrupted"] is False
+
+
 # --- bad input: exit 2, one line naming the problem, no traceback ---------------------------------
 
 
