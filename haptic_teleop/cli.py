@@ -289,16 +289,21 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
+    command = None
     try:
         interrupt.pause_for_test("startup")
         args = build_parser().parse_args(argv)
+        command = args.command
         code = int(args.func(args))
     except interrupt.Interrupted as exc:
-        name = "SIGINT" if exc.signum == 2 else "SIGTERM" if exc.signum == 15 else f"signal {exc.signum}"
+        name = str(exc)
         if exc.abort:
             print("haptic-teleop: aborted by a second signal; outputs being written may be incomplete", file=sys.stderr)
-        else:
+        elif command in (None, "run", "analyze", "sweep", "scenes"):
+            # these commands enter interrupt.finishing() before their first write
             print(f"haptic-teleop: interrupted ({name}) before anything was written", file=sys.stderr)
+        else:
+            print(f"haptic-teleop: interrupted ({name})", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:  # a SIGINT before the handler was installed, or raised by a library
         print("haptic-teleop: interrupted", file=sys.stderr)

@@ -73,7 +73,7 @@ def _handler(signum: int, frame: FrameType | None) -> None:
     for stop in list(_state.stop_callbacks):
         stop()
     if _state.finishing:
-        _say(f"{name}: stopping; the bag, summary and plots of what ran are still written (again to abort now)")
+        _say(f"{name}: stopping; what ran is still written (bag, summary, plots); a second signal aborts now")
         return
     raise Interrupted(signum)
 
