@@ -477,20 +477,31 @@ def _read_trace(path: Path, source: str, key: str) -> tuple[tuple[float, ...], t
         raise ConfigError(source, key, str(path), "allowed: an existing CSV file with columns time_s,position_m")
     ts: list[float] = []
     xs: list[float] = []
-    with path.open(newline="") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            if not row or row[0].lstrip().startswith("#"):
-                continue
-            try:
-                t, x = float(row[0]), float(row[1])
-            except (ValueError, IndexError):
-                if lineno == 1:
-                    continue  # header
-                raise ConfigError(f"{path}:{lineno}", key, row, "allowed: two numbers time_s,position_m") from None
-            if ts and t <= ts[-1]:
-                raise ConfigError(f"{path}:{lineno}", key, row, "allowed: strictly increasing time_s")
-            ts.append(t)
-            xs.append(x)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise ConfigError(source, key, str(path), f"cannot be read ({exc.strerror}); allowed: a readable CSV") from None
+    except UnicodeDecodeError:
+        raise ConfigError(source, key, str(path), "not UTF-8 text; allowed: a CSV file time_s,position_m") from None
+    try:
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as exc:
+        raise ConfigError(source, key, str(path), f"not a CSV ({exc}); allowed: rows time_s,position_m") from None
+    for lineno, row in enumerate(rows, start=1):
+        if not row or row[0].lstrip().startswith("#"):
+            continue
+        try:
+            t, x = float(row[0]), float(row[1])
+        except (ValueError, IndexError):
+            if lineno == 1:
+                continue  # header
+            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: two numbers time_s,position_m") from None
+        if not (math.isfinite(t) and math.isfinite(x)):
+            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: finite numbers time_s,position_m")
+        if ts and t <= ts[-1]:
+            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: strictly increasing time_s")
+        ts.append(t)
+        xs.append(x)
     if len(ts) < 2:
         raise ConfigError(source, key, str(path), "allowed: a CSV with at least two rows time_s,position_m")
     return tuple(ts), tuple(xs)

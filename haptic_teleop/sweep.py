@@ -90,9 +90,11 @@ def parse_seeds(text: str | None) -> list[int] | None:
         try:
             seed = int(part)
         except ValueError:
-            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers >= 0") from None
-        if seed < 0:
-            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers >= 0")
+            raise ConfigError(
+                "--seeds", "scene.seed", part, "allowed: comma-separated integers from 0 to 2**63 - 1"
+            ) from None
+        if not 0 <= seed <= 2**63 - 1:
+            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers from 0 to 2**63 - 1")
         seeds.append(seed)
     if len(set(seeds)) != len(seeds):
         raise ConfigError("--seeds", "scene.seed", text, "allowed: each seed once")

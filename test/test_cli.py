@@ -394,3 +394,19 @@ def test_the_saved_scene_finds_relative_trace_files_from_anywhere(tmp_path):
     saved.write_text(first.to_yaml())
     again = load_scene(saved)
     assert again.operator_trace == first.operator_trace and again.to_yaml() == first.to_yaml()
+
+
+@pytest.mark.parametrize(
+    ("content", "expect"),
+    [
+        (b"time_s,position_m\n0,0\n\xff\xfe,1\n", "not UTF-8"),
+        (b"0,0\n1,nan\n2,0.01\n", "finite numbers"),
+        (b"0,0\n1,0\x00\n", "two numbers"),
+    ],
+)
+def test_a_bad_operator_trace_file_is_a_config_error(tmp_path, capsys, content, expect):
+    (tmp_path / "hand.csv").write_bytes(content)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("operator: {profile: trace, trace_file: hand.csv}\n")
+    code, err = _main_err(capsys, ["run", str(scene), "--dry-run"])
+    assert code == 2 and expect in _one_line(err)
