@@ -1,4 +1,4 @@
-"""`haptic-teleop run | analyze | bench`: the command line."""
+"""`haptic-teleop run | analyze | sweep | scenes | bench | launch`: the command line."""
 
 from __future__ import annotations
 

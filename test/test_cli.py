@@ -410,3 +410,16 @@ def test_a_bad_operator_trace_file_is_a_config_error(tmp_path, capsys, content, 
     scene.write_text("operator: {profile: trace, trace_file: hand.csv}\n")
     code, err = _main_err(capsys, ["run", str(scene), "--dry-run"])
     assert code == 2 and expect in _one_line(err)
+
+
+def test_version_falls_back_to_the_package_version_when_not_installed(monkeypatch):
+    import importlib.metadata
+
+    from haptic_teleop import __version__
+    from haptic_teleop.cli import package_version
+
+    def missing(name):
+        raise importlib.metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(importlib.metadata, "version", missing)
+    assert package_version() == __version__
