@@ -107,8 +107,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stdout.write(resolved)
         return EXIT_OK
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
+    from haptic_teleop.engine import record_run  # before the directory is made: a signal here leaves nothing
+
     check_out_dir(out)
-    from haptic_teleop.engine import record_run
 
     # From here on the outputs exist: a first Ctrl-C / SIGTERM stops the loop and the rest is
     # still written; a second one aborts (haptic_teleop/interrupt.py).
