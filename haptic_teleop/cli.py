@@ -1,21 +1,26 @@
-"""`haptic-teleop run | analyze | bench`: the command line."""
+"""`haptic-teleop run | analyze | sweep | scenes | bench | launch`: the command line."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
-from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError
+from haptic_teleop import interrupt
+from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, InputError
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 TIMING_FILE = "timing.json"
+SCENE_FILE = "scene.yaml"
 
 
 def _json_default(o: Any) -> Any:
@@ -26,10 +31,21 @@ def _clean(summary: dict[str, Any]) -> dict[str, Any]:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
 
 
+def write_atomic(path: Path, text: str) -> None:
+    """Write `text` to `path` through a temporary file and a rename: a reader (or an abort) never
+    sees half a file."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str, Any]:
-    """Analyse a bag: summary.json and plots/ in out_dir. Same code for `run` and `analyze`."""
+    """Analyse a bag: summary.json and plots/ in out_dir. Same code for `run` and `analyze`.
+
+    summary.json is written (whole, by a rename) before the plots start."""
     from haptic_teleop.analysis.metrics import analyze_bag
 
+    interrupt.pause_for_test("summary")
     summary, sig = analyze_bag(bag_dir)
     timing = Path(bag_dir).parent / TIMING_FILE
     if timing.is_file():
@@ -37,10 +53,11 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
         summary["realtime_factor"] = t["realtime_factor"]
         summary["engine_loop"] = t.get("loop", "python")
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
+    write_atomic(out_dir / "summary.json", json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
     if plots:
         from haptic_teleop.analysis.plots import write_plots
 
+        interrupt.pause_for_test("plots")
         write_plots(sig, out_dir / "plots")
     return summary
 
@@ -53,51 +70,99 @@ def default_out(scene_name: str) -> Path:
     return base / f"{scene_name}-{i:03d}"
 
 
+def check_out_dir(out: Path, empty: bool = True, flag: str = "--out") -> None:
+    """Fail now, before anything runs, when `out` cannot take the outputs: a file, not empty (when
+    `empty`), or not writable. Creates `out` (a probe file tells writable from not, also as root)."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{flag} {out}: is a file; allowed: a directory that does not exist yet or is empty")
+    if empty and out.is_dir() and any(out.iterdir()):
+        raise InputError(f"{flag} {out}: exists and is not empty; allowed: a new or empty directory")
+    existed = out.is_dir()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        if not existed and out.is_dir():
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        reason = exc.strerror or str(exc)
+        raise InputError(f"{flag} {out}: cannot write there ({reason}); allowed: a directory you can write") from None
+
+
+def _say(args: argparse.Namespace, text: str) -> None:
+    """Normal output (tables, paths): nothing with --quiet, which prints errors only."""
+    if not getattr(args, "quiet", False):
+        print(text)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from haptic_teleop.report import format_summary
     from haptic_teleop.scene import find_scene, load_scene
 
+    interrupt.pause_for_test("scene")
     scene = load_scene(find_scene(args.scene), overrides=args.set or (), seed=args.seed)
+    resolved = scene.to_yaml()
+    if args.dry_run:
+        sys.stdout.write(resolved)
+        return EXIT_OK
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
-    if out.exists() and any(out.iterdir()):
-        raise HapticTeleopError(f"output directory {out} exists and is not empty; choose another --out")
-    from haptic_teleop.engine import record_run
+    from haptic_teleop.engine import record_run  # before the directory is made: a signal here leaves nothing
 
-    total = int(round(scene.config.scene.duration_s / scene.config.scene.period_s))
-    bar = None
-    if not args.quiet:
-        from tqdm import tqdm
+    check_out_dir(out)
 
-        bar = tqdm(
-            total=total,
-            unit="tick",
-            unit_scale=True,
-            desc=scene.config.scene.name,
-            leave=False,
-            file=sys.stderr,
-            mininterval=0.2,
-        )
-    last = [0]
+    # From here on the outputs exist: a first Ctrl-C / SIGTERM stops the loop and the rest is
+    # still written; a second one aborts (haptic_teleop/interrupt.py).
+    with interrupt.finishing():
+        # The resolved scene: `haptic-teleop run DIR/scene.yaml` records the same bag again.
+        write_atomic(out / SCENE_FILE, resolved)
+        total = int(round(scene.config.scene.duration_s / scene.config.scene.period_s))
+        bar = None
+        if not args.quiet:
+            from tqdm import tqdm
 
-    def progress(n: int) -> None:
-        if bar is not None:
-            bar.update(n - last[0])
+            bar = tqdm(
+                total=total,
+                unit="tick",
+                unit_scale=True,
+                desc=scene.config.scene.name,
+                leave=False,
+                file=sys.stderr,
+                mininterval=0.2,
+            )
+        last = [0]
+
+        def progress(n: int) -> None:
+            if last[0] == 0:
+                interrupt.pause_for_test("loop")
+            if bar is not None:
+                bar.update(n - last[0])
             last[0] = n
 
-    out.mkdir(parents=True, exist_ok=True)
-    bag_dir = out / "bag"
-    try:
-        _, timing = record_run(scene, bag_dir, progress=progress, loop=args.loop)
-    finally:
-        if bar is not None:
-            bar.close()
-    # Timing lives beside the bag, not in it, so the same scene and seed give the same bag bytes.
-    (out / TIMING_FILE).write_text(json.dumps(timing.as_dict(), indent=2, sort_keys=True) + "\n")
-    summary = write_outputs(bag_dir, out, plots=not args.no_plots)
-    print(format_summary(summary))
-    print(
-        f"\nbag:     {bag_dir}\nsummary: {out / 'summary.json'}"
-        + ("" if args.no_plots else f"\nplots:   {out / 'plots'}")
+        bag_dir = out / "bag"
+        with contextlib.ExitStack() as stack:
+
+            def on_engine(engine: Any) -> None:
+                stack.enter_context(interrupt.on_stop(engine.request_stop))  # Ctrl-C, SIGTERM: stop
+                interrupt.pause_for_test("engine")
+
+            try:
+                _, timing = record_run(
+                    scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False, on_engine=on_engine
+                )
+            except BagError as exc:
+                raise HapticTeleopError(str(exc)) from None  # writing failed: not an input error (exit 1)
+            finally:
+                if bar is not None:
+                    bar.close()
+        # Timing lives beside the bag, not in it, so the same scene and seed give the same bag bytes.
+        write_atomic(out / TIMING_FILE, json.dumps(timing.as_dict(), indent=2, sort_keys=True) + "\n")
+        summary = write_outputs(bag_dir, out, plots=not args.no_plots)
+    _say(args, format_summary(summary))
+    _say(
+        args,
+        f"\nbag:     {bag_dir}\nsummary: {out / 'summary.json'}\nscene:   {out / SCENE_FILE}"
+        + ("" if args.no_plots else f"\nplots:   {out / 'plots'}"),
     )
     return EXIT_INTERRUPTED if timing.interrupted else EXIT_OK
 
@@ -106,11 +171,42 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     from haptic_teleop.report import format_summary
 
     bag = Path(args.bag)
-    out = Path(args.out) if args.out else (bag.parent if (bag / "metadata.yaml").exists() else bag)
-    summary = write_outputs(bag, out, plots=not args.no_plots)
-    print(format_summary(summary))
-    print(f"\nsummary: {out / 'summary.json'}")
+    if not bag.exists():
+        raise BagError(f"{bag}: no such bag; allowed: a rosbag2 directory (the one that holds metadata.yaml)")
+    if args.out:
+        out = Path(args.out)
+    elif (bag / "metadata.yaml").exists() or not bag.is_dir():
+        out = bag.parent
+    else:
+        out = bag
+    check_out_dir(out, empty=False)
+    with interrupt.finishing():
+        summary = write_outputs(bag, out, plots=not args.no_plots)
+    _say(args, format_summary(summary))
+    _say(args, f"\nsummary: {out / 'summary.json'}")
     return EXIT_OK
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    from haptic_teleop.scene import bundled_scenes
+
+    rows = bundled_scenes()
+    width = max((len(name) for name, _ in rows), default=0)
+    for name, description in rows:
+        print(f"{name:<{width}}  {description}".rstrip())
+    return EXIT_OK
+
+
+def package_version() -> str:
+    """The installed distribution's version, or the package's own when not installed."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version("haptic_teleop")
+    except PackageNotFoundError:
+        from haptic_teleop import __version__
+
+        return __version__
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -129,6 +225,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="haptic-teleop", description=__doc__)
+    p.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="simulate a scene in deterministic simulated time; write bag, summary, plots")
@@ -137,7 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, help="override scene.seed")
     r.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
+    r.add_argument("--dry-run", action="store_true", help="validate the scene, print it resolved, write nothing")
     r.add_argument(
         "--loop",
         choices=("auto", "compiled", "python"),
@@ -150,7 +248,11 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("bag", help="rosbag2 directory")
     a.add_argument("--out", help="where summary.json and plots/ go (default: next to the bag)")
     a.add_argument("--no-plots", action="store_true")
+    a.add_argument("--quiet", action="store_true", help="print nothing but errors")
     a.set_defaults(func=cmd_analyze)
+
+    sc = sub.add_parser("scenes", help="list the bundled scenes, one line each: name and description")
+    sc.set_defaults(func=cmd_scenes)
 
     from haptic_teleop import sweep
 
@@ -179,18 +281,47 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    # First: Ctrl-C and SIGTERM take one path from here on, imports included (interrupt.py).
+    restore = interrupt.install()
     try:
-        return int(args.func(args))
+        return _main(argv)
+    finally:
+        restore()
+
+
+def _main(argv: list[str] | None) -> int:
+    command = None
+    try:
+        interrupt.pause_for_test("startup")
+        args = build_parser().parse_args(argv)
+        command = args.command
+        code = int(args.func(args))
+    except interrupt.Interrupted as exc:
+        name = str(exc)
+        if exc.abort:
+            print("haptic-teleop: aborted by a second signal; outputs being written may be incomplete", file=sys.stderr)
+        elif command in (None, "run", "analyze", "sweep", "scenes"):
+            # these commands enter interrupt.finishing() before their first write
+            print(f"haptic-teleop: interrupted ({name}) before anything was written", file=sys.stderr)
+        else:
+            print(f"haptic-teleop: interrupted ({name})", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:  # a SIGINT before the handler was installed, or raised by a library
+        print("haptic-teleop: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except ConfigError as exc:
         print(f"haptic-teleop: config error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return exc.exit_code
     except BagError as exc:
         print(f"haptic-teleop: bag error: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
+        return exc.exit_code
     except HapticTeleopError as exc:
         print(f"haptic-teleop: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
+        return exc.exit_code
+    signalled = interrupt.exit_code()
+    if signalled is not None and code in (EXIT_OK, EXIT_INTERRUPTED):
+        return signalled
+    return code
 
 
 if __name__ == "__main__":

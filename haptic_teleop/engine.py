@@ -487,15 +487,19 @@ def record_run(
     parallel: bool = True,
     handle_sigint: bool = True,
     loop: str = "auto",
+    on_engine: Callable[[Engine], None] | None = None,
 ) -> tuple[Engine, RunTiming]:
     """Run a scene and record it: the bag is written by a second process while the loop runs.
 
     Whatever ends the run (last tick, Ctrl-C, an exception in a tick) the bag is closed with
-    every tick that finished, and is readable.
+    every tick that finished, and is readable. `on_engine(engine)` is called once the engine is
+    built, before the bag is opened (the command line registers its stop request there).
     """
     from haptic_teleop.bag import RunRecorder
 
     engine = Engine(scene, loop=loop)
+    if on_engine is not None:
+        on_engine(engine)
     c = scene.config
     rec = RunRecorder(
         bag_dir,

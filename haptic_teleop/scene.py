@@ -26,6 +26,7 @@ from haptic_teleop.schema import build
 @dataclass(frozen=True)
 class RunConfig:
     name: str = field(default="scene", metadata={"help": "scene name, used in reports"})
+    description: str = field(default="", metadata={"help": "one line: what the scene shows (`haptic-teleop scenes`)"})
     period_s: float = field(default=0.001, metadata={"gt": 0.0, "max": 0.01, "help": "control period T"})
     duration_s: float = field(default=10.0, metadata={"gt": 0.0, "max": 86400.0})
     seed: int = field(default=0, metadata={"min": 0, "max": 2**63 - 1, "help": "seed of every random stream"})
@@ -340,36 +341,135 @@ class LoadedScene:
         return yaml.safe_dump(dataclasses.asdict(self.config), sort_keys=False)
 
 
+class SceneLoader(yaml.SafeLoader):
+    """YAML's safe loader, except that a key given twice in one mapping is an error (naming both lines)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        self.flatten_mapping(node)
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                first = seen.get(key)
+            except TypeError:
+                continue  # unhashable: the base class says so
+            line = key_node.start_mark.line + 1
+            if first is not None:
+                raise DuplicateKeyError(key, first, line, key_node.start_mark)
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+class DuplicateKeyError(yaml.constructor.ConstructorError):
+    def __init__(self, key: Any, first_line: int, line: int, mark: yaml.Mark) -> None:
+        super().__init__(None, None, f"key {key!r} given twice (lines {first_line} and {line})", mark)
+        self.key = key
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """One YAML document with SceneLoader; a YAML error becomes a ConfigError naming the line."""
+    try:
+        return yaml.load(text, Loader=SceneLoader)  # SceneLoader is a SafeLoader
+    except DuplicateKeyError as exc:
+        raise ConfigError(
+            source, f"line {exc.problem_mark.line + 1}", exc.key, f"{exc.problem}; allowed: each key once"
+        ) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(source, where, "", f"not valid YAML ({problem})") from None
+    except RecursionError:
+        raise ConfigError(source, "", "", "not valid YAML (nested too deeply)") from None
+
+
+def read_scene_text(p: Path, source: str) -> str:
+    """The text of a scene file, or a ConfigError: not a file, unreadable, not UTF-8, empty."""
+    if p.is_dir():
+        raise ConfigError(source, "", source, "is a directory; allowed: the path of a scene YAML file")
+    if not p.is_file():
+        raise ConfigError(source, "", source, "allowed: the path of an existing scene YAML file")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(
+            source, "", source, f"cannot be read ({exc.strerror}); allowed: a readable scene YAML file"
+        ) from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            source,
+            f"line {line}",
+            data[exc.start : exc.start + 1],
+            "not UTF-8 text; allowed: a scene YAML file in UTF-8",
+        ) from None
+
+
+@dataclass(frozen=True)
+class Override:
+    """One `--set KEY.PATH=VALUE` (or `--seed N`): where it came from, the key path and the value."""
+
+    label: str
+    parts: tuple[str, ...]
+    value: Any
+
+    @property
+    def path(self) -> str:
+        return ".".join(self.parts)
+
+
 def parse_override(text: str) -> tuple[list[str], Any]:
     """`a.b.c=value` -> (["a","b","c"], value parsed as YAML)."""
+    label = f"--set {text}"
     if "=" not in text:
-        raise ConfigError("--set", text, text, "allowed: KEY.PATH=VALUE, e.g. slave.wall.stiffness_n_per_m=1e5")
+        raise ConfigError(label, "", text, "allowed: KEY.PATH=VALUE, e.g. slave.wall.stiffness_n_per_m=1e5")
     key, _, value = text.partition("=")
-    parts = [p for p in key.strip().split(".")]
+    parts = [p.strip() for p in key.strip().split(".")]
     if not key.strip() or any(not p for p in parts):
-        raise ConfigError("--set", key, text, "allowed: a dotted key path like network.forward.effects.delay.delay_s")
+        raise ConfigError(label, key, text, "allowed: a dotted key path like network.forward.effects.delay.delay_s")
     try:
-        parsed = yaml.safe_load(value) if value.strip() else None
-    except yaml.YAMLError:
-        parsed = value
+        parsed = yaml.load(value, Loader=SceneLoader) if value.strip() else None
+    except DuplicateKeyError as exc:
+        raise ConfigError(label, key, value, f"{exc.problem}; allowed: each key once") from None
+    except (yaml.YAMLError, RecursionError):
+        parsed = value  # not YAML: the text itself (a string value)
     return parts, parsed
 
 
-def apply_overrides(raw: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+def apply_overrides(raw: dict[str, Any], overrides: Sequence[str | Override]) -> dict[str, Any]:
     data = copy.deepcopy(raw)
-    for text in overrides:
-        parts, value = parse_override(text)
+    for ov in overrides:
+        if isinstance(ov, str):
+            parts, value = parse_override(ov)
+            ov = Override(f"--set {ov}", tuple(parts), value)  # noqa: PLW2901
         node: Any = data
-        for i, p in enumerate(parts[:-1]):
+        for i, p in enumerate(ov.parts[:-1]):
             nxt = node.get(p)
             if nxt is None:
                 nxt = node[p] = {}
             if not isinstance(nxt, dict):
-                where = ".".join(parts[: i + 1])
-                raise ConfigError("--set", where, nxt, f"is a value, not a section; cannot set {'.'.join(parts)}")
+                where = ".".join(ov.parts[: i + 1])
+                raise ConfigError(ov.label, where, nxt, f"is a value, not a section; cannot set {ov.path}")
             node = nxt
-        node[parts[-1]] = value
+        node[ov.parts[-1]] = ov.value
     return data
+
+
+def _blame(exc: ConfigError, overrides: Sequence[Override]) -> ConfigError:
+    """An error about a key an override set is the override's, not the scene file's."""
+    key = exc.key_path
+    for ov in reversed(overrides):
+        if key == ov.path or key.startswith((ov.path + ".", ov.path + "[")):
+            return ConfigError(ov.label, key, exc.value, exc.allowed)
+    for ov in reversed(overrides):
+        if ov.path.startswith(key + ".") or not key:
+            if not exc.allowed.startswith("contradiction"):  # e.g. an unknown section the override named
+                return ConfigError(ov.label, key, exc.value, exc.allowed)
+            # a contradiction in a section an override changed: the file and the override together
+            return ConfigError(f"{exc.source} with {ov.label}", key, exc.value, exc.allowed)
+    return exc
 
 
 def _read_trace(path: Path, source: str, key: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -377,20 +477,31 @@ def _read_trace(path: Path, source: str, key: str) -> tuple[tuple[float, ...], t
         raise ConfigError(source, key, str(path), "allowed: an existing CSV file with columns time_s,position_m")
     ts: list[float] = []
     xs: list[float] = []
-    with path.open(newline="") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            if not row or row[0].lstrip().startswith("#"):
-                continue
-            try:
-                t, x = float(row[0]), float(row[1])
-            except (ValueError, IndexError):
-                if lineno == 1:
-                    continue  # header
-                raise ConfigError(f"{path}:{lineno}", key, row, "allowed: two numbers time_s,position_m") from None
-            if ts and t <= ts[-1]:
-                raise ConfigError(f"{path}:{lineno}", key, row, "allowed: strictly increasing time_s")
-            ts.append(t)
-            xs.append(x)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise ConfigError(source, key, str(path), f"cannot be read ({exc.strerror}); allowed: a readable CSV") from None
+    except UnicodeDecodeError:
+        raise ConfigError(source, key, str(path), "not UTF-8 text; allowed: a CSV file time_s,position_m") from None
+    try:
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as exc:
+        raise ConfigError(source, key, str(path), f"not a CSV ({exc}); allowed: rows time_s,position_m") from None
+    for lineno, row in enumerate(rows, start=1):
+        if not row or row[0].lstrip().startswith("#"):
+            continue
+        try:
+            t, x = float(row[0]), float(row[1])
+        except (ValueError, IndexError):
+            if lineno == 1:
+                continue  # header
+            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: two numbers time_s,position_m") from None
+        if not (math.isfinite(t) and math.isfinite(x)):
+            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: finite numbers time_s,position_m")
+        if ts and t <= ts[-1]:
+            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: strictly increasing time_s")
+        ts.append(t)
+        xs.append(x)
     if len(ts) < 2:
         raise ConfigError(source, key, str(path), "allowed: a CSV with at least two rows time_s,position_m")
     return tuple(ts), tuple(xs)
@@ -412,34 +523,58 @@ def _resolve_traces(config: Scene, base: Path, source: str) -> Scene:
     return dataclasses.replace(config, network=dataclasses.replace(net, **dirs))
 
 
+def _check_models(config: Scene, source: str) -> None:
+    """The plants' model files exist (a path, or a bundled model's name): found now, not when a
+    plant is built after the outputs were opened."""
+    from haptic_teleop.errors import PlantError
+    from haptic_teleop.plants.mujoco_plant import models_dir, resolve_model
+
+    for side in ("master", "slave"):
+        name = getattr(config, side).model
+        try:
+            resolve_model(name)
+        except (PlantError, OSError, ValueError):  # ValueError: a NUL in the name
+            allowed = f"no such model file; allowed: a MuJoCo XML path, or a bundled model's name (in {models_dir()})"
+            raise ConfigError(source, f"{side}.model", name, allowed) from None
+
+
 def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None = None) -> LoadedScene:
-    """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed."""
+    """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed.
+
+    Errors about a key an override set name the override (`--set KEY=VALUE`, `--seed N`), not the file."""
     p = Path(path)
     source = str(path)
-    if not p.is_file():
-        raise ConfigError(source, "", source, "allowed: the path of an existing scene YAML file")
-    try:
-        raw = yaml.safe_load(p.read_text()) or {}
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(source, where, "", f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    raw = parse_yaml(read_scene_text(p, source), source)
+    if raw is None:
+        raise ConfigError(
+            source,
+            "",
+            None,
+            "the file is empty; allowed: a mapping of sections (scene, operator, ...), {} for all defaults",
+        )
     if not isinstance(raw, dict):
         raise ConfigError(source, "", raw, "allowed: a mapping of sections (scene, operator, master, ...)")
-    raw = apply_overrides(raw, overrides)
+    ovs: list[Override] = []
+    for text in overrides:
+        parts, value = parse_override(text)
+        ovs.append(Override(f"--set {text}", tuple(parts), value))
     if seed is not None:
-        raw.setdefault("scene", {})
-        if not isinstance(raw["scene"], dict):
-            raise ConfigError(source, "scene", raw["scene"], "allowed: a mapping")
-        raw["scene"]["seed"] = seed
-    config = build(Scene, raw, "", source)
+        ovs.append(Override(f"--seed {seed}", ("scene", "seed"), seed))
+    raw = apply_overrides(raw, ovs)
+    try:
+        config = build(Scene, raw, "", source)
+        _check_models(config, source)
+    except ConfigError as exc:
+        raise _blame(exc, ovs) from None
     config = _resolve_traces(config, p.parent, source)
     trace = None
     if config.operator.trace_file:
         tp = Path(config.operator.trace_file)
         if not tp.is_absolute():
-            tp = p.parent / tp
+            tp = (p.parent / tp).resolve()
         trace = _read_trace(tp, source, "operator.trace_file")
+        # Absolute, as the network traces: the resolved scene (DIR/scene.yaml) runs from anywhere.
+        config = dataclasses.replace(config, operator=dataclasses.replace(config.operator, trace_file=str(tp)))
     return LoadedScene(config=config, source=source, raw=raw, operator_trace=trace)
 
 
@@ -458,3 +593,16 @@ def find_scene(name: str) -> Path:
     stem = p.name if p.suffix else p.name + ".yaml"
     cand = scenes_dir() / stem
     return cand if cand.exists() else p
+
+
+def bundled_scenes() -> list[tuple[str, str]]:
+    """(name, description) of every bundled scene, by name; `find_scene(name)` finds each."""
+    rows = []
+    for p in sorted(scenes_dir().glob("*.yaml")):
+        try:
+            raw = parse_yaml(read_scene_text(p, str(p)), str(p))
+            desc = raw.get("scene", {}).get("description", "") if isinstance(raw, dict) else ""
+        except ConfigError as exc:
+            desc = f"(invalid: {exc})"
+        rows.append((p.stem, str(desc)))
+    return rows

@@ -102,7 +102,10 @@ def convert(tp: Any, value: Any, where: str, source: str, meta: Mapping[str, Any
             value = float(value)  # YAML 1.1 reads 1e5 (no dot) as a string; users mean the number
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(source, where, value, f"allowed: a number{_help(meta)}")
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:
+            value = math.inf  # an integer beyond any float
         if not math.isfinite(value):
             raise ConfigError(source, where, value, f"allowed: a finite number{_help(meta)}")
         _check_range(value, meta, where, source)
@@ -168,6 +171,8 @@ def build(cls: type[T], data: Any, where: str = "", source: str = "<config>") ->
         return cls(**kwargs)
     except ValueError as exc:
         raise ConfigError(source, where, {k: data[k] for k in data}, f"contradiction: {exc}") from None
+    except ArithmeticError as exc:  # values each in range whose combination overflows a check
+        raise ConfigError(source, where, {k: data[k] for k in data}, f"values out of range together ({exc})") from None
 
 
 def describe(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:

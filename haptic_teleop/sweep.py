@@ -8,6 +8,7 @@ print for that combination and seed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import itertools
 import json
@@ -19,7 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from haptic_teleop.errors import ConfigError, HapticTeleopError
+from haptic_teleop import interrupt
+from haptic_teleop.errors import ConfigError
 
 DEFAULT_METRICS = (
     "force_rms_error_n",
@@ -88,9 +90,11 @@ def parse_seeds(text: str | None) -> list[int] | None:
         try:
             seed = int(part)
         except ValueError:
-            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers >= 0") from None
-        if seed < 0:
-            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers >= 0")
+            raise ConfigError(
+                "--seeds", "scene.seed", part, "allowed: comma-separated integers from 0 to 2**63 - 1"
+            ) from None
+        if not 0 <= seed <= 2**63 - 1:
+            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers from 0 to 2**63 - 1")
         seeds.append(seed)
     if len(set(seeds)) != len(seeds):
         raise ConfigError("--seeds", "scene.seed", text, "allowed: each seed once")
@@ -257,8 +261,7 @@ def _command(args: argparse.Namespace) -> str:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
-    from haptic_teleop.cli import TIMING_FILE, default_out, write_outputs
-    from haptic_teleop.engine import record_run
+    from haptic_teleop.cli import check_out_dir, default_out
     from haptic_teleop.scene import find_scene, load_scene
 
     params = [parse_param(t) for t in args.param]
@@ -278,38 +281,64 @@ def run_sweep(args: argparse.Namespace) -> int:
         for seed in seeds:
             plan.append((ci, combo, seed, load_scene(path, overrides=ov, seed=seed)))
     out = Path(args.out) if args.out else default_out(f"sweep-{first.config.scene.name}")
-    if out.exists() and any(out.iterdir()):
-        raise HapticTeleopError(f"output directory {out} exists and is not empty; choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
+    check_out_dir(out)
+    # From here on: a first Ctrl-C / SIGTERM stops the current run's loop, finishes its outputs,
+    # starts no other run and writes the table, CSV and plot of the runs done; a second aborts.
+    with interrupt.finishing():
+        return _run_plan(args, out, params, plan, metrics, seeds, first.config.scene.name)
+
+
+def _run_plan(
+    args: argparse.Namespace,
+    out: Path,
+    params: Sequence[Param],
+    plan: Sequence[tuple[int, tuple[str, ...], int, Any]],
+    metrics: Sequence[str],
+    seeds: Sequence[int],
+    name: str,
+) -> int:
+    from haptic_teleop.cli import TIMING_FILE, write_atomic, write_outputs
+    from haptic_teleop.engine import record_run
+
     bar = None
     if not args.quiet:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(plan), unit="run", desc=f"sweep {first.config.scene.name}", file=sys.stderr)
+        bar = tqdm(total=len(plan), unit="run", desc=f"sweep {name}", file=sys.stderr)
     rows: list[dict[str, Any]] = []
     try:
         for ci, combo, seed, scene in plan:
-            name = f"{ci:03d}-seed{seed}"
+            if interrupt.received() is not None:
+                break
+            run_name = f"{ci:03d}-seed{seed}"
             if bar is not None:
                 bar.set_postfix_str(", ".join(combo) + f", seed {seed}", refresh=False)
-            run_dir = out / "runs" / name
+            run_dir = out / "runs" / run_name
             run_dir.mkdir(parents=True)
             bag_dir = run_dir / "bag"
-            _, timing = record_run(scene, bag_dir, handle_sigint=False)
-            (run_dir / TIMING_FILE).write_text(json.dumps(timing.as_dict(), indent=2, sort_keys=True) + "\n")
+            with contextlib.ExitStack() as stack:
+
+                def on_engine(engine: Any, stack: contextlib.ExitStack = stack) -> None:
+                    stack.enter_context(interrupt.on_stop(engine.request_stop))
+
+                _, timing = record_run(scene, bag_dir, handle_sigint=False, on_engine=on_engine)
+            write_atomic(run_dir / TIMING_FILE, json.dumps(timing.as_dict(), indent=2, sort_keys=True) + "\n")
             summary = write_outputs(bag_dir, run_dir, plots=args.run_plots)
+            if timing.interrupted:
+                break  # its outputs stay in runs/; a part of a run is not a row of the table
             if not rows:
                 _check_metrics(metrics, summary)
             if not args.keep_bags:
                 shutil.rmtree(bag_dir)
-            rows.append({"run": name, "combo": combo, "seed": seed, "summary": summary})
+            rows.append({"run": run_name, "combo": combo, "seed": seed, "summary": summary})
             if bar is not None:
                 bar.update(1)
-    except KeyboardInterrupt:
-        print(f"haptic-teleop: sweep interrupted after {len(rows)} of {len(plan)} runs", file=sys.stderr)
+            interrupt.pause_for_test("sweep-run")
     finally:
         if bar is not None:
             bar.close()
+    if len(rows) < len(plan):
+        print(f"haptic-teleop: sweep interrupted after {len(rows)} of {len(plan)} runs", file=sys.stderr)
     if not rows:
         return 130
     write_csv(out / "sweep.csv", params, rows)
@@ -317,11 +346,12 @@ def run_sweep(args: argparse.Namespace) -> int:
     table = write_markdown(out / "sweep.md", _command(args), params, agg, metrics, seeds)
     if not args.no_plots:
         write_plot(out / "sweep.png", params, rows, agg, metrics)
-    print(table)
-    print(
-        f"csv:   {out / 'sweep.csv'}\ntable: {out / 'sweep.md'}"
-        + ("" if args.no_plots else f"\nplot:  {out / 'sweep.png'}")
-    )
+    if not args.quiet:
+        print(table)
+        print(
+            f"csv:   {out / 'sweep.csv'}\ntable: {out / 'sweep.md'}"
+            + ("" if args.no_plots else f"\nplot:  {out / 'sweep.png'}")
+        )
     return 0 if len(rows) == len(plan) else 130
 
 
@@ -353,7 +383,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-bags", action="store_true", help="keep every run's bag (about 1.3 MB per simulated second)")
     p.add_argument("--run-plots", action="store_true", help="also write each run's plots/")
     p.add_argument("--no-plots", action="store_true", help="skip sweep.png")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
 
 
 def main(args: argparse.Namespace) -> int:

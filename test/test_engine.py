@@ -155,7 +155,7 @@ def test_cli_run_then_analyze_gives_the_same_numbers(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "haptic_teleop.cli"]
     r = subprocess.run(
-        [*cmd, "run", "wall_contact", "--out", str(out), "--quiet", "--set", "scene.duration_s=2"],
+        [*cmd, "run", "wall_contact", "--out", str(out), "--set", "scene.duration_s=2"],
         capture_output=True,
         text=True,
         timeout=300,

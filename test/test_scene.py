@@ -6,9 +6,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene import Scene, find_scene, load_scene
+from haptic_teleop.schema import describe
 
 DEFAULT = find_scene("wall_contact")
 
@@ -149,3 +152,58 @@ def test_a_section_given_in_part_keeps_that_sections_own_defaults():
     assert s.config.controllers.slave.eba.initial_energy_j == 0.5
     with pytest.raises(ConfigError, match="no_such_key"):
         load_scene(find_scene("varying_delay"), overrides=["controllers.slave.no_such_key=1"])
+
+
+# --- property: any YAML document loads or raises ConfigError, nothing else ------------------------
+
+_KNOWN = sorted({part for path, _, _ in describe(Scene) for part in path.split(".")})
+_keys = st.one_of(st.sampled_from(_KNOWN), st.text(max_size=8), st.integers(-3, 3), st.booleans(), st.none())
+_scalars = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(10**30), max_value=10**30),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=12),
+    st.sampled_from(["push", "trace", "lowpass", "mujoco", "1e5", ".nan", "constant", "bernoulli", "fixed"]),
+)
+_values = st.recursive(
+    _scalars,
+    lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(_keys, inner, max_size=5)),
+    max_leaves=25,
+)
+
+
+_EDGES = [10**400, -(10**400), 5e-324, -5e-324, 1e308, float("nan"), float("inf"), 2**63, -1, 0, "", [], {}, None]
+
+
+def _mutated_default(draw_path: list[str], value: object) -> dict:
+    data = _base()
+    node = data
+    for part in draw_path[:-1]:
+        if not isinstance(node.get(part), dict):
+            node[part] = {}
+        node = node[part]
+    node[draw_path[-1]] = value
+    return data
+
+
+_scene_paths = st.sampled_from([path.split(".") for path, _, _ in describe(Scene)])
+_documents = st.one_of(
+    _values.map(yaml.safe_dump),
+    st.builds(_mutated_default, _scene_paths, _values).map(yaml.safe_dump),
+    st.builds(_mutated_default, _scene_paths, st.sampled_from(_EDGES)).map(yaml.safe_dump),  # one leaf, an edge
+    st.text(max_size=200),  # mostly not YAML at all
+    st.binary(max_size=100).map(lambda b: b.decode("latin-1")),
+)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=_documents, raw=st.binary(max_size=40))
+def test_any_document_loads_or_raises_config_error(tmp_path, text, raw):
+    for content in (text.encode("utf-8", "surrogatepass"), raw):
+        p = tmp_path / "fuzz.yaml"
+        p.write_bytes(content)
+        try:
+            load_scene(p)
+        except ConfigError as exc:
+            assert str(exc).startswith(str(p))

@@ -86,3 +86,12 @@ def test_values_split_at_top_level_commas_only():
     p = parse_param("network.forward.effects.blackout.starts_s+x.y=[1.0],[2.0, 3.0]")
     assert p.keys == ("network.forward.effects.blackout.starts_s", "x.y")
     assert p.values == ("[1.0]", "[2.0, 3.0]")
+
+
+@pytest.mark.parametrize("seeds", ["-1", str(2**63), "x"])
+def test_seeds_out_of_range_are_blamed_on_the_seeds_flag(tmp_path, capsys, seeds):
+    argv = ["sweep", "wall_contact", "--param", "scene.duration_s=0.2", "--seeds", seeds, "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"config error: --seeds: scene.seed = '{seeds}'" in err
+    assert not (tmp_path / "o").exists()
