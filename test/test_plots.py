@@ -122,11 +122,11 @@ def test_buffer_occupancy_hand_computed():
             [0, 0.000, 0.0015, 0, 0, 72],  # held from 1.5 ms, played at 3 ms
             [1, 0.001, 0.0035, 4, 0, 72],  # late: skipped at 5 ms, when seq 2 is released
             [2, 0.002, 0.0039, 0, 0, 72],  # played at 5 ms
-            [2, 0.002, 0.0045, 0, 1, 72],  # duplicate copy: dropped on arrival, never held
             [3, 0.003, 0.0059, 4, 0, 72],  # late: skipped at 9 ms, when seq 4 is released
             [4, 0.004, 0.0069, 0, 0, 72],  # played at 9 ms
             [5, 0.005, np.nan, 1, 0, 72],  # lost: never held
             [6, 0.006, 0.0079, 0, 0, 72],  # still held at the end
+            [6, 0.006, 0.0085, 0, 1, 72],  # its duplicate copy: dropped on arrival, never held
             [7, 0.007, 0.0500, 0, 0, 72],  # in flight at the end: never held
         ]
     )

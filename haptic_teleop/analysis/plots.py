@@ -135,7 +135,8 @@ def energy_figure(sig: Signals) -> Figure:
             _plot(ax, t, res, label="controller reservoir (wide band)", color="tab:orange", lw=6, alpha=0.45,
                   solid_capstyle="butt", zorder=2)  # fmt: skip
         _plot(ax, t, margin, label="energy margin from plant signals", color="tab:purple", lw=1.1, zorder=3)
-        i = int(np.argmin(margin))
+        ok = np.flatnonzero(np.isfinite(margin))
+        i = int(ok[np.argmin(margin[ok])]) if ok.size else 0
         lo = float(margin[i])
         ax.plot([t[i]], [lo], "v", color="tab:red", ms=8, zorder=4, label=f"margin minimum {lo:.4g} J at {t[i]:.3g} s")
         finite = margin[np.isfinite(margin)]
@@ -158,8 +159,7 @@ def energy_figure(sig: Signals) -> Figure:
             _plot(dax, t, res - margin, color="tab:orange", lw=0.9)
             dax.set_ylabel("reservoir - margin (J)", fontsize=9)
             gap = float(np.nanmax(np.abs(res - margin))) if res.size else 0.0
-            dax.text(0.01, 0.95, f"max |reservoir - margin| = {gap:.3g} J", transform=dax.transAxes, va="top",
-                     fontsize=8)  # fmt: skip
+            dax.set_title(f"controller reservoir - plant margin: at most {gap:.3g} J apart", loc="right", fontsize=9)
         else:
             dax.text(0.5, 0.5, "no controller reservoir in the bag", ha="center", va="center", transform=dax.transAxes)
         dax.grid(alpha=0.3)
