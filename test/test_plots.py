@@ -280,7 +280,8 @@ def test_sweep_labels_are_readable():
     assert metric_unit("buffering_delay_forward_mean_s", [0.02]) == ("ms", 1e3, "buffering_delay_forward_mean")
     assert metric_unit("late_loss_rate_forward", [0.1])[:2] == ("%", 100.0)
     assert metric_unit("force_rms_error_n", [1.0])[0] == "N"
-    assert metric_unit("wire_bits_per_s_forward", [1e5])[0] == "bit/s"
+    assert metric_unit("wire_bits_per_s_forward", [1e5])[:2] == ("kbit/s", 1e-3)
+    assert metric_unit("wire_bits_per_s_forward", [1.1e6])[:2] == ("Mbit/s", 1e-6)
 
 
 def _sweep_rows(params, metric_values):

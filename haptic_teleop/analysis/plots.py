@@ -231,7 +231,10 @@ def _delay_panel(ax: Any, sig: Signals, direction: str, t_lim: tuple[float, floa
     ax.set_ylim(bottom, top)
     ax.set_ylabel("one-way delay (ms)\nby send time")
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8, markerscale=2, frameon=False)
+    if rows.size == 0 and played_ms.size == 0:
+        ax.text(0.5, 0.5, f"no {direction} packet records in the bag", ha="center", va="center", transform=ax.transAxes)
+    else:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8, markerscale=2, frameon=False)
 
 
 def _events_panel(ax: Any, sig: Signals, direction: str, t_lim: tuple[float, float]) -> None:

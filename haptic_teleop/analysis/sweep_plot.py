@@ -8,7 +8,8 @@ per parameter and turn 45 degrees when there are many. Layouts:
 
 - one numeric parameter: that parameter on x (log when its positive values span 100x or more);
 - two parameters, one of them numeric: the numeric one on x (the one with more values if both
-  are), one coloured series per value of the other, with a legend titled by it;
+  are), one series per value of the other (colour, marker and line style; later series drawn
+  smaller, so equal series stay visible), with a legend titled by it;
 - anything else: one slot per combination, every parameter's value in the tick label.
 
 Every run is a dot; the mean over seeds is a marker with the sample standard deviation as an
@@ -23,6 +24,11 @@ from collections.abc import Sequence
 from typing import Any
 
 from matplotlib.figure import Figure
+
+# Series of a two-parameter sweep differ in colour, marker and line style, and later ones are drawn
+# smaller, so series with equal values stay visible one over another.
+_MARKERS = ("s", "o", "^", "D", "v", "P", "X", "*")
+_STYLES = ("-", "--", "-.", ":")
 
 Agg = Sequence[tuple[tuple[str, ...], int, dict[str, tuple[float, float]]]]
 
@@ -81,7 +87,10 @@ def metric_unit(name: str, values: Sequence[float]) -> tuple[str, float, str]:
     tokens = name.split("_")
     last = tokens[-1]
     if "per" in tokens and "bits" in tokens:
-        return "bit/s", 1.0, name.replace("_per_s", "")
+        stem = name.replace("_per_s", "")
+        if big >= 1e6:
+            return "Mbit/s", 1e-6, stem
+        return ("kbit/s", 1e-3, stem) if big >= 1e3 else ("bit/s", 1.0, stem)
     if last == "s":
         return ("ms", 1e3, name[:-2]) if big < 10.0 else ("s", 1.0, name[:-2])
     if last == "m":
@@ -175,10 +184,12 @@ def sweep_figure(
                     [gx[i] for i in order],
                     [s[0] * scale for s in stats],
                     yerr=[(s[1] if math.isfinite(s[1]) else 0.0) * scale for s in stats],
-                    fmt="s-",
+                    fmt=_MARKERS[g_i % len(_MARKERS)],
+                    ls=_STYLES[g_i % len(_STYLES)],
                     color=color,
                     capsize=3,
-                    ms=4,
+                    ms=max(7.0 - 1.3 * g_i, 3.0),
+                    lw=max(2.2 - 0.35 * g_i, 0.9),
                     label=g if si >= 0 else "mean ± std over seeds",
                 )
             if log_x:
