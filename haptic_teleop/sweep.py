@@ -194,14 +194,6 @@ def write_markdown(
     return text
 
 
-def _as_number(text: str) -> float | None:
-    try:
-        x = float(text)
-    except ValueError:
-        return None
-    return x if math.isfinite(x) else None
-
-
 def write_plot(
     path: Path,
     params: Sequence[Param],
@@ -209,44 +201,12 @@ def write_plot(
     agg: Sequence[tuple[tuple[str, ...], int, dict[str, tuple[float, float]]]],
     metrics: Sequence[str],
 ) -> None:
-    """One panel per metric: every run as a dot, the mean over seeds with its std as an error bar.
+    """sweep.png: one panel per metric, every run a dot, the mean over seeds with its std as an error
+    bar; layouts and labels in haptic_teleop.analysis.sweep_plot."""
+    from haptic_teleop.analysis.sweep_plot import sweep_figure
 
-    With one numeric parameter the x axis is that parameter; otherwise one slot per combination.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    numeric = len(params) == 1 and all(_as_number(v) is not None for v in params[0].values)
-    combos = [c for c, _, _ in agg]
-    if numeric:
-        xs = [float(c[0]) for c in combos]
-        xlabel = params[0].label
-    else:
-        xs = [float(i) for i in range(len(combos))]
-        xlabel = ", ".join(p.label.rsplit(".", 1)[-1] for p in params)
-    index = {c: x for c, x in zip(combos, xs, strict=True)}
-    fig, axes = plt.subplots(len(metrics), 1, figsize=(max(6.0, 1.2 * len(combos) + 3), 2.4 * len(metrics)))
-    axes_list = list(axes) if len(metrics) > 1 else [axes]
-    for ax, m in zip(axes_list, metrics, strict=True):
-        px = [index[tuple(r["combo"])] for r in rows]
-        py = [r["summary"].get(m, math.nan) for r in rows]
-        py = [v if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan for v in py]
-        ax.plot(px, py, "o", color="0.6", ms=3, label="runs")
-        means = [s[m][0] for _, _, s in agg]
-        stds = [s[m][1] if math.isfinite(s[m][1]) else 0.0 for _, _, s in agg]
-        ax.errorbar(xs, means, yerr=stds, fmt="s-" if numeric else "s", color="tab:blue", capsize=4, label="mean ± std")
-        ax.set_ylabel(m, fontsize=8)
-        ax.grid(alpha=0.3)
-        if not numeric:
-            ax.set_xticks(xs)
-            ax.set_xticklabels([", ".join(c) for c in combos], fontsize=8)
-    axes_list[0].legend(loc="best", fontsize=8)
-    axes_list[-1].set_xlabel(xlabel)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    fig = sweep_figure([p.keys for p in params], [p.values for p in params], rows, agg, metrics)
+    fig.savefig(path, dpi=100)
 
 
 def _command(args: argparse.Namespace) -> str:
