@@ -85,6 +85,14 @@ def test_other_readers_read_every_message(tmp_path, short_run, compression):
     for topic, t, raw in master[:: max(1, len(master) // 50)]:
         msg = ts.deserialize_cdr(raw, "sensor_msgs/msg/JointState")
         assert msg.position[0] == short_run.data[t // short_run.period_ns, COL["m_x_m"]]
+    # BagReader (through the message indexes) decodes the same messages the others read in full.
+    with BagReader(inproc) as r:
+        for topic in ("/master/joint_states", "/backward/received", "/slave/eba"):
+            theirs = [m for m in ros if m[0] == topic]
+            d = r.read(topic)
+            assert d.log_ns.tolist() == [m[1] for m in theirs]
+            spec = topic_specs()[topic]
+            assert np.array_equal(d.values, spec.layout.decode(np.array([list(m[2]) for m in theirs], np.uint8))[0])
     from mcap.reader import make_reader
 
     with open(next(inproc.glob("*.mcap")), "rb") as f:
@@ -475,3 +483,22 @@ def test_chunk_closes_only_past_one_mebibyte(tmp_path):
     # chunk 1: 3 x 300 kB + the message ending at 1 MiB + the 10-byte one that takes it past
     assert sizes[0] == 2**20 + 31 + len(_string_bytes("x" * 10))
     assert len(sizes) == 3
+
+
+def test_only_rosbags_public_api_is_used():
+    """The recording layer uses rosbags only through its public API (the typestore, and the Reader
+    for other storage): no private attribute or module of its writer. A rosbags release can then
+    change its internals without changing what we write."""
+    import ast
+
+    import haptic_teleop.record as record
+
+    allowed = {("rosbags.typesys", "Stores"), ("rosbags.typesys", "get_typestore"), ("rosbags.rosbag2", "Reader")}
+    found = set()
+    for path in Path(record.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("rosbags"):
+                found |= {(node.module, a.name) for a in node.names}
+            elif isinstance(node, ast.Import):
+                assert not any(a.name.startswith("rosbags") for a in node.names), path
+    assert found and found <= allowed, found - allowed

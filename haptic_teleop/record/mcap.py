@@ -60,16 +60,24 @@ def string_map(items: Sequence[tuple[str, str]]) -> bytes:
     return struct.pack("<I", len(body)) + body
 
 
+def _zstd() -> Any:
+    """Zstandard: the standard library's (Python 3.14+) or its backport."""
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd
+    return zstd
+
+
 def compressor(name: str) -> Callable[[bytes], bytes]:
     """The compressor of an MCAP compression string ("" none, "zstd", "lz4" frame)."""
     if name == "":
         return bytes
     if name == "zstd":
-        from backports import zstd
-
+        zstd = _zstd()
         return lambda b: bytes(zstd.compress(b, level=3))
     if name == "lz4":
-        import lz4.frame
+        import lz4.frame  # type: ignore[import-untyped]
 
         return lambda b: bytes(lz4.frame.compress(b))
     raise BagError(f"compression {name!r} is not one of {', '.join(COMPRESSION)}")
@@ -80,8 +88,7 @@ def decompressor(name: str) -> Callable[[bytes, int], bytes]:
     if name == "":
         return lambda b, n: b
     if name == "zstd":
-        from backports import zstd
-
+        zstd = _zstd()
         return lambda b, n: bytes(zstd.decompress(b))
     if name == "lz4":
         import lz4.frame
@@ -234,7 +241,7 @@ class BagSink:
         size = self._pending
         crc = 0
         for part in self._parts:
-            crc = zlib.crc32(part, crc)
+            crc = zlib.crc32(part.data, crc)
         if self.compression:
             data: Any = self._compress(b"".join(p.tobytes() for p in self._parts))
             parts: list[Any] = [data]

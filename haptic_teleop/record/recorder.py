@@ -97,7 +97,7 @@ def _writer_process(
     if sink is None:
         sink = BagSink(Path(bag_dir), topics, *sink_args)
     run_info: dict[str, Any] = {}
-    reply = ("done", None)
+    reply: tuple[str, str | None] = ("done", None)
     try:
         while True:
             if not conn.poll(_WAIT_S):
@@ -205,7 +205,7 @@ class RunRecorder:
         import multiprocessing as mp
 
         fork = "fork" in mp.get_all_start_methods()
-        ctx = mp.get_context("fork" if fork else "spawn")
+        ctx: Any = mp.get_context("fork" if fork else "spawn")
         opened = None
         if fork:
             # Open the bag here and let the child inherit it: importing the writer, adding the
@@ -406,7 +406,7 @@ def write_run(
         result.scene.config.recording.packets,
         len(COLUMNS),
         parallel=parallel,
-        compression=compression or getattr(result.scene.config.recording, "compression", "none"),
+        compression=compression or str(getattr(result.scene.config.recording, "compression", "none")),
     )
     for stop in range(BLOCK_TICKS, result.ticks, BLOCK_TICKS):
         rec.block(result.data, stop)

@@ -41,7 +41,7 @@ class Stream:
 
     def payload(self, i: int) -> bytes:
         if self.rows is not None:
-            return self.rows[i].tobytes()
+            return bytes(self.rows[i].tobytes())
         assert self.blobs is not None
         return self.blobs[i]
 
@@ -108,7 +108,8 @@ class _History:
                 f"a playout buffer released the sample of tick {int(ticks.min())}, older than the "
                 f"{HISTORY_TICKS} ticks (or the last release) the recorder keeps"
             )
-        return self.buf[ticks - self.start]
+        out: np.ndarray = self.buf[ticks - self.start]
+        return out
 
 
 class RunStreams:
