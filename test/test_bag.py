@@ -179,6 +179,23 @@ def test_reader_falls_back_for_other_layouts(tmp_path):
     assert d.stamp_ns.tolist() == [0, 1000, 2000, 3000, 4000]
 
 
+def test_reader_reads_sqlite3_bags_of_other_tools(tmp_path):
+    """A rosbag2 bag in sqlite3 storage (another tool's) is read through rosbags' Reader."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    ts = typestore()
+    make = make_joint_state("master_x", ("position", "velocity", "effort"))
+    with Writer(tmp_path / "db", version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        c = w.add_connection("/master/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        for i in range(4):
+            raw = ts.serialize_cdr(make([i, -i, 2 * i], 0, i * 1000), "sensor_msgs/msg/JointState")
+            w.write(c, i * 1000, bytes(raw))
+    assert list((tmp_path / "db").glob("*.db3"))
+    with BagReader(tmp_path / "db") as r:
+        d = r.read("/master/joint_states")
+    assert d.values[:, 2].tolist() == [0, 2, 4, 6] and d.log_ns.tolist() == [0, 1000, 2000, 3000]
+
+
 def test_bag_errors(tmp_path, short_run):
     with pytest.raises(BagError, match="no such bag"):
         BagReader(tmp_path / "missing")
