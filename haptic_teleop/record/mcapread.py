@@ -414,6 +414,7 @@ class ScannedChunk:
     length: int  # of the chunk record
     indexes: list[tuple[int, int, int]] = field(default_factory=list)  # (channel, file offset, record length)
     counts: dict[int, int] = field(default_factory=dict)
+    has_crc: bool = True  # a chunk written without CRC holds 0 (nothing to check)
 
 
 @dataclass
@@ -499,7 +500,8 @@ def scan(path: Path) -> Scan:
                             out.schemas[struct.unpack_from("<H", rbody)[0]] = record_bytes(rop, rbody)
                         elif rop == OP_CHANNEL:
                             out.channels[struct.unpack_from("<H", rbody)[0]] = record_bytes(rop, rbody)
-                    last = ScannedChunk(pos, rec_end, t0, t1, 9 + n, counts=counts)
+                    has_crc = struct.unpack_from("<I", body, 24)[0] != 0
+                    last = ScannedChunk(pos, rec_end, t0, t1, 9 + n, counts=counts, has_crc=has_crc)
                     out.chunks.append(last)
                     out.data_end = rec_end
                 except (BagError, struct.error) as exc:
