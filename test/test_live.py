@@ -581,3 +581,95 @@ def test_wrench_and_eba_bytes_deserialize_to_the_values_given():
     assert [d.label for d in a.layout.dim] == list(EBA_LABELS)
     assert [(d.size, d.stride) for d in a.layout.dim] == [(1, 1), (1, 1)]
     assert list(a.data) == [0.5, -2.0]
+
+
+# ---------------------------------------------------------------------------------------------
+# An unusable --record directory stops the launch before any node starts.
+
+
+def _unwritable_dirs(tmp_path: Path) -> dict[str, Path]:
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "something").write_text("x")
+    if os.geteuid() == 0:
+        read_only = Path("/proc/haptic_teleop_record")  # root writes through permissions; not into /proc
+    else:
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o555)
+        read_only = ro / "run"
+    return {"file": a_file, "not empty": full, "read-only": read_only}
+
+
+@pytest.mark.parametrize("case", ["file", "not empty", "read-only"])
+def test_unusable_record_dir_fails_before_anything_starts(tmp_path, case):
+    path = _unwritable_dirs(tmp_path)[case]
+    r = subprocess.run([*CLI, "launch", "wall_contact", "--duration", "1", "--record", str(path)],
+                       capture_output=True, text=True, timeout=60, cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 2, r.stdout + r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(path) in lines[0] and "allowed:" in lines[0], r.stderr
+    assert "started" not in r.stdout and "Traceback" not in r.stderr, r.stdout
+    if case == "file":
+        assert path.read_text() == "x"  # left as it was
+
+
+# ---------------------------------------------------------------------------------------------
+# The hardware variant's force command: QoS from parameters, reliable by default.
+
+
+@pytest.mark.parametrize("reliability", [None, "best_effort"], ids=["default", "best_effort"])
+def test_force_command_reaches_reliable_and_best_effort_drivers(tmp_path, reliability):
+    """master_eba with device.source topic, driven by a fake device driver in this process: with
+    the default QoS (reliable) a driver subscribing with ROS's default QoS (reliable) and one
+    subscribing best effort both receive commands; with best_effort, only the best-effort one."""
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile
+    from sensor_msgs.msg import JointState
+
+    from haptic_teleop.nodes.common import stream_qos
+
+    state_topic, command_topic = "/qos_test/joint_states", "/qos_test/force_command"
+    cmd = [sys.executable, "-m", "haptic_teleop.nodes.master_eba", "--ros-args",
+           "-p", "device.source:=topic", "-p", f"device.state_topic:={state_topic}",
+           "-p", f"device.command_topic:={command_topic}", "-p", "loop.realtime_priority:=0"]  # fmt: skip
+    if reliability is not None:
+        cmd += ["-p", f"device.command_reliability:={reliability}"]
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("fake_driver", context=context)
+    got = {"reliable": [], "best_effort": []}
+    node.create_subscription(WrenchStamped, command_topic, lambda m: got["reliable"].append(m), QoSProfile(depth=10))
+    node.create_subscription(WrenchStamped, command_topic, lambda m: got["best_effort"].append(m), stream_qos(10))
+    state = node.create_publisher(JointState, state_topic, stream_qos())
+    msg = JointState(name=["device_x"], position=[0.01], velocity=[0.0], effort=[0.0])
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and min(len(v) for v in got.values()) < 50:
+            state.publish(msg)
+            executor.spin_once(timeout_sec=0.002)
+            if proc.poll() is not None:
+                break
+        if reliability == "best_effort":  # give the reliable reader time to (not) receive
+            end = time.monotonic() + 3
+            while time.monotonic() < end:
+                state.publish(msg)
+                executor.spin_once(timeout_sec=0.002)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert proc.returncode == 0, out
+    assert len(got["best_effort"]) >= 50, (len(got["best_effort"]), out[-2000:])
+    if reliability == "best_effort":
+        assert got["reliable"] == []  # incompatible QoS: what the default used to do to a default driver
+    else:
+        assert len(got["reliable"]) >= 50, (len(got["reliable"]), out[-2000:])
