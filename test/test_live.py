@@ -102,6 +102,24 @@ class Watcher:
                          float(v[0]) if len(v) else float("nan")))  # fmt: skip
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
+    def samples(self, topic: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arrival ns, stamp ns (int64: exact, unlike `array`'s float64) and value of every sample
+        seen on `topic`, in arrival order."""
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import JointState
+
+        with self.lock:
+            items = list(self.raw[topic])
+        field = self.TOPICS[topic]
+        arrival, stamp, value = [], [], []
+        for t, r in items:
+            m = deserialize_message(r, JointState)
+            v = getattr(m, field)
+            arrival.append(t)
+            stamp.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
+            value.append(float(v[0]) if len(v) else float("nan"))
+        return np.array(arrival, dtype=np.int64), np.array(stamp, dtype=np.int64), np.array(value)
+
     def diagnostics(self) -> dict[str, list[dict[str, str]]]:
         """The loop reports received on /diagnostics, per node (hardware_id), in arrival order."""
         from diagnostic_msgs.msg import DiagnosticArray
@@ -209,6 +227,7 @@ def default_run(tmp_path_factory, watcher):
         "window_ns": (t0, t1),
         "master": watcher.array("/master/joint_states"),
         "slave": watcher.array("/slave/joint_states"),
+        "samples": {side: watcher.samples(f"/{side}/joint_states") for side in ("master", "slave")},
         "diagnostics": watcher.diagnostics(),
     }
 
@@ -223,14 +242,32 @@ def test_default_scene_runs_live_and_ends_cleanly(default_run):
 
 
 @pytest.mark.parametrize("side", ["master", "slave"])
-def test_independent_subscriber_sees_1khz_streams(default_run, side):
-    """At least 90 % of 1 kHz on master and slave topics, counted by this test's own subscriber
-    over the scene's 5 s (distinct stamps inside the scene: a sample is counted once)."""
-    rows = default_run[side]
-    t0, t1 = default_run["window_ns"]
-    inside = rows[(rows[:, 1] >= t0) & (rows[:, 1] < t1)]
-    rate_hz = len(np.unique(inside[:, 1])) / ((t1 - t0) * 1e-9)
-    assert rate_hz >= 0.9 / PERIOD_S, f"{side}: {rate_hz:.0f} Hz"
+def test_independent_subscriber_sees_grid_stamps_in_order_and_the_bag_holds_them(default_run, side):
+    """What load cannot change (no rate is asserted: `bench live` measures rates). This test's own
+    subscriber sees the master and slave streams with stamps on the 1 ms grid, distinct and in
+    order; the bag holds every value it saw at the same stamp, except the samples the recorder
+    itself missed and filled (counted in live_run.json)."""
+    from haptic_teleop.bag import BagReader
+
+    topic = f"/{side}/joint_states"
+    _, stamps, values = default_run["samples"][side]
+    assert stamps.size > 0, f"{side}: nothing seen"
+    assert np.all(stamps % round(PERIOD_S * 1e9) == 0), "stamps off the tick grid"
+    assert np.all(np.diff(stamps) > 0), "stamps repeated or out of order"
+    out = default_run["out"]
+    info = json.loads((out / "live_run.json").read_text())
+    with BagReader(out / "bag") as r:
+        data = r.read(topic)
+    field = Watcher.TOPICS[topic]
+    bag_stamps = np.asarray(data.stamp_ns, dtype=np.int64) + int(info["start_stamp_ns"])
+    assert np.all(np.diff(bag_stamps) == round(PERIOD_S * 1e9)), "the bag's grid has a gap or a repeat"
+    seen = {int(s): float(v) for s, v in zip(stamps.tolist(), values.tolist(), strict=True)}
+    bag_values = data.field(field)
+    common = [(seen[int(s)], float(v)) for s, v in zip(bag_stamps.tolist(), bag_values.tolist(), strict=True)
+              if int(s) in seen]  # fmt: skip
+    assert len(common) > 0.5 * len(seen), (len(common), len(seen))  # the bag covers the run the watcher saw
+    differ = sum(1 for a, b in common if a != b)
+    assert differ <= int(info["samples_filled"][topic]), (differ, info["samples_filled"][topic])
 
 
 def test_every_loop_reports_its_figures_on_diagnostics(default_run):
