@@ -433,21 +433,30 @@ class Launcher:
 def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, Any]]) -> str:
     """The loops of the node set over their whole life, one row per node (`-`: no figures, e.g. a
     node that was killed or has no loop): ticks run, loop rate (ticks per second of wall time),
-    late ticks (run a period or more after their deadline), skipped ticks (overruns)."""
-    head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks")
+    late ticks (run a period or more after their deadline), skipped ticks (overruns); and what a
+    relay lost and a sync buffer skipped as late (packets)."""
+    head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks", "packets")
     rows = [head]
     for name in names:
         f = figures.get(name)
         if f is None:
-            rows.append((name, "-", "-", "-", "-"))
-        else:
-            rate = f"{float(f['loop_rate_hz']):.1f}"
-            rows.append((name, str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"])))
+            rows.append((name, "-", "-", "-", "-", ""))
+            continue
+        rate = f"{float(f['loop_rate_hz']):.1f}"
+        notes = []
+        if "delivered" in f:
+            notes.append(f"{f['delivered']} delivered, {f.get('lost', 0)} lost")
+        if "released" in f:
+            notes.append(f"{f['released']} released, {f.get('late', 0)} late")
+        rows.append((name, str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), "; ".join(notes)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
     lines = ["loops (whole run):"]
     for r in rows:
-        cells = [c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True))]
-        lines.append("  " + "  ".join(cells))
+        cells = [
+            c.ljust(w) if i in (0, len(head) - 1) else c.rjust(w)
+            for i, (c, w) in enumerate(zip(r, widths, strict=True))
+        ]
+        lines.append("  " + "  ".join(cells).rstrip())
     return "\n".join(lines)
 
 

@@ -120,6 +120,28 @@ class Watcher:
             value.append(float(v[0]) if len(v) else float("nan"))
         return np.array(arrival, dtype=np.int64), np.array(stamp, dtype=np.int64), np.array(value)
 
+    def late_scene(self, timeout_s: float) -> str | None:
+        """Subscribe to /haptic_teleop/scene now, as a late joiner would (transient local, the
+        durability a latched topic is read with), and return the scene received, or None."""
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+
+        from haptic_teleop.nodes.common import SCENE_TOPIC, take_all
+
+        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        sub = self.node.create_subscription(String, SCENE_TOPIC, lambda m: None, qos,
+                                            callback_group=_polled_group(self))  # fmt: skip
+        try:
+            end = time.monotonic() + timeout_s
+            while time.monotonic() < end:
+                got = take_all(sub)
+                if got:
+                    return str(got[-1].data)
+                time.sleep(0.05)
+            return None
+        finally:
+            self.node.destroy_subscription(sub)
+
     def diagnostics(self) -> dict[str, list[dict[str, str]]]:
         """The loop reports received on /diagnostics, per node (hardware_id), in arrival order."""
         from diagnostic_msgs.msg import DiagnosticArray
@@ -140,6 +162,12 @@ class Watcher:
         self.thread.join(2.0)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+def _polled_group(w: Watcher):
+    from haptic_teleop.nodes.common import _polled_group_class
+
+    return _polled_group_class()()
 
 
 class Launch:
@@ -218,6 +246,7 @@ def default_run(tmp_path_factory, watcher):
     launch = Launch("wall_contact", "--duration", "5", "--record", str(out), "--no-plots", "--single-process",
                     cwd=out.parent)  # fmt: skip
     stamp0 = int(launch.wait_for(r"scene time 0 at stamp (\d+) ns", 60).group(1))
+    scene_yaml = watcher.late_scene(30)  # subscribed after the recorder published it
     code = launch.finish(120)
     t0, t1 = stamp0, stamp0 + 5_000_000_000  # the scene's 5 s, on the nodes' clock (stamps)
     return {
@@ -229,6 +258,7 @@ def default_run(tmp_path_factory, watcher):
         "slave": watcher.array("/slave/joint_states"),
         "samples": {side: watcher.samples(f"/{side}/joint_states") for side in ("master", "slave")},
         "diagnostics": watcher.diagnostics(),
+        "scene_yaml": scene_yaml,
     }
 
 
@@ -292,6 +322,44 @@ def test_every_loop_reports_its_figures_on_diagnostics(default_run):
         assert f is not None and f["ticks"] == ticks[-1] - ticks[0] and f["loop_rate_hz"] > 0
 
 
+def test_scene_topic_is_latched_for_a_late_subscriber(default_run):
+    """/haptic_teleop/scene is published once, transient local: this test subscribes after scene
+    time 0 and still gets the resolved scene."""
+    import yaml
+
+    text = default_run["scene_yaml"]
+    assert text is not None, "a late subscriber got no scene"
+    scene = yaml.safe_load(text)
+    assert scene["scene"]["name"] == "wall_contact" and scene["scene"]["duration_s"] == 5.0
+
+
+def test_buffer_skips_count_as_late_packets_as_the_engine_counts_them(default_run):
+    """The engine marks a packet its playout buffer skipped with fate 4 (late) in the packet
+    records, which packets_late_* and late_loss_* count. Live, the sync buffers report their
+    decisions and the recorder applies them: the bag counts what the buffers skipped (in the
+    recorded window), one record per late packet, each one that arrived."""
+    from haptic_teleop.bag import BagReader
+
+    out, text = default_run["out"], default_run["launch"].text
+    summary = json.loads((out / "summary.json").read_text())
+    with BagReader(out / "bag") as r:
+        packets = {d: r.packets(f"/{d}/packets") for d in ("forward", "backward")}
+    for d in ("forward", "backward"):
+        m = re.search(rf"{d}_buffer .* (\d+) released, (\d+) late", text)
+        assert m, text[-3000:]
+        buffer_late = int(m.group(2))
+        bag_late = summary[f"packets_late_{d}"]
+        assert bag_late == summary[f"late_loss_{d}"]
+        assert bag_late <= buffer_late, (d, bag_late, buffer_late)
+        if buffer_late >= 20:  # some of them inside the recorded window
+            assert bag_late > 0, (d, bag_late, buffer_late)
+        rows = packets[d]
+        late = rows[rows[:, 3] == 4.0]
+        assert late.shape[0] == bag_late
+        assert np.all(np.isfinite(late[:, 2])), "a late packet without an arrival time"
+        assert np.unique(late[:, 0]).size == late.shape[0], "a packet counted late twice"
+
+
 def test_contact_force_reaches_the_master(default_run):
     """The operator pushes into the wall: the master renders a force against the push (negative)."""
     effort = default_run["master"][:, 2]
@@ -342,14 +410,14 @@ CROSS_MODE_TOLERANCE = {"contact_force_max_n": 0.10, "force_rms_error_n": 0.25}
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_signal_every_process_exits_0_and_bag_is_complete(tmp_path, watcher, sig):
+def test_signal_stops_every_process_cleanly_and_the_launch_exits_128_plus_signal(tmp_path, watcher, sig):
     out = tmp_path / "run"
     launch = Launch("wall_contact", "--duration", "60", "--record", str(out), "--no-plots", cwd=tmp_path)
-    launch.wait_for(r"scene time 0 at stamp", 60)
-    time.sleep(3.0)
+    stamp0 = int(launch.wait_for(r"scene time 0 at stamp (\d+) ns", 60).group(1))
+    seen = _wait_for_stamp(watcher, "/slave/joint_states", stamp0 + 2_000_000_000, 60)
     launch.proc.send_signal(sig)
     code = launch.finish(120)
-    assert code == 0, launch.text[-4000:]
+    assert code == 128 + sig, launch.text[-4000:]  # 130 (SIGINT), 143 (SIGTERM)
     codes = launch.exit_codes()
     expected = {"operator_source", "master_eba", "slave_eba", "forward_relay", "backward_relay",
                 "forward_buffer", "backward_buffer", "recorder"}  # fmt: skip
@@ -358,9 +426,24 @@ def test_signal_every_process_exits_0_and_bag_is_complete(tmp_path, watcher, sig
 
     summary, _ = analyze_bag(out / "bag")
     assert summary["interrupted"] is True  # stopped before the scene's 60 s
-    assert summary["ticks"] >= 2000  # the ~3 s that ran are in the bag
     info = json.loads((out / "live_run.json").read_text())
     assert info["ticks"] == summary["ticks"]
+    # Everything this test saw published before the signal is in the bag: its ticks reach past it.
+    assert info["start_stamp_ns"] + summary["ticks"] * round(PERIOD_S * 1e9) > seen
+    assert json.loads((out / "summary.json").read_text())["ticks"] == summary["ticks"]  # the summary was written
+    assert "loops (whole run):" in launch.text
+
+
+def _wait_for_stamp(watcher: Watcher, topic: str, stamp_ns: int, timeout_s: float) -> int:
+    """Wait until this test's subscriber has seen a sample stamped at or after `stamp_ns` (the
+    run has got that far); returns the newest stamp seen."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        rows = watcher.array(topic, last=50)
+        if rows.size and rows[:, 1].max() >= stamp_ns:
+            return int(rows[:, 1].max())
+        time.sleep(0.05)
+    raise AssertionError(f"no sample on {topic} stamped at or after {stamp_ns} within {timeout_s} s")
 
 
 def test_killing_the_slave_fades_the_master_force_and_fails_the_launch(tmp_path, watcher):
@@ -395,6 +478,80 @@ def test_killing_the_slave_fades_the_master_force_and_fails_the_launch(tmp_path,
     assert np.all(np.abs(after[:, 2]) < 1e-9), f"force after the bound: {np.abs(after[:, 2]).max():.3g} N"
     before = master[(master[:, 1] < last_arrival_ns) & (master[:, 1] > last_arrival_ns - 0.2e9)]
     assert np.nanmax(np.abs(before[:, 2])) > 1.0  # it was rendering contact until then
+
+
+def _read_killed_bag(bag: Path) -> np.ndarray:
+    """The tick stamps (ns from scene time 0) of /operator/joint_states in a bag whose recorder was
+    killed: rebuilt with `haptic-teleop bag recover` where that command exists, else read with the
+    mcap stream reader up to where the file ends."""
+    from haptic_teleop.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices
+    if "bag" in commands:
+        r = subprocess.run([*CLI, "bag", "recover", str(bag)], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+        from haptic_teleop.bag import BagReader
+
+        with BagReader(bag) as reader:
+            return np.asarray(reader.read("/operator/joint_states").stamp_ns, dtype=np.int64)
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    from haptic_teleop.bag import topic_specs
+
+    layout = topic_specs()["/operator/joint_states"].layout
+    channels: dict[int, str] = {}
+    stamps: list[int] = []
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        try:
+            for rec in StreamReader(f).records:
+                if isinstance(rec, Channel):
+                    channels[rec.id] = rec.topic
+                elif isinstance(rec, Message) and channels.get(rec.channel_id) == "/operator/joint_states":
+                    raw = np.frombuffer(rec.data, dtype=np.uint8).reshape(1, -1)
+                    stamps.append(int(layout.decode(raw)[1][0]))
+        except (McapError, EOFError, ValueError):
+            pass  # the file ends where the kill cut it
+    return np.asarray(stamps, dtype=np.int64)
+
+
+@pytest.mark.parametrize("victim", ["recorder", "master_eba", "forward_relay", "backward_buffer"])
+def test_sigkill_of_one_process_leaves_a_readable_bag_and_the_others_exit_cleanly(tmp_path, watcher, victim):
+    """SIGKILL one process of a recorded launch two seconds (of stamps) into the scene: the others
+    are stopped and exit 0, the launcher exits 1; the bag is complete (another node killed: the
+    recorder closes it) or recoverable (the recorder killed: what it had flushed, at least the
+    ticks up to a second before the kill), and holds a prefix of the scene's ticks, each stamp
+    once, in order."""
+    out = tmp_path / "run"
+    launch = Launch("wall_contact", "--duration", "60", "--record", str(out), "--no-plots", cwd=tmp_path)
+    pid = launch.pid_of(victim)
+    stamp0 = int(launch.wait_for(r"scene time 0 at stamp (\d+) ns", 60).group(1))
+    seen = _wait_for_stamp(watcher, "/slave/joint_states", stamp0 + 2_500_000_000, 60)
+    os.kill(pid, signal.SIGKILL)
+    code = launch.finish(120)
+    assert code == 1, launch.text[-4000:]
+    codes = launch.exit_codes()
+    assert codes.pop(victim) == -signal.SIGKILL
+    assert codes and all(c == 0 for c in codes.values()), codes
+    bag = out / "bag"
+    period = round(PERIOD_S * 1e9)
+    if victim == "recorder":
+        assert not (bag / "metadata.yaml").exists()  # the kill left it unfinished
+        stamps = _read_killed_bag(bag)
+        # Flushed at least once a second: the ticks up to a second before the kill are there.
+        assert stamps.size * period >= seen - stamp0 - 1_500_000_000, (stamps.size, (seen - stamp0) * 1e-9)
+    else:
+        from haptic_teleop.bag import BagReader
+
+        assert (bag / "metadata.yaml").is_file()
+        with BagReader(bag) as reader:
+            stamps = np.asarray(reader.read("/operator/joint_states").stamp_ns, dtype=np.int64)
+        assert json.loads((out / "summary.json").read_text())["ticks"] == stamps.size  # summary written
+        assert stamps.size * period >= seen - stamp0  # it ran past what this test saw before the kill
+    assert np.array_equal(stamps, np.arange(stamps.size, dtype=np.int64) * period), "not a prefix of the ticks"
+    assert "Traceback" not in launch.text
 
 
 def test_bad_parameter_stops_the_node_and_names_it(tmp_path):
@@ -679,8 +836,8 @@ def test_force_command_reaches_reliable_and_best_effort_drivers(tmp_path, reliab
     rclpy.init(context=context)
     node = rclpy.create_node("fake_driver", context=context)
     got = {"reliable": [], "best_effort": []}
-    node.create_subscription(WrenchStamped, command_topic, lambda m: got["reliable"].append(m), QoSProfile(depth=10))
-    node.create_subscription(WrenchStamped, command_topic, lambda m: got["best_effort"].append(m), stream_qos(10))
+    node.create_subscription(WrenchStamped, command_topic, got["reliable"].append, QoSProfile(depth=10))
+    node.create_subscription(WrenchStamped, command_topic, got["best_effort"].append, stream_qos(10))
     state = node.create_publisher(JointState, state_topic, stream_qos())
     msg = JointState(name=["device_x"], position=[0.01], velocity=[0.0], effort=[0.0])
     executor = SingleThreadedExecutor(context=context)

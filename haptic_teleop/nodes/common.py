@@ -76,6 +76,14 @@ def packets_topic(direction: str) -> str:
     return f"/{direction}/packets"
 
 
+def playout_topic(direction: str) -> str:
+    """Sync buffer -> recorder: what the buffer decided for each packet it received (played or late)."""
+    return f"/{direction}/playout"
+
+
+SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAML), latched
+
+
 # A direction's payload, in the order the core controllers expect (TeleopController docstring),
 # and where each value sits in the sensor_msgs/JointState that carries it.
 PAYLOAD_FIELDS = {
@@ -1137,6 +1145,7 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
             "loop_rate_hz": round(st.rate_hz(), 1),
             "late_ticks": st.late_ticks,
             "skipped_ticks": st.overruns,
+            **{k: v for k, v in self.diagnostic_values().items() if k in FINAL_EXTRAS},
         }
 
     def request_stop(self, code: int = 0) -> None:
@@ -1186,6 +1195,8 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
 
 
 BAD_PARAMETER_EXIT = 2
+# Node figures (diagnostic_values) that go with the loop's into the table at the end of a launch.
+FINAL_EXTRAS = ("late", "lost", "delivered", "released")
 
 
 def _bad_parameter_errors() -> tuple[type[BaseException], ...]:
