@@ -277,7 +277,7 @@ def test_independent_subscriber_sees_grid_stamps_in_order_and_the_bag_holds_them
     subscriber sees the master and slave streams with stamps on the 1 ms grid, distinct and in
     order; the bag holds every value it saw at the same stamp, except the samples the recorder
     itself missed and filled (counted in live_run.json)."""
-    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import BagReader
 
     topic = f"/{side}/joint_states"
     _, stamps, values = default_run["samples"][side]
@@ -338,7 +338,7 @@ def test_buffer_skips_count_as_late_packets_as_the_engine_counts_them(default_ru
     records, which packets_late_* and late_loss_* count. Live, the sync buffers report their
     decisions and the recorder applies them: the bag counts what the buffers skipped (in the
     recorded window), one record per late packet, each one that arrived."""
-    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import BagReader
 
     out, text = default_run["out"], default_run["launch"].text
     summary = json.loads((out / "summary.json").read_text())
@@ -491,7 +491,7 @@ def _read_killed_bag(bag: Path) -> np.ndarray:
     if "bag" in commands:
         r = subprocess.run([*CLI, "bag", "recover", str(bag)], capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stdout + r.stderr
-        from haptic_teleop.bag import BagReader
+        from haptic_teleop.record.reader import BagReader
 
         with BagReader(bag) as reader:
             return np.asarray(reader.read("/operator/joint_states").stamp_ns, dtype=np.int64)
@@ -499,7 +499,7 @@ def _read_killed_bag(bag: Path) -> np.ndarray:
     from mcap.records import Channel, Message
     from mcap.stream_reader import StreamReader
 
-    from haptic_teleop.bag import topic_specs
+    from haptic_teleop.record.layouts import topic_specs
 
     layout = topic_specs()["/operator/joint_states"].layout
     channels: dict[int, str] = {}
@@ -543,7 +543,7 @@ def test_sigkill_of_one_process_leaves_a_readable_bag_and_the_others_exit_cleanl
         # Flushed at least once a second: the ticks up to a second before the kill are there.
         assert stamps.size * period >= seen - stamp0 - 1_500_000_000, (stamps.size, (seen - stamp0) * 1e-9)
     else:
-        from haptic_teleop.bag import BagReader
+        from haptic_teleop.record.reader import BagReader
 
         assert (bag / "metadata.yaml").is_file()
         with BagReader(bag) as reader:

@@ -36,7 +36,7 @@ def ensure_local_discovery() -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# Topics. Names match haptic_teleop.bag where the meaning is the same.
+# Topics. Names match the bag (haptic_teleop.record) where the meaning is the same.
 
 OPERATOR_STATE = "/operator/joint_states"
 MASTER_STATE = "/master/joint_states"

@@ -146,8 +146,8 @@ class Recorder(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray, String
 
-        from haptic_teleop.bag import topic_specs
         from haptic_teleop.errors import ConfigError
+        from haptic_teleop.record.layouts import topic_specs
         from haptic_teleop.scene import LoadedScene
 
         self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir",))
@@ -227,18 +227,6 @@ class Recorder(LiveNode):
                 str(self.bag_dir.parent),
                 f"cannot be written ({exc.strerror or exc}); allowed: a directory this user can write",
             ) from None
-
-    @staticmethod
-    def _offered_qos() -> dict[str, Any]:
-        """The QoS each topic is published with (the bag's metadata records them, as rosbag2 does)."""
-        stream = stream_qos(1)
-        reliable = reliable_qos(100)
-        out: dict[str, Any] = {t: stream for t in STATE_COLUMNS}
-        for d in DIRECTIONS:
-            out[f"/{d}/sent"] = stream
-            out[received_topic(d)] = stream
-            out[packets_topic(d)] = reliable
-        return out
 
     @staticmethod
     def _ros_type(name: str) -> Any:
@@ -332,7 +320,7 @@ class Recorder(LiveNode):
         from rclpy.serialization import deserialize_message
         from std_msgs.msg import Float64MultiArray
 
-        from haptic_teleop.bag import PACKET_FIELDS
+        from haptic_teleop.record.layouts import PACKET_FIELDS
 
         for r in raws:
             m = deserialize_message(r, Float64MultiArray)
@@ -404,7 +392,7 @@ class Recorder(LiveNode):
         """Packet records whose tick is written and whose fate is final: lost on the way, or
         decided by the sync buffer (played, or late: the first delivered copy gets LOST_LATE),
         or HOLD_TICKS old; all of them when closing."""
-        from haptic_teleop.bag import PACKET_FIELDS
+        from haptic_teleop.record.layouts import PACKET_FIELDS
 
         if not self.cfg.recording.packets or self.start_tick is None:
             for d in DIRECTIONS:
