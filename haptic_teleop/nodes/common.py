@@ -82,6 +82,21 @@ def playout_topic(direction: str) -> str:
 
 
 SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAML), latched
+# The operator source's scene time 0 (std_msgs/Header, stamp = the tick it started at), latched: the
+# recorder's grid starts there even if the operator's first samples did not reach it.
+SCENE_START_TOPIC = "/haptic_teleop/scene_start"
+
+
+def latched_qos() -> Any:
+    """Reliable, keep last 1, transient local: a subscriber that joins later gets the last message."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
 
 
 # A direction's payload, in the order the core controllers expect (TeleopController docstring),

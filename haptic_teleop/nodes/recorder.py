@@ -43,6 +43,7 @@ from haptic_teleop.nodes.common import (
     MASTER_EBA,
     MASTER_STATE,
     OPERATOR_STATE,
+    SCENE_START_TOPIC,
     SCENE_TOPIC,
     SLAVE_CONTACT,
     SLAVE_EBA,
@@ -50,6 +51,7 @@ from haptic_teleop.nodes.common import (
     LiveNode,
     declare_scene,
     declare_value,
+    latched_qos,
     node_main,
     packets_topic,
     playout_topic,
@@ -191,16 +193,11 @@ class Recorder(LiveNode):
         self._last_flush = time.monotonic()
         self.rec = self._open_bag()
         # The resolved scene, latched (transient local): a subscriber that starts later gets it.
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-        latched = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=1,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-        )
-        self._scene_pub = self.create_publisher(String, SCENE_TOPIC, latched)
+        self._scene_pub = self.create_publisher(String, SCENE_TOPIC, latched_qos())
         self._scene_pub.publish(String(data=self.scene_yaml))
+        from std_msgs.msg import Header
+
+        self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
         topics = list(self._subs)
         self._poll_groups = [topics[i::POLL_GROUPS] for i in range(POLL_GROUPS)]
         self._decode_every = max(1, round(DECODE_EVERY_S / (cfg.scene.period_s * TAKE_EVERY)))
@@ -345,8 +342,12 @@ class Recorder(LiveNode):
         decided up to there; flush when due."""
         if self.start_tick is None:
             first = self._pending[OPERATOR_STATE].first()
-            if first is None:
-                return
+            told = take_all(self._start_sub)
+            if told:  # the operator's scene time 0, even if its first samples did not get here
+                st = told[-1].stamp
+                first = (int(st.sec) * 1_000_000_000 + int(st.nanosec)) // self.grid_ns
+            elif first is None or (not closing and self._pending[OPERATOR_STATE].newest - first < STALL_TICKS):
+                return  # wait for it a little (an operator of another version may not send it)
             self.start_tick = self.written = first
         newest = [self._pending[t].newest for t in MAIN]
         if min(newest) < 0 and not closing and max(newest) - self.written < STALL_TICKS:
