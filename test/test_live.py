@@ -867,3 +867,38 @@ def test_force_command_reaches_reliable_and_best_effort_drivers(tmp_path, reliab
         assert got["reliable"] == []  # incompatible QoS: what the default used to do to a default driver
     else:
         assert len(got["reliable"]) >= 50, (len(got["reliable"]), out[-2000:])
+
+
+# ---------------------------------------------------------------------------------------------
+# The recorder's pure parts: late marks on packet records, the grid across written blocks.
+
+
+def test_mark_late_marks_the_first_delivered_copy_of_each_late_packet():
+    from haptic_teleop.nodes.recorder import mark_late
+    from haptic_teleop.record.layouts import PACKET_FIELDS
+
+    f = {name: i for i, name in enumerate(PACKET_FIELDS)}
+    nan = float("nan")
+    rows = np.array(
+        [  # seq, send, arrival, fate, duplicate, size
+            [1, 0.001, 0.051, 0, 0, 60],
+            [2, 0.002, 0.060, 0, 0, 60],  # original, arrived second
+            [2, 0.002, 0.055, 0, 1, 60],  # its duplicate arrived first: that is the copy the buffer skipped
+            [3, 0.003, nan, 1, 0, 60],  # lost in the network: not late
+            [4, 0.004, 0.054, 0, 0, 60],
+        ]
+    )
+    assert mark_late(rows, {2, 3, 9}, f) == 1
+    assert rows[:, f["fate"]].tolist() == [0, 0, 4, 1, 0]
+    assert mark_late(rows, set(), f) == 0
+
+
+def test_on_grid_holds_values_across_blocks_and_counts_the_filled_ticks():
+    from haptic_teleop.nodes.recorder import _on_grid
+
+    grid, filled, carry = _on_grid(np.array([1, 3]), np.array([[10.0], [30.0]]), 5, None)
+    assert grid[:, 0].tolist() == [10.0, 10.0, 10.0, 30.0, 30.0] and filled == 3  # before the first: the first
+    grid, filled, carry = _on_grid(np.array([2]), np.array([[40.0]]), 4, carry)
+    assert grid[:, 0].tolist() == [30.0, 30.0, 40.0, 40.0] and filled == 3  # the previous block's last held
+    grid, filled, carry = _on_grid(np.zeros(0, dtype=np.int64), np.zeros((0, 1)), 2, carry)
+    assert grid[:, 0].tolist() == [40.0, 40.0] and filled == 2 and carry is not None and carry[0] == 40.0
