@@ -535,13 +535,22 @@ def launch_main(args: Any) -> int:
         timeout = scene.config.scene.duration_s / (rate or 1.0) + 60.0 if args.side != "slave" else None
         result = Launcher(plan, params_dir, timeout_s=timeout).run()
         code = result.exit_code
-    if record is not None and (record / "bag").exists():
+    bag = record / "bag" if record is not None else None
+    if bag is not None and bag.exists() and not (bag / "metadata.yaml").exists():
+        # The recorder was killed: its flushed chunks are there, the summary section is not.
+        print(
+            f"haptic-teleop: the recorder did not finish {bag} (killed?); `haptic-teleop bag recover {bag}` "
+            "rebuilds it from every complete chunk",
+            file=sys.stderr,
+        )
+        code = code or EXIT_FAILURE
+    elif record is not None and bag is not None and bag.exists():
         from haptic_teleop.cli import write_outputs
         from haptic_teleop.report import format_summary
 
-        summary = write_outputs(record / "bag", record, plots=not args.no_plots)
+        summary = write_outputs(bag, record, plots=not args.no_plots)
         print(format_summary(summary))
-        print(f"\nbag:     {record / 'bag'}\nsummary: {record / 'summary.json'}")
+        print(f"\nbag:     {bag}\nsummary: {record / 'summary.json'}")
     elif record is not None:
         print(f"haptic-teleop: no bag was written to {record / 'bag'}", file=sys.stderr)
         code = code or EXIT_FAILURE

@@ -539,6 +539,7 @@ def test_sigkill_of_one_process_leaves_a_readable_bag_and_the_others_exit_cleanl
     period = round(PERIOD_S * 1e9)
     if victim == "recorder":
         assert not (bag / "metadata.yaml").exists()  # the kill left it unfinished
+        assert f"haptic-teleop bag recover {bag}" in launch.text  # the launcher says how to rebuild it
         stamps = _read_killed_bag(bag)
         # Flushed at least once a second: the ticks up to a second before the kill are there.
         assert stamps.size * period >= seen - stamp0 - 1_500_000_000, (stamps.size, (seen - stamp0) * 1e-9)
