@@ -370,6 +370,17 @@ def test_live_bag_is_readable_and_analyze_works(default_run):
     out = default_run["out"]
     bag = out / "bag"
     assert (bag / "metadata.yaml").is_file()
+    # The QoS the topics were published with, as rosbag2 records it.
+    import yaml
+
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    qos = {
+        t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+        for t in meta["topics_with_message_count"]
+    }
+    assert qos["/slave/joint_states"][0]["reliability"] == "best_effort"
+    assert qos["/forward/packets"][0]["reliability"] == "reliable"
+    assert qos["/haptic_teleop/scene"][0]["durability"] == "transient_local"
     r = subprocess.run([*CLI, "analyze", str(bag), "--out", str(out / "again"), "--no-plots"],
                        capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stderr

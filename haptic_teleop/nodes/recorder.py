@@ -74,6 +74,17 @@ STATE_COLUMNS = {
 RECEIVED = {received_topic("forward"): "fwd_rx_seq", received_topic("backward"): "bwd_rx_seq"}
 PACKETS = {packets_topic("forward"): "forward", packets_topic("backward"): "backward"}
 PLAYOUT = {playout_topic("forward"): "forward", playout_topic("backward"): "backward"}
+# The QoS the live topics are published with, recorded in the bag's metadata as rosbag2 does
+# (fields of rosbag2's offered_qos_profiles; topics not named: the 1 kHz streams' profile).
+_STREAM = {"reliability": "best_effort", "depth": 1}
+_BATCH = {"reliability": "reliable", "depth": 100}
+_LATCHED = {"reliability": "reliable", "durability": "transient_local", "depth": 1}
+OFFERED_QOS = {
+    "*": [_STREAM],
+    SCENE_TOPIC: [_LATCHED],
+    "/haptic_teleop/run_info": [_LATCHED],
+    **{packets_topic(d): [_BATCH] for d in DIRECTIONS},
+}
 MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams that define the grid's end
 _STAMP = struct.Struct("<iI")
 
@@ -215,7 +226,7 @@ class Recorder(LiveNode):
             self.bag_dir.parent.mkdir(parents=True, exist_ok=True)
             return RunRecorder(
                 self.bag_dir, self.scene_yaml, self.grid_ns, rec.eba_internals, rec.packets, len(COLUMNS),
-                parallel=False,
+                parallel=False, compression=getattr(rec, "compression", "none"), qos=OFFERED_QOS,
             )  # fmt: skip
         except OSError as exc:
             raise ConfigError(
