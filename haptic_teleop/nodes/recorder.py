@@ -6,7 +6,7 @@ quarter of the topics per recorder tick, each topic every 16 ms; four times a se
 are decoded in bulk, one topic per tick, with the bag's fixed layouts onto the tick grid (index =
 stamp / period; the EBA arrays, which have no header, by the time they were published).
 
-After each decoding round the ticks every stream has passed (less a margin of MARGIN_TICKS for
+After each decoding round the ticks every stream has passed (less a margin of MARGIN_S = 0.1 s for
 samples still on their way) are appended to the bag (`RunRecorder.append`), with the grid from the
 operator's first sample (scene time 0), the same layout the engine writes, so `haptic-teleop
 analyze` and every metric work on live bags unchanged; a sample lost between a node and the
@@ -14,11 +14,11 @@ recorder holds the previous value (counted in run_info). At least once a second 
 is flushed as complete chunks, so a kill of any process, the recorder's own included, loses at
 most the last second or so (`haptic-teleop bag recover` rebuilds the summary of a bag whose
 recorder was killed). Memory stays bounded: only ticks not yet written are kept, and a stream
-that stops (its node died) is held at its last value once the others are STALL_TICKS ahead.
+that stops (its node died) is held at its last value once the others are STALL_S = 2 s ahead.
 
 Packet records come from the relays (/<dir>/packets) and the sync buffers' decisions
 (/<dir>/playout: played or late); a record is written once the buffer has decided it (or its
-tick is HOLD_TICKS old), with a late decision applied to its first delivered copy: fate 4,
+tick is HOLD_S = 10 s old), with a late decision applied to its first delivered copy: fate 4,
 LOST_LATE, as the engine's buffer marks it. On close (SIGINT/SIGTERM/end of the scene) the rest is
 written, up to the last tick every stream reached (at most scene.duration_s), and the bag closed.
 
@@ -29,6 +29,7 @@ local: a subscriber that starts later still gets it).
 from __future__ import annotations
 
 import json
+import math
 import struct
 import time
 from pathlib import Path
@@ -107,11 +108,11 @@ END_TOLERANCE_TICKS = 20
 DECODE_EVERY_S = 0.25  # a decoding round (one topic per recorder tick) starts this often
 # Ticks are written once every main stream is this far past them: samples of the other streams
 # (EBA arrays, released samples) for those ticks have been taken by then.
-MARGIN_TICKS = 100
+MARGIN_S = 0.1
 # A main stream this far behind the newest one (its node stopped or died) no longer holds the
 # recording back: its ticks are written holding its last value.
-STALL_TICKS = 2000
-HOLD_TICKS = 10_000  # a packet record the sync buffer has not decided after this long is written as is
+STALL_S = 2.0
+HOLD_S = 10.0  # a packet record the sync buffer has not decided after this long is written as is
 FLUSH_EVERY_S = 0.5  # what was appended is on disk as complete chunks at least this often
 
 
@@ -174,6 +175,9 @@ class Recorder(LiveNode):
         cfg = self.cfg
         self.grid_ns = round(cfg.scene.period_s * 1e9)  # the scene's tick grid
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
+        self.margin_ticks, self.stall_ticks, self.hold_ticks = (
+            max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
+        )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
         self._specs = topic_specs()
         # Per topic, what was taken and not yet decoded: times (ns) and raw bytes in two lists, not
@@ -357,16 +361,16 @@ class Recorder(LiveNode):
             if told:  # the operator's scene time 0, even if its first samples did not get here
                 st = told[-1].stamp
                 first = (int(st.sec) * 1_000_000_000 + int(st.nanosec)) // self.grid_ns
-            elif first is None or (not closing and self._pending[OPERATOR_STATE].newest - first < STALL_TICKS):
+            elif first is None or (not closing and self._pending[OPERATOR_STATE].newest - first < self.stall_ticks):
                 return  # wait for it a little (an operator of another version may not send it)
             self.start_tick = self.written = first
         newest = [self._pending[t].newest for t in MAIN]
-        if min(newest) < 0 and not closing and max(newest) - self.written < STALL_TICKS:
+        if min(newest) < 0 and not closing and max(newest) - self.written < self.stall_ticks:
             return
         if closing:
             end = min(n for n in newest) + 1 if min(newest) >= 0 else self.written
         else:
-            end = max(min(newest) + 1 - MARGIN_TICKS, max(newest) + 1 - STALL_TICKS)
+            end = max(min(newest) + 1 - self.margin_ticks, max(newest) + 1 - self.stall_ticks)
         end = min(end, self.start_tick + self.duration_ticks)
         if end > self.written:
             self._write_ticks(self.written, end)
@@ -403,7 +407,7 @@ class Recorder(LiveNode):
     def _write_packets(self, closing: bool) -> None:
         """Packet records whose tick is written and whose fate is final: lost on the way, or
         decided by the sync buffer (played, or late: the first delivered copy gets LOST_LATE),
-        or HOLD_TICKS old; all of them when closing."""
+        or HOLD_S old; all of them when closing."""
         from haptic_teleop.record.layouts import PACKET_FIELDS
 
         if not self.cfg.recording.packets or self.start_tick is None:
@@ -420,7 +424,7 @@ class Recorder(LiveNode):
             seq = rows[:, f["seq"]].astype(np.int64)
             decided = self._decided[d]
             known = np.fromiter((s in decided for s in seq.tolist()), dtype=bool, count=seq.size)
-            final = (rows[:, f["fate"]] != DELIVERED) | known | (seq < written - HOLD_TICKS) | closing
+            final = (rows[:, f["fate"]] != DELIVERED) | known | (seq < written - self.hold_ticks) | closing
             ready = final & (seq < written)
             before = seq < start  # sent before scene time 0
             keep = ~ready & ~before & (not closing)  # closing: what is left is past the recording's end
@@ -437,8 +441,8 @@ class Recorder(LiveNode):
                 order = np.argsort(out[:, f["seq"]], kind="stable")
                 self.rec.append_packets(d, np.ascontiguousarray(out[order]))
                 self.packets_written[d] += out.shape[0]
-            horizon = written - HOLD_TICKS
-            if len(decided) > HOLD_TICKS:
+            horizon = written - self.hold_ticks
+            if len(decided) > self.hold_ticks:
                 for s in [s for s in decided if s < horizon]:
                     del decided[s]
 
