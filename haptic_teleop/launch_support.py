@@ -15,6 +15,7 @@ from typing import Any
 
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.launcher import DEVICES, SIDES, NodeSpec, node_plan, write_params_files
+from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES
 
 # Launch arguments (name, default, description): every launch file takes these...
 ARGUMENTS = (
@@ -29,6 +30,8 @@ ARGUMENTS = (
 DEVICE_ARGUMENTS = (
     ("state_topic", "/haptic_device/joint_states", "the device driver's sensor_msgs/JointState"),
     ("command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"),
+    ("command_reliability", "reliable", "QoS of the force command: reliable | best_effort"),
+    ("command_depth", "10", "QoS history depth of the force command"),
 )
 
 
@@ -74,6 +77,22 @@ def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str 
         raise ConfigError("launch arguments", "sim_time", sim, "allowed: true or false")
     scene = load_scene(find_scene(arg("scene") or "wall_contact"), overrides=overrides, seed=seed)
     topics = (arg("state_topic"), arg("command_topic")) if device == "topic" and arg("state_topic") else None
+    qos = None
+    if device == "topic" and (arg("command_reliability") or arg("command_depth")):
+        reliability = arg("command_reliability") or "reliable"
+        if reliability not in RELIABILITIES:
+            raise ConfigError(
+                "launch arguments", "command_reliability", reliability, "allowed: one of " + ", ".join(RELIABILITIES)
+            )
+        try:
+            depth = int(arg("command_depth") or DEFAULT_COMMAND_DEPTH)
+        except ValueError:
+            depth = 0
+        if not 1 <= depth <= 10_000:
+            raise ConfigError(
+                "launch arguments", "command_depth", arg("command_depth"), "allowed: an integer 1 to 10000"
+            )
+        qos = (reliability, depth)
     plan = node_plan(
         scene,
         record_dir=arg("record") or None,
@@ -81,6 +100,7 @@ def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str 
         device=device,
         sim_time_rate=1.0 if sim == "true" else None,
         device_topics=topics,
+        command_qos=qos,
     )
     files = write_params_files(plan, params_dir)
     return [(spec, files[spec.name]) for spec in plan]

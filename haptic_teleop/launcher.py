@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from haptic_teleop.nodes import EXECUTABLES, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes import EXECUTABLES, LOOP_FIGURES_MARK, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
 from haptic_teleop.scene import LoadedScene
 
 SIDES = ("all", "master", "slave")
@@ -44,6 +44,8 @@ STOP_TIMEOUT_S = 10.0
 RECORDER_STOP_TIMEOUT_S = 60.0
 EXIT_OK = 0
 EXIT_FAILURE = 1
+EXIT_USAGE = 2  # bad input: nothing was started
+EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal that stopped the launch
 
 
 @dataclass(frozen=True)
@@ -126,10 +128,12 @@ def node_plan(
     watchdog_fade_s: float = WATCHDOG_FADE_S,
     sim_time_rate: float | None = None,
     device_topics: tuple[str, str] | None = None,
+    command_qos: tuple[str, int] | None = None,
 ) -> list[NodeSpec]:
     """The node set of a scene. `device="topic"` is the hardware variant: the master reads a haptic
     device driver's topics (`device_topics` = (state, command); default the node's) and there is
-    no simulated operator. `sim_time_rate` (simulated s per wall s) adds a clock_source and sets
+    no simulated operator; `command_qos` = (reliability, depth) of its force command (default the
+    node's: reliable, 10). `sim_time_rate` (simulated s per wall s) adds a clock_source and sets
     use_sim_time on every node."""
     if side not in SIDES:
         raise ValueError(f"side must be one of {SIDES}, got {side!r}")
@@ -148,6 +152,8 @@ def node_plan(
     master["device"] = {"source": device}
     if device_topics is not None:
         master["device"].update(state_topic=device_topics[0], command_topic=device_topics[1])
+    if command_qos is not None:
+        master["device"].update(command_reliability=str(command_qos[0]), command_depth=int(command_qos[1]))
     plan.append(NodeSpec("master_eba", "master_eba", master))
     plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
     for d in ("forward", "backward"):
@@ -286,6 +292,8 @@ class Launcher:
         self.children: list[Child] = []
         self._write_lock = threading.Lock()
         self._interrupt = threading.Event()
+        self.signal: int | None = None  # the signal that asked for the stop, if one did
+        self.figures: dict[str, dict[str, Any]] = {}  # node -> its loop figures (LOOP_FIGURES_MARK)
 
     def log(self, text: str) -> None:
         self._line("launcher", text)
@@ -297,7 +305,12 @@ class Launcher:
 
     def _pump(self, name: str, stream: IO[bytes]) -> None:
         for raw in iter(stream.readline, b""):
-            self._line(name, raw.decode(errors="replace").rstrip("\n"))
+            text = raw.decode(errors="replace").rstrip("\n")
+            if text.startswith(LOOP_FIGURES_MARK):
+                with contextlib.suppress(ValueError):
+                    self.figures[name] = json.loads(text[len(LOOP_FIGURES_MARK) :])
+                    continue
+            self._line(name, text)
         stream.close()
 
     def start(self) -> None:
@@ -320,8 +333,10 @@ class Launcher:
     def pids(self) -> dict[str, int]:
         return {c.spec.name: c.proc.pid for c in self.children}
 
-    def interrupt(self) -> None:
+    def interrupt(self, signum: int | None = None) -> None:
         """Ask for a clean stop (what SIGINT/SIGTERM to the launcher do)."""
+        if self.signal is None:
+            self.signal = signum
         self._interrupt.set()
 
     def _poll(self) -> None:
@@ -367,8 +382,14 @@ class Launcher:
         codes = {c.spec.name: int(c.returncode if c.returncode is not None else -1) for c in self.children}
         for name, code in codes.items():
             self.log(f"{name} exited {code}")
+        with self._write_lock:
+            self.out.write(format_loop_table([c.spec.name for c in self.children], self.figures) + "\n")
+            self.out.flush()
         ok = reason in ("finished", "interrupted") and all(v == 0 for v in codes.values())
-        return LaunchResult(EXIT_OK if ok else EXIT_FAILURE, reason, codes, crashed.spec.name if crashed else None)
+        code = EXIT_OK if ok else EXIT_FAILURE
+        if ok and reason == "interrupted" and self.signal is not None:
+            code = EXIT_SIGNAL.get(signal.Signals(self.signal), EXIT_FAILURE)
+        return LaunchResult(code, reason, codes, crashed.spec.name if crashed else None)
 
     def _stop_group(self, group: list[Child], timeout_s: float) -> None:
         for c in group:
@@ -400,7 +421,7 @@ class Launcher:
         previous = {}
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
-                previous[sig] = signal.signal(sig, lambda s, f: self.interrupt())
+                previous[sig] = signal.signal(sig, lambda s, f: self.interrupt(s))
         try:
             self.start()
             return self.supervise()
@@ -409,13 +430,44 @@ class Launcher:
                 signal.signal(sig, handler)
 
 
+def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, Any]]) -> str:
+    """The loops of the node set over their whole life, one row per node (`-`: no figures, e.g. a
+    node that was killed or has no loop): ticks run, loop rate (ticks per second of wall time),
+    late ticks (run a period or more after their deadline), skipped ticks (overruns); and what a
+    relay lost and a sync buffer skipped as late (packets)."""
+    head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks", "packets")
+    rows = [head]
+    for name in names:
+        f = figures.get(name)
+        if f is None:
+            rows.append((name, "-", "-", "-", "-", ""))
+            continue
+        rate = f"{float(f['loop_rate_hz']):.1f}"
+        notes = []
+        if "delivered" in f:
+            notes.append(f"{f['delivered']} delivered, {f.get('lost', 0)} lost")
+        if "released" in f:
+            notes.append(f"{f['released']} released, {f.get('late', 0)} late")
+        rows.append((name, str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), "; ".join(notes)))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    lines = ["loops (whole run):"]
+    for r in rows:
+        cells = [
+            c.ljust(w) if i in (0, len(head) - 1) else c.rjust(w)
+            for i, (c, w) in enumerate(zip(r, widths, strict=True))
+        ]
+        lines.append("  " + "  ".join(cells).rstrip())
+    return "\n".join(lines)
+
+
 # ---------------------------------------------------------------------------------------------
 # Single process.
 
 
-def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path) -> int:
+def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path, out: IO[str] | None = None) -> int:
     """Every node of the plan in this process: one executor, one shared loop thread ticking every
-    node in pipeline order (nodes.common.SharedLoop); the recorder is closed last."""
+    node in pipeline order (nodes.common.SharedLoop); the recorder is closed last. Prints the loop
+    table at the end; a SIGINT/SIGTERM that stopped the nodes gives exit 130/143."""
     import importlib
 
     from haptic_teleop.nodes.common import run_nodes
@@ -439,7 +491,15 @@ def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path) -> int:
                 "use_global_arguments": False,
             }
         )
-    return run_nodes(factories, node_args, args=[], shared_loop=True)
+    figures: list[dict[str, Any]] = []
+    signals: list[int] = []
+    code = run_nodes(factories, node_args, args=[], shared_loop=True, figures_out=figures, signals_out=signals)
+    stream = out or sys.stdout
+    stream.write(format_loop_table([s.name for s in plan], {f["node"]: f for f in figures}) + "\n")
+    stream.flush()
+    if code == 0 and signals:
+        code = EXIT_SIGNAL.get(signal.Signals(signals[0]), EXIT_FAILURE)
+    return code
 
 
 # ---------------------------------------------------------------------------------------------
@@ -456,8 +516,11 @@ def launch_main(args: Any) -> int:
         overrides.append(f"scene.duration_s={float(args.duration)}")
     scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
     record = Path(args.record) if args.record else None
-    if record is not None and (record / "bag").exists():
-        raise HapticTeleopError(f"{record / 'bag'} exists already; choose a new --record directory")
+    if record is not None:
+        problem = record_dir_problem(record)
+        if problem is not None:
+            print(f"haptic-teleop: --record {record}: {problem}", file=sys.stderr)
+            return EXIT_USAGE
     rate = args.sim_time_rate
     try:
         plan = node_plan(scene, record_dir=record, side=args.side, sim_time_rate=rate)
@@ -472,17 +535,46 @@ def launch_main(args: Any) -> int:
         timeout = scene.config.scene.duration_s / (rate or 1.0) + 60.0 if args.side != "slave" else None
         result = Launcher(plan, params_dir, timeout_s=timeout).run()
         code = result.exit_code
-    if record is not None and (record / "bag").exists():
+    bag = record / "bag" if record is not None else None
+    if bag is not None and bag.exists() and not (bag / "metadata.yaml").exists():
+        # The recorder was killed: its flushed chunks are there, the summary section is not.
+        print(
+            f"haptic-teleop: the recorder did not finish {bag} (killed?); `haptic-teleop bag recover {bag}` "
+            "rebuilds it from every complete chunk",
+            file=sys.stderr,
+        )
+        code = code or EXIT_FAILURE
+    elif record is not None and bag is not None and bag.exists():
         from haptic_teleop.cli import write_outputs
         from haptic_teleop.report import format_summary
 
-        summary = write_outputs(record / "bag", record, plots=not args.no_plots)
+        summary = write_outputs(bag, record, plots=not args.no_plots)
         print(format_summary(summary))
-        print(f"\nbag:     {record / 'bag'}\nsummary: {record / 'summary.json'}")
+        print(f"\nbag:     {bag}\nsummary: {record / 'summary.json'}")
     elif record is not None:
         print(f"haptic-teleop: no bag was written to {record / 'bag'}", file=sys.stderr)
         code = code or EXIT_FAILURE
     return code
+
+
+def record_dir_problem(record: Path) -> str | None:
+    """What makes `record` unusable as `--record DIR`, or None (then DIR exists, empty and writable).
+
+    Checked before any node starts, by doing what the recorder will do: create the directory and a
+    file in it (a permission check alone would pass for root on a read-only file system)."""
+    allowed = "allowed: a new or empty directory this user can write"
+    if record.exists() and not record.is_dir():
+        return f"is a file, not a directory; {allowed}"
+    if record.is_dir() and any(record.iterdir()):
+        return f"exists and is not empty; {allowed}"
+    try:
+        record.mkdir(parents=True, exist_ok=True)
+        probe = record / ".haptic_teleop_write_check"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        return f"cannot be written ({exc.strerror or exc}); {allowed}"
+    return None
 
 
 def add_arguments(p: Any) -> None:

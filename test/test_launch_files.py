@@ -61,6 +61,19 @@ def test_hardware_variant_has_no_simulated_operator_and_uses_the_driver_topics(t
     assert master.params["device"] == {"source": "topic", "state_topic": "/dev/js", "command_topic": "/dev/cmd"}
 
 
+def test_hardware_variant_takes_the_force_command_qos_from_launch_arguments(tmp_path):
+    args = {"scene": "wall_contact", "command_reliability": "best_effort", "command_depth": "5"}
+    master = next(s for s, _ in plan_from_arguments(args, "topic", tmp_path) if s.name == "master_eba")
+    assert master.params["device"]["command_reliability"] == "best_effort"
+    assert master.params["device"]["command_depth"] == 5
+    yaml_text = params_yaml(master)
+    assert 'command_reliability: "best_effort"' in yaml_text and "command_depth: 5" in yaml_text
+    for key, value in (("command_reliability", "sometimes"), ("command_depth", "0"), ("command_depth", "x")):
+        with pytest.raises(ConfigError) as exc:
+            plan_from_arguments({"scene": "wall_contact", key: value}, "topic", tmp_path)
+        assert key in str(exc.value)
+
+
 def test_sim_time_adds_a_clock_and_sets_use_sim_time(tmp_path):
     pairs = plan_from_arguments({"scene": "wall_contact", "sim_time": "true"}, "plant", tmp_path)
     assert pairs[0][0].executable == "clock_source"

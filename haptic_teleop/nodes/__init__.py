@@ -29,6 +29,14 @@ SCENE_SECTIONS = {
     "clock_source": ("scene",),
 }
 
+# A node process prints its loop's figures on a line starting with this as it exits (JSON after
+# it); the launcher reads them for its table at the end of a launch.
+LOOP_FIGURES_MARK = "loop figures: "
+
 # Watchdog defaults (docs/live.md): remote data older than this starts a fade to zero force.
 WATCHDOG_TIMEOUT_S = 0.1
 WATCHDOG_FADE_S = 0.05
+
+# QoS of the hardware variant's force command (master_eba `device.command_reliability`, `device.command_depth`).
+RELIABILITIES = ("reliable", "best_effort")
+DEFAULT_COMMAND_DEPTH = 10

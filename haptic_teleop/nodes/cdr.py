@@ -35,7 +35,7 @@ class JointStateCodec:
     """Encoder and layout check for a one-joint JointState with `fields` filled (one value each)."""
 
     def __init__(self, joint: str, fields: Sequence[str]) -> None:
-        from haptic_teleop.bag import JOINT_STATE, FixedLayout, make_joint_state
+        from haptic_teleop.record.layouts import JOINT_STATE, FixedLayout, make_joint_state
 
         layout = FixedLayout(JOINT_STATE, make_joint_state(joint, fields), len(fields))
         self.joint = joint
@@ -136,14 +136,14 @@ class FixedCodec:
 
 def wrench_codec(frame: str) -> FixedCodec:
     """geometry_msgs/WrenchStamped in `frame` carrying force.x (the rest zero)."""
-    from haptic_teleop.bag import WRENCH, FixedLayout, make_wrench
+    from haptic_teleop.record.layouts import WRENCH, FixedLayout, make_wrench
 
     return FixedCodec(FixedLayout(WRENCH, make_wrench(frame), 1))
 
 
 def multiarray_codec(labels: Sequence[str]) -> FixedCodec:
     """std_msgs/Float64MultiArray of one value per label (dimensions of size 1, stride 1)."""
-    from haptic_teleop.bag import MULTIARRAY, FixedLayout, make_multiarray
+    from haptic_teleop.record.layouts import MULTIARRAY, FixedLayout, make_multiarray
 
     return FixedCodec(FixedLayout(MULTIARRAY, make_multiarray(labels), len(labels)))
 

@@ -24,6 +24,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Union, get_args, get_origin
 
 from haptic_teleop.errors import ConfigError, HapticTeleopError
+from haptic_teleop.nodes import LOOP_FIGURES_MARK
 
 # ---------------------------------------------------------------------------------------------
 # Environment: DDS stays on this host unless the user chose otherwise.
@@ -35,7 +36,7 @@ def ensure_local_discovery() -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# Topics. Names match haptic_teleop.bag where the meaning is the same.
+# Topics. Names match the bag (haptic_teleop.record) where the meaning is the same.
 
 OPERATOR_STATE = "/operator/joint_states"
 MASTER_STATE = "/master/joint_states"
@@ -73,6 +74,29 @@ READER_DEPTH = 50  # local history of readers that must not drop samples while b
 
 def packets_topic(direction: str) -> str:
     return f"/{direction}/packets"
+
+
+def playout_topic(direction: str) -> str:
+    """Sync buffer -> recorder: what the buffer decided for each packet it received (played or late)."""
+    return f"/{direction}/playout"
+
+
+SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAML), latched
+# The operator source's scene time 0 (std_msgs/Header, stamp = the tick it started at), latched: the
+# recorder's grid starts there even if the operator's first samples did not reach it.
+SCENE_START_TOPIC = "/haptic_teleop/scene_start"
+
+
+def latched_qos() -> Any:
+    """Reliable, keep last 1, transient local: a subscriber that joins later gets the last message."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
 
 
 # A direction's payload, in the order the core controllers expect (TeleopController docstring),
@@ -1122,6 +1146,23 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
             self.exit_code = 1
         self.stop_event.set()
 
+    def loop_figures(self) -> dict[str, Any] | None:
+        """The loop's figures over its whole life (for the table at the end of a launch), or None
+        for a node without a loop: ticks run, ticks per second of wall time, late ticks (run a
+        period or more after their deadline) and skipped ticks (overruns)."""
+        loop = self.loop
+        if loop is None:
+            return None
+        st = loop.stats
+        return {
+            "node": self.get_name(),
+            "ticks": st.ticks,
+            "loop_rate_hz": round(st.rate_hz(), 1),
+            "late_ticks": st.late_ticks,
+            "skipped_ticks": st.overruns,
+            **{k: v for k, v in self.diagnostic_values().items() if k in FINAL_EXTRAS},
+        }
+
     def request_stop(self, code: int = 0) -> None:
         self.exit_code = code
         self.stop_event.set()
@@ -1169,6 +1210,8 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
 
 
 BAD_PARAMETER_EXIT = 2
+# Node figures (diagnostic_values) that go with the loop's into the table at the end of a launch.
+FINAL_EXTRAS = ("late", "lost", "delivered", "released")
 
 
 def _bad_parameter_errors() -> tuple[type[BaseException], ...]:
@@ -1183,10 +1226,14 @@ def run_nodes(
     args: Sequence[str] | None = None,
     multithreaded: bool = False,
     shared_loop: bool = False,
+    figures_out: list[dict[str, Any]] | None = None,
+    signals_out: list[int] | None = None,
 ) -> int:
     """Create nodes, spin them, run their loops until SIGINT/SIGTERM or a node stops; exit code.
 
     `shared_loop`: the nodes' loops run in one thread (SharedLoop) instead of one thread each.
+    Each node's `loop_figures` go to `figures_out` if given, else to stdout (LOOP_FIGURES_MARK
+    lines); the signal that stopped the process, if any, to `signals_out`.
 
     A node's constructor failing on a parameter ends the process with code 2 and a message that
     names the parameter; a loop failing ends it with 1; a signal or a node finishing, with 0.
@@ -1202,6 +1249,8 @@ def run_nodes(
     stop = threading.Event()
 
     def on_signal(signum: int, frame: Any) -> None:
+        if signals_out is not None and not stop.is_set():
+            signals_out.append(signum)
         stop.set()
 
     signal.signal(signal.SIGINT, on_signal)
@@ -1259,6 +1308,16 @@ def run_nodes(
     if group is not None:
         group.stop()
     code = max([code] + [n.exit_code for n in nodes])
+    for n in nodes:
+        fig = n.loop_figures()
+        if fig is None:
+            continue
+        if figures_out is not None:
+            figures_out.append(fig)
+        else:
+            import json
+
+            print(LOOP_FIGURES_MARK + json.dumps(fig), flush=True)
     executor.shutdown(timeout_sec=2.0)
     spinner.join(2.0)  # a C++ wait still running at exit would abort the process
     for n in nodes:

@@ -7,14 +7,16 @@ period with the operator's newest hand force.
 
 The device is the scene's MuJoCo device (`device.source: plant`, the default), or a real haptic
 device driver's topics (`device.source: topic`): its sensor_msgs/JointState in, and the force
-command out as geometry_msgs/WrenchStamped (force.x).
+command out as geometry_msgs/WrenchStamped (force.x). The command's QoS is a parameter
+(`device.command_reliability`, `device.command_depth`), reliable by default: a reliable writer
+reaches reliable and best-effort readers alike, a best-effort one only best-effort readers.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES, SCENE_SECTIONS
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     JOINT_ORDER,
@@ -28,6 +30,7 @@ from haptic_teleop.nodes.common import (
     WrenchOut,
     declare_value,
     node_main,
+    reliable_qos,
     sent_topic,
     stream_qos,
     take_latest,
@@ -47,7 +50,14 @@ class MasterEba(LiveNode):
         from haptic_teleop.nodes.common import declare_scene
         from haptic_teleop.plants import build_master_plant
 
-        names = (*WATCHDOG_PARAMS, "device.source", "device.state_topic", "device.command_topic")
+        names = (
+            *WATCHDOG_PARAMS,
+            "device.source",
+            "device.state_topic",
+            "device.command_topic",
+            "device.command_reliability",
+            "device.command_depth",
+        )
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
         self.side = EbaSide(self, "master", cfg)
@@ -62,6 +72,21 @@ class MasterEba(LiveNode):
         command_topic = declare_value(
             self, "device.command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"
         )
+        reliability = declare_value(
+            self,
+            "device.command_reliability",
+            "reliable",
+            "QoS reliability of the force command: reliable (reaches reliable and best-effort readers) or "
+            "best_effort (reaches best-effort readers only)",
+            choices=RELIABILITIES,
+        )
+        depth = int(
+            declare_value(
+                self, "device.command_depth", DEFAULT_COMMAND_DEPTH, "QoS depth (keep last) of the force command",
+                1, 10_000,
+            )
+        )  # fmt: skip
+        self.command_qos = command_qos(str(reliability), depth)
         self.plant: Any = None
         self._hand_n = 0.0
         self._device: tuple[float, float] | None = None
@@ -73,7 +98,7 @@ class MasterEba(LiveNode):
         else:
             self._device_sub = self.create_polled_subscription(JointState, state_topic, stream_qos(), raw=True)
             self._read_device = JointStateReader(("position", "velocity"))  # a driver's layout: deserialized
-            self.command_out = WrenchOut(self, command_topic, MASTER_JOINT)
+            self.command_out = WrenchOut(self, command_topic, MASTER_JOINT, self.command_qos)
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
         self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
         self.setup_loop(period_ns)
@@ -115,6 +140,13 @@ class MasterEba(LiveNode):
             self.plant.close()
         elif self.command_out is not None:
             self.command_out.publish(self.now_ns(), 0.0)  # torque off on every exit
+
+
+def command_qos(reliability: str, depth: int) -> Any:
+    """The force command's QoS: keep last `depth`, volatile, `reliability` (RELIABILITIES)."""
+    if reliability not in RELIABILITIES:
+        raise ValueError(f"reliability must be one of {RELIABILITIES}, got {reliability!r}")
+    return reliable_qos(depth) if reliability == "reliable" else stream_qos(depth)
 
 
 def main() -> None:

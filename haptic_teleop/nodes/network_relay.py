@@ -59,8 +59,8 @@ class NetworkRelay(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray
 
-        from haptic_teleop.bag import joint_state_size
         from haptic_teleop.core.network import build_link
+        from haptic_teleop.record.layouts import joint_state_size
 
         d, cfg = declare_direction_scene(self, "network_relay")
         self.direction = d
@@ -124,7 +124,7 @@ class NetworkRelay(LiveNode):
         """Fates of the packets sent since the last batch (bag.py's packet rows)."""
         from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-        from haptic_teleop.bag import PACKET_BATCH, PACKET_FIELDS, _packet_rows
+        from haptic_teleop.record.layouts import PACKET_BATCH, PACKET_FIELDS, packet_rows
 
         log = list(self.link.log)
         self.link.log.clear()
@@ -134,7 +134,7 @@ class NetworkRelay(LiveNode):
                 del self._msgs[seq]
         if not log:
             return
-        rows = _packet_rows(log)
+        rows = packet_rows(log)
         for start in range(0, rows.shape[0], PACKET_BATCH):
             chunk = rows[start : start + PACKET_BATCH]
             msg = Float64MultiArray()

@@ -22,11 +22,13 @@ from haptic_teleop.nodes.common import (
     MASTER_STATE,
     OPERATOR_JOINT,
     OPERATOR_STATE,
+    SCENE_START_TOPIC,
     JointStateOut,
     LiveNode,
     NodeStopped,
     declare_scene,
     declare_value,
+    latched_qos,
     node_main,
     received_topic,
     stream_qos,
@@ -76,6 +78,9 @@ class OperatorSource(LiveNode):
         self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
         self._read_master = JointStateReader(("position", "velocity"), [(MASTER_JOINT, JOINT_ORDER)])
         self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, JOINT_ORDER)
+        from std_msgs.msg import Header
+
+        self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
         self.start_index: int | None = None
         self._ready_ns: int | None = None
         self._created_ns = self.now_ns()
@@ -109,6 +114,7 @@ class OperatorSource(LiveNode):
                 return
             self.start_index = index
             self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns")
+            self._publish_start(stamp_ns)
         n = index - self.start_index
         if n >= self.duration_ticks and self.stop_at_end:
             raise NodeStopped(f"scene duration reached ({n} ticks)")
@@ -117,6 +123,13 @@ class OperatorSource(LiveNode):
         fh = self.operator.hand_force(t, x, v)
         xd, vd = self.operator.intended(t)
         self.out.publish(stamp_ns, (xd, vd, fh[0]))
+
+    def _publish_start(self, stamp_ns: int) -> None:
+        from std_msgs.msg import Header
+
+        h = Header(frame_id="scene_time_0")
+        h.stamp.sec, h.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        self._start_pub.publish(h)
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         return {"started": int(self.start_index is not None)}

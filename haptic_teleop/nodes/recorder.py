@@ -1,20 +1,35 @@
-"""recorder: every teleop topic into a rosbag2 (MCAP, through rosbags), closed cleanly on SIGINT
-or SIGTERM.
+"""recorder: every teleop topic into a rosbag2 (MCAP) bag, written as the run goes, like `ros2 bag record`.
 
 Subscriptions are raw (serialized bytes: no message object per sample) with a deep reader
 history, taken by the node's loop thread (no executor in the path, no wake-up per message): a
 quarter of the topics per recorder tick, each topic every 16 ms; four times a second their queues
-are decoded in bulk, one topic per tick, with bag.py's fixed layouts onto the tick grid (index =
-stamp / period; the EBA arrays, which have no header, by arrival time). On close the grid from the
-operator's first sample (scene time 0) to the last tick every stream reached, at most
-scene.duration_s, is written by `bag.write_run`: the same layout the engine writes, so
-`haptic-teleop analyze` and every metric work on live bags unchanged. A sample lost between a
-node and the recorder holds the previous value; how many were filled is in run_info.
+are decoded in bulk, one topic per tick, with the bag's fixed layouts onto the tick grid (index =
+stamp / period; the EBA arrays, which have no header, by the time they were published).
+
+After each decoding round the ticks every stream has passed (less a margin of MARGIN_S = 0.1 s for
+samples still on their way) are appended to the bag (`RunRecorder.append`), with the grid from the
+operator's first sample (scene time 0), the same layout the engine writes, so `haptic-teleop
+analyze` and every metric work on live bags unchanged; a sample lost between a node and the
+recorder holds the previous value (counted in run_info). At least once a second what was appended
+is flushed as complete chunks, so a kill of any process, the recorder's own included, loses at
+most the last second or so (`haptic-teleop bag recover` rebuilds the summary of a bag whose
+recorder was killed). Memory stays bounded: only ticks not yet written are kept, and a stream
+that stops (its node died) is held at its last value once the others are STALL_S = 2 s ahead.
+
+Packet records come from the relays (/<dir>/packets) and the sync buffers' decisions
+(/<dir>/playout: played or late); a record is written once the buffer has decided it (or its
+tick is HOLD_S = 10 s old), with a late decision applied to its first delivered copy: fate 4,
+LOST_LATE, as the engine's buffer marks it. On close (SIGINT/SIGTERM/end of the scene) the rest is
+written, up to the last tick every stream reached (at most scene.duration_s), and the bag closed.
+
+The resolved scene goes out once on /haptic_teleop/scene (std_msgs/String, reliable, transient
+local: a subscriber that starts later still gets it).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import struct
 import time
 from pathlib import Path
@@ -22,19 +37,25 @@ from typing import Any
 
 import numpy as np
 
+from haptic_teleop.core.network import DELIVERED, LOST_LATE
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.common import (
+    DIRECTIONS,
     MASTER_EBA,
     MASTER_STATE,
     OPERATOR_STATE,
+    SCENE_START_TOPIC,
+    SCENE_TOPIC,
     SLAVE_CONTACT,
     SLAVE_EBA,
     SLAVE_STATE,
     LiveNode,
     declare_scene,
     declare_value,
+    latched_qos,
     node_main,
     packets_topic,
+    playout_topic,
     received_topic,
     reliable_qos,
     stream_qos,
@@ -53,6 +74,19 @@ STATE_COLUMNS = {
 }
 RECEIVED = {received_topic("forward"): "fwd_rx_seq", received_topic("backward"): "bwd_rx_seq"}
 PACKETS = {packets_topic("forward"): "forward", packets_topic("backward"): "backward"}
+PLAYOUT = {playout_topic("forward"): "forward", playout_topic("backward"): "backward"}
+# The QoS the live topics are published with, recorded in the bag's metadata as rosbag2 does
+# (fields of rosbag2's offered_qos_profiles; topics not named: the 1 kHz streams' profile).
+_STREAM = {"reliability": "best_effort", "depth": 1}
+_BATCH = {"reliability": "reliable", "depth": 100}
+_LATCHED = {"reliability": "reliable", "durability": "transient_local", "depth": 1}
+OFFERED_QOS = {
+    "*": [_STREAM],
+    SCENE_TOPIC: [_LATCHED],
+    "/haptic_teleop/run_info": [_LATCHED],
+    **{packets_topic(d): [_BATCH] for d in DIRECTIONS},
+}
+MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams that define the grid's end
 _STAMP = struct.Struct("<iI")
 
 
@@ -70,29 +104,52 @@ POLL_GROUPS = 4
 # for the recorder's loop to run late (16 ms between takes, up to 10 periods of catch-up, a few
 # milliseconds of a busy machine; measured here: up to 40 ms late with one process per node).
 RECORDER_DEPTH = 200
-END_TOLERANCE_TICKS = 20  # header.stamp right after the 4-byte CDR encapsulation header
+END_TOLERANCE_TICKS = 20
+DECODE_EVERY_S = 0.25  # a decoding round (one topic per recorder tick) starts this often
+# Ticks are written once every main stream is this far past them: samples of the other streams
+# (EBA arrays, released samples) for those ticks have been taken by then.
+MARGIN_S = 0.1
+# A main stream this far behind the newest one (its node stopped or died) no longer holds the
+# recording back: its ticks are written holding its last value.
+STALL_S = 2.0
+HOLD_S = 10.0  # a packet record the sync buffer has not decided after this long is written as is
+FLUSH_EVERY_S = 0.5  # what was appended is on disk as complete chunks at least this often
 
 
-class _Series:
-    """Absolute tick indices and values of one topic, appended in decoded chunks."""
+class _Pending:
+    """Samples of one topic not written yet: absolute tick indices and values, in decoded chunks."""
 
     def __init__(self, width: int) -> None:
         self.width = width
         self.idx: list[np.ndarray] = []
         self.val: list[np.ndarray] = []
-        self.extra: list[np.ndarray] = []
+        self.newest = -1  # the highest index decoded so far (absolute)
+        self.carry: np.ndarray | None = None  # the last value written (held over a gap)
+        self.filled = 0  # ticks written without a sample
+        self.dropped = 0  # samples decoded after their tick was written
 
-    def add(self, idx: np.ndarray, val: np.ndarray, extra: np.ndarray | None = None) -> None:
-        self.idx.append(idx)
-        self.val.append(val)
-        if extra is not None:
-            self.extra.append(extra)
+    def add(self, idx: np.ndarray, val: np.ndarray) -> None:
+        if idx.size:
+            self.idx.append(idx)
+            self.val.append(val)
+            self.newest = max(self.newest, int(idx.max()))
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def take(self, a: int, b: int, first: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The samples of ticks [a, b) (dropping older ones, counted unless `first`: before the
+        recording's first tick); later ones stay."""
         if not self.idx:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, self.width)), None
-        extra = np.concatenate(self.extra) if self.extra else None
-        return np.concatenate(self.idx), np.concatenate(self.val), extra
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.width))
+        idx = np.concatenate(self.idx)
+        val = np.concatenate(self.val)
+        if not first:
+            self.dropped += int(np.count_nonzero(idx < a))
+        now = (idx >= a) & (idx < b)
+        later = idx >= b
+        self.idx, self.val = ([idx[later]], [val[later]]) if np.any(later) else ([], [])
+        return idx[now], val[now]
+
+    def first(self) -> int | None:
+        return min(int(i.min()) for i in self.idx) if self.idx else None
 
 
 class Recorder(LiveNode):
@@ -100,58 +157,88 @@ class Recorder(LiveNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        from std_msgs.msg import Float64MultiArray
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray, String
 
-        from haptic_teleop.bag import topic_specs
+        from haptic_teleop.errors import ConfigError
+        from haptic_teleop.record.layouts import topic_specs
+        from haptic_teleop.scene import LoadedScene
 
         self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir",))
         out = str(declare_value(self, "output_dir", "", "the bag goes to OUTPUT_DIR/bag (required)"))
+        where = f"parameters of node {self.get_name()}"
         if not out:
-            from haptic_teleop.errors import ConfigError
-
-            raise ConfigError(f"parameters of node {self.get_name()}", "output_dir", out, "allowed: a directory path")
+            raise ConfigError(where, "output_dir", out, "allowed: a directory path")
         self.bag_dir = Path(out) / "bag"
         if self.bag_dir.exists():
-            from haptic_teleop.errors import ConfigError
-
-            raise ConfigError(
-                f"parameters of node {self.get_name()}", "output_dir", out, "allowed: a directory without bag/ in it"
-            )
-        self.grid_ns = round(self.cfg.scene.period_s * 1e9)  # the scene's tick grid
+            raise ConfigError(where, "output_dir", out, "allowed: a directory without bag/ in it")
+        cfg = self.cfg
+        self.grid_ns = round(cfg.scene.period_s * 1e9)  # the scene's tick grid
+        self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
+        self.margin_ticks, self.stall_ticks, self.hold_ticks = (
+            max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
+        )
+        self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
         self._specs = topic_specs()
         # Per topic, what was taken and not yet decoded: times (ns) and raw bytes in two lists, not
         # (time, bytes) tuples: ints and bytes are no work for the garbage collector, thousands of
         # live tuples a second would be (each collection pauses every loop of the process).
         self._queues: dict[str, tuple[list[int], list[bytes]]] = {}
         self._subs: dict[str, Any] = {}
-        self._series: dict[str, _Series] = {}
-        from sensor_msgs.msg import JointState
-
-        types: dict[str, Any] = {}
-        for topic, columns in STATE_COLUMNS.items():
-            types[topic] = self._specs[topic].layout.msgtype
-            self._series[topic] = _Series(len(columns))
+        self._pending: dict[str, _Pending] = {t: _Pending(len(c)) for t, c in STATE_COLUMNS.items()}
         for topic in RECEIVED:
-            self._series[topic] = _Series(1)  # value: arrival index
-        self._packets: dict[str, list[np.ndarray]] = {d: [] for d in PACKETS.values()}
-        for topic in list(STATE_COLUMNS) + list(RECEIVED) + list(PACKETS):
+            self._pending[topic] = _Pending(1)  # index: the sample's tick; value: its release tick
+        self._packets: dict[str, list[np.ndarray]] = {d: [] for d in DIRECTIONS}
+        self._decided: dict[str, dict[int, int]] = {d: {} for d in DIRECTIONS}  # seq -> the buffer's fate
+        for topic in list(STATE_COLUMNS) + list(RECEIVED) + list(PACKETS) + list(PLAYOUT):
             self._queues[topic] = ([], [])
-            if topic in PACKETS:
+            if topic in PACKETS or topic in PLAYOUT:
                 msg_type, qos = Float64MultiArray, reliable_qos(100)
             elif topic in RECEIVED:
                 msg_type, qos = JointState, stream_qos(RECORDER_DEPTH)
             else:
-                msg_type, qos = self._ros_type(types[topic]), stream_qos(RECORDER_DEPTH)
+                msg_type, qos = self._ros_type(self._specs[topic].layout.msgtype), stream_qos(RECORDER_DEPTH)
             self._subs[topic] = self.create_polled_subscription(msg_type, topic, qos, raw=True)
         self.received_count = {t: 0 for t in self._queues}
+        self.start_tick: int | None = None  # absolute tick of scene time 0: the operator's first sample
+        self.written = 0  # absolute tick up to which (exclusive) the bag holds the grid
+        self.packets_written = {d: 0 for d in DIRECTIONS}
+        self.late_marked = {d: 0 for d in DIRECTIONS}
         self._closed = False
+        self._last_flush = time.monotonic()
+        self.rec = self._open_bag()
+        # The resolved scene, latched (transient local): a subscriber that starts later gets it.
+        self._scene_pub = self.create_publisher(String, SCENE_TOPIC, latched_qos())
+        self._scene_pub.publish(String(data=self.scene_yaml))
+        from std_msgs.msg import Header
+
+        self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
         topics = list(self._subs)
         self._poll_groups = [topics[i::POLL_GROUPS] for i in range(POLL_GROUPS)]
-        # A decoding round (one topic per tick) starts four times a second.
-        self._decode_every = max(1, round(0.25 / (self.cfg.scene.period_s * TAKE_EVERY)))
+        self._decode_every = max(1, round(DECODE_EVERY_S / (cfg.scene.period_s * TAKE_EVERY)))
         self._to_decode: list[str] = []
         self.setup_loop(self.grid_ns * TAKE_EVERY)
         self.get_logger().info(f"recording to {self.bag_dir}")
+
+    def _open_bag(self) -> Any:
+        from haptic_teleop.engine import COLUMNS
+        from haptic_teleop.errors import ConfigError
+        from haptic_teleop.record.recorder import RunRecorder
+
+        rec = self.cfg.recording
+        try:
+            self.bag_dir.parent.mkdir(parents=True, exist_ok=True)
+            return RunRecorder(
+                self.bag_dir, self.scene_yaml, self.grid_ns, rec.eba_internals, rec.packets, len(COLUMNS),
+                parallel=False, compression=getattr(rec, "compression", "none"), qos=OFFERED_QOS,
+            )  # fmt: skip
+        except OSError as exc:
+            raise ConfigError(
+                f"parameters of node {self.get_name()}",
+                "output_dir",
+                str(self.bag_dir.parent),
+                f"cannot be written ({exc.strerror or exc}); allowed: a directory this user can write",
+            ) from None
 
     @staticmethod
     def _ros_type(name: str) -> Any:
@@ -166,6 +253,8 @@ class Recorder(LiveNode):
             self._to_decode = list(self._queues)
         if self._to_decode:
             self._drain_topic(self._to_decode.pop())
+            if not self._to_decode:  # a round is complete: write what every stream has passed
+                self._advance(closing=False)
 
     def _take(self, topics: list[str] | None = None) -> None:
         """Take what `topics` (default: all) hold into their queues."""
@@ -191,7 +280,7 @@ class Recorder(LiveNode):
             self._drain_topic(topic)
 
     def _drain_topic(self, topic: str) -> None:
-        """Decode what `topic`'s queue holds onto its series."""
+        """Decode what `topic`'s queue holds."""
         period = self.grid_ns
         times, q = self._queues[topic]
         n = len(q)
@@ -203,13 +292,15 @@ class Recorder(LiveNode):
         self.received_count[topic] += n
         if topic in PACKETS:
             self._decode_packets(PACKETS[topic], raws)
+        elif topic in PLAYOUT:
+            self._decode_playout(PLAYOUT[topic], raws)
         elif topic in RECEIVED:
             stamps = np.fromiter((_stamp_ns(_STAMP.unpack_from(r, 4)) for r in raws), dtype=np.int64, count=n)
-            self._series[topic].add(stamps // period, (recv // period).reshape(-1, 1).astype(np.float64))
+            # Indexed by release tick (the column's row); the value is the sample's own tick.
+            self._pending[topic].add(recv // period, (stamps // period).reshape(-1, 1).astype(np.float64))
         else:
             vals, stamps = self._decode_fixed(topic, raws)
-            idx = (stamps if stamps is not None else recv) // period
-            self._series[topic].add(idx, vals)
+            self._pending[topic].add((stamps if stamps is not None else recv) // period, vals)
 
     def _decode_fixed(self, topic: str, raws: list[bytes]) -> tuple[np.ndarray, np.ndarray | None]:
         layout = self._specs[topic].layout
@@ -241,7 +332,7 @@ class Recorder(LiveNode):
         from rclpy.serialization import deserialize_message
         from std_msgs.msg import Float64MultiArray
 
-        from haptic_teleop.bag import PACKET_FIELDS
+        from haptic_teleop.record.layouts import PACKET_FIELDS
 
         for r in raws:
             m = deserialize_message(r, Float64MultiArray)
@@ -251,7 +342,111 @@ class Recorder(LiveNode):
             cols = [rows[:, labels.index(f)] if f in labels else np.zeros(rows.shape[0]) for f in PACKET_FIELDS]
             self._packets[direction].append(np.column_stack(cols))
 
-    # -- writing
+    def _decode_playout(self, direction: str, raws: list[bytes]) -> None:
+        from rclpy.serialization import deserialize_message
+        from std_msgs.msg import Float64MultiArray
+
+        decided = self._decided[direction]
+        for r in raws:
+            rows = np.asarray(deserialize_message(r, Float64MultiArray).data, dtype=np.float64).reshape(-1, 2)
+            decided.update(zip(rows[:, 0].astype(np.int64).tolist(), rows[:, 1].astype(np.int64).tolist(), strict=True))
+
+    # -- writing as the run goes
+    def _advance(self, closing: bool) -> None:
+        """Append the ticks that are complete (all of them when closing) and the packet records
+        decided up to there; flush when due."""
+        if self.start_tick is None:
+            first = self._pending[OPERATOR_STATE].first()
+            told = take_all(self._start_sub)
+            if told:  # the operator's scene time 0, even if its first samples did not get here
+                st = told[-1].stamp
+                first = (int(st.sec) * 1_000_000_000 + int(st.nanosec)) // self.grid_ns
+            elif first is None or (not closing and self._pending[OPERATOR_STATE].newest - first < self.stall_ticks):
+                return  # wait for it a little (an operator of another version may not send it)
+            self.start_tick = self.written = first
+        newest = [self._pending[t].newest for t in MAIN]
+        if min(newest) < 0 and not closing and max(newest) - self.written < self.stall_ticks:
+            return
+        if closing:
+            end = min(n for n in newest) + 1 if min(newest) >= 0 else self.written
+        else:
+            end = max(min(newest) + 1 - self.margin_ticks, max(newest) + 1 - self.stall_ticks)
+        end = min(end, self.start_tick + self.duration_ticks)
+        if end > self.written:
+            self._write_ticks(self.written, end)
+        self._write_packets(closing)
+        now = time.monotonic()
+        if closing or now - self._last_flush >= FLUSH_EVERY_S:
+            self.rec.flush()
+            self._last_flush = now
+
+    def _write_ticks(self, a: int, b: int) -> None:
+        from haptic_teleop.engine import COL, COLUMNS
+
+        n = b - a
+        data = np.zeros((n, len(COLUMNS)))
+        for topic, cols in STATE_COLUMNS.items():
+            pend = self._pending[topic]
+            idx, vals = pend.take(a, b, first=a == self.start_tick)
+            grid, missing, pend.carry = _on_grid(idx - a, vals, n, pend.carry)
+            pend.filled += missing
+            data[:, [COL[c] for c in cols]] = grid
+        start = self.start_tick
+        assert start is not None
+        for topic, col in RECEIVED.items():
+            at, seq = self._pending[topic].take(a, b, first=a == start)
+            column = np.full(n, -1.0)
+            s = seq[:, 0].astype(np.int64) - start
+            ok = (s >= 0) & (s <= at - start)
+            order = np.argsort(at[ok], kind="stable")  # the last release in a tick wins
+            column[(at[ok] - a)[order]] = s[ok][order]
+            data[:, COL[col]] = column
+        self.rec.append(data)
+        self.written = b
+
+    def _write_packets(self, closing: bool) -> None:
+        """Packet records whose tick is written and whose fate is final: lost on the way, or
+        decided by the sync buffer (played, or late: the first delivered copy gets LOST_LATE),
+        or HOLD_S old; all of them when closing."""
+        from haptic_teleop.record.layouts import PACKET_FIELDS
+
+        if not self.cfg.recording.packets or self.start_tick is None:
+            for d in DIRECTIONS:
+                self._packets[d].clear()
+            return
+        f = {name: i for i, name in enumerate(PACKET_FIELDS)}
+        start, written = self.start_tick, self.written
+        start_ns = start * self.grid_ns
+        for d in DIRECTIONS:
+            if not self._packets[d]:
+                continue
+            rows = np.concatenate(self._packets[d])
+            seq = rows[:, f["seq"]].astype(np.int64)
+            decided = self._decided[d]
+            known = np.fromiter((s in decided for s in seq.tolist()), dtype=bool, count=seq.size)
+            final = (rows[:, f["fate"]] != DELIVERED) | known | (seq < written - self.hold_ticks) | closing
+            ready = final & (seq < written)
+            before = seq < start  # sent before scene time 0
+            keep = ~ready & ~before & (not closing)  # closing: what is left is past the recording's end
+            out = rows[ready & ~before]
+            self._packets[d] = [rows[keep]] if np.any(keep) else []
+            if out.size:
+                late = {s for s, fate in decided.items() if fate == LOST_LATE}
+                self.late_marked[d] += mark_late(out, late, f)
+                out = out.copy()
+                out[:, f["seq"]] -= start
+                out[:, f["send_time_s"]] = (np.round(out[:, f["send_time_s"]] * 1e9) - start_ns) * 1e-9
+                arr = out[:, f["arrival_time_s"]]
+                out[:, f["arrival_time_s"]] = np.where(np.isfinite(arr), (np.round(arr * 1e9) - start_ns) * 1e-9, arr)
+                order = np.argsort(out[:, f["seq"]], kind="stable")
+                self.rec.append_packets(d, np.ascontiguousarray(out[order]))
+                self.packets_written[d] += out.shape[0]
+            horizon = written - self.hold_ticks
+            if len(decided) > self.hold_ticks:
+                for s in [s for s in decided if s < horizon]:
+                    del decided[s]
+
+    # -- closing
     def close(self) -> None:
         if self._closed:
             return
@@ -264,112 +459,70 @@ class Recorder(LiveNode):
         self._take()
         self._drain()
         try:
-            path = self.write()
+            path = self.finish()
         except Exception as exc:
             import traceback
 
             self.get_logger().error(f"could not write the bag: {exc}\n{traceback.format_exc()}")
             raise
-        if path is not None:
-            self.get_logger().info(f"bag written: {path}")
+        self.get_logger().info(f"bag written: {path}")
 
-    def write(self) -> Path | None:
-        """Write the bag; returns its directory, or None when nothing usable was recorded."""
-        from haptic_teleop.bag import PACKET_FIELDS, write_run
-        from haptic_teleop.core.network import Packet
-        from haptic_teleop.engine import COL, COLUMNS, RunResult
-        from haptic_teleop.scene import LoadedScene
-
-        cfg = self.cfg
-        period = self.grid_ns
-        duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
-        data_of = {t: self._series[t].arrays() for t in STATE_COLUMNS}
-        main = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)
-        if any(data_of[t][0].size == 0 for t in main):
-            missing = [t for t in main if data_of[t][0].size == 0]
-            self.get_logger().error(f"nothing to write: no samples on {', '.join(missing)}")
+    def finish(self) -> Path:
+        """Write what is left and close the bag; returns its directory."""
+        self._advance(closing=True)
+        ticks = self.written - self.start_tick if self.start_tick is not None else 0
+        if ticks < 2:
+            missing = [t for t in MAIN if self._pending[t].newest < 0]
+            why = f"no samples on {', '.join(missing)}" if missing else "fewer than two common ticks"
+            self.get_logger().error(f"nothing to record: {why}")
             self.exit_code = 1
-            return None
-        start = int(data_of[OPERATOR_STATE][0].min())  # scene time 0: the operator's first sample
-        end = min(int(data_of[t][0].max()) for t in main) + 1
-        end = min(end, start + duration_ticks)
-        n = end - start
-        if n < 2:
-            self.get_logger().error("nothing to write: fewer than two common ticks")
-            self.exit_code = 1
-            return None
         # The last samples of a run are still in flight when the operator ends it: a bag a few
         # ticks short of the duration is complete.
-        interrupted = n < duration_ticks - END_TOLERANCE_TICKS
-        data = np.zeros((n, len(COLUMNS)))
-        filled: dict[str, int] = {}
-        for topic, cols in STATE_COLUMNS.items():
-            idx, vals, _ = data_of[topic]
-            grid, missing = _on_grid(idx - start, vals, n)
-            filled[topic] = missing
-            for j, c in enumerate(cols):
-                data[:, COL[c]] = grid[:, j]
-        for topic, col in RECEIVED.items():
-            seq_abs, arrive, _ = self._series[topic].arrays()
-            column = np.full(n, -1.0)
-            if seq_abs.size:
-                seq = seq_abs - start
-                at = arrive[:, 0].astype(np.int64) - start
-                ok = (seq >= 0) & (seq < n) & (at >= 0) & (at < n) & (seq <= at)
-                order = np.argsort(at[ok], kind="stable")  # the last release in a tick wins
-                column[at[ok][order]] = seq[ok][order]
-            data[:, COL[col]] = column
-        start_ns = start * period
-        logs: dict[str, list[Packet]] = {}
-        f = {name: i for i, name in enumerate(PACKET_FIELDS)}
-        size_col = f.get("size_bytes")
-        for direction, chunks in self._packets.items():
-            rows = np.concatenate(chunks) if chunks else np.zeros((0, len(PACKET_FIELDS)))
-            keep = (rows[:, f["seq"]] >= start) & (rows[:, f["seq"]] < end)
-            logs[direction] = [
-                Packet(
-                    seq=int(r[f["seq"]]) - start,
-                    send_time_ns=int(round(r[f["send_time_s"]] * 1e9)) - start_ns,
-                    payload=(),
-                    size_bytes=int(r[size_col]) if size_col is not None else 0,
-                    arrival_time_ns=(int(round(r[f["arrival_time_s"]] * 1e9)) - start_ns)
-                    if np.isfinite(r[f["arrival_time_s"]])
-                    else 0,
-                    fate=int(r[f["fate"]]),
-                    duplicate=bool(r[f["duplicate"]]),
-                )
-                for r in rows[keep]
-            ]
-        scene = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={})
-        result = RunResult(
-            scene=scene,
-            ticks=n,
-            period_ns=period,
-            data=data,
-            forward_log=logs["forward"],
-            backward_log=logs["backward"],
-            loop_wall_s=n * period * 1e-9,
-            interrupted=interrupted,
-        )
+        interrupted = ticks < self.duration_ticks - END_TOLERANCE_TICKS
         info = {
             "mode": "live",
             "realtime_factor": 1.0,
-            "ticks": n,
+            "ticks": ticks,
             "interrupted": interrupted,
-            "start_stamp_ns": start_ns,
-            "samples_filled": filled,
+            "start_stamp_ns": (self.start_tick or 0) * self.grid_ns,
+            "samples_filled": {t: self._pending[t].filled for t in STATE_COLUMNS},
+            "samples_after_written": {t: p.dropped for t, p in self._pending.items()},
             "messages_received": dict(self.received_count),
+            "packets_written": dict(self.packets_written),
+            "packets_late": dict(self.late_marked),
             "written_at_unix_s": round(time.time(), 3),
         }
-        self.bag_dir.parent.mkdir(parents=True, exist_ok=True)
-        path = write_run(result, self.bag_dir, run_info=info)
+        path = Path(self.rec.close(info))
         (self.bag_dir.parent / "live_run.json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
         return path
 
 
-def _on_grid(idx: np.ndarray, vals: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+def mark_late(rows: np.ndarray, late: set[int], f: dict[str, int]) -> int:
+    """In place: for each seq in `late`, its first delivered copy in `rows` (packet records, the
+    earliest arrival) gets fate LOST_LATE, as the engine's buffer marks the copy it received first.
+    Returns how many records were marked."""
+    if not late or rows.size == 0:
+        return 0
+    seq = rows[:, f["seq"]].astype(np.int64)
+    cand = np.flatnonzero(
+        (rows[:, f["fate"]] == DELIVERED) & np.fromiter((s in late for s in seq.tolist()), dtype=bool, count=seq.size)
+    )
+    if cand.size == 0:
+        return 0
+    order = np.lexsort((rows[cand, f["arrival_time_s"]], seq[cand]))
+    c = cand[order]
+    first = np.ones(c.size, dtype=bool)
+    first[1:] = seq[c[1:]] != seq[c[:-1]]
+    rows[c[first], f["fate"]] = LOST_LATE
+    return int(np.count_nonzero(first))
+
+
+def _on_grid(
+    idx: np.ndarray, vals: np.ndarray, n: int, carry: np.ndarray | None
+) -> tuple[np.ndarray, int, np.ndarray | None]:
     """Samples at tick indices -> an (n, k) grid; a tick with no sample holds the previous value
-    (the first value before the first sample). Returns the grid and how many ticks were filled."""
+    (`carry`, the last value of the previous block; before any sample at all, the first one).
+    Returns the grid, how many ticks were filled, and the carry for the next block."""
     k = vals.shape[1]
     ok = (idx >= 0) & (idx < n)
     have = np.zeros(n, dtype=bool)
@@ -378,11 +531,16 @@ def _on_grid(idx: np.ndarray, vals: np.ndarray, n: int) -> tuple[np.ndarray, int
         grid[idx[ok]] = vals[ok]
         have[idx[ok]] = True
     if not have.any():
-        return grid, n
+        if carry is not None:
+            grid[:] = carry
+        return grid, n, carry
     pos = np.where(have, np.arange(n), -1)
     pos = np.maximum.accumulate(pos)
-    pos[pos < 0] = int(np.argmax(have))
-    return grid[pos], int(n - np.count_nonzero(have))
+    head = pos < 0
+    grid = grid[np.maximum(pos, 0)]
+    if np.any(head):
+        grid[head] = carry if carry is not None else grid[int(np.argmax(have))]
+    return grid, int(n - np.count_nonzero(have)), grid[-1].copy()
 
 
 def main() -> None:

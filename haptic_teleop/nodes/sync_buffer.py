@@ -6,13 +6,19 @@ pushed with the tick's time as arrival time (as the engine does; seq = stamp / p
 = the sender's stamp), then the buffer's release decides
 which sample the controller uses, and that sample goes out on /<direction>/received with the
 sender's stamp (made-up samples of `gap: extrapolate` carry the stamp of the slot they fill).
+
+What the buffer decided for each packet it received goes out on /<direction>/playout (reliable,
+batched ten times a second, rows [seq, fate] of std_msgs/Float64MultiArray): fate 0 played, 4
+late (arrived but skipped, the engine's LOST_LATE). The recorder applies them to the relay's
+packet records, so a live bag counts late packets as the engine's does.
 """
 
 from __future__ import annotations
 
+import array
 from typing import Any
 
-from haptic_teleop.core.network import Packet
+from haptic_teleop.core.network import DELIVERED, LOST_LATE, Packet
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     DIRECTION_JOINT,
@@ -23,11 +29,16 @@ from haptic_teleop.nodes.common import (
     LiveNode,
     delivered_topic,
     node_main,
+    playout_topic,
     received_topic,
+    reliable_qos,
     stream_qos,
     take_all,
 )
 from haptic_teleop.nodes.network_relay import declare_direction_scene
+
+PLAYOUT_FIELDS = ("seq", "fate")
+_MAX_PENDING = 100_000
 
 
 class SyncBuffer(LiveNode):
@@ -51,6 +62,16 @@ class SyncBuffer(LiveNode):
         self.out = JointStateOut(self, received_topic(d), DIRECTION_JOINT[d], out_fields)
         self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], out_fields)])
         self._sub = self.create_polled_subscription(JointState, delivered_topic(d), stream_qos(READER_DEPTH), raw=True)
+        # Decisions: packets pushed and not decided yet (seq -> packet), and the decisions not
+        # published yet (seq, fate pairs, flat).
+        from std_msgs.msg import Float64MultiArray
+
+        self._pending: dict[int, Packet] = {}
+        self._decided = array.array("d")
+        self._late_seen = 0
+        self._dup_seen = 0
+        self._fates_pub = self.create_publisher(Float64MultiArray, playout_topic(d), reliable_qos(100))
+        self._batch_ticks = max(1, round(0.1e9 / period_ns))
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"{d}: {delivered_topic(d)} -> {received_topic(d)}, policy {getattr(cfg.network, d).buffer.policy}"
@@ -59,17 +80,64 @@ class SyncBuffer(LiveNode):
     def tick(self, index: int, stamp_ns: int) -> None:
         now = self.now_ns()
         period, read, push = self.period_ns, self._read, self.buffer.push
+        buf = self.buffer
         for raw in take_all(self._sub):
             try:
                 stamp, payload = read(raw)
             except IndexError:  # not this direction's layout
                 continue
-            push(Packet(stamp // period, stamp, payload, 0, now), now)
-        p = self.buffer.release(now)
+            packet = Packet(stamp // period, stamp, payload, 0, now)
+            push(packet, now)
+            if buf.duplicates != self._dup_seen:  # ignored: its first copy is decided
+                self._dup_seen = buf.duplicates
+            elif packet.fate == LOST_LATE:  # too late on arrival
+                self._late_seen += 1
+                self._decided.extend((packet.seq, LOST_LATE))
+            else:
+                self._pending[packet.seq] = packet
+        p = buf.release(now)
+        if buf.late != self._late_seen:  # skipped at this release: find which
+            self._collect_late()
         if p is not None:
             payload = p.payload
             self.out.publish(p.send_time_ns, [payload[i] for i in self._order])
             self.released += 1
+            if self._pending.pop(p.seq, None) is not None:
+                self._decided.extend((p.seq, DELIVERED))
+        if index % self._batch_ticks == 0:
+            self.publish_fates()
+
+    def _collect_late(self) -> None:
+        pending = self._pending
+        late = [seq for seq, q in pending.items() if q.fate == LOST_LATE]
+        for seq in late:
+            del pending[seq]
+            self._decided.extend((seq, LOST_LATE))
+        self._late_seen = self.buffer.late
+        if len(pending) > _MAX_PENDING:  # never decided (a buffer that lost track): forget the oldest
+            for seq in sorted(pending)[: len(pending) - _MAX_PENDING]:
+                del pending[seq]
+
+    def publish_fates(self) -> None:
+        """The decisions since the last batch, rows [seq, fate]."""
+        from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+        rows = self._decided
+        if not rows:
+            return
+        self._decided = array.array("d")
+        msg = Float64MultiArray()
+        n = len(rows) // 2
+        msg.layout.dim = [
+            MultiArrayDimension(label="packet", size=n, stride=len(rows)),
+            MultiArrayDimension(label=",".join(PLAYOUT_FIELDS), size=2, stride=2),
+        ]
+        msg.data = rows
+        self._fates_pub.publish(msg)
+
+    def close(self) -> None:
+        super().close()
+        self.publish_fates()
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         b = self.buffer
