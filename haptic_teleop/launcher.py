@@ -44,7 +44,6 @@ STOP_TIMEOUT_S = 10.0
 RECORDER_STOP_TIMEOUT_S = 60.0
 EXIT_OK = 0
 EXIT_FAILURE = 1
-EXIT_USAGE = 2  # bad input: nothing was started
 EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal that stopped the launch
 
 
@@ -508,7 +507,8 @@ def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path, out: IO
 
 def launch_main(args: Any) -> int:
     """`haptic-teleop launch` (argparse namespace from cli.py)."""
-    from haptic_teleop.errors import HapticTeleopError
+    from haptic_teleop import interrupt
+    from haptic_teleop.errors import HapticTeleopError, InputError
     from haptic_teleop.scene import find_scene, load_scene
 
     overrides = list(args.set or ())
@@ -519,14 +519,20 @@ def launch_main(args: Any) -> int:
     if record is not None:
         problem = record_dir_problem(record)
         if problem is not None:
-            print(f"haptic-teleop: --record {record}: {problem}", file=sys.stderr)
-            return EXIT_USAGE
+            raise InputError(f"--record {record}: {problem}")
     rate = args.sim_time_rate
     try:
         plan = node_plan(scene, record_dir=record, side=args.side, sim_time_rate=rate)
     except ValueError as exc:
         raise HapticTeleopError(str(exc)) from None
     params_dir = Path(args.params_dir) if args.params_dir else Path(tempfile.mkdtemp(prefix="haptic_teleop_params_"))
+    # From here on a first signal stops the nodes (their own handlers while they run) and still
+    # lets the bag, summary and plots be written (the CLI's handler once they have stopped).
+    with interrupt.finishing():
+        return _launch_and_report(args, scene, plan, params_dir, record, rate)
+
+
+def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, record: Path | None, rate: Any) -> int:
     if args.single_process:
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         code = run_single_process(plan, params_dir)
