@@ -10,4 +10,5 @@ BENCHMARKS = {
     "effects": "haptic_teleop.benchmarks.effects",
     "network": "haptic_teleop.benchmarks.network",
     "accuracy": "haptic_teleop.benchmarks.accuracy",
+    "memory": "haptic_teleop.benchmarks.memory",
 }
