@@ -1,0 +1,401 @@
+"""RunRecorder: a run streamed into a bag at bounded memory, by a writer process that never outlives its parent.
+
+The engine (or the live recorder) appends tick rows and packet records as they come; a writer
+process (or the calling process, `parallel=False`) turns them into MCAP records and writes
+chunks as they fill. Tick rows go through a ring of a few blocks in memory both processes map,
+with flow control (a slot is reused only after the writer has encoded it), so memory does not
+grow with the run. `flush` puts everything appended so far into the file as complete chunks;
+`close` writes the summary, footer and metadata.yaml.
+
+The writer process closes the bag (complete and readable) and exits when its parent dies: it
+closes its copy of the parent's end of the pipe (so the parent's death is an end of file), asks
+Linux for a signal on the parent's death (prctl PR_SET_PDEATHSIG) and checks its parent id while
+it waits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from haptic_teleop.errors import BagError
+from haptic_teleop.record.layouts import PACKET_BATCH, packet_batch_head, packet_rows
+from haptic_teleop.record.mcap import BagSink
+from haptic_teleop.record.streams import BLOCK_TICKS, RunStreams
+
+if TYPE_CHECKING:
+    from haptic_teleop.engine import RunResult
+
+COMPRESSIONS = ("none", "zstd", "lz4")
+RING_SLOTS = 4  # blocks of BLOCK_TICKS rows the parent may be ahead of the writer
+_PR_SET_PDEATHSIG = 1
+_WAIT_S = 0.5  # the writer checks on its parent at least this often while it waits
+
+
+def _write_rows(sink: BagSink, streams: RunStreams, rows: np.ndarray) -> None:
+    """The next ticks into the bag: ready records (bulk) or streams for rosbags' API."""
+    if sink.bulk:
+        for recs in streams.records(rows, sink.cids):
+            sink.append(recs)
+    else:
+        sink.write(streams.block(rows))
+
+
+def _write_packets(sink: BagSink, streams: RunStreams, direction: str, rows: np.ndarray) -> None:
+    stream = streams.packet_stream(direction, rows)
+    if stream is not None:
+        sink.write([stream])
+
+
+def _ask_for_parent_death_signal(sig: int) -> None:
+    """Linux: deliver `sig` to this process when its parent (the thread that forked it) ends."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, sig, 0, 0, 0)
+
+
+def _writer_process(
+    conn: Any,
+    parent_end: Any,
+    parent_pid: int,
+    bag_dir: str,
+    topics: list[tuple[str, str]],
+    args: tuple[Any, ...],
+    bulk: bool,
+    ring: np.ndarray | None,
+    free: Any,
+    sink: BagSink | None = None,
+) -> None:
+    """Child process: write what arrives; close the bag however the parent ends.
+
+    Messages: ("slot", (i, k)) k tick rows in ring slot i; ("rows", rows); ("packets", (direction,
+    rows)); ("flush", None), answered ("flushed", None); ("close", run_info), answered ("done",
+    None). Any failure is answered ("error", text) after the bag is closed. With fork, the parent
+    opens the bag (`sink`) and the child inherits it."""
+    if parent_end is not None:
+        parent_end.close()  # else the parent's death is no end of file here
+    died = False
+
+    def on_parent_death(signum: int, frame: Any) -> None:
+        nonlocal died
+        died = os.getppid() != parent_pid  # SIGTERM from elsewhere while the parent lives: ignored
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and closes the bag
+    signal.signal(signal.SIGTERM, on_parent_death)
+    _ask_for_parent_death_signal(signal.SIGTERM)
+    if os.getppid() != parent_pid:
+        died = True  # the parent ended before the signal was asked for
+    streams = RunStreams(*args)
+    if sink is None:
+        sink = BagSink(Path(bag_dir), topics, bulk)
+    run_info: dict[str, Any] = {}
+    reply = ("done", None)
+    try:
+        while True:
+            if not conn.poll(_WAIT_S):
+                if died or os.getppid() != parent_pid:
+                    raise EOFError
+                continue
+            kind, payload = conn.recv()
+            if kind == "slot":
+                assert ring is not None
+                i, k = payload
+                try:
+                    _write_rows(sink, streams, ring[i, :k])
+                finally:
+                    free.release()
+            elif kind == "rows":
+                _write_rows(sink, streams, payload)
+            elif kind == "packets":
+                _write_packets(sink, streams, *payload)
+            elif kind == "flush":
+                sink.flush()
+                conn.send(("flushed", None))
+            elif kind == "close":
+                run_info = payload
+                break
+    except EOFError:  # the parent died: close the bag with what it handed over
+        run_info = {"ticks": streams.ticks, "interrupted": True, "failed": True, "recorder_parent_died": True}
+        reply = ("error", "the recording process ended before closing the bag")
+    except BaseException as exc:  # noqa: BLE001 - report any failure, then still close the bag
+        reply = ("error", f"{type(exc).__name__}: {exc}")
+    try:
+        sink.write([streams.final(run_info)])
+    except BaseException as exc:  # noqa: BLE001 - still close the bag
+        reply = reply if reply[0] == "error" else ("error", f"{type(exc).__name__}: {exc}")
+    try:
+        sink.close()
+    except BaseException as exc:  # noqa: BLE001 - report it
+        reply = ("error", f"{type(exc).__name__}: {exc}")
+    with contextlib.suppress(OSError):
+        conn.send(reply)
+
+
+class RunRecorder:
+    """Records a run into a bag as it goes, in a second process by default so writing overlaps the loop.
+
+    `append` takes the next tick rows, `append_packets` packet records of one direction (any seq
+    order across calls), `flush` puts everything appended into the file as complete chunks, and
+    `close` completes the bag. Whatever ends the run, calling `close` leaves a complete, readable
+    bag; if this process dies, the writer process closes the bag on its own. The same calls in
+    the same order give the same bytes, in process or not.
+    """
+
+    def __init__(
+        self,
+        bag_dir: Path,
+        scene_yaml: str,
+        period_ns: int,
+        eba_internals: bool,
+        packets: bool,
+        n_columns: int,
+        *,
+        parallel: bool = True,
+        compression: str = "none",
+        qos: dict[str, Any] | None = None,
+        bulk: bool = True,
+        max_ticks: int | None = None,
+    ) -> None:
+        self.bag_dir = Path(bag_dir)
+        if compression not in COMPRESSIONS:
+            raise BagError(f"compression {compression!r} is not one of {', '.join(COMPRESSIONS)}")
+        if compression != "none":
+            raise BagError(f"compression {compression!r} is not supported yet (only none)")
+        self.compression = compression
+        self.qos = qos
+        if self.bag_dir.exists():
+            raise BagError(f"{self.bag_dir} exists already; choose a new --out directory or remove it")
+        self.n_columns = n_columns
+        args = (scene_yaml, period_ns, eba_internals, packets, n_columns)
+        self._streams = RunStreams(*args)
+        topics = self._streams.topics()
+        self._proc: Any = None
+        self._conn: Any = None
+        self._sink: BagSink | None = None
+        self._ring: np.ndarray | None = None
+        self._free: Any = None
+        self._slot = 0
+        self._sent = 0  # ticks handed over through `block`
+        self._closed = False
+        self._error: str | None = None
+        if not parallel:
+            self._sink = BagSink(self.bag_dir, topics, bulk)
+            return
+        import multiprocessing as mp
+
+        fork = "fork" in mp.get_all_start_methods()
+        ctx = mp.get_context("fork" if fork else "spawn")
+        opened = None
+        if fork:
+            # Open the bag here and let the child inherit it: importing the writer, adding the
+            # connections and the packet batch head were the child's first work while the loop ran.
+            opened = BagSink(self.bag_dir, topics, bulk)
+            opened.writer.storage.bio.flush()  # nothing buffered may be written twice
+            packet_batch_head(PACKET_BATCH)
+            # Tick rows go through memory both processes map (inherited at fork): a ring of a few
+            # blocks; the pipe carries only slot numbers. A slot is free again once encoded.
+            import mmap
+
+            buf = mmap.mmap(-1, RING_SLOTS * BLOCK_TICKS * n_columns * 8)
+            self._ring = np.frombuffer(buf, dtype=np.float64).reshape(RING_SLOTS, BLOCK_TICKS, n_columns)
+            self._free = ctx.Semaphore(RING_SLOTS)
+        parent, child = ctx.Pipe()
+        self._proc = ctx.Process(
+            target=_writer_process,
+            args=(
+                child,
+                parent if fork else None,
+                os.getpid(),
+                str(self.bag_dir),
+                topics,
+                args,
+                bulk,
+                self._ring,
+                self._free,
+                opened,
+            ),
+            daemon=True,
+            name="bag-writer",
+        )
+        try:
+            self._proc.start()
+        except BaseException:
+            if opened is not None:
+                opened.close()  # a complete, empty bag rather than a dangling file
+            raise
+        child.close()
+        if opened is not None:
+            opened.writer.storage.bio.close()  # the parent's copy of the descriptor; the child writes
+        self._conn = parent
+
+    # -- the streaming API
+    def append(self, rows: np.ndarray) -> None:
+        """The next k ticks: float64 (k, n_columns), in order. The rows are copied; this may wait
+        for the writer (at most RING_SLOTS blocks are in flight)."""
+        rows = np.asarray(rows)
+        if rows.ndim != 2 or rows.shape[1] != self.n_columns or rows.dtype != np.float64:
+            raise BagError(
+                f"tick rows must be a float64 array of shape (ticks, {self.n_columns}); got {rows.dtype} {rows.shape}"
+            )
+        self._check_open()
+        for a in range(0, rows.shape[0], BLOCK_TICKS):
+            part = rows[a : a + BLOCK_TICKS]
+            if self._sink is not None:
+                _write_rows(self._sink, self._streams, part)
+            elif self._ring is not None:
+                self._wait_for_slot()
+                k = part.shape[0]
+                self._ring[self._slot, :k] = part
+                self._send(("slot", (self._slot, k)))
+                self._slot = (self._slot + 1) % RING_SLOTS
+            else:
+                self._send(("rows", np.array(part)))
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        """Packet records of one direction ("forward" or "backward"): float64 (k, len(PACKET_FIELDS)),
+        written as batch messages of up to PACKET_BATCH records, logged at the time the recording
+        has reached (the end of the ticks appended so far)."""
+        if direction not in ("forward", "backward"):
+            raise BagError(f"packet direction must be 'forward' or 'backward'; got {direction!r}")
+        rows = packet_rows(rows)
+        self._check_open()
+        if self._sink is not None:
+            _write_packets(self._sink, self._streams, direction, rows)
+        else:
+            self._send(("packets", (direction, np.array(rows))))
+
+    def flush(self) -> None:
+        """Everything appended so far is in the file as complete chunks (a kill after this loses none of it)."""
+        self._check_open()
+        if self._sink is not None:
+            self._sink.flush()
+            return
+        self._send(("flush", None))
+        kind, msg = self._recv()
+        if kind != "flushed":
+            self._fail(msg)
+
+    def close(self, run_info: dict[str, Any]) -> Path:
+        """Write the run facts, the summary section, footer and metadata.yaml: the bag is complete."""
+        if self._closed:
+            return self.bag_dir
+        self._closed = True
+        if self._sink is not None:
+            try:
+                self._sink.write([self._streams.final(run_info)])
+            finally:
+                self._sink.close()
+            return self.bag_dir
+        if self._error is None:
+            with contextlib.suppress(BagError):
+                self._send(("close", run_info))
+        kind, msg = ("error", self._error) if self._error is not None else self._recv()
+        self._proc.join(timeout=60)
+        if kind == "error":
+            raise BagError(f"{self.bag_dir}: writing the bag failed: {msg}")
+        return self.bag_dir
+
+    # -- the engine's older calls, on top of the streaming API
+    def block(self, data: np.ndarray, stop: int) -> None:
+        """Hand over ticks [last stop, stop) of the engine's column array."""
+        start = self._sent
+        if stop <= start:
+            return
+        self._sent = stop
+        self.append(data[start:stop])
+
+    def finish(
+        self,
+        data: np.ndarray,
+        ticks: int,
+        forward_log: Sequence[Any] | np.ndarray,
+        backward_log: Sequence[Any] | np.ndarray,
+        run_info: dict[str, Any],
+    ) -> Path:
+        """Write the ticks not handed over yet, the packet records and the run facts; close the bag.
+
+        Each log is a link's list of packets, or their records ready made (float64, shape
+        (packets, len(PACKET_FIELDS))). If a log cannot be turned into records, the bag is still
+        closed (without packet records) before the error is raised."""
+        try:
+            self.block(data, ticks)
+            rows = (packet_rows(forward_log), packet_rows(backward_log))
+        except BaseException:
+            with contextlib.suppress(BagError):
+                self.close(run_info)
+            raise
+        self.append_packets("forward", rows[0])
+        self.append_packets("backward", rows[1])
+        return self.close(run_info)
+
+    # -- the writer process
+    def _check_open(self) -> None:
+        if self._closed:
+            raise BagError(f"{self.bag_dir}: the recorder is closed")
+        if self._error is not None:
+            self._fail(self._error)
+
+    def _fail(self, msg: str | None) -> None:
+        self._error = msg
+        raise BagError(f"{self.bag_dir}: writing the bag failed: {msg}")
+
+    def _send(self, message: tuple[str, Any]) -> None:
+        try:
+            self._conn.send(message)
+        except OSError:
+            self._fail(self._pending_error() or "the bag writer process ended")
+
+    def _recv(self) -> tuple[str, Any]:
+        try:
+            while not self._conn.poll(_WAIT_S):
+                if not self._proc.is_alive():
+                    return ("error", f"the bag writer process ended (exit code {self._proc.exitcode})")
+            kind, msg = self._conn.recv()
+        except (EOFError, OSError):
+            return ("error", f"the bag writer process ended (exit code {self._proc.exitcode})")
+        return kind, msg
+
+    def _pending_error(self) -> str | None:
+        with contextlib.suppress(EOFError, OSError):
+            if self._conn.poll(0):
+                kind, msg = self._conn.recv()
+                if kind == "error":
+                    return str(msg)
+        return None
+
+    def _wait_for_slot(self) -> None:
+        while not self._free.acquire(timeout=_WAIT_S):
+            if not self._proc.is_alive():
+                self._fail(self._pending_error() or f"the bag writer process ended (exit code {self._proc.exitcode})")
+
+
+def write_run(
+    result: RunResult, bag_dir: Path, run_info: dict[str, Any], bulk: bool = True, parallel: bool = False
+) -> Path:
+    """Write a finished run as a rosbag2 directory with MCAP storage, in the same blocks as live recording."""
+    from haptic_teleop.engine import COLUMNS
+
+    rec = RunRecorder(
+        bag_dir,
+        result.scene.to_yaml(),
+        result.period_ns,
+        result.scene.config.recording.eba_internals,
+        result.scene.config.recording.packets,
+        len(COLUMNS),
+        parallel=parallel,
+        bulk=bulk,
+    )
+    for stop in range(BLOCK_TICKS, result.ticks, BLOCK_TICKS):
+        rec.block(result.data, stop)
+    return rec.finish(result.data, result.ticks, result.forward_log, result.backward_log, run_info)
