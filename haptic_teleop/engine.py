@@ -23,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -626,16 +626,14 @@ def record_run(
 
     engine = Engine(scene, loop=loop)
     c = scene.config
-    rec = _StreamingRecorder(
-        RunRecorder(
-            bag_dir,
-            scene.to_yaml(),
-            engine.period_ns,
-            c.recording.eba_internals,
-            c.recording.packets,
-            len(COLUMNS),
-            parallel=parallel,
-        )
+    rec = RunRecorder(
+        bag_dir,
+        scene.to_yaml(),
+        engine.period_ns,
+        c.recording.eba_internals,
+        c.recording.packets,
+        len(COLUMNS),
+        parallel=parallel,
     )
     collector = Collector() if keep else None
     sink: RunSink = rec if collector is None else _Tee(rec, collector)
@@ -658,37 +656,6 @@ def record_run(
         rec.close(info)
     wall = time.perf_counter() - t0
     return engine, RunTiming(done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind)
-
-
-class _StreamingRecorder:
-    """The streaming sink API on the block/finish RunRecorder: rows go on as blocks are handed
-    over; packet records wait for `close` (that recorder writes them at the end)."""
-
-    def __init__(self, rec: Any) -> None:
-        self.rec = rec
-        self.ticks = 0
-        self.packets: dict[str, list[np.ndarray]] = {"forward": [], "backward": []}
-
-    def append(self, rows: np.ndarray) -> None:
-        self.rec.block(_Shifted(rows, self.ticks), self.ticks + len(rows))
-        self.ticks += len(rows)
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self.packets[direction].append(np.array(rows))
-
-    def close(self, run_info: dict[str, Any]) -> Path:
-        rows = [np.concatenate(p) if p else np.zeros((0, len(PACKET_FIELDS))) for p in self.packets.values()]
-        return Path(self.rec.finish(_Shifted(_NO_DATA, self.ticks), self.ticks, *rows, run_info))
-
-
-class _Shifted:
-    """Rows that stand at ticks [start, start + len) of a run, sliced by tick."""
-
-    def __init__(self, rows: np.ndarray, start: int) -> None:
-        self.rows, self.start = rows, start
-
-    def __getitem__(self, s: slice) -> np.ndarray:
-        return self.rows[s.start - self.start : s.stop - self.start]
 
 
 def _wire_payload_bytes(floats: int) -> int:

@@ -55,9 +55,9 @@ def test_stop_request_leaves_a_complete_bag(tmp_path):
 
     engine._loop = stop_midway  # type: ignore[method-assign]
     from haptic_teleop.bag import RunRecorder
-    from haptic_teleop.engine import COLUMNS, _StreamingRecorder
+    from haptic_teleop.engine import COLUMNS
 
-    rec = _StreamingRecorder(RunRecorder(bag, scene.to_yaml(), engine.period_ns, True, True, len(COLUMNS)))
+    rec = RunRecorder(bag, scene.to_yaml(), engine.period_ns, True, True, len(COLUMNS))
     result = engine.run(sink=rec, handle_sigint=False)
     rec.close({"interrupted": True})
     assert result.interrupted and 1234 <= result.ticks < 1400
