@@ -8,7 +8,9 @@ One tick (period T, see DESIGN.md section 2), in this order:
   5. slave packet (f_env, x_s, v_s) into the backward link; arrivals by t_n go to the master's
      buffer and are used from the next tick on;
   6. operator hand force from the master state; both plants step one period with the forces held.
-Recording goes into preallocated numpy columns; the bag is encoded in bulk afterwards (bag.py).
+Output streams: each tick's row goes into one block of BLOCK_TICKS rows handed to a sink (the
+recorder) when full; each packet's record is handed over once its fate is final. Nothing the loops
+hold grows with the run's length (docs/performance.md, "Memory").
 """
 
 from __future__ import annotations
@@ -142,6 +144,7 @@ def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[flo
 
 LOOPS = ("auto", "compiled", "python")
 COMPILED_CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
+VECTORIZED_WINDOW_TICKS = 10 * BLOCK_TICKS  # a vectorized network schedule is decided this far ahead
 
 
 class Engine:
@@ -407,7 +410,7 @@ class Engine:
         # ticked schedule's window is the loop's chunk, so it never runs ahead of a stop.
         fwd = fastloop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
         bwd = fastloop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
-        window = BLOCK_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
+        window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
         head, (P, S) = self._kernel_args()
         hist = _History()
         output = _Output(sink, fwd.settled, bwd.settled)

@@ -207,9 +207,10 @@ class VectorizedSchedule:
 
     def __init__(self, link: Link, period_ns: int, size_bytes: int) -> None:
         self.link, self.period_ns, self.size_bytes = link, period_ns, size_bytes
-        self._wait_tick = np.zeros(0, dtype=np.int64)  # arrival tick of each packet still on its way
-        self._wait_seq = np.zeros(0, dtype=np.int64)  # and its seq (both ascending)
-        self._last_tick = -1  # arrival tick of the last delivered packet
+        # Delivered packets whose records are not handed over yet: arrival tick and seq, both
+        # ascending (the check in `window`).
+        self._tick = np.zeros(0, dtype=np.int64)
+        self._seq = np.zeros(0, dtype=np.int64)
         self._rows: list[np.ndarray] = []  # records not handed over yet, in seq order
         self._first = 0  # seq of the first of them
 
@@ -220,28 +221,32 @@ class VectorizedSchedule:
         arrival, fate = self.link.schedule_all(send)
         got = np.flatnonzero(fate == DELIVERED)
         tick_of = -(-arrival[got] // period)
-        if len(tick_of) and (tick_of[0] <= self._last_tick or not bool(np.all(np.diff(tick_of) > 0))):
+        if len(tick_of) and (
+            (len(self._tick) and tick_of[0] <= self._tick[-1]) or not bool(np.all(np.diff(tick_of) > 0))
+        ):
             raise AssertionError("a vectorized link delivered two packets in one tick")  # constant delay cannot
-        if len(tick_of):
-            self._last_tick = int(tick_of[-1])
         self._rows.append(packet_rows(send, arrival, fate, self.size_bytes, first_seq=n0))
-        ticks = np.concatenate((self._wait_tick, tick_of))
-        seqs = np.concatenate((self._wait_seq, got + n0))
-        inside = ticks < n1
+        self._tick = np.concatenate((self._tick, tick_of))
+        self._seq = np.concatenate((self._seq, got + n0))
+        a, b = np.searchsorted(self._tick, (n0, n1))
         released = np.full(n1 - n0, -1, dtype=np.int64)
-        released[ticks[inside] - n0] = seqs[inside]
-        self._wait_tick, self._wait_seq = ticks[~inside], seqs[~inside]
+        released[self._tick[a:b] - n0] = self._seq[a:b]
         return released, np.zeros(n1 - n0)
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
-        """As `settled_records`: the records of packets older than the oldest one on its way
-        (none is ever held: the buffer releases an arrival in its tick)."""
+        """As `settled_records`, once the loop has run the ticks before `sent` (a window may reach
+        further): the records of packets older than the oldest one sent before `sent` and still on
+        its way then (none is ever held: the buffer releases an arrival in its tick)."""
         mark = sent
-        if not final and len(self._wait_seq) and self._wait_seq[0] < mark:
-            mark = int(self._wait_seq[0])
+        if not final:
+            i = int(np.searchsorted(self._tick, sent))  # the first to arrive at `sent` or later
+            if i < len(self._seq) and self._seq[i] < mark:
+                mark = int(self._seq[i])
         k = mark - self._first
         if k <= 0:
             return None
+        keep = int(np.searchsorted(self._seq, mark))
+        self._tick, self._seq = self._tick[keep:], self._seq[keep:]
         rows = self._rows[0] if len(self._rows) == 1 else np.concatenate(self._rows)
         self._rows = [rows[k:]]
         self._first = mark
