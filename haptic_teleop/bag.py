@@ -20,7 +20,7 @@ from haptic_teleop.record.layouts import (
     topic_specs,
     typestore,
 )
-from haptic_teleop.record.mcap import BagSink, _close_bag
+from haptic_teleop.record.mcap import BagSink
 from haptic_teleop.record.metadata import yaml_block
 from haptic_teleop.record.reader import BagReader, TopicData
 from haptic_teleop.record.recorder import RunRecorder, write_run
@@ -53,7 +53,6 @@ __all__ = [
     "TopicSpec",
     "_BagSink",
     "_Stream",
-    "_close_bag",
     "_multiarray_bytes",
     "_packet_batch_bytes",
     "_packet_rows",

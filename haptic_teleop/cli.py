@@ -113,6 +113,23 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_bag(args: argparse.Namespace) -> int:
+    """`bag info BAG` (exit 1 if the bag is damaged) and `bag recover BAG`; a bad path or an
+    unusable file: one line, exit 2."""
+    from haptic_teleop.record import tools
+
+    try:
+        if args.action == "info":
+            text, sound = tools.info(Path(args.bag))
+            print(text)
+            return EXIT_OK if sound else EXIT_FAILURE
+        print(tools.recover(Path(args.bag)).report())
+        return EXIT_OK
+    except BagError as exc:
+        print(f"haptic-teleop: bag error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     import importlib
 
@@ -151,6 +168,11 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", help="where summary.json and plots/ go (default: next to the bag)")
     a.add_argument("--no-plots", action="store_true")
     a.set_defaults(func=cmd_analyze)
+
+    bg = sub.add_parser("bag", help="info BAG: topics, counts, QoS, integrity; recover BAG: rebuild a cut bag")
+    bg.add_argument("action", choices=("info", "recover"))
+    bg.add_argument("bag", help="rosbag2 directory (or its .mcap file)")
+    bg.set_defaults(func=cmd_bag)
 
     from haptic_teleop import sweep
 

@@ -271,6 +271,9 @@ class NetworkConfig:
 class RecordingConfig:
     eba_internals: bool = field(default=True, metadata={"help": "record reservoirs and desired forces"})
     packets: bool = field(default=True, metadata={"help": "record every packet's fate"})
+    compression: str = field(
+        default="none", metadata={"choices": ("none", "zstd", "lz4"), "help": "MCAP chunk compression of the bag"}
+    )
 
 
 WALL_STEP_LIMIT = math.sqrt(2.0)  # largest stable omega * h of the wall contact (docs/robustness.md)

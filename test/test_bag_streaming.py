@@ -151,6 +151,11 @@ def test_bad_calls_are_refused(tmp_path):
     rec.close({})
     with pytest.raises(BagError, match="recorder is closed"):
         rec.append(_rows(0, 1))
+    # An unwritable output path fails when the recorder is made, before anything runs.
+    (tmp_path / "a_file").write_text("x")
+    for parallel in (False, True):
+        with pytest.raises(BagError, match=r"a_file/bag: cannot create the bag \(Not a directory\)"):
+            RunRecorder(tmp_path / "a_file" / "bag", "", PERIOD_NS, True, True, len(COLUMNS), parallel=parallel)
 
 
 def _children(pid: int) -> list[int]:

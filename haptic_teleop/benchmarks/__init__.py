@@ -11,4 +11,5 @@ BENCHMARKS = {
     "network": "haptic_teleop.benchmarks.network",
     "accuracy": "haptic_teleop.benchmarks.accuracy",
     "memory": "haptic_teleop.benchmarks.memory",
+    "recording": "haptic_teleop.benchmarks.recording",
 }

@@ -1,9 +1,28 @@
-"""MCAP file writer."""
+"""The MCAP file writer, from the MCAP specification (https://mcap.dev/spec), as rosbag2 lays bags out.
+
+File: magic, Header (profile "ros2"), the Schemas and Channels (in the data section, before any
+chunk, so a cut file still names its topics), then Chunks, each followed by its Message Index
+records; at close a Metadata record "rosbag2" (the bag's metadata, as rosbag2's MCAP plugin
+writes it), Data End with the CRC-32 of the data section, the summary section (Schemas, Channels,
+Statistics, Chunk Indexes, Metadata Index, then Summary Offsets), the Footer with the CRC-32 of
+the summary, and the closing magic. Every chunk carries the CRC-32 of its records (before
+compression). CRC-32 is zlib.crc32, as the specification defines it.
+
+Schemas and channels hold what rosbag2 writes: schema name the message type, encoding "ros2msg",
+data the message definition (rosbags' typestore); channel message encoding "cdr" and metadata
+`offered_qos_profiles` (YAML) and `topic_type_hash` (RIHS01).
+
+Messages arrive as ready records (`Records`, built with numpy); a chunk is closed after the
+record that takes it past CHUNK_LIMIT bytes, or on `flush`; nothing is kept after its chunk is
+written, so memory does not grow with the bag.
+"""
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -12,63 +31,185 @@ import numpy as np
 
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.layouts import typestore
-from haptic_teleop.record.metadata import yaml_block
+from haptic_teleop.record.metadata import DEFAULT_QOS, bag_info, metadata_text, qos_yaml, write_metadata
 from haptic_teleop.record.streams import Records, Stream, stream_records
 
-_CHUNK_LIMIT = 2**20  # rosbags closes an MCAP chunk once it grows past this many bytes
+MAGIC = b"\x89MCAP0\r\n"
+CHUNK_LIMIT = 2**20  # a chunk is closed after the message that takes it past this many bytes
+PROFILE = "ros2"
+LIBRARY = "haptic_teleop"
+# Compression as the scene and CLI name it -> the MCAP compression string.
+COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX = 0x07, 0x08, 0x0B, 0x0C, 0x0D
+OP_SUMMARY_OFFSET, OP_DATA_END = 0x0E, 0x0F
+
+
+def string(s: str) -> bytes:
+    b = s.encode()
+    return struct.pack("<I", len(b)) + b
+
+
+def record(op: int, body: bytes) -> bytes:
+    return struct.pack("<BQ", op, len(body)) + body
+
+
+def string_map(items: Sequence[tuple[str, str]]) -> bytes:
+    body = b"".join(string(k) + string(v) for k, v in items)
+    return struct.pack("<I", len(body)) + body
+
+
+def _zstd() -> Any:
+    """Zstandard: the standard library's (Python 3.14+) or its backport."""
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd
+    return zstd
+
+
+def compressor(name: str) -> Callable[[bytes], bytes]:
+    """The compressor of an MCAP compression string ("" none, "zstd", "lz4" frame)."""
+    if name == "":
+        return bytes
+    if name == "zstd":
+        zstd = _zstd()
+        return lambda b: bytes(zstd.compress(b, level=3))
+    if name == "lz4":
+        import lz4.frame  # type: ignore[import-untyped]
+
+        return lambda b: bytes(lz4.frame.compress(b))
+    raise BagError(f"compression {name!r} is not one of {', '.join(COMPRESSION)}")
+
+
+def decompressor(name: str) -> Callable[[bytes, int], bytes]:
+    """The decompressor of an MCAP compression string (data, uncompressed size) -> bytes."""
+    if name == "":
+        return lambda b, n: b
+    if name == "zstd":
+        zstd = _zstd()
+        return lambda b, n: bytes(zstd.decompress(b))
+    if name == "lz4":
+        import lz4.frame
+
+        return lambda b, n: bytes(lz4.frame.decompress(b))
+    raise BagError(f"chunk compression {name!r} is not supported (none, zstd, lz4 are)")
+
+
+@cache
+def message_definition(msgtype: str) -> tuple[str, str]:
+    """Message definition (ros2msg text) and RIHS01 type hash of a message type, from rosbags' typestore."""
+    ts = typestore()
+    msgdef, _ = ts.generate_msgdef(msgtype, ros_version=2)
+    return msgdef, ts.hash_rihs01(msgtype)
+
+
+@dataclass
+class Topic:
+    name: str
+    msgtype: str
+    channel_id: int
+    schema_id: int
+    qos: list[dict[str, Any]]
+    digest: str
 
 
 class BagSink:
-    """An open bag that takes messages as they come: streams of payloads, or ready records (bulk)."""
+    """An open rosbag2 directory with one MCAP file, taking messages as ready records."""
 
-    def __init__(self, bag_dir: Path, topics: Sequence[tuple[str, str]], bulk: bool = True) -> None:
-        from rosbags.rosbag2 import StoragePlugin, Writer
+    def __init__(
+        self,
+        bag_dir: Path,
+        topics: Sequence[tuple[str, str]],
+        compression: str = "none",
+        qos: dict[str, list[dict[str, Any]]] | None = None,
+        chunk_limit: int = CHUNK_LIMIT,
+    ) -> None:
+        if compression not in COMPRESSION:
+            raise BagError(f"compression {compression!r} is not one of {', '.join(COMPRESSION)}")
+        self.bag_dir = Path(bag_dir)
+        if self.bag_dir.exists():
+            raise BagError(f"{self.bag_dir} exists already; choose a new --out directory or remove it")
+        try:
+            self.bag_dir.mkdir(parents=True)
+            self.path = self.bag_dir / f"{self.bag_dir.name}.mcap"
+            self.file = open(self.path, "xb")  # noqa: SIM115 - open for the writer's life
+        except OSError as exc:
+            raise BagError(f"{self.bag_dir}: cannot create the bag ({exc.strerror or exc})") from None
+        self.compression = COMPRESSION[compression]
+        self._compress = compressor(self.compression)
+        self.chunk_limit = chunk_limit
+        self.pos = 0
+        self.crc = 0  # of the data section so far
+        self.topics: list[Topic] = []
+        self.schemas: list[tuple[int, str, str]] = []  # id, message type, definition
+        schema_ids: dict[str, int] = {}
+        offered = {**DEFAULT_QOS, **(qos or {})}
+        for cid, (topic, msgtype) in enumerate(topics, start=1):
+            if msgtype not in schema_ids:
+                schema_ids[msgtype] = len(self.schemas) + 1
+                self.schemas.append((schema_ids[msgtype], msgtype, message_definition(msgtype)[0]))
+            profiles = offered.get(topic, offered["*"])
+            self.topics.append(
+                Topic(topic, msgtype, cid, schema_ids[msgtype], profiles, message_definition(msgtype)[1])
+            )
+        self.cids = {t.name: t.channel_id for t in self.topics}
+        self.counts = {t.channel_id: 0 for t in self.topics}
+        self.start_ns = 2**63 - 1
+        self.end_ns = 0
+        self.chunk_indexes: list[bytes] = []
+        self._new_chunk()
+        self._write(MAGIC + record(OP_HEADER, string(PROFILE) + string(LIBRARY)))
+        self._write(b"".join(self._schema_records()) + b"".join(self._channel_records()))
 
-        if bag_dir.exists():
-            raise BagError(f"{bag_dir} exists already; choose a new --out directory or remove it")
-        # rosbags' writer and its MCAP storage internals (chunk, bio, counts): typed Any on purpose.
-        self.writer: Any = Writer(bag_dir, version=9, storage_plugin=StoragePlugin.MCAP)
-        self.writer.open()
-        ts = typestore()
-        self.conns = {}
-        for topic, msgtype in topics:
-            msgdef, digest = message_definition(msgtype)
-            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=ts, msgdef=msgdef, rihs01=digest)
-        self.cids = {t: c.id for t, c in self.conns.items()}
-        self.bulk = bulk and _bulk_supported(self.writer)
-        # The open chunk (bulk path): its records after what rosbags wrote into it (the schemas and
-        # channels), and its message index: channel id -> (log times, offsets) arrays, channels in
-        # the order their first message entered the chunk, as rosbags keeps them.
+    # -- records
+    def _schema_records(self) -> list[bytes]:
+        return [
+            record(OP_SCHEMA, struct.pack("<H", sid) + string(msgtype) + string("ros2msg") + string(text))
+            for sid, msgtype, text in self.schemas
+        ]
+
+    def _channel_records(self) -> list[bytes]:
+        return [
+            record(
+                OP_CHANNEL,
+                struct.pack("<HH", t.channel_id, t.schema_id)
+                + string(t.name)
+                + string("cdr")
+                + string_map([("offered_qos_profiles", qos_yaml(t.qos)), ("topic_type_hash", t.digest)]),
+            )
+            for t in self.topics
+        ]
+
+    def _write(self, data: bytes | memoryview) -> None:
+        self.file.write(data)
+        self.crc = zlib.crc32(data, self.crc)
+        self.pos += len(data)
+
+    def _new_chunk(self) -> None:
         self._parts: list[np.ndarray] = []
         self._pending = 0
+        # channel id -> [(log times, offsets in the chunk)], channels in the order their first
+        # message entered the chunk
         self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._chunk_start_ns = 2**63 - 1
+        self._chunk_end_ns = 0
 
+    # -- messages
     def write(self, streams: Sequence[Stream]) -> None:
-        if not streams:
-            return
-        if self.bulk:
+        """A few messages of any size (scene, packet batches, run facts), in log time order."""
+        if streams:
             self.append(stream_records(streams, self.cids))
-            return
-        all_times = np.concatenate([s.log_ns for s in streams])
-        which = np.concatenate([np.full(len(s.log_ns), k, dtype=np.int64) for k, s in enumerate(streams)])
-        index = np.concatenate([np.arange(len(s.log_ns), dtype=np.int64) for s in streams])
-        order = np.lexsort((which, all_times))
-        conns = [self.conns[s.topic] for s in streams]
-        write = self.writer.write
-        for k, i, tm in zip(which[order].tolist(), index[order].tolist(), all_times[order].tolist(), strict=True):
-            write(conns[k], tm, streams[k].payload(i))
 
     def append(self, recs: Records) -> None:
-        """Add records to the open chunk, closing it where rosbags would, and keep rosbags' counts."""
-        writer = self.writer
-        storage = writer.storage
+        """Add message records to the open chunk, closing it after the record that takes it past the limit."""
         ends = recs.ends
         total = int(ends[-1]) if ends.size else 0
         pos = first = 0
         while pos < total:
-            base = storage.chunk.bio.tell() + self._pending
-            # The chunk closes after the first record that takes it past the limit.
-            k = min(int(ends.searchsorted(pos + _CHUNK_LIMIT - base, side="right")), ends.size - 1)
+            base = self._pending
+            k = min(int(ends.searchsorted(pos + self.chunk_limit - base, side="right")), ends.size - 1)
             stop = int(ends[k])
             self._parts.append(recs.buf[pos:stop])
             self._pending += stop - pos
@@ -79,185 +220,156 @@ class BagSink:
                 if hi > lo:
                     here.append((int(starts[lo]), cid, starts[lo:hi], times[lo:hi]))
             here.sort()
-            t_lo, t_hi = int(recs.times[first]), int(recs.times[k])  # records are in time order
+            times_here = recs.times[first : k + 1]
+            t_lo, t_hi = int(times_here.min()), int(times_here.max())
             first = k + 1
             for _, cid, starts, times in here:
                 self._index.setdefault(cid, []).append((times, starts + (base - pos)))
-                storage.channel_stats[cid] += starts.size
-                writer.counts[cid] += starts.size
-            chunk = storage.chunk
-            chunk.message_start_time = min(chunk.message_start_time, t_lo)
-            chunk.message_end_time = max(chunk.message_end_time, t_hi)
-            storage.message_start_time = min(storage.message_start_time, t_lo)
-            storage.message_end_time = max(storage.message_end_time, t_hi)
-            writer.min_timestamp = min(writer.min_timestamp, t_lo)
-            writer.max_timestamp = max(writer.max_timestamp, t_hi)
-            if base + stop - pos > _CHUNK_LIMIT:
+                self.counts[cid] += starts.size
+            self._chunk_start_ns = min(self._chunk_start_ns, t_lo)
+            self._chunk_end_ns = max(self._chunk_end_ns, t_hi)
+            self.start_ns = min(self.start_ns, t_lo)
+            self.end_ns = max(self.end_ns, t_hi)
+            if base + stop - pos > self.chunk_limit:
                 self._close_chunk()
             pos = stop
 
     def _close_chunk(self) -> None:
-        """rosbags' McapWriter.close_chunk, byte for byte, for the records kept as arrays.
-
-        Writes the chunk record (what rosbags wrote into the chunk, then the records), one message
-        index record per channel (in `_index` order), queues the chunk index for the summary
-        section, and starts a new chunk."""
-        from collections import defaultdict
-        from io import BytesIO
-
-        from rosbags.rosbag2.storage_mcap import PendingChunk
-
-        storage = self.writer.storage
-        chunk = storage.chunk
-        head = chunk.bio.getvalue()
-        size = len(head) + self._pending
-        comp = storage.compression.encode()  # "": the bulk path runs without compression
-        bio = storage.bio
-        chunk_start = bio.tell()
-        rec_len = 28 + 4 + len(comp) + 8 + size
-        bio.write(
-            struct.pack("<BQQQQI", 6, rec_len, chunk.message_start_time, chunk.message_end_time, size, 0)
-            + struct.pack("<I", len(comp))
-            + comp
-            + struct.pack("<Q", size)
-        )
-        if head:
-            bio.write(head)
+        """The chunk record (CRC-32 of its records), one message index per channel, its chunk index."""
+        if not self._pending:
+            return
+        size = self._pending
+        crc = 0
         for part in self._parts:
-            bio.write(part)
-        self._parts = []
-        self._pending = 0
-        chunk_end = where = chunk_start + 9 + rec_len
+            crc = zlib.crc32(part.data, crc)
+        if self.compression:
+            data: Any = self._compress(b"".join(p.tobytes() for p in self._parts))
+            parts: list[Any] = [data]
+            stored = len(data)
+        else:
+            parts = self._parts
+            stored = size
+        comp = string(self.compression)
+        chunk_start = self.pos
+        body_len = 8 + 8 + 8 + 4 + len(comp) + 8 + stored
+        head = struct.pack("<BQQQQI", OP_CHUNK, body_len, self._chunk_start_ns, self._chunk_end_ns, size, crc)
+        self._write(head + comp + struct.pack("<Q", stored))
+        for part in parts:
+            self._write(part)
+        chunk_end = self.pos
         offsets: list[tuple[int, int]] = []
-        for cid, parts in self._index.items():
-            # (log time, offset) pairs as little-endian uint64 (both are >= 0 int64 here)
-            pairs = np.empty((sum(t.size for t, _ in parts), 2), dtype="<i8")
+        for cid, pieces in self._index.items():
+            pairs = np.empty((sum(t.size for t, _ in pieces), 2), dtype="<u8")
             k = 0
-            for t, o in parts:
+            for t, o in pieces:
                 pairs[k : k + t.size, 0] = t
                 pairs[k : k + t.size, 1] = o
                 k += t.size
-            offsets.append((cid, where))
-            bio.write(struct.pack("<BQHI", 7, 6 + pairs.nbytes, cid, pairs.nbytes))
-            bio.write(pairs)
-            where += 15 + pairs.nbytes
-        self._index = {}
-        index = BytesIO()
-        index.write(
-            struct.pack("<QQQQ", chunk.message_start_time, chunk.message_end_time, chunk_start, chunk_end - chunk_start)
+            offsets.append((cid, self.pos))
+            self._write(struct.pack("<BQHI", OP_MESSAGE_INDEX, 6 + pairs.nbytes, cid, pairs.nbytes) + pairs.tobytes())
+        index = (
+            struct.pack("<QQQQ", self._chunk_start_ns, self._chunk_end_ns, chunk_start, chunk_end - chunk_start)
+            + struct.pack("<I", len(offsets) * 10)
+            + b"".join(struct.pack("<HQ", cid, off) for cid, off in offsets)
+            + struct.pack("<Q", self.pos - chunk_end)
+            + comp
+            + struct.pack("<QQ", stored, size)
         )
-        index.write(struct.pack("<I", len(offsets) * 10))
-        for cid, off in offsets:
-            index.write(struct.pack("<HQ", cid, off))
-        index.write(struct.pack("<Q", where - chunk_end))
-        index.write(struct.pack("<I", len(comp)) + comp)
-        index.write(struct.pack("<QQ", size, size))
-        storage.chunks.append(index)
-        storage.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+        self.chunk_indexes.append(record(OP_CHUNK_INDEX, index))
+        self._new_chunk()
 
     def flush(self) -> None:
-        """Close the open chunk (if it holds anything) and push the file's buffer to the system."""
-        storage = self.writer.storage
-        if self.bulk:
-            if storage.chunk.bio.tell() or self._pending:
-                self._close_chunk()
-        elif storage.chunk.bio.tell():
-            storage.close_chunk()
-        storage.bio.flush()
+        """Close the open chunk (if it holds anything) and hand the file's buffer to the system."""
+        self._close_chunk()
+        self.file.flush()
+
+    # -- closing
+    def info(self) -> dict[str, Any]:
+        return bag_info(
+            self.path.name,
+            [(t.name, t.msgtype, t.qos, t.digest, self.counts[t.channel_id]) for t in self.topics],
+            self.start_ns,
+            self.end_ns,
+        )
 
     def close(self) -> None:
-        if self.bulk:
-            if self.writer.storage.chunk.bio.tell() or self._pending:
-                self._close_chunk()
-            _close_bag(self.writer)
-        else:
-            self.writer.close()
+        """Summary section, footer and metadata.yaml: the bag is complete."""
+        if self.file.closed:
+            return
+        try:
+            self._close_chunk()
+            info = self.info()
+            inner, whole = metadata_text(info)
+            meta_start = self.pos
+            meta = record(OP_METADATA, string("rosbag2") + string_map([("serialized_metadata", inner.strip())]))
+            self._write(meta)
+            self._write(record(OP_DATA_END, struct.pack("<I", self.crc)))
+            write_summary(self, meta_start, len(meta))
+            self.file.close()
+        except OSError as exc:
+            self.file.close()
+            raise BagError(f"{self.bag_dir}: writing the bag failed ({exc.strerror or exc})") from None
+        write_metadata(self.bag_dir, whole)
 
 
-def _bulk_supported(writer: Any) -> bool:
-    st = getattr(writer, "storage", None)
-    chunk = getattr(st, "chunk", None)
-    return (
-        chunk is not None
-        and hasattr(chunk, "bio")
-        and hasattr(chunk, "msgs")
-        and hasattr(st, "close_chunk")
-        and hasattr(st, "chunks")
-        and getattr(st, "compression", None) == ""
-        and hasattr(st, "channel_stats")
-        and hasattr(writer, "counts")
-        and getattr(getattr(writer, "compression_mode", None), "name", "") == "NONE"
+def summary_bytes(
+    schemas: list[bytes],
+    channels: list[bytes],
+    statistics: bytes,
+    chunk_indexes: list[bytes],
+    metadata: list[tuple[int, int, str]],
+    summary_start: int,
+) -> bytes:
+    """The summary section (groups, then their Summary Offset records) and the footer, CRC included."""
+    groups = [
+        (OP_SCHEMA, schemas),
+        (OP_CHANNEL, channels),
+        (OP_STATISTICS, [statistics]),
+        (OP_CHUNK_INDEX, chunk_indexes),
+        (
+            OP_METADATA_INDEX,
+            [record(OP_METADATA_INDEX, struct.pack("<QQ", s, n) + string(name)) for s, n, name in metadata],
+        ),
+    ]
+    out = bytearray()
+    offsets = []
+    for op, recs in groups:
+        if not recs:
+            continue
+        start = summary_start + len(out)
+        for r in recs:
+            out += r
+        offsets.append(record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, start, summary_start + len(out) - start)))
+    offset_start = summary_start + len(out)
+    for r in offsets:
+        out += r
+    out += struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, offset_start)
+    out += struct.pack("<I", zlib.crc32(out))
+    return bytes(out) + MAGIC
+
+
+def statistics_record(
+    counts: dict[int, int], n_schemas: int, n_channels: int, n_metadata: int, n_chunks: int, start: int, end: int
+) -> bytes:
+    total = sum(counts.values())
+    body = struct.pack(
+        "<QHIIIIQQ", total, n_schemas, n_channels, 0, n_metadata, n_chunks, start if total else 0, end if total else 0
     )
+    body += struct.pack("<I", 10 * len(counts)) + b"".join(struct.pack("<HQ", c, n) for c, n in sorted(counts.items()))
+    return record(OP_STATISTICS, body)
 
 
-@cache
-def message_definition(msgtype: str) -> tuple[str, str]:
-    """Message definition and type hash of a message type, as rosbags' add_connection derives them."""
-    ts = typestore()
-    msgdef, _ = ts.generate_msgdef(msgtype, ros_version=2)
-    return msgdef, ts.hash_rihs01(msgtype)
-
-
-def _close_bag(writer: Any) -> None:
-    """rosbags' Writer.close (summary section, then metadata.yaml) with the metadata text from
-    `yaml_block` instead of ruamel: ruamel's pure-Python emitter took 30 to 50 ms per bag for
-    the two dumps (the metadata goes into the MCAP file and into metadata.yaml).
-
-    The metadata is built from the writer's connections and counts exactly as Writer.close builds
-    it; anything this does not cover (compression, another version, text outside `yaml_block`'s
-    subset) is left to Writer.close itself. A test holds both files equal to Writer.close's."""
-    from rosbags.interfaces import ConnectionExtRosbag2
-    from rosbags.rosbag2.metadata import dump_qos_v9
-
-    storage = writer.storage
-    if writer.version != 9 or writer.compression_mode.name != "NONE" or writer.storage_plugin.name != "MCAP":
-        writer.close()
-        return
-    duration = max(0, writer.max_timestamp - writer.min_timestamp)
-    start = writer.min_timestamp
-    count = sum(writer.counts.values())
-    name = storage.path.name
-    info = {
-        "version": writer.version,
-        "storage_identifier": "mcap",
-        "relative_file_paths": [name],
-        "duration": {"nanoseconds": duration},
-        "starting_time": {"nanoseconds_since_epoch": start},
-        "message_count": count,
-        "topics_with_message_count": [
-            {
-                "topic_metadata": {
-                    "name": c.topic,
-                    "type": c.msgtype,
-                    "serialization_format": c.ext.serialization_format,
-                    "offered_qos_profiles": dump_qos_v9(c.ext.offered_qos_profiles),
-                    "type_description_hash": c.digest,
-                },
-                "message_count": writer.counts[c.id],
-            }
-            for c in writer.connections
-            if isinstance(c.ext, ConnectionExtRosbag2)
-        ],
-        "compression_format": "",
-        "compression_mode": "",
-        "files": [
-            {
-                "path": name,
-                "starting_time": {"nanoseconds_since_epoch": start},
-                "duration": {"nanoseconds": duration},
-                "message_count": count,
-            }
-        ],
-        "custom_data": writer.custom_data or None,
-        "ros_distro": "rosbags",
-    }
-    inner = yaml_block(info)
-    whole = yaml_block({"rosbag2_bagfile_information": info})
-    if inner is None or whole is None:
-        writer.close()
-        return
-    storage.close(writer.version, inner.strip())
-    writer.storage = None
-    tmp = writer.metapath.with_suffix(".yaml.tmp")
-    tmp.write_text(whole, "utf8")
-    tmp.replace(writer.metapath)
+def write_summary(sink: BagSink, meta_start: int, meta_len: int) -> None:
+    stats = statistics_record(
+        sink.counts, len(sink.schemas), len(sink.topics), 1, len(sink.chunk_indexes), sink.start_ns, sink.end_ns
+    )
+    sink.file.write(
+        summary_bytes(
+            sink._schema_records(),
+            sink._channel_records(),
+            stats,
+            sink.chunk_indexes,
+            [(meta_start, meta_len, "rosbag2")],
+            sink.pos,
+        )
+    )

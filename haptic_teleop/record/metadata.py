@@ -1,9 +1,19 @@
-"""metadata.yaml emitter."""
+"""metadata.yaml: the rosbag2 bag information (storage version 9) and its emitter.
+
+The file holds what rosbag2 writes for an MCAP bag: storage id, files, duration, start, message
+counts, per topic its type, serialization format, offered QoS profiles (storage version 9: a list of
+profiles with names, e.g. `reliability: best_effort`) and type hash. MCAP chunk compression is
+inside the storage file (compression_format and compression_mode stay empty, as rosbag2 leaves
+them with a storage preset).
+"""
 
 from __future__ import annotations
 
+import copy
+import os
 import re
 from functools import lru_cache
+from pathlib import Path
 from typing import Any
 
 # --------------------------------------------------------------------------------------------
@@ -130,3 +140,151 @@ def yaml_block(data: dict[str, Any]) -> str | None:
     except _NotPlain:
         return None
     return "".join(out)
+
+
+# -- offered QoS profiles (rosbag2 storage version 9)
+_INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as rosbag2 writes it
+_QOS_VALUES = {
+    "history": ("keep_last", "keep_all", "system_default", "unknown"),
+    "reliability": ("reliable", "best_effort", "system_default", "best_available", "unknown"),
+    "durability": ("volatile", "transient_local", "system_default", "best_available", "unknown"),
+    "liveliness": ("automatic", "manual_by_topic", "system_default", "best_available", "unknown"),
+}
+_QOS_DURATIONS = ("deadline", "lifespan", "liveliness_lease_duration")
+
+
+def qos_profile(**fields: Any) -> dict[str, Any]:
+    """One offered QoS profile as rosbag2 v9 writes it; unnamed fields take ROS 2's defaults."""
+    out: dict[str, Any] = {
+        "history": "keep_last",
+        "depth": 10,
+        "reliability": "reliable",
+        "durability": "volatile",
+        "deadline": dict(_INFINITE),
+        "lifespan": dict(_INFINITE),
+        "liveliness": "automatic",
+        "liveliness_lease_duration": dict(_INFINITE),
+        "avoid_ros_namespace_conventions": False,
+    }
+    for key, value in fields.items():
+        if key not in out:
+            raise ValueError(f"QoS field {key!r} is not one of {', '.join(out)}")
+        if key in _QOS_VALUES and value not in _QOS_VALUES[key]:
+            raise ValueError(f"QoS {key} {value!r} is not one of {', '.join(_QOS_VALUES[key])}")
+        if key in _QOS_DURATIONS:
+            if not (isinstance(value, dict) and set(value) == {"sec", "nsec"}):
+                raise ValueError(f"QoS {key} must be a mapping with sec and nsec")
+            out[key] = {"sec": int(value["sec"]), "nsec": int(value["nsec"])}
+            continue
+        if key == "depth" and (type(value) is not int or value < 0):
+            raise ValueError(f"QoS depth must be an integer >= 0; got {value!r}")
+        out[key] = value
+    return out
+
+
+STREAM_QOS = [qos_profile(reliability="best_effort", depth=1)]  # the 1 kHz streams
+LATCHED_QOS = [qos_profile(durability="transient_local", depth=1)]  # scene and run facts
+BATCH_QOS = [qos_profile(depth=10)]  # packet record batches: reliable, volatile
+# topic -> offered profiles; "*" for every topic not named.
+DEFAULT_QOS: dict[str, list[dict[str, Any]]] = {
+    "*": STREAM_QOS,
+    "/haptic_teleop/scene": LATCHED_QOS,
+    "/haptic_teleop/run_info": LATCHED_QOS,
+    "/forward/packets": BATCH_QOS,
+    "/backward/packets": BATCH_QOS,
+}
+
+
+def qos_yaml(profiles: list[dict[str, Any]]) -> str:
+    """Profiles as the YAML text of MCAP channel metadata `offered_qos_profiles` ("" for none)."""
+    if not profiles:
+        return ""
+    text = yaml_block({"q": profiles})
+    if text is None:
+        return _ruamel_dump(profiles).strip()
+    return text.split("\n", 1)[1].strip()
+
+
+def bag_info(
+    file_name: str, topics: list[tuple[str, str, list[dict[str, Any]], str, int]], start_ns: int, end_ns: int
+) -> dict[str, Any]:
+    """rosbag2_bagfile_information of a one-file MCAP bag: topics are (name, type, qos, hash, count)."""
+    count = sum(t[4] for t in topics)
+    start = start_ns if count else 0
+    duration = max(0, end_ns - start_ns) if count else 0
+    return {
+        "version": 9,
+        "storage_identifier": "mcap",
+        "relative_file_paths": [file_name],
+        "duration": {"nanoseconds": duration},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": count,
+        "topics_with_message_count": [
+            {
+                "topic_metadata": {
+                    "name": name,
+                    "type": msgtype,
+                    "serialization_format": "cdr",
+                    "offered_qos_profiles": copy.deepcopy(qos),  # each its own (no YAML anchors)
+                    "type_description_hash": digest,
+                },
+                "message_count": n,
+            }
+            for name, msgtype, qos, digest, n in topics
+        ],
+        "compression_format": "",
+        "compression_mode": "",
+        "files": [
+            {
+                "path": file_name,
+                "starting_time": {"nanoseconds_since_epoch": start},
+                "duration": {"nanoseconds": duration},
+                "message_count": count,
+            }
+        ],
+        "custom_data": None,
+        "ros_distro": "",
+    }
+
+
+def _ruamel_dump(data: Any) -> str:
+    from io import StringIO
+
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    yaml.default_flow_style = False
+    out = StringIO()
+    yaml.dump(data, out)
+    return out.getvalue()
+
+
+def metadata_text(info: dict[str, Any]) -> tuple[str, str]:
+    """(the information alone, as the MCAP metadata record holds it; the whole metadata.yaml)."""
+    inner = yaml_block(info) or _ruamel_dump(info)
+    whole = yaml_block({"rosbag2_bagfile_information": info}) or _ruamel_dump({"rosbag2_bagfile_information": info})
+    return inner, whole
+
+
+def write_metadata(bag_dir: Path, whole: str) -> None:
+    """metadata.yaml, written whole or not at all (a temporary file renamed into place)."""
+    path = Path(bag_dir) / "metadata.yaml"
+    tmp = path.with_suffix(".yaml.tmp")
+    with open(tmp, "w", encoding="utf8") as f:
+        f.write(whole)
+        f.flush()
+        os.fsync(f.fileno())
+    tmp.replace(path)
+
+
+def _ruamel_load(text: str) -> Any:
+    """YAML text (channel metadata) as data; None when empty or unreadable."""
+    if not text.strip():
+        return None
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError
+
+    try:
+        return YAML(typ="safe").load(text)
+    except YAMLError:
+        return None

@@ -48,26 +48,113 @@ def _stamp_of(msg: Any) -> int | None:
     return None if h is None else int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
 
 
+def recover_hint(bag: Path) -> str:
+    return f": `haptic-teleop bag recover {bag}` rebuilds it from its complete chunks"
+
+
+def _describe_damage(bag: Path, mcap: Path, what: str) -> BagError:
+    """One line: what is wrong with the bag and what `bag recover` would keep."""
+    from haptic_teleop.record.mcapread import scan
+
+    try:
+        s = scan(mcap)
+    except BagError as exc:
+        return exc
+    except OSError as exc:
+        return BagError(f"{mcap}: cannot read ({exc.strerror or exc})")
+    return BagError(
+        f"{what}: `haptic-teleop bag recover {bag}` rebuilds it from its {len(s.chunks)} complete chunks, "
+        f"{s.seconds:.3f} s of messages"
+    )
+
+
+def _load_metadata(bag: Path) -> dict[str, Any]:
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError
+
+    meta = bag / "metadata.yaml"
+    try:
+        text = meta.read_text(encoding="utf8")
+        data = YAML(typ="safe").load(text)
+        info = data["rosbag2_bagfile_information"]
+        files = [str(f) for f in info["relative_file_paths"]]
+        storage = str(info["storage_identifier"])
+    except OSError as exc:
+        raise BagError(f"{meta}: cannot read ({exc.strerror or exc})") from None
+    except (YAMLError, UnicodeDecodeError, TypeError, KeyError) as exc:
+        what = f"no {exc} key" if isinstance(exc, KeyError) else type(exc).__name__
+        raise BagError(f"{bag}: not a readable rosbag2 directory (metadata.yaml: {what})") from None
+    if not isinstance(info, dict):
+        raise BagError(f"{bag}: not a readable rosbag2 directory (metadata.yaml holds no bag information)")
+    return {"files": files, "storage": storage, "info": info}
+
+
 class BagReader:
-    """Read what analysis needs from a bag written by `write_run` or by the live recorder."""
+    """Read what analysis needs from a bag written by the recorder or by other tools.
+
+    MCAP bags are read by this package's validating reader (summary CRC on open, each chunk's CRC
+    as it is read); other storage (sqlite3) through rosbags. `path` is the rosbag2 directory, its
+    metadata.yaml, or an .mcap file."""
 
     def __init__(self, path: str | Path) -> None:
-        from rosbags.rosbag2 import Reader
+        from haptic_teleop.record.mcapread import McapFile
 
         self.path = Path(path)
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag (give the rosbag2 directory that holds metadata.yaml)")
         if self.path.is_file() and self.path.name == "metadata.yaml":
             self.path = self.path.parent
+        self._files: list[McapFile] = []
+        self._rosbags: Any = None
+        if self.path.is_file():
+            mcaps = [self.path]
+        else:
+            if not (self.path / "metadata.yaml").exists():
+                found = sorted(self.path.glob("*.mcap"))
+                if not found:
+                    raise BagError(f"{self.path}: not a rosbag2 directory (no metadata.yaml and no .mcap file)")
+                raise _describe_damage(
+                    self.path,
+                    found[0],
+                    f"{self.path}/ has no metadata.yaml (the run was killed before the bag was closed?)",
+                )
+            meta = _load_metadata(self.path)
+            if meta["storage"] != "mcap":
+                self._open_rosbags()
+                return
+            mcaps = [self.path / f for f in meta["files"]]
+        for m in mcaps:
+            if not m.is_file():
+                self.close()
+                raise BagError(f"{self.path}: the bag's file {m.name} is missing")
+            try:
+                self._files.append(McapFile(m, recover_hint(self.path)))
+            except BagError as exc:
+                self.close()
+                if "truncated" in str(exc):
+                    raise _describe_damage(self.path, m, str(exc).split(": `haptic-teleop")[0]) from None
+                raise
+        self.topics: dict[str, str] = {}
+        for f in self._files:
+            for c in f.channels.values():
+                s = f.schemas.get(c.schema_id)
+                self.topics[c.topic] = s.name if s is not None else ""
+
+    def _open_rosbags(self) -> None:
+        from rosbags.rosbag2 import Reader
+
         try:
-            self._reader = Reader(self.path)
-            self._reader.open()
+            self._rosbags = Reader(self.path)
+            self._rosbags.open()
         except Exception as exc:  # noqa: BLE001 - rosbags raises several types; all mean unreadable
             raise BagError(f"{self.path}: not a readable rosbag2 directory ({exc})") from None
-        self.topics = {c.topic: c for c in self._reader.connections}
+        self.topics = {c.topic: c.msgtype for c in self._rosbags.connections}
 
     def close(self) -> None:
-        self._reader.close()
+        for f in self._files:
+            f.close()
+        if self._rosbags is not None:
+            self._rosbags.close()
 
     def __enter__(self) -> BagReader:
         return self
@@ -75,12 +162,29 @@ class BagReader:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _raw(self, topic: str) -> Iterable[tuple[int, bytes]]:
+    def _messages(self, topic: str) -> tuple[np.ndarray, list[bytes] | np.ndarray]:
+        """Log times and payloads of one topic, in log time order (rows when all have one size)."""
         if topic not in self.topics:
             raise BagError(f"{self.path}: topic {topic} is missing (topics here: {', '.join(sorted(self.topics))})")
-        conns = [c for c in self._reader.connections if c.topic == topic]
-        for _, t, raw in self._reader.messages(connections=conns):
-            yield t, bytes(raw)
+        if self._rosbags is not None:
+            conns = [c for c in self._rosbags.connections if c.topic == topic]
+            items = [(t, bytes(raw)) for _, t, raw in self._rosbags.messages(connections=conns)]
+            return np.array([t for t, _ in items], dtype=np.int64), [r for _, r in items]
+        logs, parts = [], []
+        for f in self._files:
+            cids = [c.id for c in f.channels.values() if c.topic == topic]
+            log, payloads = f.topic_messages(cids)
+            logs.append(log)
+            parts.append(payloads)
+        if len(parts) == 1:
+            return logs[0], parts[0]
+        flat = [bytes(p) for ps in parts for p in ps]
+        return np.concatenate(logs), flat
+
+    def _raw(self, topic: str) -> Iterable[tuple[int, bytes]]:
+        log, payloads = self._messages(topic)
+        for t, p in zip(log.tolist(), payloads, strict=True):
+            yield t, bytes(p)
 
     def has(self, topic: str) -> bool:
         return topic in self.topics
@@ -96,25 +200,29 @@ class BagReader:
         spec = topic_specs().get(topic)
         if spec is None:
             raise BagError(f"{topic} is not a fixed-layout topic of haptic_teleop")
-        items = list(self._raw(topic))
-        log = np.array([t for t, _ in items], dtype=np.int64)
-        if not items:
+        log, payloads = self._messages(topic)
+        if not len(payloads):
             return TopicData(log, np.zeros(0, dtype=np.int64), np.zeros((0, len(spec.fields))), spec.fields)
         ts = typestore()
         size = spec.layout.size
-        first = ts.deserialize_cdr(items[0][1], spec.layout.msgtype)
-        if all(len(r) == size for _, r in items):
-            rows = np.frombuffer(b"".join(r for _, r in items), dtype=np.uint8).reshape(len(items), size)
+        if isinstance(payloads, np.ndarray) and payloads.shape[1] == size:
+            rows = payloads
+        elif all(len(r) == size for r in payloads):
+            rows = np.frombuffer(b"".join(bytes(r) for r in payloads), dtype=np.uint8).reshape(len(payloads), size)
+        else:
+            rows = None
+        first = ts.deserialize_cdr(bytes(payloads[0]), spec.layout.msgtype)
+        if rows is not None:
             vals, stamps = spec.layout.decode(rows[:1])
             if vals[0].tolist() == _deserialize_values(spec, first) and (
                 stamps is None or int(stamps[0]) == _stamp_of(first)
             ):
                 vals, stamps = spec.layout.decode(rows)
                 return TopicData(log, stamps, vals, spec.fields)
-        values = np.empty((len(items), len(spec.fields)))
-        stamps_l = np.empty(len(items), dtype=np.int64)
-        for i, (_, raw) in enumerate(items):
-            msg = ts.deserialize_cdr(raw, spec.layout.msgtype)
+        values = np.empty((len(payloads), len(spec.fields)))
+        stamps_l = np.empty(len(payloads), dtype=np.int64)
+        for i, raw in enumerate(payloads):
+            msg = ts.deserialize_cdr(bytes(raw), spec.layout.msgtype)
             values[i] = _deserialize_values(spec, msg)
             s = _stamp_of(msg)
             stamps_l[i] = -1 if s is None else s

@@ -40,12 +40,9 @@ _WAIT_S = 0.5  # the writer checks on its parent at least this often while it wa
 
 
 def _write_rows(sink: BagSink, streams: RunStreams, rows: np.ndarray) -> None:
-    """The next ticks into the bag: ready records (bulk) or streams for rosbags' API."""
-    if sink.bulk:
-        for recs in streams.records(rows, sink.cids):
-            sink.append(recs)
-    else:
-        sink.write(streams.block(rows))
+    """The next ticks into the bag, as ready records."""
+    for recs in streams.records(rows, sink.cids):
+        sink.append(recs)
 
 
 def _write_packets(sink: BagSink, streams: RunStreams, direction: str, rows: np.ndarray) -> None:
@@ -72,7 +69,7 @@ def _writer_process(
     bag_dir: str,
     topics: list[tuple[str, str]],
     args: tuple[Any, ...],
-    bulk: bool,
+    sink_args: tuple[str, Any],
     ring: np.ndarray | None,
     free: Any,
     sink: BagSink | None = None,
@@ -98,9 +95,9 @@ def _writer_process(
         died = True  # the parent ended before the signal was asked for
     streams = RunStreams(*args)
     if sink is None:
-        sink = BagSink(Path(bag_dir), topics, bulk)
+        sink = BagSink(Path(bag_dir), topics, *sink_args)
     run_info: dict[str, Any] = {}
-    reply = ("done", None)
+    reply: tuple[str, str | None] = ("done", None)
     try:
         while True:
             if not conn.poll(_WAIT_S):
@@ -142,6 +139,21 @@ def _writer_process(
         conn.send(reply)
 
 
+def _offered_qos(qos: dict[str, list[dict[str, Any]]] | None) -> dict[str, list[dict[str, Any]]] | None:
+    """Per-topic offered QoS profiles (fields rosbag2 v9 names; unnamed fields take ROS 2's defaults)."""
+    if qos is None:
+        return None
+    from haptic_teleop.record.metadata import qos_profile
+
+    out = {}
+    for topic, profiles in qos.items():
+        try:
+            out[topic] = [qos_profile(**p) for p in profiles]
+        except (TypeError, ValueError) as exc:
+            raise BagError(f"offered QoS of {topic}: {exc}") from None
+    return out
+
+
 class RunRecorder:
     """Records a run into a bag as it goes, in a second process by default so writing overlaps the loop.
 
@@ -163,17 +175,15 @@ class RunRecorder:
         *,
         parallel: bool = True,
         compression: str = "none",
-        qos: dict[str, Any] | None = None,
-        bulk: bool = True,
+        qos: dict[str, list[dict[str, Any]]] | None = None,
         max_ticks: int | None = None,
     ) -> None:
         self.bag_dir = Path(bag_dir)
         if compression not in COMPRESSIONS:
             raise BagError(f"compression {compression!r} is not one of {', '.join(COMPRESSIONS)}")
-        if compression != "none":
-            raise BagError(f"compression {compression!r} is not supported yet (only none)")
         self.compression = compression
-        self.qos = qos
+        self.qos = _offered_qos(qos)
+        sink_args = (compression, self.qos)
         if self.bag_dir.exists():
             raise BagError(f"{self.bag_dir} exists already; choose a new --out directory or remove it")
         self.n_columns = n_columns
@@ -190,18 +200,18 @@ class RunRecorder:
         self._closed = False
         self._error: str | None = None
         if not parallel:
-            self._sink = BagSink(self.bag_dir, topics, bulk)
+            self._sink = BagSink(self.bag_dir, topics, *sink_args)
             return
         import multiprocessing as mp
 
         fork = "fork" in mp.get_all_start_methods()
-        ctx = mp.get_context("fork" if fork else "spawn")
+        ctx: Any = mp.get_context("fork" if fork else "spawn")
         opened = None
         if fork:
             # Open the bag here and let the child inherit it: importing the writer, adding the
             # connections and the packet batch head were the child's first work while the loop ran.
-            opened = BagSink(self.bag_dir, topics, bulk)
-            opened.writer.storage.bio.flush()  # nothing buffered may be written twice
+            opened = BagSink(self.bag_dir, topics, *sink_args)
+            opened.file.flush()  # nothing buffered may be written twice
             packet_batch_head(PACKET_BATCH)
             # Tick rows go through memory both processes map (inherited at fork): a ring of a few
             # blocks; the pipe carries only slot numbers. A slot is free again once encoded.
@@ -220,7 +230,7 @@ class RunRecorder:
                 str(self.bag_dir),
                 topics,
                 args,
-                bulk,
+                sink_args,
                 self._ring,
                 self._free,
                 opened,
@@ -236,7 +246,7 @@ class RunRecorder:
             raise
         child.close()
         if opened is not None:
-            opened.writer.storage.bio.close()  # the parent's copy of the descriptor; the child writes
+            opened.file.close()  # the parent's copy of the descriptor; the child writes
         self._conn = parent
 
     # -- the streaming API
@@ -381,9 +391,11 @@ class RunRecorder:
 
 
 def write_run(
-    result: RunResult, bag_dir: Path, run_info: dict[str, Any], bulk: bool = True, parallel: bool = False
+    result: RunResult, bag_dir: Path, run_info: dict[str, Any], parallel: bool = False, compression: str | None = None
 ) -> Path:
-    """Write a finished run as a rosbag2 directory with MCAP storage, in the same blocks as live recording."""
+    """Write a finished run as a rosbag2 directory with MCAP storage, in the same blocks as live recording.
+
+    Compression: as given, else the scene's recording.compression."""
     from haptic_teleop.engine import COLUMNS
 
     rec = RunRecorder(
@@ -394,7 +406,7 @@ def write_run(
         result.scene.config.recording.packets,
         len(COLUMNS),
         parallel=parallel,
-        bulk=bulk,
+        compression=compression or str(getattr(result.scene.config.recording, "compression", "none")),
     )
     for stop in range(BLOCK_TICKS, result.ticks, BLOCK_TICKS):
         rec.block(result.data, stop)

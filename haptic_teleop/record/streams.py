@@ -41,7 +41,7 @@ class Stream:
 
     def payload(self, i: int) -> bytes:
         if self.rows is not None:
-            return self.rows[i].tobytes()
+            return bytes(self.rows[i].tobytes())
         assert self.blobs is not None
         return self.blobs[i]
 
@@ -108,15 +108,15 @@ class _History:
                 f"a playout buffer released the sample of tick {int(ticks.min())}, older than the "
                 f"{HISTORY_TICKS} ticks (or the last release) the recorder keeps"
             )
-        return self.buf[ticks - self.start]
+        out: np.ndarray = self.buf[ticks - self.start]
+        return out
 
 
 class RunStreams:
     """Turns blocks of engine columns into the bag's messages (same code in and out of process).
 
     Memory is bounded: only the columns of recent ticks a received sample may still refer to are
-    kept (`_History`). `block` gives the messages as streams of payloads, for rosbags'
-    message-by-message API; `records` gives the same messages as ready MCAP records."""
+    kept (`_History`). `records` gives a block's messages as ready MCAP records."""
 
     def __init__(self, scene_yaml: str, period_ns: int, eba_internals: bool, packets: bool, n_columns: int) -> None:
         from haptic_teleop.engine import COL
@@ -169,35 +169,8 @@ class RunStreams:
     def _scene_stream(self) -> Stream:
         return Stream("/haptic_teleop/scene", STRING, np.zeros(1), blobs=[string_bytes(self.scene_yaml)])
 
-    def block(self, rows: np.ndarray) -> list[Stream]:
-        """Streams for the next block of ticks (rows continue where the last block ended)."""
-        from haptic_teleop.engine import COL
-
-        a, b = self._take(rows)
-        period = self.period
-        ticks_ns = np.arange(a, b, dtype=np.int64) * period
-        specs = topic_specs()
-        streams: list[Stream] = []
-        if a == 0:
-            streams.append(self._scene_stream())
-
-        def add(topic: str, values: np.ndarray, stamps: np.ndarray, log_times: np.ndarray) -> None:
-            spec = specs[topic]
-            streams.append(Stream(topic, spec.layout.msgtype, log_times, rows=spec.layout.encode(values, stamps)))
-
-        for topic, names in self.tick_topics():
-            add(topic, rows[:, [COL[c] for c in names]], ticks_ns, ticks_ns)
-        for topic, col, names in _RECEIVED_TOPICS:
-            seq = rows[:, COL[col]]
-            at = np.nonzero(seq >= 0)[0]
-            src = seq[at].astype(np.int64)  # a released sample was sent at tick seq <= this tick
-            sent = self.history.rows(src)[:, [_HIST[c] for c in names]]
-            add(topic, sent, src * period, (at + a).astype(np.int64) * period)
-        self._released(rows)
-        return streams
-
     def records(self, rows: np.ndarray, cids: dict[str, int]) -> list[Records]:
-        """The next block of ticks as MCAP message records (the messages `block` gives, in the same order)."""
+        """The next block of ticks as MCAP message records."""
         a, b = self._take(rows)
         if self._encoder is None:
             self._encoder = TickEncoder(self, cids)
