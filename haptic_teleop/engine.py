@@ -637,6 +637,7 @@ def record_run(
         c.recording.packets,
         len(COLUMNS),
         parallel=parallel,
+        compression=c.recording.compression,
     )
     collector = Collector() if keep else None
     sink: RunSink = rec if collector is None else _Tee(rec, collector)
