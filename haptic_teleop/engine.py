@@ -8,11 +8,14 @@ One tick (period T, see DESIGN.md section 2), in this order:
   5. slave packet (f_env, x_s, v_s) into the backward link; arrivals by t_n go to the master's
      buffer and are used from the next tick on;
   6. operator hand force from the master state; both plants step one period with the forces held.
-Recording goes into preallocated numpy columns; the bag is encoded in bulk afterwards (bag.py).
+Output streams: each tick's row goes into one block of BLOCK_TICKS rows handed to a sink (the
+recorder) when full; each packet's record is handed over once its fate is final. Nothing the loops
+hold grows with the run's length (docs/performance.md, "Memory").
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
 import signal
@@ -22,11 +25,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-from haptic_teleop.bag import BLOCK_TICKS
+from haptic_teleop import fastloop
+from haptic_teleop.bag import BLOCK_TICKS, PACKET_FIELDS
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
 from haptic_teleop.core.network import Link, Packet, build_link
 from haptic_teleop.core.operator import Operator, OperatorParams
@@ -34,9 +38,6 @@ from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, Scene
-
-if TYPE_CHECKING:
-    from haptic_teleop import fastloop
 
 # Per-tick columns, in record order.
 COLUMNS = (
@@ -50,14 +51,15 @@ COL = {name: i for i, name in enumerate(COLUMNS)}
 
 @dataclass
 class RunResult:
-    """What the loop produced: columns, packet logs and timing."""
+    """What the loop produced: timing, and the whole run's columns and packet records if it was
+    kept (`Engine.run` without a sink); empty arrays if it went to a sink."""
 
     scene: LoadedScene
     ticks: int
     period_ns: int
-    data: np.ndarray  # (ticks, len(COLUMNS))
-    forward_log: list[Packet] | np.ndarray  # the link's Packets, or records (bag rows) from the compiled loop
-    backward_log: list[Packet] | np.ndarray
+    data: np.ndarray  # (ticks, len(COLUMNS)), or (0, len(COLUMNS))
+    forward_log: np.ndarray  # packet records (bag.PACKET_FIELDS rows) in hand-over order
+    backward_log: np.ndarray
     loop_wall_s: float
     interrupted: bool
     extra: dict[str, float] = field(default_factory=dict)
@@ -142,6 +144,7 @@ def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[flo
 
 LOOPS = ("auto", "compiled", "python")
 COMPILED_CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
+VECTORIZED_WINDOW_TICKS = 10 * BLOCK_TICKS  # a vectorized network schedule is decided this far ahead
 
 
 class Engine:
@@ -174,9 +177,6 @@ class Engine:
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
         self._stop = False
-        self._packets: tuple[list[Packet] | np.ndarray, list[Packet] | np.ndarray] | None = None
-        from haptic_teleop import fastloop
-
         self.compiled_reason = fastloop.compiled_reason(self) if loop != "python" else "loop 'python' asked for"
         if loop == "compiled" and self.compiled_reason is not None:
             raise HapticTeleopError(
@@ -188,7 +188,23 @@ class Engine:
             self._kernel = fastloop.kernel()
             assert self._kernel is not None  # compiled_reason is None only with a kernel
             # Compile (or load from numba's cache) now, not in the timed loop: zero ticks.
-            self._kernel(0, 0, *self._kernel_args(None, None, 1), np.zeros((1, len(COLUMNS))))
+            head, tail = self._kernel_args()
+            rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
+            self._kernel(
+                0,
+                0,
+                *head,
+                rel,
+                occ,
+                rel,
+                occ,
+                np.zeros((1, 2)),
+                np.zeros((1, 3)),
+                *tail,
+                np.zeros((1, len(COLUMNS))),
+                0,
+                0,
+            )
 
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
         """Fresh links and playout buffers for both directions, as the scene names them."""
@@ -212,12 +228,6 @@ class Engine:
                 buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / self.period_s), speed))
         return forward, backward, forward_buffer, backward_buffer
 
-    def packet_logs(self) -> tuple[list[Packet] | np.ndarray, list[Packet] | np.ndarray]:
-        """Every packet of both directions so far, for the bag: the links' logs, or records (bag rows)."""
-        if self._packets is not None:
-            return self._packets
-        return self.forward.log, self.backward.log
-
     def request_stop(self) -> None:
         """Stop at the end of the current tick (Ctrl-C)."""
         self._stop = True
@@ -226,14 +236,21 @@ class Engine:
         self,
         progress: Callable[[int], None] | None = None,
         handle_sigint: bool = True,
-        on_block: Callable[[np.ndarray, int], None] | None = None,
+        sink: RunSink | None = None,
     ) -> RunResult:
-        """Run every tick (or until a stop request); returns the recorded columns.
+        """Run every tick (or until a stop request), handing the output to `sink` as it is made.
 
-        `on_block(data, stop)` is called every BLOCK_TICKS ticks with the column array and the
-        number of ticks done, so a recorder can write while the loop runs. If the loop raises,
-        `self.ticks_done` and `self.data` still hold what was computed, for the recorder to finish.
+        The ticks' columns go to `sink.append` in blocks of BLOCK_TICKS rows (the last one
+        shorter); each packet's record goes to `sink.append_packets` once its fate is final (see
+        `fastloop.settled_records`), at the end of each block, and the rest at the end. Memory
+        does not grow with the run's length. Without a sink the run is kept whole in memory
+        (`Collector`; for tests and short runs) and returned in `RunResult.data` and the logs;
+        with one, those are empty. If the loop raises, `self.ticks_done` says how many ticks
+        finished, and the sink has been given all of them before the exception goes on.
         """
+        collector = Collector() if sink is None else None
+        out = sink if sink is not None else collector
+        assert out is not None
         previous = None
         if handle_sigint:
 
@@ -242,27 +259,30 @@ class Engine:
 
             previous = signal.signal(signal.SIGINT, _on_sigint)
         # The tick allocates packets, lists and tuples but makes no reference cycles, so the
-        # cycle collector only rescans the growing packet logs: pause it for the loop (it was
-        # about 3 % of a tick, docs/performance.md) and put it back as it was.
+        # cycle collector only rescans the packet logs: pause it for the loop (it was about 3 % of
+        # a tick, docs/performance.md) and put it back as it was.
         gc_was_enabled = gc.isenabled()
         gc.disable()
         try:
             if self.loop_kind == "compiled":
-                return self._compiled_loop(progress, on_block)
-            return self._loop(progress, on_block)
+                result = self._compiled_loop(progress, out)
+            else:
+                result = self._loop(progress, out)
         finally:
             if gc_was_enabled:
                 gc.enable()
             if previous is not None:
                 signal.signal(signal.SIGINT, previous)
+        if collector is not None:
+            result.data = self.data = collector.data()
+            result.forward_log = collector.packets("forward")
+            result.backward_log = collector.packets("backward")
+        return result
 
-    def _loop(
-        self, progress: Callable[[int], None] | None, on_block: Callable[[np.ndarray, int], None] | None
-    ) -> RunResult:
+    def _loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
         n_ticks = self.ticks
         period_ns = self.period_ns
         period_s = self.period_s
-        data = self.data = np.zeros((n_ticks, len(COLUMNS)))
         self.ticks_done = 0
         # Local bindings: attribute lookups are a measurable part of a 10 us tick (docs/performance.md).
         master, slave = self.master, self.slave
@@ -283,10 +303,17 @@ class Engine:
         bpush, brelease = bbuf.push, bbuf.release
         m_set_remote, s_set_remote = mc.set_remote, sc.set_remote
         fwd_size, bwd_size = self._sizes
-        # A tick's row goes straight into `data`'s memory: one C call, no tuple, no numpy scalar
-        # conversions (a third of what `data[n] = (...)` costs).
+        output = _Output(
+            sink,
+            lambda sent, final: fastloop.settled_records(fwd, fbuf, sent, final),
+            lambda sent, final: fastloop.settled_records(bwd, bbuf, sent, final),
+        )
+        block = output.block
+        # A tick's row goes straight into the block's memory: one C call, no tuple, no numpy
+        # scalar conversions (a third of what `block[i] = (...)` costs).
         pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
         row_bytes = 8 * len(COLUMNS)
+        base = 0  # tick of the block's first row
         t0 = time.perf_counter()
         done = 0
         try:
@@ -326,27 +353,30 @@ class Engine:
                 fm_applied = m_step([fm], fh)[0]
                 fs_applied = s_step([fs])[0]
                 pack_row(
-                    data, n * row_bytes,
+                    block, (n - base) * row_bytes,
                     xd, vd, fh[0],
                     x_m, v_m, fm_applied, m_desired[0], m_energy[0],
                     x_s, v_s, fs_applied, s_desired[0], s_energy[0], f_env,
                     frx, brx, fbuf.occupancy, bbuf.occupancy,
                 )  # fmt: skip
-                if (n + 1) % 100 == 0:
-                    self.ticks_done = n + 1
-                    if progress is not None:
-                        progress(n + 1)
-                    if on_block is not None and (n + 1) % BLOCK_TICKS == 0:
-                        on_block(data, n + 1)
                 done = n + 1
+                if done % 100 == 0:
+                    self.ticks_done = done
+                    if progress is not None:
+                        progress(done)
+                    if done - base == BLOCK_TICKS:
+                        output.block_done(done)
+                        base = done
                 if self._stop:
                     break
         except BaseException:
             self.ticks_done = done  # the failing tick did not finish: keep the ticks before it
             self.master.close()
             self.slave.close()
+            output.end_after_error(done)
             raise
         self.ticks_done = n = done
+        output.end(done)
         wall = time.perf_counter() - t0
         self.master.close()
         self.slave.close()
@@ -354,103 +384,202 @@ class Engine:
             scene=self.scene,
             ticks=n,
             period_ns=period_ns,
-            data=data,
-            forward_log=fwd.log,
-            backward_log=bwd.log,
+            data=_NO_DATA,
+            forward_log=_NO_PACKETS,
+            backward_log=_NO_PACKETS,
             loop_wall_s=wall,
             interrupted=n < n_ticks,
         )
 
-    def _kernel_args(
-        self, fwd: fastloop.DirectionSchedule | None, bwd: fastloop.DirectionSchedule | None, ticks: int
-    ) -> tuple[object, ...]:
-        """The compiled loop's arguments after the tick range, before `data` (fastkernel.run_ticks):
-        the plants' MuJoCo arrays, both schedules (None: none released, to compile the loop),
-        the senders' histories, the parameters and a fresh state vector (last)."""
+    def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
+        """The compiled loop's arguments (fastkernel.run_ticks) around the network's: the plants'
+        MuJoCo arrays (after the tick range), the parameters and a fresh state vector (S, last)."""
         from haptic_teleop import fastloop
 
         m, s = self.master.data, self.slave.data  # type: ignore[attr-defined]
-        none = fastloop.DirectionSchedule(np.full(ticks, -1, dtype=np.int64), np.zeros(ticks), [], True)
-        fwd, bwd = fwd or none, bwd or none
-        return (
-            fastloop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint,
-            fwd.released_seq, fwd.occupancy, bwd.released_seq, bwd.occupancy,
-            np.zeros((ticks, 2)), np.zeros((ticks, 3)),
-            fastloop.parameters(self), fastloop.initial_state(self),
-        )  # fmt: skip
+        head = (fastloop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint)
+        return head, (fastloop.parameters(self), fastloop.initial_state(self))
 
-    def _compiled_loop(
-        self, progress: Callable[[int], None] | None, on_block: Callable[[np.ndarray, int], None] | None
-    ) -> RunResult:
+    def _compiled_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
         from haptic_teleop import fastloop
 
         n_ticks, period_ns = self.ticks, self.period_ns
-        data = self.data = np.zeros((n_ticks, len(COLUMNS)))
         self.ticks_done = 0
         t0 = time.perf_counter()
-        # The network's decisions for the whole run first: they do not depend on payloads.
-        fwd = fastloop.schedule(self.forward, self.forward_buffer, n_ticks, period_ns, self._sizes[0])
-        bwd = fastloop.schedule(self.backward, self.backward_buffer, n_ticks, period_ns, self._sizes[1])
-        args = self._kernel_args(fwd, bwd, n_ticks)
-        S = args[-1]
+        # The network's decisions a window ahead of the loop: they do not depend on payloads. A
+        # ticked schedule's window is the loop's chunk, so it never runs ahead of a stop.
+        fwd = fastloop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
+        bwd = fastloop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
+        window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
+        head, (P, S) = self._kernel_args()
+        hist = _History()
+        output = _Output(sink, fwd.settled, bwd.settled)
+        block = output.block
         run_ticks = self._kernel
         assert run_ticks is not None
         done = 0
         try:
             with fastloop.mujoco_timers_off():
-                while done < n_ticks:
-                    stop = min(done + COMPILED_CHUNK_TICKS, n_ticks)
-                    run_ticks(done, stop, *args, data)
-                    done = self.ticks_done = stop
-                    if progress is not None and done % 100 == 0:
-                        progress(done)
-                    if on_block is not None and done % BLOCK_TICKS == 0:
-                        on_block(data, done)
-                    if self._stop:
-                        break
-        finally:
+                while done < n_ticks and not self._stop:
+                    w0, w1 = done, min(done + window, n_ticks)
+                    frel, focc = fwd.window(w0, w1)
+                    brel, bocc = bwd.window(w0, w1)
+                    hist.fit(frel, brel, w0, w1)
+                    for c0 in range(w0, w1, COMPILED_CHUNK_TICKS):
+                        c1 = min(c0 + COMPILED_CHUNK_TICKS, w1)
+                        run_ticks(
+                            c0, c1, *head, frel, focc, brel, bocc, hist.fwd, hist.bwd, P, S, block, w0, output.start
+                        )
+                        done = self.ticks_done = c1
+                        if progress is not None and done % 100 == 0:
+                            progress(done)
+                        if done - output.start == BLOCK_TICKS:
+                            output.block_done(done)
+                        if self._stop:
+                            break
+        except BaseException:
             fastloop.store_state(self, S)
-            self._packets = self._packets_after(fwd, bwd, done)
             self.master.close()
             self.slave.close()
+            output.end_after_error(done)
+            raise
+        fastloop.store_state(self, S)
+        output.end(done)
+        self.master.close()
+        self.slave.close()
         wall = time.perf_counter() - t0
         return RunResult(
             scene=self.scene,
             ticks=done,
             period_ns=period_ns,
-            data=data,
-            forward_log=self._packets[0],
-            backward_log=self._packets[1],
+            data=_NO_DATA,
+            forward_log=_NO_PACKETS,
+            backward_log=_NO_PACKETS,
             loop_wall_s=wall,
             interrupted=done < n_ticks,
         )
 
-    def _packets_after(
-        self, fwd: fastloop.DirectionSchedule, bwd: fastloop.DirectionSchedule, done: int
-    ) -> tuple[list[Packet] | np.ndarray, list[Packet] | np.ndarray]:
-        """The packet records of the first `done` ticks of a compiled run.
 
-        Records of a vectorized schedule are decided at send time: the first `done` are exact. A
-        schedule ticked through the links and buffers ran ahead of an interrupted loop (a buffer
-        marks a packet late when a newer one arrives), so then the network is ticked again, fresh,
-        for `done` ticks: the records the Python loop would have left."""
-        from haptic_teleop import fastloop
+class RunSink(Protocol):
+    """Where a run's output goes as it is made (`Engine.run`): the recorder, or a `Collector`."""
 
-        if done == self.ticks:
-            return fwd.packets, bwd.packets
-        if fwd.vectorized and bwd.vectorized:  # one record per tick
-            return fwd.packets[:done], bwd.packets[:done]
-        links = self._network()
-        out = []
-        for link, buf, sched, size in (
-            (links[0], links[2], fwd, self._sizes[0]),
-            (links[1], links[3], bwd, self._sizes[1]),
-        ):
-            if sched.vectorized:
-                out.append(sched.packets[:done])
-            else:
-                out.append(fastloop.schedule(link, buf, done, self.period_ns, size).packets)
-        return out[0], out[1]
+    def append(self, rows: np.ndarray) -> None:
+        """The next ticks' columns, (k, len(COLUMNS)) float64, in order; the array is reused after."""
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        """Packet records (bag.PACKET_FIELDS) whose fates are final; "forward" or "backward"."""
+
+
+class Collector:
+    """A sink that keeps a whole run in memory (tests and short runs; never `haptic-teleop run`)."""
+
+    def __init__(self) -> None:
+        self._blocks: list[np.ndarray] = []
+        self._packets: dict[str, list[np.ndarray]] = {"forward": [], "backward": []}
+
+    def append(self, rows: np.ndarray) -> None:
+        self._blocks.append(np.array(rows))
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        self._packets[direction].append(np.array(rows))
+
+    def data(self) -> np.ndarray:
+        """Every tick's columns so far, (ticks, len(COLUMNS))."""
+        return np.concatenate(self._blocks) if self._blocks else np.zeros((0, len(COLUMNS)))
+
+    def packets(self, direction: str) -> np.ndarray:
+        """Every packet record handed over so far for a direction, in hand-over order."""
+        chunks = self._packets[direction]
+        return np.concatenate(chunks) if chunks else np.zeros((0, len(PACKET_FIELDS)))
+
+
+class _Tee:
+    """Hands everything to two sinks (record_run's recorder and, if asked, a Collector)."""
+
+    def __init__(self, first: RunSink, second: RunSink) -> None:
+        self.first, self.second = first, second
+
+    def append(self, rows: np.ndarray) -> None:
+        self.first.append(rows)
+        self.second.append(rows)
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        self.first.append_packets(direction, rows)
+        self.second.append_packets(direction, rows)
+
+
+_NO_DATA = np.zeros((0, len(COLUMNS)))
+_NO_PACKETS = np.zeros((0, len(PACKET_FIELDS)))
+Settled = Callable[[int, bool], "np.ndarray | None"]
+
+
+class _Output:
+    """The loops' output path: one block of BLOCK_TICKS rows the loop writes into, handed to the
+    sink when full, and the packet records settled at each block's end. Both loops make the same
+    calls on the sink with the same arrays, so they give the same bag."""
+
+    def __init__(self, sink: RunSink, forward: Settled, backward: Settled) -> None:
+        self.sink = sink
+        self.block = np.zeros((BLOCK_TICKS, len(COLUMNS)))
+        self.start = 0  # tick of the block's first row
+        self._settled = (("forward", forward), ("backward", backward))
+        self._ended = False
+
+    def block_done(self, stop: int) -> None:
+        """Ticks [start, stop) are in the block: hand them over, then the settled packets."""
+        self.sink.append(self.block[: stop - self.start])
+        self.start = stop
+        self._packets(stop, False)
+
+    def end(self, stop: int) -> None:
+        """The run ended after tick `stop - 1`: the last rows, then every packet record left."""
+        self._ended = True
+        if stop > self.start:
+            self.sink.append(self.block[: stop - self.start])
+            self.start = stop
+        self._packets(stop, True)
+
+    def end_after_error(self, stop: int) -> None:
+        """`end` while an exception is on its way: a failure here must not hide it."""
+        if not self._ended:
+            with contextlib.suppress(Exception):
+                self.end(stop)
+
+    def _packets(self, sent: int, final: bool) -> None:
+        for direction, settled in self._settled:
+            rows = settled(sent, final)
+            if rows is not None and len(rows):
+                self.sink.append_packets(direction, rows)
+
+
+class _History:
+    """The compiled loop's sample histories: rings indexed by seq (a power of two deep), deep
+    enough for the oldest sample a window releases; grown (keeping what they hold) if a window
+    needs more. Their size follows the network's delay, never the run's length."""
+
+    def __init__(self, depth: int = 1024) -> None:
+        self.fwd = np.zeros((depth, 2))
+        self.bwd = np.zeros((depth, 3))
+
+    def fit(self, frel: np.ndarray, brel: np.ndarray, w0: int, w1: int) -> None:
+        oldest = w0
+        for rel in (frel, brel):
+            got = rel[rel >= 0]
+            if len(got):
+                oldest = min(oldest, int(got.min()))
+        need = w1 - oldest
+        depth = self.fwd.shape[0]
+        if need <= depth:
+            return
+        new = depth
+        while new < need:
+            new *= 2
+        seqs = np.arange(max(0, w0 - depth), w0)  # what the rings hold: the ticks before w0
+        for name in ("fwd", "bwd"):
+            old = getattr(self, name)
+            grown = np.zeros((new, old.shape[1]))
+            grown[seqs & (new - 1)] = old[seqs & (depth - 1)]
+            setattr(self, name, grown)
 
 
 @dataclass(frozen=True)
@@ -488,12 +617,15 @@ def record_run(
     handle_sigint: bool = True,
     loop: str = "auto",
     on_engine: Callable[[Engine], None] | None = None,
+    keep: bool = False,
 ) -> tuple[Engine, RunTiming]:
     """Run a scene and record it: the bag is written by a second process while the loop runs.
 
-    Whatever ends the run (last tick, Ctrl-C, an exception in a tick) the bag is closed with
-    every tick that finished, and is readable. `on_engine(engine)` is called once the engine is
-    built, before the bag is opened (the command line registers its stop request there).
+    The loop streams to the recorder (`Engine.run` with it as the sink): memory does not grow
+    with the run's length. `keep=True` also keeps the whole run in `engine.data` (tests). Whatever
+    ends the run (last tick, Ctrl-C, an exception in a tick) the bag is closed with every tick
+    that finished, and is readable. `on_engine(engine)` is called once the engine is built, before
+    the bag is opened (the command line registers its stop request there).
     """
     from haptic_teleop.bag import RunRecorder
 
@@ -509,12 +641,14 @@ def record_run(
         c.recording.packets,
         len(COLUMNS),
         parallel=parallel,
-        max_ticks=engine.ticks,
+        compression=c.recording.compression,
     )
+    collector = Collector() if keep else None
+    sink: RunSink = rec if collector is None else _Tee(rec, collector)
     t0 = time.perf_counter()
     result: RunResult | None = None
     try:
-        result = engine.run(progress=progress, handle_sigint=handle_sigint, on_block=rec.block)
+        result = engine.run(progress=progress, handle_sigint=handle_sigint, sink=sink)
     finally:
         done = getattr(engine, "ticks_done", 0)
         info = {
@@ -525,7 +659,9 @@ def record_run(
             "rejected_samples_forward": engine.slave_ctrl.rejected_samples,
             "rejected_samples_backward": engine.master_ctrl.rejected_samples,
         }
-        rec.finish(getattr(engine, "data", np.zeros((0, len(COLUMNS)))), done, *engine.packet_logs(), info)
+        if collector is not None:
+            engine.data = collector.data()
+        rec.close(info)
     wall = time.perf_counter() - t0
     return engine, RunTiming(done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind)
 

@@ -138,8 +138,14 @@ def run_ticks(
     P: np.ndarray,
     S: np.ndarray,
     data: np.ndarray,
+    w0: int,
+    d0: int,
 ) -> int:
+    # fwd_rel, fwd_occ, bwd_rel, bwd_occ hold the window of ticks from w0 on; data the block of
+    # ticks from d0 on; the histories are rings (a power of two deep) indexed by seq.
     period_s = P[P_PERIOD_S]
+    fmask = fwd_hist.shape[0] - 1
+    bmask = bwd_hist.shape[0] - 1
     m_steps = int(P[MASTER + P_SUBSTEPS])
     s_steps = int(P[SLAVE + P_SUBSTEPS])
     for n in range(n0, n1):
@@ -150,12 +156,12 @@ def run_ticks(
         f_env = S[SLAVE + S_CONTACT]
         # master
         fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
-        fwd_hist[n, 0] = x_m
-        fwd_hist[n, 1] = v_m
-        frx = fwd_rel[n]
+        fwd_hist[n & fmask, 0] = x_m
+        fwd_hist[n & fmask, 1] = v_m
+        frx = fwd_rel[n - w0]
         if frx >= 0:
-            a = fwd_hist[frx, 0]
-            b = fwd_hist[frx, 1]
+            a = fwd_hist[frx & fmask, 0]
+            b = fwd_hist[frx & fmask, 1]
             if P[SLAVE + P_GUARD_ON] == 0.0 or within2(a, b, P[SLAVE + P_LIM0], P[SLAVE + P_LIM1]):
                 S[SLAVE + S_HAS_REMOTE] = 1.0
                 S[SLAVE + S_R0] = a
@@ -164,14 +170,14 @@ def run_ticks(
                 S[SLAVE + S_REJECTED] += 1.0
         # slave
         fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
-        bwd_hist[n, 0] = f_env
-        bwd_hist[n, 1] = x_s
-        bwd_hist[n, 2] = v_s
-        brx = bwd_rel[n]
+        bwd_hist[n & bmask, 0] = f_env
+        bwd_hist[n & bmask, 1] = x_s
+        bwd_hist[n & bmask, 2] = v_s
+        brx = bwd_rel[n - w0]
         if brx >= 0:
-            a = bwd_hist[brx, 0]
-            b = bwd_hist[brx, 1]
-            c = bwd_hist[brx, 2]
+            a = bwd_hist[brx & bmask, 0]
+            b = bwd_hist[brx & bmask, 1]
+            c = bwd_hist[brx & bmask, 2]
             if P[MASTER + P_GUARD_ON] == 0.0 or within3(
                 a, b, c, P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]
             ):
@@ -207,7 +213,7 @@ def run_ticks(
                 mj_step(models[2], models[3])
                 acc += sqfrc[0]
             S[SLAVE + S_CONTACT] = acc / s_steps
-        row = data[n]
+        row = data[n - d0]
         row[0] = xd
         row[1] = vd
         row[2] = fh
@@ -224,8 +230,8 @@ def run_ticks(
         row[13] = f_env
         row[14] = frx
         row[15] = brx
-        row[16] = fwd_occ[n]
-        row[17] = bwd_occ[n]
+        row[16] = fwd_occ[n - w0]
+        row[17] = bwd_occ[n - w0]
     return n1
 
 

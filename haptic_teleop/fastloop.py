@@ -7,17 +7,21 @@ machine code: the one-axis formulas of `core` (`eba.reservoir1`, `bounded1`, `sa
 are compiled by numba from their single definition, and MuJoCo's `mj_step` is called straight
 from the compiled code on the same `MjModel`/`MjData` the plants own.
 
-The network is decided before the loop, because nothing a link or a playout buffer decides
-depends on what a packet carries (fates and arrival times depend on send times, sizes and the
-effects' own random streams; buffers release by sequence number and arrival time). Per
-direction the schedule is: which sequence number the buffer releases at each tick (or none), the
-buffer's occupancy, and every packet's record. It is computed either
-- vectorized (`Link.schedule_all`), when every effect has a vectorized form and the buffer plays
-  on arrival and holds: constant delay, uncorrelated loss, blackouts, policy `none`; or
+The network is decided ahead of the loop, window by window, because nothing a link or a playout
+buffer decides depends on what a packet carries (fates and arrival times depend on send times,
+sizes and the effects' own random streams; buffers release by sequence number and arrival time).
+Per direction and window of ticks the schedule is: which sequence number the buffer releases at
+each tick (or none) and the buffer's occupancy; the packets' records are handed over as their
+fates become final. It is computed either
+- vectorized (`VectorizedSchedule`, `Link.schedule_all` on each window: the random streams go
+  on where the last window left them), when every effect has a vectorized form and the buffer
+  plays on arrival and holds: constant delay, uncorrelated loss, blackouts, policy `none`; or
 - by the very `Link` and `PlayoutBuffer` objects the Python loop uses, ticked in the same order
-  with empty payloads (any other effect chain or policy).
-The loop then looks the released sample up in the sender's history. The result is the same
-columns, bit for bit, as the Python loop (test_compiled_loop.py), and the same bag.
+  with empty payloads (`TickedSchedule`: any other effect chain or policy).
+The loop then looks the released sample up in the sender's history, a ring of the last ticks'
+samples as deep as the oldest released sample needs. No array grows with the run's duration.
+The result is the same columns and packet records, bit for bit, as the Python loop
+(test_compiled_loop.py), and the same bag.
 
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
 backends, more than one axis, operator traces, payload-changing effects (corruption),
@@ -26,11 +30,11 @@ extrapolating buffers, and machines without numba.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import ctypes
 import functools
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -55,16 +59,6 @@ PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
 # per side, in S
 S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED, S_CONTACT = range(10)
 S_SIZE = 32
-
-
-@dataclass
-class DirectionSchedule:
-    """One direction's network decisions for a run: what the receiving side gets at each tick."""
-
-    released_seq: np.ndarray  # int64 per tick: seq the buffer released at that tick, -1 for none
-    occupancy: np.ndarray  # float64 per tick: the buffer's occupancy after the release
-    packets: np.ndarray | list[Packet]  # the packet records (bag rows) or the link's own log
-    vectorized: bool
 
 
 @functools.cache
@@ -133,50 +127,146 @@ def compiled_reason(engine: Engine) -> str | None:
 
 
 # --------------------------------------------------------------------------------------------
-# The network schedule.
+# The network schedule, window by window.
 
 
 def _vectorized(link: Link, buf: PlayoutBuffer) -> bool:
     return link.vectorized and type(buf) is PlayOnArrival and not buf._extrapolate
 
 
-def schedule(link: Link, buf: PlayoutBuffer, ticks: int, period_ns: int, size_bytes: int) -> DirectionSchedule:
-    """The decisions of `link` and `buf` for `ticks` packets, one per tick (see the module docstring)."""
+def _seq(p: Packet) -> int:
+    return p.seq
+
+
+def settled_records(link: Link, buf: PlayoutBuffer, sent: int, final: bool) -> np.ndarray | None:
+    """Records (bag rows) of the packets at the head of `link.log` whose fate is final, taken
+    out of the log; None if there are none. `sent`: the packets of ticks before it were sent.
+
+    A packet's record is final once the packet is neither in flight nor held by the buffer (lost,
+    played, skipped, late or a duplicate): every packet older than the oldest one still in the
+    link or the buffer. The log is in send order, so those are a prefix of it. `final` (the run
+    ended): every packet of the ticks before `sent`, in flight or not."""
+    mark = sent
+    if not final:
+        for s in (link.oldest_in_flight_seq(), buf.oldest_held_seq()):
+            if s is not None and s < mark:
+                mark = s
+    log = link.log
+    k = bisect.bisect_left(log, mark, key=_seq)
+    if k == 0:
+        return None
+    from haptic_teleop.bag import _packet_rows
+
+    rows = _packet_rows(log[:k])
+    del log[:k]
+    return rows
+
+
+class TickedSchedule:
+    """One direction's decisions, made by the very `Link` and `PlayoutBuffer` objects the Python
+    loop uses, ticked in the same order with empty payloads (any effect chain or policy)."""
+
+    vectorized = False
+
+    def __init__(self, link: Link, buf: PlayoutBuffer, period_ns: int, size_bytes: int) -> None:
+        self.link, self.buf, self.period_ns, self.size_bytes = link, buf, period_ns, size_bytes
+
+    def window(self, n0: int, n1: int) -> tuple[np.ndarray, np.ndarray]:
+        """For ticks [n0, n1) (following the last window): the seq the buffer releases at each
+        tick (-1: none) and its occupancy after the release."""
+        released = np.full(n1 - n0, -1, dtype=np.int64)
+        occupancy = np.zeros(n1 - n0)
+        link, buf, period, size = self.link, self.buf, self.period_ns, self.size_bytes
+        send_one, deliver, push, release = link.send, link.deliver, buf.push, buf.release
+        empty: tuple[float, ...] = ()
+        for n in range(n0, n1):
+            now = n * period
+            send_one(Packet(n, now, empty, size))
+            for p in deliver(now):
+                push(p, now)
+            rel = release(now)
+            if rel is not None:
+                released[n - n0] = rel.seq
+            occupancy[n - n0] = buf.occupancy
+        return released, occupancy
+
+    def settled(self, sent: int, final: bool) -> np.ndarray | None:
+        """`settled_records` of this direction (the schedule has reached `sent`)."""
+        return settled_records(self.link, self.buf, sent, final)
+
+
+class VectorizedSchedule:
+    """One direction's decisions in numpy (`Link.schedule_all`), when every effect has a vectorized
+    form and the buffer plays on arrival and holds: constant delay, uncorrelated loss, blackouts,
+    policy `none`. Fates are decided at send time; a delivered packet arrives at the first tick
+    at or after its arrival time and is released in that tick. That is exact only if no tick gets
+    two packets and arrivals keep send order (else the buffer would mark some late): checked,
+    never assumed. Packets still on their way at a window's end are carried to the next."""
+
+    vectorized = True
+
+    def __init__(self, link: Link, period_ns: int, size_bytes: int) -> None:
+        self.link, self.period_ns, self.size_bytes = link, period_ns, size_bytes
+        # Delivered packets whose records are not handed over yet: arrival tick and seq, both
+        # ascending (the check in `window`).
+        self._tick = np.zeros(0, dtype=np.int64)
+        self._seq = np.zeros(0, dtype=np.int64)
+        self._rows: list[np.ndarray] = []  # records not handed over yet, in seq order
+        self._first = 0  # seq of the first of them
+
+    def window(self, n0: int, n1: int) -> tuple[np.ndarray, np.ndarray]:
+        """As `TickedSchedule.window`."""
+        period = self.period_ns
+        send = np.arange(n0, n1, dtype=np.int64) * period
+        arrival, fate = self.link.schedule_all(send)
+        got = np.flatnonzero(fate == DELIVERED)
+        tick_of = -(-arrival[got] // period)
+        if len(tick_of) and (
+            (len(self._tick) and tick_of[0] <= self._tick[-1]) or not bool(np.all(np.diff(tick_of) > 0))
+        ):
+            raise AssertionError("a vectorized link delivered two packets in one tick")  # constant delay cannot
+        self._rows.append(packet_rows(send, arrival, fate, self.size_bytes, first_seq=n0))
+        self._tick = np.concatenate((self._tick, tick_of))
+        self._seq = np.concatenate((self._seq, got + n0))
+        a, b = np.searchsorted(self._tick, (n0, n1))
+        released = np.full(n1 - n0, -1, dtype=np.int64)
+        released[self._tick[a:b] - n0] = self._seq[a:b]
+        return released, np.zeros(n1 - n0)
+
+    def settled(self, sent: int, final: bool) -> np.ndarray | None:
+        """As `settled_records`, once the loop has run the ticks before `sent` (a window may reach
+        further): the records of packets older than the oldest one sent before `sent` and still on
+        its way then (none is ever held: the buffer releases an arrival in its tick)."""
+        mark = sent
+        if not final:
+            i = int(np.searchsorted(self._tick, sent))  # the first to arrive at `sent` or later
+            if i < len(self._seq) and self._seq[i] < mark:
+                mark = int(self._seq[i])
+        k = mark - self._first
+        if k <= 0:
+            return None
+        keep = int(np.searchsorted(self._seq, mark))
+        self._tick, self._seq = self._tick[keep:], self._seq[keep:]
+        rows = self._rows[0] if len(self._rows) == 1 else np.concatenate(self._rows)
+        self._rows = [rows[k:]]
+        self._first = mark
+        return rows[:k]
+
+
+def schedule(link: Link, buf: PlayoutBuffer, period_ns: int, size_bytes: int) -> TickedSchedule | VectorizedSchedule:
+    """The decisions of `link` and `buf`, one packet per tick, window by window (module docstring)."""
     if _vectorized(link, buf):
-        send = np.arange(ticks, dtype=np.int64) * period_ns
-        arrival, fate = link.schedule_all(send)
-        # Played on arrival: a packet arrives at the first tick at or after its arrival time and
-        # is released in that tick. Valid only if no tick gets two packets and arrivals keep
-        # send order (else the buffer would mark some late): checked, never assumed.
-        seqs = np.flatnonzero(fate == DELIVERED)
-        tick_of = -(-arrival[seqs] // period_ns)
-        if len(tick_of) < 2 or bool(np.all(np.diff(tick_of) > 0)):
-            released = np.full(ticks, -1, dtype=np.int64)
-            inside = tick_of < ticks
-            released[tick_of[inside]] = seqs[inside]
-            return DirectionSchedule(released, np.zeros(ticks), packet_rows(send, arrival, fate, size_bytes), True)
-        raise AssertionError("a vectorized link delivered two packets in one tick")  # constant delay cannot
-    released = np.full(ticks, -1, dtype=np.int64)
-    occupancy = np.zeros(ticks)
-    send_one, deliver, push, release = link.send, link.deliver, buf.push, buf.release
-    empty: tuple[float, ...] = ()
-    for n in range(ticks):
-        now = n * period_ns
-        send_one(Packet(n, now, empty, size_bytes))
-        for p in deliver(now):
-            push(p, now)
-        rel = release(now)
-        if rel is not None:
-            released[n] = rel.seq
-        occupancy[n] = buf.occupancy
-    return DirectionSchedule(released, occupancy, link.log, False)
+        return VectorizedSchedule(link, period_ns, size_bytes)
+    return TickedSchedule(link, buf, period_ns, size_bytes)
 
 
-def packet_rows(send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, size_bytes: int) -> np.ndarray:
+def packet_rows(
+    send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, size_bytes: int, first_seq: int = 0
+) -> np.ndarray:
     """Bag records (bag.PACKET_FIELDS) of original packets: the values `bag._packet_rows` gives
     for the same `Packet` objects (times in s; arrival NaN unless delivered or late)."""
     rows = np.zeros((len(send_ns), 6))
-    rows[:, 0] = np.arange(len(send_ns))
+    rows[:, 0] = np.arange(first_seq, first_seq + len(send_ns))
     rows[:, 1] = send_ns.astype(np.float64) * 1e-9
     arrived = (fate == DELIVERED) | (fate == LOST_LATE)
     rows[:, 2] = np.where(arrived, arrival_ns.astype(np.float64) * 1e-9, np.nan)

@@ -1,7 +1,8 @@
 """The compiled loop (haptic_teleop/fastloop.py) gives the Python loop's run, bit for bit.
 
-Each case runs a scene in both loops and compares every recorded column, every packet record,
-the guards' rejection counts and the controllers' final state. The cases cover what the compiled
+Each case runs a scene in both loops and compares what each hands its sink, call by call (every
+block of columns, every batch of packet records, at the same points of the run), the guards'
+rejection counts and the controllers' final state. The cases cover what the compiled
 loop takes: both laws, EBA on and off, the three operator profiles, saturating controllers, substeps, gravity, zero
 delay, the vectorized network (constant delay, uncorrelated loss, blackouts, policy `none`) and
 the network ticked through the Python objects (bursty loss, jitter with reordering, every
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from haptic_teleop import fastloop
-from haptic_teleop.bag import _packet_rows
+from haptic_teleop.bag import BLOCK_TICKS
 from haptic_teleop.engine import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.scene import find_scene, load_scene
@@ -45,6 +46,18 @@ CASES = {
     "adaptive": ("jitter", [f"{FWD}.buffer.policy=adaptive", f"{BWD}.buffer.policy=adaptive"]),
     "percentile": ("jitter", [f"{FWD}.buffer.policy=percentile", f"{BWD}.buffer.policy=percentile"]),
     "transparency": ("varying_delay", []),
+    # Delays longer than the compiled loop's first history ring (1024 ticks) and than a block:
+    # the ring grows, records wait several blocks for their fates.
+    "long_delay": ("wall_contact", ["scene.duration_s=4.0", f"{FWD}.effects.delay.delay_s=1.5"]),
+    "long_jitter": (
+        "wall_contact",
+        [
+            "scene.duration_s=4.0",
+            f"{BWD}.effects.delay.delay_s=1.3",
+            f"{BWD}.effects.delay.jitter_s=0.005",
+            f"{BWD}.buffer.policy=fixed",
+        ],
+    ),
 }
 
 
@@ -53,8 +66,20 @@ def _scene(name, overrides):
     return load_scene(find_scene(name), overrides=[*extra, *overrides])
 
 
-def _rows(log):
-    return log if isinstance(log, np.ndarray) else _packet_rows(log)
+class Calls:
+    """A sink that notes every call the engine makes on it, with a copy of its array."""
+
+    def __init__(self):
+        self.calls = []
+
+    def append(self, rows):
+        self.calls.append(("rows", np.array(rows)))
+
+    def append_packets(self, direction, rows):
+        self.calls.append((direction, np.array(rows)))
+
+    def data(self):
+        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
 
 
 def _both(scene, stop_at=None):
@@ -67,16 +92,25 @@ def _both(scene, stop_at=None):
             if stop_at is not None and n >= stop_at:
                 e.request_stop()
 
-        out.append((e, e.run(handle_sigint=False, progress=progress)))
+        out.append((e, _run(e, progress)))
     return out
+
+
+def _run(e, progress=None):
+    sink = Calls()
+    r = e.run(handle_sigint=False, progress=progress, sink=sink)
+    r.data = sink.data()  # for the checks below
+    r.calls = sink.calls
+    return r
 
 
 def _assert_same_run(compiled, python):
     (ec, rc), (ep, rp) = compiled, python
     assert rc.ticks == rp.ticks
-    assert np.array_equal(rc.data[: rc.ticks], rp.data[: rp.ticks])
-    for c, p in zip(ec.packet_logs(), ep.packet_logs(), strict=True):
-        assert np.array_equal(_rows(c), _rows(p), equal_nan=True)
+    assert [k for k, _ in rc.calls] == [k for k, _ in rp.calls]
+    for (kind, c), (_, p) in zip(rc.calls, rp.calls, strict=True):
+        assert np.array_equal(c, p, equal_nan=True), kind
+    assert all(len(a) <= BLOCK_TICKS for k, a in rc.calls if k == "rows")
     for side in ("master_ctrl", "slave_ctrl"):
         a, b = getattr(ec, side), getattr(ep, side)
         assert a.rejected_samples == b.rejected_samples
@@ -91,12 +125,15 @@ def test_compiled_loop_equals_python_loop(case):
     compiled, python = _both(_scene(name, overrides))
     _assert_same_run(compiled, python)
     assert np.ptp(compiled[1].column("s_x_m")) > 1e-3 or case == "hold"  # not a vacuous comparison
+    # Blocks and packet records were handed over while the run went on, not only at its end.
+    kinds = [k for k, _ in compiled[1].calls]
+    assert kinds[0] == "rows" and {"forward", "backward"} & set(kinds[: kinds.index("rows", 1)])
 
 
 @pytest.mark.parametrize("case", ["default", "jitter_reorder"])
 def test_stopped_compiled_run_leaves_the_python_loops_records(case):
     """Stopped at the same tick, both loops leave the same columns and packet records (a ticked
-    schedule ran ahead of the loop and is ticked again for the ticks that ran)."""
+    schedule is decided one chunk of the loop at a time, so it never runs ahead of a stop)."""
     name, overrides = CASES[case]
     compiled, python = _both(_scene(name, overrides), stop_at=700)
     assert compiled[1].interrupted and compiled[1].ticks == 700
@@ -111,7 +148,7 @@ def test_guard_rejections_are_the_same_in_both_loops():
         e = Engine(_scene("wall_contact", []), loop=loop)
         e.slave_ctrl.guard.limits = (0.01, 1.0)  # x beyond 1 cm is "absurd"
         e.master_ctrl.guard.limits = (50.0, 0.005, 1.0)  # (f_env, x, v): x beyond 5 mm
-        runs.append((e, e.run(handle_sigint=False)))
+        runs.append((e, _run(e)))
     _assert_same_run(*runs)
     e = runs[0][0]
     assert e.slave_ctrl.rejected_samples > 100 and e.master_ctrl.rejected_samples > 100
@@ -136,10 +173,23 @@ def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, re
 
 
 def test_vectorized_network_only_where_it_is_exact():
-    """The default network is decided in one go; bursty (Markov) loss is ticked."""
+    """The default network is decided in numpy, window by window; bursty (Markov) loss is ticked."""
     e = Engine(_scene("wall_contact", [f"{FWD}.effects.loss.probability=0.3"]))
-    s = fastloop.schedule(e.forward, e.forward_buffer, 100, e.period_ns, 72)
-    assert s.vectorized and isinstance(s.packets, np.ndarray)
-    assert np.count_nonzero(s.released_seq >= 0) == np.count_nonzero(s.packets[:50, 3] == 0)  # 50 ms delay
+    s = fastloop.schedule(e.forward, e.forward_buffer, e.period_ns, 72)
+    assert s.vectorized
+    released = np.concatenate([s.window(0, 30)[0], s.window(30, 100)[0]])  # two windows, one stream
+    rows = s.settled(100, final=True)
+    assert np.count_nonzero(released >= 0) == np.count_nonzero(rows[:50, 3] == 0)  # 50 ms delay
+    assert np.array_equal(released[50:], np.where(rows[:50, 3] == 0, np.arange(50), -1))
     b = Engine(_scene("bursty_loss", []))
-    assert not fastloop.schedule(b.forward, b.forward_buffer, 100, b.period_ns, 72).vectorized
+    assert not fastloop.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
+
+
+def test_settled_records_wait_for_packets_in_flight():
+    """A record is handed over once its fate is final: not while the packet is on its way."""
+    e = Engine(_scene("wall_contact", [f"{FWD}.effects.delay.delay_s=0.2"]), loop="python")
+    sink = Calls()
+    e.run(handle_sigint=False, sink=sink)
+    fwd = [rows for kind, rows in sink.calls if kind == "forward"]
+    assert [len(r) for r in fwd[:2]] == [800, 1000]  # at 1 s: sent 1000, 200 on their way
+    assert len(np.concatenate(fwd)) == 2000 and np.array_equal(np.concatenate(fwd)[:, 0], np.arange(2000))

@@ -46,20 +46,20 @@ def test_stop_request_leaves_a_complete_bag(tmp_path):
     engine = Engine(scene, loop="python")  # wraps the Python loop; the compiled one: test_compiled_loop.py
     original = engine._loop
 
-    def stop_midway(progress, on_block):
+    def stop_midway(progress, sink):
         def progress_and_stop(n):
             if n >= 1234:
                 engine.request_stop()
 
-        return original(progress_and_stop, on_block)
+        return original(progress_and_stop, sink)
 
     engine._loop = stop_midway  # type: ignore[method-assign]
     from haptic_teleop.bag import RunRecorder
     from haptic_teleop.engine import COLUMNS
 
     rec = RunRecorder(bag, scene.to_yaml(), engine.period_ns, True, True, len(COLUMNS))
-    result = engine.run(on_block=rec.block, handle_sigint=False)
-    rec.finish(engine.data, result.ticks, *engine.packet_logs(), {"interrupted": True})
+    result = engine.run(sink=rec, handle_sigint=False)
+    rec.close({"interrupted": True})
     assert result.interrupted and 1234 <= result.ticks < 1400
     with BagReader(bag) as r:
         assert len(r.read("/master/joint_states").log_ns) == result.ticks

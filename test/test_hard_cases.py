@@ -200,7 +200,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Run]:
             scene = load_scene(find_scene("wall_contact"), overrides=overrides)
             bag = root / f"{case.name}-{'on' if protected else 'off'}-{len(cache)}" / "bag"
             bag.parent.mkdir(parents=True)
-            engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False)
+            engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True)
             summary, signals = analyze_bag(bag)
             cache[key] = Run(scene.config, summary, signals, engine.data[: engine.ticks_done].copy())
         return cache[key]

@@ -150,7 +150,7 @@ def test_rejections_reach_the_bag_and_the_summary(tmp_path, monkeypatch):
         return link
 
     monkeypatch.setattr(engine_module, "build_link", corrupting_build_link)  # reaches the Python loop
-    engine, _ = record_run(SCENE, tmp_path / "bag", parallel=False, handle_sigint=False, loop="python")
+    engine, _ = record_run(SCENE, tmp_path / "bag", parallel=False, handle_sigint=False, loop="python", keep=True)
     summary, _ = analyze_bag(tmp_path / "bag")
     d = engine.data[: engine.ticks_done]
     assert summary["rejected_samples_forward"] == _played(d, "fwd_rx_seq", made["forward"].corrupted) > 0

@@ -10,5 +10,6 @@ BENCHMARKS = {
     "effects": "haptic_teleop.benchmarks.effects",
     "network": "haptic_teleop.benchmarks.network",
     "accuracy": "haptic_teleop.benchmarks.accuracy",
+    "memory": "haptic_teleop.benchmarks.memory",
     "recording": "haptic_teleop.benchmarks.recording",
 }

@@ -759,11 +759,13 @@ class Link:
         self.sent = 0
         self.lost = 0  # originals lost in the network (not counting copies or late packets)
         self.duplicates = 0
-        self.log: list[Packet] = []  # every packet (and copy) with its fate, for the bag
+        self.log: list[Packet] = []  # every packet (and copy) with its fate, for the bag (its reader may drain it)
+        self._one_by_one = False  # a packet went through `send`: `schedule_all` would not continue it
 
     def send(self, packet: Packet) -> None:
         packet.arrival_time_ns = packet.send_time_ns
         self.sent += 1
+        self._one_by_one = True
         self.log.append(packet)
         for i, apply in enumerate(self._applies, 1):
             extra = apply(packet)
@@ -817,23 +819,30 @@ class Link:
     def in_flight(self) -> int:
         return len(self._fifo) + len(self._heap)
 
+    def oldest_in_flight_seq(self) -> int | None:
+        """The lowest sequence number among the packets still in flight, or None if none is."""
+        seqs = [e[2].seq for e in self._fifo] + [e[2].seq for e in self._heap]
+        return min(seqs) if seqs else None
+
     @property
     def vectorized(self) -> bool:
-        """True if `schedule_all` can decide a whole run's fates at once (no packet sent yet, and
-        every effect has an `apply_all` whose decisions do not depend on the packets before)."""
-        return self.sent == 0 and all(getattr(e, "vectorized", False) for e in self.effects)
+        """True if `schedule_all` can decide the link's packets in batches (none went through `send`,
+        and every effect has an `apply_all` whose decisions do not depend on the packets before)."""
+        return not self._one_by_one and all(getattr(e, "vectorized", False) for e in self.effects)
 
     def schedule_all(self, send_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fates and arrival times of original packets sent at `send_ns`, decided all at once.
 
         The same decisions, from the same random numbers, as `send` on each packet in turn
-        (test_vectorized_schedule_equals_send). Only for a fresh link whose effects are all
-        `vectorized` (see the property); the packets are not queued or logged. Updates `sent`
-        and `lost`. Returns (arrival_ns, fate) arrays.
+        (test_vectorized_schedule_equals_send). Consecutive calls continue one another (each
+        effect's random stream goes on where the last call left it), so a run can be decided in
+        windows of any size with the same result. Only for a link whose effects are all
+        `vectorized` and that no packet went through `send` on (see the property); the packets
+        are not queued or logged. Updates `sent` and `lost`. Returns (arrival_ns, fate) arrays.
         """
         if not self.vectorized:
             raise ValueError(
-                "this link cannot decide a run at once (packets sent already, or an effect without apply_all)"
+                "this link cannot decide a run at once (packets went through send, or an effect without apply_all)"
             )
         send_ns = np.asarray(send_ns, dtype=np.int64)
         arrival = send_ns.copy()

@@ -69,6 +69,8 @@ class PlayoutBuffer(Protocol):
 
     def push(self, packet: Packet, now_ns: int) -> None: ...
 
+    def oldest_held_seq(self) -> int | None: ...
+
     def release(self, now_ns: int) -> Packet | None: ...
 
 
@@ -164,6 +166,10 @@ class PlayOnArrival(_BufferBase):
     def occupancy(self) -> int:
         return 0 if self._pending is None else 1
 
+    def oldest_held_seq(self) -> int | None:
+        """The lowest sequence number the buffer holds (its fate may still change), or None."""
+        return None if self._pending is None else self._pending.seq
+
     def push(self, packet: Packet, now_ns: int) -> None:
         if self._is_duplicate(packet.seq):
             return
@@ -234,6 +240,10 @@ class _ScheduledBuffer(_BufferBase):
     @property
     def occupancy(self) -> int:
         return len(self._heap)
+
+    def oldest_held_seq(self) -> int | None:
+        """The lowest sequence number the buffer holds (its fate may still change), or None."""
+        return self._heap[0][0] if self._heap else None
 
     @property
     def target_delay_ns(self) -> int | None:

@@ -785,6 +785,13 @@ def test_vectorized_schedule_equals_send(seed, p, delay_ms, blackout):
     assert [q.fate for q in one_by_one.log] == fate.tolist()
     assert [q.arrival_time_ns for q in one_by_one.log] == arrival.tolist()
     assert (at_once.sent, at_once.lost) == (one_by_one.sent, one_by_one.lost)
+    # In windows (the compiled loop's): each call goes on where the last one left the draws.
+    windowed = make_link(effects, seed=seed)
+    cuts = [0, 1, 999, 1000, 3333, n]
+    parts = [windowed.schedule_all(np.arange(a, b, dtype=np.int64) * MS) for a, b in itertools.pairwise(cuts)]
+    assert np.array_equal(np.concatenate([f for _, f in parts]), fate)
+    assert np.array_equal(np.concatenate([a for a, _ in parts]), arrival)
+    assert (windowed.sent, windowed.lost) == (at_once.sent, at_once.lost)
 
 
 def test_schedule_all_refuses_what_it_cannot_decide_at_once():
