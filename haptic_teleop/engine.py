@@ -420,7 +420,7 @@ class Engine:
         done = 0
         try:
             with fastloop.mujoco_timers_off():
-                while done < n_ticks and not self._stop:
+                while done < n_ticks:  # a stop requested before the loop still runs one chunk
                     w0, w1 = done, min(done + window, n_ticks)
                     frel, focc = fwd.window(w0, w1)
                     brel, bocc = bwd.window(w0, w1)
@@ -437,6 +437,8 @@ class Engine:
                             output.block_done(done)
                         if self._stop:
                             break
+                    if self._stop:
+                        break
         except BaseException:
             fastloop.store_state(self, S)
             self.master.close()

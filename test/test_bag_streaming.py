@@ -91,6 +91,14 @@ def test_streaming_api_reads_back_and_is_deterministic(tmp_path):
         assert r.packets("/backward/packets").shape[0] == sum(k // 2 for k in PIECES)
 
 
+@pytest.mark.parametrize("parallel", [False, True], ids=["in-process", "writer-process"])
+def test_a_run_stopped_before_its_first_tick_still_holds_its_scene(tmp_path, parallel):
+    bag = _record(tmp_path / "bag", parallel, [])
+    with BagReader(bag) as r:
+        assert r.string("/haptic_teleop/scene") == "scene: {}\n"
+        assert r.string("/haptic_teleop/run_info") == '{"ticks": 0}'
+
+
 def test_memory_is_bounded_whatever_the_run_length(tmp_path):
     """The recorder keeps the sent columns of the last few blocks only (a playout buffer releases in
     order): after 100 blocks its history is as small as after 5; rows appended are copied."""

@@ -128,7 +128,7 @@ def _writer_process(
     except BaseException as exc:  # noqa: BLE001 - report any failure, then still close the bag
         reply = ("error", f"{type(exc).__name__}: {exc}")
     try:
-        sink.write([streams.final(run_info)])
+        sink.write(streams.final(run_info))
     except BaseException as exc:  # noqa: BLE001 - still close the bag
         reply = reply if reply[0] == "error" else ("error", f"{type(exc).__name__}: {exc}")
     try:
@@ -303,7 +303,7 @@ class RunRecorder:
         self._closed = True
         if self._sink is not None:
             try:
-                self._sink.write([self._streams.final(run_info)])
+                self._sink.write(self._streams.final(run_info))
             finally:
                 self._sink.close()
             return self.bag_dir

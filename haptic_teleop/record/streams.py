@@ -131,6 +131,7 @@ class RunStreams:
         self._hist_cols = [COL[c] for c in _HIST_COLUMNS]
         self._seq_cols = [COL[c] for _, c, _ in _RECEIVED_TOPICS]
         self._encoder: TickEncoder | None = None
+        self._scene_written = False
 
     def tick_topics(self) -> list[tuple[str, tuple[str, ...]]]:
         return [(t, cols) for t, cols, eba in _TICK_TOPICS if self.eba_internals or not eba]
@@ -174,7 +175,8 @@ class RunStreams:
         a, b = self._take(rows)
         if self._encoder is None:
             self._encoder = TickEncoder(self, cids)
-        out = [stream_records([self._scene_stream()], cids)] if a == 0 else []
+        out = [] if self._scene_written else [stream_records([self._scene_stream()], cids)]
+        self._scene_written = True
         if b > a:
             out.append(self._encoder.encode(rows, a, self.history))
         self._released(rows)
@@ -196,12 +198,17 @@ class RunStreams:
         blobs = [packet_batch_bytes(rows[s : s + PACKET_BATCH]) for s in starts]
         return Stream(f"/{direction}/packets", MULTIARRAY, times, blobs=blobs)
 
-    def final(self, run_info: dict[str, Any]) -> Stream:
-        """The run facts, logged at the end of the last tick."""
+    def final(self, run_info: dict[str, Any]) -> list[Stream]:
+        """The run facts, logged at the end of the last tick; the scene first if no tick was
+        recorded (a run stopped before its first tick still has its scene in the bag)."""
         end = np.array([self.ticks * self.period], dtype=np.int64)
-        return Stream(
+        info = Stream(
             "/haptic_teleop/run_info", STRING, end, blobs=[string_bytes(json.dumps(run_info, sort_keys=True))]
         )
+        if self._scene_written:
+            return [info]
+        self._scene_written = True
+        return [self._scene_stream(), info]
 
 
 # --------------------------------------------------------------------------------------------
