@@ -47,7 +47,15 @@ setup(
         "numpy>=1.25",
         "pyyaml>=6.0",
         "mujoco>=3.3.6",
-        "rosbags>=0.10.4",
+        # public API only (typestore, CDR, msgdef/hash, the sqlite3 Reader); below 0.10.10 its MCAP
+        # reader skips a chunk whose first message is at time 0; tested with 0.10.10 and 0.11.9
+        "rosbags>=0.10.10,<0.12",
+        # MCAP chunk compression (recording.compression): lz4 frames; zstd from the standard
+        # library from Python 3.14 on
+        "lz4>=3.1",
+        'backports.zstd>=1.0; python_version < "3.14"',
+        # metadata.yaml reading
+        "ruamel.yaml>=0.17",
         "matplotlib>=3.6",
         "tqdm>=4.64",
         # the engine's compiled loop (haptic_teleop/fastloop.py); without it the Python loop runs
@@ -64,6 +72,8 @@ setup(
             # colcon build of this package in a test (test/test_colcon.py)
             "colcon-common-extensions>=0.3",
             "ros-ament-package>=0.17",
+            # a second, CRC-validating MCAP reader for the bag tests
+            "mcap>=1.2",
         ],
     },
     zip_safe=False,  # MuJoCo reads the models (and their includes) from files
