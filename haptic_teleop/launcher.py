@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from haptic_teleop.lifetime import LAUNCHER_PID_ENV
 from haptic_teleop.nodes import EXECUTABLES, LOOP_FIGURES_MARK, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
 from haptic_teleop.scene import LoadedScene
 
@@ -285,6 +286,8 @@ class Launcher:
         self.files = write_params_files(self.plan, params_dir)
         self.env = local_discovery_env(env)
         self.env["PYTHONUNBUFFERED"] = "1"
+        # Each node stops (SIGTERM, a clean stop) when this process dies, even by SIGKILL.
+        self.env[LAUNCHER_PID_ENV] = str(os.getpid())
         self.out = out or sys.stdout
         self.crash_grace_s = crash_grace_s
         self.timeout_s = timeout_s

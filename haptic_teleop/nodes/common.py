@@ -1242,6 +1242,10 @@ def run_nodes(
     from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
+    from haptic_teleop.lifetime import follow_launcher
+
+    if not follow_launcher():  # started by a launcher that has died since: start nothing
+        return 1
     ensure_local_discovery()
     # The loop thread and the executor thread share the GIL: switch often so a waking loop
     # does not wait for a callback's full default 5 ms slice.

@@ -18,7 +18,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.lifetime import die_with_parent
 from haptic_teleop.record.layouts import PACKET_BATCH, packet_batch_head, packet_rows
 from haptic_teleop.record.mcap import BagSink
 from haptic_teleop.record.streams import BLOCK_TICKS, RunStreams
@@ -35,7 +35,6 @@ if TYPE_CHECKING:
 
 COMPRESSIONS = ("none", "zstd", "lz4")
 RING_SLOTS = 4  # blocks of BLOCK_TICKS rows the parent may be ahead of the writer
-_PR_SET_PDEATHSIG = 1
 _WAIT_S = 0.5  # the writer checks on its parent at least this often while it waits
 
 
@@ -49,17 +48,6 @@ def _write_packets(sink: BagSink, streams: RunStreams, direction: str, rows: np.
     stream = streams.packet_stream(direction, rows)
     if stream is not None:
         sink.write([stream])
-
-
-def _ask_for_parent_death_signal(sig: int) -> None:
-    """Linux: deliver `sig` to this process when its parent (the thread that forked it) ends."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, sig, 0, 0, 0)
 
 
 def _writer_process(
@@ -90,7 +78,7 @@ def _writer_process(
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and closes the bag
     signal.signal(signal.SIGTERM, on_parent_death)
-    _ask_for_parent_death_signal(signal.SIGTERM)
+    die_with_parent(signal.SIGTERM)
     if os.getppid() != parent_pid:
         died = True  # the parent ended before the signal was asked for
     streams = RunStreams(*args)
