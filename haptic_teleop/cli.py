@@ -101,7 +101,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from haptic_teleop.scene import find_scene, load_scene
 
     interrupt.pause_for_test("scene")
-    scene = load_scene(find_scene(args.scene), overrides=args.set or (), seed=args.seed)
+    overrides = list(args.set or ())
+    if args.compression is not None:
+        overrides.append(f"recording.compression={args.compression}")
+    scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
     resolved = scene.to_yaml()
     if args.dry_run:
         sys.stdout.write(resolved)
@@ -253,6 +256,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
     r.add_argument("--dry-run", action="store_true", help="validate the scene, print it resolved, write nothing")
+    r.add_argument(
+        "--compression",
+        choices=("none", "zstd", "lz4"),
+        help="MCAP chunk compression of the bag (scene key recording.compression, default none)",
+    )
     r.add_argument(
         "--loop",
         choices=("auto", "compiled", "python"),

@@ -517,6 +517,8 @@ def launch_main(args: Any) -> int:
     overrides = list(args.set or ())
     if args.duration is not None:
         overrides.append(f"scene.duration_s={float(args.duration)}")
+    if args.compression is not None:
+        overrides.append(f"recording.compression={args.compression}")
     scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
     record = Path(args.record) if args.record else None
     if record is not None:
@@ -590,6 +592,11 @@ def add_arguments(p: Any) -> None:
     p.add_argument("scene", help="scene YAML path, or a bundled scene name (e.g. wall_contact)")
     p.add_argument("--duration", type=float, metavar="S", help="seconds of scene time to run (scene.duration_s)")
     p.add_argument("--record", metavar="DIR", help="record a bag to DIR/bag, then write DIR/summary.json")
+    p.add_argument(
+        "--compression",
+        choices=("none", "zstd", "lz4"),
+        help="MCAP chunk compression of the recorded bag (scene key recording.compression)",
+    )
     p.add_argument(
         "--single-process",
         action="store_true",

@@ -423,3 +423,22 @@ def test_version_falls_back_to_the_package_version_when_not_installed(monkeypatc
 
     monkeypatch.setattr(importlib.metadata, "version", missing)
     assert package_version() == __version__
+
+
+def test_compression_flag_writes_a_compressed_bag_that_analyses_the_same(tmp_path, capsys):
+    """`run --compression zstd`: the chunks are zstd (bag info says so), the file is smaller, and
+    the metrics are those of the uncompressed run."""
+    base = ["run", "wall_contact", "--set", "scene.duration_s=0.5", "--no-plots", "--quiet"]
+    assert main([*base, "--out", str(tmp_path / "plain")]) == 0
+    assert main([*base, "--out", str(tmp_path / "zstd"), "--compression", "zstd"]) == 0
+    capsys.readouterr()
+    assert main(["bag", "info", str(tmp_path / "zstd" / "bag")]) == 0
+    assert "(compression: zstd)" in capsys.readouterr().out
+    plain = next((tmp_path / "plain" / "bag").glob("*.mcap")).stat().st_size
+    packed = next((tmp_path / "zstd" / "bag").glob("*.mcap")).stat().st_size
+    assert packed < plain / 2
+    a = json.loads((tmp_path / "plain" / "summary.json").read_text())
+    b = json.loads((tmp_path / "zstd" / "summary.json").read_text())
+    a.pop("realtime_factor"), b.pop("realtime_factor")
+    assert a == b
+    assert yaml.safe_load((tmp_path / "zstd" / "scene.yaml").read_text())["recording"]["compression"] == "zstd"
