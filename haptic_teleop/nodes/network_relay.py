@@ -181,7 +181,7 @@ class NetworkRelay(LiveNode):
         self._early.clear()
         note = ""
         if self.unshaped:
-            note = f"; {self.unshaped} samples of scene time >= 0 came before it, forwarded unshaped"
+            note = f"; samples of scene time >= 0 that came before it, forwarded unshaped: {self.unshaped}"
         self.get_logger().info(f"scene time 0 at stamp {start} ns: the link runs from there{note}")
         return start
 
