@@ -657,8 +657,9 @@ def test_blackout_window_is_in_scene_time_and_drops_exactly_the_packets_sent_ins
         # Outside the window nothing else drops (a 20 ms delay, no loss): delivered, or played too late.
         assert np.all(np.isin(fate[~inside], (DELIVERED, LOST_LATE))), (d, np.unique(fate[~inside]))
         assert summary[f"packets_lost_{d}"] == int(np.count_nonzero(inside))
-        # Scene time: from 0, within the recorded second (the relay's clock - the scene start).
-        assert send.min() >= 0.0 and send.max() < 1.0 + 0.1, (d, send.min(), send.max())
+        # Scene time (the relay's clock - the scene start): from 0, not ~1.8e9 s of the epoch; the
+        # upper bound is loose (a sample of the last tick may reach a busy relay late).
+        assert send.min() >= 0.0 and send.max() < 5.0, (d, send.min(), send.max())
 
 
 # ---------------------------------------------------------------------------------------------
