@@ -18,6 +18,7 @@ P_NS = 1_000_000  # 1 kHz
 START_NS = 1_795_000_000_000_000_000  # scene time 0 on the node clock (on the tick grid)
 PHASE_NS = 250_000  # a sample reaches the relay a quarter period after its stamp
 BLACKOUT = (0.003, 0.005)  # scene time: the samples of ticks 3 and 4 are sent inside it
+DELAY_S = 0.002
 
 
 @pytest.fixture
@@ -38,6 +39,7 @@ def _relay(context, **params):
         "scene.period_s": P_NS * 1e-9,
         "network.forward.effects.blackout.starts_s": [BLACKOUT[0]],
         "network.forward.effects.blackout.ends_s": [BLACKOUT[1]],
+        "network.forward.effects.delay.delay_s": DELAY_S,
         **params,
     }
     overrides = [Parameter(k, value=v) for k, v in values.items()]
@@ -79,9 +81,10 @@ def _records(context, relay) -> np.ndarray:
 
 
 def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
-    """Samples before scene time 0 pass unshaped and unrecorded; two of scene time >= 0 beat the
-    start message (forwarded unshaped, recorded as such); from then on the link decides, in scene
-    time: the blackout [3, 5) ms loses exactly the samples of ticks 3 and 4."""
+    """Samples before scene time 0 go through the settling link (the delay, no blackout) and are
+    not recorded; two of scene time >= 0 beat the start message (settling link too, recorded in
+    scene time); from then on the scene's link decides, in scene time: the blackout [3, 5) ms
+    loses exactly the samples of ticks 3 and 4, the others arrive 2 ms after they were sent."""
     from std_msgs.msg import Header
 
     from haptic_teleop.core.network import DELIVERED, LOST_NETWORK
@@ -91,7 +94,7 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
     try:
         for tick in (-3, -2, -1, 0, 1):  # the start message is not out yet
             _send(relay, tick)
-        assert relay.scene_start_ns is None and relay.passed == 5 and relay.link.sent == 0
+        assert relay.scene_start_ns is None and relay.settling.sent == 5 and relay.link.sent == 0
         op = rclpy.create_node("test_operator", context=context)
         pub = op.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
         h = Header(frame_id="scene_time_0")
@@ -106,7 +109,7 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
         assert relay.scene_start_ns == START_NS
         for tick in range(2, 8):
             _send(relay, tick)
-        assert relay.unshaped == 2 and relay.link.sent == 6 and relay.link.lost == 2
+        assert relay.settled == 2 and relay.link.sent == 6 and relay.link.lost == 2
         rows = _records(context, relay)
         op.destroy_node()
     finally:
@@ -118,7 +121,8 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
     inside = (send >= BLACKOUT[0]) & (send < BLACKOUT[1])
     assert seq[inside].tolist() == [3, 4]
     assert np.all(rows[inside, 3] == LOST_NETWORK) and np.all(rows[~inside, 3] == DELIVERED)
-    assert np.array_equal(rows[~inside, 2], send[~inside])  # no delay: arrival = send
+    assert np.allclose(rows[~inside, 2], send[~inside] + DELAY_S, rtol=0, atol=1e-12)
+    assert np.all(np.isnan(rows[inside, 2]))
 
 
 def test_first_sample_mode_starts_scene_time_at_the_first_sample(context):
@@ -144,3 +148,28 @@ def test_bad_scene_start_mode_is_a_parameter_error(context):
 
     with pytest.raises(ConfigError, match="scene_start"):
         _relay(context, scene_start="later")
+
+
+def test_settling_effects_drop_the_time_dependent_parts():
+    """The settling link: no blackout; a time-varying delay held at its value at scene time 0."""
+    from haptic_teleop.core.network import (
+        BlackoutConfig,
+        DelayConfig,
+        DelayScheduleConfig,
+        DelaySinusoidConfig,
+        LossConfig,
+        NetworkEffectsConfig,
+    )
+    from haptic_teleop.nodes.network_relay import settling_effects
+
+    schedule = DelayScheduleConfig(times_s=(0.5, 1.0), delays_s=(0.03, 0.1))
+    cfg = NetworkEffectsConfig(
+        blackout=BlackoutConfig(starts_s=(0.3,), ends_s=(0.5,)),
+        loss=LossConfig(probability=0.1),
+        delay=DelayConfig(delay_s=0.02, jitter_s=0.001, schedule=schedule),
+    )
+    s = settling_effects(cfg)
+    assert s.blackout is None and s.loss == cfg.loss
+    assert s.delay == DelayConfig(delay_s=pytest.approx(0.05), jitter_s=0.001)  # 0.02 + the schedule at 0
+    sine = DelayConfig(delay_s=0.0, sinusoid=DelaySinusoidConfig(min_delay_s=0.01, max_delay_s=0.03, period_s=2.0))
+    assert settling_effects(NetworkEffectsConfig(delay=sine)).delay.delay_s == pytest.approx(0.01)  # min at t = 0

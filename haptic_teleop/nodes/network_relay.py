@@ -15,12 +15,17 @@ delay adds only the relay's own cost), and otherwise from a 1 kHz loop on the ab
 Both run in the loop thread, which waits for input and for its next deadline at once (no executor
 in the path). The delivered message is the very message that was sent (stamp and values unchanged).
 
-Samples stamped before scene time 0 (the graph settling before the operator starts; the engine
-has no such phase) and samples that arrive while the scene start is not known yet are forwarded at
-once, unshaped, outside the link: its effects and random draws start with the packet of scene
-time 0, as the engine's. A sample of scene time >= 0 can beat the scene start message here (they
-travel on different topics): it was forwarded unshaped, and once the start is known it gets a
-packet record saying so (delivered, arrival = send time) and is counted (`unshaped`).
+Before scene time 0 (the graph settling for the operator's `start.delay_s`; the engine has no
+such phase) samples go through a second link, the settling link: the scene's effects without
+their time-dependent parts (no blackout; a time-varying delay held at its value at scene time 0;
+`settling_effects`), on the node clock, with random streams of its own. So the sync buffers and
+the watchdogs settle on the delay, jitter, loss and rate the scene starts with, and the scene's
+link starts fresh at scene time 0 (its effects and random draws from the packet of scene time 0
+on, as the engine's). Its packets are not recorded, and those in flight at scene time 0 are still
+delivered. A sample of scene time >= 0 that reaches the relay before the scene start message does
+(they travel on different topics) goes through the settling link too; once the start is known it
+gets a packet record with the settling link's decision, in scene time, and is counted
+(`settled_in_scene`).
 
 The fate of every packet of scene time >= 0 goes out in batches on /<direction>/packets
 (reliable), in the bag's row layout (`record.layouts.packet_rows`): seq = the sample's stamp /
@@ -31,11 +36,11 @@ subtracts the scene start's), send and arrival times in scene seconds (the link'
 from __future__ import annotations
 
 import array
-from collections import deque
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
-from haptic_teleop.core.network import DELIVERED, Packet
+from haptic_teleop.core.network import NetworkEffectsConfig, Packet
 from haptic_teleop.nodes import RELAY_SCENE_STARTS, SCENE_SECTIONS
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
@@ -63,9 +68,32 @@ from haptic_teleop.nodes.common import (
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
 # beyond it) is rebuilt from the packet's payload instead.
 _KEEP_TICKS = 30_000
-# Samples forwarded before the scene start was known, kept (seq, arrival ns) to find those of scene
-# time >= 0 among them once it is: the newest ones, so a second's worth is plenty.
+# Records of the settling link kept while the scene start is not known, to find those of scene time
+# >= 0 among them once it is: the newest ones, so a second's worth is plenty.
 _EARLY_KEPT = 1000
+
+
+def settling_effects(cfg: NetworkEffectsConfig) -> NetworkEffectsConfig:
+    """The effects of the settling link (before scene time 0): `cfg` without its time-dependent
+    parts. No blackout; a delay schedule, sinusoid or trace is replaced by its value at scene time
+    0, added to the constant delay. What is left depends on no absolute time (the token bucket and
+    the jitter use differences and counts only)."""
+    from haptic_teleop.core.network import PiecewiseDelay, SinusoidDelay, load_delay_trace
+
+    delay = cfg.delay
+    if delay is not None:
+        extra_s = 0.0
+        if delay.schedule is not None:
+            sc = delay.schedule
+            extra_s = PiecewiseDelay(sc.times_s, sc.delays_s, sc.interpolation)(0) * 1e-9
+        elif delay.sinusoid is not None:
+            w = delay.sinusoid
+            extra_s = SinusoidDelay(w.min_delay_s, w.max_delay_s, w.period_s, w.phase_s)(0) * 1e-9
+        elif delay.trace is not None:
+            ts, ds = load_delay_trace(delay.trace.file)
+            extra_s = PiecewiseDelay(ts.tolist(), ds.tolist(), delay.trace.interpolation)(0) * 1e-9
+        delay = dataclasses.replace(delay, delay_s=delay.delay_s + extra_s, schedule=None, sinusoid=None, trace=None)
+    return dataclasses.replace(cfg, blackout=None, delay=delay)
 
 
 def declare_direction_scene(node: LiveNode, executable: str, extra_names: Sequence[str] = ()) -> tuple[str, Any]:
@@ -108,12 +136,12 @@ class NetworkRelay(LiveNode):
             if self.start_mode == "topic"
             else None
         )
-        self._early: deque[tuple[int, int]] = deque(maxlen=_EARLY_KEPT)
-        self._unshaped: list[Packet] = []  # records of unshaped samples of scene time >= 0, not published yet
-        self.passed = 0  # samples forwarded unshaped (before scene time 0, or before it was known)
-        self.unshaped = 0  # of those, samples of scene time >= 0
+        self._settled: list[Packet] = []  # settling link records of scene time >= 0, not published yet
+        self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.link = build_link(getattr(cfg.network, d).effects, cfg.scene.seed, d)
+        effects = getattr(cfg.network, d).effects
+        self.link = build_link(effects, cfg.scene.seed, d)  # scene time, from 0
+        self.settling = build_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
         self._fields = PAYLOAD_FIELDS[d]
         self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], WIRE_FIELDS[d])])
         self._size = joint_state_size(3 if d == "backward" else 2)
@@ -142,18 +170,17 @@ class NetworkRelay(LiveNode):
             self.malformed += 1
             return
         seq = stamp // self.period_ns
+        self._msgs[seq] = msg
+        self._newest = max(self._newest, seq)
         start = self.scene_start_ns
         if start is None:
             start = self._learn_start(seq)
-        if start is None or seq * self.period_ns < start:
-            # Before scene time 0, or not known yet: forwarded at once, outside the link.
-            self._rebuild.publish_raw(msg)
-            self.passed += 1
-            if start is None:
-                self._early.append((seq, now))
+        if start is None or seq * self.period_ns < start:  # before scene time 0, or not known yet
+            self.settling.send(Packet(seq, now, payload, self._size))
+            out = self.settling.deliver(now)
+            if out:
+                self._publish(out, scene=False)
             return
-        self._msgs[seq] = msg
-        self._newest = max(self._newest, seq)
         t = now - start
         self.link.send(Packet(seq, t, payload, self._size))
         out = self.link.deliver(t)
@@ -172,20 +199,33 @@ class NetworkRelay(LiveNode):
         else:
             return None
         self.scene_start_ns = start
-        # Samples of scene time >= 0 that came before the start message: forwarded unshaped.
-        for s, arrived in self._early:
-            if s * self.period_ns >= start:
-                t = arrived - start
-                self._unshaped.append(Packet(s, t, (), self._size, t, DELIVERED))
-        self.unshaped += len(self._unshaped)
-        self._early.clear()
+        self._take_settled()
         note = ""
-        if self.unshaped:
-            note = f"; samples of scene time >= 0 that came before it, forwarded unshaped: {self.unshaped}"
-        self.get_logger().info(f"scene time 0 at stamp {start} ns: the link runs from there{note}")
+        if self.settled:
+            note = f"; samples of scene time >= 0 that came before it, through the settling link: {self.settled}"
+        self.get_logger().info(f"scene time 0 at stamp {start} ns: the scene's link runs from there{note}")
         return start
 
-    def _publish(self, packets: list[Any]) -> None:
+    def _take_settled(self) -> None:
+        """Move the settling link's records of scene time >= 0 (in scene time) to `_settled`; drop
+        the others (before scene time 0: not recorded)."""
+        log = self.settling.log
+        start = self.scene_start_ns
+        if start is None:  # not known yet: keep the newest, the only ones that can be >= 0
+            del log[:-_EARLY_KEPT]
+            return
+        period = self.period_ns
+        for p in log:
+            if p.seq * period >= start:
+                self._settled.append(
+                    dataclasses.replace(
+                        p, send_time_ns=p.send_time_ns - start, arrival_time_ns=p.arrival_time_ns - start
+                    )
+                )
+                self.settled += not p.duplicate
+        log.clear()
+
+    def _publish(self, packets: list[Any], scene: bool = True) -> None:
         msgs = self._msgs
         for p in packets:
             m = msgs.get(p.seq)
@@ -194,13 +234,18 @@ class NetworkRelay(LiveNode):
             else:
                 values = dict(zip(self._fields, p.payload, strict=True))
                 self._rebuild.publish(p.seq * self.period_ns, [values[f] for f in self._rebuild.fields])
-        self.delivered += len(packets)
+        if scene:
+            self.delivered += len(packets)
 
     def tick(self, index: int, stamp_ns: int) -> None:
         start = self.scene_start_ns
         if start is None:
-            self._learn_start()
-        elif self.link.in_flight:
+            start = self._learn_start()
+        if self.settling.in_flight:  # before scene time 0, and still in flight after it
+            out = self.settling.deliver(self.now_ns())
+            if out:
+                self._publish(out, scene=False)
+        if start is not None and self.link.in_flight:
             out = self.link.deliver(self.now_ns() - start)
             if out:
                 self._publish(out)
@@ -213,8 +258,9 @@ class NetworkRelay(LiveNode):
 
         from haptic_teleop.record.layouts import PACKET_BATCH, PACKET_FIELDS, packet_rows
 
-        log = self._unshaped + self.link.log
-        self._unshaped = []
+        self._take_settled()
+        log = self._settled + self.link.log
+        self._settled = []
         self.link.log.clear()
         horizon = self._newest - _KEEP_TICKS
         if len(self._msgs) > _KEEP_TICKS:
@@ -240,8 +286,8 @@ class NetworkRelay(LiveNode):
             "delivered": self.delivered,
             "in_flight": self.link.in_flight,
             "scene_started": int(self.scene_start_ns is not None),
-            "passed_unshaped": self.passed,
-            "unshaped_in_scene": self.unshaped,
+            "settling_sent": self.settling.sent,
+            "settled_in_scene": self.settled,
         }
 
     def close(self) -> None:
