@@ -156,10 +156,12 @@ def node_plan(
         master["device"].update(command_reliability=str(command_qos[0]), command_depth=int(command_qos[1]))
     plan.append(NodeSpec("master_eba", "master_eba", master))
     plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
+    # Without an operator source nothing publishes the scene start: the relays' links start at the
+    # first sample (network_relay, `scene_start`).
+    relay_start = {} if device == "plant" else {"scene_start": "first_sample"}
     for d in ("forward", "backward"):
-        plan.append(
-            NodeSpec(f"{d}_relay", "network_relay", {"direction": d, **scene_params(scene, "network_relay", d)})
-        )
+        relay = {"direction": d, **relay_start, **scene_params(scene, "network_relay", d)}
+        plan.append(NodeSpec(f"{d}_relay", "network_relay", relay))
         plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", {"direction": d, **scene_params(scene, "sync_buffer", d)}))
     if record_dir is not None:
         plan.append(

@@ -59,6 +59,11 @@ def test_hardware_variant_has_no_simulated_operator_and_uses_the_driver_topics(t
     assert "operator_source" not in names and "master_eba" in names
     master = next(s for s, _ in pairs if s.name == "master_eba")
     assert master.params["device"] == {"source": "topic", "state_topic": "/dev/js", "command_topic": "/dev/cmd"}
+    # No operator source publishes the scene start: the relays' links start at their first sample.
+    relays = [s for s, _ in pairs if s.executable == "network_relay"]
+    assert len(relays) == 2 and all(s.params["scene_start"] == "first_sample" for s in relays)
+    plant = plan_from_arguments({"scene": "wall_contact"}, "plant", tmp_path / "plant")
+    assert not any("scene_start" in s.params for s, _ in plant if s.executable == "network_relay")
 
 
 def test_hardware_variant_takes_the_force_command_qos_from_launch_arguments(tmp_path):

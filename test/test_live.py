@@ -628,6 +628,40 @@ def test_simulated_time_follows_clock(tmp_path):
     assert 1.0 <= info["start_stamp_ns"] * 1e-9 < 120.0
 
 
+def test_blackout_window_is_in_scene_time_and_drops_exactly_the_packets_sent_inside_it(tmp_path):
+    """The relays run their links in scene time (0 at the operator's scene start), as the engine
+    does: a blackout window of scene time loses every packet sent inside it and no other. Before,
+    the links ran on the node clock (~1.8e9 s since 1970), so a window of [0.3, 0.5) s never
+    opened and every packet was delivered."""
+    from haptic_teleop.core.network import DELIVERED, LOST_LATE, LOST_NETWORK
+    from haptic_teleop.record.reader import BagReader
+
+    window = (0.3, 0.5)
+    sets = [f"network.{d}.effects.blackout.{k}=[{t}]" for d in ("forward", "backward")
+            for k, t in zip(("starts_s", "ends_s"), window, strict=True)]  # fmt: skip
+    out = tmp_path / "run"
+    launch = Launch("blackout", "--duration", "1", "--record", str(out), "--no-plots", "--single-process",
+                    *itertools.chain.from_iterable(("--set", s) for s in sets), cwd=tmp_path)  # fmt: skip
+    code = launch.finish(180)
+    assert code == 0, launch.text[-4000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["packets_lost_forward"] > 0, summary
+    with BagReader(out / "bag") as r:
+        packets = {d: r.packets(f"/{d}/packets") for d in ("forward", "backward")}
+    for d, rows in packets.items():
+        send = rows[:, 1]
+        fate = rows[:, 3]
+        inside = (send >= window[0]) & (send < window[1])
+        assert np.any(inside), (d, send.min() if send.size else None, send.max() if send.size else None)
+        assert np.all(fate[inside] == LOST_NETWORK), (d, np.unique(fate[inside], return_counts=True))
+        # Outside the window nothing else drops (a 20 ms delay, no loss): delivered, or played too late.
+        assert np.all(np.isin(fate[~inside], (DELIVERED, LOST_LATE))), (d, np.unique(fate[~inside]))
+        assert summary[f"packets_lost_{d}"] == int(np.count_nonzero(inside))
+        # Scene time (the relay's clock - the scene start): from 0, not ~1.8e9 s of the epoch; the
+        # upper bound is loose (a sample of the last tick may reach a busy relay late).
+        assert send.min() >= 0.0 and send.max() < 5.0, (d, send.min(), send.max())
+
+
 # ---------------------------------------------------------------------------------------------
 # The loop's timing logic: real LoopThread and SharedLoop objects on a made-up clock, so what they
 # do is fixed by their code, not by this machine's load (no timing is asserted).

@@ -37,6 +37,10 @@ LOOP_FIGURES_MARK = "loop figures: "
 WATCHDOG_TIMEOUT_S = 0.1
 WATCHDOG_FADE_S = 0.05
 
+# network_relay `scene_start`: where its link's scene time 0 comes from (the operator source's
+# /haptic_teleop/scene_start, or the first sample's stamp when there is no operator source).
+RELAY_SCENE_STARTS = ("topic", "first_sample")
+
 # QoS of the hardware variant's force command (master_eba `device.command_reliability`, `device.command_depth`).
 RELIABILITIES = ("reliable", "best_effort")
 DEFAULT_COMMAND_DEPTH = 10

@@ -87,6 +87,14 @@ SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAM
 SCENE_START_TOPIC = "/haptic_teleop/scene_start"
 
 
+def scene_start_ns(header: Any, period_ns: int) -> int:
+    """Scene time 0 on the node clock, from a SCENE_START_TOPIC message: its stamp, on the tick
+    grid (a whole number of periods). The one definition the relays (their links run in scene
+    time, node clock - this) and the recorder (its grid starts here) share."""
+    st = header.stamp
+    return (int(st.sec) * 1_000_000_000 + int(st.nanosec)) // period_ns * period_ns
+
+
 def latched_qos() -> Any:
     """Reliable, keep last 1, transient local: a subscriber that joins later gets the last message."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

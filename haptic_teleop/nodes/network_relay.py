@@ -1,53 +1,111 @@
-"""network_relay: one direction of the network, the core `Link` driven by the node clock.
+"""network_relay: one direction of the network, the core `Link` run in scene time.
 
-Each sample arriving on /<direction>/sent goes through `Link.send` at once (time: the node clock
-in integer ns, seq: its stamp / period), and everything the link says has arrived is published on
-/<direction>/delivered: right away from the callback (so a link with no delay adds only the
-relay's own cost), and otherwise from a 1 kHz loop on the absolute tick grid. Both run in the
-loop thread, which waits for input and for its next deadline at once (no executor in the path). The delivered
-message is the very message that was sent (stamp and values unchanged). The fate of every packet
-goes out in batches on /<direction>/packets (reliable), in the bag's row layout.
+The link runs in scene time, as the engine's does: the time given to it is the node clock minus
+scene time 0, the stamp the operator source publishes (latched) on /haptic_teleop/scene_start
+(`scene_start_ns`, the definition the recorder uses too). So every time-dependent effect
+(blackout windows, a delay schedule or sinusoid, a delay trace) is defined in scene time, from 0
+at the scene start, exactly as in `haptic-teleop run`. Parameter `scene_start`: `topic` (the
+default) waits for that message; `first_sample` takes the first sample's stamp instead, for a
+node set without an operator source (the hardware variant).
+
+Each sample arriving on /<direction>/sent goes through `Link.send` at once (time: its arrival
+here in scene time, integer ns; seq: its stamp / period), and everything the link says has
+arrived is published on /<direction>/delivered: right away from the callback (so a link with no
+delay adds only the relay's own cost), and otherwise from a 1 kHz loop on the absolute tick grid.
+Both run in the loop thread, which waits for input and for its next deadline at once (no executor
+in the path). The delivered message is the very message that was sent (stamp and values unchanged).
+
+Before scene time 0 (the graph settling for the operator's `start.delay_s`; the engine has no
+such phase) samples go through a second link, the settling link: the scene's effects without
+their time-dependent parts (no blackout; a time-varying delay held at its value at scene time 0;
+`settling_effects`), on the node clock, with random streams of its own. So the sync buffers and
+the watchdogs settle on the delay, jitter, loss and rate the scene starts with, and the scene's
+link starts fresh at scene time 0 (its effects and random draws from the packet of scene time 0
+on, as the engine's). Its packets are not recorded, and those in flight at scene time 0 are still
+delivered. A sample of scene time >= 0 that reaches the relay before the scene start message does
+(they travel on different topics) goes through the settling link too; once the start is known it
+gets a packet record with the settling link's decision, in scene time, and is counted
+(`settled_in_scene`).
+
+The fate of every packet of scene time >= 0 goes out in batches on /<direction>/packets
+(reliable), in the bag's row layout (`record.layouts.packet_rows`): seq = the sample's stamp /
+period (the node clock's tick, which the sync buffers' decisions name too; the recorder
+subtracts the scene start's), send and arrival times in scene seconds (the link's own).
 """
 
 from __future__ import annotations
 
 import array
+import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
-from haptic_teleop.core.network import Packet
-from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.core.network import NetworkEffectsConfig, Packet
+from haptic_teleop.nodes import RELAY_SCENE_STARTS, SCENE_SECTIONS
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     DIRECTION_JOINT,
     DIRECTIONS,
     PAYLOAD_FIELDS,
     READER_DEPTH,
+    SCENE_START_TOPIC,
     WIRE_FIELDS,
     JointStateOut,
     LiveNode,
     declare_scene,
     declare_value,
     delivered_topic,
+    latched_qos,
     node_main,
     packets_topic,
     reliable_qos,
+    scene_start_ns,
     sent_topic,
     stream_qos,
+    take_all,
 )
 
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
 # beyond it) is rebuilt from the packet's payload instead.
 _KEEP_TICKS = 30_000
+# Records of the settling link kept while the scene start is not known, to find those of scene time
+# >= 0 among them once it is: the newest ones, so a second's worth is plenty.
+_EARLY_KEPT = 1000
 
 
-def declare_direction_scene(node: LiveNode, executable: str) -> tuple[str, Any]:
-    """The node's `direction` parameter and the scene sections `executable` reads for it."""
+def settling_effects(cfg: NetworkEffectsConfig) -> NetworkEffectsConfig:
+    """The effects of the settling link (before scene time 0): `cfg` without its time-dependent
+    parts. No blackout; a delay schedule, sinusoid or trace is replaced by its value at scene time
+    0, added to the constant delay. What is left depends on no absolute time (the token bucket and
+    the jitter use differences and counts only)."""
+    from haptic_teleop.core.network import PiecewiseDelay, SinusoidDelay, load_delay_trace
+
+    delay = cfg.delay
+    if delay is not None:
+        extra_s = 0.0
+        if delay.schedule is not None:
+            sc = delay.schedule
+            extra_s = PiecewiseDelay(sc.times_s, sc.delays_s, sc.interpolation)(0) * 1e-9
+        elif delay.sinusoid is not None:
+            w = delay.sinusoid
+            extra_s = SinusoidDelay(w.min_delay_s, w.max_delay_s, w.period_s, w.phase_s)(0) * 1e-9
+        elif delay.trace is not None:
+            ts, ds = load_delay_trace(delay.trace.file)
+            extra_s = PiecewiseDelay(ts.tolist(), ds.tolist(), delay.trace.interpolation)(0) * 1e-9
+        delay = dataclasses.replace(delay, delay_s=delay.delay_s + extra_s, schedule=None, sinusoid=None, trace=None)
+    return dataclasses.replace(cfg, blackout=None, delay=delay)
+
+
+def declare_direction_scene(node: LiveNode, executable: str, extra_names: Sequence[str] = ()) -> tuple[str, Any]:
+    """The node's `direction` parameter and the scene sections `executable` reads for it
+    (`extra_names`: the node's other own parameters)."""
     d = str(
         declare_value(
             node, "direction", "forward", "forward: master to slave; backward: slave to master", choices=DIRECTIONS
         )
     )
-    return d, declare_scene(node, [s.format(direction=d) for s in SCENE_SECTIONS[executable]], ("direction",))
+    sections = [s.format(direction=d) for s in SCENE_SECTIONS[executable]]
+    return d, declare_scene(node, sections, ("direction", *extra_names))
 
 
 class NetworkRelay(LiveNode):
@@ -57,15 +115,33 @@ class NetworkRelay(LiveNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Float64MultiArray
+        from std_msgs.msg import Float64MultiArray, Header
 
         from haptic_teleop.core.network import build_link
         from haptic_teleop.record.layouts import joint_state_size
 
-        d, cfg = declare_direction_scene(self, "network_relay")
+        d, cfg = declare_direction_scene(self, "network_relay", ("scene_start",))
         self.direction = d
+        self.start_mode = str(
+            declare_value(
+                self, "scene_start", "topic",
+                f"scene time 0 of the link: topic (the stamp on {SCENE_START_TOPIC}) or first_sample "
+                "(the first sample's stamp; for a node set without an operator source)",
+                choices=RELAY_SCENE_STARTS,
+            )
+        )  # fmt: skip
+        self.scene_start_ns: int | None = None  # node clock of scene time 0, once known
+        self._start_sub = (
+            self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
+            if self.start_mode == "topic"
+            else None
+        )
+        self._settled: list[Packet] = []  # settling link records of scene time >= 0, not published yet
+        self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.link = build_link(getattr(cfg.network, d).effects, cfg.scene.seed, d)
+        effects = getattr(cfg.network, d).effects
+        self.link = build_link(effects, cfg.scene.seed, d)  # scene time, from 0
+        self.settling = build_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
         self._fields = PAYLOAD_FIELDS[d]
         self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], WIRE_FIELDS[d])])
         self._size = joint_state_size(3 if d == "backward" else 2)
@@ -96,12 +172,60 @@ class NetworkRelay(LiveNode):
         seq = stamp // self.period_ns
         self._msgs[seq] = msg
         self._newest = max(self._newest, seq)
-        self.link.send(Packet(seq, now, payload, self._size))
-        out = self.link.deliver(now)
+        start = self.scene_start_ns
+        if start is None:
+            start = self._learn_start(seq)
+        if start is None or seq * self.period_ns < start:  # before scene time 0, or not known yet
+            self.settling.send(Packet(seq, now, payload, self._size))
+            out = self.settling.deliver(now)
+            if out:
+                self._publish(out, scene=False)
+            return
+        t = now - start
+        self.link.send(Packet(seq, t, payload, self._size))
+        out = self.link.deliver(t)
         if out:
             self._publish(out)
 
-    def _publish(self, packets: list[Any]) -> None:
+    def _learn_start(self, seq: int | None = None) -> int | None:
+        """Scene time 0 on the node clock, if it can be known now (`seq`: the sample in hand)."""
+        if self._start_sub is not None:
+            told = take_all(self._start_sub)
+            if not told:
+                return None
+            start = scene_start_ns(told[-1], self.period_ns)
+        elif seq is not None:  # first_sample
+            start = seq * self.period_ns
+        else:
+            return None
+        self.scene_start_ns = start
+        self._take_settled()
+        note = ""
+        if self.settled:
+            note = f"; samples of scene time >= 0 that came before it, through the settling link: {self.settled}"
+        self.get_logger().info(f"scene time 0 at stamp {start} ns: the scene's link runs from there{note}")
+        return start
+
+    def _take_settled(self) -> None:
+        """Move the settling link's records of scene time >= 0 (in scene time) to `_settled`; drop
+        the others (before scene time 0: not recorded)."""
+        log = self.settling.log
+        start = self.scene_start_ns
+        if start is None:  # not known yet: keep the newest, the only ones that can be >= 0
+            del log[:-_EARLY_KEPT]
+            return
+        period = self.period_ns
+        for p in log:
+            if p.seq * period >= start:
+                self._settled.append(
+                    dataclasses.replace(
+                        p, send_time_ns=p.send_time_ns - start, arrival_time_ns=p.arrival_time_ns - start
+                    )
+                )
+                self.settled += not p.duplicate
+        log.clear()
+
+    def _publish(self, packets: list[Any], scene: bool = True) -> None:
         msgs = self._msgs
         for p in packets:
             m = msgs.get(p.seq)
@@ -110,11 +234,19 @@ class NetworkRelay(LiveNode):
             else:
                 values = dict(zip(self._fields, p.payload, strict=True))
                 self._rebuild.publish(p.seq * self.period_ns, [values[f] for f in self._rebuild.fields])
-        self.delivered += len(packets)
+        if scene:
+            self.delivered += len(packets)
 
     def tick(self, index: int, stamp_ns: int) -> None:
-        if self.link.in_flight:
-            out = self.link.deliver(self.now_ns())
+        start = self.scene_start_ns
+        if start is None:
+            start = self._learn_start()
+        if self.settling.in_flight:  # before scene time 0, and still in flight after it
+            out = self.settling.deliver(self.now_ns())
+            if out:
+                self._publish(out, scene=False)
+        if start is not None and self.link.in_flight:
+            out = self.link.deliver(self.now_ns() - start)
             if out:
                 self._publish(out)
         if index % self._batch_ticks == 0:
@@ -126,7 +258,9 @@ class NetworkRelay(LiveNode):
 
         from haptic_teleop.record.layouts import PACKET_BATCH, PACKET_FIELDS, packet_rows
 
-        log = list(self.link.log)
+        self._take_settled()
+        log = self._settled + self.link.log
+        self._settled = []
         self.link.log.clear()
         horizon = self._newest - _KEEP_TICKS
         if len(self._msgs) > _KEEP_TICKS:
@@ -151,6 +285,9 @@ class NetworkRelay(LiveNode):
             "lost": self.link.lost,
             "delivered": self.delivered,
             "in_flight": self.link.in_flight,
+            "scene_started": int(self.scene_start_ns is not None),
+            "settling_sent": self.settling.sent,
+            "settled_in_scene": self.settled,
         }
 
     def close(self) -> None:

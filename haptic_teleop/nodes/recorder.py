@@ -16,7 +16,8 @@ most the last second or so (`haptic-teleop bag recover` rebuilds the summary of 
 recorder was killed). Memory stays bounded: only ticks not yet written are kept, and a stream
 that stops (its node died) is held at its last value once the others are STALL_S = 2 s ahead.
 
-Packet records come from the relays (/<dir>/packets) and the sync buffers' decisions
+Packet records come from the relays (/<dir>/packets: times in scene time already, seq the node
+clock's tick, less the scene start's here) and the sync buffers' decisions
 (/<dir>/playout: played or late); a record is written once the buffer has decided it (or its
 tick is HOLD_S = 10 s old), with a late decision applied to its first delivered copy: fate 4,
 LOST_LATE, as the engine's buffer marks it. On close (SIGINT/SIGTERM/end of the scene) the rest is
@@ -58,6 +59,7 @@ from haptic_teleop.nodes.common import (
     playout_topic,
     received_topic,
     reliable_qos,
+    scene_start_ns,
     stream_qos,
     take_all,
     take_all_published_ns,
@@ -359,8 +361,7 @@ class Recorder(LiveNode):
             first = self._pending[OPERATOR_STATE].first()
             told = take_all(self._start_sub)
             if told:  # the operator's scene time 0, even if its first samples did not get here
-                st = told[-1].stamp
-                first = (int(st.sec) * 1_000_000_000 + int(st.nanosec)) // self.grid_ns
+                first = scene_start_ns(told[-1], self.grid_ns) // self.grid_ns
             elif first is None or (not closing and self._pending[OPERATOR_STATE].newest - first < self.stall_ticks):
                 return  # wait for it a little (an operator of another version may not send it)
             self.start_tick = self.written = first
@@ -416,7 +417,6 @@ class Recorder(LiveNode):
             return
         f = {name: i for i, name in enumerate(PACKET_FIELDS)}
         start, written = self.start_tick, self.written
-        start_ns = start * self.grid_ns
         for d in DIRECTIONS:
             if not self._packets[d]:
                 continue
@@ -434,10 +434,7 @@ class Recorder(LiveNode):
                 late = {s for s, fate in decided.items() if fate == LOST_LATE}
                 self.late_marked[d] += mark_late(out, late, f)
                 out = out.copy()
-                out[:, f["seq"]] -= start
-                out[:, f["send_time_s"]] = (np.round(out[:, f["send_time_s"]] * 1e9) - start_ns) * 1e-9
-                arr = out[:, f["arrival_time_s"]]
-                out[:, f["arrival_time_s"]] = np.where(np.isfinite(arr), (np.round(arr * 1e9) - start_ns) * 1e-9, arr)
+                out[:, f["seq"]] -= start  # the relays' times are in scene time already (network_relay)
                 order = np.argsort(out[:, f["seq"]], kind="stable")
                 self.rec.append_packets(d, np.ascontiguousarray(out[order]))
                 self.packets_written[d] += out.shape[0]
