@@ -500,39 +500,13 @@ def test_killing_the_slave_fades_the_master_force_and_fails_the_launch(tmp_path,
 
 def _read_killed_bag(bag: Path) -> np.ndarray:
     """The tick stamps (ns from scene time 0) of /operator/joint_states in a bag whose recorder was
-    killed: rebuilt with `haptic-teleop bag recover` where that command exists, else read with the
-    mcap stream reader up to where the file ends."""
-    from haptic_teleop.cli import build_parser
+    killed, rebuilt with `haptic-teleop bag recover`."""
+    r = subprocess.run([*CLI, "bag", "recover", str(bag)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    from haptic_teleop.record.reader import BagReader
 
-    parser = build_parser()
-    commands = next(a for a in parser._actions if a.dest == "command").choices
-    if "bag" in commands:
-        r = subprocess.run([*CLI, "bag", "recover", str(bag)], capture_output=True, text=True, timeout=120)
-        assert r.returncode == 0, r.stdout + r.stderr
-        from haptic_teleop.record.reader import BagReader
-
-        with BagReader(bag) as reader:
-            return np.asarray(reader.read("/operator/joint_states").stamp_ns, dtype=np.int64)
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
-
-    from haptic_teleop.record.layouts import topic_specs
-
-    layout = topic_specs()["/operator/joint_states"].layout
-    channels: dict[int, str] = {}
-    stamps: list[int] = []
-    with open(next(bag.glob("*.mcap")), "rb") as f:
-        try:
-            for rec in StreamReader(f).records:
-                if isinstance(rec, Channel):
-                    channels[rec.id] = rec.topic
-                elif isinstance(rec, Message) and channels.get(rec.channel_id) == "/operator/joint_states":
-                    raw = np.frombuffer(rec.data, dtype=np.uint8).reshape(1, -1)
-                    stamps.append(int(layout.decode(raw)[1][0]))
-        except (McapError, EOFError, ValueError):
-            pass  # the file ends where the kill cut it
-    return np.asarray(stamps, dtype=np.int64)
+    with BagReader(bag) as reader:
+        return np.asarray(reader.read("/operator/joint_states").stamp_ns, dtype=np.int64)
 
 
 @pytest.mark.parametrize(
