@@ -30,13 +30,14 @@ from typing import Protocol
 import numpy as np
 
 from haptic_teleop import fastloop
-from haptic_teleop.bag import BLOCK_TICKS, PACKET_FIELDS
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
 from haptic_teleop.core.network import Link, Packet, build_link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
+from haptic_teleop.record.layouts import PACKET_FIELDS
+from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, Scene
 
 # Per-tick columns, in record order.
@@ -58,7 +59,7 @@ class RunResult:
     ticks: int
     period_ns: int
     data: np.ndarray  # (ticks, len(COLUMNS)), or (0, len(COLUMNS))
-    forward_log: np.ndarray  # packet records (bag.PACKET_FIELDS rows) in hand-over order
+    forward_log: np.ndarray  # packet records (record.layouts.PACKET_FIELDS rows) in hand-over order
     backward_log: np.ndarray
     loop_wall_s: float
     interrupted: bool
@@ -469,7 +470,7 @@ class RunSink(Protocol):
         """The next ticks' columns, (k, len(COLUMNS)) float64, in order; the array is reused after."""
 
     def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        """Packet records (bag.PACKET_FIELDS) whose fates are final; "forward" or "backward"."""
+        """Packet records (record.layouts.PACKET_FIELDS) whose fates are final; "forward" or "backward"."""
 
 
 class Collector:
@@ -629,7 +630,7 @@ def record_run(
     that finished, and is readable. `on_engine(engine)` is called once the engine is built, before
     the bag is opened (the command line registers its stop request there).
     """
-    from haptic_teleop.bag import RunRecorder
+    from haptic_teleop.record.recorder import RunRecorder
 
     engine = Engine(scene, loop=loop)
     if on_engine is not None:
@@ -670,6 +671,6 @@ def record_run(
 
 def _wire_payload_bytes(floats: int) -> int:
     """Serialized size (CDR) of the sensor_msgs/JointState that carries `floats` values of one axis."""
-    from haptic_teleop.bag import joint_state_size
+    from haptic_teleop.record.layouts import joint_state_size
 
     return joint_state_size(floats)

@@ -155,7 +155,7 @@ def settled_records(link: Link, buf: PlayoutBuffer, sent: int, final: bool) -> n
     k = bisect.bisect_left(log, mark, key=_seq)
     if k == 0:
         return None
-    from haptic_teleop.bag import _packet_rows
+    from haptic_teleop.record.layouts import packet_rows as _packet_rows
 
     rows = _packet_rows(log[:k])
     del log[:k]
@@ -263,7 +263,7 @@ def schedule(link: Link, buf: PlayoutBuffer, period_ns: int, size_bytes: int) ->
 def packet_rows(
     send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, size_bytes: int, first_seq: int = 0
 ) -> np.ndarray:
-    """Bag records (bag.PACKET_FIELDS) of original packets: the values `bag._packet_rows` gives
+    """Bag records (record.layouts.PACKET_FIELDS) of original packets: the values `record.layouts.packet_rows` gives
     for the same `Packet` objects (times in s; arrival NaN unless delivered or late)."""
     rows = np.zeros((len(send_ns), 6))
     rows[:, 0] = np.arange(first_seq, first_seq + len(send_ns))

@@ -8,19 +8,12 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from haptic_teleop.bag import (
-    BLOCK_TICKS,
-    PACKET_FIELDS,
-    BagReader,
-    FixedLayout,
-    RunRecorder,
-    make_joint_state,
-    topic_specs,
-    typestore,
-    write_run,
-)
 from haptic_teleop.engine import Engine
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.layouts import PACKET_FIELDS, FixedLayout, make_joint_state, topic_specs, typestore
+from haptic_teleop.record.reader import BagReader
+from haptic_teleop.record.recorder import RunRecorder, write_run
+from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene import find_scene, load_scene
 
 
@@ -213,8 +206,9 @@ def test_bag_errors(tmp_path, short_run):
 def test_packet_rows_equal_packet_by_packet_conversion():
     """The vectorised packet records equal converting each packet on its own (the previous code),
     for every fate: arrival NaN unless delivered or late, duplicates flagged, times in seconds."""
-    from haptic_teleop.bag import PACKET_FIELDS, _packet_rows
     from haptic_teleop.core.network import Packet
+    from haptic_teleop.record.layouts import PACKET_FIELDS
+    from haptic_teleop.record.layouts import packet_rows as _packet_rows
 
     rng = np.random.default_rng(5)
     log = []
@@ -291,8 +285,8 @@ def test_every_topic_set_and_block_shape_reads_back(tmp_path, clean_run, short_r
 def test_finish_takes_packet_records_as_arrays(tmp_path, short_run):
     """finish() takes each packet log as a link's Packet list or as ready records (a float64
     array in _packet_rows' format, used as is): the same bag either way; a wrong array is refused."""
-    from haptic_teleop.bag import _packet_rows
     from haptic_teleop.core.network import Packet
+    from haptic_teleop.record.layouts import packet_rows as _packet_rows
 
     rng = np.random.default_rng(11)
     logs = []
@@ -335,7 +329,8 @@ def test_finish_takes_packet_records_as_arrays(tmp_path, short_run):
 
 
 def test_packet_batches_equal_rosbags_serialization():
-    from haptic_teleop.bag import _multiarray_bytes, _packet_batch_bytes
+    from haptic_teleop.record.layouts import multiarray_bytes as _multiarray_bytes
+    from haptic_teleop.record.layouts import packet_batch_bytes as _packet_batch_bytes
 
     rng = np.random.default_rng(2)
     for n in (1, 2, 7, 999, 1000):
@@ -362,7 +357,7 @@ def test_metadata_text_equals_ruamel_on_a_real_bag(tmp_path, short_run):
     writes what ruamel would), and _yaml_block writes it itself (no fallback)."""
     from ruamel.yaml import YAML
 
-    from haptic_teleop.bag import _yaml_block
+    from haptic_teleop.record.metadata import yaml_block as _yaml_block
 
     bag = write_run(short_run, tmp_path / "bag", {})
     text = (bag / "metadata.yaml").read_text()
@@ -411,7 +406,7 @@ def test_yaml_block_equals_ruamel_on_generated_data():
     """Whenever _yaml_block writes a document it is ruamel's text, byte for byte (keys sorted,
     indentation, long values moved to their own line, quoting of empty strings); where it declines
     (None) the writer uses ruamel. Most generated documents are written by _yaml_block itself."""
-    from haptic_teleop.bag import _yaml_block
+    from haptic_teleop.record.metadata import yaml_block as _yaml_block
 
     rng = np.random.default_rng(7)
     written = wrapped = 0
@@ -467,7 +462,10 @@ def test_chunk_closes_only_past_one_mebibyte(tmp_path):
     1 MiB stays open. Whether messages come in one call or several, the file is the same."""
     from mcap.reader import make_reader
 
-    from haptic_teleop.bag import STRING, _BagSink, _Stream, _string_bytes
+    from haptic_teleop.record.layouts import STRING
+    from haptic_teleop.record.layouts import string_bytes as _string_bytes
+    from haptic_teleop.record.mcap import BagSink as _BagSink
+    from haptic_teleop.record.streams import Stream as _Stream
 
     def stream(lengths, t0):
         blobs = [_string_bytes("x" * n) for n in lengths]

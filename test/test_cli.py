@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from haptic_teleop.bag import BagReader
 from haptic_teleop.cli import main
+from haptic_teleop.record.reader import BagReader
 from haptic_teleop.scene import bundled_scenes, find_scene, load_scene
 
 CLI = [sys.executable, "-m", "haptic_teleop.cli"]

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from haptic_teleop import fastloop
-from haptic_teleop.bag import BLOCK_TICKS
 from haptic_teleop.engine import Engine
 from haptic_teleop.errors import HapticTeleopError
+from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene import find_scene, load_scene
 
 SHORT = "scene.duration_s=2.0"

@@ -10,8 +10,8 @@ import tracemalloc
 
 import pytest
 
-from haptic_teleop.bag import BLOCK_TICKS
 from haptic_teleop.engine import Engine
+from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene import find_scene, load_scene
 
 JITTER = ["network.forward.effects.delay.jitter_s=0.005", "network.backward.buffer.policy=fixed"]
