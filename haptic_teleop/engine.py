@@ -1,6 +1,6 @@
 """Deterministic lockstep runner in simulated time: the default main job.
 
-One tick (period T, see DESIGN.md section 2), in this order:
+One tick (period T; docs/architecture.md, "One tick"), in this order:
   1. read both plants (state at t_n); the slave's wall force is MuJoCo's over the last period;
   2. master controller: control law on the latest backward sample, saturation, energy bound;
   3. master packet (x_m, v_m) into the forward link; arrivals by t_n go to the slave's buffer;

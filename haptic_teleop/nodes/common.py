@@ -121,7 +121,7 @@ WIRE_FIELDS = {"forward": ("position", "velocity"), "backward": ("position", "ve
 
 
 def stream_qos(depth: int = 1) -> Any:
-    """1 kHz streams: best effort, keep last, depth 1, volatile (DESIGN.md section 4).
+    """1 kHz streams: best effort, keep last, depth 1, volatile (docs/architecture.md, "Live mode").
 
     A reader that must see every sample rather than the newest (relay, sync buffer, recorder)
     keeps a deeper local history: still compatible with depth-1 writers.

@@ -1,6 +1,6 @@
 """master_eba: the operator's haptic device and its EBA controller, one 1 kHz loop in-process.
 
-Per tick (the engine's master half of DESIGN.md section 2): read the device, take the newest
+Per tick (the engine's master half of a tick: docs/architecture.md, "One tick"): read the device, take the newest
 backward sample the sync buffer released, watchdog gain, control law + energy bound
 (TeleopController), send the master sample forward, then hold the force on the device for one
 period with the operator's newest hand force.

@@ -1,7 +1,7 @@
 """slave_eba: the robot's EBA controller with its plant hosted in-process (as a ros2_control
 hardware interface would be), so the 1 kHz robot loop never crosses DDS.
 
-Per tick (the engine's slave half of DESIGN.md section 2): read the robot and the wall force,
+Per tick (the engine's slave half of a tick: docs/architecture.md, "One tick"): read the robot and the wall force,
 take the newest forward sample the sync buffer released, watchdog gain, control law + energy
 bound (TeleopController), send the slave sample (wall force, position, velocity) backward, step
 the plant one period with the force held.
