@@ -146,6 +146,6 @@ def test_cli_quick_writes_csv_table_and_plot(tmp_path, capsys):
     assert any(r["pareto_force"] == "True" for r in rows)
     assert (out / "pareto.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| reference |" in (out / "accuracy.md").read_text()
-    # A second run into the same, now non-empty, directory is refused with a clear message.
-    assert cli_main(argv) == 1
+    # A second run into the same, now non-empty, directory is refused with a clear message (input: 2).
+    assert cli_main(argv) == 2
     assert "exists and is not empty" in capsys.readouterr().err

@@ -442,3 +442,21 @@ def test_compression_flag_writes_a_compressed_bag_that_analyses_the_same(tmp_pat
     a.pop("realtime_factor"), b.pop("realtime_factor")
     assert a == b
     assert yaml.safe_load((tmp_path / "zstd" / "scene.yaml").read_text())["recording"]["compression"] == "zstd"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["bench", "speed", "--repeat", "0"],
+        ["bench", "effects", "--duration-s", "-1"],
+        ["bench", "recording", "--rounds", "x"],
+        ["bench", "network", "--packets", "0"],
+        ["bench", "live", "--duration", "nan"],
+    ],
+)
+def test_bench_arguments_are_checked_before_anything_runs(capsys, argv):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "allowed:" in err and "> 0" in err and "Traceback" not in err

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.errors import HapticTeleopError
+from haptic_teleop.benchmarks import add_scene_argument, positive
+from haptic_teleop.errors import HapticTeleopError, InputError
 
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 REFERENCE_INTEGRATOR = "RK4"
@@ -647,7 +648,9 @@ def sweep(
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out()
     if out.exists() and any(out.iterdir()):
-        raise HapticTeleopError(f"output directory {out} exists and is not empty; choose another --out")
+        raise InputError(
+            f"--out {out}: exists and is not empty; allowed: a directory that does not exist yet or is empty"
+        )
     from haptic_teleop.scene import find_scene, load_scene
 
     repeat = args.repeat if args.repeat is not None else (1 if args.quick else 5)
@@ -698,14 +701,16 @@ HELP = "sweep MuJoCo timestep, integrator, solver, contact softness, control rat
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
+    add_scene_argument(p)
     p.add_argument(
         "--duration-s",
         type=float,
         default=DEFAULT_DURATION_S,
         help=f"simulated window from t=0 (default {DEFAULT_DURATION_S:g} s: free motion, then contact)",
     )
-    p.add_argument("--repeat", type=int, help="timed runs per setting; the median is used (default 5, --quick 1)")
+    p.add_argument(
+        "--repeat", type=positive(int), help="timed runs per setting; the median is used (default 5, --quick 1)"
+    )
     p.add_argument("--quick", action="store_true", help="a tiny sweep (7 settings) to check the pipeline")
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="scene override (repeatable)")
     p.add_argument("--out", help="output directory (default runs/accuracy-NNN)")

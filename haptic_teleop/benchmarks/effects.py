@@ -21,6 +21,8 @@ import sys
 import time
 from typing import Any
 
+from haptic_teleop.benchmarks import add_scene_argument, positive
+
 HELP = "per-tick cost of the bare engine loop and of each effect alone (physical, sensing, network)"
 
 NO_NETWORK = ("network.forward.effects=", "network.backward.effects=")
@@ -147,12 +149,10 @@ def bench(scene_name: str, duration_s: float, repeat: int) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
-    p.add_argument("--duration-s", type=float, default=1.0, help="simulated seconds per run")
-    p.add_argument("--repeat", type=int, default=15, help="paired runs per row")
+    add_scene_argument(p)
+    p.add_argument("--duration-s", type=positive(float), default=1.0, help="simulated seconds per run")
+    p.add_argument("--repeat", type=positive(int), default=15, help="paired runs per row")
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.repeat < 1 or args.duration_s <= 0:
-        raise SystemExit("bench effects: --repeat must be >= 1 and --duration-s > 0")
     return bench(args.scene, args.duration_s, args.repeat)

@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from haptic_teleop.benchmarks import add_scene_argument, positive
+
 BARE_TOPIC = "/bench/bare"
 RELAY_IN = "/bench/relay_in"
 RELAY_OUT = "/bench/relay_out"
@@ -366,8 +368,8 @@ HELP = "live node set: loop rate, lateness, relay hop vs bare DDS hop, CPU per n
 
 
 def add_arguments(p: Any) -> None:
-    p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
-    p.add_argument("--duration", type=float, default=10.0, help="seconds of measurement per configuration")
+    add_scene_argument(p)
+    p.add_argument("--duration", type=positive(float), default=10.0, help="seconds of measurement per configuration")
     p.add_argument(
         "--mode",
         choices=(*MODES, "both"),

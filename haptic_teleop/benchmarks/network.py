@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from haptic_teleop.benchmarks import add_scene_argument, positive
+
 PERIOD_NS = 1_000_000
 DELAY = {"delay_s": 0.05}
 JITTER = {"delay_s": 0.05, "jitter_s": 0.005, "distribution": "normal"}
@@ -174,11 +176,11 @@ HELP = "network relay and playout buffer cost per packet, and a scene's real-tim
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--packets", type=int, default=100_000, help="packets per case")
-    p.add_argument("--repeat", type=int, default=3, help="runs per case; the median is printed")
-    p.add_argument("--scene", default="wall_contact", help="scene for the real-time factor")
-    p.add_argument("--scene-repeat", type=int, default=3, help="runs of the scene per case")
-    p.add_argument("--duration-s", type=float, help="override the scene's duration (default: the scene's)")
+    p.add_argument("--packets", type=positive(int), default=100_000, help="packets per case")
+    p.add_argument("--repeat", type=positive(int), default=3, help="runs per case; the median is printed")
+    add_scene_argument(p, help="scene for the real-time factor")
+    p.add_argument("--scene-repeat", type=positive(int), default=3, help="runs of the scene per case")
+    p.add_argument("--duration-s", type=positive(float), help="override the scene's duration (default: the scene's)")
     p.add_argument(
         "--only",
         metavar="TEXT",

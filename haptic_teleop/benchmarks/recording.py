@@ -20,6 +20,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from haptic_teleop.benchmarks import add_scene_argument, positive
+
 HELP = "cost of CRCs and zstd/lz4 chunk compression: write and read times of a run's bag, file size"
 
 VARIANTS = ("no CRC", "CRC", "CRC + zstd", "CRC + lz4")
@@ -98,12 +100,10 @@ def bench(scene_name: str, duration_s: float, rounds: int) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
-    p.add_argument("--duration-s", type=float, default=10.0, help="simulated seconds of the run")
-    p.add_argument("--rounds", type=int, default=5, help="rounds of all variants")
+    add_scene_argument(p)
+    p.add_argument("--duration-s", type=positive(float), default=10.0, help="simulated seconds of the run")
+    p.add_argument("--rounds", type=positive(int), default=5, help="rounds of all variants")
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.rounds < 1 or args.duration_s <= 0:
-        raise SystemExit("bench recording: --rounds must be >= 1 and --duration-s > 0")
     return bench(args.scene, args.duration_s, args.rounds)

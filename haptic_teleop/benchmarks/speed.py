@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from haptic_teleop.benchmarks import add_scene_argument, positive
+
 
 def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float, float | None]:
     """Time per bare `mujoco.mj_step` of the scene's master and slave models (us): each called
@@ -329,12 +331,10 @@ HELP = "real-time factor of a scene and the engine's cost per tick against a bar
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default="wall_contact", help="scene YAML path or bundled name")
-    p.add_argument("--repeat", type=int, default=3, help="runs; the median is printed")
+    add_scene_argument(p)
+    p.add_argument("--repeat", type=positive(int), default=3, help="runs; the median is printed")
     p.add_argument("--no-breakdown", action="store_true", help="skip the per-stage table")
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.repeat < 1:
-        raise SystemExit(f"--repeat must be >= 1, got {args.repeat}")
     return speed(args.scene, args.repeat, not args.no_breakdown)
