@@ -55,11 +55,11 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
     out_dir.mkdir(parents=True, exist_ok=True)
     write_atomic(out_dir / "summary.json", json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
     if plots:
-        from haptic_teleop.analysis.metrics import load_signals
+        from haptic_teleop.analysis.plotdata import from_bag
         from haptic_teleop.analysis.plots import write_plots
 
         interrupt.pause_for_test("plots")
-        write_plots(load_signals(bag_dir), out_dir / "plots")
+        write_plots(from_bag(bag_dir), out_dir / "plots")
     return summary
 
 

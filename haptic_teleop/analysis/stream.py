@@ -211,11 +211,12 @@ class _Lagged:
 
     def feed(self, felt: np.ndarray, source: np.ndarray) -> np.ndarray:
         if self.lag == 0:
-            return felt - source
+            same: np.ndarray = felt - source
+            return same
         ext = np.concatenate([self.tail, source])
         p = self.tail.size
         k0 = max(0, self.lag - p)
-        out = felt[k0:] - ext[k0 - self.lag + p : felt.size - self.lag + p]
+        out: np.ndarray = felt[k0:] - ext[k0 - self.lag + p : felt.size - self.lag + p]
         self.tail = ext[-self.lag :]
         return out
 
