@@ -123,3 +123,61 @@ def test_summary_memory_does_not_grow_with_the_run(tmp_path_factory):
     long = _run(tmp_path_factory, "jitter", [], 16.0)
     a, b = _peak_kb(short), _peak_kb(long)
     assert b < 1.25 * a + 512, (a, b)
+
+
+def _split(blocks, rng):
+    """The same rows in random smaller blocks (many block boundaries)."""
+    for b in blocks:
+        cuts = np.sort(rng.integers(0, len(b), max(1, len(b) // 5)))
+        yield from (p for p in np.split(b, cuts) if len(p))
+
+
+def test_streaming_summary_in_tiny_blocks(tmp_path_factory, monkeypatch):
+    """Every block boundary a chance for carried state to go wrong: blocks of a few rows."""
+    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import TopicData
+
+    rng = np.random.default_rng(3)
+    blocks, packet_blocks = BagReader.blocks, BagReader.packet_blocks
+
+    def small_blocks(self, topic):
+        for d in blocks(self, topic):
+            cuts = np.sort(rng.integers(0, d.log_ns.size, max(1, d.log_ns.size // 7)))
+            for a, b in zip([0, *cuts], [*cuts, d.log_ns.size], strict=True):
+                if b > a:
+                    st = None if d.stamp_ns is None else d.stamp_ns[a:b]
+                    yield TopicData(d.log_ns[a:b], st, d.values[a:b], d.fields)
+
+    monkeypatch.setattr(BagReader, "blocks", small_blocks)
+    monkeypatch.setattr(BagReader, "packet_blocks", lambda self, topic: _split(packet_blocks(self, topic), rng))
+    for name in ("bursty_loss", "jitter", "duplicates"):
+        bag = _run(tmp_path_factory, name, SCENES[name])
+        _same(compute_summary(load_signals(bag)), stream._summarize(bag))
+
+
+def test_packet_pass_on_synthetic_records_with_ties_and_bursts():
+    """Loss bursts, reorders (arrival ties broken by seq), counts and first arrivals of records
+    with many ties and duplicate copies, fed in random blocks, against the whole-array functions."""
+    from haptic_teleop.analysis import metrics
+
+    rng = np.random.default_rng(7)
+    n = 3000
+    seq = np.arange(n, dtype=float)
+    send = seq * 1e-3
+    arrival = np.round(send + rng.integers(0, 30, n) * 1e-3, 3)  # on a ms grid: ties
+    fate = np.where(rng.random(n) < 0.2, 1.0, 0.0)
+    fate[(fate == 0) & (rng.random(n) < 0.1)] = 4.0
+    arrival[fate == 1.0] = np.nan
+    rows = np.column_stack([seq, send, arrival, fate, np.zeros(n), np.full(n, 40.0)])
+    dup = rows[rng.random(n) < 0.1].copy()
+    dup[:, 4] = 1.0
+    dup[:, 2] = dup[:, 2] + 0.004
+    rows = np.concatenate([rows, dup])
+    rows = rows[np.argsort(rows[:, 0], kind="stable")]
+    d = stream._Direction(duration_s=2.5, overhead=0.0)
+    for b in _split([rows], rng):
+        d.rows(b)
+    assert d.reordered == metrics._reordered(rows) > 0
+    assert d.lost / d.runs == metrics._loss_bursts(rows) > 1.0
+    assert (d.sent, d.lost, d.late) == metrics._packet_counts(rows)
+    assert d.dups == dup.shape[0]

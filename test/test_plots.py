@@ -414,3 +414,32 @@ def test_plot_data_memory_does_not_grow_with_the_run(tmp_path):
         finally:
             tracemalloc.stop()
     assert peaks[1] < 1.25 * peaks[0] + 512, peaks
+
+
+def test_streamed_plot_data_in_tiny_blocks(run, monkeypatch):
+    """The bag read in blocks of a few rows: state carried across every block boundary."""
+    from haptic_teleop.analysis import plotdata
+    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import TopicData
+
+    rng = np.random.default_rng(5)
+    blocks, packet_blocks = BagReader.blocks, BagReader.packet_blocks
+
+    def cut(n):
+        c = np.sort(rng.integers(0, n, max(1, n // 7)))
+        return [(a, b) for a, b in zip([0, *c], [*c, n], strict=True) if b > a]
+
+    def small_blocks(self, topic):
+        for d in blocks(self, topic):
+            for a, b in cut(d.log_ns.size):
+                st = None if d.stamp_ns is None else d.stamp_ns[a:b]
+                yield TopicData(d.log_ns[a:b], st, d.values[a:b], d.fields)
+
+    def small_packets(self, topic):
+        for rows in packet_blocks(self, topic):
+            yield from (rows[a:b] for a, b in cut(len(rows)))
+
+    monkeypatch.setattr(BagReader, "blocks", small_blocks)
+    monkeypatch.setattr(BagReader, "packet_blocks", small_packets)
+    out, sig = run
+    _same_plot_data(plotdata.from_signals(sig), plotdata._from_bag(out / "bag"))

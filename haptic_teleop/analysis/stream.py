@@ -216,8 +216,12 @@ class _Lagged:
         ext = np.concatenate([self.tail, source])
         p = self.tail.size
         k0 = max(0, self.lag - p)
+        self_tail = ext[-self.lag :]
+        if k0 >= felt.size:  # still within the first `lag` samples
+            self.tail = self_tail
+            return np.zeros(0)
         out: np.ndarray = felt[k0:] - ext[k0 - self.lag + p : felt.size - self.lag + p]
-        self.tail = ext[-self.lag :]
+        self.tail = self_tail
         return out
 
 
