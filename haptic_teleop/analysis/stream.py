@@ -412,14 +412,14 @@ def _tick_count(r: BagReader) -> tuple[int, int]:
     counts = []
     for topic in TICK_TOPICS:
         n = 0
-        for log, _ in r._message_blocks(topic):
+        for log in r.log_blocks(topic):
             n += int(log.size)
         counts.append(n)
     n = min(counts)
     if n < 2:
         raise BagError(f"{r.path}: fewer than two ticks recorded; nothing to analyse")
     seen = 0
-    for log, _ in r._message_blocks("/master/joint_states"):
+    for log in r.log_blocks("/master/joint_states"):
         if seen + log.size >= n:
             return n, int(log[n - 1 - seen])
         seen += int(log.size)
