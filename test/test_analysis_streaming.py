@@ -87,8 +87,11 @@ def test_exact_percentile_interpolates_bit_for_bit_as_numpy():
         assert q.percentiles(_blocks(v, 7), qs) == [float(np.percentile(v, p)) for p in qs]
 
 
+@pytest.mark.parametrize("small", [0, 1 << 18])
 @pytest.mark.parametrize("seed", range(6))
-def test_exact_quantiles_match_numpy(seed):
+def test_exact_quantiles_match_numpy(seed, small, monkeypatch):
+    """Through the histogram passes (small 0) and the one pass for few values."""
+    monkeypatch.setattr(stream, "SMALL", small)
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 5000))
     kind = seed % 3
@@ -110,6 +113,7 @@ def test_exact_quantiles_match_numpy(seed):
 
 def test_exact_quantiles_merge_many_distinct_values_in_one_bin(monkeypatch):
     monkeypatch.setattr(stream, "_MERGE_AT", 50)
+    monkeypatch.setattr(stream, "SMALL", 0)
     v = np.concatenate([np.repeat(np.linspace(0.0, 1e-9, 1001), 3), [1.0]])  # each value 3 times
     q = ExactQuantiles()
     q.add(v)
@@ -162,6 +166,7 @@ def test_streaming_summary_in_tiny_blocks(tmp_path_factory, monkeypatch):
 
     monkeypatch.setattr(BagReader, "blocks", small_blocks)
     monkeypatch.setattr(BagReader, "packet_blocks", lambda self, topic: _split(packet_blocks(self, topic), rng))
+    monkeypatch.setattr(stream, "SMALL", 0)  # the histogram passes for the quantiles, not the one-pass sort
     for name in ("bursty_loss", "jitter", "duplicates"):
         bag = _run(tmp_path_factory, name, SCENES[name])
         _same(compute_summary(load_signals(bag)), stream._summarize(bag))

@@ -567,7 +567,8 @@ def _from_bag(bag: str | Path) -> PlotData:
             q = ExactQuantiles()
             for v in finite():
                 q.add(v)
-            counts[direction] = sum(int(p.size) for _, p, _ in received(direction))
+            topic = f"/{direction}/received"
+            counts[direction] = sum(int(x.size) for x in r.log_blocks(topic)) if r.has(topic) else 0
             (q999,) = q.percentiles(finite, (99.9,)) if q.n else (0.0,)
             limits[direction] = delay_ylim(q.lo, q.hi, q999, q.n == 0)
 

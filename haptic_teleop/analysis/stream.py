@@ -35,6 +35,8 @@ from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 
 BINS = 65536
+# Up to this many values, the order statistics come from one pass that keeps them all (2 MB).
+SMALL = 1 << 18
 # Values kept per quantile bin before they are merged into (value, count) pairs.
 _MERGE_AT = 1 << 16
 
@@ -59,7 +61,8 @@ def _lerp(a: float, b: float, g: float) -> float:
 
 @dataclass
 class ExactQuantiles:
-    """Count, sum, range of a stream of values; then exact order statistics by two more passes."""
+    """Count, sum, range of a stream of values; then exact order statistics by two more passes
+    (one when there are at most SMALL values)."""
 
     n: int = 0
     nan: bool = False
@@ -99,6 +102,10 @@ class ExactQuantiles:
             if self.lo == self.hi:
                 return dict.fromkeys(want, self.lo)
             raise NotStreamable("infinite values")
+        if self.n <= SMALL:
+            parts = [raw[~np.isnan(raw)] for raw in source()]
+            allv = np.sort(np.concatenate(parts)) if parts else np.zeros(0)
+            return {r: float(allv[r]) for r in want}
         counts = np.zeros(BINS, dtype=np.int64)
         for raw in source():
             v = raw[~np.isnan(raw)]
