@@ -59,7 +59,7 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
         from haptic_teleop.analysis.plots import write_plots
 
         interrupt.pause_for_test("plots")
-        write_plots(from_bag(bag_dir), out_dir / "plots")
+        write_plots(from_bag(bag_dir, summary.get("force_alignment_lag_s")), out_dir / "plots")
     return summary
 
 

@@ -21,6 +21,7 @@ from haptic_teleop.analysis.decimate import (
 )
 from haptic_teleop.analysis.metrics import load_signals
 from haptic_teleop.analysis.plots import FIGURES, energy_figure, energy_margins, network_figure
+from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.analysis.sweep_plot import key_label, metric_unit, sweep_figure, wrap_key
 from haptic_teleop.analysis.timeline import buffer_exits, buffer_occupancy, loss_causes, skip_times
 from haptic_teleop.cli import main
@@ -358,7 +359,11 @@ def test_streamed_plot_data_is_the_whole_array_reduction(run):
     from haptic_teleop.analysis import plotdata
 
     out, sig = run
-    _same_plot_data(plotdata.from_signals(sig), plotdata._from_bag(out / "bag"))
+    ref = plotdata.from_signals(sig)
+    _same_plot_data(ref, plotdata._from_bag(out / "bag"))
+    # as `run` calls it: the lag from summary.json
+    lag_s = summarize_bag(out / "bag")["force_alignment_lag_s"]
+    _same_plot_data(ref, plotdata._from_bag(out / "bag", lag_s))
 
 
 def test_streamed_plot_data_of_a_decimated_run(tmp_path):

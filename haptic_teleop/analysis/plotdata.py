@@ -415,24 +415,55 @@ def from_signals(sig: Signals) -> PlotData:
 # From a bag, streaming
 
 
-def from_bag(bag: str | Path) -> PlotData:
-    """PlotData of a bag in streaming passes (the module docstring); whole if it cannot stream."""
+def from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData:
+    """PlotData of a bag in streaming passes (the module docstring); whole if it cannot stream.
+
+    `alignment_lag_s`: summary.json's `force_alignment_lag_s` of this bag, if known (saves the
+    passes that find it)."""
     from haptic_teleop.analysis.stream import NotStreamable
 
     try:
-        return _from_bag(bag)
+        return _from_bag(bag, alignment_lag_s)
     except NotStreamable:
         from haptic_teleop.analysis.metrics import load_signals
 
         return from_signals(load_signals(bag))
 
 
+class _PlayedLine:
+    """The released samples of one direction as they stream by: their delay line (release - send),
+    the ones above the delay axis, the release lane."""
+
+    def __init__(self, n: int, t_lim: tuple[float, float], top: float, clipped: bool, over: Events) -> None:
+        self.env = Envelope(n)
+        self.releases = Events(t_lim)
+        self.top, self.clipped, self.over = top, clipped, over
+        self.last_ps = -math.inf
+        self.over_max = -math.inf
+
+    def add(self, dl: np.ndarray, rel: np.ndarray) -> None:
+        from haptic_teleop.analysis.stream import NotStreamable
+
+        ps = rel - dl
+        ms = dl * 1e3
+        if ps.size and (ps[0] < self.last_ps or np.any(np.diff(ps) < 0)):
+            raise NotStreamable("released samples' send times are not in order")
+        if ps.size:
+            self.last_ps = float(ps[-1])
+            self.over_max = max(self.over_max, float(np.max(ms)))
+        self.env.add(ps, np.minimum(ms, self.top))
+        self.releases.add(rel)
+        if self.clipped:
+            self.over.add(ps[ms > self.top])
+
+
 class _Played:
     """The released samples of one direction as a window over their stream, in seq order, for
     `timeline.buffer_exits` of packets queried in increasing seq."""
 
-    def __init__(self, blocks: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+    def __init__(self, blocks: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]], line: _PlayedLine) -> None:
         self.blocks = blocks
+        self.line = line
         self.seq = np.zeros(0, dtype=np.int64)
         self.rel = np.zeros(0)
         self.done = False
@@ -443,7 +474,8 @@ class _Played:
         if nxt is None:
             self.done = True
             return False
-        _, played, release = nxt
+        dl, played, release = nxt
+        self.line.add(dl, release)
         from haptic_teleop.analysis.stream import NotStreamable
 
         if played.size and (int(played[0]) < self.top or np.any(np.diff(played) < 0)):
@@ -465,6 +497,10 @@ class _Played:
         # no release at all: the whole-array function says inf for every packet
         out: np.ndarray = np.maximum(arrival, rel)
         return out
+
+    def drain(self) -> None:
+        while not self.done:
+            self._pull()
 
     def drop_below(self, s: float) -> None:
         cut = int(np.searchsorted(self.seq, s, side="left"))
@@ -510,7 +546,7 @@ class _Occupancy:
             self.buf = self.buf[ts.size :]
 
 
-def _from_bag(bag: str | Path) -> PlotData:
+def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData:
     import yaml
 
     from haptic_teleop.analysis.stream import (
@@ -543,10 +579,13 @@ def _from_bag(bag: str | Path) -> PlotData:
             return r.packet_blocks(topic) if r.has(topic) else iter(())
 
         # The lag of the forces figure (metrics: median playout delay of the backward samples + 1).
-        bq = ExactQuantiles()
-        for dl, _, _ in received("backward"):
-            bq.add(dl)
-        lag = (int(round(bq.median(lambda: (x for x, _, _ in received("backward"))) / T)) if bq.n else 0) + 1
+        if alignment_lag_s is not None:
+            lag = int(round(alignment_lag_s / T))
+        else:
+            bq = ExactQuantiles()
+            for dl, _, _ in received("backward"):
+                bq.add(dl)
+            lag = (int(round(bq.median(lambda: (x for x, _, _ in received("backward"))) / T)) if bq.n else 0) + 1
 
         # Delay axis limits: the arrived packets' and the released samples' delays (ms).
         limits: dict[str, tuple[float, float, bool]] = {}
@@ -674,7 +713,8 @@ def _from_bag(bag: str | Path) -> PlotData:
             causes = [Events(t_lim) for _ in labels]
             skips = Events(t_lim)
             occ = _Occupancy(n, (d.log_ns * 1e-9 for d in r.blocks("/master/joint_states")))
-            played_w = _Played(received(direction))
+            line = _PlayedLine(counts[direction], t_lim, top, clipped, over)
+            played_w = _Played(received(direction), line)
             any_rows = False
             carry: tuple[float, float] | None = None
             last_send = -math.inf
@@ -741,24 +781,8 @@ def _from_bag(bag: str | Path) -> PlotData:
                 occ.arrivals.append(np.array([carry[1]]))
                 occ.exits.append(ex[np.isfinite(ex)])
             occ.until(math.inf, True)
-
-            # the released samples: their delay line, the clipped ones and the release lane
-            played_env = Envelope(counts[direction])
-            releases = Events(t_lim)
-            last_ps = -math.inf
-            played_over_max = -math.inf
-            for dl, _, rel in received(direction):
-                ps = rel - dl
-                ms = dl * 1e3
-                if ps.size and (ps[0] < last_ps or np.any(np.diff(ps) < 0)):
-                    raise NotStreamable("released samples' send times are not in order")
-                if ps.size:
-                    last_ps = float(ps[-1])
-                    played_over_max = max(played_over_max, float(np.max(ms)))
-                played_env.add(ps, np.minimum(ms, top))
-                releases.add(rel)
-                if clipped:
-                    over.add(ps[ms > top])
+            played_w.drain()  # the released samples after the last packet's
+            played_env, releases, played_over_max = line.env, line.releases, line.over_max
             groups = [(name, th.result(), cnt) for name, th, cnt in zip(GROUPS, thins, group_n, strict=True)]
             lanes: list[tuple[str, np.ndarray, str]] = []
             for label, acc in zip(labels, causes, strict=True):

@@ -208,13 +208,13 @@ class BagReader:
                         yield t[order], [payloads[k] for k in order.tolist()]
 
     def _chunk(self, k: int, i: int) -> bytes:
-        """Chunk i of file k, from a cache of the last two: topics read side by side (in step,
+        """Chunk i of file k, from a cache of the last four: topics read side by side (in step,
         block by block) decompress each chunk once."""
         cache: dict[tuple[int, int], bytes] = self.__dict__.setdefault("_chunk_cache", {})
         raw = cache.pop((k, i), None)
         if raw is None:
             raw = self._files[k].chunk(i)
-            while len(cache) >= 2:
+            while len(cache) >= 4:
                 cache.pop(next(iter(cache)))
         cache[(k, i)] = raw
         return raw
