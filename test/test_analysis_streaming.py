@@ -87,11 +87,13 @@ def test_exact_percentile_interpolates_bit_for_bit_as_numpy():
         assert q.percentiles(_blocks(v, 7), qs) == [float(np.percentile(v, p)) for p in qs]
 
 
-@pytest.mark.parametrize("small", [0, 1 << 18])
+@pytest.mark.parametrize(("small", "top"), [(0, 0), (1 << 18, 0), (0, 1 << 14), (0, 40)])
 @pytest.mark.parametrize("seed", range(6))
-def test_exact_quantiles_match_numpy(seed, small, monkeypatch):
-    """Through the histogram passes (small 0) and the one pass for few values."""
+def test_exact_quantiles_match_numpy(seed, small, top, monkeypatch):
+    """Through the histogram passes (small 0), the one pass for few values, and the kept largest
+    values (top: all of them, or 40: the 100th percentile and, for small samples, the others)."""
     monkeypatch.setattr(stream, "SMALL", small)
+    monkeypatch.setattr(stream, "TOP", top)
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 5000))
     kind = seed % 3
@@ -114,6 +116,7 @@ def test_exact_quantiles_match_numpy(seed, small, monkeypatch):
 def test_exact_quantiles_merge_many_distinct_values_in_one_bin(monkeypatch):
     monkeypatch.setattr(stream, "_MERGE_AT", 50)
     monkeypatch.setattr(stream, "SMALL", 0)
+    monkeypatch.setattr(stream, "TOP", 0)
     v = np.concatenate([np.repeat(np.linspace(0.0, 1e-9, 1001), 3), [1.0]])  # each value 3 times
     q = ExactQuantiles()
     q.add(v)
@@ -167,6 +170,7 @@ def test_streaming_summary_in_tiny_blocks(tmp_path_factory, monkeypatch):
     monkeypatch.setattr(BagReader, "blocks", small_blocks)
     monkeypatch.setattr(BagReader, "packet_blocks", lambda self, topic: _split(packet_blocks(self, topic), rng))
     monkeypatch.setattr(stream, "SMALL", 0)  # the histogram passes for the quantiles, not the one-pass sort
+    monkeypatch.setattr(stream, "TOP", 0)
     for name in ("bursty_loss", "jitter", "duplicates"):
         bag = _run(tmp_path_factory, name, SCENES[name])
         _same(compute_summary(load_signals(bag)), stream._summarize(bag))
@@ -198,3 +202,17 @@ def test_packet_pass_on_synthetic_records_with_ties_and_bursts():
     assert d.lost / d.runs == metrics._loss_bursts(rows) > 1.0
     assert (d.sent, d.lost, d.late) == metrics._packet_counts(rows)
     assert d.dups == dup.shape[0]
+
+
+def test_high_percentiles_from_the_kept_largest_values(monkeypatch):
+    """A high percentile of many values comes from the largest ones kept while adding: no pass."""
+    monkeypatch.setattr(stream, "TOP", 40)
+    v = np.random.default_rng(2).normal(0.05, 0.01, 5000)
+    q = ExactQuantiles()
+    for b in _blocks(v, 97)():
+        q.add(b)
+
+    def no_pass():
+        raise AssertionError("a pass over the values was made")
+
+    assert q.percentiles(no_pass, (99.9, 100)) == [float(np.percentile(v, 99.9)), float(np.max(v))]

@@ -37,6 +37,9 @@ from haptic_teleop.errors import BagError
 BINS = 65536
 # Up to this many values, the order statistics come from one pass that keeps them all (2 MB).
 SMALL = 1 << 18
+# The largest TOP values are kept as they come (a high percentile's ranks are among them while
+# the count is below TOP / (1 - q)): then no further pass is needed for it.
+TOP = 1 << 14
 # Values kept per quantile bin before they are merged into (value, count) pairs.
 _MERGE_AT = 1 << 16
 
@@ -69,6 +72,7 @@ class ExactQuantiles:
     lo: float = math.inf
     hi: float = -math.inf
     _sums: list[float] = field(default_factory=list)
+    _top: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def add(self, v: np.ndarray) -> None:
         if not v.size:
@@ -82,6 +86,12 @@ class ExactQuantiles:
         self._sums.append(math.fsum(v.tolist()))
         self.lo = min(self.lo, float(np.min(v)))
         self.hi = max(self.hi, float(np.max(v)))
+        # Every value dropped here had TOP values at least as large kept, so the TOP largest of
+        # what is kept are the TOP largest of all.
+        top = np.concatenate([self._top, v])
+        if top.size > 2 * TOP:
+            top = np.partition(top, top.size - TOP)[top.size - TOP :] if TOP else top[:0]
+        self._top = top
 
     def mean(self) -> float:
         if self.nan:
@@ -102,6 +112,10 @@ class ExactQuantiles:
             if self.lo == self.hi:
                 return dict.fromkeys(want, self.lo)
             raise NotStreamable("infinite values")
+        top = np.sort(self._top)[max(self._top.size - TOP, 0) :]
+        base = self.n - top.size  # the rank of top[0]
+        if want[0] >= base:
+            return {r: float(top[r - base]) for r in want}
         if self.n <= SMALL:
             parts = [raw[~np.isnan(raw)] for raw in source()]
             allv = np.sort(np.concatenate(parts)) if parts else np.zeros(0)
