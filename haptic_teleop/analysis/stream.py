@@ -10,8 +10,10 @@ passes over the bag chunk by chunk (`BagReader.blocks`, `BagReader.packet_blocks
 2. network: per direction, the packet records in the bag's order (the engine writes them in seq
    order; checked) for counts, loss bursts, reorders, wire bits and the first arrival of each seq,
    joined with the released samples (`/<dir>/received`, in seq order) for the buffering delay;
-3. two passes for each exact median or percentile (`ExactQuantiles`: a histogram of 65536 bins,
-   then only the values in the bins that hold the wanted ranks);
+3. for each exact median or percentile (`ExactQuantiles`): none when its ranks are among the
+   largest TOP values kept while adding (a high percentile); else one that keeps the values when
+   there are at most SMALL of them; else two: a histogram of 65536 bins, then only the values in
+   the bins that hold the wanted ranks;
 4. ticks again, with the lags: errors (a lag's worth of samples carried between blocks), maxima,
    energies (the cumulative sum carried between blocks).
 
