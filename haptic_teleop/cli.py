@@ -43,10 +43,10 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
     """Analyse a bag: summary.json and plots/ in out_dir. Same code for `run` and `analyze`.
 
     summary.json is written (whole, by a rename) before the plots start."""
-    from haptic_teleop.analysis.metrics import analyze_bag
+    from haptic_teleop.analysis.stream import summarize_bag
 
     interrupt.pause_for_test("summary")
-    summary, sig = analyze_bag(bag_dir)
+    summary = summarize_bag(bag_dir)
     timing = Path(bag_dir).parent / TIMING_FILE
     if timing.is_file():
         t = json.loads(timing.read_text())
@@ -55,10 +55,11 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
     out_dir.mkdir(parents=True, exist_ok=True)
     write_atomic(out_dir / "summary.json", json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
     if plots:
+        from haptic_teleop.analysis.plotdata import from_bag
         from haptic_teleop.analysis.plots import write_plots
 
         interrupt.pause_for_test("plots")
-        write_plots(sig, out_dir / "plots")
+        write_plots(from_bag(bag_dir, summary.get("force_alignment_lag_s")), out_dir / "plots")
     return summary
 
 

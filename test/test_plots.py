@@ -21,6 +21,7 @@ from haptic_teleop.analysis.decimate import (
 )
 from haptic_teleop.analysis.metrics import load_signals
 from haptic_teleop.analysis.plots import FIGURES, energy_figure, energy_margins, network_figure
+from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.analysis.sweep_plot import key_label, metric_unit, sweep_figure, wrap_key
 from haptic_teleop.analysis.timeline import buffer_exits, buffer_occupancy, loss_causes, skip_times
 from haptic_teleop.cli import main
@@ -330,3 +331,120 @@ def test_sweep_many_categorical_values_turn_their_tick_labels():
     assert [t.get_text() for t in ax.get_xticklabels()] == ["x\ny"]
     assert ax.get_xlabel() == "a.b\nc.d"
     assert math.isclose(ax.get_lines()[0].get_ydata()[0], 10.0)
+
+
+def _same_plot_data(a, b, path="data"):
+    """Every field of two PlotData equal, arrays exactly (NaN equal to NaN)."""
+    if dataclasses.is_dataclass(a):
+        for f in dataclasses.fields(a):
+            _same_plot_data(getattr(a, f.name), getattr(b, f.name), f"{path}.{f.name}")
+    elif isinstance(a, dict):
+        assert set(a) == set(b), path
+        for k in a:
+            _same_plot_data(a[k], b[k], f"{path}[{k}]")
+    elif isinstance(a, list | tuple):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _same_plot_data(x, y, f"{path}[{i}]")
+    elif isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        np.testing.assert_array_equal(np.asarray(a, dtype=float), np.asarray(b, dtype=float), err_msg=path)
+    elif isinstance(a, float) and math.isnan(a):
+        assert isinstance(b, float) and math.isnan(b), path
+    else:
+        assert a == b, path
+
+
+def test_streamed_plot_data_is_the_whole_array_reduction(run):
+    """What `run` draws (streamed from the bag) is what the whole signals reduce to."""
+    from haptic_teleop.analysis import plotdata
+
+    out, sig = run
+    ref = plotdata.from_signals(sig)
+    _same_plot_data(ref, plotdata._from_bag(out / "bag"))
+    # as `run` calls it: the lag from summary.json
+    lag_s = summarize_bag(out / "bag")["force_alignment_lag_s"]
+    _same_plot_data(ref, plotdata._from_bag(out / "bag", lag_s))
+
+
+def test_streamed_plot_data_of_a_decimated_run(tmp_path):
+    """A run long enough that every series is decimated (> 2 x 2400 ticks) and the scatter and
+    event lanes are thinned (> 20000 packets, releases)."""
+    from haptic_teleop.analysis import plotdata
+
+    out = tmp_path / "long"
+    assert main(["run", "jitter", "--set", "scene.duration_s=21", "--out", str(out), "--quiet", "--no-plots"]) == 0
+    sig = load_signals(out / "bag")
+    ref = plotdata.from_signals(sig)
+    assert ref.contact[0].size < sig.t_s.size and ref.network["forward"].groups[0][2] > 20_000
+    _same_plot_data(ref, plotdata._from_bag(out / "bag"))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_accumulators_match_the_whole_array_decimation(seed):
+    from haptic_teleop.analysis.plotdata import Envelope, Events, Thin
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 60_000))
+    t = np.arange(n) * 1e-3
+    y = np.round(rng.normal(size=n), 2)  # ties: the first minimum and maximum must be kept
+    cuts = np.sort(rng.integers(0, n, 7))
+    env, thin, ev = Envelope(n, 300), Thin((0.0, n * 1e-3), (-3.0, 3.0), max_points=5000), Events((0.0, n * 1e-3))
+    for a, b in zip([0, *cuts], [*cuts, n], strict=True):
+        env.add(t[a:b], y[a:b])
+        thin.add(t[a:b], y[a:b])
+        ev.add(t[a:b])
+    for got, want in zip(env.result(), minmax_envelope(t, y, 300), strict=True):
+        np.testing.assert_array_equal(got, want)
+    idx = thin_points(t, y, (0.0, n * 1e-3), (-3.0, 3.0), max_points=5000)
+    for got, want in zip(thin.result(), (t[idx], y[idx]), strict=True):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(ev.result(), thin_events(t, (0.0, n * 1e-3)))
+
+
+def test_plot_data_memory_does_not_grow_with_the_run(tmp_path):
+    """tracemalloc peak of the streamed reduction: a 16 s run allocates about what a 4 s one does."""
+    import tracemalloc
+
+    from haptic_teleop.analysis.plotdata import from_bag
+
+    peaks = []
+    for d in (4, 16):
+        out = tmp_path / f"r{d}"
+        args = ["run", "jitter", "--set", f"scene.duration_s={d}", "--out", str(out), "--quiet", "--no-plots"]
+        assert main(args) == 0
+        tracemalloc.start()
+        try:
+            from_bag(out / "bag")
+            peaks.append(tracemalloc.get_traced_memory()[1] / 1024)
+        finally:
+            tracemalloc.stop()
+    assert peaks[1] < 1.25 * peaks[0] + 512, peaks
+
+
+def test_streamed_plot_data_in_tiny_blocks(run, monkeypatch):
+    """The bag read in blocks of a few rows: state carried across every block boundary."""
+    from haptic_teleop.analysis import plotdata
+    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import TopicData
+
+    rng = np.random.default_rng(5)
+    blocks, packet_blocks = BagReader.blocks, BagReader.packet_blocks
+
+    def cut(n):
+        c = np.sort(rng.integers(0, n, max(1, n // 7)))
+        return [(a, b) for a, b in zip([0, *c], [*c, n], strict=True) if b > a]
+
+    def small_blocks(self, topic):
+        for d in blocks(self, topic):
+            for a, b in cut(d.log_ns.size):
+                st = None if d.stamp_ns is None else d.stamp_ns[a:b]
+                yield TopicData(d.log_ns[a:b], st, d.values[a:b], d.fields)
+
+    def small_packets(self, topic):
+        for rows in packet_blocks(self, topic):
+            yield from (rows[a:b] for a, b in cut(len(rows)))
+
+    monkeypatch.setattr(BagReader, "blocks", small_blocks)
+    monkeypatch.setattr(BagReader, "packet_blocks", small_packets)
+    out, sig = run
+    _same_plot_data(plotdata.from_signals(sig), plotdata._from_bag(out / "bag"))

@@ -4,13 +4,15 @@ For each duration (default 10 s, 100 s and 1000 s of simulated time) and each ti
 fresh process each time:
 - `record`: what `haptic-teleop run` does up to a closed bag (`engine.record_run`: the engine, the
   tick loop and the bag writer process), nothing after it;
-- `run`: the whole `haptic-teleop run --no-plots` command (recording, then the analysis of the
-  bag and summary.json).
+- `run`: the whole `haptic-teleop run` command: recording, then the analysis of the bag
+  (summary.json, streamed: `analysis/stream.py`) and the plots (streamed and decimated:
+  `analysis/plotdata.py`);
+- `summary`: the same without the plots (`run --no-plots`).
 A figure is the peak resident set (VmHWM, `ru_maxrss`) of the largest process of the command (the
 loop's process or the bag writer), read by a small wrapper process with
 `getrusage(RUSAGE_CHILDREN)` once the command has exited, so no earlier run can inflate it. The
 ratio of the longest to the shortest run says whether memory grows with duration (target: at
-most 1.2 for `record`). Figures only: nothing here is asserted by a test (the machine's memory
+most 1.2, for `record` and for the whole `run`). Figures only: nothing here is asserted by a test (the machine's memory
 use moves with its load; tests check the buffers' sizes instead).
 """
 
@@ -54,9 +56,11 @@ def measure(stage: str, scene: str, duration_s: float, loop: str) -> dict[str, f
             cmd = [sys.executable, "-m", "haptic_teleop.benchmarks.memory", scene, f"{duration_s:g}", loop, out]
         else:
             cmd = [
-                sys.executable, "-m", "haptic_teleop.cli", "run", scene, "--out", out, "--quiet", "--no-plots",
+                sys.executable, "-m", "haptic_teleop.cli", "run", scene, "--out", out, "--quiet",
                 "--loop", loop, "--set", f"scene.duration_s={duration_s:g}",
             ]  # fmt: skip
+            if stage == "summary":
+                cmd.append("--no-plots")
         r = subprocess.run([sys.executable, "-c", _WRAPPER, *cmd], capture_output=True, text=True, env=os.environ)
         if r.returncode != 0 or not r.stdout.strip():
             raise SystemExit(f"bench memory: the wrapper failed: {r.stderr.strip()[-500:]}")
@@ -83,7 +87,7 @@ def memory(scene: str, durations: list[float], loops: list[str], stages: list[st
                 + f"  {ratio:6.2f}   (wall {walls} s; {time.perf_counter() - t0:.0f} s in all)",
                 flush=True,
             )
-    print(f"ratio: longest / shortest run ({durations[-1]:g} s / {durations[0]:g} s); target for record <= 1.2")
+    print(f"ratio: longest / shortest run ({durations[-1]:g} s / {durations[0]:g} s); target <= 1.2")
     return 0
 
 
@@ -96,7 +100,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--durations", default="10,100,1000", help="simulated seconds, comma separated (default 10,100,1000)"
     )
     p.add_argument("--loops", default="compiled,python", help="tick loops, comma separated (compiled, python)")
-    p.add_argument("--stages", default="record,run", help="record (engine and bag writer), run (the whole command)")
+    p.add_argument(
+        "--stages",
+        default="record,run",
+        help="record (engine and bag writer), run (the whole command), summary (run --no-plots)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -108,9 +116,12 @@ def main(args: argparse.Namespace) -> int:
         raise SystemExit(f"--durations must be positive, got {args.durations!r}")
     loops = [x for x in args.loops.split(",") if x]
     stages = [x for x in args.stages.split(",") if x]
-    bad = [x for x in loops if x not in ("compiled", "python")] + [x for x in stages if x not in ("record", "run")]
+    bad = [x for x in loops if x not in ("compiled", "python")]
+    bad += [x for x in stages if x not in ("record", "run", "summary")]
     if bad or not loops or not stages:
-        raise SystemExit(f"--loops takes compiled, python and --stages record, run; got {', '.join(bad) or 'none'}")
+        raise SystemExit(
+            f"--loops takes compiled, python and --stages record, run, summary; got {', '.join(bad) or 'none'}"
+        )
     return memory(args.scene, durations, loops, stages)
 
 

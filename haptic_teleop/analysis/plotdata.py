@@ -1,0 +1,823 @@
+"""What the plots of a run draw, already reduced to the plot's width (`decimate.py`).
+
+`from_signals(sig)` reduces whole arrays (`metrics.load_signals`) with `decimate.py` and
+`timeline.py` as they are; `from_bag(bag)` gives the same `PlotData` in streaming passes over the
+bag (memory of a chunk and of the plot's columns, not of the run): each series goes through an
+accumulator that keeps what the whole-array reduction would keep (`Envelope`: the first minimum
+and maximum of each index bin, the bins fixed up front from the series' length; `Thin`: every point
+up to `max_points`, else the first of each cell; `Events`: the same for sorted event times).
+A bag whose order does not allow it (`stream.NotStreamable`) is reduced whole.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.analysis.decimate import DEFAULT_COLUMNS, SCATTER_COLUMNS, SCATTER_ROWS, minmax_envelope
+from haptic_teleop.analysis.metrics import Signals, port_energy
+from haptic_teleop.analysis.timeline import (
+    _LOSS_MODEL_KIND,
+    ARRIVAL,
+    DUPLICATE,
+    FATE,
+    SEND,
+    buffer_occupancy,
+    loss_causes,
+    skip_times,
+)
+from haptic_teleop.core.network import DELIVERED, LOST_LATE
+
+MAX_POINTS = 20_000
+
+Series = tuple[np.ndarray, np.ndarray]
+
+
+# ------------------------------------------------------------------------------------------------
+# Accumulators
+
+
+class Envelope:
+    """`minmax_envelope(t, y, columns)` of a series of known length `n`, fed block by block."""
+
+    def __init__(self, n: int, columns: int = DEFAULT_COLUMNS) -> None:
+        self.n = n
+        self.whole = n <= 2 * columns
+        self.k = 1 if self.whole else -(-n // columns)
+        self.seen = 0
+        self._t: list[np.ndarray] = []
+        self._y: list[np.ndarray] = []
+        self._i: list[np.ndarray] = []
+        self._ct = np.zeros(0)
+        self._cy = np.zeros(0)
+        self._ends: list[tuple[int, float, float]] = []  # the first and the last sample
+
+    def add(self, t: np.ndarray, y: np.ndarray) -> None:
+        if self.whole:
+            self._t.append(np.asarray(t, dtype=np.float64).copy())
+            self._y.append(np.asarray(y, dtype=np.float64).copy())
+            self.seen += int(t.size)
+            return
+        if not t.size:
+            return
+        if self.seen == 0:
+            self._ends.append((0, float(t[0]), float(y[0])))
+        self._last = (self.seen + int(t.size) - 1, float(t[-1]), float(y[-1]))
+        ct = np.concatenate([self._ct, t])
+        cy = np.concatenate([self._cy, y])
+        base = self.seen - self._ct.size  # global index of ct[0], a multiple of k
+        full = (ct.size // self.k) * self.k
+        if full:
+            self._bins(ct[:full], cy[:full], base)
+        self._ct, self._cy = ct[full:], cy[full:]
+        self.seen += int(t.size)
+
+    def _bins(self, t: np.ndarray, y: np.ndarray, base: int) -> None:
+        blocks = y.reshape(-1, self.k)
+        local = np.arange(0, t.size, self.k)
+        lo = local + np.argmin(blocks, axis=1)
+        hi = local + np.argmax(blocks, axis=1)
+        idx = np.concatenate([lo, hi])
+        self._i.append(idx + base)
+        self._t.append(t[idx])
+        self._y.append(y[idx])
+
+    def result(self) -> Series:
+        if self.whole:
+            t = np.concatenate(self._t) if self._t else np.zeros(0)
+            y = np.concatenate(self._y) if self._y else np.zeros(0)
+            return t, y
+        if self._ct.size:  # the tail bin
+            base = self.seen - self._ct.size
+            idx = np.array([int(np.argmin(self._cy)), int(np.argmax(self._cy))])
+            self._i.append(idx + base)
+            self._t.append(self._ct[idx])
+            self._y.append(self._cy[idx])
+        # the first and last samples are kept as the whole-array envelope keeps them
+        for k, tt, yy in [*self._ends, self._last]:
+            self._i.append(np.array([k]))
+            self._t.append(np.array([tt]))
+            self._y.append(np.array([yy]))
+        i = np.concatenate(self._i)
+        t = np.concatenate(self._t)
+        y = np.concatenate(self._y)
+        i, first = np.unique(i, return_index=True)
+        t, y = t[first], y[first]
+        return t, y
+
+
+class Thin:
+    """`thin_points(x, y, x_lim, y_lim, columns, rows, max_points)` applied, fed block by block."""
+
+    def __init__(
+        self,
+        x_lim: tuple[float, float],
+        y_lim: tuple[float, float],
+        columns: int = SCATTER_COLUMNS,
+        rows: int = SCATTER_ROWS,
+        max_points: int = MAX_POINTS,
+    ) -> None:
+        self.x_lim, self.y_lim, self.columns, self.rows, self.max_points = x_lim, y_lim, columns, rows, max_points
+        self.n = 0
+        self._all: list[tuple[np.ndarray, np.ndarray]] = []
+        # the first point of each cell: made when the points pass max_points
+        self._cell_i = np.zeros(0, dtype=np.int64)
+        self._cell_x = np.zeros(0)
+        self._cell_y = np.zeros(0)
+
+    def add(self, x: np.ndarray, y: np.ndarray) -> None:
+        if not x.size:
+            return
+        if self.n + x.size <= self.max_points:
+            self._all.append((x.copy(), y.copy()))
+            self.n += int(x.size)
+            return
+        if self._all or not self._cell_i.size:
+            kept, self._all = self._all, []
+            self._cell_i = np.full(self.columns * self.rows, -1, dtype=np.int64)
+            self._cell_x = np.zeros(self.columns * self.rows)
+            self._cell_y = np.zeros(self.columns * self.rows)
+            self.n = 0
+            for a, b in kept:
+                self._cells(a, b)
+        self._cells(x, y)
+
+    def _cells(self, x: np.ndarray, y: np.ndarray) -> None:
+        x0, x1 = self.x_lim
+        y0, y1 = self.y_lim
+        cx = np.clip(((x - x0) * (self.columns / max(x1 - x0, 1e-300))).astype(np.int64), 0, self.columns - 1)
+        cy = np.clip(((y - y0) * (self.rows / max(y1 - y0, 1e-300))).astype(np.int64), 0, self.rows - 1)
+        cell, first = np.unique(cx * self.rows + cy, return_index=True)
+        new = self._cell_i[cell] < 0
+        self._cell_i[cell[new]] = self.n + first[new]
+        self._cell_x[cell[new]] = x[first[new]]
+        self._cell_y[cell[new]] = y[first[new]]
+        self.n += int(x.size)
+
+    def result(self) -> Series:
+        if self.n <= self.max_points:
+            if not self._all:
+                return np.zeros(0), np.zeros(0)
+            return np.concatenate([a for a, _ in self._all]), np.concatenate([b for _, b in self._all])
+        used = np.flatnonzero(self._cell_i >= 0)
+        order = np.argsort(self._cell_i[used], kind="stable")
+        return self._cell_x[used][order], self._cell_y[used][order]
+
+
+class Events:
+    """`thin_events(np.sort(times), t_lim)` of event times fed block by block in any order."""
+
+    def __init__(self, t_lim: tuple[float, float], columns: int = DEFAULT_COLUMNS, max_points: int = MAX_POINTS):
+        self.t_lim, self.columns, self.max_points = t_lim, columns, max_points
+        self.n = 0
+        self._all: list[np.ndarray] = []
+        self._min = np.full(columns, np.inf)
+
+    def add(self, t: np.ndarray) -> None:
+        if not t.size:
+            return
+        if self.n + t.size <= self.max_points:
+            self._all.append(t.copy())
+        else:
+            self._all = []
+        x0, x1 = self.t_lim
+        c = np.clip(((t - x0) * (self.columns / max(x1 - x0, 1e-300))).astype(np.int64), 0, self.columns - 1)
+        np.minimum.at(self._min, c, t)
+        self.n += int(t.size)
+
+    def result(self) -> np.ndarray:
+        if self.n <= self.max_points:
+            return np.sort(np.concatenate(self._all)) if self._all else np.zeros(0)
+        shown: np.ndarray = self._min[np.isfinite(self._min)]
+        return shown
+
+
+# ------------------------------------------------------------------------------------------------
+# What the figures draw
+
+
+@dataclass
+class EnergySide:
+    reservoir: Series | None
+    margin: Series
+    low_t: float
+    low_j: float
+    y_range: tuple[float, float]
+    diff: Series | None
+    gap_j: float
+
+
+@dataclass
+class DirectionData:
+    groups: list[tuple[str, Series, int]]  # (name, (x, y) shown, count)
+    played: Series | None
+    bottom: float
+    top: float
+    clipped: bool
+    over_n: int
+    over_max_ms: float
+    over_shown: np.ndarray
+    lanes: list[tuple[str, np.ndarray, str]]  # (label, shown times, cause or kind)
+    occupancy: Series
+    empty: bool
+
+
+@dataclass
+class PlotData:
+    scene: dict[str, Any]
+    period_s: float
+    ticks: int
+    t_end_s: float  # the last tick's time
+    lag_ticks: int
+    contact: Series
+    master_force: Series
+    delayed_contact: Series | None
+    force_error: Series
+    positions_mm: dict[str, Series]
+    energy: dict[str, EnergySide]
+    network: dict[str, DirectionData] = field(default_factory=dict)
+
+
+def _loss_labels(effects: dict[str, Any] | None) -> list[str]:
+    loss = (effects or {}).get("loss")
+    if loss:
+        model = str(loss.get("model", "bernoulli"))
+        model_label = f"{_LOSS_MODEL_KIND.get(model, 'loss')} ({model})"
+    else:
+        model_label = "network"
+    return ["blackout", model_label, "queue overflow (rate limit)", "corruption"]
+
+
+def delay_ylim(lo: float, hi: float, q999: float, empty: bool) -> tuple[float, float, bool]:
+    """(bottom, top, clipped) of a delay axis from the minimum, maximum and 99.9th percentile of
+    its finite delays (ms): a top that a few extreme delays (a queue after a blackout, a trace
+    spike) do not stretch. Top = 1.25 x the 99.9th percentile when the maximum is more than twice
+    that, else 1.08 x the maximum; at least 1 ms."""
+    if empty:
+        return 0.0, 1.0, False
+    if hi > 2.0 * q999 and q999 > 0:
+        top, clipped = 1.25 * q999, True
+    else:
+        top, clipped = 1.08 * hi, False
+    bottom = min(0.0, lo * 1.08)
+    return bottom, max(top, bottom + 1.0), clipped
+
+
+GROUPS = ("delivered", "duplicate copy", "arrived late, skipped", "in flight at the end")
+
+
+def _group_masks(arrived: np.ndarray, end_s: float) -> list[np.ndarray]:
+    delivered = arrived[:, FATE] == DELIVERED
+    in_time = arrived[:, ARRIVAL] <= end_s
+    return [
+        delivered & (arrived[:, DUPLICATE] == 0.0) & in_time,
+        delivered & (arrived[:, DUPLICATE] == 1.0) & in_time,
+        arrived[:, FATE] == LOST_LATE,
+        delivered & ~in_time,
+    ]
+
+
+def _cause_times(rows: np.ndarray, effects: dict[str, Any] | None) -> list[np.ndarray]:
+    """Send times of lost originals per cause, in `_loss_labels` order (rows of one block)."""
+    got = loss_causes(rows, effects)
+    return [got.get(label, np.zeros(0)) for label in _loss_labels(effects)]
+
+
+# ------------------------------------------------------------------------------------------------
+# From whole arrays
+
+
+def _env(t: np.ndarray, y: np.ndarray) -> Series:
+    return minmax_envelope(t, y)
+
+
+def from_signals(sig: Signals) -> PlotData:
+    """PlotData of whole-array signals (the reference `from_bag` is tested against)."""
+    from haptic_teleop.analysis.decimate import thin_events, thin_points
+
+    t = sig.t_s
+    n = t.size
+    lag = sig.backward_lag_ticks
+    sc = sig.scene
+    delayed = _env(t[lag:], sig.contact_n[:-lag]) if 0 < lag < n else None
+    err = sig.master_force_n[lag:] - sig.contact_n[: n - lag] if 0 < lag < n else sig.master_force_n - sig.contact_n
+    energy = {}
+    for side, x, f, res in (
+        ("master", sig.master_x_m, sig.master_force_n, sig.master_reservoir_j),
+        ("slave", sig.slave_x_m, sig.slave_force_n, sig.slave_reservoir_j),
+    ):
+        b = float(sc[side]["damping_n_s_per_m"])
+        e0 = float(sc["controllers"][side]["eba"]["initial_energy_j"])
+        margin = e0 + port_energy(x, f, b, sig.period_s)
+        ok = np.flatnonzero(np.isfinite(margin))
+        i = int(ok[np.argmin(margin[ok])]) if ok.size else 0
+        finite = margin[np.isfinite(margin)]
+        vals = [finite] if res is None else [finite, res[np.isfinite(res)]]
+        both = np.concatenate(vals)
+        y_range = (float(np.min(both)), float(np.max(both))) if both.size else (0.0, 1.0)
+        gap = (float(np.nanmax(np.abs(res - margin))) if res.size else 0.0) if res is not None else 0.0
+        energy[side] = EnergySide(
+            reservoir=_env(t, res) if res is not None else None,
+            margin=_env(t, margin),
+            low_t=float(t[i]),
+            low_j=float(margin[i]),
+            y_range=y_range,
+            diff=_env(t, res - margin) if res is not None else None,
+            gap_j=gap,
+        )
+    t_lim = (0.0, float(t[-1] + sig.period_s) if n else 1.0)
+    network = {}
+    for direction in ("forward", "backward"):
+        rows = sig.forward_packets if direction == "forward" else sig.backward_packets
+        played_delay = sig.forward_delays_s if direction == "forward" else sig.backward_delays_s
+        release = sig.forward_release_s if direction == "forward" else sig.backward_release_s
+        played_seq = sig.forward_played_seq if direction == "forward" else sig.backward_played_seq
+        effects = ((sc.get("network") or {}).get(direction) or {}).get("effects")
+        arrived = rows[~np.isnan(rows[:, ARRIVAL])] if rows.size else np.zeros((0, 6))
+        send = arrived[:, SEND]
+        delay_ms = (arrived[:, ARRIVAL] - arrived[:, SEND]) * 1e3
+        played_send = release - played_delay
+        played_ms = played_delay * 1e3
+        d = np.concatenate([x[np.isfinite(x)] for x in (delay_ms, played_ms)])
+        bottom, top, clipped = delay_ylim(
+            float(np.min(d)) if d.size else 0.0,
+            float(np.max(d)) if d.size else 0.0,
+            float(np.percentile(d, 99.9)) if d.size else 0.0,
+            d.size == 0,
+        )
+        end = float(t[-1]) if n else t_lim[1]
+        groups = []
+        for name, mask in zip(GROUPS, _group_masks(arrived, end), strict=True):
+            x, y = send[mask], np.minimum(delay_ms[mask], top)
+            idx = thin_points(x, y, t_lim, (bottom, top))
+            groups.append((name, (x[idx], y[idx]), int(mask.sum())))
+        played = None
+        if played_ms.size:
+            order = np.argsort(played_send, kind="stable")
+            played = _env(played_send[order], np.minimum(played_ms[order], top))
+        over_n, over_max, over_shown = 0, 0.0, np.zeros(0)
+        if clipped:
+            over = delay_ms > top
+            over_n = int(np.count_nonzero(over)) + int(np.count_nonzero(played_ms > top))
+            over_max = max(
+                float(np.max(delay_ms)) if delay_ms.size else 0.0, float(np.max(played_ms)) if played_ms.size else 0.0
+            )
+            over_shown = thin_events(np.sort(np.concatenate([send[over], played_send[played_ms > top]])), t_lim)
+        lanes: list[tuple[str, np.ndarray, str]] = []
+        causes = loss_causes(rows, effects)
+        for name, times in causes.items():
+            lanes.append((f"lost: {name} ({times.size})", thin_events(times, t_lim), name))
+        if not causes:
+            lanes.append(("lost: none", np.zeros(0), "none"))
+        skips = skip_times(rows, played_seq, release)
+        lanes.append((f"skipped, late ({skips.size})", thin_events(skips, t_lim), "skip"))
+        lanes.append((f"released ({release.size})", thin_events(release, t_lim), "release"))
+        occ = buffer_occupancy(rows, played_seq, release, t)
+        network[direction] = DirectionData(
+            groups=groups,
+            played=played,
+            bottom=bottom,
+            top=top,
+            clipped=clipped,
+            over_n=over_n,
+            over_max_ms=over_max,
+            over_shown=over_shown,
+            lanes=lanes,
+            occupancy=_env(t, occ.astype(np.float64)),
+            empty=rows.size == 0 and played_ms.size == 0,
+        )
+    return PlotData(
+        scene=sc,
+        period_s=sig.period_s,
+        ticks=n,
+        t_end_s=float(t[-1]) if n else 0.0,
+        lag_ticks=lag,
+        contact=_env(t, sig.contact_n),
+        master_force=_env(t, sig.master_force_n),
+        delayed_contact=delayed,
+        force_error=_env(t[n - err.size :], err),
+        positions_mm={
+            "operator": _env(t, sig.operator_x_m * 1e3),
+            "master": _env(t, sig.master_x_m * 1e3),
+            "slave": _env(t, sig.slave_x_m * 1e3),
+        },
+        energy=energy,
+        network=network,
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# From a bag, streaming
+
+
+def from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData:
+    """PlotData of a bag in streaming passes (the module docstring); whole if it cannot stream.
+
+    `alignment_lag_s`: summary.json's `force_alignment_lag_s` of this bag, if known (saves the
+    passes that find it)."""
+    from haptic_teleop.analysis.stream import NotStreamable
+
+    try:
+        return _from_bag(bag, alignment_lag_s)
+    except NotStreamable:
+        from haptic_teleop.analysis.metrics import load_signals
+
+        return from_signals(load_signals(bag))
+
+
+class _PlayedLine:
+    """The released samples of one direction as they stream by: their delay line (release - send),
+    the ones above the delay axis, the release lane."""
+
+    def __init__(self, n: int, t_lim: tuple[float, float], top: float, clipped: bool, over: Events) -> None:
+        self.env = Envelope(n)
+        self.releases = Events(t_lim)
+        self.top, self.clipped, self.over = top, clipped, over
+        self.last_ps = -math.inf
+        self.over_max = -math.inf
+
+    def add(self, dl: np.ndarray, rel: np.ndarray) -> None:
+        from haptic_teleop.analysis.stream import NotStreamable
+
+        ps = rel - dl
+        ms = dl * 1e3
+        if ps.size and (ps[0] < self.last_ps or np.any(np.diff(ps) < 0)):
+            raise NotStreamable("released samples' send times are not in order")
+        if ps.size:
+            self.last_ps = float(ps[-1])
+            self.over_max = max(self.over_max, float(np.max(ms)))
+        self.env.add(ps, np.minimum(ms, self.top))
+        self.releases.add(rel)
+        if self.clipped:
+            self.over.add(ps[ms > self.top])
+
+
+class _Played:
+    """The released samples of one direction as a window over their stream, in seq order, for
+    `timeline.buffer_exits` of packets queried in increasing seq."""
+
+    def __init__(self, blocks: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]], line: _PlayedLine) -> None:
+        self.blocks = blocks
+        self.line = line
+        self.seq = np.zeros(0, dtype=np.int64)
+        self.rel = np.zeros(0)
+        self.done = False
+        self.top = -1
+
+    def _pull(self) -> bool:
+        nxt = next(self.blocks, None)
+        if nxt is None:
+            self.done = True
+            return False
+        dl, played, release = nxt
+        self.line.add(dl, release)
+        from haptic_teleop.analysis.stream import NotStreamable
+
+        if played.size and (int(played[0]) < self.top or np.any(np.diff(played) < 0)):
+            raise NotStreamable("released samples are not in seq order")
+        if played.size:
+            self.top = int(played[-1])
+        self.seq = np.concatenate([self.seq, played])
+        self.rel = np.concatenate([self.rel, release])
+        return True
+
+    def exits(self, seq: np.ndarray, arrival: np.ndarray) -> np.ndarray:
+        """buffer_exits(seq, arrival, played, release) for seq ascending, at or above any earlier query."""
+        if not seq.size:
+            return np.zeros(0)
+        while not self.done and (not self.seq.size or self.seq[-1] < seq[-1]):
+            self._pull()
+        j = np.searchsorted(self.seq, seq, side="left")
+        rel = np.concatenate([self.rel, [np.inf]])[j]
+        # no release at all: the whole-array function says inf for every packet
+        out: np.ndarray = np.maximum(arrival, rel)
+        return out
+
+    def drain(self) -> None:
+        while not self.done:
+            self._pull()
+
+    def drop_below(self, s: float) -> None:
+        cut = int(np.searchsorted(self.seq, s, side="left"))
+        self.seq, self.rel = self.seq[cut:], self.rel[cut:]
+
+
+class _Occupancy:
+    """`timeline.buffer_occupancy` at each tick, in tick order: the ticks before a time by which
+    every arrival and exit is known (`until`) are counted and handed to an Envelope."""
+
+    def __init__(self, n: int, ticks: Iterator[np.ndarray]) -> None:
+        self.n, self.ticks = n, ticks
+        self.env = Envelope(n)
+        self.arrivals: list[np.ndarray] = []
+        self.exits: list[np.ndarray] = []
+        self.counted_a = self.counted_x = self.done = 0
+        self.buf = np.zeros(0)
+
+    def until(self, limit: float, final: bool) -> None:
+        """Occupancy at every tick before `limit` (every tick left if `final`)."""
+        while self.done < self.n:
+            if not self.buf.size:
+                nxt = next(self.ticks, None)
+                if nxt is None:
+                    return
+                self.buf = nxt[: self.n - self.done]
+                continue
+            ts = self.buf if final else self.buf[self.buf < limit]
+            if not ts.size:
+                return
+            a = np.sort(np.concatenate(self.arrivals)) if self.arrivals else np.zeros(0)
+            x = np.sort(np.concatenate(self.exits)) if self.exits else np.zeros(0)
+            value = (self.counted_a + np.searchsorted(a, ts, side="right")) - (
+                self.counted_x + np.searchsorted(x, ts, side="right")
+            )
+            self.env.add(ts, value.astype(np.int64).astype(np.float64))
+            ka = int(np.searchsorted(a, ts[-1], side="right"))
+            kx = int(np.searchsorted(x, ts[-1], side="right"))
+            self.counted_a += ka
+            self.counted_x += kx
+            self.arrivals, self.exits = [a[ka:]], [x[kx:]]
+            self.done += int(ts.size)
+            self.buf = self.buf[ts.size :]
+
+
+def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData:
+    import yaml
+
+    from haptic_teleop.analysis.stream import (
+        TICK_TOPICS,
+        ExactQuantiles,
+        NotStreamable,
+        _aligned_blocks,
+        _Energy,
+        _Lagged,
+        _received,
+        _tick_count,
+        _tick_rows,
+    )
+    from haptic_teleop.bag import BagReader
+
+    with BagReader(bag) as r:
+        sc = yaml.safe_load(r.string("/haptic_teleop/scene"))
+        T = float(sc["scene"]["period_s"])
+        period_ns = round(T * 1e9)
+        n, last_log = _tick_count(r)
+        t_end = float(last_log * 1e-9)
+        t_lim = (0.0, float(t_end + T))
+
+        def received(direction: str) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+            topic = f"/{direction}/received"
+            return _received(r, topic, period_ns) if r.has(topic) else iter(())
+
+        def packets(direction: str) -> Iterator[np.ndarray]:
+            topic = f"/{direction}/packets"
+            return r.packet_blocks(topic) if r.has(topic) else iter(())
+
+        # The lag of the forces figure (metrics: median playout delay of the backward samples + 1).
+        if alignment_lag_s is not None:
+            lag = int(round(alignment_lag_s / T))
+        else:
+            bq = ExactQuantiles()
+            for dl, _, _ in received("backward"):
+                bq.add(dl)
+            lag = (int(round(bq.median(lambda: (x for x, _, _ in received("backward"))) / T)) if bq.n else 0) + 1
+
+        # Delay axis limits: the arrived packets' and the released samples' delays (ms).
+        limits: dict[str, tuple[float, float, bool]] = {}
+        counts: dict[str, int] = {}
+        for direction in ("forward", "backward"):
+
+            def delays(direction: str = direction) -> Iterator[np.ndarray]:
+                for rows in packets(direction):
+                    a = rows[~np.isnan(rows[:, ARRIVAL])]
+                    yield (a[:, ARRIVAL] - a[:, SEND]) * 1e3
+                for dl, _, _ in received(direction):
+                    yield dl * 1e3
+
+            def finite(direction: str = direction) -> Iterator[np.ndarray]:
+                for v in delays(direction):
+                    yield v[np.isfinite(v)]
+
+            q = ExactQuantiles()
+            for v in finite():
+                q.add(v)
+            topic = f"/{direction}/received"
+            counts[direction] = sum(int(x.size) for x in r.log_blocks(topic)) if r.has(topic) else 0
+            (q999,) = q.percentiles(finite, (99.9,)) if q.n else (0.0,)
+            limits[direction] = delay_ylim(q.lo, q.hi, q999, q.n == 0)
+
+        # The tick pass: forces, positions, energy.
+        names = ("contact", "master_force", "operator", "master", "slave", "m_margin", "s_margin", "m_res", "s_res")
+        env = {k: Envelope(n) for k in (*names, "m_diff", "s_diff")}
+        shifted = 0 < lag < n
+        env["delayed"] = Envelope(n - lag if shifted else n)
+        env["error"] = Envelope(n - lag if shifted else n)
+        delay_src, err_src = _Lagged(lag if shifted else 0), _Lagged(lag if shifted else 0)
+        energies = {side: _Energy(float(sc[side]["damping_n_s_per_m"]), T) for side in ("master", "slave")}
+        e0 = {side: float(sc["controllers"][side]["eba"]["initial_energy_j"]) for side in ("master", "slave")}
+        low = {side: (math.inf, 0.0, math.nan, 0.0) for side in ("master", "slave")}  # (min, at t, first, t0)
+        rng: dict[str, list[float]] = {side: [math.inf, -math.inf] for side in ("master", "slave")}
+        gap = {side: -math.inf for side in ("master", "slave")}
+        gap_any = {side: False for side in ("master", "slave")}
+        has_res = {side: r.has(f"/{side}/eba") for side in ("master", "slave")}
+
+        def logs(topic: str) -> Iterator[np.ndarray]:
+            for d in r.blocks(topic):
+                yield d.log_ns.reshape(-1, 1)
+
+        streams = [_tick_rows(r, t) for t in TICK_TOPICS] + [logs("/master/joint_states")]
+        streams += [_tick_rows(r, f"/{side}/eba") for side in ("master", "slave") if has_res[side]]
+        seen = 0
+        for blocks in _aligned_blocks(streams):
+            op, m, s, c, lg = blocks[:5]
+            extra = list(blocks[5:])
+            take = min(m.shape[0], n - seen)
+            t = lg[:take, 0] * 1e-9
+            mx, mf, sx, sf, cf = m[:take, 0], m[:take, 2], s[:take, 0], s[:take, 2], c[:take, 0]
+            env["contact"].add(t, cf)
+            env["master_force"].add(t, mf)
+            env["operator"].add(t, op[:take, 0] * 1e3)
+            env["master"].add(t, mx * 1e3)
+            env["slave"].add(t, sx * 1e3)
+            # delayed contact: contact[i - lag] at t[i] (-(0 - c) is c exactly); error: master[i] - contact[i - lag]
+            e = err_src.feed(mf, cf)
+            env["error"].add(t[t.size - e.size :], e)
+            if shifted:
+                dc = -delay_src.feed(np.zeros(take), cf)
+                env["delayed"].add(t[t.size - dc.size :], dc)
+            for side, x, f, key in (("master", mx, mf, "m"), ("slave", sx, sf, "s")):
+                cum = energies[side].add(x, f)
+                if seen == 0:
+                    cum = np.concatenate([[0.0], cum])
+                margin = e0[side] + cum
+                env[f"{key}_margin"].add(t, margin)
+                fin = np.isfinite(margin)
+                if fin.any():
+                    mm = margin[fin]
+                    j = int(np.argmin(mm))
+                    if mm[j] < low[side][0]:
+                        low[side] = (float(mm[j]), float(t[fin][j]), low[side][2], low[side][3])
+                    rng[side][0] = min(rng[side][0], float(np.min(mm)))
+                    rng[side][1] = max(rng[side][1], float(np.max(mm)))
+                if seen == 0:
+                    low[side] = (low[side][0], low[side][1], float(margin[0]), float(t[0]))
+                if has_res[side]:
+                    res = extra.pop(0)[:take, 0]
+                    env[f"{key}_res"].add(t, res)
+                    rf = res[np.isfinite(res)]
+                    if rf.size:
+                        rng[side][0] = min(rng[side][0], float(np.min(rf)))
+                        rng[side][1] = max(rng[side][1], float(np.max(rf)))
+                    diff = res - margin
+                    env[f"{key}_diff"].add(t, diff)
+                    ad = np.abs(diff)
+                    if np.any(~np.isnan(ad)):
+                        gap[side] = max(gap[side], float(np.nanmax(ad)))
+                        gap_any[side] = True
+            seen += take
+            if seen >= n:
+                break
+
+        energy = {}
+        for side, key in (("master", "m"), ("slave", "s")):
+            lo_j, lo_t, first, t0 = low[side]
+            if not math.isfinite(lo_j):  # no finite margin: the first sample
+                lo_j, lo_t = first, t0
+            y_range = (rng[side][0], rng[side][1]) if math.isfinite(rng[side][0]) else (0.0, 1.0)
+            energy[side] = EnergySide(
+                reservoir=env[f"{key}_res"].result() if has_res[side] else None,
+                margin=env[f"{key}_margin"].result(),
+                low_t=lo_t,
+                low_j=lo_j,
+                y_range=y_range,
+                diff=env[f"{key}_diff"].result() if has_res[side] else None,
+                gap_j=(gap[side] if gap_any[side] else math.nan) if has_res[side] else 0.0,
+            )
+
+        # The network passes, one direction at a time.
+        network = {}
+        for direction in ("forward", "backward"):
+            bottom, top, clipped = limits[direction]
+            effects = ((sc.get("network") or {}).get(direction) or {}).get("effects")
+            labels = _loss_labels(effects)
+            thins = [Thin(t_lim, (bottom, top)) for _ in GROUPS]
+            group_n = [0] * len(GROUPS)
+            over = Events(t_lim)
+            over_max = -math.inf
+            any_delay = False
+            causes = [Events(t_lim) for _ in labels]
+            skips = Events(t_lim)
+            occ = _Occupancy(n, (d.log_ns * 1e-9 for d in r.blocks("/master/joint_states")))
+            line = _PlayedLine(counts[direction], t_lim, top, clipped, over)
+            played_w = _Played(received(direction), line)
+            any_rows = False
+            carry: tuple[float, float] | None = None
+            last_send = -math.inf
+            last_seq = -math.inf
+            for rows in packets(direction):
+                if not rows.size:
+                    continue
+                any_rows = True
+                seq = rows[:, 0]
+                if seq[0] < last_seq or np.any(np.diff(seq) < 0):
+                    raise NotStreamable("packet records are not in seq order")
+                last_seq = float(seq[-1])
+                orig = rows[:, DUPLICATE] == 0.0
+                osend = rows[orig, SEND]
+                if osend.size and (osend[0] < last_send or np.any(np.diff(osend) < 0)):
+                    raise NotStreamable("send times are not in seq order")
+                arrived = rows[~np.isnan(rows[:, ARRIVAL])]
+                send = arrived[:, SEND]
+                delay_ms = (arrived[:, ARRIVAL] - arrived[:, SEND]) * 1e3
+                if delay_ms.size:
+                    any_delay = True
+                    over_max = max(over_max, float(np.max(delay_ms)))
+                for g, mask in enumerate(_group_masks(arrived, t_end)):
+                    thins[g].add(send[mask], np.minimum(delay_ms[mask], top))
+                    group_n[g] += int(np.count_nonzero(mask))
+                if clipped:
+                    over.add(send[delay_ms > top])
+                for acc, times in zip(causes, _cause_times(rows, effects), strict=True):
+                    acc.add(times)
+                # first arrivals (by t_end) and the buffer's exits, for the occupancy
+                got = arrived[arrived[:, ARRIVAL] <= t_end]
+                if np.any(arrived[:, ARRIVAL] < send):
+                    raise NotStreamable("a packet arrived before it was sent")
+                gs, ga = got[:, 0], got[:, ARRIVAL]
+                if carry is not None:
+                    gs = np.concatenate([[carry[0]], gs])
+                    ga = np.concatenate([[carry[1]], ga])
+                if gs.size:
+                    order = np.lexsort((ga, gs))
+                    gs, ga = gs[order], ga[order]
+                    keep = np.concatenate([[True], gs[1:] != gs[:-1]])
+                    gs, ga = gs[keep], ga[keep]
+                    if gs[-1] == last_seq:
+                        carry = (float(gs[-1]), float(ga[-1]))
+                        gs, ga = gs[:-1], ga[:-1]
+                    else:
+                        carry = None
+                late = rows[rows[:, FATE] == LOST_LATE]
+                query_s = np.concatenate([gs, late[:, 0]]).astype(np.int64)
+                query_a = np.concatenate([ga, late[:, ARRIVAL]])
+                qo = np.argsort(query_s, kind="stable")
+                ex = np.empty(query_s.size)
+                ex[qo] = played_w.exits(query_s[qo], query_a[qo])
+                fa_exit, late_exit = ex[: gs.size], ex[gs.size :]
+                skips.add(late_exit[np.isfinite(late_exit)])
+                occ.arrivals.append(ga)
+                occ.exits.append(fa_exit[np.isfinite(fa_exit)])
+                played_w.drop_below(carry[0] if carry is not None else last_seq)
+                if osend.size:
+                    last_send = float(osend[-1])
+                    occ.until(last_send, False)
+            if carry is not None:
+                ex = played_w.exits(np.array([int(carry[0])]), np.array([carry[1]]))
+                occ.arrivals.append(np.array([carry[1]]))
+                occ.exits.append(ex[np.isfinite(ex)])
+            occ.until(math.inf, True)
+            played_w.drain()  # the released samples after the last packet's
+            played_env, releases, played_over_max = line.env, line.releases, line.over_max
+            groups = [(name, th.result(), cnt) for name, th, cnt in zip(GROUPS, thins, group_n, strict=True)]
+            lanes: list[tuple[str, np.ndarray, str]] = []
+            for label, acc in zip(labels, causes, strict=True):
+                if acc.n:
+                    lanes.append((f"lost: {label} ({acc.n})", acc.result(), label))
+            if not lanes:
+                lanes.append(("lost: none", np.zeros(0), "none"))
+            lanes.append((f"skipped, late ({skips.n})", skips.result(), "skip"))
+            lanes.append((f"released ({releases.n})", releases.result(), "release"))
+            hi = max(over_max if any_delay else 0.0, played_over_max if counts[direction] else 0.0)
+            network[direction] = DirectionData(
+                groups=groups,
+                played=played_env.result() if counts[direction] else None,
+                bottom=bottom,
+                top=top,
+                clipped=clipped,
+                over_n=over.n if clipped else 0,
+                over_max_ms=hi if clipped else 0.0,
+                over_shown=over.result() if clipped else np.zeros(0),
+                lanes=lanes,
+                occupancy=occ.env.result(),
+                empty=not any_rows and counts[direction] == 0,
+            )
+
+    return PlotData(
+        scene=sc,
+        period_s=T,
+        ticks=n,
+        t_end_s=t_end,
+        lag_ticks=lag,
+        contact=env["contact"].result(),
+        master_force=env["master_force"].result(),
+        delayed_contact=env["delayed"].result() if shifted else None,
+        force_error=env["error"].result(),
+        positions_mm={k: env[k].result() for k in ("operator", "master", "slave")},
+        energy=energy,
+        network=network,
+    )
