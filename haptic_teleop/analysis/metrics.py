@@ -122,10 +122,12 @@ def _rms(x: np.ndarray) -> float:
 
 def _aligned_error(felt: np.ndarray, source: np.ndarray, lag: int) -> np.ndarray:
     if lag <= 0:
-        return felt - source
-    if lag >= felt.size:
-        return np.zeros(0)
-    return felt[lag:] - source[:-lag]
+        out: np.ndarray = felt - source
+    elif lag >= felt.size:
+        out = np.zeros(0)
+    else:
+        out = felt[lag:] - source[:-lag]
+    return out
 
 
 def _packet_counts(rows: np.ndarray) -> tuple[int, int, int]:
