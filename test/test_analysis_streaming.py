@@ -63,7 +63,7 @@ def test_streaming_summary_is_the_whole_array_summary(tmp_path_factory, name):
 
 def test_streaming_crosses_chunks(tmp_path_factory):
     """The runs above span several chunks, so state is carried between blocks."""
-    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import BagReader
 
     bag = _run(tmp_path_factory, "jitter", [])
     with BagReader(bag) as r:
@@ -153,8 +153,7 @@ def _split(blocks, rng):
 
 def test_streaming_summary_in_tiny_blocks(tmp_path_factory, monkeypatch):
     """Every block boundary a chance for carried state to go wrong: blocks of a few rows."""
-    from haptic_teleop.bag import BagReader
-    from haptic_teleop.record.reader import TopicData
+    from haptic_teleop.record.reader import BagReader, TopicData
 
     rng = np.random.default_rng(3)
     blocks, packet_blocks = BagReader.blocks, BagReader.packet_blocks

@@ -424,8 +424,7 @@ def test_plot_data_memory_does_not_grow_with_the_run(tmp_path):
 def test_streamed_plot_data_in_tiny_blocks(run, monkeypatch):
     """The bag read in blocks of a few rows: state carried across every block boundary."""
     from haptic_teleop.analysis import plotdata
-    from haptic_teleop.bag import BagReader
-    from haptic_teleop.record.reader import TopicData
+    from haptic_teleop.record.reader import BagReader, TopicData
 
     rng = np.random.default_rng(5)
     blocks, packet_blocks = BagReader.blocks, BagReader.packet_blocks

@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from haptic_teleop.bag import BagReader
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.reader import BagReader
 
 FATE_LOST = (1.0, 2.0, 3.0)
 FATE_LATE = 4.0

@@ -560,7 +560,7 @@ def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData
         _tick_count,
         _tick_rows,
     )
-    from haptic_teleop.bag import BagReader
+    from haptic_teleop.record.reader import BagReader
 
     with BagReader(bag) as r:
         sc = yaml.safe_load(r.string("/haptic_teleop/scene"))

@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST
-from haptic_teleop.bag import BagReader
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.reader import BagReader
 
 BINS = 65536
 # Up to this many values, the order statistics come from one pass that keeps them all (2 MB).

@@ -1,7 +1,7 @@
 """What happened to the packets of one direction, from the bag's packet records alone.
 
 Inputs are the rows of `/forward/packets` or `/backward/packets` (columns per
-`haptic_teleop.bag.PACKET_FIELDS`: seq, send_time_s, arrival_time_s, fate, duplicate, size_bytes),
+`haptic_teleop.record.layouts.PACKET_FIELDS`: seq, send_time_s, arrival_time_s, fate, duplicate, size_bytes),
 the samples the playout buffer released (`/<direction>/received`: the sequence number of each and
 its release time), and the scene recorded in the bag. Fate codes are those of
 `haptic_teleop.core.network` (docs/network.md, "Fates").
