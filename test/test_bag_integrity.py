@@ -289,3 +289,26 @@ def test_compressed_bags_recover(tmp_path):
         with BagReader(bag) as r:
             assert len(r.read("/master/joint_states").log_ns) > 0
         struct.calcsize("<Q")
+
+
+def test_a_killed_runs_bag_analyses_after_recover(tmp_path):
+    """The data path end to end: a real run's bag cut where a kill would leave it (no summary
+    section, no metadata.yaml, run facts never written), `bag recover`, then `analyze`: the
+    summary holds the recovered ticks and says the run was interrupted."""
+    import json
+
+    from haptic_teleop.cli import main
+
+    run = tmp_path / "run"
+    assert main(["run", "wall_contact", "--set", "scene.duration_s=3", "--out", str(run), "--no-plots", "--quiet"]) == 0
+    cut = _copy(run / "bag", tmp_path / "cut")
+    path = _mcap(cut)
+    path.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    (cut / "metadata.yaml").unlink()
+    assert _cli("analyze", str(cut), "--no-plots").returncode == 2  # names the damage and the fix
+    assert _cli("bag", "recover", str(cut)).returncode == 0
+    r = _cli("analyze", str(cut), "--out", str(tmp_path / "an"), "--no-plots")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "an" / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert 0 < summary["ticks"] < 3000

@@ -67,10 +67,23 @@ def _lag_ticks(delays_s: np.ndarray, period_s: float) -> int:
     return int(round(float(np.median(delays_s)) / period_s))
 
 
+def read_run_info(r: BagReader) -> dict[str, Any]:
+    """The run facts the recorder wrote last. A bag without the topic (another tool's) has none;
+    one whose topic holds no message was cut before it closed (a killed run, recovered): then
+    the run counts as interrupted."""
+    topic = "/haptic_teleop/run_info"
+    if not r.has(topic):
+        return {}
+    try:
+        return dict(json.loads(r.string(topic)))
+    except BagError:
+        return {"interrupted": True}
+
+
 def load_signals(bag: str | Path) -> Signals:
     with BagReader(bag) as r:
         scene = yaml.safe_load(r.string("/haptic_teleop/scene"))
-        run_info = json.loads(r.string("/haptic_teleop/run_info")) if r.has("/haptic_teleop/run_info") else {}
+        run_info = read_run_info(r)
         period = float(scene["scene"]["period_s"])
         op = r.read("/operator/joint_states")
         m = r.read("/master/joint_states")

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST
+from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST, read_run_info
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
@@ -472,13 +472,12 @@ def summarize_bag(bag: str | Path) -> dict[str, Any]:
 
 
 def _summarize(bag: str | Path) -> dict[str, Any]:
-    import json
 
     import yaml
 
     with BagReader(bag) as r:
         sc = yaml.safe_load(r.string("/haptic_teleop/scene"))
-        run_info = json.loads(r.string("/haptic_teleop/run_info")) if r.has("/haptic_teleop/run_info") else {}
+        run_info = read_run_info(r)
         for topic in (*TICK_TOPICS, "/forward/received", "/backward/received"):
             if not r.has(topic):
                 r._messages(topic)  # raises the reader's missing-topic error
