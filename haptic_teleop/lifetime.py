@@ -3,7 +3,8 @@
 Linux's `prctl(PR_SET_PDEATHSIG, sig)` asks the kernel to send `sig` to the calling process when
 the thread that created it ends, whatever ends it (SIGKILL included). The bag writer and every
 node the launcher starts ask for SIGTERM, which they handle as a clean stop (the recorder closes
-its bag). Elsewhere it does nothing; those children then rely on end of file on their pipes.
+its bag). Elsewhere it does nothing; those children then rely on end of file on their pipes and,
+for the nodes, on a thread that watches the parent id (`follow_launcher`).
 """
 
 from __future__ import annotations
@@ -29,15 +30,36 @@ def die_with_parent(sig: int = signal.SIGTERM) -> None:
 LAUNCHER_PID_ENV = "HAPTIC_TELEOP_LAUNCHER_PID"
 
 
+PARENT_POLL_S = 0.5
+GRACE_S = 20.0
+
+
 def follow_launcher() -> bool:
     """In a process the launcher started (it names its pid in LAUNCHER_PID_ENV): stop with it.
 
-    Asks for SIGTERM on the parent's death and returns False if the launcher is gone already
-    (it died before the request was made); True otherwise, and when no launcher started us."""
+    Asks for SIGTERM on the parent's death, and starts a daemon thread that also watches the
+    parent id: a SIGTERM that lands while the main thread is stuck inside a C call (DDS
+    participant creation can block for seconds) is only handled when the call returns, so the
+    watcher sends SIGTERM again once the parent is gone and ends the process (exit 143) if it
+    has not stopped GRACE_S later. Returns False if the launcher is gone already; True otherwise,
+    and when no launcher started this process."""
     import os
+    import threading
+    import time
 
     pid = os.environ.get(LAUNCHER_PID_ENV)
     if not pid:
         return True
     die_with_parent(signal.SIGTERM)
-    return str(os.getppid()) == pid
+    if str(os.getppid()) != pid:
+        return False
+
+    def watch() -> None:
+        while str(os.getppid()) == pid:
+            time.sleep(PARENT_POLL_S)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(GRACE_S)
+        os._exit(128 + signal.SIGTERM)
+
+    threading.Thread(target=watch, name="launcher-watch", daemon=True).start()
+    return True

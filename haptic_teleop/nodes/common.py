@@ -1259,11 +1259,13 @@ def run_nodes(
     # does not wait for a callback's full default 5 ms slice.
     sys.setswitchinterval(0.0002)
     stop = threading.Event()
+    # The handler only notes the signal: `Event.set` takes the event's lock, which the main
+    # thread may hold inside `stop.wait` when the signal lands (a deadlock: a node that never
+    # stopped on SIGTERM). The main thread turns the note into the stop.
+    signalled: list[int] = []
 
     def on_signal(signum: int, frame: Any) -> None:
-        if signals_out is not None and not stop.is_set():
-            signals_out.append(signum)
-        stop.set()
+        signalled.append(signum)
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
@@ -1308,8 +1310,11 @@ def run_nodes(
     gc.freeze()
     for n in nodes:
         n.start()
-    while not stop.wait(0.1):
+    while not stop.wait(0.1) and not signalled:
         pass
+    if signalled and not stop.is_set() and signals_out is not None:
+        signals_out.append(signalled[0])
+    stop.set()
     code = 0
     for n in nodes:
         try:
