@@ -164,7 +164,6 @@ class RunRecorder:
         parallel: bool = True,
         compression: str = "none",
         qos: dict[str, list[dict[str, Any]]] | None = None,
-        max_ticks: int | None = None,
     ) -> None:
         self.bag_dir = Path(bag_dir)
         if compression not in COMPRESSIONS:
