@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import (
     MULTIARRAY,
     PACKET_BATCH,
@@ -118,8 +119,17 @@ class RunStreams:
     Memory is bounded: only the columns of recent ticks a received sample may still refer to are
     kept (`_History`). `records` gives a block's messages as ready MCAP records."""
 
-    def __init__(self, scene_yaml: str, period_ns: int, eba_internals: bool, packets: bool, n_columns: int) -> None:
-        from haptic_teleop.engine import COL
+    def __init__(
+        self,
+        scene_yaml: str,
+        period_ns: int,
+        eba_internals: bool,
+        packets: bool,
+        n_columns: int,
+        schema: TickSchema = ONE_DOF,
+    ) -> None:
+        COL = schema.col
+        self.schema = schema
 
         self.scene_yaml = scene_yaml
         self.period = period_ns
@@ -289,7 +299,7 @@ class TickEncoder:
     the chunk, otherwise the records are moved together around the missing ones."""
 
     def __init__(self, streams: RunStreams, cids: dict[str, int]) -> None:
-        from haptic_teleop.engine import COL
+        COL = ONE_DOF.col
 
         specs = topic_specs()
         self.period = streams.period
