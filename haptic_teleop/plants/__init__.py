@@ -16,6 +16,7 @@ from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.base import Plant, backend_class
 
 if TYPE_CHECKING:
+    from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.mujoco_plant import SimSettings
     from haptic_teleop.scene import PlantEffectsConfig, Scene
 
@@ -70,6 +71,52 @@ def build_slave_plant(config: Scene) -> Plant:
         start_position_m=s.start_position_m,
     )
     return _with_effects(plant, config, "slave", s.effects)
+
+
+def build_master_arm(config: Scene) -> MujocoArm:
+    """An arm scene's master device (docs/arms.md): the `master` section's model, joints and
+    overrides, the operator's hand mass at the handle."""
+    from haptic_teleop.plants.arm import MujocoArm
+
+    m = config.master
+    return MujocoArm(
+        sim_settings(config),
+        m.model,
+        "handle",
+        joints=m.joints,
+        start_q_rad=m.start_q_rad,
+        damping_nm_s_per_rad=m.damping_nm_s_per_rad,
+        torque_limit_nm=m.torque_limit_nm,
+        gravity_compensation=m.gravity_compensation is not False,
+        hand_mass_kg=config.operator.mass_kg,
+    )
+
+
+def build_slave_arm(config: Scene) -> MujocoArm:
+    """An arm scene's slave arm and its wall (docs/arms.md)."""
+    from haptic_teleop.plants.arm import MujocoArm, WallSpec
+
+    s = config.slave
+    w = s.wall
+    assert w.point_m is not None and w.normal is not None  # an arm scene (Scene.is_arm)
+    wall = WallSpec(
+        (w.point_m[0], w.point_m[1], w.point_m[2]),
+        (w.normal[0], w.normal[1], w.normal[2]),
+        w.stiffness_n_per_m,
+        w.damping_n_s_per_m,
+        s.contact_impedance,
+    )
+    return MujocoArm(
+        sim_settings(config),
+        s.model,
+        "tool",
+        joints=s.joints,
+        start_q_rad=s.start_q_rad,
+        damping_nm_s_per_rad=s.damping_nm_s_per_rad,
+        torque_limit_nm=s.torque_limit_nm,
+        gravity_compensation=s.gravity_compensation is not False,
+        wall=wall,
+    )
 
 
 def _with_effects(plant: Any, config: Scene, side: str, effects: PlantEffectsConfig) -> Plant:

@@ -15,7 +15,8 @@ the point the task-space coupling acts on. The plant adds to the compiled model,
   frictionless explicit contact pair with a small sphere at the tool point, contact parameters
   set for a static stiffness K (N/m) and damping B (N s/m) (`wall_solref`);
 - a master's operator hand: the hand's mass as a point mass at the handle (it moves rigidly with
-  the handle), and the hand force applied at the handle as joint torques J^T f (`qfrc_applied`).
+  the handle), and the hand force applied at the handle as joint torques J^T f (`qfrc_applied`),
+  plus the force holding the hand's own weight (the operator carries it, not the device motors).
 
 State is read with MuJoCo's split step: `read()` runs `mj_step1` (kinematics, Jacobians,
 gravity torques and collisions of the current state), `step()` sets the torques and runs
@@ -35,7 +36,7 @@ import numpy as np
 from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.mujoco_plant import SimSettings, resolve_model
 
-TOOL_RADIUS_M = 0.002  # the contact sphere at the tool point (the wall plane sits this far behind)
+TOOL_RADIUS_M = 0.002  # the contact sphere added at the tool point of a model without a "tool_tip"
 
 
 @dataclass(frozen=True)
@@ -128,34 +129,37 @@ class MujocoArm:
             for j in spec.joints:
                 j.actgravcomp = 1
         if hand_mass_kg > 0.0:
-            parent = site.parent
-            parent.add_body(
-                name="operator_hand",
-                pos=list(site.pos),
-                mass=hand_mass_kg,
-                inertia=[1e-9, 1e-9, 1e-9],
-                gravcomp=1.0 if gravity_compensation else 0.0,
+            # The operator's hand moves with the handle; its weight is the operator's to carry
+            # (added to the hand force in `step`), not the device motors'.
+            site.parent.add_body(
+                name="operator_hand", pos=list(site.pos), mass=hand_mass_kg, inertia=[1e-9, 1e-9, 1e-9], gravcomp=0.0
             )
+        self.tool_radius_m = 0.0
         if wall is not None:
+            # The tool's contact sphere: the model's own "tool_tip" (centred on the tool site), else one added.
+            tip = _find(spec.geoms, "tool_tip")
+            if tip is None:
+                tip = site.parent.add_geom(
+                    name="tool_tip",
+                    type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                    size=[TOOL_RADIUS_M, 0.0, 0.0],
+                    pos=list(site.pos),
+                    mass=0.0,
+                )
+            elif tip.type != mujoco.mjtGeom.mjGEOM_SPHERE:
+                raise PlantError(f"geom 'tool_tip' of {path} must be a sphere centred on the tool site")
+            tip.contype, tip.conaffinity = 0, 0  # only the explicit pair below touches the wall
+            self.tool_radius_m = float(tip.size[0])
             n = np.asarray(wall.normal, dtype=float)
             # The plane sits one sphere radius behind the wall surface: the tool *point* meets the
             # surface when the sphere meets the plane.
-            pos = np.asarray(wall.point_m, dtype=float) - TOOL_RADIUS_M * n
+            pos = np.asarray(wall.point_m, dtype=float) - self.tool_radius_m * n
             spec.worldbody.add_geom(
                 name="wall",
                 type=mujoco.mjtGeom.mjGEOM_PLANE,
                 size=[0.0, 0.0, 0.01],
                 pos=list(pos),
                 quat=_quat_z_to(n),
-                contype=0,
-                conaffinity=0,
-            )
-            site.parent.add_geom(
-                name="tool_tip",
-                type=mujoco.mjtGeom.mjGEOM_SPHERE,
-                size=[TOOL_RADIUS_M, 0.0, 0.0],
-                pos=list(site.pos),
-                mass=0.0,
                 contype=0,
                 conaffinity=0,
             )
@@ -203,6 +207,7 @@ class MujocoArm:
             if len(damping_nm_s_per_rad) != self.n:
                 raise PlantError(f"damping_nm_s_per_rad has {len(damping_nm_s_per_rad)} values for {self.n} joints")
             m.dof_damping[self._dadr] = damping_nm_s_per_rad
+        self._hand_support = -hand_mass_kg * np.array(m.opt.gravity)  # the operator holds their hand up
         self._site = m.site(point_site).id
         self._body = int(m.site_bodyid[self._site])
         self._gravity = gravity_compensation
@@ -241,6 +246,10 @@ class MujocoArm:
     def damping_nm_s_per_rad(self) -> np.ndarray:
         """Each joint's physical damping, from the compiled model (what the simulator applies)."""
         return np.array(self.model.dof_damping[self._dadr])
+
+    def joint_damping(self) -> list[float]:
+        """The Plant protocol's name for `damping_nm_s_per_rad` (N m s/rad per joint)."""
+        return [float(b) for b in self.damping_nm_s_per_rad]
 
     def _step1(self) -> None:
         if not self._fresh:
@@ -295,6 +304,27 @@ class MujocoArm:
         x = self.data.site_xpos[self._site]
         return float(np.dot(np.asarray(self.wall.point_m) - x, self.wall.normal))
 
+    def wall_omega_rad_per_s(self) -> float:
+        """The contact's natural frequency at the current configuration (0 without a wall).
+
+        With A = n^T J M^-1 J^T n the tool's inverse inertia along the normal and w the row's
+        diagApprox, the contact's spring acts on the acceleration as
+        omega^2 = A K (1 - d) w / (A d + (1 - d) w) (docs/arms.md); omega h <= sqrt(2) keeps the
+        simulated wall passive (docs/robustness.md)."""
+        if self.wall is None:
+            return 0.0
+        mj, m, d = self._mj, self.model, self.data
+        mj.mj_forward(m, d)
+        jacp = np.zeros((3, m.nv))
+        mj.mj_jacSite(m, d, jacp, None, self._site)
+        jn = jacp.T @ np.asarray(self.wall.normal)
+        x = np.zeros(m.nv)
+        mj.mj_solveM(m, d, x.reshape(1, -1), jn.reshape(1, -1))
+        a = float(jn @ x)
+        w = self.contact_inv_weight_per_kg
+        imp = self.wall.contact_impedance
+        return math.sqrt(a * self.wall.stiffness_n_per_m * (1.0 - imp) * w / (a * imp + (1.0 - imp) * w))
+
     # ---------------------------------------------------------------------------------- step
 
     def step(self, torque_nm: Sequence[float] | np.ndarray, hand_force_n: Sequence[float] | None = None) -> np.ndarray:
@@ -310,7 +340,8 @@ class MujocoArm:
         tau = np.minimum(np.maximum(tau, lo), hi)
         d.ctrl[self._act] = tau
         if hand_force_n is not None:
-            d.qfrc_applied[self._dadr] = self.jacobian().T @ np.asarray(hand_force_n, dtype=float)
+            f = np.asarray(hand_force_n, dtype=float) + self._hand_support
+            d.qfrc_applied[self._dadr] = self.jacobian().T @ f
         mj.mj_step2(m, d)
         self._fresh = False
         wrench = self._contact()
@@ -349,6 +380,29 @@ class MujocoArm:
     def close(self) -> None:
         self.data.ctrl[:] = 0.0
         self.data.qfrc_applied[:] = 0.0
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """What a scene checks of an MJCF before anything is built: its joints, motors and sites."""
+
+    joints: tuple[str, ...]
+    motors: tuple[str, ...]
+    sites: tuple[str, ...]
+
+
+def inspect_model(model: str) -> ModelInfo:
+    """The names in a model file (a path or a bundled model's name); PlantError if it cannot be read."""
+    import mujoco
+
+    path = resolve_model(model)
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except (ValueError, RuntimeError) as exc:
+        raise PlantError(f"cannot load MuJoCo model {path}: {exc}") from None
+    return ModelInfo(
+        tuple(j.name for j in spec.joints), tuple(a.name for a in spec.actuators), tuple(s.name for s in spec.sites)
+    )
 
 
 def _find(items, name: str):  # type: ignore[no-untyped-def]
