@@ -661,7 +661,17 @@ class CoupledEnergyBound:
         self._has_last = False
         self.scale = 1.0  # the last lambda (1: the limited desired torque passed unchanged)
 
-    def step(self, q: npt.NDArray[np.float64], tau_desired: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    def step(
+        self,
+        q: npt.NDArray[np.float64],
+        tau_desired: npt.NDArray[np.float64],
+        low: npt.NDArray[np.float64] | None = None,
+        high: npt.NDArray[np.float64] | None = None,
+    ) -> npt.NDArray[np.float64]:
+        """One tick: q the joint positions now, tau_desired the law's torque (gravity compensation not
+        included). low/high: this tick's torque range per joint for the bounded part (low <= 0 <= high),
+        e.g. the motor's range minus the gravity compensation the caller adds after; default
+        -+torque_limit_nm."""
         n = self.params.joints
         last = self._last_q
         if self._has_last:
@@ -673,7 +683,13 @@ class CoupledEnergyBound:
             self._has_last = True
         for i in range(n):
             last[i] = q[i]
-        joint_limited(self._limited, tau_desired, self._low, self._high, self._keep_direction)
+        joint_limited(
+            self._limited,
+            tau_desired,
+            self._low if low is None else low,
+            self._high if high is None else high,
+            self._keep_direction,
+        )
         out = self.applied
         if not self.params.enabled:
             if self._step is None:

@@ -132,6 +132,18 @@ def test_clip_mode_clips_each_joint_then_scales():
     assert scaled.step(np.zeros(2), np.array([5.0, 5.0])) == pytest.approx([1.0, 1.0])
 
 
+def test_per_tick_range_leaves_room_for_gravity_compensation():
+    """low/high of one tick (the motor's range minus the gravity torque added after the bound):
+    the bounded torque plus gravity stays within the motor's range, direction kept."""
+    lim = np.array([10.0, 10.0, 4.0])
+    gravity = np.array([0.0, 7.0, -3.5])
+    bound = CoupledEnergyBound(CoupledEnergyBoundParams(T, (1.0, 1.0, 1.0), 100.0, torque_limit_nm=tuple(lim)))
+    tau_d = np.array([2.0, 8.0, 2.0])
+    out = bound.step(np.zeros(3), tau_d, low=-lim - gravity, high=lim - gravity).copy()
+    assert np.all(np.abs(out + gravity) <= lim)
+    assert out == pytest.approx(tau_d * (3.0 / 8.0), rel=1e-12)  # joint 1 has 3 N m of room left
+
+
 @settings(max_examples=300, deadline=None)
 @given(
     steps=st.lists(st.tuples(st.floats(-1e-2, 1e-2), st.floats(-500.0, 500.0)), min_size=1, max_size=200),
