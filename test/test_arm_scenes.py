@@ -127,3 +127,20 @@ def test_hard_case_negative_without_eba_and_not_with_it(tmp_path: Path, protecte
         assert min(margins) >= 0.0, margins
     else:
         assert min(margins) < -0.1, margins
+
+
+def test_a_rotated_scaled_mapping_still_couples_handle_and_tool(tmp_path: Path) -> None:
+    """Master device turned 90 degrees about z and scaled by 0.5: the handle's start maps onto the
+    tool's (the default offset), the operator still pushes the tool into the wall along the task
+    direction, and the master moves along its own -y to do it (R^T of +x)."""
+    sets = ("scene.duration_s=3.0", "mapping={scale: 0.5, rotation_rpy_deg: [0, 0, 90]}")
+    engine, summary, _ = _record(tmp_path, "touch_dynamixel_wall", *sets)
+    s = engine.schema
+    d = engine.data
+    np.testing.assert_allclose(d[0, s.group("m_x_m")], d[0, s.group("s_x_m")], atol=1e-12)
+    assert summary["penetration_max_m"] > 0.0
+    assert summary["master_energy_margin_simulator_min_j"] >= 0.0
+    handle = engine.master.point()[0]  # device frame, at the end
+    start = np.array(engine.arm.mapping.position_to_master(d[0, s.group("m_x_m")]))
+    moved = handle - start
+    assert moved[1] < -0.02 and abs(moved[0]) < 0.5 * abs(moved[1])  # task +x is the device's -y
