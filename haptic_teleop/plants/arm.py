@@ -274,7 +274,7 @@ class MujocoArm:
         self._mj.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self._site)
         if rotational:
             return np.vstack((self._jacp[:, self._dadr], self._jacr[:, self._dadr]))
-        return self._jacp[:, self._dadr].copy()
+        return np.ascontiguousarray(self._jacp[:, self._dadr])
 
     def orientation(self) -> np.ndarray:
         """The point site's rotation matrix (3 x 3, world frame), this tick."""
@@ -336,8 +336,8 @@ class MujocoArm:
         self._step1()
         mj, m, d = self._mj, self.model, self.data
         lo, hi = self.torque_room()
-        tau = np.nan_to_num(np.asarray(torque_nm, dtype=float), nan=0.0, posinf=np.inf, neginf=-np.inf)
-        tau = np.minimum(np.maximum(tau, lo), hi)
+        tau = np.asarray(torque_nm, dtype=float)
+        tau = np.minimum(np.maximum(np.where(np.isnan(tau), 0.0, tau), lo), hi)  # NaN -> 0, then the clip
         d.ctrl[self._act] = tau
         if hand_force_n is not None:
             f = np.asarray(hand_force_n, dtype=float) + self._hand_support
