@@ -197,3 +197,60 @@ def test_summary_equals_the_analytic_values(bag):
     for key, value in whole.items():
         if isinstance(value, float) and not math.isnan(value):
             assert streamed[key] == pytest.approx(value, rel=1e-12, abs=1e-15), key
+
+
+def test_plots_draw_paths_wall_forces_and_ports(bag, tmp_path):
+    from haptic_teleop.analysis.plotdata import TaskPlotData, from_bag
+    from haptic_teleop.analysis.plots import task_energy_figure, task_forces_figure, task_path_figure, write_plots
+
+    data = from_bag(bag)
+    assert isinstance(data, TaskPlotData)
+    written = write_plots(data, tmp_path / "plots")
+    assert [p.name for p in written] == ["paths.png", "forces.png", "energy.png"]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in written)
+    t_end = (N - 1) * T
+    # paths: the tool's line from its start to its end, in mm; the wall's trace in the front view
+    # (x-z) lies in the plane
+    fig = task_path_figure(data)
+    front = next(ax for ax in fig.axes if ax.get_title() == "front (x-z)")
+    lines = {ln.get_label(): ln for ln in front.get_lines()}
+    tool_line = lines["slave tool"]
+    ends = np.array([[tool_line.get_xdata()[k], tool_line.get_ydata()[k]] for k in (0, -1)])
+    assert ends == pytest.approx(tool(np.array([0.0, t_end]))[:, [0, 2]] * 1e3)
+    wall = lines["wall (cut at the contact)"]
+    for x_mm, z_mm in zip(wall.get_xdata(), wall.get_ydata(), strict=True):
+        point = np.array([x_mm, P[1] * 1e3, z_mm]) * 1e-3
+        assert float((P - point) @ NORMAL) == pytest.approx(0.0, abs=1e-12)
+    # forces: per axis, the contact force reaches K * depth * n; the rendered force holds the bias
+    fig = task_forces_figure(data)
+    for k, ax in enumerate(fig.axes[:3]):
+        got = {ln.get_label(): np.asarray(ln.get_ydata()) for ln in ax.get_lines()}
+        c = got["contact force at the tool"]
+        assert c[np.argmax(np.abs(c))] == pytest.approx(K * (SPEED * t_end - GAP) * NORMAL[k])
+        assert got["force rendered at the handle"][0] == pytest.approx(BIAS[k])
+    depth_line = fig.axes[3].get_lines()[0]
+    assert max(depth_line.get_ydata()) == pytest.approx((SPEED * t_end - GAP) * 1e3)
+    # energy: the pooled margin ends at E0 plus what every port absorbed
+    fig = task_energy_figure(data)
+    for ax, side in zip(fig.axes, ("master", "slave"), strict=True):
+        pooled = next(ln for ln in ax.get_lines() if ln.get_label() == "pooled margin")
+        per_tick = (np.array(DAMPING[side]) * RATES[side] ** 2 - TAUS[side] * RATES[side]) * T
+        assert pooled.get_ydata()[-1] == pytest.approx(E0[side] + (N - 1) * float(np.sum(per_tick)))
+
+
+def test_cli_analyze_of_an_n_dof_bag(bag, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.cli", "analyze", str(bag), "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["penetration_max_m"] == pytest.approx(SPEED * (N - 1) * T - GAP)
+    assert summary["slave_joints"] == list(SCHEMA.slave_joints)
+    assert {p.name for p in (out / "plots").iterdir()} == {"paths.png", "forces.png", "energy.png"}

@@ -271,20 +271,28 @@ class _Ports:
         self.pooled_low = 0.0
         self.prev: tuple[np.ndarray, np.ndarray] | None = None
 
-    def add(self, q: np.ndarray, tau: np.ndarray) -> None:
+    def absorbed(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The next rows' (q, tau): each row's absorbed energy per port since tick 0 (rows, ports)."""
+        first = self.prev is None
         if self.prev is not None:
             q = np.concatenate([self.prev[0], q])
             tau = np.concatenate([self.prev[1], tau])
+        if not q.shape[0]:
+            return np.zeros((0, self.d.size))
         self.prev = (q[-1:], tau[-1:])
-        if q.shape[0] < 2:
-            return
         dq = np.diff(q, axis=0)
         step = (self.d / self.T) * dq * dq - tau[:-1] * dq
-        cum = np.cumsum(np.concatenate([self.total[None, :], step]), axis=0)[1:]
-        self.total = cum[-1].copy()
-        self.low = np.minimum(self.low, np.min(cum, axis=0))
-        pooled = cum[:, 0] if cum.shape[1] == 1 else np.sum(cum, axis=1)
-        self.pooled_low = min(self.pooled_low, float(np.min(pooled)))
+        cum = np.cumsum(np.concatenate([self.total[None, :], step]), axis=0)
+        cum = cum if first else cum[1:]  # tick 0 absorbed nothing; later blocks start after the carry
+        if cum.shape[0]:
+            self.total = cum[-1].copy()
+            self.low = np.minimum(self.low, np.min(cum, axis=0))
+            pooled = cum[:, 0] if cum.shape[1] == 1 else np.sum(cum, axis=1)
+            self.pooled_low = min(self.pooled_low, float(np.min(pooled)))
+        return cum
+
+    def add(self, q: np.ndarray, tau: np.ndarray) -> None:
+        self.absorbed(q, tau)
 
 
 class _TaskAccumulator:
