@@ -254,3 +254,20 @@ def test_cli_analyze_of_an_n_dof_bag(bag, tmp_path):
     assert summary["penetration_max_m"] == pytest.approx(SPEED * (N - 1) * T - GAP)
     assert summary["slave_joints"] == list(SCHEMA.slave_joints)
     assert {p.name for p in (out / "plots").iterdir()} == {"paths.png", "forces.png", "energy.png"}
+
+
+def test_summary_streams_chunk_by_chunk(bag, monkeypatch):
+    """The summary of an n-DoF bag comes from the streaming pass (never the whole-bag arrays),
+    across the bag's chunks."""
+    from haptic_teleop.analysis import taskmetrics
+
+    with BagReader(bag) as r:
+        blocks = list(r.log_blocks("/slave/joint_states"))
+    assert len(blocks) > 3  # the topic spans several chunks
+
+    def whole(*_a, **_k):
+        raise AssertionError("the whole-bag path was taken")
+
+    monkeypatch.setattr(taskmetrics, "load_task_signals", whole)
+    s = summarize_bag(bag)
+    assert s["penetration_max_m"] == pytest.approx(expected()["penetration_max_m"])
