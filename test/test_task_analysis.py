@@ -281,3 +281,50 @@ def test_summary_streams_chunk_by_chunk(bag, monkeypatch):
     monkeypatch.setattr(taskmetrics, "load_task_signals", whole)
     s = summarize_bag(bag)
     assert s["penetration_max_m"] == pytest.approx(expected()["penetration_max_m"])
+
+
+def test_reader_decodes_n_dof_messages_of_other_tools(tmp_path):
+    """Another tool's n-DoF bag (other frames, so other byte layouts; sqlite3 storage) reads back by
+    field names: the schema from its joint states, poses and wrenches per axis."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    ts = get_typestore(Stores.LATEST)
+    t = ts.types
+    stamp = t["builtin_interfaces/msg/Time"](sec=0, nanosec=0)
+    hdr = t["std_msgs/msg/Header"](stamp=stamp, frame_id="base_link_of_another_robot")
+    v3 = t["geometry_msgs/msg/Vector3"]
+    msgs = {
+        "/operator/joint_states": t["sensor_msgs/msg/JointState"](
+            header=hdr, name=["hx", "hy", "hz"], position=np.zeros(3), velocity=np.zeros(3), effort=np.zeros(3)
+        ),
+        "/master/joint_states": t["sensor_msgs/msg/JointState"](
+            header=hdr, name=list(SCHEMA.master_joints), position=np.array([1.0, 2.0, 3.0]),
+            velocity=np.zeros(3), effort=np.array([4.0, 5.0, 6.0]),
+        ),
+        "/slave/joint_states": t["sensor_msgs/msg/JointState"](
+            header=hdr, name=list(SCHEMA.slave_joints), position=np.arange(6.0), velocity=np.zeros(6),
+            effort=np.arange(6.0) + 10,
+        ),
+        "/slave/tool_pose": t["geometry_msgs/msg/PoseStamped"](
+            header=hdr,
+            pose=t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](x=0.1, y=0.2, z=0.3),
+                orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            ),
+        ),
+        "/slave/contact_wrench": t["geometry_msgs/msg/WrenchStamped"](
+            header=hdr,
+            wrench=t["geometry_msgs/msg/Wrench"](force=v3(x=1.0, y=2.0, z=3.0), torque=v3(x=4.0, y=5.0, z=6.0)),
+        ),
+    }  # fmt: skip
+    with Writer(tmp_path / "other", version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        for topic, msg in msgs.items():
+            c = w.add_connection(topic, msg.__msgtype__, typestore=ts)
+            w.write(c, 0, bytes(ts.serialize_cdr(msg, msg.__msgtype__)))
+    with BagReader(tmp_path / "other") as r:
+        assert r.schema == SCHEMA
+        assert r.read("/slave/tool_pose").values.tolist() == [[0.1, 0.2, 0.3]]
+        assert r.read("/slave/contact_wrench").values.tolist() == [[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]]
+        js = r.read("/slave/joint_states")
+        assert js.field("effort[wrist_3]").tolist() == [15.0]
+        assert r.read("/master/joint_states").field("position[elbow]").tolist() == [3.0]
