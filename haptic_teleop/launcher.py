@@ -558,7 +558,7 @@ def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, recor
         )
         code = code or EXIT_FAILURE
     elif record is not None and bag is not None and bag.exists():
-        from haptic_teleop.cli import write_outputs
+        from haptic_teleop.analysis.outputs import write_outputs
         from haptic_teleop.report import format_summary
 
         summary = write_outputs(bag, record, plots=not args.no_plots)
