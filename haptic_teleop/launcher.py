@@ -105,7 +105,7 @@ def scene_params(scene: LoadedScene, executable: str, direction: str | None = No
         path = template.format(direction=direction)
         obj = _section(scene.config, path)
         if path.endswith(".effects"):
-            from haptic_teleop.core.network import resolve_trace_paths
+            from haptic_teleop.traces import resolve_trace_paths
 
             obj = resolve_trace_paths(obj, Path(scene.source).parent)  # nodes run elsewhere
         section = dataclasses.asdict(obj)

@@ -607,7 +607,7 @@ def test_blackout_window_is_in_scene_time_and_drops_exactly_the_packets_sent_ins
     does: a blackout window of scene time loses every packet sent inside it and no other. Before,
     the links ran on the node clock (~1.8e9 s since 1970), so a window of [0.3, 0.5) s never
     opened and every packet was delivered."""
-    from haptic_teleop.core.network import DELIVERED, LOST_LATE, LOST_NETWORK
+    from haptic_teleop.core.link import DELIVERED, LOST_LATE, LOST_NETWORK
     from haptic_teleop.record.reader import BagReader
 
     window = (0.3, 0.5)

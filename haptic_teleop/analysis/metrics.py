@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST, read_run_info
-from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
 

@@ -48,14 +48,14 @@ class EbaSide:
         from sensor_msgs.msg import JointState
 
         from haptic_teleop.engine import _controller, remote_limits
-        from haptic_teleop.scene import _read_trace
+        from haptic_teleop.traces import read_operator_trace
 
         period_s = config.scene.period_s
         self.period_s = period_s
         self.watchdog = declare_watchdog(node, round(period_s * 1e9))
         op = config.operator
         trace = (
-            _read_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file")
+            read_operator_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file")
             if op.trace_file
             else None
         )

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.core.network import DELIVERED, LOST_LATE
+from haptic_teleop.core.link import DELIVERED, LOST_LATE
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.common import (
     DIRECTIONS,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import array
 from typing import Any
 
-from haptic_teleop.core.network import DELIVERED, LOST_LATE, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.common import (
     DIRECTION_JOINT,
