@@ -470,11 +470,11 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
 
 def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path, out: IO[str] | None = None) -> int:
     """Every node of the plan in this process: one executor, one shared loop thread ticking every
-    node in pipeline order (nodes.common.SharedLoop); the recorder is closed last. Prints the loop
+    node in pipeline order (nodes.rtloop.SharedLoop); the recorder is closed last. Prints the loop
     table at the end; a SIGINT/SIGTERM that stopped the nodes gives exit 130/143."""
     import importlib
 
-    from haptic_teleop.nodes.common import run_nodes
+    from haptic_teleop.nodes.base import run_nodes
 
     files = write_params_files(plan, params_dir)
     ordered = sorted(plan, key=lambda s: s.executable == "recorder")

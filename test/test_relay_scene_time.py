@@ -66,7 +66,8 @@ def _records(context, relay) -> np.ndarray:
     """The packet records the relay publishes on /forward/packets (bag row layout), by seq."""
     from std_msgs.msg import Float64MultiArray
 
-    from haptic_teleop.nodes.common import _polled_group_class, reliable_qos, take_all
+    from haptic_teleop.nodes.messages import _polled_group_class, take_all
+    from haptic_teleop.nodes.topics import reliable_qos
 
     node = rclpy.create_node("test_packets", context=context)
     sub = node.create_subscription(Float64MultiArray, "/forward/packets", lambda m: None, reliable_qos(100),
@@ -88,7 +89,7 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
     from std_msgs.msg import Header
 
     from haptic_teleop.core.link import DELIVERED, LOST_NETWORK
-    from haptic_teleop.nodes.common import SCENE_START_TOPIC, latched_qos
+    from haptic_teleop.nodes.topics import SCENE_START_TOPIC, latched_qos
 
     relay = _relay(context)
     try:

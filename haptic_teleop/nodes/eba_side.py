@@ -8,19 +8,18 @@ from typing import Any
 
 from haptic_teleop.core.watchdog import ForceFade, Watchdog
 from haptic_teleop.nodes import WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes.base import LiveNode
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.messages import EbaOut, take_latest
+from haptic_teleop.nodes.params import declare_value
+from haptic_teleop.nodes.topics import (
     DIRECTION_JOINT,
     MASTER_EBA,
     PAYLOAD_FIELDS,
     SLAVE_EBA,
     WIRE_FIELDS,
-    EbaOut,
-    LiveNode,
-    declare_value,
     received_topic,
     stream_qos,
-    take_latest,
 )
 
 WATCHDOG_PARAMS = ("watchdog.timeout_s", "watchdog.fade_s")

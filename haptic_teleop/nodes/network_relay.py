@@ -43,27 +43,24 @@ from typing import Any
 from haptic_teleop.core.link import Packet
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
 from haptic_teleop.nodes import RELAY_SCENE_STARTS, SCENE_SECTIONS
+from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.messages import JointStateOut, take_all
+from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.topics import (
     DIRECTION_JOINT,
     DIRECTIONS,
     PAYLOAD_FIELDS,
     READER_DEPTH,
     SCENE_START_TOPIC,
     WIRE_FIELDS,
-    JointStateOut,
-    LiveNode,
-    declare_scene,
-    declare_value,
     delivered_topic,
     latched_qos,
-    node_main,
     packets_topic,
     reliable_qos,
     scene_start_ns,
     sent_topic,
     stream_qos,
-    take_all,
 )
 
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
