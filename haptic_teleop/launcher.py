@@ -80,7 +80,8 @@ def _nest(path: str, value: Any) -> dict[str, Any]:
     out: Any = value
     for part in reversed([p for p in path.split(".") if p]):
         out = {part: out}
-    return out
+    nested: dict[str, Any] = out
+    return nested
 
 
 def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> dict[str, Any]:

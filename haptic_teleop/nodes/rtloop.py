@@ -214,9 +214,10 @@ class LoopStats:
 
 def _sorted_percentile(a: Any, q: float) -> float:
     """Percentile q of sorted values `a` (linear interpolation, as numpy's default)."""
-    pos = q / 100.0 * (a.size - 1)
+    n: int = a.size
+    pos = q / 100.0 * (n - 1)
     lo = int(pos)
-    hi = min(lo + 1, a.size - 1)
+    hi = min(lo + 1, n - 1)
     return float(a[lo]) + (pos - lo) * (float(a[hi]) - float(a[lo]))
 
 
