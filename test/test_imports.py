@@ -17,13 +17,12 @@ PACKAGE = Path(__file__).resolve().parents[1] / "haptic_teleop"
 
 # (importer, imported): the import that closes a known cycle, with why it is still there.
 KNOWN_BACK_EDGES = {
-    # The compiled kernel takes the column indices and packet-fate constants of the tick from the
-    # loop that drives it; they move below both when the tick schema moves to record/columns.py.
-    ("haptic_teleop.fastkernel", "haptic_teleop.fastloop"): "tick schema shared through fastloop",
-    # The recording layer takes the per-tick column names (COL, COLUMNS) from the engine, which
-    # imports the recorder back; removed when the tick schema moves to record/columns.py.
-    ("haptic_teleop.record.streams", "haptic_teleop.engine"): "COL from the engine",
-    ("haptic_teleop.record.recorder", "haptic_teleop.engine"): "COLUMNS from the engine",
+    # The compiled kernel takes the layout of its parameter and state arrays (P_*, S_*) from the
+    # loop that drives it; they belong in a module below both.
+    ("haptic_teleop.fastkernel", "haptic_teleop.fastloop"): "array layout shared through fastloop",
+    # The n-D summary reuses the block readers of stream.py, which imports it for that summary;
+    # the shared readers belong in a module below both.
+    ("haptic_teleop.analysis.taskmetrics", "haptic_teleop.analysis.stream"): "block readers",
 }
 
 
