@@ -31,7 +31,7 @@ import numpy as np
 
 from haptic_teleop import fastloop
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
-from haptic_teleop.core.network import Link, Packet, build_link
+from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.errors import HapticTeleopError
@@ -40,6 +40,7 @@ from haptic_teleop.record.columns import ONE_DOF
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, SaturationConfig, Scene
+from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
 
 # Per-tick columns, in record order: the 1-DoF tick schema (record/columns.py).
 COLUMNS = ONE_DOF.columns

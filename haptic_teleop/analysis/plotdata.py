@@ -31,7 +31,7 @@ from haptic_teleop.analysis.timeline import (
     loss_causes,
     skip_times,
 )
-from haptic_teleop.core.network import DELIVERED, LOST_LATE
+from haptic_teleop.core.link import DELIVERED, LOST_LATE
 
 MAX_POINTS = 20_000
 

@@ -20,7 +20,7 @@ from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
 from haptic_teleop.analysis.metrics import Signals, port_energy
 from haptic_teleop.analysis.plotdata import PlotData, Series, TaskPlotData, from_signals
-from haptic_teleop.core.network import CANONICAL_ORDER
+from haptic_teleop.core.link import CANONICAL_ORDER
 
 DPI = 100
 

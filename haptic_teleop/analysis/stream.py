@@ -39,7 +39,7 @@ from haptic_teleop.analysis.metrics import (
     simulator_damping,
     wall_plane,
 )
-from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
 

@@ -156,7 +156,7 @@ def _quantiles(d: np.ndarray) -> tuple[float, float]:
 
 def compute_task_summary(sig: TaskSignals) -> dict[str, Any]:
     """summary.json of an n-DoF run from its whole signals (the reference for `stream_task_summary`)."""
-    from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+    from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 
     sc, T, schema = sig.scene, sig.period_s, sig.schema
     duration = float(sig.t_s[-1] + T)
