@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from haptic_teleop.core.eba import joint_limited
-from haptic_teleop.core.network import Packet
+from haptic_teleop.core.link import Packet
 from haptic_teleop.core.taskspace import (
     add_into,
     coupling,

@@ -14,11 +14,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
-from haptic_teleop.core.network import Link, build_link
+from haptic_teleop.core.link import Link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.plants import build_master_plant, build_slave_plant
-from haptic_teleop.scene import ControllerConfig, OperatorConfig, SaturationConfig, Scene, read_trace
+from haptic_teleop.scene import ControllerConfig, OperatorConfig, SaturationConfig, Scene
+from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
+from haptic_teleop.traces import read_operator_trace
 
 if TYPE_CHECKING:
     import numpy as np
@@ -36,7 +38,7 @@ __all__ = [
     "build_network",
     "build_operator",
     "build_slave_plant",
-    "read_trace",
+    "read_operator_trace",
     "remote_limits",
 ]
 

@@ -38,7 +38,7 @@ from haptic_teleop.assembly import (
     build_slave_plant,
     remote_limits,
 )
-from haptic_teleop.core.network import Link, Packet
+from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
