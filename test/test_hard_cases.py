@@ -68,7 +68,9 @@ BLACKOUT = _both("blackout", "{starts_s: [1.0], ends_s: [1.5]}")
 # Actuator limits downstream of the bound (docs/eba.md, "Actuator limits inside the bound").
 # Slew: the issue's command (stiffness 5000 N/m, 200 N/s on both actuators). Clip: the operator
 # moving in and out of the wall (2 cm, 2 Hz) against a strongly damped coupling (c2 = 200 N s/m),
-# whose commanded force is far above the actuators' clips (2 N master, 5 N slave) while braking.
+# whose commanded force is far above the actuators' clips (2 N master, 5 N slave) while braking;
+# the slave's budget is small (50 mJ), so a ledger that credits braking at the commanded force
+# lets it spend energy it never had.
 SLEW = (
     "controllers.master.stiffness_n_per_m=5000",
     "controllers.slave.stiffness_n_per_m=5000",
@@ -85,6 +87,7 @@ CLIP = (
     "slave.damping_n_s_per_m=0.5",
     "master.effects.saturation.force_limit_n=2",
     "slave.effects.saturation.force_limit_n=5",
+    "controllers.slave.eba.initial_energy_j=0.05",
 )
 
 
@@ -116,7 +119,7 @@ CASES = (
     Case("blackout_recovery", LARGE_GAINS + BLACKOUT + _both("delay.delay_s", 0.02), unprotected_fails=True),
     Case("everything_at_once", WALL_1E6 + LARGE_GAINS + FAST + VARYING_DELAY + GE_LOSS + REORDER + BLACKOUT),
     Case("actuator_slew_200_n_per_s", SLEW, limits_unaware_fails=True),
-    Case("actuator_clip", CLIP, limits_unaware_fails=True),
+    Case("actuator_clip", CLIP, duration_s=6.0, limits_unaware_fails=True),
 )
 CASE = {c.name: c for c in CASES}
 
@@ -477,11 +480,18 @@ def test_limits_unaware_bound_fails(case: Case, runs: Callable[..., Run]) -> Non
         assert min(np.min(blind.signals.master_reservoir_j), np.min(blind.signals.slave_reservoir_j)) >= 0.0
         assert blind.summary["contact_force_max_n"] > 5 * fixed.summary["contact_force_max_n"]
     else:
-        # Credited at the commanded force while the clipped one acted: joules never absorbed.
+        # Credited at the commanded force while the clipped one acted: joules never absorbed...
         assert ledger_overcredit_j(blind, "master") > 1.0
         assert ledger_overcredit_j(blind, "slave") > 0.01
         for side in SIDES:
             assert ledger_overcredit_j(fixed, side) <= side_epsilon_j(fixed, side)
+        # ... which the slave spends: it delivers more than twice its budget E0 (margin below -E0),
+        # still losing energy in the last third, while its reservoir says it stayed >= 0.
+        e0 = blind.config.controllers.slave.eba.initial_energy_j
+        a = blind.absorbed_j("slave")
+        assert np.min(a) < -e0 and a[2 * a.size // 3] - a[-1] > 0.01, (float(np.min(a)), e0)
+        assert blind.signals.slave_reservoir_j is not None and np.min(blind.signals.slave_reservoir_j) >= 0.0
+        assert fixed.summary["slave_energy_margin_min_j"] >= -side_epsilon_j(fixed, "slave")
 
 
 @pytest.mark.parametrize("case", [c for c in CASES if c.limits_unaware_fails], ids=lambda c: c.name)
