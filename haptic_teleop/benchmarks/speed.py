@@ -145,7 +145,7 @@ def _stage_operator(e: Any, c: Columns) -> float:
 
 
 def _stage_packets(e: Any, c: Columns) -> float:
-    from haptic_teleop.core.network import Packet
+    from haptic_teleop.core.link import Packet
 
     mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
     period_ns = e.period_ns
@@ -158,7 +158,7 @@ def _stage_packets(e: Any, c: Columns) -> float:
 
 
 def _packets(e: Any, c: Columns) -> tuple[list[Any], list[Any]]:
-    from haptic_teleop.core.network import Packet
+    from haptic_teleop.core.link import Packet
 
     mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
     period_ns = e.period_ns

@@ -12,19 +12,11 @@ from __future__ import annotations
 from typing import Any
 
 from haptic_teleop.nodes import SCENE_SECTIONS
-from haptic_teleop.nodes.common import (
-    SLAVE_CONTACT,
-    SLAVE_JOINT,
-    SLAVE_STATE,
-    WALL_FRAME,
-    JointStateOut,
-    LiveNode,
-    WrenchOut,
-    declare_scene,
-    node_main,
-    sent_topic,
-)
+from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
+from haptic_teleop.nodes.messages import JointStateOut, WrenchOut
+from haptic_teleop.nodes.params import declare_scene
+from haptic_teleop.nodes.topics import SLAVE_CONTACT, SLAVE_JOINT, SLAVE_STATE, WALL_FRAME, sent_topic
 
 
 class SlaveEba(LiveNode):
