@@ -228,6 +228,38 @@ def test_master_joint_ranges_cover_published_workspace(name):
         assert np.abs(site_pose(model, "handle", q)[0] - p).max() < 1e-9
 
 
+MASTER_DECLARED = {  # docs/models.md: body masses [kg], joint ranges [rad], torque limit [N m],
+    # damping [N m s/rad], armature [kg m^2]
+    "touch.xml": (
+        {"turret": 0.18, "upper_arm": 0.035, "forearm": 0.03, "handle_body": 0.025},
+        ((-1.05, 1.05), (-0.5, 1.1), (-1.2, 0.9)),
+        0.44,
+        0.003,
+        0.00012,
+    ),
+    "premium.xml": (
+        {"turret": 0.45, "upper_arm": 0.045, "forearm": 0.03, "handle_body": 0.015},
+        ((-1.2, 1.2), (-0.5, 1.75), (-1.2, 1.3)),
+        1.83,
+        0.01,
+        0.0002,
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(MASTERS))
+def test_master_masses_and_limits_as_declared(name):
+    model = load(name)
+    masses, ranges, torque_nm, damping, armature = MASTER_DECLARED[name]
+    for body, mass in masses.items():
+        assert model.body(body).mass[0] == pytest.approx(mass, abs=1e-12), body
+    assert np.abs(model.jnt_range - np.array(ranges)).max() < 1e-12
+    assert model.jnt_limited.all()
+    assert np.abs(model.actuator_ctrlrange - np.array([[-torque_nm, torque_nm]] * 3)).max() < 1e-12
+    assert np.allclose(model.dof_damping, damping, rtol=0, atol=1e-15)
+    assert np.allclose(model.dof_armature, armature, rtol=0, atol=1e-15)
+
+
 @pytest.mark.parametrize("name", sorted(MASTERS))
 def test_master_is_gravity_balanced(name):
     """Counterbalanced device: under gravity, with the motors off, the arm stays where it is put
@@ -368,5 +400,8 @@ def test_dxl_torque_limits_follow_from_the_current_limit():
         assert model.joint(joint).armature[0] == pytest.approx(gear**2 * rotor, rel=1e-3)
     for body, mass in DXL_MASSES_KG.items():
         assert model.body(body).mass[0] == pytest.approx(mass, abs=1e-12)
+    assert np.abs(model.jnt_range - np.array([[-3.14159, 3.14159], [-1.5, 1.9], [-2.4, 2.4]])).max() < 1e-12
+    assert model.dof_damping.tolist() == [0.1, 0.1, 0.04]
+    assert model.dof_frictionloss.tolist() == [0.15, 0.15, 0.06]
     assert model.body("turret").mass[0] >= DXL_SERVOS["XM540-W270"][3]  # carries the shoulder servo
     assert model.body("upper_arm").mass[0] >= DXL_SERVOS["XM430-W350"][3]  # carries the elbow servo
