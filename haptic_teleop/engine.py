@@ -38,7 +38,7 @@ from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, Scene
+from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, SaturationConfig, Scene
 
 # Per-tick columns, in record order.
 COLUMNS = (
@@ -104,8 +104,17 @@ def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ..
 
 
 def _controller(
-    cfg: ControllerConfig, role: str, period_s: float, damping: float, limits: RemoteLimits | None = None
+    cfg: ControllerConfig,
+    role: str,
+    period_s: float,
+    damping: float,
+    limits: RemoteLimits | None = None,
+    saturation: SaturationConfig | None = None,
 ) -> TeleopController:
+    """One side's controller. `saturation`: the side's actuator effect (clip and slew limit), which
+    the energy bound then models (docs/eba.md, "Actuator limits inside the bound"). The plant's own
+    clip (`<side>.force_limit_n`) is never reached: the scene keeps the controller's saturation
+    within it."""
     params = ControllerParams(
         role=role,
         law=cfg.law,
@@ -120,6 +129,8 @@ def _controller(
         damping_n_s_per_m=(damping,),
         initial_energy_j=cfg.eba.initial_energy_j,
         enabled=cfg.eba.enabled,
+        force_limit_n=saturation.force_limit_n if saturation is not None else None,
+        slew_rate_n_per_s=saturation.slew_rate_n_per_s if saturation is not None else None,
     )
     return TeleopController(params, bound)
 
@@ -170,10 +181,13 @@ class Engine:
         self.master = build_master_plant(c)
         self.slave = build_slave_plant(c)
         limits = remote_limits(c, scene.operator_trace)
+        m, s = c.master, c.slave
         self.master_ctrl = _controller(
-            c.controllers.master, "master", self.period_s, c.master.damping_n_s_per_m, limits
+            c.controllers.master, "master", self.period_s, m.damping_n_s_per_m, limits, m.effects.saturation
         )
-        self.slave_ctrl = _controller(c.controllers.slave, "slave", self.period_s, c.slave.damping_n_s_per_m, limits)
+        self.slave_ctrl = _controller(
+            c.controllers.slave, "slave", self.period_s, s.damping_n_s_per_m, limits, s.effects.saturation
+        )
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
@@ -295,6 +309,8 @@ class Engine:
         # The controllers update these lists in place every tick.
         m_desired, s_desired = mc.force_desired, sc.force_desired
         m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
+        # The reservoirs account with the force the plants really applied (docs/eba.md).
+        m_applied, s_applied = mc.bound.applied1, sc.bound.applied1
         hand = self.operator.hand_force_and_intended
         fwd, bwd = self.forward, self.backward
         fwd_send, bwd_send = fwd.send, bwd.send
@@ -353,6 +369,8 @@ class Engine:
                 fh, xd, vd = hand(n * period_s, xm, vm)
                 fm_applied = m_step([fm], fh)[0]
                 fs_applied = s_step([fs])[0]
+                m_applied(fm_applied)
+                s_applied(fs_applied)
                 pack_row(
                     block, (n - base) * row_bytes,
                     xd, vd, fh[0],
@@ -661,6 +679,10 @@ def record_run(
             # Remote samples each side's guard rejected (the slave checks the forward direction).
             "rejected_samples_forward": engine.slave_ctrl.rejected_samples,
             "rejected_samples_backward": engine.master_ctrl.rejected_samples,
+            # The damping each port's joint really has in the simulator (MjModel dof_damping, SI
+            # per joint): the analysis' true energy margin uses it (docs/eba.md).
+            "master_joint_damping": engine.master.joint_damping(),
+            "slave_joint_damping": engine.slave.joint_damping(),
         }
         if collector is not None:
             engine.data = collector.data()

@@ -21,6 +21,7 @@ from haptic_teleop.core import operator as op
 from haptic_teleop.fastloop import (
     MASTER,
     OP,
+    P_ACT_LIMIT,
     P_AMP,
     P_B,
     P_BOUND_GAIN,
@@ -39,6 +40,7 @@ from haptic_teleop.fastloop import (
     P_PERIOD_S,
     P_PLANT_LIMIT,
     P_PROFILE,
+    P_SLEW_STEP,
     P_SPEED,
     P_START,
     P_SUBSTEPS,
@@ -81,6 +83,8 @@ mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
 jit = numba.njit(cache=True, nogil=True)
 reservoir1 = jit(eba.reservoir1)
 bounded1 = jit(eba.bounded1)
+ramp_limit1 = jit(eba.ramp_limit1)
+actuator_bounded1 = jit(eba.actuator_bounded1)
 saturated1 = jit(eba.saturated1)
 coupling1 = jit(eba.coupling1)
 within2 = jit(eba.within2)
@@ -111,7 +115,13 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
     else:
         S[side + S_HAS_LAST] = 1.0
     S[side + S_LAST] = x
-    if P[side + P_EBA_ON] != 0.0:
+    if P[side + P_EBA_ON] == 0.0:
+        pass
+    elif P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf:  # EnergyBoundParams.limited
+        step = P[side + P_SLEW_STEP]
+        limit = ramp_limit1(S[side + S_ENERGY], P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT], step)
+        f = actuator_bounded1(f, limit, S[side + S_HELD], step)
+    else:
         f = bounded1(f, S[side + S_ENERGY], P[side + P_BOUND_GAIN])
     S[side + S_HELD] = f
     return f, desired
@@ -198,11 +208,13 @@ def run_ticks(
             xd, vd = P[OP + P_X0], 0.0
         fh = hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
         fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
+        S[MASTER + S_HELD] = fm_applied  # EnergyBound.applied1: the reservoir accounts with it
         mctrl[0] = fh
         mctrl[1] = fm_applied
         for _ in range(m_steps):
             mj_step(models[0], models[1])
         fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
+        S[SLAVE + S_HELD] = fs_applied
         sctrl[0] = fs_applied
         if s_steps == 1:
             mj_step(models[2], models[3])

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
@@ -59,6 +60,13 @@ def port_energy(x_m: np.ndarray, force_n: np.ndarray, damping: float, period_s: 
     dx = np.diff(x_m)
     step = (damping / period_s) * dx * dx - force_n[:-1] * dx
     return np.concatenate([[0.0], np.cumsum(step)])
+
+
+def simulator_damping(run_info: dict[str, Any], side: str) -> list[float] | None:
+    """The damping per joint of a side's plant as the simulator had it (`<side>_joint_damping` in
+    the run facts, from the compiled MjModel's dof_damping); None for bags written without it."""
+    d = run_info.get(f"{side}_joint_damping")
+    return [float(v) for v in d] if d is not None else None
 
 
 def _lag_ticks(delays_s: np.ndarray, period_s: float) -> int:
@@ -235,6 +243,17 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
     se0 = float(sc["controllers"]["slave"]["eba"]["initial_energy_j"])
     m_abs = port_energy(sig.master_x_m, sig.master_force_n, mb, T)
     s_abs = port_energy(sig.slave_x_m, sig.slave_force_n, sb, T)
+    # The true margins: the same ledger with the damping the simulator really has (run facts).
+    true_margins: dict[str, Any] = {}
+    for side, x, f, e0_j in (
+        ("master", sig.master_x_m, sig.master_force_n, me0),
+        ("slave", sig.slave_x_m, sig.slave_force_n, se0),
+    ):
+        d_sim = simulator_damping(sig.run_info, side)
+        true_margins[f"{side}_energy_margin_simulator_min_j"] = (
+            energy_margins(x, f, d_sim, T, [e0_j] * len(d_sim)).pooled_min_j if d_sim is not None else math.nan
+        )
+        true_margins[f"{side}_joint_damping_simulator"] = d_sim
     fs, fl, flate = _packet_counts(sig.forward_packets)
     bs, bl, blate = _packet_counts(sig.backward_packets)
     duration = float(sig.t_s[-1] + T)
@@ -294,6 +313,7 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "slave_port_energy_min_j": float(np.min(s_abs)),
         "master_initial_energy_j": me0,
         "slave_initial_energy_j": se0,
+        **true_margins,
         "all_finite": finite,
         # Remote samples the receiving controller rejected (NaN, Inf, beyond the scene's limits:
         # docs/eba.md); from the run facts, 0 for bags written without them.

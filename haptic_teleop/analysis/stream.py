@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST, read_run_info
+from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST, read_run_info, simulator_damping
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
@@ -556,6 +556,12 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         le, len_, lpos = _Lagged(backward_lag), _Lagged(net_lag), _Lagged(forward_lag)
         m_en = _Energy(float(sc["master"]["damping_n_s_per_m"]), T)
         s_en = _Energy(float(sc["slave"]["damping_n_s_per_m"]), T)
+        # The true margins, with the simulator's damping (run facts; one joint per side here).
+        m_sim, s_sim = simulator_damping(run_info, "master"), simulator_damping(run_info, "slave")
+        m_true = _Energy(m_sim[0], T) if m_sim is not None and len(m_sim) == 1 else None
+        s_true = _Energy(s_sim[0], T) if s_sim is not None and len(s_sim) == 1 else None
+        if (m_sim is not None and m_true is None) or (s_sim is not None and s_true is None):
+            raise NotStreamable("more than one joint per side")
         contact_max = master_max = -math.inf
         finite = True
         seen = 0
@@ -572,6 +578,9 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
             master_max = _max_abs(master_max, mf)
             m_en.add(mx, mf)
             s_en.add(sx, sf)
+            for true_en, x, f in ((m_true, mx, mf), (s_true, sx, sf)):
+                if true_en is not None:
+                    true_en.add(x, f)
             finite = finite and all(bool(np.all(np.isfinite(a))) for a in (mx, sx, mf, sf, cf))
             if seen >= n:
                 break
@@ -606,6 +615,10 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         "slave_port_energy_min_j": s_en.low,
         "master_initial_energy_j": me0,
         "slave_initial_energy_j": se0,
+        "master_energy_margin_simulator_min_j": float(me0 + m_true.low) if m_true is not None else math.nan,
+        "master_joint_damping_simulator": m_sim,
+        "slave_energy_margin_simulator_min_j": float(se0 + s_true.low) if s_true is not None else math.nan,
+        "slave_joint_damping_simulator": s_sim,
         "all_finite": finite,
         "rejected_samples_forward": int(run_info.get("rejected_samples_forward", 0)),
         "rejected_samples_backward": int(run_info.get("rejected_samples_backward", 0)),

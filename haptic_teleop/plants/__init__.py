@@ -40,6 +40,11 @@ class Plant(Protocol):
         """Environment force on the device over the last period, per axis (N); zero if none."""
         ...
 
+    def joint_damping(self) -> list[float]:
+        """The physical damping of each port's joint as the device really has it (SI: N s/m for a
+        slide joint, N m s/rad for a hinge); in simulation the compiled model's `dof_damping`."""
+        ...
+
     def close(self) -> None:
         """Release the device (torque off on hardware)."""
         ...

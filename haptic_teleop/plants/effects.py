@@ -101,6 +101,9 @@ class EffectsPlant:
     def contact_force(self) -> list[float]:
         return self.plant.contact_force()
 
+    def joint_damping(self) -> list[float]:
+        return self.plant.joint_damping()
+
     def close(self) -> None:
         self.plant.close()
 
