@@ -583,7 +583,7 @@ def joint_limited(
     direction can turn).
     """
     n = tau.shape[0]
-    if keep_direction:
+    if keep_direction and n > 1:  # one joint: the clip (the same bits as the one-axis bound's clip)
         f = 1.0
         for i in range(n):
             t = tau[i]
@@ -616,8 +616,13 @@ def slew_bounded(
     moved into the slew box around `held`; if that costs too much, the point of the segment from
     the fastest descent of `held` (admissible by the invariant) to it with the largest admissible
     fraction (the cost is convex: bisection). Returns that fraction (1: the slew-limited `tau`).
+    One joint goes through the one-axis actuator-aware bound (`ramp_limit1`, `actuator_bounded1`):
+    the same criterion in closed form, the same bits.
     """
     n = tau.shape[0]
+    if n == 1:
+        out[0] = actuator_bounded1(tau[0], ramp_limit1(energy, bound_gain[0], math.inf, step[0]), held[0], step[0])
+        return 1.0 if out[0] == tau[0] else 0.0
     target = np.empty(n)
     for i in range(n):
         target[i] = min(max(tau[i], held[i] - step[i]), held[i] + step[i])
@@ -731,8 +736,8 @@ class CoupledEnergyBound:
         "_last_q",
         "_limited",
         "_low",
+        "_out",
         "_step",
-        "applied",
         "energy_j",
         "held",
         "params",
@@ -753,7 +758,7 @@ class CoupledEnergyBound:
         self._step = np.array(params.slew_nm_per_s, dtype=float) * t if params.slew_nm_per_s else None
         self.energy_j = params.initial_energy_j
         self.held = np.zeros(n)  # the torque applied over the current period (the ledger's tau(n-1))
-        self.applied = np.zeros(n)
+        self._out = np.zeros(n)
         self._limited = np.zeros(n)
         self._last_q = np.zeros(n)
         self._has_last = False
@@ -788,7 +793,7 @@ class CoupledEnergyBound:
             self._high if high is None else high,
             self._keep_direction,
         )
-        out = self.applied
+        out = self._out
         if not self.params.enabled:
             if self._step is None:
                 out[:] = self._limited
@@ -802,6 +807,11 @@ class CoupledEnergyBound:
             self.scale = slew_bounded(out, self._limited, self.held, self.energy_j, self._step, self._bound_gain)
         self.held[:] = out
         return out
+
+    def applied(self, tau: npt.NDArray[np.float64]) -> None:
+        """The torque the motors really applied over the period after the last `step` (if it differs
+        from what `step` returned): the next update of the reservoir accounts with it."""
+        self.held[:] = tau
 
     def task_demand(self, jac: npt.NDArray[np.float64], force: npt.NDArray[np.float64]) -> float:
         """(T/4) F.T J D^-1 J.T F: what task force F at a point with Jacobian `jac` asks of the reservoir."""

@@ -164,6 +164,30 @@ def test_one_joint_is_the_one_axis_bound_bit_for_bit(steps, damping, e0, enabled
         assert one.energy_j[0] == joint.energy_j
 
 
+@settings(max_examples=300, deadline=None)
+@given(
+    steps=st.lists(st.tuples(st.floats(-1e-2, 1e-2), st.floats(-500.0, 500.0)), min_size=1, max_size=200),
+    damping=st.floats(0.01, 50.0),
+    e0=st.floats(0.0, 1.0),
+    limit=st.floats(0.5, 100.0),
+    slew=st.floats(10.0, 1e5),
+)
+def test_one_joint_with_limit_and_slew_is_the_one_axis_actuator_bound(steps, damping, e0, limit, slew):
+    """One joint with a torque limit and a slew limit: the bits of the 1-DoF bound that models the
+    actuator's clip and slew (EnergyBoundParams force_limit_n / slew_rate_n_per_s)."""
+    one = EnergyBound(EnergyBoundParams(T, (damping,), e0, force_limit_n=limit, slew_rate_n_per_s=slew))
+    joint = CoupledEnergyBound(
+        CoupledEnergyBoundParams(T, (damping,), e0, torque_limit_nm=(limit,), slew_nm_per_s=(slew,))
+    )
+    x = 0.0
+    for dx, fd in steps:
+        x += dx
+        f1 = one.step1(x, fd)
+        f2 = joint.step(np.array([x]), np.array([fd]))[0]
+        assert f1 == f2
+        assert one.energy_j[0] == joint.energy_j
+
+
 @settings(max_examples=200, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), m=st.sampled_from([3, 6]), n=st.integers(1, 6), e=st.floats(0.0, 5.0))
 def test_task_space_form_equals_joint_form(seed, m, n, e):
@@ -272,7 +296,7 @@ def test_bound_then_slew_goes_negative_slew_aware_does_not():
             tau = bound.step(q, np.array([30.0, -30.0])).copy()
             if slewed_after:  # the motor: at most S T per period from what it applied last
                 tau = _slew_limited(tau, held, slew * T)
-                bound.held[:] = tau  # the ledger uses the applied torque (the fix's first half)
+                bound.applied(tau)  # the ledger uses the applied torque (the fix's first half)
             held = tau
             applied.append(tau)
             # 1 s pushed back against the torque (reservoir fills), then 0.5 s moved with it
