@@ -18,12 +18,15 @@ of the rotated frame into the reference frame.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import types
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from haptic_teleop.core import eba
 from haptic_teleop.core.eba import coupling1
 
 Vec = npt.NDArray[np.float64]
@@ -260,6 +263,62 @@ def add_into(out: Vec, x: Vec) -> None:
     """out += x (gravity compensation added to the bounded torque, for example)."""
     for i in range(out.shape[0]):
         out[i] += x[i]
+
+
+# --------------------------------------------------------------------------------------------
+# Compiling the per-tick functions.
+
+# Every array function of the n-joint tick (eba's bound, this module's laws), callees before
+# callers. `kernels(jit)` compiles them in this order.
+KERNEL_FUNCTIONS: tuple[Callable[..., Any], ...] = (
+    eba.reservoir1,
+    eba.bounded1,
+    eba.ramp_limit1,
+    eba.actuator_bounded1,
+    eba.coupling1,
+    eba.coupled_reservoir,
+    eba.coupled_demand,
+    eba.descent_cost1,
+    eba.coupled_descent_cost,
+    eba.coupled_scale,
+    eba.coupled_bounded,
+    eba.joint_limited,
+    eba.slew_bounded,
+    eba.task_demand,
+    map_point,
+    unmap_point,
+    map_vector,
+    map_vector_back,
+    coupling,
+    force_feedback,
+    orientation_error,
+    orientation_coupling,
+    jacobian_times,
+    jacobian_transpose,
+    _cholesky,
+    _cholesky_solve,
+    _project,
+    null_space_damping,
+    add_into,
+)
+
+
+def kernels(jit: Callable[[Callable[..., Any]], Callable[..., Any]]) -> dict[str, Callable[..., Any]]:
+    """The functions of `KERNEL_FUNCTIONS` compiled by `jit` (e.g. `numba.njit(cache=True)`), by name.
+
+    A compiled function can only call compiled functions, so each one is compiled from its own
+    code with the names it calls bound to the compiled callees (the module's functions stay as
+    they are). core does not import numba: the caller passes its decorator.
+    """
+    done: dict[str, Callable[..., Any]] = {}
+    for fn in KERNEL_FUNCTIONS:
+        scope = dict(fn.__globals__)
+        scope.update(done)
+        clone = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__)
+        clone.__qualname__ = fn.__qualname__
+        clone.__module__ = fn.__module__
+        done[fn.__name__] = jit(clone)
+    return done
 
 
 # --------------------------------------------------------------------------------------------

@@ -251,3 +251,53 @@ def test_task_space_law_holds_the_start_orientation():
 def test_bad_task_params_are_refused(kwargs, words):
     with pytest.raises(ValueError, match=words):
         TaskCouplingParams(**kwargs)
+
+
+def test_kernels_compile_with_numba_and_give_the_interpreted_results():
+    """Every per-tick array function compiles with numba as it is (`kernels`), and gives what the
+    interpreted function gives on the same inputs (n = 1, 3, 6)."""
+    numba = pytest.importorskip("numba")
+    from haptic_teleop.core import eba
+    from haptic_teleop.core import taskspace as ts
+
+    k = ts.kernels(numba.njit(cache=False))
+    assert set(k) == {fn.__name__ for fn in ts.KERNEL_FUNCTIONS}
+    rng = np.random.default_rng(11)
+    rot = np.array(rotation_from_rpy(0.3, -1.0, 2.0))
+    near_pi = _rodrigues((1.0, 2.0, -0.5), math.pi - 1e-7) @ rot
+    for n in (1, 3, 6):
+        d = 10.0 ** rng.uniform(-2, 1, size=n)
+        bg, gain = 4.0 * d / 1e-3, d / 1e-3
+        tau, held, dq = rng.normal(size=n) * 30.0, rng.normal(size=n), rng.normal(size=n) * 1e-3
+        step, low, high = np.full(n, 0.3), -np.full(n, 5.0), np.full(n, 4.0)
+        jac3, jac6 = rng.normal(size=(3, n)), rng.normal(size=(6, n))
+        x3, v3, w3, w6 = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3), rng.normal(size=6)
+        calls = [
+            ("coupled_reservoir", (0.2, gain, held, dq), None),
+            ("coupled_descent_cost", (tau, step, bg), None),
+            ("task_demand", (jac3, w3, bg), None),
+            ("coupled_bounded", (np.zeros(n), tau, 0.05, bg), 0),
+            ("slew_bounded", (np.zeros(n), tau, held, 0.05, step, bg), 0),
+            ("joint_limited", (np.zeros(n), tau, low, high, True), 0),
+            ("joint_limited", (np.zeros(n), tau, low, high, False), 0),
+            ("jacobian_transpose", (np.zeros(n), jac6, w6), 0),
+            ("jacobian_times", (np.zeros(3), jac3, tau), 0),
+            ("null_space_damping", (np.zeros(n), jac3, dq, d, 0.01), 0),
+            ("null_space_damping", (np.zeros(n), jac6, dq, d, 0.01), 0),
+            ("map_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
+            ("unmap_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
+            ("map_vector_back", (np.zeros(3), rot, 0.5, x3), 0),
+            ("coupling", (np.zeros(3), w3, v3, x3, v3 * 2, w3 * 3, x3), 0),
+            ("orientation_coupling", (np.zeros(3), w3, v3, rot, near_pi, x3), 0),
+            ("orientation_coupling", (np.zeros(3), w3, v3, rot, _rodrigues((0, 1, 0), 0.4) @ rot, x3), 0),
+        ]
+        for name, args, out_index in calls:
+            fn = getattr(ts, name, None) or getattr(eba, name)
+            py_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            nb_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            r_py = fn(*py_args)
+            r_nb = k[name](*nb_args)
+            if out_index is None:
+                assert r_nb == pytest.approx(r_py, rel=1e-12, abs=1e-300), name
+            else:
+                assert nb_args[out_index] == pytest.approx(py_args[out_index], rel=1e-12, abs=1e-12), name
