@@ -18,8 +18,9 @@ it gives the same bits (test_scalar_path_equals_the_general_path) without buildi
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -725,10 +726,18 @@ class CoupledEnergyBound:
     bound holds (with a slew limit: the slew-aware bound). Returns the torque to apply, held
     until the next tick (the object's own array, overwritten every tick). With the bound off,
     the reservoir is still kept and the limited torque passes unscaled.
+
+    kernels: the array functions to call, by name (`haptic_teleop.core.taskspace.kernels(jit)`
+    gives them compiled); None: this module's, interpreted. Same results either way.
     """
 
     __slots__ = (
         "_bound_gain",
+        "_dq",
+        "_f_bounded",
+        "_f_limited",
+        "_f_reservoir",
+        "_f_slew",
         "_gain",
         "_has_last",
         "_high",
@@ -744,7 +753,9 @@ class CoupledEnergyBound:
         "scale",
     )
 
-    def __init__(self, params: CoupledEnergyBoundParams) -> None:
+    def __init__(
+        self, params: CoupledEnergyBoundParams, kernels: Mapping[str, Callable[..., Any]] | None = None
+    ) -> None:
         self.params = params
         n = params.joints
         t = params.period_s
@@ -761,8 +772,14 @@ class CoupledEnergyBound:
         self._out = np.zeros(n)
         self._limited = np.zeros(n)
         self._last_q = np.zeros(n)
+        self._dq = np.zeros(n)
         self._has_last = False
         self.scale = 1.0  # the last lambda (1: the limited desired torque passed unchanged)
+        k = kernels or {}
+        self._f_reservoir = k.get("coupled_reservoir", coupled_reservoir)
+        self._f_limited = k.get("joint_limited", joint_limited)
+        self._f_bounded = k.get("coupled_bounded", coupled_bounded)
+        self._f_slew = k.get("slew_bounded", slew_bounded)
 
     def step(
         self,
@@ -775,18 +792,15 @@ class CoupledEnergyBound:
         included). low/high: this tick's torque range per joint for the bounded part (low <= 0 <= high),
         e.g. the motor's range minus the gravity compensation the caller adds after; default
         -+torque_limit_nm."""
-        n = self.params.joints
         last = self._last_q
         if self._has_last:
-            dq = np.empty(n)
-            for i in range(n):
-                dq[i] = q[i] - last[i]
-            self.energy_j = coupled_reservoir(self.energy_j, self._gain, self.held, dq)
+            dq = self._dq
+            np.subtract(q, last, out=dq)
+            self.energy_j = self._f_reservoir(self.energy_j, self._gain, self.held, dq)
         else:
             self._has_last = True
-        for i in range(n):
-            last[i] = q[i]
-        joint_limited(
+        last[:] = q
+        self._f_limited(
             self._limited,
             tau_desired,
             self._low if low is None else low,
@@ -794,17 +808,17 @@ class CoupledEnergyBound:
             self._keep_direction,
         )
         out = self._out
+        step = self._step
         if not self.params.enabled:
-            if self._step is None:
+            if step is None:
                 out[:] = self._limited
             else:  # the motor's slew limit acts anyway
-                for i in range(n):
-                    out[i] = min(max(self._limited[i], self.held[i] - self._step[i]), self.held[i] + self._step[i])
+                np.clip(self._limited, self.held - step, self.held + step, out=out)
             self.scale = 1.0
-        elif self._step is None:
-            self.scale = coupled_bounded(out, self._limited, self.energy_j, self._bound_gain)
+        elif step is None:
+            self.scale = self._f_bounded(out, self._limited, self.energy_j, self._bound_gain)
         else:
-            self.scale = slew_bounded(out, self._limited, self.held, self.energy_j, self._step, self._bound_gain)
+            self.scale = self._f_slew(out, self._limited, self.held, self.energy_j, step, self._bound_gain)
         self.held[:] = out
         return out
 

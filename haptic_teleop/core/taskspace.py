@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -488,13 +488,15 @@ class TaskSpaceLaw:
     `torque(...)` returns the desired joint torque J.T @ wrench + null-space damping (before the
     energy bound; the caller bounds it with `CoupledEnergyBound` and then adds gravity
     compensation, which is the plant's own potential and not part of the port). The returned
-    arrays are the object's own, overwritten every tick.
+    arrays are the object's own, overwritten every tick. kernels: the array functions by name
+    (`kernels(jit)` gives them compiled); None: this module's, interpreted.
     """
 
     __slots__ = (
         "_c1",
         "_c2",
         "_d_rot",
+        "_f",
         "_k_rot",
         "_null",
         "_null_d",
@@ -507,7 +509,9 @@ class TaskSpaceLaw:
         "wrench",
     )
 
-    def __init__(self, params: TaskCouplingParams, joints: int) -> None:
+    def __init__(
+        self, params: TaskCouplingParams, joints: int, kernels: Mapping[str, Callable[..., Any]] | None = None
+    ) -> None:
         if joints < 1:
             raise ValueError(f"joints must be >= 1, got {joints}")
         if params.null_damping_nm_s_per_rad and len(params.null_damping_nm_s_per_rad) != joints:
@@ -528,6 +532,8 @@ class TaskSpaceLaw:
         self._tmp = np.zeros(joints)
         self._omega = np.zeros(3)
         self.r_hold: Mat | None = None  # the held orientation; None: taken from the first tick
+        plain = {fn.__name__: fn for fn in KERNEL_FUNCTIONS}
+        self._f = {**plain, **(kernels or {})}
 
     def torque(
         self,
@@ -550,25 +556,26 @@ class TaskSpaceLaw:
         """
         p = self.params
         w = self.wrench
+        f = self._f
         d = p.axes
         if p.law == "force":
             if remote_force is None:
                 w[:d] = 0.0
             else:
-                force_feedback(w, p.force_gain, remote_force)
+                f["force_feedback"](w, p.force_gain, remote_force)
         elif remote_x is None or remote_v is None:
             w[:d] = 0.0
         else:
-            coupling(w, self._c1, self._c2, remote_x, remote_v, x, v)
+            f["coupling"](w, self._c1, self._c2, remote_x, remote_v, x, v)
         if p.orientation == "hold":
             if r_tool is None:
                 raise ValueError("orientation 'hold' needs the tool's orientation r_tool")
             if self.r_hold is None:
                 self.r_hold = np.array(r_tool, dtype=float)
-            jacobian_times(self._omega, jac[3:6], qd)
-            orientation_coupling(w[3:6], self._k_rot, self._d_rot, self.r_hold, r_tool, self._omega)
-        jacobian_transpose(self.torque_nm, jac, w)
+            f["jacobian_times"](self._omega, jac[3:6], qd)
+            f["orientation_coupling"](w[3:6], self._k_rot, self._d_rot, self.r_hold, r_tool, self._omega)
+        f["jacobian_transpose"](self.torque_nm, jac, w)
         if self._null:
-            null_space_damping(self._tmp, jac, qd, self._null_d, p.pinv_damping_m)
-            add_into(self.torque_nm, self._tmp)
+            f["null_space_damping"](self._tmp, jac, qd, self._null_d, p.pinv_damping_m)
+            f["add_into"](self.torque_nm, self._tmp)
         return self.torque_nm
