@@ -17,8 +17,6 @@ The row's columns follow the scene's TickSchema (record/columns.py).
 
 from __future__ import annotations
 
-import functools
-import types
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -26,14 +24,6 @@ import numpy as np
 
 from haptic_teleop.core.eba import joint_limited
 from haptic_teleop.core.link import Packet
-from haptic_teleop.core.taskspace import (
-    add_into,
-    coupling,
-    jacobian_times,
-    jacobian_transpose,
-    null_space_damping,
-    orientation_coupling,
-)
 
 if TYPE_CHECKING:
     from haptic_teleop.assembly import ArmParts, ArmSide
@@ -61,88 +51,10 @@ def wire_payload_bytes(names: int, fields: int) -> int:
     return len(bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState")))
 
 
-def _side_law(
-    tau: np.ndarray,
-    wrench: np.ndarray,
-    jac: np.ndarray,
-    qd: np.ndarray,
-    x: np.ndarray,
-    v: np.ndarray,
-    rx: np.ndarray,
-    rv: np.ndarray,
-    has_remote: bool,
-    c1: np.ndarray,
-    c2: np.ndarray,
-    hold: bool,
-    k_rot: np.ndarray,
-    d_rot: np.ndarray,
-    r_hold: np.ndarray,
-    r_tool: np.ndarray,
-    omega: np.ndarray,
-    null_on: bool,
-    d_null: np.ndarray,
-    mu: float,
-    tmp: np.ndarray,
-) -> None:
-    """`TaskSpaceLaw.torque` (law "position"), step for step, over core.taskspace's functions: the
-    order only, every formula is theirs. Compiled by numba with them (`_compiled_law`)."""
-    if has_remote:
-        coupling(wrench, c1, c2, rx, rv, x, v)
-    else:
-        for i in range(3):
-            wrench[i] = 0.0
-    if hold:
-        jacobian_times(omega, jac[3:6], qd)
-        orientation_coupling(wrench[3:6], k_rot, d_rot, r_hold, r_tool, omega)
-    jacobian_transpose(tau, jac, wrench)
-    if null_on:
-        null_space_damping(tmp, jac, qd, d_null, mu)
-        add_into(tau, tmp)
-
-
-_TASKSPACE_FUNCTIONS = (
-    "jacobian_times",
-    "jacobian_transpose",
-    "_cholesky",
-    "_cholesky_solve",
-    "_project",
-    "null_space_damping",
-    "add_into",
-    "coupling",
-    "orientation_error",
-    "orientation_coupling",
-)
-
-
-@functools.cache
-def _compiled_law() -> tuple[Callable[..., None], Callable[..., None]] | None:
-    """`_side_law` and the core.taskspace functions it calls, and `eba.joint_limited`, compiled by
-    numba from their one definition (numba's on-disk cache after the first time); None without
-    numba (the Python `TaskSpaceLaw` and `joint_limited` run instead)."""
-    try:
-        import numba
-    except Exception:  # noqa: BLE001 - no numba here: the interpreted law runs
-        return None
-    from haptic_teleop.core import eba, taskspace
-
-    jit = numba.njit(cache=True, nogil=True)
-    # Each function is rebuilt over a namespace where the functions it calls are the compiled ones.
-    env: dict[str, Any] = dict(taskspace.__dict__)
-
-    def compiled(fn: Callable[..., Any]) -> Callable[..., Any]:
-        return jit(types.FunctionType(fn.__code__, env, fn.__name__, fn.__defaults__, fn.__closure__))  # type: ignore[no-any-return]
-
-    env["coupling1"] = jit(eba.coupling1)
-    for name in _TASKSPACE_FUNCTIONS:
-        env[name] = compiled(getattr(taskspace, name))
-    law: Callable[..., None] = compiled(_side_law)
-    return law, jit(eba.joint_limited)
-
-
 class _SideTick:
     """One side's per-tick arithmetic (law, saturation, motor room, bound) for the Python loop."""
 
-    def __init__(self, side: ArmSide, jac_scale: np.ndarray | None, compiled: bool = True) -> None:
+    def __init__(self, side: ArmSide, jac_scale: np.ndarray | None) -> None:
         self.side = side
         self.plant = side.plant
         self.law = side.law
@@ -155,33 +67,8 @@ class _SideTick:
         self.force = np.zeros(3)  # the desired task force (before saturation)
         self.ratio = 0.0  # applied / desired torque (direction kept): scales the task force
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
-        fns = _compiled_law() if compiled else None
-        self.compiled = fns[0] if fns is not None else None
-        self.joint_limited = fns[1] if fns is not None else joint_limited
-        p = self.law.params
-        n = self.plant.n
-        self._tau = np.zeros(n)
-        self._wrench = np.zeros(p.wrench_rows)
-        self._c1 = np.array(p.stiffness_n_per_m, dtype=float)
-        self._c2 = np.array(p.damping_n_s_per_m, dtype=float)
-        self._k_rot = np.array(p.rot_stiffness_nm_per_rad, dtype=float)
-        self._d_rot = np.array(p.rot_damping_nm_s_per_rad, dtype=float)
-        self._null_on = any(p.null_damping_nm_s_per_rad)
-        self._d_null = np.array(p.null_damping_nm_s_per_rad or (0.0,) * n, dtype=float)
-        self._omega = np.zeros(3)
-        self._tmp = np.zeros(n)
-        self._zero3 = np.zeros(3)
-        self._r_hold: np.ndarray | None = None
-        if self.compiled is not None:  # compile (or load from the cache) now, not in the timed loop
-            n3 = np.zeros(3)
-            jac = self.plant.jacobian(rotational=side.rotational)
-            self.compiled(
-                np.zeros(n), np.zeros(p.wrench_rows), jac, np.zeros(n), n3, n3, n3, n3, False, self._c1, self._c2,
-                side.rotational, self._k_rot, self._d_rot, np.eye(3), np.eye(3), np.zeros(3), self._null_on,
-                self._d_null, p.pinv_damping_m, np.zeros(n),
-            )  # fmt: skip
-            lo, hi = self.plant.torque_room()
-            self.joint_limited(np.zeros(n), np.zeros(n), lo, hi, True)
+        k = side.kernels
+        self.joint_limited = k["joint_limited"] if k is not None else joint_limited
 
     def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
         plant = self.plant
@@ -195,23 +82,8 @@ class _SideTick:
             rx = np.asarray(remote[0:3])
             rv = np.asarray(remote[3:6])
         r_tool = plant.orientation() if self.side.rotational else None
-        law = self.compiled
-        if law is None:
-            tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
-            f = self.law.wrench[:3]
-        else:
-            if r_tool is not None and self._r_hold is None:
-                self._r_hold = r_tool.copy()  # the held orientation: the first tick's, as TaskSpaceLaw
-            rot = np.eye(3) if r_tool is None else r_tool
-            z = self._zero3
-            tau, w = self._tau, self._wrench
-            law(
-                tau, w, jac, qd, x, v, z if rx is None else rx, z if rv is None else rv, rx is not None,
-                self._c1, self._c2, r_tool is not None, self._k_rot, self._d_rot,
-                rot if self._r_hold is None else self._r_hold, rot, self._omega,
-                self._null_on, self._d_null, self.law.params.pinv_damping_m, self._tmp,
-            )  # fmt: skip
-            f = w[:3]
+        tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
+        f = self.law.wrench[:3]
         self.force[:] = f
         norm = float(np.sqrt(f @ f))
         if norm > self.limit:

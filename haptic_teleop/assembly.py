@@ -9,9 +9,11 @@ wherever it runs (docs/architecture.md). One-axis scenes: `build_controller`, `b
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
 from haptic_teleop.core.link import Link
@@ -163,6 +165,7 @@ class ArmSide:
     guard: SampleGuard
     force_limit_n: float
     rotational: bool  # the law needs the 6-row Jacobian (orientation held)
+    kernels: Mapping[str, Callable[..., Any]] | None = None  # the compiled array functions, if any
 
     @property
     def rejected_samples(self) -> int:
@@ -200,9 +203,46 @@ def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:
     return RemoteLimits(position_m=k * workspace, velocity_m_per_s=k * max(0.1, speed), force_n=k * max(forces))
 
 
-def build_arm_parts(config: Scene) -> ArmParts:
+@functools.cache
+def arm_kernels() -> Mapping[str, Callable[..., Any]] | None:
+    """core.taskspace's and core.eba's per-tick array functions compiled by numba (its on-disk
+    cache after the first time), or None without numba: the laws and bounds then run interpreted.
+    Each is compiled once per process and warmed up on the scene's array types by `build_arm_parts`,
+    so no compiling happens inside the timed loop."""
+    try:
+        import numba
+    except Exception:  # noqa: BLE001 - no numba here: the interpreted functions run
+        return None
+    from haptic_teleop.core.taskspace import kernels
+
+    return kernels(numba.njit(cache=True, nogil=True))
+
+
+def _warm_up(side: ArmSide, config: Scene) -> None:
+    """One tick of a throwaway copy of the side's law and bound on its arrays: compiles (or loads)
+    every kernel for these array types now, leaving the real objects untouched."""
+    import numpy as np
+
+    from haptic_teleop.core.eba import CoupledEnergyBound
+    from haptic_teleop.core.taskspace import TaskSpaceLaw
+
+    plant, n = side.plant, side.plant.n
+    law = TaskSpaceLaw(side.law.params, n, side.kernels)
+    bound = CoupledEnergyBound(side.bound.params, side.kernels)
+    z3 = np.zeros(3)
+    jac = plant.jacobian(rotational=side.rotational)
+    tau = law.torque(jac, np.zeros(n), z3, z3, z3, z3, None, plant.orientation() if side.rotational else None)
+    bound.step(np.zeros(n), tau)
+    bound.step(np.zeros(n), tau)
+    if side.kernels is not None:
+        lo, hi = plant.torque_room()
+        side.kernels["joint_limited"](np.zeros(n), tau, lo, hi, True)
+
+
+def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     """Both sides of an arm scene: plants, mapping, task-space laws, pooled joint bounds, guards,
-    operator (docs/arms.md)."""
+    operator (docs/arms.md). `compiled`: the laws and bounds call numba-compiled kernels
+    (`arm_kernels`, when numba is there); False: interpreted (the same results, slower)."""
     import numpy as np
 
     from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams, SampleGuard
@@ -212,6 +252,7 @@ def build_arm_parts(config: Scene) -> ArmParts:
 
     master = build_master_arm(config)
     slave = build_slave_arm(config)
+    kernels = arm_kernels() if compiled else None
     xm0 = master.point()[0]
     xs0 = slave.point()[0]
     mc = config.mapping
@@ -254,13 +295,17 @@ def build_arm_parts(config: Scene) -> ArmParts:
                 initial_energy_j=cfg.eba.initial_energy_j,
                 enabled=cfg.eba.enabled,
                 joint_names=plant.joints,
-            )
+            ),
+            kernels,
         )
         # Remote payloads (task frame): master receives (x, v, f_contact), slave (x, v).
         kinds = (limits.position_m, limits.velocity_m_per_s, limits.force_n)
         per = kinds if role == "master" else kinds[:2]
         guard = SampleGuard([k for k in per for _ in range(3)])
-        return ArmSide(plant, TaskSpaceLaw(params, plant.n), bound, guard, cfg.force_limit_n, hold)
+        out = ArmSide(plant, TaskSpaceLaw(params, plant.n, kernels), bound, guard, cfg.force_limit_n, hold, kernels)
+        if kernels is not None:
+            _warm_up(out, config)
+        return out
 
     op = config.operator
     direction = np.array(op.direction if op.direction is not None else [-c for c in config.slave.wall.normal or ()])
