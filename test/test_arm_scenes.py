@@ -144,3 +144,18 @@ def test_a_rotated_scaled_mapping_still_couples_handle_and_tool(tmp_path: Path) 
     start = np.array(engine.arm.mapping.position_to_master(d[0, s.group("m_x_m")]))
     moved = handle - start
     assert moved[1] < -0.02 and abs(moved[0]) < 0.5 * abs(moved[1])  # task +x is the device's -y
+
+
+def test_vector_payloads_through_an_extrapolating_buffer_and_the_guards(tmp_path: Path) -> None:
+    """Arm packets (6 and 9 floats) through lossy links into buffers that extrapolate the gaps:
+    samples are made up per value, pass the guards, and the run stays finite and passive."""
+    sets = (
+        "scene.duration_s=2.0",
+        *(f"network.{d}.effects.loss.probability=0.2" for d in ("forward", "backward")),
+        *(f"network.{d}.buffer={{policy: fixed, gap: extrapolate}}" for d in ("forward", "backward")),
+    )
+    engine, summary, _ = _record(tmp_path, "touch_dynamixel_wall", *sets)
+    assert engine.forward_buffer.extrapolated > 0 and engine.backward_buffer.extrapolated > 0
+    assert engine.master_ctrl.rejected_samples == engine.slave_ctrl.rejected_samples == 0
+    assert summary["all_finite"] and summary["penetration_max_m"] > 0.0
+    assert min(summary[f"{side}_energy_margin_simulator_min_j"] for side in SIDES) >= 0.0
