@@ -26,7 +26,10 @@ from haptic_teleop.core.eba import joint_limited
 from haptic_teleop.core.link import Packet
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from haptic_teleop.assembly import ArmParts, ArmSide
+    from haptic_teleop.core.taskspace import WorkspaceMapping
     from haptic_teleop.engine import Engine
 
 
@@ -100,9 +103,57 @@ class _SideTick:
         return out
 
 
+class _Maps:
+    """The workspace mapping's five maps for the tick: `WorkspaceMapping`'s own methods, or the same
+    functions compiled (the kernels) when the scene has them."""
+
+    def __init__(self, mapping: WorkspaceMapping, kernels: Mapping[str, Callable[..., Any]] | None) -> None:
+        self.to_task_x = mapping.position_to_task
+        self.to_task_v = mapping.velocity_to_task
+        self.to_master_x = mapping.position_to_master
+        self.to_master_v = mapping.velocity_to_master
+        self.force_to_task = mapping.force_to_task
+        if kernels is None:
+            return
+        r, s, o, fs = mapping.matrix, mapping.scale, mapping.offset, mapping.force_scale
+        mp, ump, mv, mvb = (kernels[k] for k in ("map_point", "unmap_point", "map_vector", "map_vector_back"))
+
+        def to_task_x(x: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mp(out, r, s, o, x)
+            return out
+
+        def to_task_v(v: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mv(out, r, s, v)
+            return out
+
+        def to_master_x(x: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            ump(out, r, s, o, x)
+            return out
+
+        def to_master_v(v: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mvb(out, r, 1.0 / s, v)
+            return out
+
+        def force_to_task(f: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mv(out, r, 1.0 / fs, f)
+            return out
+
+        self.to_task_x, self.to_task_v, self.to_master_x = to_task_x, to_task_v, to_master_x
+        self.to_master_v, self.force_to_task = to_master_v, force_to_task
+        z = np.zeros(3)  # compile (or load) them now, not in the timed loop
+        for fn in (to_task_x, to_task_v, to_master_x, to_master_v, force_to_task):
+            fn(z)
+
+
 def side_ticks(parts: ArmParts) -> tuple[_SideTick, _SideTick]:
     """The per-side tick state of an arm scene (built, and the law compiled, before the loop)."""
     mapping = parts.mapping
+    parts.maps = _Maps(mapping, parts.master.kernels)
     return _SideTick(parts.master, mapping.force_scale * mapping.matrix), _SideTick(parts.slave, None)
 
 
@@ -113,7 +164,7 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     period_s = engine.period_s
     schema = parts.schema
     g = schema.group
-    mapping = parts.mapping
+    maps = parts.maps
     m_side, s_side = parts.master, parts.slave
     master, slave = m_side.plant, s_side.plant
     mt, st = engine.arm_ticks
@@ -148,8 +199,8 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         qs, qds = slave.read()
         xs, vs = slave.point()
         f_env, t_env = slave.contact_wrench()
-        x_m = mapping.position_to_task(xm_dev)
-        v_m = mapping.velocity_to_task(vm_dev)
+        x_m = maps.to_task_x(xm_dev)
+        v_m = maps.to_task_v(vm_dev)
         # 2. master
         tau_m = mt.torque(x_m, v_m, m_remote)
         # 3. forward packet
@@ -179,8 +230,8 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
             brx = -1
         # 6. operator and plants
         xd_t, vd_t = op.intended_along(n * period_s, origin, direction)
-        xd = mapping.position_to_master(np.asarray(xd_t))
-        vd = mapping.velocity_to_master(np.asarray(vd_t))
+        xd = maps.to_master_x(np.asarray(xd_t))
+        vd = maps.to_master_v(np.asarray(vd_t))
         f_hand = k_h * (xd - xm_dev) + b_h * (vd - vm_dev)
         applied_m = master.step(tau_m, f_hand)
         applied_s = slave.step(tau_s)
@@ -188,7 +239,7 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         st.bound.held[:] = applied_s
         row[cols["op_x_m"]] = xd_t
         row[cols["op_v_m_per_s"]] = vd_t
-        row[cols["op_force_n"]] = mapping.force_to_task(f_hand)
+        row[cols["op_force_n"]] = maps.force_to_task(f_hand)
         row[cols["m_q"]] = qm
         row[cols["m_qd"]] = qdm
         row[cols["m_tau_nm"]] = applied_m

@@ -238,6 +238,8 @@ class MujocoArm:
                     f"the tool starts {self.contact_penetration_m() * 1e3:.3g} mm inside the wall; "
                     "allowed: a start configuration with the tool in free space"
                 )
+        self._jac3: np.ndarray | None = None
+        self._jac6: np.ndarray | None = None
         self._fresh = False
 
     # ---------------------------------------------------------------------------------- state
@@ -255,6 +257,7 @@ class MujocoArm:
         if not self._fresh:
             self._mj.mj_step1(self.model, self.data)
             self._fresh = True
+            self._jac3 = self._jac6 = None  # this state's Jacobians: computed once, when first asked
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions (rad) and velocities (rad/s) at the start of the tick (copies)."""
@@ -271,10 +274,12 @@ class MujocoArm:
     def jacobian(self, rotational: bool = False) -> np.ndarray:
         """d(point)/dq, 3 x n (6 x n with the rotational rows under it), this tick."""
         self._step1()
-        self._mj.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self._site)
-        if rotational:
-            return np.vstack((self._jacp[:, self._dadr], self._jacr[:, self._dadr]))
-        return np.ascontiguousarray(self._jacp[:, self._dadr])
+        if self._jac6 is None:
+            self._mj.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self._site)
+            self._jac6 = np.vstack((self._jacp[:, self._dadr], self._jacr[:, self._dadr]))
+            self._jac3 = np.ascontiguousarray(self._jac6[:3])
+        # copies: a caller may scale its Jacobian in place
+        return self._jac6.copy() if rotational else self._jac3.copy()  # type: ignore[union-attr]
 
     def orientation(self) -> np.ndarray:
         """The point site's rotation matrix (3 x 3, world frame), this tick."""
