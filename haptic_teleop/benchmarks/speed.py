@@ -319,7 +319,9 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     if "compiled" in figures and compiled_bare is not None:
         print(f"compiled tick / bare compiled mj_step      {figures['compiled']['tick_us'] / compiled_bare:8.2f} x")
     print(f"Python tick / bare mj_step from Python     {figures['python']['tick_us'] / bare:8.2f} x")
-    if breakdown:
+    if breakdown and scene.config.is_arm:
+        print("(no per-stage breakdown for arm scenes: the stages replay the one-axis tick; docs/arms.md)")
+    elif breakdown:
         rows, loop_us = breakdown_us(scene, repeat)
         print(
             f"where a Python-loop tick's time goes (stages replayed alone, median of {repeat}; loop {loop_us:.2f} us):"
