@@ -523,6 +523,16 @@ def launch_main(args: Any) -> int:
     if args.compression is not None:
         overrides.append(f"recording.compression={args.compression}")
     scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
+    if scene.config.is_arm:
+        from haptic_teleop.errors import ConfigError
+
+        raise ConfigError(
+            scene.source,
+            "slave.wall.point_m",
+            list(scene.config.slave.wall.point_m or ()),
+            "an arm scene: the live nodes run one-axis scenes only for now; allowed: haptic-teleop run "
+            f"{scene.config.scene.name} (the engine), or a one-axis scene",
+        )
     record = Path(args.record) if args.record else None
     if record is not None:
         problem = record_dir_problem(record)
