@@ -159,3 +159,27 @@ def test_vector_payloads_through_an_extrapolating_buffer_and_the_guards(tmp_path
     assert engine.master_ctrl.rejected_samples == engine.slave_ctrl.rejected_samples == 0
     assert summary["all_finite"] and summary["penetration_max_m"] > 0.0
     assert min(summary[f"{side}_energy_margin_simulator_min_j"] for side in SIDES) >= 0.0
+
+
+def test_a_stop_request_ends_the_run_with_a_readable_bag(tmp_path: Path) -> None:
+    """Ctrl-C's path (Engine.request_stop): the loop ends after the current tick and the bag is
+    closed with every tick that finished, and analyses."""
+    scene = load_scene(find_scene("touch_dynamixel_wall"), ["scene.duration_s=2.0"])
+    holder: dict[str, Engine] = {}
+
+    def progress(done: int) -> None:
+        if done == 700:
+            holder["engine"].request_stop()
+
+    engine, timing = record_run(
+        scene,
+        tmp_path / "bag",
+        progress=progress,
+        parallel=False,
+        handle_sigint=False,
+        keep=True,
+        on_engine=lambda e: holder.setdefault("engine", e),
+    )
+    assert timing.interrupted and engine.ticks_done == 700
+    summary = summarize_bag(tmp_path / "bag")
+    assert summary["ticks"] == 700 and summary["all_finite"]
