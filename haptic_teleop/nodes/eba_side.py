@@ -60,7 +60,12 @@ class EbaSide:
         )
         plant = config.master if role == "master" else config.slave
         self.ctrl = _controller(
-            getattr(config.controllers, role), role, period_s, plant.damping_n_s_per_m, remote_limits(config, trace)
+            getattr(config.controllers, role),
+            role,
+            period_s,
+            plant.damping_n_s_per_m,
+            remote_limits(config, trace),
+            plant.effects.saturation,
         )
         self.fade = ForceFade(self.ctrl)
         remote = "backward" if role == "master" else "forward"
@@ -77,6 +82,11 @@ class EbaSide:
             self.watchdog.feed(stamp_ns)
         self.fade.set_gain(self.watchdog.update(stamp_ns))
         return self.ctrl.step(x, v)
+
+    def applied(self, force: Sequence[float]) -> None:
+        """The force the plant applied over the period that follows `step`: the reservoir
+        accounts with it (docs/eba.md, "Actuator limits inside the bound")."""
+        self.ctrl.bound.applied(force)
 
     def publish_internals(self) -> None:
         self._eba_out.publish(self.ctrl.bound.energy_j[0], self.ctrl.force_desired[0])

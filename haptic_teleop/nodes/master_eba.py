@@ -121,6 +121,7 @@ class MasterEba(LiveNode):
         self.forward_out.publish(stamp_ns, (x[0], v[0]))
         if self.plant is not None:
             applied = self.plant.step(f, [self._hand_n])
+            self.side.applied(applied)
         else:
             assert self.command_out is not None
             self.command_out.publish(stamp_ns, f[0])

@@ -48,6 +48,7 @@ class SlaveEba(LiveNode):
         # JointState field order (position, velocity, effort) carries the payload (f_env, x, v).
         self.backward_out.publish(stamp_ns, (x[0], v[0], fenv[0]))
         applied = plant.step(f)
+        self.side.applied(applied)
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))
         self.contact_out.publish(stamp_ns, fenv[0])
         self.side.publish_internals()
