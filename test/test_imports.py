@@ -20,9 +20,6 @@ KNOWN_BACK_EDGES = {
     # The compiled kernel takes the layout of its parameter and state arrays (P_*, S_*) from the
     # loop that drives it; they belong in a module below both.
     ("haptic_teleop.fastkernel", "haptic_teleop.fastloop"): "array layout shared through fastloop",
-    # The n-D summary reuses the block readers of stream.py, which imports it for that summary;
-    # the shared readers belong in a module below both.
-    ("haptic_teleop.analysis.taskmetrics", "haptic_teleop.analysis.stream"): "block readers",
 }
 
 
