@@ -31,23 +31,20 @@ import numpy as np
 
 from haptic_teleop import fastloop
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
-from haptic_teleop.core.network import Link, Packet, build_link
+from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
+from haptic_teleop.record.columns import ONE_DOF
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, SaturationConfig, Scene
+from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
 
-# Per-tick columns, in record order.
-COLUMNS = (
-    "op_x_m", "op_v_m_per_s", "op_force_n",
-    "m_x_m", "m_v_m_per_s", "m_force_n", "m_force_desired_n", "m_energy_j",
-    "s_x_m", "s_v_m_per_s", "s_force_n", "s_force_desired_n", "s_energy_j", "s_contact_n",
-    "fwd_rx_seq", "bwd_rx_seq", "fwd_occupancy", "bwd_occupancy",
-)  # fmt: skip
-COL = {name: i for i, name in enumerate(COLUMNS)}
+# Per-tick columns, in record order: the 1-DoF tick schema (record/columns.py).
+COLUMNS = ONE_DOF.columns
+COL = ONE_DOF.col
 
 
 @dataclass

@@ -12,7 +12,7 @@ import numpy as np
 import yaml
 
 from haptic_teleop.analysis.energy import energy_margins
-from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
 
@@ -67,6 +67,34 @@ def simulator_damping(run_info: dict[str, Any], side: str) -> list[float] | None
     the run facts, from the compiled MjModel's dof_damping); None for bags written without it."""
     d = run_info.get(f"{side}_joint_damping")
     return [float(v) for v in d] if d is not None else None
+
+
+def wall_plane(sc: dict[str, Any], run_info: dict[str, Any], axes: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point, unit normal) of the wall in the task frame, the normal pointing out of the wall into
+    free space: the run facts `wall_point_m`, `wall_normal`; for one axis without them, the
+    scene's slave.wall.position_m with normal -x (the robot meets the wall moving toward +x);
+    else None."""
+    p, n = run_info.get("wall_point_m"), run_info.get("wall_normal")
+    if p is not None and n is not None:
+        point = np.asarray(p, dtype=float).reshape(-1)[:axes]
+        normal = np.asarray(n, dtype=float).reshape(-1)[:axes]
+        norm = float(np.linalg.norm(normal)) if normal.size == axes else 0.0
+        if point.size != axes or not norm > 0.0 or not np.all(np.isfinite(point)):
+            raise BagError(f"run facts: wall_point_m {p!r} and wall_normal {n!r} are not a plane in {axes} axes")
+        return point, normal / norm
+    wall = ((sc.get("slave") or {}).get("wall") or {}).get("position_m")
+    if axes == 1 and wall is not None:
+        return np.array([float(wall)]), np.array([-1.0])
+    return None
+
+
+def penetration(x: np.ndarray, plane: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """Depth of each of the (N, axes) points behind the wall plane, 0 in front of it (m): (p - x) . n."""
+    if plane is None:
+        return np.zeros(x.shape[0])
+    p, n = plane
+    depth: np.ndarray = np.maximum((p - x) @ n, 0.0)
+    return depth
 
 
 def _lag_ticks(delays_s: np.ndarray, period_s: float) -> int:
@@ -296,6 +324,7 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "position_rms_error_m": _rms(pos),
         "contact_force_max_n": float(np.max(np.abs(sig.contact_n))),
         "master_force_max_n": float(np.max(np.abs(sig.master_force_n))),
+        "penetration_max_m": float(np.max(penetration(sig.slave_x_m[:, None], wall_plane(sc, sig.run_info, 1)))),
         "packets_sent_forward": fs,
         "packets_lost_forward": fl,
         "packets_late_forward": flate,

@@ -1,7 +1,8 @@
-"""Things that move: one `Plant` protocol over simulators and hardware.
+"""Things that move: the plants of a scene, built from its config.
 
-Backends are chosen by name from `BACKENDS`; their SDKs (mujoco, dynamixel_sdk, rtde) are imported
-inside the backend module, so this package imports without them.
+The `Plant` protocol and the registry of backends by name (`BACKENDS`) are in
+`haptic_teleop.plants.base`; a backend's SDK (mujoco, dynamixel_sdk, rtde) is imported inside its
+module, so this package imports without them.
 """
 
 from __future__ import annotations
@@ -9,45 +10,14 @@ from __future__ import annotations
 import math
 import typing
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.errors import PlantError
+from haptic_teleop.plants.base import Plant, backend_class
 
 if TYPE_CHECKING:
     from haptic_teleop.plants.mujoco_plant import SimSettings
     from haptic_teleop.scene import PlantEffectsConfig, Scene
-
-
-class Plant(Protocol):
-    """A device with `axes` linear axes, stepped one control period at a time.
-
-    `read()` returns the state at the start of the tick; `step(force)` holds the actuator force
-    for one period and returns the force actually applied (after the plant's own limits), which is
-    what the energy accounting must use.
-    """
-
-    axes: int
-
-    def read(self) -> tuple[list[float], list[float]]:
-        """Position (m) and velocity (m/s) per axis."""
-        ...
-
-    def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
-        """Advance one period; returns the actuator force applied."""
-        ...
-
-    def contact_force(self) -> list[float]:
-        """Environment force on the device over the last period, per axis (N); zero if none."""
-        ...
-
-    def joint_damping(self) -> list[float]:
-        """The physical damping of each port's joint as the device really has it (SI: N s/m for a
-        slide joint, N m s/rad for a hinge); in simulation the compiled model's `dof_damping`."""
-        ...
-
-    def close(self) -> None:
-        """Release the device (torque off on hardware)."""
-        ...
 
 
 # --------------------------------------------------------------------------------------------
@@ -72,10 +42,8 @@ def sim_settings(config: Scene) -> SimSettings:
 
 def build_master_plant(config: Scene) -> Plant:
     """The operator's device of `config` (its `master` section), with `master.effects`."""
-    from haptic_teleop.plants.mujoco_plant import MujocoDevice
-
     m = config.master
-    plant = MujocoDevice(
+    plant = backend_class("mujoco", "master")(
         sim_settings(config),
         mass_kg=m.mass_kg,
         damping_n_s_per_m=m.damping_n_s_per_m,
@@ -88,10 +56,8 @@ def build_master_plant(config: Scene) -> Plant:
 
 def build_slave_plant(config: Scene) -> Plant:
     """The robot and wall of `config` (its `slave` section), with `slave.effects`."""
-    from haptic_teleop.plants.mujoco_plant import MujocoWallRobot
-
     s = config.slave
-    plant = MujocoWallRobot(
+    plant = backend_class("mujoco", "slave")(
         sim_settings(config),
         mass_kg=s.mass_kg,
         damping_n_s_per_m=s.damping_n_s_per_m,

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-from haptic_teleop.plants import Plant
+from haptic_teleop.plants.base import Plant
 
 
 class SignalEffect(Protocol):
