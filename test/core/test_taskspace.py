@@ -329,3 +329,36 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
         r_tool = _rodrigues(rng.normal(size=3), rng.uniform(0, 1)) @ rot
         expect = plain_law.torque(jac, qd, x, v, rx, rv, r_tool=r_tool).copy()
         assert fast_law.torque(jac, qd, x, v, rx, rv, r_tool=r_tool) == pytest.approx(expect, rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    x=st.floats(-1.0, 1.0),
+    v=st.floats(-1.0, 1.0),
+    rx=st.floats(-1.0, 1.0),
+    rv=st.floats(-1.0, 1.0),
+    rf=st.floats(-50.0, 50.0),
+    c1=st.floats(0.0, 1e4),
+    c2=st.floats(0.0, 100.0),
+)
+def test_one_axis_task_law_is_the_one_dof_law(x, v, rx, rv, rf, c1, c2):
+    """One axis, one joint, J = [[1]], identity mapping: the task-space law gives the bits of the
+    1-DoF controller's law (position on both sides, force reflection on the master)."""
+    from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, TeleopController
+
+    bound = EnergyBoundParams(1e-3, (1.0,), enabled=False)
+    wm = WorkspaceMapping.identity(1)
+    jac = np.array([[1.0]])
+    a = lambda value: np.array([value])  # noqa: E731
+    slave = TeleopController(ControllerParams(role="slave", stiffness_n_per_m=c1, damping_n_s_per_m=c2), bound)
+    slave.set_remote((rx, rv))
+    law = TaskSpaceLaw(TaskCouplingParams(stiffness_n_per_m=(c1,), damping_n_s_per_m=(c2,)), 1)
+    tau = law.torque(jac, a(v), a(x), a(v), wm.position_to_task(a(rx)), wm.velocity_to_task(a(rv)))
+    assert tau[0] == slave.desired_force([x], [v])[0]
+    master = TeleopController(ControllerParams(role="master", law="force", force_gain=0.7), bound)
+    master.set_remote((rf, rx, rv))
+    law = TaskSpaceLaw(
+        TaskCouplingParams(law="force", force_gain=0.7, stiffness_n_per_m=(c1,), damping_n_s_per_m=(c2,)), 1
+    )
+    tau = law.torque(jac, a(v), a(x), a(v), None, None, remote_force=wm.force_to_master(a(rf)))
+    assert tau[0] == master.desired_force([x], [v])[0]
