@@ -95,31 +95,42 @@ def test_same_scene_and_seed_give_the_same_bag_bytes(tmp_path: Path) -> None:
     assert bags[0] == bags[1]
 
 
-# The hard case: a wall at the step's stiffness limit, 100 ms each way with 10 % loss in bursts
-# (Gilbert-Elliott: 1/9 of the time in a state losing 90 %), the operator ten times faster than
-# the scene's, stiff couplings, and slave motors limited to a fraction of their torque.
+# The hard case: a stiff wall, 100 ms each way with 10 % loss in bursts (Gilbert-Elliott: 1/9 of
+# the time in a state losing 90 %), the operator ten times faster than the scene's, stiff
+# couplings, and the slave's motors limited to a fraction of their torque (reached).
 GE_10 = "{model: gilbert_elliott, p: 0.02, r: 0.16, one_minus_h: 0.9, one_minus_k: 0.0}"
 HARD = (
     "scene.duration_s=3.0",
     "operator.start_s=0.2",
     "operator.speed_m_per_s=0.5",
     "operator.distance_m=0.06",
-    "slave.wall.stiffness_n_per_m=2e4",
-    "slave.torque_limit_nm=[2.0, 2.0, 1.0]",
     "controllers.master.stiffness_n_per_m=1000",
     "controllers.master.damping_n_s_per_m=5",
-    "controllers.slave.stiffness_n_per_m=3000",
-    "controllers.slave.damping_n_s_per_m=10",
     *(f"network.{d}.effects.delay.delay_s=0.1" for d in ("forward", "backward")),
     *(f"network.{d}.effects.loss={GE_10}" for d in ("forward", "backward")),
 )
+HARD_SLAVE = {
+    "touch_dynamixel_wall": (
+        "slave.wall.stiffness_n_per_m=2e4",
+        "slave.torque_limit_nm=[2.0, 2.0, 1.0]",
+        "controllers.slave.stiffness_n_per_m=3000",
+        "controllers.slave.damping_n_s_per_m=10",
+    ),
+    "touch_ur5e_wall": (
+        "slave.wall.stiffness_n_per_m=1e5",
+        "slave.torque_limit_nm=[30, 30, 30, 3, 3, 3]",
+        "controllers.slave.stiffness_n_per_m=20000",
+        "controllers.slave.damping_n_s_per_m=50",
+    ),
+}
 UNPROTECTED = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")
 
 
+@pytest.mark.parametrize("name", sorted(HARD_SLAVE))
 @pytest.mark.parametrize("protected", [True, False])
-def test_hard_case_negative_without_eba_and_not_with_it(tmp_path: Path, protected: bool) -> None:
-    overrides = HARD if protected else (*HARD, *UNPROTECTED)
-    engine, summary, _ = _record(tmp_path, "touch_dynamixel_wall", *overrides)
+def test_hard_case_negative_without_eba_and_not_with_it(tmp_path: Path, name: str, protected: bool) -> None:
+    overrides = (*HARD, *HARD_SLAVE[name], *(() if protected else UNPROTECTED))
+    engine, summary, _ = _record(tmp_path, name, *overrides)
     assert summary["loss_rate_forward"] > 0.05 and summary["loss_rate_backward"] > 0.05
     assert engine.joint_limit_ticks["slave"] > 0  # the motors' limits were reached
     margins = [summary[f"{side}_energy_margin_simulator_min_j"] for side in SIDES]
