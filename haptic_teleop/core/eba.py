@@ -577,7 +577,7 @@ def joint_limited(
     high: npt.NDArray[np.float64],
     keep_direction: bool,
 ) -> None:
-    """`tau` brought within [low_i, high_i] per joint (low_i <= 0 <= high_i).
+    """`tau` brought within [low_i, high_i] per joint (normally low_i <= 0 <= high_i).
 
     keep_direction: one factor on the whole vector, the largest that fits every joint (the
     direction of the task force survives); else each joint clipped alone, as a motor does (the
