@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import gc
-import math
 import signal
 import struct
 import time
@@ -30,24 +29,28 @@ from typing import Protocol
 import numpy as np
 
 from haptic_teleop import fastloop
-from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
-from haptic_teleop.core.network import Link, Packet, build_link
-from haptic_teleop.core.operator import Operator, OperatorParams
-from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
+from haptic_teleop.assembly import (
+    REMOTE_LIMIT_MARGIN,
+    build_controller,
+    build_master_plant,
+    build_network,
+    build_operator,
+    build_slave_plant,
+    remote_limits,
+)
+from haptic_teleop.core.network import Link, Packet
+from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.errors import HapticTeleopError
-from haptic_teleop.plants import build_master_plant, build_slave_plant
+from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import ControllerConfig, LoadedScene, OperatorConfig, Scene
+from haptic_teleop.scene import LoadedScene
 
-# Per-tick columns, in record order.
-COLUMNS = (
-    "op_x_m", "op_v_m_per_s", "op_force_n",
-    "m_x_m", "m_v_m_per_s", "m_force_n", "m_force_desired_n", "m_energy_j",
-    "s_x_m", "s_v_m_per_s", "s_force_n", "s_force_desired_n", "s_energy_j", "s_contact_n",
-    "fwd_rx_seq", "bwd_rx_seq", "fwd_occupancy", "bwd_occupancy",
-)  # fmt: skip
-COL = {name: i for i, name in enumerate(COLUMNS)}
+__all__ = ["COL", "COLUMNS", "REMOTE_LIMIT_MARGIN", "Engine", "build_operator", "record_run", "remote_limits"]
+
+# Per-tick columns, in record order: the 1-DoF tick schema (record/columns.py).
+COLUMNS = ONE_DOF.columns
+COL = ONE_DOF.col
 
 
 @dataclass
@@ -64,83 +67,10 @@ class RunResult:
     loop_wall_s: float
     interrupted: bool
     extra: dict[str, float] = field(default_factory=dict)
+    schema: TickSchema = ONE_DOF  # the columns of `data` (record/columns.py)
 
     def column(self, name: str) -> np.ndarray:
-        return self.data[: self.ticks, COL[name]]
-
-
-REMOTE_LIMIT_MARGIN = 10.0  # remote values beyond 10x what the scene can produce are faults
-
-
-def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ...]] | None = None) -> RemoteLimits:
-    """Largest plausible remote values for a scene (docs/eba.md, "Bad values in packets").
-
-    REMOTE_LIMIT_MARGIN times: the workspace (wall position, the operator's reach, the robot's
-    start; at least 0.1 m), the operator's speed (at least 0.1 m/s), and the strongest force
-    limit of the actuators and controllers (a wall force far beyond what any actuator in the loop
-    can push is a sensor fault).
-    """
-    op = config.operator
-    reach = 0.0
-    speed = 0.0
-    if op.profile == "push":
-        reach, speed = abs(op.distance_m), abs(op.speed_m_per_s)
-    elif op.profile == "sinusoid":
-        reach, speed = abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
-    elif op.profile == "trace" and trace is not None:
-        ts, xs = trace
-        reach = max(abs(x) for x in xs)
-        slopes = [abs((xs[i + 1] - xs[i]) / (ts[i + 1] - ts[i])) for i in range(len(ts) - 1)]
-        speed = max(slopes, default=0.0)
-    workspace = max(0.1, abs(config.slave.wall.position_m), reach, abs(config.slave.start_position_m))
-    forces = (
-        config.master.force_limit_n,
-        config.slave.force_limit_n,
-        config.controllers.master.force_limit_n,
-        config.controllers.slave.force_limit_n,
-    )
-    k = REMOTE_LIMIT_MARGIN
-    return RemoteLimits(position_m=k * workspace, velocity_m_per_s=k * max(0.1, speed), force_n=k * max(forces))
-
-
-def _controller(
-    cfg: ControllerConfig, role: str, period_s: float, damping: float, limits: RemoteLimits | None = None
-) -> TeleopController:
-    params = ControllerParams(
-        role=role,
-        law=cfg.law,
-        stiffness_n_per_m=cfg.stiffness_n_per_m,
-        damping_n_s_per_m=cfg.damping_n_s_per_m,
-        force_gain=cfg.force_gain,
-        force_limit_n=cfg.force_limit_n,
-        remote_limits=limits,
-    )
-    bound = EnergyBoundParams(
-        period_s=period_s,
-        damping_n_s_per_m=(damping,),
-        initial_energy_j=cfg.eba.initial_energy_j,
-        enabled=cfg.eba.enabled,
-    )
-    return TeleopController(params, bound)
-
-
-def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[float, ...]] | None) -> Operator:
-    """The core operator model a scene's `operator` section names (engine and operator_source)."""
-    return Operator(
-        OperatorParams(
-            profile=op.profile,
-            mass_kg=op.mass_kg,
-            stiffness_n_per_m=op.stiffness_n_per_m,
-            damping_n_s_per_m=op.damping_n_s_per_m,
-            start_s=op.start_s,
-            speed_m_per_s=op.speed_m_per_s,
-            distance_m=op.distance_m,
-            amplitude_m=op.amplitude_m,
-            frequency_hz=op.frequency_hz,
-            trace_time_s=trace[0] if trace else (),
-            trace_position_m=trace[1] if trace else (),
-        )
-    )
+        return self.data[: self.ticks, self.schema.col[name]]
 
 
 LOOPS = ("auto", "compiled", "python")
@@ -164,16 +94,23 @@ class Engine:
         self.period_s = c.scene.period_s
         self.period_ns = round(c.scene.period_s * 1e9)
         self.ticks = int(round(c.scene.duration_s / c.scene.period_s))
+        self.schema: TickSchema = ONE_DOF
+        if c.is_arm:
+            self._init_arm(loop)
+            return
         op = c.operator
         trace = scene.operator_trace
         self.operator = build_operator(op, trace)
         self.master = build_master_plant(c)
         self.slave = build_slave_plant(c)
         limits = remote_limits(c, scene.operator_trace)
-        self.master_ctrl = _controller(
-            c.controllers.master, "master", self.period_s, c.master.damping_n_s_per_m, limits
+        m, s = c.master, c.slave
+        self.master_ctrl = build_controller(
+            c.controllers.master, "master", self.period_s, m.damping_n_s_per_m, limits, m.effects.saturation
         )
-        self.slave_ctrl = _controller(c.controllers.slave, "slave", self.period_s, c.slave.damping_n_s_per_m, limits)
+        self.slave_ctrl = build_controller(
+            c.controllers.slave, "slave", self.period_s, s.damping_n_s_per_m, limits, s.effects.saturation
+        )
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
@@ -207,27 +144,31 @@ class Engine:
                 0,
             )
 
+    def _init_arm(self, loop: str) -> None:
+        """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (armloop.py)."""
+        from haptic_teleop.armloop import wire_payload_bytes
+        from haptic_teleop.assembly import build_arm_parts
+
+        self.arm = parts = build_arm_parts(self.scene.config)
+        self.schema = parts.schema
+        self.operator = parts.operator
+        self.master, self.slave = parts.master.plant, parts.slave.plant
+        self.master_ctrl, self.slave_ctrl = parts.master, parts.slave
+        self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
+        # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
+        self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
+        self._stop = False
+        self.compiled_reason = "more than one axis (arm scenes run in the Python loop)"
+        if loop == "compiled":
+            raise HapticTeleopError(
+                f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
+                "use --loop auto or python"
+            )
+        self.loop_kind = "python"
+
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
         """Fresh links and playout buffers for both directions, as the scene names them."""
-        c = self.scene.config
-        op = c.operator
-        seed = c.scene.seed
-        forward = build_link(c.network.forward.effects, seed, "forward")
-        backward = build_link(c.network.backward.effects, seed, "backward")
-        forward_buffer = build_buffer(c.network.forward.buffer, self.period_ns)
-        backward_buffer = build_buffer(c.network.backward.buffer, self.period_ns)
-        # The transparency-driven buffers need the contact force slope (docs/eba.md): the bounded
-        # coupling stiffness min(c1, 2b/T) times the operator's speed, unless the scene gives it.
-        speed = (
-            abs(op.speed_m_per_s) if op.profile == "push" else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
-        )
-        for buf, bcfg, ctrl, b in (
-            (backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
-            (forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),
-        ):
-            if isinstance(buf, TransparencyBuffer) and bcfg.force_slope_n_per_s is None:
-                buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / self.period_s), speed))
-        return forward, backward, forward_buffer, backward_buffer
+        return build_network(self.scene.config, self.period_ns)
 
     def request_stop(self) -> None:
         """Stop at the end of the current tick (Ctrl-C)."""
@@ -249,7 +190,7 @@ class Engine:
         with one, those are empty. If the loop raises, `self.ticks_done` says how many ticks
         finished, and the sink has been given all of them before the exception goes on.
         """
-        collector = Collector() if sink is None else None
+        collector = Collector(self.schema.width) if sink is None else None
         out = sink if sink is not None else collector
         assert out is not None
         previous = None
@@ -281,6 +222,8 @@ class Engine:
         return result
 
     def _loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        if self.schema is not ONE_DOF:
+            return self._arm_loop(progress, sink)
         n_ticks = self.ticks
         period_ns = self.period_ns
         period_s = self.period_s
@@ -295,6 +238,8 @@ class Engine:
         # The controllers update these lists in place every tick.
         m_desired, s_desired = mc.force_desired, sc.force_desired
         m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
+        # The reservoirs account with the force the plants really applied (docs/eba.md).
+        m_applied, s_applied = mc.bound.applied1, sc.bound.applied1
         hand = self.operator.hand_force_and_intended
         fwd, bwd = self.forward, self.backward
         fwd_send, bwd_send = fwd.send, bwd.send
@@ -353,6 +298,8 @@ class Engine:
                 fh, xd, vd = hand(n * period_s, xm, vm)
                 fm_applied = m_step([fm], fh)[0]
                 fs_applied = s_step([fs])[0]
+                m_applied(fm_applied)
+                s_applied(fs_applied)
                 pack_row(
                     block, (n - base) * row_bytes,
                     xd, vd, fh[0],
@@ -390,6 +337,43 @@ class Engine:
             backward_log=_NO_PACKETS,
             loop_wall_s=wall,
             interrupted=n < n_ticks,
+        )
+
+    def _arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        from haptic_teleop.armloop import run_arm_loop
+
+        self.ticks_done = 0
+        output = _Output(
+            sink,
+            lambda sent, final: fastloop.settled_records(self.forward, self.forward_buffer, sent, final),
+            lambda sent, final: fastloop.settled_records(self.backward, self.backward_buffer, sent, final),
+            self.schema.width,
+        )
+        t0 = time.perf_counter()
+        done = 0
+        try:
+            done = run_arm_loop(self, self.arm, progress, output)
+        except BaseException:
+            done = self.ticks_done
+            self.master.close()
+            self.slave.close()
+            output.end_after_error(done)
+            raise
+        output.end(done)
+        wall = time.perf_counter() - t0
+        self.master.close()
+        self.slave.close()
+        width = self.schema.width
+        return RunResult(
+            scene=self.scene,
+            ticks=done,
+            period_ns=self.period_ns,
+            data=np.zeros((0, width)),
+            forward_log=_NO_PACKETS,
+            backward_log=_NO_PACKETS,
+            loop_wall_s=wall,
+            interrupted=done < self.ticks,
+            schema=self.schema,
         )
 
     def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
@@ -476,7 +460,8 @@ class RunSink(Protocol):
 class Collector:
     """A sink that keeps a whole run in memory (tests and short runs; never `haptic-teleop run`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, width: int = len(COLUMNS)) -> None:
+        self.width = width
         self._blocks: list[np.ndarray] = []
         self._packets: dict[str, list[np.ndarray]] = {"forward": [], "backward": []}
 
@@ -488,7 +473,7 @@ class Collector:
 
     def data(self) -> np.ndarray:
         """Every tick's columns so far, (ticks, len(COLUMNS))."""
-        return np.concatenate(self._blocks) if self._blocks else np.zeros((0, len(COLUMNS)))
+        return np.concatenate(self._blocks) if self._blocks else np.zeros((0, self.width))
 
     def packets(self, direction: str) -> np.ndarray:
         """Every packet record handed over so far for a direction, in hand-over order."""
@@ -521,9 +506,9 @@ class _Output:
     sink when full, and the packet records settled at each block's end. Both loops make the same
     calls on the sink with the same arrays, so they give the same bag."""
 
-    def __init__(self, sink: RunSink, forward: Settled, backward: Settled) -> None:
+    def __init__(self, sink: RunSink, forward: Settled, backward: Settled, width: int = len(COLUMNS)) -> None:
         self.sink = sink
-        self.block = np.zeros((BLOCK_TICKS, len(COLUMNS)))
+        self.block = np.zeros((BLOCK_TICKS, width))
         self.start = 0  # tick of the block's first row
         self._settled = (("forward", forward), ("backward", backward))
         self._ended = False
@@ -642,11 +627,12 @@ def record_run(
         engine.period_ns,
         c.recording.eba_internals,
         c.recording.packets,
-        len(COLUMNS),
+        engine.schema.width,
         parallel=parallel,
         compression=c.recording.compression,
+        schema=engine.schema,
     )
-    collector = Collector() if keep else None
+    collector = Collector(engine.schema.width) if keep else None
     sink: RunSink = rec if collector is None else _Tee(rec, collector)
     t0 = time.perf_counter()
     result: RunResult | None = None
@@ -661,6 +647,10 @@ def record_run(
             # Remote samples each side's guard rejected (the slave checks the forward direction).
             "rejected_samples_forward": engine.slave_ctrl.rejected_samples,
             "rejected_samples_backward": engine.master_ctrl.rejected_samples,
+            # The damping each port's joint really has in the simulator (MjModel dof_damping, SI
+            # per joint): the analysis' true energy margin uses it (docs/eba.md).
+            "master_joint_damping": engine.master.joint_damping(),
+            "slave_joint_damping": engine.slave.joint_damping(),
         }
         if collector is not None:
             engine.data = collector.data()

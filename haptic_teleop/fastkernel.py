@@ -21,6 +21,7 @@ from haptic_teleop.core import operator as op
 from haptic_teleop.fastloop import (
     MASTER,
     OP,
+    P_ACT_LIMIT,
     P_AMP,
     P_B,
     P_BOUND_GAIN,
@@ -39,6 +40,7 @@ from haptic_teleop.fastloop import (
     P_PERIOD_S,
     P_PLANT_LIMIT,
     P_PROFILE,
+    P_SLEW_STEP,
     P_SPEED,
     P_START,
     P_SUBSTEPS,
@@ -59,6 +61,27 @@ from haptic_teleop.fastloop import (
     SLAVE,
 )
 from haptic_teleop.plants import mujoco_plant
+from haptic_teleop.record.columns import ONE_DOF
+
+# Where each value goes in a tick's row (the 1-DoF tick schema; compile-time constants).
+C_OP_X_M = ONE_DOF.col["op_x_m"]
+C_OP_V_M_PER_S = ONE_DOF.col["op_v_m_per_s"]
+C_OP_FORCE_N = ONE_DOF.col["op_force_n"]
+C_M_X_M = ONE_DOF.col["m_x_m"]
+C_M_V_M_PER_S = ONE_DOF.col["m_v_m_per_s"]
+C_M_FORCE_N = ONE_DOF.col["m_force_n"]
+C_M_FORCE_DESIRED_N = ONE_DOF.col["m_force_desired_n"]
+C_M_ENERGY_J = ONE_DOF.col["m_energy_j"]
+C_S_X_M = ONE_DOF.col["s_x_m"]
+C_S_V_M_PER_S = ONE_DOF.col["s_v_m_per_s"]
+C_S_FORCE_N = ONE_DOF.col["s_force_n"]
+C_S_FORCE_DESIRED_N = ONE_DOF.col["s_force_desired_n"]
+C_S_ENERGY_J = ONE_DOF.col["s_energy_j"]
+C_S_CONTACT_N = ONE_DOF.col["s_contact_n"]
+C_FWD_RX_SEQ = ONE_DOF.col["fwd_rx_seq"]
+C_BWD_RX_SEQ = ONE_DOF.col["bwd_rx_seq"]
+C_FWD_OCCUPANCY = ONE_DOF.col["fwd_occupancy"]
+C_BWD_OCCUPANCY = ONE_DOF.col["bwd_occupancy"]
 
 
 def _mujoco_library() -> ctypes.CDLL:
@@ -81,6 +104,8 @@ mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
 jit = numba.njit(cache=True, nogil=True)
 reservoir1 = jit(eba.reservoir1)
 bounded1 = jit(eba.bounded1)
+ramp_limit1 = jit(eba.ramp_limit1)
+actuator_bounded1 = jit(eba.actuator_bounded1)
 saturated1 = jit(eba.saturated1)
 coupling1 = jit(eba.coupling1)
 within2 = jit(eba.within2)
@@ -111,7 +136,13 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
     else:
         S[side + S_HAS_LAST] = 1.0
     S[side + S_LAST] = x
-    if P[side + P_EBA_ON] != 0.0:
+    if P[side + P_EBA_ON] == 0.0:
+        pass
+    elif P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf:  # EnergyBoundParams.limited
+        step = P[side + P_SLEW_STEP]
+        limit = ramp_limit1(S[side + S_ENERGY], P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT], step)
+        f = actuator_bounded1(f, limit, S[side + S_HELD], step)
+    else:
         f = bounded1(f, S[side + S_ENERGY], P[side + P_BOUND_GAIN])
     S[side + S_HELD] = f
     return f, desired
@@ -198,11 +229,13 @@ def run_ticks(
             xd, vd = P[OP + P_X0], 0.0
         fh = hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
         fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
+        S[MASTER + S_HELD] = fm_applied  # EnergyBound.applied1: the reservoir accounts with it
         mctrl[0] = fh
         mctrl[1] = fm_applied
         for _ in range(m_steps):
             mj_step(models[0], models[1])
         fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
+        S[SLAVE + S_HELD] = fs_applied
         sctrl[0] = fs_applied
         if s_steps == 1:
             mj_step(models[2], models[3])
@@ -214,24 +247,24 @@ def run_ticks(
                 acc += sqfrc[0]
             S[SLAVE + S_CONTACT] = acc / s_steps
         row = data[n - d0]
-        row[0] = xd
-        row[1] = vd
-        row[2] = fh
-        row[3] = x_m
-        row[4] = v_m
-        row[5] = fm_applied
-        row[6] = m_desired
-        row[7] = S[MASTER + S_ENERGY]
-        row[8] = x_s
-        row[9] = v_s
-        row[10] = fs_applied
-        row[11] = s_desired
-        row[12] = S[SLAVE + S_ENERGY]
-        row[13] = f_env
-        row[14] = frx
-        row[15] = brx
-        row[16] = fwd_occ[n - w0]
-        row[17] = bwd_occ[n - w0]
+        row[C_OP_X_M] = xd
+        row[C_OP_V_M_PER_S] = vd
+        row[C_OP_FORCE_N] = fh
+        row[C_M_X_M] = x_m
+        row[C_M_V_M_PER_S] = v_m
+        row[C_M_FORCE_N] = fm_applied
+        row[C_M_FORCE_DESIRED_N] = m_desired
+        row[C_M_ENERGY_J] = S[MASTER + S_ENERGY]
+        row[C_S_X_M] = x_s
+        row[C_S_V_M_PER_S] = v_s
+        row[C_S_FORCE_N] = fs_applied
+        row[C_S_FORCE_DESIRED_N] = s_desired
+        row[C_S_ENERGY_J] = S[SLAVE + S_ENERGY]
+        row[C_S_CONTACT_N] = f_env
+        row[C_FWD_RX_SEQ] = frx
+        row[C_BWD_RX_SEQ] = brx
+        row[C_FWD_OCCUPANCY] = fwd_occ[n - w0]
+        row[C_BWD_OCCUPANCY] = bwd_occ[n - w0]
     return n1
 
 

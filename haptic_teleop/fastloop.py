@@ -2,7 +2,8 @@
 
 A tick of the Python loop costs 20 to 50 us on this project's 2-vCPU machine, of which MuJoCo is
 5 to 9 us; the rest is the interpreter (docs/performance.md). This module runs the same tick in
-machine code: the one-axis formulas of `core` (`eba.reservoir1`, `bounded1`, `saturated1`,
+machine code: the one-axis formulas of `core` (`eba.reservoir1`, `bounded1`, `actuator_bounded1`,
+`saturated1`,
 `coupling1`, `within2/3`, `operator.push1`, `sinusoid1`, `hand1`, `plants.actuator_limited1`)
 are compiled by numba from their single definition, and MuJoCo's `mj_step` is called straight
 from the compiled code on the same `MjModel`/`MjData` the plants own.
@@ -50,6 +51,7 @@ MASTER, SLAVE = 0, 16
 # per side, in P
 P_FORCE_LAW, P_GAIN, P_C1, P_C2, P_LIMIT, P_EBA_GAIN, P_BOUND_GAIN, P_EBA_ON = 0, 1, 2, 3, 4, 5, 6, 7
 P_GUARD_ON, P_LIM0, P_LIM1, P_LIM2, P_PLANT_LIMIT, P_SUBSTEPS = 8, 9, 10, 11, 12, 13
+P_ACT_LIMIT, P_SLEW_STEP = 14, 15  # the actuator limits the bound models (inf: none)
 # the operator and the clock, in P
 OP = 32
 P_PROFILE, P_X0, P_K, P_B, P_START, P_SPEED, P_T_END, P_X_END, P_AMP, P_W = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
@@ -289,6 +291,7 @@ def parameters(engine: Engine) -> np.ndarray:
         P[side + P_EBA_GAIN] = b._gain1
         P[side + P_BOUND_GAIN] = b._bound_gain1
         P[side + P_EBA_ON] = 1.0 if b.params.enabled else 0.0
+        P[side + P_ACT_LIMIT], P[side + P_SLEW_STEP] = b.params.actuator_limits()
         guard = ctrl.guard
         if guard is not None:
             P[side + P_GUARD_ON] = 1.0

@@ -48,8 +48,16 @@ class OperatorConfig:
     amplitude_m: float = field(default=0.02, metadata={"min": 0.0, "max": 10.0})
     frequency_hz: float = field(default=0.5, metadata={"gt": 0.0, "max": 100.0})
     trace_file: str | None = field(default=None, metadata={"help": "CSV time_s,position_m (profile trace)"})
+    direction: tuple[float, ...] | None = field(
+        default=None,
+        metadata={
+            "help": "arms: the profile's direction in the task frame (3 values, normalised; default: into the wall)"
+        },
+    )
 
     def __post_init__(self) -> None:
+        if self.direction is not None:
+            object.__setattr__(self, "direction", _unit(self.direction, "direction"))
         if self.profile == "trace" and not self.trace_file:
             raise ValueError("profile 'trace' needs trace_file")
         if self.profile != "trace" and self.trace_file:
@@ -177,6 +185,22 @@ class MasterConfig:
     damping_n_s_per_m: float = field(default=1.0, metadata={"gt": 0.0, "max": 1e4, "help": "physical damping b_m"})
     force_limit_n: float = field(default=30.0, metadata={"gt": 0.0, "max": 1e4, "help": "actuator limit"})
     effects: PlantEffectsConfig = field(default_factory=PlantEffectsConfig)
+    joints: tuple[str, ...] | None = field(
+        default=None, metadata={"help": "arms: joint names, checked against the model (default: its motors' joints)"}
+    )
+    start_q_rad: tuple[float, ...] | None = field(
+        default=None, metadata={"help": "arms: start joint configuration, one value per joint"}
+    )
+    damping_nm_s_per_rad: tuple[float, ...] | None = field(
+        default=None, metadata={"gt": 0.0, "max": 1e4, "help": "arms: joint damping override (default: the MJCF's)"}
+    )
+    torque_limit_nm: tuple[float, ...] | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 1e4, "help": "arms: motor torque limits (default: the MJCF's ctrlrange)"},
+    )
+    gravity_compensation: bool | None = field(
+        default=None, metadata={"help": "arms: compensate gravity through the motors (default true)"}
+    )
 
     def __post_init__(self) -> None:
         e = self.effects
@@ -193,6 +217,30 @@ class WallConfig:
     position_m: float = field(default=0.02, metadata={"min": -10.0, "max": 10.0, "help": "tip position at contact"})
     stiffness_n_per_m: float = field(default=1e4, metadata={"gt": 0.0, "max": 1e7})
     damping_n_s_per_m: float = field(default=10.0, metadata={"min": 0.0, "max": 1e5})
+    point_m: tuple[float, ...] | None = field(
+        default=None, metadata={"min": -10.0, "max": 10.0, "help": "arms: a point of the wall surface (task frame)"}
+    )
+    normal: tuple[float, ...] | None = field(
+        default=None, metadata={"help": "arms: the wall's normal into free space (3 values, normalised)"}
+    )
+
+    def __post_init__(self) -> None:
+        if (self.point_m is None) != (self.normal is None):
+            raise ValueError("an arm's wall needs both point_m and normal (a one-axis wall neither)")
+        if self.point_m is not None and len(self.point_m) != 3:
+            raise ValueError(f"point_m needs 3 values (x, y, z), got {len(self.point_m)}")
+        if self.normal is not None:
+            object.__setattr__(self, "normal", _unit(self.normal, "normal"))
+
+
+def _unit(v: tuple[float, ...], name: str) -> tuple[float, ...]:
+    """`v` normalised; a ValueError unless it has 3 values and a nonzero length."""
+    if len(v) != 3:
+        raise ValueError(f"{name} needs 3 values (x, y, z), got {len(v)}")
+    n = math.sqrt(sum(c * c for c in v))
+    if not n > 0.0:
+        raise ValueError(f"{name} must be a nonzero vector, got {tuple(v)}")
+    return tuple(c / n for c in v)
 
 
 @dataclass(frozen=True)
@@ -208,6 +256,22 @@ class SlaveConfig:
     )
     wall: WallConfig = field(default_factory=WallConfig)
     effects: PlantEffectsConfig = field(default_factory=PlantEffectsConfig)
+    joints: tuple[str, ...] | None = field(
+        default=None, metadata={"help": "arms: joint names, checked against the model (default: its motors' joints)"}
+    )
+    start_q_rad: tuple[float, ...] | None = field(
+        default=None, metadata={"help": "arms: start joint configuration, one value per joint"}
+    )
+    damping_nm_s_per_rad: tuple[float, ...] | None = field(
+        default=None, metadata={"gt": 0.0, "max": 1e4, "help": "arms: joint damping override (default: the MJCF's)"}
+    )
+    torque_limit_nm: tuple[float, ...] | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 1e4, "help": "arms: motor torque limits (default: the MJCF's ctrlrange)"},
+    )
+    gravity_compensation: bool | None = field(
+        default=None, metadata={"help": "arms: compensate gravity through the motors (default true)"}
+    )
 
     def __post_init__(self) -> None:
         _check_saturation("slave", self.effects, self.force_limit_n)
@@ -233,6 +297,37 @@ class EBAConfig:
 
 
 @dataclass(frozen=True)
+class OrientationConfig:
+    """A 6-DoF slave's tool orientation: held at its start orientation by a rotational spring-damper
+    ("fixed"), or left free ("free": the joints it needs see null-space damping only)."""
+
+    mode: str = field(default="fixed", metadata={"choices": ("fixed", "free")})
+    stiffness_nm_per_rad: float = field(default=20.0, metadata={"min": 0.0, "max": 1e5})
+    damping_nm_s_per_rad: float = field(default=1.0, metadata={"min": 0.0, "max": 1e4})
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """Arms: the workspace mapping master -> slave, x_s = scale R x_m + offset, f_m = force_scale R^T f_s."""
+
+    scale: float = field(default=1.0, metadata={"gt": 0.0, "max": 1e3, "help": "position scale"})
+    rotation_rpy_deg: tuple[float, ...] = field(
+        default=(0.0, 0.0, 0.0), metadata={"min": -360.0, "max": 360.0, "help": "R as roll, pitch, yaw about x, y, z"}
+    )
+    offset_m: tuple[float, ...] | None = field(
+        default=None,
+        metadata={"min": -10.0, "max": 10.0, "help": "default: the one mapping the start handle onto the start tool"},
+    )
+    force_scale: float = field(default=1.0, metadata={"gt": 0.0, "max": 1e3, "help": "force scale back to the master"})
+
+    def __post_init__(self) -> None:
+        if len(self.rotation_rpy_deg) != 3:
+            raise ValueError(f"rotation_rpy_deg needs 3 values (roll, pitch, yaw), got {len(self.rotation_rpy_deg)}")
+        if self.offset_m is not None and len(self.offset_m) != 3:
+            raise ValueError(f"offset_m needs 3 values (x, y, z), got {len(self.offset_m)}")
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     law: str = field(default="position", metadata={"choices": ("position", "force")})
     stiffness_n_per_m: float = field(default=500.0, metadata={"min": 0.0, "max": 1e7, "help": "c1"})
@@ -240,6 +335,22 @@ class ControllerConfig:
     force_gain: float = field(default=1.0, metadata={"min": 0.0, "max": 100.0, "help": "force reflection gain"})
     force_limit_n: float = field(default=20.0, metadata={"gt": 0.0, "max": 1e5, "help": "saturation"})
     eba: EBAConfig = field(default_factory=EBAConfig)
+    stiffness_axes_n_per_m: tuple[float, ...] | None = field(
+        default=None, metadata={"min": 0.0, "max": 1e7, "help": "arms: c1 per task axis x, y, z (default: c1 on each)"}
+    )
+    damping_axes_n_s_per_m: tuple[float, ...] | None = field(
+        default=None, metadata={"min": 0.0, "max": 1e5, "help": "arms: c2 per task axis x, y, z (default: c2 on each)"}
+    )
+    null_space_damping_nm_s_per_rad: float | None = field(
+        default=None, metadata={"min": 0.0, "max": 1e4, "help": "arms: damping of joint motion the task does not see"}
+    )
+    orientation: OrientationConfig | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness_axes_n_per_m", "damping_axes_n_s_per_m"):
+            v = getattr(self, name)
+            if v is not None and len(v) != 3:
+                raise ValueError(f"{name} needs 3 values (x, y, z), got {len(v)}")
 
 
 def _slave_default() -> ControllerConfig:
@@ -292,6 +403,12 @@ class Scene:
     controllers: ControllersConfig = field(default_factory=ControllersConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
+    mapping: MappingConfig | None = field(default=None, metadata={"help": "arms: workspace mapping master -> slave"})
+
+    @property
+    def is_arm(self) -> bool:
+        """An arm scene (its wall has a pose): the task is 3-D, the plants are MJCF arms."""
+        return self.slave.wall.point_m is not None
 
     def __post_init__(self) -> None:
         for side, ctrl, plant in (
@@ -316,7 +433,7 @@ class Scene:
         # (docs/robustness.md, "A wall too stiff for the step").
         h = self.scene.period_s / self.simulation.substeps
         omega = math.sqrt(self.slave.wall.stiffness_n_per_m * (1.0 - self.slave.contact_impedance) / self.slave.mass_kg)
-        if omega * h > WALL_STEP_LIMIT:
+        if omega * h > WALL_STEP_LIMIT and not self.is_arm:  # an arm's wall: _check_arm_scene, with the model
             need = math.ceil(omega * self.scene.period_s / WALL_STEP_LIMIT)
             raise ValueError(
                 f"slave.wall.stiffness_n_per_m ({self.slave.wall.stiffness_n_per_m:g}) is too stiff for a MuJoCo "
@@ -341,7 +458,24 @@ class LoadedScene:
     operator_trace: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def to_yaml(self) -> str:
-        return yaml.safe_dump(dataclasses.asdict(self.config), sort_keys=False)
+        return yaml.safe_dump(_without_absent_arm_keys(dataclasses.asdict(self.config)), sort_keys=False)
+
+
+# Keys only arm scenes use: left out of a scene's YAML when absent, so a one-axis scene's resolved
+# YAML (and its bag) stay as they were before arms.
+ARM_KEYS = frozenset(
+    {
+        "joints", "start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "gravity_compensation", "point_m",
+        "normal", "mapping", "stiffness_axes_n_per_m", "damping_axes_n_s_per_m", "null_space_damping_nm_s_per_rad",
+        "orientation", "direction",
+    }
+)  # fmt: skip
+
+
+def _without_absent_arm_keys(d: Any) -> Any:
+    if isinstance(d, dict):
+        return {k: _without_absent_arm_keys(v) for k, v in d.items() if not (k in ARM_KEYS and v is None)}
+    return d
 
 
 class SceneLoader(yaml.SafeLoader):
@@ -475,7 +609,7 @@ def _blame(exc: ConfigError, overrides: Sequence[Override]) -> ConfigError:
     return exc
 
 
-def _read_trace(path: Path, source: str, key: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def read_trace(path: Path, source: str, key: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     if not path.is_file():
         raise ConfigError(source, key, str(path), "allowed: an existing CSV file with columns time_s,position_m")
     ts: list[float] = []
@@ -541,6 +675,96 @@ def _check_models(config: Scene, source: str) -> None:
             raise ConfigError(source, f"{side}.model", name, allowed) from None
 
 
+ARM_SITES = {"master": "handle", "slave": "tool"}  # the point each side's coupling acts on (NDOF names)
+ARM_WALL_STEP_LIMIT = 1.0  # omega * h of an arm's wall contact (docs/arms.md: 1.28 chattered on a light arm)
+
+
+def _check_arm_scene(config: Scene, source: str) -> None:
+    """An arm scene's models, joints and per-joint lists agree; the tool starts in free space and
+    the wall is not too stiff for the MuJoCo step. A one-axis scene names no arm model."""
+    from haptic_teleop.errors import PlantError
+    from haptic_teleop.plants.arm import inspect_model
+
+    infos = {side: inspect_model(getattr(config, side).model) for side in ("master", "slave")}
+    arm_models = {side: ARM_SITES[side] in infos[side].sites for side in infos}
+    if not config.is_arm:
+        for side in ("master", "slave"):
+            if arm_models[side]:
+                raise ConfigError(
+                    source,
+                    "slave.wall.point_m",
+                    None,
+                    f"{side}.model {getattr(config, side).model!r} is an arm: its scene needs the wall's pose "
+                    "(slave.wall.point_m and normal); allowed: an arm scene, or a one-axis model",
+                )
+            for key in ("joints", "start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "gravity_compensation"):
+                if getattr(getattr(config, side), key) is not None:
+                    raise ConfigError(
+                        source, f"{side}.{key}", getattr(getattr(config, side), key), "only for arm models"
+                    )
+        return
+    for side in ("master", "slave"):
+        cfg = getattr(config, side)
+        info = infos[side]
+        if not arm_models[side]:
+            raise ConfigError(
+                source,
+                f"{side}.model",
+                cfg.model,
+                f"an arm scene needs an arm MJCF with a site {ARM_SITES[side]!r}; this model's sites: "
+                f"{', '.join(info.sites) or 'none'}",
+            )
+        if cfg.effects.named():
+            raise ConfigError(
+                source, f"{side}.effects", ", ".join(cfg.effects.named()), "not built for arms yet; allowed: none"
+            )
+        joints = cfg.joints if cfg.joints is not None else tuple(m for m in info.motors if m in info.joints)
+        for i, name in enumerate(joints):
+            if name not in info.joints:
+                raise ConfigError(
+                    source,
+                    f"{side}.joints[{i}]",
+                    name,
+                    f"no such joint in {cfg.model}; its joints: {', '.join(info.joints)}",
+                )
+            if name not in info.motors:
+                raise ConfigError(
+                    source, f"{side}.joints[{i}]", name, f"{cfg.model} has no motor named {name!r} (one per joint)"
+                )
+        for key in ("start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm"):
+            v = getattr(cfg, key)
+            if v is not None and len(v) != len(joints):
+                raise ConfigError(
+                    source,
+                    f"{side}.{key}",
+                    list(v),
+                    f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
+                )
+    op = config.operator
+    if op.profile == "trace":
+        raise ConfigError(source, "operator.profile", op.profile, "allowed for arms: push, sinusoid, hold")
+    for side in ("master", "slave"):
+        if getattr(config.controllers, side).law != "position":
+            raise ConfigError(source, f"controllers.{side}.law", "force", "allowed for arms: position")
+    from haptic_teleop.plants import build_slave_arm
+
+    try:
+        slave = build_slave_arm(config)
+    except PlantError as exc:
+        raise ConfigError(source, "slave", config.slave.model, str(exc)) from None
+    h = config.scene.period_s / config.simulation.substeps
+    omega = slave.wall_omega_rad_per_s()
+    if omega * h > ARM_WALL_STEP_LIMIT:
+        need = math.ceil(omega * config.scene.period_s / ARM_WALL_STEP_LIMIT)
+        raise ConfigError(
+            source,
+            "slave.wall.stiffness_n_per_m",
+            config.slave.wall.stiffness_n_per_m,
+            f"too stiff for a MuJoCo step of {h * 1e3:g} ms on this arm: omega * h = {omega * h:.2f} > "
+            f"{ARM_WALL_STEP_LIMIT:g}; allowed: simulation.substeps >= {need}, or a softer wall",
+        )
+
+
 def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None = None) -> LoadedScene:
     """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed.
 
@@ -567,6 +791,7 @@ def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None
     try:
         config = build(Scene, raw, "", source)
         _check_models(config, source)
+        _check_arm_scene(config, source)
     except ConfigError as exc:
         raise _blame(exc, ovs) from None
     config = _resolve_traces(config, p.parent, source)
@@ -575,7 +800,7 @@ def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None
         tp = Path(config.operator.trace_file)
         if not tp.is_absolute():
             tp = (p.parent / tp).resolve()
-        trace = _read_trace(tp, source, "operator.trace_file")
+        trace = read_trace(tp, source, "operator.trace_file")
         # Absolute, as the network traces: the resolved scene (DIR/scene.yaml) runs from anywhere.
         config = dataclasses.replace(config, operator=dataclasses.replace(config.operator, trace_file=str(tp)))
     return LoadedScene(config=config, source=source, raw=raw, operator_trace=trace)

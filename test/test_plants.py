@@ -127,3 +127,16 @@ def test_plant_reads_follow_mujoco_state():
     dev.step([1.0], [2.0])
     assert list(dev.data.ctrl) == [2.0, 1.0]
     assert dev.read() == ([float(dev.data.qpos[0])], [float(dev.data.qvel[0])])
+
+
+def test_backend_registry_names_the_classes_and_refuses_unknown_names():
+    from haptic_teleop.plants.base import BACKENDS, backend_class
+    from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
+
+    assert set(BACKENDS) == {"mujoco"}
+    assert backend_class("mujoco", "master") is MujocoDevice
+    assert backend_class("mujoco", "slave") is MujocoWallRobot
+    with pytest.raises(ValueError, match=r"unknown plant backend 'ur_rtde'; allowed: mujoco"):
+        backend_class("ur_rtde", "slave")
+    with pytest.raises(ValueError, match=r"unknown plant role 'operator'; allowed: master, slave"):
+        backend_class("mujoco", "operator")

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
@@ -59,6 +60,41 @@ def port_energy(x_m: np.ndarray, force_n: np.ndarray, damping: float, period_s: 
     dx = np.diff(x_m)
     step = (damping / period_s) * dx * dx - force_n[:-1] * dx
     return np.concatenate([[0.0], np.cumsum(step)])
+
+
+def simulator_damping(run_info: dict[str, Any], side: str) -> list[float] | None:
+    """The damping per joint of a side's plant as the simulator had it (`<side>_joint_damping` in
+    the run facts, from the compiled MjModel's dof_damping); None for bags written without it."""
+    d = run_info.get(f"{side}_joint_damping")
+    return [float(v) for v in d] if d is not None else None
+
+
+def wall_plane(sc: dict[str, Any], run_info: dict[str, Any], axes: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point, unit normal) of the wall in the task frame, the normal pointing out of the wall into
+    free space: the run facts `wall_point_m`, `wall_normal`; for one axis without them, the
+    scene's slave.wall.position_m with normal -x (the robot meets the wall moving toward +x);
+    else None."""
+    p, n = run_info.get("wall_point_m"), run_info.get("wall_normal")
+    if p is not None and n is not None:
+        point = np.asarray(p, dtype=float).reshape(-1)[:axes]
+        normal = np.asarray(n, dtype=float).reshape(-1)[:axes]
+        norm = float(np.linalg.norm(normal)) if normal.size == axes else 0.0
+        if point.size != axes or not norm > 0.0 or not np.all(np.isfinite(point)):
+            raise BagError(f"run facts: wall_point_m {p!r} and wall_normal {n!r} are not a plane in {axes} axes")
+        return point, normal / norm
+    wall = ((sc.get("slave") or {}).get("wall") or {}).get("position_m")
+    if axes == 1 and wall is not None:
+        return np.array([float(wall)]), np.array([-1.0])
+    return None
+
+
+def penetration(x: np.ndarray, plane: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """Depth of each of the (N, axes) points behind the wall plane, 0 in front of it (m): (p - x) . n."""
+    if plane is None:
+        return np.zeros(x.shape[0])
+    p, n = plane
+    depth: np.ndarray = np.maximum((p - x) @ n, 0.0)
+    return depth
 
 
 def _lag_ticks(delays_s: np.ndarray, period_s: float) -> int:
@@ -235,6 +271,17 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
     se0 = float(sc["controllers"]["slave"]["eba"]["initial_energy_j"])
     m_abs = port_energy(sig.master_x_m, sig.master_force_n, mb, T)
     s_abs = port_energy(sig.slave_x_m, sig.slave_force_n, sb, T)
+    # The true margins: the same ledger with the damping the simulator really has (run facts).
+    true_margins: dict[str, Any] = {}
+    for side, x, f, e0_j in (
+        ("master", sig.master_x_m, sig.master_force_n, me0),
+        ("slave", sig.slave_x_m, sig.slave_force_n, se0),
+    ):
+        d_sim = simulator_damping(sig.run_info, side)
+        true_margins[f"{side}_energy_margin_simulator_min_j"] = (
+            energy_margins(x, f, d_sim, T, [e0_j] * len(d_sim)).pooled_min_j if d_sim is not None else math.nan
+        )
+        true_margins[f"{side}_joint_damping_simulator"] = d_sim
     fs, fl, flate = _packet_counts(sig.forward_packets)
     bs, bl, blate = _packet_counts(sig.backward_packets)
     duration = float(sig.t_s[-1] + T)
@@ -277,6 +324,7 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "position_rms_error_m": _rms(pos),
         "contact_force_max_n": float(np.max(np.abs(sig.contact_n))),
         "master_force_max_n": float(np.max(np.abs(sig.master_force_n))),
+        "penetration_max_m": float(np.max(penetration(sig.slave_x_m[:, None], wall_plane(sc, sig.run_info, 1)))),
         "packets_sent_forward": fs,
         "packets_lost_forward": fl,
         "packets_late_forward": flate,
@@ -294,6 +342,7 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "slave_port_energy_min_j": float(np.min(s_abs)),
         "master_initial_energy_j": me0,
         "slave_initial_energy_j": se0,
+        **true_margins,
         "all_finite": finite,
         # Remote samples the receiving controller rejected (NaN, Inf, beyond the scene's limits:
         # docs/eba.md); from the run facts, 0 for bags written without them.

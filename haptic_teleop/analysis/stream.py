@@ -31,7 +31,14 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.analysis.metrics import FATE_LATE, FATE_LOST, read_run_info
+from haptic_teleop.analysis.metrics import (
+    FATE_LATE,
+    FATE_LOST,
+    penetration,
+    read_run_info,
+    simulator_damping,
+    wall_plane,
+)
 from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
@@ -468,7 +475,96 @@ def summarize_bag(bag: str | Path) -> dict[str, Any]:
     except NotStreamable:
         from haptic_teleop.analysis.metrics import compute_summary, load_signals
 
+        with BagReader(bag) as r:
+            single = r.schema.single_axis
+        if not single:
+            from haptic_teleop.analysis.taskmetrics import compute_task_summary, load_task_signals
+
+            return compute_task_summary(load_task_signals(bag))
         return compute_summary(load_signals(bag))
+
+
+@dataclass
+class NetworkPass:
+    """What the network passes give the tick pass and the summary."""
+
+    nets: dict[str, Any]
+    forward_lag: int
+    backward_lag: int
+    net_lag: int
+    lat_f: tuple[float, float]
+    lat_b: tuple[float, float]
+
+
+def network_pass(r: BagReader, sc: dict[str, Any], T: float, duration: float) -> NetworkPass:
+    """Per-direction packet and playout statistics, and the lags, in bounded memory."""
+    period_ns = round(T * 1e9)
+    net = sc.get("network", {})
+    nets: dict[str, Any] = {}
+    played_q: dict[str, ExactQuantiles] = {}
+    for prefix in ("forward", "backward"):
+        rl = (net.get(prefix) or {}).get("effects", {}).get("rate_limit") or {}
+        overhead = float(rl.get("overhead_bytes", DEFAULT_OVERHEAD_BYTES))
+        d = _Direction(duration, overhead)
+        ptopic = f"/{prefix}/packets"
+        pblocks: Iterator[np.ndarray] = r.packet_blocks(ptopic) if r.has(ptopic) else iter(())
+        fa_seq, fa_arr = np.zeros(0, dtype=np.int64), np.zeros(0)
+        buf: list[float] = []
+        nbuf = 0
+        pq = ExactQuantiles()
+        exhausted = False
+        prev_top = -1
+        for delays, played, release in _received(r, f"/{prefix}/received", period_ns):
+            pq.add(delays)
+            if int(played[0]) < prev_top or np.any(np.diff(played) < 0):
+                raise NotStreamable("released samples are not in seq order")
+            top = prev_top = int(played[-1])
+            while not exhausted and (not fa_seq.size or fa_seq[-1] < top):
+                rows = next(pblocks, None)
+                if rows is None:
+                    exhausted = True
+                    s, a = d.flush()
+                else:
+                    s, a = d.rows(rows)
+                fa_seq, fa_arr = np.concatenate([fa_seq, s]), np.concatenate([fa_arr, a])
+            j = np.searchsorted(fa_seq, played)
+            ok = j < fa_seq.size
+            ok[ok] = fa_seq[j[ok]] == played[ok]
+            vals = release[ok] - fa_arr[j[ok]]
+            if vals.size:
+                buf.append(math.fsum(vals.tolist()))
+                nbuf += int(vals.size)
+            # the releases go on in seq order: drop first arrivals below this block's last seq
+            cut = int(np.searchsorted(fa_seq, top))
+            fa_seq, fa_arr = fa_seq[cut:], fa_arr[cut:]
+        for rows in pblocks:
+            d.rows(rows)
+        d.flush()
+
+        def delays_src(topic: str = ptopic) -> Iterator[np.ndarray]:
+            if not r.has(topic):
+                return
+            for rows in r.packet_blocks(topic):
+                arr = rows[:, 2]
+                m = arr <= duration
+                yield arr[m] - rows[m, 1]
+
+        nets.update(d.stats(prefix, delays_src, math.fsum(buf) / nbuf if nbuf else math.nan))
+        played_q[prefix] = pq
+
+    def played_src(topic: str) -> Source:
+        return lambda: (dl for dl, _, _ in _received(r, topic, period_ns))
+
+    fsrc, bsrc = played_src("/forward/received"), played_src("/backward/received")
+    fq, bq = played_q["forward"], played_q["backward"]
+    fmed, bmed = fq.median(fsrc), bq.median(bsrc)
+    forward_lag = int(round(fmed / T)) if fq.n else 0
+    backward_lag = (int(round(bmed / T)) if bq.n else 0) + 1
+    lat_f = (fq.mean(), *fq.percentiles(fsrc, (99,)))
+    lat_b = (bq.mean(), *bq.percentiles(bsrc, (99,)))
+    p50 = nets.get("delay_backward_p50_s", math.nan)
+    net_lag = int(round(p50 / T)) + 1 if math.isfinite(p50) else backward_lag
+    return NetworkPass(nets, forward_lag, backward_lag, net_lag, (lat_f[0], lat_f[1]), (lat_b[0], lat_b[1]))
 
 
 def _summarize(bag: str | Path) -> dict[str, Any]:
@@ -482,81 +578,31 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
             if not r.has(topic):
                 r._messages(topic)  # raises the reader's missing-topic error
         T = float(sc["scene"]["period_s"])
-        period_ns = round(T * 1e9)
         n, last_log = _tick_count(r)
         duration = float(last_log * 1e-9 + T)
-        net = sc.get("network", {})
-        nets: dict[str, Any] = {}
-        played_q: dict[str, ExactQuantiles] = {}
-        for prefix in ("forward", "backward"):
-            rl = (net.get(prefix) or {}).get("effects", {}).get("rate_limit") or {}
-            overhead = float(rl.get("overhead_bytes", DEFAULT_OVERHEAD_BYTES))
-            d = _Direction(duration, overhead)
-            ptopic = f"/{prefix}/packets"
-            pblocks: Iterator[np.ndarray] = r.packet_blocks(ptopic) if r.has(ptopic) else iter(())
-            fa_seq, fa_arr = np.zeros(0, dtype=np.int64), np.zeros(0)
-            buf: list[float] = []
-            nbuf = 0
-            pq = ExactQuantiles()
-            exhausted = False
-            prev_top = -1
-            for delays, played, release in _received(r, f"/{prefix}/received", period_ns):
-                pq.add(delays)
-                if int(played[0]) < prev_top or np.any(np.diff(played) < 0):
-                    raise NotStreamable("released samples are not in seq order")
-                top = prev_top = int(played[-1])
-                while not exhausted and (not fa_seq.size or fa_seq[-1] < top):
-                    rows = next(pblocks, None)
-                    if rows is None:
-                        exhausted = True
-                        s, a = d.flush()
-                    else:
-                        s, a = d.rows(rows)
-                    fa_seq, fa_arr = np.concatenate([fa_seq, s]), np.concatenate([fa_arr, a])
-                j = np.searchsorted(fa_seq, played)
-                ok = j < fa_seq.size
-                ok[ok] = fa_seq[j[ok]] == played[ok]
-                vals = release[ok] - fa_arr[j[ok]]
-                if vals.size:
-                    buf.append(math.fsum(vals.tolist()))
-                    nbuf += int(vals.size)
-                # the releases go on in seq order: drop first arrivals below this block's last seq
-                cut = int(np.searchsorted(fa_seq, top))
-                fa_seq, fa_arr = fa_seq[cut:], fa_arr[cut:]
-            for rows in pblocks:
-                d.rows(rows)
-            d.flush()
+        if not r.schema.single_axis:
+            from haptic_teleop.analysis.taskmetrics import stream_task_summary
 
-            def delays_src(topic: str = ptopic) -> Iterator[np.ndarray]:
-                if not r.has(topic):
-                    return
-                for rows in r.packet_blocks(topic):
-                    arr = rows[:, 2]
-                    m = arr <= duration
-                    yield arr[m] - rows[m, 1]
-
-            nets.update(d.stats(prefix, delays_src, math.fsum(buf) / nbuf if nbuf else math.nan))
-            played_q[prefix] = pq
-
-        def played_src(topic: str) -> Source:
-            return lambda: (dl for dl, _, _ in _received(r, topic, period_ns))
-
-        fsrc, bsrc = played_src("/forward/received"), played_src("/backward/received")
-        fq, bq = played_q["forward"], played_q["backward"]
-        fmed, bmed = fq.median(fsrc), bq.median(bsrc)
-        forward_lag = int(round(fmed / T)) if fq.n else 0
-        backward_lag = (int(round(bmed / T)) if bq.n else 0) + 1
-        lat_f = (fq.mean(), *fq.percentiles(fsrc, (99,)))
-        lat_b = (bq.mean(), *bq.percentiles(bsrc, (99,)))
-        p50 = nets.get("delay_backward_p50_s", math.nan)
-        net_lag = int(round(p50 / T)) + 1 if math.isfinite(p50) else backward_lag
+            return stream_task_summary(r, sc, run_info, n, duration)
+        np_ = network_pass(r, sc, T, duration)
+        nets = np_.nets
+        forward_lag, backward_lag, net_lag = np_.forward_lag, np_.backward_lag, np_.net_lag
+        lat_f, lat_b = np_.lat_f, np_.lat_b
 
         # The tick pass.
         e, e0, en, pos = _Err(), _Err(), _Err(), _Err()
         le, len_, lpos = _Lagged(backward_lag), _Lagged(net_lag), _Lagged(forward_lag)
         m_en = _Energy(float(sc["master"]["damping_n_s_per_m"]), T)
         s_en = _Energy(float(sc["slave"]["damping_n_s_per_m"]), T)
+        # The true margins, with the simulator's damping (run facts; one joint per side here).
+        m_sim, s_sim = simulator_damping(run_info, "master"), simulator_damping(run_info, "slave")
+        m_true = _Energy(m_sim[0], T) if m_sim is not None and len(m_sim) == 1 else None
+        s_true = _Energy(s_sim[0], T) if s_sim is not None and len(s_sim) == 1 else None
+        if (m_sim is not None and m_true is None) or (s_sim is not None and s_true is None):
+            raise NotStreamable("more than one joint per side")
         contact_max = master_max = -math.inf
+        depth = 0.0
+        plane = wall_plane(sc, run_info, 1)
         finite = True
         seen = 0
         streams = [_tick_rows(r, t) for t in TICK_TOPICS]
@@ -570,8 +616,12 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
             pos.add(lpos.feed(sx, mx))
             contact_max = _max_abs(contact_max, cf)
             master_max = _max_abs(master_max, mf)
+            depth = max(depth, float(np.max(penetration(sx[:, None], plane)))) if take else depth
             m_en.add(mx, mf)
             s_en.add(sx, sf)
+            for true_en, x, f in ((m_true, mx, mf), (s_true, sx, sf)):
+                if true_en is not None:
+                    true_en.add(x, f)
             finite = finite and all(bool(np.all(np.isfinite(a))) for a in (mx, sx, mf, sf, cf))
             if seen >= n:
                 break
@@ -594,6 +644,7 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         "position_rms_error_m": pos.rms(),
         "contact_force_max_n": contact_max,
         "master_force_max_n": master_max,
+        "penetration_max_m": depth,
         **{k: nets.pop(k) for k in [k for k in nets if k.startswith("packets_")]},
         "playout_latency_forward_mean_s": lat_f[0],
         "playout_latency_forward_p99_s": lat_f[1],
@@ -606,6 +657,10 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         "slave_port_energy_min_j": s_en.low,
         "master_initial_energy_j": me0,
         "slave_initial_energy_j": se0,
+        "master_energy_margin_simulator_min_j": float(me0 + m_true.low) if m_true is not None else math.nan,
+        "master_joint_damping_simulator": m_sim,
+        "slave_energy_margin_simulator_min_j": float(se0 + s_true.low) if s_true is not None else math.nan,
+        "slave_joint_damping_simulator": s_sim,
         "all_finite": finite,
         "rejected_samples_forward": int(run_info.get("rejected_samples_forward", 0)),
         "rejected_samples_backward": int(run_info.get("rejected_samples_backward", 0)),

@@ -48,6 +48,52 @@ def bounded1(force: float, energy: float, bound_gain: float) -> float:
     return force
 
 
+def ramp_limit1(energy: float, bound_gain: float, force_limit: float, step: float) -> float:
+    """The largest |F| the actuator may hold: at most `force_limit` (its clip), and one whose ramp
+    down to 0 the reservoir `energy` still pays for (docs/eba.md, "Actuator limits inside the bound").
+
+    The actuator can lower |F| by at most `step` = S T per period, so after holding F it holds at
+    best |F| - step, |F| - 2 step, ... down to 0, and each of those periods can cost T F_k^2 / (4 b).
+    With bound_gain = 4 b / T the reservoir covers the ramp when sum_k F_k^2 <= bound_gain * energy.
+    The sum is piecewise quadratic in |F|: with |F| in [K step, (K+1) step] it is
+    (K+1) F^2 - step K (K+1) F + step^2 K (K+1) (2K+1) / 6, whose root is the closed form below.
+    `step` = inf (no slew limit) gives sqrt(bound_gain * energy), `bounded1`'s limit.
+    """
+    if not energy > 0.0:
+        return 0.0
+    e = bound_gain * energy
+    if not step < math.inf:
+        limit = math.sqrt(e)
+    else:
+        s2 = step * step
+        # K: the whole steps below the limit, the largest K with step^2 K (K+1) (2K+1) / 6 <= e.
+        k = math.floor((3.0 * e / s2) ** (1.0 / 3.0))
+        while k > 0.0 and s2 * k * (k + 1.0) * (2.0 * k + 1.0) / 6.0 > e:
+            k -= 1.0
+        while s2 * (k + 1.0) * (k + 2.0) * (2.0 * k + 3.0) / 6.0 <= e:
+            k += 1.0
+        limit = 0.5 * step * k + math.sqrt(e / (k + 1.0) - s2 * k * (k + 2.0) / 12.0)
+    return force_limit if limit > force_limit else limit
+
+
+def actuator_bounded1(force: float, limit: float, held: float, step: float) -> float:
+    """`force` clamped to +-limit (`ramp_limit1`), then to the reach of one period from the force
+    the actuator held last (`held` +- step): a force the actuator applies as it is. The reach
+    always meets the band +-limit (the reservoir paid for the ramp down from `held`), so the
+    result stays inside it. With limit from `ramp_limit1` and both limits inf, this is `bounded1`."""
+    if force > limit:
+        force = limit
+    elif force < -limit:
+        force = -limit
+    hi = held + step
+    lo = held - step
+    if force > hi:
+        return hi
+    if force < lo:
+        return lo
+    return force
+
+
 def saturated1(force: float, limit: float) -> float:
     """`force` clamped to +-limit."""
     if force > limit:
@@ -80,8 +126,17 @@ class EnergyBoundParams:
     damping_n_s_per_m: tuple[float, ...]
     initial_energy_j: float = 0.0
     enabled: bool = True
+    # The actuator's limits downstream of the bound (docs/eba.md, "Actuator limits inside the
+    # bound"): it clips |F| to force_limit_n and changes F by at most slew_rate_n_per_s * T per
+    # period. None: no such limit (the bound is then the plain one, bit for bit).
+    force_limit_n: float | None = None
+    slew_rate_n_per_s: float | None = None
 
     def __post_init__(self) -> None:
+        for name in ("force_limit_n", "slew_rate_n_per_s"):
+            v = getattr(self, name)
+            if v is not None and not 0.0 < v < math.inf:
+                raise ValueError(f"{name} must be finite and > 0 (or None), got {v}")
         if not self.period_s > 0.0:
             raise ValueError(f"period_s must be > 0, got {self.period_s}")
         if not self.damping_n_s_per_m or any(not b > 0.0 for b in self.damping_n_s_per_m):
@@ -93,18 +148,32 @@ class EnergyBoundParams:
     def axes(self) -> int:
         return len(self.damping_n_s_per_m)
 
+    @property
+    def limited(self) -> bool:
+        """Whether the bound models an actuator limit (`actuator_bounded1`) or is the plain one."""
+        return self.force_limit_n is not None or self.slew_rate_n_per_s is not None
+
+    def actuator_limits(self) -> tuple[float, float]:
+        """(force limit, slew step S T) of the actuator, inf where there is none."""
+        f = math.inf if self.force_limit_n is None else self.force_limit_n
+        s = math.inf if self.slew_rate_n_per_s is None else self.slew_rate_n_per_s * self.period_s
+        return f, s
+
     def max_stiffness_n_per_m(self) -> tuple[float, ...]:
         """The stiffness the bounded force can grow with at most: 2 b / T per axis (Colgate)."""
         return tuple(2.0 * b / self.period_s for b in self.damping_n_s_per_m)
 
 
 class EnergyBound:
-    """One side's reservoirs and force bound; `step` is called once per tick."""
+    """One side's reservoirs and force bound; `step` is called once per tick, then `applied`
+    (or `applied1`) with the force the actuator really applied over the period, which is the force
+    the reservoir accounts for at the next tick (without the call, the force `step` returned)."""
 
     __slots__ = (
         "_bound_gain",
         "_bound_gain1",
         "_enabled",
+        "_force_limit",
         "_gain",
         "_gain1",
         "_has_last1",
@@ -112,7 +181,9 @@ class EnergyBound:
         "_held1",
         "_last1",
         "_last_x",
+        "_limited",
         "_scalar",
+        "_step_limit",
         "energy_j",
         "params",
     )
@@ -135,6 +206,8 @@ class EnergyBound:
         self._held1 = 0.0
         self._last1 = 0.0
         self._has_last1 = False
+        self._limited = params.limited
+        self._force_limit, self._step_limit = params.actuator_limits()
 
     def step1(self, x: float, force_desired: float) -> float:
         """`step` for a one-axis bound, on floats: the same arithmetic in the same order."""
@@ -144,9 +217,28 @@ class EnergyBound:
         else:
             self._has_last1 = True
         self._last1 = x
-        f = bounded1(force_desired, energy[0], self._bound_gain1) if self._enabled else force_desired
+        if not self._enabled:
+            f = force_desired
+        elif self._limited:
+            step = self._step_limit
+            limit = ramp_limit1(energy[0], self._bound_gain1, self._force_limit, step)
+            f = actuator_bounded1(force_desired, limit, self._held1, step)
+        else:
+            f = bounded1(force_desired, energy[0], self._bound_gain1)
         self._held1 = f
         return f
+
+    def applied1(self, force: float) -> None:
+        """The force the actuator applied over the period that follows the last `step1`: the
+        reservoir's next update accounts with it (after the plant's clip and any actuator effect)."""
+        self._held1 = force
+
+    def applied(self, force: Sequence[float]) -> None:
+        """`applied1` for every axis (after `step`)."""
+        if self._scalar:
+            self._held1 = force[0]
+        else:
+            self._held = list(force)
 
     def step(self, x: Sequence[float], force_desired: Sequence[float]) -> list[float]:
         """Account for the motion since the last tick, then bound the desired force.
@@ -170,6 +262,12 @@ class EnergyBound:
         self._last_x = list(x)
         if not self._enabled:
             out = list(force_desired)
+        elif self._limited:
+            bound_gain, fl, sl = self._bound_gain, self._force_limit, self._step_limit
+            out = [
+                actuator_bounded1(force_desired[i], ramp_limit1(energy[i], bound_gain[i], fl, sl), held[i], sl)
+                for i in range(len(energy))
+            ]
         else:
             bound_gain = self._bound_gain
             out = [bounded1(force_desired[i], energy[i], bound_gain[i]) for i in range(len(energy))]

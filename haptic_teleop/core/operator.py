@@ -6,7 +6,9 @@ the plant (no algebraic loop). The force on the device along each axis is
 
     F_h = k_h (x_d - x) + b_h (v_d - v)
 
-The intended trajectory acts along axis 0; other axes are held at their start position.
+The intended trajectory acts along axis 0; other axes are held at their start position. In 3-D
+(arms, `intended_along`), the same profile moves the intended point from an origin along a unit
+direction of the task frame.
 """
 
 from __future__ import annotations
@@ -115,6 +117,18 @@ class Operator:
         j = bisect.bisect_right(ts, t) - 1
         slope = (xs[j + 1] - xs[j]) / (ts[j + 1] - ts[j])
         return xs[j] + slope * (t - ts[j]), slope
+
+    def intended_along(
+        self, t: float, origin: Sequence[float], direction: Sequence[float]
+    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The intended point and velocity in 3-D: origin + (x_d(t) - x_0) * direction, x_d from the
+        profile (`intended`), direction a unit vector of the task frame."""
+        xd, vd = self.intended(t)
+        s = xd - self._x0
+        return (
+            tuple(o + s * u for o, u in zip(origin, direction, strict=True)),
+            tuple(vd * u for u in direction),
+        )
 
     def hand_force(self, t: float, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """Force of the hand on the device, per axis (N)."""

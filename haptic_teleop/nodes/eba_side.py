@@ -47,20 +47,17 @@ class EbaSide:
 
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.engine import _controller, remote_limits
-        from haptic_teleop.scene import _read_trace
+        from haptic_teleop.assembly import build_controller, read_trace, remote_limits
 
         period_s = config.scene.period_s
         self.period_s = period_s
         self.watchdog = declare_watchdog(node, round(period_s * 1e9))
         op = config.operator
         trace = (
-            _read_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file")
-            if op.trace_file
-            else None
+            read_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file") if op.trace_file else None
         )
         plant = config.master if role == "master" else config.slave
-        self.ctrl = _controller(
+        self.ctrl = build_controller(
             getattr(config.controllers, role), role, period_s, plant.damping_n_s_per_m, remote_limits(config, trace)
         )
         self.fade = ForceFade(self.ctrl)

@@ -47,8 +47,8 @@ class MasterEba(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
+        from haptic_teleop.assembly import build_master_plant
         from haptic_teleop.nodes.common import declare_scene
-        from haptic_teleop.plants import build_master_plant
 
         names = (
             *WATCHDOG_PARAMS,

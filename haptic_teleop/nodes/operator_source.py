@@ -46,14 +46,13 @@ class OperatorSource(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.engine import build_operator
-        from haptic_teleop.scene import _read_trace
+        from haptic_teleop.assembly import build_operator, read_trace
 
         cfg = declare_scene(self, SCENE_SECTIONS["operator_source"], _NAMES)
         op = cfg.operator
         trace = None
         if op.trace_file:
-            trace = _read_trace(Path(op.trace_file), f"node {self.get_name()}", "operator.trace_file")
+            trace = read_trace(Path(op.trace_file), f"node {self.get_name()}", "operator.trace_file")
         self.operator = build_operator(op, trace)
         self.wait_for = list(
             declare_value(

@@ -1,7 +1,8 @@
-"""Things that move: one `Plant` protocol over simulators and hardware.
+"""Things that move: the plants of a scene, built from its config.
 
-Backends are chosen by name from `BACKENDS`; their SDKs (mujoco, dynamixel_sdk, rtde) are imported
-inside the backend module, so this package imports without them.
+The `Plant` protocol and the registry of backends by name (`BACKENDS`) are in
+`haptic_teleop.plants.base`; a backend's SDK (mujoco, dynamixel_sdk, rtde) is imported inside its
+module, so this package imports without them.
 """
 
 from __future__ import annotations
@@ -9,40 +10,15 @@ from __future__ import annotations
 import math
 import typing
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.errors import PlantError
+from haptic_teleop.plants.base import Plant, backend_class
 
 if TYPE_CHECKING:
+    from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.mujoco_plant import SimSettings
     from haptic_teleop.scene import PlantEffectsConfig, Scene
-
-
-class Plant(Protocol):
-    """A device with `axes` linear axes, stepped one control period at a time.
-
-    `read()` returns the state at the start of the tick; `step(force)` holds the actuator force
-    for one period and returns the force actually applied (after the plant's own limits), which is
-    what the energy accounting must use.
-    """
-
-    axes: int
-
-    def read(self) -> tuple[list[float], list[float]]:
-        """Position (m) and velocity (m/s) per axis."""
-        ...
-
-    def step(self, actuator_force_n: list[float], external_force_n: list[float] | None = None) -> list[float]:
-        """Advance one period; returns the actuator force applied."""
-        ...
-
-    def contact_force(self) -> list[float]:
-        """Environment force on the device over the last period, per axis (N); zero if none."""
-        ...
-
-    def close(self) -> None:
-        """Release the device (torque off on hardware)."""
-        ...
 
 
 # --------------------------------------------------------------------------------------------
@@ -67,10 +43,8 @@ def sim_settings(config: Scene) -> SimSettings:
 
 def build_master_plant(config: Scene) -> Plant:
     """The operator's device of `config` (its `master` section), with `master.effects`."""
-    from haptic_teleop.plants.mujoco_plant import MujocoDevice
-
     m = config.master
-    plant = MujocoDevice(
+    plant = backend_class("mujoco", "master")(
         sim_settings(config),
         mass_kg=m.mass_kg,
         damping_n_s_per_m=m.damping_n_s_per_m,
@@ -83,10 +57,8 @@ def build_master_plant(config: Scene) -> Plant:
 
 def build_slave_plant(config: Scene) -> Plant:
     """The robot and wall of `config` (its `slave` section), with `slave.effects`."""
-    from haptic_teleop.plants.mujoco_plant import MujocoWallRobot
-
     s = config.slave
-    plant = MujocoWallRobot(
+    plant = backend_class("mujoco", "slave")(
         sim_settings(config),
         mass_kg=s.mass_kg,
         damping_n_s_per_m=s.damping_n_s_per_m,
@@ -99,6 +71,52 @@ def build_slave_plant(config: Scene) -> Plant:
         start_position_m=s.start_position_m,
     )
     return _with_effects(plant, config, "slave", s.effects)
+
+
+def build_master_arm(config: Scene) -> MujocoArm:
+    """An arm scene's master device (docs/arms.md): the `master` section's model, joints and
+    overrides, the operator's hand mass at the handle."""
+    from haptic_teleop.plants.arm import MujocoArm
+
+    m = config.master
+    return MujocoArm(
+        sim_settings(config),
+        m.model,
+        "handle",
+        joints=m.joints,
+        start_q_rad=m.start_q_rad,
+        damping_nm_s_per_rad=m.damping_nm_s_per_rad,
+        torque_limit_nm=m.torque_limit_nm,
+        gravity_compensation=m.gravity_compensation is not False,
+        hand_mass_kg=config.operator.mass_kg,
+    )
+
+
+def build_slave_arm(config: Scene) -> MujocoArm:
+    """An arm scene's slave arm and its wall (docs/arms.md)."""
+    from haptic_teleop.plants.arm import MujocoArm, WallSpec
+
+    s = config.slave
+    w = s.wall
+    assert w.point_m is not None and w.normal is not None  # an arm scene (Scene.is_arm)
+    wall = WallSpec(
+        (w.point_m[0], w.point_m[1], w.point_m[2]),
+        (w.normal[0], w.normal[1], w.normal[2]),
+        w.stiffness_n_per_m,
+        w.damping_n_s_per_m,
+        s.contact_impedance,
+    )
+    return MujocoArm(
+        sim_settings(config),
+        s.model,
+        "tool",
+        joints=s.joints,
+        start_q_rad=s.start_q_rad,
+        damping_nm_s_per_rad=s.damping_nm_s_per_rad,
+        torque_limit_nm=s.torque_limit_nm,
+        gravity_compensation=s.gravity_compensation is not False,
+        wall=wall,
+    )
 
 
 def _with_effects(plant: Any, config: Scene, side: str, effects: PlantEffectsConfig) -> Plant:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-from haptic_teleop.plants import Plant
+from haptic_teleop.plants.base import Plant
 
 
 class SignalEffect(Protocol):
@@ -100,6 +100,9 @@ class EffectsPlant:
 
     def contact_force(self) -> list[float]:
         return self.plant.contact_force()
+
+    def joint_damping(self) -> list[float]:
+        return self.plant.joint_damping()
 
     def close(self) -> None:
         self.plant.close()

@@ -150,6 +150,11 @@ class MujocoDevice:
     def contact_force(self) -> list[float]:
         return [0.0]
 
+    def joint_damping(self) -> list[float]:
+        """The simulator's damping of the joint (MjModel dof_damping, N s/m), read now: it is the
+        scene's damping plus any viscous friction effect, or whatever was written into the model."""
+        return [float(self.model.dof_damping[self.model.joint("master_x").dofadr[0]])]
+
     def close(self) -> None:
         self.data.ctrl[:] = 0.0
 
@@ -222,6 +227,11 @@ class MujocoWallRobot:
 
     def contact_force(self) -> list[float]:
         return [self._contact]
+
+    def joint_damping(self) -> list[float]:
+        """The simulator's damping of the joint (MjModel dof_damping, N s/m), read now: it is the
+        scene's damping plus any viscous friction effect, or whatever was written into the model."""
+        return [float(self.model.dof_damping[self.model.joint("slave_x").dofadr[0]])]
 
     def close(self) -> None:
         self.data.ctrl[:] = 0.0

@@ -19,10 +19,18 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.columns import (
+    AXES,
+    JOINT_STATE,
+    MULTIARRAY,
+    ONE_DOF,
+    POSE,
+    WRENCH,
+    TickSchema,
+    TopicColumns,
+    tick_topics,
+)
 
-JOINT_STATE = "sensor_msgs/msg/JointState"
-WRENCH = "geometry_msgs/msg/WrenchStamped"
-MULTIARRAY = "std_msgs/msg/Float64MultiArray"
 STRING = "std_msgs/msg/String"
 PACKET_FIELDS = ("seq", "send_time_s", "arrival_time_s", "fate", "duplicate", "size_bytes")
 PACKET_BATCH = 1000
@@ -47,17 +55,20 @@ def _header(ts: Any, sec: int, nsec: int, frame: str = "") -> Any:
     return ts.types["std_msgs/msg/Header"](stamp=_stamp(ts, sec, nsec), frame_id=frame)
 
 
-def make_joint_state(joint: str, fields: Sequence[str]) -> Callable[[Sequence[float], int, int], Any]:
-    """Message builder: values in order of `fields` (subset of position, velocity, effort)."""
+def make_joint_state(joints: str | Sequence[str], fields: Sequence[str]) -> Callable[[Sequence[float], int, int], Any]:
+    """Message builder: values field by field (a subset of position, velocity, effort, in that
+    order), one per joint within a field."""
     ts = typestore()
     cls = ts.types[JOINT_STATE]
+    names = [joints] if isinstance(joints, str) else list(joints)
+    n = len(names)
 
     def make(values: Sequence[float], sec: int, nsec: int) -> Any:
-        arrays = {f: np.array([values[i]], dtype=np.float64) for i, f in enumerate(fields)}
+        arrays = {f: np.array(values[i * n : (i + 1) * n], dtype=np.float64) for i, f in enumerate(fields)}
         empty = np.array([], dtype=np.float64)
         return cls(
             header=_header(ts, sec, nsec),
-            name=[joint],
+            name=list(names),
             position=arrays.get("position", empty),
             velocity=arrays.get("velocity", empty),
             effort=arrays.get("effort", empty),
@@ -66,14 +77,39 @@ def make_joint_state(joint: str, fields: Sequence[str]) -> Callable[[Sequence[fl
     return make
 
 
-def make_wrench(frame: str) -> Callable[[Sequence[float], int, int], Any]:
+def _vector3(ts: Any, values: Sequence[float]) -> Any:
+    v = [*values, 0.0, 0.0, 0.0]
+    return ts.types["geometry_msgs/msg/Vector3"](x=v[0], y=v[1], z=v[2])
+
+
+def make_wrench(frame: str, forces: int = 1, torques: int = 0) -> Callable[[Sequence[float], int, int], Any]:
+    """Message builder: the first `forces` force components (x, y, z), then `torques` torque ones;
+    the rest 0."""
     ts = typestore()
     t = ts.types
 
     def make(values: Sequence[float], sec: int, nsec: int) -> Any:
-        v3 = t["geometry_msgs/msg/Vector3"]
-        wrench = t["geometry_msgs/msg/Wrench"](force=v3(x=values[0], y=0.0, z=0.0), torque=v3(x=0.0, y=0.0, z=0.0))
+        wrench = t["geometry_msgs/msg/Wrench"](
+            force=_vector3(ts, values[:forces]), torque=_vector3(ts, values[forces : forces + torques])
+        )
         return t[WRENCH](header=_header(ts, sec, nsec, frame), wrench=wrench)
+
+    return make
+
+
+def make_pose(frame: str, axes: int = 3) -> Callable[[Sequence[float], int, int], Any]:
+    """Message builder: the first `axes` position components (x, y, z), the rest 0; orientation
+    identity."""
+    ts = typestore()
+    t = ts.types
+
+    def make(values: Sequence[float], sec: int, nsec: int) -> Any:
+        v = [*values[:axes], 0.0, 0.0, 0.0]
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=v[0], y=v[1], z=v[2]),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        return t[POSE](header=_header(ts, sec, nsec, frame), pose=pose)
 
     return make
 
@@ -147,40 +183,37 @@ class FixedLayout:
 class TopicSpec:
     name: str
     layout: FixedLayout
-    fields: tuple[str, ...]
+    fields: tuple[str, ...]  # a name per value (TopicColumns.value_names)
+    columns: tuple[int, ...] = ()  # the tick row's column of each value
 
 
-@lru_cache(maxsize=1)
-def topic_specs() -> dict[str, TopicSpec]:
-    """The fixed-layout topics of a 1-axis run."""
-    pvE = ("position", "velocity", "effort")
-    specs = [
-        TopicSpec("/operator/joint_states", FixedLayout(JOINT_STATE, make_joint_state("operator_x", pvE), 3), pvE),
-        TopicSpec("/master/joint_states", FixedLayout(JOINT_STATE, make_joint_state("master_x", pvE), 3), pvE),
-        TopicSpec("/slave/joint_states", FixedLayout(JOINT_STATE, make_joint_state("slave_x", pvE), 3), pvE),
-        TopicSpec("/slave/contact_wrench", FixedLayout(WRENCH, make_wrench("wall"), 1), ("force_x",)),
-        TopicSpec(
-            "/master/eba",
-            FixedLayout(MULTIARRAY, make_multiarray(("reservoir_j", "force_desired_n")), 2),
-            ("reservoir_j", "force_desired_n"),
-        ),
-        TopicSpec(
-            "/slave/eba",
-            FixedLayout(MULTIARRAY, make_multiarray(("reservoir_j", "force_desired_n")), 2),
-            ("reservoir_j", "force_desired_n"),
-        ),
-    ]
-    pv = ("position", "velocity")
-    for d in ("sent", "received"):
-        specs.append(TopicSpec(f"/forward/{d}", FixedLayout(JOINT_STATE, make_joint_state("master_x", pv), 2), pv))
-        specs.append(TopicSpec(f"/backward/{d}", FixedLayout(JOINT_STATE, make_joint_state("slave_x", pvE), 3), pvE))
-    return {s.name: s for s in specs}
+def _layout(t: TopicColumns, schema: TickSchema) -> FixedLayout:
+    n = len(t.columns(schema))
+    if t.msgtype == JOINT_STATE:
+        return FixedLayout(JOINT_STATE, make_joint_state(t.names, [f for f, _ in t.fields]), n)
+    if t.msgtype == POSE:
+        return FixedLayout(POSE, make_pose(t.frame, n), n)
+    if t.msgtype == WRENCH:
+        widths = [len(range(*schema.group(g).indices(schema.width))) for _, g in t.fields]
+        return FixedLayout(WRENCH, make_wrench(t.frame, widths[0], sum(widths[1:])), n)
+    return FixedLayout(MULTIARRAY, make_multiarray(t.names), n)
 
 
-def joint_state_size(floats: int) -> int:
-    """CDR size in bytes of a one-joint JointState carrying `floats` of position/velocity/effort."""
+@lru_cache(maxsize=16)
+def topic_specs(schema: TickSchema = ONE_DOF) -> dict[str, TopicSpec]:
+    """The fixed-layout topics of a run with this tick schema (record/columns.py, `tick_topics`)."""
+    return {
+        t.topic: TopicSpec(t.topic, _layout(t, schema), t.value_names(schema), tuple(t.columns(schema)))
+        for t in tick_topics(schema)
+    }
+
+
+def joint_state_size(floats: int, axes: int = 1) -> int:
+    """CDR size in bytes of a packet's JointState: one name per task axis, `floats` of
+    position/velocity/effort per axis."""
     fields = ("position", "velocity", "effort")[:floats]
-    return FixedLayout(JOINT_STATE, make_joint_state("master_x", fields), floats).size
+    names = [f"master_{a}" for a in AXES[:axes]]
+    return FixedLayout(JOINT_STATE, make_joint_state(names, fields), floats * axes).size
 
 
 def packet_rows(log: Sequence[Any] | np.ndarray) -> np.ndarray:

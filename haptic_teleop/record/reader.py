@@ -10,16 +10,8 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
-from haptic_teleop.record.layouts import (
-    JOINT_STATE,
-    MULTIARRAY,
-    PACKET_FIELDS,
-    STRING,
-    WRENCH,
-    TopicSpec,
-    topic_specs,
-    typestore,
-)
+from haptic_teleop.record.columns import JOINT_STATE, MULTIARRAY, ONE_DOF, POSE, SchemaError, TickSchema
+from haptic_teleop.record.layouts import PACKET_FIELDS, STRING, TopicSpec, topic_specs, typestore
 
 
 @dataclass
@@ -36,11 +28,24 @@ class TopicData:
 
 
 def _deserialize_values(spec: TopicSpec, msg: Any) -> list[float]:
-    if spec.layout.msgtype == JOINT_STATE:
-        return [float(getattr(msg, f)[0]) for f in spec.fields]
-    if spec.layout.msgtype == WRENCH:
-        return [float(msg.wrench.force.x)]
-    return [float(v) for v in msg.data[: len(spec.fields)]]
+    """The values of one message, by the spec's value names (`position`, `position[joint]`,
+    `force_x`, `position_z`, or Float64MultiArray data in order)."""
+    msgtype = spec.layout.msgtype
+    if msgtype == MULTIARRAY:
+        return [float(v) for v in msg.data[: len(spec.fields)]]
+    out = []
+    if msgtype == JOINT_STATE:
+        names = list(msg.name)
+        for f in spec.fields:
+            field, _, joint = f.partition("[")
+            i = names.index(joint[:-1]) if joint else 0
+            out.append(float(getattr(msg, field)[i]))
+        return out
+    for f in spec.fields:
+        field, _, axis = f.rpartition("_")
+        vec = msg.pose.position if msgtype == POSE else getattr(msg.wrench, field)
+        out.append(float(getattr(vec, axis)))
+    return out
 
 
 def _stamp_of(msg: Any) -> int | None:
@@ -234,7 +239,7 @@ class BagReader:
     def blocks(self, topic: str) -> Iterator[TopicData]:
         """`read(topic)` chunk by chunk: the blocks, joined, are what `read` returns when the
         topic's chunks follow one another in log time (a recorded run's do)."""
-        if topic not in topic_specs():
+        if topic not in self.specs():
             raise BagError(f"{topic} is not a fixed-layout topic of haptic_teleop")
         for log, payloads in self._message_blocks(topic):
             yield self._decode(topic, log, payloads)
@@ -260,6 +265,58 @@ class BagReader:
     def has(self, topic: str) -> bool:
         return topic in self.topics
 
+    @property
+    def schema(self) -> TickSchema:
+        """The run's tick schema (joint names, task axes), read from the bag itself: the joint
+        names of the first /master/joint_states and /slave/joint_states messages and the axes of
+        /operator/joint_states; without those messages, the run facts' `tick_schema`; else the
+        1-DoF schema."""
+        cached: TickSchema | None = self.__dict__.get("_schema")
+        if cached is not None:
+            return cached
+        schema = self._schema_from_messages() or self._schema_from_facts() or ONE_DOF
+        self.__dict__["_schema"] = schema
+        return schema
+
+    def _first(self, topic: str, msgtype: str) -> Any:
+        """The first message of `topic` (reading one chunk, not the topic), or None."""
+        if topic not in self.topics:
+            return None
+        for _, payloads in self._message_blocks(topic):
+            if len(payloads):
+                return typestore().deserialize_cdr(bytes(payloads[0]), msgtype)
+        return None
+
+    def _schema_from_messages(self) -> TickSchema | None:
+        msgs = [self._first(f"/{s}/joint_states", JOINT_STATE) for s in ("operator", "master", "slave")]
+        if any(m is None for m in msgs):
+            return None
+        op, m, s = (tuple(str(n) for n in msg.name) for msg in msgs)
+        try:
+            return TickSchema(m, s, len(op))
+        except SchemaError as exc:
+            raise BagError(f"{self.path}: the joint states name no usable tick schema ({exc})") from None
+
+    def _schema_from_facts(self) -> TickSchema | None:
+        import json
+
+        if "/haptic_teleop/run_info" not in self.topics:
+            return None
+        try:
+            facts = json.loads(self.string("/haptic_teleop/run_info")).get("tick_schema")
+        except (BagError, ValueError, AttributeError):
+            return None
+        if facts is None:
+            return None
+        try:
+            return TickSchema.from_facts(facts)
+        except SchemaError as exc:
+            raise BagError(f"{self.path}: run facts: {exc}") from None
+
+    def specs(self) -> dict[str, TopicSpec]:
+        """The fixed-layout topics of this bag's tick schema."""
+        return topic_specs(self.schema)
+
     def string(self, topic: str) -> str:
         ts = typestore()
         for _, raw in self._raw(topic):
@@ -268,14 +325,14 @@ class BagReader:
 
     def read(self, topic: str) -> TopicData:
         """Decode one fixed-layout topic (bulk where the layout matches, else message by message)."""
-        spec = topic_specs().get(topic)
+        spec = self.specs().get(topic)
         if spec is None:
             raise BagError(f"{topic} is not a fixed-layout topic of haptic_teleop")
         log, payloads = self._messages(topic)
         return self._decode(topic, log, payloads)
 
     def _decode(self, topic: str, log: np.ndarray, payloads: list[bytes] | np.ndarray) -> TopicData:
-        spec = topic_specs()[topic]
+        spec = self.specs()[topic]
         if not len(payloads):
             return TopicData(log, np.zeros(0, dtype=np.int64), np.zeros((0, len(spec.fields))), spec.fields)
         ts = typestore()

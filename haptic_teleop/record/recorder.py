@@ -20,18 +20,16 @@ import os
 import signal
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from haptic_teleop.errors import BagError
 from haptic_teleop.lifetime import die_with_parent
+from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_BATCH, packet_batch_head, packet_rows
 from haptic_teleop.record.mcap import BagSink
 from haptic_teleop.record.streams import BLOCK_TICKS, RunStreams
-
-if TYPE_CHECKING:
-    from haptic_teleop.engine import RunResult
 
 COMPRESSIONS = ("none", "zstd", "lz4")
 RING_SLOTS = 4  # blocks of BLOCK_TICKS rows the parent may be ahead of the writer
@@ -164,8 +162,11 @@ class RunRecorder:
         parallel: bool = True,
         compression: str = "none",
         qos: dict[str, list[dict[str, Any]]] | None = None,
+        schema: TickSchema = ONE_DOF,
     ) -> None:
         self.bag_dir = Path(bag_dir)
+        if n_columns != schema.width:
+            raise BagError(f"n_columns {n_columns} is not the tick schema's width {schema.width}")
         if compression not in COMPRESSIONS:
             raise BagError(f"compression {compression!r} is not one of {', '.join(COMPRESSIONS)}")
         self.compression = compression
@@ -174,7 +175,7 @@ class RunRecorder:
         if self.bag_dir.exists():
             raise BagError(f"{self.bag_dir} exists already; choose a new --out directory or remove it")
         self.n_columns = n_columns
-        args = (scene_yaml, period_ns, eba_internals, packets, n_columns)
+        args = (scene_yaml, period_ns, eba_internals, packets, n_columns, schema)
         self._streams = RunStreams(*args)
         topics = self._streams.topics()
         self._proc: Any = None
@@ -377,23 +378,39 @@ class RunRecorder:
                 self._fail(self._pending_error() or f"the bag writer process ended (exit code {self._proc.exitcode})")
 
 
+class FinishedRun(Protocol):
+    """What `write_run` reads of a finished run (the engine's RunResult)."""
+
+    scene: Any  # the loaded scene: to_yaml() and config.recording
+    ticks: int
+    period_ns: int
+    data: np.ndarray
+    forward_log: np.ndarray
+    backward_log: np.ndarray
+
+
 def write_run(
-    result: RunResult, bag_dir: Path, run_info: dict[str, Any], parallel: bool = False, compression: str | None = None
+    result: FinishedRun,
+    bag_dir: Path,
+    run_info: dict[str, Any],
+    parallel: bool = False,
+    compression: str | None = None,
 ) -> Path:
     """Write a finished run as a rosbag2 directory with MCAP storage, in the same blocks as live recording.
 
+    The run's tick schema is its `schema` attribute (the 1-DoF schema if it has none).
     Compression: as given, else the scene's recording.compression."""
-    from haptic_teleop.engine import COLUMNS
-
+    schema: TickSchema = getattr(result, "schema", None) or ONE_DOF
     rec = RunRecorder(
         bag_dir,
         result.scene.to_yaml(),
         result.period_ns,
         result.scene.config.recording.eba_internals,
         result.scene.config.recording.packets,
-        len(COLUMNS),
+        schema.width,
         parallel=parallel,
         compression=compression or str(getattr(result.scene.config.recording, "compression", "none")),
+        schema=schema,
     )
     for stop in range(BLOCK_TICKS, result.ticks, BLOCK_TICKS):
         rec.block(result.data, stop)

@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.columns import MULTIARRAY, ONE_DOF, TickSchema, tick_topics
 from haptic_teleop.record.layouts import (
-    MULTIARRAY,
     PACKET_BATCH,
     STRING,
     packet_batch_bytes,
@@ -48,40 +48,27 @@ class Stream:
 
 BLOCK_TICKS = 1000  # ticks per block handed to the recorder
 
-# The topics every tick writes (name, engine columns, only with recording.eba_internals), in the
-# order their messages follow one another in a tick, then the received samples (name, the column
-# holding the released sample's tick or -1, the columns sent at that tick).
-_FWD = ("m_x_m", "m_v_m_per_s")
-_BWD = ("s_x_m", "s_v_m_per_s", "s_contact_n")
-_TICK_TOPICS: tuple[tuple[str, tuple[str, ...], bool], ...] = (
-    ("/operator/joint_states", ("op_x_m", "op_v_m_per_s", "op_force_n"), False),
-    ("/master/joint_states", ("m_x_m", "m_v_m_per_s", "m_force_n"), False),
-    ("/slave/joint_states", ("s_x_m", "s_v_m_per_s", "s_force_n"), False),
-    ("/slave/contact_wrench", ("s_contact_n",), False),
-    ("/master/eba", ("m_energy_j", "m_force_desired_n"), True),
-    ("/slave/eba", ("s_energy_j", "s_force_desired_n"), True),
-    ("/forward/sent", _FWD, False),
-    ("/backward/sent", _BWD, False),
+# The topics every tick writes come from the tick schema (record/columns.py, `tick_topics`), in
+# the order their messages follow one another in a tick; then the received samples (name, the
+# column holding the released sample's tick or -1; the values are those sent at that tick).
+RECEIVED_TOPICS: tuple[tuple[str, str], ...] = (
+    ("/forward/received", "fwd_rx_seq"),
+    ("/backward/received", "bwd_rx_seq"),
 )
-_RECEIVED_TOPICS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
-    ("/forward/received", "fwd_rx_seq", _FWD),
-    ("/backward/received", "bwd_rx_seq", _BWD),
-)
+_SENT_OF = {"/forward/received": "/forward/sent", "/backward/received": "/backward/sent"}
 
-
-# The engine columns a received sample is read from (the values sent at its tick), kept for the
-# ticks a playout buffer may still release: from the oldest tick either direction released last
-# (buffers release in sequence order) and at most HISTORY_TICKS back.
-_HIST_COLUMNS = tuple(dict.fromkeys(_FWD + _BWD))
-_HIST = {c: i for i, c in enumerate(_HIST_COLUMNS)}
-HISTORY_TICKS = 2**19  # about 8.7 min at 1 kHz; 5 float64 columns: 21 MB at most
+# The columns a received sample is read from (the values sent at its tick: /forward/sent and
+# /backward/sent), kept for the ticks a playout buffer may still release: from the oldest tick
+# either direction released last (buffers release in sequence order) and at most HISTORY_TICKS
+# back. 1-DoF: 5 float64 columns, 21 MB at most; 3 task axes: 15 columns, 63 MB at most.
+HISTORY_TICKS = 2**19  # about 8.7 min at 1 kHz
 
 
 class _History:
     """The sent columns of recent ticks: a buffer that is compacted, not grown, once in steady state."""
 
-    def __init__(self) -> None:
-        self.buf = np.zeros((4 * BLOCK_TICKS, len(_HIST_COLUMNS)))
+    def __init__(self, width: int) -> None:
+        self.buf = np.zeros((4 * BLOCK_TICKS, width))
         self.start = 0  # tick of buf[0]
         self.used = 0
         self.keep_from = 0  # the oldest tick a later block may still reference
@@ -118,32 +105,47 @@ class RunStreams:
     Memory is bounded: only the columns of recent ticks a received sample may still refer to are
     kept (`_History`). `records` gives a block's messages as ready MCAP records."""
 
-    def __init__(self, scene_yaml: str, period_ns: int, eba_internals: bool, packets: bool, n_columns: int) -> None:
-        from haptic_teleop.engine import COL
-
+    def __init__(
+        self,
+        scene_yaml: str,
+        period_ns: int,
+        eba_internals: bool,
+        packets: bool,
+        n_columns: int,
+        schema: TickSchema = ONE_DOF,
+    ) -> None:
+        if n_columns != schema.width:
+            raise BagError(f"n_columns {n_columns} is not the tick schema's width {schema.width}")
+        self.schema = schema
+        self.specs = topic_specs(schema)
         self.scene_yaml = scene_yaml
         self.period = period_ns
         self.eba_internals = eba_internals
         self.packets = packets
         self.n_columns = n_columns
         self.ticks = 0
-        self.history = _History()
-        self._hist_cols = [COL[c] for c in _HIST_COLUMNS]
-        self._seq_cols = [COL[c] for _, c, _ in _RECEIVED_TOPICS]
+        received = {t for t, _ in RECEIVED_TOPICS}
+        self.fixed = [t.topic for t in tick_topics(schema) if t.topic not in received and (eba_internals or not t.eba)]
+        # the sent columns kept for received samples, and where each sits in the history rows
+        self.hist_cols = list(dict.fromkeys(c for t in _SENT_OF.values() for c in self.specs[t].columns))
+        self.hist_index = {c: i for i, c in enumerate(self.hist_cols)}
+        self.history = _History(len(self.hist_cols))
+        self._seq_cols = [schema.index(c) for _, c in RECEIVED_TOPICS]
         self._encoder: TickEncoder | None = None
         self._scene_written = False
 
-    def tick_topics(self) -> list[tuple[str, tuple[str, ...]]]:
-        return [(t, cols) for t, cols, eba in _TICK_TOPICS if self.eba_internals or not eba]
+    def tick_topics(self) -> list[tuple[str, tuple[int, ...]]]:
+        """The fixed per-tick topics and the row columns of their values, in message order."""
+        return [(t, self.specs[t].columns) for t in self.fixed]
+
+    def received_topics(self) -> list[tuple[str, tuple[int, ...]]]:
+        """The received topics and the history columns of their values (those of the sent topic)."""
+        return [(t, tuple(self.hist_index[c] for c in self.specs[_SENT_OF[t]].columns)) for t, _ in RECEIVED_TOPICS]
 
     def topics(self) -> list[tuple[str, str]]:
         """Every topic in the order its connection is added (fixed: connection ids are part of the bytes)."""
-        specs = topic_specs()
-        names = ["/operator/joint_states", "/master/joint_states", "/slave/joint_states", "/slave/contact_wrench"]
-        if self.eba_internals:
-            names += ["/master/eba", "/slave/eba"]
-        names += ["/forward/sent", "/backward/sent", "/forward/received", "/backward/received"]
-        out = [("/haptic_teleop/scene", STRING)] + [(t, specs[t].layout.msgtype) for t in names]
+        names = [*self.fixed, *(t for t, _ in RECEIVED_TOPICS)]
+        out = [("/haptic_teleop/scene", STRING)] + [(t, self.specs[t].layout.msgtype) for t in names]
         if self.packets:
             out += [("/forward/packets", MULTIARRAY), ("/backward/packets", MULTIARRAY)]
         return [*out, ("/haptic_teleop/run_info", STRING)]
@@ -154,7 +156,7 @@ class RunStreams:
             raise BagError(f"tick rows must be a float64 array of shape (ticks, {self.n_columns}); got {rows.shape}")
         a = self.ticks
         b = a + rows.shape[0]
-        self.history.add(rows[:, self._hist_cols])
+        self.history.add(rows[:, self.hist_cols])
         self.ticks = b
         return a, b
 
@@ -202,6 +204,8 @@ class RunStreams:
         """The run facts, logged at the end of the last tick; the scene first if no tick was
         recorded (a run stopped before its first tick still has its scene in the bag)."""
         end = np.array([self.ticks * self.period], dtype=np.int64)
+        if self.schema != ONE_DOF:  # 1-DoF run facts keep their bytes; the reader assumes ONE_DOF
+            run_info = {**run_info, "tick_schema": self.schema.facts()}
         info = Stream(
             "/haptic_teleop/run_info", STRING, end, blobs=[string_bytes(json.dumps(run_info, sort_keys=True))]
         )
@@ -289,19 +293,16 @@ class TickEncoder:
     the chunk, otherwise the records are moved together around the missing ones."""
 
     def __init__(self, streams: RunStreams, cids: dict[str, int]) -> None:
-        from haptic_teleop.engine import COL
-
-        specs = topic_specs()
+        specs = streams.specs
         self.period = streams.period
-        slots = [(t, cols) for t, cols in streams.tick_topics()] + [(t, names) for t, _, names in _RECEIVED_TOPICS]
+        slots = streams.tick_topics() + streams.received_topics()
         self.cids = [cids[t] for t, _ in slots]
         self.sizes = [REC_HEAD.size + specs[t].layout.size for t, _ in slots]
         self.bases = [sum(self.sizes[:j]) for j in range(len(slots))]
-        self.n_fixed = len(slots) - len(_RECEIVED_TOPICS)
+        self.n_fixed = len(slots) - len(RECEIVED_TOPICS)
         self.width = sum(self.sizes)
         self.fixed_width = self.bases[self.n_fixed]
-        self.seq_cols = [COL[c] for _, c, _ in _RECEIVED_TOPICS]
-        n_fixed = len(slots) - len(_RECEIVED_TOPICS)
+        self.seq_cols = [streams.schema.index(c) for _, c in RECEIVED_TOPICS]
         template = []
         names: list[str] = []
         formats: list[Any] = []
@@ -318,7 +319,7 @@ class TickEncoder:
             template.append(lay.template)
             vals = []
             for k, col in enumerate(cols):
-                vals.append((f"v{j}_{k}", COL[col] if j < n_fixed else _HIST[col]))
+                vals.append((f"v{j}_{k}", col))
                 names.append(f"v{j}_{k}")
                 formats.append("<f8")
                 offsets.append(base + REC_HEAD.size + lay.float_offsets[k])

@@ -1,0 +1,273 @@
+"""Assembly: the one place a scene's core objects and plants are built.
+
+The engine's loops (Python and compiled) and the live nodes all take their controllers, energy
+bounds, operator, links, playout buffers and plants from here, so a scene means the same parts
+wherever it runs (docs/architecture.md). One-axis scenes: `build_controller`, `build_operator`,
+`build_network`, `remote_limits` and the plant builders of `haptic_teleop.plants`. Arm scenes
+(docs/arms.md): `build_arm_parts`, every part of both sides in task space.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
+from haptic_teleop.core.network import Link, build_link
+from haptic_teleop.core.operator import Operator, OperatorParams
+from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
+from haptic_teleop.plants import build_master_plant, build_slave_plant
+from haptic_teleop.scene import ControllerConfig, OperatorConfig, SaturationConfig, Scene, read_trace
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from haptic_teleop.core.eba import CoupledEnergyBound, SampleGuard
+    from haptic_teleop.core.taskspace import TaskSpaceLaw, WorkspaceMapping
+    from haptic_teleop.plants.arm import MujocoArm
+    from haptic_teleop.record.columns import TickSchema
+
+__all__ = [
+    "REMOTE_LIMIT_MARGIN",
+    "build_arm_parts",
+    "build_controller",
+    "build_master_plant",
+    "build_network",
+    "build_operator",
+    "build_slave_plant",
+    "read_trace",
+    "remote_limits",
+]
+
+
+REMOTE_LIMIT_MARGIN = 10.0  # remote values beyond 10x what the scene can produce are faults
+
+
+def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ...]] | None = None) -> RemoteLimits:
+    """Largest plausible remote values for a scene (docs/eba.md, "Bad values in packets").
+
+    REMOTE_LIMIT_MARGIN times: the workspace (wall position, the operator's reach, the robot's
+    start; at least 0.1 m), the operator's speed (at least 0.1 m/s), and the strongest force
+    limit of the actuators and controllers (a wall force far beyond what any actuator in the loop
+    can push is a sensor fault).
+    """
+    op = config.operator
+    reach = 0.0
+    speed = 0.0
+    if op.profile == "push":
+        reach, speed = abs(op.distance_m), abs(op.speed_m_per_s)
+    elif op.profile == "sinusoid":
+        reach, speed = abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
+    elif op.profile == "trace" and trace is not None:
+        ts, xs = trace
+        reach = max(abs(x) for x in xs)
+        slopes = [abs((xs[i + 1] - xs[i]) / (ts[i + 1] - ts[i])) for i in range(len(ts) - 1)]
+        speed = max(slopes, default=0.0)
+    workspace = max(0.1, abs(config.slave.wall.position_m), reach, abs(config.slave.start_position_m))
+    forces = (
+        config.master.force_limit_n,
+        config.slave.force_limit_n,
+        config.controllers.master.force_limit_n,
+        config.controllers.slave.force_limit_n,
+    )
+    k = REMOTE_LIMIT_MARGIN
+    return RemoteLimits(position_m=k * workspace, velocity_m_per_s=k * max(0.1, speed), force_n=k * max(forces))
+
+
+def build_controller(
+    cfg: ControllerConfig,
+    role: str,
+    period_s: float,
+    damping: float,
+    limits: RemoteLimits | None = None,
+    saturation: SaturationConfig | None = None,
+) -> TeleopController:
+    """One side's controller. `saturation`: the side's actuator effect (clip and slew limit), which
+    the energy bound then models (docs/eba.md, "Actuator limits inside the bound"). The plant's own
+    clip (`<side>.force_limit_n`) is never reached: the scene keeps the controller's saturation
+    within it."""
+    params = ControllerParams(
+        role=role,
+        law=cfg.law,
+        stiffness_n_per_m=cfg.stiffness_n_per_m,
+        damping_n_s_per_m=cfg.damping_n_s_per_m,
+        force_gain=cfg.force_gain,
+        force_limit_n=cfg.force_limit_n,
+        remote_limits=limits,
+    )
+    bound = EnergyBoundParams(
+        period_s=period_s,
+        damping_n_s_per_m=(damping,),
+        initial_energy_j=cfg.eba.initial_energy_j,
+        enabled=cfg.eba.enabled,
+        force_limit_n=saturation.force_limit_n if saturation is not None else None,
+        slew_rate_n_per_s=saturation.slew_rate_n_per_s if saturation is not None else None,
+    )
+    return TeleopController(params, bound)
+
+
+def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[float, ...]] | None) -> Operator:
+    """The core operator model a scene's `operator` section names (engine and operator_source)."""
+    return Operator(
+        OperatorParams(
+            profile=op.profile,
+            mass_kg=op.mass_kg,
+            stiffness_n_per_m=op.stiffness_n_per_m,
+            damping_n_s_per_m=op.damping_n_s_per_m,
+            start_s=op.start_s,
+            speed_m_per_s=op.speed_m_per_s,
+            distance_m=op.distance_m,
+            amplitude_m=op.amplitude_m,
+            frequency_hz=op.frequency_hz,
+            trace_time_s=trace[0] if trace else (),
+            trace_position_m=trace[1] if trace else (),
+        )
+    )
+
+
+def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
+    """Fresh links and playout buffers for both directions, as the scene names them."""
+    op = c.operator
+    seed = c.scene.seed
+    forward = build_link(c.network.forward.effects, seed, "forward")
+    backward = build_link(c.network.backward.effects, seed, "backward")
+    forward_buffer = build_buffer(c.network.forward.buffer, period_ns)
+    backward_buffer = build_buffer(c.network.backward.buffer, period_ns)
+    # The transparency-driven buffers need the contact force slope (docs/eba.md): the bounded
+    # coupling stiffness min(c1, 2b/T) times the operator's speed, unless the scene gives it.
+    speed = abs(op.speed_m_per_s) if op.profile == "push" else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
+    for buf, bcfg, ctrl, b in (
+        (backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
+        (forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),
+    ):
+        if isinstance(buf, TransparencyBuffer) and bcfg.force_slope_n_per_s is None:
+            buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / c.scene.period_s), speed))
+    return forward, backward, forward_buffer, backward_buffer
+
+
+# --------------------------------------------------------------------------------------------
+# Arm scenes (docs/arms.md).
+
+
+@dataclass
+class ArmSide:
+    """One side of an arm scene: the plant, its task-space law, its pooled joint bound and the guard
+    on the remote samples it receives; `force_limit_n` saturates the task force's norm."""
+
+    plant: MujocoArm
+    law: TaskSpaceLaw
+    bound: CoupledEnergyBound
+    guard: SampleGuard
+    force_limit_n: float
+    rotational: bool  # the law needs the 6-row Jacobian (orientation held)
+
+    @property
+    def rejected_samples(self) -> int:
+        """Remote samples the guard rejected so far (as TeleopController.rejected_samples)."""
+        return self.guard.rejected
+
+
+@dataclass
+class ArmParts:
+    """Everything an arm scene's tick uses besides the network."""
+
+    master: ArmSide
+    slave: ArmSide
+    mapping: WorkspaceMapping
+    operator: Operator
+    operator_origin_m: np.ndarray  # the intended point at rest (task frame): the start handle
+    operator_direction: np.ndarray  # unit, task frame
+    schema: TickSchema
+
+
+def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:
+    """`remote_limits` for arms: REMOTE_LIMIT_MARGIN times the workspace (the largest coordinate of
+    the start handle and tool and the wall point, the operator's reach; at least 0.1 m), the
+    operator's speed (at least 0.1 m/s) and the controllers' force limits."""
+    op = config.operator
+    reach = 0.0
+    speed = 0.0
+    if op.profile == "push":
+        reach, speed = abs(op.distance_m), abs(op.speed_m_per_s)
+    elif op.profile == "sinusoid":
+        reach, speed = abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
+    workspace = max([0.1, reach] + [float(abs(p).max()) for p in points])
+    forces = (config.controllers.master.force_limit_n, config.controllers.slave.force_limit_n)
+    k = REMOTE_LIMIT_MARGIN
+    return RemoteLimits(position_m=k * workspace, velocity_m_per_s=k * max(0.1, speed), force_n=k * max(forces))
+
+
+def build_arm_parts(config: Scene) -> ArmParts:
+    """Both sides of an arm scene: plants, mapping, task-space laws, pooled joint bounds, guards,
+    operator (docs/arms.md)."""
+    import numpy as np
+
+    from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams, SampleGuard
+    from haptic_teleop.core.taskspace import TaskCouplingParams, TaskSpaceLaw, WorkspaceMapping, rotation_from_rpy
+    from haptic_teleop.plants import build_master_arm, build_slave_arm
+    from haptic_teleop.record.columns import TickSchema
+
+    master = build_master_arm(config)
+    slave = build_slave_arm(config)
+    xm0 = master.point()[0]
+    xs0 = slave.point()[0]
+    mc = config.mapping
+    if mc is None:
+        from haptic_teleop.scene import MappingConfig
+
+        mc = MappingConfig()
+    rot = rotation_from_rpy(*(math.radians(a) for a in mc.rotation_rpy_deg))
+    if mc.offset_m is not None:
+        offset = tuple(mc.offset_m)
+    else:  # the start handle maps onto the start tool
+        r = np.array(rot)
+        offset = tuple(float(c) for c in xs0 - mc.scale * r @ xm0)
+    mapping = WorkspaceMapping(scale=mc.scale, rotation=rot, offset_m=offset, force_scale=mc.force_scale)
+    handle0 = mapping.position_to_task(xm0)
+    limits = arm_remote_limits(config, [handle0, xs0, np.array(config.slave.wall.point_m)])
+    period_s = config.scene.period_s
+
+    def side(role: str, plant: MujocoArm) -> ArmSide:
+        cfg: ControllerConfig = getattr(config.controllers, role)
+        c1 = cfg.stiffness_axes_n_per_m or (cfg.stiffness_n_per_m,) * 3
+        c2 = cfg.damping_axes_n_s_per_m or (cfg.damping_n_s_per_m,) * 3
+        ori = cfg.orientation
+        hold = ori is not None and ori.mode == "fixed"
+        params = TaskCouplingParams(
+            law="position",
+            stiffness_n_per_m=tuple(c1),
+            damping_n_s_per_m=tuple(c2),
+            orientation="hold" if hold else "free",
+            rot_stiffness_nm_per_rad=(ori.stiffness_nm_per_rad,) * 3 if hold and ori is not None else (0.0,) * 3,
+            rot_damping_nm_s_per_rad=(ori.damping_nm_s_per_rad,) * 3 if hold and ori is not None else (0.0,) * 3,
+            null_damping_nm_s_per_rad=(
+                (cfg.null_space_damping_nm_s_per_rad,) * plant.n if cfg.null_space_damping_nm_s_per_rad else ()
+            ),
+        )
+        bound = CoupledEnergyBound(
+            CoupledEnergyBoundParams(
+                period_s=period_s,
+                damping_nm_s_per_rad=tuple(plant.joint_damping()),
+                initial_energy_j=cfg.eba.initial_energy_j,
+                enabled=cfg.eba.enabled,
+                joint_names=plant.joints,
+            )
+        )
+        # Remote payloads (task frame): master receives (x, v, f_contact), slave (x, v).
+        kinds = (limits.position_m, limits.velocity_m_per_s, limits.force_n)
+        per = kinds if role == "master" else kinds[:2]
+        guard = SampleGuard([k for k in per for _ in range(3)])
+        return ArmSide(plant, TaskSpaceLaw(params, plant.n), bound, guard, cfg.force_limit_n, hold)
+
+    op = config.operator
+    direction = np.array(op.direction if op.direction is not None else [-c for c in config.slave.wall.normal or ()])
+    return ArmParts(
+        master=side("master", master),
+        slave=side("slave", slave),
+        mapping=mapping,
+        operator=build_operator(op, None),
+        operator_origin_m=handle0,
+        operator_direction=direction,
+        schema=TickSchema(master.joints, slave.joints, 3),
+    )

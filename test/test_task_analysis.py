@@ -1,0 +1,199 @@
+"""n-DoF runs without the arm engine: synthetic analytic signals (a tool moving along a line into an
+oblique wall, a known contact force, constant delays, joints at constant speed) for a 3-joint
+master and a 6-joint slave, written through the real RunRecorder into a real bag, read back with
+BagReader and rosbags, analysed (streaming and whole-bag) and plotted."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
+
+from haptic_teleop.analysis.stream import summarize_bag
+from haptic_teleop.analysis.taskmetrics import compute_task_summary, load_task_signals
+from haptic_teleop.record.columns import TickSchema
+from haptic_teleop.record.reader import BagReader
+from haptic_teleop.record.recorder import RunRecorder
+
+SCHEMA = TickSchema(
+    ("yaw", "shoulder", "elbow"), ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"), 3
+)
+T = 0.001
+N = 3000
+DF, DB = 7, 11  # forward and backward delays (ticks)
+P = np.array([0.5, 0.1, 0.3])  # wall point
+NORMAL = np.array([-1.0, 0.0, -1.0]) / math.sqrt(2.0)  # out of the wall, into free space
+GAP, SPEED, K = 0.02, 0.02, 500.0  # start 2 cm in front, move along -normal at 2 cm/s, wall 500 N/m
+BIAS = np.array([0.1, -0.2, 0.05])  # rendered force minus the delayed contact force (N)
+OFFSET = np.array([0.003, 0.0, -0.004])  # tool minus the delayed handle (m)
+TORQUE = np.array([0.0, 0.25, 0.0])
+RATES = {"master": np.array([0.2, -0.1, 0.3]), "slave": np.array([0.1, 0.2, -0.3, 0.4, -0.5, 0.6])}
+TAUS = {"master": np.array([0.5, 0.5, 0.5]), "slave": np.array([2.0, -1.0, 1.0, 0.3, 0.3, -0.3])}
+DAMPING = {"master": [0.01, 0.02, 0.03], "slave": [5.0, 5.0, 5.0, 1.0, 1.0, 1.0]}
+E0 = {"master": 0.75, "slave": 0.5}
+
+
+def tool(t: np.ndarray) -> np.ndarray:
+    return P + (GAP - SPEED * t)[:, None] * NORMAL
+
+
+def depth(t: np.ndarray) -> np.ndarray:
+    return np.maximum(SPEED * t - GAP, 0.0)
+
+
+def synthetic_rows() -> np.ndarray:
+    s = SCHEMA
+    n = np.arange(N)
+    t = n * T
+    rows = np.zeros((N, s.width))
+    contact = K * depth(t)[:, None] * NORMAL
+    rows[:, s.group("s_x_m")] = tool(t)
+    rows[:, s.group("s_v_m_per_s")] = -SPEED * NORMAL
+    rows[:, s.group("s_contact_n")] = contact
+    rows[:, s.group("s_contact_torque_nm")] = TORQUE
+    rows[:, s.group("s_force_n")] = -contact
+    rows[:, s.group("m_x_m")] = tool(t + DF * T) - OFFSET  # tool(t) - handle(t - DF) = OFFSET
+    rows[:, s.group("m_v_m_per_s")] = -SPEED * NORMAL
+    lag = DB + 1
+    rows[:, s.group("m_force_n")] = BIAS + np.where((n >= lag)[:, None], np.roll(contact, lag, axis=0), 0.0)
+    rows[:, s.group("op_x_m")] = rows[:, s.group("m_x_m")]
+    for side in ("master", "slave"):
+        p = side[0]
+        rows[:, s.group(f"{p}_q")] = RATES[side] * t[:, None]
+        rows[:, s.group(f"{p}_qd")] = RATES[side]
+        rows[:, s.group(f"{p}_tau_nm")] = TAUS[side]
+        rows[:, s.group(f"{p}_energy_j")] = E0[side]
+    rows[:, s.index("fwd_rx_seq")] = np.where(n >= DF, n - DF, -1)
+    rows[:, s.index("bwd_rx_seq")] = np.where(n >= DB, n - DB, -1)
+    return rows
+
+
+def packet_records(delay: int) -> np.ndarray:
+    seq = np.arange(N, dtype=float)
+    arrival = (seq + delay) * T
+    return np.column_stack([seq, seq * T, arrival, np.zeros(N), np.zeros(N), np.full(N, 120.0)])
+
+
+SCENE = {
+    "scene": {"name": "synthetic_oblique_wall", "seed": 3, "period_s": T},
+    "controllers": {side: {"eba": {"initial_energy_j": E0[side]}} for side in ("master", "slave")},
+    "network": {},
+}
+RUN_INFO = {
+    "ticks": N,
+    "interrupted": False,
+    "wall_point_m": P.tolist(),
+    "wall_normal": (3.0 * NORMAL).tolist(),  # any length: the analysis normalises it
+    "master_joint_damping": DAMPING["master"],
+    "slave_joint_damping": DAMPING["slave"],
+}
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    import yaml
+
+    out = tmp_path_factory.mktemp("task") / "bag"
+    rec = RunRecorder(out, yaml.safe_dump(SCENE), round(T * 1e9), True, True, SCHEMA.width, schema=SCHEMA)
+    rows = synthetic_rows()
+    for a in range(0, N, 700):  # blocks that do not fall on the recorder's own
+        rec.append(rows[a : a + 700])
+    rec.append_packets("forward", packet_records(DF))
+    rec.append_packets("backward", packet_records(DB))
+    rec.close(RUN_INFO)
+    return out
+
+
+def test_bag_holds_standard_messages_with_joint_names(bag):
+    rows = synthetic_rows()
+    ts = get_typestore(Stores.LATEST)
+    first: dict[str, object] = {}
+    with Reader(bag) as r:
+        types = {c.topic: c.msgtype for c in r.connections}
+        for c, _, raw in r.messages():
+            first.setdefault(c.topic, ts.deserialize_cdr(raw, c.msgtype))
+    assert types["/slave/joint_states"] == "sensor_msgs/msg/JointState"
+    assert types["/slave/tool_pose"] == types["/master/handle_pose"] == "geometry_msgs/msg/PoseStamped"
+    assert types["/slave/contact_wrench"] == types["/master/rendered_wrench"] == "geometry_msgs/msg/WrenchStamped"
+    js = first["/slave/joint_states"]
+    assert list(js.name) == list(SCHEMA.slave_joints)
+    assert list(first["/master/joint_states"].name) == list(SCHEMA.master_joints)
+    assert np.array_equal(js.effort, TAUS["slave"])
+    pose = first["/slave/tool_pose"].pose
+    assert [pose.position.x, pose.position.y, pose.position.z] == tool(np.zeros(1))[0].tolist()
+    assert [pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w] == [0, 0, 0, 1]
+    w = first["/slave/contact_wrench"]
+    assert w.header.frame_id == "world"
+    assert [w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z] == TORQUE.tolist()
+    assert list(first["/backward/sent"].name) == ["slave_x", "slave_y", "slave_z"]
+    with BagReader(bag) as r:
+        assert r.schema == SCHEMA  # recovered from the bag alone
+        c = r.read("/slave/contact_wrench")
+        assert c.fields == ("force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z")
+        assert np.array_equal(c.values[:, :3], rows[:, SCHEMA.group("s_contact_n")])
+        br = r.read("/backward/received")
+        assert np.array_equal(br.values[:, 6:9], rows[: N - DB, SCHEMA.group("s_contact_n")])
+        assert np.array_equal(br.log_ns - br.stamp_ns, np.full(N - DB, DB * round(T * 1e9)))
+        info = json.loads(r.string("/haptic_teleop/run_info"))
+        assert info["tick_schema"] == SCHEMA.facts()
+
+
+def expected() -> dict[str, float]:
+    t_end = (N - 1) * T
+    out = {
+        "force_rms_error_n": float(np.linalg.norm(BIAS)),
+        "force_peak_error_n": float(np.linalg.norm(BIAS)),
+        "position_rms_error_m": float(np.linalg.norm(OFFSET)),
+        "penetration_max_m": SPEED * t_end - GAP,
+        "contact_force_max_n": K * (SPEED * t_end - GAP),
+        "contact_torque_max_nm": float(np.linalg.norm(TORQUE)),
+        "force_alignment_lag_s": (DB + 1) * T,
+        "force_network_lag_s": (DB + 1) * T,
+    }
+    for k, a in enumerate("xyz"):
+        out[f"force_rms_error_{a}_n"] = abs(float(BIAS[k]))
+        out[f"force_peak_error_{a}_n"] = abs(float(BIAS[k]))
+        out[f"contact_force_max_{a}_n"] = abs(K * (SPEED * t_end - GAP) * NORMAL[k])
+    for side in ("master", "slave"):
+        # joints at constant rate r: each tick absorbs (d r^2 - tau r) T; minimum at tick 0 or the end
+        r, tau, d = RATES[side], TAUS[side], np.array(DAMPING[side])
+        per_tick = (d * r * r - tau * r) * T
+        ports = np.minimum(0.0, (N - 1) * per_tick)
+        pooled = min(0.0, (N - 1) * float(np.sum(per_tick)))
+        out[f"{side}_port_energy_min_j"] = pooled
+        out[f"{side}_energy_margin_min_j"] = E0[side] + pooled
+        for j, v in zip(SCHEMA.joints(side), ports, strict=True):
+            out[f"{side}_joint_energy_min_j.{j}"] = float(v)
+    return out
+
+
+def _flat(summary):
+    out = dict(summary)
+    for side in ("master", "slave"):
+        for j, v in summary[f"{side}_joint_energy_min_j"].items():
+            out[f"{side}_joint_energy_min_j.{j}"] = v
+    return out
+
+
+def test_summary_equals_the_analytic_values(bag):
+    streamed = _flat(summarize_bag(bag))
+    whole = _flat(compute_task_summary(load_task_signals(bag)))
+    want = expected()
+    assert any(v < 0 for k, v in want.items() if "joint_energy" in k)  # some ports gave energy
+    assert want["master_port_energy_min_j"] < 0 < want["master_energy_margin_min_j"]  # pooled, within budget
+    for key, value in want.items():
+        assert streamed[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+        assert whole[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+    assert streamed["wall_normal"] == pytest.approx(NORMAL.tolist())
+    assert streamed["ticks"] == whole["ticks"] == N
+    assert streamed["all_finite"] and whole["all_finite"]
+    assert streamed["master_joints"] == list(SCHEMA.master_joints)
+    # every key the two paths give agrees (sums to round-off)
+    assert streamed.keys() == whole.keys()
+    for key, value in whole.items():
+        if isinstance(value, float) and not math.isnan(value):
+            assert streamed[key] == pytest.approx(value, rel=1e-12, abs=1e-15), key
