@@ -7,8 +7,9 @@ docs/robustness.md. Run: `.venv/bin/python -m pytest -q -p no:cacheprovider test
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 
 from haptic_teleop.analysis.metrics import Signals, analyze_bag, port_energy
+from haptic_teleop.core.eba import EnergyBound
 from haptic_teleop.engine import COL, Engine, record_run
 from haptic_teleop.plants.mujoco_plant import MujocoWallRobot, SimSettings
 from haptic_teleop.scene import Scene, find_scene, load_scene
@@ -63,6 +65,30 @@ GE_LOSS = _both(
 )
 REORDER = _both("reorder", "{probability: 0.3}")
 BLACKOUT = _both("blackout", "{starts_s: [1.0], ends_s: [1.5]}")
+# Actuator limits downstream of the bound (docs/eba.md, "Actuator limits inside the bound").
+# Slew: the issue's command (stiffness 5000 N/m, 200 N/s on both actuators). Clip: the operator
+# moving in and out of the wall (2 cm, 2 Hz) against a strongly damped coupling (c2 = 200 N s/m),
+# whose commanded force is far above the actuators' clips (2 N master, 5 N slave) while braking;
+# the slave's budget is small (50 mJ), so a ledger that credits braking at the commanded force
+# lets it spend energy it never had.
+SLEW = (
+    "controllers.master.stiffness_n_per_m=5000",
+    "controllers.slave.stiffness_n_per_m=5000",
+    "master.effects.saturation.slew_rate_n_per_s=200",
+    "slave.effects.saturation.slew_rate_n_per_s=200",
+)
+CLIP = (
+    "operator.profile=sinusoid",
+    "operator.amplitude_m=0.02",
+    "operator.frequency_hz=2",
+    "controllers.master.damping_n_s_per_m=200",
+    "controllers.slave.damping_n_s_per_m=200",
+    "master.damping_n_s_per_m=0.2",
+    "slave.damping_n_s_per_m=0.5",
+    "master.effects.saturation.force_limit_n=2",
+    "slave.effects.saturation.force_limit_n=5",
+    "controllers.slave.eba.initial_energy_j=0.05",
+)
 
 
 @dataclass(frozen=True)
@@ -71,6 +97,7 @@ class Case:
     overrides: tuple[str, ...]
     duration_s: float = 3.0
     unprotected_fails: bool = False  # EBA off on both sides is run too and must fail
+    limits_unaware_fails: bool = False  # the bound as it was before it modelled the actuator must fail
 
 
 CASES = (
@@ -91,6 +118,8 @@ CASES = (
     Case("huge_coupling_gains", _gains(1e6, 1e4), unprotected_fails=True),
     Case("blackout_recovery", LARGE_GAINS + BLACKOUT + _both("delay.delay_s", 0.02), unprotected_fails=True),
     Case("everything_at_once", WALL_1E6 + LARGE_GAINS + FAST + VARYING_DELAY + GE_LOSS + REORDER + BLACKOUT),
+    Case("actuator_slew_200_n_per_s", SLEW, limits_unaware_fails=True),
+    Case("actuator_clip", CLIP, duration_s=6.0, limits_unaware_fails=True),
 )
 CASE = {c.name: c for c in CASES}
 
@@ -160,10 +189,13 @@ def plant_energy_excess_j(run: Run) -> float:
 
 
 def bound_clipped_ticks(run: Run, side: str) -> int:
-    """Ticks at which the energy bound, not the saturation, set the force."""
+    """Ticks at which the energy bound, not the saturation (nor the actuator's clip), set the force."""
     prefix = "m" if side == "master" else "s"
-    _, ctrl, _ = run.side(side)
+    plant, ctrl, _ = run.side(side)
     lim = ctrl.force_limit_n
+    sat = plant.effects.saturation
+    if sat is not None and sat.force_limit_n is not None:
+        lim = min(lim, sat.force_limit_n)
     wanted = np.clip(run.col(f"{prefix}_force_desired_n"), -lim, lim)
     return int(np.count_nonzero(np.abs(run.col(f"{prefix}_force_n")) < np.abs(wanted) - 1e-9))
 
@@ -185,14 +217,46 @@ def ports_that_gained_energy(run: Run) -> dict[str, tuple[float, float]]:
     return out
 
 
+class LimitsUnawareBound(EnergyBound):
+    """The energy bound as it was before it modelled the actuator (the baseline of the actuator
+    cases): the plain bound 2 sqrt(b E / T), blind to the clip and the slew limit, and a reservoir
+    that accounts with the force the bound returned, whatever the actuator then applied."""
+
+    def applied1(self, force: float) -> None:
+        pass
+
+    def applied(self, force: Sequence[float]) -> None:
+        pass
+
+
+def _install(cls: type[EnergyBound]) -> Callable[[Engine], None]:
+    """`record_run`'s on_engine hook: both controllers get a bound of `cls` blind to the actuator."""
+
+    def install(engine: Engine) -> None:
+        for ctrl in (engine.master_ctrl, engine.slave_ctrl):
+            ctrl.bound = cls(dataclasses.replace(ctrl.bound.params, force_limit_n=None, slew_rate_n_per_s=None))
+
+    return install
+
+
+# Bound variants of `runs`: the fixed one (as the scene builds it), the one before the fix, and
+# one blind to the limits that accounts with the applied force (only half the fix).
+BOUNDS: dict[str, Callable[[Engine], None] | None] = {
+    "fixed": None,
+    "limits_unaware": _install(LimitsUnawareBound),
+    "applied_only": _install(EnergyBound),
+}
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Run]:
-    """Record each (case, protected) once per module; later tests reuse it."""
-    cache: dict[tuple[str, bool, tuple[str, ...]], Run] = {}
+    """Record each (case, protected, bound) once per module; later tests reuse it. `bound`: a key
+    of BOUNDS ("limits_unaware": EBA on as it was before the bound modelled the actuator)."""
+    cache: dict[tuple[str, bool, tuple[str, ...], str], Run] = {}
     root: Path = tmp_path_factory.mktemp("hard_cases")
 
-    def get(case: Case, protected: bool = True, extra: tuple[str, ...] = ()) -> Run:
-        key = (case.name, protected, extra)
+    def get(case: Case, protected: bool = True, extra: tuple[str, ...] = (), bound: str = "fixed") -> Run:
+        key = (case.name, protected, extra, bound)
         if key not in cache:
             overrides = [*GEOMETRY, f"scene.duration_s={case.duration_s}", *case.overrides, *extra]
             if not protected:
@@ -200,7 +264,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Run]:
             scene = load_scene(find_scene("wall_contact"), overrides=overrides)
             bag = root / f"{case.name}-{'on' if protected else 'off'}-{len(cache)}" / "bag"
             bag.parent.mkdir(parents=True)
-            engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True)
+            engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True, on_engine=BOUNDS[bound])
             summary, signals = analyze_bag(bag)
             cache[key] = Run(scene.config, summary, signals, engine.data[: engine.ticks_done].copy())
         return cache[key]
@@ -294,6 +358,42 @@ def _check_everything(run: Run) -> None:
     assert run.summary["loss_rate_forward"] > 0.3
 
 
+def _actuator_respected(run: Run) -> None:
+    """The force applied (the bag's) is one the actuator could apply: within its clip and slew."""
+    for side, prefix in (("master", "m"), ("slave", "s")):
+        plant, _, _ = run.side(side)
+        sat = plant.effects.saturation
+        f = run.col(f"{prefix}_force_n")
+        if sat.force_limit_n is not None:
+            assert np.max(np.abs(f)) <= sat.force_limit_n
+        if sat.slew_rate_n_per_s is not None:
+            step = sat.slew_rate_n_per_s * run.config.scene.period_s
+            assert np.max(np.abs(np.diff(np.concatenate([[0.0], f])))) <= step * (1 + 1e-9)
+
+
+def _check_slew(run: Run) -> None:
+    _actuator_respected(run)
+    # The slew limit shapes the bound: on many ticks the force is below both what the law asks and
+    # the plain bound 2 sqrt(b E / T): the ramp down it would need is more than the reservoir holds.
+    for side, prefix in (("master", "m"), ("slave", "s")):
+        plant, ctrl, _ = run.side(side)
+        plain = np.sqrt(4.0 * plant.damping_n_s_per_m * run.col(f"{prefix}_energy_j") / run.config.scene.period_s)
+        wanted = np.abs(np.clip(run.col(f"{prefix}_force_desired_n"), -ctrl.force_limit_n, ctrl.force_limit_n))
+        below = np.abs(run.col(f"{prefix}_force_n")) < np.minimum(wanted, plain) - 1e-6
+        assert np.count_nonzero(below) > 100, side
+    assert run.summary["contact_force_max_n"] > 5.0  # the robot pushed the wall
+
+
+def _check_clip(run: Run) -> None:
+    _actuator_respected(run)
+    # The clips bind: the law asks for far more than the actuators give, and they give all of it.
+    for side, prefix in (("master", "m"), ("slave", "s")):
+        plant, _, _ = run.side(side)
+        assert np.max(np.abs(run.col(f"{prefix}_force_desired_n"))) > 5 * plant.effects.saturation.force_limit_n
+        assert np.max(np.abs(run.col(f"{prefix}_force_n"))) == plant.effects.saturation.force_limit_n
+    assert run.summary["contact_force_max_n"] > 5.0
+
+
 CHECKS: dict[str, Callable[[Run], None]] = {
     "wall_1e6_impact": _check_wall_impact,
     "delay_500ms_constant": _check_delay_500ms,
@@ -305,6 +405,8 @@ CHECKS: dict[str, Callable[[Run], None]] = {
     "huge_coupling_gains": _check_huge_gains,
     "blackout_recovery": _check_blackout,
     "everything_at_once": _check_everything,
+    "actuator_slew_200_n_per_s": _check_slew,
+    "actuator_clip": _check_clip,
 }
 
 
@@ -350,6 +452,61 @@ def test_unprotected_variant_fails(case: Case, runs: Callable[..., Run]) -> None
     # The failure is energy, not a crash: still finite, still within saturation.
     assert np.all(np.isfinite(unprotected.data))
     assert np.max(np.abs(unprotected.col("s_force_n"))) <= unprotected.config.controllers.slave.force_limit_n
+
+
+def ledger_overcredit_j(run: Run, side: str) -> float:
+    """How far the controller's reservoir (recorded in the bag) rose above the energy the port
+    really absorbed (E0 plus the ledger of the bag's plant signals): energy credited, never absorbed."""
+    reservoir = run.signals.master_reservoir_j if side == "master" else run.signals.slave_reservoir_j
+    assert reservoir is not None
+    return float(np.max(reservoir - run.absorbed_j(side)))
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.limits_unaware_fails], ids=lambda c: c.name)
+def test_limits_unaware_bound_fails(case: Case, runs: Callable[..., Run]) -> None:
+    """The bound blind to the actuator's limits, accounting with the force it commanded (the code
+    before this fix, EBA on): the slew case loses passivity (margins far below 0, as the issue
+    measured); the clip case's ledger credits energy the port never absorbed. The fixed bound on
+    the same case passes every check of test_eba_holds_in_hard_case."""
+    fixed, blind = runs(case), runs(case, bound="limits_unaware")
+    for run in (fixed, blind):
+        assert np.all(np.isfinite(run.data))
+    if case.name == "actuator_slew_200_n_per_s":
+        failed = ports_that_gained_energy(blind)
+        assert set(failed) == {"master", "slave"}, {side: float(np.min(blind.absorbed_j(side))) for side in SIDES}
+        assert not ports_that_gained_energy(fixed)
+        # The ledger never saw it: the blind reservoir, recorded in the bag, stayed >= 0.
+        assert blind.signals.master_reservoir_j is not None and blind.signals.slave_reservoir_j is not None
+        assert min(np.min(blind.signals.master_reservoir_j), np.min(blind.signals.slave_reservoir_j)) >= 0.0
+        assert blind.summary["contact_force_max_n"] > 5 * fixed.summary["contact_force_max_n"]
+    else:
+        # Credited at the commanded force while the clipped one acted: joules never absorbed...
+        assert ledger_overcredit_j(blind, "master") > 1.0
+        assert ledger_overcredit_j(blind, "slave") > 0.01
+        for side in SIDES:
+            assert ledger_overcredit_j(fixed, side) <= side_epsilon_j(fixed, side)
+        # ... which the slave spends: it delivers more than twice its budget E0 (margin below -E0),
+        # still losing energy in the last third, while its reservoir says it stayed >= 0.
+        e0 = blind.config.controllers.slave.eba.initial_energy_j
+        a = blind.absorbed_j("slave")
+        assert np.min(a) < -e0 and a[2 * a.size // 3] - a[-1] > 0.01, (float(np.min(a)), e0)
+        assert blind.signals.slave_reservoir_j is not None and np.min(blind.signals.slave_reservoir_j) >= 0.0
+        assert fixed.summary["slave_energy_margin_min_j"] >= -side_epsilon_j(fixed, "slave")
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.limits_unaware_fails], ids=lambda c: c.name)
+def test_accounting_with_the_applied_force_keeps_the_ledger_true(case: Case, runs: Callable[..., Run]) -> None:
+    """Half the fix: a bound blind to the limits that accounts with the force the plant applied.
+    Its reservoir, recorded in the bag, is the port's true ledger tick for tick; but under a slew
+    limit that is not enough: the force cannot fall as fast as the plain bound asks, the reservoir
+    itself goes below 0, and only the ramp-aware bound keeps it >= 0."""
+    run = runs(case, bound="applied_only")
+    for side in SIDES:
+        reservoir = run.signals.master_reservoir_j if side == "master" else run.signals.slave_reservoir_j
+        assert reservoir is not None
+        assert np.max(np.abs(run.absorbed_j(side) - reservoir)) <= side_epsilon_j(run, side)
+    if case.name == "actuator_slew_200_n_per_s":
+        assert run.summary["master_energy_margin_min_j"] < -1e-3
 
 
 def test_euler_is_exactly_as_stable_as_implicitfast_at_1e6(runs: Callable[..., Run]) -> None:

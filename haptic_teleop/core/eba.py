@@ -18,8 +18,9 @@ it gives the same bits (test_scalar_path_equals_the_general_path) without buildi
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -583,7 +584,7 @@ def joint_limited(
     direction can turn).
     """
     n = tau.shape[0]
-    if keep_direction:
+    if keep_direction and n > 1:  # one joint: the clip (the same bits as the one-axis bound's clip)
         f = 1.0
         for i in range(n):
             t = tau[i]
@@ -616,8 +617,13 @@ def slew_bounded(
     moved into the slew box around `held`; if that costs too much, the point of the segment from
     the fastest descent of `held` (admissible by the invariant) to it with the largest admissible
     fraction (the cost is convex: bisection). Returns that fraction (1: the slew-limited `tau`).
+    One joint goes through the one-axis actuator-aware bound (`ramp_limit1`, `actuator_bounded1`):
+    the same criterion in closed form, the same bits.
     """
     n = tau.shape[0]
+    if n == 1:
+        out[0] = actuator_bounded1(tau[0], ramp_limit1(energy, bound_gain[0], math.inf, step[0]), held[0], step[0])
+        return 1.0 if out[0] == tau[0] else 0.0
     target = np.empty(n)
     for i in range(n):
         target[i] = min(max(tau[i], held[i] - step[i]), held[i] + step[i])
@@ -720,10 +726,18 @@ class CoupledEnergyBound:
     bound holds (with a slew limit: the slew-aware bound). Returns the torque to apply, held
     until the next tick (the object's own array, overwritten every tick). With the bound off,
     the reservoir is still kept and the limited torque passes unscaled.
+
+    kernels: the array functions to call, by name (`haptic_teleop.core.taskspace.kernels(jit)`
+    gives them compiled); None: this module's, interpreted. Same results either way.
     """
 
     __slots__ = (
         "_bound_gain",
+        "_dq",
+        "_f_bounded",
+        "_f_limited",
+        "_f_reservoir",
+        "_f_slew",
         "_gain",
         "_has_last",
         "_high",
@@ -731,15 +745,17 @@ class CoupledEnergyBound:
         "_last_q",
         "_limited",
         "_low",
+        "_out",
         "_step",
-        "applied",
         "energy_j",
         "held",
         "params",
         "scale",
     )
 
-    def __init__(self, params: CoupledEnergyBoundParams) -> None:
+    def __init__(
+        self, params: CoupledEnergyBoundParams, kernels: Mapping[str, Callable[..., Any]] | None = None
+    ) -> None:
         self.params = params
         n = params.joints
         t = params.period_s
@@ -753,11 +769,17 @@ class CoupledEnergyBound:
         self._step = np.array(params.slew_nm_per_s, dtype=float) * t if params.slew_nm_per_s else None
         self.energy_j = params.initial_energy_j
         self.held = np.zeros(n)  # the torque applied over the current period (the ledger's tau(n-1))
-        self.applied = np.zeros(n)
+        self._out = np.zeros(n)
         self._limited = np.zeros(n)
         self._last_q = np.zeros(n)
+        self._dq = np.zeros(n)
         self._has_last = False
         self.scale = 1.0  # the last lambda (1: the limited desired torque passed unchanged)
+        k = kernels or {}
+        self._f_reservoir = k.get("coupled_reservoir", coupled_reservoir)
+        self._f_limited = k.get("joint_limited", joint_limited)
+        self._f_bounded = k.get("coupled_bounded", coupled_bounded)
+        self._f_slew = k.get("slew_bounded", slew_bounded)
 
     def step(
         self,
@@ -770,38 +792,40 @@ class CoupledEnergyBound:
         included). low/high: this tick's torque range per joint for the bounded part (low <= 0 <= high),
         e.g. the motor's range minus the gravity compensation the caller adds after; default
         -+torque_limit_nm."""
-        n = self.params.joints
         last = self._last_q
         if self._has_last:
-            dq = np.empty(n)
-            for i in range(n):
-                dq[i] = q[i] - last[i]
-            self.energy_j = coupled_reservoir(self.energy_j, self._gain, self.held, dq)
+            dq = self._dq
+            np.subtract(q, last, out=dq)
+            self.energy_j = self._f_reservoir(self.energy_j, self._gain, self.held, dq)
         else:
             self._has_last = True
-        for i in range(n):
-            last[i] = q[i]
-        joint_limited(
+        last[:] = q
+        self._f_limited(
             self._limited,
             tau_desired,
             self._low if low is None else low,
             self._high if high is None else high,
             self._keep_direction,
         )
-        out = self.applied
+        out = self._out
+        step = self._step
         if not self.params.enabled:
-            if self._step is None:
+            if step is None:
                 out[:] = self._limited
             else:  # the motor's slew limit acts anyway
-                for i in range(n):
-                    out[i] = min(max(self._limited[i], self.held[i] - self._step[i]), self.held[i] + self._step[i])
+                np.clip(self._limited, self.held - step, self.held + step, out=out)
             self.scale = 1.0
-        elif self._step is None:
-            self.scale = coupled_bounded(out, self._limited, self.energy_j, self._bound_gain)
+        elif step is None:
+            self.scale = self._f_bounded(out, self._limited, self.energy_j, self._bound_gain)
         else:
-            self.scale = slew_bounded(out, self._limited, self.held, self.energy_j, self._step, self._bound_gain)
+            self.scale = self._f_slew(out, self._limited, self.held, self.energy_j, step, self._bound_gain)
         self.held[:] = out
         return out
+
+    def applied(self, tau: npt.NDArray[np.float64]) -> None:
+        """The torque the motors really applied over the period after the last `step` (if it differs
+        from what `step` returned): the next update of the reservoir accounts with it."""
+        self.held[:] = tau
 
     def task_demand(self, jac: npt.NDArray[np.float64], force: npt.NDArray[np.float64]) -> float:
         """(T/4) F.T J D^-1 J.T F: what task force F at a point with Jacobian `jac` asks of the reservoir."""

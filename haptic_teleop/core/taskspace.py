@@ -18,12 +18,15 @@ of the rotated frame into the reference frame.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import types
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from haptic_teleop.core import eba
 from haptic_teleop.core.eba import coupling1
 
 Vec = npt.NDArray[np.float64]
@@ -263,6 +266,62 @@ def add_into(out: Vec, x: Vec) -> None:
 
 
 # --------------------------------------------------------------------------------------------
+# Compiling the per-tick functions.
+
+# Every array function of the n-joint tick (eba's bound, this module's laws), callees before
+# callers. `kernels(jit)` compiles them in this order.
+KERNEL_FUNCTIONS: tuple[Callable[..., Any], ...] = (
+    eba.reservoir1,
+    eba.bounded1,
+    eba.ramp_limit1,
+    eba.actuator_bounded1,
+    eba.coupling1,
+    eba.coupled_reservoir,
+    eba.coupled_demand,
+    eba.descent_cost1,
+    eba.coupled_descent_cost,
+    eba.coupled_scale,
+    eba.coupled_bounded,
+    eba.joint_limited,
+    eba.slew_bounded,
+    eba.task_demand,
+    map_point,
+    unmap_point,
+    map_vector,
+    map_vector_back,
+    coupling,
+    force_feedback,
+    orientation_error,
+    orientation_coupling,
+    jacobian_times,
+    jacobian_transpose,
+    _cholesky,
+    _cholesky_solve,
+    _project,
+    null_space_damping,
+    add_into,
+)
+
+
+def kernels(jit: Callable[[Callable[..., Any]], Callable[..., Any]]) -> dict[str, Callable[..., Any]]:
+    """The functions of `KERNEL_FUNCTIONS` compiled by `jit` (e.g. `numba.njit(cache=True)`), by name.
+
+    A compiled function can only call compiled functions, so each one is compiled from its own
+    code with the names it calls bound to the compiled callees (the module's functions stay as
+    they are). core does not import numba: the caller passes its decorator.
+    """
+    done: dict[str, Callable[..., Any]] = {}
+    for fn in KERNEL_FUNCTIONS:
+        scope = dict(fn.__globals__)
+        scope.update(done)
+        clone = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__)
+        clone.__qualname__ = fn.__qualname__
+        clone.__module__ = fn.__module__
+        done[fn.__name__] = jit(clone)
+    return done
+
+
+# --------------------------------------------------------------------------------------------
 # Configuration and a per-side object for the Python loop.
 
 
@@ -429,13 +488,15 @@ class TaskSpaceLaw:
     `torque(...)` returns the desired joint torque J.T @ wrench + null-space damping (before the
     energy bound; the caller bounds it with `CoupledEnergyBound` and then adds gravity
     compensation, which is the plant's own potential and not part of the port). The returned
-    arrays are the object's own, overwritten every tick.
+    arrays are the object's own, overwritten every tick. kernels: the array functions by name
+    (`kernels(jit)` gives them compiled); None: this module's, interpreted.
     """
 
     __slots__ = (
         "_c1",
         "_c2",
         "_d_rot",
+        "_f",
         "_k_rot",
         "_null",
         "_null_d",
@@ -448,7 +509,9 @@ class TaskSpaceLaw:
         "wrench",
     )
 
-    def __init__(self, params: TaskCouplingParams, joints: int) -> None:
+    def __init__(
+        self, params: TaskCouplingParams, joints: int, kernels: Mapping[str, Callable[..., Any]] | None = None
+    ) -> None:
         if joints < 1:
             raise ValueError(f"joints must be >= 1, got {joints}")
         if params.null_damping_nm_s_per_rad and len(params.null_damping_nm_s_per_rad) != joints:
@@ -469,6 +532,8 @@ class TaskSpaceLaw:
         self._tmp = np.zeros(joints)
         self._omega = np.zeros(3)
         self.r_hold: Mat | None = None  # the held orientation; None: taken from the first tick
+        plain = {fn.__name__: fn for fn in KERNEL_FUNCTIONS}
+        self._f = {**plain, **(kernels or {})}
 
     def torque(
         self,
@@ -491,25 +556,26 @@ class TaskSpaceLaw:
         """
         p = self.params
         w = self.wrench
+        f = self._f
         d = p.axes
         if p.law == "force":
             if remote_force is None:
                 w[:d] = 0.0
             else:
-                force_feedback(w, p.force_gain, remote_force)
+                f["force_feedback"](w, p.force_gain, remote_force)
         elif remote_x is None or remote_v is None:
             w[:d] = 0.0
         else:
-            coupling(w, self._c1, self._c2, remote_x, remote_v, x, v)
+            f["coupling"](w, self._c1, self._c2, remote_x, remote_v, x, v)
         if p.orientation == "hold":
             if r_tool is None:
                 raise ValueError("orientation 'hold' needs the tool's orientation r_tool")
             if self.r_hold is None:
                 self.r_hold = np.array(r_tool, dtype=float)
-            jacobian_times(self._omega, jac[3:6], qd)
-            orientation_coupling(w[3:6], self._k_rot, self._d_rot, self.r_hold, r_tool, self._omega)
-        jacobian_transpose(self.torque_nm, jac, w)
+            f["jacobian_times"](self._omega, jac[3:6], qd)
+            f["orientation_coupling"](w[3:6], self._k_rot, self._d_rot, self.r_hold, r_tool, self._omega)
+        f["jacobian_transpose"](self.torque_nm, jac, w)
         if self._null:
-            null_space_damping(self._tmp, jac, qd, self._null_d, p.pinv_damping_m)
-            add_into(self.torque_nm, self._tmp)
+            f["null_space_damping"](self._tmp, jac, qd, self._null_d, p.pinv_damping_m)
+            f["add_into"](self.torque_nm, self._tmp)
         return self.torque_nm

@@ -164,6 +164,30 @@ def test_one_joint_is_the_one_axis_bound_bit_for_bit(steps, damping, e0, enabled
         assert one.energy_j[0] == joint.energy_j
 
 
+@settings(max_examples=300, deadline=None)
+@given(
+    steps=st.lists(st.tuples(st.floats(-1e-2, 1e-2), st.floats(-500.0, 500.0)), min_size=1, max_size=200),
+    damping=st.floats(0.01, 50.0),
+    e0=st.floats(0.0, 1.0),
+    limit=st.floats(0.5, 100.0),
+    slew=st.floats(10.0, 1e5),
+)
+def test_one_joint_with_limit_and_slew_is_the_one_axis_actuator_bound(steps, damping, e0, limit, slew):
+    """One joint with a torque limit and a slew limit: the bits of the 1-DoF bound that models the
+    actuator's clip and slew (EnergyBoundParams force_limit_n / slew_rate_n_per_s)."""
+    one = EnergyBound(EnergyBoundParams(T, (damping,), e0, force_limit_n=limit, slew_rate_n_per_s=slew))
+    joint = CoupledEnergyBound(
+        CoupledEnergyBoundParams(T, (damping,), e0, torque_limit_nm=(limit,), slew_nm_per_s=(slew,))
+    )
+    x = 0.0
+    for dx, fd in steps:
+        x += dx
+        f1 = one.step1(x, fd)
+        f2 = joint.step(np.array([x]), np.array([fd]))[0]
+        assert f1 == f2
+        assert one.energy_j[0] == joint.energy_j
+
+
 @settings(max_examples=200, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), m=st.sampled_from([3, 6]), n=st.integers(1, 6), e=st.floats(0.0, 5.0))
 def test_task_space_form_equals_joint_form(seed, m, n, e):
@@ -272,7 +296,7 @@ def test_bound_then_slew_goes_negative_slew_aware_does_not():
             tau = bound.step(q, np.array([30.0, -30.0])).copy()
             if slewed_after:  # the motor: at most S T per period from what it applied last
                 tau = _slew_limited(tau, held, slew * T)
-                bound.held[:] = tau  # the ledger uses the applied torque (the fix's first half)
+                bound.applied(tau)  # the ledger uses the applied torque (the fix's first half)
             held = tau
             applied.append(tau)
             # 1 s pushed back against the torque (reservoir fills), then 0.5 s moved with it
@@ -349,3 +373,60 @@ def test_closed_loop_mujoco_arm_never_injects_more_than_e0_plus_dissipated():
     assert bound.energy_j <= margin[-1] + 1e-9  # the reservoir credits at most the dissipation
     off, _ = _closed_loop(False, seed=5)
     assert off.min() < -1.0
+
+
+def _closed_loop_gravity(enabled, seed, substeps=4, ticks=2000, e0=0.5):
+    """The arm in a vertical plane (gravity on), gravity compensation g(q) from the model added
+    after the bound, held over the tick like the bounded torque; the bound gets the room g leaves."""
+    # motors of 3 N m on joints 1 and 2: gravity takes up to 1.4 N m of joint 2's
+    xml = ARM.replace('gravity="0 0 0"', 'gravity="0 0 -9.81"').replace('ctrlrange="-5 5"', 'ctrlrange="-3 3"')
+    xml = xml.replace('integrator="Euler"/>', 'integrator="Euler"><flag energy="enable"/></option>')
+    model = mujoco.MjModel.from_xml_string(xml)
+    data, scratch = mujoco.MjData(model), mujoco.MjData(model)
+    data.qpos[:] = [0.3, -0.4, 0.5]
+    mujoco.mj_forward(model, data)
+    d = model.dof_damping.copy()
+    lim = model.actuator_ctrlrange[:, 1].copy()
+    bound = CoupledEnergyBound(
+        CoupledEnergyBoundParams(model.opt.timestep * substeps, tuple(d), e0, enabled, torque_limit_nm=tuple(lim))
+    )
+    rng = np.random.default_rng(seed)
+    port_work = dissipated = unaccounted = 0.0
+    kinetic, margin = [], []
+    tau_d = np.zeros(3)
+    for k in range(ticks):
+        scratch.qpos[:] = data.qpos
+        scratch.qvel[:] = 0.0
+        mujoco.mj_forward(model, scratch)
+        gravity = scratch.qfrc_bias.copy()  # g(q): the bias force at rest
+        if k % 50 == 0:
+            tau_d = rng.uniform(-6.0, 6.0, size=3)
+        low, high = np.minimum(-lim - gravity, 0.0), np.maximum(lim - gravity, 0.0)
+        bound.step(data.qpos.copy(), tau_d + rng.normal(size=3) * 0.5, low, high)
+        data.ctrl[:] = bound.held + gravity
+        for _ in range(substeps):
+            q0 = data.qpos.copy()
+            mujoco.mj_step(model, data)
+            # the port's torque: what the motors applied minus the gravity compensation
+            port_work += float((data.qfrc_actuator - gravity) @ (data.qpos - q0))
+            unaccounted = max(unaccounted, float(np.abs(data.qfrc_actuator - gravity - bound.held).max()))
+            dissipated += model.opt.timestep * float(d @ (data.qvel * data.qvel))
+        mujoco.mj_forward(model, data)
+        kinetic.append(data.energy[1])
+        margin.append(e0 + dissipated - port_work)
+    return np.array(kinetic), np.array(margin), unaccounted
+
+
+def test_closed_loop_mujoco_arm_with_gravity_compensation_outside_the_port():
+    """Gravity on, compensated after the bound, which leaves it room within the motor's range: the
+    motors apply exactly the bounded torque plus g; the port's work (motors minus g) never exceeds
+    E0 plus the dissipation, and the arm's kinetic energy (MuJoCo's) never exceeds E0
+    (10 % allowed for the compensation held over a tick and the integrator); without the bound the
+    arm gains joules."""
+    kinetic, margin, unaccounted = _closed_loop_gravity(True, seed=2)
+    assert unaccounted <= 1e-9  # the motors applied what the bound admitted (no clip of bound + g)
+    assert margin.min() >= -1e-9
+    assert kinetic.max() <= 1.1 * 0.5
+    kinetic_off, margin_off, _ = _closed_loop_gravity(False, seed=2)
+    assert margin_off.min() < -1.0
+    assert kinetic_off.max() > 1.0

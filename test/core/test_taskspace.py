@@ -251,3 +251,75 @@ def test_task_space_law_holds_the_start_orientation():
 def test_bad_task_params_are_refused(kwargs, words):
     with pytest.raises(ValueError, match=words):
         TaskCouplingParams(**kwargs)
+
+
+def test_kernels_compile_with_numba_and_give_the_interpreted_results():
+    """Every per-tick array function compiles with numba as it is (`kernels`), and gives what the
+    interpreted function gives on the same inputs (n = 1, 3, 6)."""
+    numba = pytest.importorskip("numba")
+    from haptic_teleop.core import eba
+    from haptic_teleop.core import taskspace as ts
+
+    k = ts.kernels(numba.njit(cache=False))
+    assert set(k) == {fn.__name__ for fn in ts.KERNEL_FUNCTIONS}
+    rng = np.random.default_rng(11)
+    rot = np.array(rotation_from_rpy(0.3, -1.0, 2.0))
+    near_pi = _rodrigues((1.0, 2.0, -0.5), math.pi - 1e-7) @ rot
+    for n in (1, 3, 6):
+        d = 10.0 ** rng.uniform(-2, 1, size=n)
+        bg, gain = 4.0 * d / 1e-3, d / 1e-3
+        tau, held, dq = rng.normal(size=n) * 30.0, rng.normal(size=n), rng.normal(size=n) * 1e-3
+        step, low, high = np.full(n, 0.3), -np.full(n, 5.0), np.full(n, 4.0)
+        jac3, jac6 = rng.normal(size=(3, n)), rng.normal(size=(6, n))
+        x3, v3, w3, w6 = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3), rng.normal(size=6)
+        calls = [
+            ("coupled_reservoir", (0.2, gain, held, dq), None),
+            ("coupled_descent_cost", (tau, step, bg), None),
+            ("task_demand", (jac3, w3, bg), None),
+            ("coupled_bounded", (np.zeros(n), tau, 0.05, bg), 0),
+            ("slew_bounded", (np.zeros(n), tau, held, 0.05, step, bg), 0),
+            ("joint_limited", (np.zeros(n), tau, low, high, True), 0),
+            ("joint_limited", (np.zeros(n), tau, low, high, False), 0),
+            ("jacobian_transpose", (np.zeros(n), jac6, w6), 0),
+            ("jacobian_times", (np.zeros(3), jac3, tau), 0),
+            ("null_space_damping", (np.zeros(n), jac3, dq, d, 0.01), 0),
+            ("null_space_damping", (np.zeros(n), jac6, dq, d, 0.01), 0),
+            ("map_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
+            ("unmap_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
+            ("map_vector_back", (np.zeros(3), rot, 0.5, x3), 0),
+            ("coupling", (np.zeros(3), w3, v3, x3, v3 * 2, w3 * 3, x3), 0),
+            ("orientation_coupling", (np.zeros(3), w3, v3, rot, near_pi, x3), 0),
+            ("orientation_coupling", (np.zeros(3), w3, v3, rot, _rodrigues((0, 1, 0), 0.4) @ rot, x3), 0),
+        ]
+        for name, args, out_index in calls:
+            fn = getattr(ts, name, None) or getattr(eba, name)
+            py_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            nb_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            r_py = fn(*py_args)
+            r_nb = k[name](*nb_args)
+            if out_index is None:
+                assert r_nb == pytest.approx(r_py, rel=1e-12, abs=1e-300), name
+            else:
+                assert nb_args[out_index] == pytest.approx(py_args[out_index], rel=1e-12, abs=1e-12), name
+    # the per-side objects with the compiled functions: the same results as interpreted
+    from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams
+
+    for slew in ((), (300.0,) * 6):
+        params = CoupledEnergyBoundParams(1e-3, tuple(10.0 ** rng.uniform(-2, 0, size=6)), 0.05, slew_nm_per_s=slew)
+        plain, fast = CoupledEnergyBound(params), CoupledEnergyBound(params, k)
+        q = np.zeros(6)
+        for _ in range(50):
+            tau_d = rng.normal(size=6) * 20.0
+            assert fast.step(q, tau_d) == pytest.approx(plain.step(q, tau_d), rel=1e-9, abs=1e-12)
+            assert fast.energy_j == pytest.approx(plain.energy_j, rel=1e-9, abs=1e-12)
+            q = q + rng.normal(size=6) * 1e-3
+    params = TaskCouplingParams(
+        orientation="hold", rot_stiffness_nm_per_rad=(3.0, 3.0, 3.0), null_damping_nm_s_per_rad=(0.5,) * 6
+    )
+    plain_law, fast_law = TaskSpaceLaw(params, 6), TaskSpaceLaw(params, 6, k)
+    for _ in range(5):
+        jac, qd = rng.normal(size=(6, 6)), rng.normal(size=6)
+        x, v, rx, rv = rng.normal(size=(4, 3))
+        r_tool = _rodrigues(rng.normal(size=3), rng.uniform(0, 1)) @ rot
+        expect = plain_law.torque(jac, qd, x, v, rx, rv, r_tool=r_tool).copy()
+        assert fast_law.torque(jac, qd, x, v, rx, rv, r_tool=r_tool) == pytest.approx(expect, rel=1e-9, abs=1e-12)
