@@ -652,6 +652,9 @@ def record_run(
             "master_joint_damping": engine.master.joint_damping(),
             "slave_joint_damping": engine.slave.joint_damping(),
         }
+        if c.is_arm:  # the wall plane in the task frame (the analysis' penetration)
+            info["wall_point_m"] = list(c.slave.wall.point_m or ())
+            info["wall_normal"] = list(c.slave.wall.normal or ())
         if collector is not None:
             engine.data = collector.data()
         rec.close(info)

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from haptic_teleop.analysis.metrics import analyze_bag
+from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.engine import record_run
 from haptic_teleop.scene import load_scene, scenes_dir
 
@@ -25,8 +25,7 @@ def _summary(tmp_path: Path, name: str, overrides: list[str]) -> dict:
     scene = load_scene(scenes_dir() / f"{name}.yaml", overrides=[f"scene.duration_s={duration}", *overrides])
     bag = tmp_path / "bag"
     record_run(scene, bag, parallel=False, handle_sigint=False)
-    summary, _ = analyze_bag(bag)
-    return summary
+    return summarize_bag(bag)  # one-axis and arm bags alike
 
 
 def _scene_summary(tmp_path_factory, name: str) -> dict:

@@ -1,0 +1,219 @@
+"""The engine's tick for arm scenes (Python loop; docs/arms.md, "The tick").
+
+One tick (period T), in this order, every task-space value in the task frame (the slave's world
+frame; the master's handle is mapped with the WorkspaceMapping):
+  1. read both arms (MuJoCo's mj_step1: q, qd, the point, its Jacobian, gravity torques, one
+     instant); the wall's wrench on the tool is MuJoCo's over the last period;
+  2. master: task-space law on the newest backward sample -> force F (saturated in norm) ->
+     tau = J^T F through the mapped Jacobian -> brought within each motor's room left by gravity
+     compensation (one factor: direction kept) -> pooled joint energy bound (one lambda);
+  3. master packet (handle x, v) into the forward link; arrivals by t_n go to the slave's buffer;
+  4. slave: the same on the released sample, with the orientation held (6-DoF) and null-space
+     damping; 5. slave packet (tool x, v, contact force) into the backward link;
+  6. the operator's hand force (a 3-D spring-damper in the device frame) and both arms step one
+     period; the bounds' ledgers take the torques the plants applied.
+The row's columns follow the scene's TickSchema (record/columns.py).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from haptic_teleop.core.eba import joint_limited
+from haptic_teleop.core.network import Packet
+
+if TYPE_CHECKING:
+    from haptic_teleop.assembly import ArmParts, ArmSide
+    from haptic_teleop.engine import Engine
+
+
+def wire_payload_bytes(names: int, fields: int) -> int:
+    """CDR size of the sensor_msgs/JointState carrying `fields` arrays of `names` values (one per axis)."""
+    from haptic_teleop.record.layouts import typestore
+
+    ts = typestore()
+    cls = ts.types["sensor_msgs/msg/JointState"]
+    hdr = ts.types["std_msgs/msg/Header"]
+    stamp = ts.types["builtin_interfaces/msg/Time"]
+    vals = np.zeros(names)
+    empty = np.zeros(0)
+    arrays = [vals if i < fields else empty for i in range(3)]
+    msg = cls(
+        header=hdr(stamp=stamp(sec=0, nanosec=0), frame_id=""),
+        name=[f"axis_{i}" for i in range(names)],
+        position=arrays[0],
+        velocity=arrays[1],
+        effort=arrays[2],
+    )
+    return len(bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState")))
+
+
+class _SideTick:
+    """One side's per-tick arithmetic (law, saturation, motor room, bound) for the Python loop."""
+
+    def __init__(self, side: ArmSide, jac_scale: np.ndarray | None) -> None:
+        self.side = side
+        self.plant = side.plant
+        self.law = side.law
+        self.bound = side.bound
+        self.limit = side.force_limit_n
+        # The master's law acts in the task frame: its Jacobian there is force_scale R J_device
+        # (tau = J_device^T f_device with f_device = force_scale R^T F).
+        self.jac_scale = jac_scale
+        self.limited = np.zeros(self.plant.n)
+        self.force = np.zeros(3)  # the desired task force (before saturation)
+        self.ratio = 0.0  # applied / desired torque (direction kept): scales the task force
+        self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
+
+    def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
+        plant = self.plant
+        q, qd = plant.read()
+        jac = plant.jacobian(rotational=self.side.rotational)
+        if self.jac_scale is not None:
+            jac[:3] = self.jac_scale @ jac[:3]
+        if remote is None:
+            rx = rv = None
+        else:
+            rx = np.asarray(remote[0:3])
+            rv = np.asarray(remote[3:6])
+        r_tool = plant.orientation() if self.side.rotational else None
+        tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
+        f = self.law.wrench[:3]
+        self.force[:] = f
+        norm = float(np.sqrt(f @ f))
+        if norm > self.limit:
+            tau = tau * (self.limit / norm)
+        lo, hi = plant.torque_room()
+        joint_limited(self.limited, tau, lo, hi, True)
+        if not np.array_equal(self.limited, tau):
+            self.limited_ticks += 1
+        out = self.bound.step(q, self.limited)
+        tt = float(tau @ tau)
+        self.ratio = float(out @ tau) / tt if tt > 0.0 else 0.0
+        sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
+        self.ratio *= sat
+        return out
+
+
+def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:
+    """Run the arm scene's ticks into `output` (the engine's _Output); returns the ticks done."""
+    n_ticks = engine.ticks
+    period_ns = engine.period_ns
+    period_s = engine.period_s
+    schema = parts.schema
+    g = schema.group
+    mapping = parts.mapping
+    m_side, s_side = parts.master, parts.slave
+    master, slave = m_side.plant, s_side.plant
+    jac_scale = mapping.force_scale * mapping.matrix
+    mt = _SideTick(m_side, jac_scale)
+    st = _SideTick(s_side, None)
+    m_guard, s_guard = m_side.guard, s_side.guard
+    op = parts.operator
+    origin, direction = parts.operator_origin_m, parts.operator_direction
+    k_h, b_h = op.params.stiffness_n_per_m, op.params.damping_n_s_per_m
+    fwd, bwd = engine.forward, engine.backward
+    fbuf, bbuf = engine.forward_buffer, engine.backward_buffer
+    fwd_size, bwd_size = engine._sizes
+    block = output.block
+    cols = {
+        name: g(name)
+        for name in (
+            "op_x_m", "op_v_m_per_s", "op_force_n",
+            "m_q", "m_qd", "m_tau_nm", "m_x_m", "m_v_m_per_s", "m_force_n", "m_force_desired_n", "m_energy_j",
+            "s_q", "s_qd", "s_tau_nm", "s_x_m", "s_v_m_per_s", "s_force_n", "s_force_desired_n", "s_energy_j",
+            "s_contact_n", "s_contact_torque_nm", "fwd_rx_seq", "bwd_rx_seq", "fwd_occupancy", "bwd_occupancy",
+        )
+    }  # fmt: skip
+    m_remote: tuple[float, ...] | None = None  # the master's newest accepted backward sample
+    s_remote: tuple[float, ...] | None = None
+    base = 0
+    done = 0
+    engine.ticks_done = 0
+    for n in range(n_ticks):
+        now_ns = n * period_ns
+        row = block[n - base]
+        # 1. both arms
+        qm, qdm = master.read()
+        xm_dev, vm_dev = master.point()
+        qs, qds = slave.read()
+        xs, vs = slave.point()
+        f_env, t_env = slave.contact_wrench()
+        x_m = mapping.position_to_task(xm_dev)
+        v_m = mapping.velocity_to_task(vm_dev)
+        # 2. master
+        tau_m = mt.torque(x_m, v_m, m_remote)
+        # 3. forward packet
+        fwd.send(Packet(n, now_ns, (*x_m.tolist(), *v_m.tolist()), fwd_size))
+        for p in fwd.deliver(now_ns):
+            fbuf.push(p, now_ns)
+        rel = fbuf.release(now_ns)
+        if rel is not None:
+            if s_guard.accept(rel.payload):
+                s_remote = rel.payload
+            frx = rel.seq
+        else:
+            frx = -1
+        # 4. slave
+        tau_s = st.torque(xs, vs, s_remote)
+        # 5. backward packet
+        bwd.send(Packet(n, now_ns, (*xs.tolist(), *vs.tolist(), *f_env.tolist()), bwd_size))
+        for p in bwd.deliver(now_ns):
+            bpush = bbuf.push
+            bpush(p, now_ns)
+        rel = bbuf.release(now_ns)
+        if rel is not None:
+            if m_guard.accept(rel.payload):
+                m_remote = rel.payload
+            brx = rel.seq
+        else:
+            brx = -1
+        # 6. operator and plants
+        xd_t, vd_t = op.intended_along(n * period_s, origin, direction)
+        xd = mapping.position_to_master(np.asarray(xd_t))
+        vd = mapping.velocity_to_master(np.asarray(vd_t))
+        f_hand = k_h * (xd - xm_dev) + b_h * (vd - vm_dev)
+        applied_m = master.step(tau_m, f_hand)
+        applied_s = slave.step(tau_s)
+        mt.bound.held[:] = applied_m  # the ledger: the torques the plants applied
+        st.bound.held[:] = applied_s
+        row[cols["op_x_m"]] = xd_t
+        row[cols["op_v_m_per_s"]] = vd_t
+        row[cols["op_force_n"]] = mapping.force_to_task(f_hand)
+        row[cols["m_q"]] = qm
+        row[cols["m_qd"]] = qdm
+        row[cols["m_tau_nm"]] = applied_m
+        row[cols["m_x_m"]] = x_m
+        row[cols["m_v_m_per_s"]] = v_m
+        row[cols["m_force_n"]] = mt.ratio * mt.force
+        row[cols["m_force_desired_n"]] = mt.force
+        row[cols["m_energy_j"]] = mt.bound.energy_j
+        row[cols["s_q"]] = qs
+        row[cols["s_qd"]] = qds
+        row[cols["s_tau_nm"]] = applied_s
+        row[cols["s_x_m"]] = xs
+        row[cols["s_v_m_per_s"]] = vs
+        row[cols["s_force_n"]] = st.ratio * st.force
+        row[cols["s_force_desired_n"]] = st.force
+        row[cols["s_energy_j"]] = st.bound.energy_j
+        row[cols["s_contact_n"]] = f_env
+        row[cols["s_contact_torque_nm"]] = t_env
+        row[cols["fwd_rx_seq"]] = frx
+        row[cols["bwd_rx_seq"]] = brx
+        row[cols["fwd_occupancy"]] = fbuf.occupancy
+        row[cols["bwd_occupancy"]] = bbuf.occupancy
+        done = engine.ticks_done = n + 1  # a failing tick leaves the ticks before it
+        if done % 100 == 0:
+            if progress is not None:
+                progress(done)
+            if done - base == block.shape[0]:
+                output.block_done(done)
+                base = done
+        if engine._stop:
+            break
+    engine.ticks_done = done
+    engine.joint_limit_ticks = {"master": mt.limited_ticks, "slave": st.limited_ticks}
+    return done
