@@ -144,15 +144,16 @@ def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any,
     return None
 
 
-def side_tuple(side: ArmSide, parts: ArmParts, master: bool) -> tuple[Any, ...]:
+def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -> tuple[Any, ...]:
     """The kernel's side tuple (fastarmkernel's T_* order) of one side, sharing the plant's MjData
-    arrays and the side's state: `store_side` writes the state back."""
+    arrays (or those of `data`, another MjData of the same model) and the side's state:
+    `store_side` writes the state back."""
     from haptic_teleop import fastarmkernel as k
 
     layout = contact_layout()
     assert not isinstance(layout, str)
     plant: Any = side.plant
-    m, d = plant.model, plant.data
+    m, d = plant.model, plant.data if data is None else data
     n = plant.n
     law, bound = side.law, side.bound
     bp = bound.params
@@ -334,15 +335,21 @@ class CompiledArm:
         self.parts = parts
         self.ms = side_tuple(parts.master, parts, True)
         self.ss = side_tuple(parts.slave, parts, False)
+        self.mw = self._work(parts.master)
+        self.sw = self._work(parts.slave)
         self.ov = operator_vector(parts, period_s)
         self.cols = column_starts(parts)
         self.width = len(parts.schema.columns)
+
+    def _work(self, side: ArmSide) -> tuple[np.ndarray, ...]:
+        plant: Any = side.plant
+        return tuple(self.k._work(plant.n, plant.model.nv, 6 if side.rotational else 3))
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) now, not in the timed loop: zero ticks."""
         rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
         self.k.run_ticks(
-            0, 0, self.ms, self.ss, self.ov, self.cols, rel, occ, rel, occ,
+            0, 0, self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, rel, occ, rel, occ,
             np.zeros((1, 6)), np.zeros((1, 9)), np.zeros((1, self.width)), 0, 0,
         )  # fmt: skip
 
@@ -363,7 +370,7 @@ class CompiledArm:
         block = output.block
         block_ticks = block.shape[0]
         run_ticks = self.k.run_ticks
-        ms, ss, ov, cols = self.ms, self.ss, self.ov, self.cols
+        ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
         done = 0
         engine.ticks_done = 0
         with fastloop.mujoco_timers_off():
@@ -375,7 +382,23 @@ class CompiledArm:
                 for c0 in range(w0, w1, CHUNK_TICKS):
                     c1 = min(c0 + CHUNK_TICKS, w1)
                     run_ticks(
-                        c0, c1, ms, ss, ov, cols, frel, focc, brel, bocc, rings.fwd, rings.bwd, block, w0, output.start
+                        c0,
+                        c1,
+                        ms,
+                        ss,
+                        mw,
+                        sw,
+                        ov,
+                        cols,
+                        frel,
+                        focc,
+                        brel,
+                        bocc,
+                        rings.fwd,
+                        rings.bwd,
+                        block,
+                        w0,
+                        output.start,
                     )
                     done = engine.ticks_done = c1
                     if progress is not None and done % 100 == 0:

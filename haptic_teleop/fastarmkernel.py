@@ -23,6 +23,7 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
+from numba.np.arrayobj import populate_array
 
 from haptic_teleop.core import eba, taskspace
 from haptic_teleop.core import operator as op
@@ -41,8 +42,8 @@ mj_jacSite = types.ExternalFunction(
 mj_contactForce = types.ExternalFunction("mj_contactForce", types.void(types.intp, types.intp, types.int32, types.intp))
 
 jit = numba.njit(cache=True, nogil=True)
-# The tick's own helpers take the side tuple: inlined (numba IR), so a call does not copy the
-# tuple nor count references to each of its arrays (which cost ~0.4 us a call).
+# The tick's own helpers take the side tuples: inlined (numba IR), so a call does not copy the
+# tuples (36 and 17 array structs, by value) onto the stack.
 inline = numba.njit(cache=True, nogil=True, inline="always")
 
 
@@ -74,6 +75,21 @@ def load_f64(typingctx: Any, addr: Any) -> Any:
         return builder.load(builder.inttoptr(args[0], ir.DoubleType().as_pointer()))
 
     return types.float64(types.intp), codegen
+
+
+@intrinsic
+def borrowed(typingctx: Any, arr: Any) -> Any:
+    """`arr` without its reference count (a view with no owner): passing it around costs no
+    atomic increments and decrements, which were about a sixth of a tick (docs/performance.md).
+    The caller keeps the owner alive for as long as the view is used."""
+
+    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+        src = context.make_array(sig.args[0])(context, builder, args[0])
+        out = context.make_array(sig.return_type)(context, builder)
+        populate_array(out, src.data, src.shape, src.strides, src.itemsize, None)
+        return out._getvalue()
+
+    return arr(arr), codegen
 
 
 _compiled: dict[Callable[..., Any], Any] = {}
@@ -443,11 +459,80 @@ work = jit(_work)
 
 
 @jit  # type: ignore[misc]
+def detach(t: Any) -> Any:
+    """A side tuple of `borrowed` views (the caller holds the arrays)."""
+    return (
+        borrowed(t[0]),
+        borrowed(t[1]),
+        borrowed(t[2]),
+        borrowed(t[3]),
+        borrowed(t[4]),
+        borrowed(t[5]),
+        borrowed(t[6]),
+        borrowed(t[7]),
+        borrowed(t[8]),
+        borrowed(t[9]),
+        borrowed(t[10]),
+        borrowed(t[11]),
+        borrowed(t[12]),
+        borrowed(t[13]),
+        borrowed(t[14]),
+        borrowed(t[15]),
+        borrowed(t[16]),
+        borrowed(t[17]),
+        borrowed(t[18]),
+        borrowed(t[19]),
+        borrowed(t[20]),
+        borrowed(t[21]),
+        borrowed(t[22]),
+        borrowed(t[23]),
+        borrowed(t[24]),
+        borrowed(t[25]),
+        borrowed(t[26]),
+        borrowed(t[27]),
+        borrowed(t[28]),
+        borrowed(t[29]),
+        borrowed(t[30]),
+        borrowed(t[31]),
+        borrowed(t[32]),
+        borrowed(t[33]),
+        borrowed(t[34]),
+        borrowed(t[35]),
+    )
+
+
+@jit  # type: ignore[misc]
+def detach_work(w: Any) -> Any:
+    """A work tuple (`work`) of `borrowed` views (the caller holds the arrays)."""
+    return (
+        borrowed(w[0]),
+        borrowed(w[1]),
+        borrowed(w[2]),
+        borrowed(w[3]),
+        borrowed(w[4]),
+        borrowed(w[5]),
+        borrowed(w[6]),
+        borrowed(w[7]),
+        borrowed(w[8]),
+        borrowed(w[9]),
+        borrowed(w[10]),
+        borrowed(w[11]),
+        borrowed(w[12]),
+        borrowed(w[13]),
+        borrowed(w[14]),
+        borrowed(w[15]),
+        borrowed(w[16]),
+    )
+
+
+@jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,
-    ms: Any,
-    ss: Any,
+    ms_own: Any,
+    ss_own: Any,
+    mw_own: Any,
+    sw_own: Any,
     ov: np.ndarray,
     cols: np.ndarray,
     fwd_rel: np.ndarray,
@@ -463,16 +548,28 @@ def run_ticks(
     """Ticks [n0, n1) of an arm scene (armloop.run_arm_loop's order). fwd_rel, fwd_occ, bwd_rel,
     bwd_occ hold the window of ticks from w0 on; data the block of ticks from d0 on; the
     histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
+    # Every array the ticks use is a borrowed view (no reference counting in the loop); the
+    # arguments and the locals below own them until the function returns.
+    ms, ss, mw, sw = detach(ms_own), detach(ss_own), detach_work(mw_own), detach_work(sw_own)
+    fwd_rel, fwd_occ, bwd_rel, bwd_occ = borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ)
+    fwd_hist, bwd_hist, data, ov, cols = (
+        borrowed(fwd_hist),
+        borrowed(bwd_hist),
+        borrowed(data),
+        borrowed(ov),
+        borrowed(cols),
+    )
     MI, MF = ms[T_I], ms[T_F]
     SI = ss[T_I]
     nm, ns = MI[I_N], SI[I_N]
-    mw = work(nm, MI[I_NV], 6 if MI[I_ROTATIONAL] != 0 else 3)
-    sw = work(ns, SI[I_NV], 6 if SI[I_ROTATIONAL] != 0 else 3)
-    qm, qdm, qs, qds = np.zeros(nm), np.zeros(nm), np.zeros(ns), np.zeros(ns)
-    tau_m, tau_s, app_m, app_s = np.zeros(nm), np.zeros(ns), np.zeros(nm), np.zeros(ns)
-    xm_dev, vm_dev, x_m, v_m = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    xs, vs, f_env, t_env = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    xd_t, vd_t, xd, vd, f_hand, op_f = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    own = np.zeros((22, max(nm, ns, 3)))  # the tick's vectors, one row each
+    qm, qdm, qs, qds = borrowed(own[0, :nm]), borrowed(own[1, :nm]), borrowed(own[2, :ns]), borrowed(own[3, :ns])
+    tau_m, tau_s = borrowed(own[4, :nm]), borrowed(own[5, :ns])
+    app_m, app_s = borrowed(own[6, :nm]), borrowed(own[7, :ns])
+    xm_dev, vm_dev, x_m, v_m = borrowed(own[8, :3]), borrowed(own[9, :3]), borrowed(own[10, :3]), borrowed(own[11, :3])
+    xs, vs, f_env, t_env = borrowed(own[12, :3]), borrowed(own[13, :3]), borrowed(own[14, :3]), borrowed(own[15, :3])
+    xd_t, vd_t, xd, vd = borrowed(own[16, :3]), borrowed(own[17, :3]), borrowed(own[18, :3]), borrowed(own[19, :3])
+    f_hand, op_f = borrowed(own[20, :3]), borrowed(own[21, :3])
     rot, offset = ms[T_ROT], ms[T_OFFSET]
     scale, force_scale = MF[F_SCALE], MF[F_FORCE_SCALE]
     k_h, b_h = MF[F_K_HAND], MF[F_B_HAND]
@@ -570,6 +667,7 @@ def run_ticks(
         row[cols[C_BRX]] = brx
         row[cols[C_FOCC]] = fwd_occ[n - w0]
         row[cols[C_BOCC]] = bwd_occ[n - w0]
+    own[0, 0] = 0.0  # `own` lives until here, past every use of its views
     return n1
 
 
@@ -582,11 +680,16 @@ def bare_steps(models: np.ndarray, steps: int) -> None:
 
 
 @jit  # type: ignore[misc]
-def split_steps(models: np.ndarray, steps: int) -> None:
-    """`steps` of mj_step1 + mj_step2 of the master model then the slave's (`bench speed`: what
-    the split step costs against mj_step)."""
+def mujoco_steps(ms: Any, ss: Any, steps: int) -> None:
+    """`steps` of what a tick asks of MuJoCo, nothing else: mj_step1, mj_jacSite, mj_step2 of the
+    master then the slave, with the controls left as they are (`bench speed`: the tick's MuJoCo
+    part against a bare mj_step)."""
+    mw = work(ms[T_I][I_N], ms[T_I][I_NV], 6 if ms[T_I][I_ROTATIONAL] != 0 else 3)
+    sw = work(ss[T_I][I_N], ss[T_I][I_NV], 6 if ss[T_I][I_ROTATIONAL] != 0 else 3)
     for _ in range(steps):
-        mj_step1(models[0], models[1])
-        mj_step2(models[0], models[1])
-        mj_step1(models[2], models[3])
-        mj_step2(models[2], models[3])
+        mj_step1(ms[T_I][I_MODEL], ms[T_I][I_DATA])
+        jacobian(ms, mw[2], mw[3], mw[4], False)
+        mj_step2(ms[T_I][I_MODEL], ms[T_I][I_DATA])
+        mj_step1(ss[T_I][I_MODEL], ss[T_I][I_DATA])
+        jacobian(ss, sw[2], sw[3], sw[4], ss[T_I][I_ROTATIONAL] != 0)
+        mj_step2(ss[T_I][I_MODEL], ss[T_I][I_DATA])
