@@ -23,11 +23,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from haptic_teleop.core.eba import joint_limited
-from haptic_teleop.core.network import Packet
+from haptic_teleop.core.link import Packet
 from haptic_teleop.core.taskspace import dot, matrix_times
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from haptic_teleop.assembly import ArmParts, ArmSide
+    from haptic_teleop.core.taskspace import WorkspaceMapping
     from haptic_teleop.engine import Engine
 
 
@@ -68,6 +71,8 @@ class _SideTick:
         self.force = np.zeros(3)  # the desired task force (before saturation)
         self.ratio = 0.0  # applied / desired torque (direction kept): scales the task force
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
+        k = side.kernels
+        self.joint_limited = k["joint_limited"] if k is not None else joint_limited
 
     def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
         plant = self.plant
@@ -88,7 +93,7 @@ class _SideTick:
         if norm > self.limit:
             tau = tau * (self.limit / norm)
         lo, hi = plant.torque_room()
-        joint_limited(self.limited, tau, lo, hi, True)
+        self.joint_limited(self.limited, tau, lo, hi, True)
         if not np.array_equal(self.limited, tau):
             self.limited_ticks += 1
         out = self.bound.step(q, self.limited)
@@ -99,6 +104,60 @@ class _SideTick:
         return out
 
 
+class _Maps:
+    """The workspace mapping's five maps for the tick: `WorkspaceMapping`'s own methods, or the same
+    functions compiled (the kernels) when the scene has them."""
+
+    def __init__(self, mapping: WorkspaceMapping, kernels: Mapping[str, Callable[..., Any]] | None) -> None:
+        self.to_task_x = mapping.position_to_task
+        self.to_task_v = mapping.velocity_to_task
+        self.to_master_x = mapping.position_to_master
+        self.to_master_v = mapping.velocity_to_master
+        self.force_to_task = mapping.force_to_task
+        if kernels is None:
+            return
+        r, s, o, fs = mapping.matrix, mapping.scale, mapping.offset, mapping.force_scale
+        mp, ump, mv, mvb = (kernels[k] for k in ("map_point", "unmap_point", "map_vector", "map_vector_back"))
+
+        def to_task_x(x: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mp(out, r, s, o, x)
+            return out
+
+        def to_task_v(v: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mv(out, r, s, v)
+            return out
+
+        def to_master_x(x: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            ump(out, r, s, o, x)
+            return out
+
+        def to_master_v(v: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mvb(out, r, 1.0 / s, v)
+            return out
+
+        def force_to_task(f: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mv(out, r, 1.0 / fs, f)
+            return out
+
+        self.to_task_x, self.to_task_v, self.to_master_x = to_task_x, to_task_v, to_master_x
+        self.to_master_v, self.force_to_task = to_master_v, force_to_task
+        z = np.zeros(3)  # compile (or load) them now, not in the timed loop
+        for fn in (to_task_x, to_task_v, to_master_x, to_master_v, force_to_task):
+            fn(z)
+
+
+def side_ticks(parts: ArmParts) -> tuple[_SideTick, _SideTick]:
+    """The per-side tick state of an arm scene (built, and the law compiled, before the loop)."""
+    mapping = parts.mapping
+    parts.maps = _Maps(mapping, parts.master.kernels)
+    return _SideTick(parts.master, mapping.force_scale * mapping.matrix), _SideTick(parts.slave, None)
+
+
 def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:
     """Run the arm scene's ticks into `output` (the engine's _Output); returns the ticks done."""
     n_ticks = engine.ticks
@@ -106,12 +165,10 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     period_s = engine.period_s
     schema = parts.schema
     g = schema.group
-    mapping = parts.mapping
+    maps = parts.maps
     m_side, s_side = parts.master, parts.slave
     master, slave = m_side.plant, s_side.plant
-    jac_scale = mapping.force_scale * mapping.matrix
-    mt = _SideTick(m_side, jac_scale)
-    st = _SideTick(s_side, None)
+    mt, st = engine.arm_ticks
     m_guard, s_guard = m_side.guard, s_side.guard
     op = parts.operator
     origin, direction = parts.operator_origin_m, parts.operator_direction
@@ -143,8 +200,8 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         qs, qds = slave.read()
         xs, vs = slave.point()
         f_env, t_env = slave.contact_wrench()
-        x_m = mapping.position_to_task(xm_dev)
-        v_m = mapping.velocity_to_task(vm_dev)
+        x_m = maps.to_task_x(xm_dev)
+        v_m = maps.to_task_v(vm_dev)
         # 2. master
         tau_m = mt.torque(x_m, v_m, m_remote)
         # 3. forward packet
@@ -174,8 +231,8 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
             brx = -1
         # 6. operator and plants
         xd_t, vd_t = op.intended_along(n * period_s, origin, direction)
-        xd = mapping.position_to_master(np.asarray(xd_t))
-        vd = mapping.velocity_to_master(np.asarray(vd_t))
+        xd = maps.to_master_x(np.asarray(xd_t))
+        vd = maps.to_master_v(np.asarray(vd_t))
         f_hand = k_h * (xd - xm_dev) + b_h * (vd - vm_dev)
         applied_m = master.step(tau_m, f_hand)
         applied_s = slave.step(tau_s)
@@ -183,7 +240,7 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         st.bound.held[:] = applied_s
         row[cols["op_x_m"]] = xd_t
         row[cols["op_v_m_per_s"]] = vd_t
-        row[cols["op_force_n"]] = mapping.force_to_task(f_hand)
+        row[cols["op_force_n"]] = maps.force_to_task(f_hand)
         row[cols["m_q"]] = qm
         row[cols["m_qd"]] = qdm
         row[cols["m_tau_nm"]] = applied_m

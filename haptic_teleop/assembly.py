@@ -9,16 +9,20 @@ wherever it runs (docs/architecture.md). One-axis scenes: `build_controller`, `b
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
-from haptic_teleop.core.network import Link, build_link
+from haptic_teleop.core.link import Link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.plants import build_master_plant, build_slave_plant
-from haptic_teleop.scene import ControllerConfig, OperatorConfig, SaturationConfig, Scene, read_trace
+from haptic_teleop.scene import ControllerConfig, OperatorConfig, SaturationConfig, Scene
+from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
+from haptic_teleop.traces import read_operator_trace
 
 if TYPE_CHECKING:
     import numpy as np
@@ -36,7 +40,7 @@ __all__ = [
     "build_network",
     "build_operator",
     "build_slave_plant",
-    "read_trace",
+    "read_operator_trace",
     "remote_limits",
 ]
 
@@ -161,6 +165,7 @@ class ArmSide:
     guard: SampleGuard
     force_limit_n: float
     rotational: bool  # the law needs the 6-row Jacobian (orientation held)
+    kernels: Mapping[str, Callable[..., Any]] | None = None  # the compiled array functions, if any
 
     @property
     def rejected_samples(self) -> int:
@@ -179,6 +184,7 @@ class ArmParts:
     operator_origin_m: np.ndarray  # the intended point at rest (task frame): the start handle
     operator_direction: np.ndarray  # unit, task frame
     schema: TickSchema
+    maps: Any = None  # the tick's mapping functions (armloop builds them)
 
 
 def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:
@@ -198,9 +204,46 @@ def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:
     return RemoteLimits(position_m=k * workspace, velocity_m_per_s=k * max(0.1, speed), force_n=k * max(forces))
 
 
-def build_arm_parts(config: Scene) -> ArmParts:
+@functools.cache
+def arm_kernels() -> Mapping[str, Callable[..., Any]] | None:
+    """core.taskspace's and core.eba's per-tick array functions compiled by numba (its on-disk
+    cache after the first time), or None without numba: the laws and bounds then run interpreted.
+    Each is compiled once per process and warmed up on the scene's array types by `build_arm_parts`,
+    so no compiling happens inside the timed loop."""
+    try:
+        import numba
+    except Exception:  # noqa: BLE001 - no numba here: the interpreted functions run
+        return None
+    from haptic_teleop.core.taskspace import kernels
+
+    return kernels(numba.njit(cache=True, nogil=True))
+
+
+def _warm_up(side: ArmSide, config: Scene) -> None:
+    """One tick of a throwaway copy of the side's law and bound on its arrays: compiles (or loads)
+    every kernel for these array types now, leaving the real objects untouched."""
+    import numpy as np
+
+    from haptic_teleop.core.eba import CoupledEnergyBound
+    from haptic_teleop.core.taskspace import TaskSpaceLaw
+
+    plant, n = side.plant, side.plant.n
+    law = TaskSpaceLaw(side.law.params, n, side.kernels)
+    bound = CoupledEnergyBound(side.bound.params, side.kernels)
+    z3 = np.zeros(3)
+    jac = plant.jacobian(rotational=side.rotational)
+    tau = law.torque(jac, np.zeros(n), z3, z3, z3, z3, None, plant.orientation() if side.rotational else None)
+    bound.step(np.zeros(n), tau)
+    bound.step(np.zeros(n), tau)
+    if side.kernels is not None:
+        lo, hi = plant.torque_room()
+        side.kernels["joint_limited"](np.zeros(n), tau, lo, hi, True)
+
+
+def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     """Both sides of an arm scene: plants, mapping, task-space laws, pooled joint bounds, guards,
-    operator (docs/arms.md)."""
+    operator (docs/arms.md). `compiled`: the laws and bounds call numba-compiled kernels
+    (`arm_kernels`, when numba is there); False: interpreted (the same results, slower)."""
     import numpy as np
 
     from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams, SampleGuard
@@ -210,6 +253,7 @@ def build_arm_parts(config: Scene) -> ArmParts:
 
     master = build_master_arm(config)
     slave = build_slave_arm(config)
+    kernels = arm_kernels() if compiled else None
     xm0 = master.point()[0]
     xs0 = slave.point()[0]
     mc = config.mapping
@@ -252,13 +296,17 @@ def build_arm_parts(config: Scene) -> ArmParts:
                 initial_energy_j=cfg.eba.initial_energy_j,
                 enabled=cfg.eba.enabled,
                 joint_names=plant.joints,
-            )
+            ),
+            kernels,
         )
         # Remote payloads (task frame): master receives (x, v, f_contact), slave (x, v).
         kinds = (limits.position_m, limits.velocity_m_per_s, limits.force_n)
         per = kinds if role == "master" else kinds[:2]
         guard = SampleGuard([k for k in per for _ in range(3)])
-        return ArmSide(plant, TaskSpaceLaw(params, plant.n), bound, guard, cfg.force_limit_n, hold)
+        out = ArmSide(plant, TaskSpaceLaw(params, plant.n, kernels), bound, guard, cfg.force_limit_n, hold, kernels)
+        if kernels is not None:
+            _warm_up(out, config)
+        return out
 
     op = config.operator
     direction = np.array(op.direction if op.direction is not None else [-c for c in config.slave.wall.normal or ()])

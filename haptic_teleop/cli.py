@@ -5,90 +5,25 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from haptic_teleop import interrupt
-from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, InputError
+from haptic_teleop.analysis.outputs import (
+    SCENE_FILE,
+    TIMING_FILE,
+    check_out_dir,
+    default_out,
+    write_atomic,
+    write_outputs,
+)
+from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
-TIMING_FILE = "timing.json"
-SCENE_FILE = "scene.yaml"
-
-
-def _json_default(o: Any) -> Any:
-    return None if isinstance(o, float) and math.isnan(o) else str(o)
-
-
-def _clean(summary: dict[str, Any]) -> dict[str, Any]:
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in summary.items()}
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write `text` to `path` through a temporary file and a rename: a reader (or an abort) never
-    sees half a file."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str, Any]:
-    """Analyse a bag: summary.json and plots/ in out_dir. Same code for `run` and `analyze`.
-
-    summary.json is written (whole, by a rename) before the plots start."""
-    from haptic_teleop.analysis.stream import summarize_bag
-
-    interrupt.pause_for_test("summary")
-    summary = summarize_bag(bag_dir)
-    timing = Path(bag_dir).parent / TIMING_FILE
-    if timing.is_file():
-        t = json.loads(timing.read_text())
-        summary["realtime_factor"] = t["realtime_factor"]
-        summary["engine_loop"] = t.get("loop", "python")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_atomic(out_dir / "summary.json", json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
-    if plots:
-        from haptic_teleop.analysis.plotdata import from_bag
-        from haptic_teleop.analysis.plots import write_plots
-
-        interrupt.pause_for_test("plots")
-        write_plots(from_bag(bag_dir, summary.get("force_alignment_lag_s")), out_dir / "plots")
-    return summary
-
-
-def default_out(scene_name: str) -> Path:
-    base = Path("runs")
-    i = 1
-    while (base / f"{scene_name}-{i:03d}").exists():
-        i += 1
-    return base / f"{scene_name}-{i:03d}"
-
-
-def check_out_dir(out: Path, empty: bool = True, flag: str = "--out") -> None:
-    """Fail now, before anything runs, when `out` cannot take the outputs: a file, not empty (when
-    `empty`), or not writable. Creates `out` (a probe file tells writable from not, also as root)."""
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{flag} {out}: is a file; allowed: a directory that does not exist yet or is empty")
-    if empty and out.is_dir() and any(out.iterdir()):
-        raise InputError(f"{flag} {out}: exists and is not empty; allowed: a new or empty directory")
-    existed = out.is_dir()
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as exc:
-        if not existed and out.is_dir():
-            with contextlib.suppress(OSError):
-                out.rmdir()
-        reason = exc.strerror or str(exc)
-        raise InputError(f"{flag} {out}: cannot write there ({reason}); allowed: a directory you can write") from None
 
 
 def _say(args: argparse.Namespace, text: str) -> None:

@@ -38,7 +38,7 @@ from haptic_teleop.assembly import (
     build_slave_plant,
     remote_limits,
 )
-from haptic_teleop.core.network import Link, Packet
+from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
@@ -146,10 +146,11 @@ class Engine:
 
     def _init_arm(self, loop: str) -> None:
         """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (armloop.py)."""
-        from haptic_teleop.armloop import wire_payload_bytes
+        from haptic_teleop.armloop import side_ticks, wire_payload_bytes
         from haptic_teleop.assembly import build_arm_parts
 
         self.arm = parts = build_arm_parts(self.scene.config)
+        self.arm_ticks = side_ticks(parts)
         self.schema = parts.schema
         self.operator = parts.operator
         self.master, self.slave = parts.master.plant, parts.slave.plant

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from haptic_teleop.core.network import DELIVERED, LOST_LATE, Link, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
 
 if TYPE_CHECKING:

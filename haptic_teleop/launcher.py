@@ -80,7 +80,8 @@ def _nest(path: str, value: Any) -> dict[str, Any]:
     out: Any = value
     for part in reversed([p for p in path.split(".") if p]):
         out = {part: out}
-    return out
+    nested: dict[str, Any] = out
+    return nested
 
 
 def _merge(into: dict[str, Any], other: Mapping[str, Any]) -> dict[str, Any]:
@@ -105,7 +106,7 @@ def scene_params(scene: LoadedScene, executable: str, direction: str | None = No
         path = template.format(direction=direction)
         obj = _section(scene.config, path)
         if path.endswith(".effects"):
-            from haptic_teleop.core.network import resolve_trace_paths
+            from haptic_teleop.traces import resolve_trace_paths
 
             obj = resolve_trace_paths(obj, Path(scene.source).parent)  # nodes run elsewhere
         section = dataclasses.asdict(obj)
@@ -470,11 +471,11 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
 
 def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path, out: IO[str] | None = None) -> int:
     """Every node of the plan in this process: one executor, one shared loop thread ticking every
-    node in pipeline order (nodes.common.SharedLoop); the recorder is closed last. Prints the loop
+    node in pipeline order (nodes.rtloop.SharedLoop); the recorder is closed last. Prints the loop
     table at the end; a SIGINT/SIGTERM that stopped the nodes gives exit 130/143."""
     import importlib
 
-    from haptic_teleop.nodes.common import run_nodes
+    from haptic_teleop.nodes.base import run_nodes
 
     files = write_params_files(plan, params_dir)
     ordered = sorted(plan, key=lambda s: s.executable == "recorder")
@@ -522,6 +523,16 @@ def launch_main(args: Any) -> int:
     if args.compression is not None:
         overrides.append(f"recording.compression={args.compression}")
     scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
+    if scene.config.is_arm:
+        from haptic_teleop.errors import ConfigError
+
+        raise ConfigError(
+            scene.source,
+            "slave.wall.point_m",
+            list(scene.config.slave.wall.point_m or ()),
+            "an arm scene: the live nodes run one-axis scenes only for now; allowed: haptic-teleop run "
+            f"{scene.config.scene.name} (the engine), or a one-axis scene",
+        )
     record = Path(args.record) if args.record else None
     if record is not None:
         problem = record_dir_problem(record)
@@ -558,7 +569,7 @@ def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, recor
         )
         code = code or EXIT_FAILURE
     elif record is not None and bag is not None and bag.exists():
-        from haptic_teleop.cli import write_outputs
+        from haptic_teleop.analysis.outputs import write_outputs
         from haptic_teleop.report import format_summary
 
         summary = write_outputs(bag, record, plots=not args.no_plots)

@@ -7,7 +7,6 @@ names the effects it wants; absent effects are not built.
 from __future__ import annotations
 
 import copy
-import csv
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
@@ -17,10 +16,11 @@ from typing import Any
 
 import yaml
 
-from haptic_teleop.core.network import NetworkEffectsConfig, resolve_trace_paths
+from haptic_teleop.core.netconfig import NetworkEffectsConfig
 from haptic_teleop.core.playout import BufferConfig
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.schema import build
+from haptic_teleop.traces import read_operator_trace, resolve_scene_traces
 
 
 @dataclass(frozen=True)
@@ -609,57 +609,6 @@ def _blame(exc: ConfigError, overrides: Sequence[Override]) -> ConfigError:
     return exc
 
 
-def read_trace(path: Path, source: str, key: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    if not path.is_file():
-        raise ConfigError(source, key, str(path), "allowed: an existing CSV file with columns time_s,position_m")
-    ts: list[float] = []
-    xs: list[float] = []
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except OSError as exc:
-        raise ConfigError(source, key, str(path), f"cannot be read ({exc.strerror}); allowed: a readable CSV") from None
-    except UnicodeDecodeError:
-        raise ConfigError(source, key, str(path), "not UTF-8 text; allowed: a CSV file time_s,position_m") from None
-    try:
-        rows = list(csv.reader(text.splitlines()))
-    except csv.Error as exc:
-        raise ConfigError(source, key, str(path), f"not a CSV ({exc}); allowed: rows time_s,position_m") from None
-    for lineno, row in enumerate(rows, start=1):
-        if not row or row[0].lstrip().startswith("#"):
-            continue
-        try:
-            t, x = float(row[0]), float(row[1])
-        except (ValueError, IndexError):
-            if lineno == 1:
-                continue  # header
-            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: two numbers time_s,position_m") from None
-        if not (math.isfinite(t) and math.isfinite(x)):
-            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: finite numbers time_s,position_m")
-        if ts and t <= ts[-1]:
-            raise ConfigError(f"{path}:{lineno}", key, row, "allowed: strictly increasing time_s")
-        ts.append(t)
-        xs.append(x)
-    if len(ts) < 2:
-        raise ConfigError(source, key, str(path), "allowed: a CSV with at least two rows time_s,position_m")
-    return tuple(ts), tuple(xs)
-
-
-def _resolve_traces(config: Scene, base: Path, source: str) -> Scene:
-    """Network trace files: relative to the scene's folder, read once now so a bad file stops the run."""
-    net = config.network
-    dirs = {}
-    for name in ("forward", "backward"):
-        d = getattr(net, name)
-        try:
-            effects = resolve_trace_paths(d.effects, base)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(
-                source, f"network.{name}.effects", "trace", f"allowed: a readable trace file ({exc})"
-            ) from None
-        dirs[name] = dataclasses.replace(d, effects=effects)
-    return dataclasses.replace(config, network=dataclasses.replace(net, **dirs))
-
-
 def _check_models(config: Scene, source: str) -> None:
     """The plants' model files exist (a path, or a bundled model's name): found now, not when a
     plant is built after the outputs were opened."""
@@ -794,13 +743,13 @@ def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None
         _check_arm_scene(config, source)
     except ConfigError as exc:
         raise _blame(exc, ovs) from None
-    config = _resolve_traces(config, p.parent, source)
+    config = resolve_scene_traces(config, p.parent, source)
     trace = None
     if config.operator.trace_file:
         tp = Path(config.operator.trace_file)
         if not tp.is_absolute():
             tp = (p.parent / tp).resolve()
-        trace = read_trace(tp, source, "operator.trace_file")
+        trace = read_operator_trace(tp, source, "operator.trace_file")
         # Absolute, as the network traces: the resolved scene (DIR/scene.yaml) runs from anywhere.
         config = dataclasses.replace(config, operator=dataclasses.replace(config.operator, trace_file=str(tp)))
     return LoadedScene(config=config, source=source, raw=raw, operator_trace=trace)

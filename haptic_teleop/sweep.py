@@ -1,8 +1,8 @@
 """`haptic-teleop sweep`: run every combination of scene parameters and seeds, tabulate the metrics.
 
 Each run goes through the same path as `haptic-teleop run` (engine.record_run, then
-cli.write_outputs on the bag just written), so a row of sweep.csv holds the numbers `run` would
-print for that combination and seed.
+analysis.outputs.write_outputs on the bag just written), so a row of sweep.csv holds the numbers
+`run` would print for that combination and seed.
 """
 
 from __future__ import annotations
@@ -221,7 +221,7 @@ def _command(args: argparse.Namespace) -> str:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
-    from haptic_teleop.cli import check_out_dir, default_out
+    from haptic_teleop.analysis.outputs import check_out_dir, default_out
     from haptic_teleop.scene import find_scene, load_scene
 
     params = [parse_param(t) for t in args.param]
@@ -257,7 +257,7 @@ def _run_plan(
     seeds: Sequence[int],
     name: str,
 ) -> int:
-    from haptic_teleop.cli import TIMING_FILE, write_atomic, write_outputs
+    from haptic_teleop.analysis.outputs import TIMING_FILE, write_atomic, write_outputs
     from haptic_teleop.engine import record_run
 
     bar = None

@@ -206,7 +206,7 @@ def test_bag_errors(tmp_path, short_run):
 def test_packet_rows_equal_packet_by_packet_conversion():
     """The vectorised packet records equal converting each packet on its own (the previous code),
     for every fate: arrival NaN unless delivered or late, duplicates flagged, times in seconds."""
-    from haptic_teleop.core.network import Packet
+    from haptic_teleop.core.link import Packet
     from haptic_teleop.record.layouts import PACKET_FIELDS
     from haptic_teleop.record.layouts import packet_rows as _packet_rows
 
@@ -285,7 +285,7 @@ def test_every_topic_set_and_block_shape_reads_back(tmp_path, clean_run, short_r
 def test_finish_takes_packet_records_as_arrays(tmp_path, short_run):
     """finish() takes each packet log as a link's Packet list or as ready records (a float64
     array in _packet_rows' format, used as is): the same bag either way; a wrong array is refused."""
-    from haptic_teleop.core.network import Packet
+    from haptic_teleop.core.link import Packet
     from haptic_teleop.record.layouts import packet_rows as _packet_rows
 
     rng = np.random.default_rng(11)

@@ -49,7 +49,8 @@ class Watcher:
         from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.nodes.common import DIAGNOSTICS, _polled_group_class, reliable_qos, stream_qos
+        from haptic_teleop.nodes.messages import _polled_group_class
+        from haptic_teleop.nodes.topics import DIAGNOSTICS, reliable_qos, stream_qos
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -70,7 +71,7 @@ class Watcher:
         self.thread.start()
 
     def _poll(self) -> None:
-        from haptic_teleop.nodes.common import take_all
+        from haptic_teleop.nodes.messages import take_all
 
         while not self._stop.is_set():
             for topic, sub in self.subs.items():
@@ -126,7 +127,8 @@ class Watcher:
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from std_msgs.msg import String
 
-        from haptic_teleop.nodes.common import SCENE_TOPIC, take_all
+        from haptic_teleop.nodes.messages import take_all
+        from haptic_teleop.nodes.topics import SCENE_TOPIC
 
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         sub = self.node.create_subscription(String, SCENE_TOPIC, lambda m: None, qos,
@@ -147,7 +149,7 @@ class Watcher:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.serialization import deserialize_message
 
-        from haptic_teleop.nodes.common import DIAGNOSTICS
+        from haptic_teleop.nodes.topics import DIAGNOSTICS
 
         with self.lock:
             items = list(self.raw[DIAGNOSTICS])
@@ -165,7 +167,7 @@ class Watcher:
 
 
 def _polled_group(w: Watcher):
-    from haptic_teleop.nodes.common import _polled_group_class
+    from haptic_teleop.nodes.messages import _polled_group_class
 
     return _polled_group_class()()
 
@@ -607,7 +609,7 @@ def test_blackout_window_is_in_scene_time_and_drops_exactly_the_packets_sent_ins
     does: a blackout window of scene time loses every packet sent inside it and no other. Before,
     the links ran on the node clock (~1.8e9 s since 1970), so a window of [0.3, 0.5) s never
     opened and every packet was delivered."""
-    from haptic_teleop.core.network import DELIVERED, LOST_LATE, LOST_NETWORK
+    from haptic_teleop.core.link import DELIVERED, LOST_LATE, LOST_NETWORK
     from haptic_teleop.record.reader import BagReader
 
     window = (0.3, 0.5)
@@ -644,7 +646,7 @@ P_NS = 1_000_000
 
 
 def test_next_tick_runs_late_ticks_up_to_the_bound_then_skips_to_the_newest():
-    from haptic_teleop.nodes.common import next_tick
+    from haptic_teleop.nodes.rtloop import next_tick
 
     assert next_tick(10, 10 * P_NS + 5, P_NS, 0, 10) == (10, 0)  # on time
     assert next_tick(10, 17 * P_NS, P_NS, 0, 10) == (10, 0)  # 7 periods late: still run, late
@@ -658,7 +660,7 @@ def test_next_tick_runs_late_ticks_up_to_the_bound_then_skips_to_the_newest():
 
 
 def test_member_ticks_between_counts_a_slower_members_own_deadlines():
-    from haptic_teleop.nodes.common import member_ticks_between
+    from haptic_teleop.nodes.rtloop import member_ticks_between
 
     for k0, k1, every in [(5, 13, 4), (4, 8, 4), (3, 4, 4), (7, 30, 1), (0, 250, 7)]:
         assert member_ticks_between(k0, k1, every) == sum(1 for k in range(k0, k1) if k % every == 0)
@@ -682,7 +684,7 @@ class _MadeUpClock:
 
 
 def _run_loop_thread(max_catch_up: int, stall_periods: int, n: int = 60):
-    from haptic_teleop.nodes.common import LoopThread
+    from haptic_teleop.nodes.rtloop import LoopThread
 
     clock = _MadeUpClock()
     ran: list[int] = []
@@ -720,7 +722,7 @@ def test_loop_thread_skips_beyond_the_bound_and_counts_what_it_skipped():
 
 
 def test_shared_loop_catches_up_every_member_and_counts_skips_per_member():
-    from haptic_teleop.nodes.common import SharedLoop
+    from haptic_teleop.nodes.rtloop import SharedLoop
 
     for bound, stall in [(10, 6), (0, 6)]:
         clock = _MadeUpClock()
@@ -762,7 +764,7 @@ def test_loop_stats_reports_give_exact_figures_between_two_reports():
     """What `bench live` computes from two diagnostics reports: ticks run per second of wall time,
     late ticks and lateness percentiles of exactly the ticks in between."""
     from haptic_teleop.benchmarks.live import window_figures
-    from haptic_teleop.nodes.common import LoopStats
+    from haptic_teleop.nodes.rtloop import LoopStats
 
     st = LoopStats(P_NS)
     lateness = [(i * 7919) % 2500 * 1000 + 100 for i in range(3000)]  # 0.1 us to 2.5 ms, fixed
@@ -785,7 +787,7 @@ def test_loop_stats_reports_give_exact_figures_between_two_reports():
 
 
 def test_lateness_histogram_bins_are_an_eighth_of_an_octave():
-    from haptic_teleop.nodes.common import LATENESS_BINS, lateness_bins
+    from haptic_teleop.nodes.rtloop import LATENESS_BINS, lateness_bins
 
     us = np.array([0.0, 0.5, 1.0, 2 ** (1 / 8) * 1.0001, 2.0001, 1000.0, 1e9])
     assert lateness_bins(us * 1e3).tolist() == [0, 0, 0, 1, 8, int(8 * np.log2(1000.0)), LATENESS_BINS - 1]
@@ -797,7 +799,7 @@ def test_wrench_and_eba_bytes_deserialize_to_the_values_given():
     from std_msgs.msg import Float64MultiArray
 
     from haptic_teleop.nodes.cdr import multiarray_codec, wrench_codec
-    from haptic_teleop.nodes.common import EBA_LABELS
+    from haptic_teleop.nodes.topics import EBA_LABELS
 
     stamp = 1_795_000_000_123_456_789
     w = deserialize_message(wrench_codec("wall").encode(stamp, (-3.25,)), WrenchStamped)
@@ -857,7 +859,7 @@ def test_force_command_reaches_reliable_and_best_effort_drivers(tmp_path, reliab
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState
 
-    from haptic_teleop.nodes.common import stream_qos
+    from haptic_teleop.nodes.topics import stream_qos
 
     state_topic, command_topic = "/qos_test/joint_states", "/qos_test/force_command"
     cmd = [sys.executable, "-m", "haptic_teleop.nodes.master_eba", "--ros-args",

@@ -66,7 +66,8 @@ def _records(context, relay) -> np.ndarray:
     """The packet records the relay publishes on /forward/packets (bag row layout), by seq."""
     from std_msgs.msg import Float64MultiArray
 
-    from haptic_teleop.nodes.common import _polled_group_class, reliable_qos, take_all
+    from haptic_teleop.nodes.messages import _polled_group_class, take_all
+    from haptic_teleop.nodes.topics import reliable_qos
 
     node = rclpy.create_node("test_packets", context=context)
     sub = node.create_subscription(Float64MultiArray, "/forward/packets", lambda m: None, reliable_qos(100),
@@ -87,8 +88,8 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
     loses exactly the samples of ticks 3 and 4, the others arrive 2 ms after they were sent."""
     from std_msgs.msg import Header
 
-    from haptic_teleop.core.network import DELIVERED, LOST_NETWORK
-    from haptic_teleop.nodes.common import SCENE_START_TOPIC, latched_qos
+    from haptic_teleop.core.link import DELIVERED, LOST_NETWORK
+    from haptic_teleop.nodes.topics import SCENE_START_TOPIC, latched_qos
 
     relay = _relay(context)
     try:
@@ -128,7 +129,7 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
 def test_first_sample_mode_starts_scene_time_at_the_first_sample(context):
     """`scene_start: first_sample` (a node set without an operator source): scene time 0 is the
     first sample's stamp, so the blackout [3, 5) ms loses the 4th and 5th samples."""
-    from haptic_teleop.core.network import LOST_NETWORK
+    from haptic_teleop.core.link import LOST_NETWORK
 
     relay = _relay(context, scene_start="first_sample")
     try:
@@ -152,7 +153,7 @@ def test_bad_scene_start_mode_is_a_parameter_error(context):
 
 def test_settling_effects_drop_the_time_dependent_parts():
     """The settling link: no blackout; a time-varying delay held at its value at scene time 0."""
-    from haptic_teleop.core.network import (
+    from haptic_teleop.core.netconfig import (
         BlackoutConfig,
         DelayConfig,
         DelayScheduleConfig,

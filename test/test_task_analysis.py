@@ -33,8 +33,19 @@ OFFSET = np.array([0.003, 0.0, -0.004])  # tool minus the delayed handle (m)
 TORQUE = np.array([0.0, 0.25, 0.0])
 RATES = {"master": np.array([0.2, -0.1, 0.3]), "slave": np.array([0.1, 0.2, -0.3, 0.4, -0.5, 0.6])}
 TAUS = {"master": np.array([0.5, 0.5, 0.5]), "slave": np.array([2.0, -1.0, 1.0, 0.3, 0.3, -0.3])}
+# the applied torque alternates TAUS, 2 TAUS, TAUS, ... (tick k's held over [k, k+1])
+
+
+def absorbed(side: str, m: np.ndarray) -> np.ndarray:
+    """Energy each port absorbed by tick m (closed form: sum over k < m of (d r^2 - s_k tau r) T,
+    s_k = 1, 2, 1, 2, ...; the sum of s_k is m + m // 2): (len(m), joints)."""
+    r, tau, d = RATES[side], TAUS[side], np.array(DAMPING[side])
+    m = m[:, None]
+    return T * r * (m * d * r - tau * (m + m // 2))
+
+
 DAMPING = {"master": [0.01, 0.02, 0.03], "slave": [5.0, 5.0, 5.0, 1.0, 1.0, 1.0]}
-E0 = {"master": 0.75, "slave": 0.5}
+E0 = {"master": 1.5, "slave": 0.5}
 
 
 def tool(t: np.ndarray) -> np.ndarray:
@@ -65,7 +76,7 @@ def synthetic_rows() -> np.ndarray:
         p = side[0]
         rows[:, s.group(f"{p}_q")] = RATES[side] * t[:, None]
         rows[:, s.group(f"{p}_qd")] = RATES[side]
-        rows[:, s.group(f"{p}_tau_nm")] = TAUS[side]
+        rows[:, s.group(f"{p}_tau_nm")] = TAUS[side] * (1 + n % 2)[:, None]
         rows[:, s.group(f"{p}_energy_j")] = E0[side]
     rows[:, s.index("fwd_rx_seq")] = np.where(n >= DF, n - DF, -1)
     rows[:, s.index("bwd_rx_seq")] = np.where(n >= DB, n - DB, -1)
@@ -159,11 +170,10 @@ def expected() -> dict[str, float]:
         out[f"force_peak_error_{a}_n"] = abs(float(BIAS[k]))
         out[f"contact_force_max_{a}_n"] = abs(K * (SPEED * t_end - GAP) * NORMAL[k])
     for side in ("master", "slave"):
-        # joints at constant rate r: each tick absorbs (d r^2 - tau r) T; minimum at tick 0 or the end
-        r, tau, d = RATES[side], TAUS[side], np.array(DAMPING[side])
-        per_tick = (d * r * r - tau * r) * T
-        ports = np.minimum(0.0, (N - 1) * per_tick)
-        pooled = min(0.0, (N - 1) * float(np.sum(per_tick)))
+        # joints at constant rate r, the torque alternating: the closed form at every tick
+        every = absorbed(side, np.arange(N))
+        ports = np.min(every, axis=0)
+        pooled = float(np.min(np.sum(every, axis=1)))
         out[f"{side}_port_energy_min_j"] = pooled
         out[f"{side}_energy_margin_min_j"] = E0[side] + pooled
         for j, v in zip(SCHEMA.joints(side), ports, strict=True):
@@ -197,3 +207,124 @@ def test_summary_equals_the_analytic_values(bag):
     for key, value in whole.items():
         if isinstance(value, float) and not math.isnan(value):
             assert streamed[key] == pytest.approx(value, rel=1e-12, abs=1e-15), key
+
+
+def test_plots_draw_paths_wall_forces_and_ports(bag, tmp_path):
+    from haptic_teleop.analysis.plotdata import TaskPlotData, from_bag
+    from haptic_teleop.analysis.plots import task_energy_figure, task_forces_figure, task_path_figure, write_plots
+
+    data = from_bag(bag)
+    assert isinstance(data, TaskPlotData)
+    written = write_plots(data, tmp_path / "plots")
+    assert [p.name for p in written] == ["paths.png", "forces.png", "energy.png"]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in written)
+    t_end = (N - 1) * T
+    # paths: the tool's line from its start to its end, in mm; the wall's trace in the front view
+    # (x-z) lies in the plane
+    fig = task_path_figure(data)
+    front = next(ax for ax in fig.axes if ax.get_title() == "front (x-z)")
+    lines = {ln.get_label(): ln for ln in front.get_lines()}
+    tool_line = lines["slave tool"]
+    ends = np.array([[tool_line.get_xdata()[k], tool_line.get_ydata()[k]] for k in (0, -1)])
+    assert ends == pytest.approx(tool(np.array([0.0, t_end]))[:, [0, 2]] * 1e3)
+    wall = lines["wall (cut at the contact)"]
+    for x_mm, z_mm in zip(wall.get_xdata(), wall.get_ydata(), strict=True):
+        point = np.array([x_mm, P[1] * 1e3, z_mm]) * 1e-3
+        assert float((P - point) @ NORMAL) == pytest.approx(0.0, abs=1e-12)
+    # forces: per axis, the contact force reaches K * depth * n; the rendered force holds the bias
+    fig = task_forces_figure(data)
+    for k, ax in enumerate(fig.axes[:3]):
+        got = {ln.get_label(): np.asarray(ln.get_ydata()) for ln in ax.get_lines()}
+        c = got["contact force at the tool"]
+        assert c[np.argmax(np.abs(c))] == pytest.approx(K * (SPEED * t_end - GAP) * NORMAL[k])
+        assert got["force rendered at the handle"][0] == pytest.approx(BIAS[k])
+    depth_line = fig.axes[3].get_lines()[0]
+    assert max(depth_line.get_ydata()) == pytest.approx((SPEED * t_end - GAP) * 1e3)
+    # energy: the pooled margin ends at E0 plus what every port absorbed
+    fig = task_energy_figure(data)
+    for ax, side in zip(fig.axes, ("master", "slave"), strict=True):
+        pooled = next(ln for ln in ax.get_lines() if ln.get_label() == "pooled margin")
+        end = float(np.sum(absorbed(side, np.array([N - 1]))))
+        assert pooled.get_ydata()[-1] == pytest.approx(E0[side] + end)
+
+
+def test_cli_analyze_of_an_n_dof_bag(bag, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.cli", "analyze", str(bag), "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["penetration_max_m"] == pytest.approx(SPEED * (N - 1) * T - GAP)
+    assert summary["slave_joints"] == list(SCHEMA.slave_joints)
+    assert {p.name for p in (out / "plots").iterdir()} == {"paths.png", "forces.png", "energy.png"}
+
+
+def test_summary_streams_chunk_by_chunk(bag, monkeypatch):
+    """The summary of an n-DoF bag comes from the streaming pass (never the whole-bag arrays),
+    across the bag's chunks."""
+    from haptic_teleop.analysis import taskmetrics
+
+    with BagReader(bag) as r:
+        blocks = list(r.log_blocks("/slave/joint_states"))
+    assert len(blocks) > 3  # the topic spans several chunks
+
+    def whole(*_a, **_k):
+        raise AssertionError("the whole-bag path was taken")
+
+    monkeypatch.setattr(taskmetrics, "load_task_signals", whole)
+    s = summarize_bag(bag)
+    assert s["penetration_max_m"] == pytest.approx(expected()["penetration_max_m"])
+
+
+def test_reader_decodes_n_dof_messages_of_other_tools(tmp_path):
+    """Another tool's n-DoF bag (other frames, so other byte layouts; sqlite3 storage) reads back by
+    field names: the schema from its joint states, poses and wrenches per axis."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    ts = get_typestore(Stores.LATEST)
+    t = ts.types
+    stamp = t["builtin_interfaces/msg/Time"](sec=0, nanosec=0)
+    hdr = t["std_msgs/msg/Header"](stamp=stamp, frame_id="base_link_of_another_robot")
+    v3 = t["geometry_msgs/msg/Vector3"]
+    msgs = {
+        "/operator/joint_states": t["sensor_msgs/msg/JointState"](
+            header=hdr, name=["hx", "hy", "hz"], position=np.zeros(3), velocity=np.zeros(3), effort=np.zeros(3)
+        ),
+        "/master/joint_states": t["sensor_msgs/msg/JointState"](
+            header=hdr, name=list(SCHEMA.master_joints), position=np.array([1.0, 2.0, 3.0]),
+            velocity=np.zeros(3), effort=np.array([4.0, 5.0, 6.0]),
+        ),
+        "/slave/joint_states": t["sensor_msgs/msg/JointState"](
+            header=hdr, name=list(SCHEMA.slave_joints), position=np.arange(6.0), velocity=np.zeros(6),
+            effort=np.arange(6.0) + 10,
+        ),
+        "/slave/tool_pose": t["geometry_msgs/msg/PoseStamped"](
+            header=hdr,
+            pose=t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](x=0.1, y=0.2, z=0.3),
+                orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            ),
+        ),
+        "/slave/contact_wrench": t["geometry_msgs/msg/WrenchStamped"](
+            header=hdr,
+            wrench=t["geometry_msgs/msg/Wrench"](force=v3(x=1.0, y=2.0, z=3.0), torque=v3(x=4.0, y=5.0, z=6.0)),
+        ),
+    }  # fmt: skip
+    with Writer(tmp_path / "other", version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        for topic, msg in msgs.items():
+            c = w.add_connection(topic, msg.__msgtype__, typestore=ts)
+            w.write(c, 0, bytes(ts.serialize_cdr(msg, msg.__msgtype__)))
+    with BagReader(tmp_path / "other") as r:
+        assert r.schema == SCHEMA
+        assert r.read("/slave/tool_pose").values.tolist() == [[0.1, 0.2, 0.3]]
+        assert r.read("/slave/contact_wrench").values.tolist() == [[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]]
+        js = r.read("/slave/joint_states")
+        assert js.field("effort[wrist_3]").tolist() == [15.0]
+        assert r.read("/master/joint_states").field("position[elbow]").tolist() == [3.0]

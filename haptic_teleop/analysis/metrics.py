@@ -12,7 +12,7 @@ import numpy as np
 import yaml
 
 from haptic_teleop.analysis.energy import energy_margins
-from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
 

@@ -31,7 +31,7 @@ from haptic_teleop.analysis.timeline import (
     loss_causes,
     skip_times,
 )
-from haptic_teleop.core.network import DELIVERED, LOST_LATE
+from haptic_teleop.core.link import DELIVERED, LOST_LATE
 
 MAX_POINTS = 20_000
 
@@ -415,12 +415,19 @@ def from_signals(sig: Signals) -> PlotData:
 # From a bag, streaming
 
 
-def from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData:
+def from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData | TaskPlotData:
     """PlotData of a bag in streaming passes (the module docstring); whole if it cannot stream.
+    An n-DoF bag gives its TaskPlotData (`task_from_bag`).
 
     `alignment_lag_s`: summary.json's `force_alignment_lag_s` of this bag, if known (saves the
     passes that find it)."""
     from haptic_teleop.analysis.stream import NotStreamable
+    from haptic_teleop.record.reader import BagReader
+
+    with BagReader(bag) as r:
+        single = r.schema.single_axis
+    if not single:
+        return task_from_bag(bag, alignment_lag_s)
 
     try:
         return _from_bag(bag, alignment_lag_s)
@@ -820,4 +827,100 @@ def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData
         positions_mm={k: env[k].result() for k in ("operator", "master", "slave")},
         energy=energy,
         network=network,
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# n-DoF runs (task space): the handle's and the tool's paths, forces per axis, energy per port
+
+
+@dataclass
+class TaskPlotData:
+    """What the plots of an n-DoF run draw (a bag whose tick schema has 2 or 3 task axes)."""
+
+    scene: dict[str, Any]
+    period_s: float
+    ticks: int
+    axes: tuple[str, ...]
+    lag_ticks: int
+    handle_path_m: np.ndarray  # (M, axes): every k-th tick's handle point (task frame), M <= MAX_POINTS
+    tool_path_m: np.ndarray
+    wall: tuple[np.ndarray, np.ndarray] | None  # point, unit normal out of the wall
+    rendered: dict[str, Series]  # per axis: force rendered at the handle
+    contact: dict[str, Series]  # per axis: contact force at the tool
+    penetration_mm: Series
+    joint_energy: dict[str, dict[str, Series]]  # side -> joint -> energy absorbed since tick 0 (J)
+    pooled_margin: dict[str, Series]  # side -> initial energy + what all its ports absorbed (J)
+
+
+def task_from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> TaskPlotData:
+    """TaskPlotData of an n-DoF bag in one streaming pass over its tick topics (memory of a chunk
+    and of the plot's columns); the path keeps every k-th tick, at most MAX_POINTS of them."""
+    import yaml
+
+    from haptic_teleop.analysis.metrics import penetration, read_run_info, wall_plane
+    from haptic_teleop.analysis.stream import _aligned_blocks, _tick_count, _tick_rows
+    from haptic_teleop.analysis.taskmetrics import TASK_TOPICS, _Ports, _side_energy, _split_joints
+    from haptic_teleop.record.reader import BagReader
+
+    with BagReader(bag) as r:
+        schema = r.schema
+        sc = yaml.safe_load(r.string("/haptic_teleop/scene"))
+        run_info = read_run_info(r)
+        T = float(sc["scene"]["period_s"])
+        n, _ = _tick_count(r)
+        a = schema.task_axes
+        if alignment_lag_s is None:
+            from haptic_teleop.analysis.stream import network_pass
+
+            alignment_lag_s = network_pass(r, sc, T, n * T).backward_lag * T
+        lag = int(round(alignment_lag_s / T))
+        plane = wall_plane(sc, run_info, a)
+        stride = max(1, -(-n // MAX_POINTS))
+        paths: dict[str, list[np.ndarray]] = {"handle": [], "tool": []}
+        rendered = [Envelope(n) for _ in range(a)]
+        contact = [Envelope(n) for _ in range(a)]
+        depth = Envelope(n)
+        sides = {"master": schema.master_joints, "slave": schema.slave_joints}
+        ports: dict[str, _Ports] = {}
+        e0: dict[str, float] = {}
+        joint_env = {side: [Envelope(n) for _ in joints] for side, joints in sides.items()}
+        pooled_env = {side: Envelope(n) for side in sides}
+        for side, joints in sides.items():
+            damping, e0[side] = _side_energy(sc, run_info, side, len(joints))
+            ports[side] = _Ports(damping, T)
+        seen = 0
+        for hx, tx, rf, _af, cw, mj, sj in _aligned_blocks([_tick_rows(r, t) for t in TASK_TOPICS]):
+            take = min(hx.shape[0], n - seen)
+            if take <= 0:
+                break
+            t = np.arange(seen, seen + take) * T
+            first = (-seen) % stride
+            paths["handle"].append(hx[first:take:stride, :a])
+            paths["tool"].append(tx[first:take:stride, :a])
+            for k in range(a):
+                rendered[k].add(t, rf[:take, k])
+                contact[k].add(t, cw[:take, k])
+            depth.add(t, penetration(tx[:take, :a], plane) * 1e3)
+            for side, rows in (("master", mj), ("slave", sj)):
+                q, tau = _split_joints(rows[:take], len(sides[side]))
+                cum = ports[side].absorbed(q, tau)
+                for j, env in enumerate(joint_env[side]):
+                    env.add(t, cum[:, j])
+                pooled_env[side].add(t, e0[side] + np.sum(cum, axis=1))
+            seen += take
+    return TaskPlotData(
+        scene=sc,
+        period_s=T,
+        ticks=n,
+        axes=schema.axes,
+        lag_ticks=lag,
+        handle_path_m=np.concatenate(paths["handle"]) if paths["handle"] else np.zeros((0, a)),
+        tool_path_m=np.concatenate(paths["tool"]) if paths["tool"] else np.zeros((0, a)),
+        wall=plane,
+        rendered={ax: rendered[k].result() for k, ax in enumerate(schema.axes)},
+        contact={ax: contact[k].result() for k, ax in enumerate(schema.axes)},
+        penetration_mm=depth.result(),
+        joint_energy={s: {j: env.result() for j, env in zip(sides[s], joint_env[s], strict=True)} for s in sides},
+        pooled_margin={s: pooled_env[s].result() for s in sides},
     )

@@ -19,8 +19,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
 from haptic_teleop.analysis.metrics import Signals, port_energy
-from haptic_teleop.analysis.plotdata import PlotData, Series, from_signals
-from haptic_teleop.core.network import CANONICAL_ORDER
+from haptic_teleop.analysis.plotdata import PlotData, Series, TaskPlotData, from_signals
+from haptic_teleop.core.link import CANONICAL_ORDER
 
 DPI = 100
 
@@ -269,14 +269,175 @@ FIGURES: dict[str, Callable[[Data], Figure]] = {
 }
 
 
-def write_plots(data: Data, out_dir: Path) -> list[Path]:
-    """Every figure of FIGURES as a PNG in out_dir; the paths written."""
-    d = _data(data)
+def write_plots(data: Data | TaskPlotData, out_dir: Path) -> list[Path]:
+    """Every figure of FIGURES (TASK_FIGURES for an n-DoF run) as a PNG in out_dir; the paths written."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
+    if isinstance(data, TaskPlotData):
+        for name, build_task in TASK_FIGURES.items():
+            p = out_dir / name
+            build_task(data).savefig(p, dpi=DPI)
+            paths.append(p)
+        return paths
+    d = _data(data)
     for name, build in FIGURES.items():
         fig = build(d)
         p = out_dir / name
         fig.savefig(p, dpi=DPI)
         paths.append(p)
     return paths
+
+
+# ------------------------------------------------------------------------------------------------
+# n-DoF runs
+
+HANDLE_COLOR, TOOL_COLOR, WALL_COLOR = "tab:blue", "tab:green", "tab:red"
+
+
+def _task_title(d: TaskPlotData) -> str:
+    return f"{d.scene['scene']['name']} (seed {d.scene['scene']['seed']})"
+
+
+def _wall_patch(d: TaskPlotData, lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """Corners (k, 3) of the wall plane's cut through the box [lo, hi] (its intersections with the
+    box's 12 edges, in order around the plane), in mm; None if it misses the box."""
+    if d.wall is None:
+        return None
+    p, n = d.wall
+    corners = np.array([[(lo, hi)[(c >> a) & 1][a] for a in range(3)] for c in range(8)])
+    side = (corners - p) @ n
+    points = []
+    for a in range(8):
+        for b in range(a + 1, 8):
+            if bin(a ^ b).count("1") == 1 and side[a] * side[b] <= 0 and side[a] != side[b]:
+                f = side[a] / (side[a] - side[b])
+                points.append(corners[a] + f * (corners[b] - corners[a]))
+    if len(points) < 3:
+        return None
+    pts = np.array(points)
+    centre = pts.mean(axis=0)
+    u = pts[0] - centre if np.linalg.norm(pts[0] - centre) > 0 else np.cross(n, [1.0, 0.0, 0.0])
+    v = np.cross(n, u)
+    order = np.argsort(np.arctan2((pts - centre) @ v, (pts - centre) @ u))
+    patch: np.ndarray = pts[order] * 1e3
+    return patch
+
+
+def _wall_trace(
+    d: TaskPlotData, i: int, j: int, k: int, level: float, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The wall plane cut at axis k = level, in the (i, j) projection (m), across the box [lo, hi];
+    None when the plane is parallel to the projection."""
+    if d.wall is None:
+        return None
+    p, n = d.wall
+    rest = n[k] * (level - p[k])
+    if abs(n[j]) >= abs(n[i]) and abs(n[j]) > 1e-9:
+        u = np.linspace(lo[i], hi[i], 2)
+        return u, p[j] - (n[i] * (u - p[i]) + rest) / n[j]
+    if abs(n[i]) > 1e-9:
+        w = np.linspace(lo[j], hi[j], 2)
+        return p[i] - (n[j] * (w - p[j]) + rest) / n[i], w
+    return None
+
+
+def task_path_figure(d: TaskPlotData) -> Figure:
+    """The handle's and the tool's paths in the task frame (mm): a 3-D view and the three
+    orthogonal projections, with the wall plane (a patch in 3-D, its trace through the tool's
+    point nearest the wall in each projection: where it meets the wall)."""
+    fig = Figure(figsize=(12, 10))
+    h, tl = d.handle_path_m, d.tool_path_m
+    both = np.concatenate([h, tl]) if h.size or tl.size else np.zeros((1, 3))
+    # one cube around both paths: equal scales in every view
+    mid = (both.min(axis=0) + both.max(axis=0)) / 2
+    half = 0.55 * float(np.max(both.max(axis=0) - both.min(axis=0))) + 1e-3
+    lo, hi = mid - half, mid + half
+    ax3 = fig.add_subplot(2, 2, 1, projection="3d")
+    for path, label, color in ((h, "master handle", HANDLE_COLOR), (tl, "slave tool", TOOL_COLOR)):
+        if path.shape[0]:
+            ax3.plot(*(path * 1e3).T, color=color, lw=1.2, label=label)
+            ax3.scatter(*(path[:1] * 1e3).T, color=color, marker="o", s=20)
+    patch = _wall_patch(d, lo, hi)
+    if patch is not None:
+        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+        ax3.add_collection3d(Poly3DCollection([patch], alpha=0.2, facecolor=WALL_COLOR, edgecolor=WALL_COLOR))
+    ax3.set_xlabel("x (mm)")
+    ax3.set_ylabel("y (mm)")
+    ax3.set_zlabel("z (mm)")
+    ax3.set_xlim(lo[0] * 1e3, hi[0] * 1e3)
+    ax3.set_ylim(lo[1] * 1e3, hi[1] * 1e3)
+    ax3.set_zlim(lo[2] * 1e3, hi[2] * 1e3)
+    ax3.legend(loc="upper left", fontsize=8)
+    ax3.set_title("3-D (circles: start)")
+    near = tl[int(np.argmin(np.abs((tl - d.wall[0]) @ d.wall[1])))] if d.wall is not None and tl.shape[0] else lo
+    for pos, (i, j, k, title) in zip(
+        (2, 3, 4), ((0, 1, 2, "top (x-y)"), (0, 2, 1, "front (x-z)"), (1, 2, 0, "side (y-z)")), strict=True
+    ):
+        ax = fig.add_subplot(2, 2, pos)
+        for path, label, color in ((h, "master handle", HANDLE_COLOR), (tl, "slave tool", TOOL_COLOR)):
+            if path.shape[0]:
+                ax.plot(path[:, i] * 1e3, path[:, j] * 1e3, color=color, lw=1.2, label=label)
+                ax.plot(path[0, i] * 1e3, path[0, j] * 1e3, "o", color=color, ms=4)
+        trace = _wall_trace(d, i, j, k, float(near[k]), lo, hi)
+        if trace is not None:
+            ax.plot(trace[0] * 1e3, trace[1] * 1e3, color=WALL_COLOR, lw=1.5, label="wall (cut at the contact)")
+        ax.set_xlim(lo[i] * 1e3, hi[i] * 1e3)
+        ax.set_ylim(lo[j] * 1e3, hi[j] * 1e3)
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel(f"{d.axes[i]} (mm)")
+        ax.set_ylabel(f"{d.axes[j]} (mm)")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+        if pos == 2:
+            ax.legend(loc="best", fontsize=8)
+    fig.suptitle(f"Paths in the task frame: {_task_title(d)}")
+    fig.tight_layout()
+    return fig
+
+
+def task_forces_figure(d: TaskPlotData) -> Figure:
+    """Per task axis: the force rendered at the master handle and the contact force at the slave
+    tool (task frame); below, the tool's penetration into the wall."""
+    rows = len(d.axes) + 1
+    fig = Figure(figsize=(11, 2.4 * rows))
+    axs = fig.subplots(rows, 1, sharex=True, height_ratios=(*([3] * len(d.axes)), 2))
+    for ax, a in zip(axs, d.axes, strict=False):
+        _plot(ax, d.contact[a], label="contact force at the tool", color="tab:red", lw=1.2)
+        _plot(ax, d.rendered[a], label="force rendered at the handle", color="tab:blue", lw=1.2)
+        ax.set_ylabel(f"force {a} (N)")
+        ax.grid(alpha=0.3)
+    axs[0].legend(loc="best", fontsize=8)
+    axs[0].set_title(f"Forces per axis (task frame): {_task_title(d)}")
+    _plot(axs[-1], d.penetration_mm, color=WALL_COLOR, lw=1.0)
+    axs[-1].set_ylabel("penetration (mm)")
+    axs[-1].set_xlabel("time (s)")
+    axs[-1].grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def task_energy_figure(d: TaskPlotData) -> Figure:
+    """Per side: the energy each joint port absorbed since the start, and the side's pooled margin
+    (initial energy plus what all its ports absorbed; >= 0: passive)."""
+    fig = Figure(figsize=(11, 6.5))
+    axs = fig.subplots(2, 1, sharex=True)
+    for ax, side in zip(axs, ("master", "slave"), strict=True):
+        for joint, series in d.joint_energy[side].items():
+            _plot(ax, series, label=joint, lw=0.9)
+        _plot(ax, d.pooled_margin[side], label="pooled margin", color="k", lw=1.6)
+        ax.axhline(0.0, color="0.4", lw=0.8)
+        ax.set_ylabel(f"{side} energy (J)")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8, frameon=False)
+        ax.grid(alpha=0.3)
+    axs[0].set_title(f"Energy per port: {_task_title(d)}")
+    axs[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    return fig
+
+
+TASK_FIGURES: dict[str, Callable[[TaskPlotData], Figure]] = {
+    "paths.png": task_path_figure,
+    "forces.png": task_forces_figure,
+    "energy.png": task_energy_figure,
+}

@@ -39,7 +39,7 @@ from haptic_teleop.analysis.metrics import (
     simulator_damping,
     wall_plane,
 )
-from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.reader import BagReader
 
@@ -581,8 +581,6 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         n, last_log = _tick_count(r)
         duration = float(last_log * 1e-9 + T)
         if not r.schema.single_axis:
-            from haptic_teleop.analysis.taskmetrics import stream_task_summary
-
             return stream_task_summary(r, sc, run_info, n, duration)
         np_ = network_pass(r, sc, T, duration)
         nets = np_.nets
@@ -665,3 +663,40 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         "rejected_samples_forward": int(run_info.get("rejected_samples_forward", 0)),
         "rejected_samples_backward": int(run_info.get("rejected_samples_backward", 0)),
     }
+
+
+def stream_task_summary(
+    r: BagReader, sc: dict[str, Any], run_info: dict[str, Any], n: int, duration: float
+) -> dict[str, Any]:
+    """summary.json of an n-DoF bag chunk by chunk (the keys and values of
+    `taskmetrics.compute_task_summary`)."""
+    from haptic_teleop.analysis.taskmetrics import TASK_TOPICS, TaskAccumulator, _split_joints
+
+    schema = r.schema
+    for topic in TASK_TOPICS:
+        if not r.has(topic):
+            r._messages(topic)  # raises the reader's missing-topic error
+    T = float(sc["scene"]["period_s"])
+    np_ = network_pass(r, sc, T, duration)
+    nets = dict(np_.nets)
+    counts = {k: nets.pop(k) for k in [k for k in nets if k.startswith("packets_")]}
+    acc = TaskAccumulator(schema, sc, run_info, T, np_.forward_lag, np_.backward_lag, np_.net_lag)
+    a = schema.task_axes
+    nm, ns = len(schema.master_joints), len(schema.slave_joints)
+    seen = 0
+    for hx, tx, rf, af, cw, mj, sj in _aligned_blocks([_tick_rows(r, t) for t in TASK_TOPICS]):
+        take = min(hx.shape[0], n - seen)
+        seen += take
+        acc.add(
+            hx[:take, :a],
+            tx[:take, :a],
+            rf[:take, :a],
+            af[:take, :a],
+            cw[:take, :a],
+            cw[:take, a : 2 * a],
+            _split_joints(mj[:take], nm),
+            _split_joints(sj[:take], ns),
+        )
+        if seen >= n:
+            break
+    return acc.summary(run_info, n, duration, counts, nets, np_.lat_f, np_.lat_b)

@@ -14,7 +14,8 @@ normal -x). The tool is `(p - x) . n` deep in it where that is positive.
 
 Two paths give the same numbers (to round-off in sums): `compute_task_summary(load_task_signals(bag))`
 holds every signal at once (the reference, and the fallback for bags not in order), and
-`stream_task_summary` goes through the bag chunk by chunk in bounded memory.
+`stream.stream_task_summary` goes through the bag chunk by chunk in bounded memory, feeding the
+same accumulator (`TaskAccumulator`) block by block.
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ def _quantiles(d: np.ndarray) -> tuple[float, float]:
 
 def compute_task_summary(sig: TaskSignals) -> dict[str, Any]:
     """summary.json of an n-DoF run from its whole signals (the reference for `stream_task_summary`)."""
-    from haptic_teleop.core.network import DEFAULT_OVERHEAD_BYTES
+    from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 
     sc, T, schema = sig.scene, sig.period_s, sig.schema
     duration = float(sig.t_s[-1] + T)
@@ -173,7 +174,7 @@ def compute_task_summary(sig: TaskSignals) -> dict[str, Any]:
     backward_lag = _lag(sig.backward_delays_s, T) + 1
     p50 = nets.get("delay_backward_p50_s", math.nan)
     net_lag = int(round(p50 / T)) + 1 if math.isfinite(p50) else backward_lag
-    acc = _TaskAccumulator(schema, sc, sig.run_info, T, forward_lag, backward_lag, net_lag)
+    acc = TaskAccumulator(schema, sc, sig.run_info, T, forward_lag, backward_lag, net_lag)
     acc.add(
         sig.master_x_m,
         sig.slave_x_m,
@@ -271,23 +272,31 @@ class _Ports:
         self.pooled_low = 0.0
         self.prev: tuple[np.ndarray, np.ndarray] | None = None
 
-    def add(self, q: np.ndarray, tau: np.ndarray) -> None:
+    def absorbed(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The next rows' (q, tau): each row's absorbed energy per port since tick 0 (rows, ports)."""
+        first = self.prev is None
         if self.prev is not None:
             q = np.concatenate([self.prev[0], q])
             tau = np.concatenate([self.prev[1], tau])
+        if not q.shape[0]:
+            return np.zeros((0, self.d.size))
         self.prev = (q[-1:], tau[-1:])
-        if q.shape[0] < 2:
-            return
         dq = np.diff(q, axis=0)
         step = (self.d / self.T) * dq * dq - tau[:-1] * dq
-        cum = np.cumsum(np.concatenate([self.total[None, :], step]), axis=0)[1:]
-        self.total = cum[-1].copy()
-        self.low = np.minimum(self.low, np.min(cum, axis=0))
-        pooled = cum[:, 0] if cum.shape[1] == 1 else np.sum(cum, axis=1)
-        self.pooled_low = min(self.pooled_low, float(np.min(pooled)))
+        cum = np.cumsum(np.concatenate([self.total[None, :], step]), axis=0)
+        cum = cum if first else cum[1:]  # tick 0 absorbed nothing; later blocks start after the carry
+        if cum.shape[0]:
+            self.total = cum[-1].copy()
+            self.low = np.minimum(self.low, np.min(cum, axis=0))
+            pooled = cum[:, 0] if cum.shape[1] == 1 else np.sum(cum, axis=1)
+            self.pooled_low = min(self.pooled_low, float(np.min(pooled)))
+        return cum
+
+    def add(self, q: np.ndarray, tau: np.ndarray) -> None:
+        self.absorbed(q, tau)
 
 
-class _TaskAccumulator:
+class TaskAccumulator:
     def __init__(
         self,
         schema: TickSchema,
@@ -402,39 +411,3 @@ class _TaskAccumulator:
         out["rejected_samples_forward"] = int(run_info.get("rejected_samples_forward", 0))
         out["rejected_samples_backward"] = int(run_info.get("rejected_samples_backward", 0))
         return out
-
-
-def stream_task_summary(
-    r: BagReader, sc: dict[str, Any], run_info: dict[str, Any], n: int, duration: float
-) -> dict[str, Any]:
-    """summary.json of an n-DoF bag chunk by chunk (the keys and values of `compute_task_summary`)."""
-    from haptic_teleop.analysis.stream import _aligned_blocks, _tick_rows, network_pass
-
-    schema = r.schema
-    for topic in TASK_TOPICS:
-        if not r.has(topic):
-            r._messages(topic)  # raises the reader's missing-topic error
-    T = float(sc["scene"]["period_s"])
-    np_ = network_pass(r, sc, T, duration)
-    nets = dict(np_.nets)
-    counts = {k: nets.pop(k) for k in [k for k in nets if k.startswith("packets_")]}
-    acc = _TaskAccumulator(schema, sc, run_info, T, np_.forward_lag, np_.backward_lag, np_.net_lag)
-    a = schema.task_axes
-    nm, ns = len(schema.master_joints), len(schema.slave_joints)
-    seen = 0
-    for hx, tx, rf, af, cw, mj, sj in _aligned_blocks([_tick_rows(r, t) for t in TASK_TOPICS]):
-        take = min(hx.shape[0], n - seen)
-        seen += take
-        acc.add(
-            hx[:take, :a],
-            tx[:take, :a],
-            rf[:take, :a],
-            af[:take, :a],
-            cw[:take, :a],
-            cw[:take, a : 2 * a],
-            _split_joints(mj[:take], nm),
-            _split_joints(sj[:take], ns),
-        )
-        if seen >= n:
-            break
-    return acc.summary(run_info, n, duration, counts, nets, np_.lat_f, np_.lat_b)

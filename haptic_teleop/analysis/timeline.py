@@ -4,7 +4,7 @@ Inputs are the rows of `/forward/packets` or `/backward/packets` (columns per
 `haptic_teleop.record.layouts.PACKET_FIELDS`: seq, send_time_s, arrival_time_s, fate, duplicate, size_bytes),
 the samples the playout buffer released (`/<direction>/received`: the sequence number of each and
 its release time), and the scene recorded in the bag. Fate codes are those of
-`haptic_teleop.core.network` (docs/network.md, "Fates").
+`haptic_teleop.core.link` (docs/network.md, "Fates").
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.core.network import LOST_CORRUPT, LOST_LATE, LOST_NETWORK, LOST_QUEUE
+from haptic_teleop.core.link import LOST_CORRUPT, LOST_LATE, LOST_NETWORK, LOST_QUEUE
 
 SEQ, SEND, ARRIVAL, FATE, DUPLICATE, SIZE = range(6)
 

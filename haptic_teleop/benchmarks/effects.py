@@ -78,7 +78,8 @@ def _run_us(engine: Any) -> float:
     """CPU microseconds per tick of one `Engine.run`."""
     t0 = time.thread_time()
     result = engine.run(handle_sigint=False)
-    return (time.thread_time() - t0) / result.ticks * 1e6
+    ticks: int = result.ticks
+    return (time.thread_time() - t0) / ticks * 1e6
 
 
 def calls_per_tick(scene_name: str, overrides: tuple[str, ...], ticks: int = 500) -> float:

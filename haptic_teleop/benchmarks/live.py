@@ -50,7 +50,9 @@ RECOMMENDED = "composed"  # what README and docs/live.md recommend on a machine 
 def _probe_classes() -> tuple[type, type]:
     from sensor_msgs.msg import JointState
 
-    from haptic_teleop.nodes.common import DIAGNOSTICS, JointStateOut, LiveNode, reliable_qos, stamp_ns_of, stream_qos
+    from haptic_teleop.nodes.base import LiveNode
+    from haptic_teleop.nodes.messages import JointStateOut, stamp_ns_of
+    from haptic_teleop.nodes.topics import DIAGNOSTICS, reliable_qos, stream_qos
 
     class HopProbe(LiveNode):
         """Publishes on both hop topics every tick, stamp = the time just before each publish."""
@@ -132,7 +134,7 @@ def _percentiles_us(values: list[int]) -> tuple[float, float, int]:
 
 
 def _hist(text: str) -> np.ndarray:
-    from haptic_teleop.nodes.common import LATENESS_BINS
+    from haptic_teleop.nodes.rtloop import LATENESS_BINS
 
     h = np.zeros(LATENESS_BINS, dtype=np.int64)
     vals = [int(v) for v in text.split()][:LATENESS_BINS]
@@ -144,7 +146,7 @@ def window_figures(reports: list[tuple[float, dict[str, str]]], t0: float, t1: f
     """A node's loop figures between its first diagnostics report at or after `t0` and its last
     at or before `t1` (arrival times, monotonic s), from the reports' cumulative counters; None
     without two such reports."""
-    from haptic_teleop.nodes.common import hist_percentiles_us
+    from haptic_teleop.nodes.rtloop import hist_percentiles_us
 
     inside = [(t, r) for t, r in reports if t0 <= t <= t1 and "last_tick_ns" in r]
     if len(inside) < 2:
@@ -396,7 +398,7 @@ def main(args: Any) -> int:
 
 
 def _probe_main() -> None:
-    from haptic_teleop.nodes.common import run_nodes
+    from haptic_teleop.nodes.base import run_nodes
 
     Probe, _ = _probe_classes()
     sys.exit(run_nodes([Probe], args=[]))

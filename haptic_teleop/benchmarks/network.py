@@ -85,7 +85,8 @@ def per_packet_us(
     count the time other processes hold the core, but sharing the core's caches still slows it,
     so the least of the runs is the figure least disturbed by the neighbours.
     """
-    from haptic_teleop.core.network import NetworkEffectsConfig, Packet, build_link
+    from haptic_teleop.core.link import Packet
+    from haptic_teleop.core.netconfig import NetworkEffectsConfig, build_link
     from haptic_teleop.core.playout import BufferConfig, build_buffer
     from haptic_teleop.schema import build
 

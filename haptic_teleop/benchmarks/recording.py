@@ -39,13 +39,13 @@ class _NoCrc:
 def _crc(on: bool) -> Iterator[None]:
     from haptic_teleop.record import mcap, mcapread
 
-    mcap.zlib = zlib if on else _NoCrc  # type: ignore[assignment]
-    mcapread.zlib = zlib if on else _NoCrc  # type: ignore[assignment]
+    mcap.zlib = zlib if on else _NoCrc  # type: ignore[assignment,attr-defined]
+    mcapread.zlib = zlib if on else _NoCrc  # type: ignore[assignment,attr-defined]
     try:
         yield
     finally:
-        mcap.zlib = zlib
-        mcapread.zlib = zlib
+        mcap.zlib = zlib  # type: ignore[attr-defined]
+        mcapread.zlib = zlib  # type: ignore[attr-defined]
 
 
 def _read_all(bag: Path) -> None:

@@ -110,8 +110,10 @@ def _stage_plants(e: Any, c: Columns) -> float:
 def _stage_controllers(e: Any, c: Columns) -> float:
     mc, sc = e.master_ctrl, e.slave_ctrl
     m_control, s_control = mc.step1, sc.step1
+    m_applied, s_applied = mc.bound.applied1, sc.bound.applied1
     m_set, s_set = mc.set_remote, sc.set_remote
     mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
+    fm, fs = c["m_force_n"], c["s_force_n"]
     # The samples each side received, from the recorded release columns.
     frx = [int(k) for k in c["fwd_rx_seq"]]
     brx = [int(k) for k in c["bwd_rx_seq"]]
@@ -127,6 +129,8 @@ def _stage_controllers(e: Any, c: Columns) -> float:
         p = bwd[n]
         if p is not None:
             m_set(p)
+        m_applied(fm[n])  # the engine reports the applied forces after the plants' step
+        s_applied(fs[n])
     return time.perf_counter() - t0
 
 
@@ -141,7 +145,7 @@ def _stage_operator(e: Any, c: Columns) -> float:
 
 
 def _stage_packets(e: Any, c: Columns) -> float:
-    from haptic_teleop.core.network import Packet
+    from haptic_teleop.core.link import Packet
 
     mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
     period_ns = e.period_ns
@@ -154,7 +158,7 @@ def _stage_packets(e: Any, c: Columns) -> float:
 
 
 def _packets(e: Any, c: Columns) -> tuple[list[Any], list[Any]]:
-    from haptic_teleop.core.network import Packet
+    from haptic_teleop.core.link import Packet
 
     mx, mv, sx, sv, fe = c["m_x_m"], c["m_v_m_per_s"], c["s_x_m"], c["s_v_m_per_s"], c["s_contact_n"]
     period_ns = e.period_ns
@@ -412,7 +416,9 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     if "compiled" in figures and compiled_bare is not None:
         print(f"compiled tick / bare compiled mj_step      {figures['compiled']['tick_us'] / compiled_bare:8.2f} x")
     print(f"Python tick / bare mj_step from Python     {figures['python']['tick_us'] / bare:8.2f} x")
-    if breakdown:
+    if breakdown and scene.config.is_arm:
+        print("(no per-stage breakdown for arm scenes: the stages replay the one-axis tick; docs/arms.md)")
+    elif breakdown:
         rows, loop_us = breakdown_us(scene, repeat)
         print(
             f"where a Python-loop tick's time goes (stages replayed alone, median of {repeat}; loop {loop_us:.2f} us):"

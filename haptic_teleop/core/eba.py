@@ -774,7 +774,9 @@ class CoupledEnergyBound:
         self._last_q = np.zeros(n)
         self._dq = np.zeros(n)
         self._has_last = False
-        self.scale = 1.0  # the last lambda (1: the limited desired torque passed unchanged)
+        # The last lambda (1: the limited desired torque passed unchanged); with a slew limit, the
+        # fraction of the way from the fastest descent to the slew-limited desired torque.
+        self.scale = 1.0
         k = kernels or {}
         self._f_reservoir = k.get("coupled_reservoir", coupled_reservoir)
         self._f_limited = k.get("joint_limited", joint_limited)

@@ -27,7 +27,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from haptic_teleop.core.network import LOST_LATE, Packet
+from haptic_teleop.core.link import LOST_LATE, Packet
 
 POLICIES = ("none", "fixed", "adaptive", "percentile", "transparency")
 GAP_MODES = ("hold", "extrapolate")

@@ -28,7 +28,7 @@ def sensing_rng(seed: int, side: str, effect: str) -> np.random.Generator:
     """An independent random stream for one sensing effect of one side of one run.
 
     The spawn key starts with crc32("sensing"), so these streams never coincide with the network
-    effects' streams (`core.network.effect_rng`, keyed by direction and effect)."""
+    effects' streams (`core.uniform.effect_rng`, keyed by direction and effect)."""
     key = (zlib.crc32(b"sensing"), zlib.crc32(side.encode()), zlib.crc32(effect.encode()))
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 

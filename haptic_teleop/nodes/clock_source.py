@@ -11,7 +11,8 @@ from __future__ import annotations
 from typing import Any
 
 from haptic_teleop.nodes import SCENE_SECTIONS
-from haptic_teleop.nodes.common import LiveNode, declare_scene, declare_value, node_main
+from haptic_teleop.nodes.base import LiveNode, node_main
+from haptic_teleop.nodes.params import declare_scene, declare_value
 
 CLOCK_TOPIC = "/clock"
 
@@ -24,7 +25,7 @@ class ClockSource(LiveNode):
         from rosgraph_msgs.msg import Clock
 
         from haptic_teleop.errors import ConfigError
-        from haptic_teleop.nodes.common import reliable_qos
+        from haptic_teleop.nodes.topics import reliable_qos
 
         if self.simulated_time:
             raise ConfigError(

@@ -8,19 +8,18 @@ from typing import Any
 
 from haptic_teleop.core.watchdog import ForceFade, Watchdog
 from haptic_teleop.nodes import WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes.base import LiveNode
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.messages import EbaOut, take_latest
+from haptic_teleop.nodes.params import declare_value
+from haptic_teleop.nodes.topics import (
     DIRECTION_JOINT,
     MASTER_EBA,
     PAYLOAD_FIELDS,
     SLAVE_EBA,
     WIRE_FIELDS,
-    EbaOut,
-    LiveNode,
-    declare_value,
     received_topic,
     stream_qos,
-    take_latest,
 )
 
 WATCHDOG_PARAMS = ("watchdog.timeout_s", "watchdog.fade_s")
@@ -47,18 +46,26 @@ class EbaSide:
 
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.assembly import build_controller, read_trace, remote_limits
+        from haptic_teleop.assembly import build_controller, remote_limits
+        from haptic_teleop.traces import read_operator_trace
 
         period_s = config.scene.period_s
         self.period_s = period_s
         self.watchdog = declare_watchdog(node, round(period_s * 1e9))
         op = config.operator
         trace = (
-            read_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file") if op.trace_file else None
+            read_operator_trace(Path(op.trace_file), f"node {node.get_name()}", "operator.trace_file")
+            if op.trace_file
+            else None
         )
         plant = config.master if role == "master" else config.slave
         self.ctrl = build_controller(
-            getattr(config.controllers, role), role, period_s, plant.damping_n_s_per_m, remote_limits(config, trace)
+            getattr(config.controllers, role),
+            role,
+            period_s,
+            plant.damping_n_s_per_m,
+            remote_limits(config, trace),
+            plant.effects.saturation,
         )
         self.fade = ForceFade(self.ctrl)
         remote = "backward" if role == "master" else "forward"
@@ -75,6 +82,11 @@ class EbaSide:
             self.watchdog.feed(stamp_ns)
         self.fade.set_gain(self.watchdog.update(stamp_ns))
         return self.ctrl.step(x, v)
+
+    def applied(self, force: Sequence[float]) -> None:
+        """The force the plant applied over the period that follows `step`: the reservoir
+        accounts with it (docs/eba.md, "Actuator limits inside the bound")."""
+        self.ctrl.bound.applied(force)
 
     def publish_internals(self) -> None:
         self._eba_out.publish(self.ctrl.bound.energy_j[0], self.ctrl.force_desired[0])

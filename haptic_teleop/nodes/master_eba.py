@@ -17,25 +17,22 @@ from __future__ import annotations
 from typing import Any
 
 from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES, SCENE_SECTIONS
+from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
+from haptic_teleop.nodes.messages import JointStateOut, WrenchOut, take_latest
+from haptic_teleop.nodes.params import declare_value
+from haptic_teleop.nodes.topics import (
     JOINT_ORDER,
     MASTER_JOINT,
     MASTER_STATE,
     OPERATOR_JOINT,
     OPERATOR_STATE,
     WIRE_FIELDS,
-    JointStateOut,
-    LiveNode,
-    WrenchOut,
-    declare_value,
-    node_main,
     reliable_qos,
     sent_topic,
     stream_qos,
-    take_latest,
 )
-from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
 
 DEVICE_SOURCES = ("plant", "topic")
 
@@ -48,7 +45,7 @@ class MasterEba(LiveNode):
         from sensor_msgs.msg import JointState
 
         from haptic_teleop.assembly import build_master_plant
-        from haptic_teleop.nodes.common import declare_scene
+        from haptic_teleop.nodes.params import declare_scene
 
         names = (
             *WATCHDOG_PARAMS,
@@ -124,6 +121,7 @@ class MasterEba(LiveNode):
         self.forward_out.publish(stamp_ns, (x[0], v[0]))
         if self.plant is not None:
             applied = self.plant.step(f, [self._hand_n])
+            self.side.applied(applied)
         else:
             assert self.command_out is not None
             self.command_out.publish(stamp_ns, f[0])

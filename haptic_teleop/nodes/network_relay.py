@@ -40,29 +40,27 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
-from haptic_teleop.core.network import NetworkEffectsConfig, Packet
+from haptic_teleop.core.link import Packet
+from haptic_teleop.core.netconfig import NetworkEffectsConfig
 from haptic_teleop.nodes import RELAY_SCENE_STARTS, SCENE_SECTIONS
+from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.messages import JointStateOut, take_all
+from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.topics import (
     DIRECTION_JOINT,
     DIRECTIONS,
     PAYLOAD_FIELDS,
     READER_DEPTH,
     SCENE_START_TOPIC,
     WIRE_FIELDS,
-    JointStateOut,
-    LiveNode,
-    declare_scene,
-    declare_value,
     delivered_topic,
     latched_qos,
-    node_main,
     packets_topic,
     reliable_qos,
     scene_start_ns,
     sent_topic,
     stream_qos,
-    take_all,
 )
 
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
@@ -78,7 +76,8 @@ def settling_effects(cfg: NetworkEffectsConfig) -> NetworkEffectsConfig:
     parts. No blackout; a delay schedule, sinusoid or trace is replaced by its value at scene time
     0, added to the constant delay. What is left depends on no absolute time (the token bucket and
     the jitter use differences and counts only)."""
-    from haptic_teleop.core.network import PiecewiseDelay, SinusoidDelay, load_delay_trace
+    from haptic_teleop.core.delay import PiecewiseDelay, SinusoidDelay
+    from haptic_teleop.traces import load_delay_trace
 
     delay = cfg.delay
     if delay is not None:
@@ -117,8 +116,8 @@ class NetworkRelay(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray, Header
 
-        from haptic_teleop.core.network import build_link
         from haptic_teleop.record.layouts import joint_state_size
+        from haptic_teleop.traces import build_scene_link
 
         d, cfg = declare_direction_scene(self, "network_relay", ("scene_start",))
         self.direction = d
@@ -140,8 +139,8 @@ class NetworkRelay(LiveNode):
         self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
         effects = getattr(cfg.network, d).effects
-        self.link = build_link(effects, cfg.scene.seed, d)  # scene time, from 0
-        self.settling = build_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
+        self.link = build_scene_link(effects, cfg.scene.seed, d)  # scene time, from 0
+        self.settling = build_scene_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
         self._fields = PAYLOAD_FIELDS[d]
         self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], WIRE_FIELDS[d])])
         self._size = joint_state_size(3 if d == "backward" else 2)

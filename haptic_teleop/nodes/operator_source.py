@@ -15,24 +15,20 @@ from pathlib import Path
 from typing import Any
 
 from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.messages import JointStateOut, take_latest
+from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.topics import (
     JOINT_ORDER,
     MASTER_JOINT,
     MASTER_STATE,
     OPERATOR_JOINT,
     OPERATOR_STATE,
     SCENE_START_TOPIC,
-    JointStateOut,
-    LiveNode,
-    NodeStopped,
-    declare_scene,
-    declare_value,
     latched_qos,
-    node_main,
     received_topic,
     stream_qos,
-    take_latest,
 )
 
 DEFAULT_WAIT_FOR = ("/slave/joint_states", received_topic("forward"), received_topic("backward"))
@@ -46,13 +42,14 @@ class OperatorSource(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.assembly import build_operator, read_trace
+        from haptic_teleop.assembly import build_operator
+        from haptic_teleop.traces import read_operator_trace
 
         cfg = declare_scene(self, SCENE_SECTIONS["operator_source"], _NAMES)
         op = cfg.operator
         trace = None
         if op.trace_file:
-            trace = read_trace(Path(op.trace_file), f"node {self.get_name()}", "operator.trace_file")
+            trace = read_operator_trace(Path(op.trace_file), f"node {self.get_name()}", "operator.trace_file")
         self.operator = build_operator(op, trace)
         self.wait_for = list(
             declare_value(

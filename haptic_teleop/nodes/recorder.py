@@ -38,9 +38,12 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.core.network import DELIVERED, LOST_LATE
+from haptic_teleop.core.link import DELIVERED, LOST_LATE
 from haptic_teleop.nodes import SCENE_SECTIONS
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.base import LiveNode, node_main
+from haptic_teleop.nodes.messages import take_all, take_all_published_ns
+from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.topics import (
     DIRECTIONS,
     MASTER_EBA,
     MASTER_STATE,
@@ -50,19 +53,13 @@ from haptic_teleop.nodes.common import (
     SLAVE_CONTACT,
     SLAVE_EBA,
     SLAVE_STATE,
-    LiveNode,
-    declare_scene,
-    declare_value,
     latched_qos,
-    node_main,
     packets_topic,
     playout_topic,
     received_topic,
     reliable_qos,
     scene_start_ns,
     stream_qos,
-    take_all,
-    take_all_published_ns,
 )
 
 # Topic -> engine columns it fills (in the topic layout's value order).

@@ -12,19 +12,11 @@ from __future__ import annotations
 from typing import Any
 
 from haptic_teleop.nodes import SCENE_SECTIONS
-from haptic_teleop.nodes.common import (
-    SLAVE_CONTACT,
-    SLAVE_JOINT,
-    SLAVE_STATE,
-    WALL_FRAME,
-    JointStateOut,
-    LiveNode,
-    WrenchOut,
-    declare_scene,
-    node_main,
-    sent_topic,
-)
+from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
+from haptic_teleop.nodes.messages import JointStateOut, WrenchOut
+from haptic_teleop.nodes.params import declare_scene
+from haptic_teleop.nodes.topics import SLAVE_CONTACT, SLAVE_JOINT, SLAVE_STATE, WALL_FRAME, sent_topic
 
 
 class SlaveEba(LiveNode):
@@ -56,6 +48,7 @@ class SlaveEba(LiveNode):
         # JointState field order (position, velocity, effort) carries the payload (f_env, x, v).
         self.backward_out.publish(stamp_ns, (x[0], v[0], fenv[0]))
         applied = plant.step(f)
+        self.side.applied(applied)
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))
         self.contact_out.publish(stamp_ns, fenv[0])
         self.side.publish_internals()

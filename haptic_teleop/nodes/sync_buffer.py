@@ -18,24 +18,22 @@ from __future__ import annotations
 import array
 from typing import Any
 
-from haptic_teleop.core.network import DELIVERED, LOST_LATE, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
+from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.common import (
+from haptic_teleop.nodes.messages import JointStateOut, take_all
+from haptic_teleop.nodes.network_relay import declare_direction_scene
+from haptic_teleop.nodes.topics import (
     DIRECTION_JOINT,
     PAYLOAD_FIELDS,
     READER_DEPTH,
     WIRE_FIELDS,
-    JointStateOut,
-    LiveNode,
     delivered_topic,
-    node_main,
     playout_topic,
     received_topic,
     reliable_qos,
     stream_qos,
-    take_all,
 )
-from haptic_teleop.nodes.network_relay import declare_direction_scene
 
 PLAYOUT_FIELDS = ("seq", "fate")
 _MAX_PENDING = 100_000

@@ -239,6 +239,8 @@ class MujocoArm:
                     f"the tool starts {self.contact_penetration_m() * 1e3:.3g} mm inside the wall; "
                     "allowed: a start configuration with the tool in free space"
                 )
+        self._jac3: np.ndarray | None = None
+        self._jac6: np.ndarray | None = None
         self._fresh = False
 
     # ---------------------------------------------------------------------------------- state
@@ -256,6 +258,7 @@ class MujocoArm:
         if not self._fresh:
             self._mj.mj_step1(self.model, self.data)
             self._fresh = True
+            self._jac3 = self._jac6 = None  # this state's Jacobians: computed once, when first asked
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions (rad) and velocities (rad/s) at the start of the tick (copies)."""
@@ -274,10 +277,12 @@ class MujocoArm:
     def jacobian(self, rotational: bool = False) -> np.ndarray:
         """d(point)/dq, 3 x n (6 x n with the rotational rows under it), this tick."""
         self._step1()
-        self._mj.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self._site)
-        if rotational:
-            return np.vstack((self._jacp[:, self._dadr], self._jacr[:, self._dadr]))
-        return self._jacp[:, self._dadr].copy()
+        if self._jac6 is None:
+            self._mj.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self._site)
+            self._jac6 = np.vstack((self._jacp[:, self._dadr], self._jacr[:, self._dadr]))
+            self._jac3 = np.ascontiguousarray(self._jac6[:3])
+        # copies: a caller may scale its Jacobian in place
+        return self._jac6.copy() if rotational else self._jac3.copy()  # type: ignore[union-attr]
 
     def orientation(self) -> np.ndarray:
         """The point site's rotation matrix (3 x 3, world frame), this tick."""
@@ -339,8 +344,8 @@ class MujocoArm:
         self._step1()
         mj, m, d = self._mj, self.model, self.data
         lo, hi = self.torque_room()
-        tau = np.nan_to_num(np.asarray(torque_nm, dtype=float), nan=0.0, posinf=np.inf, neginf=-np.inf)
-        tau = np.minimum(np.maximum(tau, lo), hi)
+        tau = np.asarray(torque_nm, dtype=float)
+        tau = np.minimum(np.maximum(np.where(np.isnan(tau), 0.0, tau), lo), hi)  # NaN -> 0, then the clip
         d.ctrl[self._act] = tau
         if hand_force_n is not None:
             f = np.asarray(hand_force_n, dtype=float) + self._hand_support

@@ -17,37 +17,31 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.core.network import (
+from haptic_teleop.core.delay import ConstantDelay, Delay, TokenBucket
+from haptic_teleop.core.link import (
     CANONICAL_ORDER,
     DEFAULT_OVERHEAD_BYTES,
     DELIVERED,
     LOST_CORRUPT,
     LOST_NETWORK,
     LOST_QUEUE,
-    BernoulliLoss,
-    ConstantDelay,
-    Delay,
     Link,
-    LossConfig,
-    NetworkEffectsConfig,
     Packet,
-    TokenBucket,
-    build_link,
-    canonical_order,
-    effect_rng,
-    load_delay_trace,
-    load_loss_trace,
-    resolve_trace_paths,
 )
+from haptic_teleop.core.loss import BernoulliLoss
+from haptic_teleop.core.netconfig import LinkTraces, LossConfig, NetworkEffectsConfig, build_link, canonical_order
+from haptic_teleop.core.uniform import effect_rng
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.schema import build
+from haptic_teleop.traces import build_scene_link, load_delay_trace, load_loss_trace, resolve_trace_paths
 
 MS = 1_000_000
 Z = 5.0  # tolerance in standard deviations
 
 
 def make_link(effects: dict, seed: int = 7, direction: str = "forward") -> Link:
-    return build_link(build(NetworkEffectsConfig, effects), seed, direction)
+    # Through the scene layer, which reads the trace files a config names (core reads none).
+    return build_scene_link(build(NetworkEffectsConfig, effects), seed, direction)
 
 
 def run(effects: dict, n: int, seed: int = 7, size: int = 100, period_ns: int = MS, direction: str = "forward") -> Link:
@@ -366,11 +360,28 @@ def test_resolve_trace_paths_makes_relative_paths_absolute(tmp_path: Path):
     resolved = resolve_trace_paths(cfg, tmp_path)
     assert resolved.delay is not None and resolved.delay.trace is not None
     assert Path(resolved.delay.trace.file) == (tmp_path / "d.csv").resolve()
-    assert build_link(cfg, 1, "forward", base_dir=tmp_path).effects[0].name == "delay"
+    assert build_scene_link(cfg, 1, "forward", base_dir=tmp_path).effects[0].name == "delay"
     (tmp_path / "bad.csv").write_text("x\n")
     bad = build(NetworkEffectsConfig, {"loss": {"model": "trace", "file": "bad.csv"}})
     with pytest.raises(ValueError, match=r"bad\.csv"):
         resolve_trace_paths(bad, tmp_path)
+
+
+def test_core_builds_a_trace_link_from_rows_and_reads_no_file(tmp_path: Path):
+    missing = str(tmp_path / "never_written.csv")
+    cfg = build(
+        NetworkEffectsConfig, {"delay": {"trace": {"file": missing}}, "loss": {"model": "trace", "file": missing}}
+    )
+    with pytest.raises(ValueError, match=r"never_written\.csv: its rows were not given \(LinkTraces\.loss\)"):
+        build_link(cfg, 1, "forward")
+    rows = LinkTraces(delay=(np.array([0.0, 1.0]), np.array([0.01, 0.03])), loss=np.array([False, True]))
+    link = build_link(cfg, 1, "forward", traces=rows)
+    for k in range(4):
+        link.send(Packet(k, k * 500 * MS, (0.0,), 100))
+    assert [p.fate for p in link.log] == [DELIVERED, LOST_NETWORK, DELIVERED, LOST_NETWORK]
+    assert [p.arrival_time_ns - p.send_time_ns for p in link.log if p.fate == DELIVERED] == [10 * MS, 30 * MS]
+    with pytest.raises(ValueError, match=r"its rows were not given \(LinkTraces\.delay\)"):
+        build_link(cfg, 1, "forward", traces=LinkTraces(loss=rows.loss))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from haptic_teleop import schema
-from haptic_teleop.core.network import DELIVERED, LOST_LATE, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
 from haptic_teleop.core.playout import (
     GAP_MODES,
     POLICIES,

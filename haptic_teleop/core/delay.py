@@ -1,0 +1,271 @@
+"""Effects that move a packet's arrival: the token bucket's queue, constant, time-varying and
+jittered delays, with netem's ordering and reordering (docs/network.md)."""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES, DELIVERED, LOST_QUEUE, Packet
+from haptic_teleop.core.uniform import DISTRIBUTIONS, UniformSource, jitter_quantile, uniform_source
+
+_NS_PER_S = 1_000_000_000
+
+
+class TokenBucket:
+    """Rate limit: a FIFO queue served by a token bucket (tbf), with tail drop.
+
+    Tokens are bits; they accrue at `rate_bps` up to the bucket depth `burst_bytes`. A packet
+    needs (size_bytes + overhead_bytes) * 8 tokens and leaves as soon as the packet ahead of it has
+    left and the bucket holds enough. A packet that would have to wait while
+    `queue_limit_packets` packets are already waiting is dropped (LOST_QUEUE); with a limit of 0
+    the bucket polices instead of shaping. The departure time follows from the queue state at
+    send time, so it is computed then. Integer arithmetic in nano-bits keeps it exact.
+    """
+
+    name = "rate_limit"
+
+    def __init__(
+        self,
+        rate_bps: float,
+        burst_bytes: int,
+        queue_limit_packets: int,
+        overhead_bytes: int = DEFAULT_OVERHEAD_BYTES,
+    ) -> None:
+        rate = round(rate_bps)
+        if rate < 1:
+            raise ValueError(f"rate_bps must be >= 1, got {rate_bps}")
+        if burst_bytes < 1 or queue_limit_packets < 0 or overhead_bytes < 0:
+            raise ValueError(
+                f"need burst_bytes >= 1, queue_limit_packets >= 0, overhead_bytes >= 0; got "
+                f"{burst_bytes}, {queue_limit_packets}, {overhead_bytes}"
+            )
+        self.rate_bps = rate  # whole bits per second; also nano-bits per nanosecond
+        self.burst_bytes = burst_bytes
+        self.queue_limit_packets = queue_limit_packets
+        self.overhead_bytes = overhead_bytes
+        self._depth = burst_bytes * 8 * _NS_PER_S  # nano-bits
+        self._tokens = self._depth  # the bucket starts full
+        self._t_tokens = 0  # time _tokens refers to (unused while the bucket is full)
+        self._full = True
+        self._last_departure = -(1 << 62)
+        self._waiting: deque[int] = deque()  # departure times of packets still waiting
+        self.dropped = 0
+
+    def transmit_time_ns(self, size_bytes: int) -> float:
+        """Time one packet of `size_bytes` message bytes takes at the token rate."""
+        return (size_bytes + self.overhead_bytes) * 8 * 1e9 / self.rate_bps
+
+    def apply(self, packet: Packet) -> Packet | None:
+        if packet.fate != DELIVERED:
+            return None
+        t = packet.arrival_time_ns
+        waiting = self._waiting
+        while waiting and waiting[0] <= t:
+            waiting.popleft()
+        need = (packet.size_bytes + self.overhead_bytes) * 8 * _NS_PER_S
+        depth = self._depth
+        if need > depth:
+            raise ValueError(
+                f"rate_limit: a packet of {packet.size_bytes} + {self.overhead_bytes} overhead bytes "
+                f"exceeds burst_bytes={self.burst_bytes}; it could never be sent"
+            )
+        start = t if t > self._last_departure else self._last_departure
+        if self._full:
+            tokens = depth
+        else:
+            tokens = min(depth, self._tokens + (start - self._t_tokens) * self.rate_bps)
+        if tokens >= need:
+            departure = start
+            tokens -= need
+        else:
+            wait = -((tokens - need) // self.rate_bps)  # ceil((need - tokens) / rate)
+            departure = start + wait
+            tokens = min(depth, tokens + wait * self.rate_bps) - need
+        if departure > t:
+            if len(waiting) >= self.queue_limit_packets:
+                packet.fate = LOST_QUEUE
+                self.dropped += 1
+                return None
+            waiting.append(departure)
+        self._tokens = tokens
+        self._t_tokens = departure
+        self._full = False
+        self._last_departure = departure
+        packet.arrival_time_ns = departure
+        return None
+
+    @property
+    def queue_length(self) -> int:
+        """Packets waiting after the last send (before time moves on)."""
+        return len(self._waiting)
+
+
+class ConstantDelay:
+    """Fixed one-way delay."""
+
+    name = "delay"
+
+    def __init__(self, delay_s: float) -> None:
+        if not delay_s >= 0.0:
+            raise ValueError(f"delay_s must be >= 0, got {delay_s}")
+        self.delay_ns = round(delay_s * 1e9)
+
+    vectorized = True
+
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+        """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
+        arrival_ns += self.delay_ns
+
+    def apply(self, packet: Packet) -> Packet | None:
+        packet.arrival_time_ns += self.delay_ns
+        return None
+
+
+class PiecewiseDelay:
+    """Extra delay from points (t_i, d_i), held before the first and after the last point,
+    stepping (held until the next point) or linear in between. Call with a time in ns."""
+
+    def __init__(self, times_s: Sequence[float], delays_s: Sequence[float], interpolation: str = "linear") -> None:
+        if len(times_s) != len(delays_s) or not times_s:
+            raise ValueError(f"need as many times as delays, at least one; got {len(times_s)} and {len(delays_s)}")
+        if any(b <= a for a, b in itertools.pairwise(times_s)):
+            raise ValueError("times must be strictly increasing")
+        if any(not d >= 0.0 for d in delays_s):
+            raise ValueError("delays must be >= 0")
+        if interpolation not in ("linear", "step"):
+            raise ValueError(f"interpolation must be linear or step, got {interpolation!r}")
+        self._t = [round(t * 1e9) for t in times_s]
+        self._d = [d * 1e9 for d in delays_s]
+        self._linear = interpolation == "linear"
+
+    def __call__(self, t_ns: int) -> float:
+        ts, ds = self._t, self._d
+        i = bisect.bisect_right(ts, t_ns)
+        if i == 0:
+            return ds[0]
+        if i == len(ts) or not self._linear:
+            return ds[i - 1]
+        t0, t1 = ts[i - 1], ts[i]
+        return ds[i - 1] + (ds[i] - ds[i - 1]) * (t_ns - t0) / (t1 - t0)
+
+
+class SinusoidDelay:
+    """Extra delay swinging between min and max: d(t) = mid - amp cos(2 pi (t + phase) / period),
+    so it starts at the minimum at t = -phase."""
+
+    def __init__(self, min_delay_s: float, max_delay_s: float, period_s: float, phase_s: float = 0.0) -> None:
+        if not (0.0 <= min_delay_s <= max_delay_s and period_s > 0.0):
+            raise ValueError("need 0 <= min_delay_s <= max_delay_s and period_s > 0")
+        self._mid = (min_delay_s + max_delay_s) / 2 * 1e9
+        self._amp = (max_delay_s - min_delay_s) / 2 * 1e9
+        self._w = 2.0 * math.pi / (period_s * 1e9)
+        self._phase_ns = phase_s * 1e9
+
+    def __call__(self, t_ns: int) -> float:
+        return self._mid - self._amp * math.cos(self._w * (t_ns + self._phase_ns))
+
+
+class Delay:
+    """Delay with jitter, a time-varying part, optional ordering and netem-style reordering.
+
+    delay = delay_s + profile(t) + jitter_s * J, J from the jitter distribution (correlated as
+    configured), clamped at 0; t is when the packet reaches this stage. With `keep_order` a
+    packet cannot arrive before the one delivered before it (netem with a pfifo child or `rate`).
+    With `reorder` a fraction of packets skips the delay entirely ("sent immediately"), netem's
+    `reorder p [corr] gap g`.
+    """
+
+    name = "delay"
+
+    def __init__(
+        self,
+        delay_s: float,
+        *,
+        jitter_s: float = 0.0,
+        distribution: str = "normal",
+        rng: np.random.Generator | None = None,
+        correlation: float = 0.0,
+        correlation_model: str = "netem",
+        profile: Callable[[int], float] | None = None,
+        keep_order: bool = False,
+        reorder_probability: float = 0.0,
+        reorder_correlation: float = 0.0,
+        reorder_gap_packets: int = 1,
+        reorder_rng: np.random.Generator | None = None,
+        copy_rng: np.random.Generator | None = None,
+    ) -> None:
+        if not delay_s >= 0.0 or not jitter_s >= 0.0:
+            raise ValueError(f"delay_s and jitter_s must be >= 0, got {delay_s}, {jitter_s}")
+        if distribution not in DISTRIBUTIONS:
+            raise ValueError(f"distribution must be one of {', '.join(DISTRIBUTIONS)}, got {distribution!r}")
+        if not 0.0 <= reorder_probability <= 1.0 or reorder_gap_packets < 1:
+            raise ValueError("need 0 <= reorder_probability <= 1 and reorder_gap_packets >= 1")
+        self._base_ns = delay_s * 1e9
+        self._sigma_ns = jitter_s * 1e9
+        self._quantile = jitter_quantile(distribution)
+        self._profile = profile
+        self._keep_order = keep_order
+        self._last_arrival = -(1 << 62)
+        parent = rng if rng is not None else reorder_rng
+        if copy_rng is None and parent is not None:
+            copy_rng = parent.spawn(1)[0]  # copies never shift the originals' draws
+        self._copy_rng = copy_rng
+        self._copy_u: Callable[[], float] | None = None
+        self._ju: Callable[[], float] | None = None
+        if jitter_s > 0.0:
+            if rng is None:
+                raise ValueError("jitter needs a random generator")
+            self._ju = uniform_source(rng, correlation, correlation_model)
+        self._reorder_p = reorder_probability
+        self._gap = reorder_gap_packets
+        self._counter = 0
+        self._ru: Callable[[], float] | None = None
+        if reorder_probability > 0.0:
+            if reorder_rng is None:
+                raise ValueError("reorder needs a random generator")
+            self._ru = uniform_source(reorder_rng, reorder_correlation, correlation_model)
+        self.reordered = 0
+
+    def _copy_draw(self) -> float:
+        if self._copy_u is None:
+            assert self._copy_rng is not None  # only called when jitter or reorder draws
+            self._copy_u = UniformSource(self._copy_rng).next
+        return self._copy_u()
+
+    def apply(self, packet: Packet) -> Packet | None:
+        t = packet.arrival_time_ns
+        copy = packet.duplicate
+        d = self._base_ns
+        if self._profile is not None:
+            d += self._profile(t)
+        if self._ju is not None:
+            d += self._sigma_ns * self._quantile(self._copy_draw() if copy else self._ju())
+        if self._ru is not None:
+            if copy:
+                skip = self._copy_draw() < self._reorder_p
+            else:
+                r = self._ru()  # drawn for every packet, see the module docstring
+                if self._counter < self._gap - 1 or r >= self._reorder_p:
+                    self._counter += 1
+                    skip = False
+                else:
+                    self._counter = 0
+                    skip = True
+            if skip:
+                # "Sent immediately": no delay and not held behind earlier packets.
+                if packet.fate == DELIVERED:
+                    self.reordered += 1
+                return None
+        arrival = t + int(d + 0.5) if d > 0.0 else t
+        if self._keep_order and packet.fate == DELIVERED:
+            if arrival < self._last_arrival:  # noqa: PLR1730 (an if is cheaper than max() per packet)
+                arrival = self._last_arrival
+            self._last_arrival = arrival
+        packet.arrival_time_ns = arrival
+        return None

@@ -1,0 +1,238 @@
+"""Effects that lose packets: blackout windows, netem's loss models (Bernoulli, Gilbert-Elliott,
+4-state), a replayed loss pattern, and corruption (the receiver discards the packet).
+
+Each marks a packet's fate and draws its random numbers per original packet, lost or not (the
+rules in `core/link.py`); the formulas are in docs/network.md.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from haptic_teleop.core.link import DELIVERED, LOST_CORRUPT, LOST_NETWORK, Packet
+from haptic_teleop.core.uniform import UniformSource, uniform_source
+
+
+class Blackout:
+    """The link is down in [start, end) windows: every packet sent inside one is lost."""
+
+    name = "blackout"
+
+    def __init__(self, windows_ns: Sequence[tuple[int, int]]) -> None:
+        ws = sorted((int(a), int(b)) for a, b in windows_ns)
+        for (a, b), nxt in zip(ws, [*ws[1:], None], strict=True):
+            if not b > a:
+                raise ValueError(f"blackout window must end after it starts, got [{a}, {b}) ns")
+            if nxt is not None and nxt[0] < b:
+                raise ValueError(f"blackout windows overlap: [{a}, {b}) and [{nxt[0]}, {nxt[1]}) ns")
+        self._starts = [a for a, _ in ws]
+        self._ends = [b for _, b in ws]
+        self.dropped = 0
+
+    vectorized = True
+
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+        """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
+        starts = np.asarray(self._starts, dtype=np.int64)
+        ends = np.asarray(self._ends, dtype=np.int64)
+        i = np.searchsorted(starts, send_ns, side="right") - 1
+        hit = (i >= 0) & (send_ns < ends[np.maximum(i, 0)]) & (fate == DELIVERED)
+        fate[hit] = LOST_NETWORK
+        self.dropped += int(hit.sum())
+
+    def apply(self, packet: Packet) -> Packet | None:
+        t = packet.send_time_ns
+        i = bisect.bisect_right(self._starts, t) - 1
+        if i >= 0 and t < self._ends[i] and packet.fate == DELIVERED:
+            packet.fate = LOST_NETWORK
+            self.dropped += 1
+        return None
+
+
+class BernoulliLoss:
+    """Independent loss with probability p per packet (netem `loss random p [corr]`)."""
+
+    name = "loss"
+
+    def __init__(
+        self,
+        probability: float,
+        rng: np.random.Generator,
+        correlation: float = 0.0,
+        correlation_model: str = "netem",
+    ) -> None:
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"probability must be in [0, 1], got {probability}")
+        self.probability = probability
+        self._rng = rng
+        self._u = uniform_source(rng, correlation, correlation_model)
+        self.dropped = 0
+        # Uncorrelated draws are plain uniforms: a whole run's can be drawn in one call.
+        self.vectorized = correlation == 0.0
+
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+        """`apply` on every original packet of a run at once, before any `apply` (`Link.schedule_all`).
+
+        `rng.random(n)` gives the numbers `UniformSource` hands out one at a time (it draws the
+        same stream in blocks), so the same packets are lost."""
+        if not self.vectorized:
+            raise ValueError("correlated loss draws depend on the previous draw; it has no vectorized form")
+        hit = (self._rng.random(len(send_ns)) < self.probability) & (fate == DELIVERED)
+        fate[hit] = LOST_NETWORK
+        self.dropped += int(hit.sum())
+
+    def apply(self, packet: Packet) -> Packet | None:
+        if self._u() < self.probability and packet.fate == DELIVERED:
+            packet.fate = LOST_NETWORK
+            self.dropped += 1
+        return None
+
+
+class GilbertElliottLoss:
+    """2-state Markov loss (netem `loss gemodel p r 1-h 1-k`).
+
+    Per packet, as netem does: draw the transition (good->bad with p, bad->good with r), then
+    draw the loss with the loss probability of the state the packet met (1-k in good, 1-h in
+    bad). Starts in the good state. Gilbert is the case 1-k = 0, simple Gilbert 1-h = 1 too.
+    """
+
+    name = "loss"
+
+    def __init__(self, p: float, r: float, one_minus_h: float, one_minus_k: float, rng: np.random.Generator) -> None:
+        for key, v in (("p", p), ("r", r), ("one_minus_h", one_minus_h), ("one_minus_k", one_minus_k)):
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{key} must be in [0, 1], got {v}")
+        self.p, self.r = p, r
+        self.loss_bad, self.loss_good = one_minus_h, one_minus_k
+        self._u = UniformSource(rng).next
+        self.bad = False
+        self.dropped = 0
+
+    def apply(self, packet: Packet) -> Packet | None:
+        u = self._u
+        move = u()
+        if self.bad:
+            lost = u() < self.loss_bad
+            if move < self.r:
+                self.bad = False
+        else:
+            lost = u() < self.loss_good
+            if move < self.p:
+                self.bad = True
+        if lost and packet.fate == DELIVERED:
+            packet.fate = LOST_NETWORK
+            self.dropped += 1
+        return None
+
+
+class FourStateLoss:
+    """netem's 4-state Markov loss (`loss state p13 p31 p32 p23 p14`, the GI model).
+
+    States: 1 received in a gap, 2 received in a burst, 3 lost in a burst, 4 isolated loss in a
+    gap. One draw per packet moves the chain; the packet is lost if the new state is 3 or 4.
+    1 -> 4 (p14), 1 -> 3 (p13); 2 -> 3 (p23); 3 -> 2 (p32), 3 -> 1 (p31); 4 -> 1 always.
+    """
+
+    name = "loss"
+
+    def __init__(self, p13: float, p31: float, p32: float, p23: float, p14: float, *, rng: np.random.Generator) -> None:
+        for key, v in (("p13", p13), ("p31", p31), ("p32", p32), ("p23", p23), ("p14", p14)):
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{key} must be in [0, 1], got {v}")
+        if p13 + p14 > 1.0 or p31 + p32 > 1.0:
+            raise ValueError("need p13 + p14 <= 1 and p31 + p32 <= 1")
+        self.p13, self.p31, self.p32, self.p23, self.p14 = p13, p31, p32, p23, p14
+        self._u = UniformSource(rng).next
+        self.state = 1
+        self.dropped = 0
+
+    def apply(self, packet: Packet) -> Packet | None:
+        u = self._u()
+        s = self.state
+        if s == 1:
+            if u < self.p14:
+                s = 4
+            elif u < self.p14 + self.p13:
+                s = 3
+        elif s == 2:
+            if u < self.p23:
+                s = 3
+        elif s == 3:
+            if u < self.p32:
+                s = 2
+            elif u < self.p32 + self.p31:
+                s = 1
+        else:
+            s = 1
+        self.state = s
+        if s >= 3 and packet.fate == DELIVERED:
+            packet.fate = LOST_NETWORK
+            self.dropped += 1
+        return None
+
+
+class TraceLoss:
+    """Replay a recorded loss pattern: the n-th packet is lost if pattern[n] is true."""
+
+    name = "loss"
+
+    def __init__(self, pattern: Sequence[bool] | np.ndarray, repeat: bool = True) -> None:
+        self._pattern = [bool(x) for x in pattern]
+        if not self._pattern:
+            raise ValueError("a loss trace needs at least one entry")
+        self._repeat = repeat
+        self._n = 0
+        self.dropped = 0
+
+    def apply(self, packet: Packet) -> Packet | None:
+        n = self._n
+        self._n = n + 1
+        pat = self._pattern
+        if n >= len(pat):
+            if not self._repeat:
+                return None
+            n %= len(pat)
+        if pat[n] and packet.fate == DELIVERED:
+            packet.fate = LOST_NETWORK
+            self.dropped += 1
+        return None
+
+
+class Corrupt:
+    """netem `corrupt p [corr]`: a bit error; the receiver's UDP checksum fails and the stack
+    discards the packet (LOST_CORRUPT)."""
+
+    name = "corrupt"
+
+    def __init__(
+        self,
+        probability: float,
+        rng: np.random.Generator,
+        correlation: float = 0.0,
+        correlation_model: str = "netem",
+        copy_rng: np.random.Generator | None = None,
+    ) -> None:
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"probability must be in [0, 1], got {probability}")
+        self.probability = probability
+        self._u = uniform_source(rng, correlation, correlation_model)
+        # Copies draw from their own stream so they never shift the originals' draws.
+        self._copy_rng = copy_rng if copy_rng is not None else rng.spawn(1)[0]
+        self._copy_u: Callable[[], float] | None = None
+        self.dropped = 0
+
+    def apply(self, packet: Packet) -> Packet | None:
+        if packet.duplicate:
+            if self._copy_u is None:
+                self._copy_u = UniformSource(self._copy_rng).next
+            u = self._copy_u()
+        else:
+            u = self._u()
+        if u < self.probability and packet.fate == DELIVERED:
+            packet.fate = LOST_CORRUPT
+            if not packet.duplicate:
+                self.dropped += 1
+        return None

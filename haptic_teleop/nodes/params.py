@@ -1,0 +1,207 @@
+"""Node parameters declared from the scene schema (haptic_teleop.scene): the one source of names,
+types, ranges and help text."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from collections.abc import Sequence
+from typing import Any, Union, get_args, get_origin
+
+from haptic_teleop.errors import ConfigError
+
+# ---------------------------------------------------------------------------------------------
+# Parameters: the scene schema (haptic_teleop.scene) is the one source of names, types, ranges.
+
+LOOP_PRIORITY_PARAM = "loop.realtime_priority"
+LOOP_CATCH_UP_PARAM = "loop.max_catch_up_periods"
+DEFAULT_REALTIME_PRIORITY = 40
+_INT64_MIN = -(2**63)
+_INT64_MAX = 2**63 - 1
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamSpec:
+    """One scene leaf as a ROS parameter."""
+
+    name: str  # dotted key path, e.g. controllers.master.stiffness_n_per_m
+    kind: type  # bool, int, float, str, or tuple (array)
+    inner: type | None  # element type of an array
+    metadata: typing.Mapping[str, Any]
+    default: Any
+
+
+def _unwrap_optional(tp: Any) -> Any:
+    if get_origin(tp) in (Union, types.UnionType):
+        args = [a for a in get_args(tp) if a is not type(None)]
+        return args[0]
+    return tp
+
+
+def section_type(path: str) -> type:
+    """The config dataclass at a dotted path of the scene (`""` is the whole scene)."""
+    from haptic_teleop.scene import Scene
+
+    cls: Any = Scene
+    for part in [p for p in path.split(".") if p]:
+        hints = typing.get_type_hints(cls)
+        if part not in hints:
+            raise KeyError(f"{path}: no section {part!r} in {cls.__name__}")
+        cls = _unwrap_optional(hints[part])
+        if not dataclasses.is_dataclass(cls):
+            raise KeyError(f"{path}: {part!r} is a value, not a section")
+    return typing.cast(type, cls)
+
+
+def scene_param_specs(path: str) -> list[ParamSpec]:
+    """Every leaf below the scene section at `path`, as parameter specs."""
+    out: list[ParamSpec] = []
+
+    def walk(cls: Any, prefix: str) -> None:
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            name = f"{prefix}.{f.name}" if prefix else f.name
+            tp = _unwrap_optional(hints[f.name])
+            if dataclasses.is_dataclass(tp):
+                walk(tp, name)
+                continue
+            inner = None
+            kind = tp
+            if get_origin(tp) is tuple:
+                kind, inner = tuple, get_args(tp)[0]
+            default = f.default if f.default is not dataclasses.MISSING else None
+            out.append(ParamSpec(name, kind, inner, f.metadata, default))
+
+    walk(section_type(path), path)
+    return out
+
+
+def _descriptor(spec: ParamSpec) -> Any:
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    meta = spec.metadata
+    lo = meta.get("min", meta.get("gt"))
+    hi = meta.get("max", meta.get("lt"))
+    parts = [str(meta.get("help", ""))]
+    if meta.get("gt") is not None:
+        parts.append(f"> {meta['gt']}")
+    if meta.get("lt") is not None:
+        parts.append(f"< {meta['lt']}")
+    d = ParameterDescriptor(description="; ".join(p for p in parts if p))
+    if meta.get("choices"):
+        d.additional_constraints = "one of: " + ", ".join(map(str, meta["choices"]))
+    element = spec.inner if spec.kind is tuple else spec.kind
+    if element is float and (lo is not None or hi is not None):
+        d.floating_point_range = [
+            FloatingPointRange(
+                from_value=float(lo) if lo is not None else -math.inf,
+                to_value=float(hi) if hi is not None else math.inf,
+                step=0.0,
+            )
+        ]
+    elif element is int and spec.kind is int and (lo is not None or hi is not None):
+        d.integer_range = [
+            IntegerRange(
+                from_value=int(lo) if lo is not None else _INT64_MIN,
+                to_value=int(hi) if hi is not None else _INT64_MAX,
+                step=0,
+            )
+        ]
+    return d
+
+
+def _param_type(spec: ParamSpec) -> Any:
+    from rclpy.parameter import Parameter
+
+    element = spec.inner if spec.kind is tuple else spec.kind
+    if spec.kind is tuple:
+        return {
+            float: Parameter.Type.DOUBLE_ARRAY,
+            int: Parameter.Type.INTEGER_ARRAY,
+            str: Parameter.Type.STRING_ARRAY,
+        }[typing.cast(type, element)]
+    return {
+        bool: Parameter.Type.BOOL,
+        int: Parameter.Type.INTEGER,
+        float: Parameter.Type.DOUBLE,
+        str: Parameter.Type.STRING,
+    }[typing.cast(type, element)]
+
+
+def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str] = ()) -> Any:
+    """Declare every leaf of `sections` (dotted scene paths) as a typed parameter with its range,
+    read those that are set, and validate them as a scene.
+
+    Returns the validated `haptic_teleop.scene.Scene` (sections not declared keep their defaults).
+    ROS rejects a wrong type or an out-of-range value at declaration; the schema then checks what
+    ROS cannot (exclusive bounds, choices, cross-field contradictions). Every error names the
+    parameter. Parameters in the file that no section or `extra_names` declares are errors too.
+    """
+    from haptic_teleop.scene import Scene
+    from haptic_teleop.schema import build
+
+    raw: dict[str, Any] = {}
+    declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM, LOOP_CATCH_UP_PARAM}
+    for section in sections:
+        for spec in scene_param_specs(section):
+            declared.add(spec.name)
+            p = node.declare_parameter(spec.name, _param_type(spec), _descriptor(spec))
+            if int(p.type_) == 0:  # NOT_SET: not in the parameter file, the schema default applies
+                continue
+            value = p.value
+            if spec.kind is tuple:
+                value = list(value)
+            cur = raw
+            parts = spec.name.split(".")
+            for part in parts[:-1]:
+                cur = cur.setdefault(part, {})
+            cur[parts[-1]] = value
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps the file's values here
+    unknown = sorted(
+        n for n in overrides if n not in declared and n != "use_sim_time" and not n.startswith("qos_overrides.")
+    )
+    if unknown:
+        raise ConfigError(
+            f"parameters of node {node.get_name()}",
+            unknown[0],
+            overrides[unknown[0]].value,
+            "unknown parameter for this node; it reads " + ", ".join(sections),
+        )
+    return build(Scene, raw, "", f"parameters of node {node.get_name()}")
+
+
+def declare_value(
+    node: Any,
+    name: str,
+    default: Any,
+    description: str,
+    lo: float | None = None,
+    hi: float | None = None,
+    choices: Sequence[str] | None = None,
+) -> Any:
+    """Declare one node-specific parameter with a descriptor (range or choices) and return its value."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    d = ParameterDescriptor(description=description)
+    if isinstance(default, float) and (lo is not None or hi is not None):
+        d.floating_point_range = [
+            FloatingPointRange(
+                from_value=-math.inf if lo is None else float(lo),
+                to_value=math.inf if hi is None else float(hi),
+                step=0.0,
+            )
+        ]
+    elif isinstance(default, int) and not isinstance(default, bool) and (lo is not None or hi is not None):
+        d.integer_range = [
+            IntegerRange(
+                from_value=_INT64_MIN if lo is None else int(lo), to_value=_INT64_MAX if hi is None else int(hi), step=0
+            )
+        ]
+    if choices:
+        d.additional_constraints = "one of: " + ", ".join(choices)
+    value = node.declare_parameter(name, default, d).value
+    if choices and value not in choices:
+        raise ConfigError(f"parameters of node {node.get_name()}", name, value, "allowed: one of " + ", ".join(choices))
+    return value

@@ -1,0 +1,128 @@
+"""Topic names, joint names and QoS of the live nodes (names match the bag, haptic_teleop.record,
+where the meaning is the same), and the DDS discovery range nodes started by hand keep."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+# ---------------------------------------------------------------------------------------------
+# Environment: DDS stays on this host unless the user chose otherwise.
+
+
+def ensure_local_discovery() -> None:
+    """Nodes started by hand keep DDS on this host too, unless the user chose a range."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+# ---------------------------------------------------------------------------------------------
+# Topics. Names match the bag (haptic_teleop.record) where the meaning is the same.
+
+OPERATOR_STATE = "/operator/joint_states"
+MASTER_STATE = "/master/joint_states"
+SLAVE_STATE = "/slave/joint_states"
+SLAVE_CONTACT = "/slave/contact_wrench"
+MASTER_EBA = "/master/eba"
+SLAVE_EBA = "/slave/eba"
+DIAGNOSTICS = "/diagnostics"
+DIRECTIONS = ("forward", "backward")
+EBA_LABELS = ("reservoir_j", "force_desired_n")
+# Joint names and frame: the recorder decodes raw bytes with bag.py's fixed layouts, which
+# were made with exactly these strings.
+OPERATOR_JOINT = "operator_x"
+MASTER_JOINT = "master_x"
+SLAVE_JOINT = "slave_x"
+WALL_FRAME = "wall"
+
+
+def sent_topic(direction: str) -> str:
+    return f"/{direction}/sent"
+
+
+def delivered_topic(direction: str) -> str:
+    """Relay -> sync buffer: what the network delivered, in arrival order."""
+    return f"/{direction}/delivered"
+
+
+def received_topic(direction: str) -> str:
+    """Sync buffer -> controller: the sample released for this tick (as in the bag)."""
+    return f"/{direction}/received"
+
+
+READER_DEPTH = 50  # local history of readers that must not drop samples while busy
+
+
+def packets_topic(direction: str) -> str:
+    return f"/{direction}/packets"
+
+
+def playout_topic(direction: str) -> str:
+    """Sync buffer -> recorder: what the buffer decided for each packet it received (played or late)."""
+    return f"/{direction}/playout"
+
+
+SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAML), latched
+# The operator source's scene time 0 (std_msgs/Header, stamp = the tick it started at), latched: the
+# recorder's grid starts there even if the operator's first samples did not reach it.
+SCENE_START_TOPIC = "/haptic_teleop/scene_start"
+
+
+def scene_start_ns(header: Any, period_ns: int) -> int:
+    """Scene time 0 on the node clock, from a SCENE_START_TOPIC message: its stamp, on the tick
+    grid (a whole number of periods). The one definition the relays (their links run in scene
+    time, node clock - this) and the recorder (its grid starts here) share."""
+    st = header.stamp
+    return (int(st.sec) * 1_000_000_000 + int(st.nanosec)) // period_ns * period_ns
+
+
+def latched_qos() -> Any:
+    """Reliable, keep last 1, transient local: a subscriber that joins later gets the last message."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+# A direction's payload, in the order the core controllers expect (TeleopController docstring),
+# and where each value sits in the sensor_msgs/JointState that carries it.
+PAYLOAD_FIELDS = {
+    "forward": ("position", "velocity"),  # master -> slave: (x_m, v_m)
+    "backward": ("effort", "position", "velocity"),  # slave -> master: (f_env, x_s, v_s)
+}
+DIRECTION_JOINT = {"forward": MASTER_JOINT, "backward": SLAVE_JOINT}
+JOINT_ORDER = ("position", "velocity", "effort")  # JointState's value arrays
+# The JointState fields a direction's messages fill, on /<dir>/sent, /delivered and /received
+# alike (JointState order; PAYLOAD_FIELDS says which value is which).
+WIRE_FIELDS = {"forward": ("position", "velocity"), "backward": ("position", "velocity", "effort")}
+
+
+def stream_qos(depth: int = 1) -> Any:
+    """1 kHz streams: best effort, keep last, depth 1, volatile (docs/architecture.md, "Live mode").
+
+    A reader that must see every sample rather than the newest (relay, sync buffer, recorder)
+    keeps a deeper local history: still compatible with depth-1 writers.
+    """
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+def reliable_qos(depth: int = 100) -> Any:
+    """Commands and batched logs: reliable, keep last `depth`, volatile."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
