@@ -333,13 +333,18 @@ class CompiledArm:
 
         self.k = k
         self.parts = parts
-        self.ms = side_tuple(parts.master, parts, True)
-        self.ss = side_tuple(parts.slave, parts, False)
+        self.take()
         self.mw = self._work(parts.master)
         self.sw = self._work(parts.slave)
         self.ov = operator_vector(parts, period_s)
         self.cols = column_starts(parts)
         self.width = len(parts.schema.columns)
+
+    def take(self) -> None:
+        """(Re)build both side tuples from the scene's Python objects as they are now (`run` does,
+        so what was changed on them since the engine was built counts)."""
+        self.ms = side_tuple(self.parts.master, self.parts, True)
+        self.ss = side_tuple(self.parts.slave, self.parts, False)
 
     def _work(self, side: ArmSide) -> tuple[np.ndarray, ...]:
         plant: Any = side.plant
@@ -366,6 +371,7 @@ class CompiledArm:
         from haptic_teleop import fastloop
 
         n_ticks = engine.ticks
+        self.take()
         rings = Rings((6, 9))
         block = output.block
         block_ticks = block.shape[0]

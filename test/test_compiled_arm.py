@@ -98,9 +98,7 @@ def _both(scene: Any, stop_at: int | None = None, tweak: Any = None) -> list[tup
         e = Engine(scene, loop=loop)
         assert e.loop_kind == loop
         if tweak is not None:
-            tweak(e)
-            if loop == "compiled":  # the kernel's arrays are taken when the engine is built
-                e._compiled_arm = fastarm.CompiledArm(e.arm, e.period_s)
+            tweak(e)  # after the engine is built: the compiled loop takes its arrays when it runs
         out.append((e, *_run(e, stop_at)))
     return out
 
