@@ -233,3 +233,18 @@ def test_arm_scenes_run_compiled_unless_they_cannot() -> None:
         Engine(bad, loop="compiled")
     e = Engine(scene, loop="python")
     assert e.loop_kind == "python"
+
+
+def test_both_arm_loops_record_the_same_bag_bytes(tmp_path: Any) -> None:
+    """The loops hand the recorder the same blocks and packet records at the same points, so an
+    arm scene's bag is the same file from either loop."""
+    from haptic_teleop.engine import record_run
+
+    name, overrides = CASES["ur5e_delay_loss"]
+    scene = _scene(name, overrides, duration_s=1.5)
+    bags = {}
+    for loop in ("compiled", "python"):
+        engine, _ = record_run(scene, tmp_path / loop / "bag", parallel=False, handle_sigint=False, loop=loop)
+        assert engine.loop_kind == loop
+        bags[loop] = (tmp_path / loop / "bag" / "bag.mcap").read_bytes()
+    assert bags["compiled"] == bags["python"]
