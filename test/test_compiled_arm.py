@@ -248,3 +248,43 @@ def test_both_arm_loops_record_the_same_bag_bytes(tmp_path: Any) -> None:
         assert engine.loop_kind == loop
         bags[loop] = (tmp_path / loop / "bag" / "bag.mcap").read_bytes()
     assert bags["compiled"] == bags["python"]
+
+
+class Discard:
+    """A sink that keeps nothing, noting the longest array it was given."""
+
+    def __init__(self) -> None:
+        self.longest = 0
+        self.ticks = 0
+
+    def append(self, rows: np.ndarray) -> None:
+        self.longest = max(self.longest, len(rows))
+        self.ticks += len(rows)
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        self.longest = max(self.longest, len(rows))
+
+
+@pytest.mark.parametrize("case", ["ur5e_delay_loss", "ur5e_bursty_jitter"])
+def test_compiled_arm_loop_memory_does_not_grow_with_duration(case: str) -> None:
+    """What the compiled arm loop holds (tracemalloc: numpy's arrays and every Python object)
+    peaks at the same size for a run four times as long, with either kind of network schedule;
+    no array handed to the sink is longer than a block."""
+    import tracemalloc
+
+    name, overrides = CASES[case]
+    # the vectorized windows are 10 s long: at least two of them in the shorter run
+    duration = 25.0 if case == "ur5e_delay_loss" else 3.0
+    peaks = []
+    for d in (duration, 4 * duration):
+        engine = Engine(_scene(name, overrides, duration_s=d), loop="compiled")
+        sink = Discard()
+        tracemalloc.start()
+        try:
+            engine.run(handle_sigint=False, sink=sink)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+        assert sink.ticks == engine.ticks and sink.longest <= BLOCK_TICKS + 200
+    # Whole-run arrays would add 3 x 3000 ticks x 72 columns x 8 B = 5 MB or more.
+    assert peaks[1] <= 1.1 * peaks[0] + 64_000, peaks
