@@ -30,9 +30,44 @@ if TYPE_CHECKING:
 PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
 
 
+# The sources the compiled arm loop is built from. numba's cache of a function checks only its
+# own file's time stamp, and the loop holds compiled copies of core's functions: when any of these
+# files changed since the cache was written, the cache of fastarmkernel is dropped first.
+_SOURCES = ("fastarmkernel.py", "fastkernel.py", "core/eba.py", "core/taskspace.py", "core/operator.py")
+
+
+def _drop_stale_cache() -> None:
+    import glob
+    import hashlib
+    import os
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha256()
+    for name in _SOURCES:
+        with open(os.path.join(here, name), "rb") as fh:
+            digest.update(fh.read())
+    cache = os.path.join(here, "__pycache__")
+    stamp = os.path.join(cache, "fastarmkernel.sources")
+    try:
+        with open(stamp) as fh:
+            if fh.read() == digest.hexdigest():
+                return
+    except OSError:
+        pass
+    try:
+        for path in glob.glob(os.path.join(cache, "fastarmkernel.*.nb[ic]")):
+            os.remove(path)
+        os.makedirs(cache, exist_ok=True)
+        with open(stamp, "w") as fh:
+            fh.write(digest.hexdigest())
+    except OSError:  # a read-only install: numba caches elsewhere or not at all
+        pass
+
+
 @functools.cache
 def _kernel_or_error() -> tuple[Any, str | None]:
     try:
+        _drop_stale_cache()
         from haptic_teleop import fastarmkernel
     except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
         return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"

@@ -7,6 +7,10 @@ and is compiled here from its one definition (`compile_tree`: a function and the
 it calls); this module holds only the tick's order, which is `armloop.run_arm_loop`'s, and the
 plant's arithmetic around MuJoCo (`plants/arm.py`'s `read`, `point`, `torque_room`, `step`,
 `_contact`), line for line.
+
+numba caches the compiled loop next to this file and checks only this file's time stamp, while
+the loop holds compiled copies of `core`'s functions: `fastarm` drops this module's cache when one
+of the sources it is built from changed (`fastarm._drop_stale_cache`).
 """
 
 from __future__ import annotations

@@ -322,7 +322,8 @@ def _arm_cost_run(scene: Any, every: int) -> tuple[float, float, float]:
         spent["calls"] += t4 - t3
         spent["callback"] += t4 - t0
 
-    mujoco_steps(ms, ss, 0)  # compiled (or loaded) before the timing
+    mujoco_steps(ms, ss, 0)  # both compiled (or loaded) before the timing
+    bare_steps(models, 0)
     r = e.run(handle_sigint=False, progress=progress)
     samples = r.ticks // every * every
     return (
