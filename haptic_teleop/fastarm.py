@@ -5,8 +5,9 @@ The tick (docs/performance.md, "Arm scenes") calls MuJoCo from compiled code on 
 `mj_jacSite` (the handle's or tool's Jacobian), `mj_step2` (actuation, constraints, integration;
 the split step gives the bits of `mj_step` for the Euler and implicit integrators), and
 `mj_contactForce` for the wall's force on the tool. The contact array is read in place: its
-address and count are fields of mjData, and the record's layout (stride, field offsets) is
-taken from the bindings' own views (`contact_layout`, checked against them before use). The
+address and count are fields of mjData, whose offsets (and mjContact's) are laid out by C's rules
+from `mujoco.introspect`, MuJoCo's description of its headers, and checked against what the
+bindings read on a probe model before use (`contact_layout`). The
 task-space law, J^T F, the null-space damping, the pooled joint bound and the operator are the
 functions of `core` compiled from their one definition (`fastarmkernel.compile_tree`).
 
@@ -87,18 +88,74 @@ def kernel_error() -> str | None:
 # mjData's contact array, read from compiled code.
 
 
+_PRIMITIVES = {
+    "char": 1, "unsigned char": 1, "mjtByte": 1, "mjtBool": 1, "int": 4, "unsigned int": 4, "float": 4,
+    "double": 8, "mjtNum": 8, "size_t": 8, "mjtSize": 8, "uintptr_t": 8, "uint64_t": 8, "int64_t": 8,
+}  # fmt: skip
+
+
+def _c_size_align(t: Any) -> tuple[int, int]:
+    """sizeof and alignof of a mujoco.introspect type on this (64-bit) machine."""
+    from mujoco.introspect import structs
+
+    kind = type(t).__name__
+    if kind == "PointerType":
+        return 8, 8
+    if kind == "ArrayType":
+        size, align = _c_size_align(t.inner_type)
+        for n in t.extents:
+            size *= n
+        return size, align
+    name = t.name
+    if name in _PRIMITIVES:
+        return _PRIMITIVES[name], _PRIMITIVES[name]
+    if name in structs.STRUCTS:
+        return _c_struct(name)[0:2]  # type: ignore[return-value]
+    raise KeyError(name)
+
+
+def _c_struct(name: str) -> tuple[int, int, dict[str, int]]:
+    """sizeof, alignof and the field offsets of a MuJoCo struct, laid out by C's rules from the
+    field list of `mujoco.introspect` (MuJoCo's own description of its headers)."""
+    from mujoco.introspect import structs
+
+    offset, align, fields = 0, 1, {}
+    for f in structs.STRUCTS[name].fields:
+        size, a = _c_size_align(f.type)
+        offset = -(-offset // a) * a
+        fields[f.name] = offset
+        offset += size
+        align = max(align, a)
+    return -(-offset // align) * align, align, fields
+
+
 @functools.cache
 def contact_layout() -> tuple[int, int, int, int, int, int, int, int] | str:
     """(ncon offset in mjData, contact-pointer offset in mjData, mjContact stride, and the offsets
-    in mjContact of pos, frame, geom[0], geom[1], efc_address), found on a probe model through
-    the bindings; or why not (then arm scenes run in the Python loop).
+    in mjContact of pos, frame, geom[0], geom[1], efc_address); or why not (then arm scenes run in
+    the Python loop).
 
-    The offsets in mjData: `ncon` is the int the bindings' setter writes; `contact` is the last
-    pointer field holding the contact array's address in a state with one contact (the arena's
-    start pointer, before it, may hold the same value). The record's layout comes from the
-    strides and addresses of the bindings' views of `MjData.contact`."""
+    The offsets come from the layout of MuJoCo's structs by C's rules (`_c_struct`, from
+    `mujoco.introspect`), and are used only if they read what the bindings read on a probe model
+    with one contact: `ncon`, the contact array's address, and its first record's geoms, efc
+    address and position (each field read from memory inside the struct, never beyond it)."""
     import mujoco
 
+    try:
+        data_size, _, data_fields = _c_struct("mjData")
+        stride, _, contact_fields = _c_struct("mjContact")
+        layout = (
+            data_fields["ncon"],
+            data_fields["contact"],
+            stride,
+            contact_fields["pos"],
+            contact_fields["frame"],
+            contact_fields["geom"],
+            contact_fields["geom"] + 4,
+            contact_fields["efc_address"],
+        )
+    except (ImportError, KeyError, AttributeError) as exc:
+        return f"cannot lay out mjData from mujoco.introspect ({type(exc).__name__}: {exc})"
     xml = """<mujoco><worldbody><geom name="floor" type="plane" size="1 1 .1"/>
       <body pos="0 0 0.05"><freejoint/><geom name="ball" type="sphere" size="0.1" mass="1"/></body>
       </worldbody></mujoco>"""
@@ -110,43 +167,24 @@ def contact_layout() -> tuple[int, int, int, int, int, int, int, int] | str:
     if d.ncon != 1:
         return f"probe model: expected one contact, got {d.ncon}"
     c = d.contact
-    base = c.dist.__array_interface__["data"][0]
-    stride = c.dist.strides[0]
-    span = 1 << 18  # mjData's header with its solver statistics is about 160 kB (MuJoCo 3, 4)
-    words = np.frombuffer((ctypes.c_uint64 * (span // 8)).from_address(d._address), dtype=np.uint64)
-    hits = np.flatnonzero(words == base)
-    if len(hits) == 0:
-        return "cannot find mjData's contact pointer"
-    contact_off = int(hits[-1]) * 8
-    ints = np.frombuffer((ctypes.c_int32 * (contact_off // 4)).from_address(d._address), dtype=np.int32)
-    found = None
-    for value in (12345, 54321):
-        d.ncon = value
-        here = set(np.flatnonzero(ints == value).tolist())
-        found = here if found is None else found & here
-    d.ncon = 1
-    if found is None or len(found) != 1:
-        return "cannot find mjData's ncon field"
-    ncon_off = 4 * found.pop()
-
-    def at(a: np.ndarray) -> int:
-        return int(a.__array_interface__["data"][0]) - base
-
-    layout = (ncon_off, contact_off, stride, at(c.pos), at(c.frame), at(c.geom), at(c.geom) + 4, at(c.efc_address))
-    # Check: what the layout reads is what the bindings read.
-    read = ctypes.c_int32.from_address(d._address + ncon_off).value
-    ptr = ctypes.c_uint64.from_address(d._address + contact_off).value
+    base = int(c.dist.__array_interface__["data"][0])
+    if not (layout[0] >= 0 and layout[1] + 8 <= data_size and c.dist.strides[0] == stride):
+        return "mjData's layout from mujoco.introspect does not match the bindings (mjContact's size)"
+    read = ctypes.c_int32.from_address(d._address + layout[0]).value
+    ptr = ctypes.c_uint64.from_address(d._address + layout[1]).value
+    if read != d.ncon or ptr != base:
+        return "mjData's layout from mujoco.introspect does not read ncon and contact as the bindings do"
     pos = np.frombuffer((ctypes.c_double * 3).from_address(ptr + layout[3]), dtype=np.float64)
+    frame = np.frombuffer((ctypes.c_double * 9).from_address(ptr + layout[4]), dtype=np.float64)
     g = ctypes.c_int32.from_address(ptr + layout[5]).value, ctypes.c_int32.from_address(ptr + layout[6]).value
     efc = ctypes.c_int32.from_address(ptr + layout[7]).value
     if not (
-        read == d.ncon
-        and ptr == base
-        and np.array_equal(pos, c.pos[0])
+        np.array_equal(pos, c.pos[0])
+        and np.array_equal(frame, c.frame[0])
         and g == tuple(c.geom[0])
         and efc == c.efc_address[0]
     ):
-        return "mjData's contact layout as found does not read what the bindings read"
+        return "mjContact's layout from mujoco.introspect does not read what the bindings read"
     return layout
 
 
