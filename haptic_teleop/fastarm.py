@@ -55,8 +55,12 @@ def _drop_stale_cache() -> None:
                 return
     except OSError:
         pass
+    found = glob.glob(os.path.join(cache, "fastarmkernel.*.nb[ic]"))
+    elsewhere = os.environ.get("NUMBA_CACHE_DIR")
+    if elsewhere:  # numba's caches under another root, in a tree named after the source's path
+        found += glob.glob(os.path.join(elsewhere, "**", "fastarmkernel.*.nb[ic]"), recursive=True)
     try:
-        for path in glob.glob(os.path.join(cache, "fastarmkernel.*.nb[ic]")):
+        for path in found:
             os.remove(path)
         os.makedirs(cache, exist_ok=True)
         with open(stamp, "w") as fh:

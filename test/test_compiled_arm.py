@@ -288,3 +288,32 @@ def test_compiled_arm_loop_memory_does_not_grow_with_duration(case: str) -> None
         assert sink.ticks == engine.ticks and sink.longest <= BLOCK_TICKS + 200
     # Whole-run arrays would add 3 x 3000 ticks x 72 columns x 8 B = 5 MB or more.
     assert peaks[1] <= 1.1 * peaks[0] + 64_000, peaks
+
+
+def test_a_changed_source_drops_the_compiled_arm_loops_cache(tmp_path: Any) -> None:
+    """numba checks only the kernel file's stamp; fastarm drops the kernel's cache when any source
+    it is built from changed (here: a stamp that does not match), and keeps it otherwise."""
+    import shutil
+    from pathlib import Path
+
+    assert fastarm.kernel() is not None  # the stamp is written, the kernel imported
+    cache = Path(fastarm.__file__).parent / "__pycache__"
+    stamp = cache / "fastarmkernel.sources"
+    kept = list(cache.glob("fastarmkernel.*.nb[ic]"))
+    for path in kept:  # the real cache comes back after the test
+        shutil.copy2(path, tmp_path / path.name)
+    before = stamp.read_text()
+    dummy = cache / "fastarmkernel.dummy-1.py311.nbi"
+    try:
+        dummy.write_text("x")
+        fastarm._drop_stale_cache()
+        assert dummy.exists()  # sources unchanged: the cache stays
+        stamp.write_text("another source")
+        fastarm._drop_stale_cache()
+        assert not dummy.exists() and not list(cache.glob("fastarmkernel.*.nb[ic]"))
+        assert stamp.read_text() == before
+    finally:
+        dummy.unlink(missing_ok=True)
+        for path in kept:
+            shutil.copy2(tmp_path / path.name, path)
+        stamp.write_text(before)
