@@ -70,7 +70,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stdout.write(resolved)
         return EXIT_OK
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
-    from haptic_teleop.engine import record_run  # before the directory is made: a signal here leaves nothing
+    from haptic_teleop.engine.lockstep import record_run  # before the directory is made: a signal here leaves nothing
 
     check_out_dir(out)
 

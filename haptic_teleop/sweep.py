@@ -258,7 +258,7 @@ def _run_plan(
     name: str,
 ) -> int:
     from haptic_teleop.analysis.outputs import TIMING_FILE, write_atomic, write_outputs
-    from haptic_teleop.engine import record_run
+    from haptic_teleop.engine.lockstep import record_run
 
     bar = None
     if not args.quiet:

@@ -13,7 +13,7 @@ import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from haptic_teleop.engine import Engine
+from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.record.recorder import write_run
 from haptic_teleop.scene import find_scene, load_scene
 

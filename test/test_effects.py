@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from haptic_teleop.engine import Engine
+from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.plants.effects import EffectsPlant

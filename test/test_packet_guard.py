@@ -14,7 +14,7 @@ from haptic_teleop.core.eba import (
     SampleGuard,
     TeleopController,
 )
-from haptic_teleop.engine import COL, COLUMNS, Engine, record_run, remote_limits
+from haptic_teleop.engine.lockstep import COL, COLUMNS, Engine, record_run, remote_limits
 from haptic_teleop.scene import find_scene, load_scene
 
 T = 0.001
@@ -162,7 +162,7 @@ def test_live_nodes_guard_their_remote_samples_with_the_engines_limits(tmp_path)
     """master_eba and slave_eba build their controllers with the same packet guard as the engine,
     from the parameters the launcher writes; a NaN sample is rejected and counted."""
     rclpy = pytest.importorskip("rclpy")
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
     from haptic_teleop.launcher import node_plan, write_params_files
     from haptic_teleop.nodes.master_eba import MasterEba
     from haptic_teleop.nodes.slave_eba import SlaveEba

@@ -237,7 +237,7 @@ def load_setting_scene(scene_path: Path, setting: Setting, duration_s: float, ex
 
 def build_engine(scene: Any, setting: Setting) -> Any:
     """An Engine for `scene` with the settings that have no scene key written into MuJoCo."""
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
 
     engine = Engine(scene)
     if setting.solref_timeconst_s is not None:

@@ -126,7 +126,7 @@ def scene_rtf(cases: list[list[str]], scene_name: str, repeat: int) -> list[tupl
 
     The cases take turns within each repeat, so a change in the machine's load hits them alike.
     """
-    from haptic_teleop.engine import Engine, record_run
+    from haptic_teleop.engine.lockstep import Engine, record_run
     from haptic_teleop.scene import find_scene, load_scene
 
     scenes = [load_scene(find_scene(scene_name), overrides=ov) for ov in cases]

@@ -30,7 +30,7 @@ LAWS = ("position", "force")
 
 # --------------------------------------------------------------------------------------------
 # One-axis formulas on floats. The classes below call them on every tick, and the engine's
-# compiled loop (haptic_teleop/fastloop.py) compiles these same functions with numba: each
+# compiled loop (haptic_teleop/engine/compiled_loop.py) compiles these same functions with numba: each
 # formula exists once. Keep them plain float arithmetic (no Python objects) so both can run them.
 
 
@@ -286,7 +286,7 @@ class RemoteLimits:
 
     A remote sample with a value that is not finite or beyond its limit is rejected by the
     receiving controller (docs/eba.md, "Bad values in packets"). The engine derives the limits
-    from the scene (`haptic_teleop.engine.remote_limits`).
+    from the scene (`haptic_teleop.engine.lockstep.remote_limits`).
     """
 
     position_m: float  # workspace bound on |x|

@@ -220,7 +220,7 @@ class Recorder(LiveNode):
         self.get_logger().info(f"recording to {self.bag_dir}")
 
     def _open_bag(self) -> Any:
-        from haptic_teleop.engine import COLUMNS
+        from haptic_teleop.engine.lockstep import COLUMNS
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.record.recorder import RunRecorder
 
@@ -379,7 +379,7 @@ class Recorder(LiveNode):
             self._last_flush = now
 
     def _write_ticks(self, a: int, b: int) -> None:
-        from haptic_teleop.engine import COL, COLUMNS
+        from haptic_teleop.engine.lockstep import COL, COLUMNS
 
         n = b - a
         data = np.zeros((n, len(COLUMNS)))

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     from haptic_teleop.assembly import ArmParts, ArmSide
     from haptic_teleop.core.taskspace import WorkspaceMapping
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
 
 
 def wire_payload_bytes(names: int, fields: int) -> int:
