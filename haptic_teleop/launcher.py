@@ -33,7 +33,7 @@ from typing import IO, Any
 
 from haptic_teleop.lifetime import LAUNCHER_PID_ENV
 from haptic_teleop.nodes import EXECUTABLES, LOOP_FIGURES_MARK, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
-from haptic_teleop.scene import LoadedScene
+from haptic_teleop.scene.schema import LoadedScene
 
 SIDES = ("all", "master", "slave")
 DEVICES = ("plant", "topic")
@@ -515,7 +515,7 @@ def launch_main(args: Any) -> int:
     """`haptic-teleop launch` (argparse namespace from cli.py)."""
     from haptic_teleop import interrupt
     from haptic_teleop.errors import HapticTeleopError, InputError
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     overrides = list(args.set or ())
     if args.duration is not None:

@@ -222,7 +222,7 @@ def _command(args: argparse.Namespace) -> str:
 
 def run_sweep(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     params = [parse_param(t) for t in args.param]
     labels = [p.label for p in params]

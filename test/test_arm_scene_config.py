@@ -10,7 +10,8 @@ import pytest
 import yaml
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.scene import ARM_KEYS, find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.scene.schema import ARM_KEYS
 
 ARM = find_scene("touch_ur5e_wall")
 

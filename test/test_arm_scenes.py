@@ -17,7 +17,7 @@ import pytest
 from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.cli import main
 from haptic_teleop.engine.lockstep import Engine, record_run
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 ARM_SCENES = ("touch_ur5e_wall", "touch_dynamixel_wall", "touch_ur5e_oblique_wall")
 SHORT = ("scene.duration_s=3.0",)

@@ -8,7 +8,7 @@ import pytest
 
 from haptic_teleop.assembly import arm_kernels, build_arm_parts
 from haptic_teleop.engine.arm_loop import _SideTick
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 pytest.importorskip("numba")
 

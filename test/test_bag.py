@@ -14,7 +14,7 @@ from haptic_teleop.record.layouts import PACKET_FIELDS, FixedLayout, make_joint_
 from haptic_teleop.record.reader import BagReader
 from haptic_teleop.record.recorder import RunRecorder, write_run
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 
 @pytest.fixture(scope="module")

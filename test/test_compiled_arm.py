@@ -19,7 +19,7 @@ from haptic_teleop.engine import compiled_arm_loop
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 FWD = "network.forward"
 BWD = "network.backward"

@@ -16,7 +16,7 @@ from haptic_teleop.engine import compiled_loop
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 SHORT = "scene.duration_s=2.0"
 FWD = "network.forward"

@@ -16,7 +16,7 @@ import pytest
 from haptic_teleop.analysis.metrics import analyze_bag, port_energy
 from haptic_teleop.engine.lockstep import Engine, record_run
 from haptic_teleop.record.reader import BagReader
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 DEFAULT = find_scene("wall_contact")
 SHORT = ["scene.duration_s=3.0"]

@@ -12,7 +12,7 @@ import pytest
 
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 JITTER = ["network.forward.effects.delay.jitter_s=0.005", "network.backward.buffer.policy=fixed"]
 

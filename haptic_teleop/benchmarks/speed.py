@@ -33,7 +33,7 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float,
 
     from haptic_teleop.engine import compiled_loop
     from haptic_teleop.engine.lockstep import Engine
-    from haptic_teleop.scene import load_scene
+    from haptic_teleop.scene.load import load_scene
 
     engine = Engine(load_scene(scene_path), loop="python")
     out = []
@@ -384,7 +384,7 @@ def arm_speed(scene: Any, repeat: int) -> None:
 
 def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     from haptic_teleop.engine.lockstep import Engine
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     path = find_scene(scene_name)
     scene = load_scene(path)

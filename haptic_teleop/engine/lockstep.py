@@ -44,7 +44,7 @@ from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import LoadedScene
+from haptic_teleop.scene.schema import LoadedScene
 
 __all__ = ["COL", "COLUMNS", "REMOTE_LIMIT_MARGIN", "Engine", "build_operator", "record_run", "remote_limits"]
 

@@ -161,7 +161,7 @@ class Recorder(LiveNode):
 
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.record.layouts import topic_specs
-        from haptic_teleop.scene import LoadedScene
+        from haptic_teleop.scene.schema import LoadedScene
 
         self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir",))
         out = str(declare_value(self, "output_dir", "", "the bag goes to OUTPUT_DIR/bag (required)"))
