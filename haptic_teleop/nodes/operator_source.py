@@ -14,6 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
@@ -71,9 +73,13 @@ class OperatorSource(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
         self._master: tuple[list[float], list[float]] | None = None
-        self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
-        self._read_master = JointStateReader(("position", "velocity"), [(MASTER_JOINT, JOINT_ORDER)])
-        self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, JOINT_ORDER)
+        self.arm: Any = None
+        if cfg.is_arm:
+            self._init_arm(cfg)
+        else:
+            self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
+            self._read_master = JointStateReader(("position", "velocity"), [(MASTER_JOINT, JOINT_ORDER)])
+            self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, JOINT_ORDER)
         from std_msgs.msg import Header
 
         self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
@@ -81,6 +87,48 @@ class OperatorSource(LiveNode):
         self._ready_ns: int | None = None
         self._created_ns = self.now_ns()
         self.setup_loop(period_ns)
+
+    def _init_arm(self, cfg: Any) -> None:
+        """An arm scene: the 3-D operator (armloop.operator_hand: the intended point along
+        `operator.direction`, the hand a spring-damper in the device frame) on the master handle's
+        newest task-frame state, which the master sends forward (/forward/sent: x, v per axis)."""
+        from sensor_msgs.msg import JointState
+
+        from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.nodes.messages import SpecOut
+        from haptic_teleop.nodes.topics import WIRE_FIELDS, sent_topic, wire_names
+        from haptic_teleop.record.layouts import topic_specs
+
+        self.arm = parts = build_arm_parts(cfg)
+        from haptic_teleop.armloop import side_ticks
+
+        side_ticks(parts)  # builds parts.maps (the mapping's functions, compiled)
+        parts.master.plant.close()
+        parts.slave.plant.close()
+        axes = parts.schema.task_axes
+        self._x_dev = parts.master.plant.point()[0]  # the start handle until the master is heard
+        self._v_dev = np.zeros(axes)
+        self._master_sub = self.create_polled_subscription(JointState, sent_topic("forward"), stream_qos(), raw=True)
+        self._read_master = JointStateReader(
+            WIRE_FIELDS["forward"], [(wire_names("forward", axes), WIRE_FIELDS["forward"])], axes
+        )
+        self.out = SpecOut(self, topic_specs(parts.schema)[OPERATOR_STATE])
+
+    def _arm_take(self) -> None:
+        m = take_latest(self._master_sub)
+        if m is not None:
+            vals = np.asarray(self._read_master(m)[1])
+            k = vals.size // 2
+            maps = self.arm.maps
+            self._x_dev = maps.to_master_x(vals[:k])
+            self._v_dev = maps.to_master_v(vals[k:])
+            self._master = ([], [])
+
+    def _arm_publish(self, t: float, stamp_ns: int) -> None:
+        from haptic_teleop.armloop import operator_hand
+
+        xd_t, vd_t, f_dev = operator_hand(self.arm, t, self._x_dev, self._v_dev)
+        self.out.publish(stamp_ns, (*xd_t, *vd_t, *self.arm.maps.force_to_task(f_dev).tolist()))
 
     def _graph_ready(self) -> bool:
         if self._master is None:
@@ -90,7 +138,11 @@ class OperatorSource(LiveNode):
         return all(self.count_publishers(t) > 0 for t in self.wait_for)
 
     def tick(self, index: int, stamp_ns: int) -> None:
-        m = take_latest(self._master_sub)
+        if self.arm is not None:
+            self._arm_take()
+            m = None
+        else:
+            m = take_latest(self._master_sub)
         if m is not None:
             x, v = self._read_master(m)[1]
             self._master = ([x], [v])
@@ -115,6 +167,9 @@ class OperatorSource(LiveNode):
         if n >= self.duration_ticks and self.stop_at_end:
             raise NodeStopped(f"scene duration reached ({n} ticks)")
         t = n * self.period_ns * 1e-9
+        if self.arm is not None:
+            self._arm_publish(t, stamp_ns)
+            return
         x, v = self._master if self._master is not None else ([0.0], [0.0])
         fh = self.operator.hand_force(t, x, v)
         xd, vd = self.operator.intended(t)
