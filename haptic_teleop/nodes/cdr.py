@@ -127,6 +127,17 @@ class FixedCodec:
         self._template = bytes(layout.template)
         self._sec = int(layout.sec_offset)  # -1: no header
         self._offsets = tuple(int(o) for o in layout.float_offsets)
+        # Runs of values stored back to back (a JointState's array, a Vector3, the data of a
+        # multiarray): one pack per run, not per value (an arm's JointState has 18 values in 3 runs).
+        runs: list[tuple[int, int, int]] = []  # (offset, first value, count)
+        for i, off in enumerate(self._offsets):
+            if runs and runs[-1][0] + 8 * runs[-1][2] == off:
+                o, first, k = runs[-1]
+                runs[-1] = (o, first, k + 1)
+            else:
+                runs.append((off, i, 1))
+        self._runs = tuple((struct.Struct(f"<{k}d").pack_into, o, first, first + k) for o, first, k in runs)
+        self._count = len(self._offsets)
 
     def encode(self, stamp_ns: int | None, values: Sequence[float]) -> bytes:
         buf = bytearray(self._template)
@@ -134,8 +145,10 @@ class FixedCodec:
             if stamp_ns is None:
                 raise ValueError("this message type has a header: a stamp is required")
             _STAMP.pack_into(buf, self._sec, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
-        for off, v in zip(self._offsets, values, strict=True):
-            _DOUBLE.pack_into(buf, off, v)
+        if len(values) != self._count:
+            raise ValueError(f"{self._count} values expected, got {len(values)}")
+        for pack, off, a, b in self._runs:
+            pack(buf, off, *values[a:b])
         return bytes(buf)
 
 
