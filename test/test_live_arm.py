@@ -189,6 +189,7 @@ def test_arm_scene_runs_live_one_process_per_node(tmp_path):
     assert all(c == 0 for c in codes.values()), codes
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_joints"] == list(UR5E) and summary["ticks"] > 0
+    assert summary["contact_force_max_n"] > 1.0  # the master's motion reached the slave over the relays
     for side in SIDES:
         assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
 

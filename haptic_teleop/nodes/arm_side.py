@@ -58,16 +58,21 @@ class ArmEbaSide:
         self.out = {t: SpecOut(node, s) for t, s in specs.items() if t in side_topics(role, self.schema)}
         self.remote: tuple[float, ...] | None = None
         self.remote_samples = 0
+        self.malformed_samples = 0
 
     def torque(self, x: np.ndarray, v: np.ndarray, stamp_ns: int) -> np.ndarray:
         """The side's torque for this tick (SideTick.torque) on the newest accepted remote sample."""
         raw = take_latest(self._sub)
         if raw is not None:
-            self.remote_samples += 1
-            payload = self._read(raw)[1]
-            if self.side.guard.accept(payload):
-                self.remote = payload
-            self.watchdog.feed(stamp_ns)
+            try:
+                payload = self._read(raw)[1]
+            except IndexError:  # not an arm payload (fewer values than the task has axes): ignored
+                self.malformed_samples += 1
+            else:
+                self.remote_samples += 1
+                if self.side.guard.accept(payload):
+                    self.remote = payload
+                self.watchdog.feed(stamp_ns)
         self.tick.limit = self.limit_n * self.watchdog.update(stamp_ns)
         return self.tick.torque(x, v, self.remote)
 
@@ -95,6 +100,7 @@ class ArmEbaSide:
             "watchdog_trips": wd.trips,
             "remote_samples": self.remote_samples,
             "rejected_samples": self.side.rejected_samples,
+            "malformed_samples": self.malformed_samples,
             "joint_limited_ticks": self.tick.limited_ticks,
         }
 
