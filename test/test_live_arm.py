@@ -214,3 +214,26 @@ def test_ctrl_c_mid_run_leaves_a_readable_arm_bag(tmp_path):
     assert summary["interrupted"] is True and 0 < summary["ticks"] < 60_000
     assert summary["slave_joints"] == list(UR5E)
     assert json.loads((out / "summary.json").read_text())["ticks"] == summary["ticks"]
+
+
+def test_arm_payloads_cross_the_wire_with_one_value_per_axis_and_field():
+    """The relays' and buffers' codecs for an arm scene: a JointState of one name per task axis,
+    read back in the arm tick's payload order; a one-axis message is refused (IndexError), not misread."""
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+
+    from haptic_teleop.nodes.cdr import JointStateCodec, JointStateReader
+    from haptic_teleop.nodes.topics import WIRE_FIELDS, payload_fields, wire_names
+
+    payload = tuple(float(i) + 0.25 for i in range(9))  # tool x[3], v[3], contact force[3]
+    names = wire_names("backward", 3)
+    raw = JointStateCodec(names, WIRE_FIELDS["backward"]).encode(1_500_000_000, payload)
+    msg = deserialize_message(raw, JointState)
+    assert tuple(msg.name) == ("slave_x", "slave_y", "slave_z")
+    assert list(msg.effort) == list(payload[6:]) and list(msg.position) == list(payload[:3])
+    fast = JointStateReader(payload_fields("backward", 3), [(names, WIRE_FIELDS["backward"])], 3)
+    slow = JointStateReader(payload_fields("backward", 3), [], 3)  # deserializes
+    assert fast(raw) == slow(raw) == (1_500_000_000, payload)
+    one = JointStateCodec("slave_x", WIRE_FIELDS["backward"]).encode(0, (1.0, 2.0, 3.0))
+    with pytest.raises(IndexError):
+        fast(one)
