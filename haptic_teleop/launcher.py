@@ -142,6 +142,8 @@ def node_plan(
         raise ValueError(f"side must be one of {SIDES}, got {side!r}")
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
+    if device != "plant" and scene.config.is_arm:
+        raise ValueError(f"device={device}: an arm scene runs its simulated device only for now; allowed: plant")
     if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
         raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
     watchdog = {"watchdog": {"timeout_s": float(watchdog_timeout_s), "fade_s": float(watchdog_fade_s)}}
