@@ -143,7 +143,11 @@ def node_plan(
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
     if device != "plant" and scene.config.is_arm:
-        raise ValueError(f"device={device}: an arm scene runs its simulated device only for now; allowed: plant")
+        from haptic_teleop.errors import ConfigError
+
+        raise ConfigError(
+            scene.source, "device", device, "an arm scene runs its simulated arms only for now; allowed: plant"
+        )
     if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
         raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
     watchdog = {"watchdog": {"timeout_s": float(watchdog_timeout_s), "fade_s": float(watchdog_fade_s)}}

@@ -237,3 +237,26 @@ def test_arm_payloads_cross_the_wire_with_one_value_per_axis_and_field():
     one = JointStateCodec("slave_x", WIRE_FIELDS["backward"]).encode(0, (1.0, 2.0, 3.0))
     with pytest.raises(IndexError):
         fast(one)
+
+
+def test_ros2_launch_files_plan_an_arm_scene_as_the_launcher_does(tmp_path):
+    """`ros2 launch haptic_teleop teleop_launch.py scene:=touch_ur5e_wall` builds the launcher's plan:
+    relays and buffers told the payload's axes, the EBA nodes and the operator the arm sections."""
+    import yaml
+
+    from haptic_teleop.errors import ConfigError
+    from haptic_teleop.launch_support import plan_from_arguments
+    from haptic_teleop.launcher import node_plan
+    from haptic_teleop.scene import find_scene, load_scene
+
+    pairs = plan_from_arguments({"scene": SCENE, "record": str(tmp_path / "rec")}, "plant", tmp_path / "p")
+    want = node_plan(load_scene(find_scene(SCENE)), record_dir=tmp_path / "rec")
+    assert [s for s, _ in pairs] == want
+    for spec, path in pairs:
+        params = yaml.safe_load(path.read_text())[spec.name]["ros__parameters"]
+        if spec.executable in ("network_relay", "sync_buffer"):
+            assert params["task_axes"] == 3
+        if spec.executable in ("master_eba", "slave_eba", "operator_source"):
+            assert params["slave"]["wall"]["normal"] == [0.0, 0.0, 1.0]
+    with pytest.raises(ConfigError, match="device"):  # the hardware variant: not for arm scenes yet
+        plan_from_arguments({"scene": SCENE}, "topic", tmp_path / "hw")
