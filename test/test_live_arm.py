@@ -162,8 +162,11 @@ def test_live_arm_bag_analyses_with_the_engine_bags_keys_and_reaches_the_wall(si
     # `engine_loop` says which engine loop ran (timing, not the bag): the rest is the bag's analysis.
     assert set(summary) == set(engine_summary) - {"engine_loop"}
     assert summary["slave_joints"] == list(UR5E)
-    # The push reaches the wall live as in the engine (same wall, same operator).
-    assert summary["contact_force_max_n"] > 0.5 * engine_summary["contact_force_max_n"] > 1.0
+    # The push reaches the wall live as in the engine (same wall, same operator): the peak wall
+    # force within 10 % (the one-axis cross-mode tolerance, docs/live.md), the arm pushing down.
+    peak, want = summary["contact_force_max_n"], engine_summary["contact_force_max_n"]
+    assert want > 1.0 and abs(peak - want) <= 0.1 * want, (peak, want)
+    assert summary["contact_force_max_z_n"] == peak  # the table's normal is +z
     r = subprocess.run([*CLI, "analyze", str(out / "bag"), "--out", str(out / "again"), "--no-plots"],
                        capture_output=True, text=True, timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
