@@ -30,10 +30,6 @@ DURATION = ("--set", "scene.duration_s=2")
 UR5E = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
 TOUCH = ("yaw", "shoulder", "elbow")
 SIDES = ("master", "slave")
-# The master's reservoir is spent as it fills (docs/arms.md): its true margin sits at 0, and the
-# analysis' sum (per port, then pooled) differs from the controller's (pooled, per tick) by
-# rounding. One femtojoule is far below any physical energy here and far above the rounding.
-ROUNDING_J = 1e-15
 
 
 class Launch:
@@ -179,8 +175,11 @@ def test_live_arm_energy_margins_from_the_bag_are_nonnegative(single):
     assert code == 0, launch.text[-4000:]
     summary = json.loads((out / "summary.json").read_text())
     for side in SIDES:
-        assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
+        assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
         assert summary[f"{side}_joint_damping_simulator"]  # the margin used the simulator's damping
+    # Both ledgers restarted at scene time 0 (the start announced ahead): what the master took in
+    # while the graph settled (a reservoir of about 5e-32 J) is not spent inside the recorded run.
+    assert "Traceback" not in launch.text
 
 
 def test_arm_scene_runs_live_one_process_per_node(tmp_path):
@@ -194,7 +193,7 @@ def test_arm_scene_runs_live_one_process_per_node(tmp_path):
     assert summary["slave_joints"] == list(UR5E) and summary["ticks"] > 0
     assert summary["contact_force_max_n"] > 1.0  # the master's motion reached the slave over the relays
     for side in SIDES:
-        assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
+        assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
 
 
 def test_ctrl_c_mid_run_leaves_a_readable_arm_bag(tmp_path):

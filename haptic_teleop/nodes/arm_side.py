@@ -20,8 +20,17 @@ import numpy as np
 from haptic_teleop.nodes.base import LiveNode
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.eba_side import declare_watchdog
-from haptic_teleop.nodes.messages import SpecOut, take_latest
-from haptic_teleop.nodes.topics import WIRE_FIELDS, payload_fields, received_topic, stream_qos, wire_names
+from haptic_teleop.nodes.messages import SpecOut, take_all, take_latest
+from haptic_teleop.nodes.topics import (
+    SCENE_START_TOPIC,
+    WIRE_FIELDS,
+    latched_qos,
+    payload_fields,
+    received_topic,
+    scene_start_ns,
+    stream_qos,
+    wire_names,
+)
 
 
 class ArmEbaSide:
@@ -30,6 +39,7 @@ class ArmEbaSide:
 
     def __init__(self, node: LiveNode, role: str, config: Any) -> None:
         from sensor_msgs.msg import JointState
+        from std_msgs.msg import Header
 
         from haptic_teleop.armloop import side_ticks
         from haptic_teleop.assembly import build_arm_parts
@@ -56,12 +66,22 @@ class ArmEbaSide:
         self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
         specs = topic_specs(self.schema)
         self.out = {t: SpecOut(node, s) for t, s in specs.items() if t in side_topics(role, self.schema)}
+        # Scene time 0 (announced by the operator source ahead of time, latched): the bound's ledger
+        # restarts there with min(reservoir, initial energy), so energy the side took in while the
+        # graph settled is not spent inside the recorded run, whose analysis starts each side at
+        # its initial energy (its true margin from the bag is then >= the ledger's, >= 0).
+        self._start_sub = node.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
+        self._period_ns = round(self.period_s * 1e9)
+        self.restart_ns: int | None = None
+        self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
         self.remote_samples = 0
         self.malformed_samples = 0
 
     def torque(self, x: np.ndarray, v: np.ndarray, stamp_ns: int) -> np.ndarray:
         """The side's torque for this tick (SideTick.torque) on the newest accepted remote sample."""
+        if self.restarted_j is None:
+            self._restart(stamp_ns)
         raw = take_latest(self._sub)
         if raw is not None:
             try:
@@ -75,6 +95,18 @@ class ArmEbaSide:
                 self.watchdog.feed(stamp_ns)
         self.tick.limit = self.limit_n * self.watchdog.update(stamp_ns)
         return self.tick.torque(x, v, self.remote)
+
+    def _restart(self, stamp_ns: int) -> None:
+        if self.restart_ns is None:
+            told = take_all(self._start_sub)
+            if not told:
+                return
+            self.restart_ns = scene_start_ns(told[-1], self._period_ns)
+        if stamp_ns >= self.restart_ns:
+            bound = self.tick.bound
+            e = min(bound.energy_j, bound.params.initial_energy_j)
+            self.restarted_j = bound.energy_j - e
+            bound.restart(e)
 
     def applied(self, torque: np.ndarray) -> None:
         """The ledger takes the torques the plant applied (as the engine's loop)."""
@@ -102,6 +134,7 @@ class ArmEbaSide:
             "rejected_samples": self.side.rejected_samples,
             "malformed_samples": self.malformed_samples,
             "joint_limited_ticks": self.tick.limited_ticks,
+            "ledger_restarted_discarding_j": self.restarted_j if self.restarted_j is not None else -1.0,
         }
 
     def close(self) -> None:

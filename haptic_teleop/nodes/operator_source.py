@@ -83,7 +83,8 @@ class OperatorSource(LiveNode):
         from std_msgs.msg import Header
 
         self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
-        self.start_index: int | None = None
+        self.start_index: int | None = None  # the tick of scene time 0, announced once the graph is up
+        self.started = False  # scene time has begun
         self._ready_ns: int | None = None
         self._created_ns = self.now_ns()
         self.setup_loop(period_ns)
@@ -147,22 +148,26 @@ class OperatorSource(LiveNode):
             x, v = self._read_master(m)[1]
             self._master = ([x], [v])
         if self.start_index is None:
-            if self._ready_ns is None:
-                if index % 50 == 0 and self._graph_ready():
-                    self._ready_ns = stamp_ns
-                    self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
-                elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
-                    raise RuntimeError(
-                        f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
-                        f"(waiting for /master/joint_states, publishers of {self.wait_for}, "
-                        f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
-                    )
-                return
-            if stamp_ns - self._ready_ns < self.start_delay_ns:
-                return
-            self.start_index = index
-            self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns")
-            self._publish_start(stamp_ns)
+            if index % 50 == 0 and self._graph_ready():
+                self._ready_ns = stamp_ns
+                # Scene time 0: the first tick at least start.delay_s after now, announced now (latched)
+                # so every node knows it before it comes (the arm nodes restart their energy ledgers
+                # there: nodes/arm_side.py).
+                self.start_index = index + max(1, -(-self.start_delay_ns // self.period_ns))
+                self._publish_start(self.start_index * self.period_ns)
+                self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
+            elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
+                raise RuntimeError(
+                    f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
+                    f"(waiting for /master/joint_states, publishers of {self.wait_for}, "
+                    f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
+                )
+            return
+        if index < self.start_index:
+            return
+        if not self.started:
+            self.started = True
+            self.get_logger().info(f"scene time 0 at stamp {self.start_index * self.period_ns} ns")
         n = index - self.start_index
         if n >= self.duration_ticks and self.stop_at_end:
             raise NodeStopped(f"scene duration reached ({n} ticks)")
@@ -183,7 +188,7 @@ class OperatorSource(LiveNode):
         self._start_pub.publish(h)
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
-        return {"started": int(self.start_index is not None)}
+        return {"started": int(self.started)}
 
 
 def main() -> None:
