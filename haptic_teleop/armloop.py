@@ -24,6 +24,7 @@ import numpy as np
 
 from haptic_teleop.core.eba import joint_limited
 from haptic_teleop.core.link import Packet
+from haptic_teleop.core.taskspace import dot, matrix_times
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -78,7 +79,7 @@ class _SideTick:
         q, qd = plant.read()
         jac = plant.jacobian(rotational=self.side.rotational)
         if self.jac_scale is not None:
-            jac[:3] = self.jac_scale @ jac[:3]
+            matrix_times(jac[:3], self.jac_scale, jac[:3].copy())  # summed in order: the compiled loop's bits
         if remote is None:
             rx = rv = None
         else:
@@ -88,7 +89,7 @@ class _SideTick:
         tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
         f = self.law.wrench[:3]
         self.force[:] = f
-        norm = float(np.sqrt(f @ f))
+        norm = float(np.sqrt(dot(f, f)))
         if norm > self.limit:
             tau = tau * (self.limit / norm)
         lo, hi = plant.torque_room()
@@ -96,8 +97,8 @@ class _SideTick:
         if not np.array_equal(self.limited, tau):
             self.limited_ticks += 1
         out = self.bound.step(q, self.limited)
-        tt = float(tau @ tau)
-        self.ratio = float(out @ tau) / tt if tt > 0.0 else 0.0
+        tt = dot(tau, tau)
+        self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
         self.ratio *= sat
         return out

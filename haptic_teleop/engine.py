@@ -159,13 +159,22 @@ class Engine:
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
         self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
         self._stop = False
-        self.compiled_reason = "more than one axis (arm scenes run in the Python loop)"
-        if loop == "compiled":
+        from haptic_teleop import fastarm
+
+        self.compiled_reason = (
+            fastarm.compiled_reason_arm(parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer)
+            if loop != "python"
+            else "loop 'python' asked for"
+        )
+        if loop == "compiled" and self.compiled_reason is not None:
             raise HapticTeleopError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
                 "use --loop auto or python"
             )
-        self.loop_kind = "python"
+        self.loop_kind = "compiled" if self.compiled_reason is None else "python"
+        if self.loop_kind == "compiled":
+            self._compiled_arm = fastarm.CompiledArm(parts, self.period_s)
+            self._compiled_arm.warm_up()  # compile (or load numba's cache) now, not in the timed loop
 
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
         """Fresh links and playout buffers for both directions, as the scene names them."""
@@ -207,7 +216,7 @@ class Engine:
         gc_was_enabled = gc.isenabled()
         gc.disable()
         try:
-            if self.loop_kind == "compiled":
+            if self.loop_kind == "compiled" and self.schema is ONE_DOF:
                 result = self._compiled_loop(progress, out)
             else:
                 result = self._loop(progress, out)
@@ -344,16 +353,29 @@ class Engine:
         from haptic_teleop.armloop import run_arm_loop
 
         self.ticks_done = 0
-        output = _Output(
-            sink,
-            lambda sent, final: fastloop.settled_records(self.forward, self.forward_buffer, sent, final),
-            lambda sent, final: fastloop.settled_records(self.backward, self.backward_buffer, sent, final),
-            self.schema.width,
-        )
+        compiled = self.loop_kind == "compiled"
+        if compiled:  # the network decided a window ahead (fastloop.schedule), as for one axis
+            fwd = fastloop.schedule(self.forward, self.forward_buffer, self.period_ns, self._sizes[0])
+            bwd = fastloop.schedule(self.backward, self.backward_buffer, self.period_ns, self._sizes[1])
+            window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
+            output = _Output(sink, fwd.settled, bwd.settled, self.schema.width)
+        else:
+            output = _Output(
+                sink,
+                lambda sent, final: fastloop.settled_records(self.forward, self.forward_buffer, sent, final),
+                lambda sent, final: fastloop.settled_records(self.backward, self.backward_buffer, sent, final),
+                self.schema.width,
+            )
         t0 = time.perf_counter()
         done = 0
         try:
-            done = run_arm_loop(self, self.arm, progress, output)
+            if compiled:
+                try:
+                    done = self._compiled_arm.run(self, progress, output, fwd, bwd, window)
+                finally:
+                    self._compiled_arm.store(self)
+            else:
+                done = run_arm_loop(self, self.arm, progress, output)
         except BaseException:
             done = self.ticks_done
             self.master.close()

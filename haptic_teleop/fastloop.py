@@ -25,8 +25,11 @@ The result is the same columns and packet records, bit for bit, as the Python lo
 (test_compiled_loop.py), and the same bag.
 
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
-backends, more than one axis, operator traces, payload-changing effects (corruption),
-extrapolating buffers, and machines without numba.
+backends, operator traces, payload-changing effects (corruption), extrapolating buffers, and
+machines without numba. Arm scenes (more than one axis) have their own compiled loop,
+`haptic_teleop/fastarm.py`, which reuses this module's network schedule; it does not take arm
+plants with effects or another backend, the force law, an operator trace, corruption or
+extrapolating buffers either.
 """
 
 from __future__ import annotations

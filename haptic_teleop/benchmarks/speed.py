@@ -287,12 +287,110 @@ def _loop_figures(scene: Any, loop: str, repeat: int) -> dict[str, float]:
     }
 
 
+def _arm_cost_run(scene: Any, every: int) -> tuple[float, float, float]:
+    """One run of `arm_costs_us`: (loop, bare, MuJoCo calls), us per tick."""
+    import mujoco
+
+    from haptic_teleop import fastarm
+    from haptic_teleop.engine import Engine
+    from haptic_teleop.fastarmkernel import bare_steps, mujoco_steps
+
+    e = Engine(scene, loop="compiled")
+    parts = e.arm
+    mp, sp = parts.master.plant, parts.slave.plant
+    md, sd = mujoco.MjData(mp.model), mujoco.MjData(sp.model)
+    models = np.array([mp.model._address, md._address, sp.model._address, sd._address], dtype=np.int64)
+    ms = fastarm.side_tuple(parts.master, parts, True, md)
+    ss = fastarm.side_tuple(parts.slave, parts, False, sd)
+    spent = {"bare": 0.0, "calls": 0.0, "callback": 0.0}
+
+    def copy() -> None:
+        mujoco.mj_copyData(md, mp.model, mp.data)
+        mujoco.mj_copyData(sd, sp.model, sp.data)
+
+    def progress(n: int) -> None:
+        t0 = time.perf_counter()
+        copy()
+        t1 = time.perf_counter()
+        bare_steps(models, every)
+        t2 = time.perf_counter()
+        copy()
+        t3 = time.perf_counter()
+        mujoco_steps(ms, ss, every)
+        t4 = time.perf_counter()
+        spent["bare"] += t2 - t1
+        spent["calls"] += t4 - t3
+        spent["callback"] += t4 - t0
+
+    mujoco_steps(ms, ss, 0)  # both compiled (or loaded) before the timing
+    bare_steps(models, 0)
+    r = e.run(handle_sigint=False, progress=progress)
+    samples = r.ticks // every * every
+    return (
+        (r.loop_wall_s - spent["callback"]) / r.ticks * 1e6,
+        spent["bare"] / samples * 1e6,
+        spent["calls"] / samples * 1e6,
+    )
+
+
+def arm_costs_us(scene: Any, repeat: int, every: int = 100) -> dict[str, Any]:
+    """An arm scene's compiled tick against MuJoCo alone, in the same run (us per tick, medians of
+    `repeat` runs without recording): the loop; and, every `every` ticks (the loop's progress
+    calls), on a copy of both plants' MjData as the loop has them (in contact when the loop is,
+    the controls it holds), `every` bare `mj_step`s of both models and `every` steps of the
+    tick's own MuJoCo calls (mj_step1, mj_jacSite, mj_step2), all from compiled code with
+    MuJoCo's timers off. The loop's time leaves out the time of those calls."""
+    runs = [_arm_cost_run(scene, every) for _ in range(repeat)]
+    ratios = [loop / bare for loop, bare, _ in runs]
+    return {
+        "tick_us": statistics.median(r[0] for r in runs),
+        "bare_us": statistics.median(r[1] for r in runs),
+        "calls_us": statistics.median(r[2] for r in runs),
+        "ratio": statistics.median(ratios),
+        "ratio_range": (min(ratios), max(ratios)),
+    }
+
+
+def arm_speed(scene: Any, repeat: int) -> None:
+    """`speed` for arm scenes: real-time factors of both loops, the compiled tick against a bare
+    mj_step of the same two models in the same run, and the part of it MuJoCo's own calls take."""
+    run = scene.config.scene
+    from haptic_teleop.engine import Engine
+
+    probe = Engine(scene)
+    loops = ["compiled", "python"] if probe.loop_kind == "compiled" else ["python"]
+    one_core = "pinned to one CPU" if hasattr(__import__("os"), "sched_setaffinity") else "writer in the loop's process"
+    print(f"scene {run.name} (arms): {run.duration_s:g} s at {1 / run.period_s:g} Hz, median of {repeat}")
+    if probe.loop_kind != "compiled":
+        print(f"  (no compiled loop for this scene: {probe.compiled_reason})")
+    for loop in loops:
+        f = _loop_figures(scene, loop, repeat)
+        print(f"{loop} loop (haptic-teleop run --loop {loop}{', the default' if loop == loops[0] else ''}):")
+        print(f"  real-time factor, loop + bag recording   {f['rtf']:8.1f}   (writer process)")
+        print(f"  real-time factor, the same on one core   {f['rtf_one_core']:8.1f}   ({one_core}; target >= 50)")
+        print(f"  real-time factor, loop alone             {1e6 * run.period_s / f['tick_us']:8.1f}")
+        print(f"  wall time per tick, loop + recording     {f['per_tick_recorded_us']:8.2f} us")
+        print(f"  wall time per tick, loop alone           {f['tick_us']:8.2f} us")
+    if probe.loop_kind == "compiled":
+        c = arm_costs_us(scene, repeat)
+        lo, hi = c["ratio_range"]
+        print("compiled tick against MuJoCo alone, in the same runs (state copied from the loop every 100 ticks):")
+        print(f"  compiled tick (no recording)             {c['tick_us']:8.2f} us")
+        print(f"  its MuJoCo calls (step1, jacSite, step2) {c['calls_us']:8.2f} us")
+        print(f"  bare mj_step, master + slave, compiled   {c['bare_us']:8.2f} us  (timers off)")
+        ratio = c["ratio"]
+        print(f"  compiled tick / bare mj_step             {ratio:8.2f} x  (runs {lo:.2f} to {hi:.2f}; target <= 1.5)")
+
+
 def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     from haptic_teleop.engine import Engine
     from haptic_teleop.scene import find_scene, load_scene
 
     path = find_scene(scene_name)
     scene = load_scene(path)
+    if scene.config.is_arm:
+        arm_speed(scene, repeat)
+        return 0
     probe = Engine(scene)
     loops = ["compiled", "python"] if probe.loop_kind == "compiled" else ["python"]
     figures = {loop: _loop_figures(scene, loop, repeat) for loop in loops}

@@ -577,20 +577,21 @@ def joint_limited(
     high: npt.NDArray[np.float64],
     keep_direction: bool,
 ) -> None:
-    """`tau` brought within [low_i, high_i] per joint (low_i <= 0 <= high_i).
+    """`tau` brought within [low_i, high_i] per joint (normally low_i <= 0 <= high_i).
 
     keep_direction: one factor on the whole vector, the largest that fits every joint (the
     direction of the task force survives); else each joint clipped alone, as a motor does (the
-    direction can turn).
+    direction can turn). A joint whose room excludes 0 (its gravity torque beyond the motor's
+    limit: the motor cannot hold the arm) takes no part in the factor and is clipped alone.
     """
     n = tau.shape[0]
     if keep_direction and n > 1:  # one joint: the clip (the same bits as the one-axis bound's clip)
         f = 1.0
         for i in range(n):
             t = tau[i]
-            if t > high[i]:
+            if t > high[i] >= 0.0:
                 f = min(f, high[i] / t)
-            elif t < low[i]:
+            elif t < low[i] <= 0.0:
                 f = min(f, low[i] / t)
         for i in range(n):
             out[i] = f * tau[i]

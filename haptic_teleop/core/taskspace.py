@@ -579,3 +579,30 @@ class TaskSpaceLaw:
             f["null_space_damping"](self._tmp, jac, qd, self._null_d, p.pinv_damping_m)
             f["add_into"](self.torque_nm, self._tmp)
         return self.torque_nm
+
+
+def dot(a: Vec, b: Vec) -> float:
+    """a.T @ b summed in index order (numpy's `@` may sum in another order: not the compiled loop's bits)."""
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * b[i]
+    return s
+
+
+def matrix_times(out: Mat, a: Mat, b: Mat) -> None:
+    """out = a @ b for matrices, each entry summed in index order (`out` must not be `b`)."""
+    m, k = a.shape
+    n = b.shape[1]
+    for i in range(m):
+        for j in range(n):
+            s = 0.0
+            for r in range(k):
+                s += a[i, r] * b[r, j]
+            out[i, j] = s
+
+
+def cross(out: Vec, a: Vec, b: Vec) -> None:
+    """out = a x b (3-vectors), numpy.cross's formula."""
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from haptic_teleop.core.taskspace import jacobian_times, jacobian_transpose
 from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.mujoco_plant import SimSettings, resolve_model
 
@@ -269,7 +270,9 @@ class MujocoArm:
         """The handle/tool point's position (m) and velocity (m/s), world frame, this tick."""
         self._step1()
         jac = self.jacobian()
-        return np.array(self.data.site_xpos[self._site]), jac @ self.data.qvel[self._dadr]
+        v = np.zeros(3)
+        jacobian_times(v, jac, self.data.qvel[self._dadr])  # summed in order: the compiled loop's bits
+        return np.array(self.data.site_xpos[self._site]), v
 
     def jacobian(self, rotational: bool = False) -> np.ndarray:
         """d(point)/dq, 3 x n (6 x n with the rotational rows under it), this tick."""
@@ -346,7 +349,9 @@ class MujocoArm:
         d.ctrl[self._act] = tau
         if hand_force_n is not None:
             f = np.asarray(hand_force_n, dtype=float) + self._hand_support
-            d.qfrc_applied[self._dadr] = self.jacobian().T @ f
+            tau_hand = np.zeros(self.n)
+            jacobian_transpose(tau_hand, self.jacobian(), f)  # J^T f summed in order (the compiled loop's bits)
+            d.qfrc_applied[self._dadr] = tau_hand
         mj.mj_step2(m, d)
         self._fresh = False
         wrench = self._contact()
@@ -372,7 +377,9 @@ class MujocoArm:
                 continue
             self._mj.mj_contactForce(self.model, d, i, f6)
             frame = c.frame.reshape(3, 3)
-            f = frame.T @ f6[:3]  # on geom2 (the tool), from geom1 (the wall): the normal points wall -> tool
+            f = np.zeros(3)  # frame.T @ f6[:3], summed in order (the compiled loop's bits)
+            # on geom2 (the tool), from geom1 (the wall): the normal points wall -> tool
+            jacobian_transpose(f, frame, f6)
             out[:3] += f
             out[3:] += np.cross(c.pos - x, f)
         return out

@@ -1,0 +1,495 @@
+"""The compiled loop for arm scenes: the same tick as the Python arm loop (`armloop.py`), in numba.
+
+The tick (docs/performance.md, "Arm scenes") calls MuJoCo from compiled code on the plants' own
+`MjModel`/`MjData`: `mj_step1` (positions, velocities, kinematics, gravity torques, collisions),
+`mj_jacSite` (the handle's or tool's Jacobian), `mj_step2` (actuation, constraints, integration;
+the split step gives the bits of `mj_step` for the Euler and implicit integrators), and
+`mj_contactForce` for the wall's force on the tool. The contact array is read in place: its
+address and count are fields of mjData, whose offsets (and mjContact's) are laid out by C's rules
+from `mujoco.introspect`, MuJoCo's description of its headers, and checked against what the
+bindings read on a probe model before use (`contact_layout`). The
+task-space law, J^T F, the null-space damping, the pooled joint bound and the operator are the
+functions of `core` compiled from their one definition (`fastarmkernel.compile_tree`).
+
+The network is the 1-DoF loop's: `fastloop.schedule` decides, window by window, which sequence
+number each buffer releases at each tick (nothing it decides depends on what packets carry); the
+loop looks the released payload up in the sender's ring of recent payloads.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from haptic_teleop.assembly import ArmParts, ArmSide
+
+PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
+
+
+# The sources the compiled arm loop is built from. numba's cache of a function checks only its
+# own file's time stamp, and the loop holds compiled copies of core's functions: when any of these
+# files changed since the cache was written, the cache of fastarmkernel is dropped first.
+_SOURCES = ("fastarmkernel.py", "fastkernel.py", "core/eba.py", "core/taskspace.py", "core/operator.py")
+
+
+def _drop_stale_cache() -> None:
+    import glob
+    import hashlib
+    import os
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha256()
+    for name in _SOURCES:
+        with open(os.path.join(here, name), "rb") as fh:
+            digest.update(fh.read())
+    cache = os.path.join(here, "__pycache__")
+    stamp = os.path.join(cache, "fastarmkernel.sources")
+    try:
+        with open(stamp) as fh:
+            if fh.read() == digest.hexdigest():
+                return
+    except OSError:
+        pass
+    found = glob.glob(os.path.join(cache, "fastarmkernel.*.nb[ic]"))
+    elsewhere = os.environ.get("NUMBA_CACHE_DIR")
+    if elsewhere:  # numba's caches under another root, in a tree named after the source's path
+        found += glob.glob(os.path.join(elsewhere, "**", "fastarmkernel.*.nb[ic]"), recursive=True)
+    try:
+        for path in found:
+            os.remove(path)
+        os.makedirs(cache, exist_ok=True)
+        with open(stamp, "w") as fh:
+            fh.write(digest.hexdigest())
+    except OSError:  # a read-only install: numba caches elsewhere or not at all
+        pass
+
+
+@functools.cache
+def _kernel_or_error() -> tuple[Any, str | None]:
+    try:
+        _drop_stale_cache()
+        from haptic_teleop import fastarmkernel
+    except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
+        return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
+    return fastarmkernel, None
+
+
+def kernel() -> Any:
+    """The compiled arm kernel module, or None without numba."""
+    return _kernel_or_error()[0]
+
+
+def kernel_error() -> str | None:
+    return _kernel_or_error()[1]
+
+
+# --------------------------------------------------------------------------------------------
+# mjData's contact array, read from compiled code.
+
+
+_PRIMITIVES = {
+    "char": 1, "unsigned char": 1, "mjtByte": 1, "mjtBool": 1, "int": 4, "unsigned int": 4, "float": 4,
+    "double": 8, "mjtNum": 8, "size_t": 8, "mjtSize": 8, "uintptr_t": 8, "uint64_t": 8, "int64_t": 8,
+}  # fmt: skip
+
+
+def _c_size_align(t: Any) -> tuple[int, int]:
+    """sizeof and alignof of a mujoco.introspect type on this (64-bit) machine."""
+    from mujoco.introspect import structs
+
+    kind = type(t).__name__
+    if kind == "PointerType":
+        return 8, 8
+    if kind == "ArrayType":
+        size, align = _c_size_align(t.inner_type)
+        for n in t.extents:
+            size *= n
+        return size, align
+    name = t.name
+    if name in _PRIMITIVES:
+        return _PRIMITIVES[name], _PRIMITIVES[name]
+    if name in structs.STRUCTS:
+        return _c_struct(name)[0:2]  # type: ignore[return-value]
+    raise KeyError(name)
+
+
+def _c_struct(name: str) -> tuple[int, int, dict[str, int]]:
+    """sizeof, alignof and the field offsets of a MuJoCo struct, laid out by C's rules from the
+    field list of `mujoco.introspect` (MuJoCo's own description of its headers)."""
+    from mujoco.introspect import structs
+
+    offset, align, fields = 0, 1, {}
+    for f in structs.STRUCTS[name].fields:
+        size, a = _c_size_align(f.type)
+        offset = -(-offset // a) * a
+        fields[f.name] = offset
+        offset += size
+        align = max(align, a)
+    return -(-offset // align) * align, align, fields
+
+
+@functools.cache
+def contact_layout() -> tuple[int, int, int, int, int, int, int, int] | str:
+    """(ncon offset in mjData, contact-pointer offset in mjData, mjContact stride, and the offsets
+    in mjContact of pos, frame, geom[0], geom[1], efc_address); or why not (then arm scenes run in
+    the Python loop).
+
+    The offsets come from the layout of MuJoCo's structs by C's rules (`_c_struct`, from
+    `mujoco.introspect`), and are used only if they read what the bindings read on a probe model
+    with one contact: `ncon`, the contact array's address, and its first record's geoms, efc
+    address and position (each field read from memory inside the struct, never beyond it)."""
+    import mujoco
+
+    try:
+        data_size, _, data_fields = _c_struct("mjData")
+        stride, _, contact_fields = _c_struct("mjContact")
+        layout = (
+            data_fields["ncon"],
+            data_fields["contact"],
+            stride,
+            contact_fields["pos"],
+            contact_fields["frame"],
+            contact_fields["geom"],
+            contact_fields["geom"] + 4,
+            contact_fields["efc_address"],
+        )
+    except (ImportError, KeyError, AttributeError) as exc:
+        return f"cannot lay out mjData from mujoco.introspect ({type(exc).__name__}: {exc})"
+    xml = """<mujoco><worldbody><geom name="floor" type="plane" size="1 1 .1"/>
+      <body pos="0 0 0.05"><freejoint/><geom name="ball" type="sphere" size="0.1" mass="1"/></body>
+      </worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    if not hasattr(d, "_address"):
+        return "this mujoco's bindings do not expose MjData._address"
+    mujoco.mj_forward(m, d)
+    if d.ncon != 1:
+        return f"probe model: expected one contact, got {d.ncon}"
+    c = d.contact
+    base = int(c.dist.__array_interface__["data"][0])
+    if not (layout[0] >= 0 and layout[1] + 8 <= data_size and c.dist.strides[0] == stride):
+        return "mjData's layout from mujoco.introspect does not match the bindings (mjContact's size)"
+    read = ctypes.c_int32.from_address(d._address + layout[0]).value
+    ptr = ctypes.c_uint64.from_address(d._address + layout[1]).value
+    if read != d.ncon or ptr != base:
+        return "mjData's layout from mujoco.introspect does not read ncon and contact as the bindings do"
+    pos = np.frombuffer((ctypes.c_double * 3).from_address(ptr + layout[3]), dtype=np.float64)
+    frame = np.frombuffer((ctypes.c_double * 9).from_address(ptr + layout[4]), dtype=np.float64)
+    g = ctypes.c_int32.from_address(ptr + layout[5]).value, ctypes.c_int32.from_address(ptr + layout[6]).value
+    efc = ctypes.c_int32.from_address(ptr + layout[7]).value
+    if not (
+        np.array_equal(pos, c.pos[0])
+        and np.array_equal(frame, c.frame[0])
+        and g == tuple(c.geom[0])
+        and efc == c.efc_address[0]
+    ):
+        return "mjContact's layout from mujoco.introspect does not read what the bindings read"
+    return layout
+
+
+# --------------------------------------------------------------------------------------------
+# What can be compiled, and the arrays the kernel takes.
+
+
+def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any, bbuf: Any) -> str | None:
+    """Why the arm scene cannot run in the compiled loop, or None if it can."""
+    from haptic_teleop.plants.arm import MujocoArm
+
+    for role, side in (("master", parts.master), ("slave", parts.slave)):
+        if type(side.plant) is not MujocoArm:
+            return f"{role}: plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
+        if side.law.params.law != "position":
+            return f"{role}: task law {side.law.params.law!r} (compiled: position)"
+    if parts.operator._profile not in PROFILE_CODES:
+        return f"operator profile {parts.operator._profile!r} (compiled: {', '.join(PROFILE_CODES)})"
+    for name, link, buf in (("forward", forward, fbuf), ("backward", backward, bbuf)):
+        if any(e.name == "corrupt" for e in link.effects):
+            return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
+        if getattr(buf, "_extrapolate", False):
+            return f"{name} buffer extrapolates payloads"
+    err = kernel_error()
+    if err is not None:
+        return err
+    layout = contact_layout()
+    if isinstance(layout, str):
+        return layout
+    return None
+
+
+def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -> tuple[Any, ...]:
+    """The kernel's side tuple (fastarmkernel's T_* order) of one side, sharing the plant's MjData
+    arrays (or those of `data`, another MjData of the same model) and the side's state:
+    `store_side` writes the state back."""
+    from haptic_teleop import fastarmkernel as k
+
+    layout = contact_layout()
+    assert not isinstance(layout, str)
+    plant: Any = side.plant
+    m, d = plant.model, plant.data if data is None else data
+    n = plant.n
+    law, bound = side.law, side.bound
+    bp = bound.params
+    iv = np.zeros(k.I_SIZE, dtype=np.int64)
+    iv[k.I_MODEL], iv[k.I_DATA] = m._address, d._address
+    iv[k.I_N] = n
+    iv[k.I_SITE] = plant._site
+    iv[k.I_SUBSTEPS] = plant._substeps
+    iv[k.I_GRAVITY] = 1 if plant._gravity else 0
+    iv[k.I_ROTATIONAL] = 1 if side.rotational else 0
+    iv[k.I_NULL] = 1 if law._null else 0
+    iv[k.I_ENABLED] = 1 if bp.enabled else 0
+    iv[k.I_KEEP_DIRECTION] = 1 if bound._keep_direction else 0
+    iv[k.I_SLEW] = 0 if bound._step is None else 1
+    pg = plant._pair_geoms
+    iv[k.I_WALL] = 0 if pg is None else 1
+    iv[k.I_GEOM1], iv[k.I_GEOM2] = (-1, -1) if pg is None else pg
+    for pos, value in zip(
+        (k.I_NCON, k.I_CONTACT, k.I_STRIDE, k.I_POS, k.I_FRAME, k.I_G1, k.I_G2, k.I_EFC), layout, strict=True
+    ):
+        iv[pos] = value
+    iv[k.I_HAND] = 1 if master else 0
+    iv[k.I_JAC_SCALE] = 1 if master else 0
+    iv[k.I_NV] = m.nv
+    mp = parts.mapping
+    F = np.zeros(k.F_SIZE)
+    F[k.F_LIMIT] = side.force_limit_n
+    F[k.F_MU] = law.params.pinv_damping_m
+    F[k.F_SCALE] = mp.scale
+    F[k.F_FORCE_SCALE] = mp.force_scale
+    opp = parts.operator.params
+    F[k.F_K_HAND] = opp.stiffness_n_per_m
+    F[k.F_B_HAND] = opp.damping_n_s_per_m
+    S = np.zeros(k.S_SIZE)
+    S[k.S_ENERGY] = bound.energy_j
+    S[k.S_HAS_LAST] = 1.0 if bound._has_last else 0.0
+    S[k.S_REJECTED] = side.guard.rejected
+    S[k.S_SCALE] = bound.scale
+    r_hold = np.zeros((3, 3))
+    if law.r_hold is not None:
+        r_hold[:] = law.r_hold
+        S[k.S_HAS_HOLD] = 1.0
+    lim = np.array(side.guard.limits, dtype=float)
+    step = bound._step if bound._step is not None else np.zeros(n)
+    return (
+        iv,
+        np.asarray(plant._qadr, dtype=np.int64),
+        np.asarray(plant._dadr, dtype=np.int64),
+        np.asarray(plant._act, dtype=np.int64),
+        F,
+        law._c1,
+        law._c2,
+        law._k_rot,
+        law._d_rot,
+        law._null_d,
+        bound._gain,
+        bound._bound_gain,
+        np.asarray(step, dtype=float),
+        bound._low,
+        bound._high,
+        np.asarray(plant.torque_lo, dtype=float),
+        np.asarray(plant.torque_hi, dtype=float),
+        np.asarray(plant._hand_support, dtype=float),
+        np.ascontiguousarray(mp.force_scale * mp.matrix),
+        lim,
+        np.ascontiguousarray(mp.matrix),
+        np.ascontiguousarray(mp.offset),
+        d.qpos,
+        d.qvel,
+        d.ctrl,
+        d.qfrc_applied,
+        d.qfrc_gravcomp,
+        d.site_xpos,
+        d.site_xmat,
+        S,
+        bound._last_q,
+        bound.held,
+        np.zeros(len(lim)),
+        r_hold,
+        np.zeros(3),
+        plant._wrench,
+    )
+
+
+def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
+    """Write a side's compiled state back into its Python objects (energy, ledger, guard count,
+    held orientation); returns the ticks a motor's room scaled the torque down."""
+    from haptic_teleop import fastarmkernel as k
+
+    S = t[k.T_S]
+    b = side.bound
+    b.energy_j = float(S[k.S_ENERGY])
+    b._has_last = bool(S[k.S_HAS_LAST])
+    b.scale = float(S[k.S_SCALE])
+    side.guard.rejected = int(S[k.S_REJECTED])
+    if S[k.S_HAS_HOLD]:
+        side.law.r_hold = np.array(t[k.T_RHOLD])
+    side.plant._fresh = False  # type: ignore[attr-defined]  # the kernel stepped it: mj_step1 is due
+    return int(S[k.S_LIMITED])
+
+
+def operator_vector(parts: ArmParts, period_s: float) -> np.ndarray:
+    """The operator's parameters (fastarmkernel's O_* layout)."""
+    from haptic_teleop import fastarmkernel as k
+
+    o = parts.operator
+    ov = np.zeros(k.O_SIZE)
+    ov[k.O_PROFILE] = PROFILE_CODES[o._profile]
+    ov[k.O_X0] = o._x0
+    ov[k.O_START] = o._start
+    ov[k.O_SPEED] = o._speed
+    ov[k.O_T_END] = o._t_end
+    ov[k.O_X_END] = o._x_end
+    ov[k.O_AMP] = o.params.amplitude_m
+    ov[k.O_W] = 2.0 * math.pi * o.params.frequency_hz if o._profile == "sinusoid" else 0.0
+    ov[k.O_ORIGIN : k.O_ORIGIN + 3] = parts.operator_origin_m
+    ov[k.O_DIR : k.O_DIR + 3] = parts.operator_direction
+    ov[k.O_PERIOD] = period_s
+    return ov
+
+
+def column_starts(parts: ArmParts) -> np.ndarray:
+    """First column of each group of the scene's tick schema, in fastarmkernel.GROUPS' order."""
+    from haptic_teleop import fastarmkernel as k
+
+    return np.array([parts.schema.group(name).start for name in k.GROUPS], dtype=np.int64)
+
+
+def model_addresses(parts: ArmParts) -> np.ndarray:
+    m: Any = parts.master.plant
+    s: Any = parts.slave.plant
+    return np.array([m.model._address, m.data._address, s.model._address, s.data._address], dtype=np.int64)
+
+
+# --------------------------------------------------------------------------------------------
+# The loop around the kernel.
+
+CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
+
+
+class Rings:
+    """The sent payloads of both directions: rings indexed by seq (a power of two deep), deep
+    enough for the oldest payload a window releases; grown (keeping what they hold) if a window
+    needs more. Their size follows the network's delay, never the run's length."""
+
+    def __init__(self, widths: tuple[int, int], depth: int = 1024) -> None:
+        self.fwd = np.zeros((depth, widths[0]))
+        self.bwd = np.zeros((depth, widths[1]))
+
+    def fit(self, frel: np.ndarray, brel: np.ndarray, w0: int, w1: int) -> None:
+        oldest = w0
+        for rel in (frel, brel):
+            got = rel[rel >= 0]
+            if len(got):
+                oldest = min(oldest, int(got.min()))
+        need = w1 - oldest
+        depth = self.fwd.shape[0]
+        if need <= depth:
+            return
+        new = depth
+        while new < need:
+            new *= 2
+        seqs = np.arange(max(0, w0 - depth), w0)  # what the rings hold: the ticks before w0
+        for name in ("fwd", "bwd"):
+            old = getattr(self, name)
+            grown = np.zeros((new, old.shape[1]))
+            grown[seqs & (new - 1)] = old[seqs & (depth - 1)]
+            setattr(self, name, grown)
+
+
+class CompiledArm:
+    """An arm scene's compiled loop: the kernel's arrays, built from (and sharing state with) the
+    scene's Python objects; `run` ticks it like `armloop.run_arm_loop`."""
+
+    def __init__(self, parts: ArmParts, period_s: float) -> None:
+        from haptic_teleop import fastarmkernel as k
+
+        self.k = k
+        self.parts = parts
+        self.take()
+        self.mw = self._work(parts.master)
+        self.sw = self._work(parts.slave)
+        self.ov = operator_vector(parts, period_s)
+        self.cols = column_starts(parts)
+        self.width = len(parts.schema.columns)
+
+    def take(self) -> None:
+        """(Re)build both side tuples from the scene's Python objects as they are now (`run` does,
+        so what was changed on them since the engine was built counts)."""
+        self.ms = side_tuple(self.parts.master, self.parts, True)
+        self.ss = side_tuple(self.parts.slave, self.parts, False)
+
+    def _work(self, side: ArmSide) -> tuple[np.ndarray, ...]:
+        plant: Any = side.plant
+        return tuple(self.k._work(plant.n, plant.model.nv, 6 if side.rotational else 3))
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) now, not in the timed loop: zero ticks."""
+        rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
+        self.k.run_ticks(
+            0, 0, self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, rel, occ, rel, occ,
+            np.zeros((1, 6)), np.zeros((1, 9)), np.zeros((1, self.width)), 0, 0,
+        )  # fmt: skip
+
+    def store(self, engine: Any) -> None:
+        """The kernel's state back into the scene's Python objects and `engine.joint_limit_ticks`."""
+        engine.joint_limit_ticks = {
+            "master": store_side(self.parts.master, self.ms),
+            "slave": store_side(self.parts.slave, self.ss),
+        }
+
+    def run(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int) -> int:
+        """Ticks from 0 until the scene's end or a stop into `output` (the engine's _Output built
+        on `fwd.settled`, `bwd.settled`); returns the ticks done."""
+        from haptic_teleop import fastloop
+
+        n_ticks = engine.ticks
+        self.take()
+        rings = Rings((6, 9))
+        block = output.block
+        block_ticks = block.shape[0]
+        run_ticks = self.k.run_ticks
+        ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
+        done = 0
+        engine.ticks_done = 0
+        with fastloop.mujoco_timers_off():
+            while done < n_ticks:  # a stop requested before the loop still runs one chunk
+                w0, w1 = done, min(done + window, n_ticks)
+                frel, focc = fwd.window(w0, w1)
+                brel, bocc = bwd.window(w0, w1)
+                rings.fit(frel, brel, w0, w1)
+                for c0 in range(w0, w1, CHUNK_TICKS):
+                    c1 = min(c0 + CHUNK_TICKS, w1)
+                    run_ticks(
+                        c0,
+                        c1,
+                        ms,
+                        ss,
+                        mw,
+                        sw,
+                        ov,
+                        cols,
+                        frel,
+                        focc,
+                        brel,
+                        bocc,
+                        rings.fwd,
+                        rings.bwd,
+                        block,
+                        w0,
+                        output.start,
+                    )
+                    done = engine.ticks_done = c1
+                    if progress is not None and done % 100 == 0:
+                        progress(done)
+                    if done - output.start == block_ticks:
+                        output.block_done(done)
+                    if engine._stop:
+                        break
+                if engine._stop:
+                    break
+        return done

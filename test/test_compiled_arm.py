@@ -1,0 +1,319 @@
+"""The compiled arm loop (haptic_teleop/fastarm.py) gives the Python arm loop's run, bit for bit.
+
+Each case runs an arm scene in both loops and compares what each hands its sink, call by call
+(every block of columns, every batch of packet records, at the same points of the run), and the
+sides' final state (energies, guard counts, motor-limit counts, the plants' MuJoCo state). The
+cases cover both arm scenes, delay with loss through the vectorized schedule and bursty loss
+with jitter through the ticked one, the hard case (stiff wall, motors at their limits, EBA off
+and on), substeps, an oblique wall, guards that reject, and a stop in the middle of a run.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from haptic_teleop import fastarm
+from haptic_teleop.engine import Engine
+from haptic_teleop.errors import HapticTeleopError
+from haptic_teleop.record.streams import BLOCK_TICKS
+from haptic_teleop.scene import find_scene, load_scene
+
+FWD = "network.forward"
+BWD = "network.backward"
+GE_10 = "{model: gilbert_elliott, p: 0.02, r: 0.16, one_minus_h: 0.9, one_minus_k: 0.0}"
+HARD = (
+    "operator.start_s=0.2",
+    "operator.speed_m_per_s=0.5",
+    "operator.distance_m=0.06",
+    "slave.wall.stiffness_n_per_m=2e4",
+    "slave.torque_limit_nm=[2.0, 2.0, 1.0]",
+    "controllers.master.stiffness_n_per_m=1000",
+    "controllers.slave.stiffness_n_per_m=3000",
+    *(f"network.{d}.effects.delay.delay_s=0.1" for d in ("forward", "backward")),
+    *(f"network.{d}.effects.loss={GE_10}" for d in ("forward", "backward")),
+)
+EBA_OFF = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")
+
+CASES: dict[str, tuple[str, tuple[str, ...]]] = {
+    # constant delay with uncorrelated loss: the vectorized schedule
+    "ur5e_delay_loss": (
+        "touch_ur5e_wall",
+        (f"{FWD}.effects.loss.probability=0.1", f"{BWD}.effects.loss.probability=0.05"),
+    ),
+    # bursty loss and jitter: the ticked schedule (the Python Link and PlayoutBuffer objects)
+    "ur5e_bursty_jitter": (
+        "touch_ur5e_wall",
+        (f"{FWD}.effects.loss={GE_10}", f"{BWD}.effects.delay.jitter_s=0.005", f"{BWD}.buffer.policy=fixed"),
+    ),
+    "dynamixel_delay_loss": ("touch_dynamixel_wall", (f"{FWD}.effects.loss.probability=0.1",)),
+    "dynamixel_hard": ("touch_dynamixel_wall", HARD),
+    "dynamixel_hard_eba_off": ("touch_dynamixel_wall", (*HARD, *EBA_OFF)),
+    "ur5e_substeps": ("touch_ur5e_wall", ("simulation.substeps=2",)),
+    "oblique": ("touch_ur5e_oblique_wall", ()),
+    # the master's Jacobian mapped into the task frame by a rotation that is not the identity
+    "rotated_scaled_mapping": (
+        "touch_dynamixel_wall",
+        ("mapping={scale: 0.5, rotation_rpy_deg: [0, 0, 30], force_scale: 0.8}",),
+    ),
+}
+
+
+def _scene(name: str, overrides: tuple[str, ...], duration_s: float = 2.0) -> Any:
+    return load_scene(find_scene(name), overrides=[f"scene.duration_s={duration_s}", *overrides])
+
+
+class Calls:
+    """A sink that notes every call the engine makes on it, with a copy of its array."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, np.ndarray]] = []
+
+    def append(self, rows: np.ndarray) -> None:
+        self.calls.append(("rows", np.array(rows)))
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        self.calls.append((direction, np.array(rows)))
+
+    def data(self) -> np.ndarray:
+        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
+
+
+def _run(e: Engine, stop_at: int | None = None) -> tuple[Any, Calls]:
+    sink = Calls()
+
+    def progress(n: int) -> None:
+        if stop_at is not None and n >= stop_at:
+            e.request_stop()
+
+    r = e.run(handle_sigint=False, progress=progress, sink=sink)
+    return r, sink
+
+
+def _both(scene: Any, stop_at: int | None = None, tweak: Any = None) -> list[tuple[Engine, Any, Calls]]:
+    out = []
+    for loop in ("compiled", "python"):
+        e = Engine(scene, loop=loop)
+        assert e.loop_kind == loop
+        if tweak is not None:
+            tweak(e)  # after the engine is built: the compiled loop takes its arrays when it runs
+        out.append((e, *_run(e, stop_at)))
+    return out
+
+
+def _assert_same_run(runs: list[tuple[Engine, Any, Calls]]) -> None:
+    (ec, rc, sc), (ep, rp, sp) = runs
+    assert rc.ticks == rp.ticks
+    assert [k for k, _ in sc.calls] == [k for k, _ in sp.calls]
+    for (kind, c), (_, p) in zip(sc.calls, sp.calls, strict=True):
+        assert np.array_equal(c, p, equal_nan=True), (kind, np.flatnonzero(np.any(c != p, axis=0)))
+    assert all(len(a) <= BLOCK_TICKS for k, a in sc.calls if k == "rows")
+    assert ec.joint_limit_ticks == ep.joint_limit_ticks
+    for role in ("master", "slave"):
+        a, b = getattr(ec.arm, role), getattr(ep.arm, role)
+        assert a.rejected_samples == b.rejected_samples
+        assert a.bound.energy_j == b.bound.energy_j
+        assert np.array_equal(a.bound.held, b.bound.held)
+        assert np.array_equal(a.plant.data.qpos, b.plant.data.qpos)
+        assert np.array_equal(a.plant.data.qvel, b.plant.data.qvel)
+        assert np.array_equal(a.plant._wrench, b.plant._wrench)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_compiled_arm_loop_equals_python_loop(case: str) -> None:
+    name, overrides = CASES[case]
+    runs = _both(_scene(name, overrides))
+    _assert_same_run(runs)
+    e, _, sink = runs[0]
+    data = sink.data()
+    schema = e.schema
+    # Not vacuous: the tool moved, touched the wall, and samples crossed the network both ways.
+    assert np.ptp(data[:, schema.group("s_x_m")], axis=0).max() > 5e-3
+    assert np.abs(data[:, schema.group("s_contact_n")]).max() > 0.1
+    for col in ("fwd_rx_seq", "bwd_rx_seq"):
+        assert np.count_nonzero(data[:, schema.group(col)] >= 0) > 100
+    # Blocks and packet records were handed over while the run went on, not only at its end.
+    kinds = [k for k, _ in sink.calls]
+    assert kinds[0] == "rows" and {"forward", "backward"} & set(kinds[: kinds.index("rows", 1)])
+
+
+def test_the_hard_case_reaches_the_motor_limits_in_both_loops() -> None:
+    name, overrides = CASES["dynamixel_hard"]
+    runs = _both(_scene(name, overrides, duration_s=1.5))
+    _assert_same_run(runs)
+    assert runs[0][0].joint_limit_ticks["slave"] > 0
+
+
+def test_a_stopped_compiled_run_leaves_the_python_loops_records() -> None:
+    """Stopped at the same tick, both loops leave the same columns and packet records (the ticked
+    schedule is decided one chunk of the loop at a time, so it never runs ahead of a stop)."""
+    name, overrides = CASES["ur5e_bursty_jitter"]
+    runs = _both(_scene(name, overrides), stop_at=700)
+    assert runs[0][1].interrupted and runs[0][1].ticks == 700
+    _assert_same_run(runs)
+
+
+def test_guard_rejections_are_the_same_in_both_loops() -> None:
+    """Limits below what the scene produces make the guards reject real samples: the compiled
+    loop rejects the same ones, keeps the previous sample, and counts them."""
+
+    def tweak(e: Engine) -> None:
+        # z above 0.43 m (0.42 m) is "absurd": handle and tool start 0.438 m up, the table is at 0.408 m
+        e.arm.slave.guard.limits = (0.6, 0.6, 0.43, 1.0, 1.0, 1.0)
+        e.arm.master.guard.limits = (0.6, 0.6, 0.42, 1.0, 1.0, 1.0, 50.0, 50.0, 50.0)
+
+    runs = _both(_scene("touch_ur5e_wall", ()), tweak=tweak)
+    _assert_same_run(runs)
+    e = runs[0][0]
+    assert e.arm.slave.rejected_samples > 10 and e.arm.master.rejected_samples > 10
+
+
+def test_the_split_step_is_mj_step() -> None:
+    """mj_step1 then mj_step2 (what both arm loops call) gives mj_step's state, bit for bit, with
+    the scenes' integrator (implicitfast) and Euler; RK4 is not split (MuJoCo's mj_step2 then
+    integrates with Euler), which this test shows too."""
+    import mujoco
+
+    e = Engine(_scene("touch_ur5e_wall", ()), loop="python")
+    m = e.arm.slave.plant.model
+    for integrator, same in (("IMPLICITFAST", True), ("EULER", True), ("RK4", False)):
+        m.opt.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator}")
+        a, b = mujoco.MjData(m), mujoco.MjData(m)
+        for d in (a, b):
+            d.qpos[:] = e.arm.slave.plant.data.qpos
+            d.ctrl[:] = 5.0
+        for _ in range(200):
+            mujoco.mj_step(m, a)
+            mujoco.mj_step1(m, b)
+            mujoco.mj_step2(m, b)
+        assert np.array_equal(a.qpos, b.qpos) == same, integrator
+        assert np.array_equal(a.qvel, b.qvel) == same, integrator
+
+
+def test_the_contact_layout_reads_what_the_bindings_read() -> None:
+    """The offsets the kernel reads mjData's contacts with (found through the bindings) read a
+    real arm's contact as the bindings do."""
+    import ctypes
+
+    import mujoco
+
+    layout = fastarm.contact_layout()
+    assert not isinstance(layout, str), layout
+    ncon_off, contact_off, stride, pos, frame, g1, g2, efc = layout
+    e = Engine(_scene("touch_ur5e_wall", ()), loop="python")
+    plant = e.arm.slave.plant
+    m, d = plant.model, mujoco.MjData(plant.model)
+    d.qpos[:] = plant.data.qpos
+    d.qpos[1] += 0.2  # shoulder down: the tool goes through the table
+    mujoco.mj_forward(m, d)
+    assert d.ncon >= 1
+    assert ctypes.c_int32.from_address(d._address + ncon_off).value == d.ncon
+    base = ctypes.c_uint64.from_address(d._address + contact_off).value
+    for i in range(d.ncon):
+        c = base + i * stride
+        assert ctypes.c_int32.from_address(c + g1).value == d.contact.geom1[i]
+        assert ctypes.c_int32.from_address(c + g2).value == d.contact.geom2[i]
+        assert ctypes.c_int32.from_address(c + efc).value == d.contact.efc_address[i]
+        got = np.frombuffer((ctypes.c_double * 3).from_address(c + pos), dtype=np.float64)
+        assert np.array_equal(got, d.contact.pos[i])
+        got = np.frombuffer((ctypes.c_double * 9).from_address(c + frame), dtype=np.float64)
+        assert np.array_equal(got, d.contact.frame[i])
+
+
+def test_arm_scenes_run_compiled_unless_they_cannot() -> None:
+    scene = _scene("touch_ur5e_wall", ())
+    e = Engine(scene)
+    assert e.loop_kind == "compiled" and e.compiled_reason is None
+    bad = _scene("touch_ur5e_wall", (f"{FWD}.effects.corrupt.probability=0.01",))
+    e = Engine(bad)
+    assert e.loop_kind == "python" and "corrupts payloads" in (e.compiled_reason or "")
+    with pytest.raises(HapticTeleopError, match="corrupts payloads"):
+        Engine(bad, loop="compiled")
+    e = Engine(scene, loop="python")
+    assert e.loop_kind == "python"
+
+
+def test_both_arm_loops_record_the_same_bag_bytes(tmp_path: Any) -> None:
+    """The loops hand the recorder the same blocks and packet records at the same points, so an
+    arm scene's bag is the same file from either loop."""
+    from haptic_teleop.engine import record_run
+
+    name, overrides = CASES["ur5e_delay_loss"]
+    scene = _scene(name, overrides, duration_s=1.5)
+    bags = {}
+    for loop in ("compiled", "python"):
+        engine, _ = record_run(scene, tmp_path / loop / "bag", parallel=False, handle_sigint=False, loop=loop)
+        assert engine.loop_kind == loop
+        bags[loop] = (tmp_path / loop / "bag" / "bag.mcap").read_bytes()
+    assert bags["compiled"] == bags["python"]
+
+
+class Discard:
+    """A sink that keeps nothing, noting the longest array it was given."""
+
+    def __init__(self) -> None:
+        self.longest = 0
+        self.ticks = 0
+
+    def append(self, rows: np.ndarray) -> None:
+        self.longest = max(self.longest, len(rows))
+        self.ticks += len(rows)
+
+    def append_packets(self, direction: str, rows: np.ndarray) -> None:
+        self.longest = max(self.longest, len(rows))
+
+
+@pytest.mark.parametrize("case", ["ur5e_delay_loss", "ur5e_bursty_jitter"])
+def test_compiled_arm_loop_memory_does_not_grow_with_duration(case: str) -> None:
+    """What the compiled arm loop holds (tracemalloc: numpy's arrays and every Python object)
+    peaks at the same size for a run four times as long, with either kind of network schedule;
+    no array handed to the sink is longer than a block."""
+    import tracemalloc
+
+    name, overrides = CASES[case]
+    # the vectorized windows are 10 s long: at least two of them in the shorter run
+    duration = 25.0 if case == "ur5e_delay_loss" else 3.0
+    peaks = []
+    for d in (duration, 4 * duration):
+        engine = Engine(_scene(name, overrides, duration_s=d), loop="compiled")
+        sink = Discard()
+        tracemalloc.start()
+        try:
+            engine.run(handle_sigint=False, sink=sink)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+        assert sink.ticks == engine.ticks and sink.longest <= BLOCK_TICKS + 200
+    # Whole-run arrays would add 3 x 3000 ticks x 72 columns x 8 B = 5 MB or more.
+    assert peaks[1] <= 1.1 * peaks[0] + 64_000, peaks
+
+
+def test_a_changed_source_drops_the_compiled_arm_loops_cache(tmp_path: Any) -> None:
+    """numba checks only the kernel file's stamp; fastarm drops the kernel's cache when any source
+    it is built from changed (here: a stamp that does not match), and keeps it otherwise."""
+    import shutil
+    from pathlib import Path
+
+    assert fastarm.kernel() is not None  # the stamp is written, the kernel imported
+    cache = Path(fastarm.__file__).parent / "__pycache__"
+    stamp = cache / "fastarmkernel.sources"
+    kept = list(cache.glob("fastarmkernel.*.nb[ic]"))
+    for path in kept:  # the real cache comes back after the test
+        shutil.copy2(path, tmp_path / path.name)
+    before = stamp.read_text()
+    dummy = cache / "fastarmkernel.dummy-1.py311.nbi"
+    try:
+        dummy.write_text("x")
+        fastarm._drop_stale_cache()
+        assert dummy.exists()  # sources unchanged: the cache stays
+        stamp.write_text("another source")
+        fastarm._drop_stale_cache()
+        assert not dummy.exists() and not list(cache.glob("fastarmkernel.*.nb[ic]"))
+        assert stamp.read_text() == before
+    finally:
+        dummy.unlink(missing_ok=True)
+        for path in kept:
+            shutil.copy2(tmp_path / path.name, path)
+        stamp.write_text(before)
