@@ -6,6 +6,8 @@ import argparse
 import contextlib
 import json
 import sys
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +34,28 @@ def _say(args: argparse.Namespace, text: str) -> None:
         print(text)
 
 
+SLOW_START_S = 3.0  # building the engine longer than this: say why (numba compiling the tick loop)
+SLOW_START_NOTICE = (
+    "haptic-teleop: still building the engine: the first run on a machine compiles the tick loop "
+    "with numba (about a minute on 2 cores); later runs load it from numba's cache"
+)
+
+
+@contextlib.contextmanager
+def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_START_NOTICE) -> Iterator[None]:
+    """Call `write(text)` once if the body is still running `after_s` seconds after it started.
+
+    A long silent pause looks like a hang: the first run on a machine spends about a minute in
+    numba compiling the tick loop before the first tick."""
+    timer = threading.Timer(after_s, write, args=(text,))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from haptic_teleop.report import format_summary
     from haptic_teleop.scene import find_scene, load_scene
@@ -56,20 +80,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         # The resolved scene: `haptic-teleop run DIR/scene.yaml` records the same bag again.
         write_atomic(out / SCENE_FILE, resolved)
         total = int(round(scene.config.scene.duration_s / scene.config.scene.period_s))
-        bar = None
-        if not args.quiet:
-            from tqdm import tqdm
-
-            bar = tqdm(
-                total=total,
-                unit="tick",
-                unit_scale=True,
-                desc=scene.config.scene.name,
-                leave=False,
-                file=sys.stderr,
-                mininterval=0.2,
-            )
+        bar: Any = None
         last = [0]
+
+        def open_bar() -> None:  # once the engine is built (it may spend a minute compiling)
+            nonlocal bar
+            if not args.quiet:
+                from tqdm import tqdm
+
+                bar = tqdm(
+                    total=total,
+                    unit="tick",
+                    unit_scale=True,
+                    desc=scene.config.scene.name,
+                    leave=False,
+                    file=sys.stderr,
+                    mininterval=0.2,
+                )
 
         def progress(n: int) -> None:
             if last[0] == 0:
@@ -82,13 +109,22 @@ def cmd_run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
 
             def on_engine(engine: Any) -> None:
+                starting.close()
+                open_bar()
                 stack.enter_context(interrupt.on_stop(engine.request_stop))  # Ctrl-C, SIGTERM: stop
                 interrupt.pause_for_test("engine")
 
+            def notice(text: str) -> None:
+                print(text, file=sys.stderr, flush=True)
+
+            starting = contextlib.ExitStack()
+            if not args.quiet:
+                starting.enter_context(slow_notice(SLOW_START_S, notice))
             try:
-                _, timing = record_run(
-                    scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False, on_engine=on_engine
-                )
+                with starting:
+                    _, timing = record_run(
+                        scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False, on_engine=on_engine
+                    )
             except BagError as exc:
                 raise HapticTeleopError(str(exc)) from None  # writing failed: not an input error (exit 1)
             finally:

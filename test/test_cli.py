@@ -460,3 +460,28 @@ def test_bench_arguments_are_checked_before_anything_runs(capsys, argv):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "allowed:" in err and "> 0" in err and "Traceback" not in err
+
+
+def test_a_slow_engine_build_is_explained_not_silent():
+    """The first run on a machine spends about a minute compiling before the first tick: the
+    notice comes while the body still runs, and never for a body that ends before the delay."""
+    import threading
+
+    from haptic_teleop.cli import SLOW_START_NOTICE, slow_notice
+
+    written: list[str] = []
+    seen = threading.Event()
+
+    def write(text: str) -> None:
+        written.append(text)
+        seen.set()
+
+    with slow_notice(0.01, write):
+        assert seen.wait(60.0)  # the body waits for the notice: no timing race
+    assert written == [SLOW_START_NOTICE]
+    assert "numba" in written[0] and "cache" in written[0]
+
+    quiet: list[str] = []
+    with slow_notice(3600.0, quiet.append):
+        pass
+    assert quiet == []
