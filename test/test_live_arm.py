@@ -262,3 +262,22 @@ def test_ros2_launch_files_plan_an_arm_scene_as_the_launcher_does(tmp_path):
             assert params["slave"]["wall"]["normal"] == [0.0, 0.0, 1.0]
     with pytest.raises(ConfigError, match="device"):  # the hardware variant: not for arm scenes yet
         plan_from_arguments({"scene": SCENE}, "topic", tmp_path / "hw")
+
+
+def test_ledger_restart_starts_afresh_and_the_next_step_books_no_period_before_it():
+    """CoupledEnergyBound.restart (the arm nodes' restart at scene time 0): the reservoir is the
+    given energy and the next step takes its q as the first, as a new bound's first step does."""
+    from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams
+
+    params = CoupledEnergyBoundParams(period_s=0.001, damping_nm_s_per_rad=(0.5, 0.5), initial_energy_j=0.01)
+    bound, fresh = CoupledEnergyBound(params), CoupledEnergyBound(params)
+    tau = np.array([1.0, -2.0])
+    for k in range(5):  # the graph settling: the arm moves, the reservoir changes
+        bound.step(np.array([0.001 * k, -0.002 * k]), tau)
+    assert bound.energy_j != params.initial_energy_j
+    bound.restart(params.initial_energy_j)
+    q = np.array([0.3, 0.1])  # far from the last q: a period booked across it would change E a lot
+    assert np.array_equal(bound.step(q, tau), fresh.step(q, tau))
+    assert bound.energy_j == fresh.energy_j == params.initial_energy_j
+    q2 = q + 1e-4
+    assert np.array_equal(bound.step(q2, tau), fresh.step(q2, tau)) and bound.energy_j == fresh.energy_j
