@@ -830,6 +830,14 @@ class CoupledEnergyBound:
         from what `step` returned): the next update of the reservoir accounts with it."""
         self.held[:] = tau
 
+    def restart(self, energy_j: float) -> None:
+        """Start the ledger afresh from `energy_j`, as a new bound: the next `step` takes its q as
+        the first (no update for the period before it). With `energy_j` <= the reservoir this only
+        discards energy; the live nodes restart at scene time 0 with min(reservoir, initial
+        energy), so the ledger from there is the one the bag's analysis recomputes (docs/live.md)."""
+        self.energy_j = float(energy_j)
+        self._has_last = False
+
     def task_demand(self, jac: npt.NDArray[np.float64], force: npt.NDArray[np.float64]) -> float:
         """(T/4) F.T J D^-1 J.T F: what task force F at a point with Jacobian `jac` asks of the reservoir."""
         return task_demand(jac, force, self._bound_gain)
