@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop import schema
+from haptic_teleop import typedconfig
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
 from haptic_teleop.core.playout import (
     GAP_MODES,
@@ -576,12 +576,12 @@ def test_config_contradictions_raise(kwargs: dict[str, object], message: str) ->
 
 
 def test_config_builds_from_scene_data() -> None:
-    cfg = schema.build(BufferConfig, {"policy": "percentile", "quantile": 0.9, "window_packets": 10})
+    cfg = typedconfig.build(BufferConfig, {"policy": "percentile", "quantile": 0.9, "window_packets": 10})
     assert cfg.policy == "percentile" and cfg.window_packets == 10
     assert BufferConfig(policy="percentile", quantile=0.99, window_packets=100).window_packets == 100
     with pytest.raises(ConfigError, match="contradiction"):
-        schema.build(BufferConfig, {"policy": "percentile", "quantile": 0.9, "window_packets": 5})
+        typedconfig.build(BufferConfig, {"policy": "percentile", "quantile": 0.9, "window_packets": 5})
     with pytest.raises(ConfigError, match="quantile"):
-        schema.build(BufferConfig, {"quantile": 1.5})
-    keys = {row[0] for row in schema.describe(BufferConfig)}
+        typedconfig.build(BufferConfig, {"quantile": 1.5})
+    keys = {row[0] for row in typedconfig.describe(BufferConfig)}
     assert {"policy", "gap", "buffering_time_s", "allowed_force_error_n", "force_slope_n_per_s"} <= keys
