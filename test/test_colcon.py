@@ -62,7 +62,7 @@ def test_installed_package_finds_its_share_files(install):
     site, env = _install_env(install)
     code = (
         "import haptic_teleop, sys;"
-        "from haptic_teleop.scene import scenes_dir;"
+        "from haptic_teleop.scene.load import scenes_dir;"
         "from haptic_teleop.plants.mujoco_plant import models_dir;"
         "print(haptic_teleop.__file__); print(scenes_dir()); print(models_dir())"
     )

@@ -117,7 +117,7 @@ def test_wheel_install_runs_a_bundled_scene_from_another_directory(venv, tmp_pat
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     code = (
-        "import haptic_teleop, haptic_teleop.scene as s, haptic_teleop.plants.mujoco_plant as m;"
+        "import haptic_teleop, haptic_teleop.scene.load as s, haptic_teleop.plants.mujoco_plant as m;"
         "print(haptic_teleop.__file__); print(s.scenes_dir()); print(m.models_dir())"
     )
     r = _run([str(venv / "python"), "-c", code], elsewhere, env)
