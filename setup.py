@@ -58,7 +58,7 @@ setup(
         "ruamel.yaml>=0.17",
         "matplotlib>=3.6",
         "tqdm>=4.64",
-        # the engine's compiled loop (haptic_teleop/fastloop.py); without it the Python loop runs
+        # the engine's compiled loop (haptic_teleop/engine/compiled_loop.py); without it the Python loop runs
         "numba>=0.60",
     ],
     extras_require={

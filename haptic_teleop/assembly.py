@@ -20,7 +20,7 @@ from haptic_teleop.core.link import Link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
 from haptic_teleop.plants import build_master_plant, build_slave_plant
-from haptic_teleop.scene import ControllerConfig, OperatorConfig, SaturationConfig, Scene
+from haptic_teleop.scene.schema import ControllerConfig, OperatorConfig, SaturationConfig, Scene
 from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
 from haptic_teleop.traces import read_operator_trace
 
@@ -184,7 +184,7 @@ class ArmParts:
     operator_origin_m: np.ndarray  # the intended point at rest (task frame): the start handle
     operator_direction: np.ndarray  # unit, task frame
     schema: TickSchema
-    maps: Any = None  # the tick's mapping functions (armloop builds them)
+    maps: Any = None  # the tick's mapping functions (arm_loop builds them)
 
 
 def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:
@@ -258,7 +258,7 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     xs0 = slave.point()[0]
     mc = config.mapping
     if mc is None:
-        from haptic_teleop.scene import MappingConfig
+        from haptic_teleop.scene.schema import MappingConfig
 
         mc = MappingConfig()
     rot = rotation_from_rpy(*(math.radians(a) for a in mc.rotation_rpy_deg))

@@ -58,7 +58,7 @@ def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_S
 
 def cmd_run(args: argparse.Namespace) -> int:
     from haptic_teleop.report import format_summary
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     interrupt.pause_for_test("scene")
     overrides = list(args.set or ())
@@ -70,7 +70,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stdout.write(resolved)
         return EXIT_OK
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
-    from haptic_teleop.engine import record_run  # before the directory is made: a signal here leaves nothing
+    from haptic_teleop.engine.lockstep import record_run  # before the directory is made: a signal here leaves nothing
 
     check_out_dir(out)
 
@@ -163,7 +163,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
-    from haptic_teleop.scene import bundled_scenes
+    from haptic_teleop.scene.load import bundled_scenes
 
     rows = bundled_scenes()
     width = max((len(name) for name, _ in rows), default=0)

@@ -50,7 +50,7 @@ def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str 
 
     Raises ConfigError naming the argument for a bad value, as `haptic-teleop launch` would.
     """
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     def arg(name: str) -> str:
         return str(values.get(name, "")).strip()

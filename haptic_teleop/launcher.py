@@ -33,7 +33,7 @@ from typing import IO, Any
 
 from haptic_teleop.lifetime import LAUNCHER_PID_ENV
 from haptic_teleop.nodes import EXECUTABLES, LOOP_FIGURES_MARK, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
-from haptic_teleop.scene import LoadedScene
+from haptic_teleop.scene.schema import LoadedScene
 
 SIDES = ("all", "master", "slave")
 DEVICES = ("plant", "topic")
@@ -105,6 +105,8 @@ def scene_params(scene: LoadedScene, executable: str, direction: str | None = No
     for template in SCENE_SECTIONS[executable]:
         path = template.format(direction=direction)
         obj = _section(scene.config, path)
+        if obj is None:  # an optional section the scene leaves out (`mapping` of a one-axis scene)
+            continue
         if path.endswith(".effects"):
             from haptic_teleop.traces import resolve_trace_paths
 
@@ -140,6 +142,12 @@ def node_plan(
         raise ValueError(f"side must be one of {SIDES}, got {side!r}")
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
+    if device != "plant" and scene.config.is_arm:
+        from haptic_teleop.errors import ConfigError
+
+        raise ConfigError(
+            scene.source, "device", device, "an arm scene runs its simulated arms only for now; allowed: plant"
+        )
     if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
         raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
     watchdog = {"watchdog": {"timeout_s": float(watchdog_timeout_s), "fade_s": float(watchdog_fade_s)}}
@@ -160,10 +168,13 @@ def node_plan(
     # Without an operator source nothing publishes the scene start: the relays' links start at the
     # first sample (network_relay, `scene_start`).
     relay_start = {} if device == "plant" else {"scene_start": "first_sample"}
+    # An arm scene's payloads carry one value per task axis and field (docs/live.md, "Arm scenes").
+    axes = {"task_axes": 3} if scene.config.is_arm else {}
     for d in ("forward", "backward"):
-        relay = {"direction": d, **relay_start, **scene_params(scene, "network_relay", d)}
+        relay = {"direction": d, **relay_start, **axes, **scene_params(scene, "network_relay", d)}
         plan.append(NodeSpec(f"{d}_relay", "network_relay", relay))
-        plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", {"direction": d, **scene_params(scene, "sync_buffer", d)}))
+        buffer = {"direction": d, **axes, **scene_params(scene, "sync_buffer", d)}
+        plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", buffer))
     if record_dir is not None:
         plan.append(
             NodeSpec(
@@ -515,7 +526,7 @@ def launch_main(args: Any) -> int:
     """`haptic-teleop launch` (argparse namespace from cli.py)."""
     from haptic_teleop import interrupt
     from haptic_teleop.errors import HapticTeleopError, InputError
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     overrides = list(args.set or ())
     if args.duration is not None:
@@ -523,16 +534,6 @@ def launch_main(args: Any) -> int:
     if args.compression is not None:
         overrides.append(f"recording.compression={args.compression}")
     scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
-    if scene.config.is_arm:
-        from haptic_teleop.errors import ConfigError
-
-        raise ConfigError(
-            scene.source,
-            "slave.wall.point_m",
-            list(scene.config.slave.wall.point_m or ()),
-            "an arm scene: the live nodes run one-axis scenes only for now; allowed: haptic-teleop run "
-            f"{scene.config.scene.name} (the engine), or a one-axis scene",
-        )
     record = Path(args.record) if args.record else None
     if record is not None:
         problem = record_dir_problem(record)

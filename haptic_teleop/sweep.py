@@ -222,7 +222,7 @@ def _command(args: argparse.Namespace) -> str:
 
 def run_sweep(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     params = [parse_param(t) for t in args.param]
     labels = [p.label for p in params]
@@ -258,7 +258,7 @@ def _run_plan(
     name: str,
 ) -> int:
     from haptic_teleop.analysis.outputs import TIMING_FILE, write_atomic, write_outputs
-    from haptic_teleop.engine import record_run
+    from haptic_teleop.engine.lockstep import record_run
 
     bar = None
     if not args.quiet:

@@ -25,7 +25,7 @@ from haptic_teleop.core.netconfig import LinkTraces, NetworkEffectsConfig, build
 from haptic_teleop.errors import ConfigError
 
 if TYPE_CHECKING:
-    from haptic_teleop.scene import Scene
+    from haptic_teleop.scene.schema import Scene
 
 
 def _trace_rows(path: str | os.PathLike[str], columns: int, header: tuple[str, ...]) -> list[tuple[int, list[str]]]:

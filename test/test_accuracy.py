@@ -24,7 +24,7 @@ from haptic_teleop.benchmarks.accuracy import (
 )
 from haptic_teleop.cli import main as cli_main
 from haptic_teleop.errors import HapticTeleopError
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 
 def test_pareto_front_against_a_hand_made_set():

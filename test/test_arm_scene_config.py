@@ -10,7 +10,8 @@ import pytest
 import yaml
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.scene import ARM_KEYS, find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.scene.schema import ARM_KEYS
 
 ARM = find_scene("touch_ur5e_wall")
 
@@ -86,13 +87,3 @@ def test_arm_scene_yaml_round_trips(tmp_path: Path) -> None:
     again = load_scene(p)
     assert again.config == s.config
     assert math.isclose(sum(c * c for c in again.config.slave.wall.normal or ()), 1.0)
-
-
-def test_launch_refuses_an_arm_scene_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
-    """The live nodes are one-axis only for now: an arm scene is refused before any node starts."""
-    from haptic_teleop.cli import main
-
-    code = main(["launch", "touch_ur5e_wall", "--single-process"])
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert "live nodes run one-axis scenes only" in err and err.strip().count("\n") == 0

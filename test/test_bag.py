@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from haptic_teleop.engine import Engine
+from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.layouts import PACKET_FIELDS, FixedLayout, make_joint_state, topic_specs, typestore
 from haptic_teleop.record.reader import BagReader
 from haptic_teleop.record.recorder import RunRecorder, write_run
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +63,7 @@ def test_other_readers_read_every_message(tmp_path, short_run, compression):
     """rosbags' Reader and mcap's validating reader read every message of our bags, equal to what
     BagReader decodes; parallel and in process give the same bytes; compression changes the file,
     not the messages."""
-    from haptic_teleop.engine import COL
+    from haptic_teleop.engine.lockstep import COL
 
     (tmp_path / "b").mkdir()
     inproc = write_run(short_run, tmp_path / "bag", {"k": 1}, compression=compression)
@@ -95,7 +95,7 @@ def test_other_readers_read_every_message(tmp_path, short_run, compression):
 
 
 def test_roundtrip_every_topic(tmp_path, short_run):
-    from haptic_teleop.engine import COL
+    from haptic_teleop.engine.lockstep import COL
 
     bag = write_run(short_run, tmp_path / "bag", {"ticks": short_run.ticks})
     n = short_run.ticks
@@ -254,7 +254,7 @@ def test_bulk_message_index_spans_chunks(tmp_path, short_run):
 
 def _record(run, bag_dir: Path, eba: bool, packets: bool, parallel: bool = False, logs=None) -> Path:
     """Record a finished run through RunRecorder as the engine does (blocks, then finish)."""
-    from haptic_teleop.engine import COLUMNS
+    from haptic_teleop.engine.lockstep import COLUMNS
 
     rec = RunRecorder(bag_dir, run.scene.to_yaml(), run.period_ns, eba, packets, len(COLUMNS), parallel=parallel)
     for stop in range(BLOCK_TICKS, run.ticks, BLOCK_TICKS):
@@ -430,7 +430,7 @@ def test_offered_qos_in_metadata_and_channels(tmp_path):
     MCAP channels the same as YAML; a profile given per topic replaces the default; rosbags parses both."""
     from ruamel.yaml import YAML
 
-    from haptic_teleop.engine import COLUMNS
+    from haptic_teleop.engine.lockstep import COLUMNS
 
     qos = {"/slave/contact_wrench": [{"reliability": "reliable", "depth": 5}]}
     rec = RunRecorder(tmp_path / "bag", "", 1_000_000, False, False, len(COLUMNS), parallel=False, qos=qos)

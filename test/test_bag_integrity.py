@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.engine import COL, COLUMNS
+from haptic_teleop.engine.lockstep import COL, COLUMNS
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.reader import BagReader

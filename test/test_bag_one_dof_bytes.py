@@ -13,9 +13,9 @@ import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from haptic_teleop.engine import Engine
+from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.record.recorder import write_run
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 # The 1-DoF layout as it was before the tick schema: column order, then per topic its type,
 # JointState name (or frame, or labels) and columns.

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from haptic_teleop.engine import COL, COLUMNS
+from haptic_teleop.engine.lockstep import COL, COLUMNS
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.reader import BagReader

@@ -14,7 +14,7 @@ import yaml
 
 from haptic_teleop.cli import main
 from haptic_teleop.record.reader import BagReader
-from haptic_teleop.scene import bundled_scenes, find_scene, load_scene
+from haptic_teleop.scene.load import bundled_scenes, find_scene, load_scene
 
 CLI = [sys.executable, "-m", "haptic_teleop.cli"]
 SHORT = ["--set", "scene.duration_s=1.0"]

@@ -1,4 +1,4 @@
-"""The compiled arm loop (haptic_teleop/fastarm.py) gives the Python arm loop's run, bit for bit.
+"""The compiled arm loop (haptic_teleop/compiled_arm_loop.py) gives the Python arm loop's run, bit for bit.
 
 Each case runs an arm scene in both loops and compares what each hands its sink, call by call
 (every block of columns, every batch of packet records, at the same points of the run), and the
@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from haptic_teleop import fastarm
-from haptic_teleop.engine import Engine
+from haptic_teleop.engine import compiled_arm_loop
+from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 FWD = "network.forward"
 BWD = "network.backward"
@@ -202,7 +202,7 @@ def test_the_contact_layout_reads_what_the_bindings_read() -> None:
 
     import mujoco
 
-    layout = fastarm.contact_layout()
+    layout = compiled_arm_loop.contact_layout()
     assert not isinstance(layout, str), layout
     ncon_off, contact_off, stride, pos, frame, g1, g2, efc = layout
     e = Engine(_scene("touch_ur5e_wall", ()), loop="python")
@@ -241,7 +241,7 @@ def test_arm_scenes_run_compiled_unless_they_cannot() -> None:
 def test_both_arm_loops_record_the_same_bag_bytes(tmp_path: Any) -> None:
     """The loops hand the recorder the same blocks and packet records at the same points, so an
     arm scene's bag is the same file from either loop."""
-    from haptic_teleop.engine import record_run
+    from haptic_teleop.engine.lockstep import record_run
 
     name, overrides = CASES["ur5e_delay_loss"]
     scene = _scene(name, overrides, duration_s=1.5)
@@ -294,26 +294,26 @@ def test_compiled_arm_loop_memory_does_not_grow_with_duration(case: str) -> None
 
 
 def test_a_changed_source_drops_the_compiled_arm_loops_cache(tmp_path: Any) -> None:
-    """numba checks only the kernel file's stamp; fastarm drops the kernel's cache when any source
+    """numba checks only the kernel file's stamp; compiled_arm_loop drops the kernel's cache when any source
     it is built from changed (here: a stamp that does not match), and keeps it otherwise."""
     import shutil
     from pathlib import Path
 
-    assert fastarm.kernel() is not None  # the stamp is written, the kernel imported
-    cache = Path(fastarm.__file__).parent / "__pycache__"
-    stamp = cache / "fastarmkernel.sources"
-    kept = list(cache.glob("fastarmkernel.*.nb[ic]"))
+    assert compiled_arm_loop.kernel() is not None  # the stamp is written, the kernel imported
+    cache = Path(compiled_arm_loop.__file__).parent / "__pycache__"
+    stamp = cache / "arm_kernel.sources"
+    kept = list(cache.glob("arm_kernel.*.nb[ic]"))
     for path in kept:  # the real cache comes back after the test
         shutil.copy2(path, tmp_path / path.name)
     before = stamp.read_text()
-    dummy = cache / "fastarmkernel.dummy-1.py311.nbi"
+    dummy = cache / "arm_kernel.dummy-1.py311.nbi"
     try:
         dummy.write_text("x")
-        fastarm._drop_stale_cache()
+        compiled_arm_loop._drop_stale_cache()
         assert dummy.exists()  # sources unchanged: the cache stays
         stamp.write_text("another source")
-        fastarm._drop_stale_cache()
-        assert not dummy.exists() and not list(cache.glob("fastarmkernel.*.nb[ic]"))
+        compiled_arm_loop._drop_stale_cache()
+        assert not dummy.exists() and not list(cache.glob("arm_kernel.*.nb[ic]"))
         assert stamp.read_text() == before
     finally:
         dummy.unlink(missing_ok=True)

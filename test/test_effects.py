@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from haptic_teleop.engine import Engine
+from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.plants.effects import EffectsPlant
 from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 SCENE = find_scene("wall_contact")
 

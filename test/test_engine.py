@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from haptic_teleop.analysis.metrics import analyze_bag, port_energy
-from haptic_teleop.engine import Engine, record_run
+from haptic_teleop.engine.lockstep import Engine, record_run
 from haptic_teleop.record.reader import BagReader
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 DEFAULT = find_scene("wall_contact")
 SHORT = ["scene.duration_s=3.0"]
@@ -54,7 +54,7 @@ def test_stop_request_leaves_a_complete_bag(tmp_path):
         return original(progress_and_stop, sink)
 
     engine._loop = stop_midway  # type: ignore[method-assign]
-    from haptic_teleop.engine import COLUMNS
+    from haptic_teleop.engine.lockstep import COLUMNS
     from haptic_teleop.record.recorder import RunRecorder
 
     rec = RunRecorder(bag, scene.to_yaml(), engine.period_ns, True, True, len(COLUMNS))

@@ -19,9 +19,10 @@ import pytest
 
 from haptic_teleop.analysis.metrics import Signals, analyze_bag, port_energy
 from haptic_teleop.core.eba import EnergyBound
-from haptic_teleop.engine import COL, Engine, record_run
+from haptic_teleop.engine.lockstep import COL, Engine, record_run
 from haptic_teleop.plants.mujoco_plant import MujocoWallRobot, SimSettings
-from haptic_teleop.scene import Scene, find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.scene.schema import Scene
 
 UNIT_ROUNDOFF = 2.0**-53  # float64
 

@@ -23,8 +23,8 @@ import pytest
 from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.core.eba import joint_limited
-from haptic_teleop.engine import Engine, record_run
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.engine.lockstep import Engine, record_run
+from haptic_teleop.scene.load import find_scene, load_scene
 
 SIDES = ("master", "slave")
 UNPROTECTED = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")

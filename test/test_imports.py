@@ -19,7 +19,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "haptic_teleop"
 KNOWN_BACK_EDGES = {
     # The compiled kernel takes the layout of its parameter and state arrays (P_*, S_*) from the
     # loop that drives it; they belong in a module below both.
-    ("haptic_teleop.fastkernel", "haptic_teleop.fastloop"): "array layout shared through fastloop",
+    (
+        "haptic_teleop.engine.axis_kernel",
+        "haptic_teleop.engine.compiled_loop",
+    ): "array layout shared through compiled_loop",
 }
 
 

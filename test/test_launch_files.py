@@ -14,7 +14,7 @@ from haptic_teleop.errors import ConfigError
 from haptic_teleop.launch_support import ARGUMENTS, DEVICE_ARGUMENTS, plan_from_arguments
 from haptic_teleop.launcher import format_double, node_plan, params_yaml
 from haptic_teleop.nodes import EXECUTABLES
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.scene.load import find_scene, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = sorted((ROOT / "launch").glob("*_launch.py"))

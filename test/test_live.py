@@ -399,8 +399,8 @@ def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_pat
     tolerance documented in the README (live timing is not lockstep: samples can be taken one
     tick apart and the operator's hand reaches the master over DDS)."""
     from haptic_teleop.analysis.metrics import analyze_bag
-    from haptic_teleop.engine import record_run
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     live = json.loads((default_run["out"] / "summary.json").read_text())
     scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=5"])

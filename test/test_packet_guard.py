@@ -14,8 +14,8 @@ from haptic_teleop.core.eba import (
     SampleGuard,
     TeleopController,
 )
-from haptic_teleop.engine import COL, COLUMNS, Engine, record_run, remote_limits
-from haptic_teleop.scene import find_scene, load_scene
+from haptic_teleop.engine.lockstep import COL, COLUMNS, Engine, record_run, remote_limits
+from haptic_teleop.scene.load import find_scene, load_scene
 
 T = 0.001
 BAD = (math.nan, math.inf, -math.inf, 1e300)
@@ -162,11 +162,11 @@ def test_live_nodes_guard_their_remote_samples_with_the_engines_limits(tmp_path)
     """master_eba and slave_eba build their controllers with the same packet guard as the engine,
     from the parameters the launcher writes; a NaN sample is rejected and counted."""
     rclpy = pytest.importorskip("rclpy")
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
     from haptic_teleop.launcher import node_plan, write_params_files
     from haptic_teleop.nodes.master_eba import MasterEba
     from haptic_teleop.nodes.slave_eba import SlaveEba
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     sc = load_scene(find_scene("wall_contact"))
     files = write_params_files(node_plan(sc), tmp_path)

@@ -10,8 +10,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.scene import Scene, find_scene, load_scene
-from haptic_teleop.schema import describe
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.scene.schema import Scene
+from haptic_teleop.typedconfig import describe
 
 DEFAULT = find_scene("wall_contact")
 

@@ -5,8 +5,8 @@ from pathlib import Path
 import pytest
 
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.engine import record_run
-from haptic_teleop.scene import load_scene, scenes_dir
+from haptic_teleop.engine.lockstep import record_run
+from haptic_teleop.scene.load import load_scene, scenes_dir
 
 SCENES = sorted(p.stem for p in scenes_dir().glob("*.yaml"))
 # Short runs that still hold each scene's events: the push starts at 0.5 s and reaches the wall

@@ -230,14 +230,14 @@ class Signals:
 
 
 def load_setting_scene(scene_path: Path, setting: Setting, duration_s: float, extra: Sequence[str] = ()) -> Any:
-    from haptic_teleop.scene import load_scene
+    from haptic_teleop.scene.load import load_scene
 
     return load_scene(scene_path, overrides=[*extra, f"scene.duration_s={duration_s!r}", *setting.overrides()])
 
 
 def build_engine(scene: Any, setting: Setting) -> Any:
     """An Engine for `scene` with the settings that have no scene key written into MuJoCo."""
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
 
     engine = Engine(scene)
     if setting.solref_timeconst_s is not None:
@@ -613,7 +613,7 @@ def sweep(
     progress: Callable[[str], None] | None = None,
 ) -> tuple[list[dict[str, Any]], str]:
     """Run the plan; rows in plan order (reference first) and a one-paragraph description."""
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     path = find_scene(scene_name)
     scene = load_scene(path, overrides=[*extra, f"scene.duration_s={duration_s!r}"])
@@ -651,7 +651,7 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(
             f"--out {out}: exists and is not empty; allowed: a directory that does not exist yet or is empty"
         )
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     repeat = args.repeat if args.repeat is not None else (1 if args.quick else 5)
     if repeat < 1:

@@ -66,8 +66,8 @@ CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
 
 
 def _engine(scene_name: str, overrides: tuple[str, ...]) -> Any:
-    from haptic_teleop.engine import Engine
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     # The Python loop throughout: effects with per-tick wrappers only run there, so the bare loop
     # is measured in it too (the compiled loop's cost is `bench speed`'s).

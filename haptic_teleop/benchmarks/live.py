@@ -184,7 +184,7 @@ def run_bench(
     from rclpy.executors import SingleThreadedExecutor
 
     from haptic_teleop.launcher import Launcher, NodeSpec, local_discovery_env, node_plan, scene_params
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     os.environ.update(local_discovery_env())
     # The scene runs long enough for the startup and the measurement window; ended by the bench.

@@ -40,8 +40,8 @@ _WRAPPER = (
 
 def record_only(scene_name: str, duration_s: float, loop: str, out: str) -> int:
     """The `record` stage: load the scene and record it as `haptic-teleop run` does, then exit."""
-    from haptic_teleop.engine import record_run
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     scene = load_scene(find_scene(scene_name), overrides=[f"scene.duration_s={duration_s:g}"])
     record_run(scene, Path(out) / "bag", handle_sigint=False, loop=loop)

@@ -88,7 +88,7 @@ def per_packet_us(
     from haptic_teleop.core.link import Packet
     from haptic_teleop.core.netconfig import NetworkEffectsConfig, build_link
     from haptic_teleop.core.playout import BufferConfig, build_buffer
-    from haptic_teleop.schema import build
+    from haptic_teleop.typedconfig import build
 
     cfg = build(NetworkEffectsConfig, effects, "effects", "bench")
     bcfg = build(BufferConfig, buffer, "buffer", "bench")
@@ -126,8 +126,8 @@ def scene_rtf(cases: list[list[str]], scene_name: str, repeat: int) -> list[tupl
 
     The cases take turns within each repeat, so a change in the machine's load hits them alike.
     """
-    from haptic_teleop.engine import Engine, record_run
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.engine.lockstep import Engine, record_run
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     scenes = [load_scene(find_scene(scene_name), overrides=ov) for ov in cases]
     loop: list[list[float]] = [[] for _ in cases]

@@ -62,9 +62,9 @@ def _read_all(bag: Path) -> None:
 
 
 def bench(scene_name: str, duration_s: float, rounds: int) -> int:
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
     from haptic_teleop.record.recorder import write_run
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     scene = load_scene(find_scene(scene_name), overrides=[f"scene.duration_s={duration_s}"])
     run = Engine(scene).run(handle_sigint=False)

@@ -31,9 +31,9 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float,
     from Python, and both called from compiled code (None without the compiled loop)."""
     import mujoco
 
-    from haptic_teleop import fastloop
-    from haptic_teleop.engine import Engine
-    from haptic_teleop.scene import load_scene
+    from haptic_teleop.engine import compiled_loop
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import load_scene
 
     engine = Engine(load_scene(scene_path), loop="python")
     out = []
@@ -48,14 +48,14 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float,
             step(m, d)
         out.append((time.perf_counter() - t0) / steps * 1e6)
     compiled = None
-    if fastloop.kernel() is not None and fastloop.compiled_reason(engine) is None:
-        from haptic_teleop import fastkernel
+    if compiled_loop.kernel() is not None and compiled_loop.compiled_reason(engine) is None:
+        from haptic_teleop.engine import axis_kernel
 
-        models = fastloop.model_addresses(engine)
-        with fastloop.mujoco_timers_off():  # as in the compiled loop
-            fastkernel.bare_steps(models, 10)
+        models = compiled_loop.model_addresses(engine)
+        with compiled_loop.mujoco_timers_off():  # as in the compiled loop
+            axis_kernel.bare_steps(models, 10)
             t0 = time.perf_counter()
-            fastkernel.bare_steps(models, steps)
+            axis_kernel.bare_steps(models, steps)
             compiled = (time.perf_counter() - t0) / steps * 1e6
     return out[0], out[1], compiled
 
@@ -209,7 +209,7 @@ def _stage_buffers(e: Any, c: Columns) -> float:
 
 
 def _stage_row(e: Any, c: Columns) -> float:
-    from haptic_teleop.engine import COLUMNS
+    from haptic_teleop.engine.lockstep import COLUMNS
 
     n_ticks = len(c["m_x_m"])
     data = np.zeros((n_ticks, len(COLUMNS)))
@@ -237,7 +237,7 @@ STAGES: tuple[tuple[str, Callable[[Any, Columns], float]], ...] = (
 
 def breakdown_us(scene: Any, repeat: int) -> tuple[list[tuple[str, float]], float]:
     """Per-tick wall time of each stage (us, median of `repeat`) and of the whole loop."""
-    from haptic_teleop.engine import COLUMNS, Engine
+    from haptic_teleop.engine.lockstep import COLUMNS, Engine
 
     ref = Engine(scene, loop="python").run(handle_sigint=False)
     data = ref.data[: ref.ticks]
@@ -261,7 +261,7 @@ def breakdown_us(scene: Any, repeat: int) -> tuple[list[tuple[str, float]], floa
 def _loop_figures(scene: Any, loop: str, repeat: int) -> dict[str, float]:
     """Medians over `repeat` runs of one loop: RTF with the writer process, RTF on one core, and
     the loop alone (us per tick)."""
-    from haptic_teleop.engine import Engine, record_run
+    from haptic_teleop.engine.lockstep import Engine, record_run
 
     rtf, rtf_one_core, per_tick, loop_only = [], [], [], []
     for _ in range(repeat):
@@ -291,17 +291,17 @@ def _arm_cost_run(scene: Any, every: int) -> tuple[float, float, float]:
     """One run of `arm_costs_us`: (loop, bare, MuJoCo calls), us per tick."""
     import mujoco
 
-    from haptic_teleop import fastarm
-    from haptic_teleop.engine import Engine
-    from haptic_teleop.fastarmkernel import bare_steps, mujoco_steps
+    from haptic_teleop.engine import compiled_arm_loop
+    from haptic_teleop.engine.arm_kernel import bare_steps, mujoco_steps
+    from haptic_teleop.engine.lockstep import Engine
 
     e = Engine(scene, loop="compiled")
     parts = e.arm
     mp, sp = parts.master.plant, parts.slave.plant
     md, sd = mujoco.MjData(mp.model), mujoco.MjData(sp.model)
     models = np.array([mp.model._address, md._address, sp.model._address, sd._address], dtype=np.int64)
-    ms = fastarm.side_tuple(parts.master, parts, True, md)
-    ss = fastarm.side_tuple(parts.slave, parts, False, sd)
+    ms = compiled_arm_loop.side_tuple(parts.master, parts, True, md)
+    ss = compiled_arm_loop.side_tuple(parts.slave, parts, False, sd)
     spent = {"bare": 0.0, "calls": 0.0, "callback": 0.0}
 
     def copy() -> None:
@@ -355,7 +355,7 @@ def arm_speed(scene: Any, repeat: int) -> None:
     """`speed` for arm scenes: real-time factors of both loops, the compiled tick against a bare
     mj_step of the same two models in the same run, and the part of it MuJoCo's own calls take."""
     run = scene.config.scene
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
 
     probe = Engine(scene)
     loops = ["compiled", "python"] if probe.loop_kind == "compiled" else ["python"]
@@ -383,8 +383,8 @@ def arm_speed(scene: Any, repeat: int) -> None:
 
 
 def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
-    from haptic_teleop.engine import Engine
-    from haptic_teleop.scene import find_scene, load_scene
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
 
     path = find_scene(scene_name)
     scene = load_scene(path)

@@ -30,7 +30,7 @@ LAWS = ("position", "force")
 
 # --------------------------------------------------------------------------------------------
 # One-axis formulas on floats. The classes below call them on every tick, and the engine's
-# compiled loop (haptic_teleop/fastloop.py) compiles these same functions with numba: each
+# compiled loop (haptic_teleop/engine/compiled_loop.py) compiles these same functions with numba: each
 # formula exists once. Keep them plain float arithmetic (no Python objects) so both can run them.
 
 
@@ -178,7 +178,7 @@ class AxisBoundState:
     """What a one-axis `EnergyBound` carries from one tick to the next: the reservoir, the force
     held over the current period (the reservoir's F(n-1)), the position of the last step and
     whether there was one. `EnergyBound.axis_state`
-    and `set_axis_state` move it in and out (the compiled loop, fastloop.py, carries it)."""
+    and `set_axis_state` move it in and out (the compiled loop, engine/compiled_loop.py, carries it)."""
 
     energy_j: float
     held_n: float
@@ -324,7 +324,7 @@ class RemoteLimits:
 
     A remote sample with a value that is not finite or beyond its limit is rejected by the
     receiving controller (docs/eba.md, "Bad values in packets"). The engine derives the limits
-    from the scene (`haptic_teleop.engine.remote_limits`).
+    from the scene (`haptic_teleop.engine.lockstep.remote_limits`).
     """
 
     position_m: float  # workspace bound on |x|
@@ -772,7 +772,7 @@ class CoupledEnergyBoundParams:
 @dataclass(frozen=True)
 class CoupledBoundConstants:
     """What a `CoupledEnergyBound` computes once from its parameters and uses every tick (copies:
-    `CoupledEnergyBound.constants`); the compiled arm loop (fastarm.py) takes them from here.
+    `CoupledEnergyBound.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
 
     gain: d_i / T per joint (`coupled_reservoir`); bound_gain: 4 d_i / T (`coupled_bounded`);
     low, high: the default torque range per joint, -+torque_limit_nm (inf: none);
@@ -935,6 +935,14 @@ class CoupledEnergyBound:
         self._last_q[:] = state.last_q_rad
         self._has_last = state.has_last
         self.scale = state.scale
+
+    def restart(self, energy_j: float) -> None:
+        """Start the ledger afresh from `energy_j`, as a new bound: the next `step` takes its q as
+        the first (no update for the period before it). With `energy_j` <= the reservoir this only
+        discards energy; the live nodes restart at scene time 0 with min(reservoir, initial
+        energy), so the ledger from there is the one the bag's analysis recomputes (docs/live.md)."""
+        self.energy_j = float(energy_j)
+        self._has_last = False
 
     def task_demand(self, jac: npt.NDArray[np.float64], force: npt.NDArray[np.float64]) -> float:
         """(T/4) F.T J D^-1 J.T F: what task force F at a point with Jacobian `jac` asks of the reservoir."""

@@ -1,4 +1,4 @@
-"""The network effects of one direction as config (YAML sections, see haptic_teleop/schema.py for
+"""The network effects of one direction as config (YAML sections, see haptic_teleop/typedconfig.py for
 the conventions), and `build_link`: a `Link` with exactly the effects a config names.
 
 Core reads no files: a trace's rows come in `LinkTraces`, read by the scene layer

@@ -485,7 +485,7 @@ class TaskCouplingParams:
 @dataclass(frozen=True)
 class TaskLawConstants:
     """The arrays a `TaskSpaceLaw` builds from its parameters once and uses every tick (copies:
-    `TaskSpaceLaw.constants`); the compiled arm loop (fastarm.py) takes them from here.
+    `TaskSpaceLaw.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
 
     stiffness/damping: c1, c2 per task axis (`coupling`); rot_stiffness/rot_damping: k_rot, d_rot
     (`orientation_coupling`); null_damping: per joint (zeros without); null_space: whether the

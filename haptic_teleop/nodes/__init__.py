@@ -20,11 +20,13 @@ EXECUTABLES = {
 SCENE_SECTIONS = {
     # Both EBA nodes read the whole loop's physical limits: the packet guard's bounds on remote
     # samples come from the workspace, the operator's speed and every force limit (engine.remote_limits).
-    "master_eba": ("scene", "operator", "master", "slave", "simulation", "controllers"),
-    "slave_eba": ("scene", "operator", "master", "slave", "simulation", "controllers"),
+    # Arm scenes: both EBA nodes and the operator build the scene's arm parts (the workspace
+    # mapping's default offset comes from both arms' start points).
+    "master_eba": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
+    "slave_eba": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
     "network_relay": ("scene", "network.{direction}.effects"),
     "sync_buffer": ("scene", "network.{direction}.buffer"),
-    "operator_source": ("scene", "operator"),
+    "operator_source": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
     "recorder": ("",),
     "clock_source": ("scene",),
 }

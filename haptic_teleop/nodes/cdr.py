@@ -32,12 +32,16 @@ def _getter(indices: Sequence[int]) -> Callable[[tuple[Any, ...]], tuple[Any, ..
 
 
 class JointStateCodec:
-    """Encoder and layout check for a one-joint JointState with `fields` filled (one value each)."""
+    """Encoder and layout check for a JointState of one joint (a name) or of several (a tuple of
+    names: an arm's joints, a task's axes) with `fields` filled, values field by field, one per
+    name within a field (record.layouts.make_joint_state)."""
 
-    def __init__(self, joint: str, fields: Sequence[str]) -> None:
+    def __init__(self, joint: str | Sequence[str], fields: Sequence[str]) -> None:
         from haptic_teleop.record.layouts import JOINT_STATE, FixedLayout, make_joint_state
 
-        layout = FixedLayout(JOINT_STATE, make_joint_state(joint, fields), len(fields))
+        names = (joint,) if isinstance(joint, str) else tuple(joint)
+        self.names = names
+        layout = FixedLayout(JOINT_STATE, make_joint_state(list(names), fields), len(fields) * len(names))
         self.joint = joint
         self.fields = tuple(fields)
         self.size = layout.size
@@ -103,7 +107,8 @@ class JointStateCodec:
         """Like `reader`, on the message already unpacked by `self._whole`."""
         if any(f not in self.fields for f in want):
             return None
-        values = _getter([self._value_idx[self.fields.index(f)] for f in want])
+        n = len(self.names)
+        values = _getter([self._value_idx[self.fields.index(f) * n + i] for f in want for i in range(n)])
         si = self._stamp_idx
 
         def read(t: tuple[Any, ...]) -> Decoded:
@@ -122,6 +127,17 @@ class FixedCodec:
         self._template = bytes(layout.template)
         self._sec = int(layout.sec_offset)  # -1: no header
         self._offsets = tuple(int(o) for o in layout.float_offsets)
+        # Runs of values stored back to back (a JointState's array, a Vector3, the data of a
+        # multiarray): one pack per run, not per value (an arm's JointState has 18 values in 3 runs).
+        runs: list[tuple[int, int, int]] = []  # (offset, first value, count)
+        for i, off in enumerate(self._offsets):
+            if runs and runs[-1][0] + 8 * runs[-1][2] == off:
+                o, first, k = runs[-1]
+                runs[-1] = (o, first, k + 1)
+            else:
+                runs.append((off, i, 1))
+        self._runs = tuple((struct.Struct(f"<{k}d").pack_into, o, first, first + k) for o, first, k in runs)
+        self._count = len(self._offsets)
 
     def encode(self, stamp_ns: int | None, values: Sequence[float]) -> bytes:
         buf = bytearray(self._template)
@@ -129,8 +145,10 @@ class FixedCodec:
             if stamp_ns is None:
                 raise ValueError("this message type has a header: a stamp is required")
             _STAMP.pack_into(buf, self._sec, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
-        for off, v in zip(self._offsets, values, strict=True):
-            _DOUBLE.pack_into(buf, off, v)
+        if len(values) != self._count:
+            raise ValueError(f"{self._count} values expected, got {len(values)}")
+        for pack, off, a, b in self._runs:
+            pack(buf, off, *values[a:b])
         return bytes(buf)
 
 
@@ -150,11 +168,15 @@ def multiarray_codec(labels: Sequence[str]) -> FixedCodec:
 
 class JointStateReader:
     """Reads `want` values and the stamp from raw JointState bytes: fast for the `known` layouts
-    ((joint, fields) pairs this topic's publishers use), by deserializing otherwise. Raises
-    IndexError when a message lacks a wanted value."""
+    ((joint or names, fields) pairs this topic's publishers use), by deserializing otherwise.
+    `width`: values per field (the first `width` of each wanted array; an arm's payload has one
+    per task axis). Raises IndexError when a message lacks a wanted value."""
 
-    def __init__(self, want: Sequence[str], known: Sequence[tuple[str, Sequence[str]]] = ()) -> None:
+    def __init__(
+        self, want: Sequence[str], known: Sequence[tuple[str | Sequence[str], Sequence[str]]] = (), width: int = 1
+    ) -> None:
         self.want = tuple(want)
+        self.width = width
         # Per known layout: size, whole-message unpack, identity check, reader of the unpacked tuple.
         self._fast: list[tuple[int, Any, Any, tuple[bytes, ...], Callable[[tuple[Any, ...]], Decoded]]] = []
         for joint, fields in known:
@@ -178,4 +200,11 @@ class JointStateReader:
 
         m: Any = deserialize_message(raw, JointState)
         stamp = int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
-        return stamp, tuple(float(getattr(m, f)[0]) for f in self.want)
+        w = self.width
+        values = []
+        for f in self.want:
+            arr = getattr(m, f)
+            if len(arr) < w:
+                raise IndexError(f"{f}: {len(arr)} values, {w} wanted")
+            values += [float(arr[i]) for i in range(w)]
+        return stamp, tuple(values)

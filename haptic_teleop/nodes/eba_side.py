@@ -41,7 +41,7 @@ class EbaSide:
     saturation limit by its gain, run the control law and the energy bound."""
 
     def __init__(self, node: LiveNode, role: str, config: Any):
-        """`config`: the node's validated scene (haptic_teleop.scene.Scene)."""
+        """`config`: the node's validated scene (haptic_teleop.scene.schema.Scene)."""
         from pathlib import Path
 
         from sensor_msgs.msg import JointState

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
@@ -57,7 +59,6 @@ class MasterEba(LiveNode):
         )
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.side = EbaSide(self, "master", cfg)
         self.source = declare_value(
             self,
             "device.source",
@@ -84,6 +85,11 @@ class MasterEba(LiveNode):
             )
         )  # fmt: skip
         self.command_qos = command_qos(str(reliability), depth)
+        self.arm: Any = None
+        if cfg.is_arm:
+            self._init_arm(cfg)
+            return
+        self.side: Any = EbaSide(self, "master", cfg)
         self.plant: Any = None
         self._hand_n = 0.0
         self._device: tuple[float, float] | None = None
@@ -104,7 +110,57 @@ class MasterEba(LiveNode):
             f"{self.side.bound_ms():.0f} ms"
         )
 
+    def _init_arm(self, cfg: Any) -> None:
+        """An arm scene: the master device arm in-process, the engine's master half of the arm tick
+        (nodes/arm_side.py); the operator's hand force comes in the task frame on
+        /operator/joint_states (effort) and is mapped into the device frame."""
+        from sensor_msgs.msg import JointState
+
+        from haptic_teleop.errors import ConfigError
+        from haptic_teleop.nodes.arm_side import ArmEbaSide
+
+        if self.source != "plant":
+            raise ConfigError(
+                f"parameters of node {self.get_name()}", "device.source", self.source,
+                "an arm scene runs its simulated device only for now; allowed: plant",
+            )  # fmt: skip
+        self.arm = arm = ArmEbaSide(self, "master", cfg)
+        self.side = arm
+        self.plant = arm.plant
+        self.command_out = None
+        axes = arm.schema.axes
+        self._hand_sub = self.create_polled_subscription(JointState, OPERATOR_STATE, stream_qos(), raw=True)
+        names = tuple(f"operator_{a}" for a in axes)
+        self._read_hand = JointStateReader(("effort",), [(names, JOINT_ORDER)], len(axes))
+        self._hand_dev = np.zeros(len(axes))  # the operator's hand force, device frame
+        self.setup_loop(round(cfg.scene.period_s * 1e9))
+        self.get_logger().info(
+            f"arm {cfg.master.model} ({', '.join(arm.schema.master_joints)}), period "
+            f"{cfg.scene.period_s * 1e3:g} ms, watchdog bound {arm.bound_ms():.0f} ms"
+        )
+
+    def _arm_tick(self, stamp_ns: int) -> None:
+        arm = self.arm
+        plant, maps = arm.plant, arm.maps
+        q, qd = plant.read()
+        x_dev, v_dev = plant.point()
+        x = maps.to_task_x(x_dev)
+        v = maps.to_task_v(v_dev)
+        tau = arm.torque(x, v, stamp_ns)
+        arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
+        hand = take_latest(self._hand_sub)
+        if hand is not None:
+            self._hand_dev = maps.force_to_master(np.asarray(self._read_hand(hand)[1]))
+        applied = plant.step(tau, self._hand_dev)
+        arm.applied(applied)
+        arm.publish("/master/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
+        arm.publish("/master/handle_pose", stamp_ns, x)
+        arm.publish_internals(stamp_ns)
+
     def tick(self, index: int, stamp_ns: int) -> None:
+        if self.arm is not None:
+            self._arm_tick(stamp_ns)
+            return
         if self.plant is not None:
             x, v = self.plant.read()
             hand = take_latest(self._hand_sub)

@@ -30,10 +30,12 @@ def raw_publish_fn(pub: Any) -> Callable[[bytes], None]:
 
 
 class JointStateOut:
-    """Publishes a one-joint sensor_msgs/JointState as CDR bytes patched into a template
-    (nodes/cdr.py): no message object per tick."""
+    """Publishes a sensor_msgs/JointState of one joint (or of several names: `joint` a tuple) as
+    CDR bytes patched into a template (nodes/cdr.py): no message object per tick."""
 
-    def __init__(self, node: Any, topic: str, joint: str, fields: Sequence[str], qos: Any = None) -> None:
+    def __init__(
+        self, node: Any, topic: str, joint: str | Sequence[str], fields: Sequence[str], qos: Any = None
+    ) -> None:
         from sensor_msgs.msg import JointState
 
         from haptic_teleop.nodes.cdr import JointStateCodec
@@ -66,6 +68,29 @@ class WrenchOut:
 
     def publish(self, stamp_ns: int, force_x: float) -> None:
         self._send(self._encode(stamp_ns, (force_x,)))
+
+
+class SpecOut:
+    """Publishes one per-tick topic of a run's tick schema (`record.layouts.topic_specs`: the
+    bag's own fixed layout, so joint names, frames and labels are the bag's) as CDR bytes; the
+    values in the layout's order (JointState field by field, one per name; PoseStamped position;
+    WrenchStamped force then torque; Float64MultiArray its labels)."""
+
+    def __init__(self, node: Any, spec: Any, qos: Any = None) -> None:
+        import importlib
+
+        from haptic_teleop.nodes.cdr import FixedCodec
+
+        pkg, _, cls = spec.layout.msgtype.split("/")
+        msg_type = getattr(importlib.import_module(f"{pkg}.msg"), cls)
+        self.topic = spec.name
+        self.width = spec.layout.nfloats
+        self._encode = FixedCodec(spec.layout).encode
+        self._pub = node.create_publisher(msg_type, spec.name, qos if qos is not None else stream_qos())
+        self._send = raw_publish_fn(self._pub)
+
+    def publish(self, stamp_ns: int | None, values: Sequence[float]) -> None:
+        self._send(self._encode(stamp_ns, values))
 
 
 class EbaOut:

@@ -48,19 +48,20 @@ from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.messages import JointStateOut, take_all
 from haptic_teleop.nodes.params import declare_scene, declare_value
 from haptic_teleop.nodes.topics import (
-    DIRECTION_JOINT,
     DIRECTIONS,
-    PAYLOAD_FIELDS,
     READER_DEPTH,
     SCENE_START_TOPIC,
+    TASK_AXES_PARAM,
     WIRE_FIELDS,
     delivered_topic,
     latched_qos,
     packets_topic,
+    payload_fields,
     reliable_qos,
     scene_start_ns,
     sent_topic,
     stream_qos,
+    wire_names,
 )
 
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
@@ -95,6 +96,16 @@ def settling_effects(cfg: NetworkEffectsConfig) -> NetworkEffectsConfig:
     return dataclasses.replace(cfg, blackout=None, delay=delay)
 
 
+def declare_task_axes(node: LiveNode) -> int:
+    """The node's `task_axes` parameter: values per payload field (1: a one-axis scene; 3: an arm
+    scene, one per axis of the task; the launcher sets it from the scene's tick schema)."""
+    return int(
+        declare_value(
+            node, TASK_AXES_PARAM, 1, "values per payload field: 1 (one-axis scene) or 3 (arm scene: x, y, z)", 1, 3
+        )
+    )
+
+
 def declare_direction_scene(node: LiveNode, executable: str, extra_names: Sequence[str] = ()) -> tuple[str, Any]:
     """The node's `direction` parameter and the scene sections `executable` reads for it
     (`extra_names`: the node's other own parameters)."""
@@ -119,8 +130,9 @@ class NetworkRelay(LiveNode):
         from haptic_teleop.record.layouts import joint_state_size
         from haptic_teleop.traces import build_scene_link
 
-        d, cfg = declare_direction_scene(self, "network_relay", ("scene_start",))
+        d, cfg = declare_direction_scene(self, "network_relay", ("scene_start", TASK_AXES_PARAM))
         self.direction = d
+        axes = declare_task_axes(self)
         self.start_mode = str(
             declare_value(
                 self, "scene_start", "topic",
@@ -141,15 +153,22 @@ class NetworkRelay(LiveNode):
         effects = getattr(cfg.network, d).effects
         self.link = build_scene_link(effects, cfg.scene.seed, d)  # scene time, from 0
         self.settling = build_scene_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
-        self._fields = PAYLOAD_FIELDS[d]
-        self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], WIRE_FIELDS[d])])
-        self._size = joint_state_size(3 if d == "backward" else 2)
+        self._fields = payload_fields(d, axes)
+        self._read = JointStateReader(self._fields, [(wire_names(d, axes), WIRE_FIELDS[d])], axes)
+        floats = 3 if d == "backward" else 2
+        if axes == 1:
+            self._size = joint_state_size(floats)
+        else:  # the engine's wire size of an arm payload (arm_loop.wire_payload_bytes)
+            from haptic_teleop.engine.arm_loop import wire_payload_bytes
+
+            self._size = wire_payload_bytes(axes, floats)
         self._msgs: dict[int, Any] = {}
         self._newest = 0
         self.delivered = 0
         self.malformed = 0
         # Forwards the sent bytes; rebuilds a message whose original is no longer kept.
-        self._rebuild = JointStateOut(self, delivered_topic(d), DIRECTION_JOINT[d], WIRE_FIELDS[d])
+        self._rebuild = JointStateOut(self, delivered_topic(d), wire_names(d, axes), WIRE_FIELDS[d])
+        self._axes = axes
         self._packets_pub = self.create_publisher(Float64MultiArray, packets_topic(d), reliable_qos(100))
         self.add_event_subscription(JointState, sent_topic(d), stream_qos(READER_DEPTH), self._on_sent, raw=True)
         # Packet fates go out ten times a second: small batches, no long tick.
@@ -230,6 +249,8 @@ class NetworkRelay(LiveNode):
             m = msgs.get(p.seq)
             if m is not None:
                 self._rebuild.publish_raw(m)
+            elif self._axes > 1:  # an arm payload is in the wire's order already
+                self._rebuild.publish(p.seq * self.period_ns, p.payload)
             else:
                 values = dict(zip(self._fields, p.payload, strict=True))
                 self._rebuild.publish(p.seq * self.period_ns, [values[f] for f in self._rebuild.fields])

@@ -14,6 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
@@ -71,16 +73,63 @@ class OperatorSource(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
         self._master: tuple[list[float], list[float]] | None = None
-        self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
-        self._read_master = JointStateReader(("position", "velocity"), [(MASTER_JOINT, JOINT_ORDER)])
-        self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, JOINT_ORDER)
+        self.arm: Any = None
+        if cfg.is_arm:
+            self._init_arm(cfg)
+        else:
+            self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
+            self._read_master = JointStateReader(("position", "velocity"), [(MASTER_JOINT, JOINT_ORDER)])
+            self.out = JointStateOut(self, OPERATOR_STATE, OPERATOR_JOINT, JOINT_ORDER)
         from std_msgs.msg import Header
 
         self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
-        self.start_index: int | None = None
+        self.start_index: int | None = None  # the tick of scene time 0, announced once the graph is up
+        self.started = False  # scene time has begun
         self._ready_ns: int | None = None
         self._created_ns = self.now_ns()
         self.setup_loop(period_ns)
+
+    def _init_arm(self, cfg: Any) -> None:
+        """An arm scene: the 3-D operator (arm_loop.operator_hand: the intended point along
+        `operator.direction`, the hand a spring-damper in the device frame) on the master handle's
+        newest task-frame state, which the master sends forward (/forward/sent: x, v per axis)."""
+        from sensor_msgs.msg import JointState
+
+        from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.nodes.messages import SpecOut
+        from haptic_teleop.nodes.topics import WIRE_FIELDS, sent_topic, wire_names
+        from haptic_teleop.record.layouts import topic_specs
+
+        self.arm = parts = build_arm_parts(cfg)
+        from haptic_teleop.engine.arm_loop import side_ticks
+
+        side_ticks(parts)  # builds parts.maps (the mapping's functions, compiled)
+        parts.master.plant.close()
+        parts.slave.plant.close()
+        axes = parts.schema.task_axes
+        self._x_dev = parts.master.plant.point()[0]  # the start handle until the master is heard
+        self._v_dev = np.zeros(axes)
+        self._master_sub = self.create_polled_subscription(JointState, sent_topic("forward"), stream_qos(), raw=True)
+        self._read_master = JointStateReader(
+            WIRE_FIELDS["forward"], [(wire_names("forward", axes), WIRE_FIELDS["forward"])], axes
+        )
+        self.out = SpecOut(self, topic_specs(parts.schema)[OPERATOR_STATE])
+
+    def _arm_take(self) -> None:
+        m = take_latest(self._master_sub)
+        if m is not None:
+            vals = np.asarray(self._read_master(m)[1])
+            k = vals.size // 2
+            maps = self.arm.maps
+            self._x_dev = maps.to_master_x(vals[:k])
+            self._v_dev = maps.to_master_v(vals[k:])
+            self._master = ([], [])
+
+    def _arm_publish(self, t: float, stamp_ns: int) -> None:
+        from haptic_teleop.engine.arm_loop import operator_hand
+
+        xd_t, vd_t, f_dev = operator_hand(self.arm, t, self._x_dev, self._v_dev)
+        self.out.publish(stamp_ns, (*xd_t, *vd_t, *self.arm.maps.force_to_task(f_dev).tolist()))
 
     def _graph_ready(self) -> bool:
         if self._master is None:
@@ -90,31 +139,42 @@ class OperatorSource(LiveNode):
         return all(self.count_publishers(t) > 0 for t in self.wait_for)
 
     def tick(self, index: int, stamp_ns: int) -> None:
-        m = take_latest(self._master_sub)
+        if self.arm is not None:
+            self._arm_take()
+            m = None
+        else:
+            m = take_latest(self._master_sub)
         if m is not None:
             x, v = self._read_master(m)[1]
             self._master = ([x], [v])
         if self.start_index is None:
-            if self._ready_ns is None:
-                if index % 50 == 0 and self._graph_ready():
-                    self._ready_ns = stamp_ns
-                    self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
-                elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
-                    raise RuntimeError(
-                        f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
-                        f"(waiting for /master/joint_states, publishers of {self.wait_for}, "
-                        f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
-                    )
-                return
-            if stamp_ns - self._ready_ns < self.start_delay_ns:
-                return
-            self.start_index = index
-            self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns")
-            self._publish_start(stamp_ns)
+            if index % 50 == 0 and self._graph_ready():
+                self._ready_ns = stamp_ns
+                # Scene time 0: the first tick at least start.delay_s after now, announced now (latched)
+                # so every node knows it before it comes (the arm nodes restart their energy ledgers
+                # there: nodes/arm_side.py).
+                self.start_index = index + max(1, -(-self.start_delay_ns // self.period_ns))
+                self._publish_start(self.start_index * self.period_ns)
+                self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
+            elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
+                raise RuntimeError(
+                    f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
+                    f"(waiting for /master/joint_states, publishers of {self.wait_for}, "
+                    f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
+                )
+            return
+        if index < self.start_index:
+            return
+        if not self.started:
+            self.started = True
+            self.get_logger().info(f"scene time 0 at stamp {self.start_index * self.period_ns} ns")
         n = index - self.start_index
         if n >= self.duration_ticks and self.stop_at_end:
             raise NodeStopped(f"scene duration reached ({n} ticks)")
         t = n * self.period_ns * 1e-9
+        if self.arm is not None:
+            self._arm_publish(t, stamp_ns)
+            return
         x, v = self._master if self._master is not None else ([0.0], [0.0])
         fh = self.operator.hand_force(t, x, v)
         xd, vd = self.operator.intended(t)
@@ -128,7 +188,7 @@ class OperatorSource(LiveNode):
         self._start_pub.publish(h)
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
-        return {"started": int(self.start_index is not None)}
+        return {"started": int(self.started)}
 
 
 def main() -> None:

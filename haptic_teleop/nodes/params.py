@@ -42,7 +42,7 @@ def _unwrap_optional(tp: Any) -> Any:
 
 def section_type(path: str) -> type:
     """The config dataclass at a dotted path of the scene (`""` is the whole scene)."""
-    from haptic_teleop.scene import Scene
+    from haptic_teleop.scene.schema import Scene
 
     cls: Any = Scene
     for part in [p for p in path.split(".") if p]:
@@ -134,13 +134,13 @@ def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str]
     """Declare every leaf of `sections` (dotted scene paths) as a typed parameter with its range,
     read those that are set, and validate them as a scene.
 
-    Returns the validated `haptic_teleop.scene.Scene` (sections not declared keep their defaults).
+    Returns the validated `haptic_teleop.scene.schema.Scene` (sections not declared keep their defaults).
     ROS rejects a wrong type or an out-of-range value at declaration; the schema then checks what
     ROS cannot (exclusive bounds, choices, cross-field contradictions). Every error names the
     parameter. Parameters in the file that no section or `extra_names` declares are errors too.
     """
-    from haptic_teleop.scene import Scene
-    from haptic_teleop.schema import build
+    from haptic_teleop.scene.schema import Scene
+    from haptic_teleop.typedconfig import build
 
     raw: dict[str, Any] = {}
     declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM, LOOP_CATCH_UP_PARAM}

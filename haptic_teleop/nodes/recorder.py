@@ -62,7 +62,8 @@ from haptic_teleop.nodes.topics import (
     stream_qos,
 )
 
-# Topic -> engine columns it fills (in the topic layout's value order).
+# Topic -> engine columns it fills (in the topic layout's value order): a one-axis scene's. An arm
+# scene's come from its tick schema (`state_columns`).
 STATE_COLUMNS = {
     OPERATOR_STATE: ("op_x_m", "op_v_m_per_s", "op_force_n"),
     MASTER_STATE: ("m_x_m", "m_v_m_per_s", "m_force_n"),
@@ -86,6 +87,19 @@ OFFERED_QOS = {
     **{packets_topic(d): [_BATCH] for d in DIRECTIONS},
 }
 MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams that define the grid's end
+# Per-tick topics of a tick schema the recorder does not take as state: the packets' samples
+# (/<dir>/sent: the relays' records carry them; /<dir>/received: the release ticks, RECEIVED).
+_NOT_STATE = ("/forward/sent", "/backward/sent", "/forward/received", "/backward/received")
+
+
+def state_columns(schema: Any) -> dict[str, tuple[int, ...]]:
+    """Topic -> the tick row's columns its values fill, in the message's value order, for every
+    per-tick state topic of `schema` (record.layouts.topic_specs: the bag's own layouts)."""
+    from haptic_teleop.record.layouts import topic_specs
+
+    return {t: spec.columns for t, spec in topic_specs(schema).items() if t not in _NOT_STATE}
+
+
 _STAMP = struct.Struct("<iI")
 
 
@@ -161,9 +175,10 @@ class Recorder(LiveNode):
 
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.record.layouts import topic_specs
-        from haptic_teleop.scene import LoadedScene
+        from haptic_teleop.scene.schema import LoadedScene
 
         self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir",))
+        self.schema, self.run_facts = _schema_and_facts(self.cfg)
         out = str(declare_value(self, "output_dir", "", "the bag goes to OUTPUT_DIR/bag (required)"))
         where = f"parameters of node {self.get_name()}"
         if not out:
@@ -178,18 +193,19 @@ class Recorder(LiveNode):
             max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
         )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
-        self._specs = topic_specs()
+        self._specs = topic_specs(self.schema)
+        self._columns = state_columns(self.schema)
         # Per topic, what was taken and not yet decoded: times (ns) and raw bytes in two lists, not
         # (time, bytes) tuples: ints and bytes are no work for the garbage collector, thousands of
         # live tuples a second would be (each collection pauses every loop of the process).
         self._queues: dict[str, tuple[list[int], list[bytes]]] = {}
         self._subs: dict[str, Any] = {}
-        self._pending: dict[str, _Pending] = {t: _Pending(len(c)) for t, c in STATE_COLUMNS.items()}
+        self._pending: dict[str, _Pending] = {t: _Pending(len(c)) for t, c in self._columns.items()}
         for topic in RECEIVED:
             self._pending[topic] = _Pending(1)  # index: the sample's tick; value: its release tick
         self._packets: dict[str, list[np.ndarray]] = {d: [] for d in DIRECTIONS}
         self._decided: dict[str, dict[int, int]] = {d: {} for d in DIRECTIONS}  # seq -> the buffer's fate
-        for topic in list(STATE_COLUMNS) + list(RECEIVED) + list(PACKETS) + list(PLAYOUT):
+        for topic in list(self._columns) + list(RECEIVED) + list(PACKETS) + list(PLAYOUT):
             self._queues[topic] = ([], [])
             if topic in PACKETS or topic in PLAYOUT:
                 msg_type, qos = Float64MultiArray, reliable_qos(100)
@@ -220,7 +236,6 @@ class Recorder(LiveNode):
         self.get_logger().info(f"recording to {self.bag_dir}")
 
     def _open_bag(self) -> Any:
-        from haptic_teleop.engine import COLUMNS
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.record.recorder import RunRecorder
 
@@ -228,8 +243,8 @@ class Recorder(LiveNode):
         try:
             self.bag_dir.parent.mkdir(parents=True, exist_ok=True)
             return RunRecorder(
-                self.bag_dir, self.scene_yaml, self.grid_ns, rec.eba_internals, rec.packets, len(COLUMNS),
-                parallel=False, compression=getattr(rec, "compression", "none"), qos=OFFERED_QOS,
+                self.bag_dir, self.scene_yaml, self.grid_ns, rec.eba_internals, rec.packets, self.schema.width,
+                parallel=False, compression=getattr(rec, "compression", "none"), qos=OFFERED_QOS, schema=self.schema,
             )  # fmt: skip
         except OSError as exc:
             raise ConfigError(
@@ -315,16 +330,26 @@ class Recorder(LiveNode):
         vals = np.empty((len(raws), layout.nfloats))
         stamps = np.empty(len(raws), dtype=np.int64)
         fields = self._specs[topic].fields
+        k = layout.nfloats
         for i, r in enumerate(raws):
             m = deserialize_message(r, msg_type)
             if hasattr(m, "header"):
                 stamps[i] = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-            if layout.msgtype.endswith("JointState"):
+            if self.schema.single_axis and layout.msgtype.endswith("JointState"):
                 vals[i] = [float(getattr(m, f)[0]) for f in fields]
-            elif layout.msgtype.endswith("WrenchStamped"):
+            elif self.schema.single_axis and layout.msgtype.endswith("WrenchStamped"):
                 vals[i] = [m.wrench.force.x]
+            elif layout.msgtype.endswith("JointState"):  # field by field, one value per name
+                names = {f.split("[")[0]: None for f in fields}
+                vals[i] = [float(x) for f in names for x in getattr(m, f)][:k]
+            elif layout.msgtype.endswith("WrenchStamped"):
+                w = m.wrench
+                vals[i] = [w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z][:k]
+            elif layout.msgtype.endswith("PoseStamped"):
+                p = m.pose.position
+                vals[i] = [p.x, p.y, p.z][:k]
             else:
-                vals[i] = list(m.data[: layout.nfloats])
+                vals[i] = list(m.data[:k])
         return vals, (stamps if layout.sec_offset >= 0 else None)
 
     def _decode_packets(self, direction: str, raws: list[bytes]) -> None:
@@ -379,26 +404,25 @@ class Recorder(LiveNode):
             self._last_flush = now
 
     def _write_ticks(self, a: int, b: int) -> None:
-        from haptic_teleop.engine import COL, COLUMNS
-
+        col = self.schema.col
         n = b - a
-        data = np.zeros((n, len(COLUMNS)))
-        for topic, cols in STATE_COLUMNS.items():
+        data = np.zeros((n, self.schema.width))
+        for topic, cols in self._columns.items():
             pend = self._pending[topic]
             idx, vals = pend.take(a, b, first=a == self.start_tick)
             grid, missing, pend.carry = _on_grid(idx - a, vals, n, pend.carry)
             pend.filled += missing
-            data[:, [COL[c] for c in cols]] = grid
+            data[:, list(cols)] = grid
         start = self.start_tick
         assert start is not None
-        for topic, col in RECEIVED.items():
+        for topic, name in RECEIVED.items():
             at, seq = self._pending[topic].take(a, b, first=a == start)
             column = np.full(n, -1.0)
             s = seq[:, 0].astype(np.int64) - start
             ok = (s >= 0) & (s <= at - start)
             order = np.argsort(at[ok], kind="stable")  # the last release in a tick wins
             column[(at[ok] - a)[order]] = s[ok][order]
-            data[:, COL[col]] = column
+            data[:, col[name]] = column
         self.rec.append(data)
         self.written = b
 
@@ -479,16 +503,38 @@ class Recorder(LiveNode):
             "ticks": ticks,
             "interrupted": interrupted,
             "start_stamp_ns": (self.start_tick or 0) * self.grid_ns,
-            "samples_filled": {t: self._pending[t].filled for t in STATE_COLUMNS},
+            "samples_filled": {t: self._pending[t].filled for t in self._columns},
             "samples_after_written": {t: p.dropped for t, p in self._pending.items()},
             "messages_received": dict(self.received_count),
             "packets_written": dict(self.packets_written),
             "packets_late": dict(self.late_marked),
             "written_at_unix_s": round(time.time(), 3),
+            **self.run_facts,
         }
         path = Path(self.rec.close(info))
         (self.bag_dir.parent / "live_run.json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
         return path
+
+
+def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
+    """The run's tick schema and the run facts the engine writes for it (engine.record_run): for an
+    arm scene the joint names and the damping each joint has in the simulator (the compiled
+    MjModel's dof_damping, which the analysis' true energy margin uses) from the scene's models,
+    and the wall's point and normal (the analysis' penetration). A one-axis scene: ONE_DOF."""
+    from haptic_teleop.record.columns import ONE_DOF, TickSchema
+
+    if not cfg.is_arm:
+        return ONE_DOF, {}
+    from haptic_teleop.plants import build_master_arm, build_slave_arm
+
+    master, slave = build_master_arm(cfg), build_slave_arm(cfg)
+    facts = {
+        "master_joint_damping": master.joint_damping(),
+        "slave_joint_damping": slave.joint_damping(),
+        "wall_point_m": list(cfg.slave.wall.point_m or ()),
+        "wall_normal": list(cfg.slave.wall.normal or ()),
+    }
+    return TickSchema(master.joints, slave.joints, 3), facts
 
 
 def mark_late(rows: np.ndarray, late: set[int], f: dict[str, int]) -> int:

@@ -28,6 +28,19 @@ class SlaveEba(LiveNode):
 
         cfg = declare_scene(self, SCENE_SECTIONS["slave_eba"], WATCHDOG_PARAMS)
         period_ns = round(cfg.scene.period_s * 1e9)
+        self.arm: Any = None
+        if cfg.is_arm:  # the slave arm in-process, the engine's slave half of the arm tick
+            from haptic_teleop.nodes.arm_side import ArmEbaSide
+
+            self.arm = self.side = ArmEbaSide(self, "slave", cfg)
+            self.plant = self.arm.plant
+            self.setup_loop(period_ns)
+            w = cfg.slave.wall
+            self.get_logger().info(
+                f"arm {cfg.slave.model} ({', '.join(self.arm.schema.slave_joints)}), wall through "
+                f"{list(w.point_m or ())} m, normal {list(w.normal or ())}, watchdog bound {self.arm.bound_ms():.0f} ms"
+            )
+            return
         self.side = EbaSide(self, "slave", cfg)
         s = cfg.slave
         self.plant = build_slave_plant(cfg)
@@ -40,7 +53,25 @@ class SlaveEba(LiveNode):
             f"{self.side.bound_ms():.0f} ms"
         )
 
+    def _arm_tick(self, stamp_ns: int) -> None:
+        arm = self.arm
+        plant = arm.plant
+        q, qd = plant.read()
+        x, v = plant.point()
+        f_env, t_env = plant.contact_wrench()
+        tau = arm.torque(x, v, stamp_ns)
+        arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+        applied = plant.step(tau)
+        arm.applied(applied)
+        arm.publish("/slave/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
+        arm.publish("/slave/contact_wrench", stamp_ns, (*f_env.tolist(), *t_env.tolist()))
+        arm.publish("/slave/tool_pose", stamp_ns, x)
+        arm.publish_internals(stamp_ns)
+
     def tick(self, index: int, stamp_ns: int) -> None:
+        if self.arm is not None:
+            self._arm_tick(stamp_ns)
+            return
         plant = self.plant
         x, v = plant.read()
         fenv = plant.contact_force()

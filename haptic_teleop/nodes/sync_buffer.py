@@ -22,17 +22,18 @@ from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.messages import JointStateOut, take_all
-from haptic_teleop.nodes.network_relay import declare_direction_scene
+from haptic_teleop.nodes.network_relay import declare_direction_scene, declare_task_axes
 from haptic_teleop.nodes.topics import (
-    DIRECTION_JOINT,
-    PAYLOAD_FIELDS,
     READER_DEPTH,
+    TASK_AXES_PARAM,
     WIRE_FIELDS,
     delivered_topic,
+    payload_fields,
     playout_topic,
     received_topic,
     reliable_qos,
     stream_qos,
+    wire_names,
 )
 
 PLAYOUT_FIELDS = ("seq", "fate")
@@ -49,16 +50,18 @@ class SyncBuffer(LiveNode):
 
         from haptic_teleop.core.playout import build_buffer
 
-        d, cfg = declare_direction_scene(self, "sync_buffer")
+        d, cfg = declare_direction_scene(self, "sync_buffer", (TASK_AXES_PARAM,))
         self.direction = d
+        axes = declare_task_axes(self)
         period_ns = round(cfg.scene.period_s * 1e9)
         self.buffer = build_buffer(getattr(cfg.network, d).buffer, period_ns)
-        self._fields = PAYLOAD_FIELDS[d]
+        self._fields = payload_fields(d, axes)
         out_fields = WIRE_FIELDS[d]
-        self._order = [self._fields.index(f) for f in out_fields]  # payload -> JointState order
+        # payload -> JointState order (an arm payload is in the wire's order, one value per axis)
+        self._order = [self._fields.index(f) for f in out_fields] if axes == 1 else list(range(len(out_fields) * axes))
         self.released = 0
-        self.out = JointStateOut(self, received_topic(d), DIRECTION_JOINT[d], out_fields)
-        self._read = JointStateReader(self._fields, [(DIRECTION_JOINT[d], out_fields)])
+        self.out = JointStateOut(self, received_topic(d), wire_names(d, axes), out_fields)
+        self._read = JointStateReader(self._fields, [(wire_names(d, axes), out_fields)], axes)
         self._sub = self.create_polled_subscription(JointState, delivered_topic(d), stream_qos(READER_DEPTH), raw=True)
         # Decisions: packets pushed and not decided yet (seq -> packet), and the decisions not
         # published yet (seq, fate pairs, flat).

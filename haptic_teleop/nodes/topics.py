@@ -100,6 +100,26 @@ JOINT_ORDER = ("position", "velocity", "effort")  # JointState's value arrays
 WIRE_FIELDS = {"forward": ("position", "velocity"), "backward": ("position", "velocity", "effort")}
 
 
+def wire_names(direction: str, task_axes: int = 1) -> str | tuple[str, ...]:
+    """The JointState name(s) of a direction's samples: one joint for a one-axis scene, one name
+    per task axis for an arm scene (record.columns.forward_names / backward_names: master_x,
+    master_y, master_z; slave_x, ...)."""
+    if task_axes == 1:
+        return DIRECTION_JOINT[direction]
+    prefix = "master" if direction == "forward" else "slave"
+    return tuple(f"{prefix}_{a}" for a in ("x", "y", "z")[:task_axes])
+
+
+def payload_fields(direction: str, task_axes: int = 1) -> tuple[str, ...]:
+    """The JointState fields of a direction's payload in the core's order: PAYLOAD_FIELDS for one
+    axis; for an arm scene the wire's own order, which is the arm tick's payload
+    (forward: x[a], v[a]; backward: x[a], v[a], contact force[a]; docs/arms.md)."""
+    return PAYLOAD_FIELDS[direction] if task_axes == 1 else WIRE_FIELDS[direction]
+
+
+TASK_AXES_PARAM = "task_axes"  # relay and buffer: values per payload field (1: one axis; 3: an arm scene)
+
+
 def stream_qos(depth: int = 1) -> Any:
     """1 kHz streams: best effort, keep last, depth 1, volatile (docs/architecture.md, "Live mode").
 

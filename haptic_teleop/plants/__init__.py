@@ -18,7 +18,7 @@ from haptic_teleop.plants.base import Plant, backend_class
 if TYPE_CHECKING:
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.mujoco_plant import SimSettings
-    from haptic_teleop.scene import PlantEffectsConfig, Scene
+    from haptic_teleop.scene.schema import PlantEffectsConfig, Scene
 
 
 # --------------------------------------------------------------------------------------------

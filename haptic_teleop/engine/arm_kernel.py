@@ -1,16 +1,16 @@
-"""The compiled tick loop for arm scenes (numba), imported only by `haptic_teleop.fastarm`.
+"""The compiled tick loop for arm scenes (numba), imported only by `haptic_teleop.engine.compiled_arm_loop`.
 
 Importing this module needs numba and links MuJoCo's `mj_step1`, `mj_step2`, `mj_step`,
 `mj_jacSite` and `mj_contactForce` of the libmujoco the `mujoco` bindings loaded (the same
-library as `fastkernel`'s `mj_step`). Every formula comes from `core` (taskspace, eba, operator)
+library as `axis_kernel`'s `mj_step`). Every formula comes from `core` (taskspace, eba, operator)
 and is compiled here from its one definition (`compile_tree`: a function and the plain functions
-it calls); this module holds only the tick's order, which is `armloop.run_arm_loop`'s, and the
+it calls); this module holds only the tick's order, which is `arm_loop.run_arm_loop`'s, and the
 plant's arithmetic around MuJoCo (`plants/arm.py`'s `read`, `point`, `torque_room`, `step`,
 `_contact`), line for line.
 
 numba caches the compiled loop next to this file and checks only this file's time stamp, while
-the loop holds compiled copies of `core`'s functions: `fastarm` drops this module's cache when one
-of the sources it is built from changed (`fastarm._drop_stale_cache`).
+the loop holds compiled copies of `core`'s functions: `compiled_arm_loop` drops this module's cache when one
+of the sources it is built from changed (`compiled_arm_loop._drop_stale_cache`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from numba.np.arrayobj import populate_array
 
 from haptic_teleop.core import eba, taskspace
 from haptic_teleop.core import operator as op
-from haptic_teleop.fastkernel import libmujoco, mj_step
+from haptic_teleop.engine.axis_kernel import libmujoco, mj_step
 
 for _name in ("mj_step1", "mj_step2", "mj_jacSite", "mj_contactForce"):
     llvm.add_symbol(_name, ctypes.cast(getattr(libmujoco, _name), ctypes.c_void_p).value)
@@ -140,7 +140,7 @@ joint_limited = compile_tree(eba.joint_limited)
 push1 = compile_tree(op.push1)
 sinusoid1 = compile_tree(op.sinusoid1)
 
-# The side tuple (fastarm.side_tuple builds it; the kernel unpacks it in this order):
+# The side tuple (compiled_arm_loop.side_tuple builds it; the kernel unpacks it in this order):
 #   I (int64 scalars, the I_* positions below), qadr, dadr, act (int64, per joint),
 #   F (float64 scalars, F_*), c1, c2, k_rot, d_rot (3), null_d, gain, bound_gain, step,
 #   bound_low, bound_high, torque_lo, torque_hi (per joint), hand_support (3), jac_scale (3, 3),
@@ -194,7 +194,7 @@ F_LIMIT, F_MU, F_SCALE, F_FORCE_SCALE, F_K_HAND, F_B_HAND = 0, 1, 2, 3, 4, 5
 F_SIZE = 6
 S_ENERGY, S_HAS_LAST, S_HAS_REMOTE, S_HAS_HOLD, S_RATIO, S_REJECTED, S_SCALE, S_LIMITED = 0, 1, 2, 3, 4, 5, 6, 7
 S_SIZE = 8
-# The operator, in OP: profile code (fastloop.PROFILE_CODES), x0, start, speed, t_end, x_end,
+# The operator, in OP: profile code (compiled_loop.PROFILE_CODES), x0, start, speed, t_end, x_end,
 # amplitude, omega, origin (3), direction (3), period.
 O_PROFILE, O_X0, O_START, O_SPEED, O_T_END, O_X_END, O_AMP, O_W, O_ORIGIN, O_DIR, O_PERIOD = (
     0, 1, 2, 3, 4, 5, 6, 7, 8, 11, 14,
@@ -321,7 +321,7 @@ def plant_step(side: Any, tau: np.ndarray, hand: np.ndarray, applied: np.ndarray
 def side_torque(
     side: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray, out: np.ndarray, w: Any
 ) -> None:
-    """armloop._SideTick.torque: the task-space law on the newest remote sample, J^T F, the
+    """arm_loop._SideTick.torque: the task-space law on the newest remote sample, J^T F, the
     null-space damping, the force limit on the task force's norm, the motors' room (direction
     kept), the pooled joint bound. `out`: the torque to apply; S_RATIO, force: for the row."""
     iv, F = side[T_I], side[T_F]
@@ -550,7 +550,7 @@ def run_ticks(
     w0: int,
     d0: int,
 ) -> int:
-    """Ticks [n0, n1) of an arm scene (armloop.run_arm_loop's order). fwd_rel, fwd_occ, bwd_rel,
+    """Ticks [n0, n1) of an arm scene (arm_loop.run_arm_loop's order). fwd_rel, fwd_occ, bwd_rel,
     bwd_occ hold the window of ticks from w0 on; data the block of ticks from d0 on; the
     histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
     # Every array the ticks use is a borrowed view (no reference counting in the loop); the

@@ -27,7 +27,7 @@ The result is the same columns and packet records, bit for bit, as the Python lo
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
 backends, operator traces, payload-changing effects (corruption), extrapolating buffers, and
 machines without numba. Arm scenes (more than one axis) have their own compiled loop,
-`haptic_teleop/fastarm.py`, which reuses this module's network schedule; it does not take arm
+`haptic_teleop/engine/compiled_arm_loop.py`, which reuses this module's network schedule; it does not take arm
 plants with effects or another backend, the force law, an operator trace, corruption or
 extrapolating buffers either.
 """
@@ -48,7 +48,7 @@ from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
 
 if TYPE_CHECKING:
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
 
 # Layout of the parameter vector P and the state vector S (float64), one block per side.
 MASTER, SLAVE = 0, 16
@@ -70,10 +70,10 @@ S_SIZE = 32
 @functools.cache
 def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
     try:
-        from haptic_teleop import fastkernel
+        from haptic_teleop.engine import axis_kernel
     except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
         return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
-    return fastkernel.run_ticks, None
+    return axis_kernel.run_ticks, None
 
 
 def kernel() -> Callable[..., int] | None:
@@ -94,9 +94,9 @@ def mujoco_timers_off() -> Iterator[None]:
     its profiling timers (`MjData.timer`); from the compiled loop it was 40 % of a bare step
     (docs/performance.md). Nothing but the timers reads it: states and forces are unchanged
     (test_compiled_loop.py compares them with the Python loop's, where the callback is on)."""
-    from haptic_teleop import fastkernel
+    from haptic_teleop.engine import axis_kernel
 
-    slot = ctypes.c_void_p.in_dll(fastkernel.libmujoco, "mjcb_time")
+    slot = ctypes.c_void_p.in_dll(axis_kernel.libmujoco, "mjcb_time")
     before = slot.value
     slot.value = None
     try:

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     from haptic_teleop.assembly import ArmParts, ArmSide
     from haptic_teleop.core.taskspace import WorkspaceMapping
-    from haptic_teleop.engine import Engine
+    from haptic_teleop.engine.lockstep import Engine
 
 
 def wire_payload_bytes(names: int, fields: int) -> int:
@@ -114,6 +114,7 @@ class _Maps:
         self.to_master_x = mapping.position_to_master
         self.to_master_v = mapping.velocity_to_master
         self.force_to_task = mapping.force_to_task
+        self.force_to_master = mapping.force_to_master
         if kernels is None:
             return
         r, s, o, fs = mapping.matrix, mapping.scale, mapping.offset, mapping.force_scale
@@ -144,11 +145,37 @@ class _Maps:
             mv(out, r, 1.0 / fs, f)
             return out
 
+        def force_to_master(f: np.ndarray) -> np.ndarray:
+            out = np.empty(3)
+            mvb(out, r, fs, f)
+            return out
+
         self.to_task_x, self.to_task_v, self.to_master_x = to_task_x, to_task_v, to_master_x
-        self.to_master_v, self.force_to_task = to_master_v, force_to_task
+        self.to_master_v, self.force_to_task, self.force_to_master = to_master_v, force_to_task, force_to_master
         z = np.zeros(3)  # compile (or load) them now, not in the timed loop
-        for fn in (to_task_x, to_task_v, to_master_x, to_master_v, force_to_task):
+        for fn in (to_task_x, to_task_v, to_master_x, to_master_v, force_to_task, force_to_master):
             fn(z)
+
+
+# The per-side tick and the maps by their public names: the live nodes (master_eba, slave_eba,
+# operator_source) run the very same arithmetic per tick as this loop (docs/live.md, "Arm scenes").
+SideTick = _SideTick
+Maps = _Maps
+
+
+def operator_hand(
+    parts: ArmParts, t_s: float, x_dev: np.ndarray, v_dev: np.ndarray
+) -> tuple[tuple[float, ...], tuple[float, ...], np.ndarray]:
+    """The operator at scene time `t_s` on a handle at `x_dev`, `v_dev` (device frame): the intended
+    point and velocity (task frame) and the hand's force on the handle (device frame), a 3-D
+    spring-damper toward the intended point mapped into the device frame (docs/arms.md, step 6)."""
+    maps = parts.maps
+    op = parts.operator
+    xd_t, vd_t = op.intended_along(t_s, parts.operator_origin_m, parts.operator_direction)
+    xd = maps.to_master_x(np.asarray(xd_t))
+    vd = maps.to_master_v(np.asarray(vd_t))
+    f_hand = op.params.stiffness_n_per_m * (xd - x_dev) + op.params.damping_n_s_per_m * (vd - v_dev)
+    return xd_t, vd_t, f_hand
 
 
 def side_ticks(parts: ArmParts) -> tuple[_SideTick, _SideTick]:
@@ -170,9 +197,6 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     master, slave = m_side.plant, s_side.plant
     mt, st = engine.arm_ticks
     m_guard, s_guard = m_side.guard, s_side.guard
-    op = parts.operator
-    origin, direction = parts.operator_origin_m, parts.operator_direction
-    k_h, b_h = op.params.stiffness_n_per_m, op.params.damping_n_s_per_m
     fwd, bwd = engine.forward, engine.backward
     fbuf, bbuf = engine.forward_buffer, engine.backward_buffer
     fwd_size, bwd_size = engine._sizes
@@ -230,10 +254,7 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         else:
             brx = -1
         # 6. operator and plants
-        xd_t, vd_t = op.intended_along(n * period_s, origin, direction)
-        xd = maps.to_master_x(np.asarray(xd_t))
-        vd = maps.to_master_v(np.asarray(vd_t))
-        f_hand = k_h * (xd - xm_dev) + b_h * (vd - vm_dev)
+        xd_t, vd_t, f_hand = operator_hand(parts, n * period_s, xm_dev, vm_dev)
         applied_m = master.step(tau_m, f_hand)
         applied_s = slave.step(tau_s)
         mt.bound.held[:] = applied_m  # the ledger: the torques the plants applied

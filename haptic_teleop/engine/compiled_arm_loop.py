@@ -1,4 +1,4 @@
-"""The compiled loop for arm scenes: the same tick as the Python arm loop (`armloop.py`), in numba.
+"""The compiled loop for arm scenes: the same tick as the Python arm loop (`arm_loop.py`), in numba.
 
 The tick (docs/performance.md, "Arm scenes") calls MuJoCo from compiled code on the plants' own
 `MjModel`/`MjData`: `mj_step1` (positions, velocities, kinematics, gravity torques, collisions),
@@ -9,9 +9,9 @@ address and count are fields of mjData, whose offsets (and mjContact's) are laid
 from `mujoco.introspect`, MuJoCo's description of its headers, and checked against what the
 bindings read on a probe model before use (`contact_layout`). The
 task-space law, J^T F, the null-space damping, the pooled joint bound and the operator are the
-functions of `core` compiled from their one definition (`fastarmkernel.compile_tree`).
+functions of `core` compiled from their one definition (`arm_kernel.compile_tree`).
 
-The network is the 1-DoF loop's: `fastloop.schedule` decides, window by window, which sequence
+The network is the 1-DoF loop's: `compiled_loop.schedule` decides, window by window, which sequence
 number each buffer releases at each tick (nothing it decides depends on what packets carry); the
 loop looks the released payload up in the sender's ring of recent payloads.
 """
@@ -35,8 +35,8 @@ PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
 
 # The sources the compiled arm loop is built from. numba's cache of a function checks only its
 # own file's time stamp, and the loop holds compiled copies of core's functions: when any of these
-# files changed since the cache was written, the cache of fastarmkernel is dropped first.
-_SOURCES = ("fastarmkernel.py", "fastkernel.py", "core/eba.py", "core/taskspace.py", "core/operator.py")
+# files changed since the cache was written, the cache of arm_kernel is dropped first.
+_SOURCES = ("arm_kernel.py", "axis_kernel.py", "../core/eba.py", "../core/taskspace.py", "../core/operator.py")
 
 
 def _drop_stale_cache() -> None:
@@ -50,17 +50,17 @@ def _drop_stale_cache() -> None:
         with open(os.path.join(here, name), "rb") as fh:
             digest.update(fh.read())
     cache = os.path.join(here, "__pycache__")
-    stamp = os.path.join(cache, "fastarmkernel.sources")
+    stamp = os.path.join(cache, "arm_kernel.sources")
     try:
         with open(stamp) as fh:
             if fh.read() == digest.hexdigest():
                 return
     except OSError:
         pass
-    found = glob.glob(os.path.join(cache, "fastarmkernel.*.nb[ic]"))
+    found = glob.glob(os.path.join(cache, "arm_kernel.*.nb[ic]"))
     elsewhere = os.environ.get("NUMBA_CACHE_DIR")
     if elsewhere:  # numba's caches under another root, in a tree named after the source's path
-        found += glob.glob(os.path.join(elsewhere, "**", "fastarmkernel.*.nb[ic]"), recursive=True)
+        found += glob.glob(os.path.join(elsewhere, "**", "arm_kernel.*.nb[ic]"), recursive=True)
     try:
         for path in found:
             os.remove(path)
@@ -75,10 +75,10 @@ def _drop_stale_cache() -> None:
 def _kernel_or_error() -> tuple[Any, str | None]:
     try:
         _drop_stale_cache()
-        from haptic_teleop import fastarmkernel
+        from haptic_teleop.engine import arm_kernel
     except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
         return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
-    return fastarmkernel, None
+    return arm_kernel, None
 
 
 def kernel() -> Any:
@@ -225,11 +225,11 @@ def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any,
 
 
 def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -> tuple[Any, ...]:
-    """The kernel's side tuple (fastarmkernel's T_* order) of one side, sharing the plant's MjData
+    """The kernel's side tuple (arm_kernel's T_* order) of one side, sharing the plant's MjData
     arrays (or those of `data`, another MjData of the same model), with the constants and a copy
     of the state the side's objects give through their public seams (`constants()`, `state()`):
     `store_side` writes the state back (`set_state`, `stepped_externally`)."""
-    from haptic_teleop import fastarmkernel as k
+    from haptic_teleop.engine import arm_kernel as k
 
     layout = contact_layout()
     assert not isinstance(layout, str)
@@ -326,7 +326,7 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
 def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
     """Write a side's compiled state back into its Python objects (the bound's state, guard count,
     held orientation, the plant's wall wrench); returns the ticks a motor's room scaled the torque down."""
-    from haptic_teleop import fastarmkernel as k
+    from haptic_teleop.engine import arm_kernel as k
 
     S = t[k.T_S]
     side.bound.set_state(
@@ -346,8 +346,8 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
 
 
 def operator_vector(parts: ArmParts, period_s: float) -> np.ndarray:
-    """The operator's parameters (fastarmkernel's O_* layout)."""
-    from haptic_teleop import fastarmkernel as k
+    """The operator's parameters (arm_kernel's O_* layout)."""
+    from haptic_teleop.engine import arm_kernel as k
 
     o = parts.operator
     oc = o.constants()
@@ -367,8 +367,8 @@ def operator_vector(parts: ArmParts, period_s: float) -> np.ndarray:
 
 
 def column_starts(parts: ArmParts) -> np.ndarray:
-    """First column of each group of the scene's tick schema, in fastarmkernel.GROUPS' order."""
-    from haptic_teleop import fastarmkernel as k
+    """First column of each group of the scene's tick schema, in arm_kernel.GROUPS' order."""
+    from haptic_teleop.engine import arm_kernel as k
 
     return np.array([parts.schema.group(name).start for name in k.GROUPS], dtype=np.int64)
 
@@ -417,10 +417,10 @@ class Rings:
 
 class CompiledArm:
     """An arm scene's compiled loop: the kernel's arrays, built from (and sharing state with) the
-    scene's Python objects; `run` ticks it like `armloop.run_arm_loop`."""
+    scene's Python objects; `run` ticks it like `arm_loop.run_arm_loop`."""
 
     def __init__(self, parts: ArmParts, period_s: float) -> None:
-        from haptic_teleop import fastarmkernel as k
+        from haptic_teleop.engine import arm_kernel as k
 
         self.k = k
         self.parts = parts
@@ -459,7 +459,7 @@ class CompiledArm:
     def run(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int) -> int:
         """Ticks from 0 until the scene's end or a stop into `output` (the engine's _Output built
         on `fwd.settled`, `bwd.settled`); returns the ticks done."""
-        from haptic_teleop import fastloop
+        from haptic_teleop.engine import compiled_loop
 
         n_ticks = engine.ticks
         self.take()
@@ -470,7 +470,7 @@ class CompiledArm:
         ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
         done = 0
         engine.ticks_done = 0
-        with fastloop.mujoco_timers_off():
+        with compiled_loop.mujoco_timers_off():
             while done < n_ticks:  # a stop requested before the loop still runs one chunk
                 w0, w1 = done, min(done + window, n_ticks)
                 frel, focc = fwd.window(w0, w1)

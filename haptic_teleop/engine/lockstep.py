@@ -28,7 +28,6 @@ from typing import Protocol
 
 import numpy as np
 
-from haptic_teleop import fastloop
 from haptic_teleop.assembly import (
     REMOTE_LIMIT_MARGIN,
     build_controller,
@@ -40,11 +39,12 @@ from haptic_teleop.assembly import (
 )
 from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.playout import PlayoutBuffer
+from haptic_teleop.engine import compiled_loop
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
-from haptic_teleop.scene import LoadedScene
+from haptic_teleop.scene.schema import LoadedScene
 
 __all__ = ["COL", "COLUMNS", "REMOTE_LIMIT_MARGIN", "Engine", "build_operator", "record_run", "remote_limits"]
 
@@ -81,7 +81,7 @@ VECTORIZED_WINDOW_TICKS = 10 * BLOCK_TICKS  # a vectorized network schedule is d
 class Engine:
     """Builds the parts a scene names and runs them in lockstep.
 
-    `loop`: "compiled" runs the tick in machine code (haptic_teleop/fastloop.py), "python" in
+    `loop`: "compiled" runs the tick in machine code (haptic_teleop/compiled_loop.py), "python" in
     the interpreter, "auto" the compiled loop when the scene allows it. Both give the same
     columns bit for bit; `loop_kind` says which one runs, `compiled_reason` why not compiled.
     """
@@ -115,7 +115,7 @@ class Engine:
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
         self._stop = False
-        self.compiled_reason = fastloop.compiled_reason(self) if loop != "python" else "loop 'python' asked for"
+        self.compiled_reason = compiled_loop.compiled_reason(self) if loop != "python" else "loop 'python' asked for"
         if loop == "compiled" and self.compiled_reason is not None:
             raise HapticTeleopError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
@@ -123,7 +123,7 @@ class Engine:
             )
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
-            self._kernel = fastloop.kernel()
+            self._kernel = compiled_loop.kernel()
             assert self._kernel is not None  # compiled_reason is None only with a kernel
             # Compile (or load from numba's cache) now, not in the timed loop: zero ticks.
             head, tail = self._kernel_args()
@@ -145,9 +145,9 @@ class Engine:
             )
 
     def _init_arm(self, loop: str) -> None:
-        """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (armloop.py)."""
-        from haptic_teleop.armloop import side_ticks, wire_payload_bytes
+        """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (arm_loop.py)."""
         from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.engine.arm_loop import side_ticks, wire_payload_bytes
 
         self.arm = parts = build_arm_parts(self.scene.config)
         self.arm_ticks = side_ticks(parts)
@@ -159,10 +159,12 @@ class Engine:
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
         self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
         self._stop = False
-        from haptic_teleop import fastarm
+        from haptic_teleop.engine import compiled_arm_loop
 
         self.compiled_reason = (
-            fastarm.compiled_reason_arm(parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer)
+            compiled_arm_loop.compiled_reason_arm(
+                parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer
+            )
             if loop != "python"
             else "loop 'python' asked for"
         )
@@ -173,7 +175,7 @@ class Engine:
             )
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
-            self._compiled_arm = fastarm.CompiledArm(parts, self.period_s)
+            self._compiled_arm = compiled_arm_loop.CompiledArm(parts, self.period_s)
             self._compiled_arm.warm_up()  # compile (or load numba's cache) now, not in the timed loop
 
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
@@ -199,7 +201,7 @@ class Engine:
 
         The ticks' columns go to `sink.append` in blocks of BLOCK_TICKS rows (the last one
         shorter); each packet's record goes to `sink.append_packets` once its fate is final (see
-        `fastloop.settled_records`), at the end of each block, and the rest at the end. Memory
+        `compiled_loop.settled_records`), at the end of each block, and the rest at the end. Memory
         does not grow with the run's length. Without a sink the run is kept whole in memory
         (`Collector`; for tests and short runs) and returned in `RunResult.data` and the logs;
         with one, those are empty. If the loop raises, `self.ticks_done` says how many ticks
@@ -266,8 +268,8 @@ class Engine:
         fwd_size, bwd_size = self._sizes
         output = _Output(
             sink,
-            lambda sent, final: fastloop.settled_records(fwd, fbuf, sent, final),
-            lambda sent, final: fastloop.settled_records(bwd, bbuf, sent, final),
+            lambda sent, final: compiled_loop.settled_records(fwd, fbuf, sent, final),
+            lambda sent, final: compiled_loop.settled_records(bwd, bbuf, sent, final),
         )
         block = output.block
         # A tick's row goes straight into the block's memory: one C call, no tuple, no numpy
@@ -355,20 +357,20 @@ class Engine:
         )
 
     def _arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        from haptic_teleop.armloop import run_arm_loop
+        from haptic_teleop.engine.arm_loop import run_arm_loop
 
         self.ticks_done = 0
         compiled = self.loop_kind == "compiled"
-        if compiled:  # the network decided a window ahead (fastloop.schedule), as for one axis
-            fwd = fastloop.schedule(self.forward, self.forward_buffer, self.period_ns, self._sizes[0])
-            bwd = fastloop.schedule(self.backward, self.backward_buffer, self.period_ns, self._sizes[1])
+        if compiled:  # the network decided a window ahead (compiled_loop.schedule), as for one axis
+            fwd = compiled_loop.schedule(self.forward, self.forward_buffer, self.period_ns, self._sizes[0])
+            bwd = compiled_loop.schedule(self.backward, self.backward_buffer, self.period_ns, self._sizes[1])
             window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
             output = _Output(sink, fwd.settled, bwd.settled, self.schema.width)
         else:
             output = _Output(
                 sink,
-                lambda sent, final: fastloop.settled_records(self.forward, self.forward_buffer, sent, final),
-                lambda sent, final: fastloop.settled_records(self.backward, self.backward_buffer, sent, final),
+                lambda sent, final: compiled_loop.settled_records(self.forward, self.forward_buffer, sent, final),
+                lambda sent, final: compiled_loop.settled_records(self.backward, self.backward_buffer, sent, final),
                 self.schema.width,
             )
         t0 = time.perf_counter()
@@ -405,24 +407,24 @@ class Engine:
         )
 
     def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
-        """The compiled loop's arguments (fastkernel.run_ticks) around the network's: the plants'
+        """The compiled loop's arguments (axis_kernel.run_ticks) around the network's: the plants'
         MuJoCo arrays (after the tick range), the parameters and a fresh state vector (S, last)."""
-        from haptic_teleop import fastloop
+        from haptic_teleop.engine import compiled_loop
 
         m, s = self.master.data, self.slave.data  # type: ignore[attr-defined]
-        head = (fastloop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint)
-        return head, (fastloop.parameters(self), fastloop.initial_state(self))
+        head = (compiled_loop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint)
+        return head, (compiled_loop.parameters(self), compiled_loop.initial_state(self))
 
     def _compiled_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        from haptic_teleop import fastloop
+        from haptic_teleop.engine import compiled_loop
 
         n_ticks, period_ns = self.ticks, self.period_ns
         self.ticks_done = 0
         t0 = time.perf_counter()
         # The network's decisions a window ahead of the loop: they do not depend on payloads. A
         # ticked schedule's window is the loop's chunk, so it never runs ahead of a stop.
-        fwd = fastloop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
-        bwd = fastloop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
+        fwd = compiled_loop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
+        bwd = compiled_loop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
         window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
         head, (P, S) = self._kernel_args()
         hist = _History()
@@ -432,7 +434,7 @@ class Engine:
         assert run_ticks is not None
         done = 0
         try:
-            with fastloop.mujoco_timers_off():
+            with compiled_loop.mujoco_timers_off():
                 while done < n_ticks:  # a stop requested before the loop still runs one chunk
                     w0, w1 = done, min(done + window, n_ticks)
                     frel, focc = fwd.window(w0, w1)
@@ -453,12 +455,12 @@ class Engine:
                     if self._stop:
                         break
         except BaseException:
-            fastloop.store_state(self, S)
+            compiled_loop.store_state(self, S)
             self.master.close()
             self.slave.close()
             output.end_after_error(done)
             raise
-        fastloop.store_state(self, S)
+        compiled_loop.store_state(self, S)
         output.end(done)
         self.master.close()
         self.slave.close()

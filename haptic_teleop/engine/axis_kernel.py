@@ -1,4 +1,4 @@
-"""The compiled tick loop (numba), imported only by `haptic_teleop.fastloop`; see its docstring.
+"""The compiled tick loop (numba), imported only by `haptic_teleop.engine.compiled_loop`; see its docstring.
 
 Importing this module needs numba and links `mj_step` of the libmujoco the `mujoco` bindings
 loaded. Every formula comes from `core` and `plants` and is compiled here from its one
@@ -18,7 +18,7 @@ from numba import types
 
 from haptic_teleop.core import eba
 from haptic_teleop.core import operator as op
-from haptic_teleop.fastloop import (
+from haptic_teleop.engine.compiled_loop import (
     MASTER,
     OP,
     P_ACT_LIMIT,

@@ -1,0 +1,153 @@
+"""What master_eba and slave_eba run for an arm scene (docs/live.md, "Arm scenes").
+
+The node hosts its side's MuJoCo arm in-process (the master device; the slave arm as a ros2_control
+hardware interface would) and runs the engine's per-side tick on it: `arm_loop.SideTick` (the
+task-space law, the task force's saturation, each motor's room left by gravity compensation, the
+pooled joint energy bound) on the parts `assembly.build_arm_parts` builds, with the numba-compiled
+kernels the engine uses. No arithmetic of the tick is written here: the node only takes the newest
+released remote sample (through the side's `SampleGuard`), feeds the remote-data watchdog, whose
+gain scales the task force's limit before the bound (as `ForceFade` does for one axis), and
+publishes what the bag records, in the bag's layouts (`record.layouts.topic_specs` of the scene's
+`TickSchema`: JointState with the joint names, PoseStamped, WrenchStamped, the EBA arrays).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.nodes.base import LiveNode
+from haptic_teleop.nodes.cdr import JointStateReader
+from haptic_teleop.nodes.eba_side import declare_watchdog
+from haptic_teleop.nodes.messages import SpecOut, take_all, take_latest
+from haptic_teleop.nodes.topics import (
+    SCENE_START_TOPIC,
+    WIRE_FIELDS,
+    latched_qos,
+    payload_fields,
+    received_topic,
+    scene_start_ns,
+    stream_qos,
+    wire_names,
+)
+
+
+class ArmEbaSide:
+    """One side of an arm scene in a node: its plant, its SideTick, the watchdog, the remote input
+    and the bag-layout publishers of the side's topics."""
+
+    def __init__(self, node: LiveNode, role: str, config: Any) -> None:
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Header
+
+        from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.engine.arm_loop import side_ticks
+        from haptic_teleop.record.layouts import topic_specs
+
+        self.role = role
+        self.parts = parts = build_arm_parts(config)  # both arms: the mapping's offset needs both starts
+        mt, st = side_ticks(parts)
+        self.tick = mt if role == "master" else st
+        self.side = parts.master if role == "master" else parts.slave
+        other = parts.slave if role == "master" else parts.master
+        other.plant.close()  # the other side's plant only gave its start point
+        self.plant = self.side.plant
+        self.maps = parts.maps
+        self.schema = parts.schema
+        self.period_s = config.scene.period_s
+        self.watchdog = declare_watchdog(node, round(self.period_s * 1e9))
+        self.limit_n = self.tick.limit
+        axes = self.schema.task_axes
+        remote = "backward" if role == "master" else "forward"
+        self._read = JointStateReader(
+            payload_fields(remote, axes), [(wire_names(remote, axes), WIRE_FIELDS[remote])], axes
+        )
+        self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
+        specs = topic_specs(self.schema)
+        self.out = {t: SpecOut(node, s) for t, s in specs.items() if t in side_topics(role, self.schema)}
+        # Scene time 0 (announced by the operator source ahead of time, latched): the bound's ledger
+        # restarts there with min(reservoir, initial energy), so energy the side took in while the
+        # graph settled is not spent inside the recorded run, whose analysis starts each side at
+        # its initial energy (its true margin from the bag is then >= the ledger's, >= 0).
+        self._start_sub = node.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
+        self._period_ns = round(self.period_s * 1e9)
+        self.restart_ns: int | None = None
+        self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
+        self.remote: tuple[float, ...] | None = None
+        self.remote_samples = 0
+        self.malformed_samples = 0
+
+    def torque(self, x: np.ndarray, v: np.ndarray, stamp_ns: int) -> np.ndarray:
+        """The side's torque for this tick (SideTick.torque) on the newest accepted remote sample."""
+        if self.restarted_j is None:
+            self._restart(stamp_ns)
+        raw = take_latest(self._sub)
+        if raw is not None:
+            try:
+                payload = self._read(raw)[1]
+            except IndexError:  # not an arm payload (fewer values than the task has axes): ignored
+                self.malformed_samples += 1
+            else:
+                self.remote_samples += 1
+                if self.side.guard.accept(payload):
+                    self.remote = payload
+                self.watchdog.feed(stamp_ns)
+        self.tick.limit = self.limit_n * self.watchdog.update(stamp_ns)
+        return self.tick.torque(x, v, self.remote)
+
+    def _restart(self, stamp_ns: int) -> None:
+        if self.restart_ns is None:
+            told = take_all(self._start_sub)
+            if not told:
+                return
+            self.restart_ns = scene_start_ns(told[-1], self._period_ns)
+        if stamp_ns >= self.restart_ns:
+            bound = self.tick.bound
+            e = min(bound.energy_j, bound.params.initial_energy_j)
+            self.restarted_j = bound.energy_j - e
+            bound.restart(e)
+
+    def applied(self, torque: np.ndarray) -> None:
+        """The ledger takes the torques the plant applied (as the engine's loop)."""
+        self.tick.bound.held[:] = torque
+
+    def publish(self, topic: str, stamp_ns: int | None, values: Any) -> None:
+        self.out[topic].publish(stamp_ns, values)
+
+    def publish_internals(self, stamp_ns: int) -> None:
+        """The task force the applied torques realise, the desired one and the reservoir."""
+        t = self.tick
+        p = self.role
+        self.out[f"/{p}/{'rendered' if p == 'master' else 'applied'}_wrench"].publish(stamp_ns, t.ratio * t.force)
+        self.out[f"/{p}/eba"].publish(None, (t.bound.energy_j, *t.force.tolist()))
+
+    def bound_ms(self) -> float:
+        return self.watchdog.bound_s(self.period_s) * 1e3
+
+    def diagnostic_values(self) -> dict[str, float | int | str]:
+        wd = self.watchdog
+        return {
+            "watchdog_gain": round(wd.gain, 3),
+            "watchdog_trips": wd.trips,
+            "remote_samples": self.remote_samples,
+            "rejected_samples": self.side.rejected_samples,
+            "malformed_samples": self.malformed_samples,
+            "joint_limited_ticks": self.tick.limited_ticks,
+            "ledger_restarted_discarding_j": self.restarted_j if self.restarted_j is not None else -1.0,
+        }
+
+    def close(self) -> None:
+        self.plant.close()
+
+
+def side_topics(role: str, schema: Any) -> tuple[str, ...]:
+    """The per-tick topics one side's node publishes (record.columns.tick_topics)."""
+    if role == "master":
+        return (
+            "/master/joint_states", "/master/handle_pose", "/master/rendered_wrench", "/master/eba", "/forward/sent",
+        )  # fmt: skip
+    return (
+        "/slave/joint_states", "/slave/tool_pose", "/slave/applied_wrench", "/slave/contact_wrench", "/slave/eba",
+        "/backward/sent",
+    )  # fmt: skip

@@ -1,0 +1,193 @@
+"""Scene files (YAML) -> a validated `LoadedScene`: duplicate keys refused, overrides applied,
+the models and the arm geometry checked, data files read; bundled scenes found by name.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.scene.overrides import Override, apply_overrides, blame_override, parse_override
+from haptic_teleop.scene.schema import LoadedScene, Scene
+from haptic_teleop.scene.yaml_text import parse_yaml, read_scene_text
+from haptic_teleop.traces import read_operator_trace, resolve_scene_traces
+from haptic_teleop.typedconfig import build
+
+
+def _check_models(config: Scene, source: str) -> None:
+    """The plants' model files exist (a path, or a bundled model's name): found now, not when a
+    plant is built after the outputs were opened."""
+    from haptic_teleop.errors import PlantError
+    from haptic_teleop.plants.mujoco_plant import models_dir, resolve_model
+
+    for side in ("master", "slave"):
+        name = getattr(config, side).model
+        try:
+            resolve_model(name)
+        except (PlantError, OSError, ValueError):  # ValueError: a NUL in the name
+            allowed = f"no such model file; allowed: a MuJoCo XML path, or a bundled model's name (in {models_dir()})"
+            raise ConfigError(source, f"{side}.model", name, allowed) from None
+
+
+ARM_SITES = {"master": "handle", "slave": "tool"}  # the point each side's coupling acts on (NDOF names)
+ARM_WALL_STEP_LIMIT = 1.0  # omega * h of an arm's wall contact (docs/arms.md: 1.28 chattered on a light arm)
+
+
+def _check_arm_scene(config: Scene, source: str) -> None:
+    """An arm scene's models, joints and per-joint lists agree; the tool starts in free space and
+    the wall is not too stiff for the MuJoCo step. A one-axis scene names no arm model."""
+    from haptic_teleop.errors import PlantError
+    from haptic_teleop.plants.arm import inspect_model
+
+    infos = {side: inspect_model(getattr(config, side).model) for side in ("master", "slave")}
+    arm_models = {side: ARM_SITES[side] in infos[side].sites for side in infos}
+    if not config.is_arm:
+        for side in ("master", "slave"):
+            if arm_models[side]:
+                raise ConfigError(
+                    source,
+                    "slave.wall.point_m",
+                    None,
+                    f"{side}.model {getattr(config, side).model!r} is an arm: its scene needs the wall's pose "
+                    "(slave.wall.point_m and normal); allowed: an arm scene, or a one-axis model",
+                )
+            for key in ("joints", "start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "gravity_compensation"):
+                if getattr(getattr(config, side), key) is not None:
+                    raise ConfigError(
+                        source, f"{side}.{key}", getattr(getattr(config, side), key), "only for arm models"
+                    )
+        return
+    for side in ("master", "slave"):
+        cfg = getattr(config, side)
+        info = infos[side]
+        if not arm_models[side]:
+            raise ConfigError(
+                source,
+                f"{side}.model",
+                cfg.model,
+                f"an arm scene needs an arm MJCF with a site {ARM_SITES[side]!r}; this model's sites: "
+                f"{', '.join(info.sites) or 'none'}",
+            )
+        if cfg.effects.named():
+            raise ConfigError(
+                source, f"{side}.effects", ", ".join(cfg.effects.named()), "not built for arms yet; allowed: none"
+            )
+        joints = cfg.joints if cfg.joints is not None else tuple(m for m in info.motors if m in info.joints)
+        for i, name in enumerate(joints):
+            if name not in info.joints:
+                raise ConfigError(
+                    source,
+                    f"{side}.joints[{i}]",
+                    name,
+                    f"no such joint in {cfg.model}; its joints: {', '.join(info.joints)}",
+                )
+            if name not in info.motors:
+                raise ConfigError(
+                    source, f"{side}.joints[{i}]", name, f"{cfg.model} has no motor named {name!r} (one per joint)"
+                )
+        for key in ("start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm"):
+            v = getattr(cfg, key)
+            if v is not None and len(v) != len(joints):
+                raise ConfigError(
+                    source,
+                    f"{side}.{key}",
+                    list(v),
+                    f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
+                )
+    op = config.operator
+    if op.profile == "trace":
+        raise ConfigError(source, "operator.profile", op.profile, "allowed for arms: push, sinusoid, hold")
+    for side in ("master", "slave"):
+        if getattr(config.controllers, side).law != "position":
+            raise ConfigError(source, f"controllers.{side}.law", "force", "allowed for arms: position")
+    from haptic_teleop.plants import build_slave_arm
+
+    try:
+        slave = build_slave_arm(config)
+    except PlantError as exc:
+        raise ConfigError(source, "slave", config.slave.model, str(exc)) from None
+    h = config.scene.period_s / config.simulation.substeps
+    omega = slave.wall_omega_rad_per_s()
+    if omega * h > ARM_WALL_STEP_LIMIT:
+        need = math.ceil(omega * config.scene.period_s / ARM_WALL_STEP_LIMIT)
+        raise ConfigError(
+            source,
+            "slave.wall.stiffness_n_per_m",
+            config.slave.wall.stiffness_n_per_m,
+            f"too stiff for a MuJoCo step of {h * 1e3:g} ms on this arm: omega * h = {omega * h:.2f} > "
+            f"{ARM_WALL_STEP_LIMIT:g}; allowed: simulation.substeps >= {need}, or a softer wall",
+        )
+
+
+def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None = None) -> LoadedScene:
+    """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed.
+
+    Errors about a key an override set name the override (`--set KEY=VALUE`, `--seed N`), not the file."""
+    p = Path(path)
+    source = str(path)
+    raw = parse_yaml(read_scene_text(p, source), source)
+    if raw is None:
+        raise ConfigError(
+            source,
+            "",
+            None,
+            "the file is empty; allowed: a mapping of sections (scene, operator, ...), {} for all defaults",
+        )
+    if not isinstance(raw, dict):
+        raise ConfigError(source, "", raw, "allowed: a mapping of sections (scene, operator, master, ...)")
+    ovs: list[Override] = []
+    for text in overrides:
+        parts, value = parse_override(text)
+        ovs.append(Override(f"--set {text}", tuple(parts), value))
+    if seed is not None:
+        ovs.append(Override(f"--seed {seed}", ("scene", "seed"), seed))
+    raw = apply_overrides(raw, ovs)
+    try:
+        config = build(Scene, raw, "", source)
+        _check_models(config, source)
+        _check_arm_scene(config, source)
+    except ConfigError as exc:
+        raise blame_override(exc, ovs) from None
+    config = resolve_scene_traces(config, p.parent, source)
+    trace = None
+    if config.operator.trace_file:
+        tp = Path(config.operator.trace_file)
+        if not tp.is_absolute():
+            tp = (p.parent / tp).resolve()
+        trace = read_operator_trace(tp, source, "operator.trace_file")
+        # Absolute, as the network traces: the resolved scene (DIR/scene.yaml) runs from anywhere.
+        config = dataclasses.replace(config, operator=dataclasses.replace(config.operator, trace_file=str(tp)))
+    return LoadedScene(config=config, source=source, raw=raw, operator_trace=trace)
+
+
+def scenes_dir() -> Path:
+    """The bundled scenes' folder, wherever the package is installed (haptic_teleop.resources)."""
+    from haptic_teleop.resources import scenes_dir as bundled
+
+    return bundled()
+
+
+def find_scene(name: str) -> Path:
+    """A path, or the name of a bundled scene (`wall_contact` or `wall_contact.yaml`)."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    stem = p.name if p.suffix else p.name + ".yaml"
+    cand = scenes_dir() / stem
+    return cand if cand.exists() else p
+
+
+def bundled_scenes() -> list[tuple[str, str]]:
+    """(name, description) of every bundled scene, by name; `find_scene(name)` finds each."""
+    rows = []
+    for p in sorted(scenes_dir().glob("*.yaml")):
+        try:
+            raw = parse_yaml(read_scene_text(p, str(p)), str(p))
+            desc = raw.get("scene", {}).get("description", "") if isinstance(raw, dict) else ""
+        except ConfigError as exc:
+            desc = f"(invalid: {exc})"
+        rows.append((p.stem, str(desc)))
+    return rows
