@@ -132,3 +132,54 @@ def test_no_import_cycles_but_the_known_ones():
         "import cycles (a module imports, maybe inside a function, one that imports it back): "
         + "; ".join(" <-> ".join(c) for c in found)
     )
+
+
+# The compiled loops pack the kernels' arrays from, and carry the kernels' state back into, core
+# objects and plants through their public seams (`constants()`, `state()`/`set_state()`,
+# `axis_state()`, `remote`, ...), never through their private attributes: a refactor of a core
+# class then cannot silently desynchronise the compiled loop from the Python one.
+SEAM_USERS = ("engine/compiled_loop.py", "engine/compiled_arm_loop.py")
+ALLOWED_PRIVATE = {"_address"}  # MuJoCo's bindings: the MjModel/MjData addresses the kernels call with
+
+
+def private_accesses(source: str) -> list[str]:
+    """'line: expression' for every private attribute `source` reads or writes on another object:
+    `obj._name` with obj anything but `self`, and getattr/setattr/hasattr(obj, "_name"). Dunders
+    and ALLOWED_PRIVATE pass; a module's own private names are bare names, not attributes."""
+
+    def private(name: str) -> bool:
+        return name.startswith("_") and not name.startswith("__") and name not in ALLOWED_PRIVATE
+
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and private(node.attr):
+            if not (isinstance(node.value, ast.Name) and node.value.id == "self"):
+                found.append(f"{node.lineno}: {ast.unparse(node)}")
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id in ("getattr", "setattr", "hasattr", "delattr")
+            and len(node.args) >= 2
+            and isinstance(node.args[1], ast.Constant)
+            and isinstance(node.args[1].value, str)
+            and private(node.args[1].value)
+        ):
+            found.append(f"{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_the_private_access_check_sees_every_form():
+    src = (
+        "a._x = 1\nb.c._y\ngetattr(d, '_z', None)\nself.k._w()\n"  # flagged
+        "self._ok\nm._address\nx.__dict__\ngetattr(e, 'public')\n_own_helper()\n"  # allowed
+    )
+    assert sorted(int(f.split(":")[0]) for f in private_accesses(src)) == [1, 2, 3, 4]
+
+
+def test_compiled_loops_use_only_public_seams():
+    for name in SEAM_USERS:
+        path = PACKAGE / name
+        found = private_accesses(path.read_text())
+        assert not found, (
+            f"{name} reads private attributes of other objects (give their class a public seam): " + "; ".join(found)
+        )

@@ -164,6 +164,27 @@ class EnergyBoundParams:
         """The stiffness the bounded force can grow with at most: 2 b / T per axis (Colgate)."""
         return tuple(2.0 * b / self.period_s for b in self.damping_n_s_per_m)
 
+    def reservoir_gains(self) -> tuple[float, ...]:
+        """b / T per axis: the reservoir's gain on dx^2 (`reservoir1`'s `gain`)."""
+        return tuple(b / self.period_s for b in self.damping_n_s_per_m)
+
+    def bound_gains(self) -> tuple[float, ...]:
+        """4 b / T per axis: the bound's gain, |F| <= sqrt(bound_gain E) (`bounded1`'s `bound_gain`)."""
+        return tuple(4.0 * b / self.period_s for b in self.damping_n_s_per_m)
+
+
+@dataclass(frozen=True)
+class AxisBoundState:
+    """What a one-axis `EnergyBound` carries from one tick to the next: the reservoir, the force
+    held over the current period (the reservoir's F(n-1)), the position of the last step and
+    whether there was one. `EnergyBound.axis_state`
+    and `set_axis_state` move it in and out (the compiled loop, engine/compiled_loop.py, carries it)."""
+
+    energy_j: float
+    held_n: float
+    last_x_m: float
+    has_last: bool
+
 
 class EnergyBound:
     """One side's reservoirs and force bound; `step` is called once per tick, then `applied`
@@ -192,9 +213,8 @@ class EnergyBound:
     def __init__(self, params: EnergyBoundParams) -> None:
         self.params = params
         n = params.axes
-        t = params.period_s
-        self._gain = [b / t for b in params.damping_n_s_per_m]
-        self._bound_gain = [4.0 * b / t for b in params.damping_n_s_per_m]
+        self._gain = list(params.reservoir_gains())
+        self._bound_gain = list(params.bound_gains())
         # The initial energy is per axis: each axis is its own port with its own damping.
         self.energy_j = [params.initial_energy_j] * n
         self._held = [0.0] * n
@@ -278,6 +298,24 @@ class EnergyBound:
     @property
     def total_energy_j(self) -> float:
         return sum(self.energy_j)
+
+    def axis_state(self) -> AxisBoundState:
+        """The state of a one-axis bound (ValueError for more axes): what `set_axis_state` restores."""
+        self._one_axis()
+        return AxisBoundState(self.energy_j[0], self._held1, self._last1, self._has_last1)
+
+    def set_axis_state(self, state: AxisBoundState) -> None:
+        """Restore a one-axis bound's state (ValueError for more axes), e.g. after a loop that ran
+        the same ledger elsewhere (the compiled loop): the next `step1` goes on from it."""
+        self._one_axis()
+        self.energy_j[0] = state.energy_j
+        self._held1 = state.held_n
+        self._last1 = state.last_x_m
+        self._has_last1 = state.has_last
+
+    def _one_axis(self) -> None:
+        if not self._scalar:
+            raise ValueError(f"the axis state is that of a one-axis bound; this one has {self.params.axes} axes")
 
 
 @dataclass(frozen=True)
@@ -421,6 +459,18 @@ class TeleopController:
         self._c2 = params.damping_n_s_per_m
         self._limit = params.force_limit_n
         self._off = self._n if params.role == "master" else 0  # master payload starts with forces
+
+    @property
+    def remote(self) -> tuple[float, ...] | None:
+        """The remote sample the law works on now (None before the first one was accepted)."""
+        return self._remote
+
+    @remote.setter
+    def remote(self, payload: tuple[float, ...] | None) -> None:
+        """Restore the sample the law works on, unchecked and uncounted (a state carried through a
+        loop that ran this controller elsewhere, the compiled loop); new samples go through
+        `set_remote`."""
+        self._remote = payload
 
     def set_remote(self, payload: tuple[float, ...]) -> None:
         """The newest remote sample the playout buffer released.
@@ -719,6 +769,38 @@ class CoupledEnergyBoundParams:
         return self.joint_names[i] if self.joint_names else f"joint {i}"
 
 
+@dataclass(frozen=True)
+class CoupledBoundConstants:
+    """What a `CoupledEnergyBound` computes once from its parameters and uses every tick (copies:
+    `CoupledEnergyBound.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
+
+    gain: d_i / T per joint (`coupled_reservoir`); bound_gain: 4 d_i / T (`coupled_bounded`);
+    low, high: the default torque range per joint, -+torque_limit_nm (inf: none);
+    keep_direction: limit_mode "scale"; slew_step_nm: S_i T per joint, None without a slew limit.
+    """
+
+    gain: npt.NDArray[np.float64]
+    bound_gain: npt.NDArray[np.float64]
+    low: npt.NDArray[np.float64]
+    high: npt.NDArray[np.float64]
+    keep_direction: bool
+    slew_step_nm: npt.NDArray[np.float64] | None
+
+
+@dataclass(frozen=True)
+class CoupledBoundState:
+    """What a `CoupledEnergyBound` carries from one tick to the next: the pooled reservoir, the
+    torque applied over the current period (the ledger's tau(n-1)), the joint positions of the
+    last step and whether there was one, and the last lambda (`scale`).
+    `CoupledEnergyBound.state` gives copies, `set_state` restores (the compiled arm loop carries it)."""
+
+    energy_j: float
+    held_nm: npt.NDArray[np.float64]
+    last_q_rad: npt.NDArray[np.float64]
+    has_last: bool
+    scale: float
+
+
 class CoupledEnergyBound:
     """One side's pooled joint reservoir and torque bound; `step` is called once per tick.
 
@@ -829,6 +911,30 @@ class CoupledEnergyBound:
         """The torque the motors really applied over the period after the last `step` (if it differs
         from what `step` returned): the next update of the reservoir accounts with it."""
         self.held[:] = tau
+
+    def constants(self) -> CoupledBoundConstants:
+        """The per-joint constants the tick uses (copies)."""
+        return CoupledBoundConstants(
+            gain=self._gain.copy(),
+            bound_gain=self._bound_gain.copy(),
+            low=self._low.copy(),
+            high=self._high.copy(),
+            keep_direction=self._keep_direction,
+            slew_step_nm=None if self._step is None else self._step.copy(),
+        )
+
+    def state(self) -> CoupledBoundState:
+        """The state the next `step` goes on from (copies): what `set_state` restores."""
+        return CoupledBoundState(self.energy_j, self.held.copy(), self._last_q.copy(), self._has_last, self.scale)
+
+    def set_state(self, state: CoupledBoundState) -> None:
+        """Restore the state, e.g. after a loop that ran the same ledger elsewhere (the compiled arm
+        loop); `held` keeps its identity (its values are copied in)."""
+        self.energy_j = state.energy_j
+        self.held[:] = state.held_nm
+        self._last_q[:] = state.last_q_rad
+        self._has_last = state.has_last
+        self.scale = state.scale
 
     def restart(self, energy_j: float) -> None:
         """Start the ledger afresh from `energy_j`, as a new bound: the next `step` takes its q as

@@ -77,6 +77,27 @@ class OperatorParams:
                 raise ValueError("trace time_s must be strictly increasing")
 
 
+@dataclass(frozen=True)
+class OperatorConstants:
+    """The numbers an `Operator` resolves from its parameters once and uses every tick
+    (`Operator.constants`); the compiled loops take them from here.
+
+    profile: the profile it runs ("push" with speed 0 runs as "hold"); x0_m: the start position;
+    stiffness/damping: the hand's (`hand1`); start_s: when the profile starts; speed_m_per_s,
+    t_end_s, x_end_m: `push1`'s arguments (the push's duration, 0 unless the profile is "push",
+    and its end point).
+    """
+
+    profile: str
+    x0_m: float
+    stiffness_n_per_m: float
+    damping_n_s_per_m: float
+    start_s: float
+    speed_m_per_s: float
+    t_end_s: float
+    x_end_m: float
+
+
 class Operator:
     """Intended trajectory and hand force; `hand_force` is called once per tick."""
 
@@ -96,6 +117,12 @@ class Operator:
         self._speed = params.speed_m_per_s
         self._t_end = abs(params.distance_m / params.speed_m_per_s) if profile == "push" else 0.0
         self._x_end = self._x0 + math.copysign(abs(params.distance_m), params.speed_m_per_s)
+
+    def constants(self) -> OperatorConstants:
+        """The resolved profile and its numbers, as the tick uses them."""
+        return OperatorConstants(
+            self._profile, self._x0, self._k, self._b, self._start, self._speed, self._t_end, self._x_end
+        )
 
     def intended(self, t: float) -> tuple[float, float]:
         """Intended position (m) and velocity (m/s) along axis 0 at time t."""

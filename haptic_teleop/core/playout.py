@@ -67,6 +67,9 @@ class PlayoutBuffer(Protocol):
     @property
     def occupancy(self) -> int: ...
 
+    @property
+    def extrapolates(self) -> bool: ...
+
     def push(self, packet: Packet, now_ns: int) -> None: ...
 
     def oldest_held_seq(self) -> int | None: ...
@@ -103,6 +106,12 @@ class _BufferBase:
         self._last_out_seq = _NO_SEQ  # seq of the last released packet, received or made up
         self._last_real: Packet | None = None
         self._prev_real: Packet | None = None
+
+    @property
+    def extrapolates(self) -> bool:
+        """Whether the buffer makes up samples for empty slots (`gap: extrapolate`): what it
+        releases then depends on the payloads it received, not only on sequence numbers."""
+        return self._extrapolate
 
     def _is_duplicate(self, seq: int) -> bool:
         i = seq & _SEEN_MASK

@@ -482,6 +482,24 @@ class TaskCouplingParams:
         return 6 if self.orientation == "hold" else self.axes
 
 
+@dataclass(frozen=True)
+class TaskLawConstants:
+    """The arrays a `TaskSpaceLaw` builds from its parameters once and uses every tick (copies:
+    `TaskSpaceLaw.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
+
+    stiffness/damping: c1, c2 per task axis (`coupling`); rot_stiffness/rot_damping: k_rot, d_rot
+    (`orientation_coupling`); null_damping: per joint (zeros without); null_space: whether the
+    null-space damping runs at all.
+    """
+
+    stiffness_n_per_m: Vec
+    damping_n_s_per_m: Vec
+    rot_stiffness_nm_per_rad: Vec
+    rot_damping_nm_s_per_rad: Vec
+    null_damping_nm_s_per_rad: Vec
+    null_space: bool
+
+
 class TaskSpaceLaw:
     """One side's task-space law for `joints` joints: wrench, then joint torques, every tick.
 
@@ -534,6 +552,12 @@ class TaskSpaceLaw:
         self.r_hold: Mat | None = None  # the held orientation; None: taken from the first tick
         plain = {fn.__name__: fn for fn in KERNEL_FUNCTIONS}
         self._f = {**plain, **(kernels or {})}
+
+    def constants(self) -> TaskLawConstants:
+        """The law's per-axis and per-joint arrays, as the tick uses them (copies)."""
+        return TaskLawConstants(
+            self._c1.copy(), self._c2.copy(), self._k_rot.copy(), self._d_rot.copy(), self._null_d.copy(), self._null
+        )
 
     def torque(
         self,

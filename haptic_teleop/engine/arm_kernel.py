@@ -437,7 +437,8 @@ def guarded(side: Any, hist: np.ndarray, seq: int, mask: int) -> None:
     S[S_HAS_REMOTE] = 1.0
 
 
-def _work(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:
+def work_arrays(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:
+    """One side's scratch arrays for the kernel (`work` compiled): n joints, nv dofs, rows of its Jacobian."""
     return (
         np.zeros(n),  # lo
         np.zeros(n),  # hi
@@ -459,7 +460,7 @@ def _work(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:
     )
 
 
-work = jit(_work)
+work = jit(work_arrays)
 
 
 @jit  # type: ignore[misc]

@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from haptic_teleop.core.eba import CoupledBoundState
+
 if TYPE_CHECKING:
     from haptic_teleop.assembly import ArmParts, ArmSide
 
@@ -205,12 +207,13 @@ def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any,
             return f"{role}: plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
         if side.law.params.law != "position":
             return f"{role}: task law {side.law.params.law!r} (compiled: position)"
-    if parts.operator._profile not in PROFILE_CODES:
-        return f"operator profile {parts.operator._profile!r} (compiled: {', '.join(PROFILE_CODES)})"
+    profile = parts.operator.constants().profile
+    if profile not in PROFILE_CODES:
+        return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"
     for name, link, buf in (("forward", forward, fbuf), ("backward", backward, bbuf)):
         if any(e.name == "corrupt" for e in link.effects):
             return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
-        if getattr(buf, "_extrapolate", False):
+        if buf.extrapolates:
             return f"{name} buffer extrapolates payloads"
     err = kernel_error()
     if err is not None:
@@ -223,8 +226,9 @@ def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any,
 
 def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -> tuple[Any, ...]:
     """The kernel's side tuple (arm_kernel's T_* order) of one side, sharing the plant's MjData
-    arrays (or those of `data`, another MjData of the same model) and the side's state:
-    `store_side` writes the state back."""
+    arrays (or those of `data`, another MjData of the same model), with the constants and a copy
+    of the state the side's objects give through their public seams (`constants()`, `state()`):
+    `store_side` writes the state back (`set_state`, `stepped_externally`)."""
     from haptic_teleop.engine import arm_kernel as k
 
     layout = contact_layout()
@@ -234,18 +238,22 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
     n = plant.n
     law, bound = side.law, side.bound
     bp = bound.params
+    pc = plant.constants()  # the plant's, the law's and the bound's constants, and the bound's state
+    lc = law.constants()
+    bc = bound.constants()
+    bs = bound.state()
     iv = np.zeros(k.I_SIZE, dtype=np.int64)
     iv[k.I_MODEL], iv[k.I_DATA] = m._address, d._address
     iv[k.I_N] = n
-    iv[k.I_SITE] = plant._site
-    iv[k.I_SUBSTEPS] = plant._substeps
-    iv[k.I_GRAVITY] = 1 if plant._gravity else 0
+    iv[k.I_SITE] = pc.site_id
+    iv[k.I_SUBSTEPS] = pc.substeps
+    iv[k.I_GRAVITY] = 1 if pc.gravity_compensation else 0
     iv[k.I_ROTATIONAL] = 1 if side.rotational else 0
-    iv[k.I_NULL] = 1 if law._null else 0
+    iv[k.I_NULL] = 1 if lc.null_space else 0
     iv[k.I_ENABLED] = 1 if bp.enabled else 0
-    iv[k.I_KEEP_DIRECTION] = 1 if bound._keep_direction else 0
-    iv[k.I_SLEW] = 0 if bound._step is None else 1
-    pg = plant._pair_geoms
+    iv[k.I_KEEP_DIRECTION] = 1 if bc.keep_direction else 0
+    iv[k.I_SLEW] = 0 if bc.slew_step_nm is None else 1
+    pg = pc.wall_geoms
     iv[k.I_WALL] = 0 if pg is None else 1
     iv[k.I_GEOM1], iv[k.I_GEOM2] = (-1, -1) if pg is None else pg
     for pos, value in zip(
@@ -265,35 +273,35 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
     F[k.F_K_HAND] = opp.stiffness_n_per_m
     F[k.F_B_HAND] = opp.damping_n_s_per_m
     S = np.zeros(k.S_SIZE)
-    S[k.S_ENERGY] = bound.energy_j
-    S[k.S_HAS_LAST] = 1.0 if bound._has_last else 0.0
+    S[k.S_ENERGY] = bs.energy_j
+    S[k.S_HAS_LAST] = 1.0 if bs.has_last else 0.0
     S[k.S_REJECTED] = side.guard.rejected
-    S[k.S_SCALE] = bound.scale
+    S[k.S_SCALE] = bs.scale
     r_hold = np.zeros((3, 3))
     if law.r_hold is not None:
         r_hold[:] = law.r_hold
         S[k.S_HAS_HOLD] = 1.0
     lim = np.array(side.guard.limits, dtype=float)
-    step = bound._step if bound._step is not None else np.zeros(n)
+    step = bc.slew_step_nm if bc.slew_step_nm is not None else np.zeros(n)
     return (
         iv,
-        np.asarray(plant._qadr, dtype=np.int64),
-        np.asarray(plant._dadr, dtype=np.int64),
-        np.asarray(plant._act, dtype=np.int64),
+        np.asarray(pc.qpos_adr, dtype=np.int64),
+        np.asarray(pc.dof_adr, dtype=np.int64),
+        np.asarray(pc.actuator_ids, dtype=np.int64),
         F,
-        law._c1,
-        law._c2,
-        law._k_rot,
-        law._d_rot,
-        law._null_d,
-        bound._gain,
-        bound._bound_gain,
+        lc.stiffness_n_per_m,
+        lc.damping_n_s_per_m,
+        lc.rot_stiffness_nm_per_rad,
+        lc.rot_damping_nm_s_per_rad,
+        lc.null_damping_nm_s_per_rad,
+        bc.gain,
+        bc.bound_gain,
         np.asarray(step, dtype=float),
-        bound._low,
-        bound._high,
+        bc.low,
+        bc.high,
         np.asarray(plant.torque_lo, dtype=float),
         np.asarray(plant.torque_hi, dtype=float),
-        np.asarray(plant._hand_support, dtype=float),
+        np.asarray(pc.hand_support_n, dtype=float),
         np.ascontiguousarray(mp.force_scale * mp.matrix),
         lim,
         np.ascontiguousarray(mp.matrix),
@@ -306,29 +314,34 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
         d.site_xpos,
         d.site_xmat,
         S,
-        bound._last_q,
-        bound.held,
+        bs.last_q_rad,
+        bs.held_nm,
         np.zeros(len(lim)),
         r_hold,
         np.zeros(3),
-        plant._wrench,
+        np.concatenate(plant.contact_wrench()),
     )
 
 
 def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
-    """Write a side's compiled state back into its Python objects (energy, ledger, guard count,
-    held orientation); returns the ticks a motor's room scaled the torque down."""
+    """Write a side's compiled state back into its Python objects (the bound's state, guard count,
+    held orientation, the plant's wall wrench); returns the ticks a motor's room scaled the torque down."""
     from haptic_teleop.engine import arm_kernel as k
 
     S = t[k.T_S]
-    b = side.bound
-    b.energy_j = float(S[k.S_ENERGY])
-    b._has_last = bool(S[k.S_HAS_LAST])
-    b.scale = float(S[k.S_SCALE])
+    side.bound.set_state(
+        CoupledBoundState(
+            energy_j=float(S[k.S_ENERGY]),
+            held_nm=t[k.T_HELD],
+            last_q_rad=t[k.T_LAST_Q],
+            has_last=bool(S[k.S_HAS_LAST]),
+            scale=float(S[k.S_SCALE]),
+        )
+    )
     side.guard.rejected = int(S[k.S_REJECTED])
     if S[k.S_HAS_HOLD]:
         side.law.r_hold = np.array(t[k.T_RHOLD])
-    side.plant._fresh = False  # type: ignore[attr-defined]  # the kernel stepped it: mj_step1 is due
+    side.plant.stepped_externally(t[k.T_WRENCH])  # type: ignore[attr-defined]  # mj_step1 is due
     return int(S[k.S_LIMITED])
 
 
@@ -337,15 +350,16 @@ def operator_vector(parts: ArmParts, period_s: float) -> np.ndarray:
     from haptic_teleop.engine import arm_kernel as k
 
     o = parts.operator
+    oc = o.constants()
     ov = np.zeros(k.O_SIZE)
-    ov[k.O_PROFILE] = PROFILE_CODES[o._profile]
-    ov[k.O_X0] = o._x0
-    ov[k.O_START] = o._start
-    ov[k.O_SPEED] = o._speed
-    ov[k.O_T_END] = o._t_end
-    ov[k.O_X_END] = o._x_end
+    ov[k.O_PROFILE] = PROFILE_CODES[oc.profile]
+    ov[k.O_X0] = oc.x0_m
+    ov[k.O_START] = oc.start_s
+    ov[k.O_SPEED] = oc.speed_m_per_s
+    ov[k.O_T_END] = oc.t_end_s
+    ov[k.O_X_END] = oc.x_end_m
     ov[k.O_AMP] = o.params.amplitude_m
-    ov[k.O_W] = 2.0 * math.pi * o.params.frequency_hz if o._profile == "sinusoid" else 0.0
+    ov[k.O_W] = 2.0 * math.pi * o.params.frequency_hz if oc.profile == "sinusoid" else 0.0
     ov[k.O_ORIGIN : k.O_ORIGIN + 3] = parts.operator_origin_m
     ov[k.O_DIR : k.O_DIR + 3] = parts.operator_direction
     ov[k.O_PERIOD] = period_s
@@ -425,7 +439,7 @@ class CompiledArm:
 
     def _work(self, side: ArmSide) -> tuple[np.ndarray, ...]:
         plant: Any = side.plant
-        return tuple(self.k._work(plant.n, plant.model.nv, 6 if side.rotational else 3))
+        return tuple(self.k.work_arrays(plant.n, plant.model.nv, 6 if side.rotational else 3))
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) now, not in the timed loop: zero ticks."""
@@ -488,8 +502,8 @@ class CompiledArm:
                         progress(done)
                     if done - output.start == block_ticks:
                         output.block_done(done)
-                    if engine._stop:
+                    if engine.stop_requested:
                         break
-                if engine._stop:
+                if engine.stop_requested:
                     break
         return done

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from haptic_teleop.core.eba import AxisBoundState
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
 
@@ -118,15 +119,16 @@ def compiled_reason(engine: Engine) -> str | None:
         return "this mujoco's bindings do not expose model addresses (MjModel._address)"
     if engine.master_ctrl.bound.params.axes != 1 or engine.slave_ctrl.bound.params.axes != 1:
         return "more than one axis"
-    if engine.operator._profile not in PROFILE_CODES:
-        return f"operator profile {engine.operator._profile!r} (compiled: {', '.join(PROFILE_CODES)})"
+    profile = engine.operator.constants().profile
+    if profile not in PROFILE_CODES:
+        return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"
     for name, link, buf in (
         ("forward", engine.forward, engine.forward_buffer),
         ("backward", engine.backward, engine.backward_buffer),
     ):
         if any(e.name == "corrupt" for e in link.effects):
             return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
-        if getattr(buf, "_extrapolate", False):
+        if buf.extrapolates:
             return f"{name} buffer extrapolates payloads"
     return kernel_error()
 
@@ -136,7 +138,7 @@ def compiled_reason(engine: Engine) -> str | None:
 
 
 def _vectorized(link: Link, buf: PlayoutBuffer) -> bool:
-    return link.vectorized and type(buf) is PlayOnArrival and not buf._extrapolate
+    return link.vectorized and type(buf) is PlayOnArrival and not buf.extrapolates
 
 
 def _seq(p: Packet) -> int:
@@ -291,8 +293,8 @@ def parameters(engine: Engine) -> np.ndarray:
         P[side + P_C1] = p.stiffness_n_per_m
         P[side + P_C2] = p.damping_n_s_per_m
         P[side + P_LIMIT] = p.force_limit_n
-        P[side + P_EBA_GAIN] = b._gain1
-        P[side + P_BOUND_GAIN] = b._bound_gain1
+        P[side + P_EBA_GAIN] = b.params.reservoir_gains()[0]
+        P[side + P_BOUND_GAIN] = b.params.bound_gains()[0]
         P[side + P_EBA_ON] = 1.0 if b.params.enabled else 0.0
         P[side + P_ACT_LIMIT], P[side + P_SLEW_STEP] = b.params.actuator_limits()
         guard = ctrl.guard
@@ -300,19 +302,20 @@ def parameters(engine: Engine) -> np.ndarray:
             P[side + P_GUARD_ON] = 1.0
             for i, lim in enumerate(guard.limits):
                 P[side + P_LIM0 + i] = lim
-        P[side + P_PLANT_LIMIT] = plant._limit  # type: ignore[attr-defined]
-        P[side + P_SUBSTEPS] = plant._substeps  # type: ignore[attr-defined]
+        P[side + P_PLANT_LIMIT] = plant.force_limit_n  # type: ignore[attr-defined]
+        P[side + P_SUBSTEPS] = plant.substeps  # type: ignore[attr-defined]
     o = engine.operator
-    P[OP + P_PROFILE] = PROFILE_CODES[o._profile]
-    P[OP + P_X0] = o._x0
-    P[OP + P_K] = o._k
-    P[OP + P_B] = o._b
-    P[OP + P_START] = o._start
-    P[OP + P_SPEED] = o._speed
-    P[OP + P_T_END] = o._t_end
-    P[OP + P_X_END] = o._x_end
+    oc = o.constants()
+    P[OP + P_PROFILE] = PROFILE_CODES[oc.profile]
+    P[OP + P_X0] = oc.x0_m
+    P[OP + P_K] = oc.stiffness_n_per_m
+    P[OP + P_B] = oc.damping_n_s_per_m
+    P[OP + P_START] = oc.start_s
+    P[OP + P_SPEED] = oc.speed_m_per_s
+    P[OP + P_T_END] = oc.t_end_s
+    P[OP + P_X_END] = oc.x_end_m
     P[OP + P_AMP] = o.params.amplitude_m
-    P[OP + P_W] = 2.0 * np.pi * o.params.frequency_hz if o._profile == "sinusoid" else 0.0
+    P[OP + P_W] = 2.0 * np.pi * o.params.frequency_hz if oc.profile == "sinusoid" else 0.0
     P[P_PERIOD_S] = engine.period_s
     return P
 
@@ -321,12 +324,12 @@ def initial_state(engine: Engine) -> np.ndarray:
     """The state vector S of `engine`'s controllers and slave plant as they are now."""
     S = np.zeros(S_SIZE)
     for side, ctrl in ((MASTER, engine.master_ctrl), (SLAVE, engine.slave_ctrl)):
-        b = ctrl.bound
-        S[side + S_ENERGY] = b.energy_j[0]
-        S[side + S_HELD] = b._held1
-        S[side + S_LAST] = b._last1
-        S[side + S_HAS_LAST] = 1.0 if b._has_last1 else 0.0
-        r = ctrl._remote
+        b = ctrl.bound.axis_state()
+        S[side + S_ENERGY] = b.energy_j
+        S[side + S_HELD] = b.held_n
+        S[side + S_LAST] = b.last_x_m
+        S[side + S_HAS_LAST] = 1.0 if b.has_last else 0.0
+        r = ctrl.remote
         if r is not None:
             S[side + S_HAS_REMOTE] = 1.0
             for i, value in enumerate(r):
@@ -338,16 +341,19 @@ def initial_state(engine: Engine) -> np.ndarray:
 def store_state(engine: Engine, S: np.ndarray) -> None:
     """Write the compiled loop's state back into `engine`'s Python objects (energies, counts, remote)."""
     for side, ctrl, n_remote in ((MASTER, engine.master_ctrl, 3), (SLAVE, engine.slave_ctrl, 2)):
-        b = ctrl.bound
-        b.energy_j[0] = float(S[side + S_ENERGY])
-        b._held1 = float(S[side + S_HELD])
-        b._last1 = float(S[side + S_LAST])
-        b._has_last1 = bool(S[side + S_HAS_LAST])
+        ctrl.bound.set_axis_state(
+            AxisBoundState(
+                energy_j=float(S[side + S_ENERGY]),
+                held_n=float(S[side + S_HELD]),
+                last_x_m=float(S[side + S_LAST]),
+                has_last=bool(S[side + S_HAS_LAST]),
+            )
+        )
         if S[side + S_HAS_REMOTE]:
-            ctrl._remote = tuple(float(S[side + S_R0 + i]) for i in range(n_remote))
+            ctrl.remote = tuple(float(S[side + S_R0 + i]) for i in range(n_remote))
         if ctrl.guard is not None:
             ctrl.guard.rejected = int(S[side + S_REJECTED])
-    engine.slave._contact = float(S[SLAVE + S_CONTACT])  # type: ignore[attr-defined]
+    engine.slave.set_contact_force(float(S[SLAVE + S_CONTACT]))  # type: ignore[attr-defined]
 
 
 def model_addresses(engine: Engine) -> np.ndarray:

@@ -186,6 +186,11 @@ class Engine:
         """Stop at the end of the current tick (Ctrl-C)."""
         self._stop = True
 
+    @property
+    def stop_requested(self) -> bool:
+        """Whether `request_stop` was called (the compiled loops check it between chunks)."""
+        return self._stop
+
     def run(
         self,
         progress: Callable[[int], None] | None = None,

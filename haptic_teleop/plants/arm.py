@@ -83,6 +83,27 @@ def _quat_z_to(normal: Sequence[float]) -> list[float]:
     return list(q / np.linalg.norm(q))
 
 
+@dataclass(frozen=True)
+class ArmConstants:
+    """What a `MujocoArm` resolves in its model once and uses every tick (copies:
+    `MujocoArm.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
+
+    site_id: the handle/tool site; substeps: MuJoCo steps per period; gravity_compensation: whether
+    the motors carry `qfrc_gravcomp`; wall_geoms: (wall, tool tip) geom ids of the contact pair, None
+    without a wall; qpos_adr, dof_adr, actuator_ids: per joint, in the plant's joint order;
+    hand_support_n: the force (world frame) holding the operator's hand up, added to the hand force.
+    """
+
+    site_id: int
+    substeps: int
+    gravity_compensation: bool
+    wall_geoms: tuple[int, int] | None
+    qpos_adr: np.ndarray
+    dof_adr: np.ndarray
+    actuator_ids: np.ndarray
+    hand_support_n: np.ndarray
+
+
 class MujocoArm:
     """One arm (master device or slave) in MuJoCo, joints in the order of `joints`.
 
@@ -253,6 +274,26 @@ class MujocoArm:
     def joint_damping(self) -> list[float]:
         """The Plant protocol's name for `damping_nm_s_per_rad` (N m s/rad per joint)."""
         return [float(b) for b in self.damping_nm_s_per_rad]
+
+    def constants(self) -> ArmConstants:
+        """The model's indices and the plant's constants, as the tick uses them."""
+        return ArmConstants(
+            site_id=self._site,
+            substeps=self._substeps,
+            gravity_compensation=self._gravity,
+            wall_geoms=self._pair_geoms,
+            qpos_adr=self._qadr.copy(),
+            dof_adr=self._dadr.copy(),
+            actuator_ids=self._act.copy(),
+            hand_support_n=self._hand_support.copy(),
+        )
+
+    def stepped_externally(self, wrench: np.ndarray) -> None:
+        """Its MjData was stepped by other code (the compiled arm loop runs mj_step1 and mj_step2 on
+        it): the next `read` runs mj_step1 again, and `wrench` (force, then torque about the tool
+        point: 6 values) is the wall's wrench over the last period (`contact_wrench`)."""
+        self._wrench = np.array(wrench, dtype=float)
+        self._fresh = False
 
     def _step1(self) -> None:
         if not self._fresh:

@@ -132,6 +132,16 @@ class MujocoDevice:
         mujoco.mj_forward(m, self.data)
         _bind_state(self)
 
+    @property
+    def force_limit_n(self) -> float:
+        """The actuator's force limit (`actuator_limited1`'s `limit`), N."""
+        return self._limit
+
+    @property
+    def substeps(self) -> int:
+        """MuJoCo steps per period."""
+        return self._substeps
+
     def read(self) -> tuple[list[float], list[float]]:
         return [self._qpos[0]], [self._qvel[0]]
 
@@ -207,6 +217,16 @@ class MujocoWallRobot:
         self._qfrc = memoryview(self.data.qfrc_constraint)
         self._contact = 0.0
 
+    @property
+    def force_limit_n(self) -> float:
+        """The actuator's force limit (`actuator_limited1`'s `limit`), N."""
+        return self._limit
+
+    @property
+    def substeps(self) -> int:
+        """MuJoCo steps per period."""
+        return self._substeps
+
     def read(self) -> tuple[list[float], list[float]]:
         return [self._qpos[0]], [self._qvel[0]]
 
@@ -227,6 +247,11 @@ class MujocoWallRobot:
 
     def contact_force(self) -> list[float]:
         return [self._contact]
+
+    def set_contact_force(self, force_n: float) -> None:
+        """The wall force of the last period, as measured by a loop that stepped this plant's
+        MjData itself (the compiled loop): what `contact_force` returns until the next `step`."""
+        self._contact = force_n
 
     def joint_damping(self) -> list[float]:
         """The simulator's damping of the joint (MjModel dof_damping, N s/m), read now: it is the
