@@ -291,7 +291,7 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
             if done - base == block.shape[0]:
                 output.block_done(done)
                 base = done
-        if engine._stop:
+        if engine.stop_requested:
             break
     engine.ticks_done = done
     engine.joint_limit_ticks = {"master": mt.limited_ticks, "slave": st.limited_ticks}
