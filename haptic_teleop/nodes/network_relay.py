@@ -273,7 +273,7 @@ class NetworkRelay(LiveNode):
             self.publish_packets()
 
     def publish_packets(self) -> None:
-        """Fates of the packets sent since the last batch (bag.py's packet rows)."""
+        """Fates of the packets sent since the last batch (record/layouts.py's packet rows)."""
         from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
         from haptic_teleop.record.layouts import PACKET_BATCH, PACKET_FIELDS, packet_rows

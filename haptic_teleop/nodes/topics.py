@@ -27,7 +27,7 @@ SLAVE_EBA = "/slave/eba"
 DIAGNOSTICS = "/diagnostics"
 DIRECTIONS = ("forward", "backward")
 EBA_LABELS = ("reservoir_j", "force_desired_n")
-# Joint names and frame: the recorder decodes raw bytes with bag.py's fixed layouts, which
+# Joint names and frame: the recorder decodes raw bytes with record/layouts.py's fixed layouts, which
 # were made with exactly these strings.
 OPERATOR_JOINT = "operator_x"
 MASTER_JOINT = "master_x"
