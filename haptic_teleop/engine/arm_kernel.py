@@ -531,6 +531,19 @@ def detach_work(w: Any) -> Any:
 
 
 @jit  # type: ignore[misc]
+def side_tick(
+    side_own: Any, work_own: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray, out: np.ndarray
+) -> None:
+    """One side's tick alone (the live nodes: nodes/arm_side.py), on its plant after mj_step1:
+    the joints, the Jacobian, then `side_torque`, the very function `run_ticks` inlines for each
+    side. x, v: the point in the task frame; q, qd, out (the torque to apply) are written."""
+    side, w = detach(side_own), detach_work(work_own)
+    read_joints(side, q, qd)
+    jacobian(side, w[2], w[3], w[4], side[T_I][I_ROTATIONAL] != 0)
+    side_torque(side, q, qd, x, v, out, w)
+
+
+@jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,
