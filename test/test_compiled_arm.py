@@ -322,10 +322,12 @@ def test_a_changed_source_drops_the_compiled_arm_loops_cache(tmp_path: Any) -> N
         stamp.write_text(before)
 
 
-def _step_side(name: str, role: str, compiled: bool, ticks: int = 400) -> dict[str, Any]:
+def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[str, Any]:
     """One side of an arm scene stepped alone as a live node steps it (nodes/arm_side.py): its own
     plant, remote samples through its guard, the watchdog's gain on the force limit, the ledger's
-    restart at scene time 0, the torques the plant applied back into the ledger."""
+    restart at scene time 0, the torques the plant applied back into the ledger. `compiled`: "" (the
+    Python SideTick and plant), "law" (CompiledSideTick.torque after the plant's read and point),
+    "tick" (CompiledSideTick's read_point, torque and step: the whole side tick compiled)."""
     from haptic_teleop.assembly import build_arm_parts
     from haptic_teleop.engine.arm_loop import side_ticks
 
@@ -346,8 +348,11 @@ def _step_side(name: str, role: str, compiled: bool, ticks: int = 400) -> dict[s
     remote: tuple[float, ...] | None = None
     out: dict[str, list[Any]] = {k: [] for k in ("tau", "applied", "force", "ratio", "energy", "q", "qd", "contact")}
     for n in range(ticks):
-        q, qd = plant.read()
-        x_dev, v_dev = plant.point()
+        if compiled == "tick":
+            q, qd, x_dev, v_dev = tick.read_point()
+        else:
+            q, qd = plant.read()
+            x_dev, v_dev = plant.point()
         x, v = (parts.maps.to_task_x(x_dev), parts.maps.to_task_v(v_dev)) if master else (x_dev, v_dev)
         if n % 3 == 0:  # a new remote sample every third tick: the point 6 cm along the push, and on
             s = 0.06 * min(1.0, n / 200)
@@ -362,7 +367,8 @@ def _step_side(name: str, role: str, compiled: bool, ticks: int = 400) -> dict[s
             tick.bound.restart(e)
         tick.limit = limit0 * (0.5 if 250 <= n < 300 else 1.0)  # the watchdog's gain
         tau = tick.torque(x, v, remote)
-        applied = plant.step(tau, np.array([0.0, 0.0, -1.5]) if master else None)
+        hand = np.array([0.0, 0.0, -1.5]) if master else None
+        applied = tick.step(tau, hand) if compiled == "tick" else plant.step(tau, hand)
         tick.bound.held[:] = applied
         out["tau"].append(np.array(tau))
         out["applied"].append(np.array(applied))
@@ -382,12 +388,14 @@ def _step_side(name: str, role: str, compiled: bool, ticks: int = 400) -> dict[s
     ("name", "role"), [("touch_ur5e_wall", "master"), ("touch_ur5e_wall", "slave"), ("touch_dynamixel_wall", "slave")]
 )
 def test_the_live_nodes_compiled_side_tick_is_the_python_side_tick(name: str, role: str) -> None:
-    """A side stepped alone (the live nodes' per-side tick) gives the same torques, forces and
-    reservoirs, bit for bit, with `CompiledSideTick` (arm_kernel.side_tick) as with `SideTick`."""
-    c = _step_side(name, role, True)
-    p = _step_side(name, role, False)
-    for key in c:
-        assert np.array_equal(c[key], p[key]), key
+    """A side stepped alone (the live nodes' per-side tick) gives the same torques, forces,
+    reservoirs, joints and wall wrenches, bit for bit, with `CompiledSideTick` (the law alone, or the
+    whole side tick with the plant's read, point and step) as with `SideTick` and the Python plant."""
+    p = _step_side(name, role, "")
+    for mode in ("law", "tick"):
+        c = _step_side(name, role, mode)
+        for key in c:
+            assert np.array_equal(c[key], p[key]), (mode, key)
     assert c["rejected"] == 1
     assert np.any(c["force"] != 0.0) and np.any(c["energy"] != c["energy"][0])
     if role == "slave":

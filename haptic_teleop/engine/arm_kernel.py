@@ -544,6 +544,31 @@ def side_tick(
 
 
 @jit  # type: ignore[misc]
+def side_begin(side_own: Any, work_own: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray) -> None:
+    """One side's tick starts (the live nodes): mj_step1, then its joints and its point (MujocoArm's
+    `read` and `point`: x, v in the world frame), as `run_ticks` step 1 for each side."""
+    side, w = detach(side_own), detach_work(work_own)
+    mj_step1(side[T_I][I_MODEL], side[T_I][I_DATA])
+    read_joints(side, q, qd)
+    point(side, qd, x, v, w)
+
+
+@jit  # type: ignore[misc]
+def side_law(
+    side_own: Any, work_own: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray, out: np.ndarray
+) -> None:
+    """`side_torque` after `side_begin` (its Jacobian is this tick's): x, v in the task frame."""
+    side_torque(detach(side_own), q, qd, x, v, out, detach_work(work_own))
+
+
+@jit  # type: ignore[misc]
+def side_end(side_own: Any, work_own: Any, tau: np.ndarray, hand: np.ndarray, applied: np.ndarray) -> None:
+    """One side's tick ends: `plant_step` (the torques within the motors' room into ctrl, the hand
+    force, mj_step2 and any substeps, the wall's wrench) after `side_law`; `applied` is written."""
+    plant_step(detach(side_own), tau, hand, applied, detach_work(work_own))
+
+
+@jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,

@@ -571,7 +571,10 @@ class CompiledSideTick:
         self._last: Any = None
         self.q = np.zeros(plant.n)
         self.qd = np.zeros(plant.n)
+        self.plant = plant
+        self.wrench: np.ndarray = t[k.T_WRENCH]
         self._run = k.side_tick
+        self._begun = False
         self.torque(np.zeros(3), np.zeros(3), None, dry=True)  # compile (or load) now, not in the loop
 
     @property
@@ -599,11 +602,39 @@ class CompiledSideTick:
             self._last = remote
         out = np.zeros(len(self.q))
         if dry:
-            t = tuple(np.array(a) if i >= self.k.T_S else a for i, a in enumerate(self.t))
+            k = self.k
+            t = tuple(np.array(a) if i >= k.T_S else a for i, a in enumerate(self.t))
             self._run(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), x, v, out)
+            k.side_law(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), x, v, out)
+            k.side_begin(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), np.zeros(3), np.zeros(3))
+            from numba import typeof  # side_end steps the plant: compiled (or loaded), not run
+
+            k.side_end.compile(tuple(typeof(a) for a in (self.t, self.w, out, np.zeros(3), out)))
+            return out
+        if self._begun:
+            self.k.side_law(self.t, self.w, self.q, self.qd, x, v, out)
             return out
         self._run(self.t, self.w, self.q, self.qd, x, v, out)
         return out
+
+    def read_point(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The plant's `read` and `point` compiled (mj_step1, q, qd, the point's x, v in the world
+        frame); then `torque` and `step` finish the tick. Copies."""
+        x, v = np.zeros(3), np.zeros(3)
+        self.k.side_begin(self.t, self.w, self.q, self.qd, x, v)
+        self._begun = True
+        return self.q.copy(), self.qd.copy(), x, v
+
+    def step(self, tau: np.ndarray, hand_force_n: np.ndarray | None = None) -> np.ndarray:
+        """The plant's `step` compiled, after `read_point` and `torque`; returns the torques applied.
+        The plant is told (`stepped_externally`): its `contact_wrench` is this step's."""
+        assert self._begun, "step after read_point"
+        applied = np.zeros(len(self.q))
+        hand = np.zeros(3) if hand_force_n is None else np.asarray(hand_force_n, dtype=float)
+        self.k.side_end(self.t, self.w, np.asarray(tau, dtype=float), hand, applied)
+        self._begun = False
+        self.plant.stepped_externally(self.wrench)
+        return applied
 
 
 def side_tick(side: ArmSide, parts: ArmParts, master: bool, fallback: Any) -> tuple[Any, str | None]:

@@ -115,6 +115,21 @@ class ArmEbaSide:
             self.restarted_j = bound.energy_j - e
             bound.restart(e)
 
+    def read_point(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The tick's start: q, qd and the point's x, v (world frame), the plant's `read` and
+        `point` (compiled with the tick when it is)."""
+        if self.compiled:
+            return self.tick.read_point()  # type: ignore[no-any-return]
+        q, qd = self.plant.read()
+        x, v = self.plant.point()
+        return q, qd, x, v
+
+    def step(self, torque: np.ndarray, hand_force_n: np.ndarray | None = None) -> np.ndarray:
+        """The plant's `step` (compiled with the tick when it is); returns the torques applied."""
+        if self.compiled:
+            return self.tick.step(torque, hand_force_n)  # type: ignore[no-any-return]
+        return self.plant.step(torque, hand_force_n)  # type: ignore[no-any-return]
+
     def applied(self, torque: np.ndarray) -> None:
         """The ledger takes the torques the plant applied (as the engine's loop)."""
         self.tick.bound.held[:] = torque
