@@ -400,3 +400,21 @@ def test_the_live_nodes_compiled_side_tick_is_the_python_side_tick(name: str, ro
     assert np.any(c["force"] != 0.0) and np.any(c["energy"] != c["energy"][0])
     if role == "slave":
         assert np.any(c["contact"][:, :3] != 0.0)  # the tool reached its wall
+
+
+def test_a_side_the_kernel_does_not_compile_keeps_the_python_side_tick() -> None:
+    """A plant other than the bare MujocoArm (here a subclass, as plant effects wrap it): the live
+    node gets its Python SideTick back, with the reason it logs."""
+    from haptic_teleop.assembly import build_arm_parts
+    from haptic_teleop.engine.arm_loop import side_ticks
+    from haptic_teleop.plants.arm import MujocoArm
+
+    class Wrapped(MujocoArm):
+        pass
+
+    parts = build_arm_parts(_scene("touch_ur5e_wall", ()).config)
+    _, st = side_ticks(parts)
+    parts.slave.plant.__class__ = Wrapped
+    tick, why = compiled_arm_loop.side_tick(parts.slave, parts, False, st)
+    assert tick is st
+    assert why is not None and "MuJoCo" in why
