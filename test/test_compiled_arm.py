@@ -320,3 +320,101 @@ def test_a_changed_source_drops_the_compiled_arm_loops_cache(tmp_path: Any) -> N
         for path in kept:
             shutil.copy2(tmp_path / path.name, path)
         stamp.write_text(before)
+
+
+def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[str, Any]:
+    """One side of an arm scene stepped alone as a live node steps it (nodes/arm_side.py): its own
+    plant, remote samples through its guard, the watchdog's gain on the force limit, the ledger's
+    restart at scene time 0, the torques the plant applied back into the ledger. `compiled`: "" (the
+    Python SideTick and plant), "law" (CompiledSideTick.torque after the plant's read and point),
+    "tick" (CompiledSideTick's read_point, torque and step: the whole side tick compiled)."""
+    from haptic_teleop.assembly import build_arm_parts
+    from haptic_teleop.engine.arm_loop import side_ticks
+
+    scene = _scene(name, ())
+    parts = build_arm_parts(scene.config)
+    mt, st = side_ticks(parts)
+    master = role == "master"
+    side = parts.master if master else parts.slave
+    tick: Any = mt if master else st
+    if compiled:
+        tick, why = compiled_arm_loop.side_tick(side, parts, master, tick)
+        assert why is None and isinstance(tick, compiled_arm_loop.CompiledSideTick)
+    plant: Any = side.plant
+    limit0 = tick.limit
+    other = parts.slave if master else parts.master
+    x0 = np.asarray(other.plant.point()[0] if master else parts.operator_origin_m)
+    direction = np.asarray(parts.operator_direction)
+    remote: tuple[float, ...] | None = None
+    out: dict[str, list[Any]] = {k: [] for k in ("tau", "applied", "force", "ratio", "energy", "q", "qd", "contact")}
+    for n in range(ticks):
+        if compiled == "tick":
+            q, qd, x_dev, v_dev = tick.read_point()
+        else:
+            q, qd = plant.read()
+            x_dev, v_dev = plant.point()
+        x, v = (parts.maps.to_task_x(x_dev), parts.maps.to_task_v(v_dev)) if master else (x_dev, v_dev)
+        if n % 3 == 0:  # a new remote sample every third tick: the point 6 cm along the push, and on
+            s = 0.06 * min(1.0, n / 200)
+            vel = 0.3 if n < 200 else 0.0
+            payload = (*(x0 + s * direction), *(vel * direction), *((0.0, 0.0, 4.0) if master else ()))
+            if n == 150:
+                payload = (float("nan"), *payload[1:])  # one the guard rejects
+            if side.guard.accept(payload):
+                remote = payload
+        if n == 50:  # scene time 0: the ledger restarts
+            e = min(tick.bound.energy_j, tick.bound.params.initial_energy_j)
+            tick.bound.restart(e)
+        tick.limit = limit0 * (0.5 if 250 <= n < 300 else 1.0)  # the watchdog's gain
+        tau = tick.torque(x, v, remote)
+        hand = np.array([0.0, 0.0, -1.5]) if master else None
+        applied = tick.step(tau, hand) if compiled == "tick" else plant.step(tau, hand)
+        tick.bound.held[:] = applied
+        out["tau"].append(np.array(tau))
+        out["applied"].append(np.array(applied))
+        out["force"].append(np.array(tick.force))
+        out["ratio"].append(tick.ratio)
+        out["energy"].append(tick.bound.energy_j)
+        out["q"].append(np.array(q))
+        out["qd"].append(np.array(qd))
+        out["contact"].append(np.concatenate(plant.contact_wrench()))
+    res = {k: np.array(v) for k, v in out.items()}
+    res["limited"] = tick.limited_ticks
+    res["rejected"] = side.guard.rejected
+    return res
+
+
+@pytest.mark.parametrize(
+    ("name", "role"), [("touch_ur5e_wall", "master"), ("touch_ur5e_wall", "slave"), ("touch_dynamixel_wall", "slave")]
+)
+def test_the_live_nodes_compiled_side_tick_is_the_python_side_tick(name: str, role: str) -> None:
+    """A side stepped alone (the live nodes' per-side tick) gives the same torques, forces,
+    reservoirs, joints and wall wrenches, bit for bit, with `CompiledSideTick` (the law alone, or the
+    whole side tick with the plant's read, point and step) as with `SideTick` and the Python plant."""
+    p = _step_side(name, role, "")
+    for mode in ("law", "tick"):
+        c = _step_side(name, role, mode)
+        for key in c:
+            assert np.array_equal(c[key], p[key]), (mode, key)
+    assert c["rejected"] == 1
+    assert np.any(c["force"] != 0.0) and np.any(c["energy"] != c["energy"][0])
+    if role == "slave":
+        assert np.any(c["contact"][:, :3] != 0.0)  # the tool reached its wall
+
+
+def test_a_side_the_kernel_does_not_compile_keeps_the_python_side_tick() -> None:
+    """A plant other than the bare MujocoArm (here a subclass, as plant effects wrap it): the live
+    node gets its Python SideTick back, with the reason it logs."""
+    from haptic_teleop.assembly import build_arm_parts
+    from haptic_teleop.engine.arm_loop import side_ticks
+    from haptic_teleop.plants.arm import MujocoArm
+
+    class Wrapped(MujocoArm):
+        pass
+
+    parts = build_arm_parts(_scene("touch_ur5e_wall", ()).config)
+    _, st = side_ticks(parts)
+    parts.slave.plant.__class__ = Wrapped
+    tick, why = compiled_arm_loop.side_tick(parts.slave, parts, False, st)
+    assert tick is st
+    assert why is not None and "MuJoCo" in why

@@ -531,6 +531,44 @@ def detach_work(w: Any) -> Any:
 
 
 @jit  # type: ignore[misc]
+def side_tick(
+    side_own: Any, work_own: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray, out: np.ndarray
+) -> None:
+    """One side's tick alone (the live nodes: nodes/arm_side.py), on its plant after mj_step1:
+    the joints, the Jacobian, then `side_torque`, the very function `run_ticks` inlines for each
+    side. x, v: the point in the task frame; q, qd, out (the torque to apply) are written."""
+    side, w = detach(side_own), detach_work(work_own)
+    read_joints(side, q, qd)
+    jacobian(side, w[2], w[3], w[4], side[T_I][I_ROTATIONAL] != 0)
+    side_torque(side, q, qd, x, v, out, w)
+
+
+@jit  # type: ignore[misc]
+def side_begin(side_own: Any, work_own: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray) -> None:
+    """One side's tick starts (the live nodes): mj_step1, then its joints and its point (MujocoArm's
+    `read` and `point`: x, v in the world frame), as `run_ticks` step 1 for each side."""
+    side, w = detach(side_own), detach_work(work_own)
+    mj_step1(side[T_I][I_MODEL], side[T_I][I_DATA])
+    read_joints(side, q, qd)
+    point(side, qd, x, v, w)
+
+
+@jit  # type: ignore[misc]
+def side_law(
+    side_own: Any, work_own: Any, q: np.ndarray, qd: np.ndarray, x: np.ndarray, v: np.ndarray, out: np.ndarray
+) -> None:
+    """`side_torque` after `side_begin` (its Jacobian is this tick's): x, v in the task frame."""
+    side_torque(detach(side_own), q, qd, x, v, out, detach_work(work_own))
+
+
+@jit  # type: ignore[misc]
+def side_end(side_own: Any, work_own: Any, tau: np.ndarray, hand: np.ndarray, applied: np.ndarray) -> None:
+    """One side's tick ends: `plant_step` (the torques within the motors' room into ctrl, the hand
+    force, mj_step2 and any substeps, the wall's wrench) after `side_law`; `applied` is written."""
+    plant_step(detach(side_own), tau, hand, applied, detach_work(work_own))
+
+
+@jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,

@@ -507,3 +507,140 @@ class CompiledArm:
                 if engine.stop_requested:
                     break
         return done
+
+
+# --------------------------------------------------------------------------------------------
+# One side's tick alone, for the live nodes (nodes/arm_side.py).
+
+
+def compiled_reason_side(side: ArmSide) -> str | None:
+    """Why one side's tick cannot run compiled (`CompiledSideTick`), or None if it can."""
+    from haptic_teleop.plants.arm import MujocoArm
+
+    if type(side.plant) is not MujocoArm:
+        return "plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
+    if side.law.params.law != "position":
+        return f"task law {side.law.params.law!r} (compiled: position)"
+    err = kernel_error()
+    if err is not None:
+        return err
+    layout = contact_layout()
+    if isinstance(layout, str):
+        return layout
+    return None
+
+
+class _Ledger:
+    """The compiled side's energy bound as `SideTick.bound` is used by the nodes: the reservoir,
+    the parameters, `restart`, and `held` (the kernel's own array: writing it is the ledger's input)."""
+
+    def __init__(self, side: ArmSide, t: tuple[Any, ...], k: Any) -> None:
+        self.params = side.bound.params
+        self.held: np.ndarray = t[k.T_HELD]
+        self._S: np.ndarray = t[k.T_S]
+        self._k = k
+
+    @property
+    def energy_j(self) -> float:
+        return float(self._S[self._k.S_ENERGY])
+
+    def restart(self, energy_j: float) -> None:
+        """`CoupledEnergyBound.restart`: the reservoir set, the next tick's q taken as the first."""
+        self._S[self._k.S_ENERGY] = float(energy_j)
+        self._S[self._k.S_HAS_LAST] = 0.0
+
+
+class CompiledSideTick:
+    """`arm_loop.SideTick` for one side, compiled: `torque` runs `arm_kernel.side_tick` (the side's
+    part of the engine's compiled tick) on the plant's MjData after mj_step1. Its state (reservoir,
+    held torques, last q, held orientation) lives in the kernel's arrays, built from the side's
+    Python objects when made; `limit`, `force`, `ratio`, `limited_ticks` and `bound` as SideTick's."""
+
+    def __init__(self, side: ArmSide, parts: ArmParts, master: bool) -> None:
+        from haptic_teleop.engine import arm_kernel as k
+
+        self.k = k
+        plant: Any = side.plant
+        self.t = t = side_tuple(side, parts, master)
+        self.w = tuple(k.work_arrays(plant.n, plant.model.nv, 6 if side.rotational else 3))
+        self._F: np.ndarray = t[k.T_F]
+        self._S: np.ndarray = t[k.T_S]
+        self._remote: np.ndarray = t[k.T_REMOTE]
+        self.force: np.ndarray = t[k.T_FORCE]
+        self.bound = _Ledger(side, t, k)
+        self._last: Any = None
+        self.q = np.zeros(plant.n)
+        self.qd = np.zeros(plant.n)
+        self.plant = plant
+        self.wrench: np.ndarray = t[k.T_WRENCH]
+        self._run = k.side_tick
+        self._begun = False
+        self.torque(np.zeros(3), np.zeros(3), None, dry=True)  # compile (or load) now, not in the loop
+
+    @property
+    def limit(self) -> float:
+        return float(self._F[self.k.F_LIMIT])
+
+    @limit.setter
+    def limit(self, value: float) -> None:
+        self._F[self.k.F_LIMIT] = value
+
+    @property
+    def ratio(self) -> float:
+        return float(self._S[self.k.S_RATIO])
+
+    @property
+    def limited_ticks(self) -> int:
+        return int(self._S[self.k.S_LIMITED])
+
+    def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None, dry: bool = False) -> np.ndarray:
+        """The side's torque (SideTick.torque) on the newest accepted remote sample (None: none yet).
+        `dry`: only compile, on a copy of the state (the side is left as it was)."""
+        if remote is not None and remote is not self._last:
+            self._remote[: len(remote)] = remote
+            self._S[self.k.S_HAS_REMOTE] = 1.0
+            self._last = remote
+        out = np.zeros(len(self.q))
+        if dry:
+            k = self.k
+            t = tuple(np.array(a) if i >= k.T_S else a for i, a in enumerate(self.t))
+            self._run(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), x, v, out)
+            k.side_law(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), x, v, out)
+            k.side_begin(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), np.zeros(3), np.zeros(3))
+            from numba import typeof  # side_end steps the plant: compiled (or loaded), not run
+
+            k.side_end.compile(tuple(typeof(a) for a in (self.t, self.w, out, np.zeros(3), out)))
+            return out
+        if self._begun:
+            self.k.side_law(self.t, self.w, self.q, self.qd, x, v, out)
+            return out
+        self._run(self.t, self.w, self.q, self.qd, x, v, out)
+        return out
+
+    def read_point(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The plant's `read` and `point` compiled (mj_step1, q, qd, the point's x, v in the world
+        frame); then `torque` and `step` finish the tick. Copies."""
+        x, v = np.zeros(3), np.zeros(3)
+        self.k.side_begin(self.t, self.w, self.q, self.qd, x, v)
+        self._begun = True
+        return self.q.copy(), self.qd.copy(), x, v
+
+    def step(self, tau: np.ndarray, hand_force_n: np.ndarray | None = None) -> np.ndarray:
+        """The plant's `step` compiled, after `read_point` and `torque`; returns the torques applied.
+        The plant is told (`stepped_externally`): its `contact_wrench` is this step's."""
+        assert self._begun, "step after read_point"
+        applied = np.zeros(len(self.q))
+        hand = np.zeros(3) if hand_force_n is None else np.asarray(hand_force_n, dtype=float)
+        self.k.side_end(self.t, self.w, np.asarray(tau, dtype=float), hand, applied)
+        self._begun = False
+        self.plant.stepped_externally(self.wrench)
+        return applied
+
+
+def side_tick(side: ArmSide, parts: ArmParts, master: bool, fallback: Any) -> tuple[Any, str | None]:
+    """The compiled tick of one side (`CompiledSideTick`), or `fallback` (the Python SideTick) and
+    the reason it is not compiled."""
+    reason = compiled_reason_side(side)
+    if reason is not None:
+        return fallback, reason
+    return CompiledSideTick(side, parts, master), None

@@ -1,14 +1,16 @@
 """What master_eba and slave_eba run for an arm scene (docs/live.md, "Arm scenes").
 
 The node hosts its side's MuJoCo arm in-process (the master device; the slave arm as a ros2_control
-hardware interface would) and runs the engine's per-side tick on it: `arm_loop.SideTick` (the
-task-space law, the task force's saturation, each motor's room left by gravity compensation, the
-pooled joint energy bound) on the parts `assembly.build_arm_parts` builds, with the numba-compiled
-kernels the engine uses. No arithmetic of the tick is written here: the node only takes the newest
-released remote sample (through the side's `SampleGuard`), feeds the remote-data watchdog, whose
-gain scales the task force's limit before the bound (as `ForceFade` does for one axis), and
-publishes what the bag records, in the bag's layouts (`record.layouts.topic_specs` of the scene's
-`TickSchema`: JointState with the joint names, PoseStamped, WrenchStamped, the EBA arrays).
+hardware interface would) and runs the engine's per-side tick on it: with numba, the side's part of
+the engine's compiled tick (`compiled_arm_loop.CompiledSideTick`, `arm_kernel.side_tick`), else
+`arm_loop.SideTick` (the same results, in the interpreter): the task-space law, the task force's
+saturation, each motor's room left by gravity compensation, the pooled joint energy bound, on the
+parts `assembly.build_arm_parts` builds. No arithmetic of the tick is written here: the node only
+takes the newest released remote sample (through the side's `SampleGuard`), feeds the remote-data
+watchdog, whose gain scales the task force's limit before the bound (as `ForceFade` does for one
+axis), and publishes what the bag records, in the bag's layouts (`record.layouts.topic_specs` of
+the scene's `TickSchema`: JointState with the joint names, PoseStamped, WrenchStamped, the EBA
+arrays).
 """
 
 from __future__ import annotations
@@ -42,14 +44,19 @@ class ArmEbaSide:
         from std_msgs.msg import Header
 
         from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.engine import compiled_arm_loop
         from haptic_teleop.engine.arm_loop import side_ticks
         from haptic_teleop.record.layouts import topic_specs
 
         self.role = role
         self.parts = parts = build_arm_parts(config)  # both arms: the mapping's offset needs both starts
         mt, st = side_ticks(parts)
-        self.tick = mt if role == "master" else st
         self.side = parts.master if role == "master" else parts.slave
+        # The engine's compiled tick of this side (numba), else the Python SideTick (same results).
+        self.tick, why = compiled_arm_loop.side_tick(self.side, parts, role == "master", mt if role == "master" else st)
+        self.compiled = why is None
+        if why is not None:
+            node.get_logger().warning(f"{role} arm tick runs in Python, not compiled: {why}")
         other = parts.slave if role == "master" else parts.master
         other.plant.close()  # the other side's plant only gave its start point
         self.plant = self.side.plant
@@ -108,6 +115,21 @@ class ArmEbaSide:
             self.restarted_j = bound.energy_j - e
             bound.restart(e)
 
+    def read_point(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The tick's start: q, qd and the point's x, v (world frame), the plant's `read` and
+        `point` (compiled with the tick when it is)."""
+        if self.compiled:
+            return self.tick.read_point()  # type: ignore[no-any-return]
+        q, qd = self.plant.read()
+        x, v = self.plant.point()
+        return q, qd, x, v
+
+    def step(self, torque: np.ndarray, hand_force_n: np.ndarray | None = None) -> np.ndarray:
+        """The plant's `step` (compiled with the tick when it is); returns the torques applied."""
+        if self.compiled:
+            return self.tick.step(torque, hand_force_n)  # type: ignore[no-any-return]
+        return self.plant.step(torque, hand_force_n)  # type: ignore[no-any-return]
+
     def applied(self, torque: np.ndarray) -> None:
         """The ledger takes the torques the plant applied (as the engine's loop)."""
         self.tick.bound.held[:] = torque
@@ -134,6 +156,7 @@ class ArmEbaSide:
             "rejected_samples": self.side.rejected_samples,
             "malformed_samples": self.malformed_samples,
             "joint_limited_ticks": self.tick.limited_ticks,
+            "arm_tick": "compiled" if self.compiled else "python",
             "ledger_restarted_discarding_j": self.restarted_j if self.restarted_j is not None else -1.0,
         }
 

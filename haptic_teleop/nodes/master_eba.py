@@ -141,9 +141,8 @@ class MasterEba(LiveNode):
 
     def _arm_tick(self, stamp_ns: int) -> None:
         arm = self.arm
-        plant, maps = arm.plant, arm.maps
-        q, qd = plant.read()
-        x_dev, v_dev = plant.point()
+        maps = arm.maps
+        q, qd, x_dev, v_dev = arm.read_point()
         x = maps.to_task_x(x_dev)
         v = maps.to_task_v(v_dev)
         tau = arm.torque(x, v, stamp_ns)
@@ -151,7 +150,7 @@ class MasterEba(LiveNode):
         hand = take_latest(self._hand_sub)
         if hand is not None:
             self._hand_dev = maps.force_to_master(np.asarray(self._read_hand(hand)[1]))
-        applied = plant.step(tau, self._hand_dev)
+        applied = arm.step(tau, self._hand_dev)
         arm.applied(applied)
         arm.publish("/master/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
         arm.publish("/master/handle_pose", stamp_ns, x)

@@ -56,12 +56,11 @@ class SlaveEba(LiveNode):
     def _arm_tick(self, stamp_ns: int) -> None:
         arm = self.arm
         plant = arm.plant
-        q, qd = plant.read()
-        x, v = plant.point()
+        q, qd, x, v = arm.read_point()
         f_env, t_env = plant.contact_wrench()
         tau = arm.torque(x, v, stamp_ns)
         arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
-        applied = plant.step(tau)
+        applied = arm.step(tau)
         arm.applied(applied)
         arm.publish("/slave/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
         arm.publish("/slave/contact_wrench", stamp_ns, (*f_env.tolist(), *t_env.tolist()))
