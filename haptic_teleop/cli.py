@@ -6,8 +6,7 @@ import argparse
 import contextlib
 import json
 import sys
-import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ from haptic_teleop.analysis.outputs import (
     write_outputs,
 )
 from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError
+from haptic_teleop.lifetime import deadline
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -41,19 +41,11 @@ SLOW_START_NOTICE = (
 )
 
 
-@contextlib.contextmanager
-def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_START_NOTICE) -> Iterator[None]:
-    """Call `write(text)` once if the body is still running `after_s` seconds after it started.
-
-    A long silent pause looks like a hang: the first run on a machine spends about a minute in
-    numba compiling the tick loop before the first tick."""
-    timer = threading.Timer(after_s, write, args=(text,))
-    timer.daemon = True
-    timer.start()
-    try:
-        yield
-    finally:
-        timer.cancel()
+def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_START_NOTICE) -> Any:
+    """A context in which `write(text)` is called once if the body is still running `after_s`
+    seconds after it started: a long silent pause looks like a hang, and the first run on a
+    machine spends about a minute in numba compiling the tick loop before the first tick."""
+    return deadline(after_s, lambda: write(text))
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import sys
+from collections.abc import Callable, Iterator
 
 _PR_SET_PDEATHSIG = 1
 
@@ -63,3 +64,19 @@ def follow_launcher() -> bool:
 
     threading.Thread(target=watch, name="launcher-watch", daemon=True).start()
     return True
+
+
+@contextlib.contextmanager
+def deadline(seconds: float, on_expiry: Callable[[], None]) -> Iterator[None]:
+    """Call `on_expiry()` (from a daemon timer thread) if the body is still running `seconds` after
+    it started; never once the body has ended. For steps that may block in code that is not ours
+    (numba compiling, a DDS participant being torn down)."""
+    import threading
+
+    timer = threading.Timer(seconds, on_expiry)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()

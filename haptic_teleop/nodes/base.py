@@ -8,7 +8,9 @@ messages and parameters to and from them.
 
 from __future__ import annotations
 
+import faulthandler
 import gc
+import os
 import signal
 import sys
 import threading
@@ -17,6 +19,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from haptic_teleop.errors import ConfigError, HapticTeleopError
+from haptic_teleop.lifetime import deadline
 from haptic_teleop.nodes import LOOP_FIGURES_MARK
 from haptic_teleop.nodes.messages import _polled_group_class, take_all
 from haptic_teleop.nodes.params import (
@@ -295,6 +298,9 @@ def _bad_parameter_errors() -> tuple[type[BaseException], ...]:
     return (ConfigError, ParameterException, HapticTeleopError, ValueError, KeyError)
 
 
+TEARDOWN_S = 5.0  # the middleware's teardown after the nodes closed; the launcher kills at 10 s
+
+
 def run_nodes(
     factories: Sequence[Callable[..., LiveNode]],
     node_args: Sequence[dict[str, Any]] | None = None,
@@ -402,17 +408,35 @@ def run_nodes(
             import json
 
             print(LOOP_FIGURES_MARK + json.dumps(fig), flush=True)
-    executor.shutdown(timeout_sec=2.0)
-    spinner.join(2.0)  # a C++ wait still running at exit would abort the process
-    for n in nodes:
-        if n.loop is not None and n.loop.running:
-            # Its loop did not stop in time: it may still publish or take, straight on the C++
-            # handles (raw_publish_fn), so those must outlive it; the process ends anyway.
-            print(f"{n.get_name()}: loop still running at exit; not destroying the node", file=sys.stderr, flush=True)
-            code = max(code, 1)
-            continue
-        n.destroy_node()
-    rclpy.try_shutdown()
+    names = ", ".join(n.get_name() for n in nodes)
+
+    def stuck() -> None:
+        # The nodes are closed (the recorder's bag with them): only the middleware's teardown is
+        # left, and under load it has blocked for good inside DDS. End the process as the launcher
+        # would (it kills a node after 10 s), but first say where it was stuck.
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        print(
+            f"{names}: ROS 2 teardown still running {TEARDOWN_S:g} s after the nodes closed (thread "
+            "stacks above); exiting without it",
+            file=sys.stderr,
+            flush=True,
+        )
+        os._exit(code)
+
+    with deadline(TEARDOWN_S, stuck):
+        executor.shutdown(timeout_sec=2.0)
+        spinner.join(2.0)  # a C++ wait still running at exit would abort the process
+        for n in nodes:
+            if n.loop is not None and n.loop.running:
+                # Its loop did not stop in time: it may still publish or take, straight on the C++
+                # handles (raw_publish_fn), so those must outlive it; the process ends anyway.
+                print(
+                    f"{n.get_name()}: loop still running at exit; not destroying the node", file=sys.stderr, flush=True
+                )
+                code = max(code, 1)
+                continue
+            n.destroy_node()
+        rclpy.try_shutdown()
     return code
 
 
