@@ -48,6 +48,21 @@ __all__ = [
 REMOTE_LIMIT_MARGIN = 10.0  # remote values beyond 10x what the scene can produce are faults
 
 
+def operator_reach(
+    op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[float, ...]] | None
+) -> tuple[float, float]:
+    """How far (m) and how fast (m/s) the operator's profile moves the hand at most (0 for hold)."""
+    if op.profile == "push":
+        return abs(op.distance_m), abs(op.speed_m_per_s)
+    if op.profile == "sinusoid":
+        return abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
+    if op.profile == "trace" and trace is not None:
+        ts, xs = trace
+        slopes = [abs((xs[i + 1] - xs[i]) / (ts[i + 1] - ts[i])) for i in range(len(ts) - 1)]
+        return max(abs(x) for x in xs), max(slopes, default=0.0)
+    return 0.0, 0.0
+
+
 def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ...]] | None = None) -> RemoteLimits:
     """Largest plausible remote values for a scene (docs/eba.md, "Bad values in packets").
 
@@ -56,18 +71,7 @@ def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ..
     limit of the actuators and controllers (a wall force far beyond what any actuator in the loop
     can push is a sensor fault).
     """
-    op = config.operator
-    reach = 0.0
-    speed = 0.0
-    if op.profile == "push":
-        reach, speed = abs(op.distance_m), abs(op.speed_m_per_s)
-    elif op.profile == "sinusoid":
-        reach, speed = abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
-    elif op.profile == "trace" and trace is not None:
-        ts, xs = trace
-        reach = max(abs(x) for x in xs)
-        slopes = [abs((xs[i + 1] - xs[i]) / (ts[i + 1] - ts[i])) for i in range(len(ts) - 1)]
-        speed = max(slopes, default=0.0)
+    reach, speed = operator_reach(config.operator, trace)
     workspace = max(0.1, abs(config.slave.wall.position_m), reach, abs(config.slave.start_position_m))
     forces = (
         config.master.force_limit_n,
@@ -191,13 +195,7 @@ def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:
     """`remote_limits` for arms: REMOTE_LIMIT_MARGIN times the workspace (the largest coordinate of
     the start handle and tool and the wall point, the operator's reach; at least 0.1 m), the
     operator's speed (at least 0.1 m/s) and the controllers' force limits."""
-    op = config.operator
-    reach = 0.0
-    speed = 0.0
-    if op.profile == "push":
-        reach, speed = abs(op.distance_m), abs(op.speed_m_per_s)
-    elif op.profile == "sinusoid":
-        reach, speed = abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
+    reach, speed = operator_reach(config.operator, None)
     workspace = max([0.1, reach] + [float(abs(p).max()) for p in points])
     forces = (config.controllers.master.force_limit_n, config.controllers.slave.force_limit_n)
     k = REMOTE_LIMIT_MARGIN

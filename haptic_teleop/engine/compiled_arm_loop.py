@@ -136,6 +136,16 @@ def _c_struct(name: str) -> tuple[int, int, dict[str, int]]:
 
 
 @functools.cache
+def kernel_unusable() -> str | None:
+    """Why the arm kernel cannot run on this machine (no numba, or an mjData contact layout it
+    does not know), or None."""
+    err = kernel_error()
+    if err is not None:
+        return err
+    layout = contact_layout()
+    return layout if isinstance(layout, str) else None
+
+
 def contact_layout() -> tuple[int, int, int, int, int, int, int, int] | str:
     """(ncon offset in mjData, contact-pointer offset in mjData, mjContact stride, and the offsets
     in mjContact of pos, frame, geom[0], geom[1], efc_address); or why not (then arm scenes run in
@@ -215,13 +225,7 @@ def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any,
             return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
         if buf.extrapolates:
             return f"{name} buffer extrapolates payloads"
-    err = kernel_error()
-    if err is not None:
-        return err
-    layout = contact_layout()
-    if isinstance(layout, str):
-        return layout
-    return None
+    return kernel_unusable()
 
 
 def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -> tuple[Any, ...]:
@@ -385,36 +389,6 @@ def model_addresses(parts: ArmParts) -> np.ndarray:
 CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
 
 
-class Rings:
-    """The sent payloads of both directions: rings indexed by seq (a power of two deep), deep
-    enough for the oldest payload a window releases; grown (keeping what they hold) if a window
-    needs more. Their size follows the network's delay, never the run's length."""
-
-    def __init__(self, widths: tuple[int, int], depth: int = 1024) -> None:
-        self.fwd = np.zeros((depth, widths[0]))
-        self.bwd = np.zeros((depth, widths[1]))
-
-    def fit(self, frel: np.ndarray, brel: np.ndarray, w0: int, w1: int) -> None:
-        oldest = w0
-        for rel in (frel, brel):
-            got = rel[rel >= 0]
-            if len(got):
-                oldest = min(oldest, int(got.min()))
-        need = w1 - oldest
-        depth = self.fwd.shape[0]
-        if need <= depth:
-            return
-        new = depth
-        while new < need:
-            new *= 2
-        seqs = np.arange(max(0, w0 - depth), w0)  # what the rings hold: the ticks before w0
-        for name in ("fwd", "bwd"):
-            old = getattr(self, name)
-            grown = np.zeros((new, old.shape[1]))
-            grown[seqs & (new - 1)] = old[seqs & (depth - 1)]
-            setattr(self, name, grown)
-
-
 class CompiledArm:
     """An arm scene's compiled loop: the kernel's arrays, built from (and sharing state with) the
     scene's Python objects; `run` ticks it like `arm_loop.run_arm_loop`."""
@@ -463,7 +437,7 @@ class CompiledArm:
 
         n_ticks = engine.ticks
         self.take()
-        rings = Rings((6, 9))
+        rings = compiled_loop.Rings((6, 9))
         block = output.block
         block_ticks = block.shape[0]
         run_ticks = self.k.run_ticks
@@ -521,13 +495,7 @@ def compiled_reason_side(side: ArmSide) -> str | None:
         return "plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
     if side.law.params.law != "position":
         return f"task law {side.law.params.law!r} (compiled: position)"
-    err = kernel_error()
-    if err is not None:
-        return err
-    layout = contact_layout()
-    if isinstance(layout, str):
-        return layout
-    return None
+    return kernel_unusable()
 
 
 class _Ledger:

@@ -360,3 +360,33 @@ def model_addresses(engine: Engine) -> np.ndarray:
     m: Any = engine.master
     s: Any = engine.slave
     return np.array([m.model._address, m.data._address, s.model._address, s.data._address], dtype=np.int64)
+
+
+class Rings:
+    """The sent payloads of both directions: rings indexed by seq (a power of two deep), deep
+    enough for the oldest payload a window releases; grown (keeping what they hold) if a window
+    needs more. Their size follows the network's delay, never the run's length."""
+
+    def __init__(self, widths: tuple[int, int], depth: int = 1024) -> None:
+        self.fwd = np.zeros((depth, widths[0]))
+        self.bwd = np.zeros((depth, widths[1]))
+
+    def fit(self, frel: np.ndarray, brel: np.ndarray, w0: int, w1: int) -> None:
+        oldest = w0
+        for rel in (frel, brel):
+            got = rel[rel >= 0]
+            if len(got):
+                oldest = min(oldest, int(got.min()))
+        need = w1 - oldest
+        depth = self.fwd.shape[0]
+        if need <= depth:
+            return
+        new = depth
+        while new < need:
+            new *= 2
+        seqs = np.arange(max(0, w0 - depth), w0)  # what the rings hold: the ticks before w0
+        for name in ("fwd", "bwd"):
+            old = getattr(self, name)
+            grown = np.zeros((new, old.shape[1]))
+            grown[seqs & (new - 1)] = old[seqs & (depth - 1)]
+            setattr(self, name, grown)

@@ -427,7 +427,7 @@ class Engine:
         bwd = compiled_loop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
         window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
         head, (P, S) = self._kernel_args()
-        hist = _History()
+        hist = compiled_loop.Rings((2, 3))
         output = _Output(sink, fwd.settled, bwd.settled)
         block = output.block
         run_ticks = self._kernel
@@ -568,36 +568,6 @@ class _Output:
             rows = settled(sent, final)
             if rows is not None and len(rows):
                 self.sink.append_packets(direction, rows)
-
-
-class _History:
-    """The compiled loop's sample histories: rings indexed by seq (a power of two deep), deep
-    enough for the oldest sample a window releases; grown (keeping what they hold) if a window
-    needs more. Their size follows the network's delay, never the run's length."""
-
-    def __init__(self, depth: int = 1024) -> None:
-        self.fwd = np.zeros((depth, 2))
-        self.bwd = np.zeros((depth, 3))
-
-    def fit(self, frel: np.ndarray, brel: np.ndarray, w0: int, w1: int) -> None:
-        oldest = w0
-        for rel in (frel, brel):
-            got = rel[rel >= 0]
-            if len(got):
-                oldest = min(oldest, int(got.min()))
-        need = w1 - oldest
-        depth = self.fwd.shape[0]
-        if need <= depth:
-            return
-        new = depth
-        while new < need:
-            new *= 2
-        seqs = np.arange(max(0, w0 - depth), w0)  # what the rings hold: the ticks before w0
-        for name in ("fwd", "bwd"):
-            old = getattr(self, name)
-            grown = np.zeros((new, old.shape[1]))
-            grown[seqs & (new - 1)] = old[seqs & (depth - 1)]
-            setattr(self, name, grown)
 
 
 @dataclass(frozen=True)
