@@ -345,15 +345,20 @@ class Engine:
         wall = time.perf_counter() - t0
         self.master.close()
         self.slave.close()
+        return self._streamed(n, wall)
+
+    def _streamed(self, done: int, wall_s: float) -> RunResult:
+        """The result of a run whose rows and packets went to a sink: timing and tick count only."""
         return RunResult(
             scene=self.scene,
-            ticks=n,
-            period_ns=period_ns,
-            data=_NO_DATA,
+            ticks=done,
+            period_ns=self.period_ns,
+            data=np.zeros((0, self.schema.width)),
             forward_log=_NO_PACKETS,
             backward_log=_NO_PACKETS,
-            loop_wall_s=wall,
-            interrupted=n < n_ticks,
+            loop_wall_s=wall_s,
+            interrupted=done < self.ticks,
+            schema=self.schema,
         )
 
     def _arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
@@ -393,18 +398,7 @@ class Engine:
         wall = time.perf_counter() - t0
         self.master.close()
         self.slave.close()
-        width = self.schema.width
-        return RunResult(
-            scene=self.scene,
-            ticks=done,
-            period_ns=self.period_ns,
-            data=np.zeros((0, width)),
-            forward_log=_NO_PACKETS,
-            backward_log=_NO_PACKETS,
-            loop_wall_s=wall,
-            interrupted=done < self.ticks,
-            schema=self.schema,
-        )
+        return self._streamed(done, wall)
 
     def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
         """The compiled loop's arguments (axis_kernel.run_ticks) around the network's: the plants'
@@ -465,16 +459,7 @@ class Engine:
         self.master.close()
         self.slave.close()
         wall = time.perf_counter() - t0
-        return RunResult(
-            scene=self.scene,
-            ticks=done,
-            period_ns=period_ns,
-            data=_NO_DATA,
-            forward_log=_NO_PACKETS,
-            backward_log=_NO_PACKETS,
-            loop_wall_s=wall,
-            interrupted=done < n_ticks,
-        )
+        return self._streamed(done, wall)
 
 
 class RunSink(Protocol):
@@ -526,7 +511,6 @@ class _Tee:
         self.second.append_packets(direction, rows)
 
 
-_NO_DATA = np.zeros((0, len(COLUMNS)))
 _NO_PACKETS = np.zeros((0, len(PACKET_FIELDS)))
 Settled = Callable[[int, bool], "np.ndarray | None"]
 
