@@ -24,6 +24,13 @@ STANDALONE = [
     "ros-kilted-diagnostic-msgs>=5.5",
 ]
 
+# The hardware backends' SDKs (haptic_teleop/plants/dynamixel, haptic_teleop/plants/ur), imported
+# only by those backends and the emulator tests: the versions the tests ran with are the floors.
+HARDWARE = [
+    "dynamixel-sdk>=4.1.0",
+    "ur-rtde>=1.6.5",
+]
+
 setup(
     name=PACKAGE,
     version="0.1.0",
@@ -63,7 +70,9 @@ setup(
     ],
     extras_require={
         "standalone": STANDALONE,
+        "hardware": HARDWARE,
         "test": [
+            *HARDWARE,  # the backends are tested against emulators through the real SDKs
             "pytest>=8.0",
             "hypothesis>=6.100",
             "ruff>=0.17,<0.18",
