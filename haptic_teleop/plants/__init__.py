@@ -16,9 +16,11 @@ from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.base import Plant, backend_class
 
 if TYPE_CHECKING:
-    from haptic_teleop.plants.arm import MujocoArm
+    from haptic_teleop.plants.arm import MujocoArm, WallSpec
+    from haptic_teleop.plants.hardware import JointDriver
+    from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.plants.mujoco_plant import SimSettings
-    from haptic_teleop.scene.schema import PlantEffectsConfig, Scene
+    from haptic_teleop.scene.schema import HardwareConfig, PlantEffectsConfig, Scene
 
 
 # --------------------------------------------------------------------------------------------
@@ -94,18 +96,10 @@ def build_master_arm(config: Scene) -> MujocoArm:
 
 def build_slave_arm(config: Scene) -> MujocoArm:
     """An arm scene's slave arm and its wall (docs/arms.md)."""
-    from haptic_teleop.plants.arm import MujocoArm, WallSpec
+    from haptic_teleop.plants.arm import MujocoArm
 
     s = config.slave
-    w = s.wall
-    assert w.point_m is not None and w.normal is not None  # an arm scene (Scene.is_arm)
-    wall = WallSpec(
-        (w.point_m[0], w.point_m[1], w.point_m[2]),
-        (w.normal[0], w.normal[1], w.normal[2]),
-        w.stiffness_n_per_m,
-        w.damping_n_s_per_m,
-        s.contact_impedance,
-    )
+    wall = _wall(config)
     return MujocoArm(
         sim_settings(config),
         s.model,
@@ -116,6 +110,81 @@ def build_slave_arm(config: Scene) -> MujocoArm:
         torque_limit_nm=s.torque_limit_nm,
         gravity_compensation=s.gravity_compensation is not False,
         wall=wall,
+    )
+
+
+def build_arm(config: Scene, role: str) -> MujocoArm | HardwareArm:
+    """An arm scene's `role` side ("master" or "slave") on its backend: the MuJoCo arm
+    (`build_master_arm`, `build_slave_arm`), or a real arm (`build_hardware_arm`)."""
+    if getattr(config, role).backend == "mujoco":
+        return build_master_arm(config) if role == "master" else build_slave_arm(config)
+    return build_hardware_arm(config, role)
+
+
+def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
+    """A real arm (docs/hardware.md): the side's driver (not started: the plant starts it at its
+    first read) and the kinematics of the same MJCF. `config` is validated (scene/load.py): the
+    hardware section names one servo per joint and the damping EBA may assume."""
+    from haptic_teleop.plants.hardware_arm import HardwareArm
+    from haptic_teleop.plants.kinematics import ArmKinematics
+
+    cfg = getattr(config, role)
+    hw = cfg.hardware
+    if hw is None or cfg.damping_nm_s_per_rad is None or cfg.start_q_rad is None:
+        raise PlantError(f"{role}.backend {cfg.backend}: needs {role}.hardware, damping_nm_s_per_rad, start_q_rad")
+    kin = ArmKinematics(cfg.model, cfg.joints, "handle" if role == "master" else "tool")
+    if cfg.backend == "dynamixel":
+        driver: JointDriver = dynamixel_driver(hw, kin.joints, role)
+    else:
+        raise PlantError(f"{role}.backend {cfg.backend!r}: no driver for it here")
+    return HardwareArm(
+        driver,
+        kin,
+        cfg.damping_nm_s_per_rad,
+        cfg.start_q_rad,
+        config.scene.period_s,
+        role,
+        torque_limit_nm=cfg.torque_limit_nm,
+        gravity_compensation=cfg.gravity_compensation is not False,
+        wall=_wall(config) if role == "slave" else None,
+        start_tolerance_rad=hw.start_tolerance_rad,
+        ramp_in_s=hw.ramp_in_s,
+        source=f"{role} ({cfg.backend} on {hw.port})",
+    )
+
+
+def dynamixel_driver(hw: HardwareConfig, joints: tuple[str, ...], role: str) -> JointDriver:
+    """The Dynamixel chain of a side's hardware section (plants/dynamixel/driver.py)."""
+    from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver
+
+    n = len(joints)
+    assert hw.ids is not None and hw.models is not None and hw.port is not None
+    chain = DynamixelChainConfig(
+        port=hw.port,
+        baud_bps=hw.baud_bps,
+        joints=joints,
+        ids=hw.ids,
+        models=hw.models,
+        signs=hw.signs if hw.signs is not None else (1,) * n,
+        zero_offsets_rad=hw.zero_offsets_rad if hw.zero_offsets_rad is not None else (0.0,) * n,
+        torque_constants_nm_per_a=hw.torque_constants_nm_per_a,
+        bus_watchdog_s=hw.bus_watchdog_s,
+    )
+    return DynamixelDriver(chain)
+
+
+def _wall(config: Scene) -> WallSpec:
+    from haptic_teleop.plants.arm import WallSpec
+
+    s = config.slave
+    w = s.wall
+    assert w.point_m is not None and w.normal is not None  # an arm scene (Scene.is_arm)
+    return WallSpec(
+        (w.point_m[0], w.point_m[1], w.point_m[2]),
+        (w.normal[0], w.normal[1], w.normal[2]),
+        w.stiffness_n_per_m,
+        w.damping_n_s_per_m,
+        s.contact_impedance,
     )
 
 
