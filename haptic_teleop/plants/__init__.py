@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.errors import PlantError
@@ -134,7 +134,8 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         raise PlantError(f"{role}.backend {cfg.backend}: needs {role}.hardware, damping_nm_s_per_rad, start_q_rad")
     kin = ArmKinematics(cfg.model, cfg.joints, "handle" if role == "master" else "tool")
     if cfg.backend == "dynamixel":
-        driver: JointDriver = dynamixel_driver(hw, kin.joints, role)
+        limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
+        driver: JointDriver = dynamixel_driver(hw, kin.joints, limit)
     else:
         raise PlantError(f"{role}.backend {cfg.backend!r}: no driver for it here")
     return HardwareArm(
@@ -153,24 +154,41 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
     )
 
 
-def dynamixel_driver(hw: HardwareConfig, joints: tuple[str, ...], role: str) -> JointDriver:
-    """The Dynamixel chain of a side's hardware section (plants/dynamixel/driver.py)."""
-    from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver
+def dynamixel_driver(
+    hw: HardwareConfig, joints: tuple[str, ...], torque_limit_nm: Sequence[float] | None
+) -> JointDriver:
+    """The Dynamixel chain of a side's hardware section (plants/dynamixel/driver.py). Each servo's
+    Current Limit(38) is set to the joint's torque limit (`torque_limit_nm`, the scene's or the
+    model's ctrlrange), so the servo itself clips where the plant and the energy bound do."""
+    from haptic_teleop.plants.dynamixel import tables
+    from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
 
     n = len(joints)
     assert hw.ids is not None and hw.models is not None and hw.port is not None
-    chain = DynamixelChainConfig(
-        port=hw.port,
-        baud_bps=hw.baud_bps,
-        joints=joints,
-        ids=hw.ids,
-        models=hw.models,
-        signs=hw.signs if hw.signs is not None else (1,) * n,
-        zero_offsets_rad=hw.zero_offsets_rad if hw.zero_offsets_rad is not None else (0.0,) * n,
-        torque_constants_nm_per_a=hw.torque_constants_nm_per_a,
-        bus_watchdog_s=hw.bus_watchdog_s,
+    signs = hw.signs if hw.signs is not None else (1,) * n
+    offsets = hw.zero_offsets_rad if hw.zero_offsets_rad is not None else (0.0,) * n
+    kts = hw.torque_constants_nm_per_a
+    chain = []
+    for k, name in enumerate(joints):
+        model = tables.model(hw.models[k])
+        kt = kts[k] if kts is not None else model.torque_constant_nm_per_a
+        top_a = model.current_limit_max * tables.CURRENT_UNIT_A
+        limit_a = top_a if torque_limit_nm is None else min(top_a, torque_limit_nm[k] / kt)
+        chain.append(
+            DynamixelJoint(
+                name=name,
+                id=hw.ids[k],
+                model=hw.models[k],
+                sign=signs[k],
+                zero_offset_rad=offsets[k],
+                torque_constant_nm_per_a=kt,
+                current_limit_a=limit_a,
+            )
+        )
+    config = DynamixelChainConfig(
+        port=hw.port, joints=tuple(chain), baud_bps=hw.baud_bps, bus_watchdog_s=hw.bus_watchdog_s
     )
-    return DynamixelDriver(chain)
+    return DynamixelDriver(config)
 
 
 def _wall(config: Scene) -> WallSpec:

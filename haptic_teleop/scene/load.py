@@ -39,68 +39,64 @@ ARM_WALL_STEP_LIMIT = 1.0  # omega * h of an arm's wall contact (docs/arms.md: 1
 
 def _check_hardware(source: str, side: str, cfg: Any, joints: Sequence[str], emulate: bool) -> None:
     """A side's `backend` and `hardware` section agree (docs/hardware.md): a real device names its
-    bus and servos, one per joint, and the joint damping EBA may assume (it cannot be read from a
-    simulator); a simulated side has no hardware section. `emulate`: the ports are filled in later
-    (`haptic-teleop run --emulate` starts an emulator per device)."""
+    bus and servos, one per joint, where it stands at start and the joint damping EBA may assume
+    (it cannot be read from a simulator). A simulated side may carry a hardware section (a bundled
+    scene's, for `--set <side>.backend=dynamixel`): checked the same, unused. `emulate`: the ports
+    are filled in later (`haptic-teleop run --emulate` starts an emulator per device)."""
     hw = cfg.hardware
-    if cfg.backend == "mujoco":
-        if hw is not None:
-            raise ConfigError(
-                source, f"{side}.hardware", "...", f"only for a real device; allowed: {side}.backend dynamixel"
-            )
-        return
-    if cfg.damping_nm_s_per_rad is None:
-        raise ConfigError(
-            source,
-            f"{side}.damping_nm_s_per_rad",
-            None,
-            f"required for backend {cfg.backend}: the joint damping the energy bound may assume, at most what the "
-            "hardware dissipates (measure it: haptic-teleop identify; docs/hardware.md)",
-        )
-    if cfg.start_q_rad is None:
-        raise ConfigError(
-            source,
-            f"{side}.start_q_rad",
-            None,
-            f"required for backend {cfg.backend}: where the arm stands at start (the start-up check compares "
-            "the measured pose with it)",
-        )
-    if hw is None:
-        raise ConfigError(
-            source,
-            f"{side}.hardware",
-            None,
-            f"required for backend {cfg.backend}: port, ids, models (docs/hardware.md)",
-        )
-    if cfg.backend == "dynamixel":
-        if hw.port is None and not emulate:
+    real = cfg.backend != "mujoco"
+    if real:
+        if cfg.damping_nm_s_per_rad is None:
             raise ConfigError(
                 source,
-                f"{side}.hardware.port",
+                f"{side}.damping_nm_s_per_rad",
                 None,
-                "required: the serial port of the bus (e.g. /dev/ttyUSB0), or run with --emulate",
+                f"required for backend {cfg.backend}: the joint damping the energy bound may assume, at most what "
+                "the hardware dissipates (measure it: haptic-teleop identify; docs/hardware.md)",
             )
-        for key in ("ids", "models"):
-            if getattr(hw, key) is None:
+        if cfg.start_q_rad is None:
+            raise ConfigError(
+                source,
+                f"{side}.start_q_rad",
+                None,
+                f"required for backend {cfg.backend}: where the arm stands at start (the start-up check compares "
+                "the measured pose with it)",
+            )
+        if hw is None:
+            raise ConfigError(
+                source,
+                f"{side}.hardware",
+                None,
+                f"required for backend {cfg.backend}: port, ids, models (docs/hardware.md)",
+            )
+    if hw is None:
+        return
+    if real and hw.port is None and not emulate:
+        raise ConfigError(
+            source,
+            f"{side}.hardware.port",
+            None,
+            "required: the serial port of the bus (e.g. /dev/ttyUSB0), or run with --emulate",
+        )
+    for key in ("ids", "models"):
+        if getattr(hw, key) is None:
+            raise ConfigError(source, f"{side}.hardware.{key}", None, f"required: one per joint ({', '.join(joints)})")
+    for key in ("ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a"):
+        v = getattr(hw, key)
+        if v is not None and len(v) != len(joints):
+            raise ConfigError(
+                source,
+                f"{side}.hardware.{key}",
+                list(v),
+                f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
+            )
+    known = dynamixel_models()
+    if known is not None:
+        for i, name in enumerate(hw.models):
+            if name not in known:
                 raise ConfigError(
-                    source, f"{side}.hardware.{key}", None, f"required: one per joint ({', '.join(joints)})"
+                    source, f"{side}.hardware.models[{i}]", name, f"allowed: one of {', '.join(sorted(known))}"
                 )
-        for key in ("ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a"):
-            v = getattr(hw, key)
-            if v is not None and len(v) != len(joints):
-                raise ConfigError(
-                    source,
-                    f"{side}.hardware.{key}",
-                    list(v),
-                    f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
-                )
-        known = dynamixel_models()
-        if known is not None:
-            for i, name in enumerate(hw.models):
-                if name not in known:
-                    raise ConfigError(
-                        source, f"{side}.hardware.models[{i}]", name, f"allowed: one of {', '.join(sorted(known))}"
-                    )
 
 
 def dynamixel_models() -> tuple[str, ...] | None:

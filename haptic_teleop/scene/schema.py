@@ -172,7 +172,7 @@ def _check_saturation(side: str, effects: PlantEffectsConfig, plant_limit_n: flo
         )
 
 
-DYNAMIXEL_BAUDS_BPS = (57600, 115200, 1000000, 2000000, 3000000, 4000000, 4500000)
+DYNAMIXEL_BAUDS_BPS = (9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000)
 HARDWARE_BACKENDS = ("dynamixel",)  # a side on one of these needs its `hardware` section
 BACKENDS = ("mujoco", *HARDWARE_BACKENDS)
 
