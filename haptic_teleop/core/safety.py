@@ -195,7 +195,7 @@ def check_start_pose(
         raise StartPoseError(
             f"{side} arm is too far from its start pose at joint{'s' if len(beyond) > 1 else ''} "
             f"{', '.join(beyond)}: {'; '.join(parts)}. Move the arm to the start pose (start_q_rad) "
-            f"before starting, or raise {side}.safety.start_tolerance_rad"
+            f"before starting, or raise {side}.hardware.start_tolerance_rad"
         )
 
 
