@@ -74,6 +74,7 @@ class _SideTick:
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
         k = side.kernels
         self.joint_limited = k["joint_limited"] if k is not None else joint_limited
+        self.safe = getattr(self.plant, "safe_torque", None)  # HardwareArm's guards; none on MuJoCo
 
     def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
         plant = self.plant
@@ -97,7 +98,8 @@ class _SideTick:
         self.joint_limited(self.limited, tau, lo, hi, True)
         if not np.array_equal(self.limited, tau):
             self.limited_ticks += 1
-        out = self.bound.step(q, self.limited)
+        # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
+        out = self.bound.step(q, self.limited if self.safe is None else self.safe(self.limited))
         tt = dot(tau, tau)
         self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0

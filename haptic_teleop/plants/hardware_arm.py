@@ -9,9 +9,13 @@ Per tick:
 - `read()` reads the driver once (one sync read of the bus) and sets the kinematics' q; every
   other query of the tick is of that configuration (further `read()` calls before `step()` return
   the same sample, as `MujocoArm.read` does within a tick);
+- `safe_torque(tau)`, which the tick calls on the desired torque before the energy bound: the
+  safety guards of core/safety.py (`SafetyGuard`: the start-up ramp-in, the joint-limit zone,
+  stale reads), each only shrinking a joint's torque; a guard's fault stops the arm (torque off)
+  and raises HardwareError with its message. The guards' clock is scene time (ticks x period),
+  so a run against the lockstep emulator is deterministic;
 - `step(tau)` takes the port torque (beyond gravity compensation), keeps each joint's total within
-  the motor's limit (as `MujocoArm` does: compensation spends the motor's real torque), passes it
-  through the safety guards (core/safety.py: the start-up ramp, the joint-limit guard), adds the
+  the motor's limit (as `MujocoArm` does: compensation spends the motor's real torque), adds the
   gravity torque and writes the total through the driver (one sync write). It returns the port
   torque the device says it applies (after its quantisation and clip): the ledger books that.
 
@@ -19,8 +23,9 @@ The driver starts at the first `read()` (not when the plant is built): the engin
 sides, warms up its kernels and opens the bag before the first tick, longer than a servo's bus
 watchdog may wait, and a live node builds the other side's plant only for its start point. Until
 then the plant's state is the scene's start configuration (`start_q_rad`), which the start-up check
-then compares with the measured pose: within `start_tolerance_rad` the run goes on and the torque
-ramps in over `ramp_in_s`; farther, the run is refused with the distance (never a jump).
+then compares with the measured pose (`SafetyGuard.start`): within `start_tolerance_rad` the run
+goes on and the torque ramps in over `ramp_in_s`; farther, the run is refused with each joint's
+distance (StartPoseError, torque off: never a jump).
 
 Damping: a real arm's viscous damping cannot be read from a simulator; `joint_damping()` returns
 what the scene says EBA may assume (`<side>.damping_nm_s_per_rad`, measured by `haptic-teleop
@@ -51,6 +56,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from haptic_teleop.core.safety import SafetyGuard, SafetyParams
 from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample
 
@@ -114,9 +120,19 @@ class HardwareArm:
         self.tool_radius_m = 0.0
         self.contact_estimated = role == "slave"
         self._period_s = period_s
-        self._tolerance = start_tolerance_rad
-        self._ramp_ticks = max(1, round(ramp_in_s / period_s)) if ramp_in_s > 0.0 else 0
-        self._range = kinematics.joint_range_rad()
+        rng = kinematics.joint_range_rad()
+        self.safety = SafetyGuard(
+            SafetyParams(
+                joint_names=self.joints,
+                period_s=period_s,
+                limit_low_rad=tuple(float(v) for v in rng[:, 0]),
+                limit_high_rad=tuple(float(v) for v in rng[:, 1]),
+                side=role,
+                start_tolerance_rad=(start_tolerance_rad,) * self.n,
+                ramp_in_s=ramp_in_s,
+            )
+        )
+        self._stale = False
         self._started = False  # driver.start() attempted (stop() is then owed)
         self._ticks = 0  # steps written since the start (the ramp's clock)
         self._fresh = True  # the state below is this tick's (the start pose until the first read)
@@ -126,8 +142,7 @@ class HardwareArm:
         self._applied = np.zeros(self.n)
         self._sample_t_s = -math.inf
         self.kinematics.set_q(self._q)
-        self.limit_guard_ticks = 0  # ticks the joint-limit guard took torque off a joint
-        self.start_distance_rad = math.nan  # the start-up check's largest |q - start_q_rad|
+        self.stale_ticks = 0  # ticks whose read failed (the driver repeated its last good sample)
 
     # ---------------------------------------------------------------------------------- state
 
@@ -152,24 +167,19 @@ class HardwareArm:
         self._qd = np.asarray(s.qd_rad_per_s, dtype=float).copy()
         self._tau_measured = np.asarray(s.tau_nm, dtype=float).copy()
         self._sample_t_s = s.t_s
+        self._stale = bool(getattr(s, "stale", 0))
+        self.stale_ticks += self._stale
         self.kinematics.set_q(self._q)
 
     def _start(self) -> None:
         self._started = True
         sample = self.driver.start()
-        self._take(sample)
-        dist = np.abs(self._q - self._start_q)
-        self.start_distance_rad = float(dist.max())
-        if self.start_distance_rad > self._tolerance:
-            k = int(np.argmax(dist))
-            self.driver.stop()
-            raise HardwareError(
-                f"{self.source}: joint {self.joints[k]!r} is at {self._q[k]:.3f} rad, "
-                f"{dist[k]:.3f} rad from the scene's start {self._start_q[k]:.3f} rad (allowed: "
-                f"{self._tolerance:g} rad, hardware.start_tolerance_rad); torque is off: move the arm to "
-                f"start_q_rad {[round(float(v), 3) for v in self._start_q]} or set start_q_rad to the measured "
-                f"pose {[round(float(v), 3) for v in self._q]}"
-            )
+        try:
+            self._take(sample)
+            self.safety.start(0.0, self._q, self._start_q)
+        except BaseException:
+            self.driver.stop()  # refused: torque off before the error goes on
+            raise
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions (rad) and velocities (rad/s) of this tick: the driver is read once per
@@ -228,7 +238,6 @@ class HardwareArm:
         lo, hi = self.torque_lo - g, self.torque_hi - g
         tau = np.asarray(torque_nm, dtype=float)
         tau = np.minimum(np.maximum(np.where(np.isnan(tau), 0.0, tau), lo), hi)
-        tau = self._guard(tau)
         written = np.asarray(self.driver.write(tau + g), dtype=float)
         applied = written - g
         self._applied = applied
@@ -236,22 +245,18 @@ class HardwareArm:
         self._fresh = False
         return applied
 
-    def _guard(self, tau: np.ndarray) -> np.ndarray:
-        """The safety guards on the port torque: each only shrinks a joint's torque toward zero, so
-        what the energy bound allowed stays allowed (its pooled condition is a sum over the joints
-        of tau_i^2 terms) and the ledger books what is applied.
-
-        - ramp-in: the torque scaled by ticks / ramp ticks over the first `ramp_in_s`;
-        - joint limits: at or beyond a joint's MJCF range, torque pushing further out is taken off."""
-        out = tau.copy()
-        if self._ramp_ticks and self._ticks < self._ramp_ticks:
-            out *= self._ticks / self._ramp_ticks
-        below = (self._q <= self._range[:, 0]) & (out < 0.0)
-        above = (self._q >= self._range[:, 1]) & (out > 0.0)
-        if below.any() or above.any():
-            out[below | above] = 0.0
-            self.limit_guard_ticks += 1
-        return out
+    def safe_torque(self, tau: np.ndarray) -> np.ndarray:
+        """The safety guards on this tick's desired port torque, before the energy bound
+        (core/safety.py): each joint's torque times factors in [0, 1] (ramp-in, joint-limit zone,
+        stale read). A fault (a joint past its range, too many stale reads) turns the torque off
+        and raises HardwareError naming it."""
+        if not self._started:
+            self.read()
+        out, fault = self.safety.step(self._ticks * self._period_s, self._q, np.asarray(tau, dtype=float), self._stale)
+        if fault is not None:
+            self.driver.stop()
+            raise HardwareError(f"{self.source}: {fault.message}")
+        return out.copy()
 
     def contact_wrench(self) -> tuple[np.ndarray, np.ndarray]:
         """The environment's force (N) on the tool and its torque about the tool point (N m, zero:
