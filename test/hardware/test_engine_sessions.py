@@ -288,7 +288,7 @@ def test_the_engine_itself_turns_the_torque_off_when_the_run_ends(
         if stop_at is not None and done >= stop_at:
             engines[0].request_stop()
 
-    engine, timing = record_run(
+    engine, _ = record_run(
         scene, tmp_path / "bag", progress=progress, parallel=False, handle_sigint=False, on_engine=engines.append
     )
     assert engine.ticks_done == (500 if stop_at is None else stop_at)
