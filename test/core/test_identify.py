@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -189,7 +190,7 @@ def test_plan_fits_the_range(lo: float, width: float, speeds: list[float], measu
             assert up == pytest.approx(measure * speeds.count(v))
             assert down == pytest.approx(measure * speeds.count(v))
     signs = [p.prefer for p in plan.passes]
-    assert all(a == -b for a, b in zip(signs, signs[1:]))
+    assert all(a == -b for a, b in itertools.pairwise(signs))
 
 
 def test_small_range_goes_back_and_forth() -> None:
