@@ -174,7 +174,8 @@ class Bus:
         c["wire_time_s"] += t.wire_time_s(pkt.wire_bytes, self.baud_bps)
         self._due_faults()
         self.check_watchdogs(end_s)
-        self._refresh()
+        if pkt.instruction in _READS:
+            self._refresh()
         out = _Schedule(self, end_s)
         inst, pid, prm = pkt.instruction, pkt.packet_id, pkt.params
         wrote_goal_current = False
@@ -275,6 +276,7 @@ class Bus:
         return False
 
 
+_READS = (I.READ, I.SYNC_READ, I.FAST_SYNC_READ, I.BULK_READ)
 _MULTI = (I.SYNC_READ, I.FAST_SYNC_READ, I.SYNC_WRITE, I.BULK_READ, I.BULK_WRITE)
 
 
