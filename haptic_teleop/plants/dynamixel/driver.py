@@ -655,9 +655,10 @@ class DynamixelDriver:
             with contextlib.suppress(Exception):
                 if self._gsw_torque is not None:
                     self._gsw_torque.txPacket()
-                else:  # stopped during start(): one write per servo, no reply awaited
-                    for i in self._ids:
-                        self._ph.write1ByteTxOnly(port, i, T.ADDR_TORQUE_ENABLE, 0)
+                else:  # stopped during start(): a broadcast WRITE (no servo replies to it)
+                    self._ph.write2ByteTxOnly(port, T.BROADCAST_ID, T.ADDR_GOAL_CURRENT, 0)
+                    port.is_using = False
+                    self._ph.write1ByteTxOnly(port, T.BROADCAST_ID, T.ADDR_TORQUE_ENABLE, 0)
                 port.is_using = False
         with contextlib.suppress(Exception):
             port.ser.flush()  # the bytes are on the wire before the port closes
@@ -691,14 +692,14 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
     """Stop every driver when the block ends: normally, by an exception, by Ctrl-C or by SIGTERM.
 
     Python's default SIGTERM ends the process without running `finally` blocks or `atexit`; while
-    inside, a SIGTERM (and a SIGINT, if its handler is the default) raises `interrupt.Interrupted`
-    instead, when the process has no handler of its own (the command line's `interrupt.install()`
+    inside, a SIGTERM and a SIGINT raise `interrupt.Interrupted` (a KeyboardInterrupt with
+    `exit_code` 143 or 130) instead, when the process has no handler of its own (the command line's `interrupt.install()`
     has one: it raises or stops the loop, and the `finally` runs either way). Main thread only for
     the handlers; the stop runs in any thread."""
     previous: dict[signal.Signals, Any] = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
-            if signal.getsignal(sig) in (signal.SIG_DFL, None):
+            if signal.getsignal(sig) in (signal.SIG_DFL, signal.default_int_handler, None):
                 previous[sig] = signal.signal(sig, _raise_interrupted)
     try:
         yield
