@@ -306,6 +306,11 @@ def test_a_hardware_error_present_at_start_names_every_bit(emulator):
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
 
 
+# The emulator answers a FAST SYNC READ with one packet whose reply faults are those of its first
+# servo (a fault on a later servo is not applied there), so the fast-sync-read cases aim at servo 1.
+FAULTY = {False: (3, "elbow"), True: (1, "base_yaw")}
+
+
 @pytest.mark.parametrize("kind", ["drop_replies", "corrupt_crc", "slow_replies"])
 @pytest.mark.parametrize("fast", [False, True], ids=["sync-read", "fast-sync-read"])
 def test_one_bad_reply_is_a_stale_sample_not_an_error(emulator, kind, fast):
@@ -314,7 +319,8 @@ def test_one_bad_reply_is_a_stale_sample_not_an_error(emulator, kind, fast):
     drv.start()
     drv.write(np.array([0.3, 0.3, 0.3]))
     good = drv.read()
-    bus.inject(servo_id=2, kind=kind, count=1, extra_delay_s=0.2)  # 0.2 s: later than the 50 ms timeout
+    # slow: 0.2 s, later than the 50 ms read timeout
+    bus.inject(servo_id=FAULTY[fast][0], kind=kind, count=1, extra_delay_s=0.2)
     drv.write(np.array([0.3, 0.3, 0.3]))
     stale = drv.read()
     assert stale.stale == 1 and drv.stale_reads == 1
@@ -326,6 +332,8 @@ def test_one_bad_reply_is_a_stale_sample_not_an_error(emulator, kind, fast):
         drv.write(np.array([0.3, 0.3, 0.3]))
         fresh = drv.read()
     assert fresh.stale == 0 and fresh.t_s > good.t_s and drv.stale_reads == 1
+    assert bus.counters()[{"drop_replies": "dropped_replies", "corrupt_crc": "corrupted_replies",
+                           "slow_replies": "slowed_replies"}[kind]] == 1  # fmt: skip
     drv.stop()
 
 
@@ -333,11 +341,13 @@ def test_one_bad_reply_is_a_stale_sample_not_an_error(emulator, kind, fast):
     ("kind", "why"),
     [("drop_replies", "there is no status packet"), ("corrupt_crc", "incorrect status packet"), ("slow_replies", "")],
 )
-def test_n_bad_replies_in_a_row_are_one_error_and_torque_off(emulator, kind, why):
+@pytest.mark.parametrize("fast", [False, True], ids=["sync-read", "fast-sync-read"])
+def test_n_bad_replies_in_a_row_are_one_error_and_torque_off(emulator, kind, why, fast):
     bus = emulator()
-    drv = DynamixelDriver(chain(bus.port, max_consecutive_comm_errors=3))
+    drv = DynamixelDriver(chain(bus.port, max_consecutive_comm_errors=3, fast_sync_read=fast))
     drv.start()
-    bus.inject(servo_id=3, kind=kind, count=3, extra_delay_s=0.2)
+    sid, name = FAULTY[fast]
+    bus.inject(servo_id=sid, kind=kind, count=3, extra_delay_s=0.2)
     drv.write(np.zeros(3))
     assert drv.read().stale == 1
     drv.write(np.zeros(3))
@@ -345,7 +355,8 @@ def test_n_bad_replies_in_a_row_are_one_error_and_torque_off(emulator, kind, why
     with pytest.raises(HardwareError) as e:
         drv.read()
     msg = str(e.value)
-    assert msg.startswith(f"servo 3 (elbow) on {bus.port}: 3 reads in a row failed")
+    who = bus.port if fast else f"servo {sid} ({name}) on {bus.port}"  # one fast packet: no servo to blame
+    assert msg.startswith(f"{who}: 3 reads in a row failed")
     assert why in msg and "1000000 bps" in msg and "every servo answers a ping" in msg
     time.sleep(0.3)
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
