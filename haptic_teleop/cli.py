@@ -49,14 +49,28 @@ def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_S
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from haptic_teleop.report import format_summary
     from haptic_teleop.scene.load import find_scene, load_scene
 
     interrupt.pause_for_test("scene")
     overrides = list(args.set or ())
     if args.compression is not None:
         overrides.append(f"recording.compression={args.compression}")
-    scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
+    emulate = getattr(args, "emulate", None)
+    if emulate is None:
+        return _run_scene(args, load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed))
+    # --emulate: a Dynamixel bus emulator per side on servos, from the scene (haptic_teleop/emulate.py);
+    # stopped on every way out, after the run has stopped the servos.
+    from haptic_teleop.emulate import emulated
+
+    first = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed, emulate=True)
+    with emulated(first.config, emulate) as ports:
+        scene = load_scene(find_scene(args.scene), overrides=overrides + ports, seed=args.seed)
+        return _run_scene(args, scene)
+
+
+def _run_scene(args: argparse.Namespace, scene: Any) -> int:
+    from haptic_teleop.report import format_summary
+
     resolved = scene.to_yaml()
     if args.dry_run:
         sys.stdout.write(resolved)
@@ -102,6 +116,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             def on_engine(engine: Any) -> None:
                 starting.close()
+                if engine.pacer is not None and not args.quiet:
+                    print(
+                        f"haptic-teleop: a real device: the tick runs in Python ({engine.compiled_reason}), "
+                        f"paced to the wall clock (late ticks: timing.json)",
+                        file=sys.stderr,
+                    )
                 open_bar()
                 stack.enter_context(interrupt.on_stop(engine.request_stop))  # Ctrl-C, SIGTERM: stop
                 interrupt.pause_for_test("engine")
@@ -220,6 +240,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     r.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
     r.add_argument("--dry-run", action="store_true", help="validate the scene, print it resolved, write nothing")
+    r.add_argument(
+        "--emulate",
+        nargs="?",
+        const="lockstep",
+        choices=("lockstep", "realtime"),
+        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it; "
+        "lockstep (default): deterministic emulator time, realtime: the wall clock (docs/hardware.md)",
+    )
     r.add_argument(
         "--compression",
         choices=("none", "zstd", "lz4"),
