@@ -8,6 +8,7 @@ messages and parameters to and from them.
 
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import gc
 import os
@@ -217,6 +218,12 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
         if isinstance(exc, NodeStopped):
             self.get_logger().info(str(exc) or "finished")
             self.exit_code = 0
+        elif isinstance(exc, HapticTeleopError):
+            # A failure the package raised on purpose (a device's HardwareError, a refused start, a
+            # safety stop): its message names what happened and what to do; one line, no traceback.
+            # The node then closes (its plant's torque off) and exits with the error's code.
+            print(f"{self.get_name()}: {exc}", file=sys.stderr, flush=True)
+            self.exit_code = max(1, exc.exit_code)
         else:
             import traceback
 
@@ -298,6 +305,14 @@ def _bad_parameter_errors() -> tuple[type[BaseException], ...]:
     return (ConfigError, ParameterException, HapticTeleopError, ValueError, KeyError)
 
 
+def _construction_failure(who: str, exc: BaseException) -> tuple[str, int]:
+    """The line and exit code of a node whose constructor failed: a parameter (exit 2), or a failure
+    the package raised on purpose while building its parts (a plant, a device: its own code)."""
+    if isinstance(exc, HapticTeleopError) and not isinstance(exc, ConfigError):
+        return f"{who}: {exc}", exc.exit_code
+    return f"{who}: bad parameter: {exc}", BAD_PARAMETER_EXIT
+
+
 TEARDOWN_S = 5.0  # the middleware's teardown after the nodes closed; the launcher kills at 10 s
 
 
@@ -354,12 +369,13 @@ def run_nodes(
     except _bad_parameter_errors() as exc:
         _SHARED_LOOP = None
         who = kwargs_list[len(nodes)].get("node_name", getattr(factories[len(nodes)], "default_name", "node"))
-        print(f"{who}: bad parameter: {exc}", file=sys.stderr, flush=True)
+        line, failed = _construction_failure(who, exc)
+        print(line, file=sys.stderr, flush=True)
         for n in nodes:
             n.close()
             n.destroy_node()
         rclpy.try_shutdown()
-        return BAD_PARAMETER_EXIT
+        return failed
     _SHARED_LOOP = None
     executor = MultiThreadedExecutor(num_threads=max(2, len(nodes))) if multithreaded else SingleThreadedExecutor()
     for n in nodes:
@@ -381,8 +397,15 @@ def run_nodes(
     # twice in 15 s, without this; docs/live.md, "Late ticks").
     gc.collect()
     gc.freeze()
-    for n in nodes:
-        n.start()
+    try:
+        for n in nodes:
+            n.start()
+    except BaseException:
+        stop.set()
+        for n in nodes:  # every exit path closes the nodes (a hardware plant's torque off with them)
+            with contextlib.suppress(Exception):
+                n.close()
+        raise
     while not stop.wait(0.1) and not signalled:
         pass
     if signalled and not stop.is_set() and signals_out is not None:
