@@ -239,7 +239,7 @@ class HardwareArm:
         tau = np.asarray(torque_nm, dtype=float)
         tau = np.minimum(np.maximum(np.where(np.isnan(tau), 0.0, tau), lo), hi)
         written = np.asarray(self.driver.write(tau + g), dtype=float)
-        applied = written - g
+        applied: np.ndarray = written - g
         self._applied = applied
         self._ticks += 1
         self._fresh = False
