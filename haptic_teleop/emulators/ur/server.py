@@ -262,6 +262,9 @@ class Server:
         self._drop_clients()
         self.ctl.robot.close()
 
+    def request_stop(self) -> None:
+        self._stop.set()
+
     def wait(self) -> None:
         self._stop.wait()
 
