@@ -47,7 +47,7 @@ class URConfig:
         default=(5.0, 11.0, 1.0, 108318.0), metadata={"help": "major, minor, bugfix, build"}
     )
     serial_number: str = "20205500001"
-    frequency_hz: float = field(default=500.0, metadata={"choices": (125.0, 500.0)})
+    frequency_hz: float = field(default=500.0, metadata={"help": "125 (CB3) or 500 (e-Series)"})
     model: str = "ur5e.xml"
     start_q_rad: tuple[float, ...] = UR5E_HOME_Q_RAD
     wall: WallConfig | None = None
@@ -63,6 +63,8 @@ class URConfig:
     force_mode_damping_nm_s_per_rad: float = field(default=20.0, metadata={"gt": 0.0})
 
     def __post_init__(self) -> None:
+        if self.frequency_hz not in (125.0, 500.0):
+            raise ValueError(f"frequency_hz = {self.frequency_hz}: allowed 125 (CB3) or 500 (e-Series)")
         if len(self.start_q_rad) != 6:
             raise ValueError(f"start_q_rad needs 6 values, got {len(self.start_q_rad)}")
         if len(self.controller_version) != 4 or any(v < 0 or v != int(v) for v in self.controller_version):
