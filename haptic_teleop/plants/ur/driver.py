@@ -243,6 +243,20 @@ class URDriver:
                 f"{now - self._last_change:.2f} s (cable, network or controller)",
                 lost=True,
             )
+        self._check_safety(s)
+        if self._c is not None and not self._c.isProgramRunning():
+            # The control interface's stream may show the program's end a package before the
+            # receive interface shows why: give the safety status a few periods to arrive.
+            for _ in range(10):
+                time.sleep(0.002)
+                self._check_safety(self._read())
+            self._fail(
+                f"the control script on {self.host} stopped (RTDE watchdog, a stop on the pendant or the dashboard, "
+                "or an error in the script); the session was stopped"
+            )
+        return s
+
+    def _check_safety(self, s: URState) -> None:
         if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
             self._fail(
                 f"robot at {self.host} is in protective stop: clear it on the teach pendant "
@@ -250,12 +264,6 @@ class URDriver:
             )
         if s.safety_status_bits & SAFETY_BITS_EMERGENCY:
             self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
-        if self._c is not None and not self._c.isProgramRunning():
-            self._fail(
-                f"the control script on {self.host} stopped (RTDE watchdog, a stop on the pendant or the dashboard, "
-                "or an error in the script); the session was stopped"
-            )
-        return s
 
     def _fail(self, message: str, lost: bool = False) -> None:
         self._connection_lost = self._connection_lost or lost
