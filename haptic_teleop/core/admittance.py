@@ -50,7 +50,8 @@ class AdmittanceParams:
     @property
     def time_constant_s(self) -> np.ndarray:
         """M / D per axis: the admittance's own lag (its velocity reaches 63 % of f/D after this)."""
-        return np.asarray(self.mass) / np.asarray(self.damping)
+        out: np.ndarray = np.asarray(self.mass) / np.asarray(self.damping)
+        return out
 
 
 class Admittance:

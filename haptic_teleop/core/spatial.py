@@ -16,7 +16,8 @@ def rotvec_to_matrix(r: np.ndarray) -> np.ndarray:
         return np.eye(3)
     k = r / theta
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(theta) * kx + (1.0 - math.cos(theta)) * (kx @ kx)
+    out: np.ndarray = np.eye(3) + math.sin(theta) * kx + (1.0 - math.cos(theta)) * (kx @ kx)
+    return out
 
 
 def matrix_to_rotvec(m: np.ndarray) -> np.ndarray:

@@ -113,7 +113,7 @@ def test_rtde_recipe_packs_and_unpacks_big_endian():
 
 SCRIPT = (
     "def rtde_control():\n    global reg_offset_float = # float register offset\n24    global reg_offset_int = "
-    "# int register offset\n24    global x = 0\n    textmsg(\"RTDE Control Script Loaded (x)\")\nend\n"
+    '# int register offset\n24    global x = 0\n    textmsg("RTDE Control Script Loaded (x)")\nend\n'
 )
 
 

@@ -29,7 +29,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         server.open()
     except OSError as exc:
-        print(f"error: cannot listen on {cfg.host}: {exc.strerror} (another emulator or robot service?)", file=sys.stderr)
+        print(
+            f"error: cannot listen on {cfg.host}: {exc.strerror} (another emulator or robot service?)", file=sys.stderr
+        )
         return 1
 
     def on_signal(signum: int, frame: object) -> None:

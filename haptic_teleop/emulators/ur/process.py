@@ -95,7 +95,7 @@ def start_ur(config: URConfig | None = None) -> URProcess:
     tmp = Path(name)
     with os.fdopen(fd, "w") as f:
         json.dump(cfg.to_dict(), f)
-    err = tempfile.TemporaryFile(mode="w+")
+    err = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (the child writes into it)
     proc = subprocess.Popen(
         [sys.executable, "-m", "haptic_teleop.emulators.ur", "--config", str(tmp)],
         stdout=subprocess.PIPE,

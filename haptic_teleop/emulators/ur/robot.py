@@ -176,7 +176,7 @@ class SimulatedUR:
 
     def cycle(self) -> None:
         """One controller period: the active mode's torque, then the MuJoCo steps."""
-        q, qd = self.arm.read()
+        self.arm.read()
         if self.mode == "hold":
             tau = self._joint_pd(self.q_hold, np.zeros(self.n), HOLD_OMEGA_RAD_PER_S)
         elif self.mode == "servo":

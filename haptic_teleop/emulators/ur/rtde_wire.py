@@ -185,7 +185,7 @@ class Recipe:
         for name, typ in zip(self.names, self.types, strict=True):
             v = values[name]
             if typ.startswith("VECTOR"):
-                flat.extend(v)  # type: ignore[call-overload]
+                flat.extend(v)  # type: ignore[call-overload,arg-type]
             else:
                 flat.append(v)
         return frame(DATA_PACKAGE, bytes([self.recipe_id]) + self.struct.pack(*flat))

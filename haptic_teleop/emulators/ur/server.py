@@ -138,7 +138,8 @@ class Controller:
             joint_mode=(253 if self.robot_mode == ROBOT_RUNNING else 236,) * 6,
             runtime_state=RUNTIME_PLAYING if self.program_running else RUNTIME_STOPPED,
             robot_status_bits=self.robot_status_bits(), safety_status_bits=self.safety_status_bits(),
-            speed_scaling=1.0, target_speed_fraction=self.speed_slider, tcp_force_scalar=float(np.linalg.norm(force[:3])),
+            speed_scaling=1.0, target_speed_fraction=self.speed_slider,
+            tcp_force_scalar=float(np.linalg.norm(force[:3])),
             actual_main_voltage=48.0, actual_robot_voltage=48.0, actual_joint_voltage=(48.0,) * 6,
             joint_temperatures=(30.0,) * 6, tool_temperature=30.0, actual_execution_time=0.1,
         )  # fmt: skip
@@ -213,7 +214,9 @@ class Controller:
             self.t_s = self.cycles * self.period_s
             f = self.robot.tcp_force()
             if float(np.linalg.norm(f[:3])) > self.cfg.protective_stop_force_n:
-                self.protective_stop(f"TCP force {np.linalg.norm(f[:3]):.1f} N over {self.cfg.protective_stop_force_n} N")
+                self.protective_stop(
+                    f"TCP force {np.linalg.norm(f[:3]):.1f} N over {self.cfg.protective_stop_force_n} N"
+                )
             tau = np.abs(self.robot.joint_torques())
             if float(tau.max()) > self.cfg.protective_stop_torque_nm:
                 self.protective_stop(f"joint torque {tau.max():.1f} N m over {self.cfg.protective_stop_torque_nm} N m")
@@ -293,7 +296,12 @@ class Server:
             c = Client(sock, kind)
             with self.ctl.lock:
                 self.ctl.clients.append(c)
-            handler = {"rtde": self._rtde, "dashboard": self._dashboard, "script": self._script, "control": self._control}
+            handler = {
+                "rtde": self._rtde,
+                "dashboard": self._dashboard,
+                "script": self._script,
+                "control": self._control,
+            }
             self._spawn(self._serve, handler[kind], c)
 
     def _serve(self, handler: Any, c: Client) -> None:
@@ -484,7 +492,12 @@ class Server:
                 return "Failed to execute: play"
             if cmd == "unlock protective stop":
                 ok = ctl.unlock_protective_stop()
-                return "Protective stop releasing" if ok else "Cannot unlock protective stop until 5s after occurrence. Always inspect cause of protective stop before unlocking"
+                return (
+                    "Protective stop releasing"
+                    if ok
+                    else "Cannot unlock protective stop until 5s after occurrence. "
+                    "Always inspect cause of protective stop before unlocking"
+                )
             if cmd == "close safety popup":
                 return "closing safety popup"
             if cmd == "close popup":

@@ -87,7 +87,7 @@ def dashboard_query(host: str, command: str, port: int = DASHBOARD_PORT, timeout
 
 
 def parse_polyscope_version(text: str) -> tuple[int, int, int, int]:
-    """"URSoftware 5.11.1.108318 (...)" -> (5, 11, 1, 108318)."""
+    """ "URSoftware 5.11.1.108318 (...)" -> (5, 11, 1, 108318)."""
     import re
 
     m = re.search(r"(\d+)\.(\d+)\.(\d+)(?:\.(\d+))?", text)
@@ -259,8 +259,7 @@ class URDriver:
     def _check_safety(self, s: URState) -> None:
         if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
             self._fail(
-                f"robot at {self.host} is in protective stop: clear it on the teach pendant "
-                "(the session was stopped)"
+                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
             )
         if s.safety_status_bits & SAFETY_BITS_EMERGENCY:
             self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
@@ -322,7 +321,7 @@ class URDriver:
     def torque_available(self) -> bool:
         return self.version is not None and direct_torque_supported(self.version)
 
-    def torque(self, tau_nm: Sequence[float]) -> np.ndarray:
+    def torque(self, tau_nm: Sequence[float] | np.ndarray) -> np.ndarray:
         """Direct joint torques beyond gravity compensation (N m), clipped to the joints' limits;
         returns them as sent."""
         c = self._require_control()
