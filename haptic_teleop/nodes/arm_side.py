@@ -58,8 +58,13 @@ class ArmEbaSide:
         if why is not None:
             node.get_logger().warning(f"{role} arm tick runs in Python, not compiled: {why}")
         other = parts.slave if role == "master" else parts.master
-        other.plant.close()  # the other side's plant only gave its start point
+        other.plant.close()  # the other side's plant only gave its start point (a device's: never started)
         self.plant = self.side.plant
+        # A real arm (plants/hardware_arm.py): its driver starts at the first tick's read, the tick reads
+        # and writes it once, the safety guards act on the desired torque before the bound (SideTick),
+        # a guard's fault or a device's HardwareError ends the node (exit 1, one line), and `close` on
+        # every way out turns its torque off (docs/live.md, "A real arm on a side").
+        self.hardware = not isinstance(self.plant, _mujoco_arm())
         self.maps = parts.maps
         self.schema = parts.schema
         self.period_s = config.scene.period_s
@@ -162,6 +167,18 @@ class ArmEbaSide:
 
     def close(self) -> None:
         self.plant.close()
+
+
+def _mujoco_arm() -> type:
+    from haptic_teleop.plants.arm import MujocoArm
+
+    return MujocoArm
+
+
+HARDWARE_SCHEDULING = (
+    "the arm's vendor SDK busy-waits on the serial port for each reply, which at SCHED_FIFO starves the "
+    "kernel's serial path on its CPU"
+)
 
 
 def side_topics(role: str, schema: Any) -> tuple[str, ...]:
