@@ -19,7 +19,7 @@ from haptic_teleop.analysis.outputs import (
     write_atomic,
     write_outputs,
 )
-from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError
+from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, PlantError
 from haptic_teleop.lifetime import deadline
 
 EXIT_OK = 0
@@ -139,6 +139,12 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
                     )
             except BagError as exc:
                 raise HapticTeleopError(str(exc)) from None  # writing failed: not an input error (exit 1)
+            except PlantError:
+                # A device failed mid-run (torque is off, the bag closed): analyse the ticks that ran,
+                # then the error's one line and exit 1.
+                with contextlib.suppress(Exception):
+                    write_outputs(bag_dir, out, plots=not args.no_plots)
+                raise
             finally:
                 if bar is not None:
                     bar.close()

@@ -190,35 +190,48 @@ def side_ticks(parts: ArmParts) -> tuple[_SideTick, _SideTick]:
 
 class Pacer:
     """Absolute deadlines for a loop that drives real devices: tick n starts no earlier than
-    t0 + n T on `time.perf_counter` (t0: the first tick). A tick that starts more than one period
-    after its deadline is late: counted, never made up (the loop does not run ticks back to back to
-    catch up; scene time stays n T, so the bag is the same however late the ticks were). The counts
-    go into timing.json, never into the bag."""
+    t0 + n T on `time.perf_counter`. The first tick starts the devices (connecting, checking,
+    configuring: a long tick), so the clock is anchored at the start of the second: t0 = its start
+    minus T. A tick that starts more than one period after its deadline is late: counted, never made
+    up (the loop does not drop ticks to catch up; scene time stays n T, so the bag is the same
+    however late the ticks were). An overrun is a tick that took longer than one period. The
+    counts go into timing.json, never into the bag."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
-        self.t0: float | None = None
+        self.t0 = 0.0
         self.late_ticks = 0
+        self.overrun_ticks = 0
         self.max_late_s = 0.0
         self.ticks = 0
+        self._last = 0.0
 
     def wait(self, n: int) -> None:
         now = time.perf_counter()
-        if self.t0 is None:
-            self.t0 = now
+        if n >= 2 and now - self._last > self.period_s:
+            self.overrun_ticks += 1
+        if n <= 1:
+            self.t0 = now - n * self.period_s
         deadline = self.t0 + n * self.period_s
         if now < deadline:
             time.sleep(deadline - now)
+            now = time.perf_counter()
         else:
             late = now - deadline
             if late > self.period_s:
                 self.late_ticks += 1
             self.max_late_s = max(self.max_late_s, late)
+        self._last = now
         self.ticks = n + 1
 
     def facts(self) -> dict[str, float | int]:
-        """What timing.json gets: ticks paced, late ticks and the largest lateness (s)."""
-        return {"paced_ticks": self.ticks, "late_ticks": self.late_ticks, "max_late_s": self.max_late_s}
+        """What timing.json gets: ticks paced, late ticks, overruns and the largest lateness (s)."""
+        return {
+            "paced_ticks": self.ticks,
+            "late_ticks": self.late_ticks,
+            "overrun_ticks": self.overrun_ticks,
+            "max_late_s": self.max_late_s,
+        }
 
 
 def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:

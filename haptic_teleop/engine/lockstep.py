@@ -676,6 +676,10 @@ def record_run(
         rec.close(info)
     wall = time.perf_counter() - t0
     pacing = engine.pacer.facts() if engine.pacer is not None else None
+    if pacing is not None:  # a real device's reads that failed (the driver repeated its last sample)
+        for side, plant in (("master", engine.master), ("slave", engine.slave)):
+            if hasattr(plant, "stale_ticks"):
+                pacing[f"{side}_stale_reads"] = plant.stale_ticks
     return engine, RunTiming(
         done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind, pacing
     )

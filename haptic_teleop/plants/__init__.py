@@ -186,7 +186,11 @@ def dynamixel_driver(
             )
         )
     config = DynamixelChainConfig(
-        port=hw.port, joints=tuple(chain), baud_bps=hw.baud_bps, bus_watchdog_s=hw.bus_watchdog_s
+        port=hw.port,
+        joints=tuple(chain),
+        baud_bps=hw.baud_bps,
+        bus_watchdog_s=hw.bus_watchdog_s,
+        read_timeout_s=hw.read_timeout_s,
     )
     return DynamixelDriver(config)
 

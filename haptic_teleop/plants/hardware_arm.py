@@ -239,7 +239,7 @@ class HardwareArm:
         tau = np.asarray(torque_nm, dtype=float)
         tau = np.minimum(np.maximum(np.where(np.isnan(tau), 0.0, tau), lo), hi)
         written = np.asarray(self.driver.write(tau + g), dtype=float)
-        applied = written - g
+        applied: np.ndarray = written - g
         self._applied = applied
         self._ticks += 1
         self._fresh = False
@@ -263,7 +263,8 @@ class HardwareArm:
         not estimated), world frame: a slave's quasi-static estimate from the measured motor
         torques, f = -(J^T)^+ (tau_measured - g(q)) (module docstring: its error sources); a
         master's zero."""
-        if not self.contact_estimated or not self._started:
+        if not self.contact_estimated or self._ticks == 0:
+            # Before the first write the motors hold nothing (torque on with zero current): no estimate.
             return np.zeros(3), np.zeros(3)
         tau_port = self._tau_measured - self.gravity_torque()
         jt = self.kinematics.jacobian().T

@@ -121,7 +121,8 @@ class ArmKinematics:
         qd = np.asarray(qd_rad_per_s, dtype=float)
         if qd.shape != (self.n,):
             raise PlantError(f"point_velocity got {qd.size} values for {self.n} joints")
-        return self.jacobian() @ qd
+        out: np.ndarray = self.jacobian() @ qd
+        return out
 
     def orientation(self) -> np.ndarray:
         """The point site's rotation matrix (3 x 3, world frame)."""
@@ -166,7 +167,8 @@ class ArmKinematics:
         coriolis = np.array(self._bias[self._dadr]) - g
         d.qvel[:] = 0.0
         mj.mj_comVel(m, d)
-        return self.mass_matrix() @ qdd + coriolis
+        out: np.ndarray = self.mass_matrix() @ qdd + coriolis
+        return out
 
     # ------------------------------------------------------------------------------ limits
 

@@ -207,6 +207,10 @@ class HardwareConfig:
         default=0.1,
         metadata={"min": 0.02, "max": 2.54, "help": "dynamixel: servos stop when the host is silent this long"},
     )
+    read_timeout_s: float | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 10.0, "help": "dynamixel: how long a read waits for replies (default: the SDK's)"},
+    )
     start_tolerance_rad: float = field(
         default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}
     )

@@ -68,6 +68,7 @@ class Bus:
         self._pending_faults = list(cfg.faults)
         self.counters: dict[str, float] = dict.fromkeys(COUNTER_KEYS, 0)
         self.counters.update(wire_time_s=0.0, return_delay_s=0.0, usb_latency_s=0.0, extra_delay_s=0.0)
+        self._stale = True
         self._refresh()
 
     def _note(self, line: str) -> None:
@@ -97,12 +98,16 @@ class Bus:
         while self.physics.time_s + dt <= time_s + 1e-12:
             self.physics.step(tau)
             self.counters["physics_steps"] += 1
-        self._refresh()
+        self._stale = True
 
     def advance_by(self, dt_s: float) -> None:
         self.advance_to(self.physics.time_s + dt_s)
 
     def _refresh(self) -> None:
+        """Present values from the physics, when it moved or a servo changed since the last time."""
+        if not self._stale:
+            return
+        self._stale = False
         q, qd = self.physics.state()
         for s, j in zip(self.servos, self._joint_index, strict=True):
             s.set_present(float(q[j]), float(qd[j]), self.physics.time_s)
@@ -131,7 +136,7 @@ class Bus:
             s.slow_extra_s = f.extra_delay_s
         elif f.kind == "vanish":
             s.vanished = True
-        self._refresh()
+        self._stale = True
 
     def _due_faults(self) -> None:
         n = self.counters["transactions"]
@@ -169,6 +174,8 @@ class Bus:
         c["wire_time_s"] += t.wire_time_s(pkt.wire_bytes, self.baud_bps)
         self._due_faults()
         self.check_watchdogs(end_s)
+        if pkt.instruction in _READS:
+            self._refresh()
         out = _Schedule(self, end_s)
         inst, pid, prm = pkt.instruction, pkt.packet_id, pkt.params
         wrote_goal_current = False
@@ -231,7 +238,7 @@ class Bus:
                 k += 5 + length
         if wrote_goal_current and self.cfg.time.mode == "lockstep":
             self.advance_by(self.cfg.time.lockstep_dt_s)
-        self._refresh()
+        self._stale = True  # a write may have changed what Present Current and the rest read
         return out.replies
 
     def _single(self, s: Servo, inst: int, prm: bytes, out: _Schedule, broadcast: bool) -> bool:
@@ -269,6 +276,7 @@ class Bus:
         return False
 
 
+_READS = (I.READ, I.SYNC_READ, I.FAST_SYNC_READ, I.BULK_READ)
 _MULTI = (I.SYNC_READ, I.FAST_SYNC_READ, I.SYNC_WRITE, I.BULK_READ, I.BULK_WRITE)
 
 

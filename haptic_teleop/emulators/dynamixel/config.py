@@ -117,8 +117,8 @@ class ServoConfig:
     )
     firmware_version: int = field(default=46, metadata={"min": 0, "max": 255})
     registers: tuple[tuple[str, int], ...] = ()
-    """Control-table values at power-on other than the factory defaults (EEPROM as configured
-    earlier; RAM fields as the factory sets them), e.g. {"return_delay_time": 0}."""
+    """EEPROM values other than the factory defaults, as configured earlier and kept over power
+    cycles, e.g. {"return_delay_time": 0, "operating_mode": 0}; RAM starts at its factory values."""
 
     def __post_init__(self) -> None:
         if self.sign not in (-1, 1):
@@ -159,7 +159,7 @@ class BusConfig:
     """One emulated bus: its baud, the USB adapter's latency, time, physics, servos and faults."""
 
     servos: tuple[ServoConfig, ...] = ()
-    baud_bps: int = field(default=1_000_000, metadata={"choices": tuple(tables.BAUD_RATES_BPS.values())})
+    baud_bps: int = field(default=1_000_000, metadata={"help": "a rate of Baud Rate(8): 9600 .. 4500000"})
     usb_latency_s: float = field(
         default=0.0, metadata={"min": 0.0, "max": 0.1, "help": "added to each reply burst (FTDI latency timer)"}
     )
@@ -228,11 +228,14 @@ class BusConfig:
     # ------------------------------------------------------------------------ checks across keys
 
     def check(self, source: str = SOURCE) -> None:
+        rates = sorted(tables.BAUD_RATES_BPS.values())
+        if self.baud_bps not in rates:
+            raise ConfigError(source, "baud_bps", self.baud_bps, f"allowed: one of {rates} (Baud Rate(8) codes 0..7)")
         if not self.servos:
             raise ConfigError(source, "servos", [], "allowed: at least one servo")
         ids = [s.id for s in self.servos]
         for i, s in enumerate(self.servos):
-            if ids.count(s.id) > 1:
+            if s.id in ids[:i]:
                 raise ConfigError(source, f"servos[{i}].id", s.id, "allowed: an id no other servo has")
         p = self.physics
         if p.kind == "inertia":
@@ -240,7 +243,7 @@ class BusConfig:
             if not names:
                 raise ConfigError(source, "physics.joints", [], "allowed: at least one joint for the inertia physics")
             for i, n in enumerate(names):
-                if names.count(n) > 1:
+                if n in names[:i]:
                     raise ConfigError(source, f"physics.joints[{i}].name", n, "allowed: a name no other joint has")
             for i, s in enumerate(self.servos):
                 if s.joint not in names:
@@ -279,8 +282,10 @@ def _servo(data: Any, where: str, source: str) -> ServoConfig:
             raise ConfigError(
                 source, path, value, f"unknown field; fields: {', '.join(f.name for f in m.fields)}"
             ) from None
-        if fld.access != "RW":
-            raise ConfigError(source, path, value, "allowed: a writable field (this one is read-only)")
+        if fld.access != "RW" or fld.area != "EEPROM":
+            raise ConfigError(
+                source, path, value, "allowed: a writable EEPROM field (RAM holds its factory values at power-on)"
+            )
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(source, path, value, "allowed: an integer")
         if fld.low is not None and fld.high is not None and not fld.low <= value <= fld.high:

@@ -55,6 +55,10 @@ WATCHDOG_UNITS_MAX = 127
 READ_BLOCK = T.STATE_BLOCK_SIZE  # Present Current(2) + Present Velocity(4) + Present Position(4)
 FAST_PART = READ_BLOCK + 4  # a FAST SYNC READ status carries error, id, data, CRC per servo
 
+SETTLE_S = 0.3
+"""After reads failed, how long the driver lets late replies pass before it pings a silent servo
+again to tell a vanished servo from a slow or noisy line."""
+
 _warned_not_usb: set[str] = set()
 
 
@@ -497,8 +501,11 @@ class DynamixelDriver:
         return sample
 
     def _miss(self, index: int | None, why: str) -> None:
+        """A failed read: why, and which servo's reply was missing (the first of a run of failures
+        is kept: a late reply delays the servos after it in the next reads)."""
         self._last_fail = why
-        self._last_fail_index = index
+        if self.stale == 0:
+            self._last_fail_index = index
 
     def _sync_read(self) -> list[bytes] | None:
         sdk, ph, port = self._sdk, self._ph, self._port
@@ -564,11 +571,18 @@ class DynamixelDriver:
         cfg, sdk = self.config, self._sdk
         n_bad = self.stale
         self._port.is_using = False
-        silent = []
-        for k, i in enumerate(self._ids):
-            _, result, _ = self._ph.ping(self._port, i)
-            if result != sdk.COMM_SUCCESS:
-                silent.append(k)
+        silent = list(range(len(self._ids)))
+        for settle_s in (0.0, SETTLE_S):  # a second round after late replies have left the line
+            time.sleep(settle_s)
+            still = []
+            for k in silent:
+                self._port.is_using = False
+                _, result, _ = self._ph.ping(self._port, self._ids[k])
+                if result != sdk.COMM_SUCCESS:
+                    still.append(k)
+            silent = still
+            if not silent:
+                break
         if silent:
             k = silent[0]
             more = (
@@ -655,9 +669,10 @@ class DynamixelDriver:
             with contextlib.suppress(Exception):
                 if self._gsw_torque is not None:
                     self._gsw_torque.txPacket()
-                else:  # stopped during start(): one write per servo, no reply awaited
-                    for i in self._ids:
-                        self._ph.write1ByteTxOnly(port, i, T.ADDR_TORQUE_ENABLE, 0)
+                else:  # stopped during start(): a broadcast WRITE (no servo replies to it)
+                    self._ph.write2ByteTxOnly(port, T.BROADCAST_ID, T.ADDR_GOAL_CURRENT, 0)
+                    port.is_using = False
+                    self._ph.write1ByteTxOnly(port, T.BROADCAST_ID, T.ADDR_TORQUE_ENABLE, 0)
                 port.is_using = False
         with contextlib.suppress(Exception):
             port.ser.flush()  # the bytes are on the wire before the port closes
@@ -691,14 +706,14 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
     """Stop every driver when the block ends: normally, by an exception, by Ctrl-C or by SIGTERM.
 
     Python's default SIGTERM ends the process without running `finally` blocks or `atexit`; while
-    inside, a SIGTERM (and a SIGINT, if its handler is the default) raises `interrupt.Interrupted`
-    instead, when the process has no handler of its own (the command line's `interrupt.install()`
-    has one: it raises or stops the loop, and the `finally` runs either way). Main thread only for
-    the handlers; the stop runs in any thread."""
+    inside, a SIGTERM and a SIGINT raise `interrupt.Interrupted` (a KeyboardInterrupt with
+    `exit_code` 143 or 130) instead, when the process has no handler of its own (the command
+    line's `interrupt.install()` has one: it raises or stops the loop, and the `finally` runs
+    either way). Main thread only for the handlers; the stop runs in any thread."""
     previous: dict[signal.Signals, Any] = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
-            if signal.getsignal(sig) in (signal.SIG_DFL, None):
+            if signal.getsignal(sig) in (signal.SIG_DFL, signal.default_int_handler, None):
                 previous[sig] = signal.signal(sig, _raise_interrupted)
     try:
         yield

@@ -1,0 +1,199 @@
+"""`haptic-teleop bench hardware`: the Dynamixel driver's loop rate against the bus emulator.
+
+One tick is what an arm plant on the driver does: `read()` (one group sync read, or fast sync
+read, of Present Current/Velocity/Position of every servo) and `write(tau)` (one group sync write
+of Goal Current). The host loop runs free (no sleep) for `--ticks` ticks after a warm-up, against
+the emulator in its own process on a pseudo-terminal with wire timing (bytes x 10 / baud), Return
+Delay Time 0 and no USB latency, in real time. Cases: 3 servos (the dxl_arm.xml arm in MuJoCo) and
+6 servos (the emulator's "inertia" physics), at 1 and 4 Mbps, sync read and fast sync read.
+
+The limit is what the bus can carry (`driver.wire_limit_hz`): 1 / (bytes per tick x 10 / baud),
+with bytes per tick = sync write (14 + 3 n) + sync read instruction (14 + n) + replies (21 n for
+sync read, 8 + 14 n for fast sync read). Target: the rate within 80 % of the limit. Where the
+time goes is printed next to it: the host's CPU time per tick (this process: the SDK building and
+parsing packets, the driver's conversions) and the emulator process's CPU time per tick.
+Figures only: no test asserts them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.benchmarks import positive
+
+ARM3 = (("base_yaw", "XM540-W270"), ("shoulder", "XM540-W270"), ("elbow", "XM430-W350"))
+
+
+def _proc_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of a process (Linux /proc), None when unreadable."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def bus_dict(n_servos: int, baud_bps: int) -> dict[str, Any]:
+    """The emulator's configuration of a case (JSON-ready)."""
+    registers = {"return_delay_time": 0}
+    if n_servos == 3:
+        servos = [
+            {"id": k + 1, "model": model, "joint": name, "registers": registers} for k, (name, model) in enumerate(ARM3)
+        ]
+        physics: dict[str, Any] = {"kind": "mujoco", "model": "dxl_arm.xml"}
+    else:
+        servos = [
+            {"id": k + 1, "model": ARM3[k % 3][1], "joint": f"j{k + 1}", "registers": registers}
+            for k in range(n_servos)
+        ]
+        physics = {
+            "kind": "inertia",
+            "joints": [
+                {"name": f"j{k + 1}", "inertia_kg_m2": 0.02, "viscous_nm_s_per_rad": 0.1, "coulomb_nm": 0.05}
+                for k in range(n_servos)
+            ],
+        }
+    return {"servos": servos, "baud_bps": baud_bps, "usb_latency_s": 0.0, "physics": physics}
+
+
+def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) -> dict[str, Any]:
+    from haptic_teleop.emulators.dynamixel.config import BusConfig
+    from haptic_teleop.emulators.dynamixel.process import start_bus
+    from haptic_teleop.plants.dynamixel.driver import (
+        DynamixelChainConfig,
+        DynamixelDriver,
+        DynamixelJoint,
+        wire_bytes_per_tick,
+        wire_limit_hz,
+    )
+
+    bus_cfg = BusConfig.from_dict(bus_dict(n_servos, baud_bps))
+    bus = start_bus(bus_cfg)
+    try:
+        joints = tuple(
+            DynamixelJoint(s.joint, s.id, s.model, zero_offset_rad=math.pi, current_limit=200) for s in bus_cfg.servos
+        )
+        cfg = DynamixelChainConfig(
+            bus.port, joints, baud_bps=baud_bps, fast_sync_read=fast, bus_watchdog_s=1.0, read_timeout_s=0.1
+        )
+        tau = np.zeros(n_servos)
+        with DynamixelDriver(cfg) as drv:
+            drv.start()
+            for _ in range(warmup):
+                drv.read()
+                drv.write(tau)
+            emu_pid = getattr(bus, "pid", None)
+            emu0 = _proc_cpu_s(emu_pid) if emu_pid else None
+            stale0 = drv.stale_reads
+            cpu0 = time.process_time()
+            t_write = 0.0
+            t0 = time.perf_counter()
+            for _ in range(ticks):
+                drv.read()
+                tw = time.perf_counter()
+                drv.write(tau)
+                t_write += time.perf_counter() - tw
+            wall = time.perf_counter() - t0
+            cpu = time.process_time() - cpu0
+            emu1 = _proc_cpu_s(emu_pid) if emu_pid else None
+            stale = drv.stale_reads - stale0
+    finally:
+        bus.stop()
+    limit = wire_limit_hz(n_servos, baud_bps, fast)
+    rate = ticks / wall
+    return {
+        "servos": n_servos,
+        "baud_bps": baud_bps,
+        "read": "fast sync read" if fast else "sync read",
+        "bytes_per_tick": wire_bytes_per_tick(n_servos, fast),
+        "rate_hz": rate,
+        "limit_hz": limit,
+        "ratio": rate / limit,
+        "wire_us_per_tick": 1e6 / limit,
+        "host_cpu_us_per_tick": 1e6 * cpu / ticks,
+        "write_us_per_tick": 1e6 * t_write / ticks,
+        "emulator_cpu_us_per_tick": None if emu0 is None or emu1 is None else 1e6 * (emu1 - emu0) / ticks,
+        "stale_reads": stale,
+    }
+
+
+HELP = "Dynamixel driver loop rate (read + write per tick) against the bus emulator, next to the wire-time limit"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--servos", default="3,6", help="servo counts (3: dxl_arm in MuJoCo; others: inertia)")
+    p.add_argument("--bauds", default="1000000,4000000", help="baud rates (bps), comma separated")
+    p.add_argument("--reads", default="sync,fast", help="sync, fast or both, comma separated")
+    p.add_argument("--ticks", type=positive(int), default=3000, help="timed ticks per case (default 3000)")
+    p.add_argument("--warmup", type=positive(int), default=200, help="untimed ticks first (default 200)")
+    p.add_argument("--repeat", type=positive(int), default=1, help="runs per case; the table shows the median")
+    p.add_argument("--json", metavar="PATH", help="also write every run's figures to this JSON file")
+
+
+def _ints(text: str, what: str) -> list[int]:
+    try:
+        values = [int(x) for x in text.split(",") if x]
+    except ValueError:
+        raise SystemExit(f"bench hardware: {what} takes whole numbers separated by commas, got {text!r}") from None
+    if not values:
+        raise SystemExit(f"bench hardware: {what} is empty")
+    return values
+
+
+def main(args: argparse.Namespace) -> int:
+    from haptic_teleop.plants.dynamixel.driver import SDK_BAUD_RATES_BPS
+
+    servos = _ints(args.servos, "--servos")
+    bauds = _ints(args.bauds, "--bauds")
+    reads = [x for x in args.reads.split(",") if x]
+    bad = [str(b) for b in bauds if b not in SDK_BAUD_RATES_BPS] + [r for r in reads if r not in ("sync", "fast")]
+    bad += [str(n) for n in servos if not 1 <= n <= 20]
+    if bad or not reads:
+        raise SystemExit(
+            f"bench hardware: not allowed: {', '.join(bad) or '--reads empty'}; --bauds from {SDK_BAUD_RATES_BPS}, "
+            f"--reads sync,fast, --servos 1..20"
+        )
+    print(
+        f"Dynamixel driver against the bus emulator (wire timing, Return Delay 0, USB latency 0), "
+        f"{args.ticks} ticks free-running, median of {args.repeat}"
+    )
+    print("limit = 1 / (bytes per tick x 10 / baud); target: rate >= 80 % of the limit")
+    head = (
+        f"{'servos':>6} {'baud':>9} {'read':<15} {'bytes':>5} {'rate Hz':>8} {'limit Hz':>9} {'ratio':>6}  "
+        f"{'host cpu us':>11} {'write us':>8} {'emu cpu us':>10} {'stale':>5}"
+    )
+    print(head)
+    runs: list[dict[str, Any]] = []
+    for n in servos:
+        for baud in bauds:
+            for read in reads:
+                got = [run_case(n, baud, read == "fast", args.ticks, args.warmup) for _ in range(args.repeat)]
+                runs.extend(got)
+                med = sorted(got, key=lambda r: r["rate_hz"])[len(got) // 2]
+                emu = med["emulator_cpu_us_per_tick"]
+                rates = ", ".join(f"{r['rate_hz']:.0f}" for r in got)
+                print(
+                    f"{n:>6} {baud:>9} {med['read']:<15} {med['bytes_per_tick']:>5} {med['rate_hz']:>8.0f} "
+                    f"{med['limit_hz']:>9.0f} {med['ratio']:>6.2f}  {med['host_cpu_us_per_tick']:>11.0f} "
+                    f"{med['write_us_per_tick']:>8.0f} {'-' if emu is None else f'{emu:.0f}':>10} "
+                    f"{med['stale_reads']:>5}" + (f"   (runs: {rates})" if len(got) > 1 else ""),
+                    flush=True,
+                )
+    ratios = [r["ratio"] for r in runs]
+    print(f"ratio: rate / limit; median over all cases {statistics.median(ratios):.2f}; target >= 0.80")
+    print(
+        "host cpu us: this process's CPU time per tick (SDK packet building and parsing, the driver); "
+        "emu cpu us: the emulator process's"
+    )
+    if args.json:
+        Path(args.json).write_text(json.dumps({"benchmark": "hardware", "runs": runs}, indent=1) + "\n")
+    return 0
