@@ -47,26 +47,32 @@ ADDR_BUS_WATCHDOG = 98
 SCENE_TIME_0 = r"operator_source\]: scene time 0 at stamp"  # the operator's, not the relays' (announced ahead)
 
 
-def _scene():
+def _scene(name: str = SCENE, side: str = "slave"):
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    return load_scene(find_scene(SCENE), [HARDWARE[1]], emulate=True).config
+    return load_scene(find_scene(name), [f"{side}.backend=dynamixel"], emulate=True).config
 
 
-def _start_emulator():
+def _start_emulator(name: str = SCENE, side: str = "slave", hand_delay_s: float = 0.0):
+    """The side's bus emulator from the scene (haptic_teleop/emulate.py), realtime, with the holding
+    friction; a leader's operator hand starts its push `hand_delay_s` later in emulator time."""
     from haptic_teleop.emulate import bus_config
     from haptic_teleop.emulators.dynamixel.process import start_bus
 
-    cfg = bus_config(_scene(), "slave", "realtime", source="test")
+    cfg = bus_config(_scene(name, side), side, "realtime", source="test")
     physics = dataclasses.replace(cfg.physics, frictionloss_nm=HOLDING_FRICTION_NM)
+    if physics.hand is not None:
+        physics = dataclasses.replace(
+            physics, hand=dataclasses.replace(physics.hand, start_s=physics.hand.start_s + hand_delay_s)
+        )
     return start_bus(dataclasses.replace(cfg, physics=physics))
 
 
-def _registers(port: str, address: int, tries: int = 50) -> list[int]:
+def _registers(port: str, address: int, tries: int = 50, name: str = SCENE, side: str = "slave") -> list[int]:
     """One byte of every servo's control table, read through the SDK (a dropped reply is retried)."""
     from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
-    hw = _scene().slave.hardware
+    hw = getattr(_scene(name, side), side).hardware
     ph = PortHandler(port)
     assert ph.openPort() and ph.setBaudRate(hw.baud_bps)
     pk = PacketHandler(2.0)
@@ -88,9 +94,9 @@ def _registers(port: str, address: int, tries: int = 50) -> list[int]:
 class Launch:
     """`haptic-teleop launch ...` as a child process; its output lines are collected as they come."""
 
-    def __init__(self, *args: str, cwd: Path) -> None:
+    def __init__(self, *args: str, cwd: Path, scene: tuple[str, ...] = (SCENE, *HARDWARE)) -> None:
         self.proc = subprocess.Popen(
-            [*CLI, "launch", SCENE, *HARDWARE, *args], cwd=cwd, env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            [*CLI, "launch", *scene, *args], cwd=cwd, env=dict(os.environ, PYTHONUNBUFFERED="1"),
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         )  # fmt: skip
         self.lines: list[str] = []
@@ -130,19 +136,19 @@ class Launch:
         return code
 
 
-def _margins_from_bag(bag: Path) -> dict[str, float]:
+def _margins_from_bag(bag: Path, name: str = SCENE, real: str = "slave") -> dict[str, float]:
     """Each side's pooled energy margin recomputed here from the bag's plant signals (joint positions,
     the torques the plants applied) and the damping the run recorded (analysis/energy.py).
 
-    The simulated master is stepped once per tick, so its rows are one period apart. The real slave
-    lives in wall time: a tick the node skipped is a row the recorder filled with the previous sample,
-    and the next sample's displacement took several periods. Its margin is taken over the rows that
-    differ from the one before (a filled row repeats it exactly), each interval's damping credit
-    d dq^2 / (k T) over the k periods it spanned (the least a damper dissipates over that time)."""
+    The simulated side is stepped once per tick, so its rows are one period apart. The `real` side
+    lives in wall time: a tick the node skipped is a row the recorder filled with the previous
+    sample, and the next sample's displacement took several periods. Its margin is taken over the
+    rows that differ from the one before (a filled row repeats it exactly), each interval's damping
+    credit d dq^2 / (k T) over the k periods it spanned (the least a damper dissipates over that time)."""
     from haptic_teleop.analysis.energy import energy_margins
     from haptic_teleop.record.reader import BagReader
 
-    scene = _scene()
+    scene = _scene(name, real)
     period = scene.scene.period_s
     out = {}
     with BagReader(bag) as r:
@@ -152,12 +158,12 @@ def _margins_from_bag(bag: Path) -> dict[str, float]:
             d = np.array(facts[f"{side}_joint_damping"])
             n = d.size
             e0 = getattr(scene.controllers, side).eba.initial_energy_j
-            if side == "master":
+            if side != real:
                 out[side] = energy_margins(js[:, :n], js[:, 2 * n : 3 * n], d, period, e0).pooled_min_j
                 continue
-            real = np.ones(len(js), dtype=bool)
-            real[1:] = np.any(js[1:] != js[:-1], axis=1)
-            rows = np.flatnonzero(real)
+            fresh = np.ones(len(js), dtype=bool)
+            fresh[1:] = np.any(js[1:] != js[:-1], axis=1)
+            rows = np.flatnonzero(fresh)
             q, tau = js[rows, :n], js[rows, 2 * n : 3 * n]
             dq = np.diff(q, axis=0)
             credit = (dq * dq) @ d / (np.diff(rows) * period)
@@ -272,3 +278,34 @@ def test_sigkill_of_the_node_process_leaves_the_servos_to_their_bus_watchdog(tmp
         watchdog = _registers(bus.port, ADDR_BUS_WATCHDOG)
     assert watchdog == [255, 255, 255]  # -1: tripped
     assert state["torque_nm"] == [0.0, 0.0, 0.0]
+
+
+def test_live_session_with_a_dynamixel_leader_arm_as_master(tmp_path):
+    """dxl_leader_wall with the leader (master) on the emulated bus: the master node drives its
+    servos with the bounded force, the emulator's operator hand pushes the handle (its push runs on
+    emulator time: delayed by 4 s, about when the launch reaches scene time 0; when exactly is not
+    asserted), the simulated follower meets the wall. Torque off on every servo after the launch,
+    both ports' margins >= 0 (the leader's over real intervals)."""
+    name = "dxl_leader_wall"
+    out = tmp_path / "run"
+    with _start_emulator(name, "master", hand_delay_s=4.0) as bus:
+        launch = Launch("--set", f"master.hardware.port={bus.port}", "--set", "scene.duration_s=4", "--record",
+                        str(out), "--no-plots", "--single-process", cwd=tmp_path,
+                        scene=(name, "--set", "master.backend=dynamixel"))  # fmt: skip
+        code = launch.finish()
+        torque = _registers(bus.port, ADDR_TORQUE_ENABLE, name=name, side="master")
+    assert code == 0, launch.text[-4000:]
+    assert "Traceback" not in launch.text
+    assert torque == [0, 0, 0]
+    from haptic_teleop.record.reader import BagReader
+
+    with BagReader(out / "bag") as r:
+        facts = json.loads(r.string("/haptic_teleop/run_info"))
+        q = r.read("/master/joint_states").values
+    assert facts["master_backend"] == "dynamixel" and facts["slave_backend"] == "mujoco"
+    assert np.all(np.isfinite(q))
+    summary = json.loads((out / "summary.json").read_text())
+    for side in ("master", "slave"):
+        assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
+    margins = _margins_from_bag(out / "bag", name, real="master")
+    assert margins["master"] >= -1e-9 and margins["slave"] >= -1e-9, margins

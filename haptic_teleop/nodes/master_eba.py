@@ -193,7 +193,9 @@ class MasterEba(LiveNode):
 
     def close(self) -> None:
         super().close()
-        if self.plant is not None:
+        if self.arm is not None:
+            self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
+        elif self.plant is not None:
             self.plant.close()
         elif self.command_out is not None:
             self.command_out.publish(self.now_ns(), 0.0)  # torque off on every exit

@@ -92,7 +92,10 @@ class SlaveEba(LiveNode):
 
     def close(self) -> None:
         super().close()
-        self.plant.close()
+        if self.arm is not None:
+            self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
+        else:
+            self.plant.close()
 
 
 def main() -> None:
