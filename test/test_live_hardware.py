@@ -240,18 +240,19 @@ def test_a_hardware_error_mid_run_is_one_line_exit_1_torque_off_and_the_rest_sto
     assert 0 < summary["ticks"] < 30_000
 
 
-def test_sigterm_to_the_node_process_turns_the_torque_off_and_closes_the_bag(tmp_path):
+@pytest.mark.parametrize(("signum", "exit_code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_sigint_or_sigterm_to_the_node_process_turns_the_torque_off_and_closes_the_bag(tmp_path, signum, exit_code):
     out = tmp_path / "run"
     with _start_emulator() as bus:
         launch = Launch("--set", f"slave.hardware.port={bus.port}", "--set", "scene.duration_s=30", "--record",
                         str(out), "--no-plots", "--single-process", cwd=tmp_path)  # fmt: skip
         launch.wait_for(SCENE_TIME_0, 180)
         time.sleep(0.5)
-        launch.proc.send_signal(signal.SIGTERM)  # composed: the launcher's process is the node's
+        launch.proc.send_signal(signum)  # composed: the launcher's process is the node's
         code = launch.finish()
         torque = _registers(bus.port, ADDR_TORQUE_ENABLE)
         trips = bus.counters()["watchdog_trips"]
-    assert code == 143, launch.text[-4000:]
+    assert code == exit_code, launch.text[-4000:]
     assert torque == [0, 0, 0] and trips == 0
     assert "Traceback" not in launch.text
     summary = json.loads((out / "summary.json").read_text())
