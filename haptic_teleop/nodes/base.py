@@ -186,6 +186,20 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
         )
         self._setup_diagnostics()
 
+    def normal_scheduling(self, why: str) -> None:
+        """Run this node's loop with normal scheduling, not SCHED_FIFO (call after `setup_loop`, before
+        the loop starts; composed, the shared loop of every node in the process). For a loop that
+        busy-waits inside a vendor SDK: at real-time priority it starves the kernel's own threads of
+        its CPU, the serial port's among them, and then waits for a reply that cannot arrive."""
+        loop = self.loop
+        if loop is None:
+            return
+        if isinstance(loop, SharedLoop.Member):
+            loop.group.realtime_priority = 0
+        else:
+            loop.realtime_priority = 0
+        self.get_logger().info(f"loop with normal scheduling: {why}")
+
     def _setup_diagnostics(self) -> None:
         """The /diagnostics publisher. Reports go out once a second from the loop thread, in the
         slack after a tick (`_idle`): not from an executor timer (in a composed process each
