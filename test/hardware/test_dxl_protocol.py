@@ -58,9 +58,9 @@ def test_stuffing_round_trip_and_no_header_inside(body):
             assert s[i + 3] == 0xFD  # never a header (FF FF FD 00) inside a body
 
 
-packets = st.tuples(
-    st.integers(0, 0xFC) | st.just(0xFE), st.sampled_from(list(t.Instruction)), hdr_rich
-).map(lambda a: (a[0], int(a[1]), a[2]))
+packets = st.tuples(st.integers(0, 0xFC) | st.just(0xFE), st.sampled_from(list(t.Instruction)), hdr_rich).map(
+    lambda a: (a[0], int(a[1]), a[2])
+)
 
 
 @settings(max_examples=200)

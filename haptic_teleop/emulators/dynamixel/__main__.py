@@ -60,6 +60,8 @@ class Server:
         self.parser = p.Parser()
         self.clock0 = time.perf_counter()
         self.late_max_s = 0.0
+        self.late_sum_s = 0.0
+        self.late_n = 0
         self.master_fd, self.slave_fd = os.openpty()
         tty.setraw(self.slave_fd, termios.TCSANOW)
         os.set_blocking(self.master_fd, False)
@@ -135,7 +137,10 @@ class Server:
             start = end
         self.pending_since = start if self.parser.pending else None
         for r in replies:
-            self.late_max_s = max(self.late_max_s, wait_until(self.clock0, r.deliver_s))
+            late = wait_until(self.clock0, r.deliver_s)
+            self.late_max_s = max(self.late_max_s, late)
+            self.late_sum_s += late
+            self.late_n += 1
             self._write(r.data)
 
     def _write(self, data: bytes) -> None:
@@ -207,6 +212,7 @@ class Server:
     def counters(self) -> dict[str, Any]:
         out: dict[str, Any] = dict(self.bus.counters)
         out["late_max_s"] = self.late_max_s
+        out["late_mean_s"] = self.late_sum_s / self.late_n if self.late_n else 0.0
         out["time_s"] = self.bus.time_s
         out["baud_bps"] = self.bus.baud_bps
         return out

@@ -68,6 +68,7 @@ class Bus:
         self._pending_faults = list(cfg.faults)
         self.counters: dict[str, float] = dict.fromkeys(COUNTER_KEYS, 0)
         self.counters.update(wire_time_s=0.0, return_delay_s=0.0, usb_latency_s=0.0, extra_delay_s=0.0)
+        self._stale = True
         self._refresh()
 
     def _note(self, line: str) -> None:
@@ -97,12 +98,16 @@ class Bus:
         while self.physics.time_s + dt <= time_s + 1e-12:
             self.physics.step(tau)
             self.counters["physics_steps"] += 1
-        self._refresh()
+        self._stale = True
 
     def advance_by(self, dt_s: float) -> None:
         self.advance_to(self.physics.time_s + dt_s)
 
     def _refresh(self) -> None:
+        """Present values from the physics, when it moved or a servo changed since the last time."""
+        if not self._stale:
+            return
+        self._stale = False
         q, qd = self.physics.state()
         for s, j in zip(self.servos, self._joint_index, strict=True):
             s.set_present(float(q[j]), float(qd[j]), self.physics.time_s)
@@ -131,7 +136,7 @@ class Bus:
             s.slow_extra_s = f.extra_delay_s
         elif f.kind == "vanish":
             s.vanished = True
-        self._refresh()
+        self._stale = True
 
     def _due_faults(self) -> None:
         n = self.counters["transactions"]
@@ -169,6 +174,8 @@ class Bus:
         c["wire_time_s"] += t.wire_time_s(pkt.wire_bytes, self.baud_bps)
         self._due_faults()
         self.check_watchdogs(end_s)
+        if pkt.instruction in _READS:
+            self._refresh()
         out = _Schedule(self, end_s)
         inst, pid, prm = pkt.instruction, pkt.packet_id, pkt.params
         wrote_goal_current = False
@@ -231,7 +238,7 @@ class Bus:
                 k += 5 + length
         if wrote_goal_current and self.cfg.time.mode == "lockstep":
             self.advance_by(self.cfg.time.lockstep_dt_s)
-        self._refresh()
+        self._stale = True  # a write may have changed what Present Current and the rest read
         return out.replies
 
     def _single(self, s: Servo, inst: int, prm: bytes, out: _Schedule, broadcast: bool) -> bool:
@@ -269,6 +276,7 @@ class Bus:
         return False
 
 
+_READS = (I.READ, I.SYNC_READ, I.FAST_SYNC_READ, I.BULK_READ)
 _MULTI = (I.SYNC_READ, I.FAST_SYNC_READ, I.SYNC_WRITE, I.BULK_READ, I.BULK_WRITE)
 
 
@@ -288,10 +296,11 @@ class _Schedule:
         self.t_s = end_s  # when the line is free for the next reply
         self.replies: list[Reply] = []
 
-    def _charge(self, s: Servo) -> tuple[float, bool, bool]:
-        """(start time, drop, corrupt) of this servo's next reply; the faults counted down."""
+    def _charge(self, s: Servo, return_delay: bool = True) -> tuple[float, bool, bool]:
+        """(start time, drop, corrupt) of this servo's next reply; the faults counted down.
+        Without `return_delay` (a later part of a FAST SYNC READ): the extra delay only."""
         c = self.bus.counters
-        delay = s.return_delay_s
+        delay = s.return_delay_s if return_delay else 0.0
         c["return_delay_s"] += delay
         if s.slow_replies > 0:
             s.slow_replies -= 1
@@ -331,32 +340,34 @@ class _Schedule:
         """A listed servo that does not answer: the next one answers after its own delay."""
 
     def fast(self, parts: list[tuple[Servo, int, bytes] | None], length: int) -> None:
-        """FAST SYNC READ: one packet; a servo that cannot answer (absent, vanished, firmware
-        older than the instruction, or a dropped reply) ends it there, so the host receives a
-        truncated packet."""
+        """FAST SYNC READ: one packet, begun by the first listed servo after its return delay,
+        each next servo appending its part. A servo that cannot answer (absent, vanished,
+        firmware older than the instruction, Status Return Level 0, or a dropped reply) ends the
+        packet there, so the host receives it short; a corrupted part makes the packet's CRC
+        wrong; a slowed part delays the whole packet."""
         slots: list[p.FastSlot] = []
-        first: Servo | None = None
         start = self.t_s
         corrupt = False
-        complete = True
         for k, part in enumerate(parts):
             if part is None:
-                complete = False
                 break
             s, err, data = part
             if s.cfg.firmware_version < t.FAST_SYNC_READ_MIN_FIRMWARE or s.status_return_level < 1:
-                complete = False
                 break
             if k == 0:
-                first = s
-                start, drop, corrupt = self._charge(s)
-                if drop:
-                    complete = False
-                    break
+                start, drop, bad = self._charge(s)
+            else:
+                t0 = self.t_s
+                self.t_s = start
+                start, drop, bad = self._charge(s, return_delay=False)
+                self.t_s = t0
+            if drop:
+                break
+            corrupt |= bad
             slots.append(p.FastSlot(s.id, s.error_byte(err), data if not err else bytes(length)))
-        if first is None or not slots:
+        if not slots:
             return
         pkt = p.fast_sync_read_status(slots, len(parts))
-        if complete and corrupt:
+        if corrupt and len(slots) == len(parts):
             pkt = p.corrupt_crc(pkt)
         self._send(start, pkt)

@@ -16,6 +16,7 @@ Both take joint torques (N m, held over a step) and advance by their own time st
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -32,25 +33,30 @@ class InertiaPhysics:
         self.joints = tuple(j.name for j in cfg.joints)
         self.dt_s = cfg.dt_s
         self.time_s = 0.0
-        self._inertia = np.array([j.inertia_kg_m2 for j in cfg.joints])
-        self._viscous = np.array([j.viscous_nm_s_per_rad for j in cfg.joints])
-        self._coulomb = np.array([j.coulomb_nm for j in cfg.joints])
-        self._q = np.array([j.start_q_rad for j in cfg.joints], dtype=float)
-        self._qd = np.zeros(len(self.joints))
+        self._inertia = [j.inertia_kg_m2 for j in cfg.joints]
+        self._viscous = [j.viscous_nm_s_per_rad for j in cfg.joints]
+        self._coulomb = [j.coulomb_nm for j in cfg.joints]
+        self._q = [float(j.start_q_rad) for j in cfg.joints]
+        self._qd = [0.0] * len(self.joints)
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self._q.copy(), self._qd.copy()
+        return np.array(self._q), np.array(self._qd)
 
     def step(self, torque_nm: np.ndarray) -> None:
+        # plain floats: a few joints, and numpy's per-call cost would dominate
         h = self.dt_s
-        m = self._inertia + h * self._viscous  # implicit viscous term
-        v_free = (self._inertia * self._qd + h * torque_nm) / m
-        stop_impulse = m * v_free  # what Coulomb friction must supply to stop the joint this step
-        limit = h * self._coulomb
-        stick = np.abs(stop_impulse) <= limit
-        v = np.where(stick, 0.0, v_free - np.sign(v_free) * limit / m)
-        self._qd = v
-        self._q = self._q + h * v
+        for i in range(len(self._q)):
+            inertia = self._inertia[i]
+            m = inertia + h * self._viscous[i]  # the viscous term implicitly
+            v_free = (inertia * self._qd[i] + h * float(torque_nm[i])) / m
+            limit = h * self._coulomb[i]
+            # Coulomb friction: the impulse that would stop the joint this step, if within c h
+            if abs(m * v_free) <= limit:
+                v = 0.0
+            else:
+                v = v_free - math.copysign(limit / m, v_free)
+            self._qd[i] = v
+            self._q[i] += h * v
         self.time_s += h
 
 

@@ -21,6 +21,7 @@ Rules (e-Manual, the servo's control table and Protocol 2.0 "Error"):
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 
 from haptic_teleop.emulators.dynamixel.config import ServoConfig
@@ -39,6 +40,17 @@ class Servo:
         self.k_t_nm_per_a = cfg.k_t_nm_per_a
         self._notes = notes or (lambda _line: None)
         self._fields = {f.name: f for f in self.model.fields}
+        # per field: its struct (little-endian, signed or not) and address, for fast get/set
+        self._layout = {
+            f.name: (
+                struct.Struct(
+                    "<" + {1: "b", 2: "h", 4: "i"}[f.size] if f.signed else "<" + {1: "B", 2: "H", 4: "I"}[f.size]
+                ),
+                f.address,
+            )
+            for f in self.model.fields
+        }
+        self._field_at = [self.model.field_at(a) for a in range(self.model.table_size)]
         table = self.model.default_table()
         self._put(table, "id", cfg.id)
         self._put(table, "baud_rate", t.baud_code(baud_bps))
@@ -64,21 +76,23 @@ class Servo:
         table[f.address : f.end] = f.encode(value)
 
     def get(self, name: str) -> int:
-        f = self._fields[name]
-        return f.decode(self.table[f.address : f.end])
+        fmt, address = self._layout[name]
+        value: int = fmt.unpack_from(self.table, address)[0]
+        return value
 
     def set(self, name: str, value: int) -> None:
         """Set a field directly (the servo's own doing: present values, errors), no rules."""
-        self._put(self.table, name, value)
+        fmt, address = self._layout[name]
+        fmt.pack_into(self.table, address, value)
 
     @property
     def id(self) -> int:
-        return self.get("id")
+        return self.table[t.ADDR_ID]
 
     @property
     def listening(self) -> bool:
         """Hears the bus: not vanished, and its Baud Rate(8) matches the bus's."""
-        return not self.vanished and t.BAUD_RATES_BPS.get(self.get("baud_rate")) == self.bus_baud_bps
+        return not self.vanished and t.BAUD_RATES_BPS.get(self.table[t.ADDR_BAUD_RATE]) == self.bus_baud_bps
 
     @property
     def return_delay_s(self) -> float:
@@ -121,7 +135,7 @@ class Servo:
         touched = []
         a = address
         while a < end:
-            f = self.model.field_at(a)
+            f = self._field_at[a]
             if f is None:
                 return t.StatusError.ACCESS
             touched.append(f)
@@ -226,10 +240,12 @@ class Servo:
         ticks = t.POSITION_CENTER_TICKS + s * (q_rad - self.cfg.offset_rad) / t.POSITION_UNIT_RAD
         ticks += self.get("homing_offset")
         pos = max(-INT32, min(INT32, round(ticks))) if math.isfinite(ticks) else 0
-        vel = t.rad_per_s_to_velocity_units(s * qd_rad_per_s) if math.isfinite(qd_rad_per_s) else 0
+        vel = round(s * qd_rad_per_s / t.VELOCITY_UNIT_RAD_PER_S) if math.isfinite(qd_rad_per_s) else 0
         vel = max(-INT32, min(INT32, vel))
-        self.set("present_position", pos)
-        self.set("present_velocity", vel)
-        self.set("present_current", self.applied_current_units())
-        self.set("moving", 1 if abs(vel) > self.get("moving_threshold") else 0)
-        self.set("realtime_tick", int(time_s / t.REALTIME_TICK_UNIT_S) % t.REALTIME_TICK_WRAP)
+        _PRESENT.pack_into(self.table, t.ADDR_PRESENT_CURRENT, self.applied_current_units(), vel, pos)
+        self.table[t.ADDR_MOVING] = 1 if abs(vel) > self.get("moving_threshold") else 0
+        _TICK.pack_into(self.table, t.ADDR_REALTIME_TICK, int(time_s / t.REALTIME_TICK_UNIT_S) % t.REALTIME_TICK_WRAP)
+
+
+_PRESENT = struct.Struct("<hii")  # Present Current(126), Velocity(128), Position(132): contiguous
+_TICK = struct.Struct("<H")
