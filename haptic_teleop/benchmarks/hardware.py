@@ -65,7 +65,7 @@ def bus_dict(n_servos: int, baud_bps: int) -> dict[str, Any]:
     return {"servos": servos, "baud_bps": baud_bps, "usb_latency_s": 0.0, "physics": physics}
 
 
-def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) -> dict[str, Any]:
+def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int, pin: bool = False) -> dict[str, Any]:
     from haptic_teleop.emulators.dynamixel.config import BusConfig
     from haptic_teleop.emulators.dynamixel.process import start_bus
     from haptic_teleop.plants.dynamixel.driver import (
@@ -78,6 +78,10 @@ def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) 
 
     bus_cfg = BusConfig.from_dict(bus_dict(n_servos, baud_bps))
     bus = start_bus(bus_cfg)
+    cpus = sorted(os.sched_getaffinity(0))
+    if pin and len(cpus) >= 2:  # host and emulator on CPUs of their own: neither preempts the other
+        os.sched_setaffinity(0, {cpus[0]})
+        os.sched_setaffinity(bus.pid, {cpus[1]})
     try:
         joints = tuple(
             DynamixelJoint(s.joint, s.id, s.model, zero_offset_rad=math.pi, current_limit=200) for s in bus_cfg.servos
@@ -110,6 +114,8 @@ def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) 
             stale = drv.stale_reads - stale0
     finally:
         bus.stop()
+        if pin:
+            os.sched_setaffinity(0, set(cpus))
     limit = wire_limit_hz(n_servos, baud_bps, fast)
     rate = ticks / wall
     return {
@@ -142,6 +148,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ticks", type=positive(int), default=3000, help="timed ticks per case (default 3000)")
     p.add_argument("--warmup", type=positive(int), default=200, help="untimed ticks first (default 200)")
     p.add_argument("--repeat", type=positive(int), default=1, help="runs per case; the table shows the median")
+    p.add_argument("--pin", action="store_true", help="pin this process and the emulator to one CPU each")
     p.add_argument("--json", metavar="PATH", help="also write every run's figures to this JSON file")
 
 
@@ -171,6 +178,7 @@ def main(args: argparse.Namespace) -> int:
     print(
         f"Dynamixel driver against the bus emulator (wire timing, Return Delay 0, USB latency 0), "
         f"{args.ticks} ticks free-running, median of {args.repeat}"
+        + (", host and emulator pinned to one CPU each" if args.pin else "")
     )
     print("limit = 1 / (bytes per tick x 10 / baud); target: rate >= 80 % of the limit")
     head = (
@@ -183,7 +191,7 @@ def main(args: argparse.Namespace) -> int:
     for n in servos:
         for baud in bauds:
             for read in reads:
-                got = [run_case(n, baud, read == "fast", args.ticks, args.warmup) for _ in range(args.repeat)]
+                got = [run_case(n, baud, read == "fast", args.ticks, args.warmup, args.pin) for _ in range(args.repeat)]
                 runs.extend(got)
                 med = sorted(got, key=lambda r: r["rate_hz"])[len(got) // 2]
                 emu = med["emulator_cpu_us_per_tick"]
