@@ -147,3 +147,14 @@ def test_config_errors_name_the_key():
         BusConfig.from_dict({**base, "baud_bps": 250000, "servos": [{"id": 1, "model": "XM430-W350", "joint": "j"}]})
     cfg = BusConfig.from_dict({**base, "servos": [{"id": 3, "model": "XM430-W350", "joint": "j", "sign": -1}]})
     assert BusConfig.from_json(cfg.to_json()) == cfg
+
+
+def test_the_documented_example_config_builds():
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "dynamixel.md").read_text()
+    example = re.search(r"```json\n(.*?)```", text, re.S)
+    assert example is not None
+    bus = Bus(BusConfig.from_json(example.group(1)))
+    assert bus.physics.joints == ("base_yaw", "shoulder", "elbow") and [s.id for s in bus.servos] == [1, 2, 3]
