@@ -332,7 +332,8 @@ class Identifier:
                     rejected += 1
                     continue
             run_pass(p, sign)
-        hold_q[j] = sample.q_rad[j]
+        if self._stop:
+            return sample, None  # a joint not finished is left out
         fit: FrictionFit | None = None
         error = None
         try:
