@@ -120,7 +120,7 @@ def format_table(result: IdentifyResult, truth: Truth | None, joints: tuple[str,
 
 def _err(estimate: float, true: float) -> str:
     if true == 0.0:
-        return f"{estimate:+.2g} abs"
+        return f"{estimate:+.2g} N m"
     return f"{100.0 * (estimate / true - 1.0):+.2f}"
 
 
