@@ -101,7 +101,9 @@ class Identifier:
 
     kin: the arm's kinematics in the driver's joint order (gravity torque and inertia); period_s:
     the control period; offset: fit an unmodelled constant bias too; progress: called at every
-    pass and every 100 ticks. `request_stop()` (from a signal handler) ends the run at the next tick.
+    pass and every 100 ticks; paced: whether to pace the loop on the period (None: unless the driver
+    says `lockstep = True`; False for a device whose time advances with each write, as the bus
+    emulator in lockstep mode). `request_stop()` (from a signal handler) ends the run at the next tick.
     """
 
     def __init__(
@@ -115,6 +117,7 @@ class Identifier:
         offset: bool = False,
         gains: Gains | None = None,
         progress: Callable[[Progress], None] | None = None,
+        paced: bool | None = None,
     ) -> None:
         if tuple(kin.joints) != tuple(driver.joints):
             raise PlantError(
@@ -135,7 +138,7 @@ class Identifier:
         self.offset = offset
         self.gains = gains if gains is not None else Gains()
         self.progress = progress
-        self.lockstep = bool(getattr(driver, "lockstep", False))
+        self.lockstep = bool(getattr(driver, "lockstep", False)) if paced is None else not paced
         self.ranges = kin.joint_range_rad()
         self.limit = np.minimum(np.asarray(driver.torque_limit_nm, dtype=float), kin.torque_limit_nm())
         self.plans: dict[str, Plan] = {
