@@ -262,9 +262,12 @@ def main(args: argparse.Namespace) -> int:
     kin = ArmKinematics(getattr(config, side).model, joints, POINT_SITES[side])
 
     bar: Any = None
-    last = [0]
+    last = [0, 0]  # ticks shown; whether the second joint was reached
 
     def progress(p: Any) -> None:
+        if p.joint_index == 1 and last[1] == 0:
+            last[1] = 1
+            interrupt.pause_for_test("second_joint")  # tests: a signal once the first joint is done
         if bar is not None:
             bar.total = max(bar.total, p.ticks)  # repositioning moves the plan did not count
             bar.set_postfix_str(f"{p.joint} pass {p.pass_index + 1}/{p.passes}", refresh=False)
@@ -303,7 +306,12 @@ def main(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(format_table(result, truth, joints))
     if result.interrupted:
-        print("haptic-teleop: identify stopped by a signal; joints not finished are left out", file=sys.stderr)
+        print(
+            "haptic-teleop: identify stopped by a signal, torque off; joints not finished are left out"
+            + (f", {args.write} not written" if args.write is not None else ""),
+            file=sys.stderr,
+        )
+        return EXIT_OK  # the command exits with the signal's code (cli._main)
     if args.plot is not None:
         write_plot(Path(args.plot), result, truth, joints, f"{config.scene.name}: {side} joint friction")
         if not args.quiet:

@@ -311,3 +311,34 @@ def test_command_bad_input(capsys, argv, expect) -> None:  # type: ignore[no-unt
     assert expect in err
     assert len(err.strip().splitlines()) == 1, err
     assert "Traceback" not in err
+
+
+def test_command_ctrl_c_stops_and_prints_the_joints_done(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """SIGINT once the first joint is done: the run stops, the first joint's row is printed, the
+    scene is not written, exit 130, no traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "s.yaml"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", HAPTIC_TELEOP_TEST_PAUSE="second_joint")
+    p = subprocess.Popen(
+        [sys.executable, "-m", "haptic_teleop.cli", "identify", "touch_dynamixel_wall", "--side", "slave",
+         "--write", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    assert p.stderr is not None
+    seen = ""
+    while "phase second_joint" not in seen:  # the marker, not a timing (the read blocks until it comes)
+        line = p.stderr.readline()
+        assert line, f"no phase line; stderr: {seen}"
+        seen += line
+    p.send_signal(signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == 130, stderr
+    rows = [ln.split()[0] for ln in stdout.splitlines()[2:] if ln.split()]
+    assert rows[0] == "base_yaw" and "shoulder" not in rows and "elbow" not in rows
+    assert "stopped by a signal" in stderr and "not written" in stderr
+    assert "Traceback" not in stderr
+    assert not out.exists()
