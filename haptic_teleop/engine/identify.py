@@ -77,7 +77,8 @@ class Progress:
 @dataclass(frozen=True)
 class JointIdentification:
     """One joint's result: the fit (None if it failed: `error` says why), the samples it used,
-    the speeds left out for the range, the windows discarded (guard, saturation, speed not held)."""
+    the speeds left out for the range, the windows discarded (guard, torque clamp or stale reads in
+    more than 5 % of the window, speed not held within 20 %)."""
 
     joint: str
     fit: FrictionFit | None
@@ -297,7 +298,7 @@ class Identifier:
                 tau, saturated = control(sample, sign * speed)
                 applied, nxt = self._tick(tau)
                 if window is not None and p.in_window(t):
-                    bad += int(saturated)
+                    bad += int(saturated) + int(getattr(sample, "stale", 0) > 0)  # a repeated (stale) read
                     window.add(
                         t,
                         float(sample.qd_rad_per_s[j]),
