@@ -342,3 +342,29 @@ def test_command_ctrl_c_stops_and_prints_the_joints_done(tmp_path) -> None:  # t
     assert "stopped by a signal" in stderr and "not written" in stderr
     assert "Traceback" not in stderr
     assert not out.exists()
+
+
+def test_sim_driver_is_a_joint_driver() -> None:
+    """The simulated driver keeps the JointDriver contract: no read or write before start or after
+    stop, stop idempotent with the torque off; the Touch's gravcomp bodies weigh again (torque 0:
+    the arm falls); a sensor's velocity resolution is what it reports."""
+    from haptic_teleop.errors import PlantError
+
+    d = MujocoJointDriver("touch.xml", "handle", start_q_rad=[0.0, 0.2, 0.0], velocity_resolution_rad_per_s=0.05)
+    with pytest.raises(PlantError, match="before start"):
+        d.read()
+    s0 = d.start()
+    assert s0.t_s == 0.0
+    for _ in range(200):
+        d.write(np.zeros(3))
+    s = d.read()
+    assert s.t_s == pytest.approx(0.2)
+    assert np.abs(s.q_rad - s0.q_rad).max() > 0.01  # nothing holds it: it falls
+    np.testing.assert_allclose(s.qd_rad_per_s / 0.05, np.round(s.qd_rad_per_s / 0.05), atol=1e-9)
+    applied = d.write(np.array([1.0, -1.0, 0.1]))
+    np.testing.assert_allclose(applied, [0.44, -0.44, 0.1])  # clipped at the ctrlrange
+    d.stop()
+    d.stop()
+    assert (d.arm.data.ctrl == 0.0).all()
+    with pytest.raises(PlantError, match="after stop"):
+        d.write(np.zeros(3))
