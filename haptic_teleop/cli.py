@@ -1,4 +1,4 @@
-"""`haptic-teleop run | analyze | sweep | scenes | bench | launch`: the command line."""
+"""`haptic-teleop run | analyze | sweep | scenes | bench | launch | identify`: the command line."""
 
 from __future__ import annotations
 
@@ -299,6 +299,14 @@ def build_parser() -> argparse.ArgumentParser:
         bp = bsub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(bp)
         bp.set_defaults(func=cmd_bench)
+
+    from haptic_teleop import identify
+
+    idp = sub.add_parser(
+        "identify", help="excite an arm's joints, estimate their friction, print and write the damping EBA may assume"
+    )
+    identify.add_arguments(idp)
+    idp.set_defaults(func=identify.main)
 
     from haptic_teleop.launcher import add_arguments as add_launch_arguments
 
