@@ -63,6 +63,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from haptic_teleop.emulate import emulated
 
     first = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed, emulate=True)
+    if args.dry_run:  # validated; no emulator needed to print it
+        return _run_scene(args, first)
     with emulated(first.config, emulate) as ports:
         scene = load_scene(find_scene(args.scene), overrides=overrides + ports, seed=args.seed)
         return _run_scene(args, scene)
