@@ -250,11 +250,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dry-run", action="store_true", help="validate the scene, print it resolved, write nothing")
     r.add_argument(
         "--emulate",
-        nargs="?",
+        action="store_const",
         const="lockstep",
-        choices=("lockstep", "realtime"),
-        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it; "
-        "lockstep (default): deterministic emulator time, realtime: the wall clock (docs/hardware.md)",
+        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it, "
+        "in lockstep time: the same scene and seed give the same bag (docs/hardware.md)",
     )
     r.add_argument(
         "--compression",
