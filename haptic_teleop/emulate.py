@@ -9,7 +9,8 @@ For each side with `backend: dynamixel` one emulator process is started
   driver, with the scene's `zero_offsets_rad`, reads the emulated joint's angle (the emulator puts
   a joint's angle `offset` at register 2048, the driver reads `sign (angle - zero_offset)`);
 - its physics: the side's MJCF (the same model the kinematics use), started at `start_q_rad`,
-  with the true viscous joint friction equal to the damping the scene lets EBA assume (so the
+  with the true viscous joint friction equal to the damping the scene lets EBA assume (the
+  model's when the scene names none, as for `identify`; so the
   energy analysis' margins, which use the assumed damping, are those of the emulated arm; the
   model's Coulomb friction stays and only dissipates more), gravity on;
 - a slave's wall (the scene's `slave.wall`), a master's operator hand (the scene's push profile:
@@ -62,7 +63,7 @@ def bus_config(config: Scene, role: str, time_mode: str = "lockstep", source: st
     hw = cfg.hardware
     if cfg.backend != "dynamixel" or hw is None or hw.ids is None or hw.models is None:
         raise ConfigError(source, f"{role}.backend", cfg.backend, "the emulator stands in for a dynamixel side")
-    if cfg.start_q_rad is None or cfg.damping_nm_s_per_rad is None:
+    if cfg.start_q_rad is None:
         raise ConfigError(source, f"{role}.start_q_rad", None, "required for an emulated side")
     info = inspect_model(cfg.model)
     joints = cfg.joints if cfg.joints is not None else tuple(m for m in info.motors if m in info.joints)
@@ -83,11 +84,12 @@ def bus_config(config: Scene, role: str, time_mode: str = "lockstep", source: st
     )
     # Per model joint (the emulator's order): the scene's start and damping where it names the joint.
     start = []
-    damping = []
+    damping: list[float] | None = None if cfg.damping_nm_s_per_rad is None else []  # None: the model's
     for name in info.joints:
         k = joints.index(name) if name in joints else None
         start.append(cfg.start_q_rad[k] if k is not None else 0.0)
-        damping.append(cfg.damping_nm_s_per_rad[k] if k is not None else 0.0)
+        if damping is not None:
+            damping.append(cfg.damping_nm_s_per_rad[k] if k is not None else 0.0)
     wall = None
     hand = None
     if role == "slave":
@@ -124,7 +126,7 @@ def bus_config(config: Scene, role: str, time_mode: str = "lockstep", source: st
         kind="mujoco",
         model=cfg.model,
         start_q_rad=tuple(start),
-        damping_nm_s_per_rad=tuple(damping),
+        damping_nm_s_per_rad=None if damping is None else tuple(damping),
         wall=wall,
         hand=hand,
     )

@@ -49,15 +49,24 @@ def joint_driver_for(
 
     `backend: mujoco`: the simulated arm (plants/sim_driver.py) on the side's model, joints, start
     pose, torque limits and damping, with the model's dry friction, its velocity reported with
-    white noise (seeded). INTEGRATION POINT: hardware backends (`backend: dynamixel`, `ur`) build
-    their driver here (plants/dynamixel/driver.py, ...) and return (driver, None).
+    white noise (seeded). `backend: dynamixel`: the side's servos through `plants.dynamixel_driver`
+    (the run's driver), returned with None (the truth is unknown).
     """
     cfg = getattr(config, side)
     backend = cfg.backend
+    if backend == "dynamixel":
+        # The side's servos, as the run would drive them (plants.dynamixel_driver: ids, models,
+        # signs, offsets, Current Limit at the joint's torque limit); their friction is unknown.
+        from haptic_teleop.plants import dynamixel_driver
+        from haptic_teleop.plants.kinematics import ArmKinematics
+
+        kin = ArmKinematics(cfg.model, cfg.joints, POINT_SITES[side])
+        limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
+        return dynamixel_driver(cfg.hardware, kin.joints, limit), None
     if backend != "mujoco":
         raise InputError(
-            f"identify on {side}.backend {backend!r} is not yet available; allowed today: mujoco "
-            "(hardware drivers are wired into haptic_teleop/identify.py::joint_driver_for)"
+            f"identify on {side}.backend {backend!r} is not available; allowed: mujoco, dynamixel (a UR arm in "
+            "direct torque mode has its gravity compensated by the controller, which the excitation also adds)"
         )
     import numpy as np
 
@@ -237,7 +246,7 @@ def main(args: argparse.Namespace) -> int:
     exc = _excitation(args)
     overrides = list(args.set or ())
     path = str(find_scene(args.scene))
-    loaded = load_scene(path, overrides=overrides, seed=args.seed)
+    loaded = load_scene(path, overrides=overrides, seed=args.seed, identify=True)
     config = loaded.config
     if not config.is_arm:
         raise InputError(

@@ -37,7 +37,9 @@ ARM_SITES = {"master": "handle", "slave": "tool"}  # the point each side's coupl
 ARM_WALL_STEP_LIMIT = 1.0  # omega * h of an arm's wall contact (docs/arms.md: 1.28 chattered on a light arm)
 
 
-def _check_hardware(source: str, side: str, cfg: Any, joints: Sequence[str], emulate: bool) -> None:
+def _check_hardware(
+    source: str, side: str, cfg: Any, joints: Sequence[str], emulate: bool, identify: bool = False
+) -> None:
     """A side's `backend` and `hardware` section agree (docs/hardware.md): a real device names its
     bus and servos, one per joint, where it stands at start and the joint damping EBA may assume
     (it cannot be read from a simulator). A simulated side may carry a hardware section (a bundled
@@ -46,7 +48,7 @@ def _check_hardware(source: str, side: str, cfg: Any, joints: Sequence[str], emu
     hw = cfg.hardware
     real = cfg.backend != "mujoco"
     if real:
-        if cfg.damping_nm_s_per_rad is None:
+        if cfg.damping_nm_s_per_rad is None and not identify:
             raise ConfigError(
                 source,
                 f"{side}.damping_nm_s_per_rad",
@@ -115,7 +117,8 @@ def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys:
             source,
             f"{side}.hardware.{dxl_keys[0]}",
             getattr(hw, dxl_keys[0]),
-            "a Dynamixel key; allowed for backend ur: host, control_mode, start_tolerance_rad, ramp_in_s",
+            f"a Dynamixel key, and {side}.backend is ur; allowed for backend ur: host, control_mode, "
+            "start_tolerance_rad, ramp_in_s",
         )
     if hw.host is None:
         raise ConfigError(source, f"{side}.hardware.host", None, "required for backend ur: the controller's address")
@@ -147,7 +150,7 @@ def dynamixel_models() -> tuple[str, ...] | None:
     return tuple(tables.MODELS)
 
 
-def _check_arm_scene(config: Scene, source: str, emulate: bool = False) -> None:
+def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify: bool = False) -> None:
     """An arm scene's models, joints and per-joint lists agree; the tool starts in free space and
     the wall is not too stiff for the MuJoCo step. A one-axis scene names no arm model."""
     from haptic_teleop.errors import PlantError
@@ -223,7 +226,7 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False) -> None:
                     list(v),
                     f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
                 )
-        _check_hardware(source, side, cfg, joints, emulate)
+        _check_hardware(source, side, cfg, joints, emulate, identify)
     op = config.operator
     if op.profile == "trace":
         raise ConfigError(source, "operator.profile", op.profile, "allowed for arms: push, sinusoid, hold")
@@ -250,10 +253,15 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False) -> None:
 
 
 def load_scene(
-    path: str | Path, overrides: Sequence[str] = (), seed: int | None = None, emulate: bool = False
+    path: str | Path,
+    overrides: Sequence[str] = (),
+    seed: int | None = None,
+    emulate: bool = False,
+    identify: bool = False,
 ) -> LoadedScene:
     """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed.
-    `emulate`: a Dynamixel side's port may be missing (`run --emulate` fills it in).
+    `emulate`: a Dynamixel side's port may be missing (`run --emulate` fills it in); `identify`: a
+    real side's damping may be missing (`haptic-teleop identify` measures it).
 
     Errors about a key an override set name the override (`--set KEY=VALUE`, `--seed N`), not the file."""
     p = Path(path)
@@ -278,7 +286,7 @@ def load_scene(
     try:
         config = build(Scene, raw, "", source)
         _check_models(config, source)
-        _check_arm_scene(config, source, emulate)
+        _check_arm_scene(config, source, emulate, identify)
     except ConfigError as exc:
         raise blame_override(exc, ovs) from None
     config = resolve_scene_traces(config, p.parent, source)

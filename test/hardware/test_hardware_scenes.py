@@ -158,3 +158,40 @@ def test_the_ramp_in_shrinks_the_torque_before_the_bound_and_reaches_one() -> No
     arm.read()  # type: ignore[attr-defined]
     assert np.allclose(arm.safe_torque(tau), tau)  # type: ignore[attr-defined]
     arm.close()  # type: ignore[attr-defined]
+
+
+def test_identify_builds_the_runs_dynamixel_driver_and_refuses_a_ur_side(tmp_path: Path) -> None:
+    """`haptic-teleop identify` on a side on servos: the driver the run would use (ids, models,
+    signs, offsets, Current Limit at the torque limit) from the scene, damping not yet required;
+    here started against the emulator, read at the scene's start pose, stopped with torque off."""
+    import dynamixel_sdk as sdk
+
+    from haptic_teleop.emulate import bus_config
+    from haptic_teleop.emulators.dynamixel.process import start_bus
+    from haptic_teleop.errors import InputError
+    from haptic_teleop.identify import joint_driver_for
+
+    sets = ["slave.backend=dynamixel", "slave.damping_nm_s_per_rad=null"]
+    first = load_scene(find_scene("touch_dynamixel_wall"), sets, emulate=True, identify=True)
+    with start_bus(bus_config(first.config, "slave")) as bus:
+        scene = load_scene(
+            find_scene("touch_dynamixel_wall"), [*sets, f"slave.hardware.port={bus.port}"], identify=True
+        )
+        driver, truth = joint_driver_for(scene.config, "slave", 0)
+        assert truth is None and driver.joints == ("base_yaw", "shoulder", "elbow")
+        np.testing.assert_allclose(driver.torque_limit_nm, [7.7765, 7.7765, 3.0689], rtol=2e-3)
+        sample = driver.start()
+        np.testing.assert_allclose(sample.q_rad, [0.0, 0.6, -1.2], atol=2e-3)
+        driver.stop()
+        port = sdk.PortHandler(bus.port)
+        assert port.openPort() and port.setBaudRate(4_000_000)
+        packet = sdk.PacketHandler(2.0)
+        assert [packet.read1ByteTxRx(port, i, 64)[0] for i in (1, 2, 3)] == [0, 0, 0]
+        port.closePort()
+    ur = load_scene(
+        find_scene("touch_ur5e_wall"),
+        ["slave.backend=ur", "slave.hardware.host=127.0.0.1", "slave.hardware.control_mode=torque"],
+        identify=True,
+    )
+    with pytest.raises(InputError, match="allowed: mujoco, dynamixel"):
+        joint_driver_for(ur.config, "slave", 0)
