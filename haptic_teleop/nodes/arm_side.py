@@ -89,6 +89,7 @@ class ArmEbaSide:
         self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
         self._last_write_s: float | None = None
+        self._last_read_s: float | None = None
         self.long_holds = 0  # a real arm's writes held longer than two periods (wall time)
         self.max_hold_s = 0.0
         self.remote_samples = 0
@@ -130,6 +131,13 @@ class ArmEbaSide:
         if self.compiled:
             return self.tick.read_point()  # type: ignore[no-any-return]
         q, qd = self.plant.read()
+        if self.hardware:
+            # A real arm lives in wall time: the motion since the last read took this long, and the
+            # ledger credits its damping over that time (CoupledEnergyBound.stretch).
+            now = time.monotonic()
+            if self._last_read_s is not None:
+                self.tick.bound.stretch(now - self._last_read_s)
+            self._last_read_s = now
         x, v = self.plant.point()
         return q, qd, x, v
 
