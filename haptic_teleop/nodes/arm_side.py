@@ -65,7 +65,7 @@ class ArmEbaSide:
         # and writes it once, the safety guards act on the desired torque before the bound (SideTick),
         # a guard's fault or a device's HardwareError ends the node (exit 1, one line), and `close` on
         # every way out turns its torque off (docs/live.md, "A real arm on a side").
-        self.hardware = not isinstance(self.plant, _mujoco_arm())
+        self.hardware = isinstance(self.plant, _hardware_arm())
         self.maps = parts.maps
         self.schema = parts.schema
         self.period_s = config.scene.period_s
@@ -213,10 +213,10 @@ class ArmEbaSide:
             log(line)
 
 
-def _mujoco_arm() -> type:
-    from haptic_teleop.plants.arm import MujocoArm
+def _hardware_arm() -> type:
+    from haptic_teleop.plants.hardware_arm import HardwareArm
 
-    return MujocoArm
+    return HardwareArm
 
 
 HARDWARE_SCHEDULING = (
