@@ -1,4 +1,4 @@
-"""`haptic-teleop run | analyze | sweep | scenes | bench | launch`: the command line."""
+"""`haptic-teleop run | analyze | sweep | scenes | bench | launch | identify`: the command line."""
 
 from __future__ import annotations
 
@@ -63,6 +63,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from haptic_teleop.emulate import emulated
 
     first = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed, emulate=True)
+    if args.dry_run:  # validated; no emulator needed to print it
+        return _run_scene(args, first)
     with emulated(first.config, emulate) as ports:
         scene = load_scene(find_scene(args.scene), overrides=overrides + ports, seed=args.seed)
         return _run_scene(args, scene)
@@ -248,11 +250,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dry-run", action="store_true", help="validate the scene, print it resolved, write nothing")
     r.add_argument(
         "--emulate",
-        nargs="?",
+        action="store_const",
         const="lockstep",
-        choices=("lockstep", "realtime"),
-        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it; "
-        "lockstep (default): deterministic emulator time, realtime: the wall clock (docs/hardware.md)",
+        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it, "
+        "in lockstep time: the same scene and seed give the same bag (docs/hardware.md)",
     )
     r.add_argument(
         "--compression",
@@ -300,12 +301,34 @@ def build_parser() -> argparse.ArgumentParser:
         mod.add_arguments(bp)
         bp.set_defaults(func=cmd_bench)
 
+    from haptic_teleop import identify
+
+    idp = sub.add_parser(
+        "identify", help="excite an arm's joints, estimate their friction, print and write the damping EBA may assume"
+    )
+    identify.add_arguments(idp)
+    idp.set_defaults(func=identify.main)
+
     from haptic_teleop.launcher import add_arguments as add_launch_arguments
 
     la = sub.add_parser("launch", help="run a scene live: ROS 2 nodes as processes over DDS")
     add_launch_arguments(la)
     la.set_defaults(func=cmd_launch)
+
+    em = sub.add_parser("emulate", help="serve an emulated device for the unmodified SDKs (docs/dynamixel.md)")
+    emd = em.add_subparsers(dest="device", required=True, metavar="DEVICE").add_parser(
+        "dynamixel", help="a Protocol 2.0 bus on a pseudo-terminal; prints PORT /dev/pts/N"
+    )
+    emd.add_argument("--config", required=True, help="a JSON file of the bus (BusConfig), or - for stdin")
+    emd.add_argument("--die-with-stdin", action="store_true", help="also stop when stdin is closed")
+    emd.set_defaults(func=cmd_emulate)
     return p
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from haptic_teleop.emulators.dynamixel.__main__ import main as emulate_dynamixel
+
+    return emulate_dynamixel(["--config", args.config, *(["--die-with-stdin"] if args.die_with_stdin else [])])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -65,7 +65,7 @@ def bus_dict(n_servos: int, baud_bps: int) -> dict[str, Any]:
     return {"servos": servos, "baud_bps": baud_bps, "usb_latency_s": 0.0, "physics": physics}
 
 
-def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) -> dict[str, Any]:
+def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int, pin: bool = False) -> dict[str, Any]:
     from haptic_teleop.emulators.dynamixel.config import BusConfig
     from haptic_teleop.emulators.dynamixel.process import start_bus
     from haptic_teleop.plants.dynamixel.driver import (
@@ -78,12 +78,16 @@ def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) 
 
     bus_cfg = BusConfig.from_dict(bus_dict(n_servos, baud_bps))
     bus = start_bus(bus_cfg)
+    cpus = sorted(os.sched_getaffinity(0))
+    if pin and len(cpus) >= 2:  # host and emulator on CPUs of their own: neither preempts the other
+        os.sched_setaffinity(0, {cpus[0]})
+        os.sched_setaffinity(bus.pid, {cpus[1]})
     try:
         joints = tuple(
             DynamixelJoint(s.joint, s.id, s.model, zero_offset_rad=math.pi, current_limit=200) for s in bus_cfg.servos
         )
         cfg = DynamixelChainConfig(
-            bus.port, joints, baud_bps=baud_bps, fast_sync_read=fast, bus_watchdog_s=1.0, read_timeout_s=0.1
+            bus.port, joints, baud_bps=baud_bps, fast_sync_read=fast, bus_watchdog_s=1.0, read_timeout_s=0.5
         )
         tau = np.zeros(n_servos)
         with DynamixelDriver(cfg) as drv:
@@ -94,20 +98,24 @@ def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) 
             emu_pid = getattr(bus, "pid", None)
             emu0 = _proc_cpu_s(emu_pid) if emu_pid else None
             stale0 = drv.stale_reads
-            cpu0 = time.process_time()
-            t_write = 0.0
-            t0 = time.perf_counter()
+            cpu_read = cpu_write = wall_read = 0.0
+            clock, cpu_clock = time.perf_counter, time.process_time
+            t0 = clock()
             for _ in range(ticks):
+                a, ca = clock(), cpu_clock()
                 drv.read()
-                tw = time.perf_counter()
+                b, cb = clock(), cpu_clock()
                 drv.write(tau)
-                t_write += time.perf_counter() - tw
-            wall = time.perf_counter() - t0
-            cpu = time.process_time() - cpu0
+                cpu_write += cpu_clock() - cb
+                cpu_read += cb - ca
+                wall_read += b - a
+            wall = clock() - t0
             emu1 = _proc_cpu_s(emu_pid) if emu_pid else None
             stale = drv.stale_reads - stale0
     finally:
         bus.stop()
+        if pin:
+            os.sched_setaffinity(0, set(cpus))
     limit = wire_limit_hz(n_servos, baud_bps, fast)
     rate = ticks / wall
     return {
@@ -119,8 +127,12 @@ def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int) 
         "limit_hz": limit,
         "ratio": rate / limit,
         "wire_us_per_tick": 1e6 / limit,
-        "host_cpu_us_per_tick": 1e6 * cpu / ticks,
-        "write_us_per_tick": 1e6 * t_write / ticks,
+        "tick_us": 1e6 * wall / ticks,
+        "host_bound_hz": 1.0 / (1.0 / limit + (cpu_read + cpu_write) / ticks),
+        "read_wall_us_per_tick": 1e6 * wall_read / ticks,
+        "host_cpu_us_per_tick": 1e6 * (cpu_read + cpu_write) / ticks,
+        "read_cpu_us_per_tick": 1e6 * cpu_read / ticks,
+        "write_cpu_us_per_tick": 1e6 * cpu_write / ticks,
         "emulator_cpu_us_per_tick": None if emu0 is None or emu1 is None else 1e6 * (emu1 - emu0) / ticks,
         "stale_reads": stale,
     }
@@ -136,6 +148,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ticks", type=positive(int), default=3000, help="timed ticks per case (default 3000)")
     p.add_argument("--warmup", type=positive(int), default=200, help="untimed ticks first (default 200)")
     p.add_argument("--repeat", type=positive(int), default=1, help="runs per case; the table shows the median")
+    p.add_argument("--pin", action="store_true", help="pin this process and the emulator to one CPU each")
     p.add_argument("--json", metavar="PATH", help="also write every run's figures to this JSON file")
 
 
@@ -165,34 +178,42 @@ def main(args: argparse.Namespace) -> int:
     print(
         f"Dynamixel driver against the bus emulator (wire timing, Return Delay 0, USB latency 0), "
         f"{args.ticks} ticks free-running, median of {args.repeat}"
+        + (", host and emulator pinned to one CPU each" if args.pin else "")
     )
     print("limit = 1 / (bytes per tick x 10 / baud); target: rate >= 80 % of the limit")
     head = (
         f"{'servos':>6} {'baud':>9} {'read':<15} {'bytes':>5} {'rate Hz':>8} {'limit Hz':>9} {'ratio':>6}  "
-        f"{'host cpu us':>11} {'write us':>8} {'emu cpu us':>10} {'stale':>5}"
+        f"{'tick us':>7} {'wire us':>7} {'read us':>7} {'host cpu us':>11} {'(read':>6} {'write)':>6} "
+        f"{'emu cpu us':>10} {'stale':>5} {'wire+host Hz':>12}"
     )
     print(head)
     runs: list[dict[str, Any]] = []
     for n in servos:
         for baud in bauds:
             for read in reads:
-                got = [run_case(n, baud, read == "fast", args.ticks, args.warmup) for _ in range(args.repeat)]
+                got = [run_case(n, baud, read == "fast", args.ticks, args.warmup, args.pin) for _ in range(args.repeat)]
                 runs.extend(got)
                 med = sorted(got, key=lambda r: r["rate_hz"])[len(got) // 2]
                 emu = med["emulator_cpu_us_per_tick"]
                 rates = ", ".join(f"{r['rate_hz']:.0f}" for r in got)
                 print(
                     f"{n:>6} {baud:>9} {med['read']:<15} {med['bytes_per_tick']:>5} {med['rate_hz']:>8.0f} "
-                    f"{med['limit_hz']:>9.0f} {med['ratio']:>6.2f}  {med['host_cpu_us_per_tick']:>11.0f} "
-                    f"{med['write_us_per_tick']:>8.0f} {'-' if emu is None else f'{emu:.0f}':>10} "
-                    f"{med['stale_reads']:>5}" + (f"   (runs: {rates})" if len(got) > 1 else ""),
+                    f"{med['limit_hz']:>9.0f} {med['ratio']:>6.2f}  {med['tick_us']:>7.0f} "
+                    f"{med['wire_us_per_tick']:>7.0f} {med['read_wall_us_per_tick']:>7.0f} "
+                    f"{med['host_cpu_us_per_tick']:>11.0f} {med['read_cpu_us_per_tick']:>6.0f} "
+                    f"{med['write_cpu_us_per_tick']:>6.0f} {'-' if emu is None else f'{emu:.0f}':>10} "
+                    f"{med['stale_reads']:>5} {med['host_bound_hz']:>12.0f}"
+                    + (f"   (runs: {rates})" if len(got) > 1 else ""),
                     flush=True,
                 )
     ratios = [r["ratio"] for r in runs]
     print(f"ratio: rate / limit; median over all cases {statistics.median(ratios):.2f}; target >= 0.80")
     print(
-        "host cpu us: this process's CPU time per tick (SDK packet building and parsing, the driver); "
-        "emu cpu us: the emulator process's"
+        "tick us: wall time per tick; wire us: the bytes' time on the bus; read us: wall time in read() "
+        "(sync read out, replies back); host cpu us: this process's CPU time per tick (the SDK building "
+        "and parsing packets, the driver), split into read and write; emu cpu us: the emulator process's; "
+        "wire+host Hz: 1 / (wire time + host CPU time), what this host would reach on a bus whose servos "
+        "answer in no time"
     )
     if args.json:
         Path(args.json).write_text(json.dumps({"benchmark": "hardware", "runs": runs}, indent=1) + "\n")

@@ -294,7 +294,8 @@ def plan_passes(exc: Excitation, range_rad: tuple[float, float]) -> Plan:
     """The passes of one joint: every speed, `repeats` times, in both directions.
 
     A speed's measure time per direction goes into one pass when its travel fits in the usable
-    span, else into n back-and-forth passes of measure_s / n each (n the fewest that fit); a
+    span, else into n back-and-forth passes of measure_s / n each (n the fewest that fit; at least
+    min_measure_s each, so a speed may get a little more than measure_s); a
     speed whose pass with the shortest window (min_measure_s) does not fit is dropped. A pass is
     planned to fill at most FIT_SHARE of the span: the rest is slack for the velocity loop's lag
     and for `reposition`. Directions
@@ -312,8 +313,10 @@ def plan_passes(exc: Excitation, range_rad: tuple[float, float]) -> Plan:
                     dropped.append(v)
                 continue
             n = 1 if math.isinf(room) else max(1, math.ceil(v * exc.measure_s / room - 1e-12))
+            # measure_s / n fits (room / v); min_measure_s fits (checked above): so does the larger
+            window = max(exc.measure_s / n, exc.min_measure_s)
             for _ in range(2 * n):
-                passes.append(Pass(v, exc.accel_rad_per_s2, exc.settle_s, exc.measure_s / n, exc.rest_s, sign))
+                passes.append(Pass(v, exc.accel_rad_per_s2, exc.settle_s, window, exc.rest_s, sign))
                 sign = -sign
     return Plan(tuple(passes), tuple(dropped))
 

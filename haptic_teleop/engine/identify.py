@@ -77,7 +77,8 @@ class Progress:
 @dataclass(frozen=True)
 class JointIdentification:
     """One joint's result: the fit (None if it failed: `error` says why), the samples it used,
-    the speeds left out for the range, the windows discarded (guard, saturation, speed not held)."""
+    the speeds left out for the range, the windows discarded (guard, torque clamp or stale reads in
+    more than 5 % of the window, speed not held within 20 %)."""
 
     joint: str
     fit: FrictionFit | None
@@ -101,7 +102,9 @@ class Identifier:
 
     kin: the arm's kinematics in the driver's joint order (gravity torque and inertia); period_s:
     the control period; offset: fit an unmodelled constant bias too; progress: called at every
-    pass and every 100 ticks. `request_stop()` (from a signal handler) ends the run at the next tick.
+    pass and every 100 ticks; paced: whether to pace the loop on the period (None: unless the driver
+    says `lockstep = True`; False for a device whose time advances with each write, as the bus
+    emulator in lockstep mode). `request_stop()` (from a signal handler) ends the run at the next tick.
     """
 
     def __init__(
@@ -115,6 +118,7 @@ class Identifier:
         offset: bool = False,
         gains: Gains | None = None,
         progress: Callable[[Progress], None] | None = None,
+        paced: bool | None = None,
     ) -> None:
         if tuple(kin.joints) != tuple(driver.joints):
             raise PlantError(
@@ -135,7 +139,7 @@ class Identifier:
         self.offset = offset
         self.gains = gains if gains is not None else Gains()
         self.progress = progress
-        self.lockstep = bool(getattr(driver, "lockstep", False))
+        self.lockstep = bool(getattr(driver, "lockstep", False)) if paced is None else not paced
         self.ranges = kin.joint_range_rad()
         self.limit = np.minimum(np.asarray(driver.torque_limit_nm, dtype=float), kin.torque_limit_nm())
         self.plans: dict[str, Plan] = {
@@ -294,7 +298,7 @@ class Identifier:
                 tau, saturated = control(sample, sign * speed)
                 applied, nxt = self._tick(tau)
                 if window is not None and p.in_window(t):
-                    bad += int(saturated)
+                    bad += int(saturated) + int(getattr(sample, "stale", 0) > 0)  # a repeated (stale) read
                     window.add(
                         t,
                         float(sample.qd_rad_per_s[j]),
@@ -332,7 +336,8 @@ class Identifier:
                     rejected += 1
                     continue
             run_pass(p, sign)
-        hold_q[j] = sample.q_rad[j]
+        if self._stop:
+            return sample, None  # a joint not finished is left out
         fit: FrictionFit | None = None
         error = None
         try:

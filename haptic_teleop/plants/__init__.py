@@ -133,9 +133,22 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
     if hw is None or cfg.damping_nm_s_per_rad is None or cfg.start_q_rad is None:
         raise PlantError(f"{role}.backend {cfg.backend}: needs {role}.hardware, damping_nm_s_per_rad, start_q_rad")
     kin = ArmKinematics(cfg.model, cfg.joints, "handle" if role == "master" else "tool")
+    gravity = cfg.gravity_compensation is not False
+    wrench = None
+    where = hw.port
     if cfg.backend == "dynamixel":
         limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
         driver: JointDriver = dynamixel_driver(hw, kin.joints, limit)
+    elif cfg.backend == "ur":
+        from haptic_teleop.plants.ur.driver import URTorqueDriver
+
+        assert hw.host is not None
+        ur = URTorqueDriver(hw.host)
+        driver, where = ur, hw.host
+        # Direct torque is beyond gravity: the UR controller compensates gravity itself, so the
+        # plant adds none; its contact is the controller's TCP wrench (the e-Series' F/T sensor).
+        gravity = False
+        wrench = lambda: ur.ur.state().tcp_wrench  # noqa: E731
     else:
         raise PlantError(f"{role}.backend {cfg.backend!r}: no driver for it here")
     return HardwareArm(
@@ -146,11 +159,12 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         config.scene.period_s,
         role,
         torque_limit_nm=cfg.torque_limit_nm,
-        gravity_compensation=cfg.gravity_compensation is not False,
+        gravity_compensation=gravity,
         wall=_wall(config) if role == "slave" else None,
         start_tolerance_rad=hw.start_tolerance_rad,
         ramp_in_s=hw.ramp_in_s,
-        source=f"{role} ({cfg.backend} on {hw.port})",
+        source=f"{role} ({cfg.backend} on {where})",
+        wrench_source=wrench,
     )
 
 

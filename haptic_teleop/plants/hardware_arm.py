@@ -51,7 +51,7 @@ them; the engine stops both sides and ends the run.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -74,7 +74,9 @@ class HardwareArm:
     start_tolerance_rad); period_s: the control period (the ramp's clock counts ticks);
     torque_limit_nm: the scene's limit per joint (the smaller of it and the driver's is used);
     wall: the slave's wall as the scene places it (for the analysis and the emulator; nothing
-    here simulates it); role: "master" or "slave".
+    here simulates it); role: "master" or "slave"; wrench_source: the device's own measure of
+    the environment's wrench on the tool (force, then torque; e.g. a UR's TCP wrench), used for
+    a slave's contact instead of the estimate from the motor torques.
     """
 
     def __init__(
@@ -91,6 +93,7 @@ class HardwareArm:
         start_tolerance_rad: float = 0.05,
         ramp_in_s: float = 0.5,
         source: str = "",
+        wrench_source: Callable[[], np.ndarray] | None = None,
     ) -> None:
         if tuple(driver.joints) != tuple(kinematics.joints):
             raise PlantError(
@@ -118,7 +121,8 @@ class HardwareArm:
         self._gravity = gravity_compensation
         self.wall = wall
         self.tool_radius_m = 0.0
-        self.contact_estimated = role == "slave"
+        self.contact_estimated = role == "slave" and wrench_source is None
+        self._wrench_source = wrench_source if role == "slave" else None
         self._period_s = period_s
         rng = kinematics.joint_range_rad()
         self.safety = SafetyGuard(
@@ -263,6 +267,9 @@ class HardwareArm:
         not estimated), world frame: a slave's quasi-static estimate from the measured motor
         torques, f = -(J^T)^+ (tau_measured - g(q)) (module docstring: its error sources); a
         master's zero."""
+        if self._wrench_source is not None:  # a force-torque sensor: the device's own wrench
+            w = np.asarray(self._wrench_source(), dtype=float)
+            return w[:3].copy(), w[3:6].copy()
         if not self.contact_estimated or self._ticks == 0:
             # Before the first write the motors hold nothing (torque on with zero current): no estimate.
             return np.zeros(3), np.zeros(3)

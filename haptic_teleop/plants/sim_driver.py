@@ -52,6 +52,8 @@ class MujocoJointDriver:
         rng: np.random.Generator | None = None,
     ) -> None:
         self.sim = sim if sim is not None else SimSettings()
+        self.model_name = model
+        self.point_site = point_site
         self.arm = MujocoArm(
             self.sim,
             model,

@@ -71,6 +71,13 @@ def _check_hardware(source: str, side: str, cfg: Any, joints: Sequence[str], emu
             )
     if hw is None:
         return
+    dxl_keys = [k for k in ("port", "ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a")
+                if getattr(hw, k) is not None]  # fmt: skip
+    if cfg.backend == "ur":
+        _check_ur(source, side, cfg, joints, dxl_keys)
+        return
+    if cfg.backend == "mujoco" and not dxl_keys:
+        return  # a section for another backend (e.g. a UR host) kept for --set <side>.backend
     if real and hw.port is None and not emulate:
         raise ConfigError(
             source,
@@ -97,6 +104,38 @@ def _check_hardware(source: str, side: str, cfg: Any, joints: Sequence[str], emu
                 raise ConfigError(
                     source, f"{side}.hardware.models[{i}]", name, f"allowed: one of {', '.join(sorted(known))}"
                 )
+
+
+def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys: list[str]) -> None:
+    """A side on a Universal Robots arm: its host, the control mode the engine can run, the UR
+    driver's joints."""
+    hw = cfg.hardware
+    if dxl_keys:
+        raise ConfigError(
+            source,
+            f"{side}.hardware.{dxl_keys[0]}",
+            getattr(hw, dxl_keys[0]),
+            "a Dynamixel key; allowed for backend ur: host, control_mode, start_tolerance_rad, ramp_in_s",
+        )
+    if hw.host is None:
+        raise ConfigError(source, f"{side}.hardware.host", None, "required for backend ur: the controller's address")
+    if hw.control_mode != "torque":
+        raise ConfigError(
+            source,
+            f"{side}.hardware.control_mode",
+            hw.control_mode,
+            "allowed in the engine's arm tick: torque (direct joint torques beyond gravity, PolyScope 5.23 / 10.10 or "
+            "later); force_mode and admittance exist in the UR driver (plants/ur/driver.py) but the tick commands "
+            "joint torques through the pooled energy bound, and neither is wired into it yet (docs/hardware.md)",
+        )
+    try:
+        from haptic_teleop.plants.ur.driver import JOINTS
+    except ImportError:
+        return
+    if tuple(joints) != JOINTS:
+        raise ConfigError(
+            source, f"{side}.joints", list(joints), f"backend ur drives the UR's joints in order: {', '.join(JOINTS)}"
+        )
 
 
 def dynamixel_models() -> tuple[str, ...] | None:

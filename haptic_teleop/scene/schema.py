@@ -173,14 +173,16 @@ def _check_saturation(side: str, effects: PlantEffectsConfig, plant_limit_n: flo
 
 
 DYNAMIXEL_BAUDS_BPS = (9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000)
-HARDWARE_BACKENDS = ("dynamixel",)  # a side on one of these needs its `hardware` section
+HARDWARE_BACKENDS = ("dynamixel", "ur")  # a side on one of these needs its `hardware` section
+UR_CONTROL_MODES = ("force_mode", "admittance", "torque")
 BACKENDS = ("mujoco", *HARDWARE_BACKENDS)
 
 
 @dataclass(frozen=True)
 class HardwareConfig:
     """A side's real device (docs/hardware.md): for `backend: dynamixel` the bus (port, baud) and
-    per joint the servo's id, model, sign and zero offset; the start-up checks."""
+    per joint the servo's id, model, sign and zero offset; for `backend: ur` the controller's
+    address and the control mode; the start-up checks for both."""
 
     port: str | None = field(default=None, metadata={"help": "dynamixel: the serial port, e.g. /dev/ttyUSB0"})
     baud_bps: int = field(
@@ -210,6 +212,14 @@ class HardwareConfig:
     read_timeout_s: float | None = field(
         default=None,
         metadata={"gt": 0.0, "max": 10.0, "help": "dynamixel: how long a read waits for replies (default: the SDK's)"},
+    )
+    host: str | None = field(default=None, metadata={"help": "ur: the robot controller's address"})
+    control_mode: str | None = field(
+        default=None,
+        metadata={
+            "choices": UR_CONTROL_MODES,
+            "help": "ur: how the side's command reaches the robot (docs/hardware.md)",
+        },
     )
     start_tolerance_rad: float = field(
         default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}

@@ -267,20 +267,66 @@ def test_dropped_corrupted_and_vanished_replies(sdk):
     assert counters["dropped_replies"] == 2 and counters["corrupted_replies"] == 1
 
 
-def test_fast_sync_read_with_a_vanished_servo_is_a_short_packet(sdk):
+def test_fast_sync_read_faults_of_any_servo_in_the_packet(sdk):
     cfg = inertia_cfg(
-        [{"id": i, "model": "XM430-W350", "joint": f"j{i}", "registers": FAST} for i in (1, 2)],
-        [{"name": f"j{i}", "inertia_kg_m2": 0.02} for i in (1, 2)],
-        faults=[{"servo_id": 2, "kind": "vanish", "at_transaction": 2}],
+        [{"id": i, "model": "XM430-W350", "joint": f"j{i}", "registers": FAST} for i in (1, 2, 3)],
+        [{"name": f"j{i}", "inertia_kg_m2": 0.02} for i in (1, 2, 3)],
+    )
+    with start_bus(cfg) as bus:
+        port, ph = sdk(bus)
+        gsr = GroupSyncRead(port, ph, t.STATE_BLOCK_ADDRESS, t.STATE_BLOCK_SIZE)
+        for i in (1, 2, 3):
+            gsr.addParam(i)
+        assert gsr.fastSyncRead() == COMM_SUCCESS
+        bus.inject(servo_id=3, kind="corrupt_crc", count=1)  # the last part damaged
+        assert gsr.fastSyncRead() == COMM_RX_CORRUPT
+        bus.inject(servo_id=2, kind="corrupt_crc", count=1)  # a middle part damaged
+        assert gsr.fastSyncRead() == COMM_RX_CORRUPT
+        bus.inject(servo_id=2, kind="drop_replies", count=1)  # servo 1's part came, 2's never did
+        assert gsr.fastSyncRead() == COMM_RX_CORRUPT
+        bus.inject(servo_id=1, kind="drop_replies", count=1)  # nothing came
+        assert gsr.fastSyncRead() == COMM_RX_TIMEOUT
+        assert gsr.fastSyncRead() == COMM_SUCCESS
+        bus.inject(servo_id=3, kind="vanish")
+        assert gsr.fastSyncRead() == COMM_RX_CORRUPT
+        assert gsr.txRxPacket() == COMM_RX_TIMEOUT  # plain SYNC READ: servo 3 silent
+
+
+def test_old_firmware_does_not_answer_fast_sync_read(sdk):
+    cfg = inertia_cfg(
+        [{"id": 1, "model": "XM430-W350", "joint": "j", "registers": FAST, "firmware_version": 44}],
+        [{"name": "j", "inertia_kg_m2": 0.02}],
     )
     with start_bus(cfg) as bus:
         port, ph = sdk(bus)
         gsr = GroupSyncRead(port, ph, t.STATE_BLOCK_ADDRESS, t.STATE_BLOCK_SIZE)
         gsr.addParam(1)
-        gsr.addParam(2)
-        assert gsr.fastSyncRead() == COMM_SUCCESS
-        assert gsr.fastSyncRead() == COMM_RX_CORRUPT  # servo 1's part came, servo 2's never did
-        assert gsr.txRxPacket() == COMM_RX_TIMEOUT  # plain SYNC READ: servo 2 silent
+        assert ph.ping(port, 1) == (1020, COMM_SUCCESS, 0) and ph.read1ByteTxRx(port, 1, 6)[0] == 44
+        assert gsr.fastSyncRead() == COMM_RX_TIMEOUT
+        assert gsr.txRxPacket() == COMM_SUCCESS
+
+
+def test_realtime_physics_follows_the_clock(sdk):
+    cfg = BusConfig.from_dict(
+        {
+            "physics": {"kind": "inertia", "joints": [{"name": "j", "inertia_kg_m2": 0.01}]},
+            "servos": [{"id": 1, "model": "XM430-W350", "joint": "j", "registers": FAST}],
+        }
+    )
+    with start_bus(cfg) as bus:
+        port, ph = sdk(bus)
+        assert ph.write1ByteTxRx(port, 1, t.ADDR_TORQUE_ENABLE, 1) == (COMM_SUCCESS, 0)
+        assert ph.write2ByteTxRx(port, 1, t.ADDR_GOAL_CURRENT, 100) == (COMM_SUCCESS, 0)
+        first = bus.state()
+        time.sleep(0.2)
+        vel = s32(ph.read4ByteTxRx(port, 1, t.ADDR_PRESENT_VELOCITY)[0])
+        tick = ph.read2ByteTxRx(port, 1, t.ADDR_REALTIME_TICK)[0]
+        second = bus.state()
+    assert second["time_s"] > first["time_s"] and tick > 0 and vel > 0
+    # constant torque between the two looks: dv = tau dt / I over the emulator's own time
+    tau = 100 * 2.69e-3 * t.XM430_W350.torque_constant_nm_per_a
+    dv = second["qd_rad_per_s"][0] - first["qd_rad_per_s"][0]
+    assert dv == pytest.approx(tau * (second["time_s"] - first["time_s"]) / 0.01, rel=1e-6)
 
 
 def test_slow_reply_arrives_after_the_host_gave_up(sdk):
@@ -349,15 +395,13 @@ def test_lockstep_runs_are_identical(sdk):
     assert first != [0.0, 0.0, 0.0]
 
 
-def test_bad_config_is_one_line_and_exit_2(tmp_path):
+@pytest.mark.parametrize(
+    "entry", [["-m", "haptic_teleop.emulators.dynamixel"], ["-m", "haptic_teleop.cli", "emulate", "dynamixel"]]
+)
+def test_bad_config_is_one_line_and_exit_2(tmp_path, entry):
     bad = tmp_path / "bus.json"
     bad.write_text(json.dumps({"servos": [{"id": 1, "model": "XM430-W350", "joint": "elbow", "sign": 2}]}))
-    r = subprocess.run(
-        [sys.executable, "-m", "haptic_teleop.emulators.dynamixel", "--config", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = subprocess.run([sys.executable, *entry, "--config", str(bad)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "servos[0].sign" in r.stderr and "Traceback" not in r.stderr
 

@@ -293,3 +293,51 @@ def test_the_engine_itself_turns_the_torque_off_when_the_run_ends(
     )
     assert engine.ticks_done == (500 if stop_at is None else stop_at)
     assert torque_enable(bus, SLAVE[2]) == [0, 0, 0]
+
+
+def test_a_session_with_the_slave_on_the_ur_emulator_in_direct_torque_mode(tmp_path: Path) -> None:
+    """`slave.backend: ur`, control_mode torque: the UR driver's JointDriver (ur_rtde, unmodified)
+    against the UR emulator's UR5e with the scene's wall; recorded, analysed, both ports passive
+    with the damping the emulated arm has (ur5e.xml's), the contact from the TCP wrench; the
+    control script stopped at the end."""
+    from haptic_teleop.emulators.ur.config import URConfig
+    from haptic_teleop.emulators.ur.config import WallConfig as URWall
+    from haptic_teleop.emulators.ur.process import start_ur
+
+    c = load_scene(find_scene("touch_ur5e_wall")).config
+    w = c.slave.wall
+    assert w.point_m is not None and w.normal is not None and c.slave.start_q_rad is not None
+    wall = URWall(tuple(w.point_m), tuple(w.normal), w.stiffness_n_per_m, w.damping_n_s_per_m)
+    # direct_torque() is in ur_rtde 1.6.5's control script from PolyScope 5.26 on
+    cfg = URConfig(controller_version=(5.0, 26.0, 0.0, 0.0), start_q_rad=tuple(c.slave.start_q_rad), wall=wall)
+    with start_ur(cfg) as ur:
+        sets = [
+            "slave.backend=ur",
+            "slave.hardware.host=127.0.0.1",
+            "slave.hardware.control_mode=torque",
+            "slave.damping_nm_s_per_rad=[3.0, 3.0, 3.0, 0.5, 0.5, 0.5]",  # ur5e.xml's dof_damping
+        ]
+        out = tmp_path / "run"
+        proc = run_cli("touch_ur5e_wall", *[a for s in sets for a in ("--set", s)], "--out", str(out), "--quiet")
+        assert proc.returncode == 0, proc.stderr
+        assert ur.state()["program_running"] is False
+    summary = json.loads((out / "summary.json").read_text())
+    for s in ("master", "slave"):
+        assert summary[f"{s}_energy_margin_simulator_min_j"] >= 0.0, (s, summary)
+    assert summary["slave_joint_damping_simulator"] == [3.0, 3.0, 3.0, 0.5, 0.5, 0.5]
+    assert summary["penetration_max_m"] > 0.0 and summary["contact_force_max_n"] > 5.0
+    assert json.loads((out / "timing.json").read_text())["realtime"] is True
+
+
+def test_ur_force_mode_and_admittance_are_refused_in_the_engine_with_the_reason() -> None:
+    from haptic_teleop.errors import ConfigError
+
+    base = ["slave.backend=ur", "slave.hardware.host=127.0.0.1", "slave.damping_nm_s_per_rad=[3, 3, 3, 0.5, 0.5, 0.5]"]
+    for mode in ("force_mode", "admittance"):
+        with pytest.raises(ConfigError, match="allowed in the engine's arm tick: torque") as exc:
+            load_scene(find_scene("touch_ur5e_wall"), [*base, f"slave.hardware.control_mode={mode}"])
+        assert exc.value.key_path == "slave.hardware.control_mode"
+    with pytest.raises(ConfigError, match="a Dynamixel key") as exc:
+        load_scene(
+            find_scene("touch_ur5e_wall"), [*base, "slave.hardware.control_mode=torque", "slave.hardware.ids=[1]"]
+        )

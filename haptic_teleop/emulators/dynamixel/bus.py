@@ -296,10 +296,11 @@ class _Schedule:
         self.t_s = end_s  # when the line is free for the next reply
         self.replies: list[Reply] = []
 
-    def _charge(self, s: Servo) -> tuple[float, bool, bool]:
-        """(start time, drop, corrupt) of this servo's next reply; the faults counted down."""
+    def _charge(self, s: Servo, return_delay: bool = True) -> tuple[float, bool, bool]:
+        """(start time, drop, corrupt) of this servo's next reply; the faults counted down.
+        Without `return_delay` (a later part of a FAST SYNC READ): the extra delay only."""
         c = self.bus.counters
-        delay = s.return_delay_s
+        delay = s.return_delay_s if return_delay else 0.0
         c["return_delay_s"] += delay
         if s.slow_replies > 0:
             s.slow_replies -= 1
@@ -339,32 +340,34 @@ class _Schedule:
         """A listed servo that does not answer: the next one answers after its own delay."""
 
     def fast(self, parts: list[tuple[Servo, int, bytes] | None], length: int) -> None:
-        """FAST SYNC READ: one packet; a servo that cannot answer (absent, vanished, firmware
-        older than the instruction, or a dropped reply) ends it there, so the host receives a
-        truncated packet."""
+        """FAST SYNC READ: one packet, begun by the first listed servo after its return delay,
+        each next servo appending its part. A servo that cannot answer (absent, vanished,
+        firmware older than the instruction, Status Return Level 0, or a dropped reply) ends the
+        packet there, so the host receives it short; a corrupted part makes the packet's CRC
+        wrong; a slowed part delays the whole packet."""
         slots: list[p.FastSlot] = []
-        first: Servo | None = None
         start = self.t_s
         corrupt = False
-        complete = True
         for k, part in enumerate(parts):
             if part is None:
-                complete = False
                 break
             s, err, data = part
             if s.cfg.firmware_version < t.FAST_SYNC_READ_MIN_FIRMWARE or s.status_return_level < 1:
-                complete = False
                 break
             if k == 0:
-                first = s
-                start, drop, corrupt = self._charge(s)
-                if drop:
-                    complete = False
-                    break
+                start, drop, bad = self._charge(s)
+            else:
+                t0 = self.t_s
+                self.t_s = start
+                start, drop, bad = self._charge(s, return_delay=False)
+                self.t_s = t0
+            if drop:
+                break
+            corrupt |= bad
             slots.append(p.FastSlot(s.id, s.error_byte(err), data if not err else bytes(length)))
-        if first is None or not slots:
+        if not slots:
             return
         pkt = p.fast_sync_read_status(slots, len(parts))
-        if complete and corrupt:
+        if corrupt and len(slots) == len(parts):
             pkt = p.corrupt_crc(pkt)
         self._send(start, pkt)

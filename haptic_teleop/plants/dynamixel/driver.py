@@ -28,6 +28,7 @@ import errno
 import math
 import os
 import re
+import select
 import signal
 import sys
 import threading
@@ -517,6 +518,7 @@ class DynamixelDriver:
             )
         if self.config.read_timeout_s is not None:
             port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
+        self._wait_for_bytes((11 + READ_BLOCK) * len(self._ids))
         blocks: list[bytes] = []
         for k, i in enumerate(self._ids):
             data, result, error = ph.readRx(port, i, READ_BLOCK)
@@ -542,6 +544,7 @@ class DynamixelDriver:
         if self.config.read_timeout_s is not None:
             port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
         n = len(self._ids)
+        self._wait_for_bytes(8 + FAST_PART * n)
         data, result, _ = ph.fastSyncReadRx(port, T.BROADCAST_ID, FAST_PART * n)
         if result != sdk.COMM_SUCCESS:
             self._miss(None, self._result_text(result))
@@ -565,6 +568,30 @@ class DynamixelDriver:
         if alert is not None:
             raise self._hardware_fault(alert)
         return blocks
+
+    def _wait_for_bytes(self, n_bytes: int) -> None:
+        """Sleep in select() until the replies' bytes are in the input buffer, or the read's
+        timeout passed. The SDK then parses them without its busy poll (it reads with timeout 0 in
+        a loop), which would take a CPU from the emulator or the rest of the host."""
+        port = self._port
+        ser = port.ser
+        try:
+            fd = ser.fileno()
+        except (AttributeError, OSError, ValueError):
+            return
+        per_byte_s = 10.0 / self.config.baud_bps
+        deadline = time.monotonic() + port.packet_timeout / 1000.0 - port.getTimeSinceStart() / 1000.0
+        while True:
+            have = ser.in_waiting
+            if have >= n_bytes:
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            if have:  # part of the replies came: sleep for the rest's wire time
+                time.sleep(min(left, max(50e-6, (n_bytes - have) * per_byte_s)))
+            else:
+                select.select([fd], [], [], left)
 
     def _comm_fault(self) -> HardwareError:
         """Too many reads in a row failed: find which servo stopped answering (ping each), then the error."""
