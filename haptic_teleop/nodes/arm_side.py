@@ -65,7 +65,7 @@ class ArmEbaSide:
         # and writes it once, the safety guards act on the desired torque before the bound (SideTick),
         # a guard's fault or a device's HardwareError ends the node (exit 1, one line), and `close` on
         # every way out turns its torque off (docs/live.md, "A real arm on a side").
-        self.hardware = not isinstance(self.plant, _mujoco_arm())
+        self.hardware = isinstance(self.plant, _hardware_arm())
         self.maps = parts.maps
         self.schema = parts.schema
         self.period_s = config.scene.period_s
@@ -89,6 +89,7 @@ class ArmEbaSide:
         self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
         self._last_write_s: float | None = None
+        self._last_read_s: float | None = None
         self.long_holds = 0  # a real arm's writes held longer than two periods (wall time)
         self.max_hold_s = 0.0
         self.remote_samples = 0
@@ -130,6 +131,13 @@ class ArmEbaSide:
         if self.compiled:
             return self.tick.read_point()  # type: ignore[no-any-return]
         q, qd = self.plant.read()
+        if self.hardware:
+            # A real arm lives in wall time: the motion since the last read took this long, and the
+            # ledger credits its damping over that time (CoupledEnergyBound.stretch).
+            now = time.monotonic()
+            if self._last_read_s is not None:
+                self.tick.bound.stretch(now - self._last_read_s)
+            self._last_read_s = now
         x, v = self.plant.point()
         return q, qd, x, v
 
@@ -205,10 +213,10 @@ class ArmEbaSide:
             log(line)
 
 
-def _mujoco_arm() -> type:
-    from haptic_teleop.plants.arm import MujocoArm
+def _hardware_arm() -> type:
+    from haptic_teleop.plants.hardware_arm import HardwareArm
 
-    return MujocoArm
+    return HardwareArm
 
 
 HARDWARE_SCHEDULING = (
