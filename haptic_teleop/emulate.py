@@ -159,5 +159,8 @@ def emulated(config: Scene, time_mode: str = "lockstep") -> Iterator[list[str]]:
         for side, bus_cfg in zip(sides, configs, strict=True):
             bus = start_bus(bus_cfg)
             stack.callback(bus.stop)
-            overrides.append(f"{side}.hardware.port={bus.port}")
+            overrides += [
+                f"{side}.hardware.port={bus.port}",
+                f"{side}.hardware.device_clock={time_mode.replace('realtime', 'real')}",
+            ]
         yield overrides

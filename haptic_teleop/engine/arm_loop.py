@@ -266,6 +266,9 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     engine.ticks_done = 0
     pace = engine.pacer  # a real device on a side: each tick starts at its deadline (wall clock)
     m_hand = not engine.hardware_master  # a real master's operator is a real hand: nothing commanded
+    # A real arm's ledger credits the damping over the time the tick's motion really took
+    # (CoupledEnergyBound.stretch; one period for a device on a lockstep clock: the emulator).
+    m_real, s_real = engine.hardware_master, engine.hardware_slave
     for n in range(n_ticks):
         now_ns = n * period_ns
         if pace is not None:
@@ -273,8 +276,12 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         row = block[n - base]
         # 1. both arms
         qm, qdm = master.read()
+        if m_real:  # a real arm: the motion since the last read took its own time (Pacer: late ticks)
+            mt.bound.stretch(master.read_interval_s)
         xm_dev, vm_dev = master.point()
         qs, qds = slave.read()
+        if s_real:
+            st.bound.stretch(slave.read_interval_s)
         xs, vs = slave.point()
         f_env, t_env = slave.contact_wrench()
         x_m = maps.to_task_x(xm_dev)

@@ -165,6 +165,7 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         ramp_in_s=hw.ramp_in_s,
         source=f"{role} ({cfg.backend} on {where})",
         wrench_source=wrench,
+        lockstep_clock=hw.device_clock == "lockstep",
     )
 
 

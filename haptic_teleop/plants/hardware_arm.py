@@ -76,7 +76,9 @@ class HardwareArm:
     wall: the slave's wall as the scene places it (for the analysis and the emulator; nothing
     here simulates it); role: "master" or "slave"; wrench_source: the device's own measure of
     the environment's wrench on the tool (force, then torque; e.g. a UR's TCP wrench), used for
-    a slave's contact instead of the estimate from the motor torques.
+    a slave's contact instead of the estimate from the motor torques; lockstep_clock: the device
+    advances one period per command (the bus emulator in lockstep time), so `read_interval_s`, the
+    time the motion between two reads took, is one period; else the driver's read times give it.
     """
 
     def __init__(
@@ -94,6 +96,7 @@ class HardwareArm:
         ramp_in_s: float = 0.5,
         source: str = "",
         wrench_source: Callable[[], np.ndarray] | None = None,
+        lockstep_clock: bool = False,
     ) -> None:
         if tuple(driver.joints) != tuple(kinematics.joints):
             raise PlantError(
@@ -137,6 +140,8 @@ class HardwareArm:
             )
         )
         self._stale = False
+        self._lockstep = lockstep_clock
+        self.read_interval_s = period_s  # how long the motion since the previous read took
         self._started = False  # driver.start() attempted (stop() is then owed)
         self._ticks = 0  # steps written since the start (the ramp's clock)
         self._fresh = True  # the state below is this tick's (the start pose until the first read)
@@ -170,6 +175,8 @@ class HardwareArm:
         self._q = q.copy()
         self._qd = np.asarray(s.qd_rad_per_s, dtype=float).copy()
         self._tau_measured = np.asarray(s.tau_nm, dtype=float).copy()
+        if not self._lockstep and math.isfinite(self._sample_t_s):
+            self.read_interval_s = float(s.t_s - self._sample_t_s)
         self._sample_t_s = s.t_s
         self._stale = bool(getattr(s, "stale", 0))
         self.stale_ticks += self._stale

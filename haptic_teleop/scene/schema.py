@@ -221,6 +221,14 @@ class HardwareConfig:
             "help": "ur: how the side's command reaches the robot (docs/hardware.md)",
         },
     )
+    device_clock: str = field(
+        default="real",
+        metadata={
+            "choices": ("real", "lockstep"),
+            "help": "real: a tick's motion took the wall time between reads (the ledger is stretched for late "
+            "ticks); lockstep: the device advances one period per command (the bus emulator, --emulate)",
+        },
+    )
     start_tolerance_rad: float = field(
         default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}
     )

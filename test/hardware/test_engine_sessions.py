@@ -87,7 +87,8 @@ def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.Complet
 
 
 def _run(name: str, side: str, bus: DynamixelBus, out: Path, *sets: str) -> subprocess.CompletedProcess[str]:
-    flags = [a for s in (f"{side}.backend=dynamixel", f"{side}.hardware.port={bus.port}", *sets) for a in ("--set", s)]
+    on = (f"{side}.backend=dynamixel", f"{side}.hardware.port={bus.port}", f"{side}.hardware.device_clock=lockstep")
+    flags = [a for s in (*on, *sets) for a in ("--set", s)]
     return run_cli(name, *flags, "--out", str(out), "--quiet")
 
 
@@ -132,7 +133,12 @@ def test_the_slave_contact_estimate_points_out_of_the_wall(emulator: Any, tmp_pa
     bus = emulator(*SLAVE[:2], ["scene.duration_s=2.5"])
     scene = load_scene(
         find_scene("touch_dynamixel_wall"),
-        ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}", "scene.duration_s=2.5"],
+        [
+            "slave.backend=dynamixel",
+            f"slave.hardware.port={bus.port}",
+            "slave.hardware.device_clock=lockstep",
+            "scene.duration_s=2.5",
+        ],
     )
     engine, _ = record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False, keep=True)
     f = engine.data[-1, engine.schema.group("s_contact_n")]
@@ -196,7 +202,8 @@ def test_a_signal_stops_the_run_at_a_tick_writes_the_outputs_and_turns_the_torqu
 ) -> None:
     bus = emulator(*SLAVE[:2], [])
     out = tmp_path / "run"
-    flags = [a for s in ("slave.backend=dynamixel", f"slave.hardware.port={bus.port}") for a in ("--set", s)]
+    on = ("slave.backend=dynamixel", f"slave.hardware.port={bus.port}", "slave.hardware.device_clock=lockstep")
+    flags = [a for s in on for a in ("--set", s)]
     proc = subprocess.Popen(
         [sys.executable, "-m", "haptic_teleop.cli", "run", SLAVE[0], *flags, "--out", str(out), "--quiet"],
         stderr=subprocess.PIPE,
@@ -222,7 +229,10 @@ def test_an_exception_in_the_loop_turns_the_torque_off_and_leaves_a_readable_bag
     from haptic_teleop.record.reader import BagReader
 
     bus = emulator(*SLAVE[:2], [])
-    scene = load_scene(find_scene(SLAVE[0]), ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}"])
+    scene = load_scene(
+        find_scene(SLAVE[0]),
+        ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}", "slave.hardware.device_clock=lockstep"],
+    )
 
     def progress(done: int) -> None:
         if done >= 300:
@@ -280,7 +290,12 @@ def test_the_engine_itself_turns_the_torque_off_when_the_run_ends(
     bus = emulator(*SLAVE[:2], [])
     scene = load_scene(
         find_scene(SLAVE[0]),
-        ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}", "scene.duration_s=0.5"],
+        [
+            "slave.backend=dynamixel",
+            f"slave.hardware.port={bus.port}",
+            "slave.hardware.device_clock=lockstep",
+            "scene.duration_s=0.5",
+        ],
     )
     engines: list[Engine] = []
 
@@ -341,3 +356,20 @@ def test_ur_force_mode_and_admittance_are_refused_in_the_engine_with_the_reason(
         load_scene(
             find_scene("touch_ur5e_wall"), [*base, "slave.hardware.control_mode=torque", "slave.hardware.ids=[1]"]
         )
+
+
+def test_a_real_clock_stretches_the_ledger_over_the_time_each_tick_took(emulator: Any, tmp_path: Path) -> None:
+    """device_clock real (a real arm): the slave's ledger credits its damping over the wall time
+    between reads (CoupledEnergyBound.stretch), never more than over one period, so its reservoir
+    ends lower than the same run's on the emulator's lockstep clock (one period per command)."""
+    from haptic_teleop.engine.lockstep import record_run
+
+    ends = {}
+    for clock in ("lockstep", "real"):
+        bus = emulator(*SLAVE[:2], [])
+        sets = ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}", f"slave.hardware.device_clock={clock}"]
+        scene = load_scene(find_scene(SLAVE[0]), [*sets, "scene.duration_s=1.0"])
+        engine, _ = record_run(scene, tmp_path / clock, parallel=False, handle_sigint=False, keep=True)
+        assert engine.slave.read_interval_s >= (0.0 if clock == "real" else 0.001)
+        ends[clock] = engine.data[:, engine.schema.group("s_energy_j")][-1, 0]
+    assert ends["real"] < ends["lockstep"]
