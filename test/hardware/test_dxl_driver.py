@@ -188,7 +188,10 @@ import math, sys
 import numpy as np
 from haptic_teleop.interrupt import Interrupted
 from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
-port, guarded = sys.argv[1], sys.argv[2] == "guarded"
+port, guarded = sys.argv[1], sys.argv[2] in ("guarded", "cli")
+if sys.argv[2] == "cli":  # the command line's handlers own the signals
+    from haptic_teleop import interrupt
+    interrupt.install()
 arm = (("base_yaw", "XM540-W270"), ("shoulder", "XM540-W270"), ("elbow", "XM430-W350"))
 joints = tuple(DynamixelJoint(n, k + 1, m, zero_offset_rad=math.pi, current_limit=400) for k, (n, m) in enumerate(arm))
 cfg = DynamixelChainConfig(port, joints, bus_watchdog_s=0.1, read_timeout_s=0.5)
@@ -213,10 +216,10 @@ else:
 """
 
 
-def run_child(port, guarded):
+def run_child(port, mode):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.Popen(
-        [sys.executable, "-c", CHILD, port, "guarded" if guarded else "bare"],
+        [sys.executable, "-c", CHILD, port, mode],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -229,10 +232,13 @@ def run_child(port, guarded):
     return proc
 
 
+@pytest.mark.parametrize("mode", ["guarded", "cli"], ids=["with-driver", "cli-handlers"])
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
-def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator, sig):
+def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator, sig, mode):
+    """`with driver:` in a plain process, and in one whose handlers are the command line's
+    (`interrupt.install()`)."""
     bus = emulator(lockstep=False)
-    proc = run_child(bus.port, guarded=True)
+    proc = run_child(bus.port, mode)
     assert bus.state()["torque_nm"][0] != 0.0  # the loop is driving the servos
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=30)
@@ -243,7 +249,7 @@ def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator,
 
 def test_sigkill_leaves_the_bus_watchdog_to_stop_the_servos(emulator):
     bus = emulator(lockstep=False)
-    proc = run_child(bus.port, guarded=False)
+    proc = run_child(bus.port, "bare")
     proc.kill()
     proc.communicate(timeout=30)
     assert proc.returncode == -signal.SIGKILL

@@ -45,7 +45,7 @@ import numpy as np
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.interrupt import Interrupted
 from haptic_teleop.plants.dynamixel import tables as T
-from haptic_teleop.plants.hardware import HardwareError, JointSample
+from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample
 
 SOURCE = "dynamixel chain"
 
@@ -751,3 +751,8 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
             d.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _is_a_joint_driver(driver: DynamixelDriver) -> JointDriver:
+    """For the type checker: DynamixelDriver satisfies the JointDriver protocol."""
+    return driver
