@@ -658,9 +658,9 @@ class DynamixelDriver:
         if tau.shape != (n,):
             raise ValueError(f"write() takes {n} torques ({', '.join(self.joints)}), got shape {tau.shape}")
         lim = self._limit_arr
-        with np.errstate(invalid="ignore"):
-            wanted = np.rint(np.nan_to_num(tau * self._sign / self._nm_per_unit, nan=0.0, posinf=1e9, neginf=-1e9))
-        units_arr = np.clip(wanted, -lim, lim)
+        wanted = tau * self._sign / self._nm_per_unit
+        wanted[np.isnan(wanted)] = 0.0
+        units_arr = np.clip(np.rint(wanted), -lim, lim)  # +-inf -> the limit
         gsw = self._gsw_current
         for i, u in zip(self._ids, units_arr.astype(np.int64).tolist(), strict=True):
             gsw.changeParam(i, [u & 0xFF, (u >> 8) & 0xFF])
