@@ -209,3 +209,22 @@ def test_wire_limit_is_the_issues_figure():
     assert 540 < wire_limit_hz(6, 1_000_000, fast=False) < 580
     assert 2150 < wire_limit_hz(6, 4_000_000, fast=False) < 2300
     assert wire_limit_hz(6, 1_000_000, fast=True) > wire_limit_hz(6, 1_000_000, fast=False)
+
+
+@pytest.mark.parametrize(
+    ("argv", "allowed"),
+    [
+        (["--bauds", "250000"], "baud rates from"),
+        (["--servos", "0"], "whole numbers 1..20"),
+        (["--reads", "bulk"], "sync, fast"),
+        (["--ticks", "0"], "> 0"),
+    ],
+)
+def test_bench_hardware_refuses_bad_arguments_in_one_line(capsys, argv, allowed):
+    from haptic_teleop.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "hardware", *argv])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "allowed:" in err and allowed in err and "Traceback" not in err
