@@ -181,6 +181,8 @@ def test_torque_off_when_the_loop_raises(emulator):
         raise RuntimeError("bug in the loop")
     assert drv.stopped
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
+    with pytest.raises(HardwareError, match=r"read\(\) on a driver that is stopped \(torque off\)"):
+        drv.read()
 
 
 CHILD = """

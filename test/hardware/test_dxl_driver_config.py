@@ -6,6 +6,7 @@ import os
 import pty
 import select
 
+import numpy as np
 import pytest
 
 from haptic_teleop.errors import ConfigError
@@ -228,3 +229,11 @@ def test_bench_hardware_refuses_bad_arguments_in_one_line(capsys, argv, allowed)
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "allowed:" in err and allowed in err and "Traceback" not in err
+
+
+def test_read_or_write_before_start_is_one_clear_error():
+    d = DynamixelDriver(DynamixelChainConfig("/dev/ttyUSB0", joints()))
+    with pytest.raises(HardwareError, match=r"/dev/ttyUSB0: write\(\) on a driver that is not started"):
+        d.write(np.zeros(3))
+    with pytest.raises(HardwareError, match=r"read\(\) on a driver that is not started"):
+        d.read()

@@ -475,6 +475,8 @@ class DynamixelDriver:
 
     def read(self) -> DynamixelSample:
         """One (fast) sync read of every servo's current, velocity and position, in SI units."""
+        if self._stopped or self._gsr is None:
+            raise self._not_running("read")
         now = time.monotonic()
         if self._last_comm_s and now - self._last_comm_s > self.config.bus_watchdog_units * T.BUS_WATCHDOG_UNIT_S:
             self._check_watchdog(now - self._last_comm_s)
@@ -508,6 +510,10 @@ class DynamixelDriver:
         )
         self._sample = sample
         return sample
+
+    def _not_running(self, what: str) -> HardwareError:
+        state = "stopped (torque off)" if self._stopped else "not started"
+        return HardwareError(f"{self.config.port}: {what}() on a driver that is {state}; start a new DynamixelDriver")
 
     def _miss(self, index: int | None, why: str) -> None:
         """A failed read: why, and which servo's reply was missing (the first of a run of failures
@@ -653,6 +659,8 @@ class DynamixelDriver:
     def write(self, tau_nm: np.ndarray) -> np.ndarray:
         """Goal Current for these joint torques (nearest unit, clipped to Current Limit, NaN -> 0)
         in one sync write; returns the torques the servos will apply."""
+        if self._stopped or self._gsw_current is None:
+            raise self._not_running("write")
         tau = np.asarray(tau_nm, dtype=float)
         n = len(self._ids)
         if tau.shape != (n,):
