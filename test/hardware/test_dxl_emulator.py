@@ -395,15 +395,13 @@ def test_lockstep_runs_are_identical(sdk):
     assert first != [0.0, 0.0, 0.0]
 
 
-def test_bad_config_is_one_line_and_exit_2(tmp_path):
+@pytest.mark.parametrize(
+    "entry", [["-m", "haptic_teleop.emulators.dynamixel"], ["-m", "haptic_teleop.cli", "emulate", "dynamixel"]]
+)
+def test_bad_config_is_one_line_and_exit_2(tmp_path, entry):
     bad = tmp_path / "bus.json"
     bad.write_text(json.dumps({"servos": [{"id": 1, "model": "XM430-W350", "joint": "elbow", "sign": 2}]}))
-    r = subprocess.run(
-        [sys.executable, "-m", "haptic_teleop.emulators.dynamixel", "--config", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = subprocess.run([sys.executable, *entry, "--config", str(bad)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "servos[0].sign" in r.stderr and "Traceback" not in r.stderr
 

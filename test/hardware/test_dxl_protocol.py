@@ -147,3 +147,31 @@ def test_config_errors_name_the_key():
         BusConfig.from_dict({**base, "baud_bps": 250000, "servos": [{"id": 1, "model": "XM430-W350", "joint": "j"}]})
     cfg = BusConfig.from_dict({**base, "servos": [{"id": 3, "model": "XM430-W350", "joint": "j", "sign": -1}]})
     assert BusConfig.from_json(cfg.to_json()) == cfg
+
+
+def test_the_documented_example_config_builds():
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "dynamixel.md").read_text()
+    example = re.search(r"```json\n(.*?)```", text, re.S)
+    assert example is not None
+    bus = Bus(BusConfig.from_json(example.group(1)))
+    assert bus.physics.joints == ("base_yaw", "shoulder", "elbow") and [s.id for s in bus.servos] == [1, 2, 3]
+
+
+def test_a_fault_scheduled_by_emulator_time_fires_when_lockstep_time_reaches_it():
+    cfg = BusConfig.from_dict(
+        {
+            "time": {"mode": "lockstep", "lockstep_dt_s": 0.01},
+            "physics": {"kind": "inertia", "joints": [{"name": "j", "inertia_kg_m2": 0.01}]},
+            "servos": [{"id": 1, "model": "XM430-W350", "joint": "j", "registers": {"operating_mode": 0}}],
+            "faults": [{"servo_id": 1, "kind": "hardware_error", "bits": 4, "at_time_s": 0.05}],
+        }
+    )
+    bus = Bus(cfg)
+    write_goal = bytes([t.ADDR_GOAL_CURRENT, 0, 1, 0])
+    errors = [_status(bus, t.Instruction.WRITE, write_goal)[0].error for _ in range(8)]
+    # five writes take lockstep time to 0.05 s; the sixth instruction finds the fault due
+    assert errors == [0] * 5 + [t.ALERT_BIT] * 3
+    assert bus.servos[0].get("hardware_error_status") == 4 and bus.time_s == pytest.approx(0.08)
