@@ -146,13 +146,13 @@ def test_round_trip_settles_at_tau_over_b_and_stops_with_torque_off(emulator, fa
 
 def test_start_configures_current_mode_limit_return_delay_and_watchdog(emulator):
     bus = emulator()
-    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.13, return_delay_time_s=0.0))
+    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=1.01, return_delay_time_s=0.0))
     drv.start()
     drv.stop()
     assert registers(bus.port, T.ADDR_OPERATING_MODE, 1) == [0, 0, 0]  # factory: 3 (position)
     assert registers(bus.port, T.ADDR_CURRENT_LIMIT, 2) == [400, 400, 400]
     assert registers(bus.port, T.ADDR_RETURN_DELAY_TIME, 1) == [0, 0, 0]  # factory: 250
-    assert registers(bus.port, T.ADDR_BUS_WATCHDOG, 1) == [7, 7, 7]  # 0.13 s -> 7 x 20 ms
+    assert registers(bus.port, T.ADDR_BUS_WATCHDOG, 1) == [51, 51, 51]  # 1.01 s -> 51 x 20 ms
 
 
 def test_write_rounds_clips_to_the_current_limit_and_zeroes_nan(emulator):
@@ -196,7 +196,7 @@ if sys.argv[2] == "cli":  # the command line's handlers own the signals
     interrupt.install()
 arm = (("base_yaw", "XM540-W270"), ("shoulder", "XM540-W270"), ("elbow", "XM430-W350"))
 joints = tuple(DynamixelJoint(n, k + 1, m, zero_offset_rad=math.pi, current_limit=400) for k, (n, m) in enumerate(arm))
-cfg = DynamixelChainConfig(port, joints, bus_watchdog_s=0.1, read_timeout_s=0.5)
+cfg = DynamixelChainConfig(port, joints, bus_watchdog_s=1.0 if guarded else 0.3, read_timeout_s=0.5)
 tau = np.array([0.2, 0.2, 0.1])
 def loop(drv):
     drv.start()
@@ -256,8 +256,8 @@ def test_sigkill_leaves_the_bus_watchdog_to_stop_the_servos(emulator):
     proc.communicate(timeout=30)
     assert proc.returncode == -signal.SIGKILL
     deadline = time.monotonic() + 30.0
-    while True:  # silence longer than the watchdog (0.1 s), then look; reading feeds the watchdog
-        time.sleep(0.3)
+    while True:  # silence longer than the watchdog (0.3 s), then look; reading feeds the watchdog
+        time.sleep(0.8)
         watchdog = registers(bus.port, T.ADDR_BUS_WATCHDOG, 1)
         if watchdog == [-1, -1, -1] or time.monotonic() > deadline:
             break
@@ -270,14 +270,14 @@ def test_sigkill_leaves_the_bus_watchdog_to_stop_the_servos(emulator):
 
 def test_a_host_stall_longer_than_the_watchdog_is_one_clear_error(emulator):
     bus = emulator(lockstep=False)
-    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.1))
+    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.3))
     drv.start()
     drv.write(np.array([0.2, 0.2, 0.1]))
-    time.sleep(0.5)  # the host hangs
+    time.sleep(1.0)  # the host hangs
     with pytest.raises(HardwareError) as e:
         drv.read()
     msg = str(e.value)
-    assert "servo 1 (base_yaw)" in msg and "Bus Watchdog(98) tripped" in msg and "100 ms" in msg
+    assert "servo 1 (base_yaw)" in msg and "Bus Watchdog(98) tripped" in msg and "the watchdog is 300 ms" in msg
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
 
 

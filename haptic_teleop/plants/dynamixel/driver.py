@@ -647,7 +647,10 @@ class DynamixelDriver:
         """The host was silent longer than the Bus Watchdog: did it trip?"""
         self._port.is_using = False
         for k, i in enumerate(self._ids):
-            data, result, _ = self._ph.readTxRx(self._port, i, T.ADDR_BUS_WATCHDOG, 1)
+            for _ in range(START_TRIES):
+                data, result, _ = self._ph.readTxRx(self._port, i, T.ADDR_BUS_WATCHDOG, 1)
+                if result == self._sdk.COMM_SUCCESS:
+                    break
             if result == self._sdk.COMM_SUCCESS and T.int_from_bytes(bytes(data[:1]), True) == -1:
                 raise self._fail(
                     f"{self._servo(k)}: its Bus Watchdog(98) tripped (the host sent nothing for "
