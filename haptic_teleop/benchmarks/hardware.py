@@ -141,10 +141,49 @@ def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int, 
 HELP = "Dynamixel driver loop rate (read + write per tick) against the bus emulator, next to the wire-time limit"
 
 
+def _list_of(kind: str) -> Any:
+    """An argparse type: a comma-separated list of servo counts, baud rates or read kinds; a bad
+    item is refused by argparse (one line, exit 2) naming what is allowed."""
+    from haptic_teleop.plants.dynamixel.driver import SDK_BAUD_RATES_BPS
+
+    allowed = {
+        "servos": "whole numbers 1..20",
+        "bauds": f"baud rates from {', '.join(map(str, SDK_BAUD_RATES_BPS))}",
+        "reads": "sync, fast",
+    }[kind]
+
+    def parse(text: str) -> list[Any]:
+        items = [x.strip() for x in text.split(",") if x.strip()]
+        try:
+            if not items:
+                raise ValueError
+            if kind == "reads":
+                if any(x not in ("sync", "fast") for x in items):
+                    raise ValueError
+                return items
+            values = [int(x) for x in items]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: allowed: {allowed}, separated by commas") from None
+        if (kind == "servos" and not all(1 <= v <= 20 for v in values)) or (
+            kind == "bauds" and not all(v in SDK_BAUD_RATES_BPS for v in values)
+        ):
+            raise argparse.ArgumentTypeError(f"{text!r}: allowed: {allowed}, separated by commas")
+        return values
+
+    parse.__name__ = kind
+    return parse
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--servos", default="3,6", help="servo counts (3: dxl_arm in MuJoCo; others: inertia)")
-    p.add_argument("--bauds", default="1000000,4000000", help="baud rates (bps), comma separated")
-    p.add_argument("--reads", default="sync,fast", help="sync, fast or both, comma separated")
+    p.add_argument(
+        "--servos", type=_list_of("servos"), default=[3, 6], help="servo counts (3: dxl_arm in MuJoCo; others: inertia)"
+    )
+    p.add_argument(
+        "--bauds", type=_list_of("bauds"), default=[1_000_000, 4_000_000], help="baud rates (bps), comma separated"
+    )
+    p.add_argument(
+        "--reads", type=_list_of("reads"), default=["sync", "fast"], help="sync, fast or both, comma separated"
+    )
     p.add_argument("--ticks", type=positive(int), default=3000, help="timed ticks per case (default 3000)")
     p.add_argument("--warmup", type=positive(int), default=200, help="untimed ticks first (default 200)")
     p.add_argument("--repeat", type=positive(int), default=1, help="runs per case; the table shows the median")
@@ -152,29 +191,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="PATH", help="also write every run's figures to this JSON file")
 
 
-def _ints(text: str, what: str) -> list[int]:
-    try:
-        values = [int(x) for x in text.split(",") if x]
-    except ValueError:
-        raise SystemExit(f"bench hardware: {what} takes whole numbers separated by commas, got {text!r}") from None
-    if not values:
-        raise SystemExit(f"bench hardware: {what} is empty")
-    return values
-
-
 def main(args: argparse.Namespace) -> int:
-    from haptic_teleop.plants.dynamixel.driver import SDK_BAUD_RATES_BPS
-
-    servos = _ints(args.servos, "--servos")
-    bauds = _ints(args.bauds, "--bauds")
-    reads = [x for x in args.reads.split(",") if x]
-    bad = [str(b) for b in bauds if b not in SDK_BAUD_RATES_BPS] + [r for r in reads if r not in ("sync", "fast")]
-    bad += [str(n) for n in servos if not 1 <= n <= 20]
-    if bad or not reads:
-        raise SystemExit(
-            f"bench hardware: not allowed: {', '.join(bad) or '--reads empty'}; --bauds from {SDK_BAUD_RATES_BPS}, "
-            f"--reads sync,fast, --servos 1..20"
-        )
+    servos, bauds, reads = args.servos, args.bauds, args.reads
     print(
         f"Dynamixel driver against the bus emulator (wire timing, Return Delay 0, USB latency 0), "
         f"{args.ticks} ticks free-running, median of {args.repeat}"

@@ -146,13 +146,13 @@ def test_round_trip_settles_at_tau_over_b_and_stops_with_torque_off(emulator, fa
 
 def test_start_configures_current_mode_limit_return_delay_and_watchdog(emulator):
     bus = emulator()
-    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.13, return_delay_time_s=0.0))
+    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=1.01, return_delay_time_s=0.0))
     drv.start()
     drv.stop()
     assert registers(bus.port, T.ADDR_OPERATING_MODE, 1) == [0, 0, 0]  # factory: 3 (position)
     assert registers(bus.port, T.ADDR_CURRENT_LIMIT, 2) == [400, 400, 400]
     assert registers(bus.port, T.ADDR_RETURN_DELAY_TIME, 1) == [0, 0, 0]  # factory: 250
-    assert registers(bus.port, T.ADDR_BUS_WATCHDOG, 1) == [7, 7, 7]  # 0.13 s -> 7 x 20 ms
+    assert registers(bus.port, T.ADDR_BUS_WATCHDOG, 1) == [51, 51, 51]  # 1.01 s -> 51 x 20 ms
 
 
 def test_write_rounds_clips_to_the_current_limit_and_zeroes_nan(emulator):
@@ -181,6 +181,8 @@ def test_torque_off_when_the_loop_raises(emulator):
         raise RuntimeError("bug in the loop")
     assert drv.stopped
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
+    with pytest.raises(HardwareError, match=r"read\(\) on a driver that is stopped \(torque off\)"):
+        drv.read()
 
 
 CHILD = """
@@ -188,10 +190,13 @@ import math, sys
 import numpy as np
 from haptic_teleop.interrupt import Interrupted
 from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
-port, guarded = sys.argv[1], sys.argv[2] == "guarded"
+port, guarded = sys.argv[1], sys.argv[2] in ("guarded", "cli")
+if sys.argv[2] == "cli":  # the command line's handlers own the signals
+    from haptic_teleop import interrupt
+    interrupt.install()
 arm = (("base_yaw", "XM540-W270"), ("shoulder", "XM540-W270"), ("elbow", "XM430-W350"))
 joints = tuple(DynamixelJoint(n, k + 1, m, zero_offset_rad=math.pi, current_limit=400) for k, (n, m) in enumerate(arm))
-cfg = DynamixelChainConfig(port, joints, bus_watchdog_s=0.1, read_timeout_s=0.5)
+cfg = DynamixelChainConfig(port, joints, bus_watchdog_s=1.0 if guarded else 0.3, read_timeout_s=0.5)
 tau = np.array([0.2, 0.2, 0.1])
 def loop(drv):
     drv.start()
@@ -213,10 +218,10 @@ else:
 """
 
 
-def run_child(port, guarded):
+def run_child(port, mode):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.Popen(
-        [sys.executable, "-c", CHILD, port, "guarded" if guarded else "bare"],
+        [sys.executable, "-c", CHILD, port, mode],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -229,10 +234,13 @@ def run_child(port, guarded):
     return proc
 
 
+@pytest.mark.parametrize("mode", ["guarded", "cli"], ids=["with-driver", "cli-handlers"])
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
-def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator, sig):
+def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator, sig, mode):
+    """`with driver:` in a plain process, and in one whose handlers are the command line's
+    (`interrupt.install()`)."""
     bus = emulator(lockstep=False)
-    proc = run_child(bus.port, guarded=True)
+    proc = run_child(bus.port, mode)
     assert bus.state()["torque_nm"][0] != 0.0  # the loop is driving the servos
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=30)
@@ -243,13 +251,13 @@ def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator,
 
 def test_sigkill_leaves_the_bus_watchdog_to_stop_the_servos(emulator):
     bus = emulator(lockstep=False)
-    proc = run_child(bus.port, guarded=False)
+    proc = run_child(bus.port, "bare")
     proc.kill()
     proc.communicate(timeout=30)
     assert proc.returncode == -signal.SIGKILL
     deadline = time.monotonic() + 30.0
-    while True:  # silence longer than the watchdog (0.1 s), then look; reading feeds the watchdog
-        time.sleep(0.3)
+    while True:  # silence longer than the watchdog (0.3 s), then look; reading feeds the watchdog
+        time.sleep(0.8)
         watchdog = registers(bus.port, T.ADDR_BUS_WATCHDOG, 1)
         if watchdog == [-1, -1, -1] or time.monotonic() > deadline:
             break
@@ -262,14 +270,14 @@ def test_sigkill_leaves_the_bus_watchdog_to_stop_the_servos(emulator):
 
 def test_a_host_stall_longer_than_the_watchdog_is_one_clear_error(emulator):
     bus = emulator(lockstep=False)
-    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.1))
+    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.3))
     drv.start()
     drv.write(np.array([0.2, 0.2, 0.1]))
-    time.sleep(0.5)  # the host hangs
+    time.sleep(1.0)  # the host hangs
     with pytest.raises(HardwareError) as e:
         drv.read()
     msg = str(e.value)
-    assert "servo 1 (base_yaw)" in msg and "Bus Watchdog(98) tripped" in msg and "100 ms" in msg
+    assert "servo 1 (base_yaw)" in msg and "Bus Watchdog(98) tripped" in msg and "the watchdog is 300 ms" in msg
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
 
 

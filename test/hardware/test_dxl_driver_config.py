@@ -6,6 +6,7 @@ import os
 import pty
 import select
 
+import numpy as np
 import pytest
 
 from haptic_teleop.errors import ConfigError
@@ -209,3 +210,30 @@ def test_wire_limit_is_the_issues_figure():
     assert 540 < wire_limit_hz(6, 1_000_000, fast=False) < 580
     assert 2150 < wire_limit_hz(6, 4_000_000, fast=False) < 2300
     assert wire_limit_hz(6, 1_000_000, fast=True) > wire_limit_hz(6, 1_000_000, fast=False)
+
+
+@pytest.mark.parametrize(
+    ("argv", "allowed"),
+    [
+        (["--bauds", "250000"], "baud rates from"),
+        (["--servos", "0"], "whole numbers 1..20"),
+        (["--reads", "bulk"], "sync, fast"),
+        (["--ticks", "0"], "> 0"),
+    ],
+)
+def test_bench_hardware_refuses_bad_arguments_in_one_line(capsys, argv, allowed):
+    from haptic_teleop.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "hardware", *argv])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "allowed:" in err and allowed in err and "Traceback" not in err
+
+
+def test_read_or_write_before_start_is_one_clear_error():
+    d = DynamixelDriver(DynamixelChainConfig("/dev/ttyUSB0", joints()))
+    with pytest.raises(HardwareError, match=r"/dev/ttyUSB0: write\(\) on a driver that is not started"):
+        d.write(np.zeros(3))
+    with pytest.raises(HardwareError, match=r"read\(\) on a driver that is not started"):
+        d.read()

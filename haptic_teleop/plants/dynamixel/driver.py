@@ -30,6 +30,7 @@ import os
 import re
 import select
 import signal
+import struct
 import sys
 import threading
 import time
@@ -44,7 +45,7 @@ import numpy as np
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.interrupt import Interrupted
 from haptic_teleop.plants.dynamixel import tables as T
-from haptic_teleop.plants.hardware import HardwareError, JointSample
+from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample
 
 SOURCE = "dynamixel chain"
 
@@ -55,6 +56,11 @@ code but the SDK refuses it)."""
 WATCHDOG_UNITS_MAX = 127
 READ_BLOCK = T.STATE_BLOCK_SIZE  # Present Current(2) + Present Velocity(4) + Present Position(4)
 FAST_PART = READ_BLOCK + 4  # a FAST SYNC READ status carries error, id, data, CRC per servo
+_STATE = struct.Struct("<hii")  # Present Current (int16), Present Velocity (int32), Present Position (int32)
+
+START_TRIES = 3
+"""Tries of each start-up transaction (ping, read, write) before a servo counts as silent: a
+reply can miss the SDK's packet timeout once on a busy host."""
 
 SETTLE_S = 0.3
 """After reads failed, how long the driver lets late replies pass before it pings a silent servo
@@ -236,6 +242,7 @@ class DynamixelDriver:
         self._offset = np.array([j.zero_offset_rad for j in js])
         self._kt = np.array([j.k_t_nm_per_a for j in js])
         self._limit = [j.current_limit_units for j in js]
+        self._limit_arr = np.array(self._limit, dtype=float)
         self._nm_per_unit = self._kt * T.CURRENT_UNIT_A  # joint torque per current unit, before the sign
         self.torque_limit_nm: np.ndarray = self._nm_per_unit * np.array(self._limit, dtype=float)
         self.fast_sync_read_used = False
@@ -245,8 +252,8 @@ class DynamixelDriver:
         self._last_fail = ""
         self._last_fail_index: int | None = None
         self._sample: DynamixelSample | None = None
-        self._raw_prev: list[int | None] = [None] * len(js)
-        self._wrap = [0] * len(js)
+        self._raw_prev: np.ndarray | None = None
+        self._wrap = np.zeros(len(js))
         self._last_comm_s = 0.0
         self._sdk: Any = None
         self._port: Any = None
@@ -286,7 +293,10 @@ class DynamixelDriver:
         ph = self._ph
         firmware: list[int] = []
         for k, joint in enumerate(cfg.joints):
-            number, result, _ = ph.ping(self._port, joint.id)
+            for _ in range(START_TRIES):
+                number, result, _ = ph.ping(self._port, joint.id)
+                if result == sdk.COMM_SUCCESS:
+                    break
             if result != sdk.COMM_SUCCESS:
                 raise self._fail(
                     f"servo {joint.id} ({joint.name}) does not answer on {cfg.port} at {cfg.baud_bps} bps "
@@ -415,7 +425,10 @@ class DynamixelDriver:
 
     def _read(self, k: int, address: int, size: int, what: str) -> int:
         ph, port, sdk = self._ph, self._port, self._sdk
-        data, result, error = ph.readTxRx(port, self._ids[k], address, size)
+        for _ in range(START_TRIES):
+            data, result, error = ph.readTxRx(port, self._ids[k], address, size)
+            if result == sdk.COMM_SUCCESS:
+                break
         if result != sdk.COMM_SUCCESS:
             raise self._fail(
                 f"{self._servo(k)} did not answer to {what} ({self._result_text(result)}) at "
@@ -428,7 +441,10 @@ class DynamixelDriver:
     def _write(self, k: int, address: int, size: int, value: int, what: str) -> None:
         ph, port, sdk = self._ph, self._port, self._sdk
         data = list(T.int_to_bytes(value, size, value < 0))
-        result, error = ph.writeTxRx(port, self._ids[k], address, size, data)
+        for _ in range(START_TRIES):
+            result, error = ph.writeTxRx(port, self._ids[k], address, size, data)
+            if result == sdk.COMM_SUCCESS:
+                break
         if result != sdk.COMM_SUCCESS:
             raise self._fail(
                 f"{self._servo(k)} did not answer to the write {what} ({self._result_text(result)}) at "
@@ -459,6 +475,8 @@ class DynamixelDriver:
 
     def read(self) -> DynamixelSample:
         """One (fast) sync read of every servo's current, velocity and position, in SI units."""
+        if self._stopped or self._gsr is None:
+            raise self._not_running("read")
         now = time.monotonic()
         if self._last_comm_s and now - self._last_comm_s > self.config.bus_watchdog_units * T.BUS_WATCHDOG_UNIT_S:
             self._check_watchdog(now - self._last_comm_s)
@@ -474,23 +492,15 @@ class DynamixelDriver:
             return DynamixelSample(s.q_rad, s.qd_rad_per_s, s.tau_nm, s.t_s, stale=self.stale)
         self.stale = 0
         self.reads += 1
-        n = len(self._ids)
-        ticks = np.empty(n)
-        vel = np.empty(n)
-        cur = np.empty(n)
-        for k, b in enumerate(blocks):
-            raw = int.from_bytes(b[6:10], "little", signed=True)
-            prev = self._raw_prev[k]
-            if prev is not None:  # unwrap the 32-bit multi-turn count if it ever rolls over
-                d = raw - prev
-                if d > 2**31:
-                    self._wrap[k] -= 2**32
-                elif d < -(2**31):
-                    self._wrap[k] += 2**32
-            self._raw_prev[k] = raw
-            ticks[k] = raw + self._wrap[k]
-            vel[k] = int.from_bytes(b[2:6], "little", signed=True)
-            cur[k] = int.from_bytes(b[0:2], "little", signed=True)
+        state = np.array([_STATE.unpack_from(b) for b in blocks], dtype=float)  # current, velocity, position
+        raw = state[:, 2]
+        if self._raw_prev is not None:  # unwrap the 32-bit multi-turn count if it ever rolls over
+            d = raw - self._raw_prev
+            self._wrap -= np.where(d > 2**31, 2.0**32, 0.0) - np.where(d < -(2**31), 2.0**32, 0.0)
+        self._raw_prev = raw
+        ticks = raw + self._wrap
+        vel = state[:, 1]
+        cur = state[:, 0]
         sign = self._sign
         sample = DynamixelSample(
             q_rad=sign * (ticks * T.POSITION_UNIT_RAD - self._offset),
@@ -500,6 +510,10 @@ class DynamixelDriver:
         )
         self._sample = sample
         return sample
+
+    def _not_running(self, what: str) -> HardwareError:
+        state = "stopped (torque off)" if self._stopped else "not started"
+        return HardwareError(f"{self.config.port}: {what}() on a driver that is {state}; start a new DynamixelDriver")
 
     def _miss(self, index: int | None, why: str) -> None:
         """A failed read: why, and which servo's reply was missing (the first of a run of failures
@@ -633,7 +647,10 @@ class DynamixelDriver:
         """The host was silent longer than the Bus Watchdog: did it trip?"""
         self._port.is_using = False
         for k, i in enumerate(self._ids):
-            data, result, _ = self._ph.readTxRx(self._port, i, T.ADDR_BUS_WATCHDOG, 1)
+            for _ in range(START_TRIES):
+                data, result, _ = self._ph.readTxRx(self._port, i, T.ADDR_BUS_WATCHDOG, 1)
+                if result == self._sdk.COMM_SUCCESS:
+                    break
             if result == self._sdk.COMM_SUCCESS and T.int_from_bytes(bytes(data[:1]), True) == -1:
                 raise self._fail(
                     f"{self._servo(k)}: its Bus Watchdog(98) tripped (the host sent nothing for "
@@ -645,23 +662,19 @@ class DynamixelDriver:
     def write(self, tau_nm: np.ndarray) -> np.ndarray:
         """Goal Current for these joint torques (nearest unit, clipped to Current Limit, NaN -> 0)
         in one sync write; returns the torques the servos will apply."""
+        if self._stopped or self._gsw_current is None:
+            raise self._not_running("write")
         tau = np.asarray(tau_nm, dtype=float)
         n = len(self._ids)
         if tau.shape != (n,):
             raise ValueError(f"write() takes {n} torques ({', '.join(self.joints)}), got shape {tau.shape}")
-        units = [0] * n
+        lim = self._limit_arr
+        wanted = tau * self._sign / self._nm_per_unit
+        wanted[np.isnan(wanted)] = 0.0
+        units_arr = np.clip(np.rint(wanted), -lim, lim)  # +-inf -> the limit
         gsw = self._gsw_current
-        for k in range(n):
-            t = float(tau[k])
-            lim = self._limit[k]
-            if math.isnan(t):
-                u = 0
-            elif math.isinf(t):
-                u = lim if t * self._sign[k] > 0 else -lim
-            else:
-                u = max(-lim, min(lim, round(t * self._sign[k] / self._nm_per_unit[k])))
-            units[k] = u
-            gsw.changeParam(self._ids[k], [u & 0xFF, (u >> 8) & 0xFF])
+        for i, u in zip(self._ids, units_arr.astype(np.int64).tolist(), strict=True):
+            gsw.changeParam(i, [u & 0xFF, (u >> 8) & 0xFF])
         result = gsw.txPacket()
         if result != self._sdk.COMM_SUCCESS:
             raise self._fail(
@@ -669,7 +682,7 @@ class DynamixelDriver:
                 f"was the adapter unplugged?"
             )
         self._last_comm_s = time.monotonic()
-        applied: np.ndarray = self._sign * np.array(units, dtype=float) * self._nm_per_unit
+        applied: np.ndarray = self._sign * units_arr * self._nm_per_unit
         return applied
 
     # ------------------------------------------------------------------ stop
@@ -749,3 +762,8 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
             d.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _is_a_joint_driver(driver: DynamixelDriver) -> JointDriver:
+    """For the type checker: DynamixelDriver satisfies the JointDriver protocol."""
+    return driver
