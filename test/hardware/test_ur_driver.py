@@ -23,6 +23,9 @@ pytest.importorskip("rtde_control")
 # the touch_ur5e_wall scene's table: 3 cm below the tool at the UR5e's start
 WALL = WallConfig(point_m=(-0.49, -0.13, 0.4078), normal=(0.0, 0.0, 1.0), stiffness_n_per_m=1e4)
 SAFETY_NET_S = 30.0
+# The RTDE watchdog of the tests that are not about it: slack enough for a loaded test machine
+# (a 10 Hz watchdog stops the program whenever the test process stalls for 0.1 s).
+WATCHDOG_HZ = 2.0
 
 
 def run_for(d: URDriver, controller_s: float, command: Callable[[URState], None]) -> URState:
@@ -57,7 +60,7 @@ def wait_for(ur: URProcess, pred: Callable[[dict], bool]) -> dict:
 
 
 def test_force_mode_pushes_the_tool_into_the_wall_and_the_tcp_force_reads_the_contact():
-    with start_ur(URConfig(wall=WALL)) as ur, URDriver(ur.host) as d:
+    with start_ur(URConfig(wall=WALL)) as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
         d.start()
         s = run_for(d, 1.5, lambda s: d.force_mode([0, 0, -10.0, 0, 0, 0], selection=[0, 0, 1, 0, 0, 0]))
         truth = ur.state()
@@ -75,7 +78,7 @@ def test_force_mode_pushes_the_tool_into_the_wall_and_the_tcp_force_reads_the_co
 
 
 def test_servo_l_moves_the_tool_to_a_pose_and_servo_stop_stops_it():
-    with start_ur() as ur, URDriver(ur.host) as d:
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
         s0 = d.start()
         target = s0.tcp_pose.copy()
         target[:3] += [0.03, -0.02, 0.04]
@@ -88,7 +91,7 @@ def test_servo_l_moves_the_tool_to_a_pose_and_servo_stop_stops_it():
 
 
 def test_speed_l_moves_at_the_speed_and_speed_stop_stops_it():
-    with start_ur() as ur, URDriver(ur.host) as d:
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
         d.start()
         v = 0.05
         run_for(d, 0.3, lambda s: d.speed_l([0, 0, v, 0, 0, 0], acceleration=1.0))  # past the 0.05 s ramp
@@ -104,7 +107,7 @@ def test_speed_l_moves_at_the_speed_and_speed_stop_stops_it():
 
 
 def test_admittance_through_speed_l_settles_on_the_wall_at_the_commanded_force():
-    with start_ur(URConfig(wall=WALL)) as ur, URDriver(ur.host) as d:
+    with start_ur(URConfig(wall=WALL)) as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
         d.start()
         adm = Admittance(AdmittanceParams(mass=(2.0,), damping=(400.0,), period_s=0.002))
         f_cmd = np.array([-8.0])
@@ -131,7 +134,7 @@ def test_the_rtde_watchdog_stops_the_program_and_the_driver_reports_it():
 
 
 def test_a_lost_connection_ends_the_session_with_a_clear_error():
-    with start_ur() as ur, URDriver(ur.host) as d:
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
         d.start()
         run_for(d, 0.1, lambda s: d.kick())
         ur.inject("drop_connections")  # the controller vanishes and refuses new connections
@@ -146,10 +149,18 @@ def test_a_controller_that_stops_sending_is_a_lost_connection():
         ur.inject("freeze")
         with pytest.raises(HardwareError, match="no new RTDE data"):
             poll_state(d)
+        # ur_rtde's receive thread, blocked on the silent socket, reconnects by itself (and uploads
+        # its script) as soon as the socket closes: refuse it here, or it would reach the next
+        # test's emulator on the same fixed ports (docs/ur.md, "Errors").
+        ur.inject("drop_connections")
+        wait_for(ur, lambda st: st["scripts_received"] == 1)
 
 
 def test_a_protective_stop_mid_session_raises_after_stopping():
-    with start_ur(URConfig(wall=WALL, protective_stop_force_n=20.0)) as ur, URDriver(ur.host) as d:
+    with (
+        start_ur(URConfig(wall=WALL, protective_stop_force_n=20.0)) as ur,
+        URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d,
+    ):
         d.start()
         # push 40 N into the table: the controller's force limit (20 N) trips a protective stop
         with pytest.raises(HardwareError, match="protective stop: clear it on the teach pendant"):
@@ -177,7 +188,10 @@ def test_start_refuses_a_robot_that_is_not_ready(cfg, message):
 
 
 def test_direct_torque_needs_a_controller_whose_script_has_it():
-    with start_ur(URConfig(controller_version=(5.0, 23.0, 0.0, 0.0))) as ur, URDriver(ur.host) as d:
+    with (
+        start_ur(URConfig(controller_version=(5.0, 23.0, 0.0, 0.0))) as ur,
+        URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d,
+    ):
         d.start()
         assert ur.state()["has_direct_torque"] is False  # ur_rtde dropped the direct_torque() line
         with pytest.raises(HardwareError, match=r"5\.23 / 10\.10"):
@@ -186,7 +200,7 @@ def test_direct_torque_needs_a_controller_whose_script_has_it():
 
 def test_direct_torque_joint_driver_turns_the_wrist():
     with start_ur(URConfig(controller_version=(5.0, 26.0, 0.0, 0.0))) as ur:
-        j = URTorqueDriver(ur.host)
+        j = URTorqueDriver(ur.host, watchdog_hz=WATCHDOG_HZ)
         try:
             first = j.start()
             assert ur.state()["has_direct_torque"] is True

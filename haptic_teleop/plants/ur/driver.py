@@ -245,16 +245,30 @@ class URDriver:
             )
         self._check_safety(s)
         if self._c is not None and not self._c.isProgramRunning():
-            # The control interface's stream may show the program's end a package before the
-            # receive interface shows why: give the safety status a few periods to arrive.
-            for _ in range(10):
-                time.sleep(0.002)
-                self._check_safety(self._read())
+            self._diagnose()
             self._fail(
                 f"the control script on {self.host} stopped (RTDE watchdog, a stop on the pendant or the dashboard, "
                 "or an error in the script); the session was stopped"
             )
         return s
+
+    def _diagnose(self) -> None:
+        """The program ended or a command was refused: find out whether a safety stop is why. The
+        control interface's stream can show the end before the receive interface shows the cause,
+        so the receive side gets a few periods, then the dashboard server is asked."""
+        for _ in range(10):
+            time.sleep(0.002)
+            self._check_safety(self._read())
+        try:
+            answer = dashboard_query(self.host, "safetystatus", timeout_s=1.0)
+        except OSError:
+            return
+        if "PROTECTIVE_STOP" in answer:
+            self._fail(
+                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
+            )
+        if "EMERGENCY_STOP" in answer:
+            self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
 
     def _check_safety(self, s: URState) -> None:
         if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
@@ -278,6 +292,7 @@ class URDriver:
     def _sent(self, ok: bool, what: str) -> None:
         if not ok:
             self.state()  # names the fault if there is one
+            self._diagnose()
             self._fail(f"the controller at {self.host} refused {what}")
 
     def force_mode(
