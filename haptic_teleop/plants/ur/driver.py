@@ -137,9 +137,12 @@ class URDriver:
     def start(self) -> URState:
         """Connect, check the robot is running in normal safety mode, start the control script and
         its watchdog (control=True); returns the first state."""
+        import atexit
+
         import rtde_receive
 
         self._stopped = False
+        atexit.register(self.stop)
         try:
             self._r = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz)
         except RuntimeError as exc:
@@ -366,6 +369,9 @@ class URDriver:
         if self._stopped:
             return
         self._stopped = True
+        import atexit
+
+        atexit.unregister(self.stop)
         c, r = self._c, self._r
         self._c = self._r = None
         if c is not None:
