@@ -221,3 +221,23 @@ def test_direct_torque_joint_driver_turns_the_wrist():
             j.stop()
         st = ur.state()
         assert not st["program_running"] and st["mode"] == "hold"
+
+
+def test_a_second_control_session_is_refused_and_a_read_only_one_uploads_nothing():
+    # no watchdog on the first session: it sends nothing while the others start
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=0.0) as a:
+        a.start()
+        b = URDriver(ur.host, watchdog_hz=WATCHDOG_HZ)
+        with pytest.raises(HardwareError, match="in use by another client"):
+            b.start()
+        b.stop()
+        r = URDriver(ur.host, control=False)
+        s = r.start()
+        assert s.robot_mode == 7 and r.state().q_rad.shape == (6,)
+        with pytest.raises(HardwareError, match="no control session"):
+            r.servo_l(s.tcp_pose)
+        r.stop()
+        r.stop()
+        assert ur.state()["scripts_received"] == 1  # only the first session's
+        a.state()  # the first session is untouched
+        assert ur.state()["program_running"]

@@ -208,6 +208,12 @@ class URDriver:
                     f"the ur_rtde control script did not start on {self.host} within 5 s ({text}); check the robot "
                     "is powered, brakes released, no protective stop, remote control"
                 ) from None
+            if "already in use" in text:
+                raise HardwareError(
+                    f"the RTDE input registers of {self.host} are in use by another client (a second control "
+                    "session, or the EtherNet/IP adapter, PROFINET or a MODBUS unit configured on the robot): "
+                    "end it or disable it in the installation"
+                ) from None
             raise HardwareError(f"cannot start control on {self.host}: {text}") from None
         if self.watchdog_hz > 0.0 and not self._c.setWatchdog(self.watchdog_hz):
             self.stop()
