@@ -241,3 +241,16 @@ def test_a_second_control_session_is_refused_and_a_read_only_one_uploads_nothing
         assert ur.state()["scripts_received"] == 1  # only the first session's
         a.state()  # the first session is untouched
         assert ur.state()["program_running"]
+
+
+def test_no_controller_is_a_clear_error():
+    import fcntl
+
+    from haptic_teleop.emulators.ur.process import LOCK_PATH
+
+    with open(LOCK_PATH, "a") as lock:  # no emulator runs while we hold it
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        d = URDriver("127.0.0.1")
+        with pytest.raises(HardwareError, match=r"cannot read the UR controller at 127\.0\.0\.1:30004"):
+            d.start()
+        d.stop()

@@ -207,11 +207,11 @@ def test_the_emulator_ends_when_its_parent_dies(tmp_path):
             while True:
                 try:
                     os.kill(child, 0)
-                except ProcessLookupError:
+                    with open(f"/proc/{child}/stat") as f:
+                        if f.read().split()[2] == "Z":
+                            break  # ended, waiting for its new parent to reap it
+                except (ProcessLookupError, FileNotFoundError):
                     break
-                with open(f"/proc/{child}/stat") as f:
-                    if f.read().split()[2] == "Z":
-                        break  # ended, waiting for its new parent to reap it
                 assert time.monotonic() - host0 < 30.0, "safety net: the emulator outlived its parent"
                 time.sleep(0.05)
         finally:

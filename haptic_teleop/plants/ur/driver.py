@@ -142,6 +142,7 @@ class URDriver:
         import rtde_receive
 
         self._stopped = False
+        self._connection_lost = False
         atexit.register(self.stop)
         try:
             self._r = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz)
