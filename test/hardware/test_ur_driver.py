@@ -72,9 +72,13 @@ def test_force_mode_pushes_the_tool_into_the_wall_and_the_tcp_force_reads_the_co
         assert s.tcp_pose[2] < WALL.point_m[2]  # pressed into the compliant wall
         # x, y held (non-compliant axes)
         assert abs(s.tcp_pose[0] - (-0.4919)) < 2e-3 and abs(s.tcp_pose[1] - (-0.1333)) < 2e-3
+        d.zero_ft_sensor()  # the contact now reads as zero
+        s = run_for(d, 0.1, lambda s: d.force_mode([0, 0, -10.0, 0, 0, 0], selection=[0, 0, 1, 0, 0, 0]))
+        assert abs(s.tcp_wrench[2]) < 0.3 and ur.state()["contact_force_n"][2] == pytest.approx(10.0, abs=0.3)
+        d.force_mode_stop()
+        assert ur.state()["mode"] == "hold" and ur.state()["program_running"]
         d.stop()
-        st = ur.state()
-        assert st["mode"] == "hold" and not st["program_running"]  # forceModeStop, stopScript
+        assert not ur.state()["program_running"]  # stopScript
 
 
 def test_servo_l_moves_the_tool_to_a_pose_and_servo_stop_stops_it():
@@ -85,7 +89,7 @@ def test_servo_l_moves_the_tool_to_a_pose_and_servo_stop_stops_it():
         s = run_for(d, 1.0, lambda s: d.servo_l(target))
         np.testing.assert_allclose(s.tcp_pose[:3], target[:3], atol=1e-3)
         np.testing.assert_allclose(s.tcp_pose[3:], target[3:], atol=1e-2)
-        d._require_control().servoStop(10.0)
+        d.servo_stop()
         assert ur.state()["mode"] == "hold"
         assert ur.state()["program_running"]
 
@@ -100,7 +104,7 @@ def test_speed_l_moves_at_the_speed_and_speed_stop_stops_it():
         speed = (b.tcp_pose[2] - a.tcp_pose[2]) / (b.timestamp_s - a.timestamp_s)  # controller time
         assert speed == pytest.approx(v, rel=0.03)
         assert b.tcp_speed[2] == pytest.approx(v, rel=0.03)
-        assert d._require_control().speedStop(10.0)
+        d.speed_stop(10.0)
         wait_for(ur, lambda st: st["mode"] == "hold")
         c = run_for(d, 0.2, lambda s: d.kick())  # feed the watchdog
         assert abs(c.tcp_speed[2]) < 1e-3

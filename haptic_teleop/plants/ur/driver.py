@@ -363,6 +363,25 @@ class URDriver:
         self._sent(c.directTorque(list(map(float, tau)), [0.0] * 6, [0.0] * 6), "directTorque")
         return tau
 
+    def servo_stop(self, deceleration: float = 10.0) -> None:
+        """End servoL streaming; the arm decelerates and holds."""
+        self._sent(self._require_control().servoStop(deceleration), "servoStop")
+        self._modes.discard("servo")
+
+    def speed_stop(self, deceleration: float = 10.0) -> None:
+        """Ramp a speedL twist down to rest at `deceleration` (m/s^2)."""
+        self._sent(self._require_control().speedStop(deceleration), "speedStop")
+        self._modes.discard("speed")
+
+    def force_mode_stop(self) -> None:
+        """Leave force mode; the arm holds where it is."""
+        self._sent(self._require_control().forceModeStop(), "forceModeStop")
+        self._modes.discard("force")
+
+    def zero_ft_sensor(self) -> None:
+        """Take the present TCP wrench as the sensor's zero."""
+        self._sent(self._require_control().zeroFtSensor(), "zeroFtSensor")
+
     def kick(self) -> None:
         """Feed the RTDE watchdog without a motion command."""
         if self._c is not None and not self._stopped:
