@@ -167,3 +167,53 @@ def test_entry_point_refuses_a_bad_config_in_one_line(tmp_path):
                        capture_output=True, text=True, timeout=60)  # fmt: skip
     assert p.returncode == 2
     assert p.stderr.strip().count("\n") == 0 and "frequency_hz" in p.stderr and "Traceback" not in p.stderr
+
+
+PARENT = """
+import subprocess, sys
+p = subprocess.Popen([sys.executable, "-m", "haptic_teleop.emulators.ur", "--config", sys.argv[1]],
+                     stdout=subprocess.PIPE, text=True)
+print(p.pid, p.stdout.readline(), flush=True)
+import time
+time.sleep(600)
+"""
+
+
+def test_the_emulator_ends_when_its_parent_dies(tmp_path):
+    import contextlib
+    import json
+    import os
+    import signal
+    import time
+
+    from haptic_teleop.emulators.ur.process import LOCK_PATH
+
+    cfg = tmp_path / "ur.json"
+    cfg.write_text(json.dumps(URConfig(rtde_port=0, dashboard_port=0, script_ports=(0.0,)).to_dict()))
+    import fcntl
+
+    with open(LOCK_PATH, "a") as lock:  # the same lock start_ur holds, though no fixed port is used here
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        parent = subprocess.Popen([sys.executable, "-c", PARENT, str(cfg)], stdout=subprocess.PIPE, text=True)
+        assert parent.stdout is not None
+        pid_text, ready = parent.stdout.readline().split(" ", 1)
+        assert ready.startswith("READY 127.0.0.1")
+        child = int(pid_text)
+        os.kill(child, 0)  # alive
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        host0 = time.monotonic()
+        try:
+            while True:
+                try:
+                    os.kill(child, 0)
+                    with open(f"/proc/{child}/stat") as f:
+                        if f.read().split()[2] == "Z":
+                            break  # ended, waiting for its new parent to reap it
+                except (ProcessLookupError, FileNotFoundError):
+                    break
+                assert time.monotonic() - host0 < 30.0, "safety net: the emulator outlived its parent"
+                time.sleep(0.05)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child, signal.SIGKILL)

@@ -40,6 +40,10 @@ SAFETY_MODE_NAMES = {
 }  # fmt: skip
 SAFETY_BIT = {1: 0, 2: 1, 3: 2, 4: 3, 5: 4, 6: 5, 7: 6, 8: 8, 9: 9}  # safety mode -> its status bit
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
+_ZERO: dict[str, Any] = {
+    "BOOL": False, "UINT8": 0, "UINT32": 0, "UINT64": 0, "INT32": 0, "DOUBLE": 0.0,
+    "VECTOR3D": (0.0,) * 3, "VECTOR6D": (0.0,) * 6, "VECTOR6INT32": (0,) * 6, "VECTOR6UINT32": (0,) * 6,
+}  # fmt: skip
 ROBOT_RUNNING = 7
 
 
@@ -116,16 +120,7 @@ class Controller:
         q, qd = r.arm.read()
         pose, speed, force = r.tcp_pose(), r.tcp_speed(), r.tcp_force()
         z6 = (0.0,) * 6
-        v: dict[str, Any] = {name: (z6 if t == "VECTOR6D" else 0) for name, t in w.OUTPUT_TYPES.items()}
-        for name, t in w.OUTPUT_TYPES.items():
-            if t == "VECTOR3D":
-                v[name] = (0.0, 0.0, 0.0)
-            elif t == "VECTOR6INT32":
-                v[name] = (0,) * 6
-            elif t == "DOUBLE":
-                v[name] = 0.0
-            elif t == "BOOL":
-                v[name] = False
+        v: dict[str, Any] = {name: _ZERO[t] for name, t in w.OUTPUT_TYPES.items()}  # unmodelled values read 0
         tau = r.joint_torques()
         q_t = r.q_hold if r.mode == "hold" else r.q_ref
         v.update(
@@ -212,11 +207,9 @@ class Controller:
             self.robot.cycle()
             self.cycles += 1
             self.t_s = self.cycles * self.period_s
-            f = self.robot.tcp_force()
-            if float(np.linalg.norm(f[:3])) > self.cfg.protective_stop_force_n:
-                self.protective_stop(
-                    f"TCP force {np.linalg.norm(f[:3]):.1f} N over {self.cfg.protective_stop_force_n} N"
-                )
+            f, _ = self.robot.arm.contact_wrench()  # the real force, whatever zeroFtSensor subtracted
+            if float(np.linalg.norm(f)) > self.cfg.protective_stop_force_n:
+                self.protective_stop(f"TCP force {np.linalg.norm(f):.1f} N over {self.cfg.protective_stop_force_n} N")
             tau = np.abs(self.robot.joint_torques())
             if float(tau.max()) > self.cfg.protective_stop_torque_nm:
                 self.protective_stop(f"joint torque {tau.max():.1f} N m over {self.cfg.protective_stop_torque_nm} N m")
@@ -345,7 +338,8 @@ class Server:
                 return
             values = ctl.values() if clients else {}
             cycles = ctl.cycles
-        for c in [c for c in ctl.clients if c.kind == "rtde" and c.protocol == 2]:
+            talkers = [c for c in ctl.clients if c.kind == "rtde" and c.protocol == 2] if msgs else []
+        for c in talkers:
             for text, level in msgs:
                 with contextlib.suppress(OSError):
                     c.send(w.text_message(text, "Controller", level))

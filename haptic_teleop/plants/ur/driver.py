@@ -137,9 +137,13 @@ class URDriver:
     def start(self) -> URState:
         """Connect, check the robot is running in normal safety mode, start the control script and
         its watchdog (control=True); returns the first state."""
+        import atexit
+
         import rtde_receive
 
         self._stopped = False
+        self._connection_lost = False
+        atexit.register(self.stop)
         try:
             self._r = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz)
         except RuntimeError as exc:
@@ -205,6 +209,12 @@ class URDriver:
                     f"the ur_rtde control script did not start on {self.host} within 5 s ({text}); check the robot "
                     "is powered, brakes released, no protective stop, remote control"
                 ) from None
+            if "already in use" in text:
+                raise HardwareError(
+                    f"the RTDE input registers of {self.host} are in use by another client (a second control "
+                    "session, or the EtherNet/IP adapter, PROFINET or a MODBUS unit configured on the robot): "
+                    "end it or disable it in the installation"
+                ) from None
             raise HardwareError(f"cannot start control on {self.host}: {text}") from None
         if self.watchdog_hz > 0.0 and not self._c.setWatchdog(self.watchdog_hz):
             self.stop()
@@ -245,16 +255,30 @@ class URDriver:
             )
         self._check_safety(s)
         if self._c is not None and not self._c.isProgramRunning():
-            # The control interface's stream may show the program's end a package before the
-            # receive interface shows why: give the safety status a few periods to arrive.
-            for _ in range(10):
-                time.sleep(0.002)
-                self._check_safety(self._read())
+            self._diagnose()
             self._fail(
                 f"the control script on {self.host} stopped (RTDE watchdog, a stop on the pendant or the dashboard, "
                 "or an error in the script); the session was stopped"
             )
         return s
+
+    def _diagnose(self) -> None:
+        """The program ended or a command was refused: find out whether a safety stop is why. The
+        control interface's stream can show the end before the receive interface shows the cause,
+        so the receive side gets a few periods, then the dashboard server is asked."""
+        for _ in range(10):
+            time.sleep(0.002)
+            self._check_safety(self._read())
+        try:
+            answer = dashboard_query(self.host, "safetystatus", timeout_s=1.0)
+        except OSError:
+            return
+        if "PROTECTIVE_STOP" in answer:
+            self._fail(
+                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
+            )
+        if "EMERGENCY_STOP" in answer:
+            self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
 
     def _check_safety(self, s: URState) -> None:
         if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
@@ -278,6 +302,7 @@ class URDriver:
     def _sent(self, ok: bool, what: str) -> None:
         if not ok:
             self.state()  # names the fault if there is one
+            self._diagnose()
             self._fail(f"the controller at {self.host} refused {what}")
 
     def force_mode(
@@ -338,6 +363,25 @@ class URDriver:
         self._sent(c.directTorque(list(map(float, tau)), [0.0] * 6, [0.0] * 6), "directTorque")
         return tau
 
+    def servo_stop(self, deceleration: float = 10.0) -> None:
+        """End servoL streaming; the arm decelerates and holds."""
+        self._sent(self._require_control().servoStop(deceleration), "servoStop")
+        self._modes.discard("servo")
+
+    def speed_stop(self, deceleration: float = 10.0) -> None:
+        """Ramp a speedL twist down to rest at `deceleration` (m/s^2)."""
+        self._sent(self._require_control().speedStop(deceleration), "speedStop")
+        self._modes.discard("speed")
+
+    def force_mode_stop(self) -> None:
+        """Leave force mode; the arm holds where it is."""
+        self._sent(self._require_control().forceModeStop(), "forceModeStop")
+        self._modes.discard("force")
+
+    def zero_ft_sensor(self) -> None:
+        """Take the present TCP wrench as the sensor's zero."""
+        self._sent(self._require_control().zeroFtSensor(), "zeroFtSensor")
+
     def kick(self) -> None:
         """Feed the RTDE watchdog without a motion command."""
         if self._c is not None and not self._stopped:
@@ -351,6 +395,9 @@ class URDriver:
         if self._stopped:
             return
         self._stopped = True
+        import atexit
+
+        atexit.unregister(self.stop)
         c, r = self._c, self._r
         self._c = self._r = None
         if c is not None:
