@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from haptic_teleop.core.eba import CoupledEnergyBound, SampleGuard
     from haptic_teleop.core.taskspace import TaskSpaceLaw, WorkspaceMapping
     from haptic_teleop.plants.arm import MujocoArm
+    from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.record.columns import TickSchema
 
 __all__ = [
@@ -163,7 +164,7 @@ class ArmSide:
     """One side of an arm scene: the plant, its task-space law, its pooled joint bound and the guard
     on the remote samples it receives; `force_limit_n` saturates the task force's norm."""
 
-    plant: MujocoArm
+    plant: MujocoArm | HardwareArm
     law: TaskSpaceLaw
     bound: CoupledEnergyBound
     guard: SampleGuard
@@ -246,11 +247,12 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
 
     from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams, SampleGuard
     from haptic_teleop.core.taskspace import TaskCouplingParams, TaskSpaceLaw, WorkspaceMapping, rotation_from_rpy
-    from haptic_teleop.plants import build_master_arm, build_slave_arm
+    from haptic_teleop.plants import build_arm
     from haptic_teleop.record.columns import TickSchema
 
-    master = build_master_arm(config)
-    slave = build_slave_arm(config)
+    # A hardware side's plant starts its driver at its first read, not here (plants/hardware_arm.py).
+    master = build_arm(config, "master")
+    slave = build_arm(config, "slave")
     kernels = arm_kernels() if compiled else None
     xm0 = master.point()[0]
     xs0 = slave.point()[0]
@@ -270,8 +272,9 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     limits = arm_remote_limits(config, [handle0, xs0, np.array(config.slave.wall.point_m)])
     period_s = config.scene.period_s
 
-    def side(role: str, plant: MujocoArm) -> ArmSide:
+    def side(role: str, plant: MujocoArm | HardwareArm) -> ArmSide:
         cfg: ControllerConfig = getattr(config.controllers, role)
+        slew = getattr(config, role).slew_nm_per_s
         c1 = cfg.stiffness_axes_n_per_m or (cfg.stiffness_n_per_m,) * 3
         c2 = cfg.damping_axes_n_s_per_m or (cfg.damping_n_s_per_m,) * 3
         ori = cfg.orientation
@@ -293,6 +296,7 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
                 damping_nm_s_per_rad=tuple(plant.joint_damping()),
                 initial_energy_j=cfg.eba.initial_energy_j,
                 enabled=cfg.eba.enabled,
+                slew_nm_per_s=tuple(slew) if slew is not None else (),
                 joint_names=plant.joints,
             ),
             kernels,

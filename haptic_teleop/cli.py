@@ -1,4 +1,4 @@
-"""`haptic-teleop run | analyze | sweep | scenes | bench | launch`: the command line."""
+"""`haptic-teleop run | analyze | sweep | scenes | bench | launch | identify`: the command line."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from haptic_teleop.analysis.outputs import (
     write_atomic,
     write_outputs,
 )
-from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError
+from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, PlantError
 from haptic_teleop.lifetime import deadline
 
 EXIT_OK = 0
@@ -49,14 +49,30 @@ def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_S
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from haptic_teleop.report import format_summary
     from haptic_teleop.scene.load import find_scene, load_scene
 
     interrupt.pause_for_test("scene")
     overrides = list(args.set or ())
     if args.compression is not None:
         overrides.append(f"recording.compression={args.compression}")
-    scene = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed)
+    emulate = getattr(args, "emulate", None)
+    if emulate is None:
+        return _run_scene(args, load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed))
+    # --emulate: a Dynamixel bus emulator per side on servos, from the scene (haptic_teleop/emulate.py);
+    # stopped on every way out, after the run has stopped the servos.
+    from haptic_teleop.emulate import emulated
+
+    first = load_scene(find_scene(args.scene), overrides=overrides, seed=args.seed, emulate=True)
+    if args.dry_run:  # validated; no emulator needed to print it
+        return _run_scene(args, first)
+    with emulated(first.config, emulate) as ports:
+        scene = load_scene(find_scene(args.scene), overrides=overrides + ports, seed=args.seed)
+        return _run_scene(args, scene)
+
+
+def _run_scene(args: argparse.Namespace, scene: Any) -> int:
+    from haptic_teleop.report import format_summary
+
     resolved = scene.to_yaml()
     if args.dry_run:
         sys.stdout.write(resolved)
@@ -102,6 +118,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             def on_engine(engine: Any) -> None:
                 starting.close()
+                if engine.pacer is not None and not args.quiet:
+                    print(
+                        f"haptic-teleop: a real device: the tick runs in Python ({engine.compiled_reason}), "
+                        f"paced to the wall clock (late ticks: timing.json)",
+                        file=sys.stderr,
+                    )
                 open_bar()
                 stack.enter_context(interrupt.on_stop(engine.request_stop))  # Ctrl-C, SIGTERM: stop
                 interrupt.pause_for_test("engine")
@@ -119,6 +141,12 @@ def cmd_run(args: argparse.Namespace) -> int:
                     )
             except BagError as exc:
                 raise HapticTeleopError(str(exc)) from None  # writing failed: not an input error (exit 1)
+            except PlantError:
+                # A device failed mid-run (torque is off, the bag closed): analyse the ticks that ran,
+                # then the error's one line and exit 1.
+                with contextlib.suppress(Exception):
+                    write_outputs(bag_dir, out, plots=not args.no_plots)
+                raise
             finally:
                 if bar is not None:
                     bar.close()
@@ -221,6 +249,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
     r.add_argument("--dry-run", action="store_true", help="validate the scene, print it resolved, write nothing")
     r.add_argument(
+        "--emulate",
+        action="store_const",
+        const="lockstep",
+        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it, "
+        "in lockstep time: the same scene and seed give the same bag (docs/hardware.md)",
+    )
+    r.add_argument(
         "--compression",
         choices=("none", "zstd", "lz4"),
         help="MCAP chunk compression of the bag (scene key recording.compression, default none)",
@@ -266,12 +301,34 @@ def build_parser() -> argparse.ArgumentParser:
         mod.add_arguments(bp)
         bp.set_defaults(func=cmd_bench)
 
+    from haptic_teleop import identify
+
+    idp = sub.add_parser(
+        "identify", help="excite an arm's joints, estimate their friction, print and write the damping EBA may assume"
+    )
+    identify.add_arguments(idp)
+    idp.set_defaults(func=identify.main)
+
     from haptic_teleop.launcher import add_arguments as add_launch_arguments
 
     la = sub.add_parser("launch", help="run a scene live: ROS 2 nodes as processes over DDS")
     add_launch_arguments(la)
     la.set_defaults(func=cmd_launch)
+
+    em = sub.add_parser("emulate", help="serve an emulated device for the unmodified SDKs (docs/dynamixel.md)")
+    emd = em.add_subparsers(dest="device", required=True, metavar="DEVICE").add_parser(
+        "dynamixel", help="a Protocol 2.0 bus on a pseudo-terminal; prints PORT /dev/pts/N"
+    )
+    emd.add_argument("--config", required=True, help="a JSON file of the bus (BusConfig), or - for stdin")
+    emd.add_argument("--die-with-stdin", action="store_true", help="also stop when stdin is closed")
+    emd.set_defaults(func=cmd_emulate)
     return p
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from haptic_teleop.emulators.dynamixel.__main__ import main as emulate_dynamixel
+
+    return emulate_dynamixel(["--config", args.config, *(["--die-with-stdin"] if args.die_with_stdin else [])])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,6 +32,12 @@ DEVICE_ARGUMENTS = (
     ("command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"),
     ("command_reliability", "reliable", "QoS of the force command: reliable | best_effort"),
     ("command_depth", "10", "QoS history depth of the force command"),
+    (
+        "set",
+        "",
+        "scene overrides KEY=VALUE separated by ';', e.g. an arm on servos: "
+        "slave.backend=dynamixel;slave.hardware.port=/dev/ttyUSB0 (docs/hardware.md)",
+    ),
 )
 
 
@@ -75,7 +81,12 @@ def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str 
     sim = arg("sim_time").lower() or "false"
     if sim not in ("true", "false"):
         raise ConfigError("launch arguments", "sim_time", sim, "allowed: true or false")
+    overrides += [part.strip() for part in arg("set").split(";") if part.strip()]
     scene = load_scene(find_scene(arg("scene") or "wall_contact"), overrides=overrides, seed=seed)
+    if device == "topic" and scene.config.is_arm:
+        # An arm scene's sides host their arms in master_eba and slave_eba: MuJoCo, or a real arm
+        # through its driver (`<side>.backend`, docs/hardware.md); no device topics.
+        device = "plant"
     topics = (arg("state_topic"), arg("command_topic")) if device == "topic" and arg("state_topic") else None
     qos = None
     if device == "topic" and (arg("command_reliability") or arg("command_depth")):

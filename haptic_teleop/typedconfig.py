@@ -96,6 +96,9 @@ def convert(tp: Any, value: Any, where: str, source: str, meta: Mapping[str, Any
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(source, where, value, f"allowed: an integer{_help(meta)}")
         _check_range(value, meta, where, source)
+        choices = meta.get("choices")
+        if choices is not None and value not in choices:
+            raise ConfigError(source, where, value, f"allowed: one of {', '.join(map(str, choices))}")
         return value
     if tp is float:
         if isinstance(value, str) and _NUMBER.match(value.strip()):

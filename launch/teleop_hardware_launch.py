@@ -6,6 +6,13 @@
 The master reads the driver's sensor_msgs/JointState (position, velocity of axis 0) and sends the
 force command as geometry_msgs/WrenchStamped (force.x); start the driver yourself. There is no
 operator source, so the run lasts until Ctrl-C. Everything else is the node set of teleop_launch.py.
+
+Arm scenes on real arms (docs/hardware.md): the side's arm is hosted in master_eba or slave_eba
+through its driver, chosen by the scene's `<side>.backend`; the `set` argument takes scene
+overrides separated by ';':
+
+    ros2 launch haptic_teleop teleop_hardware_launch.py scene:=touch_dynamixel_wall \
+        set:="slave.backend=dynamixel;slave.hardware.port=/dev/ttyUSB0"
 """
 
 from haptic_teleop.launch_support import launch_description

@@ -110,3 +110,16 @@ def test_parameter_files_write_doubles_as_ros_reads_them():
     assert format_double(1e20) == "1.0e+20"
     with pytest.raises(ValueError):
         format_double(float("nan"))
+
+
+def test_hardware_variant_runs_an_arm_scene_on_its_backends_with_set_overrides(tmp_path):
+    sets = "slave.backend=dynamixel; slave.hardware.port=/dev/ttyUSB7"
+    pairs = plan_from_arguments({"scene": "touch_dynamixel_wall", "set": sets}, "topic", tmp_path)
+    slave = next(s for s, _ in pairs if s.name == "slave_eba")
+    assert slave.params["slave"]["backend"] == "dynamixel"
+    assert slave.params["slave"]["hardware"]["port"] == "/dev/ttyUSB7"
+    master = next(s for s, _ in pairs if s.name == "master_eba")
+    assert master.params["device"] == {"source": "plant"}  # the arms are the nodes' plants, no device topic
+    with pytest.raises(ConfigError) as exc:
+        plan_from_arguments({"scene": "touch_dynamixel_wall", "set": "slave.backend=dynamixel"}, "topic", tmp_path)
+    assert "slave.hardware.port" in str(exc.value)

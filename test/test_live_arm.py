@@ -260,8 +260,12 @@ def test_ros2_launch_files_plan_an_arm_scene_as_the_launcher_does(tmp_path):
             assert params["task_axes"] == 3
         if spec.executable in ("master_eba", "slave_eba", "operator_source"):
             assert params["slave"]["wall"]["normal"] == [0.0, 0.0, 1.0]
-    with pytest.raises(ConfigError, match="device"):  # the hardware variant: not for arm scenes yet
-        plan_from_arguments({"scene": SCENE}, "topic", tmp_path / "hw")
+    # The hardware launch file (device topics) on an arm scene: its sides host their arms in the EBA
+    # nodes (MuJoCo, or a real arm through `<side>.backend`), the same plan as the simulated one.
+    hw = plan_from_arguments({"scene": SCENE, "record": str(tmp_path / "rec")}, "topic", tmp_path / "hw")
+    assert [s for s, _ in hw] == want
+    with pytest.raises(ConfigError, match=r"slave\.backend"):
+        plan_from_arguments({"scene": SCENE, "set": "slave.backend=nonesuch"}, "topic", tmp_path / "bad")
 
 
 def test_ledger_restart_starts_afresh_and_the_next_step_books_no_period_before_it():

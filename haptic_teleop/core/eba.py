@@ -830,6 +830,7 @@ class CoupledEnergyBound:
         "_low",
         "_out",
         "_step",
+        "_stretch",
         "energy_j",
         "held",
         "params",
@@ -860,6 +861,7 @@ class CoupledEnergyBound:
         # The last lambda (1: the limited desired torque passed unchanged); with a slew limit, the
         # fraction of the way from the fastest descent to the slew-limited desired torque.
         self.scale = 1.0
+        self._stretch = 1.0  # the next update's period, in periods (`stretch`)
         k = kernels or {}
         self._f_reservoir = k.get("coupled_reservoir", coupled_reservoir)
         self._f_limited = k.get("joint_limited", joint_limited)
@@ -881,9 +883,11 @@ class CoupledEnergyBound:
         if self._has_last:
             dq = self._dq
             np.subtract(q, last, out=dq)
-            self.energy_j = self._f_reservoir(self.energy_j, self._gain, self.held, dq)
+            gain = self._gain if self._stretch == 1.0 else self._gain / self._stretch
+            self.energy_j = self._f_reservoir(self.energy_j, gain, self.held, dq)
         else:
             self._has_last = True
+        self._stretch = 1.0
         last[:] = q
         self._f_limited(
             self._limited,
@@ -911,6 +915,15 @@ class CoupledEnergyBound:
         """The torque the motors really applied over the period after the last `step` (if it differs
         from what `step` returned): the next update of the reservoir accounts with it."""
         self.held[:] = tau
+
+    def stretch(self, elapsed_s: float) -> None:
+        """The motion the next `step` books took `elapsed_s` of wall time (a real arm whose tick came
+        late): that update credits the damping with d_i dq_i^2 / elapsed_s, the least the damper
+        dissipated over that time (Cauchy-Schwarz), instead of d_i dq_i^2 / T, which would be up to
+        elapsed / T times too much. Shorter than a period (or not finite) changes nothing: T is then
+        the conservative one. The torque bound itself still budgets one period of hold."""
+        periods = elapsed_s / self.params.period_s
+        self._stretch = periods if periods > 1.0 and math.isfinite(periods) else 1.0
 
     def constants(self) -> CoupledBoundConstants:
         """The per-joint constants the tick uses (copies)."""

@@ -17,6 +17,7 @@ The row's columns follow the scene's TickSchema (record/columns.py).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -73,6 +74,7 @@ class _SideTick:
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
         k = side.kernels
         self.joint_limited = k["joint_limited"] if k is not None else joint_limited
+        self.safe = getattr(self.plant, "safe_torque", None)  # HardwareArm's guards; none on MuJoCo
 
     def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
         plant = self.plant
@@ -96,7 +98,8 @@ class _SideTick:
         self.joint_limited(self.limited, tau, lo, hi, True)
         if not np.array_equal(self.limited, tau):
             self.limited_ticks += 1
-        out = self.bound.step(q, self.limited)
+        # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
+        out = self.bound.step(q, self.limited if self.safe is None else self.safe(self.limited))
         tt = dot(tau, tau)
         self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
@@ -185,6 +188,52 @@ def side_ticks(parts: ArmParts) -> tuple[_SideTick, _SideTick]:
     return _SideTick(parts.master, mapping.force_scale * mapping.matrix), _SideTick(parts.slave, None)
 
 
+class Pacer:
+    """Absolute deadlines for a loop that drives real devices: tick n starts no earlier than
+    t0 + n T on `time.perf_counter`. The first tick starts the devices (connecting, checking,
+    configuring: a long tick), so the clock is anchored at the start of the second: t0 = its start
+    minus T. A tick that starts more than one period after its deadline is late: counted, never made
+    up (the loop does not drop ticks to catch up; scene time stays n T, so the bag is the same
+    however late the ticks were). An overrun is a tick that took longer than one period. The
+    counts go into timing.json, never into the bag."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.t0 = 0.0
+        self.late_ticks = 0
+        self.overrun_ticks = 0
+        self.max_late_s = 0.0
+        self.ticks = 0
+        self._last = 0.0
+
+    def wait(self, n: int) -> None:
+        now = time.perf_counter()
+        if n >= 2 and now - self._last > self.period_s:
+            self.overrun_ticks += 1
+        if n <= 1:
+            self.t0 = now - n * self.period_s
+        deadline = self.t0 + n * self.period_s
+        if now < deadline:
+            time.sleep(deadline - now)
+            now = time.perf_counter()
+        else:
+            late = now - deadline
+            if late > self.period_s:
+                self.late_ticks += 1
+            self.max_late_s = max(self.max_late_s, late)
+        self._last = now
+        self.ticks = n + 1
+
+    def facts(self) -> dict[str, float | int]:
+        """What timing.json gets: ticks paced, late ticks, overruns and the largest lateness (s)."""
+        return {
+            "paced_ticks": self.ticks,
+            "late_ticks": self.late_ticks,
+            "overrun_ticks": self.overrun_ticks,
+            "max_late_s": self.max_late_s,
+        }
+
+
 def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:
     """Run the arm scene's ticks into `output` (the engine's _Output); returns the ticks done."""
     n_ticks = engine.ticks
@@ -215,13 +264,24 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     base = 0
     done = 0
     engine.ticks_done = 0
+    pace = engine.pacer  # a real device on a side: each tick starts at its deadline (wall clock)
+    m_hand = not engine.hardware_master  # a real master's operator is a real hand: nothing commanded
+    # A real arm's ledger credits the damping over the time the tick's motion really took
+    # (CoupledEnergyBound.stretch; one period for a device on a lockstep clock: the emulator).
+    m_real, s_real = engine.hardware_master, engine.hardware_slave
     for n in range(n_ticks):
         now_ns = n * period_ns
+        if pace is not None:
+            pace.wait(n)
         row = block[n - base]
         # 1. both arms
         qm, qdm = master.read()
+        if m_real:  # a real arm: the motion since the last read took its own time (Pacer: late ticks)
+            mt.bound.stretch(master.read_interval_s)
         xm_dev, vm_dev = master.point()
         qs, qds = slave.read()
+        if s_real:
+            st.bound.stretch(slave.read_interval_s)
         xs, vs = slave.point()
         f_env, t_env = slave.contact_wrench()
         x_m = maps.to_task_x(xm_dev)
@@ -255,13 +315,13 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
             brx = -1
         # 6. operator and plants
         xd_t, vd_t, f_hand = operator_hand(parts, n * period_s, xm_dev, vm_dev)
-        applied_m = master.step(tau_m, f_hand)
+        applied_m = master.step(tau_m, f_hand if m_hand else None)
         applied_s = slave.step(tau_s)
         mt.bound.held[:] = applied_m  # the ledger: the torques the plants applied
         st.bound.held[:] = applied_s
         row[cols["op_x_m"]] = xd_t
         row[cols["op_v_m_per_s"]] = vd_t
-        row[cols["op_force_n"]] = maps.force_to_task(f_hand)
+        row[cols["op_force_n"]] = maps.force_to_task(f_hand) if m_hand else np.nan
         row[cols["m_q"]] = qm
         row[cols["m_qd"]] = qdm
         row[cols["m_tau_nm"]] = applied_m

@@ -211,8 +211,11 @@ def contact_layout() -> tuple[int, int, int, int, int, int, int, int] | str:
 def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any, bbuf: Any) -> str | None:
     """Why the arm scene cannot run in the compiled loop, or None if it can."""
     from haptic_teleop.plants.arm import MujocoArm
+    from haptic_teleop.plants.hardware_arm import HardwareArm
 
     for role, side in (("master", parts.master), ("slave", parts.slave)):
+        if isinstance(side.plant, HardwareArm):
+            return f"{role}: a real device (its driver is read and written from Python, once per tick)"
         if type(side.plant) is not MujocoArm:
             return f"{role}: plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
         if side.law.params.law != "position":

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -95,6 +95,8 @@ class Engine:
         self.period_ns = round(c.scene.period_s * 1e9)
         self.ticks = int(round(c.scene.duration_s / c.scene.period_s))
         self.schema: TickSchema = ONE_DOF
+        self.pacer: Any = None  # arm_loop.Pacer when a side is a real device
+        self.hardware_master = self.hardware_slave = False
         if c.is_arm:
             self._init_arm(loop)
             return
@@ -147,9 +149,32 @@ class Engine:
     def _init_arm(self, loop: str) -> None:
         """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (arm_loop.py)."""
         from haptic_teleop.assembly import build_arm_parts
-        from haptic_teleop.engine.arm_loop import side_ticks, wire_payload_bytes
+        from haptic_teleop.engine.arm_loop import Pacer
+        from haptic_teleop.plants.hardware_arm import HardwareArm
 
         self.arm = parts = build_arm_parts(self.scene.config)
+        try:
+            self._init_arm_rest(parts, loop)
+        except BaseException:
+            self.close_plants()
+            raise
+        # A real device on a side: the loop keeps to the wall clock (arm_loop.Pacer).
+        self.hardware_master = isinstance(parts.master.plant, HardwareArm)
+        self.hardware_slave = isinstance(parts.slave.plant, HardwareArm)
+        self.pacer = Pacer(self.period_s) if self.hardware_master or self.hardware_slave else None
+
+    def close_plants(self) -> None:
+        """Stop both plants (torque off on a real device; idempotent): every exit path calls it."""
+        for plant in (getattr(self, "master", None), getattr(self, "slave", None)):
+            if plant is not None:
+                plant.close()
+        if getattr(self, "arm", None) is not None:
+            self.arm.master.plant.close()
+            self.arm.slave.plant.close()
+
+    def _init_arm_rest(self, parts: Any, loop: str) -> None:
+        from haptic_teleop.engine.arm_loop import side_ticks, wire_payload_bytes
+
         self.arm_ticks = side_ticks(parts)
         self.schema = parts.schema
         self.operator = parts.operator
@@ -390,14 +415,12 @@ class Engine:
                 done = run_arm_loop(self, self.arm, progress, output)
         except BaseException:
             done = self.ticks_done
-            self.master.close()
-            self.slave.close()
+            self.close_plants()
             output.end_after_error(done)
             raise
+        self.close_plants()  # torque off first, then the rest of the bag
         output.end(done)
         wall = time.perf_counter() - t0
-        self.master.close()
-        self.slave.close()
         return self._streamed(done, wall)
 
     def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
@@ -563,6 +586,7 @@ class RunTiming:
     record_wall_s: float  # loop start to bag closed
     interrupted: bool
     loop: str = "python"  # which loop ran: "compiled" or "python" (Engine.loop_kind)
+    pacing: dict[str, float | int] | None = None  # a real device's run: arm_loop.Pacer.facts()
 
     @property
     def realtime_factor(self) -> float:
@@ -578,6 +602,7 @@ class RunTiming:
             "loop_realtime_factor": self.simulated_s / self.loop_wall_s if self.loop_wall_s > 0 else float("inf"),
             "interrupted": self.interrupted,
             "loop": self.loop,
+            **({"realtime": True, **self.pacing} if self.pacing is not None else {}),
         }
 
 
@@ -602,20 +627,24 @@ def record_run(
     from haptic_teleop.record.recorder import RunRecorder
 
     engine = Engine(scene, loop=loop)
-    if on_engine is not None:
-        on_engine(engine)
     c = scene.config
-    rec = RunRecorder(
-        bag_dir,
-        scene.to_yaml(),
-        engine.period_ns,
-        c.recording.eba_internals,
-        c.recording.packets,
-        engine.schema.width,
-        parallel=parallel,
-        compression=c.recording.compression,
-        schema=engine.schema,
-    )
+    try:
+        if on_engine is not None:
+            on_engine(engine)
+        rec = RunRecorder(
+            bag_dir,
+            scene.to_yaml(),
+            engine.period_ns,
+            c.recording.eba_internals,
+            c.recording.packets,
+            engine.schema.width,
+            parallel=parallel,
+            compression=c.recording.compression,
+            schema=engine.schema,
+        )
+    except BaseException:
+        engine.close_plants()  # a real device's torque off: no tick will run
+        raise
     collector = Collector(engine.schema.width) if keep else None
     sink: RunSink = rec if collector is None else _Tee(rec, collector)
     t0 = time.perf_counter()
@@ -639,11 +668,21 @@ def record_run(
         if c.is_arm:  # the wall plane in the task frame (the analysis' penetration)
             info["wall_point_m"] = list(c.slave.wall.point_m or ())
             info["wall_normal"] = list(c.slave.wall.normal or ())
+            # A real device's side: its damping above is the scene's assumption (docs/hardware.md).
+            info["master_backend"] = c.master.backend
+            info["slave_backend"] = c.slave.backend
         if collector is not None:
             engine.data = collector.data()
         rec.close(info)
     wall = time.perf_counter() - t0
-    return engine, RunTiming(done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind)
+    pacing = engine.pacer.facts() if engine.pacer is not None else None
+    if pacing is not None:  # a real device's reads that failed (the driver repeated its last sample)
+        for side, plant in (("master", engine.master), ("slave", engine.slave)):
+            if hasattr(plant, "stale_ticks"):
+                pacing[f"{side}_stale_reads"] = plant.stale_ticks
+    return engine, RunTiming(
+        done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind, pacing
+    )
 
 
 def _wire_payload_bytes(floats: int) -> int:

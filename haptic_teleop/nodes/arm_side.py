@@ -15,6 +15,7 @@ arrays).
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -58,8 +59,13 @@ class ArmEbaSide:
         if why is not None:
             node.get_logger().warning(f"{role} arm tick runs in Python, not compiled: {why}")
         other = parts.slave if role == "master" else parts.master
-        other.plant.close()  # the other side's plant only gave its start point
+        other.plant.close()  # the other side's plant only gave its start point (a device's: never started)
         self.plant = self.side.plant
+        # A real arm (plants/hardware_arm.py): its driver starts at the first tick's read, the tick reads
+        # and writes it once, the safety guards act on the desired torque before the bound (SideTick),
+        # a guard's fault or a device's HardwareError ends the node (exit 1, one line), and `close` on
+        # every way out turns its torque off (docs/live.md, "A real arm on a side").
+        self.hardware = isinstance(self.plant, _hardware_arm())
         self.maps = parts.maps
         self.schema = parts.schema
         self.period_s = config.scene.period_s
@@ -82,6 +88,10 @@ class ArmEbaSide:
         self.restart_ns: int | None = None
         self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
+        self._last_write_s: float | None = None
+        self._last_read_s: float | None = None
+        self.long_holds = 0  # a real arm's writes held longer than two periods (wall time)
+        self.max_hold_s = 0.0
         self.remote_samples = 0
         self.malformed_samples = 0
 
@@ -121,6 +131,13 @@ class ArmEbaSide:
         if self.compiled:
             return self.tick.read_point()  # type: ignore[no-any-return]
         q, qd = self.plant.read()
+        if self.hardware:
+            # A real arm lives in wall time: the motion since the last read took this long, and the
+            # ledger credits its damping over that time (CoupledEnergyBound.stretch).
+            now = time.monotonic()
+            if self._last_read_s is not None:
+                self.tick.bound.stretch(now - self._last_read_s)
+            self._last_read_s = now
         x, v = self.plant.point()
         return q, qd, x, v
 
@@ -128,7 +145,23 @@ class ArmEbaSide:
         """The plant's `step` (compiled with the tick when it is); returns the torques applied."""
         if self.compiled:
             return self.tick.step(torque, hand_force_n)  # type: ignore[no-any-return]
-        return self.plant.step(torque, hand_force_n)  # type: ignore[no-any-return]
+        applied = self.plant.step(torque, hand_force_n)
+        if self.hardware:
+            self._hold()
+        return applied  # type: ignore[no-any-return]
+
+    def _hold(self) -> None:
+        """A real arm holds each write until the next one, in wall time: count the holds longer than
+        two periods (the energy bound budgets one; docs/live.md, "Late ticks on a real arm")."""
+        now = time.monotonic()
+        last = self._last_write_s
+        self._last_write_s = now
+        if last is None:
+            return
+        hold = now - last
+        self.max_hold_s = max(self.max_hold_s, hold)
+        if hold > 2.0 * self.period_s:
+            self.long_holds += 1
 
     def applied(self, torque: np.ndarray) -> None:
         """The ledger takes the torques the plant applied (as the engine's loop)."""
@@ -149,6 +182,7 @@ class ArmEbaSide:
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         wd = self.watchdog
+        holds = {"long_holds": self.long_holds, "max_hold_ms": round(self.max_hold_s * 1e3, 3)}
         return {
             "watchdog_gain": round(wd.gain, 3),
             "watchdog_trips": wd.trips,
@@ -158,10 +192,37 @@ class ArmEbaSide:
             "joint_limited_ticks": self.tick.limited_ticks,
             "arm_tick": "compiled" if self.compiled else "python",
             "ledger_restarted_discarding_j": self.restarted_j if self.restarted_j is not None else -1.0,
+            **(holds if self.hardware else {}),
         }
 
-    def close(self) -> None:
+    def hold_report(self) -> str | None:
+        """One line on a real arm's holds longer than two periods, or None (none, or not a real arm)."""
+        if not self.hardware or not self.long_holds:
+            return None
+        return (
+            f"{self.role} arm: {self.long_holds} torque holds longer than two periods (the longest "
+            f"{self.max_hold_s * 1e3:.1f} ms, the period {self.period_s * 1e3:g} ms): the energy bound budgets one "
+            "period per hold (docs/live.md, 'Late ticks on a real arm')"
+        )
+
+    def close(self, log: Any = None) -> None:
+        """Release the plant (a real arm: torque off), then report its long holds, if any."""
         self.plant.close()
+        line = self.hold_report()
+        if line is not None and log is not None:
+            log(line)
+
+
+def _hardware_arm() -> type:
+    from haptic_teleop.plants.hardware_arm import HardwareArm
+
+    return HardwareArm
+
+
+HARDWARE_SCHEDULING = (
+    "the arm's vendor SDK busy-waits on the serial port for each reply, which at SCHED_FIFO starves the "
+    "kernel's serial path on its CPU"
+)
 
 
 def side_topics(role: str, schema: Any) -> tuple[str, ...]:

@@ -8,6 +8,7 @@ messages and parameters to and from them.
 
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import gc
 import os
@@ -185,6 +186,20 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
         )
         self._setup_diagnostics()
 
+    def normal_scheduling(self, why: str) -> None:
+        """Run this node's loop with normal scheduling, not SCHED_FIFO (call after `setup_loop`, before
+        the loop starts; composed, the shared loop of every node in the process). For a loop that
+        busy-waits inside a vendor SDK: at real-time priority it starves the kernel's own threads of
+        its CPU, the serial port's among them, and then waits for a reply that cannot arrive."""
+        loop = self.loop
+        if loop is None:
+            return
+        if isinstance(loop, SharedLoop.Member):
+            loop.group.realtime_priority = 0
+        else:
+            loop.realtime_priority = 0
+        self.get_logger().info(f"loop with normal scheduling: {why}")
+
     def _setup_diagnostics(self) -> None:
         """The /diagnostics publisher. Reports go out once a second from the loop thread, in the
         slack after a tick (`_idle`): not from an executor timer (in a composed process each
@@ -217,6 +232,12 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
         if isinstance(exc, NodeStopped):
             self.get_logger().info(str(exc) or "finished")
             self.exit_code = 0
+        elif isinstance(exc, HapticTeleopError):
+            # A failure the package raised on purpose (a device's HardwareError, a refused start, a
+            # safety stop): its message names what happened and what to do; one line, no traceback.
+            # The node then closes (its plant's torque off) and exits with the error's code.
+            print(f"{self.get_name()}: {exc}", file=sys.stderr, flush=True)
+            self.exit_code = max(1, exc.exit_code)
         else:
             import traceback
 
@@ -298,6 +319,14 @@ def _bad_parameter_errors() -> tuple[type[BaseException], ...]:
     return (ConfigError, ParameterException, HapticTeleopError, ValueError, KeyError)
 
 
+def _construction_failure(who: str, exc: BaseException) -> tuple[str, int]:
+    """The line and exit code of a node whose constructor failed: a parameter (exit 2), or a failure
+    the package raised on purpose while building its parts (a plant, a device: its own code)."""
+    if isinstance(exc, HapticTeleopError) and not isinstance(exc, ConfigError):
+        return f"{who}: {exc}", exc.exit_code
+    return f"{who}: bad parameter: {exc}", BAD_PARAMETER_EXIT
+
+
 TEARDOWN_S = 5.0  # the middleware's teardown after the nodes closed; the launcher kills at 10 s
 
 
@@ -354,12 +383,13 @@ def run_nodes(
     except _bad_parameter_errors() as exc:
         _SHARED_LOOP = None
         who = kwargs_list[len(nodes)].get("node_name", getattr(factories[len(nodes)], "default_name", "node"))
-        print(f"{who}: bad parameter: {exc}", file=sys.stderr, flush=True)
+        line, failed = _construction_failure(who, exc)
+        print(line, file=sys.stderr, flush=True)
         for n in nodes:
             n.close()
             n.destroy_node()
         rclpy.try_shutdown()
-        return BAD_PARAMETER_EXIT
+        return failed
     _SHARED_LOOP = None
     executor = MultiThreadedExecutor(num_threads=max(2, len(nodes))) if multithreaded else SingleThreadedExecutor()
     for n in nodes:
@@ -381,8 +411,15 @@ def run_nodes(
     # twice in 15 s, without this; docs/live.md, "Late ticks").
     gc.collect()
     gc.freeze()
-    for n in nodes:
-        n.start()
+    try:
+        for n in nodes:
+            n.start()
+    except BaseException:
+        stop.set()
+        for n in nodes:  # every exit path closes the nodes (a hardware plant's torque off with them)
+            with contextlib.suppress(Exception):
+                n.close()
+        raise
     while not stop.wait(0.1) and not signalled:
         pass
     if signalled and not stop.is_set() and signals_out is not None:

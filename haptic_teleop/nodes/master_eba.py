@@ -134,6 +134,10 @@ class MasterEba(LiveNode):
         self._read_hand = JointStateReader(("effort",), [(names, JOINT_ORDER)], len(axes))
         self._hand_dev = np.zeros(len(axes))  # the operator's hand force, device frame
         self.setup_loop(round(cfg.scene.period_s * 1e9))
+        if arm.hardware:  # a real arm: its operator is a real hand, nothing is commanded at the handle
+            from haptic_teleop.nodes.arm_side import HARDWARE_SCHEDULING
+
+            self.normal_scheduling(HARDWARE_SCHEDULING)
         self.get_logger().info(
             f"arm {cfg.master.model} ({', '.join(arm.schema.master_joints)}), period "
             f"{cfg.scene.period_s * 1e3:g} ms, watchdog bound {arm.bound_ms():.0f} ms"
@@ -150,7 +154,7 @@ class MasterEba(LiveNode):
         hand = take_latest(self._hand_sub)
         if hand is not None:
             self._hand_dev = maps.force_to_master(np.asarray(self._read_hand(hand)[1]))
-        applied = arm.step(tau, self._hand_dev)
+        applied = arm.step(tau, None if arm.hardware else self._hand_dev)
         arm.applied(applied)
         arm.publish("/master/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
         arm.publish("/master/handle_pose", stamp_ns, x)
@@ -189,7 +193,9 @@ class MasterEba(LiveNode):
 
     def close(self) -> None:
         super().close()
-        if self.plant is not None:
+        if self.arm is not None:
+            self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
+        elif self.plant is not None:
             self.plant.close()
         elif self.command_out is not None:
             self.command_out.publish(self.now_ns(), 0.0)  # torque off on every exit

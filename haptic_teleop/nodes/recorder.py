@@ -525,14 +525,18 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
 
     if not cfg.is_arm:
         return ONE_DOF, {}
-    from haptic_teleop.plants import build_master_arm, build_slave_arm
+    from haptic_teleop.plants import build_arm
 
-    master, slave = build_master_arm(cfg), build_slave_arm(cfg)
+    # A real arm's plant (built, its driver never started here): the damping the scene lets EBA
+    # assume, as the engine records it for a hardware side (docs/hardware.md).
+    master, slave = build_arm(cfg, "master"), build_arm(cfg, "slave")
     facts = {
         "master_joint_damping": master.joint_damping(),
         "slave_joint_damping": slave.joint_damping(),
         "wall_point_m": list(cfg.slave.wall.point_m or ()),
         "wall_normal": list(cfg.slave.wall.normal or ()),
+        "master_backend": cfg.master.backend,
+        "slave_backend": cfg.slave.backend,
     }
     return TickSchema(master.joints, slave.joints, 3), facts
 

@@ -35,6 +35,10 @@ class SlaveEba(LiveNode):
             self.arm = self.side = ArmEbaSide(self, "slave", cfg)
             self.plant = self.arm.plant
             self.setup_loop(period_ns)
+            if self.arm.hardware:
+                from haptic_teleop.nodes.arm_side import HARDWARE_SCHEDULING
+
+                self.normal_scheduling(HARDWARE_SCHEDULING)
             w = cfg.slave.wall
             self.get_logger().info(
                 f"arm {cfg.slave.model} ({', '.join(self.arm.schema.slave_joints)}), wall through "
@@ -88,7 +92,10 @@ class SlaveEba(LiveNode):
 
     def close(self) -> None:
         super().close()
-        self.plant.close()
+        if self.arm is not None:
+            self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
+        else:
+            self.plant.close()
 
 
 def main() -> None:

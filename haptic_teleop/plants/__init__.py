@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import math
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.base import Plant, backend_class
 
 if TYPE_CHECKING:
-    from haptic_teleop.plants.arm import MujocoArm
+    from haptic_teleop.plants.arm import MujocoArm, WallSpec
+    from haptic_teleop.plants.hardware import JointDriver
+    from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.plants.mujoco_plant import SimSettings
-    from haptic_teleop.scene.schema import PlantEffectsConfig, Scene
+    from haptic_teleop.scene.schema import HardwareConfig, PlantEffectsConfig, Scene
 
 
 # --------------------------------------------------------------------------------------------
@@ -94,18 +96,10 @@ def build_master_arm(config: Scene) -> MujocoArm:
 
 def build_slave_arm(config: Scene) -> MujocoArm:
     """An arm scene's slave arm and its wall (docs/arms.md)."""
-    from haptic_teleop.plants.arm import MujocoArm, WallSpec
+    from haptic_teleop.plants.arm import MujocoArm
 
     s = config.slave
-    w = s.wall
-    assert w.point_m is not None and w.normal is not None  # an arm scene (Scene.is_arm)
-    wall = WallSpec(
-        (w.point_m[0], w.point_m[1], w.point_m[2]),
-        (w.normal[0], w.normal[1], w.normal[2]),
-        w.stiffness_n_per_m,
-        w.damping_n_s_per_m,
-        s.contact_impedance,
-    )
+    wall = _wall(config)
     return MujocoArm(
         sim_settings(config),
         s.model,
@@ -116,6 +110,118 @@ def build_slave_arm(config: Scene) -> MujocoArm:
         torque_limit_nm=s.torque_limit_nm,
         gravity_compensation=s.gravity_compensation is not False,
         wall=wall,
+    )
+
+
+def build_arm(config: Scene, role: str) -> MujocoArm | HardwareArm:
+    """An arm scene's `role` side ("master" or "slave") on its backend: the MuJoCo arm
+    (`build_master_arm`, `build_slave_arm`), or a real arm (`build_hardware_arm`)."""
+    if getattr(config, role).backend == "mujoco":
+        return build_master_arm(config) if role == "master" else build_slave_arm(config)
+    return build_hardware_arm(config, role)
+
+
+def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
+    """A real arm (docs/hardware.md): the side's driver (not started: the plant starts it at its
+    first read) and the kinematics of the same MJCF. `config` is validated (scene/load.py): the
+    hardware section names one servo per joint and the damping EBA may assume."""
+    from haptic_teleop.plants.hardware_arm import HardwareArm
+    from haptic_teleop.plants.kinematics import ArmKinematics
+
+    cfg = getattr(config, role)
+    hw = cfg.hardware
+    if hw is None or cfg.damping_nm_s_per_rad is None or cfg.start_q_rad is None:
+        raise PlantError(f"{role}.backend {cfg.backend}: needs {role}.hardware, damping_nm_s_per_rad, start_q_rad")
+    kin = ArmKinematics(cfg.model, cfg.joints, "handle" if role == "master" else "tool")
+    gravity = cfg.gravity_compensation is not False
+    wrench = None
+    where = hw.port
+    if cfg.backend == "dynamixel":
+        limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
+        driver: JointDriver = dynamixel_driver(hw, kin.joints, limit)
+    elif cfg.backend == "ur":
+        from haptic_teleop.plants.ur.driver import URTorqueDriver
+
+        assert hw.host is not None
+        ur = URTorqueDriver(hw.host)
+        driver, where = ur, hw.host
+        # Direct torque is beyond gravity: the UR controller compensates gravity itself, so the
+        # plant adds none; its contact is the controller's TCP wrench (the e-Series' F/T sensor).
+        gravity = False
+        wrench = lambda: ur.ur.state().tcp_wrench  # noqa: E731
+    else:
+        raise PlantError(f"{role}.backend {cfg.backend!r}: no driver for it here")
+    return HardwareArm(
+        driver,
+        kin,
+        cfg.damping_nm_s_per_rad,
+        cfg.start_q_rad,
+        config.scene.period_s,
+        role,
+        torque_limit_nm=cfg.torque_limit_nm,
+        gravity_compensation=gravity,
+        wall=_wall(config) if role == "slave" else None,
+        start_tolerance_rad=hw.start_tolerance_rad,
+        ramp_in_s=hw.ramp_in_s,
+        source=f"{role} ({cfg.backend} on {where})",
+        wrench_source=wrench,
+        lockstep_clock=hw.device_clock == "lockstep",
+    )
+
+
+def dynamixel_driver(
+    hw: HardwareConfig, joints: tuple[str, ...], torque_limit_nm: Sequence[float] | None
+) -> JointDriver:
+    """The Dynamixel chain of a side's hardware section (plants/dynamixel/driver.py). Each servo's
+    Current Limit(38) is set to the joint's torque limit (`torque_limit_nm`, the scene's or the
+    model's ctrlrange), so the servo itself clips where the plant and the energy bound do."""
+    from haptic_teleop.plants.dynamixel import tables
+    from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
+
+    n = len(joints)
+    assert hw.ids is not None and hw.models is not None and hw.port is not None
+    signs = hw.signs if hw.signs is not None else (1,) * n
+    offsets = hw.zero_offsets_rad if hw.zero_offsets_rad is not None else (0.0,) * n
+    kts = hw.torque_constants_nm_per_a
+    chain = []
+    for k, name in enumerate(joints):
+        model = tables.model(hw.models[k])
+        kt = kts[k] if kts is not None else model.torque_constant_nm_per_a
+        top_a = model.current_limit_max * tables.CURRENT_UNIT_A
+        limit_a = top_a if torque_limit_nm is None else min(top_a, torque_limit_nm[k] / kt)
+        chain.append(
+            DynamixelJoint(
+                name=name,
+                id=hw.ids[k],
+                model=hw.models[k],
+                sign=signs[k],
+                zero_offset_rad=offsets[k],
+                torque_constant_nm_per_a=kt,
+                current_limit_a=limit_a,
+            )
+        )
+    config = DynamixelChainConfig(
+        port=hw.port,
+        joints=tuple(chain),
+        baud_bps=hw.baud_bps,
+        bus_watchdog_s=hw.bus_watchdog_s,
+        read_timeout_s=hw.read_timeout_s,
+    )
+    return DynamixelDriver(config)
+
+
+def _wall(config: Scene) -> WallSpec:
+    from haptic_teleop.plants.arm import WallSpec
+
+    s = config.slave
+    w = s.wall
+    assert w.point_m is not None and w.normal is not None  # an arm scene (Scene.is_arm)
+    return WallSpec(
+        (w.point_m[0], w.point_m[1], w.point_m[2]),
+        (w.normal[0], w.normal[1], w.normal[2]),
+        w.stiffness_n_per_m,
+        w.damping_n_s_per_m,
+        s.contact_impedance,
     )
 
 

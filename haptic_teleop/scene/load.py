@@ -8,6 +8,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.scene.overrides import Override, apply_overrides, blame_override, parse_override
@@ -36,7 +37,120 @@ ARM_SITES = {"master": "handle", "slave": "tool"}  # the point each side's coupl
 ARM_WALL_STEP_LIMIT = 1.0  # omega * h of an arm's wall contact (docs/arms.md: 1.28 chattered on a light arm)
 
 
-def _check_arm_scene(config: Scene, source: str) -> None:
+def _check_hardware(
+    source: str, side: str, cfg: Any, joints: Sequence[str], emulate: bool, identify: bool = False
+) -> None:
+    """A side's `backend` and `hardware` section agree (docs/hardware.md): a real device names its
+    bus and servos, one per joint, where it stands at start and the joint damping EBA may assume
+    (it cannot be read from a simulator). A simulated side may carry a hardware section (a bundled
+    scene's, for `--set <side>.backend=dynamixel`): checked the same, unused. `emulate`: the ports
+    are filled in later (`haptic-teleop run --emulate` starts an emulator per device)."""
+    hw = cfg.hardware
+    real = cfg.backend != "mujoco"
+    if real:
+        if cfg.damping_nm_s_per_rad is None and not identify:
+            raise ConfigError(
+                source,
+                f"{side}.damping_nm_s_per_rad",
+                None,
+                f"required for backend {cfg.backend}: the joint damping the energy bound may assume, at most what "
+                "the hardware dissipates (measure it: haptic-teleop identify; docs/hardware.md)",
+            )
+        if cfg.start_q_rad is None:
+            raise ConfigError(
+                source,
+                f"{side}.start_q_rad",
+                None,
+                f"required for backend {cfg.backend}: where the arm stands at start (the start-up check compares "
+                "the measured pose with it)",
+            )
+        if hw is None:
+            raise ConfigError(
+                source,
+                f"{side}.hardware",
+                None,
+                f"required for backend {cfg.backend}: port, ids, models (docs/hardware.md)",
+            )
+    if hw is None:
+        return
+    dxl_keys = [k for k in ("port", "ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a")
+                if getattr(hw, k) is not None]  # fmt: skip
+    if cfg.backend == "ur":
+        _check_ur(source, side, cfg, joints, dxl_keys)
+        return
+    if cfg.backend == "mujoco" and not dxl_keys:
+        return  # a section for another backend (e.g. a UR host) kept for --set <side>.backend
+    if real and hw.port is None and not emulate:
+        raise ConfigError(
+            source,
+            f"{side}.hardware.port",
+            None,
+            "required: the serial port of the bus (e.g. /dev/ttyUSB0), or run with --emulate",
+        )
+    for key in ("ids", "models"):
+        if getattr(hw, key) is None:
+            raise ConfigError(source, f"{side}.hardware.{key}", None, f"required: one per joint ({', '.join(joints)})")
+    for key in ("ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a"):
+        v = getattr(hw, key)
+        if v is not None and len(v) != len(joints):
+            raise ConfigError(
+                source,
+                f"{side}.hardware.{key}",
+                list(v),
+                f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
+            )
+    known = dynamixel_models()
+    if known is not None:
+        for i, name in enumerate(hw.models):
+            if name not in known:
+                raise ConfigError(
+                    source, f"{side}.hardware.models[{i}]", name, f"allowed: one of {', '.join(sorted(known))}"
+                )
+
+
+def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys: list[str]) -> None:
+    """A side on a Universal Robots arm: its host, the control mode the engine can run, the UR
+    driver's joints."""
+    hw = cfg.hardware
+    if dxl_keys:
+        raise ConfigError(
+            source,
+            f"{side}.hardware.{dxl_keys[0]}",
+            getattr(hw, dxl_keys[0]),
+            f"a Dynamixel key, and {side}.backend is ur; allowed for backend ur: host, control_mode, "
+            "start_tolerance_rad, ramp_in_s",
+        )
+    if hw.host is None:
+        raise ConfigError(source, f"{side}.hardware.host", None, "required for backend ur: the controller's address")
+    if hw.control_mode != "torque":
+        raise ConfigError(
+            source,
+            f"{side}.hardware.control_mode",
+            hw.control_mode,
+            "allowed in the engine's arm tick: torque (direct joint torques beyond gravity, PolyScope 5.23 / 10.10 or "
+            "later); force_mode and admittance exist in the UR driver (plants/ur/driver.py) but the tick commands "
+            "joint torques through the pooled energy bound, and neither is wired into it yet (docs/hardware.md)",
+        )
+    try:
+        from haptic_teleop.plants.ur.driver import JOINTS
+    except ImportError:
+        return
+    if tuple(joints) != JOINTS:
+        raise ConfigError(
+            source, f"{side}.joints", list(joints), f"backend ur drives the UR's joints in order: {', '.join(JOINTS)}"
+        )
+
+
+def dynamixel_models() -> tuple[str, ...] | None:
+    """The servo models the Dynamixel backend has a control table for (None: no backend here)."""
+    try:
+        from haptic_teleop.plants.dynamixel import tables
+    except ImportError:
+        return None
+    return tuple(tables.MODELS)
+
+
+def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify: bool = False) -> None:
     """An arm scene's models, joints and per-joint lists agree; the tool starts in free space and
     the wall is not too stiff for the MuJoCo step. A one-axis scene names no arm model."""
     from haptic_teleop.errors import PlantError
@@ -54,7 +168,22 @@ def _check_arm_scene(config: Scene, source: str) -> None:
                     f"{side}.model {getattr(config, side).model!r} is an arm: its scene needs the wall's pose "
                     "(slave.wall.point_m and normal); allowed: an arm scene, or a one-axis model",
                 )
-            for key in ("joints", "start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "gravity_compensation"):
+            if getattr(config, side).backend != "mujoco":
+                raise ConfigError(
+                    source,
+                    f"{side}.backend",
+                    getattr(config, side).backend,
+                    "a real device drives an arm: allowed in a one-axis scene: mujoco",
+                )
+            for key in (
+                "joints",
+                "start_q_rad",
+                "damping_nm_s_per_rad",
+                "torque_limit_nm",
+                "gravity_compensation",
+                "slew_nm_per_s",
+                "hardware",
+            ):
                 if getattr(getattr(config, side), key) is not None:
                     raise ConfigError(
                         source, f"{side}.{key}", getattr(getattr(config, side), key), "only for arm models"
@@ -88,7 +217,7 @@ def _check_arm_scene(config: Scene, source: str) -> None:
                 raise ConfigError(
                     source, f"{side}.joints[{i}]", name, f"{cfg.model} has no motor named {name!r} (one per joint)"
                 )
-        for key in ("start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm"):
+        for key in ("start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "slew_nm_per_s"):
             v = getattr(cfg, key)
             if v is not None and len(v) != len(joints):
                 raise ConfigError(
@@ -97,6 +226,7 @@ def _check_arm_scene(config: Scene, source: str) -> None:
                     list(v),
                     f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
                 )
+        _check_hardware(source, side, cfg, joints, emulate, identify)
     op = config.operator
     if op.profile == "trace":
         raise ConfigError(source, "operator.profile", op.profile, "allowed for arms: push, sinusoid, hold")
@@ -122,8 +252,16 @@ def _check_arm_scene(config: Scene, source: str) -> None:
         )
 
 
-def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None = None) -> LoadedScene:
+def load_scene(
+    path: str | Path,
+    overrides: Sequence[str] = (),
+    seed: int | None = None,
+    emulate: bool = False,
+    identify: bool = False,
+) -> LoadedScene:
     """Read, override and validate a scene file. Raises ConfigError naming file, key, value, allowed.
+    `emulate`: a Dynamixel side's port may be missing (`run --emulate` fills it in); `identify`: a
+    real side's damping may be missing (`haptic-teleop identify` measures it).
 
     Errors about a key an override set name the override (`--set KEY=VALUE`, `--seed N`), not the file."""
     p = Path(path)
@@ -148,7 +286,7 @@ def load_scene(path: str | Path, overrides: Sequence[str] = (), seed: int | None
     try:
         config = build(Scene, raw, "", source)
         _check_models(config, source)
-        _check_arm_scene(config, source)
+        _check_arm_scene(config, source, emulate, identify)
     except ConfigError as exc:
         raise blame_override(exc, ovs) from None
     config = resolve_scene_traces(config, p.parent, source)

@@ -172,9 +172,82 @@ def _check_saturation(side: str, effects: PlantEffectsConfig, plant_limit_n: flo
         )
 
 
+DYNAMIXEL_BAUDS_BPS = (9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000)
+HARDWARE_BACKENDS = ("dynamixel", "ur")  # a side on one of these needs its `hardware` section
+UR_CONTROL_MODES = ("force_mode", "admittance", "torque")
+BACKENDS = ("mujoco", *HARDWARE_BACKENDS)
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """A side's real device (docs/hardware.md): for `backend: dynamixel` the bus (port, baud) and
+    per joint the servo's id, model, sign and zero offset; for `backend: ur` the controller's
+    address and the control mode; the start-up checks for both."""
+
+    port: str | None = field(default=None, metadata={"help": "dynamixel: the serial port, e.g. /dev/ttyUSB0"})
+    baud_bps: int = field(
+        default=1000000, metadata={"choices": DYNAMIXEL_BAUDS_BPS, "help": "dynamixel: the bus's baud rate"}
+    )
+    ids: tuple[int, ...] | None = field(
+        default=None, metadata={"min": 0, "max": 252, "help": "dynamixel: the servo id of each joint, in joint order"}
+    )
+    models: tuple[str, ...] | None = field(
+        default=None, metadata={"help": "dynamixel: each joint's servo model, e.g. XM430-W350, XM540-W270"}
+    )
+    signs: tuple[int, ...] | None = field(
+        default=None,
+        metadata={"min": -1, "max": 1, "help": "dynamixel: +1 or -1 per joint (servo direction vs joint)"},
+    )
+    zero_offsets_rad: tuple[float, ...] | None = field(
+        default=None,
+        metadata={"min": -6.3, "max": 6.3, "help": "dynamixel: servo angle at the joint's zero, per joint"},
+    )
+    torque_constants_nm_per_a: tuple[float, ...] | None = field(
+        default=None, metadata={"gt": 0.0, "max": 100.0, "help": "dynamixel: identified N m/A (default: datasheet)"}
+    )
+    bus_watchdog_s: float = field(
+        default=0.1,
+        metadata={"min": 0.02, "max": 2.54, "help": "dynamixel: servos stop when the host is silent this long"},
+    )
+    read_timeout_s: float | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 10.0, "help": "dynamixel: how long a read waits for replies (default: the SDK's)"},
+    )
+    host: str | None = field(default=None, metadata={"help": "ur: the robot controller's address"})
+    control_mode: str | None = field(
+        default=None,
+        metadata={
+            "choices": UR_CONTROL_MODES,
+            "help": "ur: how the side's command reaches the robot (docs/hardware.md)",
+        },
+    )
+    device_clock: str = field(
+        default="real",
+        metadata={
+            "choices": ("real", "lockstep"),
+            "help": "real: a tick's motion took the wall time between reads (the ledger is stretched for late "
+            "ticks); lockstep: the device advances one period per command (the bus emulator, --emulate)",
+        },
+    )
+    start_tolerance_rad: float = field(
+        default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}
+    )
+    ramp_in_s: float = field(
+        default=0.5, metadata={"min": 0.0, "max": 60.0, "help": "torque ramps from zero over this time at start"}
+    )
+
+    def __post_init__(self) -> None:
+        if self.signs is not None and any(s not in (-1, 1) for s in self.signs):
+            raise ValueError(f"signs must each be +1 or -1, got {list(self.signs)}")
+        if self.ids is not None and len(set(self.ids)) != len(self.ids):
+            raise ValueError(f"ids must be distinct (one servo per joint), got {list(self.ids)}")
+
+
 @dataclass(frozen=True)
 class MasterConfig:
-    backend: str = field(default="mujoco", metadata={"choices": ("mujoco",)})
+    backend: str = field(
+        default="mujoco", metadata={"choices": BACKENDS, "help": "mujoco (simulated), or a real arm: docs/hardware.md"}
+    )
     model: str = "master_device.xml"
     mass_kg: float = field(default=0.2, metadata={"gt": 0.0, "max": 100.0})
     damping_n_s_per_m: float = field(default=1.0, metadata={"gt": 0.0, "max": 1e4, "help": "physical damping b_m"})
@@ -195,6 +268,13 @@ class MasterConfig:
     )
     gravity_compensation: bool | None = field(
         default=None, metadata={"help": "arms: compensate gravity through the motors (default true)"}
+    )
+    slew_nm_per_s: tuple[float, ...] | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 1e9, "help": "arms: each motor's torque slew limit, inside the energy bound"},
+    )
+    hardware: HardwareConfig | None = field(
+        default=None, metadata={"help": "backend dynamixel or ur: the device (docs/hardware.md)"}
     )
 
     def __post_init__(self) -> None:
@@ -240,7 +320,9 @@ def _unit(v: tuple[float, ...], name: str) -> tuple[float, ...]:
 
 @dataclass(frozen=True)
 class SlaveConfig:
-    backend: str = field(default="mujoco", metadata={"choices": ("mujoco",)})
+    backend: str = field(
+        default="mujoco", metadata={"choices": BACKENDS, "help": "mujoco (simulated), or a real arm: docs/hardware.md"}
+    )
     model: str = "wall_scene.xml"
     mass_kg: float = field(default=1.0, metadata={"gt": 0.0, "max": 1000.0})
     damping_n_s_per_m: float = field(default=5.0, metadata={"gt": 0.0, "max": 1e5, "help": "physical damping b_s"})
@@ -266,6 +348,13 @@ class SlaveConfig:
     )
     gravity_compensation: bool | None = field(
         default=None, metadata={"help": "arms: compensate gravity through the motors (default true)"}
+    )
+    slew_nm_per_s: tuple[float, ...] | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 1e9, "help": "arms: each motor's torque slew limit, inside the energy bound"},
+    )
+    hardware: HardwareConfig | None = field(
+        default=None, metadata={"help": "backend dynamixel or ur: the device (docs/hardware.md)"}
     )
 
     def __post_init__(self) -> None:
@@ -462,7 +551,7 @@ ARM_KEYS = frozenset(
     {
         "joints", "start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "gravity_compensation", "point_m",
         "normal", "mapping", "stiffness_axes_n_per_m", "damping_axes_n_s_per_m", "null_space_damping_nm_s_per_rad",
-        "orientation", "direction",
+        "orientation", "direction", "slew_nm_per_s", "hardware",
     }
 )  # fmt: skip
 

@@ -430,3 +430,31 @@ def test_closed_loop_mujoco_arm_with_gravity_compensation_outside_the_port():
     kinetic_off, margin_off, _ = _closed_loop_gravity(False, seed=2)
     assert margin_off.min() < -1.0
     assert kinetic_off.max() > 1.0
+
+
+@pytest.mark.parametrize("k", [1.0, 2.5, 7.0])
+def test_stretch_credits_the_damping_over_the_wall_time_the_motion_took(k):
+    """A pure damper d qd = tau holding tau for k periods moves dq = tau k T / d and dissipates exactly
+    tau dq (= d dq^2 / (k T)): the ledger stretched by k T books that and nets zero; unstretched it
+    would credit d dq^2 / T, k times the dissipation. A stretch shorter than a period changes nothing."""
+    d = np.array([0.1, 0.04])
+    params = CoupledEnergyBoundParams(period_s=T, damping_nm_s_per_rad=tuple(d), initial_energy_j=1.0)
+    stretched, plain = CoupledEnergyBound(params), CoupledEnergyBound(params)
+    q0 = np.array([0.2, -0.3])
+    tau = np.array([0.5, -0.2])
+    for b in (stretched, plain):
+        b.step(q0, tau)
+        b.applied(tau)
+    e0 = stretched.energy_j
+    dq = tau * k * T / d
+    stretched.stretch(k * T)
+    stretched.step(q0 + dq, np.zeros(2))
+    plain.step(q0 + dq, np.zeros(2))
+    work = float(tau @ dq)
+    assert stretched.energy_j == pytest.approx(e0, abs=1e-12)  # credit = dissipation = the port's work
+    assert plain.energy_j == pytest.approx(e0 + (k - 1.0) * work, abs=1e-12)
+    short, ref = CoupledEnergyBound(params), CoupledEnergyBound(params)
+    for b in (short, ref):
+        b.step(q0, tau)
+    short.stretch(0.5 * T)
+    assert short.step(q0 + dq, tau).tolist() == ref.step(q0 + dq, tau).tolist() and short.energy_j == ref.energy_j

@@ -1,0 +1,456 @@
+"""The Universal Robots driver over the unmodified ur_rtde 1.6.5 (docs/ur.md, "The driver").
+
+`URDriver` reads the robot through `rtde_receive.RTDEReceiveInterface` (joint state, TCP pose,
+speed and wrench, robot and safety status, at the controller's 500 Hz) and, with `control=True`,
+commands it through `rtde_control.RTDEControlInterface`, which uploads ur_rtde's control script:
+`force_mode` (the robot's own force control), `servo_l`/`speed_l` (position/velocity streaming, for
+an admittance: core/admittance.py) or `torque` (direct joint torques, where the controller has
+them). Every call checks the session: a protective stop, an emergency stop, a lost connection or
+a control script that stopped ends it (`stop()`, then `HardwareError` naming what happened and
+what to do). `stop()` is idempotent and never raises. `URTorqueDriver` is the `JointDriver`
+(plants/hardware.py) of the direct-torque mode.
+
+ur_rtde is imported inside functions only: this module imports without it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import socket
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.plants.hardware import HardwareError, JointSample
+from haptic_teleop.plants.ur.commands import clip_twist, direct_torque_supported, force_mode_args
+
+JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+UR5E_TORQUE_LIMIT_NM = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)  # UR5e rated joint torques (ur5e.xml ctrlrange)
+RTDE_PORT, DASHBOARD_PORT = 30004, 29999
+ROBOT_MODE = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
+              4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}  # fmt: skip
+SAFETY_MODE = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
+               6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
+               10: "VALIDATE_JOINT_ID", 11: "UNDEFINED_SAFETY_MODE", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+               13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}  # fmt: skip
+SAFETY_BIT_PROTECTIVE = 1 << 2
+SAFETY_BITS_EMERGENCY = (1 << 5) | (1 << 6) | (1 << 7)
+RUNNING = 7
+
+
+@dataclass(frozen=True)
+class URState:
+    """One read: joints (rad, rad/s), TCP pose [x, y, z, rx, ry, rz] (m, rotation vector), TCP speed
+    (m/s, rad/s), TCP wrench (the environment's force and torque on the tool, N and N m, base
+    frame), robot mode, safety mode and status bits, runtime state, the controller's timestamp (s)
+    and the host's monotonic time of the read (s)."""
+
+    q_rad: np.ndarray
+    qd_rad_per_s: np.ndarray
+    tcp_pose: np.ndarray
+    tcp_speed: np.ndarray
+    tcp_wrench: np.ndarray
+    robot_mode: int
+    safety_mode: int
+    safety_status_bits: int
+    runtime_state: int
+    timestamp_s: float
+    t_host_s: float
+
+
+def _with_timeout(fn: Callable[[], Any], timeout_s: float) -> bool:
+    """Run fn in a daemon thread; False if it did not return within timeout_s (it is abandoned:
+    ur_rtde can block in a socket read when the robot stops answering without closing)."""
+    done = threading.Event()
+
+    def run() -> None:
+        with contextlib.suppress(Exception):
+            fn()
+        done.set()
+
+    threading.Thread(target=run, daemon=True).start()
+    return done.wait(timeout_s)
+
+
+def dashboard_query(host: str, command: str, port: int = DASHBOARD_PORT, timeout_s: float = 2.0) -> str:
+    """One dashboard server command (a text line) and its one-line answer."""
+    with socket.create_connection((host, port), timeout=timeout_s) as s:
+        f = s.makefile("rb")
+        f.readline()  # the greeting
+        s.sendall((command + "\n").encode())
+        return f.readline().decode(errors="replace").strip()
+
+
+def parse_polyscope_version(text: str) -> tuple[int, int, int, int]:
+    """ "URSoftware 5.11.1.108318 (...)" -> (5, 11, 1, 108318)."""
+    import re
+
+    m = re.search(r"(\d+)\.(\d+)\.(\d+)(?:\.(\d+))?", text)
+    if m is None:
+        raise HardwareError(f"the dashboard server's PolyscopeVersion answer is not a version: {text!r}")
+    return (int(m.group(1)), int(m.group(2)), int(m.group(3)), int(m.group(4) or 0))
+
+
+class URDriver:
+    """A UR arm through ur_rtde. `host`: the controller's address; `control`: upload the control
+    script and command the arm (False: read only); `watchdog_hz`: the RTDE input watchdog the
+    script arms (the controller stops the program when no command arrives for 1/watchdog_hz s;
+    0 = none); `stale_s`: a read whose controller timestamp has not moved for this long (host
+    time) is a lost connection."""
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        control: bool = True,
+        frequency_hz: float = 500.0,
+        watchdog_hz: float = 10.0,
+        stale_s: float = 0.25,
+        max_force_n: float = 100.0,
+        max_speed_m_per_s: float = 0.25,
+        max_angular_rad_per_s: float = 1.0,
+    ) -> None:
+        self.host = host
+        self.control = control
+        self.frequency_hz = frequency_hz
+        self.watchdog_hz = watchdog_hz
+        self.stale_s = stale_s
+        self.max_force_n = max_force_n
+        self.max_speed_m_per_s = max_speed_m_per_s
+        self.max_angular_rad_per_s = max_angular_rad_per_s
+        self.joints = JOINTS
+        self.torque_limit_nm = np.array(UR5E_TORQUE_LIMIT_NM)
+        self.version: tuple[int, int, int, int] | None = None
+        self._r: Any = None
+        self._c: Any = None
+        self._modes: set[str] = set()
+        self._stopped = False
+        self._last_ts = -1.0
+        self._last_change = 0.0
+        self._connection_lost = False
+
+    # ------------------------------------------------------------------ start and checks
+    def start(self) -> URState:
+        """Connect, check the robot is running in normal safety mode, start the control script and
+        its watchdog (control=True); returns the first state."""
+        import atexit
+
+        import rtde_receive
+
+        self._stopped = False
+        self._connection_lost = False
+        atexit.register(self.stop)
+        try:
+            self._r = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz)
+        except RuntimeError as exc:
+            raise HardwareError(
+                f"cannot read the UR controller at {self.host}:{RTDE_PORT} (RTDE): {exc}; check that the robot is "
+                "switched on, the network and the address"
+            ) from None
+        first = self._read()
+        try:
+            self._check_ready(first)
+        except HardwareError:
+            self.stop()
+            raise
+        if self.control:
+            self._start_control()
+        self._last_ts, self._last_change = first.timestamp_s, time.monotonic()
+        return first
+
+    def _check_ready(self, s: URState) -> None:
+        if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
+            raise HardwareError(
+                f"robot at {self.host} is in protective stop: clear it on the teach pendant "
+                "(or the dashboard's 'unlock protective stop' once its cause is removed), then start again"
+            )
+        if s.safety_status_bits & SAFETY_BITS_EMERGENCY or s.safety_mode in (6, 7):
+            raise HardwareError(f"robot at {self.host} is emergency-stopped: release the emergency stop, then power on")
+        if s.safety_mode not in (1, 2):
+            raise HardwareError(
+                f"robot at {self.host} is in safety mode {SAFETY_MODE.get(s.safety_mode, s.safety_mode)}: "
+                "clear it on the teach pendant"
+            )
+        if s.robot_mode != RUNNING:
+            what = ROBOT_MODE.get(s.robot_mode, str(s.robot_mode))
+            if s.robot_mode in (3, 4):
+                raise HardwareError(
+                    f"robot not powered on (robot mode {what}): power it on and release the brakes on the teach pendant"
+                )
+            if s.robot_mode == 5:
+                raise HardwareError(f"robot powered on but its brakes are not released (robot mode {what})")
+            raise HardwareError(f"robot at {self.host} is not running (robot mode {what})")
+
+    def _start_control(self) -> None:
+        import rtde_control
+
+        try:
+            self.version = parse_polyscope_version(dashboard_query(self.host, "PolyscopeVersion"))
+        except OSError as exc:
+            self.stop()
+            raise HardwareError(
+                f"no dashboard server at {self.host}:{DASHBOARD_PORT} ({exc}); is this a UR controller?"
+            ) from None
+        try:
+            self._c = rtde_control.RTDEControlInterface(self.host, self.frequency_hz)
+        except RuntimeError as exc:
+            self.stop()
+            text = str(exc)
+            if "remote control" in text:
+                raise HardwareError(
+                    f"robot at {self.host} is in local control: switch it to remote control on the teach pendant"
+                ) from None
+            if "control script" in text:
+                raise HardwareError(
+                    f"the ur_rtde control script did not start on {self.host} within 5 s ({text}); check the robot "
+                    "is powered, brakes released, no protective stop, remote control"
+                ) from None
+            if "already in use" in text:
+                raise HardwareError(
+                    f"the RTDE input registers of {self.host} are in use by another client (a second control "
+                    "session, or the EtherNet/IP adapter, PROFINET or a MODBUS unit configured on the robot): "
+                    "end it or disable it in the installation"
+                ) from None
+            raise HardwareError(f"cannot start control on {self.host}: {text}") from None
+        if self.watchdog_hz > 0.0 and not self._c.setWatchdog(self.watchdog_hz):
+            self.stop()
+            raise HardwareError(f"the controller at {self.host} refused the RTDE watchdog ({self.watchdog_hz} Hz)")
+
+    # ------------------------------------------------------------------ reading
+    def _read(self) -> URState:
+        r = self._r
+        return URState(
+            q_rad=np.array(r.getActualQ()),
+            qd_rad_per_s=np.array(r.getActualQd()),
+            tcp_pose=np.array(r.getActualTCPPose()),
+            tcp_speed=np.array(r.getActualTCPSpeed()),
+            tcp_wrench=np.array(r.getActualTCPForce()),
+            robot_mode=int(r.getRobotMode()),
+            safety_mode=int(r.getSafetyMode()),
+            safety_status_bits=int(r.getSafetyStatusBits()),
+            runtime_state=int(r.getRuntimeState()),
+            timestamp_s=float(r.getTimestamp()),
+            t_host_s=time.monotonic(),
+        )
+
+    def state(self) -> URState:
+        """The newest state; raises HardwareError (after stopping) on a fault."""
+        if self._r is None or self._stopped:
+            raise HardwareError(f"the UR driver for {self.host} is not running (start() it first)")
+        if not self._r.isConnected():
+            self._fail(f"lost the connection to the robot at {self.host} (RTDE closed)", lost=True)
+        s = self._read()
+        now = time.monotonic()
+        if s.timestamp_s != self._last_ts:
+            self._last_ts, self._last_change = s.timestamp_s, now
+        elif now - self._last_change > self.stale_s:
+            self._fail(
+                f"lost the connection to the robot at {self.host}: no new RTDE data for "
+                f"{now - self._last_change:.2f} s (cable, network or controller)",
+                lost=True,
+            )
+        self._check_safety(s)
+        if self._c is not None and not self._c.isProgramRunning():
+            self._diagnose()
+            self._fail(
+                f"the control script on {self.host} stopped (RTDE watchdog, a stop on the pendant or the dashboard, "
+                "or an error in the script); the session was stopped"
+            )
+        return s
+
+    def _diagnose(self) -> None:
+        """The program ended or a command was refused: find out whether a safety stop is why. The
+        control interface's stream can show the end before the receive interface shows the cause,
+        so the receive side gets a few periods, then the dashboard server is asked."""
+        for _ in range(10):
+            time.sleep(0.002)
+            self._check_safety(self._read())
+        try:
+            answer = dashboard_query(self.host, "safetystatus", timeout_s=1.0)
+        except OSError:
+            return
+        if "PROTECTIVE_STOP" in answer:
+            self._fail(
+                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
+            )
+        if "EMERGENCY_STOP" in answer:
+            self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
+
+    def _check_safety(self, s: URState) -> None:
+        if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
+            self._fail(
+                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
+            )
+        if s.safety_status_bits & SAFETY_BITS_EMERGENCY:
+            self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
+
+    def _fail(self, message: str, lost: bool = False) -> None:
+        self._connection_lost = self._connection_lost or lost
+        self.stop()
+        raise HardwareError(message)
+
+    # ------------------------------------------------------------------ commands
+    def _require_control(self) -> Any:
+        if self._c is None or self._stopped:
+            raise HardwareError(f"the UR driver for {self.host} has no control session (control=True and start())")
+        return self._c
+
+    def _sent(self, ok: bool, what: str) -> None:
+        if not ok:
+            self.state()  # names the fault if there is one
+            self._diagnose()
+            self._fail(f"the controller at {self.host} refused {what}")
+
+    def force_mode(
+        self,
+        wrench: Sequence[float],
+        task_frame: Sequence[float] = (0.0,) * 6,
+        selection: Sequence[int] = (0, 0, 1, 0, 0, 0),
+        limits: Sequence[float] = (0.1, 0.1, 0.1, 0.5, 0.5, 0.5),
+    ) -> None:
+        """The robot's force control: apply `wrench` (N, N m, task frame) to the environment along the
+        compliant axes (`selection` 1), hold the others."""
+        c = self._require_control()
+        args = force_mode_args(wrench, task_frame, selection, limits, max_force_n=self.max_force_n)
+        self._modes.add("force")
+        self._sent(c.forceMode(*args.sdk_args()), "forceMode")
+
+    def servo_l(
+        self,
+        pose: Sequence[float],
+        speed: float = 0.25,
+        acceleration: float = 0.5,
+        time_s: float = 0.002,
+        lookahead_s: float = 0.1,
+        gain: float = 300.0,
+    ) -> None:
+        """Stream a TCP pose target [x, y, z, rx, ry, rz] (one per controller period)."""
+        c = self._require_control()
+        p = [float(v) for v in pose]
+        if len(p) != 6 or not all(math.isfinite(v) for v in p):
+            raise HardwareError(f"servo_l needs a finite 6-value pose, got {pose}")
+        self._modes.add("servo")
+        self._sent(c.servoL(p, speed, acceleration, time_s, lookahead_s, gain), "servoL")
+
+    def speed_l(self, twist: Sequence[float], acceleration: float = 1.0, time_s: float = 0.0) -> None:
+        """Command a TCP twist (m/s, rad/s, base frame), clipped to the driver's speed limits."""
+        c = self._require_control()
+        t = clip_twist(twist, self.max_speed_m_per_s, self.max_angular_rad_per_s)
+        self._modes.add("speed")
+        self._sent(c.speedL(t, acceleration, time_s), "speedL")
+
+    def torque_available(self) -> bool:
+        return self.version is not None and direct_torque_supported(self.version)
+
+    def torque(self, tau_nm: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Direct joint torques beyond gravity compensation (N m), clipped to the joints' limits;
+        returns them as sent."""
+        c = self._require_control()
+        if not self.torque_available():
+            v = ".".join(str(x) for x in self.version or ())
+            raise HardwareError(
+                f"direct torque control needs PolyScope 5.23 / 10.10 or later, and ur_rtde 1.6.5's control script "
+                f"calls direct_torque() only from 5.26 (10.10 on PolyScope X); the controller at {self.host} runs "
+                f"{v or 'an unknown version'}: use force_mode or servo_l/speed_l with an admittance"
+            )
+        tau = np.clip(np.asarray(tau_nm, dtype=float), -self.torque_limit_nm, self.torque_limit_nm)
+        tau = np.where(np.isfinite(tau), tau, 0.0)
+        self._modes.add("torque")
+        self._sent(c.directTorque(list(map(float, tau)), [0.0] * 6, [0.0] * 6), "directTorque")
+        return tau
+
+    def servo_stop(self, deceleration: float = 10.0) -> None:
+        """End servoL streaming; the arm decelerates and holds."""
+        self._sent(self._require_control().servoStop(deceleration), "servoStop")
+        self._modes.discard("servo")
+
+    def speed_stop(self, deceleration: float = 10.0) -> None:
+        """Ramp a speedL twist down to rest at `deceleration` (m/s^2)."""
+        self._sent(self._require_control().speedStop(deceleration), "speedStop")
+        self._modes.discard("speed")
+
+    def force_mode_stop(self) -> None:
+        """Leave force mode; the arm holds where it is."""
+        self._sent(self._require_control().forceModeStop(), "forceModeStop")
+        self._modes.discard("force")
+
+    def zero_ft_sensor(self) -> None:
+        """Take the present TCP wrench as the sensor's zero."""
+        self._sent(self._require_control().zeroFtSensor(), "zeroFtSensor")
+
+    def kick(self) -> None:
+        """Feed the RTDE watchdog without a motion command."""
+        if self._c is not None and not self._stopped:
+            self._sent(self._c.kickWatchdog(), "kickWatchdog")
+
+    # ------------------------------------------------------------------ stop
+    def stop(self) -> None:
+        """servoStop / speedStop / forceModeStop (whichever were used), zero torque, stopScript,
+        disconnect. Idempotent, never raises; with the connection lost the SDK calls are skipped
+        (the controller's RTDE watchdog stops the arm) and blocking SDK calls are abandoned after 2 s."""
+        if self._stopped:
+            return
+        self._stopped = True
+        import atexit
+
+        atexit.unregister(self.stop)
+        c, r = self._c, self._r
+        self._c = self._r = None
+        if c is not None:
+            if not self._connection_lost:
+                if "torque" in self._modes:
+                    _with_timeout(lambda: c.directTorque([0.0] * 6, [0.0] * 6, [0.0] * 6), 2.0)
+                if "servo" in self._modes:
+                    _with_timeout(lambda: c.servoStop(10.0), 2.0)
+                if "speed" in self._modes:
+                    _with_timeout(lambda: c.speedStop(10.0), 2.0)
+                if "force" in self._modes:
+                    _with_timeout(c.forceModeStop, 2.0)
+                _with_timeout(c.stopScript, 5.0)
+            _with_timeout(c.disconnect, 2.0)
+        if r is not None:
+            _with_timeout(r.disconnect, 2.0)
+        self._modes.clear()
+
+    def __enter__(self) -> URDriver:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class URTorqueDriver:
+    """The JointDriver (plants/hardware.py) of a UR arm in direct torque mode."""
+
+    def __init__(self, host: str = "127.0.0.1", watchdog_hz: float = 10.0) -> None:
+        self.ur = URDriver(host, control=True, watchdog_hz=watchdog_hz)
+        self.joints = JOINTS
+        self.torque_limit_nm = np.array(UR5E_TORQUE_LIMIT_NM)
+        self._tau = np.zeros(6)
+
+    def _sample(self, s: URState) -> JointSample:
+        return JointSample(q_rad=s.q_rad, qd_rad_per_s=s.qd_rad_per_s, tau_nm=self._tau.copy(), t_s=s.t_host_s)
+
+    def start(self) -> JointSample:
+        first = self.ur.start()
+        if not self.ur.torque_available():
+            try:
+                self.ur.torque(np.zeros(6))  # raises the version error, after which we stop
+            finally:
+                self.ur.stop()
+        self._tau = self.ur.torque(np.zeros(6))
+        return self._sample(first)
+
+    def read(self) -> JointSample:
+        return self._sample(self.ur.state())
+
+    def write(self, tau_nm: np.ndarray) -> np.ndarray:
+        self._tau = self.ur.torque(tau_nm)
+        return self._tau.copy()
+
+    def stop(self) -> None:
+        self.ur.stop()

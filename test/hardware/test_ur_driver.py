@@ -1,0 +1,260 @@
+"""The UR driver through the unmodified ur_rtde against the emulator (docs/ur.md): forceMode,
+servoL, speedL, the stops, the watchdog, lost connections, protective stops, direct torque.
+
+Durations are the controller's (its RTDE timestamps), never the host's clock; host time appears
+only as generous safety nets."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from haptic_teleop.core.admittance import Admittance, AdmittanceParams
+from haptic_teleop.emulators.ur.config import URConfig, WallConfig
+from haptic_teleop.emulators.ur.process import URProcess, start_ur
+from haptic_teleop.plants.hardware import HardwareError
+from haptic_teleop.plants.ur.driver import URDriver, URState, URTorqueDriver
+
+pytest.importorskip("rtde_control")
+
+# the touch_ur5e_wall scene's table: 3 cm below the tool at the UR5e's start
+WALL = WallConfig(point_m=(-0.49, -0.13, 0.4078), normal=(0.0, 0.0, 1.0), stiffness_n_per_m=1e4)
+SAFETY_NET_S = 30.0
+# The RTDE watchdog of the tests that are not about it: slack enough for a loaded test machine
+# (a 10 Hz watchdog stops the program whenever the test process stalls for 0.1 s).
+WATCHDOG_HZ = 2.0
+
+
+def run_for(d: URDriver, controller_s: float, command: Callable[[URState], None]) -> URState:
+    """Call `command` with each new state until the controller's clock has advanced controller_s."""
+    s = d.state()
+    t0, host0 = s.timestamp_s, time.monotonic()
+    while s.timestamp_s - t0 < controller_s:
+        command(s)
+        time.sleep(0.002)
+        s = d.state()
+        assert time.monotonic() - host0 < SAFETY_NET_S, "safety net: the emulator stopped advancing"
+    return s
+
+
+def poll_state(d: URDriver) -> None:
+    """Read until the driver raises (the safety net fails the test if it never does)."""
+    host0 = time.monotonic()
+    while time.monotonic() - host0 < SAFETY_NET_S:
+        d.state()
+        time.sleep(0.002)
+    raise AssertionError("safety net: the driver never reported the fault")
+
+
+def wait_for(ur: URProcess, pred: Callable[[dict], bool]) -> dict:
+    host0 = time.monotonic()
+    while True:
+        st = ur.state()
+        if pred(st):
+            return st
+        assert time.monotonic() - host0 < SAFETY_NET_S, f"safety net: never true; last state {st}"
+        time.sleep(0.01)
+
+
+def test_force_mode_pushes_the_tool_into_the_wall_and_the_tcp_force_reads_the_contact():
+    with start_ur(URConfig(wall=WALL)) as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
+        d.start()
+        s = run_for(d, 1.5, lambda s: d.force_mode([0, 0, -10.0, 0, 0, 0], selection=[0, 0, 1, 0, 0, 0]))
+        truth = ur.state()
+        assert truth["mode"] == "force"
+        # the environment pushes back the commanded 10 N; RTDE's TCP force is MuJoCo's contact force
+        assert s.tcp_wrench[2] == pytest.approx(10.0, abs=0.3)
+        assert truth["contact_force_n"][2] == pytest.approx(10.0, abs=0.3)
+        np.testing.assert_allclose(s.tcp_wrench[:3], truth["contact_force_n"], atol=0.3)
+        assert s.tcp_pose[2] < WALL.point_m[2]  # pressed into the compliant wall
+        # x, y held (non-compliant axes)
+        assert abs(s.tcp_pose[0] - (-0.4919)) < 2e-3 and abs(s.tcp_pose[1] - (-0.1333)) < 2e-3
+        d.zero_ft_sensor()  # the contact now reads as zero
+        s = run_for(d, 0.1, lambda s: d.force_mode([0, 0, -10.0, 0, 0, 0], selection=[0, 0, 1, 0, 0, 0]))
+        assert abs(s.tcp_wrench[2]) < 0.3 and ur.state()["contact_force_n"][2] == pytest.approx(10.0, abs=0.3)
+        d.force_mode_stop()
+        assert ur.state()["mode"] == "hold" and ur.state()["program_running"]
+        d.stop()
+        assert not ur.state()["program_running"]  # stopScript
+
+
+def test_servo_l_moves_the_tool_to_a_pose_and_servo_stop_stops_it():
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
+        s0 = d.start()
+        target = s0.tcp_pose.copy()
+        target[:3] += [0.03, -0.02, 0.04]
+        s = run_for(d, 1.0, lambda s: d.servo_l(target))
+        np.testing.assert_allclose(s.tcp_pose[:3], target[:3], atol=1e-3)
+        np.testing.assert_allclose(s.tcp_pose[3:], target[3:], atol=1e-2)
+        d.servo_stop()
+        assert ur.state()["mode"] == "hold"
+        assert ur.state()["program_running"]
+
+
+def test_speed_l_moves_at_the_speed_and_speed_stop_stops_it():
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
+        d.start()
+        v = 0.05
+        run_for(d, 0.3, lambda s: d.speed_l([0, 0, v, 0, 0, 0], acceleration=1.0))  # past the 0.05 s ramp
+        a = d.state()
+        b = run_for(d, 0.5, lambda s: d.speed_l([0, 0, v, 0, 0, 0], acceleration=1.0))
+        speed = (b.tcp_pose[2] - a.tcp_pose[2]) / (b.timestamp_s - a.timestamp_s)  # controller time
+        assert speed == pytest.approx(v, rel=0.03)
+        assert b.tcp_speed[2] == pytest.approx(v, rel=0.03)
+        d.speed_stop(10.0)
+        wait_for(ur, lambda st: st["mode"] == "hold")
+        c = run_for(d, 0.2, lambda s: d.kick())  # feed the watchdog
+        assert abs(c.tcp_speed[2]) < 1e-3
+
+
+def test_admittance_through_speed_l_settles_on_the_wall_at_the_commanded_force():
+    with start_ur(URConfig(wall=WALL)) as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
+        d.start()
+        adm = Admittance(AdmittanceParams(mass=(2.0,), damping=(400.0,), period_s=0.002))
+        f_cmd = np.array([-8.0])
+
+        def tick(s: URState) -> None:
+            _, v = adm.step(f_cmd, s.tcp_wrench[2:3])
+            d.speed_l([0.0, 0.0, float(v[0]), 0.0, 0.0, 0.0], acceleration=5.0)
+
+        s = run_for(d, 2.5, tick)
+        assert s.tcp_wrench[2] == pytest.approx(8.0, abs=0.8)
+        assert ur.state()["contact_force_n"][2] == pytest.approx(8.0, abs=0.8)
+
+
+def test_the_rtde_watchdog_stops_the_program_and_the_driver_reports_it():
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=20.0) as d:
+        d.start()
+        assert ur.state()["watchdog_hz"] == 20.0
+        # the host goes quiet: no command reaches the controller
+        st = wait_for(ur, lambda st: not st["program_running"])
+        assert "watchdog" in st["stop_reason"]
+        with pytest.raises(HardwareError, match=r"control script .* stopped"):
+            poll_state(d)  # the driver sees it within a few packages
+        assert ur.state()["mode"] == "hold"
+
+
+def test_a_lost_connection_ends_the_session_with_a_clear_error():
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
+        d.start()
+        run_for(d, 0.1, lambda s: d.kick())
+        ur.inject("drop_connections")  # the controller vanishes and refuses new connections
+        with pytest.raises(HardwareError, match="lost the connection"):
+            poll_state(d)
+        d.stop()  # again: idempotent, quiet
+
+
+def test_a_controller_that_stops_sending_is_a_lost_connection():
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=0.0) as d:
+        d.start()
+        ur.inject("freeze")
+        with pytest.raises(HardwareError, match="no new RTDE data"):
+            poll_state(d)
+        # ur_rtde's receive thread, blocked on the silent socket, reconnects by itself (and uploads
+        # its script) as soon as the socket closes: refuse it here, or it would reach the next
+        # test's emulator on the same fixed ports (docs/ur.md, "Errors").
+        ur.inject("drop_connections")
+        wait_for(ur, lambda st: st["scripts_received"] == 1)
+
+
+def test_a_protective_stop_mid_session_raises_after_stopping():
+    with (
+        start_ur(URConfig(wall=WALL, protective_stop_force_n=20.0)) as ur,
+        URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d,
+    ):
+        d.start()
+        # push 40 N into the table: the controller's force limit (20 N) trips a protective stop
+        with pytest.raises(HardwareError, match="protective stop: clear it on the teach pendant"):
+            run_for(d, 5.0, lambda s: d.force_mode([0, 0, -40.0, 0, 0, 0]))
+        st = ur.state()
+        assert st["safety_mode"] == 3 and not st["program_running"] and st["mode"] == "hold"
+
+
+@pytest.mark.parametrize(
+    ("cfg", "message"),
+    [
+        ({"safety_mode": 3}, "protective stop: clear it on the teach pendant"),
+        ({"robot_mode": 3}, "robot not powered on"),
+        ({"robot_mode": 5}, "brakes are not released"),
+        ({"safety_mode": 7}, "emergency-stopped"),
+    ],
+)
+def test_start_refuses_a_robot_that_is_not_ready(cfg, message):
+    with start_ur(URConfig.from_dict(cfg)) as ur:
+        d = URDriver(ur.host)
+        with pytest.raises(HardwareError, match=message):
+            d.start()
+        assert ur.state()["scripts_received"] == 0  # refused before any program was sent
+        d.stop()
+
+
+def test_direct_torque_needs_a_controller_whose_script_has_it():
+    with (
+        start_ur(URConfig(controller_version=(5.0, 23.0, 0.0, 0.0))) as ur,
+        URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d,
+    ):
+        d.start()
+        assert ur.state()["has_direct_torque"] is False  # ur_rtde dropped the direct_torque() line
+        with pytest.raises(HardwareError, match=r"5\.23 / 10\.10"):
+            d.torque(np.zeros(6))
+
+
+def test_direct_torque_joint_driver_turns_the_wrist():
+    with start_ur(URConfig(controller_version=(5.0, 26.0, 0.0, 0.0))) as ur:
+        j = URTorqueDriver(ur.host, watchdog_hz=WATCHDOG_HZ)
+        try:
+            first = j.start()
+            assert ur.state()["has_direct_torque"] is True
+            sent = j.write(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.3]))
+            assert sent[5] == pytest.approx(0.3)
+            host0 = time.monotonic()
+            while True:
+                s = j.read()
+                j.write(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.3]))
+                if s.q_rad[5] - first.q_rad[5] > 0.05:
+                    break
+                assert time.monotonic() - host0 < SAFETY_NET_S
+                time.sleep(0.002)
+            assert ur.state()["mode"] == "torque"
+            clipped = j.write(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 500.0]))
+            assert clipped[5] == pytest.approx(28.0)  # the wrist's rated torque
+        finally:
+            j.stop()
+        st = ur.state()
+        assert not st["program_running"] and st["mode"] == "hold"
+
+
+def test_a_second_control_session_is_refused_and_a_read_only_one_uploads_nothing():
+    # no watchdog on the first session: it sends nothing while the others start
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=0.0) as a:
+        a.start()
+        b = URDriver(ur.host, watchdog_hz=WATCHDOG_HZ)
+        with pytest.raises(HardwareError, match="in use by another client"):
+            b.start()
+        b.stop()
+        r = URDriver(ur.host, control=False)
+        s = r.start()
+        assert s.robot_mode == 7 and r.state().q_rad.shape == (6,)
+        with pytest.raises(HardwareError, match="no control session"):
+            r.servo_l(s.tcp_pose)
+        r.stop()
+        r.stop()
+        assert ur.state()["scripts_received"] == 1  # only the first session's
+        a.state()  # the first session is untouched
+        assert ur.state()["program_running"]
+
+
+def test_no_controller_is_a_clear_error():
+    import fcntl
+
+    from haptic_teleop.emulators.ur.process import LOCK_PATH
+
+    with open(LOCK_PATH, "a") as lock:  # no emulator runs while we hold it
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        d = URDriver("127.0.0.1")
+        with pytest.raises(HardwareError, match=r"cannot read the UR controller at 127\.0\.0\.1:30004"):
+            d.start()
+        d.stop()
