@@ -12,7 +12,9 @@ Every SDK is imported inside the driver's module, so this file imports without a
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Protocol
 
 import numpy as np
@@ -24,6 +26,31 @@ class HardwareError(PlantError):
     """A device failed, replied outside its protocol, or refused to start; the message names the
     device (port or host, servo id or joint), what happened and what to do. Raised only after the
     driver has tried to turn its torque off."""
+
+
+class MissingSDKError(HardwareError):
+    """A hardware backend's SDK is not installed: something the user fixes with pip (exit 2)."""
+
+    exit_code = 2
+
+
+# module -> the PyPI requirement that provides it (setup.py's `hardware` extra has the same bounds)
+SDKS = {
+    "dynamixel_sdk": "dynamixel-sdk>=4.1.0",
+    "rtde_receive": "ur-rtde>=1.6.5",
+    "rtde_control": "ur-rtde>=1.6.5",
+}
+
+
+def import_sdk(module: str) -> ModuleType:
+    """Import a backend's SDK module, or say in one line which package to install."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise MissingSDKError(
+            f"the hardware backend needs the Python module {module!r}, which is not installed: "
+            f"pip install '{SDKS[module]}' (or install haptic_teleop with its 'hardware' extra)"
+        ) from None
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,7 @@ def _check_hardware(
     hw = cfg.hardware
     real = cfg.backend != "mujoco"
     if real:
+        _check_sdk(source, side, cfg.backend)
         if cfg.damping_nm_s_per_rad is None and not identify:
             raise ConfigError(
                 source,
@@ -106,6 +107,27 @@ def _check_hardware(
                 raise ConfigError(
                     source, f"{side}.hardware.models[{i}]", name, f"allowed: one of {', '.join(sorted(known))}"
                 )
+
+
+# backend -> the SDK modules its driver imports (the SDK itself is not imported here)
+_BACKEND_SDKS = {"dynamixel": ("dynamixel_sdk",), "ur": ("rtde_receive", "rtde_control")}
+
+
+def _check_sdk(source: str, side: str, backend: str) -> None:
+    """A hardware backend whose SDK is not installed is refused before anything runs."""
+    import importlib.util
+
+    from haptic_teleop.plants.hardware import SDKS
+
+    for module in _BACKEND_SDKS.get(backend, ()):
+        if importlib.util.find_spec(module) is None:
+            raise ConfigError(
+                source,
+                f"{side}.backend",
+                backend,
+                f"backend {backend} needs the Python module {module!r}, which is not installed: "
+                f"pip install '{SDKS[module]}' (or install haptic_teleop with its 'hardware' extra)",
+            )
 
 
 def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys: list[str]) -> None:

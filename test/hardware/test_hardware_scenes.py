@@ -195,3 +195,24 @@ def test_identify_builds_the_runs_dynamixel_driver_and_refuses_a_ur_side(tmp_pat
     )
     with pytest.raises(InputError, match="allowed: mujoco, dynamixel"):
         joint_driver_for(ur.config, "slave", 0)
+
+
+def test_a_hardware_backend_without_its_sdk_is_refused_in_one_line_before_anything_runs(tmp_path):
+    """Without dynamixel_sdk (made unimportable in the child), `run --set slave.backend=dynamixel`
+    names the package to install, exit 2, no traceback, no output directory."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    code = (
+        "import sys; sys.modules['dynamixel_sdk'] = None; "  # absent: its import raises ImportError
+        "from haptic_teleop.cli import main; "
+        "sys.exit(main(['run', 'touch_dynamixel_wall', '--set', 'slave.backend=dynamixel', '--emulate', "
+        f"'--out', {str(out)!r}]))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "dynamixel_sdk" in lines[0] and "pip install 'dynamixel-sdk>=" in lines[0], lines[0]
+    assert not out.exists()

@@ -118,8 +118,8 @@ def test_inertial_torque_is_the_simulated_acceleration() -> None:
 def test_bad_names() -> None:
     with pytest.raises(PlantError, match="no joint 'wrist'"):
         ArmKinematics("dxl_arm.xml", ["base_yaw", "wrist"], "tool")
-    with pytest.raises(PlantError, match="no site 'handle'"):
-        ArmKinematics("dxl_arm.xml", None, "handle")
+    with pytest.raises(PlantError, match="no site 'tool'"):
+        ArmKinematics("touch.xml", None, "tool")  # a master device: a handle, no tool
     with pytest.raises(PlantError, match="not found"):
         ArmKinematics("no_such_arm.xml", None, "tool")
     kin = ArmKinematics("dxl_arm.xml", None, "tool")

@@ -45,7 +45,7 @@ import numpy as np
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.interrupt import Interrupted
 from haptic_teleop.plants.dynamixel import tables as T
-from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample
+from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample, import_sdk
 
 SOURCE = "dynamixel chain"
 
@@ -283,7 +283,7 @@ class DynamixelDriver:
         if self._started:
             raise HardwareError(f"{self.config.port}: start() called twice; make a new DynamixelDriver")
         self._started = True
-        import dynamixel_sdk as sdk  # type: ignore[import-untyped]
+        sdk: Any = import_sdk("dynamixel_sdk")
 
         self._sdk = sdk
         cfg = self.config

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.plants.hardware import HardwareError, JointSample
+from haptic_teleop.plants.hardware import HardwareError, JointSample, import_sdk
 from haptic_teleop.plants.ur.commands import clip_twist, direct_torque_supported, force_mode_args
 
 JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
@@ -139,7 +139,7 @@ class URDriver:
         its watchdog (control=True); returns the first state."""
         import atexit
 
-        import rtde_receive
+        rtde_receive = import_sdk("rtde_receive")
 
         self._stopped = False
         self._connection_lost = False
@@ -186,7 +186,7 @@ class URDriver:
             raise HardwareError(f"robot at {self.host} is not running (robot mode {what})")
 
     def _start_control(self) -> None:
-        import rtde_control
+        rtde_control = import_sdk("rtde_control")
 
         try:
             self.version = parse_polyscope_version(dashboard_query(self.host, "PolyscopeVersion"))
