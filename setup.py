@@ -27,7 +27,7 @@ STANDALONE = [
 # The hardware backends' SDKs (haptic_teleop/plants/dynamixel, haptic_teleop/plants/ur), imported
 # only by those backends and the emulator tests: the versions the tests ran with are the floors.
 HARDWARE = [
-    "dynamixel-sdk>=4.1.0",
+    "dynamixel-sdk>=3.8.4",
     "ur-rtde>=1.6.5",
 ]
 

@@ -68,13 +68,13 @@ def bus_dict(n_servos: int, baud_bps: int) -> dict[str, Any]:
 def run_case(n_servos: int, baud_bps: int, fast: bool, ticks: int, warmup: int, pin: bool = False) -> dict[str, Any]:
     from haptic_teleop.emulators.dynamixel.config import BusConfig
     from haptic_teleop.emulators.dynamixel.process import start_bus
-    from haptic_teleop.plants.dynamixel.driver import (
+    from haptic_teleop.plants.dynamixel.chain import (
         DynamixelChainConfig,
-        DynamixelDriver,
         DynamixelJoint,
         wire_bytes_per_tick,
         wire_limit_hz,
     )
+    from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 
     bus_cfg = BusConfig.from_dict(bus_dict(n_servos, baud_bps))
     bus = start_bus(bus_cfg)
@@ -144,7 +144,7 @@ HELP = "Dynamixel driver loop rate (read + write per tick) against the bus emula
 def _list_of(kind: str) -> Any:
     """An argparse type: a comma-separated list of servo counts, baud rates or read kinds; a bad
     item is refused by argparse (one line, exit 2) naming what is allowed."""
-    from haptic_teleop.plants.dynamixel.driver import SDK_BAUD_RATES_BPS
+    from haptic_teleop.plants.dynamixel.chain import SDK_BAUD_RATES_BPS
 
     allowed = {
         "servos": "whole numbers 1..20",

@@ -176,7 +176,8 @@ def dynamixel_driver(
     Current Limit(38) is set to the joint's torque limit (`torque_limit_nm`, the scene's or the
     model's ctrlrange), so the servo itself clips where the plant and the energy bound do."""
     from haptic_teleop.plants.dynamixel import tables
-    from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
+    from haptic_teleop.plants.dynamixel.chain import DynamixelChainConfig, DynamixelJoint
+    from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 
     n = len(joints)
     assert hw.ids is not None and hw.models is not None and hw.port is not None

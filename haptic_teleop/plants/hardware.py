@@ -36,7 +36,7 @@ class MissingSDKError(HardwareError):
 
 # module -> the PyPI requirement that provides it (setup.py's `hardware` extra has the same bounds)
 SDKS = {
-    "dynamixel_sdk": "dynamixel-sdk>=4.1.0",
+    "dynamixel_sdk": "dynamixel-sdk>=3.8.4",
     "rtde_receive": "ur-rtde>=1.6.5",
     "rtde_control": "ur-rtde>=1.6.5",
 }

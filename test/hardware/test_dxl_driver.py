@@ -17,7 +17,8 @@ import pytest
 from haptic_teleop.emulators.dynamixel.config import BusConfig
 from haptic_teleop.emulators.dynamixel.process import start_bus
 from haptic_teleop.plants.dynamixel import tables as T
-from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
+from haptic_teleop.plants.dynamixel.chain import DynamixelChainConfig, DynamixelJoint
+from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 from haptic_teleop.plants.hardware import HardwareError
 
 ARM = (("base_yaw", "XM540-W270"), ("shoulder", "XM540-W270"), ("elbow", "XM430-W350"))
@@ -189,7 +190,8 @@ CHILD = """
 import math, sys
 import numpy as np
 from haptic_teleop.interrupt import Interrupted
-from haptic_teleop.plants.dynamixel.driver import DynamixelChainConfig, DynamixelDriver, DynamixelJoint
+from haptic_teleop.plants.dynamixel.chain import DynamixelChainConfig, DynamixelJoint
+from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 port, guarded = sys.argv[1], sys.argv[2] in ("guarded", "cli")
 if sys.argv[2] == "cli":  # the command line's handlers own the signals
     from haptic_teleop import interrupt

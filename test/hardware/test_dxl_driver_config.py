@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.plants.dynamixel.driver import (
+from haptic_teleop.plants.dynamixel.chain import (
     DynamixelChainConfig,
-    DynamixelDriver,
     DynamixelJoint,
     wire_bytes_per_tick,
     wire_limit_hz,
 )
+from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 from haptic_teleop.plants.hardware import HardwareError
 
 
@@ -100,6 +100,7 @@ def test_permission_denied_says_dialout(tmp_path):
         os.chmod(path, 0o600)
         code = (
             "import sys\n"
+            "from haptic_teleop.plants.dynamixel.chain import *\n"
             "from haptic_teleop.plants.dynamixel.driver import *\n"
             "from haptic_teleop.plants.hardware import HardwareError\n"
             f"d = DynamixelDriver(DynamixelChainConfig({path!r}, (DynamixelJoint('a', 1, 'XM430-W350'),)))\n"
