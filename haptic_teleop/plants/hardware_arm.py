@@ -171,6 +171,7 @@ class HardwareArm:
         self.long_holds = 0
         self.over_budget_holds = 0
         self.longest_hold_s = 0.0
+        self.read_times_s: list[float] | None = None  # a list: each read's driver time is appended (tests)
 
     # ---------------------------------------------------------------------------------- state
 
@@ -202,6 +203,8 @@ class HardwareArm:
                 self.long_holds += h > 2.0 * self._period_s
                 self.over_budget_holds += h > self.hold_budget_s
         self._sample_t_s = s.t_s
+        if self.read_times_s is not None:
+            self.read_times_s.append(float(s.t_s))
         self._stale = bool(getattr(s, "stale", 0))
         self.stale_ticks += self._stale
         self.kinematics.set_q(self._q)
