@@ -81,8 +81,8 @@ class HardwareArm:
     a slave's contact instead of the estimate from the motor torques; lockstep_clock: the device
     advances one period per command (the bus emulator in lockstep time), so `read_interval_s`, the
     time the motion between two reads took, is one period; else the driver's read times give it.
-    max_hold_s: the longest hold the side's energy bound budgets (`hold_budget_s`; None: one period
-    on a lockstep clock, DEFAULT_MAX_HOLD_PERIODS periods on a real one); a longer hold of a nonzero
+    max_hold_s: the longest hold the side's energy bound budgets on a real clock (`hold_budget_s`;
+    None: DEFAULT_MAX_HOLD_PERIODS periods; a lockstep clock: one period, whatever it says); a longer hold of a nonzero
     torque is the safety guard's "hold" fault (docs/eba.md, "Late ticks on a real clock").
     """
 
@@ -133,8 +133,10 @@ class HardwareArm:
         self.contact_estimated = role == "slave" and wrench_source is None
         self._wrench_source = wrench_source if role == "slave" else None
         self._period_s = period_s
-        if max_hold_s is None:
-            max_hold_s = period_s if lockstep_clock else DEFAULT_MAX_HOLD_PERIODS * period_s
+        if lockstep_clock:  # the device advances one period per command: every hold is one period
+            max_hold_s = period_s
+        elif max_hold_s is None:
+            max_hold_s = DEFAULT_MAX_HOLD_PERIODS * period_s
         if not (math.isfinite(max_hold_s) and max_hold_s >= period_s):
             raise PlantError(f"{role}: max_hold_s must be finite and >= the period {period_s} s, got {max_hold_s}")
         self.hold_budget_s = float(max_hold_s)  # the hold the energy bound budgets (assembly passes it on)
