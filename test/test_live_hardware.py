@@ -217,6 +217,7 @@ def test_live_session_on_the_emulated_bus_is_passive_on_both_ports(session):
     for side in ("master", "slave"):
         assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
     margins = _margins_from_bag(out / "bag")
+    print("live margins (slave on servos):", margins)  # for the record (-s)
     assert margins["master"] >= -1e-9 and margins["slave"] >= -1e-9, margins
 
 
@@ -317,4 +318,5 @@ def test_live_session_with_a_dynamixel_leader_arm_as_master(tmp_path):
     for side in ("master", "slave"):
         assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
     margins = _margins_from_bag(out / "bag", name, real="master")
+    print("live margins (leader on servos):", margins)  # for the record (-s)
     assert margins["master"] >= -1e-9 and margins["slave"] >= -1e-9, margins

@@ -803,7 +803,8 @@ class CoupledBoundConstants:
     """What a `CoupledEnergyBound` computes once from its parameters and uses every tick (copies:
     `CoupledEnergyBound.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
 
-    gain: d_i / T per joint (`coupled_reservoir`); bound_gain: 4 d_i / T (`coupled_bounded`);
+    gain: d_i / T per joint (`coupled_reservoir`); bound_gain: 4 d_i / h (`coupled_bounded`; h the
+    hold budgeted, `CoupledEnergyBoundParams.hold_s`: one period unless max_hold_s says more);
     low, high: the default torque range per joint, -+torque_limit_nm (inf: none);
     keep_direction: limit_mode "scale"; slew_step_nm: S_i T per joint, None without a slew limit.
     """
