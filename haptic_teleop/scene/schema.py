@@ -234,8 +234,8 @@ class HardwareConfig:
         metadata={
             "gt": 0.0,
             "max": 1.0,
-            "help": "the longest hold of a torque the energy bound budgets on a real clock (default: "
-            "DEFAULT_MAX_HOLD_PERIODS periods; a lockstep device: one); a longer hold stops the side (docs/eba.md)",
+            "help": "the longest hold of a torque the energy bound budgets on a real clock (default: 3 "
+            "periods; a lockstep device: one); a longer hold stops the side (docs/eba.md)",
         },
     )
     start_tolerance_rad: float = field(
