@@ -298,6 +298,8 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
                 enabled=cfg.eba.enabled,
                 slew_nm_per_s=tuple(slew) if slew is not None else (),
                 joint_names=plant.joints,
+                # A real arm's torque may be held longer than a period (late ticks): the bound budgets it.
+                max_hold_s=getattr(plant, "hold_budget_s", None),
             ),
             kernels,
         )

@@ -538,6 +538,8 @@ class TeleopController:
 # `CoupledEnergyBound` keeps the state for the Python loop and calls them.
 
 LIMIT_MODES = ("scale", "clip")
+# A real arm's default `max_hold_s`, in periods (docs/eba.md, "Late ticks on a real clock").
+DEFAULT_MAX_HOLD_PERIODS = 3
 _SLEW_SEARCH_STEPS = 50  # bisection steps for the slew-aware bound (2^-50: below float resolution)
 
 
@@ -701,6 +703,19 @@ def slew_bounded(
     return lo
 
 
+def late_hold_excess_j(
+    held: npt.NDArray[np.float64], bound_gain: npt.NDArray[np.float64], hold_s: float, max_hold_s: float
+) -> float:
+    """The most energy a torque held `hold_s` can take beyond the `max_hold_s` the bound budgeted
+    (bound_gain_i = 4 d_i / max_hold_s): ((hold_s - max_hold_s) / 4) held.T D^-1 held, 0 when
+    hold_s <= max_hold_s. The reservoir after such a hold is at least minus this (docs/eba.md,
+    "Late ticks on a real clock"): over a hold h the ledger's change is dq.T D dq / h - tau.T dq,
+    whose minimum over dq is -(h/4) tau.T D^-1 tau, and the bound kept (max_hold_s/4) tau.T D^-1 tau <= E."""
+    if not hold_s > max_hold_s:  # also NaN
+        return 0.0
+    return (hold_s / max_hold_s - 1.0) * coupled_demand(held, bound_gain)
+
+
 def task_demand(
     jac: npt.NDArray[np.float64], force: npt.NDArray[np.float64], bound_gain: npt.NDArray[np.float64]
 ) -> float:
@@ -723,7 +738,10 @@ class CoupledEnergyBoundParams:
     > 0. torque_limit_nm: the motors' limits (empty: none); limit_mode "scale" (keep the
     direction) or "clip" (per joint, like the motor). slew_nm_per_s: how fast each motor's torque
     can change (empty: instantly); with it the bound keeps the reserve the descent needs.
-    joint_names: for messages.
+    joint_names: for messages. max_hold_s: the longest time a torque may be held before the next
+    tick replaces it (a real arm's late ticks; docs/eba.md, "Late ticks on a real clock"): the bound
+    budgets that hold, (max_hold_s / 4) tau.T D^-1 tau <= E, instead of one period; None: one period
+    (a simulated or lockstep arm, whose torque is held exactly T: the same bits as before).
     """
 
     period_s: float
@@ -734,6 +752,7 @@ class CoupledEnergyBoundParams:
     limit_mode: str = "scale"
     slew_nm_per_s: tuple[float, ...] = ()
     joint_names: tuple[str, ...] = ()
+    max_hold_s: float | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.period_s) and self.period_s > 0.0):
@@ -751,6 +770,11 @@ class CoupledEnergyBoundParams:
                 )
         if not (math.isfinite(self.initial_energy_j) and self.initial_energy_j >= 0.0):
             raise ValueError(f"initial_energy_j must be finite and >= 0, got {self.initial_energy_j}")
+        h = self.max_hold_s
+        if h is not None and not (math.isfinite(h) and h >= self.period_s):
+            raise ValueError(
+                f"max_hold_s must be finite and at least the period ({self.period_s} s), or None (one period), got {h}"
+            )
         if self.limit_mode not in LIMIT_MODES:
             raise ValueError(f"limit_mode must be one of {LIMIT_MODES}, got {self.limit_mode!r}")
         for name in ("torque_limit_nm", "slew_nm_per_s"):
@@ -768,13 +792,19 @@ class CoupledEnergyBoundParams:
     def joint_name(self, i: int) -> str:
         return self.joint_names[i] if self.joint_names else f"joint {i}"
 
+    @property
+    def hold_s(self) -> float:
+        """The hold the bound budgets: max_hold_s, or one period."""
+        return self.period_s if self.max_hold_s is None else self.max_hold_s
+
 
 @dataclass(frozen=True)
 class CoupledBoundConstants:
     """What a `CoupledEnergyBound` computes once from its parameters and uses every tick (copies:
     `CoupledEnergyBound.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
 
-    gain: d_i / T per joint (`coupled_reservoir`); bound_gain: 4 d_i / T (`coupled_bounded`);
+    gain: d_i / T per joint (`coupled_reservoir`); bound_gain: 4 d_i / h (`coupled_bounded`; h the
+    hold budgeted, `CoupledEnergyBoundParams.hold_s`: one period unless max_hold_s says more);
     low, high: the default torque range per joint, -+torque_limit_nm (inf: none);
     keep_direction: limit_mode "scale"; slew_step_nm: S_i T per joint, None without a slew limit.
     """
@@ -845,7 +875,9 @@ class CoupledEnergyBound:
         t = params.period_s
         d = np.array(params.damping_nm_s_per_rad, dtype=float)
         self._gain = d / t
-        self._bound_gain = 4.0 * d / t
+        # The bound budgets the longest hold (one period unless max_hold_s says more): every demand,
+        # the slew-aware descent's per-step ones included, is (h/4) tau.T D^-1 tau = sum tau_i^2 / bound_gain_i.
+        self._bound_gain = 4.0 * d / params.hold_s
         lim = np.array(params.torque_limit_nm or (math.inf,) * n, dtype=float)
         self._high = lim
         self._low = -lim
@@ -921,9 +953,15 @@ class CoupledEnergyBound:
         late): that update credits the damping with d_i dq_i^2 / elapsed_s, the least the damper
         dissipated over that time (Cauchy-Schwarz), instead of d_i dq_i^2 / T, which would be up to
         elapsed / T times too much. Shorter than a period (or not finite) changes nothing: T is then
-        the conservative one. The torque bound itself still budgets one period of hold."""
+        the conservative one. The torque bound budgets a hold of `params.hold_s`; a longer one is
+        `hold_excess_j`'s."""
         periods = elapsed_s / self.params.period_s
         self._stretch = periods if periods > 1.0 and math.isfinite(periods) else 1.0
+
+    def hold_excess_j(self, elapsed_s: float) -> float:
+        """The most energy the torque held now (`held`) can have taken beyond what the bound budgeted,
+        if it was held `elapsed_s` (`late_hold_excess_j`): 0 within `params.hold_s`."""
+        return late_hold_excess_j(self.held, self._bound_gain, elapsed_s, self.params.hold_s)
 
     def constants(self) -> CoupledBoundConstants:
         """The per-joint constants the tick uses (copies)."""

@@ -31,6 +31,12 @@ whatever the target, docs/eba.md, "Slew limit").
   with `stale_fade_s` > 0 it fades out and back in linearly over that time); `max_stale_reads`
   consecutive stale reads or `max_stale_s` since the last fresh one are a fault.
 
+- Late holds (a real clock): the energy bound budgets a hold of at most `max_hold_s`
+  (`CoupledEnergyBoundParams.max_hold_s`); a nonzero torque held longer may have delivered up to
+  `CoupledEnergyBound.hold_excess_j` beyond the reservoir, which no later torque can take back:
+  the tick that sees it is a fault (torque off, the run ends), so the excess is at most that one
+  hold's (docs/eba.md, "Late ticks on a real clock").
+
 A fault latches: from then on `step` returns zero torque and the same fault; the caller stops the
 side cleanly (torque off) with `fault.message`.
 """
@@ -47,7 +53,7 @@ import numpy.typing as npt
 from haptic_teleop.core.watchdog import Watchdog
 from haptic_teleop.errors import PlantError
 
-FAULT_KINDS = ("limit", "stale", "position")
+FAULT_KINDS = ("limit", "stale", "position", "hold")
 
 
 class StartPoseError(PlantError):
@@ -58,7 +64,8 @@ class StartPoseError(PlantError):
 @dataclass(frozen=True)
 class SafetyFault:
     """Why the guard stopped the side: `kind` one of FAULT_KINDS ("limit": a joint past its range;
-    "stale": too many stale reads; "position": a position that is not a finite number), the joint
+    "stale": too many stale reads; "position": a position that is not a finite number; "hold": a torque
+    held longer than the energy bound budgets, `max_hold_s`), the joint
     (None for a fault of the whole chain), the time (s) and one line for the user."""
 
     kind: str
@@ -79,7 +86,9 @@ class SafetyParams:
     overshoot_tolerance_rad: how far past an end a joint may be before it is a fault.
     max_stale_reads: consecutive stale reads that make a fault (>= 1). max_stale_s: time since the
     last fresh read that makes a fault. stale_fade_s: the watchdog's fade (0: zero torque at the
-    first stale read and full torque at the first fresh one).
+    first stale read and full torque at the first fresh one). max_hold_s: the longest hold of a
+    nonzero torque the side's energy bound budgets (`CoupledEnergyBoundParams.max_hold_s`; inf: no
+    check); a longer one is a fault (docs/eba.md, "Late ticks on a real clock").
     """
 
     joint_names: tuple[str, ...]
@@ -94,6 +103,7 @@ class SafetyParams:
     max_stale_reads: int = 5
     max_stale_s: float = 0.02
     stale_fade_s: float = 0.0
+    max_hold_s: float = math.inf
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -135,6 +145,8 @@ class SafetyParams:
             raise ValueError(f"max_stale_s must be finite and > 0, got {self.max_stale_s}")
         if not (math.isfinite(self.stale_fade_s) and self.stale_fade_s >= 0.0):
             raise ValueError(f"stale_fade_s must be finite and >= 0, got {self.stale_fade_s}")
+        if not self.max_hold_s >= self.period_s:
+            raise ValueError(f"max_hold_s must be at least the period ({self.period_s} s), got {self.max_hold_s}")
 
     @property
     def joints(self) -> int:
@@ -325,10 +337,15 @@ class SafetyGuard:
         q: npt.NDArray[np.float64],
         tau: npt.NDArray[np.float64],
         stale: bool = False,
+        hold_s: float = 0.0,
+        hold_excess_j: float = 0.0,
     ) -> tuple[npt.NDArray[np.float64], SafetyFault | None]:
         """One tick: `q` the positions read this tick (the last good ones when `stale`), `tau` the
-        port torque the law asks for (gravity compensation not included). Returns the torque to hand
-        to the energy bound and the fault, if there is one (then the torque is 0)."""
+        port torque the law asks for (gravity compensation not included); `hold_s` how long the torque
+        of the last tick was held (the time between this read and the last), `hold_excess_j` the most
+        energy that hold can have taken beyond the bound's budget (`CoupledEnergyBound.hold_excess_j`).
+        Returns the torque to hand to the energy bound and the fault, if there is one (then the
+        torque is 0)."""
         t0 = self._t0
         if t0 is None:
             raise RuntimeError("SafetyGuard.step before start(): the start-pose check must run first")
@@ -337,7 +354,9 @@ class SafetyGuard:
             out[:] = 0.0
             return out, self._fault
         p = self.params
-        fault = self._stale(t_s, stale)
+        fault = self._hold(t_s, hold_s, hold_excess_j)
+        if fault is None:
+            fault = self._stale(t_s, stale)
         if fault is None:
             fault = self._limits(t_s, q)
         if fault is not None:
@@ -351,6 +370,24 @@ class SafetyGuard:
         out *= g
         np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         return out, None
+
+    def _hold(self, t_s: float, hold_s: float, excess_j: float) -> SafetyFault | None:
+        """A nonzero torque held longer than the bound budgets: the port may have delivered up to
+        `excess_j` beyond its reservoir, and only stopping caps it there (docs/eba.md, "Late ticks
+        on a real clock"). A zero torque held any time delivers nothing: no fault."""
+        p = self.params
+        if not (hold_s > p.max_hold_s and excess_j > 0.0):
+            return None
+        return SafetyFault(
+            "hold",
+            None,
+            t_s,
+            f"{p.side} arm: the torque was held {hold_s * 1e3:.1f} ms, longer than the {p.max_hold_s * 1e3:.3g} ms "
+            f"the energy bound budgets ({p.side}.hardware.max_hold_s): the port may have delivered up to "
+            f"{excess_j:.3g} J beyond its reservoir; stopped, torque off. Keep the loop on time (load, "
+            f"scheduling), or raise {p.side}.hardware.max_hold_s (the holdable torque shrinks by "
+            "sqrt(period / max_hold_s))",
+        )
 
     def _stale(self, t_s: float, stale: bool) -> SafetyFault | None:
         p = self.params

@@ -17,6 +17,7 @@ The row's columns follow the scene's TickSchema (record/columns.py).
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -199,6 +200,7 @@ class Pacer:
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
+        self._stall = stall_for_test()
         self.t0 = 0.0
         self.late_ticks = 0
         self.overrun_ticks = 0
@@ -207,6 +209,9 @@ class Pacer:
         self._last = 0.0
 
     def wait(self, n: int) -> None:
+        every, stall_s = self._stall
+        if every and n >= 2 and n % every == 0:
+            time.sleep(stall_s)  # tests: a stalled host, the torque held on (docs/eba.md, "Late ticks")
         now = time.perf_counter()
         if n >= 2 and now - self._last > self.period_s:
             self.overrun_ticks += 1
@@ -232,6 +237,17 @@ class Pacer:
             "overrun_ticks": self.overrun_ticks,
             "max_late_s": self.max_late_s,
         }
+
+
+STALL_ENV = "HAPTIC_TELEOP_TEST_STALL"
+
+
+def stall_for_test() -> tuple[int, float]:
+    """With HAPTIC_TELEOP_TEST_STALL=EVERY:SECONDS in the environment the paced loop sleeps SECONDS
+    before every EVERY-th tick (a host that stalls while the devices hold their torque); (0, 0)
+    otherwise."""
+    every, _, seconds = os.environ.get(STALL_ENV, "").partition(":")
+    return (int(every), float(seconds)) if every else (0, 0.0)
 
 
 def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:

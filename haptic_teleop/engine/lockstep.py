@@ -680,6 +680,11 @@ def record_run(
         for side, plant in (("master", engine.master), ("slave", engine.slave)):
             if hasattr(plant, "stale_ticks"):
                 pacing[f"{side}_stale_reads"] = plant.stale_ticks
+            if hasattr(plant, "hold_budget_s"):  # its holds between reads (docs/eba.md, "Late ticks ...")
+                pacing[f"{side}_long_holds"] = plant.long_holds
+                pacing[f"{side}_over_budget_holds"] = plant.over_budget_holds
+                pacing[f"{side}_longest_hold_s"] = plant.longest_hold_s
+                pacing[f"{side}_max_hold_s"] = plant.hold_budget_s
     return engine, RunTiming(
         done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind, pacing
     )

@@ -89,7 +89,6 @@ class ArmEbaSide:
         self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
         self._last_write_s: float | None = None
-        self._last_read_s: float | None = None
         self.long_holds = 0  # a real arm's writes held longer than two periods (wall time)
         self.max_hold_s = 0.0
         self.remote_samples = 0
@@ -132,12 +131,11 @@ class ArmEbaSide:
             return self.tick.read_point()  # type: ignore[no-any-return]
         q, qd = self.plant.read()
         if self.hardware:
-            # A real arm lives in wall time: the motion since the last read took this long, and the
-            # ledger credits its damping over that time (CoupledEnergyBound.stretch).
-            now = time.monotonic()
-            if self._last_read_s is not None:
-                self.tick.bound.stretch(now - self._last_read_s)
-            self._last_read_s = now
+            # A real arm lives in wall time: the motion since the last read took this long (the
+            # driver's read times; one period on a lockstep clock), and the ledger credits its damping
+            # over that time (CoupledEnergyBound.stretch), as the engine's loop does. The plant's
+            # guard stops the side when a hold exceeds the bound's budget (docs/eba.md).
+            self.tick.bound.stretch(self.plant.read_interval_s)
         x, v = self.plant.point()
         return q, qd, x, v
 
@@ -152,7 +150,7 @@ class ArmEbaSide:
 
     def _hold(self) -> None:
         """A real arm holds each write until the next one, in wall time: count the holds longer than
-        two periods (the energy bound budgets one; docs/live.md, "Late ticks on a real arm")."""
+        two periods (the energy bound budgets max_hold_s; docs/live.md, "Late ticks on a real arm")."""
         now = time.monotonic()
         last = self._last_write_s
         self._last_write_s = now
@@ -182,7 +180,20 @@ class ArmEbaSide:
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         wd = self.watchdog
-        holds = {"long_holds": self.long_holds, "max_hold_ms": round(self.max_hold_s * 1e3, 3)}
+        holds: dict[str, float | int] = {
+            "long_holds": self.long_holds,
+            "max_hold_ms": round(self.max_hold_s * 1e3, 3),
+        }
+        if self.hardware:
+            p = self.plant
+            holds.update(
+                {
+                    "read_long_holds": p.long_holds,
+                    "read_longest_hold_ms": round(p.longest_hold_s * 1e3, 3),
+                    "over_budget_holds": p.over_budget_holds,
+                    "hold_budget_ms": round(p.hold_budget_s * 1e3, 3),
+                }
+            )
         return {
             "watchdog_gain": round(wd.gain, 3),
             "watchdog_trips": wd.trips,
@@ -202,7 +213,8 @@ class ArmEbaSide:
         return (
             f"{self.role} arm: {self.long_holds} torque holds longer than two periods (the longest "
             f"{self.max_hold_s * 1e3:.1f} ms, the period {self.period_s * 1e3:g} ms): the energy bound budgets one "
-            "period per hold (docs/live.md, 'Late ticks on a real arm')"
+            f"hold of {self.plant.hold_budget_s * 1e3:g} ms ({self.role}.hardware.max_hold_s; a longer one stops the "
+            "side: docs/eba.md, 'Late ticks on a real clock')"
         )
 
     def close(self, log: Any = None) -> None:

@@ -166,6 +166,7 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         source=f"{role} ({cfg.backend} on {where})",
         wrench_source=wrench,
         lockstep_clock=hw.device_clock == "lockstep",
+        max_hold_s=hw.max_hold_s,
     )
 
 

@@ -11,9 +11,10 @@ Per tick:
   the same sample, as `MujocoArm.read` does within a tick);
 - `safe_torque(tau)`, which the tick calls on the desired torque before the energy bound: the
   safety guards of core/safety.py (`SafetyGuard`: the start-up ramp-in, the joint-limit zone,
-  stale reads), each only shrinking a joint's torque; a guard's fault stops the arm (torque off)
-  and raises HardwareError with its message. The guards' clock is scene time (ticks x period),
-  so a run against the lockstep emulator is deterministic;
+  stale reads, a hold longer than the energy bound budgets), each only shrinking a joint's torque;
+  a guard's fault stops the arm (torque off) and raises HardwareError with its message. The
+  guards' clock is scene time (ticks x period), so a run against the lockstep emulator is
+  deterministic;
 - `step(tau)` takes the port torque (beyond gravity compensation), keeps each joint's total within
   the motor's limit (as `MujocoArm` does: compensation spends the motor's real torque), adds the
   gravity torque and writes the total through the driver (one sync write). It returns the port
@@ -56,6 +57,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from haptic_teleop.core.eba import DEFAULT_MAX_HOLD_PERIODS, late_hold_excess_j
 from haptic_teleop.core.safety import SafetyGuard, SafetyParams
 from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample
@@ -79,6 +81,9 @@ class HardwareArm:
     a slave's contact instead of the estimate from the motor torques; lockstep_clock: the device
     advances one period per command (the bus emulator in lockstep time), so `read_interval_s`, the
     time the motion between two reads took, is one period; else the driver's read times give it.
+    max_hold_s: the longest hold the side's energy bound budgets on a real clock (`hold_budget_s`;
+    None: DEFAULT_MAX_HOLD_PERIODS periods; a lockstep clock: one period, whatever it says); a longer hold of a nonzero
+    torque is the safety guard's "hold" fault (docs/eba.md, "Late ticks on a real clock").
     """
 
     def __init__(
@@ -97,6 +102,7 @@ class HardwareArm:
         source: str = "",
         wrench_source: Callable[[], np.ndarray] | None = None,
         lockstep_clock: bool = False,
+        max_hold_s: float | None = None,
     ) -> None:
         if tuple(driver.joints) != tuple(kinematics.joints):
             raise PlantError(
@@ -127,6 +133,15 @@ class HardwareArm:
         self.contact_estimated = role == "slave" and wrench_source is None
         self._wrench_source = wrench_source if role == "slave" else None
         self._period_s = period_s
+        if lockstep_clock:  # the device advances one period per command: every hold is one period
+            max_hold_s = period_s
+        elif max_hold_s is None:
+            max_hold_s = DEFAULT_MAX_HOLD_PERIODS * period_s
+        if not (math.isfinite(max_hold_s) and max_hold_s >= period_s):
+            raise PlantError(f"{role}: max_hold_s must be finite and >= the period {period_s} s, got {max_hold_s}")
+        self.hold_budget_s = float(max_hold_s)  # the hold the energy bound budgets (assembly passes it on)
+        # (h/4) tau.T D^-1 tau = sum tau_i^2 / hold_gain_i: the bound's gains (CoupledEnergyBound)
+        self._hold_gain = 4.0 * self._damping / self.hold_budget_s
         rng = kinematics.joint_range_rad()
         self.safety = SafetyGuard(
             SafetyParams(
@@ -137,6 +152,7 @@ class HardwareArm:
                 side=role,
                 start_tolerance_rad=(start_tolerance_rad,) * self.n,
                 ramp_in_s=ramp_in_s,
+                max_hold_s=self.hold_budget_s,
             )
         )
         self._stale = False
@@ -152,6 +168,12 @@ class HardwareArm:
         self._sample_t_s = -math.inf
         self.kinematics.set_q(self._q)
         self.stale_ticks = 0  # ticks whose read failed (the driver repeated its last good sample)
+        # Holds on a real clock (the time between two reads): longer than two periods, longer than
+        # the budget (with a nonzero torque that is the guard's fault), and the longest.
+        self.long_holds = 0
+        self.over_budget_holds = 0
+        self.longest_hold_s = 0.0
+        self.read_times_s: list[float] | None = None  # a list: each read's driver time is appended (tests)
 
     # ---------------------------------------------------------------------------------- state
 
@@ -176,8 +198,15 @@ class HardwareArm:
         self._qd = np.asarray(s.qd_rad_per_s, dtype=float).copy()
         self._tau_measured = np.asarray(s.tau_nm, dtype=float).copy()
         if not self._lockstep and math.isfinite(self._sample_t_s):
-            self.read_interval_s = float(s.t_s - self._sample_t_s)
+            h = float(s.t_s - self._sample_t_s)
+            self.read_interval_s = h
+            if self._ticks >= 1:  # the start's hold (connecting, the first tick) is not a tick's
+                self.longest_hold_s = max(self.longest_hold_s, h)
+                self.long_holds += h > 2.0 * self._period_s
+                self.over_budget_holds += h > self.hold_budget_s
         self._sample_t_s = s.t_s
+        if self.read_times_s is not None:
+            self.read_times_s.append(float(s.t_s))
         self._stale = bool(getattr(s, "stale", 0))
         self.stale_ticks += self._stale
         self.kinematics.set_q(self._q)
@@ -263,7 +292,14 @@ class HardwareArm:
         and raises HardwareError naming it."""
         if not self._started:
             self.read()
-        out, fault = self.safety.step(self._ticks * self._period_s, self._q, np.asarray(tau, dtype=float), self._stale)
+        hold = self.read_interval_s
+        # The first tick's hold straddles the start (its torque the ramp's 0): from the second on.
+        excess = 0.0
+        if self._ticks >= 2:
+            excess = late_hold_excess_j(self._applied, self._hold_gain, hold, self.hold_budget_s)
+        out, fault = self.safety.step(
+            self._ticks * self._period_s, self._q, np.asarray(tau, dtype=float), self._stale, hold, excess
+        )
         if fault is not None:
             self.driver.stop()
             raise HardwareError(f"{self.source}: {fault.message}")

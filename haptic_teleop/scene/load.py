@@ -140,7 +140,7 @@ def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys:
             f"{side}.hardware.{dxl_keys[0]}",
             getattr(hw, dxl_keys[0]),
             f"a Dynamixel key, and {side}.backend is ur; allowed for backend ur: host, control_mode, "
-            "start_tolerance_rad, ramp_in_s",
+            "start_tolerance_rad, ramp_in_s, device_clock, max_hold_s",
         )
     if hw.host is None:
         raise ConfigError(source, f"{side}.hardware.host", None, "required for backend ur: the controller's address")
@@ -249,6 +249,14 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                     f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
                 )
         _check_hardware(source, side, cfg, joints, emulate, identify)
+        hold = cfg.hardware.max_hold_s if cfg.hardware is not None else None
+        if hold is not None and not hold >= config.scene.period_s:
+            raise ConfigError(
+                source,
+                f"{side}.hardware.max_hold_s",
+                hold,
+                f"allowed: at least scene.period_s ({config.scene.period_s} s): a torque is held a period at least",
+            )
     op = config.operator
     if op.profile == "trace":
         raise ConfigError(source, "operator.profile", op.profile, "allowed for arms: push, sinusoid, hold")

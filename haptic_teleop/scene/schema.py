@@ -229,6 +229,15 @@ class HardwareConfig:
             "ticks); lockstep: the device advances one period per command (the bus emulator, --emulate)",
         },
     )
+    max_hold_s: float | None = field(
+        default=None,
+        metadata={
+            "gt": 0.0,
+            "max": 1.0,
+            "help": "the longest hold of a torque the energy bound budgets on a real clock (default: 3 "
+            "periods; a lockstep device: one); a longer hold stops the side (docs/eba.md)",
+        },
+    )
     start_tolerance_rad: float = field(
         default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}
     )
