@@ -174,7 +174,6 @@ class Engine:
 
     def _init_arm_rest(self, parts: Any, loop: str) -> None:
         from haptic_teleop.engine.arm_loop import side_ticks, wire_payload_bytes
-
         from haptic_teleop.scene.load import side_period_ticks
 
         self.arm_ticks = side_ticks(parts)

@@ -534,7 +534,7 @@ class URTaskDriver:
         return np.zeros(6) if self.last is None else self.last.tcp_wrench.copy()
 
     def start(self) -> JointSample:
-        first = self.ur.start()
+        self.ur.start()
         try:
             # The wrist sensor's zero in free space (UR's advice before force control; the scene's
             # start-up check keeps the tool off the wall at start).

@@ -1,0 +1,151 @@
+"""UR sides in force_mode and admittance (docs/ur.md, "Control modes in a session") and a side's own
+period (docs/arms.md, "A side's own period"): whole sessions through the real command line against
+the UR emulator (unmodified ur_rtde), checked on the bag and on the emulated plant's own signals."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from haptic_teleop.scene.load import find_scene, load_scene
+
+ROOT = Path(__file__).resolve().parents[2]
+TIMEOUT_S = 240.0  # a safety net only
+DAMPING = "slave.damping_nm_s_per_rad=[3.0, 3.0, 3.0, 0.5, 0.5, 0.5]"  # ur5e.xml's dof_damping
+
+
+def _ur_config() -> Any:
+    from haptic_teleop.emulators.ur.config import URConfig
+    from haptic_teleop.emulators.ur.config import WallConfig as URWall
+
+    c = load_scene(find_scene("touch_ur5e_wall")).config
+    w = c.slave.wall
+    assert w.point_m is not None and w.normal is not None and c.slave.start_q_rad is not None
+    wall = URWall(tuple(w.point_m), tuple(w.normal), w.stiffness_n_per_m, w.damping_n_s_per_m)
+    # PolyScope 5.11: no direct torque; force mode and speedL are there
+    return URConfig(start_q_rad=tuple(c.slave.start_q_rad), wall=wall)
+
+
+def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    sets = [
+        "slave.backend=ur",
+        "slave.hardware.host=127.0.0.1",
+        f"slave.hardware.control_mode={mode}",
+        DAMPING,
+        "slave.period_s=0.002",  # the e-Series' 500 Hz; the haptic side at the scene's 1 kHz
+        "scene.duration_s=2.5",
+        *extra,
+    ]
+    return subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.cli", "run", "touch_ur5e_wall", *[a for s in sets for a in ("--set", s)]]
+        + ["--out", str(out), "--quiet", "--no-plots"],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        cwd=ROOT,
+    )
+
+
+@pytest.mark.parametrize("mode", ["force_mode", "admittance"])
+def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_and_passive(
+    mode: str, tmp_path: Path
+) -> None:
+    from haptic_teleop.emulators.ur.process import start_ur
+    from haptic_teleop.record.reader import BagReader
+
+    out = tmp_path / "run"
+    with start_ur(_ur_config()) as ur:
+        proc = _run(mode, out, "slave.hardware.force_mode_damping=0.05")
+        assert proc.returncode == 0, proc.stderr
+        st = ur.state()
+    # every exit path stops the robot: the control script ended, the arm holds
+    assert st["program_running"] is False and st["mode"] == "hold"
+    if mode == "force_mode":
+        assert st["force_mode_damping"] == pytest.approx(0.05)  # the scene key reached the controller
+    summary = json.loads((out / "summary.json").read_text())
+    for s in ("master", "slave"):
+        assert summary[f"{s}_energy_margin_min_j"] >= 0.0, (s, summary)
+    # the contact is the controller's TCP wrench: the tool reached the table and pressed on it
+    assert summary["penetration_max_m"] > 0.0 and summary["contact_force_max_n"] > 5.0
+    # Passivity on the emulated plant's own signals: the net work of the robot's motors beyond what
+    # its joints dissipated, and the work the tool did on the table, never exceeded the slave's
+    # initial energy (0.5 J) at any controller period.
+    e0 = summary["slave_initial_energy_j"]
+    assert 0.0 < st["max_env_work_j"] <= e0, st
+    assert st["max_net_motor_work_j"] <= e0, st
+    # The side's own period: its rows hold its last values for the scene tick in between.
+    with BagReader(out / "bag") as r:
+        topics = [t for t in r.specs() if r.has(t) and "slave" in t and "joint" in t]
+        q = r.read(topics[0]).values
+    assert q.shape[0] >= 1900
+    m = q.shape[0] // 2 * 2
+    assert np.array_equal(q[0:m:2], q[1:m:2])  # tick 2k+1 repeats the side's tick 2k
+
+
+def test_a_protective_stop_mid_session_in_force_mode_ends_the_run_with_one_line_and_the_robot_stopped(
+    tmp_path: Path,
+) -> None:
+    from haptic_teleop.emulators.ur.process import start_ur
+
+    out = tmp_path / "run"
+    with start_ur(_ur_config()) as ur:
+
+        def inject() -> None:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 60.0:  # once the session's control script runs
+                if ur.state()["program_running"]:
+                    time.sleep(0.5)
+                    ur.inject("protective_stop", reason="test")
+                    return
+                time.sleep(0.05)
+
+        th = threading.Thread(target=inject, daemon=True)
+        th.start()
+        proc = _run("force_mode", out)
+        th.join(5.0)
+        st = ur.state()
+    assert proc.returncode == 1, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("haptic-teleop:")]
+    assert len(lines) == 1 and "protective stop" in lines[0] and "Traceback" not in proc.stderr, proc.stderr
+    assert st["program_running"] is False
+    assert (out / "summary.json").exists()
+
+
+def test_a_side_period_ticks_the_side_every_kth_scene_tick_with_its_own_bound_period() -> None:
+    from haptic_teleop.engine.lockstep import Engine
+
+    scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.002", "scene.duration_s=0.6"])
+    engine = Engine(scene, loop="auto")
+    assert engine.loop_kind == "python" and "its own period 0.002" in (engine.compiled_reason or "")
+    assert engine.arm.slave.bound.params.period_s == 0.002
+    assert engine.arm.master.bound.params.period_s == 0.001
+    engine.run(handle_sigint=False)
+    g = engine.schema.group
+    s_q, m_q = engine.data[:, g("s_q")], engine.data[:, g("m_q")]
+    assert np.array_equal(s_q[1::2], s_q[0:-1:2])  # the slave's rows hold between its ticks
+    assert not np.array_equal(s_q[2::2][100:], s_q[0:-2:2][100:])  # and move at its ticks
+    assert not np.array_equal(m_q[1::2][150:], m_q[0:-1:2][150:])  # the master ticks every scene tick
+
+
+def test_a_side_period_that_is_not_a_whole_multiple_is_one_clear_error(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.cli", "run", "touch_ur5e_wall", "--set", "slave.period_s=0.0015"]
+        + ["--out", str(tmp_path / "run"), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        cwd=ROOT,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "slave.period_s" in proc.stderr and "whole multiple of scene.period_s" in proc.stderr
