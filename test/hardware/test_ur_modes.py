@@ -46,8 +46,18 @@ def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
         *extra,
     ]
     return subprocess.run(
-        [sys.executable, "-m", "haptic_teleop.cli", "run", "touch_ur5e_wall", *[a for s in sets for a in ("--set", s)]]
-        + ["--out", str(out), "--quiet", "--no-plots"],
+        [
+            sys.executable,
+            "-m",
+            "haptic_teleop.cli",
+            "run",
+            "touch_ur5e_wall",
+            *[a for s in sets for a in ("--set", s)],
+            "--out",
+            str(out),
+            "--quiet",
+            "--no-plots",
+        ],  # fmt: skip
         capture_output=True,
         text=True,
         timeout=TIMEOUT_S,
@@ -139,8 +149,18 @@ def test_a_side_period_ticks_the_side_every_kth_scene_tick_with_its_own_bound_pe
 
 def test_a_side_period_that_is_not_a_whole_multiple_is_one_clear_error(tmp_path: Path) -> None:
     proc = subprocess.run(
-        [sys.executable, "-m", "haptic_teleop.cli", "run", "touch_ur5e_wall", "--set", "slave.period_s=0.0015"]
-        + ["--out", str(tmp_path / "run"), "--quiet"],
+        [
+            sys.executable,
+            "-m",
+            "haptic_teleop.cli",
+            "run",
+            "touch_ur5e_wall",
+            "--set",
+            "slave.period_s=0.0015",
+            "--out",
+            str(tmp_path / "run"),
+            "--quiet",
+        ],  # fmt: skip
         capture_output=True,
         text=True,
         timeout=TIMEOUT_S,
