@@ -57,7 +57,7 @@ def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
             str(out),
             "--quiet",
             "--no-plots",
-        ],  # fmt: skip
+        ],
         capture_output=True,
         text=True,
         timeout=TIMEOUT_S,
@@ -160,7 +160,7 @@ def test_a_side_period_that_is_not_a_whole_multiple_is_one_clear_error(tmp_path:
             "--out",
             str(tmp_path / "run"),
             "--quiet",
-        ],  # fmt: skip
+        ],
         capture_output=True,
         text=True,
         timeout=TIMEOUT_S,
