@@ -564,11 +564,11 @@ class URTaskDriver:
     def _send(self, w: np.ndarray) -> None:
         self.wrench_sent = w
         if self.mode == "force_mode":
-            self.ur.force_mode(w, (0.0,) * 6, (1, 1, 1, 1, 1, 1), self.speed_limits)
+            self.ur.force_mode(w.tolist(), (0.0,) * 6, (1, 1, 1, 1, 1, 1), self.speed_limits)
         else:
             _, v = self.admittance.step(w, self.tcp_wrench())
             self.twist_sent = v
-            self.ur.speed_l(v, self.acceleration, 0.0)
+            self.ur.speed_l(v.tolist(), self.acceleration, 0.0)
 
     def write(self, tau_nm: np.ndarray) -> np.ndarray:
         jac = np.asarray(self._jacobian(), dtype=float)
