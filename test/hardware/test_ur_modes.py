@@ -20,7 +20,10 @@ from haptic_teleop.scene.load import find_scene, load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT_S = 240.0  # a safety net only
-DAMPING = "slave.damping_nm_s_per_rad=[3.0, 3.0, 3.0, 0.5, 0.5, 0.5]"  # ur5e.xml's dof_damping
+# What EBA may credit in a task-space mode: at most the robot's own admittance damping seen at the
+# joints, J^T D J >= lambda_min I (docs/ur.md: 7.1 N m s/rad in force mode, 2.2 in the admittance at
+# the start pose, with the defaults), so 2.0 on every joint but the wrists' 0.5.
+DAMPING = "slave.damping_nm_s_per_rad=[2.0, 2.0, 2.0, 0.5, 0.5, 0.5]"
 
 
 def _ur_config() -> Any:
