@@ -172,3 +172,58 @@ def test_a_side_period_that_is_not_a_whole_multiple_is_one_clear_error(tmp_path:
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "slave.period_s" in proc.stderr and "whole multiple of scene.period_s" in proc.stderr
+
+
+def test_sigterm_mid_session_in_the_admittance_mode_stops_the_robot_and_keeps_the_bag(tmp_path: Path) -> None:
+    import signal
+
+    from haptic_teleop.emulators.ur.process import start_ur
+
+    out = tmp_path / "run"
+    sets = [
+        "slave.backend=ur",
+        "slave.hardware.host=127.0.0.1",
+        "slave.hardware.control_mode=admittance",
+        DAMPING,
+        "slave.period_s=0.002",
+    ]
+    with start_ur(_ur_config()) as ur:
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "haptic_teleop.cli",
+                "run",
+                "touch_ur5e_wall",
+                *[a for s in sets for a in ("--set", s)],
+                "--out",
+                str(out),
+                "--quiet",
+                "--no-plots",
+            ],
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(ROOT), "HAPTIC_TELEOP_TEST_PAUSE": "loop"},
+            cwd=ROOT,
+        )
+        assert proc.stderr is not None
+        for line in proc.stderr:  # the loop ran its first 100 ticks and waits for the signal there
+            if "phase loop" in line:
+                break
+        assert ur.state()["mode"] == "speed"  # the admittance streams speedL
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+        st = ur.state()
+    assert proc.returncode == 143, err
+    assert st["program_running"] is False and st["mode"] == "hold"
+    assert json.loads((out / "timing.json").read_text())["interrupted"] is True
+
+
+def test_the_live_nodes_refuse_a_side_period() -> None:
+    from haptic_teleop.errors import ConfigError
+    from haptic_teleop.launcher import node_plan
+
+    scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.002"])
+    with pytest.raises(ConfigError, match="live nodes tick every side at scene.period_s") as exc:
+        node_plan(scene)
+    assert exc.value.key_path == "slave.period_s"
