@@ -227,3 +227,19 @@ def test_the_live_nodes_refuse_a_side_period() -> None:
     with pytest.raises(ConfigError, match="live nodes tick every side at scene.period_s") as exc:
         node_plan(scene)
     assert exc.value.key_path == "slave.period_s"
+
+
+def test_the_analysis_books_a_slow_side_at_its_own_period(tmp_path: Path) -> None:
+    """The summary's ledger of a side with its own period, recomputed from the rows (which repeat
+    the side's q between its ticks), is the side's own reservoir as the bound kept it."""
+    from haptic_teleop.analysis.stream import summarize_bag
+    from haptic_teleop.engine.lockstep import record_run
+
+    scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.003", "scene.duration_s=1.5"])
+    engine, _ = record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False, keep=True)
+    summary = summarize_bag(tmp_path / "bag")
+    e = engine.data[:, engine.schema.group("s_energy_j")][:, 0]
+    e0 = scene.config.controllers.slave.eba.initial_energy_j
+    # the bound's reservoir before each of its ticks' torques act: its minimum over the run
+    assert min(e0, float(np.min(e))) < e0 - 1e-3  # the run spent some of it
+    assert summary["slave_energy_margin_min_j"] == pytest.approx(min(e0, float(np.min(e))), abs=1e-6)
