@@ -224,7 +224,7 @@ def test_the_live_nodes_refuse_a_side_period() -> None:
     from haptic_teleop.launcher import node_plan
 
     scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.002"])
-    with pytest.raises(ConfigError, match="live nodes tick every side at scene.period_s") as exc:
+    with pytest.raises(ConfigError, match=r"live nodes tick every side at scene\.period_s") as exc:
         node_plan(scene)
     assert exc.value.key_path == "slave.period_s"
 
