@@ -69,6 +69,18 @@ def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+def _booked_work_max_j(bag: Path) -> float:
+    """The largest running sum over the slave's rows of tau_booked . dq (the recorded effort held
+    over each row and the next row's position step)."""
+    from haptic_teleop.record.reader import BagReader
+
+    with BagReader(bag) as r:
+        v = r.read("/slave/joint_states").values
+    n = v.shape[1] // 3
+    q, tau = v[:, :n], v[:, 2 * n :]
+    return float(np.max(np.cumsum(np.sum(tau[:-1] * np.diff(q, axis=0), axis=1))))
+
+
 @pytest.mark.parametrize("mode", ["force_mode", "admittance"])
 def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_and_passive(
     mode: str, tmp_path: Path
@@ -96,6 +108,10 @@ def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_a
     e0 = summary["slave_initial_energy_j"]
     assert 0.0 < st["max_env_work_j"] <= e0, st
     assert st["max_net_motor_work_j"] <= e0, st
+    # ... and the work the tool did on the table never exceeded the work the ledger booked (the
+    # commanded wrench against the measured motion, from the bag): the robot, velocity controlled,
+    # passed on no more than it was commanded (the admittance's argument, lag included).
+    assert st["max_env_work_j"] <= _booked_work_max_j(out / "bag"), st
     # The side's own period: its rows hold its last values for the scene tick in between.
     with BagReader(out / "bag") as r:
         topics = [t for t in r.specs() if r.has(t) and "slave" in t and "joint" in t]
@@ -243,3 +259,27 @@ def test_the_analysis_books_a_slow_side_at_its_own_period(tmp_path: Path) -> Non
     # the bound's reservoir before each of its ticks' torques act: its minimum over the run
     assert min(e0, float(np.min(e))) < e0 - 1e-3  # the run spent some of it
     assert summary["slave_energy_margin_min_j"] == pytest.approx(min(e0, float(np.min(e))), abs=1e-6)
+
+
+def test_an_admittance_damping_below_k_t_over_2_lets_the_robot_give_the_table_more_than_was_booked(
+    tmp_path: Path,
+) -> None:
+    """The lag condition D > K T / 2 on the plant: with D = 10 N s/m against the 1e4 N/m table (the
+    emulated robot's velocity loop lags about 27 ms: K T / 2 = 135 N s/m) the tool bounces, and the
+    work it does on the table exceeds the work the ledger booked: the bag's ledger alone cannot see
+    it (its margins stay >= 0), the plant's signals do."""
+    from haptic_teleop.emulators.ur.process import start_ur
+
+    out = tmp_path / "run"
+    with start_ur(_ur_config()) as ur:
+        proc = _run(
+            "admittance",
+            out,
+            "slave.hardware.admittance_damping_n_s_per_m=10.0",
+            "slave.hardware.admittance_mass_kg=0.2",
+        )
+        assert proc.returncode == 0, proc.stderr
+        st = ur.state()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["slave_energy_margin_min_j"] >= 0.0
+    assert st["max_env_work_j"] > 3.0 * _booked_work_max_j(out / "bag"), st
