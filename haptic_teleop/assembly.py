@@ -247,7 +247,7 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
 
     from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams, SampleGuard
     from haptic_teleop.core.taskspace import TaskCouplingParams, TaskSpaceLaw, WorkspaceMapping, rotation_from_rpy
-    from haptic_teleop.plants import build_arm
+    from haptic_teleop.plants import build_arm, side_period_s
     from haptic_teleop.record.columns import TickSchema
 
     # A hardware side's plant starts its driver at its first read, not here (plants/hardware_arm.py).
@@ -270,7 +270,6 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     mapping = WorkspaceMapping(scale=mc.scale, rotation=rot, offset_m=offset, force_scale=mc.force_scale)
     handle0 = mapping.position_to_task(xm0)
     limits = arm_remote_limits(config, [handle0, xs0, np.array(config.slave.wall.point_m)])
-    period_s = config.scene.period_s
 
     def side(role: str, plant: MujocoArm | HardwareArm) -> ArmSide:
         cfg: ControllerConfig = getattr(config.controllers, role)
@@ -292,7 +291,7 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
         )
         bound = CoupledEnergyBound(
             CoupledEnergyBoundParams(
-                period_s=period_s,
+                period_s=side_period_s(config, role),  # the side's own period: its ledger's T
                 damping_nm_s_per_rad=tuple(plant.joint_damping()),
                 initial_energy_j=cfg.eba.initial_energy_j,
                 enabled=cfg.eba.enabled,

@@ -155,6 +155,14 @@ def _quantiles(d: np.ndarray) -> tuple[float, float]:
     return (float(np.mean(d)), float(np.percentile(d, 99))) if d.size else (math.nan, math.nan)
 
 
+def side_period_s(sc: dict[str, Any], side: str) -> float:
+    """A side's own control period from the scene's dict (`<side>.period_s`, else scene.period_s):
+    its ledger's T. Between its ticks the rows repeat its last q and torque, so summing the rows'
+    steps with this T gives the side's ledger exactly (docs/arms.md, "A side's own period")."""
+    p = (sc.get(side) or {}).get("period_s")
+    return float(p) if p is not None else float(sc["scene"]["period_s"])
+
+
 def compute_task_summary(sig: TaskSignals) -> dict[str, Any]:
     """summary.json of an n-DoF run from its whole signals (the reference for `stream_task_summary`)."""
     from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
@@ -196,7 +204,7 @@ def compute_task_summary(sig: TaskSignals) -> dict[str, Any]:
     energies = {}
     for side, q, tau in (("master", sig.master_q, sig.master_tau_nm), ("slave", sig.slave_q, sig.slave_tau_nm)):
         damping, e0 = _side_energy(sc, sig.run_info, side, q.shape[1])
-        em = energy_margins(q, tau, damping, T, e0)
+        em = energy_margins(q, tau, damping, side_period_s(sc, side), e0)
         energies[side] = (float(np.min(em.pooled_margin_j - e0)), np.min(em.absorbed_j, axis=0), e0)
     return acc.summary(sig.run_info, int(sig.t_s.size), duration, counts, nets, lat_f, lat_b, energies)
 
@@ -320,7 +328,7 @@ class TaskAccumulator:
         self.ports = {}
         for side, joints in (("master", schema.master_joints), ("slave", schema.slave_joints)):
             damping, _ = _side_energy(sc, run_info, side, len(joints))
-            self.ports[side] = _Ports(damping, T)
+            self.ports[side] = _Ports(damping, side_period_s(sc, side))
 
     def add(
         self,

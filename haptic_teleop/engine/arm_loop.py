@@ -285,25 +285,38 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     # A real arm's ledger credits the damping over the time the tick's motion really took
     # (CoupledEnergyBound.stretch; one period for a device on a lockstep clock: the emulator).
     m_real, s_real = engine.hardware_master, engine.hardware_slave
+    # A side with its own period (<side>.period_s = k scene periods) ticks (read, law, bound, write)
+    # every k-th scene tick and holds its command in between: a simulated arm is stepped with the
+    # held torque every scene tick, a real one is left alone; its packets and rows carry its last values.
+    km, ks = engine.side_every
+    tau_m = tau_s = applied_m = applied_s = None
     for n in range(n_ticks):
         now_ns = n * period_ns
         if pace is not None:
             pace.wait(n)
         row = block[n - base]
+        m_due = n % km == 0
+        s_due = n % ks == 0
         # 1. both arms
-        qm, qdm = master.read()
-        if m_real:  # a real arm: the motion since the last read took its own time (Pacer: late ticks)
-            mt.bound.stretch(master.read_interval_s)
-        xm_dev, vm_dev = master.point()
-        qs, qds = slave.read()
-        if s_real:
-            st.bound.stretch(slave.read_interval_s)
-        xs, vs = slave.point()
-        f_env, t_env = slave.contact_wrench()
-        x_m = maps.to_task_x(xm_dev)
-        v_m = maps.to_task_v(vm_dev)
+        if m_due:
+            qm, qdm = master.read()
+            if m_real:  # a real arm: the motion since the last read took its own time (Pacer: late ticks)
+                mt.bound.stretch(master.read_interval_s)
+            xm_dev, vm_dev = master.point()
+            xh_dev, vh_dev = xm_dev, vm_dev
+            x_m = maps.to_task_x(xm_dev)
+            v_m = maps.to_task_v(vm_dev)
+        elif not m_real:  # the operator's hand meets the simulated handle where it is now
+            xh_dev, vh_dev = master.point()
+        if s_due:
+            qs, qds = slave.read()
+            if s_real:
+                st.bound.stretch(slave.read_interval_s)
+            xs, vs = slave.point()
+            f_env, t_env = slave.contact_wrench()
         # 2. master
-        tau_m = mt.torque(x_m, v_m, m_remote)
+        if m_due:
+            tau_m = mt.torque(x_m, v_m, m_remote)
         # 3. forward packet
         fwd.send(Packet(n, now_ns, (*x_m.tolist(), *v_m.tolist()), fwd_size))
         for p in fwd.deliver(now_ns):
@@ -316,7 +329,8 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         else:
             frx = -1
         # 4. slave
-        tau_s = st.torque(xs, vs, s_remote)
+        if s_due:
+            tau_s = st.torque(xs, vs, s_remote)
         # 5. backward packet
         bwd.send(Packet(n, now_ns, (*xs.tolist(), *vs.tolist(), *f_env.tolist()), bwd_size))
         for p in bwd.deliver(now_ns):
@@ -330,11 +344,17 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         else:
             brx = -1
         # 6. operator and plants
-        xd_t, vd_t, f_hand = operator_hand(parts, n * period_s, xm_dev, vm_dev)
-        applied_m = master.step(tau_m, f_hand if m_hand else None)
-        applied_s = slave.step(tau_s)
-        mt.bound.held[:] = applied_m  # the ledger: the torques the plants applied
-        st.bound.held[:] = applied_s
+        xd_t, vd_t, f_hand = operator_hand(parts, n * period_s, xh_dev, vh_dev)
+        if m_due:
+            applied_m = master.step(tau_m, f_hand if m_hand else None)
+            mt.bound.held[:] = applied_m  # the ledger: the torques the plants applied
+        elif not m_real:
+            master.step(tau_m, f_hand if m_hand else None)
+        if s_due:
+            applied_s = slave.step(tau_s)
+            st.bound.held[:] = applied_s
+        elif not s_real:
+            slave.step(tau_s)
         row[cols["op_x_m"]] = xd_t
         row[cols["op_v_m_per_s"]] = vd_t
         row[cols["op_force_n"]] = maps.force_to_task(f_hand) if m_hand else np.nan

@@ -208,12 +208,18 @@ def contact_layout() -> tuple[int, int, int, int, int, int, int, int] | str:
 # What can be compiled, and the arrays the kernel takes.
 
 
-def compiled_reason_arm(parts: ArmParts, forward: Any, backward: Any, fbuf: Any, bbuf: Any) -> str | None:
-    """Why the arm scene cannot run in the compiled loop, or None if it can."""
+def compiled_reason_arm(
+    parts: ArmParts, forward: Any, backward: Any, fbuf: Any, bbuf: Any, period_s: float | None = None
+) -> str | None:
+    """Why the arm scene cannot run in the compiled loop, or None if it can. `period_s`: the
+    scene's period (a side whose bound runs at another period ticks in the Python loop only)."""
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
 
     for role, side in (("master", parts.master), ("slave", parts.slave)):
+        p = side.bound.params.period_s
+        if period_s is not None and abs(p - period_s) > 1e-12:
+            return f"{role}: its own period {p:g} s (the compiled loop ticks both sides every {period_s:g} s)"
         if isinstance(side.plant, HardwareArm):
             return f"{role}: a real device (its driver is read and written from Python, once per tick)"
         if type(side.plant) is not MujocoArm:

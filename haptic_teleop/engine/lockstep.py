@@ -174,8 +174,14 @@ class Engine:
 
     def _init_arm_rest(self, parts: Any, loop: str) -> None:
         from haptic_teleop.engine.arm_loop import side_ticks, wire_payload_bytes
+        from haptic_teleop.scene.load import side_period_ticks
 
         self.arm_ticks = side_ticks(parts)
+        # Scene ticks per side tick (<side>.period_s; docs/arms.md, "A side's own period").
+        self.side_every = (
+            side_period_ticks(self.scene.config, "master"),
+            side_period_ticks(self.scene.config, "slave"),
+        )
         self.schema = parts.schema
         self.operator = parts.operator
         self.master, self.slave = parts.master.plant, parts.slave.plant
@@ -188,7 +194,7 @@ class Engine:
 
         self.compiled_reason = (
             compiled_arm_loop.compiled_reason_arm(
-                parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer
+                parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer, self.period_s
             )
             if loop != "python"
             else "loop 'python' asked for"

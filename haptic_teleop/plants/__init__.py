@@ -140,15 +140,32 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
         driver: JointDriver = dynamixel_driver(hw, kin.joints, limit)
     elif cfg.backend == "ur":
-        from haptic_teleop.plants.ur.driver import URTorqueDriver
+        from haptic_teleop.plants.ur.driver import URTaskDriver, URTorqueDriver
 
         assert hw.host is not None
-        ur = URTorqueDriver(hw.host)
-        driver, where = ur, hw.host
-        # Direct torque is beyond gravity: the UR controller compensates gravity itself, so the
-        # plant adds none; its contact is the controller's TCP wrench (the e-Series' F/T sensor).
+        where = hw.host
+        # The UR controller compensates gravity itself in every mode, so the plant adds none; its
+        # contact is the controller's TCP wrench (the e-Series' F/T sensor).
         gravity = False
-        wrench = lambda: ur.ur.state().tcp_wrench  # noqa: E731
+        if hw.control_mode == "torque":
+            ur = URTorqueDriver(hw.host)
+            driver = ur
+            wrench = lambda: ur.ur.state().tcp_wrench  # noqa: E731
+        else:  # force_mode, admittance: the bounded torque becomes a tool wrench (docs/ur.md)
+            lin, rot = hw.admittance_mass_kg, hw.admittance_inertia_kg_m2
+            dl, dr = hw.admittance_damping_n_s_per_m, hw.admittance_damping_nm_s_per_rad
+            task = URTaskDriver(
+                hw.host,
+                str(hw.control_mode),
+                lambda: kin.jacobian(rotational=True),
+                side_period_s(config, role),
+                force_mode_damping=hw.force_mode_damping,
+                speed_limits=hw.force_mode_speed_limits,
+                admittance_mass=(lin, lin, lin, rot, rot, rot),
+                admittance_damping=(dl, dl, dl, dr, dr, dr),
+            )
+            driver = task
+            wrench = task.tcp_wrench  # the TCP wrench of the tick's one read
     else:
         raise PlantError(f"{role}.backend {cfg.backend!r}: no driver for it here")
     return HardwareArm(
@@ -156,7 +173,7 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         kin,
         cfg.damping_nm_s_per_rad,
         cfg.start_q_rad,
-        config.scene.period_s,
+        side_period_s(config, role),
         role,
         torque_limit_nm=cfg.torque_limit_nm,
         gravity_compensation=gravity,
@@ -168,6 +185,12 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
         lockstep_clock=hw.device_clock == "lockstep",
         max_hold_s=hw.max_hold_s,
     )
+
+
+def side_period_s(config: Scene, role: str) -> float:
+    """A side's own control period: `<role>.period_s`, else the scene's (docs/arms.md)."""
+    p = getattr(config, role).period_s
+    return float(p) if p is not None else config.scene.period_s
 
 
 def dynamixel_driver(

@@ -140,18 +140,25 @@ def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys:
             f"{side}.hardware.{dxl_keys[0]}",
             getattr(hw, dxl_keys[0]),
             f"a Dynamixel key, and {side}.backend is ur; allowed for backend ur: host, control_mode, "
-            "start_tolerance_rad, ramp_in_s, device_clock, max_hold_s",
+            "force_mode_damping, force_mode_speed_limits, admittance_*, start_tolerance_rad, ramp_in_s, "
+            "device_clock, max_hold_s",
         )
     if hw.host is None:
         raise ConfigError(source, f"{side}.hardware.host", None, "required for backend ur: the controller's address")
-    if hw.control_mode != "torque":
+    if hw.control_mode is None:
+        raise ConfigError(
+            source,
+            f"{side}.hardware.control_mode",
+            None,
+            "required for backend ur; allowed: force_mode (UR's force control), admittance (speedL through "
+            "core/admittance.py), torque (direct torque, PolyScope 5.23 / 10.10 or later; docs/ur.md)",
+        )
+    if side == "master" and hw.control_mode != "torque":
         raise ConfigError(
             source,
             f"{side}.hardware.control_mode",
             hw.control_mode,
-            "allowed in the engine's arm tick: torque (direct joint torques beyond gravity, PolyScope 5.23 / 10.10 or "
-            "later); force_mode and admittance exist in the UR driver (plants/ur/driver.py) but the tick commands "
-            "joint torques through the pooled energy bound, and neither is wired into it yet (docs/hardware.md)",
+            "allowed for a UR master: torque (force_mode and admittance render the slave's task force on a tool)",
         )
     try:
         from haptic_teleop.plants.ur.driver import JOINTS
@@ -161,6 +168,24 @@ def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys:
         raise ConfigError(
             source, f"{side}.joints", list(joints), f"backend ur drives the UR's joints in order: {', '.join(JOINTS)}"
         )
+
+
+def side_period_ticks(config: Scene, side: str, source: str = "scene") -> int:
+    """How many scene ticks one of `side`'s ticks spans: `<side>.period_s` / scene.period_s, which
+    must be a whole number (docs/arms.md, "A side's own period"); 1 without the key."""
+    p = getattr(config, side).period_s
+    if p is None:
+        return 1
+    t = config.scene.period_s
+    k = round(p / t)
+    if k < 1 or abs(k * t - p) > 1e-9 * max(p, t):
+        raise ConfigError(
+            source,
+            f"{side}.period_s",
+            p,
+            f"allowed: a whole multiple of scene.period_s ({t:g} s), e.g. {t:g} or {2 * t:g}",
+        )
+    return int(k)
 
 
 def dynamixel_models() -> tuple[str, ...] | None:
@@ -205,6 +230,7 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                 "gravity_compensation",
                 "slew_nm_per_s",
                 "hardware",
+                "period_s",
             ):
                 if getattr(getattr(config, side), key) is not None:
                     raise ConfigError(
@@ -249,13 +275,14 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                     f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
                 )
         _check_hardware(source, side, cfg, joints, emulate, identify)
+        side_t = side_period_ticks(config, side, source) * config.scene.period_s
         hold = cfg.hardware.max_hold_s if cfg.hardware is not None else None
-        if hold is not None and not hold >= config.scene.period_s:
+        if hold is not None and not hold >= side_t * (1.0 - 1e-9):
             raise ConfigError(
                 source,
                 f"{side}.hardware.max_hold_s",
                 hold,
-                f"allowed: at least scene.period_s ({config.scene.period_s} s): a torque is held a period at least",
+                f"allowed: at least the side's period ({side_t:g} s): a torque is held a period at least",
             )
     op = config.operator
     if op.profile == "trace":

@@ -221,6 +221,35 @@ class HardwareConfig:
             "help": "ur: how the side's command reaches the robot (docs/hardware.md)",
         },
     )
+    force_mode_damping: float = field(
+        default=0.025,
+        metadata={
+            "min": 0.0,
+            "max": 1.0,
+            "help": "ur force_mode: URScript force_mode_set_damping (0 none .. 1 full; ur_rtde's default 0.025)",
+        },
+    )
+    force_mode_speed_limits: tuple[float, ...] = field(
+        default=(0.1, 0.1, 0.1, 0.5, 0.5, 0.5),
+        metadata={
+            "gt": 0.0,
+            "max": 10.0,
+            "help": "ur force_mode: the largest TCP speed along each compliant axis (m/s x3, rad/s x3)",
+        },
+    )
+    admittance_mass_kg: float = field(
+        default=2.0, metadata={"gt": 0.0, "max": 1000.0, "help": "ur admittance: the virtual mass per axis"}
+    )
+    admittance_damping_n_s_per_m: float = field(
+        default=400.0,
+        metadata={"gt": 0.0, "max": 1e6, "help": "ur admittance: the virtual damping (passive for > 0; > K T / 2)"},
+    )
+    admittance_inertia_kg_m2: float = field(
+        default=0.05, metadata={"gt": 0.0, "max": 100.0, "help": "ur admittance: the virtual inertia per axis"}
+    )
+    admittance_damping_nm_s_per_rad: float = field(
+        default=5.0, metadata={"gt": 0.0, "max": 1e5, "help": "ur admittance: the virtual rotational damping"}
+    )
     device_clock: str = field(
         default="real",
         metadata={
@@ -246,6 +275,10 @@ class HardwareConfig:
     )
 
     def __post_init__(self) -> None:
+        if len(self.force_mode_speed_limits) != 6:
+            raise ValueError(
+                f"force_mode_speed_limits needs 6 values (m/s x3, rad/s x3), got {list(self.force_mode_speed_limits)}"
+            )
         if self.signs is not None and any(s not in (-1, 1) for s in self.signs):
             raise ValueError(f"signs must each be +1 or -1, got {list(self.signs)}")
         if self.ids is not None and len(set(self.ids)) != len(self.ids):
@@ -284,6 +317,14 @@ class MasterConfig:
     )
     hardware: HardwareConfig | None = field(
         default=None, metadata={"help": "backend dynamixel or ur: the device (docs/hardware.md)"}
+    )
+    period_s: float | None = field(
+        default=None,
+        metadata={
+            "gt": 0.0,
+            "max": 1.0,
+            "help": "arms: the side's own control period, an integer multiple of scene.period_s (default: it)",
+        },
     )
 
     def __post_init__(self) -> None:
@@ -364,6 +405,14 @@ class SlaveConfig:
     )
     hardware: HardwareConfig | None = field(
         default=None, metadata={"help": "backend dynamixel or ur: the device (docs/hardware.md)"}
+    )
+    period_s: float | None = field(
+        default=None,
+        metadata={
+            "gt": 0.0,
+            "max": 1.0,
+            "help": "arms: the side's own control period, an integer multiple of scene.period_s (default: it)",
+        },
     )
 
     def __post_init__(self) -> None:

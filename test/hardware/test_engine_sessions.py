@@ -345,14 +345,15 @@ def test_a_session_with_the_slave_on_the_ur_emulator_in_direct_torque_mode(tmp_p
     assert json.loads((out / "timing.json").read_text())["realtime"] is True
 
 
-def test_ur_force_mode_and_admittance_are_refused_in_the_engine_with_the_reason() -> None:
+def test_a_ur_side_needs_a_control_mode_and_a_ur_master_only_direct_torque() -> None:
     from haptic_teleop.errors import ConfigError
 
     base = ["slave.backend=ur", "slave.hardware.host=127.0.0.1", "slave.damping_nm_s_per_rad=[3, 3, 3, 0.5, 0.5, 0.5]"]
-    for mode in ("force_mode", "admittance"):
-        with pytest.raises(ConfigError, match="allowed in the engine's arm tick: torque") as exc:
-            load_scene(find_scene("touch_ur5e_wall"), [*base, f"slave.hardware.control_mode={mode}"])
-        assert exc.value.key_path == "slave.hardware.control_mode"
+    with pytest.raises(ConfigError, match="required for backend ur; allowed: force_mode") as exc:
+        load_scene(find_scene("touch_ur5e_wall"), base)
+    assert exc.value.key_path == "slave.hardware.control_mode"
+    for mode in ("force_mode", "admittance", "torque"):  # every mode runs a slave
+        load_scene(find_scene("touch_ur5e_wall"), [*base, f"slave.hardware.control_mode={mode}"])
     with pytest.raises(ConfigError, match="a Dynamixel key") as exc:
         load_scene(
             find_scene("touch_ur5e_wall"), [*base, "slave.hardware.control_mode=torque", "slave.hardware.ids=[1]"]

@@ -26,6 +26,7 @@ from haptic_teleop.plants.mujoco_plant import SimSettings
 HOLD_OMEGA_RAD_PER_S = 40.0
 CART_STIFFNESS_N_PER_M = 8000.0
 CART_STIFFNESS_NM_PER_RAD = 400.0
+FORCE_HOLD_RATE_PER_S = 20.0  # force mode's non-compliant axes: velocity per unit of pose error
 
 
 class SimulatedUR:
@@ -70,9 +71,21 @@ class SimulatedUR:
         self.force_hold_rot = np.eye(3)
         self.force_damp = (force_damping_n_s_per_m, force_damping_nm_s_per_rad)
         self.tau_direct = np.zeros(self.n)
+        self.force_v = np.zeros(6)  # the force mode's admittance velocity (task frame)
+        self.force_damping_value = 0.025  # ur_rtde's control script sets this at its start
         self.tau_applied = np.zeros(self.n)
         self.ft_offset = np.zeros(6)
         self._mass = np.zeros((self.arm.model.nv, self.arm.model.nv))
+        # Energy flows of the plant since start (J), per controller period: the motors' work beyond
+        # gravity compensation tau^T dq, the joints' damping dissipation (its lower bound
+        # d dq^2 / T, as EBA credits it), the work the tool did on the environment (-f_env . dx),
+        # and the largest net motor work (work - dissipation) and tool work seen so far.
+        self._damping = np.array(self.arm.joint_damping())
+        self.motor_work_j = 0.0
+        self.dissipated_j = 0.0
+        self.env_work_j = 0.0
+        self.max_net_motor_work_j = 0.0
+        self.max_env_work_j = 0.0
 
     # ---------------------------------------------------------------- state
     def tcp_pose(self) -> np.ndarray:
@@ -128,11 +141,19 @@ class SimulatedUR:
             x, _ = self.arm.point()
             self.force_hold_pos = np.array(x)
             self.force_hold_rot = self.arm.orientation()
+            q, _ = self.arm.read()
+            self.q_ref = np.array(q)
+            self.force_v = np.zeros(6)
         self.mode = "force"
         self.force_frame = rotvec_to_matrix(np.asarray(frame[3:], dtype=float))
         self.force_sel = (np.asarray(selection) != 0).astype(float)
         self.force_wrench = np.array(wrench, dtype=float)
         self.force_limits = np.abs(np.array(limits, dtype=float))
+
+    def force_mode_set_damping(self, damping: float) -> None:
+        """URScript force_mode_set_damping: the share of the force-mode velocity lost per period with
+        no force (0..1); the virtual mass follows from it and the damping (module docstring)."""
+        self.force_damping_value = float(min(max(damping, 0.0), 1.0))
 
     def direct_torque(self, tau: np.ndarray) -> None:
         self.mode = "torque"
@@ -196,31 +217,48 @@ class SimulatedUR:
             if self._stopping and not self.twist_now.any():
                 self.mode, self.q_hold = "hold", self.q_ref.copy()
         elif self.mode == "force":
-            tau = self._force_torque()
+            qd_des = self._force_joint_velocity()
+            self.q_ref = self.q_ref + qd_des * self.period_s
+            tau = self._joint_pd(self.q_ref, qd_des, HOLD_OMEGA_RAD_PER_S)
         else:  # torque
             tau = self.tau_direct.copy()
+        q0 = np.array(self.arm.read()[0])
+        x0, _ = self.arm.point()
+        x0 = np.array(x0)
         self.tau_applied = self.arm.step(tau)
+        q1, _ = self.arm.read()
+        x1, _ = self.arm.point()
+        dq = np.asarray(q1) - q0
+        f_env, _ = self.arm.contact_wrench()
+        self.motor_work_j += float(self.tau_applied @ dq)
+        self.dissipated_j += float(self._damping @ (dq * dq)) / self.period_s
+        self.env_work_j -= float(np.asarray(f_env) @ (np.asarray(x1) - x0))
+        self.max_net_motor_work_j = max(self.max_net_motor_work_j, self.motor_work_j - self.dissipated_j)
+        self.max_env_work_j = max(self.max_env_work_j, self.env_work_j)
 
-    def _force_torque(self) -> np.ndarray:
+    def _force_joint_velocity(self) -> np.ndarray:
+        """Force mode as UR implements it, an admittance in velocity control: along each compliant
+        axis of the task frame M v' + D v = w + f_ext (w the commanded wrench, f_ext the measured TCP
+        wrench), discretised exactly for the period (v <- a v + (1 - a) (w + f_ext) / D with
+        a = 1 - force_mode_set_damping, so M = -D h / ln a), clipped at the axis' speed limit; along
+        the others a velocity back to the pose held at entry. The twist goes through the Jacobian's
+        pseudo-inverse into the joint reference the joint PD tracks."""
         j = self.arm.jacobian(rotational=True)
-        _, qd = self.arm.read()
         x, _ = self.arm.point()
         r = self.force_frame
-        v = j @ qd  # twist, base frame
-        v_task = np.concatenate([r.T @ v[:3], r.T @ v[3:]])
+        w_ext = self.tcp_force()  # the wrist sensor's reading (after zeroFtSensor)
+        ext = np.concatenate([r.T @ w_ext[:3], r.T @ w_ext[3:]])
+        damp = np.array([self.force_damp[0]] * 3 + [self.force_damp[1]] * 3)
+        a = 1.0 - self.force_damping_value
+        v = a * self.force_v + (1.0 - a) * (self.force_wrench + ext) / damp
+        v = np.clip(v, -self.force_limits, self.force_limits)
         e_pos = r.T @ (self.force_hold_pos - x)
         e_rot = r.T @ orientation_error(self.force_hold_rot, self.arm.orientation())
         s = self.force_sel
-        damp = np.array([self.force_damp[0]] * 3 + [self.force_damp[1]] * 3)
-        k = np.array([CART_STIFFNESS_N_PER_M] * 3 + [CART_STIFFNESS_NM_PER_RAD] * 3)
-        d_stiff = 2.0 * np.sqrt(k * np.array([10.0] * 3 + [0.1] * 3))
-        # compliant axes: the wrench, damping, and more damping beyond the speed limit
-        over = np.maximum(np.abs(v_task) - self.force_limits, 0.0) * np.sign(v_task)
-        w_c = self.force_wrench - damp * v_task - 10.0 * damp * over
-        w_s = k * np.concatenate([e_pos, e_rot]) - d_stiff * v_task
-        w_task = s * w_c + (1.0 - s) * w_s
-        w = np.concatenate([r @ w_task[:3], r @ w_task[3:]])
-        return np.asarray(j.T @ w)
+        v_task = s * v + (1.0 - s) * FORCE_HOLD_RATE_PER_S * np.concatenate([e_pos, e_rot])
+        self.force_v = s * v
+        twist = np.concatenate([r @ v_task[:3], r @ v_task[3:]])
+        return np.asarray(np.linalg.pinv(j) @ twist)
 
     def close(self) -> None:
         self.arm.close()

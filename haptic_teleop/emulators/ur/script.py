@@ -29,6 +29,7 @@ SPEEDL, SERVOL = 10, 24
 SPEED_STOP, SERVO_STOP = 15, 16
 PROTECTIVE_STOP, STOPL, STOPJ = 31, 33, 34
 SET_WATCHDOG, GET_JOINT_TORQUES = 35, 38
+FORCE_MODE_SET_DAMPING = 20
 DIRECT_TORQUE = 66
 STOP_SCRIPT = 255
 
@@ -48,6 +49,7 @@ class Robot(Protocol):
     def speed_stop(self, decel: float) -> None: ...
     def force_mode(self, frame: np.ndarray, selection: np.ndarray, wrench: np.ndarray, limits: np.ndarray) -> None: ...
     def direct_torque(self, tau: np.ndarray) -> None: ...
+    def force_mode_set_damping(self, damping: float) -> None: ...
     def zero_ft(self) -> None: ...
     def joint_torques(self) -> np.ndarray: ...
 
@@ -94,6 +96,7 @@ class ControlScript:
     running: bool = True
     executing: bool = False
     watchdog_hz: float = 0.0
+    force_mode_damping: float | None = None  # the last force_mode_set_damping
     protective_stop_requested: bool = False
     log: list[str] = field(default_factory=list)
 
@@ -155,6 +158,9 @@ class ControlScript:
             robot.speed_stop(float(self._d(0)[0]))
         elif cmd == ZERO_FT_SENSOR:
             robot.zero_ft()
+        elif cmd == FORCE_MODE_SET_DAMPING:
+            self.force_mode_damping = float(self._d(0)[0])
+            robot.force_mode_set_damping(self.force_mode_damping)
         elif cmd == SET_WATCHDOG:
             self.watchdog_hz = float(self._d(0)[0])
         elif cmd == PROTECTIVE_STOP:

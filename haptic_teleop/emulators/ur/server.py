@@ -577,6 +577,9 @@ class Server:
                     "watchdog_hz": 0.0 if s is None else s.watchdog_hz, "stop_reason": ctl.stop_reason,
                     "t_s": ctl.t_s, "cycles": ctl.cycles, "tau_nm": list(map(float, r.joint_torques())),
                     "script_log": [] if s is None else list(s.log),
+                    "force_mode_damping": None if s is None else s.force_mode_damping,
+                    "motor_work_j": r.motor_work_j, "dissipated_j": r.dissipated_j, "env_work_j": r.env_work_j,
+                    "max_net_motor_work_j": r.max_net_motor_work_j, "max_env_work_j": r.max_env_work_j,
                 }  # fmt: skip
             if cmd == "protective_stop":
                 ctl.protective_stop(str(req.get("reason", "injected")))

@@ -378,6 +378,13 @@ class URDriver:
         self._sent(self._require_control().forceModeStop(), "forceModeStop")
         self._modes.discard("force")
 
+    def force_mode_set_damping(self, damping: float) -> None:
+        """UR's force-mode damping (URScript force_mode_set_damping: 0 none .. 1 full), for the next
+        force mode."""
+        if not (0.0 <= damping <= 1.0):
+            raise HardwareError(f"force mode damping must be within 0..1, got {damping}")
+        self._sent(self._require_control().forceModeSetDamping(float(damping)), "forceModeSetDamping")
+
     def zero_ft_sensor(self) -> None:
         """Take the present TCP wrench as the sensor's zero."""
         self._sent(self._require_control().zeroFtSensor(), "zeroFtSensor")
@@ -450,6 +457,124 @@ class URTorqueDriver:
 
     def write(self, tau_nm: np.ndarray) -> np.ndarray:
         self._tau = self.ur.torque(tau_nm)
+        return self._tau.copy()
+
+    def stop(self) -> None:
+        self.ur.stop()
+
+
+def wrench_from_torque(jac6: np.ndarray, tau_nm: np.ndarray) -> np.ndarray:
+    """The tool wrench [f; m] (N, N m, base frame, torque about the tool point) whose joint torques
+    are `tau_nm`: the solution of J^T w = tau, exact for a 6-joint arm with a full-rank 6 x 6
+    Jacobian; least squares (the smallest wrench) near a singularity."""
+    j = np.asarray(jac6, dtype=float)
+    w, *_ = np.linalg.lstsq(j.T, np.asarray(tau_nm, dtype=float), rcond=1e-6)
+    return np.asarray(w, dtype=float)
+
+
+class URTaskDriver:
+    """The JointDriver (plants/hardware.py) of a UR arm commanded in task space (docs/ur.md, "Control
+    modes in a session"): `write(tau)` turns the side's bounded joint torques into the tool wrench
+    w = (J^T)^-1 tau (`jacobian`: the 6 x 6 Jacobian of the tool site at this tick's measured q,
+    which the hardware arm has set) and sends
+
+    - mode "force_mode": w through forceMode, every axis of the base frame compliant (the law's
+      torque holds the orientation), UR's force-mode damping (`force_mode_damping`,
+      force_mode_set_damping) and speed limits (`speed_limits`);
+    - mode "admittance": the twist of the project's admittance (core/admittance.py) driven by w and
+      the measured TCP wrench, through speedL.
+
+    `write` returns J^T w as sent (w clipped at the driver's force and torque limits): the torque the
+    ledger books. `read()`'s time is the controller's timestamp (the time the motion took on the
+    robot's own clock); its torque is the torque last booked (ur_rtde 1.6.5 reads no joint torque).
+    """
+
+    MODES = ("force_mode", "admittance")
+
+    def __init__(
+        self,
+        host: str,
+        mode: str,
+        jacobian: Callable[[], np.ndarray],
+        period_s: float,
+        watchdog_hz: float = 10.0,
+        force_mode_damping: float = 0.025,
+        speed_limits: Sequence[float] = (0.1, 0.1, 0.1, 0.5, 0.5, 0.5),
+        admittance_mass: Sequence[float] = (2.0, 2.0, 2.0, 0.05, 0.05, 0.05),
+        admittance_damping: Sequence[float] = (400.0, 400.0, 400.0, 5.0, 5.0, 5.0),
+        speed_acceleration_m_per_s2: float = 5.0,
+        max_force_n: float = 100.0,
+        max_torque_nm: float = 10.0,
+    ) -> None:
+        from haptic_teleop.core.admittance import Admittance, AdmittanceParams
+
+        if mode not in self.MODES:
+            raise HardwareError(f"UR task-space mode {mode!r}: allowed {', '.join(self.MODES)}")
+        self.mode = mode
+        self.ur = URDriver(host, control=True, watchdog_hz=watchdog_hz, max_force_n=max_force_n)
+        self.joints = JOINTS
+        self.torque_limit_nm = np.array(UR5E_TORQUE_LIMIT_NM)
+        self._jacobian = jacobian
+        self.force_mode_damping = float(force_mode_damping)
+        self.speed_limits = tuple(float(v) for v in speed_limits)
+        self.admittance = Admittance(AdmittanceParams(tuple(admittance_mass), tuple(admittance_damping), period_s))
+        self.acceleration = speed_acceleration_m_per_s2
+        self.max_force_n, self.max_torque_nm = max_force_n, max_torque_nm
+        self._tau = np.zeros(6)
+        self.wrench_sent = np.zeros(6)  # the last wrench commanded (force mode: to forceMode; admittance: its input)
+        self.twist_sent = np.zeros(6)
+        self.last: URState | None = None
+
+    def _sample(self, s: URState) -> JointSample:
+        self.last = s
+        return JointSample(q_rad=s.q_rad, qd_rad_per_s=s.qd_rad_per_s, tau_nm=self._tau.copy(), t_s=s.timestamp_s)
+
+    def tcp_wrench(self) -> np.ndarray:
+        """The environment's wrench on the tool at the last read (the controller's TCP force)."""
+        return np.zeros(6) if self.last is None else self.last.tcp_wrench.copy()
+
+    def start(self) -> JointSample:
+        self.ur.start()
+        try:
+            # The wrist sensor's zero in free space (UR's advice before force control; the scene's
+            # start-up check keeps the tool off the wall at start).
+            self.ur.zero_ft_sensor()
+            if self.mode == "force_mode":
+                self.ur.force_mode_set_damping(self.force_mode_damping)
+            self.admittance.reset()
+            self._send(np.zeros(6))
+        except BaseException:
+            self.ur.stop()
+            raise
+        return self._sample(self.ur.state())
+
+    def read(self) -> JointSample:
+        return self._sample(self.ur.state())
+
+    def _clip(self, w: np.ndarray) -> np.ndarray:
+        w = np.where(np.isfinite(w), w, 0.0)
+        f, m = w[:3], w[3:]
+        nf, nm = float(np.linalg.norm(f)), float(np.linalg.norm(m))
+        if nf > self.max_force_n:
+            f = f * (self.max_force_n / nf)
+        if nm > self.max_torque_nm:
+            m = m * (self.max_torque_nm / nm)
+        return np.concatenate([f, m])
+
+    def _send(self, w: np.ndarray) -> None:
+        self.wrench_sent = w
+        if self.mode == "force_mode":
+            self.ur.force_mode(w.tolist(), (0.0,) * 6, (1, 1, 1, 1, 1, 1), self.speed_limits)
+        else:
+            _, v = self.admittance.step(w, self.tcp_wrench())
+            self.twist_sent = v
+            self.ur.speed_l(v.tolist(), self.acceleration, 0.0)
+
+    def write(self, tau_nm: np.ndarray) -> np.ndarray:
+        jac = np.asarray(self._jacobian(), dtype=float)
+        w = self._clip(wrench_from_torque(jac, np.asarray(tau_nm, dtype=float)))
+        self._send(w)
+        self._tau = jac.T @ w
         return self._tau.copy()
 
     def stop(self) -> None:
