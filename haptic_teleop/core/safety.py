@@ -74,6 +74,12 @@ class SafetyFault:
     message: str
 
 
+HOLD_EXCESS_TOLERANCE_J = 1e-9
+"""An over-long hold whose excess is below this is not a fault: a hold a few microseconds past the
+budget with a tiny torque costs ~1e-16 J, rounding-level (docs/robustness.md, "Epsilon": 1e-15 to
+1e-11 J), a nanojoule is far below any physical effect and far above rounding."""
+
+
 @dataclass(frozen=True)
 class SafetyParams:
     """One side's safety settings, per joint in the plant's joint order.
@@ -376,7 +382,7 @@ class SafetyGuard:
         `excess_j` beyond its reservoir, and only stopping caps it there (docs/eba.md, "Late ticks
         on a real clock"). A zero torque held any time delivers nothing: no fault."""
         p = self.params
-        if not (hold_s > p.max_hold_s and excess_j > 0.0):
+        if not (hold_s > p.max_hold_s and excess_j > HOLD_EXCESS_TOLERANCE_J):
             return None
         return SafetyFault(
             "hold",

@@ -195,6 +195,9 @@ def test_the_guard_stops_the_side_after_a_hold_past_the_budget_with_torque():
     assert fault is None and out.tolist() == tau.tolist()
     out, fault = g.step(2 * T, np.zeros(2), tau, hold_s=9 * T, hold_excess_j=0.0)  # zero torque held: harmless
     assert fault is None and out.tolist() == tau.tolist()
+    # microseconds past the budget: an excess at rounding level (seen: 1e-16 J) is no fault
+    out, fault = g.step(2.5 * T, np.zeros(2), tau, hold_s=3.00001 * T, hold_excess_j=1e-16)
+    assert fault is None and out.tolist() == tau.tolist()
     out, fault = g.step(3 * T, np.zeros(2), tau, hold_s=9 * T, hold_excess_j=1e-4)
     assert fault is not None and fault.kind == "hold" and out.tolist() == [0.0, 0.0]
     assert "9.0 ms" in fault.message and "master.hardware.max_hold_s" in fault.message and "3 ms" in fault.message

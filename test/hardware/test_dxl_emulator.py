@@ -70,6 +70,16 @@ def sdk():
         p.closePort()
 
 
+def read_when_the_line_is_free(ph, port, servo_id, address, tries=10):
+    """A 4-byte READ, repeated while it times out behind traffic still on the emulated wire."""
+    for _ in range(tries):
+        value, result, error = ph.read4ByteTxRx(port, servo_id, address)
+        if result == COMM_SUCCESS:
+            assert error == 0
+            return value
+    raise AssertionError(f"servo {servo_id} did not answer a READ of {address} in {tries} tries: {result}")
+
+
 def s16(v):
     return v - (1 << 16) if v & 0x8000 else v
 
@@ -163,9 +173,11 @@ def test_constant_current_accelerates_in_the_sense_of_the_sign_and_viscous_joint
         gsw.addParam(2, [goal, 0])
         for _ in range(200):  # 0.2 s of lockstep time: 40 time constants I/b
             assert gsw.txPacket() == COMM_SUCCESS
-        vel_units = s32(ph.read4ByteTxRx(port, 1, t.ADDR_PRESENT_VELOCITY)[0])
+        # The 200 packets (4 kB, 41 ms at 1 Mbps) are on the emulated wire before the first read's
+        # reply can be: a read sent at once may time out in the SDK (about 34 ms) while they pass.
+        vel_units = s32(read_when_the_line_is_free(ph, port, 1, t.ADDR_PRESENT_VELOCITY))
         state = bus.state()
-        pos2 = s32(ph.read4ByteTxRx(port, 2, t.ADDR_PRESENT_POSITION)[0])
+        pos2 = s32(read_when_the_line_is_free(ph, port, 2, t.ADDR_PRESENT_POSITION))
     tau = goal * 2.69e-3 * k_true
     v_expected = tau / b  # rad/s, from the physics: I dv/dt = tau - b v
     v_read = vel_units * 0.229 * 2 * math.pi / 60

@@ -131,7 +131,7 @@ def test_a_stall_past_max_hold_stops_the_run_with_one_line_and_torque_off(tmp_pa
 def test_a_max_hold_shorter_than_the_period_is_refused_naming_the_key() -> None:
     from haptic_teleop.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"at least scene\.period_s") as exc:
+    with pytest.raises(ConfigError, match=r"at least the side's period") as exc:
         load_scene(find_scene(SCENE), ["master.backend=dynamixel", "master.hardware.max_hold_s=0.0005"], emulate=True)
     assert exc.value.key_path == "master.hardware.max_hold_s"
     ok = ["master.backend=dynamixel", "master.hardware.max_hold_s=0.004"]
