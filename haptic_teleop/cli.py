@@ -279,7 +279,21 @@ def build_parser() -> argparse.ArgumentParser:
     la = sub.add_parser("launch", help="run a scene live: ROS 2 nodes as processes over DDS")
     add_launch_arguments(la)
     la.set_defaults(func=cmd_launch)
+
+    em = sub.add_parser("emulate", help="serve an emulated device for the unmodified SDKs (docs/dynamixel.md)")
+    emd = em.add_subparsers(dest="device", required=True, metavar="DEVICE").add_parser(
+        "dynamixel", help="a Protocol 2.0 bus on a pseudo-terminal; prints PORT /dev/pts/N"
+    )
+    emd.add_argument("--config", required=True, help="a JSON file of the bus (BusConfig), or - for stdin")
+    emd.add_argument("--die-with-stdin", action="store_true", help="also stop when stdin is closed")
+    emd.set_defaults(func=cmd_emulate)
     return p
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from haptic_teleop.emulators.dynamixel.__main__ import main as emulate_dynamixel
+
+    return emulate_dynamixel(["--config", args.config, *(["--die-with-stdin"] if args.die_with_stdin else [])])
 
 
 def main(argv: list[str] | None = None) -> int:

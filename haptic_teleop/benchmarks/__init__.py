@@ -17,6 +17,7 @@ BENCHMARKS = {
     "accuracy": "haptic_teleop.benchmarks.accuracy",
     "memory": "haptic_teleop.benchmarks.memory",
     "recording": "haptic_teleop.benchmarks.recording",
+    "hardware": "haptic_teleop.benchmarks.hardware",
 }
 
 

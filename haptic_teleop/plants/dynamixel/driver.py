@@ -1,0 +1,769 @@
+"""A chain of Dynamixel X-series servos in current control, spoken to through `dynamixel_sdk`
+(Protocol 2.0), as a `JointDriver` (plants/hardware.py). docs/dynamixel_driver.md has the details.
+
+Per tick the driver puts two packets on the bus: one GROUP SYNC READ (or FAST SYNC READ) of the
+10-byte block Present Current(126) + Present Velocity(128) + Present Position(132) of every servo,
+and one GROUP SYNC WRITE of Goal Current(102) (no reply). Units come from `tables.py`.
+
+Joint convention: `q_rad = sign x (servo angle - zero_offset_rad)`, the servo angle being Present
+Position x 2 pi / 4096 (so `zero_offset_rad` is the servo's own angle at the joint's zero; 2048
+ticks = pi is the middle of a turn); velocity and torque take the same sign. The torque is
+Present Current x 2.69 mA x the joint's torque constant (N m/A, the datasheet's stall torque /
+stall current unless the configuration gives an identified one).
+
+Safety: the Bus Watchdog(98) is armed, so a servo stops when no instruction reaches it for
+`bus_watchdog_s` (the host died or hung); `stop()` (idempotent, never raises) writes Goal Current 0
+and Torque Enable 0 to every servo, twice; it runs from `with driver:`, `atexit` and every error
+this module raises. `torque_off_on_exit(...)` (used by `with driver:`) turns a SIGTERM into an
+exception while inside, so the `finally` that stops the servos runs.
+
+The SDK is imported in `start()` only, so this module imports without it.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import errno
+import math
+import os
+import re
+import select
+import signal
+import struct
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType, TracebackType
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.interrupt import Interrupted
+from haptic_teleop.plants.dynamixel import tables as T
+from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample
+
+SOURCE = "dynamixel chain"
+
+SDK_BAUD_RATES_BPS = (9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+"""Baud rates both a Baud Rate(8) code and `dynamixel_sdk`'s PortHandler accept (4.5 Mbps has a
+code but the SDK refuses it)."""
+
+WATCHDOG_UNITS_MAX = 127
+READ_BLOCK = T.STATE_BLOCK_SIZE  # Present Current(2) + Present Velocity(4) + Present Position(4)
+FAST_PART = READ_BLOCK + 4  # a FAST SYNC READ status carries error, id, data, CRC per servo
+_STATE = struct.Struct("<hii")  # Present Current (int16), Present Velocity (int32), Present Position (int32)
+
+START_TRIES = 3
+"""Tries of each start-up transaction (ping, read, write) before a servo counts as silent: a
+reply can miss the SDK's packet timeout once on a busy host."""
+
+SETTLE_S = 0.3
+"""After reads failed, how long the driver lets late replies pass before it pings a silent servo
+again to tell a vanished servo from a slow or noisy line."""
+
+_warned_not_usb: set[str] = set()
+
+
+@dataclass(frozen=True)
+class DynamixelJoint:
+    """One servo of the chain.
+
+    `current_limit` (register units of 2.69 mA) or `current_limit_a` (amperes; at most one of
+    them) is written to Current Limit(38) and clips every command; default: the model's maximum.
+    `torque_constant_nm_per_a`: default the model's (stall torque / stall current, tables.py)."""
+
+    name: str
+    id: int
+    model: str
+    sign: int = 1
+    zero_offset_rad: float = 0.0
+    torque_constant_nm_per_a: float | None = None
+    current_limit: int | None = None
+    current_limit_a: float | None = None
+
+    def __post_init__(self) -> None:
+        where = f"joints.{self.name}"
+        if not self.name:
+            raise ConfigError(SOURCE, "joints[].name", self.name, "allowed: a non-empty joint name")
+        if not 0 <= self.id <= T.MAX_ID:
+            raise ConfigError(SOURCE, f"{where}.id", self.id, f"allowed: a servo id 0..{T.MAX_ID}")
+        if self.model not in T.MODELS:
+            raise ConfigError(SOURCE, f"{where}.model", self.model, f"allowed: {', '.join(sorted(T.MODELS))}")
+        if self.sign not in (1, -1):
+            raise ConfigError(SOURCE, f"{where}.sign", self.sign, "allowed: +1 or -1")
+        if not math.isfinite(self.zero_offset_rad):
+            raise ConfigError(SOURCE, f"{where}.zero_offset_rad", self.zero_offset_rad, "allowed: a finite angle")
+        kt = self.torque_constant_nm_per_a
+        if kt is not None and not (math.isfinite(kt) and kt > 0):
+            raise ConfigError(SOURCE, f"{where}.torque_constant_nm_per_a", kt, "allowed: a number > 0 (N m/A)")
+        top = T.model(self.model).current_limit_max
+        if self.current_limit is not None and self.current_limit_a is not None:
+            raise ConfigError(
+                SOURCE, f"{where}.current_limit", self.current_limit, "give current_limit or current_limit_a, not both"
+            )
+        if self.current_limit is not None and not 1 <= self.current_limit <= top:
+            raise ConfigError(
+                SOURCE, f"{where}.current_limit", self.current_limit, f"allowed: 1..{top} units of 2.69 mA"
+            )
+        if self.current_limit_a is not None and not (0 < self.current_limit_a <= top * T.CURRENT_UNIT_A):
+            raise ConfigError(
+                SOURCE,
+                f"{where}.current_limit_a",
+                self.current_limit_a,
+                f"allowed: > 0 and <= {top * T.CURRENT_UNIT_A:.3f} A ({self.model})",
+            )
+
+    @property
+    def servo_model(self) -> T.ServoModel:
+        return T.model(self.model)
+
+    @property
+    def k_t_nm_per_a(self) -> float:
+        kt = self.torque_constant_nm_per_a
+        return self.servo_model.torque_constant_nm_per_a if kt is None else kt
+
+    @property
+    def current_limit_units(self) -> int:
+        if self.current_limit is not None:
+            return self.current_limit
+        if self.current_limit_a is not None:
+            return max(1, min(self.servo_model.current_limit_max, round(self.current_limit_a / T.CURRENT_UNIT_A)))
+        return self.servo_model.current_limit_max
+
+
+@dataclass(frozen=True)
+class DynamixelChainConfig:
+    """One bus (one USB adapter) of servos.
+
+    `bus_watchdog_s`: rounded up to 20 ms units, at most 127 x 20 ms. `fast_sync_read`: None (auto:
+    on when every servo's firmware answers FAST SYNC READ, v45+), True (required) or False.
+    `return_delay_time_s`: Return Delay Time(9), 0 recommended (the servo answers at once; the
+    factory 500 us costs 0.5 ms per servo per read). `read_timeout_s`: how long a read waits for
+    the status packets (None: the SDK's own, about 34 ms plus the wire time).
+    `max_consecutive_comm_errors`: reads in a row that may fail (timeout, corrupt packet) before
+    the driver stops with an error; a single failed read returns the last good sample marked stale.
+    """
+
+    port: str
+    joints: tuple[DynamixelJoint, ...]
+    baud_bps: int = 1_000_000
+    bus_watchdog_s: float = 0.1
+    fast_sync_read: bool | None = None
+    return_delay_time_s: float = 0.0
+    latency_timer_ms_max: int = 1
+    sysfs_root: str = "/sys/bus/usb-serial/devices"
+    read_timeout_s: float | None = None
+    max_consecutive_comm_errors: int = 3
+
+    def __post_init__(self) -> None:
+        if not self.port:
+            raise ConfigError(SOURCE, "port", self.port, "allowed: a serial device path such as /dev/ttyUSB0")
+        if not self.joints:
+            raise ConfigError(SOURCE, "joints", self.joints, "allowed: at least one servo")
+        if self.baud_bps not in SDK_BAUD_RATES_BPS:
+            raise ConfigError(SOURCE, "baud_bps", self.baud_bps, f"allowed: {', '.join(map(str, SDK_BAUD_RATES_BPS))}")
+        ids = [str(j.id) for j in self.joints]
+        names = [j.name for j in self.joints]
+        for label, values in (("id", ids), ("name", names)):
+            dup = sorted({v for v in values if values.count(v) > 1})
+            if dup:
+                raise ConfigError(SOURCE, f"joints[].{label}", ", ".join(dup), f"each {label} once on a bus")
+        top = WATCHDOG_UNITS_MAX * T.BUS_WATCHDOG_UNIT_S
+        if not (0 < self.bus_watchdog_s <= top + 1e-12):
+            raise ConfigError(SOURCE, "bus_watchdog_s", self.bus_watchdog_s, f"allowed: > 0 and <= {top:.2f} s")
+        rdt_top = 254 * T.RETURN_DELAY_UNIT_S
+        if not (0 <= self.return_delay_time_s <= rdt_top + 1e-12):
+            raise ConfigError(
+                SOURCE, "return_delay_time_s", self.return_delay_time_s, f"allowed: 0..{rdt_top:g} s (2 us units)"
+            )
+        if not 0 <= self.latency_timer_ms_max <= 255:
+            raise ConfigError(SOURCE, "latency_timer_ms_max", self.latency_timer_ms_max, "allowed: 0..255 ms")
+        if self.read_timeout_s is not None and not (0 < self.read_timeout_s <= 10):
+            raise ConfigError(SOURCE, "read_timeout_s", self.read_timeout_s, "allowed: > 0 and <= 10 s, or None")
+        if self.max_consecutive_comm_errors < 1:
+            raise ConfigError(SOURCE, "max_consecutive_comm_errors", self.max_consecutive_comm_errors, "allowed: >= 1")
+
+    @property
+    def bus_watchdog_units(self) -> int:
+        """Bus Watchdog(98) value: the period rounded up to 20 ms units."""
+        return max(1, min(WATCHDOG_UNITS_MAX, math.ceil(self.bus_watchdog_s / T.BUS_WATCHDOG_UNIT_S - 1e-9)))
+
+    @property
+    def return_delay_units(self) -> int:
+        return round(self.return_delay_time_s / T.RETURN_DELAY_UNIT_S)
+
+
+@dataclass(frozen=True)
+class DynamixelSample(JointSample):
+    """A `JointSample` with `stale`: 0 for a fresh read, else how many reads in a row failed (the
+    values and `t_s` are then those of the last good read)."""
+
+    stale: int = 0
+
+
+def wire_bytes_per_tick(n_servos: int, fast: bool) -> int:
+    """Bytes on the bus for one tick (one sync write of Goal Current, one sync read instruction of
+    the 10-byte state block, and its replies), without byte stuffing.
+
+    - SYNC WRITE: header 4 + id 1 + length 2 + instruction 1 + address 2 + size 2 + n x (id 1 +
+      data 2) + CRC 2 = 14 + 3 n;
+    - SYNC READ instruction: 14 + n (one id each);
+    - replies: SYNC READ: one status packet per servo, header 4 + id 1 + length 2 + instruction 1 +
+      error 1 + data 10 + CRC 2 = 21 bytes each; FAST SYNC READ: one packet, header 4 + id 1 +
+      length 2 + instruction 1 + n x (error 1 + id 1 + data 10 + CRC 2) = 8 + 14 n.
+    """
+    write = 14 + 3 * n_servos
+    read_instruction = 14 + n_servos
+    replies = 8 + FAST_PART * n_servos if fast else (11 + READ_BLOCK) * n_servos
+    return write + read_instruction + replies
+
+
+def wire_limit_hz(n_servos: int, baud_bps: int, fast: bool, return_delay_s: float = 0.0) -> float:
+    """Ticks per second the bus can carry: 1 / (bytes x 10 / baud + return delays)."""
+    delays = return_delay_s * (1 if fast else n_servos)
+    return 1.0 / (T.wire_time_s(wire_bytes_per_tick(n_servos, fast), baud_bps) + delays)
+
+
+class DynamixelDriver:
+    """`JointDriver` over one Dynamixel bus. Use as `with DynamixelDriver(cfg) as drv: drv.start(); ...`
+    (torque off on leaving the block, also on SIGTERM and Ctrl-C), or call `stop()` yourself."""
+
+    def __init__(self, config: DynamixelChainConfig) -> None:
+        self.config = config
+        js = config.joints
+        self.joints: tuple[str, ...] = tuple(j.name for j in js)
+        self._ids = [j.id for j in js]
+        self._sign = np.array([float(j.sign) for j in js])
+        self._offset = np.array([j.zero_offset_rad for j in js])
+        self._kt = np.array([j.k_t_nm_per_a for j in js])
+        self._limit = [j.current_limit_units for j in js]
+        self._limit_arr = np.array(self._limit, dtype=float)
+        self._nm_per_unit = self._kt * T.CURRENT_UNIT_A  # joint torque per current unit, before the sign
+        self.torque_limit_nm: np.ndarray = self._nm_per_unit * np.array(self._limit, dtype=float)
+        self.fast_sync_read_used = False
+        self.stale = 0  # reads in a row that failed (0: the last sample is fresh)
+        self.stale_reads = 0  # failed reads since start
+        self.reads = 0
+        self._last_fail = ""
+        self._last_fail_index: int | None = None
+        self._sample: DynamixelSample | None = None
+        self._raw_prev: np.ndarray | None = None
+        self._wrap = np.zeros(len(js))
+        self._last_comm_s = 0.0
+        self._sdk: Any = None
+        self._port: Any = None
+        self._ph: Any = None
+        self._gsw_current: Any = None
+        self._gsw_torque: Any = None
+        self._gsr: Any = None
+        self._started = False
+        self._stopped = False
+        self._guard: contextlib.ExitStack | None = None
+
+    # ------------------------------------------------------------------ naming
+
+    def _servo(self, k: int) -> str:
+        return f"servo {self._ids[k]} ({self.joints[k]}) on {self.config.port}"
+
+    def _fail(self, message: str) -> HardwareError:
+        """Torque off (best effort), then the error to raise."""
+        self.stop()
+        return HardwareError(message)
+
+    # ------------------------------------------------------------------ start
+
+    def start(self) -> DynamixelSample:
+        """Open the port, check the adapter and every servo, configure current control, torque on
+        with zero current; returns the first sample. Raises HardwareError (torque off first)."""
+        if self._started:
+            raise HardwareError(f"{self.config.port}: start() called twice; make a new DynamixelDriver")
+        self._started = True
+        import dynamixel_sdk as sdk  # type: ignore[import-untyped]
+
+        self._sdk = sdk
+        cfg = self.config
+        self._open_port()
+        atexit.register(self.stop)
+        self._check_latency_timer()
+        ph = self._ph
+        firmware: list[int] = []
+        for k, joint in enumerate(cfg.joints):
+            for _ in range(START_TRIES):
+                number, result, _ = ph.ping(self._port, joint.id)
+                if result == sdk.COMM_SUCCESS:
+                    break
+            if result != sdk.COMM_SUCCESS:
+                raise self._fail(
+                    f"servo {joint.id} ({joint.name}) does not answer on {cfg.port} at {cfg.baud_bps} bps "
+                    f"({self._result_text(result)}): check that it is powered (its LED blinks at power-on), "
+                    f"that its ID(7) is {joint.id} and its Baud Rate(8) is {cfg.baud_bps} bps (scan the bus with "
+                    f"Dynamixel Wizard), and the cables from the adapter along the chain"
+                )
+            want = joint.servo_model
+            if number != want.model_number:
+                found = T.MODELS_BY_NUMBER.get(number)
+                what = f"a {found.name}" if found else "an unknown model"
+                raise self._fail(
+                    f"{self._servo(k)} is {what} (model number {number}), but the configuration says "
+                    f"{want.name} (model number {want.model_number}): fix the joint's model, or its id if "
+                    f"two servos were swapped"
+                )
+            firmware.append(self._read(k, T.ADDR_FIRMWARE_VERSION, 1, "read Firmware Version(6)"))
+            status = self._read(k, T.ADDR_HARDWARE_ERROR_STATUS, 1, "read Hardware Error Status(70)")
+            if status:
+                raise self._fail(self._hardware_error_text(k, status))
+            if firmware[k] < T.BUS_WATCHDOG_MIN_FIRMWARE:
+                raise self._fail(
+                    f"{self._servo(k)} runs firmware v{firmware[k]}, which has no Bus Watchdog(98) (v"
+                    f"{T.BUS_WATCHDOG_MIN_FIRMWARE}+): update its firmware with Dynamixel Wizard"
+                )
+        fast_ok = all(f >= T.FAST_SYNC_READ_MIN_FIRMWARE for f in firmware)
+        if cfg.fast_sync_read and not fast_ok:
+            old = [k for k, f in enumerate(firmware) if f < T.FAST_SYNC_READ_MIN_FIRMWARE]
+            raise self._fail(
+                f"fast_sync_read is on but {self._servo(old[0])} runs firmware v{firmware[old[0]]} "
+                f"(FAST SYNC READ needs v{T.FAST_SYNC_READ_MIN_FIRMWARE}+): update it with Dynamixel Wizard, "
+                f"or leave fast_sync_read unset (auto) or false"
+            )
+        self.fast_sync_read_used = fast_ok if cfg.fast_sync_read is None else cfg.fast_sync_read
+        for k in range(len(self._ids)):
+            self._write(k, T.ADDR_TORQUE_ENABLE, 1, 0, "Torque Enable(64) = 0")
+            self._write(k, T.ADDR_OPERATING_MODE, 1, T.OPERATING_MODE_CURRENT, "Operating Mode(11) = 0 (current)")
+            self._write(k, T.ADDR_CURRENT_LIMIT, 2, self._limit[k], f"Current Limit(38) = {self._limit[k]}")
+            self._write(k, T.ADDR_RETURN_DELAY_TIME, 1, cfg.return_delay_units, "Return Delay Time(9)")
+            self._write(k, T.ADDR_BUS_WATCHDOG, 1, 0, "Bus Watchdog(98) = 0 (clears a tripped watchdog)")
+            self._write(k, T.ADDR_GOAL_CURRENT, 2, 0, "Goal Current(102) = 0")
+            self._write(k, T.ADDR_BUS_WATCHDOG, 1, cfg.bus_watchdog_units, "Bus Watchdog(98) armed")
+        port, ph = self._port, self._ph
+        self._gsw_current = sdk.GroupSyncWrite(port, ph, T.ADDR_GOAL_CURRENT, 2)
+        self._gsw_torque = sdk.GroupSyncWrite(port, ph, T.ADDR_TORQUE_ENABLE, 1)
+        self._gsr = sdk.GroupSyncRead(port, ph, T.STATE_BLOCK_ADDRESS, READ_BLOCK)
+        for i in self._ids:
+            self._gsw_current.addParam(i, [0, 0])
+            self._gsw_torque.addParam(i, [0])
+            self._gsr.addParam(i)
+        for k in range(len(self._ids)):
+            self._write(k, T.ADDR_TORQUE_ENABLE, 1, 1, "Torque Enable(64) = 1")
+        self._last_comm_s = time.monotonic()
+        for _ in range(cfg.max_consecutive_comm_errors):
+            sample = self.read()
+            if not sample.stale:
+                return sample
+        raise AssertionError("unreachable: read() raises after max_consecutive_comm_errors failures")
+
+    def _open_port(self) -> None:
+        sdk, cfg = self._sdk, self.config
+        where = f"{cfg.port}"
+        self._port = sdk.PortHandler(cfg.port)
+        self._ph = sdk.PacketHandler(2.0)
+        try:
+            self._port.openPort()
+            ok = self._port.setBaudRate(cfg.baud_bps)
+        except OSError as exc:
+            code = exc.errno
+            if code is None and exc.args and isinstance(exc.args[0], int):
+                code = exc.args[0]
+            if code == errno.ENOENT or not os.path.exists(cfg.port):
+                raise HardwareError(
+                    f"{where} does not exist: is the USB adapter (U2D2) plugged in? `ls /dev/ttyUSB* "
+                    f"/dev/serial/by-id/` lists the serial ports; set the chain's port to one of them"
+                ) from None
+            if code in (errno.EACCES, errno.EPERM):
+                raise HardwareError(
+                    f"{where}: permission denied: add yourself to the dialout group (`sudo usermod -aG dialout "
+                    f"$USER`, then log out and in) or install the udev rule of docs/dynamixel_driver.md"
+                ) from None
+            raise HardwareError(
+                f"{where} cannot be opened ({exc}): close any other program using it (Dynamixel Wizard, "
+                f"another haptic-teleop), or unplug and replug the adapter"
+            ) from None
+        if not ok:
+            raise self._fail(f"{where}: the SDK refused {cfg.baud_bps} bps; allowed: {SDK_BAUD_RATES_BPS}")
+
+    def _check_latency_timer(self) -> None:
+        cfg = self.config
+        names = (os.path.basename(cfg.port), os.path.basename(os.path.realpath(cfg.port)))
+        usb = next((n for n in names if re.fullmatch(r"ttyUSB\d+", n)), None)
+        if usb is None:
+            if cfg.port not in _warned_not_usb:
+                _warned_not_usb.add(cfg.port)
+                print(
+                    f"haptic-teleop: {cfg.port} is not a USB serial adapter (ttyUSBn): "
+                    f"the USB latency timer check does not apply",
+                    file=sys.stderr,
+                )
+            return
+        path = Path(cfg.sysfs_root) / usb / "latency_timer"
+        try:
+            value = int(path.read_text().strip())
+        except (OSError, ValueError) as exc:
+            print(f"haptic-teleop: {cfg.port}: cannot read {path} ({exc}): latency timer not checked", file=sys.stderr)
+            return
+        if value > cfg.latency_timer_ms_max:
+            raise self._fail(
+                f"{cfg.port}: the USB latency timer is {value} ms ({path}), above {cfg.latency_timer_ms_max} ms: "
+                f"every read would wait up to {value} ms for the adapter; set it to 1 ms: "
+                f"`echo 1 | sudo tee {Path(cfg.sysfs_root) / usb / 'latency_timer'}` (until the adapter is "
+                f"unplugged; the udev rule in docs/dynamixel_driver.md sets it for good)"
+            )
+
+    # ------------------------------------------------------------------ single register access (start-up)
+
+    def _result_text(self, result: int) -> str:
+        return str(self._ph.getTxRxResult(result)).replace("[TxRxResult] ", "").rstrip("!").lower()
+
+    def _status_fault(self, k: int, error: int, what: str) -> HardwareError:
+        if error & T.ALERT_BIT:
+            return self._hardware_fault(k)
+        text = T.STATUS_ERROR_TEXT.get(T.StatusError(error & 0x7F)) if error & 0x7F <= 7 else None
+        return self._fail(f"{self._servo(k)} refused to {what}: {text or f'status error 0x{error:02x}'}")
+
+    def _read(self, k: int, address: int, size: int, what: str) -> int:
+        ph, port, sdk = self._ph, self._port, self._sdk
+        for _ in range(START_TRIES):
+            data, result, error = ph.readTxRx(port, self._ids[k], address, size)
+            if result == sdk.COMM_SUCCESS:
+                break
+        if result != sdk.COMM_SUCCESS:
+            raise self._fail(
+                f"{self._servo(k)} did not answer to {what} ({self._result_text(result)}) at "
+                f"{self.config.baud_bps} bps: check its power and cable"
+            )
+        if error & 0x7F:
+            raise self._status_fault(k, error, what)
+        return T.int_from_bytes(bytes(data[:size]), False)
+
+    def _write(self, k: int, address: int, size: int, value: int, what: str) -> None:
+        ph, port, sdk = self._ph, self._port, self._sdk
+        data = list(T.int_to_bytes(value, size, value < 0))
+        for _ in range(START_TRIES):
+            result, error = ph.writeTxRx(port, self._ids[k], address, size, data)
+            if result == sdk.COMM_SUCCESS:
+                break
+        if result != sdk.COMM_SUCCESS:
+            raise self._fail(
+                f"{self._servo(k)} did not answer to the write {what} ({self._result_text(result)}) at "
+                f"{self.config.baud_bps} bps: check its power and cable"
+            )
+        if error:
+            raise self._status_fault(k, error, f"write {what}")
+
+    def _hardware_error_text(self, k: int, status: int) -> str:
+        return (
+            f"{self._servo(k)} reports a hardware error (Hardware Error Status(70) = 0x{status:02x}): "
+            f"{T.describe_hardware_error(status)}. The servo holds the error (and its torque off) until it "
+            f"is rebooted: REBOOT it with Dynamixel Wizard or power-cycle the chain, then start again"
+        )
+
+    def _hardware_fault(self, k: int) -> HardwareError:
+        """The Alert bit came back: read which hardware error (70), torque off, the error."""
+        self._port.is_using = False
+        data, result, _ = self._ph.readTxRx(self._port, self._ids[k], T.ADDR_HARDWARE_ERROR_STATUS, 1)
+        if result != self._sdk.COMM_SUCCESS:
+            return self._fail(
+                f"{self._servo(k)} signals a hardware error (Alert bit) but its Hardware Error Status(70) could "
+                f"not be read ({self._result_text(result)}): power-cycle the chain and read it with Dynamixel Wizard"
+            )
+        return self._fail(self._hardware_error_text(k, int(data[0])))
+
+    # ------------------------------------------------------------------ per tick
+
+    def read(self) -> DynamixelSample:
+        """One (fast) sync read of every servo's current, velocity and position, in SI units."""
+        if self._stopped or self._gsr is None:
+            raise self._not_running("read")
+        now = time.monotonic()
+        if self._last_comm_s and now - self._last_comm_s > self.config.bus_watchdog_units * T.BUS_WATCHDOG_UNIT_S:
+            self._check_watchdog(now - self._last_comm_s)
+        blocks = self._sync_read_fast() if self.fast_sync_read_used else self._sync_read()
+        self._last_comm_s = time.monotonic()
+        if blocks is None:
+            self.stale += 1
+            self.stale_reads += 1
+            if self.stale >= self.config.max_consecutive_comm_errors:
+                raise self._comm_fault()
+            assert self._sample is not None, "a failed first read"
+            s = self._sample
+            return DynamixelSample(s.q_rad, s.qd_rad_per_s, s.tau_nm, s.t_s, stale=self.stale)
+        self.stale = 0
+        self.reads += 1
+        state = np.array([_STATE.unpack_from(b) for b in blocks], dtype=float)  # current, velocity, position
+        raw = state[:, 2]
+        if self._raw_prev is not None:  # unwrap the 32-bit multi-turn count if it ever rolls over
+            d = raw - self._raw_prev
+            self._wrap -= np.where(d > 2**31, 2.0**32, 0.0) - np.where(d < -(2**31), 2.0**32, 0.0)
+        self._raw_prev = raw
+        ticks = raw + self._wrap
+        vel = state[:, 1]
+        cur = state[:, 0]
+        sign = self._sign
+        sample = DynamixelSample(
+            q_rad=sign * (ticks * T.POSITION_UNIT_RAD - self._offset),
+            qd_rad_per_s=sign * vel * T.VELOCITY_UNIT_RAD_PER_S,
+            tau_nm=sign * cur * self._nm_per_unit,
+            t_s=self._last_comm_s,
+        )
+        self._sample = sample
+        return sample
+
+    def _not_running(self, what: str) -> HardwareError:
+        state = "stopped (torque off)" if self._stopped else "not started"
+        return HardwareError(f"{self.config.port}: {what}() on a driver that is {state}; start a new DynamixelDriver")
+
+    def _miss(self, index: int | None, why: str) -> None:
+        """A failed read: why, and which servo's reply was missing (the first of a run of failures
+        is kept: a late reply delays the servos after it in the next reads)."""
+        self._last_fail = why
+        if self.stale == 0:
+            self._last_fail_index = index
+
+    def _sync_read(self) -> list[bytes] | None:
+        sdk, ph, port = self._sdk, self._ph, self._port
+        result = self._gsr.txPacket()
+        if result != sdk.COMM_SUCCESS:
+            raise self._fail(
+                f"{self.config.port}: could not send the sync read ({self._result_text(result)}): "
+                f"was the adapter unplugged?"
+            )
+        if self.config.read_timeout_s is not None:
+            port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
+        self._wait_for_bytes((11 + READ_BLOCK) * len(self._ids))
+        blocks: list[bytes] = []
+        for k, i in enumerate(self._ids):
+            data, result, error = ph.readRx(port, i, READ_BLOCK)
+            if result != sdk.COMM_SUCCESS:
+                self._miss(k, self._result_text(result))
+                return None
+            if error:
+                if error & T.ALERT_BIT:
+                    raise self._hardware_fault(k)
+                self._miss(k, f"status error 0x{error:02x}")
+                return None
+            blocks.append(bytes(data))
+        return blocks
+
+    def _sync_read_fast(self) -> list[bytes] | None:
+        sdk, ph, port = self._sdk, self._ph, self._port
+        result = self._gsr.fastSyncReadTxPacket()
+        if result != sdk.COMM_SUCCESS:
+            raise self._fail(
+                f"{self.config.port}: could not send the fast sync read ({self._result_text(result)}): "
+                f"was the adapter unplugged?"
+            )
+        if self.config.read_timeout_s is not None:
+            port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
+        n = len(self._ids)
+        self._wait_for_bytes(8 + FAST_PART * n)
+        data, result, _ = ph.fastSyncReadRx(port, T.BROADCAST_ID, FAST_PART * n)
+        if result != sdk.COMM_SUCCESS:
+            self._miss(None, self._result_text(result))
+            return None
+        if len(data) < FAST_PART * n:
+            self._miss(None, f"a fast sync read reply of {len(data)} bytes, expected {FAST_PART * n}")
+            return None
+        blocks: list[bytes] = []
+        alert: int | None = None
+        for k, i in enumerate(self._ids):
+            part = data[k * FAST_PART : (k + 1) * FAST_PART]
+            if part[1] != i:
+                self._miss(k, f"the fast sync read reply has id {part[1]} where servo {i} belongs")
+                return None
+            if part[0] & T.ALERT_BIT and alert is None:
+                alert = k
+            elif part[0] & 0x7F:
+                self._miss(k, f"status error 0x{part[0]:02x}")
+                return None
+            blocks.append(bytes(part[2 : 2 + READ_BLOCK]))
+        if alert is not None:
+            raise self._hardware_fault(alert)
+        return blocks
+
+    def _wait_for_bytes(self, n_bytes: int) -> None:
+        """Sleep in select() until the replies' bytes are in the input buffer, or the read's
+        timeout passed. The SDK then parses them without its busy poll (it reads with timeout 0 in
+        a loop), which would take a CPU from the emulator or the rest of the host."""
+        port = self._port
+        ser = port.ser
+        try:
+            fd = ser.fileno()
+        except (AttributeError, OSError, ValueError):
+            return
+        per_byte_s = 10.0 / self.config.baud_bps
+        deadline = time.monotonic() + port.packet_timeout / 1000.0 - port.getTimeSinceStart() / 1000.0
+        while True:
+            have = ser.in_waiting
+            if have >= n_bytes:
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            if have:  # part of the replies came: sleep for the rest's wire time
+                time.sleep(min(left, max(50e-6, (n_bytes - have) * per_byte_s)))
+            else:
+                select.select([fd], [], [], left)
+
+    def _comm_fault(self) -> HardwareError:
+        """Too many reads in a row failed: find which servo stopped answering (ping each), then the error."""
+        cfg, sdk = self.config, self._sdk
+        n_bad = self.stale
+        self._port.is_using = False
+        silent = list(range(len(self._ids)))
+        for settle_s in (0.0, SETTLE_S):  # a second round after late replies have left the line
+            time.sleep(settle_s)
+            still = []
+            for k in silent:
+                self._port.is_using = False
+                _, result, _ = self._ph.ping(self._port, self._ids[k])
+                if result != sdk.COMM_SUCCESS:
+                    still.append(k)
+            silent = still
+            if not silent:
+                break
+        if silent:
+            k = silent[0]
+            more = (
+                f" (also silent: {', '.join(f'servo {self._ids[j]} ({self.joints[j]})' for j in silent[1:])})"
+                if len(silent) > 1
+                else ""
+            )
+            return self._fail(
+                f"{self._servo(k)} stopped answering: {n_bad} reads in a row failed ({self._last_fail}) at "
+                f"{cfg.baud_bps} bps and it does not answer a ping{more}; check its power supply, the cable into "
+                f"it and the connectors along the chain; torque is off"
+            )
+        who = f"{self._servo(self._last_fail_index)}" if self._last_fail_index is not None else cfg.port
+        return self._fail(
+            f"{who}: {n_bad} reads in a row failed ({self._last_fail}) at {cfg.baud_bps} bps although every servo "
+            f"answers a ping: the replies come late or corrupted; check the cable and its length, the supply "
+            f"(noise), Return Delay Time(9), the USB latency timer, or lower the baud rate; torque is off"
+        )
+
+    def _check_watchdog(self, gap_s: float) -> None:
+        """The host was silent longer than the Bus Watchdog: did it trip?"""
+        self._port.is_using = False
+        for k, i in enumerate(self._ids):
+            for _ in range(START_TRIES):
+                data, result, _ = self._ph.readTxRx(self._port, i, T.ADDR_BUS_WATCHDOG, 1)
+                if result == self._sdk.COMM_SUCCESS:
+                    break
+            if result == self._sdk.COMM_SUCCESS and T.int_from_bytes(bytes(data[:1]), True) == -1:
+                raise self._fail(
+                    f"{self._servo(k)}: its Bus Watchdog(98) tripped (the host sent nothing for "
+                    f"{gap_s * 1000:.0f} ms, the watchdog is {self.config.bus_watchdog_units * 20} ms) and it "
+                    f"stopped: keep the loop reading and writing every tick (nothing slow between start() and "
+                    f"the loop), or raise bus_watchdog_s; torque is off"
+                )
+
+    def write(self, tau_nm: np.ndarray) -> np.ndarray:
+        """Goal Current for these joint torques (nearest unit, clipped to Current Limit, NaN -> 0)
+        in one sync write; returns the torques the servos will apply."""
+        if self._stopped or self._gsw_current is None:
+            raise self._not_running("write")
+        tau = np.asarray(tau_nm, dtype=float)
+        n = len(self._ids)
+        if tau.shape != (n,):
+            raise ValueError(f"write() takes {n} torques ({', '.join(self.joints)}), got shape {tau.shape}")
+        lim = self._limit_arr
+        wanted = tau * self._sign / self._nm_per_unit
+        wanted[np.isnan(wanted)] = 0.0
+        units_arr = np.clip(np.rint(wanted), -lim, lim)  # +-inf -> the limit
+        gsw = self._gsw_current
+        for i, u in zip(self._ids, units_arr.astype(np.int64).tolist(), strict=True):
+            gsw.changeParam(i, [u & 0xFF, (u >> 8) & 0xFF])
+        result = gsw.txPacket()
+        if result != self._sdk.COMM_SUCCESS:
+            raise self._fail(
+                f"{self.config.port}: could not send Goal Current ({self._result_text(result)}): "
+                f"was the adapter unplugged?"
+            )
+        self._last_comm_s = time.monotonic()
+        applied: np.ndarray = self._sign * units_arr * self._nm_per_unit
+        return applied
+
+    # ------------------------------------------------------------------ stop
+
+    def stop(self) -> None:
+        """Goal Current 0 and Torque Enable 0 to every servo (twice), close the port. Idempotent,
+        never raises."""
+        if self._stopped:
+            return
+        self._stopped = True
+        with contextlib.suppress(Exception):
+            atexit.unregister(self.stop)
+        port = self._port
+        if port is None or not getattr(port, "is_open", False):
+            return
+        port.is_using = False  # a signal may have landed inside a transaction
+        for _ in range(2):
+            with contextlib.suppress(Exception):
+                if self._gsw_current is not None:
+                    for i in self._ids:
+                        self._gsw_current.changeParam(i, [0, 0])
+                    self._gsw_current.txPacket()
+                    port.is_using = False
+            with contextlib.suppress(Exception):
+                if self._gsw_torque is not None:
+                    self._gsw_torque.txPacket()
+                else:  # stopped during start(): a broadcast WRITE (no servo replies to it)
+                    self._ph.write2ByteTxOnly(port, T.BROADCAST_ID, T.ADDR_GOAL_CURRENT, 0)
+                    port.is_using = False
+                    self._ph.write1ByteTxOnly(port, T.BROADCAST_ID, T.ADDR_TORQUE_ENABLE, 0)
+                port.is_using = False
+        with contextlib.suppress(Exception):
+            port.ser.flush()  # the bytes are on the wire before the port closes
+        with contextlib.suppress(Exception):
+            port.closePort()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+    def __enter__(self) -> DynamixelDriver:
+        self._guard = contextlib.ExitStack()
+        self._guard.enter_context(torque_off_on_exit(self))
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if self._guard is not None:
+            self._guard.close()
+            self._guard = None
+        self.stop()
+
+
+def _raise_interrupted(signum: int, frame: FrameType | None) -> None:
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
+    """Stop every driver when the block ends: normally, by an exception, by Ctrl-C or by SIGTERM.
+
+    Python's default SIGTERM ends the process without running `finally` blocks or `atexit`; while
+    inside, a SIGTERM and a SIGINT raise `interrupt.Interrupted` (a KeyboardInterrupt with
+    `exit_code` 143 or 130) instead, when the process has no handler of its own (the command
+    line's `interrupt.install()` has one: it raises or stops the loop, and the `finally` runs
+    either way). Main thread only for the handlers; the stop runs in any thread."""
+    previous: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            if signal.getsignal(sig) in (signal.SIG_DFL, signal.default_int_handler, None):
+                previous[sig] = signal.signal(sig, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for d in drivers:
+            d.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _is_a_joint_driver(driver: DynamixelDriver) -> JointDriver:
+    """For the type checker: DynamixelDriver satisfies the JointDriver protocol."""
+    return driver
