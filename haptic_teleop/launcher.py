@@ -149,18 +149,13 @@ def node_plan(
             scene.source, "device", device, "an arm scene runs its simulated arms only for now; allowed: plant"
         )
     if scene.config.is_arm:
-        for role in ("master", "slave"):
-            p = getattr(scene.config, role).period_s
-            if p is not None and abs(p - scene.config.scene.period_s) > 1e-12:
-                from haptic_teleop.errors import ConfigError
+        # A side's own period (<side>.period_s: whole scene periods, docs/arms.md): its node's loop
+        # ticks at it (nodes/arm_side.py). Checked here for one clear line before any node starts; a
+        # one-axis scene with the key never gets here (load_scene: "only for arm models").
+        from haptic_teleop.scene.load import side_period_ticks
 
-                raise ConfigError(
-                    scene.source,
-                    f"{role}.period_s",
-                    p,
-                    "the live nodes tick every side at scene.period_s; allowed here: none or scene.period_s "
-                    "(`haptic-teleop run` runs a side at its own period)",
-                )
+        for role in ("master", "slave"):
+            side_period_ticks(scene.config, role, scene.source)
     if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
         raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
     watchdog = {"watchdog": {"timeout_s": float(watchdog_timeout_s), "fade_s": float(watchdog_fade_s)}}

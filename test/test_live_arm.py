@@ -285,3 +285,93 @@ def test_ledger_restart_starts_afresh_and_the_next_step_books_no_period_before_i
     assert bound.energy_j == fresh.energy_j == params.initial_energy_j
     q2 = q + 1e-4
     assert np.array_equal(bound.step(q2, tau), fresh.step(q2, tau)) and bound.energy_j == fresh.energy_j
+
+
+# ------------------------------------------------------------------------------------------------
+# A side with its own period (<side>.period_s): the UR e-Series' 500 Hz beside the haptic 1 kHz.
+
+
+@pytest.fixture(scope="module")
+def slow_slave(tmp_path_factory):
+    """touch_ur5e_wall live, composed, for 1.5 s of scene time with the slave at 2 ms (500 Hz)."""
+    tmp = tmp_path_factory.mktemp("arm_slow_slave")
+    out = tmp / "run"
+    launch = Launch(SCENE, "--single-process", "--duration", "1.5", "--record", str(out), "--no-plots",
+                    "--set", "slave.period_s=0.002", cwd=tmp)  # fmt: skip
+    code = launch.finish(240)
+    print(launch.loop_table())
+    return code, launch, out
+
+
+@pytest.fixture(scope="module")
+def slow_slave_engine(tmp_path_factory):
+    """The engine's run of the same scene, duration and slave period, analysed."""
+    out = tmp_path_factory.mktemp("arm_slow_slave_engine") / "run"
+    r = subprocess.run([*CLI, "run", SCENE, "--set", "scene.duration_s=1.5", "--set", "slave.period_s=0.002",
+                        "--out", str(out), "--no-plots"], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    return json.loads((out / "summary.json").read_text())
+
+
+def _loop_ticks(table: str, node: str) -> int:
+    m = re.search(rf"^\s+{node}\s+(\d+)\s", table, re.MULTILINE)
+    assert m, table
+    return int(m.group(1))
+
+
+def _changed_rows(values: np.ndarray) -> np.ndarray:
+    """The rows whose values differ from the row before."""
+    return np.flatnonzero(np.any(np.diff(values, axis=0) != 0.0, axis=1)) + 1
+
+
+def test_live_slave_at_its_own_period_ticks_half_as_often_and_its_bag_holds_its_rows(slow_slave):
+    """slave.period_s = 2 scene periods: the slave node's loop runs every 2 ms (half the master's
+    ticks over the run, counted, not timed); in the bag the slave's rows change only on its own ticks
+    (scene ticks 0, 2, 4...: the start is on its grid) and repeat its last values in between, as the
+    engine records them, while the master's change every 1 ms; both margins from the bag >= 0."""
+    import yaml
+
+    from haptic_teleop.record.reader import BagReader
+
+    code, launch, out = slow_slave
+    assert code == 0, launch.text[-4000:]
+    assert "Traceback" not in launch.text
+    table = launch.loop_table()
+    m_ticks, s_ticks = _loop_ticks(table, "master_eba"), _loop_ticks(table, "slave_eba")
+    assert 0.4 <= s_ticks / m_ticks <= 0.6, table
+    with BagReader(out / "bag") as r:
+        scene = yaml.safe_load(r.string("/haptic_teleop/scene"))
+        sq = r.read("/slave/joint_states").values
+        mq = r.read("/master/joint_states").values
+        tool = r.read("/slave/tool_pose").values
+    assert scene["slave"]["period_s"] == 0.002  # the analysis' ledger of the slave runs at it
+    n = sq.shape[0]
+    assert n >= 1000, n
+    assert _changed_rows(sq).size >= 0.45 * n, _changed_rows(sq).size  # the arm's state changes on each of its ticks
+    for side_rows in (_changed_rows(sq), _changed_rows(tool)):
+        assert np.all(side_rows % 2 == 0), side_rows[side_rows % 2 != 0][:10]  # on its own ticks only
+        assert np.all(np.diff(side_rows) >= 2)  # at most every 2 ms of scene time
+    master_rows = _changed_rows(mq)
+    assert master_rows.size >= 0.9 * (n - 1), master_rows.size  # every 1 ms
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["ticks"] == n
+    for side in SIDES:
+        assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
+        assert summary[f"{side}_energy_margin_min_j"] >= 0.0, (side, summary)
+    info = json.loads((out / "live_run.json").read_text())
+    # Rows between the slave's ticks are its own period's holds, not samples lost on the way.
+    assert info["samples_filled"]["/slave/joint_states"] <= 0.05 * n, info["samples_filled"]
+
+
+def test_live_slave_at_its_own_period_pushes_on_the_wall_as_the_engines_does(slow_slave, slow_slave_engine):
+    """The live run with the slave at 2 ms and the engine's of the same scene: the same summary keys
+    and the same push on the wall (peak force within 10 %, the cross-mode tolerance): the slave arm
+    lives through every scene period (stepped twice per tick with its torque held), its ledger and
+    the analysis' run at its period."""
+    code, launch, out = slow_slave
+    assert code == 0, launch.text[-4000:]
+    summary = json.loads((out / "summary.json").read_text())
+    want = slow_slave_engine
+    assert set(summary) == set(want) - {"engine_loop"}
+    peak, ref = summary["contact_force_max_n"], want["contact_force_max_n"]
+    assert ref > 1.0 and abs(peak - ref) <= 0.1 * ref, (peak, ref)

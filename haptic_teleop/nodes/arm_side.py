@@ -47,14 +47,25 @@ class ArmEbaSide:
         from haptic_teleop.assembly import build_arm_parts
         from haptic_teleop.engine import compiled_arm_loop
         from haptic_teleop.engine.arm_loop import side_ticks
+        from haptic_teleop.plants import side_period_s
         from haptic_teleop.record.layouts import topic_specs
+        from haptic_teleop.scene.load import side_period_ticks
 
         self.role = role
         self.parts = parts = build_arm_parts(config)  # both arms: the mapping's offset needs both starts
         mt, st = side_ticks(parts)
         self.side = parts.master if role == "master" else parts.slave
+        # A side with its own period (<side>.period_s = `every` scene periods: docs/arms.md, "A side's
+        # own period") runs the node's loop at that period; its bound, watchdog and ledger restart
+        # count in it, and a simulated arm is stepped `every` scene periods per tick with the torque
+        # held, as the engine's loop does (engine/arm_loop.py).
+        self.every = side_period_ticks(config, role, f"parameters of node {node.get_name()}")
         # The engine's compiled tick of this side (numba), else the Python SideTick (same results).
-        self.tick, why = compiled_arm_loop.side_tick(self.side, parts, role == "master", mt if role == "master" else st)
+        fallback = mt if role == "master" else st
+        if self.every > 1:  # the compiled side tick steps its arm once per tick (as the engine's compiled loop)
+            self.tick, why = fallback, f"its own period {side_period_s(config, role):g} s"
+        else:
+            self.tick, why = compiled_arm_loop.side_tick(self.side, parts, role == "master", fallback)
         self.compiled = why is None
         if why is not None:
             node.get_logger().warning(f"{role} arm tick runs in Python, not compiled: {why}")
@@ -68,7 +79,7 @@ class ArmEbaSide:
         self.hardware = isinstance(self.plant, _hardware_arm())
         self.maps = parts.maps
         self.schema = parts.schema
-        self.period_s = config.scene.period_s
+        self.period_s = side_period_s(config, role)  # the side's own period (its loop's)
         self.watchdog = declare_watchdog(node, round(self.period_s * 1e9))
         self.limit_n = self.tick.limit
         axes = self.schema.task_axes
@@ -84,7 +95,7 @@ class ArmEbaSide:
         # graph settled is not spent inside the recorded run, whose analysis starts each side at
         # its initial energy (its true margin from the bag is then >= the ledger's, >= 0).
         self._start_sub = node.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
-        self._period_ns = round(self.period_s * 1e9)
+        self._scene_period_ns = round(config.scene.period_s * 1e9)  # scene time 0 is on the scene's grid
         self.restart_ns: int | None = None
         self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
@@ -117,8 +128,8 @@ class ArmEbaSide:
             told = take_all(self._start_sub)
             if not told:
                 return
-            self.restart_ns = scene_start_ns(told[-1], self._period_ns)
-        if stamp_ns >= self.restart_ns:
+            self.restart_ns = scene_start_ns(told[-1], self._scene_period_ns)
+        if stamp_ns >= self.restart_ns:  # the side's first tick at or after scene time 0 (on it: operator_source)
             bound = self.tick.bound
             e = min(bound.energy_j, bound.params.initial_energy_j)
             self.restarted_j = bound.energy_j - e
@@ -140,12 +151,17 @@ class ArmEbaSide:
         return q, qd, x, v
 
     def step(self, torque: np.ndarray, hand_force_n: np.ndarray | None = None) -> np.ndarray:
-        """The plant's `step` (compiled with the tick when it is); returns the torques applied."""
+        """The plant's `step` (compiled with the tick when it is); returns the torques applied. A
+        simulated arm with its own period is stepped `every` scene periods with the torque held (the
+        ledger takes the first step's applied torques, as the engine's loop); a real arm holds it."""
         if self.compiled:
             return self.tick.step(torque, hand_force_n)  # type: ignore[no-any-return]
         applied = self.plant.step(torque, hand_force_n)
         if self.hardware:
             self._hold()
+        else:
+            for _ in range(self.every - 1):
+                self.plant.step(torque, hand_force_n)
         return applied  # type: ignore[no-any-return]
 
     def _hold(self) -> None:
@@ -202,6 +218,7 @@ class ArmEbaSide:
             "malformed_samples": self.malformed_samples,
             "joint_limited_ticks": self.tick.limited_ticks,
             "arm_tick": "compiled" if self.compiled else "python",
+            "side_period_ticks": self.every,
             "ledger_restarted_discarding_j": self.restarted_j if self.restarted_j is not None else -1.0,
             **(holds if self.hardware else {}),
         }

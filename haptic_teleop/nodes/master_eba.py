@@ -133,14 +133,14 @@ class MasterEba(LiveNode):
         names = tuple(f"operator_{a}" for a in axes)
         self._read_hand = JointStateReader(("effort",), [(names, JOINT_ORDER)], len(axes))
         self._hand_dev = np.zeros(len(axes))  # the operator's hand force, device frame
-        self.setup_loop(round(cfg.scene.period_s * 1e9))
+        self.setup_loop(round(arm.period_s * 1e9))  # the side's own period (master.period_s), else the scene's
         if arm.hardware:  # a real arm: its operator is a real hand, nothing is commanded at the handle
             from haptic_teleop.nodes.arm_side import HARDWARE_SCHEDULING
 
             self.normal_scheduling(HARDWARE_SCHEDULING)
         self.get_logger().info(
             f"arm {cfg.master.model} ({', '.join(arm.schema.master_joints)}), period "
-            f"{cfg.scene.period_s * 1e3:g} ms, watchdog bound {arm.bound_ms():.0f} ms"
+            f"{arm.period_s * 1e3:g} ms, watchdog bound {arm.bound_ms():.0f} ms"
         )
 
     def _arm_tick(self, stamp_ns: int) -> None:

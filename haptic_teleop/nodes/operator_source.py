@@ -74,7 +74,17 @@ class OperatorSource(LiveNode):
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
         self._master: tuple[list[float], list[float]] | None = None
         self.arm: Any = None
+        # Scene time 0 is a tick of every side: with its own period (<side>.period_s, k scene periods)
+        # a side's loop ticks on stamps k * period, so the start is a multiple of every side's k (their
+        # least common multiple) and each side ticks at scene ticks 0, k, 2k... as in the engine.
+        self.start_every = 1
         if cfg.is_arm:
+            import math
+
+            from haptic_teleop.scene.load import side_period_ticks
+
+            where = f"parameters of node {self.get_name()}"
+            self.start_every = math.lcm(*(side_period_ticks(cfg, r, where) for r in ("master", "slave")))
             self._init_arm(cfg)
         else:
             self._master_sub = self.create_polled_subscription(JointState, MASTER_STATE, stream_qos(), raw=True)
@@ -153,7 +163,8 @@ class OperatorSource(LiveNode):
                 # Scene time 0: the first tick at least start.delay_s after now, announced now (latched)
                 # so every node knows it before it comes (the arm nodes restart their energy ledgers
                 # there: nodes/arm_side.py).
-                self.start_index = index + max(1, -(-self.start_delay_ns // self.period_ns))
+                first = index + max(1, -(-self.start_delay_ns // self.period_ns))
+                self.start_index = -(-first // self.start_every) * self.start_every
                 self._publish_start(self.start_index * self.period_ns)
                 self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
             elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:

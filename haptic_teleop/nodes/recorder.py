@@ -195,6 +195,10 @@ class Recorder(LiveNode):
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
         self._specs = topic_specs(self.schema)
         self._columns = state_columns(self.schema)
+        # A side with its own period (<side>.period_s = k scene periods) publishes every k-th scene
+        # tick: its rows repeat its last values in between (_on_grid), as the engine records them,
+        # and only a missed tick of its own counts as a filled sample.
+        self._every = {t: side_every(cfg, t) for t in self._columns}
         # Per topic, what was taken and not yet decoded: times (ns) and raw bytes in two lists, not
         # (time, bytes) tuples: ints and bytes are no work for the garbage collector, thousands of
         # live tuples a second would be (each collection pauses every loop of the process).
@@ -411,6 +415,11 @@ class Recorder(LiveNode):
             pend = self._pending[topic]
             idx, vals = pend.take(a, b, first=a == self.start_tick)
             grid, missing, pend.carry = _on_grid(idx - a, vals, n, pend.carry)
+            every = self._every[topic]
+            if every > 1:  # its own ticks in [a, b) less the rows that got a sample
+                start = self.start_tick or 0
+                own = -(-(b - start) // every) - -(-(a - start) // every)
+                missing = max(0, own - int(np.unique(idx[(idx >= a) & (idx < b)]).size))
             pend.filled += missing
             data[:, list(cols)] = grid
         start = self.start_tick
@@ -539,6 +548,17 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
         "slave_backend": cfg.slave.backend,
     }
     return TickSchema(master.joints, slave.joints, 3), facts
+
+
+def side_every(cfg: Any, topic: str) -> int:
+    """How many scene ticks apart `topic`'s samples come: its side's own period over the scene's
+    (<side>.period_s, arm scenes) for /master/* and /slave/*, else 1."""
+    role = topic.split("/")[1] if topic.count("/") >= 2 else ""
+    if not cfg.is_arm or role not in ("master", "slave"):
+        return 1
+    from haptic_teleop.scene.load import side_period_ticks
+
+    return side_period_ticks(cfg, role)
 
 
 def mark_late(rows: np.ndarray, late: set[int], f: dict[str, int]) -> int:

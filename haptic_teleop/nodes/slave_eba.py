@@ -34,7 +34,7 @@ class SlaveEba(LiveNode):
 
             self.arm = self.side = ArmEbaSide(self, "slave", cfg)
             self.plant = self.arm.plant
-            self.setup_loop(period_ns)
+            self.setup_loop(round(self.arm.period_s * 1e9))  # the side's own period (slave.period_s), else the scene's
             if self.arm.hardware:
                 from haptic_teleop.nodes.arm_side import HARDWARE_SCHEDULING
 
@@ -42,7 +42,8 @@ class SlaveEba(LiveNode):
             w = cfg.slave.wall
             self.get_logger().info(
                 f"arm {cfg.slave.model} ({', '.join(self.arm.schema.slave_joints)}), wall through "
-                f"{list(w.point_m or ())} m, normal {list(w.normal or ())}, watchdog bound {self.arm.bound_ms():.0f} ms"
+                f"{list(w.point_m or ())} m, normal {list(w.normal or ())}, period {self.arm.period_s * 1e3:g} ms, "
+                f"watchdog bound {self.arm.bound_ms():.0f} ms"
             )
             return
         self.side = EbaSide(self, "slave", cfg)

@@ -237,13 +237,17 @@ def test_sigterm_mid_session_in_the_admittance_mode_stops_the_robot_and_keeps_th
     assert json.loads((out / "timing.json").read_text())["interrupted"] is True
 
 
-def test_the_live_nodes_refuse_a_side_period() -> None:
+def test_the_live_nodes_plan_a_side_period_and_a_one_axis_scene_refuses_the_key() -> None:
+    """The live nodes run a side at its own period (test/test_live_arm.py runs it): the plan
+    passes `slave.period_s` to the EBA nodes; on a one-axis scene the key is one clear error."""
     from haptic_teleop.errors import ConfigError
     from haptic_teleop.launcher import node_plan
 
     scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.002"])
-    with pytest.raises(ConfigError, match=r"live nodes tick every side at scene\.period_s") as exc:
-        node_plan(scene)
+    plan = {s.name: s.params for s in node_plan(scene)}
+    assert plan["slave_eba"]["slave"]["period_s"] == 0.002 and plan["master_eba"]["slave"]["period_s"] == 0.002
+    with pytest.raises(ConfigError, match=r"only for arm models") as exc:
+        load_scene(find_scene("wall_contact"), ["slave.period_s=0.002"])
     assert exc.value.key_path == "slave.period_s"
 
 
