@@ -369,6 +369,10 @@ class Identifier:
             return True
 
         blocks = 0
+        # Each pass goes the other way from the last one (the plan's +, -, +, ... from where the joint
+        # really is): a pass the range turned round is followed by one the other way, so every speed
+        # keeps its passes in both directions.
+        last = -passes[0].prefer if passes else 1
         dropped = plan.dropped_speeds_rad_per_s
         pass_index = 0
         while pass_index < len(passes) and not self._stop:
@@ -376,7 +380,7 @@ class Identifier:
             pass_index += 1
             report(pass_index - 1)
             rng = (free[0], free[1])
-            sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, p.prefer)
+            sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, -last)
             if sign == 0:
                 move = reposition(
                     float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, p.speed_rad_per_s, exc.accel_rad_per_s2
@@ -385,12 +389,14 @@ class Identifier:
                     sign = 0  # the move found an obstacle: re-plan below
                 else:
                     rng = (free[0], free[1])
-                    sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, p.prefer)
+                    sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, -last)
                     if sign == 0:
                         rejected["no room"] += 1
                         continue
-            if sign != 0 and run_pass(p, sign):
-                continue
+            if sign != 0:
+                last = sign
+                if run_pass(p, sign):
+                    continue
             # An obstacle narrowed the free range: re-plan the passes in it and run them from the
             # start (the samples taken so far are kept: they were measured clear of it).
             blocks += 1
