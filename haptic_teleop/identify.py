@@ -141,7 +141,8 @@ _REASON = {
     "clamp": "clamp (torque at its clamp: raise torque_fraction, lower the speeds, check the gravity model)",
     "stale": "stale (repeated reads: check the bus, baud rate and the USB latency timer)",
     "speed": "speed (speed not held within 20 %: raise the velocity bandwidth or torque_fraction)",
-    "unsteady": "unsteady (speed drifted > 20 % across the window: lengthen settle_s)",
+    "unsteady": "unsteady (speed drifted > 20 % across the window: the loop still settling or the joint meeting "
+    "resistance)",
     "no room": "no room (no pass fitted where the joint stood)",
 }
 
