@@ -20,7 +20,7 @@ from haptic_teleop.plants.kinematics import ArmKinematics
 from haptic_teleop.scene.load import find_scene, load_scene
 
 SETS = ["slave.backend=dynamixel"]
-REPEATS = 1  # the command's default is 2; one run of the speed list keeps this test near 45 s (2: about 90 s)
+REPEATS = 1  # the command's default is 2; one run of the speed list keeps this test at 18 to 46 s here (2: about twice)
 
 
 def test_the_scenes_emulated_slave_is_identified_within_10_percent() -> None:
