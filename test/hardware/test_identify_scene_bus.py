@@ -3,8 +3,8 @@ touch_dynamixel_wall --side slave --set slave.backend=dynamixel` runs it: the Dy
 command builds from the scene, against the bus emulator with the scene's own bus config
 (emulate.bus_config: true viscous = the scene's damping, Coulomb = the model's), the wall in
 place. The wall stops the elbow's positive passes (q about -0.88 rad with the shoulder at 0.6): the
-excitation must find that obstacle and plan short of it (docs/identify.md, "An obstacle in the
-range")."""
+excitation must find that obstacle and plan short of it (docs/identify.md,
+"Obstacles" and "The bundled scene's own bus")."""
 
 from __future__ import annotations
 
