@@ -119,12 +119,32 @@ def format_table(result: IdentifyResult, truth: Truth | None, joints: tuple[str,
         if ji.dropped_speeds_rad_per_s:
             speeds = ", ".join(f"{s:g}" for s in ji.dropped_speeds_rad_per_s)
             notes.append(f"{ji.joint}: speeds left out (no room in the joint's range): {speeds} rad/s")
+        if ji.rejected_by:
+            notes.append(f"{ji.joint}: windows rejected: " + "; ".join(f"{n} {_REASON[r]}" for r, n in ji.rejected_by))
+        if ji.narrowed and ji.range_rad is not None:
+            lo, hi = ji.range_rad
+            notes.append(
+                f"{ji.joint}: an obstacle stopped the joint; its passes were planned in [{lo:.3f}, {hi:.3f}] rad "
+                "(clear it or move the other joints' start positions to use the whole range)"
+            )
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip() for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
     z = next((ji.fit.z for ji in result.joints if ji.fit is not None), Z_DEFAULT)
     lines.append(f"safe b = max(0, b - {z:g} se): the largest damping EBA may assume (c is not used by EBA)")
     return "\n".join(lines + notes)
+
+
+_REASON = {
+    "blocked": "blocked (the joint stalled against an obstacle; the passes were re-planned short of it)",
+    "guard": "guard (braked at the range's end: widen the range or lower the speeds)",
+    "clamp": "clamp (torque at its clamp: raise torque_fraction, lower the speeds, check the gravity model)",
+    "stale": "stale (repeated reads: check the bus, baud rate and the USB latency timer)",
+    "speed": "speed (speed not held within 20 %: raise the velocity bandwidth or torque_fraction)",
+    "unsteady": "unsteady (speed drifted > 20 % across the window: the loop still settling or the joint meeting "
+    "resistance)",
+    "no room": "no room (no pass fitted where the joint stood)",
+}
 
 
 def _err(estimate: float, true: float) -> str:

@@ -41,6 +41,13 @@ from haptic_teleop.plants.hardware import JointDriver, JointSample
 from haptic_teleop.plants.kinematics import ArmKinematics
 
 MAX_CATCH_UP = 10  # periods a paced loop may lag before its deadline grid is re-anchored
+STALL_S = 0.1  # clamped and nearly still this long while driven: the joint is blocked (an obstacle)
+STALL_SPEED_SHARE = 0.25  # "nearly still": below this share of the speed reference
+MAX_BLOCKS = 4  # obstacles found per joint before the joint is given up (each one narrows its range)
+STEADY_SHARE = 0.2  # a window's speed may change by at most this share of the pass speed across it
+
+# Why a measure window was not used (JointIdentification.rejected_by), in the order reported.
+REASONS = ("blocked", "guard", "clamp", "stale", "speed", "unsteady", "no room")
 
 
 class IdentifyFault(PlantError):
@@ -77,8 +84,13 @@ class Progress:
 @dataclass(frozen=True)
 class JointIdentification:
     """One joint's result: the fit (None if it failed: `error` says why), the samples it used,
-    the speeds left out for the range, the windows discarded (guard, torque clamp or stale reads in
-    more than 5 % of the window, speed not held within 20 %)."""
+    the speeds left out for the range, the windows discarded and why (`rejected_by`, reason ->
+    count, reasons of REASONS: "blocked" the joint stalled against an obstacle in that pass,
+    "guard" the range guard braked it, "clamp" / "stale" the torque clamp bound or reads were
+    stale in more than 5 % of the window, "speed" the mean speed was not within 20 % of the pass
+    speed, "unsteady" the speed changed by more than 20 % of it across the window, "no room" no
+    pass fitted where the joint was), and the range the passes were planned in (`range_rad`: the
+    model's, narrowed to where an obstacle stopped the joint; `narrowed` then True)."""
 
     joint: str
     fit: FrictionFit | None
@@ -87,6 +99,9 @@ class JointIdentification:
     dropped_speeds_rad_per_s: tuple[float, ...]
     rejected_windows: int
     error: str | None = None
+    rejected_by: tuple[tuple[str, int], ...] = ()
+    range_rad: tuple[float, float] | None = None
+    narrowed: bool = False  # an obstacle stopped the joint inside its model range
 
 
 @dataclass
@@ -206,8 +221,11 @@ class Identifier:
         exc, g, dt = self.exc, self.gains, self.period_s
         j = self.driver.joints.index(name)
         plan = self.plans[name]
-        rng = self._range(j)
-        lo, hi = rng
+        lo, hi = self._range(j)  # the model's range: leaving it is a fault
+        # Where the passes may go: the model's range, narrowed to where an obstacle (a wall, a cable,
+        # the arm's own links) stopped the joint; the range guard brakes at its ends.
+        free = [lo, hi]
+        passes = list(plan.passes)
         self.kin.set_q(sample.q_rad)
         m_diag = np.maximum(np.diag(self.kin.mass_matrix()), 1e-9)
         wv = 2.0 * math.pi * g.velocity_bandwidth_hz
@@ -263,9 +281,7 @@ class Identifier:
         def report(pass_index: int) -> None:
             if self.progress is not None:
                 self.progress(
-                    Progress(
-                        name, k, len(self.names), pass_index, len(plan.passes), self._result.ticks, self.total_ticks
-                    )
+                    Progress(name, k, len(self.names), pass_index, len(passes), self._result.ticks, self.total_ticks)
                 )
 
         # Hold still first: the PD takes over from wherever the arm is.
@@ -278,27 +294,44 @@ class Identifier:
             guard(sample)
         velocities: list[float] = []
         frictions: list[float] = []
-        rejected = 0
+        rejected = dict.fromkeys(REASONS, 0)
+        stall_ticks = round(STALL_S / dt)
 
-        def run_pass(p: Pass, sign: int) -> None:
-            nonlocal sample, rejected
+        def run_pass(p: Pass, sign: int) -> bool:
+            """Run pass p in direction `sign`; False if an obstacle stopped the joint (the free
+            range is narrowed to where it stood, the pass is cut short)."""
+            nonlocal sample
             window = Window() if p.measure else None
-            bad = 0
+            clamped = stale = still = 0
             guarded = False
             for step in range(round(p.duration_s / dt)):
                 if self._stop:
-                    return
+                    return True
                 t = step * dt
                 q = float(sample.q_rad[j])
-                edge = (hi - 0.5 * exc.margin_rad - q) if sign > 0 else (q - lo - 0.5 * exc.margin_rad)
+                edge = (free[1] - 0.5 * exc.margin_rad - q) if sign > 0 else (q - free[0] - 0.5 * exc.margin_rad)
                 speed = p.velocity(t)
                 cap = brake_speed(edge, exc.accel_rad_per_s2)
                 if cap < speed:
                     speed, guarded = cap, guarded or p.in_window(t)
                 tau, saturated = control(sample, sign * speed)
+                # Blocked: the excitation torque at its clamp and the joint nearly still while driven.
+                moving = sign * float(sample.qd_rad_per_s[j]) >= STALL_SPEED_SHARE * speed
+                still = still + 1 if (saturated and speed > 0.0 and not moving) else 0
+                if still >= stall_ticks:
+                    if sign > 0:
+                        free[1] = min(free[1], q)
+                    else:
+                        free[0] = max(free[0], q)
+                    state["integ"] = 0.0  # let go of the obstacle
+                    state["vref_prev"] = 0.0
+                    if p.measure:
+                        rejected["blocked"] += 1
+                    return False
                 applied, nxt = self._tick(tau)
                 if window is not None and p.in_window(t):
-                    bad += int(saturated) + int(getattr(sample, "stale", 0) > 0)  # a repeated (stale) read
+                    clamped += int(saturated)
+                    stale += int(getattr(sample, "stale", 0) > 0)  # a repeated (stale) read
                     window.add(
                         t,
                         float(sample.qd_rad_per_s[j]),
@@ -310,32 +343,68 @@ class Identifier:
                 if self.progress is not None and self._result.ticks % 100 == 0:
                     report(pass_index)
             if window is None or window.count == 0:
-                return
+                return True
             self.kin.set_q(sample.q_rad)
             v, tau_f = window.sample(self.kin.mass_matrix()[j])
             target = sign * p.speed_rad_per_s
-            if guarded or bad > 0.05 * window.count or abs(v - target) > 0.2 * p.speed_rad_per_s:
-                rejected += 1
-                return
+            drift = abs(float(window.mean_acceleration()[j])) * p.measure_s  # speed change across it
+            reason = (
+                "guard"
+                if guarded
+                else "clamp"
+                if clamped > 0.05 * window.count
+                else "stale"
+                if stale > 0.05 * window.count
+                else "speed"
+                if abs(v - target) > 0.2 * p.speed_rad_per_s
+                else "unsteady"
+                if drift > STEADY_SHARE * p.speed_rad_per_s
+                else None
+            )
+            if reason is not None:
+                rejected[reason] += 1
+                return True
             velocities.append(v)
             frictions.append(tau_f)
+            return True
 
-        for pass_index, p in enumerate(plan.passes):
-            if self._stop:
-                break
-            report(pass_index)
-            sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, p.prefer)
+        blocks = 0
+        # Each pass goes the other way from the last one (the plan's +, -, +, ... from where the joint
+        # really is): a pass the range turned round is followed by one the other way, so every speed
+        # keeps its passes in both directions.
+        last = -passes[0].prefer if passes else 1
+        dropped = plan.dropped_speeds_rad_per_s
+        pass_index = 0
+        while pass_index < len(passes) and not self._stop:
+            p = passes[pass_index]
+            pass_index += 1
+            report(pass_index - 1)
+            rng = (free[0], free[1])
+            sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, -last)
             if sign == 0:
                 move = reposition(
                     float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, p.speed_rad_per_s, exc.accel_rad_per_s2
                 )
-                if move is not None:
-                    run_pass(move, move.prefer)
-                sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, p.prefer)
-                if sign == 0:
-                    rejected += 1
+                if move is not None and not run_pass(move, move.prefer):
+                    sign = 0  # the move found an obstacle: re-plan below
+                else:
+                    rng = (free[0], free[1])
+                    sign = choose_direction(float(sample.q_rad[j]), rng, exc.margin_rad, p.travel_rad, -last)
+                    if sign == 0:
+                        rejected["no room"] += 1
+                        continue
+            if sign != 0:
+                last = sign
+                if run_pass(p, sign):
                     continue
-            run_pass(p, sign)
+            # An obstacle narrowed the free range: re-plan the passes in it and run them from the
+            # start (the samples taken so far are kept: they were measured clear of it).
+            blocks += 1
+            if blocks > MAX_BLOCKS:
+                break
+            replanned = plan_passes(exc, (free[0], free[1]))
+            passes, dropped, pass_index = list(replanned.passes), replanned.dropped_speeds_rad_per_s, 0
+            self.total_ticks += round(replanned.duration_s / dt)
         if self._stop:
             return sample, None  # a joint not finished is left out
         fit: FrictionFit | None = None
@@ -345,5 +414,14 @@ class Identifier:
         except ValueError as exc_:
             error = str(exc_)
         return sample, JointIdentification(
-            name, fit, tuple(velocities), tuple(frictions), plan.dropped_speeds_rad_per_s, rejected, error
+            name,
+            fit,
+            tuple(velocities),
+            tuple(frictions),
+            dropped,
+            sum(rejected.values()),
+            error,
+            tuple((r, n) for r, n in rejected.items() if n),
+            (free[0], free[1]),
+            blocks > 0,
         )

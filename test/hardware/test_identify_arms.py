@@ -15,6 +15,7 @@ import pytest
 from haptic_teleop.cli import main
 from haptic_teleop.core.identify import Excitation, Pass, Plan
 from haptic_teleop.engine.identify import Gains, Identifier, IdentifyFault
+from haptic_teleop.identify import format_table
 from haptic_teleop.plants.hardware import HardwareError
 from haptic_teleop.plants.kinematics import ArmKinematics
 from haptic_teleop.plants.sim_driver import MujocoJointDriver
@@ -162,6 +163,7 @@ def test_range_guard_brakes_a_pass_planned_too_long() -> None:
     assert q.max() < hi - 0.25 * exc.margin_rad  # braked toward hi - margin / 2, a few mrad of lag past it
     assert q.max() >= hi - exc.margin_rad  # it did run to the end
     assert result.joints[0].rejected_windows == 1
+    assert result.joints[0].rejected_by == (("guard", 1),)  # the reason, counted
 
 
 def test_torque_clamp_binds() -> None:
@@ -173,6 +175,17 @@ def test_torque_clamp_binds() -> None:
     kin = ArmKinematics(driver.model_name, driver.joints, driver.point_site)
     result = Identifier(driver, kin, 0.001, excitation=exc).run()
     assert sum(ji.rejected_windows for ji in result.joints) > 0
+    reasons = {r for ji in result.joints for r, _ in ji.rejected_by}
+    assert "clamp" in reasons, reasons
+    for ji in result.joints:
+        assert sum(n for _, n in ji.rejected_by) == ji.rejected_windows
+    table = format_table(result, None, driver.joints)  # the command says why, joint by joint
+    assert any(
+        line.startswith(f"{ji.joint}: windows rejected: ") and "clamp (" in line
+        for line in table.splitlines()
+        for ji in result.joints
+        if dict(ji.rejected_by).get("clamp")
+    )
     beyond = []
     for qk, tau in zip(driver.q_log[:-1], driver.tau_log, strict=True):
         kin.set_q(qk)
