@@ -74,25 +74,10 @@ def _start_emulator(name: str = SCENE, side: str = "slave", hand_delay_s: float 
 
 def _registers(port: str, address: int, tries: int = 50, name: str = SCENE, side: str = "slave") -> list[int]:
     """One byte of every servo's control table, read through the SDK (a dropped reply is retried)."""
-    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+    from haptic_teleop.plants.dynamixel.driver import read_byte_each
 
     hw = getattr(_scene(name, side), side).hardware
-    ph = PortHandler(port)
-    assert ph.openPort() and ph.setBaudRate(hw.baud_bps)
-    pk = PacketHandler(2.0)
-    values = []
-    try:
-        for servo in hw.ids:
-            for _ in range(tries):
-                value, result, _ = pk.read1ByteTxRx(ph, servo, address)
-                if result == COMM_SUCCESS:
-                    values.append(value)
-                    break
-            else:
-                raise AssertionError(f"servo {servo} never answered a read of {address}")
-    finally:
-        ph.closePort()
-    return values
+    return read_byte_each(port, hw.ids, address, hw.baud_bps, tries)
 
 
 class Launch:

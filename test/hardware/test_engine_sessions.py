@@ -28,11 +28,12 @@ import pytest
 from haptic_teleop.emulate import bus_config
 from haptic_teleop.emulators.dynamixel.config import FaultConfig
 from haptic_teleop.emulators.dynamixel.process import DynamixelBus, start_bus
+from haptic_teleop.plants.dynamixel.driver import read_byte_each
+from haptic_teleop.plants.dynamixel.tables import ADDR_TORQUE_ENABLE
 from haptic_teleop.scene.load import find_scene, load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT_S = 240.0  # a safety net only (the runs take seconds)
-ADDR_TORQUE_ENABLE = 64  # e-Manual, X-series control table
 
 
 def _scene(name: str, side: str, sets: list[str]) -> Any:
@@ -57,21 +58,7 @@ def emulator() -> Iterator[Any]:
 
 def torque_enable(bus: DynamixelBus, ids: list[int], baud_bps: int = 4_000_000) -> list[int]:
     """Torque Enable(64) of each servo, read through the SDK on the emulator's port."""
-    import dynamixel_sdk as sdk
-
-    port = sdk.PortHandler(bus.port)
-    assert port.openPort()
-    try:
-        assert port.setBaudRate(baud_bps)
-        packet = sdk.PacketHandler(2.0)
-        out = []
-        for i in ids:
-            value, result, _ = packet.read1ByteTxRx(port, i, ADDR_TORQUE_ENABLE)
-            assert result == sdk.COMM_SUCCESS, (i, packet.getTxRxResult(result))
-            out.append(value)
-        return out
-    finally:
-        port.closePort()
+    return read_byte_each(bus.port, ids, ADDR_TORQUE_ENABLE, baud_bps)
 
 
 def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:

@@ -24,12 +24,13 @@ import pytest
 
 from haptic_teleop.emulate import bus_config
 from haptic_teleop.emulators.dynamixel.process import start_bus
+from haptic_teleop.plants.dynamixel.driver import read_byte_each
+from haptic_teleop.plants.dynamixel.tables import ADDR_TORQUE_ENABLE
 from haptic_teleop.scene.load import find_scene, load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = "dxl_leader_wall"
 IDS = [11, 12, 13]
-ADDR_TORQUE_ENABLE = 64  # e-Manual, X-series control table
 
 
 def _bus() -> Any:
@@ -51,21 +52,7 @@ def _sets(port: str, max_hold_s: float, duration_s: float) -> list[str]:
 
 def torque_enable(port_name: str) -> list[int]:
     """Torque Enable(64) of each servo, read through the SDK on the emulator's port."""
-    import dynamixel_sdk as sdk
-
-    port = sdk.PortHandler(port_name)
-    assert port.openPort()
-    try:
-        assert port.setBaudRate(4_000_000)
-        packet = sdk.PacketHandler(2.0)
-        out = []
-        for i in IDS:
-            value, result, _ = packet.read1ByteTxRx(port, i, ADDR_TORQUE_ENABLE)
-            assert result == sdk.COMM_SUCCESS, (i, packet.getTxRxResult(result))
-            out.append(value)
-        return out
-    finally:
-        port.closePort()
+    return read_byte_each(port_name, IDS, ADDR_TORQUE_ENABLE, 4_000_000)
 
 
 def _true_margin(engine: Any, scene: Any) -> tuple[float, float]:
