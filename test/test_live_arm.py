@@ -10,17 +10,16 @@ the simulator's damping. No wall-clock assertion: the loops' figures are printed
 from __future__ import annotations
 
 import json
-import os
 import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from launched import Launch
 
 pytest.importorskip("rclpy")
 
@@ -30,58 +29,6 @@ DURATION = ("--set", "scene.duration_s=2")
 UR5E = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
 TOUCH = ("yaw", "shoulder", "elbow")
 SIDES = ("master", "slave")
-
-
-class Launch:
-    """`haptic-teleop launch ...` as a child process; its output lines are collected as they come."""
-
-    def __init__(self, *args: str, cwd: Path) -> None:
-        self.proc = subprocess.Popen(
-            [*CLI, "launch", *args], cwd=cwd, env=dict(os.environ, PYTHONUNBUFFERED="1"),
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        )  # fmt: skip
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    @property
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    def wait_for(self, pattern: str, timeout_s: float) -> re.Match[str]:
-        end = time.monotonic() + timeout_s
-        rx = re.compile(pattern)
-        while time.monotonic() < end:
-            for line in list(self.lines):
-                m = rx.search(line)
-                if m:
-                    return m
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; output:\n{self.text[-4000:]}")
-
-    def finish(self, timeout_s: float) -> int:
-        try:
-            code = self.proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"launcher still running after {timeout_s} s:\n{self.text[-4000:]}") from None
-        self._reader.join(5)
-        return code
-
-    def exit_codes(self) -> dict[str, int]:
-        return {m.group(1): int(m.group(2)) for m in re.finditer(r"\[launcher\] (\w+) exited (-?\d+)", self.text)}
-
-    def loop_table(self) -> str:
-        i = self.text.find("loops (whole run):")
-        return self.text[i : i + 1200] if i >= 0 else "(no loop table)"
 
 
 def _launch(tmp: Path, *extra: str) -> tuple[int, Launch, Path]:

@@ -21,15 +21,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import re
 import signal
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
+import launched
 import numpy as np
 import pytest
 
@@ -80,48 +77,16 @@ def _registers(port: str, address: int, tries: int = 50, name: str = SCENE, side
     return read_byte_each(port, hw.ids, address, hw.baud_bps, tries)
 
 
-class Launch:
-    """`haptic-teleop launch ...` as a child process; its output lines are collected as they come."""
+class Launch(launched.Launch):
+    """The launch of the hardware scene (SCENE with HARDWARE, unless `scene` says otherwise); `finish`
+    prints the loop table (reported, not asserted)."""
 
     def __init__(self, *args: str, cwd: Path, scene: tuple[str, ...] = (SCENE, *HARDWARE)) -> None:
-        self.proc = subprocess.Popen(
-            [*CLI, "launch", *scene, *args], cwd=cwd, env=dict(os.environ, PYTHONUNBUFFERED="1"),
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        )  # fmt: skip
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    @property
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    def wait_for(self, pattern: str, timeout_s: float) -> None:
-        end = time.monotonic() + timeout_s
-        rx = re.compile(pattern)
-        while time.monotonic() < end:
-            if any(rx.search(line) for line in list(self.lines)):
-                return
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; output:\n{self.text[-4000:]}")
+        super().__init__(*scene, *args, cwd=cwd)
 
     def finish(self, timeout_s: float = 240.0) -> int:
-        try:
-            code = self.proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"launcher still running after {timeout_s} s:\n{self.text[-4000:]}") from None
-        self._reader.join(5)
-        i = self.text.find("loops (whole run):")
-        print(self.text[i : i + 1200] if i >= 0 else "(no loop table)")  # reported, not asserted
+        code = super().finish(timeout_s)
+        print(self.loop_table())
         return code
 
 

@@ -33,7 +33,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -365,17 +365,21 @@ class DynamixelDriver:
         if self.stale == 0:
             self._last_fail_index = index
 
-    def _sync_read(self) -> list[bytes] | None:
-        sdk, ph, port = self._sdk, self._ph, self._port
-        result = self._gsr.txPacket()
-        if result != sdk.COMM_SUCCESS:
+    def _send_read(self, send: Callable[[], int], what: str, reply_bytes: int) -> None:
+        """Put a read instruction on the bus and wait until its `reply_bytes` can have arrived."""
+        result = send()
+        if result != self._sdk.COMM_SUCCESS:
             raise self._fail(
-                f"{self.config.port}: could not send the sync read ({self._result_text(result)}): "
-                f"was the adapter unplugged?"
+                f"{self.config.port}: could not send the {what} ({self._result_text(result)}): "
+                "was the adapter unplugged?"
             )
         if self.config.read_timeout_s is not None:
-            port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
-        self._wait_for_bytes((11 + READ_BLOCK) * len(self._ids))
+            self._port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
+        self._wait_for_bytes(reply_bytes)
+
+    def _sync_read(self) -> list[bytes] | None:
+        sdk, ph, port = self._sdk, self._ph, self._port
+        self._send_read(self._gsr.txPacket, "sync read", (11 + READ_BLOCK) * len(self._ids))
         blocks: list[bytes] = []
         for k, i in enumerate(self._ids):
             data, result, error = ph.readRx(port, i, READ_BLOCK)
@@ -392,16 +396,8 @@ class DynamixelDriver:
 
     def _sync_read_fast(self) -> list[bytes] | None:
         sdk, ph, port = self._sdk, self._ph, self._port
-        result = self._gsr.fastSyncReadTxPacket()
-        if result != sdk.COMM_SUCCESS:
-            raise self._fail(
-                f"{self.config.port}: could not send the fast sync read ({self._result_text(result)}): "
-                f"was the adapter unplugged?"
-            )
-        if self.config.read_timeout_s is not None:
-            port.setPacketTimeoutMillis(self.config.read_timeout_s * 1000.0)
         n = len(self._ids)
-        self._wait_for_bytes(8 + FAST_PART * n)
+        self._send_read(self._gsr.fastSyncReadTxPacket, "fast sync read", 8 + FAST_PART * n)
         data, result, _ = ph.fastSyncReadRx(port, T.BROADCAST_ID, FAST_PART * n)
         if result != sdk.COMM_SUCCESS:
             self._miss(None, self._result_text(result))
