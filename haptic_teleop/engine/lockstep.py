@@ -513,7 +513,7 @@ class Collector:
         self._blocks.append(np.array(rows))
 
     def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self._packets[direction].append(np.array(rows))
+        self._packets.setdefault(direction, []).append(np.array(rows))
 
     def data(self) -> np.ndarray:
         """Every tick's columns so far, (ticks, len(COLUMNS))."""
@@ -521,7 +521,7 @@ class Collector:
 
     def packets(self, direction: str) -> np.ndarray:
         """Every packet record handed over so far for a direction, in hand-over order."""
-        chunks = self._packets[direction]
+        chunks = self._packets.get(direction, [])
         return np.concatenate(chunks) if chunks else np.zeros((0, len(PACKET_FIELDS)))
 
 
@@ -549,11 +549,23 @@ class _Output:
     sink when full, and the packet records settled at each block's end. Both loops make the same
     calls on the sink with the same arrays, so they give the same bag."""
 
-    def __init__(self, sink: RunSink, forward: Settled, backward: Settled, width: int = len(COLUMNS)) -> None:
+    def __init__(
+        self,
+        sink: RunSink,
+        forward: Settled | None,
+        backward: Settled | None,
+        width: int = len(COLUMNS),
+        directions: tuple[tuple[str, Settled], ...] | None = None,
+    ) -> None:
         self.sink = sink
         self.block = np.zeros((BLOCK_TICKS, width))
         self.start = 0  # tick of the block's first row
-        self._settled = (("forward", forward), ("backward", backward))
+        # teleoperation's two directions, or any named ones (an NVE run: "<client>/up", ...)
+        self._settled: tuple[tuple[str, Settled], ...] = (
+            directions
+            if directions is not None
+            else tuple((d, s) for d, s in (("forward", forward), ("backward", backward)) if s is not None)
+        )
         self._ended = False
 
     def block_done(self, stop: int) -> None:

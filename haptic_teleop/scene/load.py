@@ -12,9 +12,9 @@ from typing import Any
 
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.scene.overrides import Override, apply_overrides, blame_override, parse_override
-from haptic_teleop.scene.schema import LoadedScene, Scene
+from haptic_teleop.scene.schema import NVE_SECTIONS, LoadedScene, Scene
 from haptic_teleop.scene.yaml_text import parse_yaml, read_scene_text
-from haptic_teleop.traces import read_operator_trace, resolve_scene_traces
+from haptic_teleop.traces import read_operator_trace, resolve_scene_traces, resolve_trace_paths
 from haptic_teleop.typedconfig import build
 
 
@@ -340,6 +340,8 @@ def load_scene(
     if seed is not None:
         ovs.append(Override(f"--seed {seed}", ("scene", "seed"), seed))
     raw = apply_overrides(raw, ovs)
+    if "nve" in raw:
+        return _load_nve(raw, ovs, p, source)
     try:
         config = build(Scene, raw, "", source)
         _check_models(config, source)
@@ -356,6 +358,45 @@ def load_scene(
         # Absolute, as the network traces: the resolved scene (DIR/scene.yaml) runs from anywhere.
         config = dataclasses.replace(config, operator=dataclasses.replace(config.operator, trace_file=str(tp)))
     return LoadedScene(config=config, source=source, raw=raw, operator_trace=trace)
+
+
+def _load_nve(raw: dict[str, Any], ovs: list[Override], p: Path, source: str) -> LoadedScene:
+    """An NVE scene: its own sections only; trace files resolved from the scene's folder and read once."""
+    stray = [k for k in raw if k not in NVE_SECTIONS]
+    if stray:
+        raise ConfigError(
+            source,
+            stray[0],
+            raw[stray[0]],
+            f"an NVE scene (it has an nve section) has no {stray[0]} section; allowed: {', '.join(NVE_SECTIONS)}",
+        )
+    try:
+        config = build(Scene, raw, "", source)
+    except ConfigError as exc:
+        raise blame_override(exc, ovs) from None
+    assert config.nve is not None
+    clients = []
+    for i, c in enumerate(config.nve.clients):
+        where = f"nve.clients[{i}]"
+        links = {}
+        for name in ("up", "down"):
+            d = getattr(c, name)
+            try:
+                links[name] = dataclasses.replace(d, effects=resolve_trace_paths(d.effects, p.parent))
+            except (OSError, ValueError) as exc:
+                raise ConfigError(
+                    source, f"{where}.{name}.effects", "trace", f"allowed: a readable trace file ({exc})"
+                ) from None
+        op = c.operator
+        if op.trace_file:
+            tp = Path(op.trace_file)
+            if not tp.is_absolute():
+                tp = (p.parent / tp).resolve()
+            read_operator_trace(tp, source, f"{where}.operator.trace_file")
+            op = dataclasses.replace(op, trace_file=str(tp))
+        clients.append(dataclasses.replace(c, operator=op, **links))
+    config = dataclasses.replace(config, nve=dataclasses.replace(config.nve, clients=tuple(clients)))
+    return LoadedScene(config=config, source=source, raw=raw)
 
 
 def scenes_dir() -> Path:

@@ -52,15 +52,33 @@ def apply_overrides(raw: dict[str, Any], overrides: Sequence[str | Override]) ->
             ov = Override(f"--set {ov}", tuple(parts), value)  # noqa: PLW2901
         node: Any = data
         for i, p in enumerate(ov.parts[:-1]):
+            if isinstance(node, list):  # a list of sections (an NVE scene's clients): by index
+                node = node[_index(node, p, ov, i)]
+                continue
             nxt = node.get(p)
             if nxt is None:
                 nxt = node[p] = {}
-            if not isinstance(nxt, dict):
+            if not isinstance(nxt, (dict, list)) or (
+                isinstance(nxt, list) and not all(isinstance(e, dict) for e in nxt)
+            ):
                 where = ".".join(ov.parts[: i + 1])
                 raise ConfigError(ov.label, where, nxt, f"is a value, not a section; cannot set {ov.path}")
             node = nxt
-        node[ov.parts[-1]] = ov.value
+        if isinstance(node, list):
+            node[_index(node, ov.parts[-1], ov, len(ov.parts) - 1)] = ov.value
+        else:
+            node[ov.parts[-1]] = ov.value
     return data
+
+
+def _index(items: list[Any], part: str, ov: Override, i: int) -> int:
+    """`part` as an index of the list of sections at ov.parts[:i] (`nve.clients.0.name=a`)."""
+    if not part.isdigit() or int(part) >= len(items):
+        where = ".".join(ov.parts[:i])
+        raise ConfigError(
+            ov.label, where, part, f"is a list of {len(items)} section(s); allowed: an index 0..{len(items) - 1}"
+        )
+    return int(part)
 
 
 def blame_override(exc: ConfigError, overrides: Sequence[Override]) -> ConfigError:

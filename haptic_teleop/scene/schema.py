@@ -14,8 +14,8 @@ from typing import Any
 
 import yaml
 
-from haptic_teleop.core.netconfig import NetworkEffectsConfig
-from haptic_teleop.core.playout import BufferConfig
+from haptic_teleop.scene.direction import DirectionConfig
+from haptic_teleop.scene.nve_schema import NveConfig
 
 
 @dataclass(frozen=True)
@@ -510,12 +510,6 @@ class ControllersConfig:
 
 
 @dataclass(frozen=True)
-class DirectionConfig:
-    effects: NetworkEffectsConfig = field(default_factory=NetworkEffectsConfig)
-    buffer: BufferConfig = field(default_factory=BufferConfig)
-
-
-@dataclass(frozen=True)
 class NetworkConfig:
     forward: DirectionConfig = field(default_factory=DirectionConfig)
     backward: DirectionConfig = field(default_factory=DirectionConfig)
@@ -546,6 +540,14 @@ class Scene:
     network: NetworkConfig = field(default_factory=NetworkConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     mapping: MappingConfig | None = field(default=None, metadata={"help": "arms: workspace mapping master -> slave"})
+    nve: NveConfig | None = field(
+        default=None, metadata={"help": "an NVE scene: a server's virtual object and its clients (docs/nve.md)"}
+    )
+
+    @property
+    def is_nve(self) -> bool:
+        """A client-server haptic NVE scene (no master, slave or controllers)."""
+        return self.nve is not None
 
     @property
     def is_arm(self) -> bool:
@@ -600,7 +602,14 @@ class LoadedScene:
     operator_trace: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def to_yaml(self) -> str:
-        return yaml.safe_dump(_without_absent_arm_keys(dataclasses.asdict(self.config)), sort_keys=False)
+        d = dataclasses.asdict(self.config)
+        if self.config.nve is not None:  # an NVE scene: the sections it uses only
+            d = {k: d[k] for k in NVE_SECTIONS}
+        return yaml.safe_dump(_without_absent_arm_keys(d), sort_keys=False)
+
+
+# The sections of an NVE scene; the others (master, slave, ...) are teleoperation's.
+NVE_SECTIONS = ("scene", "nve", "recording")
 
 
 # Keys only arm scenes use: left out of a scene's YAML when absent, so a one-axis scene's resolved
@@ -609,7 +618,7 @@ ARM_KEYS = frozenset(
     {
         "joints", "start_q_rad", "damping_nm_s_per_rad", "torque_limit_nm", "gravity_compensation", "point_m",
         "normal", "mapping", "stiffness_axes_n_per_m", "damping_axes_n_s_per_m", "null_space_damping_nm_s_per_rad",
-        "orientation", "direction", "slew_nm_per_s", "hardware",
+        "orientation", "direction", "slew_nm_per_s", "hardware", "nve",
     }
 )  # fmt: skip
 
