@@ -136,9 +136,16 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
                 starting.enter_context(slow_notice(SLOW_START_S, notice))
             try:
                 with starting:
-                    _, timing = record_run(
-                        scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False, on_engine=on_engine
-                    )
+                    if scene.config.is_nve:
+                        from haptic_teleop.engine.nve_loop import record_nve_run
+
+                        _, timing = record_nve_run(
+                            scene, bag_dir, progress=progress, handle_sigint=False, on_engine=on_engine
+                        )
+                    else:
+                        _, timing = record_run(
+                            scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False, on_engine=on_engine
+                        )
             except BagError as exc:
                 raise HapticTeleopError(str(exc)) from None  # writing failed: not an input error (exit 1)
             except PlantError:

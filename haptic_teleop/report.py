@@ -33,6 +33,10 @@ ROWS = (
 
 
 def format_summary(summary: dict[str, Any]) -> str:
+    if summary.get("kind") == "nve":
+        from haptic_teleop.analysis.nve_summary import format_nve_summary
+
+        return format_nve_summary(summary)
     lines = [
         f"scene {summary.get('scene')}  seed {summary.get('seed')}  {summary.get('duration_s', 0):.3f} s"
         + ("  (interrupted)" if summary.get("interrupted") else "")

@@ -41,6 +41,8 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
     from haptic_teleop.analysis.stream import summarize_bag
 
     interrupt.pause_for_test("summary")
+    if _is_nve(bag_dir):
+        return _write_nve_outputs(bag_dir, out_dir, plots)
     summary = summarize_bag(bag_dir)
     timing = Path(bag_dir).parent / TIMING_FILE
     if timing.is_file():
@@ -55,6 +57,29 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
 
         interrupt.pause_for_test("plots")
         write_plots(from_bag(bag_dir, summary.get("force_alignment_lag_s")), out_dir / "plots")
+    return summary
+
+
+def _is_nve(bag_dir: Path) -> bool:
+    from haptic_teleop.record.reader import BagReader
+
+    with BagReader(bag_dir) as reader:
+        return reader.nve_schema is not None
+
+
+def _write_nve_outputs(bag_dir: Path, out_dir: Path, plots: bool) -> dict[str, Any]:
+    """An NVE run's summary.json and plots (analysis/nve_summary.py)."""
+    from haptic_teleop.analysis.nve_summary import summarize_nve, write_nve_plots
+
+    summary = summarize_nve(bag_dir)
+    timing = Path(bag_dir).parent / TIMING_FILE
+    if timing.is_file():
+        summary["realtime_factor"] = json.loads(timing.read_text())["realtime_factor"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_atomic(out_dir / "summary.json", json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
+    if plots:
+        interrupt.pause_for_test("plots")
+        write_nve_plots(bag_dir, out_dir / "plots")
     return summary
 
 
