@@ -474,7 +474,8 @@ def test_proposed_schedule_against_its_formula(model, rtt, allowable, floor_frac
     kh = model.client_stiffness_n_per_m
     floor = floor_fraction * kh
     k = proposed_spring_n_per_m(model, rtt, distortion, allowable, floor)
-    m, b, ke, de = model.mass_kg, model.damping_n_s_per_m, model.server_stiffness_n_per_m, model.server_damping_n_s_per_m
+    m, b = model.mass_kg, model.damping_n_s_per_m
+    ke, de = model.server_stiffness_n_per_m, model.server_damping_n_s_per_m
     if distortion == "mass":
         perceived = kh * (m + (b + de) * rtt + ke * rtt**2 / 2) / m
     else:
