@@ -22,12 +22,23 @@ and the spring coefficients that give, without delay and with the true object, t
 delayed system gives are k_hm = k_h m_h / m (mass-based) and k_hb = k_h b_h / b (damping-based).
 Derivations and their checks against the exact Z_h are in docs/nve.md. Pure functions on floats
 (numpy only for the frequency response): no I/O, no clock.
+
+Other clients (docs/nve.md, "Several clients"): partners that hold their HIPs still and push the
+object with their own couplings act on it as a spring-damper to ground, K = sum k_e,j and
+D = sum d_e,j over the partners (`NveModel.partner_*`, `with_partners`). Client i's impedance is then
+
+    Z_i(s; R_i) = C_h (D_i(s) - C_e e^{-s R_i}) / (s D_i(s)),   D_i = m s^2 + (b + D) s + K + C_e,
+
+which holds the client's own round trip R_i only (not the partners' delays), and the distortions keep
+their form with the total coupling: b_h = b + (k_e + K) R, m_h = m + (b + D + d_e) R + (k_e + K) R^2/2.
+Observers (k_e = d_e = 0) add nothing. With no partners every formula is the one-client one above.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -37,7 +48,9 @@ RULES = ("auto", *DISTORTIONS)
 
 @dataclass(frozen=True)
 class NveModel:
-    """One client's view of the NVE: the object, the two couplings (SI units)."""
+    """One client's view of the NVE: the object, the two couplings, and the other clients' total
+    coupling to the object (partners holding their HIPs still: a spring-damper to ground; 0 for a
+    single client or observers only). SI units."""
 
     mass_kg: float
     damping_n_s_per_m: float
@@ -45,6 +58,8 @@ class NveModel:
     server_stiffness_n_per_m: float
     client_damping_n_s_per_m: float = 0.0
     server_damping_n_s_per_m: float = 0.0
+    partner_stiffness_n_per_m: float = 0.0
+    partner_damping_n_s_per_m: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.mass_kg > 0.0:
@@ -55,44 +70,79 @@ class NveModel:
             "server_stiffness_n_per_m",
             "client_damping_n_s_per_m",
             "server_damping_n_s_per_m",
+            "partner_stiffness_n_per_m",
+            "partner_damping_n_s_per_m",
         ):
             v = getattr(self, name)
             if not (v >= 0.0 and math.isfinite(v)):
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")
 
 
+def with_partners(
+    model: NveModel,
+    server_stiffnesses_n_per_m: Sequence[float],
+    server_dampings_n_s_per_m: Sequence[float] = (),
+) -> NveModel:
+    """`model` (one client's) with the other clients' server couplings k_e,j (and d_e,j) added to
+    its partner spring-damper (observers: 0)."""
+    return replace(
+        model,
+        partner_stiffness_n_per_m=model.partner_stiffness_n_per_m + math.fsum(server_stiffnesses_n_per_m),
+        partner_damping_n_s_per_m=model.partner_damping_n_s_per_m + math.fsum(server_dampings_n_s_per_m),
+    )
+
+
+def _coupling_stiffness(model: NveModel) -> float:
+    """k_e + K: every spring that holds the object (own coupling and partners')."""
+    return model.server_stiffness_n_per_m + model.partner_stiffness_n_per_m
+
+
+def _object_damping(model: NveModel) -> float:
+    """b + D: the object's damping with the partners' coupling damping (undistorted by R)."""
+    return model.damping_n_s_per_m + model.partner_damping_n_s_per_m
+
+
 def impedance(model: NveModel, w_rad_per_s: np.ndarray, rtt_s: float) -> np.ndarray:
-    """Z_h(j w; R) = F_h / V_h, complex, at each angular frequency (> 0)."""
-    s = 1j * np.asarray(w_rad_per_s, dtype=np.float64)
-    m, b = model.mass_kg, model.damping_n_s_per_m
+    """Z_h(j w; R) = F_h / V_h, complex, at each angular frequency (> 0), R >= 0 the round trip."""
+    w = np.asarray(w_rad_per_s, dtype=np.float64)
+    if not bool(np.all(w > 0.0)) or not bool(np.all(np.isfinite(w))):
+        raise ValueError("w_rad_per_s must be finite and > 0")
+    if not (rtt_s >= 0.0 and math.isfinite(rtt_s)):
+        raise ValueError(f"rtt_s must be finite and >= 0, got {rtt_s}")
+    s = 1j * w
+    m = model.mass_kg
     ch = model.client_stiffness_n_per_m + model.client_damping_n_s_per_m * s
     ce = model.server_stiffness_n_per_m + model.server_damping_n_s_per_m * s
-    den = m * s * s + b * s + ce
+    # the object with the partners' coupling as a spring-damper to ground, without the client's own
+    rest = m * s * s + _object_damping(model) * s + model.partner_stiffness_n_per_m
+    den = rest + ce
     # 1 - e^{-sR} without cancellation at small |sR|: -expm1(-sR)
     lag = -np.expm1(-s * rtt_s)
-    out: np.ndarray = ch * (m * s * s + b * s + ce * lag) / (s * den)
+    out: np.ndarray = ch * (rest + ce * lag) / (s * den)
     return out
 
 
 def distorted_damping_n_s_per_m(model: NveModel, rtt_s: float) -> float:
-    """b_h = b + k_e R: the damping of the undelayed object that feels like the delayed one."""
-    return model.damping_n_s_per_m + model.server_stiffness_n_per_m * rtt_s
+    """b_h = b + k_e R: the damping of the undelayed object that feels like the delayed one
+    (with partners: b + (k_e + K) R)."""
+    return model.damping_n_s_per_m + _coupling_stiffness(model) * rtt_s
 
 
 def distorted_mass_kg(model: NveModel, rtt_s: float) -> float:
-    """m_h = m + (b + d_e) R + k_e R^2 / 2."""
-    b_de = model.damping_n_s_per_m + model.server_damping_n_s_per_m
-    return model.mass_kg + b_de * rtt_s + 0.5 * model.server_stiffness_n_per_m * rtt_s * rtt_s
+    """m_h = m + (b + d_e) R + k_e R^2 / 2 (with partners: m + (b + D + d_e) R + (k_e + K) R^2 / 2)."""
+    c0 = _object_damping(model) + model.server_damping_n_s_per_m
+    return model.mass_kg + c0 * rtt_s + 0.5 * _coupling_stiffness(model) * rtt_s * rtt_s
 
 
 def damping_gradient(model: NveModel) -> float:
-    """c_b = d b_h / d R = k_e (b_h is linear in R)."""
-    return model.server_stiffness_n_per_m
+    """c_b = d b_h / d R = k_e (b_h is linear in R; with partners k_e + K)."""
+    return _coupling_stiffness(model)
 
 
 def mass_gradient(model: NveModel, rtt_s: float = 0.0) -> float:
-    """c_m = d m_h / d R at R: b + d_e + k_e R (the tangent; at R = 0 the initial gradient)."""
-    return model.damping_n_s_per_m + model.server_damping_n_s_per_m + model.server_stiffness_n_per_m * rtt_s
+    """c_m = d m_h / d R at R: b + d_e + k_e R (the tangent; at R = 0 the initial gradient;
+    with partners b + D + d_e + (k_e + K) R)."""
+    return _object_damping(model) + model.server_damping_n_s_per_m + _coupling_stiffness(model) * rtt_s
 
 
 def mass_based_spring_n_per_m(model: NveModel, rtt_s: float) -> float:
@@ -101,19 +151,44 @@ def mass_based_spring_n_per_m(model: NveModel, rtt_s: float) -> float:
 
 
 def damping_based_spring_n_per_m(model: NveModel, rtt_s: float) -> float:
-    """k_hb = k_h b_h / b (needs b > 0)."""
-    b = model.damping_n_s_per_m
+    """k_hb = k_h b_h / b (needs b > 0; with partners k_h (b_h + D) / (b + D))."""
+    b = _object_damping(model)
     if b <= 0.0:
         raise ValueError("the damping-based spring distortion needs an object damping b > 0")
-    return model.client_stiffness_n_per_m * distorted_damping_n_s_per_m(model, rtt_s) / b
+    return (
+        model.client_stiffness_n_per_m
+        * (distorted_damping_n_s_per_m(model, rtt_s) + model.partner_damping_n_s_per_m)
+        / b
+    )
 
 
 def dominant_distortion(model: NveModel, interaction_rad_per_s: float) -> str:
     """'mass' if the object's dynamics at the user's interaction frequency w are dominated by its
-    mass (m w >= b), else 'damping' (the rule of seed 000, slide "Distortion of spring coefficient")."""
+    mass (m w >= b; with partners m w >= b + D), else 'damping' (the rule of seed 000, slide
+    "Distortion of spring coefficient"). It picks the spring distortion closer to the delayed
+    system's for R -> 0; at larger R the crossover moves up to `distortion_crossover_rad_per_s`
+    (docs/nve.md, "Which spring distortion applies")."""
     if not interaction_rad_per_s > 0.0:
         raise ValueError(f"interaction_rad_per_s must be > 0, got {interaction_rad_per_s}")
-    return "mass" if model.mass_kg * interaction_rad_per_s >= model.damping_n_s_per_m else "damping"
+    return "mass" if model.mass_kg * interaction_rad_per_s >= _object_damping(model) else "damping"
+
+
+def distortion_crossover_rad_per_s(model: NveModel, rtt_s: float) -> float:
+    """The interaction frequency at which k_hm and k_hb are equally far (in ratio) from the spring
+    that reproduces the delayed system's low-frequency force: sqrt(b b_h / (m m_h)) (with partners
+    b + D and b_h + D). Equals b / m, the seed's rule, at R = 0; grows with R."""
+    b = _object_damping(model)
+    bh = distorted_damping_n_s_per_m(model, rtt_s) + model.partner_damping_n_s_per_m
+    return math.sqrt(b * bh / (model.mass_kg * distorted_mass_kg(model, rtt_s)))
+
+
+def matching_distortion(model: NveModel, interaction_rad_per_s: float, rtt_s: float) -> str:
+    """The seed's rule made exact at round trip R: 'mass' iff w >= `distortion_crossover_rad_per_s`
+    (m m_h w^2 >= b b_h), i.e. iff k_hm is at least as close as k_hb to the spring that gives the
+    delayed system's force at w (low-frequency model, docs/nve.md)."""
+    if not interaction_rad_per_s > 0.0:
+        raise ValueError(f"interaction_rad_per_s must be > 0, got {interaction_rad_per_s}")
+    return "mass" if interaction_rad_per_s >= distortion_crossover_rad_per_s(model, rtt_s) else "damping"
 
 
 def spring_distortion_n_per_m(model: NveModel, rtt_s: float, distortion: str) -> float:
@@ -127,7 +202,7 @@ def spring_distortion_n_per_m(model: NveModel, rtt_s: float, distortion: str) ->
 
 def allowable_rtt_damping_s(model: NveModel, allowable_damping_n_s_per_m: float) -> float:
     """The largest R with b_h(R) <= b_allowable: (b_allowable - b) / c_b (0 if already above;
-    infinite if k_e = 0)."""
+    infinite if c_b = k_e (+ K) = 0)."""
     room = allowable_damping_n_s_per_m - model.damping_n_s_per_m
     if room <= 0.0:
         return 0.0
@@ -137,12 +212,13 @@ def allowable_rtt_damping_s(model: NveModel, allowable_damping_n_s_per_m: float)
 
 def allowable_rtt_mass_s(model: NveModel, allowable_mass_kg: float) -> float:
     """The largest R with m_h(R) <= m_allowable: the positive root of
-    k_e R^2 / 2 + (b + d_e) R - (m_allowable - m) = 0 (0 if already above)."""
+    k_e R^2 / 2 + (b + d_e) R - (m_allowable - m) = 0, i.e. the integral of the gradient c_m(R)
+    from 0 reaching m_allowable - m (0 if already above; with partners k_e + K and b + D + d_e)."""
     room = allowable_mass_kg - model.mass_kg
     if room <= 0.0:
         return 0.0
-    c0 = model.damping_n_s_per_m + model.server_damping_n_s_per_m
-    ke = model.server_stiffness_n_per_m
+    c0 = mass_gradient(model, 0.0)
+    ke = _coupling_stiffness(model)
     if ke == 0.0:
         return math.inf if c0 == 0.0 else room / c0
     # numerically stable positive root of (ke/2) R^2 + c0 R - room
