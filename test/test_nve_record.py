@@ -336,6 +336,12 @@ def test_bad_calls_are_refused(tmp_path: Path) -> None:
     rec.close({"ticks": 0})
     with pytest.raises(BagError, match=f"n_columns 18 is not the NVE schema's width {schema.width}"):
         RunRecorder(tmp_path / "b2", SCENE, PERIOD_NS, False, True, 18, schema=schema)
+    # With the writer process the call is refused at once (not when the writer gets to it); the bag closes.
+    par = RunRecorder(tmp_path / "p", SCENE, PERIOD_NS, False, True, schema.width, parallel=True, schema=schema)
+    with pytest.raises(BagError, match=f"NVE packet direction must be one of {allowed}; got 'client1/left'"):
+        par.append_packets("client1/left", _packets(np.arange(3.0), 0.1))
+    par.append(nve_rows(schema, 0, 5))
+    par.close({"ticks": 5})
     # A teleoperation recorder refuses an NVE direction, as before.
     tele = RunRecorder(tmp_path / "t", SCENE, PERIOD_NS, False, True, ONE_DOF.width, parallel=False)
     with pytest.raises(BagError, match="packet direction must be 'forward' or 'backward'; got 'client1/up'"):
