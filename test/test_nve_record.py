@@ -225,6 +225,10 @@ def _check_bag(bag: Path, schema: NveSchema, n: int) -> None:
                 assert np.array_equal(d.stamp_ns, stamps), topic
             blocks = list(r.blocks(topic))  # chunk by chunk: the same
             assert np.array_equal(np.concatenate([b.values for b in blocks]), values, equal_nan=True)
+        whole = r.read_nve()  # the rows rebuilt from the topics
+        assert np.array_equal(whole.values, rows, equal_nan=True)
+        assert whole.fields == tuple(_expected_columns(schema.clients, schema.axes))
+        assert np.array_equal(whole.log_ns, stamps) and np.array_equal(whole.stamp_ns, stamps)
         for i, direction in enumerate(schema.directions):
             k_all = [max(0, k - i) for k in PIECES]
             seqs = np.concatenate([np.arange(sum(PIECES[:p]), sum(PIECES[:p]) + k) for p, k in enumerate(k_all)])
@@ -350,6 +354,8 @@ def test_bad_calls_are_refused(tmp_path: Path) -> None:
     with BagReader(tmp_path / "t") as r:
         assert r.nve_schema is None
         assert r.schema == ONE_DOF
+        with pytest.raises(BagError, match="not an NVE run's bag"):
+            r.read_nve()
     with BagReader(tmp_path / "bag") as r:
         assert r.nve_schema == schema
         with pytest.raises(BagError, match=r"is an NVE run's bag .*clients client1, client2, 1 axes.*no tick schema"):
@@ -559,5 +565,9 @@ def test_recover_a_killed_nve_recording(tmp_path: Path) -> None:
     assert _cli("bag", "info", str(bag)).returncode == 0
     with BagReader(bag) as r, pytest.raises(BagError, match="run_info has no messages"):
         r.string("/haptic_teleop/run_info")
-    counts = _check_ticks(bag, BLOCK_TICKS)
+    counts = _check_ticks(bag, READY_BLOCKS * BLOCK_TICKS)
     assert max(counts.values()) - min(counts.values()) <= 1  # a chunk may end inside a tick
+    with BagReader(bag) as r:
+        whole = r.read_nve()
+    n = min(counts.values())
+    assert np.array_equal(whole.values, nve_rows(KILL_SCHEMA, 0, n), equal_nan=True)

@@ -417,6 +417,25 @@ class BagReader:
             stamps_l[i] = -1 if s is None else s
         return TopicData(log, stamps_l if spec.layout.msgtype != MULTIARRAY else None, values, spec.fields)
 
+    def read_nve(self) -> TopicData:
+        """An NVE run's tick rows rebuilt from its per-tick topics: values (ticks, schema.width) in
+        the columns of `nve_schema` (`fields` = its column names, so `.field("client1.rtt_s")`),
+        log times and stamps. A recovered bag may end inside a tick: the ticks every topic holds."""
+        schema = self.nve_schema
+        if schema is None:
+            raise BagError(f"{self.path}: not an NVE run's bag (no /nve/object/joint_states)")
+        specs = nve_topic_specs(schema)
+        data = {t: self.read(t) for t in specs}
+        ref = data["/nve/object/joint_states"]
+        n = min(len(d.log_ns) for d in data.values())
+        values = np.empty((n, schema.width))
+        for topic, d in data.items():
+            if not np.array_equal(d.log_ns[:n], ref.log_ns[:n]):
+                raise BagError(f"{self.path}: {topic} is not logged at the ticks of /nve/object/joint_states")
+            values[:, list(specs[topic].columns)] = d.values[:n]
+        stamps = None if ref.stamp_ns is None else ref.stamp_ns[:n]
+        return TopicData(ref.log_ns[:n], stamps, values, schema.columns)
+
     def packets(self, topic: str) -> np.ndarray:
         """All packet rows of /forward/packets or /backward/packets (an NVE run's
         /nve/<client>/up/packets, /down/packets), sorted by seq: (N, 6) per PACKET_FIELDS."""
