@@ -571,3 +571,25 @@ def test_recover_a_killed_nve_recording(tmp_path: Path) -> None:
         whole = r.read_nve()
     n = min(counts.values())
     assert np.array_equal(whole.values, nve_rows(KILL_SCHEMA, 0, n), equal_nan=True)
+
+
+def test_a_bag_cut_inside_a_tick_recovers_and_reads(tmp_path: Path) -> None:
+    """A chunk closes after the message that takes it past 1 MiB, inside a tick: a bag cut after
+    such a chunk (a kill) is recovered and read back, `read_nve` giving the ticks every topic holds."""
+    from haptic_teleop.record.tools import recover
+
+    schema = SCHEMAS[3]
+    bag = _record(tmp_path / "bag", schema, parallel=False)
+    (bag / "metadata.yaml").unlink()
+    mcap = bag / "bag.mcap"
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) // 2])
+    assert recover(bag).chunks >= 1
+    with BagReader(bag) as r:
+        assert r.nve_schema == schema  # from the topics: the run facts were cut off
+        counts = {t: len(r.read(t).log_ns) for t in r.specs()}
+        assert max(counts.values()) == min(counts.values()) + 1  # this cut fell inside a tick
+        whole = r.read_nve()
+    n = min(counts.values())
+    assert np.array_equal(whole.values, nve_rows(schema, 0, n), equal_nan=True)
+    assert np.array_equal(whole.log_ns, np.arange(n) * PERIOD_NS)
