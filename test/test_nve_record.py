@@ -225,7 +225,9 @@ def _check_bag(bag: Path, schema: NveSchema, n: int) -> None:
                 assert np.array_equal(d.stamp_ns, stamps), topic
             blocks = list(r.blocks(topic))  # chunk by chunk: the same
             assert np.array_equal(np.concatenate([b.values for b in blocks]), values, equal_nan=True)
-        whole = r.read_nve()  # the rows rebuilt from the topics
+        blocks = list(r.nve_blocks())  # the rows rebuilt from the topics, chunk by chunk
+        assert len(blocks) > 1 and sum(len(b.log_ns) for b in blocks) == n
+        whole = r.read_nve()  # the blocks joined
         assert np.array_equal(whole.values, rows, equal_nan=True)
         assert whole.fields == tuple(_expected_columns(schema.clients, schema.axes))
         assert np.array_equal(whole.log_ns, stamps) and np.array_equal(whole.stamp_ns, stamps)

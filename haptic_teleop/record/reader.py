@@ -52,6 +52,16 @@ def _deserialize_values(spec: TopicSpec, msg: Any) -> list[float]:
     return out
 
 
+def _joined(parts: list[TopicData]) -> TopicData:
+    """Blocks of one topic (or of rows) as one."""
+    stamps = (
+        None if parts[0].stamp_ns is None else np.concatenate([p.stamp_ns for p in parts if p.stamp_ns is not None])
+    )
+    return TopicData(
+        np.concatenate([p.log_ns for p in parts]), stamps, np.concatenate([p.values for p in parts]), parts[0].fields
+    )
+
+
 def _stamp_of(msg: Any) -> int | None:
     h = getattr(msg, "header", None)
     return None if h is None else int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
@@ -417,24 +427,61 @@ class BagReader:
             stamps_l[i] = -1 if s is None else s
         return TopicData(log, stamps_l if spec.layout.msgtype != MULTIARRAY else None, values, spec.fields)
 
-    def read_nve(self) -> TopicData:
-        """An NVE run's tick rows rebuilt from its per-tick topics: values (ticks, schema.width) in
-        the columns of `nve_schema` (`fields` = its column names, so `.field("client1.rtt_s")`),
-        log times and stamps. A recovered bag may end inside a tick: the ticks every topic holds."""
+    def nve_blocks(self) -> Iterator[TopicData]:
+        """An NVE run's tick rows rebuilt from its per-tick topics, block by block (the topics read
+        side by side, chunk by chunk: memory of a chunk, not of the run): values (ticks,
+        schema.width) in the columns of `nve_schema` (`fields` = its column names, so
+        `.field("client1.rtt_s")`), log times and stamps. Of a bag whose cut fell inside a tick
+        (recovered), the ticks every topic holds."""
         schema = self.nve_schema
         if schema is None:
             raise BagError(f"{self.path}: not an NVE run's bag (no /nve/object/joint_states)")
         specs = nve_topic_specs(schema)
-        data = {t: self.read(t) for t in specs}
-        ref = data["/nve/object/joint_states"]
-        n = min(len(d.log_ns) for d in data.values())
-        values = np.empty((n, schema.width))
-        for topic, d in data.items():
-            if not np.array_equal(d.log_ns[:n], ref.log_ns[:n]):
-                raise BagError(f"{self.path}: {topic} is not logged at the ticks of /nve/object/joint_states")
-            values[:, list(specs[topic].columns)] = d.values[:n]
-        stamps = None if ref.stamp_ns is None else ref.stamp_ns[:n]
-        return TopicData(ref.log_ns[:n], stamps, values, schema.columns)
+        ref_topic = "/nve/object/joint_states"
+        sources = {t: self.blocks(t) for t in specs}
+        pending: dict[str, list[TopicData]] = {t: [] for t in specs}
+        have = dict.fromkeys(specs, 0)
+        while True:
+            for topic, source in sources.items():
+                while not have[topic]:
+                    block = next(source, None)
+                    if block is None:
+                        break
+                    pending[topic].append(block)
+                    have[topic] += len(block.log_ns)
+            n = min(have.values())
+            if n == 0:
+                return
+            values = np.empty((n, schema.width))
+            log = stamps = np.zeros(0, dtype=np.int64)
+            for topic in specs:
+                parts = pending[topic]
+                whole = parts[0] if len(parts) == 1 else _joined(parts)
+                if topic == ref_topic:
+                    log, stamps = whole.log_ns[:n], whole.stamp_ns[:n] if whole.stamp_ns is not None else stamps
+                elif not np.array_equal(whole.log_ns[:n], log):
+                    raise BagError(f"{self.path}: {topic} is not logged at the ticks of {ref_topic}")
+                values[:, list(specs[topic].columns)] = whole.values[:n]
+                rest = TopicData(
+                    whole.log_ns[n:],
+                    None if whole.stamp_ns is None else whole.stamp_ns[n:],
+                    whole.values[n:],
+                    whole.fields,
+                )
+                pending[topic] = [rest] if len(rest.log_ns) else []
+                have[topic] -= n
+            yield TopicData(log, stamps, values, schema.columns)
+
+    def read_nve(self) -> TopicData:
+        """`nve_blocks()` joined: the whole run's rows."""
+        blocks = list(self.nve_blocks())
+        schema = self.nve_schema
+        assert schema is not None
+        if not blocks:
+            return TopicData(
+                np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, schema.width)), schema.columns
+            )
+        return _joined(blocks)
 
     def packets(self, topic: str) -> np.ndarray:
         """All packet rows of /forward/packets or /backward/packets (an NVE run's
