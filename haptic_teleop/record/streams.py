@@ -417,11 +417,11 @@ class TickEncoder:
 
     Every tick writes the same records (one per tick topic), then the received samples released
     in that tick (0 or 1 per direction; an NVE run has no received topics). A tick's records are
-    laid out as one row: the records'
-    bytes with placeholder values (record headers included), and a structured dtype names where
-    each value, header stamp and log time sits in the row. A block is a (ticks, row) array filled
-    field by field; when every tick released a sample both ways, it is the records as they go to
-    the chunk, otherwise the records are moved together around the missing ones."""
+    laid out as one row: the records' bytes with placeholder values (record headers included), and
+    a structured dtype names where each value, header stamp and log time sits in the row. A block
+    is a (ticks, row) array filled field by field; when every tick released a sample both ways, it
+    is the records as they go to the chunk, otherwise the records are moved together around the
+    missing ones."""
 
     def __init__(self, streams: RunStreams | NveStreams, cids: dict[str, int]) -> None:
         specs = streams.specs
