@@ -27,19 +27,18 @@ def _run(scene: str = "nve_push", *overrides: str, seconds: float = 6.0) -> tupl
 
 
 def _cols(e: NveEngine, k: int = 0) -> dict[str, int]:
-    """Column offsets of client k's groups (docs/nve.md, "Record"): a per group of a axes."""
-    a = e.parts.axes
-    per = 5 * a + 6
-    o = 3 * a + k * per
-    return {
-        "hip_x": o,
-        "obj_x": o + 2 * a,
-        "force": o + 4 * a,
-        "spring": o + 5 * a,
-        "rtt": o + 5 * a + 1,
-        "up_rx": o + 5 * a + 2,
-        "down_rx": o + 5 * a + 3,
+    """The first column of client k's groups (the run's NveSchema)."""
+    name = e.schema.clients[k]
+    groups = {
+        "hip_x": "hip_x_m",
+        "obj_x": "obj_x_m",
+        "force": "force_n",
+        "spring": "spring_n_per_m",
+        "rtt": "rtt_s",
+        "up_rx": "up_rx_seq",
+        "down_rx": "down_rx_seq",
     }
+    return {key: e.schema.client_group(name, g).start for key, g in groups.items()}
 
 
 def _delays(one_way_s: float, k: int = 0) -> list[str]:

@@ -195,6 +195,7 @@ def server_energy(schema: NveSchema, rows: np.ndarray, scene: dict[str, Any]) ->
     d, stored = step_dissipation_j(
         mass, rows[:, schema.group("obj_x_m")], rows[:, schema.group("obj_v_m_per_s")], ports
     )
+    d = d[:-1]  # the last tick's step has no recorded end
     if not len(d):
         return None
     # roundoff: a few units of float64 on the energies each step's difference is made of

@@ -128,13 +128,23 @@ class ObjectServer:
         k = float(self._ke[on].sum())
         d = float(self._de[on].sum())
         m = self.mass_kg
+        # Balanced: in (x, v / s) with s = 2^round(log2 omega) the matrix's entries are alike in size,
+        # so the exponential keeps the map's energy to roundoff even at omega T >> 1 (a stiff
+        # spring on a light object); scaling by a power of two is exact.
+        omega = math.sqrt(k / m)
+        sc = 2.0 ** round(math.log2(omega)) if omega > 0.0 else 1.0
         aug = np.zeros((3, 3))
-        aug[0, 1] = 1.0
-        aug[1, 0] = -k / m
+        aug[0, 1] = sc
+        aug[1, 0] = -k / m / sc
         aug[1, 1] = -(self.damping_n_s_per_m + d) / m
-        aug[1, 2] = 1.0
+        aug[1, 2] = 1.0 / sc
         e = expm(aug * self.period_s)
-        out = (e[:2, :2].copy(), e[:2, 2].copy())
+        phi = e[:2, :2].copy()
+        phi[0, 1] /= sc
+        phi[1, 0] *= sc
+        gamma = e[:2, 2].copy()
+        gamma[1] *= sc
+        out = (phi, gamma)
         self._cache[active] = out
         return out
 

@@ -116,8 +116,24 @@ class NveEngine:
             settled.append((f"{p.name}/{DOWN}", _settler(p.down, p.down_buffer)))
         output = _Output(sink, None, None, self.schema.width, directions=tuple(settled))
         block = output.block
-        width = self.schema.width
-        per_client = (width - 3 * a) // len(clients)
+        schema = self.schema
+        width = schema.width
+        obj = (schema.group("obj_x_m"), schema.group("obj_v_m_per_s"), schema.group("obj_force_n"))
+        # per client: the slices of its HIP, view, force columns and where its 6 link facts start
+        cols = [
+            (
+                schema.client_group(p.name, "hip_x_m"),
+                schema.client_group(p.name, "hip_v_m_per_s"),
+                schema.client_group(p.name, "obj_x_m"),
+                schema.client_group(p.name, "obj_v_m_per_s"),
+                schema.client_group(p.name, "force_n"),
+                schema.client_group(p.name, "spring_n_per_m").start,
+            )
+            for p in clients
+        ]
+        facts = ("spring_n_per_m", "rtt_s", "up_rx_seq", "down_rx_seq", "up_occupancy", "down_occupancy")
+        for p, c in zip(clients, cols, strict=True):  # the facts are adjacent, in this order
+            assert [schema.client_group(p.name, f).start for f in facts] == list(range(c[5], c[5] + 6))
         up_size, down_size = self._up_size, self._down_size
         base = 0
         done = 0
@@ -150,9 +166,9 @@ class NveEngine:
                     p.down.send(Packet(n, now_ns, (*xo, *vo, float(server.echo_s[k])), down_size))
                 server.step()
                 row = block[n - base]
-                row[:a] = xo
-                row[a : 2 * a] = vo
-                row[2 * a : 3 * a] = server.coupling_force_n
+                row[obj[0]] = xo
+                row[obj[1]] = vo
+                row[obj[2]] = server.coupling_force_n
                 # 3. the clients: the object they see, their round trip, the force fed back
                 for k, p in enumerate(clients):
                     for pk in p.down.deliver(now_ns):
@@ -164,13 +180,13 @@ class NveEngine:
                         cl.receive(pl[:a], pl[a : 2 * a], pl[2 * a], t)
                     xh, vh = hips[k]
                     f = cl.force(xh, vh)
-                    o = 3 * a + k * per_client
-                    row[o : o + a] = xh
-                    row[o + a : o + 2 * a] = vh
-                    row[o + 2 * a : o + 3 * a] = cl.obj_x
-                    row[o + 3 * a : o + 4 * a] = cl.obj_v
-                    row[o + 4 * a : o + 5 * a] = f
-                    row[o + 5 * a : o + 5 * a + 6] = (
+                    hx, hv, ox, ov, fc, o = cols[k]
+                    row[hx] = xh
+                    row[hv] = vh
+                    row[ox] = cl.obj_x
+                    row[ov] = cl.obj_v
+                    row[fc] = f
+                    row[o : o + 6] = (
                         cl.spring_n_per_m,
                         cl.rtt_s,
                         up_rx[k],
