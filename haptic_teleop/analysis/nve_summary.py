@@ -62,6 +62,16 @@ def _scene(reader: BagReader) -> dict[str, Any]:
     return scene if isinstance(scene, dict) else {}
 
 
+def _run_info(reader: BagReader) -> dict[str, Any]:
+    import json
+
+    try:
+        info = json.loads(reader.string("/haptic_teleop/run_info"))
+    except (BagError, ValueError):
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
 def _model(scene: dict[str, Any], client: str) -> tuple[NveModel, float] | None:
     """The client's transparency model and interaction frequency from the bag's scene."""
     nve = scene.get("nve") or {}
@@ -97,6 +107,7 @@ def summarize_nve(bag_dir: Path) -> dict[str, Any]:
     with BagReader(bag_dir) as reader:
         schema, t, rows = nve_rows(reader)
         scene = _scene(reader)
+        info = _run_info(reader)
         packets = {
             d: reader.packets(schema.packet_topic(d)) for d in schema.directions if reader.has(schema.packet_topic(d))
         }
@@ -104,6 +115,8 @@ def summarize_nve(bag_dir: Path) -> dict[str, Any]:
     out: dict[str, Any] = {
         "kind": "nve",
         "scene": (scene.get("scene") or {}).get("name", ""),
+        "seed": (scene.get("scene") or {}).get("seed"),
+        "interrupted": bool(info.get("interrupted", False)),
         "ticks": int(rows.shape[0]),
         "duration_s": float(t[-1] - t[0]) + (float(t[1] - t[0]) if len(t) > 1 else 0.0) if len(t) else 0.0,
         "axes": a,
@@ -213,7 +226,8 @@ def format_nve_summary(s: dict[str, Any]) -> str:
     """The summary as the few lines `haptic-teleop run` prints."""
     lines = [
         f"NVE run {s.get('scene', '')}: {s['ticks']} ticks ({s['duration_s']:.3f} s), {s['axes']} axis/axes, "
-        + ("all finite" if s["finite"] else "NOT FINITE"),
+        + ("all finite" if s["finite"] else "NOT FINITE")
+        + ("  (interrupted)" if s.get("interrupted") else ""),
     ]
     obj = s["object"]
     if obj["end_m"] is not None:
