@@ -26,7 +26,7 @@ import argparse
 import csv
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -439,7 +439,9 @@ def add_analysis_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _prepare(args: argparse.Namespace, name: str) -> tuple[Path, Runner]:
+def _prepare(
+    args: argparse.Namespace, name: str, validate: Callable[[Any], object] | None = None
+) -> tuple[Path, Runner]:
     """Validate the base scene with the arguments (exit 2 before anything is written), make the
     output directory; return it and a runner of the runs on the base scene with the push."""
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
@@ -456,6 +458,8 @@ def _prepare(args: argparse.Namespace, name: str) -> tuple[Path, Runner]:
     )
     if scene.config.nve.axes != 1:
         raise InputError("--set: nve.axes: the NVE experiments push along one axis; allowed: 1")
+    if validate is not None:
+        validate(scene)
     out = Path(args.out) if args.out else default_out(name)
     check_out_dir(out)
     base = (*probe.base, *push_overrides(args, out))
@@ -652,7 +656,7 @@ def _transparency_settings(scene: Any) -> str:
 
 
 def main_compensation(args: argparse.Namespace) -> int:
-    out, runner = _prepare(args, "nve-compensation")
+    out, runner = _prepare(args, "nve-compensation", _transparency_settings)
     scene = runner.scene(())
     settings = _transparency_settings(scene)
     k0 = (
