@@ -191,8 +191,8 @@ def fujimoto_overrides(alpha: float, initial: float | None, threshold_s: float) 
 
 def push_overrides(args: argparse.Namespace, out: Path) -> tuple[str, ...]:
     """The HIP's push: the scene's constant-velocity push at --speed-m-per-s from rest (a velocity
-    step), or with --ramp-s > 0 the same push whose velocity rises from 0 along a raised cosine over
-    the ramp (a trace written to OUT/hip_trace.csv)."""
+    step), or with --ramp-s > 0 the same 0.9 m push whose velocity rises from 0 and falls back to 0
+    along raised cosines over the ramp (a trace written to OUT/hip_trace.csv)."""
     base = (f"scene.duration_s={args.duration_s!r}", _client(f"operator.speed_m_per_s={args.speed_m_per_s!r}"))
     if args.ramp_s == 0.0:
         return base
@@ -203,12 +203,19 @@ def push_overrides(args: argparse.Namespace, out: Path) -> tuple[str, ...]:
 
 
 def ramp_displacement_m(t_s: np.ndarray, start_s: float, speed: float, distance_m: float, ramp_s: float) -> np.ndarray:
-    """The push with a raised-cosine velocity ramp: v = speed (1 - cos(pi tau / ramp)) / 2 over the
-    ramp, then `speed` until `distance_m` is covered, then held."""
+    """The push with raised-cosine velocity ramps, like a hand's: from `start_s` the velocity rises as
+    speed (1 - cos(pi u / ramp)) / 2 over the ramp, stays `speed`, and falls as
+    speed (1 + cos(pi u / ramp)) / 2 over the last ramp, so that `distance_m` is covered (needs
+    speed * ramp < distance_m); then held."""
     tau = np.clip(t_s - start_s, 0.0, None)
-    ramped = 0.5 * speed * (tau - ramp_s / math.pi * np.sin(math.pi * np.minimum(tau, ramp_s) / ramp_s))
-    steady = 0.5 * speed * ramp_s + speed * (tau - ramp_s)
-    x = np.where(tau < ramp_s, ramped, steady)
+    ramp_m = 0.5 * speed * ramp_s  # covered by each ramp
+    steady_s = (distance_m - 2.0 * ramp_m) / speed
+    w = math.pi / ramp_s
+    up = 0.5 * speed * (tau - np.sin(w * np.minimum(tau, ramp_s)) / w)
+    steady = ramp_m + speed * (tau - ramp_s)
+    u = np.clip(tau - ramp_s - steady_s, 0.0, ramp_s)
+    down = ramp_m + speed * steady_s + 0.5 * speed * (u + np.sin(w * u) / w)
+    x = np.where(tau < ramp_s, up, np.where(tau < ramp_s + steady_s, steady, down))
     out: np.ndarray = np.minimum(x, distance_m)
     return out
 
@@ -423,8 +430,8 @@ def add_common_arguments(p: argparse.ArgumentParser, name: str) -> None:
         "--ramp-s",
         type=number(0.0, 60.0),
         default=0.0,
-        help="0 (default): the push starts as a velocity step (nve_push's profile); > 0: its velocity rises "
-        "from 0 over this many seconds (raised cosine), like a hand's",
+        help="0 (default): the push starts and ends as a velocity step (nve_push's profile); > 0: its velocity "
+        "rises from 0 and falls back to 0 over this many seconds (raised cosines), like a hand's",
     )
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a key of the base scene nve_push")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
@@ -447,10 +454,10 @@ def _prepare(
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
     from haptic_teleop.errors import InputError
 
-    if args.ramp_s > 0.0 and args.speed_m_per_s * args.ramp_s / 2.0 >= 0.9:
+    if args.ramp_s > 0.0 and args.speed_m_per_s * args.ramp_s >= 0.9:
         raise InputError(
-            f"--ramp-s {args.ramp_s:g}: the ramp covers the whole 0.9 m push at --speed-m-per-s "
-            f"{args.speed_m_per_s:g}; allowed: ramp_s * speed / 2 < 0.9 m"
+            f"--ramp-s {args.ramp_s:g}: the two ramps cover the whole 0.9 m push at --speed-m-per-s "
+            f"{args.speed_m_per_s:g}; allowed: ramp_s * speed < 0.9 m"
         )
     probe = Runner(tuple(args.set or ()), 0, 0, True, name)
     scene = probe.scene(
