@@ -296,10 +296,14 @@ def command_line(args: argparse.Namespace, name: str, flags: Sequence[str]) -> s
 _COLOURS = ("0.55", "black", "tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange")
 
 
+# Legends beside the axes, never over a curve.
+_LEGEND: dict[str, Any] = {"fontsize": 9, "loc": "upper left", "bbox_to_anchor": (1.01, 1.0), "borderaxespad": 0.0}
+
+
 def _figure(rows: int, height: float) -> Any:
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(10, height), layout="constrained")
+    fig = Figure(figsize=(13.5, height), layout="constrained")
     return fig, fig.subplots(rows, 1, squeeze=False)[:, 0]
 
 
@@ -310,7 +314,7 @@ def force_axes(ax: Any, t: np.ndarray, series: Sequence[tuple[str, np.ndarray, s
     ax.set_ylabel("force fed back F [N]")
     ax.set_title(title, fontsize=11)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=9, loc="best")
+    ax.legend(**_LEGEND)
 
 
 def shade_push(ax: Any, t: np.ndarray, window: np.ndarray) -> None:
@@ -562,7 +566,7 @@ def plot_analysis(
     bottom.set_ylabel("force error against (1) [N]")
     bottom.set_title("Error against (1): the delayed run with the original coefficients", fontsize=11)
     bottom.grid(True, alpha=0.3)
-    bottom.legend(fontsize=9, loc="best")
+    bottom.legend(**_LEGEND)
     fig.savefig(path, dpi=100)
 
 
@@ -818,6 +822,16 @@ def plot_compensation(
                 ax.plot([a], [errs[c.key]["rms_error_n"]], "s", ms=9, color=colour, label=c.label)
             else:
                 ax.axhline(errs[c.key]["rms_error_n"], color=colour, ls=style, lw=1.6, label=c.label)
+        # At one round trip every schedule is one spring: (5)'s, written as the alpha that gives it.
+        k5 = float(traces["proposed"].spring_n_per_m[-1])
+        if excess > 0.0 and math.isfinite(k5):
+            ax.axvline(
+                (k0 - k5) / excess,
+                color="tab:red",
+                ls=":",
+                lw=1.6,
+                label=f"(5)'s spring K = {k5:.3g} N/m, as Fujimoto04's alpha",
+            )
         ax.set_xlabel("Fujimoto04's alpha [N/m per s of round trip]  (K = K0 − alpha (R − R0), floored at 0)")
         ax.set_ylabel("RMS force error against (1) [N]")
         ax.set_title(
@@ -832,7 +846,7 @@ def plot_compensation(
         )
         sec.set_xlabel("Fujimoto04's spring K at the measured round trip [N/m]")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=9, loc="best")
+        ax.legend(**_LEGEND)
     fig.savefig(path, dpi=100)
 
 
@@ -847,5 +861,5 @@ def plot_rtt(
     ax.set_ylabel("RMS force error against no delay [N]")
     ax.set_title(f"Each scheme's error against the round trip (push at {args.speed_m_per_s:g} m/s)", fontsize=11)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=9, loc="best")
+    ax.legend(**_LEGEND)
     fig.savefig(path, dpi=100)
