@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.experiments import number
+from haptic_teleop.experiments.args import number
 
 BASE_SCENE = "nve_push"
 CLIENT = 0  # the experiments push with the scene's first client
