@@ -554,7 +554,7 @@ def plot_analysis(
         t,
         [(c.label, traces[c.key].force_n, *styles[c.key]) for c in cases if c.key in styles],
         f"Verification of the transparency analysis: push at {args.speed_m_per_s:g} m/s"
-        + (f" (velocity ramp {args.ramp_s:g} s)" if args.ramp_s else " (velocity step)"),
+        + (f" (raised-cosine velocity ramps of {args.ramp_s:g} s)" if args.ramp_s else " (velocity step)"),
     )
     shade_push(bottom, t, window)
     for c in cases:
