@@ -178,6 +178,7 @@ def _bad(capsys, argv):
         (["nve-analysis", "--set", "nve.object.mass_kg=-1"], "nve.object.mass_kg"),
         (["nve-compensation", "--set", "nve.clients.0.compensation={scheme: none}"], "allowed: transparency"),
         (["nve-analysis", "--ramp-s", "30"], "--ramp-s 30"),
+        (["nve-analysis", "--set", "nve.clients.0.operator.profile=hold"], "allowed: push"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv, expect):

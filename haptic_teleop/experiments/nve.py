@@ -189,14 +189,14 @@ def fujimoto_overrides(alpha: float, initial: float | None, threshold_s: float) 
     )
 
 
-def push_overrides(args: argparse.Namespace, out: Path) -> tuple[str, ...]:
+def push_overrides(args: argparse.Namespace, out: Path, start_s: float, distance_m: float) -> tuple[str, ...]:
     """The HIP's push: the scene's constant-velocity push at --speed-m-per-s from rest (a velocity
-    step), or with --ramp-s > 0 the same 0.9 m push whose velocity rises from 0 and falls back to 0
-    along raised cosines over the ramp (a trace written to OUT/hip_trace.csv)."""
+    step), or with --ramp-s > 0 the same push (from `start_s`, over `distance_m`) whose velocity
+    rises from 0 and falls back to 0 along raised cosines over the ramp (a trace written to
+    OUT/hip_trace.csv)."""
     base = (f"scene.duration_s={args.duration_s!r}", _client(f"operator.speed_m_per_s={args.speed_m_per_s!r}"))
     if args.ramp_s == 0.0:
         return base
-    start_s, distance_m = 0.5, 0.9  # nve_push's operator
     path = out / "hip_trace.csv"
     write_ramp_trace(path, args.duration_s, start_s, args.speed_m_per_s, distance_m, args.ramp_s)
     return (base[0], _client(f"operator={{profile: trace, trace_file: {str(path.resolve())!r}}}"))
@@ -458,22 +458,27 @@ def _prepare(
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
     from haptic_teleop.errors import InputError
 
-    if args.ramp_s > 0.0 and args.speed_m_per_s * args.ramp_s >= 0.9:
-        raise InputError(
-            f"--ramp-s {args.ramp_s:g}: the two ramps cover the whole 0.9 m push at --speed-m-per-s "
-            f"{args.speed_m_per_s:g}; allowed: ramp_s * speed < 0.9 m"
-        )
     probe = Runner(tuple(args.set or ()), 0, 0, True, name)
     scene = probe.scene(
         (f"scene.duration_s={args.duration_s!r}", _client(f"operator.speed_m_per_s={args.speed_m_per_s!r}"))
     )
     if scene.config.nve.axes != 1:
         raise InputError("--set: nve.axes: the NVE experiments push along one axis; allowed: 1")
+    op = scene.config.nve.clients[CLIENT].operator
+    if op.profile != "push":
+        raise InputError(
+            f"--set: nve.clients.{CLIENT}.operator.profile = {op.profile!r}: the experiments push; allowed: push"
+        )
+    if args.ramp_s > 0.0 and args.speed_m_per_s * args.ramp_s >= op.distance_m:
+        raise InputError(
+            f"--ramp-s {args.ramp_s:g}: the two ramps cover the whole {op.distance_m:g} m push at --speed-m-per-s "
+            f"{args.speed_m_per_s:g}; allowed: ramp_s * speed < the push's distance"
+        )
     if validate is not None:
         validate(scene)
     out = Path(args.out) if args.out else default_out(name)
     check_out_dir(out)
-    base = (*probe.base, *push_overrides(args, out))
+    base = (*probe.base, *push_overrides(args, out, op.start_s, op.distance_m))
     ticks = int(round(args.duration_s / scene.config.scene.period_s))
     return out, Runner(base, ticks, 0, args.quiet, name)
 
