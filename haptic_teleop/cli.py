@@ -1,4 +1,4 @@
-"""`haptic-teleop run | analyze | sweep | scenes | bench | launch | identify`: the command line."""
+"""`haptic-teleop run | analyze | sweep | scenes | bench | launch | identify | experiment`: the command line."""
 
 from __future__ import annotations
 
@@ -315,6 +315,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     identify.add_arguments(idp)
     idp.set_defaults(func=identify.main)
+
+    from haptic_teleop.experiments import add_arguments as add_experiment_arguments
+
+    ex = sub.add_parser(
+        "experiment", help="the seeds' experiments as commands: plot, CSV and table (docs/nve_experiments.md)"
+    )
+    add_experiment_arguments(ex)
 
     from haptic_teleop.launcher import add_arguments as add_launch_arguments
 

@@ -1,0 +1,27 @@
+"""`haptic-teleop experiment NAME`: the experiments of the seeds as commands, each writing its plot
+(PNG) and table (CSV, and markdown printed to stdout). Command-line layer: imported by cli.py only.
+
+- `nve-analysis`, `nve-compensation`: seed 000's two NVE experiments (experiments/nve.py,
+  docs/nve_experiments.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from haptic_teleop.experiments.args import OneLineParser
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """`haptic-teleop experiment NAME ...` on `p` (made by cli.py's subparsers: it becomes a
+    OneLineParser too, so an unknown NAME is one line as well)."""
+    from haptic_teleop.experiments import nve
+
+    p.__class__ = OneLineParser
+    sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
+    a = sub.add_parser("nve-analysis", help=nve.ANALYSIS_HELP, description=nve.ANALYSIS_HELP)
+    nve.add_analysis_arguments(a)
+    a.set_defaults(func=nve.main_analysis)
+    c = sub.add_parser("nve-compensation", help=nve.COMPENSATION_HELP, description=nve.COMPENSATION_HELP)
+    nve.add_compensation_arguments(c)
+    c.set_defaults(func=nve.main_compensation)
