@@ -15,7 +15,6 @@ from haptic_teleop.experiments.nve import (
     NO_COMPENSATION,
     Case,
     Runner,
-    column_index,
     delay_overrides,
     errors,
     push_window,
@@ -38,15 +37,15 @@ def _row(rows, tag):
     return row
 
 
-def test_the_column_function_finds_the_force_hip_and_object(tmp_path):
-    """The one place that maps record names to columns: the force column is k_h (hip_x - obj_x)
+def test_the_schema_columns_hold_the_force_hip_and_object(tmp_path):
+    """The force column is k_h (hip_x - obj_x)
     of the columns it names (d_h = 0), and the HIP's velocity is the push speed during the push."""
     scene = load_scene(find_scene("nve_push"), overrides=["scene.duration_s=2.0"])
     engine = NveEngine(scene)
     engine.run(handle_sigint=False)
     d = engine.data
     col = {
-        g: d[:, column_index(engine.schema, f"client.{g}")]
+        g: d[:, engine.schema.index(f"client.{g}")]
         for g in ("hip_x_m", "obj_x_m", "force_n", "spring_n_per_m", "hip_v_m_per_s", "rtt_s")
     }
     seen = ~np.isnan(col["obj_x_m"])
@@ -56,7 +55,7 @@ def test_the_column_function_finds_the_force_hip_and_object(tmp_path):
     )
     assert np.all(col["hip_v_m_per_s"][1000:] == pytest.approx(V))
     assert np.nanmax(col["rtt_s"]) == pytest.approx(R + 0.001)
-    assert d[:, column_index(engine.schema, "obj_x_m")][-1] > 0.05  # the server's object moved
+    assert d[:, engine.schema.index("obj_x_m")][-1] > 0.05  # the server's object moved
 
 
 def test_analysis_runs_end_to_end_and_the_distorted_object_matches_the_delayed_force(tmp_path, capsys):

@@ -47,34 +47,6 @@ COMPENSATION_HELP = (
     "compensation, Fujimoto04 (two settings) and the proposed scheme, each against no delay; plot, CSV, table"
 )
 
-# --- the record's columns --------------------------------------------------------------------------
-
-_SERVER_GROUPS = ("obj_x_m", "obj_v_m_per_s", "obj_force_n")
-_CLIENT_GROUPS = ("hip_x_m", "hip_v_m_per_s", "obj_x_m", "obj_v_m_per_s", "force_n")  # one column per axis
-_CLIENT_SCALARS = ("spring_n_per_m", "rtt_s", "up_rx_seq", "down_rx_seq", "up_occupancy", "down_occupancy")
-
-
-def column_index(schema: Any, name: str) -> int:
-    """The column of a one-axis NVE row named `name` (the record's names: `obj_x_m`,
-    `client.force_n`, `client.rtt_s`). Uses the schema's own `index` when it has one (the full
-    record schema); otherwise the layout of docs/nve.md, "Record": server 3 a columns, then per
-    client 5 a + 6."""
-    index = getattr(schema, "index", None)
-    if index is not None:
-        return int(index(name))
-    clients: tuple[str, ...] = tuple(schema.clients)
-    if schema.axes != 1:
-        raise ValueError("the NVE experiments are one-axis")
-    if name in _SERVER_GROUPS:
-        return _SERVER_GROUPS.index(name)
-    client, _, group = name.partition(".")
-    per_client = len(_CLIENT_GROUPS) + len(_CLIENT_SCALARS)
-    where = (*_CLIENT_GROUPS, *_CLIENT_SCALARS)
-    if client not in clients or group not in where:
-        raise ValueError(f"no column {name!r} in this NVE run")
-    return len(_SERVER_GROUPS) + clients.index(client) * per_client + where.index(group)
-
-
 # --- runs ------------------------------------------------------------------------------------------
 
 
@@ -154,7 +126,7 @@ class Runner:
         name = engine.schema.clients[CLIENT]
 
         def col(group: str) -> np.ndarray:
-            out: np.ndarray = data[:, column_index(engine.schema, f"{name}.{group}")].copy()
+            out: np.ndarray = data[:, engine.schema.index(f"{name}.{group}")].copy()
             return out
 
         return Trace(
