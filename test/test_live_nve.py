@@ -1,0 +1,257 @@
+"""NVE scenes live: the server, the clients, their relays and sync buffers as real processes over
+real DDS on localhost (conftest: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, own ROS_DOMAIN_ID).
+
+An independent subscriber in this process watches the nodes' topics; every check is on what the
+nodes published (message values and stamps), never on wall-clock rates.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+from launched import Launch
+
+rclpy = pytest.importorskip("rclpy")
+
+PERIOD_NS = 1_000_000
+DELAY_S = 0.05  # one way, each direction
+DURATION_S = 3.0
+K_H = 0.5  # nve_push: client_stiffness_n_per_m
+PUSH_START_S = 0.5  # nve_push: operator.start_s
+DELAYS = ("--set", f"nve.clients.0.up.effects.delay.delay_s={DELAY_S}",
+          "--set", f"nve.clients.0.down.effects.delay.delay_s={DELAY_S}")  # fmt: skip
+
+
+def _types() -> dict[str, type]:
+    from geometry_msgs.msg import PoseStamped, WrenchStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+
+    return {"joint": JointState, "pose": PoseStamped, "wrench": WrenchStamped, "array": Float64MultiArray}
+
+
+class Watcher:
+    """Raw subscriptions to the given topics (deep reader history), taken by a polling thread and
+    decoded at the end (a callback per message would fall behind on a loaded machine)."""
+
+    def __init__(self, topics: dict[str, str]) -> None:
+        from haptic_teleop.nodes.messages import _polled_group_class, take_all
+        from haptic_teleop.nodes.topics import stream_qos
+
+        self.kinds = topics
+        types = _types()
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("test_nve_watcher", context=self.context)
+        group = _polled_group_class()()
+        self.subs = {
+            t: self.node.create_subscription(types[k], t, lambda m: None, stream_qos(5000), callback_group=group,
+                                             raw=True)
+            for t, k in topics.items()
+        }  # fmt: skip
+        self.raw: dict[str, list[bytes]] = {t: [] for t in topics}
+        self._stop = threading.Event()
+        self._take = take_all
+        self.thread = threading.Thread(target=self._poll, daemon=True)
+        self.thread.start()
+
+    def _poll(self) -> None:
+        while not self._stop.is_set():
+            for topic, sub in self.subs.items():
+                self.raw[topic].extend(self._take(sub))
+            time.sleep(0.002)
+
+    def messages(self, topic: str) -> list:
+        from rclpy.serialization import deserialize_message
+
+        t = _types()[self.kinds[topic]]
+        return [deserialize_message(r, t) for r in list(self.raw[topic])]
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(2.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _stamp(m) -> int:
+    return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+
+
+def _by_stamp(msgs, values) -> dict[int, tuple[float, ...]]:
+    return {_stamp(m): values(m) for m in msgs}
+
+
+PUSH_TOPICS = {
+    "/nve/client/hip/joint_states": "joint",
+    "/nve/client/object_pose": "pose",
+    "/nve/client/feedback_wrench": "wrench",
+    "/nve/client/coupling": "array",
+    "/nve/object/joint_states": "joint",
+    "/client/down/received": "joint",
+}
+
+
+@pytest.fixture(scope="module")
+def push_run(tmp_path_factory):
+    """nve_push live for 3 s of scene time, 50 ms each way, one process per node."""
+    cwd = tmp_path_factory.mktemp("nve_live")
+    w = Watcher(PUSH_TOPICS)
+    try:
+        launch = Launch("nve_push", "--duration", str(DURATION_S), *DELAYS, cwd=cwd)
+        stamp0 = int(launch.wait_for(r"\[nve_server\].*scene time 0 at stamp (\d+) ns", 60).group(1))
+        code = launch.finish(90)
+        time.sleep(0.2)  # the last messages reach this subscriber
+        data = {t: w.messages(t) for t in PUSH_TOPICS}
+    finally:
+        w.close()
+    return {"code": code, "launch": launch, "stamp0": stamp0, "data": data}
+
+
+def test_push_runs_live_and_every_process_exits_0(push_run):
+    launch = push_run["launch"]
+    assert push_run["code"] == 0, launch.text[-4000:]
+    codes = launch.exit_codes()
+    expected = {"nve_server", "nve_client_client", "client_up_relay", "client_up_buffer",
+                "client_down_relay", "client_down_buffer"}  # fmt: skip
+    assert set(codes) == expected and all(c == 0 for c in codes.values()), codes
+    assert "Traceback" not in launch.text
+    print(launch.loop_table())
+
+
+def test_client_measures_the_round_trip_of_the_links_plus_a_few_ticks(push_run):
+    """R = t - echo, as the client measured it: at least the 0.1 s the two links delay by, and
+    within a few ticks of it (relay, buffer and server each wait for their phase of a tick)."""
+    rows = np.array([m.data for m in push_run["data"]["/nve/client/coupling"]])
+    assert rows.shape[0] > 1000
+    rtt = rows[:, 1]
+    measured = rtt[~np.isnan(rtt)]
+    assert measured.size > 1000
+    print(f"measured R: min {measured.min():.4f} median {np.median(measured):.4f} max {measured.max():.4f} s")
+    assert np.all(measured >= 2 * DELAY_S)
+    assert np.median(measured) <= 2 * DELAY_S + 0.008
+    assert np.percentile(measured, 99) <= 2 * DELAY_S + 0.03
+    # the echo the server carried is the client's own send stamp: an up sample's tick in scene time
+    echo = np.array([m.position[1] for m in push_run["data"]["/client/down/received"]])
+    echo = echo[~np.isnan(echo)]
+    assert echo.size > 1000 and np.allclose(echo * 1e3, np.round(echo * 1e3), atol=1e-6)
+
+
+def test_force_is_the_clients_spring_toward_the_object_it_received(push_run):
+    """F = k_h (x_h - x_o') from the messages themselves: the HIP (hip/joint_states), the object
+    as the client used it (object_pose), the force (feedback_wrench and the HIP's effort)."""
+    d = push_run["data"]
+    hip = _by_stamp(d["/nve/client/hip/joint_states"], lambda m: (m.position[0], m.effort[0]))
+    pose = _by_stamp(d["/nve/client/object_pose"], lambda m: (m.pose.position.x,))
+    wrench = _by_stamp(d["/nve/client/feedback_wrench"], lambda m: (m.wrench.force.x,))
+    stamps = sorted(set(hip) & set(pose) & set(wrench))
+    assert len(stamps) > 1000
+    xh = np.array([hip[s][0] for s in stamps])
+    fh = np.array([hip[s][1] for s in stamps])
+    xo = np.array([pose[s][0] for s in stamps])
+    f = np.array([wrench[s][0] for s in stamps])
+    t = (np.array(stamps) - push_run["stamp0"]) * 1e-9
+    assert np.all(np.isfinite(f)) and np.array_equal(f, fh)
+    before = np.isnan(xo)  # no object sample yet: no force
+    assert np.all(f[before] == 0.0)
+    assert np.all(before[t < 2 * DELAY_S])  # none can have come back before the round trip (if seen)
+    springs = np.array([m.data[0] for m in d["/nve/client/coupling"]])
+    assert np.all(springs == K_H)  # R below the transparency scheme's allowable delay: k_h unchanged
+    got = ~before
+    assert np.allclose(f[got], K_H * (xh[got] - xo[got]), rtol=1e-12, atol=1e-15)
+    pushing = (t > PUSH_START_S + 0.3) & (t < PUSH_START_S + 1.8)  # the object lags the HIP (engine: to 2.75 s)
+    assert pushing.sum() > 500 and np.all(f[pushing] > 0.0)  # finite, nonzero once the push is on
+    # every object position the client used is one the server sent and the client's buffer released
+    released = {float(m.position[0]) for m in d["/client/down/received"]}
+    used = [float(x) for x in xo[got]]
+    assert sum(x in released for x in used) >= 0.99 * len(used)  # (this subscriber may miss a few)
+
+
+def test_object_moves_toward_the_hip(push_run):
+    d = push_run["data"]
+    obj = _by_stamp(d["/nve/object/joint_states"], lambda m: (m.position[0], m.velocity[0], m.effort[0]))
+    hip = _by_stamp(d["/nve/client/hip/joint_states"], lambda m: (m.position[0],))
+    stamps = sorted(set(obj) & set(hip))
+    assert len(stamps) > 1000
+    t = (np.array(stamps) - push_run["stamp0"]) * 1e-9
+    xo = np.array([obj[s][0] for s in stamps])
+    xh = np.array([hip[s][0] for s in stamps])
+    late = t > PUSH_START_S + 0.5
+    assert np.all(xo[t < PUSH_START_S] == 0.0)  # at rest until the HIP (and its 50 ms) reach it
+    behind = late & (t < 2.5)  # the light object then overshoots the HIP (the engine's does too)
+    assert behind.sum() > 500 and np.all(xo[behind] < xh[behind])  # behind the HIP that pulls it
+    assert np.all(np.diff(xo[late]) > 0.0)  # forward, all the time
+    print(f"object at {t[-1]:.3f} s: {xo[-1]:.4f} m, HIP {xh[-1]:.4f} m")
+    assert xo[-1] > 0.02
+
+
+def test_live_push_follows_the_engine(push_run):
+    """The same scene in the engine (lockstep, simulated time): the live client's force tracks it
+    (the live round trip is a few ticks longer: a generous band)."""
+    from haptic_teleop.engine.nve_loop import NveEngine
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    sets = [DELAYS[1], DELAYS[3], f"scene.duration_s={DURATION_S}"]
+    engine = NveEngine(load_scene(find_scene("nve_push"), overrides=sets))
+    engine.run(handle_sigint=False)
+    assert engine.data is not None
+    f_engine = engine.data[:, 3 + 4]  # client.force_n (server: 3 columns; client: hip x, v, obj x, v, force)
+    d = push_run["data"]
+    wrench = _by_stamp(d["/nve/client/feedback_wrench"], lambda m: (m.wrench.force.x,))
+    n = np.array(sorted(wrench)) - push_run["stamp0"]
+    ticks = n // PERIOD_NS
+    ok = (ticks >= 0) & (ticks < engine.data.shape[0])
+    f_live = np.array([wrench[s][0] for s in sorted(wrench)])[ok]
+    ref = f_engine[ticks[ok]]
+    err = np.abs(f_live - ref).max()
+    print(f"live vs engine force: max |error| {err:.2e} N of max {np.abs(ref).max():.3e} N")
+    assert err <= 0.1 * np.abs(ref).max()
+
+
+def test_sigint_stops_every_nve_process_cleanly(tmp_path):
+    """Ctrl-C (SIGINT to the launcher) mid-run: each node stops and exits 0, the launch 130."""
+    launch = Launch("nve_push", "--duration", "60", *DELAYS, cwd=tmp_path)
+    launch.wait_for(r"\[nve_server\].*scene time 0 at stamp", 60)
+    time.sleep(0.5)
+    launch.proc.send_signal(signal.SIGINT)
+    code = launch.finish(60)
+    assert code == 130, launch.text[-4000:]
+    codes = launch.exit_codes()
+    assert len(codes) == 6 and all(c == 0 for c in codes.values()), codes
+    assert "Traceback" not in launch.text
+
+
+def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tmp_path):
+    """nve_two_clients, all nodes in one process (--single-process), SIGTERM ends it: each client
+    measures its own links' round trip (near: 20 ms, far: 300 ms), in 3 axes."""
+    topics = {"/nve/near/coupling": "array", "/nve/far/coupling": "array", "/nve/object/joint_states": "joint"}
+    w = Watcher(topics)
+    try:
+        launch = Launch("nve_two_clients", "--duration", "60", "--single-process", cwd=tmp_path)
+        launch.wait_for(r"\[nve_server\].*scene time 0 at stamp", 60)
+        end = time.monotonic() + 60
+        while time.monotonic() < end:  # until the far client has measured a while
+            far = [m.data[1] for m in w.messages("/nve/far/coupling")]
+            if sum(1 for r in far if not math.isnan(r)) > 300:
+                break
+            time.sleep(0.1)
+        launch.proc.send_signal(signal.SIGTERM)
+        code = launch.finish(60)
+        data = {t: w.messages(t) for t in topics}
+    finally:
+        w.close()
+    assert code == 143, launch.text[-4000:]
+    assert "Traceback" not in launch.text
+    for name, rtt in (("near", 0.02), ("far", 0.3)):
+        r = np.array([m.data[1] for m in data[f"/nve/{name}/coupling"]])
+        r = r[~np.isnan(r)]
+        assert r.size > 100, name
+        print(f"{name}: measured R median {np.median(r):.4f} s")
+        assert rtt <= np.median(r) <= rtt + 0.01, name
+    obj = data["/nve/object/joint_states"]
+    assert obj and all(len(m.position) == 3 and len(m.effort) == 3 for m in obj)
