@@ -243,7 +243,9 @@ def nve_plan(
     axes = {"task_axes": nve.axes}
     plan = [NodeSpec("nve_server", "nve_server", scene_params(scene, "nve_server"))]
     for c in nve.clients:
-        plan.append(NodeSpec(nve_client_node(c.name), "nve_client", {"client": c.name, **scene_params(scene, "nve_client")}))
+        plan.append(
+            NodeSpec(nve_client_node(c.name), "nve_client", {"client": c.name, **scene_params(scene, "nve_client")})
+        )
     for c in nve.clients:
         for link in ("up", "down"):
             d = f"{c.name}/{link}"

@@ -255,3 +255,82 @@ def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tm
         assert rtt <= np.median(r) <= rtt + 0.01, name
     obj = data["/nve/object/joint_states"]
     assert obj and all(len(m.position) == 3 and len(m.effort) == 3 for m in obj)
+
+
+def test_wire_layouts_carry_the_engines_payloads():
+    """The NVE wire (NVE_DESIGN, "As built"): up = (x.., v..) as position, velocity; down = position
+    (x_o.., echo_s), velocity (v_o.., 0), both ways; teleoperation's wires as before."""
+    from haptic_teleop.nodes.wire import direction_problem, wire_of
+
+    down = wire_of("c1/down", 3)
+    assert down.names == ("object_x", "object_y", "object_z", "hip_echo_s") and down.fields == ("position", "velocity")
+    payload = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.25)  # x_o, v_o, echo_s
+    assert down.values(payload) == [1.0, 2.0, 3.0, 0.25, 4.0, 5.0, 6.0, 0.0]
+    assert down.payload(down.values(payload)) == payload
+    up = wire_of("c1/up", 1)
+    assert up.names == ("c1_hip_x",) and up.values((0.1, 0.2)) == [0.1, 0.2] and up.payload((0.1, 0.2)) == (0.1, 0.2)
+    back = wire_of("backward", 1)  # payload (f_env, x_s, v_s) -> JointState position, velocity, effort
+    assert back.names == "slave_x" and back.values((9.0, 1.0, 2.0)) == [1.0, 2.0, 9.0]
+    assert direction_problem("c1/sideways") is not None and direction_problem("forward") is None
+
+
+@pytest.fixture
+def context():
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def _node(context, cls, params):
+    from rclpy.parameter import Parameter
+
+    return cls(
+        context=context,
+        node_name="test_nve_node",
+        parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+    )
+
+
+def test_relay_of_a_down_link_runs_the_nve_link_and_forwards_the_sample_unchanged(context):
+    """A `<client>/down` relay runs the link of that direction from its client's scene section (in
+    scene time) and reads the down layout into the engine's payload (x_o, v_o, echo_s)."""
+    from haptic_teleop.nodes.cdr import JointStateCodec
+    from haptic_teleop.nodes.network_relay import NetworkRelay
+
+    params = {"direction": "c1/down", "scene.period_s": 0.001, "nve.client_names": ["c1"],
+              "nve.clients.c1.down.effects.delay.delay_s": 0.002, "scene_start": "first_sample"}  # fmt: skip
+    relay = _node(context, NetworkRelay, params)
+    try:
+        raw = JointStateCodec(("object_x", "hip_echo_s"), ("position", "velocity")).encode(
+            5_000_000, (0.3, 0.001, 0.7, 0.0)
+        )
+        relay._on_sent(raw, 5_100_000)
+        assert relay.link.sent == 1 and relay.link.in_flight == 1
+        p = relay.link.log[0]
+        assert tuple(p.payload) == (0.3, 0.7, 0.001)  # x_o, v_o, echo_s
+        assert p.arrival_time_ns == 100_000 + 2_000_000  # scene time (from the first sample) + the delay
+        assert [e.name for e in relay.link.effects] == ["delay"]
+    finally:
+        relay.destroy_node()
+
+
+@pytest.mark.parametrize(
+    ("cls", "params", "key"),
+    [
+        ("nve_client", {"client": "nobody", "nve.client_names": ["c1"]}, "client"),
+        ("network_relay", {"direction": "c1/sideways"}, "direction"),
+        ("sync_buffer", {"direction": "c2/up", "nve.client_names": ["c1"]}, "nve.client_names"),
+    ],
+)
+def test_bad_nve_parameters_name_what_is_wrong(context, cls, params, key):
+    import importlib
+
+    from haptic_teleop.errors import ConfigError
+    from haptic_teleop.nodes import EXECUTABLES
+
+    module = importlib.import_module(EXECUTABLES[cls])
+    node_cls = {"nve_client": "NveClientNode", "network_relay": "NetworkRelay", "sync_buffer": "SyncBuffer"}[cls]
+    with pytest.raises(ConfigError) as err:
+        _node(context, getattr(module, node_cls), params)
+    assert key in str(err.value)

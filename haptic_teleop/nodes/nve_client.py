@@ -102,11 +102,18 @@ class NveClientNode(LiveNode):
         self._read_down = JointStateReader(down.want, [(down.names, down.fields)], down.width)
         self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
         self.hip_out = JointStateOut(self, nve_hip_topic(name), hip_names(name, a), ("position", "velocity", "effort"))
-        self.wrench_out = _FixedOut(self, WrenchStamped, nve_wrench_topic(name), FixedLayout(WRENCH, make_wrench(NVE_FRAME, a), a))
-        self.pose_out = _FixedOut(self, PoseStamped, nve_pose_topic(name), FixedLayout(POSE, make_pose(NVE_FRAME, a), a))
+        self.wrench_out = _FixedOut(
+            self, WrenchStamped, nve_wrench_topic(name), FixedLayout(WRENCH, make_wrench(NVE_FRAME, a), a)
+        )
+        self.pose_out = _FixedOut(
+            self, PoseStamped, nve_pose_topic(name), FixedLayout(POSE, make_pose(NVE_FRAME, a), a)
+        )
         labels = NVE_COUPLING_LABELS
         self.coupling_out = _FixedOut(
-            self, Float64MultiArray, nve_coupling_topic(name), FixedLayout(MULTIARRAY, make_multiarray(labels), len(labels))
+            self,
+            Float64MultiArray,
+            nve_coupling_topic(name),
+            FixedLayout(MULTIARRAY, make_multiarray(labels), len(labels)),
         )
         self.start_ns: int | None = None
         self.received = 0

@@ -210,7 +210,7 @@ def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str]
     raw: dict[str, Any] = {}
     declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM, LOOP_CATCH_UP_PARAM}
     names: list[str] = []
-    if any(s == "" or s == "nve" or s.startswith("nve.") for s in sections):
+    if any(s in {"", "nve"} or s.startswith("nve.") for s in sections):
         names = _declare_client_names(node)
         declared.add(NVE_CLIENT_NAMES_PARAM)
         for s in sections:

@@ -94,6 +94,8 @@ def wire_of(direction: str, axes: int = 1) -> Wire:
         )  # fmt: skip
     client, which = nd
     if which == NVE_UP:
-        return Wire(direction, axes, hip_names(client, axes), ("position", "velocity"), ("position", "velocity"), axes, 2)
+        return Wire(
+            direction, axes, hip_names(client, axes), ("position", "velocity"), ("position", "velocity"), axes, 2
+        )
     names = (*object_names(axes), ECHO_NAME)
     return Wire(direction, axes, names, ("position", "velocity"), ("position", "velocity"), axes + 1, 3)
