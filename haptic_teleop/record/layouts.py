@@ -30,6 +30,7 @@ from haptic_teleop.record.columns import (
     TopicColumns,
     tick_topics,
 )
+from haptic_teleop.record.nve_columns import TWIST, NveSchema, NveTopic, nve_topics
 
 STRING = "std_msgs/msg/String"
 PACKET_FIELDS = ("seq", "send_time_s", "arrival_time_s", "fate", "duplicate", "size_bytes")
@@ -110,6 +111,18 @@ def make_pose(frame: str, axes: int = 3) -> Callable[[Sequence[float], int, int]
             orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
         )
         return t[POSE](header=_header(ts, sec, nsec, frame), pose=pose)
+
+    return make
+
+
+def make_twist(frame: str, axes: int = 3) -> Callable[[Sequence[float], int, int], Any]:
+    """Message builder: the first `axes` linear velocity components (x, y, z), the rest 0; angular 0."""
+    ts = typestore()
+    t = ts.types
+
+    def make(values: Sequence[float], sec: int, nsec: int) -> Any:
+        twist = t["geometry_msgs/msg/Twist"](linear=_vector3(ts, values[:axes]), angular=_vector3(ts, ()))
+        return t[TWIST](header=_header(ts, sec, nsec, frame), twist=twist)
 
     return make
 
@@ -206,6 +219,28 @@ def topic_specs(schema: TickSchema = ONE_DOF) -> dict[str, TopicSpec]:
         t.topic: TopicSpec(t.topic, _layout(t, schema), t.value_names(schema), tuple(t.columns(schema)))
         for t in tick_topics(schema)
     }
+
+
+def _nve_layout(t: NveTopic, n: int) -> FixedLayout:
+    if t.msgtype == JOINT_STATE:
+        return FixedLayout(JOINT_STATE, make_joint_state(t.names, [f for f, _ in t.fields]), n)
+    if t.msgtype == POSE:
+        return FixedLayout(POSE, make_pose(t.frame, n), n)
+    if t.msgtype == TWIST:
+        return FixedLayout(TWIST, make_twist(t.frame, n), n)
+    if t.msgtype == WRENCH:
+        return FixedLayout(WRENCH, make_wrench(t.frame, n, 0), n)
+    return FixedLayout(MULTIARRAY, make_multiarray(t.names), n)
+
+
+@lru_cache(maxsize=16)
+def nve_topic_specs(schema: NveSchema) -> dict[str, TopicSpec]:
+    """The fixed-layout topics of an NVE run with this schema (record/nve_columns.py, `nve_topics`)."""
+    out = {}
+    for t in nve_topics(schema):
+        cols = t.columns(schema)
+        out[t.topic] = TopicSpec(t.topic, _nve_layout(t, len(cols)), t.value_names(schema), tuple(cols))
+    return out
 
 
 def joint_state_size(floats: int, axes: int = 1) -> int:

@@ -11,7 +11,8 @@ import numpy as np
 
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.columns import JOINT_STATE, MULTIARRAY, ONE_DOF, POSE, SchemaError, TickSchema
-from haptic_teleop.record.layouts import PACKET_FIELDS, STRING, TopicSpec, topic_specs, typestore
+from haptic_teleop.record.layouts import PACKET_FIELDS, STRING, TopicSpec, nve_topic_specs, topic_specs, typestore
+from haptic_teleop.record.nve_columns import TWIST, NveSchema, nve_schema_from_topics
 
 
 @dataclass
@@ -29,7 +30,7 @@ class TopicData:
 
 def _deserialize_values(spec: TopicSpec, msg: Any) -> list[float]:
     """The values of one message, by the spec's value names (`position`, `position[joint]`,
-    `force_x`, `position_z`, or Float64MultiArray data in order)."""
+    `force_x`, `position_z`, `linear_y`, or Float64MultiArray data in order)."""
     msgtype = spec.layout.msgtype
     if msgtype == MULTIARRAY:
         return [float(v) for v in msg.data[: len(spec.fields)]]
@@ -43,9 +44,22 @@ def _deserialize_values(spec: TopicSpec, msg: Any) -> list[float]:
         return out
     for f in spec.fields:
         field, _, axis = f.rpartition("_")
-        vec = msg.pose.position if msgtype == POSE else getattr(msg.wrench, field)
+        if msgtype == POSE:
+            vec = msg.pose.position
+        else:
+            vec = getattr(msg.twist if msgtype == TWIST else msg.wrench, field)
         out.append(float(getattr(vec, axis)))
     return out
+
+
+def _joined(parts: list[TopicData]) -> TopicData:
+    """Blocks of one topic (or of rows) as one."""
+    stamps = (
+        None if parts[0].stamp_ns is None else np.concatenate([p.stamp_ns for p in parts if p.stamp_ns is not None])
+    )
+    return TopicData(
+        np.concatenate([p.log_ns for p in parts]), stamps, np.concatenate([p.values for p in parts]), parts[0].fields
+    )
 
 
 def _stamp_of(msg: Any) -> int | None:
@@ -270,10 +284,16 @@ class BagReader:
         """The run's tick schema (joint names, task axes), read from the bag itself: the joint
         names of the first /master/joint_states and /slave/joint_states messages and the axes of
         /operator/joint_states; without those messages, the run facts' `tick_schema`; else the
-        1-DoF schema."""
+        1-DoF schema. A BagError for an NVE run's bag (its schema is `nve_schema`)."""
         cached: TickSchema | None = self.__dict__.get("_schema")
         if cached is not None:
             return cached
+        nve = self.nve_schema
+        if nve is not None:
+            raise BagError(
+                f"{self.path} is an NVE run's bag (clients {', '.join(nve.clients)}, {nve.axes} axes), "
+                "not a teleoperation run's: it has no tick schema"
+            )
         schema = self._schema_from_messages() or self._schema_from_facts() or ONE_DOF
         self.__dict__["_schema"] = schema
         return schema
@@ -313,9 +333,56 @@ class BagReader:
         except SchemaError as exc:
             raise BagError(f"{self.path}: run facts: {exc}") from None
 
+    @property
+    def nve_schema(self) -> NveSchema | None:
+        """An NVE run's schema (clients, axes), or None for a teleoperation run's bag: the run
+        facts' `nve_schema`; without them (a recovered bag of a killed run), the clients' HIP
+        topics in connection order and the names of the first /nve/object/joint_states message."""
+        if "_nve_schema" in self.__dict__:
+            cached: NveSchema | None = self.__dict__["_nve_schema"]
+            return cached
+        schema = None
+        if "/nve/object/joint_states" in self.topics:
+            schema = self._nve_schema_from_facts() or self._nve_schema_from_messages()
+        self.__dict__["_nve_schema"] = schema
+        return schema
+
+    def _nve_schema_from_facts(self) -> NveSchema | None:
+        import json
+
+        if "/haptic_teleop/run_info" not in self.topics:
+            return None
+        try:
+            facts = json.loads(self.string("/haptic_teleop/run_info")).get("nve_schema")
+        except (BagError, ValueError, AttributeError):
+            return None
+        if facts is None:
+            return None
+        try:
+            return NveSchema.from_facts(facts)
+        except SchemaError as exc:
+            raise BagError(f"{self.path}: run facts: {exc}") from None
+
+    def _nve_schema_from_messages(self) -> NveSchema | None:
+        first = self._first("/nve/object/joint_states", JOINT_STATE)
+        if first is None:
+            raise BagError(
+                f"{self.path}: an NVE run's bag without run facts and without object states: its schema is unknown"
+            )
+        try:
+            return nve_schema_from_topics(self._topics_in_channel_order(), len(first.name))
+        except SchemaError as exc:
+            raise BagError(f"{self.path}: the NVE topics name no usable schema ({exc})") from None
+
+    def _topics_in_channel_order(self) -> list[str]:
+        if self._rosbags is not None:
+            return [c.topic for c in sorted(self._rosbags.connections, key=lambda c: c.id)]
+        return [c.topic for f in self._files for _, c in sorted(f.channels.items())]
+
     def specs(self) -> dict[str, TopicSpec]:
-        """The fixed-layout topics of this bag's tick schema."""
-        return topic_specs(self.schema)
+        """The fixed-layout topics of this bag's schema (tick schema, or an NVE run's)."""
+        nve = self.nve_schema
+        return nve_topic_specs(nve) if nve is not None else topic_specs(self.schema)
 
     def string(self, topic: str) -> str:
         ts = typestore()
@@ -360,8 +427,65 @@ class BagReader:
             stamps_l[i] = -1 if s is None else s
         return TopicData(log, stamps_l if spec.layout.msgtype != MULTIARRAY else None, values, spec.fields)
 
+    def nve_blocks(self) -> Iterator[TopicData]:
+        """An NVE run's tick rows rebuilt from its per-tick topics, block by block (the topics read
+        side by side, chunk by chunk: memory of a chunk, not of the run): values (ticks,
+        schema.width) in the columns of `nve_schema` (`fields` = its column names, so
+        `.field("client1.rtt_s")`), log times and stamps. Of a bag whose cut fell inside a tick
+        (recovered), the ticks every topic holds."""
+        schema = self.nve_schema
+        if schema is None:
+            raise BagError(f"{self.path}: not an NVE run's bag (no /nve/object/joint_states)")
+        specs = nve_topic_specs(schema)
+        ref_topic = "/nve/object/joint_states"
+        sources = {t: self.blocks(t) for t in specs}
+        pending: dict[str, list[TopicData]] = {t: [] for t in specs}
+        have = dict.fromkeys(specs, 0)
+        while True:
+            for topic, source in sources.items():
+                while not have[topic]:
+                    block = next(source, None)
+                    if block is None:
+                        break
+                    pending[topic].append(block)
+                    have[topic] += len(block.log_ns)
+            n = min(have.values())
+            if n == 0:
+                return
+            values = np.empty((n, schema.width))
+            log = stamps = np.zeros(0, dtype=np.int64)
+            for topic in specs:
+                parts = pending[topic]
+                whole = parts[0] if len(parts) == 1 else _joined(parts)
+                if topic == ref_topic:
+                    log, stamps = whole.log_ns[:n], whole.stamp_ns[:n] if whole.stamp_ns is not None else stamps
+                elif not np.array_equal(whole.log_ns[:n], log):
+                    raise BagError(f"{self.path}: {topic} is not logged at the ticks of {ref_topic}")
+                values[:, list(specs[topic].columns)] = whole.values[:n]
+                rest = TopicData(
+                    whole.log_ns[n:],
+                    None if whole.stamp_ns is None else whole.stamp_ns[n:],
+                    whole.values[n:],
+                    whole.fields,
+                )
+                pending[topic] = [rest] if len(rest.log_ns) else []
+                have[topic] -= n
+            yield TopicData(log, stamps, values, schema.columns)
+
+    def read_nve(self) -> TopicData:
+        """`nve_blocks()` joined: the whole run's rows."""
+        blocks = list(self.nve_blocks())
+        schema = self.nve_schema
+        assert schema is not None
+        if not blocks:
+            return TopicData(
+                np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, schema.width)), schema.columns
+            )
+        return _joined(blocks)
+
     def packets(self, topic: str) -> np.ndarray:
-        """All packet rows of /forward/packets or /backward/packets, sorted by seq: (N, 6) per PACKET_FIELDS."""
+        """All packet rows of /forward/packets or /backward/packets (an NVE run's
+        /nve/<client>/up/packets, /down/packets), sorted by seq: (N, 6) per PACKET_FIELDS."""
         ts = typestore()
         chunks = []
         for _, raw in self._raw(topic):

@@ -29,20 +29,21 @@ from haptic_teleop.lifetime import die_with_parent
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_BATCH, packet_batch_head, packet_rows
 from haptic_teleop.record.mcap import BagSink
-from haptic_teleop.record.streams import BLOCK_TICKS, RunStreams
+from haptic_teleop.record.nve_columns import NveSchema
+from haptic_teleop.record.streams import BLOCK_TICKS, NveStreams, RunStreams, make_streams
 
 COMPRESSIONS = ("none", "zstd", "lz4")
 RING_SLOTS = 4  # blocks of BLOCK_TICKS rows the parent may be ahead of the writer
 _WAIT_S = 0.5  # the writer checks on its parent at least this often while it waits
 
 
-def _write_rows(sink: BagSink, streams: RunStreams, rows: np.ndarray) -> None:
+def _write_rows(sink: BagSink, streams: RunStreams | NveStreams, rows: np.ndarray) -> None:
     """The next ticks into the bag, as ready records."""
     for recs in streams.records(rows, sink.cids):
         sink.append(recs)
 
 
-def _write_packets(sink: BagSink, streams: RunStreams, direction: str, rows: np.ndarray) -> None:
+def _write_packets(sink: BagSink, streams: RunStreams | NveStreams, direction: str, rows: np.ndarray) -> None:
     stream = streams.packet_stream(direction, rows)
     if stream is not None:
         sink.write([stream])
@@ -79,7 +80,7 @@ def _writer_process(
     die_with_parent(signal.SIGTERM)
     if os.getppid() != parent_pid:
         died = True  # the parent ended before the signal was asked for
-    streams = RunStreams(*args)
+    streams = make_streams(*args)
     if sink is None:
         sink = BagSink(Path(bag_dir), topics, *sink_args)
     run_info: dict[str, Any] = {}
@@ -162,21 +163,24 @@ class RunRecorder:
         parallel: bool = True,
         compression: str = "none",
         qos: dict[str, list[dict[str, Any]]] | None = None,
-        schema: TickSchema = ONE_DOF,
+        schema: TickSchema | NveSchema = ONE_DOF,
     ) -> None:
         self.bag_dir = Path(bag_dir)
         if n_columns != schema.width:
-            raise BagError(f"n_columns {n_columns} is not the tick schema's width {schema.width}")
+            kind = "NVE" if isinstance(schema, NveSchema) else "tick"
+            raise BagError(f"n_columns {n_columns} is not the {kind} schema's width {schema.width}")
         if compression not in COMPRESSIONS:
             raise BagError(f"compression {compression!r} is not one of {', '.join(COMPRESSIONS)}")
         self.compression = compression
         self.qos = _offered_qos(qos)
-        sink_args = (compression, self.qos)
         if self.bag_dir.exists():
             raise BagError(f"{self.bag_dir} exists already; choose a new --out directory or remove it")
         self.n_columns = n_columns
         args = (scene_yaml, period_ns, eba_internals, packets, n_columns, schema)
-        self._streams = RunStreams(*args)
+        self._streams = make_streams(*args)
+        # Topics the defaults (metadata.DEFAULT_QOS) do not name, offered as their kind is (NVE packet batches).
+        offered = {**self._streams.default_qos(), **(self.qos or {})} or None
+        sink_args = (compression, offered)
         topics = self._streams.topics()
         self._proc: Any = None
         self._conn: Any = None
@@ -261,11 +265,11 @@ class RunRecorder:
                 self._send(("rows", np.array(part)))
 
     def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        """Packet records of one direction ("forward" or "backward"): float64 (k, len(PACKET_FIELDS)),
-        written as batch messages of up to PACKET_BATCH records, logged at the time the recording
-        has reached (the end of the ticks appended so far)."""
-        if direction not in ("forward", "backward"):
-            raise BagError(f"packet direction must be 'forward' or 'backward'; got {direction!r}")
+        """Packet records of one direction ("forward" or "backward"; an NVE run's "<client>/up" or
+        "<client>/down"): float64 (k, len(PACKET_FIELDS)) or a list of `Packet`s, written as batch
+        messages of up to PACKET_BATCH records, logged at the time the recording has reached (the
+        end of the ticks appended so far)."""
+        self._streams.packet_topic(direction)  # BagError naming the allowed directions
         rows = packet_rows(rows)
         self._check_open()
         if self._sink is not None:

@@ -11,15 +11,18 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
-from haptic_teleop.record.columns import MULTIARRAY, ONE_DOF, TickSchema, tick_topics
+from haptic_teleop.record.columns import MULTIARRAY, ONE_DOF, SchemaError, TickSchema, tick_topics
 from haptic_teleop.record.layouts import (
     PACKET_BATCH,
     STRING,
+    nve_topic_specs,
     packet_batch_bytes,
     packet_rows,
     string_bytes,
     topic_specs,
 )
+from haptic_teleop.record.metadata import BATCH_QOS
+from haptic_teleop.record.nve_columns import NveSchema
 
 
 class Stream:
@@ -99,7 +102,43 @@ class _History:
         return out
 
 
-class RunStreams:
+class _Streams:
+    """What both kinds of run streams share: the scene message, packet batches, the run facts."""
+
+    scene_yaml: str
+    period: int
+    packets: bool
+    ticks: int
+    _scene_written: bool
+
+    def _scene_stream(self) -> Stream:
+        return Stream("/haptic_teleop/scene", STRING, np.zeros(1), blobs=[string_bytes(self.scene_yaml)])
+
+    def _packet_batches(self, topic: str, rows: np.ndarray) -> Stream | None:
+        """Packet records as batch messages of up to PACKET_BATCH rows each, logged at the time the
+        recording has reached (the end of the ticks appended so far)."""
+        rows = packet_rows(rows)
+        if not self.packets or rows.shape[0] == 0:
+            return None
+        starts = range(0, rows.shape[0], PACKET_BATCH)
+        times = np.full(len(starts), self.ticks * self.period, dtype=np.int64)
+        blobs = [packet_batch_bytes(rows[s : s + PACKET_BATCH]) for s in starts]
+        return Stream(topic, MULTIARRAY, times, blobs=blobs)
+
+    def _final(self, run_info: dict[str, Any]) -> list[Stream]:
+        """The run facts, logged at the end of the last tick; the scene first if no tick was
+        recorded (a run stopped before its first tick still has its scene in the bag)."""
+        end = np.array([self.ticks * self.period], dtype=np.int64)
+        info = Stream(
+            "/haptic_teleop/run_info", STRING, end, blobs=[string_bytes(json.dumps(run_info, sort_keys=True))]
+        )
+        if self._scene_written:
+            return [info]
+        self._scene_written = True
+        return [self._scene_stream(), info]
+
+
+class RunStreams(_Streams):
     """Turns blocks of engine columns into the bag's messages (same code in and out of process).
 
     Memory is bounded: only the columns of recent ticks a received sample may still refer to are
@@ -142,6 +181,21 @@ class RunStreams:
         """The received topics and the history columns of their values (those of the sent topic)."""
         return [(t, tuple(self.hist_index[c] for c in self.specs[_SENT_OF[t]].columns)) for t, _ in RECEIVED_TOPICS]
 
+    def received_seq_cols(self) -> list[int]:
+        """Per received topic, the row column holding the tick of the sample released (-1: none)."""
+        return list(self._seq_cols)
+
+    def default_qos(self) -> dict[str, list[dict[str, Any]]]:
+        """Offered QoS of topics metadata.DEFAULT_QOS does not name (none: it names the packet topics)."""
+        return {}
+
+    @staticmethod
+    def packet_topic(direction: str) -> str:
+        """/forward/packets or /backward/packets; BagError for another direction."""
+        if direction not in ("forward", "backward"):
+            raise BagError(f"packet direction must be 'forward' or 'backward'; got {direction!r}")
+        return f"/{direction}/packets"
+
     def topics(self) -> list[tuple[str, str]]:
         """Every topic in the order its connection is added (fixed: connection ids are part of the bytes)."""
         names = [*self.fixed, *(t for t, _ in RECEIVED_TOPICS)]
@@ -169,9 +223,6 @@ class RunStreams:
             last.append(int(got.max()) if got.size else self.history.keep_from)
         self.history.keep_from = max(min(last), self.ticks - HISTORY_TICKS)
 
-    def _scene_stream(self) -> Stream:
-        return Stream("/haptic_teleop/scene", STRING, np.zeros(1), blobs=[string_bytes(self.scene_yaml)])
-
     def records(self, rows: np.ndarray, cids: dict[str, int]) -> list[Records]:
         """The next block of ticks as MCAP message records."""
         a, b = self._take(rows)
@@ -190,29 +241,108 @@ class RunStreams:
         A batch is logged at the time the recording has reached when it is handed over (the end of
         the ticks appended so far): deterministic given the calls, and in time order with the
         tick messages around it in the file."""
-        if direction not in ("forward", "backward"):
-            raise BagError(f"packet direction must be 'forward' or 'backward'; got {direction!r}")
-        rows = packet_rows(rows)
-        if not self.packets or rows.shape[0] == 0:
-            return None
-        starts = range(0, rows.shape[0], PACKET_BATCH)
-        times = np.full(len(starts), self.ticks * self.period, dtype=np.int64)
-        blobs = [packet_batch_bytes(rows[s : s + PACKET_BATCH]) for s in starts]
-        return Stream(f"/{direction}/packets", MULTIARRAY, times, blobs=blobs)
+        return self._packet_batches(self.packet_topic(direction), rows)
 
     def final(self, run_info: dict[str, Any]) -> list[Stream]:
         """The run facts, logged at the end of the last tick; the scene first if no tick was
         recorded (a run stopped before its first tick still has its scene in the bag)."""
-        end = np.array([self.ticks * self.period], dtype=np.int64)
         if self.schema != ONE_DOF:  # 1-DoF run facts keep their bytes; the reader assumes ONE_DOF
             run_info = {**run_info, "tick_schema": self.schema.facts()}
-        info = Stream(
-            "/haptic_teleop/run_info", STRING, end, blobs=[string_bytes(json.dumps(run_info, sort_keys=True))]
-        )
-        if self._scene_written:
-            return [info]
+        return self._final(run_info)
+
+
+class NveStreams(_Streams):
+    """An NVE run's blocks of tick rows into the bag's messages: the same interface as
+    `RunStreams` (the writer process uses either), the same encoder. Every value of a tick's
+    messages is in the tick's own row (no received samples referring back), so nothing of past
+    ticks is kept. `eba_internals` is ignored (an NVE run has no energy bound)."""
+
+    def __init__(
+        self,
+        scene_yaml: str,
+        period_ns: int,
+        eba_internals: bool,
+        packets: bool,
+        n_columns: int,
+        schema: NveSchema,
+    ) -> None:
+        if n_columns != schema.width:
+            raise BagError(f"n_columns {n_columns} is not the NVE schema's width {schema.width}")
+        self.schema = schema
+        self.specs = nve_topic_specs(schema)
+        self.scene_yaml = scene_yaml
+        self.period = period_ns
+        self.packets = packets
+        self.n_columns = n_columns
+        self.ticks = 0
+        self.fixed = list(self.specs)
+        self._encoder: TickEncoder | None = None
+        self._scene_written = False
+
+    def tick_topics(self) -> list[tuple[str, tuple[int, ...]]]:
+        return [(t, self.specs[t].columns) for t in self.fixed]
+
+    def received_topics(self) -> list[tuple[str, tuple[int, ...]]]:
+        return []
+
+    def received_seq_cols(self) -> list[int]:
+        return []
+
+    def packet_topic(self, direction: str) -> str:
+        """/nve/<client>/up/packets for "<client>/up" (and down); BagError for another direction."""
+        try:
+            return self.schema.packet_topic(direction)
+        except SchemaError as exc:
+            raise BagError(str(exc)) from None
+
+    def default_qos(self) -> dict[str, list[dict[str, Any]]]:
+        """The packet batches are offered as teleoperation's are (reliable, keep last 10)."""
+        return {t: BATCH_QOS for t in self.schema.packet_topics()} if self.packets else {}
+
+    def topics(self) -> list[tuple[str, str]]:
+        """Every topic in the order its connection is added: the scene, the per-tick topics, the
+        packet batches per client (up, down), the run facts."""
+        out = [("/haptic_teleop/scene", STRING)] + [(t, self.specs[t].layout.msgtype) for t in self.fixed]
+        if self.packets:
+            out += [(t, MULTIARRAY) for t in self.schema.packet_topics()]
+        return [*out, ("/haptic_teleop/run_info", STRING)]
+
+    def records(self, rows: np.ndarray, cids: dict[str, int]) -> list[Records]:
+        """The next block of ticks as MCAP message records."""
+        if rows.ndim != 2 or rows.shape[1] != self.n_columns:
+            raise BagError(f"tick rows must be a float64 array of shape (ticks, {self.n_columns}); got {rows.shape}")
+        a = self.ticks
+        self.ticks = b = a + rows.shape[0]
+        if self._encoder is None:
+            self._encoder = TickEncoder(self, cids)
+        out = [] if self._scene_written else [stream_records([self._scene_stream()], cids)]
         self._scene_written = True
-        return [self._scene_stream(), info]
+        if b > a:
+            out.append(self._encoder.encode(rows, a, None))
+        return out
+
+    def packet_stream(self, direction: str, rows: np.ndarray) -> Stream | None:
+        """Packet records of one link ("<client>/up" or "<client>/down") as batch messages, logged
+        as teleoperation's are (RunStreams.packet_stream)."""
+        return self._packet_batches(self.packet_topic(direction), rows)
+
+    def final(self, run_info: dict[str, Any]) -> list[Stream]:
+        """The run facts with `nve_schema` (NveSchema.facts()), logged at the end of the last tick."""
+        return self._final({**run_info, "nve_schema": self.schema.facts()})
+
+
+def make_streams(
+    scene_yaml: str,
+    period_ns: int,
+    eba_internals: bool,
+    packets: bool,
+    n_columns: int,
+    schema: TickSchema | NveSchema = ONE_DOF,
+) -> RunStreams | NveStreams:
+    """The streams of a run of this schema's kind: teleoperation (TickSchema) or NVE (NveSchema)."""
+    if isinstance(schema, NveSchema):
+        return NveStreams(scene_yaml, period_ns, eba_internals, packets, n_columns, schema)
+    return RunStreams(scene_yaml, period_ns, eba_internals, packets, n_columns, schema)
 
 
 # --------------------------------------------------------------------------------------------
@@ -292,17 +422,17 @@ class TickEncoder:
     field by field; when every tick released a sample both ways, it is the records as they go to
     the chunk, otherwise the records are moved together around the missing ones."""
 
-    def __init__(self, streams: RunStreams, cids: dict[str, int]) -> None:
+    def __init__(self, streams: RunStreams | NveStreams, cids: dict[str, int]) -> None:
         specs = streams.specs
         self.period = streams.period
         slots = streams.tick_topics() + streams.received_topics()
         self.cids = [cids[t] for t, _ in slots]
         self.sizes = [REC_HEAD.size + specs[t].layout.size for t, _ in slots]
         self.bases = [sum(self.sizes[:j]) for j in range(len(slots))]
-        self.n_fixed = len(slots) - len(RECEIVED_TOPICS)
+        self.n_fixed = len(slots) - len(streams.received_topics())
         self.width = sum(self.sizes)
-        self.fixed_width = self.bases[self.n_fixed]
-        self.seq_cols = [streams.schema.index(c) for _, c in RECEIVED_TOPICS]
+        self.fixed_width = sum(self.sizes[: self.n_fixed])
+        self.seq_cols = streams.received_seq_cols()
         template = []
         names: list[str] = []
         formats: list[Any] = []
@@ -339,9 +469,9 @@ class TickEncoder:
         self.row_ends = np.cumsum(self.sizes)
         self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.width})
 
-    def encode(self, block: np.ndarray, a: int, history: _History) -> Records:
+    def encode(self, block: np.ndarray, a: int, history: _History | None) -> Records:
         """Records of ticks [a, a + len(block)) of the engine's columns; received samples are read
-        from `history` (which holds the block's ticks already)."""
+        from `history` (which holds the block's ticks already; None when there are none)."""
         n = block.shape[0]
         b = a + n
         period = self.period
@@ -360,6 +490,7 @@ class TickEncoder:
             rec[self.time_fields[j]] = t2
         present = []
         for r, seq_col in enumerate(self.seq_cols):
+            assert history is not None
             j = nf + r
             seq = block[:, seq_col]
             here = seq >= 0
@@ -384,15 +515,17 @@ class TickEncoder:
         """Drop the received slots of ticks that released nothing; ends and channel groups of what is left."""
         n = rows.shape[0]
         nf = self.n_fixed
+        nr = len(present)
+        if all(p.all() for p in present):  # the usual tick: the rows are the records as they go to the chunk
+            off = np.arange(n, dtype=np.int64) * self.width
+            groups = [(self.cids[j], off + self.bases[j], t) for j in range(nf + nr)]
+            ends = (off[:, None] + self.row_ends).reshape(-1)
+            return Records(rows.reshape(-1), ends, np.repeat(t, nf + nr), groups)
+        # Some tick released nothing (teleoperation: the two received topics).
         fw = self.fixed_width
         sizes = self.sizes
         pf, pb = present
         rf, rb = sizes[nf], sizes[nf + 1]
-        if pf.all() and pb.all():  # the usual tick: the rows are the records as they go to the chunk
-            off = np.arange(n, dtype=np.int64) * self.width
-            groups = [(self.cids[j], off + self.bases[j], t) for j in range(nf + 2)]
-            ends = (off[:, None] + self.row_ends).reshape(-1)
-            return Records(rows.reshape(-1), ends, np.repeat(t, nf + 2), groups)
         tick_size = fw + rf * pf + rb * pb
         off = np.cumsum(tick_size) - tick_size
         buf = np.empty(int(off[-1] + tick_size[-1]), dtype=np.uint8)

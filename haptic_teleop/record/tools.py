@@ -4,6 +4,8 @@ info: what `ros2 bag info` shows (files, size, storage, duration, start and end,
 per topic type, count, serialization format and offered QoS) plus the chunk compression and an
 integrity check (every chunk's CRC, the data section's CRC, the summary's CRC).
 
+An NVE run's bag also gets a line naming its clients.
+
 recover: rebuilds a bag whose file was cut (a killed run) or lost its summary or metadata.yaml,
 from every complete chunk whose CRC holds: the file is rewritten as those chunks and their
 message indexes (rebuilt where they were cut off), then the summary section, footer and
@@ -35,6 +37,7 @@ from haptic_teleop.record.mcap import (
 )
 from haptic_teleop.record.mcapread import Scan, chunk_records, parse_channel, parse_schema, scan
 from haptic_teleop.record.metadata import bag_info, metadata_text, write_metadata
+from haptic_teleop.record.nve_columns import nve_clients
 
 
 def _bag_paths(bag: Path) -> tuple[Path, Path]:
@@ -157,6 +160,9 @@ def info(bag_path: Path) -> tuple[str, bool]:
         f"Messages:          {total}",
         f"Chunks:            {len(s.chunks)} (compression: {', '.join(sorted(compressions)) or 'none'})",
     ]
+    clients = nve_clients([channels[cid].topic for cid in sorted(channels)])
+    if clients:  # an NVE run's bag: its clients, from the topics (the run facts may be lost)
+        lines.append(f"Run:               NVE, clients {', '.join(clients)}")
     if problems:
         lines.append(
             f"Integrity:         DAMAGED: {'; '.join(problems)}. `haptic-teleop bag recover {bag}` keeps its "
