@@ -12,7 +12,8 @@ Per tick n (t = n T, NVE_DESIGN "One tick", steps 1 and 3):
      Before the first object sample F = 0.
 Out per tick (the NVE bag's topics): /nve/<client>/hip/joint_states (position x_h, velocity v_h,
 effort F), /nve/<client>/feedback_wrench (WrenchStamped, frame world: F), /nve/<client>/object_pose
-(PoseStamped: the object as used, NaN before any), /nve/<client>/coupling (Float64MultiArray
+(PoseStamped: the object as used, NaN before any), /nve/<client>/object_twist (TwistStamped: its
+velocity), /nve/<client>/coupling (Float64MultiArray
 spring_n_per_m, rtt_s, up_rx_seq, down_rx_seq, up_occupancy, down_occupancy; the values other nodes
 hold, up_rx_seq and the occupancies, are NaN here).
 """
@@ -25,36 +26,24 @@ from typing import Any
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
-from haptic_teleop.nodes.cdr import FixedCodec, JointStateReader
-from haptic_teleop.nodes.messages import JointStateOut, raw_publish_fn, take_all
+from haptic_teleop.nodes.cdr import JointStateReader
+from haptic_teleop.nodes.messages import JointStateOut, SpecOut, take_all
 from haptic_teleop.nodes.params import declare_scene, declare_value
 from haptic_teleop.nodes.topics import (
-    NVE_COUPLING_LABELS,
-    NVE_FRAME,
     READER_DEPTH,
     SCENE_START_TOPIC,
     latched_qos,
     nve_coupling_topic,
     nve_hip_topic,
     nve_pose_topic,
+    nve_twist_topic,
     nve_wrench_topic,
     received_topic,
     scene_start_ns,
     sent_topic,
     stream_qos,
 )
-from haptic_teleop.nodes.wire import NVE_DOWN, NVE_UP, hip_names, wire_of
-
-
-class _FixedOut:
-    """A fixed-layout message (record.layouts) published as CDR bytes."""
-
-    def __init__(self, node: Any, msg_type: Any, topic: str, layout: Any) -> None:
-        self._encode = FixedCodec(layout).encode
-        self._send = raw_publish_fn(node.create_publisher(msg_type, topic, stream_qos()))
-
-    def publish(self, stamp_ns: int | None, values: Any) -> None:
-        self._send(self._encode(stamp_ns, values))
+from haptic_teleop.nodes.wire import NVE_DOWN, NVE_UP, wire_of
 
 
 class NveClientNode(LiveNode):
@@ -63,20 +52,12 @@ class NveClientNode(LiveNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        from geometry_msgs.msg import PoseStamped, WrenchStamped
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Float64MultiArray, Header
+        from std_msgs.msg import Header
 
         from haptic_teleop.nve_assembly import build_nve_parts
-        from haptic_teleop.record.layouts import (
-            MULTIARRAY,
-            POSE,
-            WRENCH,
-            FixedLayout,
-            make_multiarray,
-            make_pose,
-            make_wrench,
-        )
+        from haptic_teleop.record.layouts import nve_topic_specs
+        from haptic_teleop.record.nve_columns import NveSchema
 
         cfg = declare_scene(self, SCENE_SECTIONS["nve_client"], ("client",))
         name = str(declare_value(self, "client", "", "the NVE client this node is (a name in nve.client_names)"))
@@ -101,20 +82,13 @@ class NveClientNode(LiveNode):
         )
         self._read_down = JointStateReader(down.want, [(down.names, down.fields)], down.width)
         self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
-        self.hip_out = JointStateOut(self, nve_hip_topic(name), hip_names(name, a), ("position", "velocity", "effort"))
-        self.wrench_out = _FixedOut(
-            self, WrenchStamped, nve_wrench_topic(name), FixedLayout(WRENCH, make_wrench(NVE_FRAME, a), a)
-        )
-        self.pose_out = _FixedOut(
-            self, PoseStamped, nve_pose_topic(name), FixedLayout(POSE, make_pose(NVE_FRAME, a), a)
-        )
-        labels = NVE_COUPLING_LABELS
-        self.coupling_out = _FixedOut(
-            self,
-            Float64MultiArray,
-            nve_coupling_topic(name),
-            FixedLayout(MULTIARRAY, make_multiarray(labels), len(labels)),
-        )
+        # The NVE bag's own layouts (record/nve_columns.py): a recorder decodes them at fixed offsets.
+        specs = nve_topic_specs(NveSchema(tuple(names), a))
+        self.hip_out = SpecOut(self, specs[nve_hip_topic(name)])
+        self.pose_out = SpecOut(self, specs[nve_pose_topic(name)])
+        self.twist_out = SpecOut(self, specs[nve_twist_topic(name)])
+        self.wrench_out = SpecOut(self, specs[nve_wrench_topic(name)])
+        self.coupling_out = SpecOut(self, specs[nve_coupling_topic(name)])
         self.start_ns: int | None = None
         self.received = 0
         self.setup_loop(period_ns)
@@ -160,6 +134,7 @@ class NveClientNode(LiveNode):
         self.hip_out.publish(stamp_ns, (*hx, *hv, *f))
         self.wrench_out.publish(stamp_ns, f)
         self.pose_out.publish(stamp_ns, cl.obj_x.tolist())
+        self.twist_out.publish(stamp_ns, cl.obj_v.tolist())
         self.coupling_out.publish(None, (cl.spring_n_per_m, cl.rtt_s, math.nan, down_rx, math.nan, math.nan))
 
     def diagnostic_values(self) -> dict[str, float | int | str]:

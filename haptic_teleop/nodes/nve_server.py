@@ -22,7 +22,7 @@ from typing import Any
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.messages import JointStateOut, take_all
+from haptic_teleop.nodes.messages import JointStateOut, SpecOut, take_all
 from haptic_teleop.nodes.params import declare_scene, declare_value
 from haptic_teleop.nodes.topics import (
     NVE_OBJECT_STATE,
@@ -33,7 +33,7 @@ from haptic_teleop.nodes.topics import (
     sent_topic,
     stream_qos,
 )
-from haptic_teleop.nodes.wire import NVE_DOWN, NVE_UP, object_names, wire_of
+from haptic_teleop.nodes.wire import NVE_DOWN, NVE_UP, wire_of
 
 _NAMES = ("start.delay_s", "start.timeout_s", "stop_at_end")
 
@@ -82,7 +82,11 @@ class NveServer(LiveNode):
             down = wire_of(f"{c}/{NVE_DOWN}", a)
             self._down_wire.append(down)
             self._down_outs.append(JointStateOut(self, sent_topic(down.direction), down.names, down.fields))
-        self.object_out = JointStateOut(self, NVE_OBJECT_STATE, object_names(a), ("position", "velocity", "effort"))
+        from haptic_teleop.record.layouts import nve_topic_specs
+        from haptic_teleop.record.nve_columns import NveSchema
+
+        # The NVE bag's own layout (record/nve_columns.py): a recorder decodes it at fixed offsets.
+        self.object_out = SpecOut(self, nve_topic_specs(NveSchema(tuple(self.client_names_), a))[NVE_OBJECT_STATE])
         self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
         self.start_index: int | None = None
         self.started = False

@@ -154,8 +154,6 @@ def reliable_qos(depth: int = 100) -> Any:
 # as teleoperation's. The per-tick topics are the NVE bag's (NVE_DESIGN, "Record").
 
 NVE_OBJECT_STATE = "/nve/object/joint_states"  # JointState object_x..: position, velocity, effort (net coupling force)
-NVE_FRAME = "world"
-NVE_COUPLING_LABELS = ("spring_n_per_m", "rtt_s", "up_rx_seq", "down_rx_seq", "up_occupancy", "down_occupancy")
 
 
 def nve_hip_topic(client: str) -> str:
@@ -168,11 +166,17 @@ def nve_pose_topic(client: str) -> str:
     return f"/nve/{client}/object_pose"
 
 
+def nve_twist_topic(client: str) -> str:
+    """TwistStamped: the object's velocity as the client uses it (NaN before the first)."""
+    return f"/nve/{client}/object_twist"
+
+
 def nve_wrench_topic(client: str) -> str:
     """WrenchStamped: the force fed back to the user."""
     return f"/nve/{client}/feedback_wrench"
 
 
 def nve_coupling_topic(client: str) -> str:
-    """Float64MultiArray NVE_COUPLING_LABELS (what the client node does not know: NaN)."""
+    """Float64MultiArray spring_n_per_m, rtt_s, up_rx_seq, down_rx_seq, up_occupancy, down_occupancy
+    (record/nve_columns.COUPLING_GROUPS; what the client node does not know: NaN)."""
     return f"/nve/{client}/coupling"
