@@ -115,10 +115,11 @@ def scene_params(scene: LoadedScene, executable: str, direction: str | None = No
 
             obj = resolve_trace_paths(obj, Path(scene.source).parent)  # nodes run elsewhere
         section = dataclasses.asdict(obj)
-        if path == "nve":  # the clients: a section per client, named by it
-            names = [c.pop("name") for c in section["clients"]]
-            section["clients"] = dict(zip(names, section["clients"], strict=True))
-            section["client_names"] = names
+        nve = section if path == "nve" else section.get("nve") if path == "" else None
+        if nve:  # the clients: a section per client, named by it
+            names = [c.pop("name") for c in nve["clients"]]
+            nve["clients"] = dict(zip(names, nve["clients"], strict=True))
+            nve["client_names"] = names
         elif path.startswith("nve.clients."):
             _merge(params, {"nve": {"client_names": [path.split(".")[2]]}})
         _merge(params, _nest(path, section) if path else section)
@@ -231,9 +232,6 @@ def nve_plan(
 
     nve = scene.config.nve
     assert nve is not None
-    if record_dir is not None:
-        raise ConfigError(scene.source, "--record", str(record_dir), "recording a live NVE run is not built yet; "
-                          "record it with `haptic-teleop run` (the engine)")  # fmt: skip
     if side != "all":
         raise ConfigError(scene.source, "--side", side, "an NVE scene runs on one host for now; allowed: all")
     if device != "plant":
@@ -241,7 +239,9 @@ def nve_plan(
     if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
         raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
     axes = {"task_axes": nve.axes}
-    plan = [NodeSpec("nve_server", "nve_server", scene_params(scene, "nve_server"))]
+    # Recording: scene time 0 waits for the recorder too (it subscribes to the object's state).
+    start = {"start": {"min_subscribers": 1 if record_dir is not None else 0}}
+    plan = [NodeSpec("nve_server", "nve_server", _merge(scene_params(scene, "nve_server"), start))]
     for c in nve.clients:
         plan.append(
             NodeSpec(nve_client_node(c.name), "nve_client", {"client": c.name, **scene_params(scene, "nve_client")})
@@ -253,6 +253,9 @@ def nve_plan(
             plan.append(NodeSpec(f"{c.name}_{link}_relay", "network_relay", relay))
             buffer = {"direction": d, **axes, **scene_params(scene, "sync_buffer", d)}
             plan.append(NodeSpec(f"{c.name}_{link}_buffer", "sync_buffer", buffer))
+    if record_dir is not None:
+        params = {**scene_params(scene, "recorder"), "output_dir": str(Path(record_dir).resolve())}
+        plan.append(NodeSpec("recorder", "recorder", params))
     if sim_time_rate is not None:
         plan = [dataclasses.replace(s, params={**s.params, "use_sim_time": True}) for s in plan]
         clock = {"scene": {"period_s": scene.config.scene.period_s}, "rate": float(sim_time_rate)}
@@ -636,6 +639,9 @@ def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, recor
             file=sys.stderr,
         )
         code = code or EXIT_FAILURE
+    elif record is not None and bag is not None and bag.exists() and scene.config.is_nve:
+        # An NVE run's bag (record/nve_columns.py); its summary and plots are `haptic-teleop analyze`'s.
+        print(f"\nbag:     {bag}\nrun:     {record / 'live_run.json'}")
     elif record is not None and bag is not None and bag.exists():
         from haptic_teleop.analysis.outputs import write_outputs
         from haptic_teleop.report import format_summary

@@ -62,10 +62,18 @@ def test_nve_launch_file_plan_is_the_launcher_plan(tmp_path):
     assert plan_from_arguments({**defaults}, "plant", tmp_path)[0][0].name == "nve_server"  # default: nve_push
 
 
-def test_nve_plan_refuses_what_it_does_not_run_yet(tmp_path):
+def test_nve_plan_records_with_a_recorder_the_server_waits_for(tmp_path):
+    scene = load_scene(find_scene("nve_two_clients"))
+    plan = node_plan(scene, record_dir=tmp_path / "rec")
+    rec = plan[-1]
+    assert rec.executable == "recorder" and rec.params["output_dir"] == str((tmp_path / "rec").resolve())
+    assert rec.params["nve"]["client_names"] == ["near", "far"] and "far" in rec.params["nve"]["clients"]
+    assert plan[0].params["start"]["min_subscribers"] == 1
+    assert node_plan(scene)[0].params["start"]["min_subscribers"] == 0
+
+
+def test_nve_plan_refuses_what_it_does_not_run_yet():
     scene = load_scene(find_scene("nve_push"))
-    with pytest.raises(ConfigError, match="--record"):
-        node_plan(scene, record_dir=tmp_path / "rec")
     with pytest.raises(ConfigError, match="--side"):
         node_plan(scene, side="master")
 

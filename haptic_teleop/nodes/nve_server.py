@@ -35,7 +35,7 @@ from haptic_teleop.nodes.topics import (
 )
 from haptic_teleop.nodes.wire import NVE_DOWN, NVE_UP, wire_of
 
-_NAMES = ("start.delay_s", "start.timeout_s", "stop_at_end")
+_NAMES = ("start.delay_s", "start.timeout_s", "start.min_subscribers", "stop_at_end")
 
 
 class NveServer(LiveNode):
@@ -60,6 +60,12 @@ class NveServer(LiveNode):
         self.start_timeout_s = float(
             declare_value(self, "start.timeout_s", 30.0, "give up (exit 1) if the graph is not up by then", 0.1, 3600.0)
         )
+        self.min_subscribers = int(
+            declare_value(
+                self, "start.min_subscribers", 0,
+                f"start once this many subscribe to {NVE_OBJECT_STATE} (1 when a recorder records the run)", 0, 100,
+            )
+        )  # fmt: skip
         self.stop_at_end = bool(declare_value(self, "stop_at_end", True, "exit 0 after scene.duration_s"))
         period_ns = round(cfg.scene.period_s * 1e9)
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
@@ -97,7 +103,9 @@ class NveServer(LiveNode):
         self.get_logger().info(f"NVE server: {len(self.client_names_)} client(s) {self.client_names_}, {a} axis/axes")
 
     def _graph_ready(self) -> bool:
-        """Every client's node, its relays and its buffers are there."""
+        """Every client's node, its relays and its buffers are there (and the recorder, if asked)."""
+        if self.count_subscribers(NVE_OBJECT_STATE) < self.min_subscribers:
+            return False
         for c in self.client_names_:
             up, down = f"{c}/{NVE_UP}", f"{c}/{NVE_DOWN}"
             if self.count_publishers(sent_topic(up)) < 1 or self.count_subscribers(received_topic(down)) < 1:
