@@ -416,11 +416,12 @@ class TickEncoder:
     """A block of ticks -> its MCAP records, with numpy, one operation per field.
 
     Every tick writes the same records (one per tick topic), then the received samples released
-    in that tick (0 or 1 per direction). A tick's records are laid out as one row: the records'
-    bytes with placeholder values (record headers included), and a structured dtype names where
-    each value, header stamp and log time sits in the row. A block is a (ticks, row) array filled
-    field by field; when every tick released a sample both ways, it is the records as they go to
-    the chunk, otherwise the records are moved together around the missing ones."""
+    in that tick (0 or 1 per direction; an NVE run has no received topics). A tick's records are
+    laid out as one row: the records' bytes with placeholder values (record headers included), and
+    a structured dtype names where each value, header stamp and log time sits in the row. A block
+    is a (ticks, row) array filled field by field; when every tick released a sample both ways, it
+    is the records as they go to the chunk, otherwise the records are moved together around the
+    missing ones."""
 
     def __init__(self, streams: RunStreams | NveStreams, cids: dict[str, int]) -> None:
         specs = streams.specs
