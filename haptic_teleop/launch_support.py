@@ -41,12 +41,34 @@ DEVICE_ARGUMENTS = (
 )
 
 
-def launch_description(device: str) -> Any:
-    """The LaunchDescription of a launch file: its arguments and the node set (`launch_actions`)."""
+# An NVE scene's launch file (nve_launch.py) takes these: no recording, device or side yet.
+NVE_ARGUMENTS = (
+    ("scene", "nve_push", "an NVE scene: YAML path, or a bundled scene name (nve_push, nve_two_clients)"),
+    ("seed", "", "override scene.seed"),
+    ("duration", "", "override scene.duration_s (seconds)"),
+    ("sim_time", "false", "true: the nodes follow /clock (a clock_source publishes it)"),
+    (
+        "set",
+        "",
+        "scene overrides KEY=VALUE separated by ';', e.g. the first client's delays: "
+        "nve.clients.0.up.effects.delay.delay_s=0.05;nve.clients.0.down.effects.delay.delay_s=0.05",
+    ),
+)
+# The nodes whose exit 0 ends a run (the scene is over): teleoperation's operator source, an NVE
+# scene's server.
+FINISHING_NODES = ("operator_source", "nve_server")
+
+
+def launch_description(device: str, scene_type: str = "teleop") -> Any:
+    """The LaunchDescription of a launch file: its arguments and the node set (`launch_actions`).
+    `scene_type` "nve": the NVE launch file's arguments (NVE_ARGUMENTS)."""
     from launch import LaunchDescription
     from launch.actions import DeclareLaunchArgument, OpaqueFunction
 
-    table = ARGUMENTS + (DEVICE_ARGUMENTS if device == "topic" else ())
+    if scene_type == "nve":
+        table = NVE_ARGUMENTS
+    else:
+        table = ARGUMENTS + (DEVICE_ARGUMENTS if device == "topic" else ())
     args = [DeclareLaunchArgument(name, default_value=default, description=text) for name, default, text in table]
     return LaunchDescription([*args, OpaqueFunction(function=launch_actions, kwargs={"device": device})])
 
@@ -120,8 +142,8 @@ def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str 
 def launch_actions(context: Any, device: str = "plant") -> list[Any]:
     """OpaqueFunction body of the launch files: Node actions plus the shutdown rules.
 
-    The run ends when the operator source exits (scene over); any node exiting non-zero shuts
-    the launch down too (the others then reach their safe state on their watchdogs).
+    The run ends when the operator source (an NVE scene: the server) exits (scene over); any node
+    exiting non-zero shuts the launch down too (the others then reach their safe state on their watchdogs).
     """
     from launch.actions import EmitEvent, LogInfo, RegisterEventHandler, SetEnvironmentVariable
     from launch.event_handlers import OnProcessExit
@@ -147,7 +169,7 @@ def launch_actions(context: Any, device: str = "plant") -> list[Any]:
 
         def on_exit(event: Any, ctx: Any, name: str = spec.name) -> list[Any]:
             code = event.returncode
-            if name == "operator_source" and code == 0:
+            if name in FINISHING_NODES and code == 0:
                 return [LogInfo(msg="scene finished; stopping every node"), EmitEvent(event=Shutdown(reason="done"))]
             if code != 0:
                 return [

@@ -69,13 +69,6 @@ def local_discovery_env(env: Mapping[str, str] | None = None) -> dict[str, str]:
     return out
 
 
-def _section(config: Any, path: str) -> Any:
-    obj = config
-    for part in [p for p in path.split(".") if p]:
-        obj = getattr(obj, part)
-    return obj
-
-
 def _nest(path: str, value: Any) -> dict[str, Any]:
     out: Any = value
     for part in reversed([p for p in path.split(".") if p]):
@@ -100,11 +93,21 @@ def _drop_none(d: Any) -> Any:
 
 
 def scene_params(scene: LoadedScene, executable: str, direction: str | None = None) -> dict[str, Any]:
-    """The scene sections `executable` reads, as nested parameters (every leaf explicit)."""
+    """The scene sections `executable` reads, as nested parameters (every leaf explicit). An NVE
+    direction (`<client>/up|down`) reads its client's link section; an NVE scene's clients are
+    sections named by the client, listed in `nve.client_names` (nodes/params.py)."""
+    from haptic_teleop.nodes import NVE_SCENE_SECTIONS
+    from haptic_teleop.nodes.params import scene_section
+    from haptic_teleop.nodes.wire import nve_direction
+
+    nd = nve_direction(direction) if direction is not None else None
+    if nd is not None:
+        templates = [t.format(client=nd[0], link=nd[1]) for t in NVE_SCENE_SECTIONS[executable]]
+    else:
+        templates = [t.format(direction=direction) for t in SCENE_SECTIONS[executable]]
     params: dict[str, Any] = {}
-    for template in SCENE_SECTIONS[executable]:
-        path = template.format(direction=direction)
-        obj = _section(scene.config, path)
+    for path in templates:
+        obj = scene_section(scene.config, path)
         if obj is None:  # an optional section the scene leaves out (`mapping` of a one-axis scene)
             continue
         if path.endswith(".effects"):
@@ -112,6 +115,13 @@ def scene_params(scene: LoadedScene, executable: str, direction: str | None = No
 
             obj = resolve_trace_paths(obj, Path(scene.source).parent)  # nodes run elsewhere
         section = dataclasses.asdict(obj)
+        nve = section if path == "nve" else section.get("nve") if path == "" else None
+        if nve:  # the clients: a section per client, named by it
+            names = [c.pop("name") for c in nve["clients"]]
+            nve["clients"] = dict(zip(names, nve["clients"], strict=True))
+            nve["client_names"] = names
+        elif path.startswith("nve.clients."):
+            _merge(params, {"nve": {"client_names": [path.split(".")[2]]}})
         _merge(params, _nest(path, section) if path else section)
     params = _drop_none(params)
     op = params.get("operator")
@@ -140,6 +150,8 @@ def node_plan(
     use_sim_time on every node."""
     if side not in SIDES:
         raise ValueError(f"side must be one of {SIDES}, got {side!r}")
+    if scene.config.is_nve:
+        return nve_plan(scene, record_dir, side, device, sim_time_rate)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
     if device != "plant" and scene.config.is_arm:
@@ -198,6 +210,56 @@ def node_plan(
     if side != "all":
         keep = MASTER_SIDE if side == "master" else SLAVE_SIDE
         plan = [s for s in plan if s.name in keep]
+    return plan
+
+
+def nve_client_node(client: str) -> str:
+    """The node name of an NVE client."""
+    return f"nve_client_{client}"
+
+
+def nve_plan(
+    scene: LoadedScene,
+    record_dir: str | Path | None = None,
+    side: str = "all",
+    device: str = "plant",
+    sim_time_rate: float | None = None,
+) -> list[NodeSpec]:
+    """The node set of an NVE scene (docs/live.md, "NVE scenes live"): the server, one node per
+    client, and per client a relay and a sync buffer for each direction of its link pair
+    (`<client>/up`, `<client>/down`), in pipeline order."""
+    from haptic_teleop.errors import ConfigError
+
+    nve = scene.config.nve
+    assert nve is not None
+    if side != "all":
+        raise ConfigError(scene.source, "--side", side, "an NVE scene runs on one host for now; allowed: all")
+    if device != "plant":
+        raise ConfigError(scene.source, "device", device, "an NVE scene's HIPs are operator profiles; allowed: plant")
+    if sim_time_rate is not None and not 0.01 <= sim_time_rate <= 10.0:
+        raise ValueError(f"sim_time_rate must be in [0.01, 10] simulated s per wall s, got {sim_time_rate}")
+    axes = {"task_axes": nve.axes}
+    # Recording: scene time 0 waits for the recorder too (it subscribes to the object's state).
+    start = {"start": {"min_subscribers": 1 if record_dir is not None else 0}}
+    plan = [NodeSpec("nve_server", "nve_server", _merge(scene_params(scene, "nve_server"), start))]
+    for c in nve.clients:
+        plan.append(
+            NodeSpec(nve_client_node(c.name), "nve_client", {"client": c.name, **scene_params(scene, "nve_client")})
+        )
+    for c in nve.clients:
+        for link in ("up", "down"):
+            d = f"{c.name}/{link}"
+            relay = {"direction": d, **axes, **scene_params(scene, "network_relay", d)}
+            plan.append(NodeSpec(f"{c.name}_{link}_relay", "network_relay", relay))
+            buffer = {"direction": d, **axes, **scene_params(scene, "sync_buffer", d)}
+            plan.append(NodeSpec(f"{c.name}_{link}_buffer", "sync_buffer", buffer))
+    if record_dir is not None:
+        params = {**scene_params(scene, "recorder"), "output_dir": str(Path(record_dir).resolve())}
+        plan.append(NodeSpec("recorder", "recorder", params))
+    if sim_time_rate is not None:
+        plan = [dataclasses.replace(s, params={**s.params, "use_sim_time": True}) for s in plan]
+        clock = {"scene": {"period_s": scene.config.scene.period_s}, "rate": float(sim_time_rate)}
+        plan.insert(0, NodeSpec("clock_source", "clock_source", clock))
     return plan
 
 
@@ -577,6 +639,9 @@ def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, recor
             file=sys.stderr,
         )
         code = code or EXIT_FAILURE
+    elif record is not None and bag is not None and bag.exists() and scene.config.is_nve:
+        # An NVE run's bag (record/nve_columns.py); its summary and plots are `haptic-teleop analyze`'s.
+        print(f"\nbag:     {bag}\nrun:     {record / 'live_run.json'}")
     elif record is not None and bag is not None and bag.exists():
         from haptic_teleop.analysis.outputs import write_outputs
         from haptic_teleop.report import format_summary

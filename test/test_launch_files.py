@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.launch_support import ARGUMENTS, DEVICE_ARGUMENTS, plan_from_arguments
+from haptic_teleop.launch_support import ARGUMENTS, DEVICE_ARGUMENTS, NVE_ARGUMENTS, plan_from_arguments
 from haptic_teleop.launcher import format_double, node_plan, params_yaml
 from haptic_teleop.nodes import EXECUTABLES
 from haptic_teleop.scene.load import find_scene, load_scene
@@ -21,19 +21,61 @@ LAUNCH_FILES = sorted((ROOT / "launch").glob("*_launch.py"))
 
 
 def test_launch_files_exist_and_build_their_variant():
-    assert [p.name for p in LAUNCH_FILES] == ["teleop_hardware_launch.py", "teleop_launch.py"]
-    for path, device in zip(LAUNCH_FILES, ("topic", "plant"), strict=True):
+    assert [p.name for p in LAUNCH_FILES] == ["nve_launch.py", "teleop_hardware_launch.py", "teleop_launch.py"]
+    variants = ('device="plant", scene_type="nve"', 'device="topic"', 'device="plant"')
+    for path, variant in zip(LAUNCH_FILES, variants, strict=True):
         text = path.read_text()
         compile(text, str(path), "exec")
         assert "def generate_launch_description" in text
-        assert f'launch_description(device="{device}")' in text
+        assert f"launch_description({variant})" in text
 
 
 def test_every_launch_argument_is_read_by_the_plan():
     src = (ROOT / "haptic_teleop" / "launch_support.py").read_text()
     body = src[src.index("def plan_from_arguments") :]
-    for name, _, _ in ARGUMENTS + DEVICE_ARGUMENTS:
+    for name, _, _ in ARGUMENTS + DEVICE_ARGUMENTS + NVE_ARGUMENTS:
         assert f'arg("{name}")' in body, f"launch argument {name} is declared but not read"
+
+
+def test_nve_launch_file_plan_is_the_launcher_plan(tmp_path):
+    """nve_launch.py's defaults and `set` overrides give `haptic-teleop launch`'s NVE plan: the
+    server, one node per client, a relay and a buffer per direction of each client's links."""
+    sets = "nve.clients.1.up.effects.delay.delay_s=0.05; nve.clients.1.down.effects.delay.delay_s=0.06"
+    defaults = {name: default for name, default, _ in NVE_ARGUMENTS}
+    pairs = plan_from_arguments({**defaults, "scene": "nve_two_clients", "set": sets, "seed": "3"}, "plant", tmp_path)
+    overrides = [s.strip() for s in sets.split(";")]
+    want = node_plan(load_scene(find_scene("nve_two_clients"), overrides=overrides, seed=3))
+    assert [s for s, _ in pairs] == want
+    assert [s.executable for s in want].count("nve_server") == 1
+    assert [s.params.get("client") for s in want if s.executable == "nve_client"] == ["near", "far"]
+    relays = {s.params["direction"]: s for s in want if s.executable == "network_relay"}
+    assert sorted(relays) == ["far/down", "far/up", "near/down", "near/up"]
+    far_down = relays["far/down"].params
+    assert far_down["nve"]["clients"]["far"]["down"]["effects"]["delay"]["delay_s"] == 0.06
+    assert far_down["nve"]["client_names"] == ["far"] and far_down["task_axes"] == 3
+    for spec, path in pairs:
+        assert spec.executable in EXECUTABLES
+        assert path.read_text() == params_yaml(spec)
+    server = yaml.safe_load((tmp_path / "nve_server.yaml").read_text())["nve_server"]["ros__parameters"]
+    assert server["nve"]["client_names"] == ["near", "far"] and server["scene"]["seed"] == 3
+    assert server["nve"]["clients"]["near"]["coupling"]["server_stiffness_n_per_m"] == 0.5
+    assert plan_from_arguments({**defaults}, "plant", tmp_path)[0][0].name == "nve_server"  # default: nve_push
+
+
+def test_nve_plan_records_with_a_recorder_the_server_waits_for(tmp_path):
+    scene = load_scene(find_scene("nve_two_clients"))
+    plan = node_plan(scene, record_dir=tmp_path / "rec")
+    rec = plan[-1]
+    assert rec.executable == "recorder" and rec.params["output_dir"] == str((tmp_path / "rec").resolve())
+    assert rec.params["nve"]["client_names"] == ["near", "far"] and "far" in rec.params["nve"]["clients"]
+    assert plan[0].params["start"]["min_subscribers"] == 1
+    assert node_plan(scene)[0].params["start"]["min_subscribers"] == 0
+
+
+def test_nve_plan_refuses_what_it_does_not_run_yet():
+    scene = load_scene(find_scene("nve_push"))
+    with pytest.raises(ConfigError, match="--side"):
+        node_plan(scene, side="master")
 
 
 def test_launch_file_plan_is_the_launcher_plan(tmp_path):

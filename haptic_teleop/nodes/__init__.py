@@ -13,6 +13,8 @@ EXECUTABLES = {
     "operator_source": "haptic_teleop.nodes.operator_source",
     "recorder": "haptic_teleop.nodes.recorder",
     "clock_source": "haptic_teleop.nodes.clock_source",
+    "nve_server": "haptic_teleop.nodes.nve_server",
+    "nve_client": "haptic_teleop.nodes.nve_client",
 }
 
 # The scene sections each executable reads as parameters ("" is the whole scene; {direction}
@@ -29,6 +31,17 @@ SCENE_SECTIONS = {
     "operator_source": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
     "recorder": ("",),
     "clock_source": ("scene",),
+    # An NVE scene (docs/live.md, "NVE scenes live"): the server and each client read the whole
+    # nve section (the same build_nve_parts as the engine).
+    "nve_server": ("scene", "nve"),
+    "nve_client": ("scene", "nve"),
+}
+
+# The sections a relay or a sync buffer reads for an NVE direction `<client>/up|down` ({client},
+# {link}: its parts).
+NVE_SCENE_SECTIONS = {
+    "network_relay": ("scene", "nve.clients.{client}.{link}.effects"),
+    "sync_buffer": ("scene", "nve.clients.{client}.{link}.buffer"),
 }
 
 # A node process prints its loop's figures on a line starting with this as it exits (JSON after

@@ -42,27 +42,25 @@ from typing import Any
 
 from haptic_teleop.core.link import Packet
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
-from haptic_teleop.nodes import RELAY_SCENE_STARTS, SCENE_SECTIONS
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.nodes import NVE_SCENE_SECTIONS, RELAY_SCENE_STARTS, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.messages import JointStateOut, take_all
 from haptic_teleop.nodes.params import declare_scene, declare_value
 from haptic_teleop.nodes.topics import (
-    DIRECTIONS,
     READER_DEPTH,
     SCENE_START_TOPIC,
     TASK_AXES_PARAM,
-    WIRE_FIELDS,
     delivered_topic,
     latched_qos,
     packets_topic,
-    payload_fields,
     reliable_qos,
     scene_start_ns,
     sent_topic,
     stream_qos,
-    wire_names,
 )
+from haptic_teleop.nodes.wire import direction_problem, nve_direction, wire_of
 
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
 # beyond it) is rebuilt from the packet's payload instead.
@@ -98,24 +96,43 @@ def settling_effects(cfg: NetworkEffectsConfig) -> NetworkEffectsConfig:
 
 def declare_task_axes(node: LiveNode) -> int:
     """The node's `task_axes` parameter: values per payload field (1: a one-axis scene; 3: an arm
-    scene, one per axis of the task; the launcher sets it from the scene's tick schema)."""
+    scene, one per axis of the task, or a 3-axis NVE scene; the launcher sets it from the scene)."""
     return int(
         declare_value(
-            node, TASK_AXES_PARAM, 1, "values per payload field: 1 (one-axis scene) or 3 (arm scene: x, y, z)", 1, 3
+            node, TASK_AXES_PARAM, 1, "values per payload field: 1 (one-axis scene) or 3 (arm or NVE scene: x, y, z)",
+            1, 3,
         )
-    )
+    )  # fmt: skip
 
 
 def declare_direction_scene(node: LiveNode, executable: str, extra_names: Sequence[str] = ()) -> tuple[str, Any]:
     """The node's `direction` parameter and the scene sections `executable` reads for it
-    (`extra_names`: the node's other own parameters)."""
+    (`extra_names`: the node's other own parameters). A direction is teleoperation's `forward` or
+    `backward`, or an NVE client's `<client>/up` or `<client>/down`."""
     d = str(
         declare_value(
-            node, "direction", "forward", "forward: master to slave; backward: slave to master", choices=DIRECTIONS
+            node, "direction", "forward",
+            "forward: master to slave; backward: slave to master; <client>/up, <client>/down: an NVE client's link",
         )
-    )
-    sections = [s.format(direction=d) for s in SCENE_SECTIONS[executable]]
+    )  # fmt: skip
+    problem = direction_problem(d)
+    if problem is not None:
+        raise ConfigError(f"parameters of node {node.get_name()}", "direction", d, problem)
+    nd = nve_direction(d)
+    if nd is None:
+        sections = [s.format(direction=d) for s in SCENE_SECTIONS[executable]]
+    else:
+        sections = [s.format(client=nd[0], link=nd[1]) for s in NVE_SCENE_SECTIONS[executable]]
     return d, declare_scene(node, sections, ("direction", *extra_names))
+
+
+def direction_config(cfg: Any, direction: str) -> Any:
+    """The scene's DirectionConfig (effects, buffer) of a direction."""
+    nd = nve_direction(direction)
+    if nd is None:
+        return getattr(cfg.network, direction)
+    client = next(c for c in cfg.nve.clients if c.name == nd[0])
+    return getattr(client, nd[1])
 
 
 class NetworkRelay(LiveNode):
@@ -150,14 +167,18 @@ class NetworkRelay(LiveNode):
         self._settled: list[Packet] = []  # settling link records of scene time >= 0, not published yet
         self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
-        effects = getattr(cfg.network, d).effects
+        effects = direction_config(cfg, d).effects
+        # The link's random streams are named by the direction: "forward", "backward" as the
+        # engine's; "<client>/up", "<client>/down" as the NVE engine's (nve_assembly.build_direction).
         self.link = build_scene_link(effects, cfg.scene.seed, d)  # scene time, from 0
         self.settling = build_scene_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
-        self._fields = payload_fields(d, axes)
-        self._read = JointStateReader(self._fields, [(wire_names(d, axes), WIRE_FIELDS[d])], axes)
-        floats = 3 if d == "backward" else 2
-        if axes == 1:
-            self._size = joint_state_size(floats)
+        self.wire = w = wire_of(d, axes)
+        self._fields = w.want
+        self._read = JointStateReader(w.want, [(w.names, w.fields)], w.width)
+        self._remap = w.payload if nve_direction(d) is not None else None  # the read values are the payload
+        floats = w.floats
+        if axes == 1 or nve_direction(d) is not None:  # the NVE engine's size: joint_state_size(floats, axes)
+            self._size = joint_state_size(floats, axes)
         else:  # the engine's wire size of an arm payload (arm_loop.wire_payload_bytes)
             from haptic_teleop.engine.arm_loop import wire_payload_bytes
 
@@ -167,7 +188,7 @@ class NetworkRelay(LiveNode):
         self.delivered = 0
         self.malformed = 0
         # Forwards the sent bytes; rebuilds a message whose original is no longer kept.
-        self._rebuild = JointStateOut(self, delivered_topic(d), wire_names(d, axes), WIRE_FIELDS[d])
+        self._rebuild = JointStateOut(self, delivered_topic(d), w.names, w.fields)
         self._axes = axes
         self._packets_pub = self.create_publisher(Float64MultiArray, packets_topic(d), reliable_qos(100))
         self.add_event_subscription(JointState, sent_topic(d), stream_qos(READER_DEPTH), self._on_sent, raw=True)
@@ -187,6 +208,8 @@ class NetworkRelay(LiveNode):
                 self.get_logger().warning(f"dropping messages without {self._fields} values")
             self.malformed += 1
             return
+        if self._remap is not None:
+            payload = self._remap(payload)
         seq = stamp // self.period_ns
         self._msgs[seq] = msg
         self._newest = max(self._newest, seq)
@@ -249,11 +272,8 @@ class NetworkRelay(LiveNode):
             m = msgs.get(p.seq)
             if m is not None:
                 self._rebuild.publish_raw(m)
-            elif self._axes > 1:  # an arm payload is in the wire's order already
-                self._rebuild.publish(p.seq * self.period_ns, p.payload)
             else:
-                values = dict(zip(self._fields, p.payload, strict=True))
-                self._rebuild.publish(p.seq * self.period_ns, [values[f] for f in self._rebuild.fields])
+                self._rebuild.publish(p.seq * self.period_ns, self.wire.values(p.payload))
         if scene:
             self.delivered += len(packets)
 

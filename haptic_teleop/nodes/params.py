@@ -40,19 +40,80 @@ def _unwrap_optional(tp: Any) -> Any:
     return tp
 
 
+# An NVE scene's clients are a list of sections (`nve.clients`); as parameters each is a section
+# named by the client (`nve.clients.<name>.coupling....`) and this parameter lists the names in
+# scene order (the server's client index).
+NVE_CLIENT_NAMES_PARAM = "nve.client_names"
+_CLIENTS = "clients"
+
+
+def _section_list(tp: Any) -> Any:
+    """The element dataclass of a `tuple[Section, ...]` field (the NVE clients), or None."""
+    if get_origin(tp) is tuple:
+        inner = get_args(tp)[0]
+        if dataclasses.is_dataclass(inner):
+            return inner
+    return None
+
+
 def section_type(path: str) -> type:
-    """The config dataclass at a dotted path of the scene (`""` is the whole scene)."""
+    """The config dataclass at a dotted path of the scene (`""` is the whole scene); an element of
+    a list of sections is named by its `name` (`nve.clients.client1.up`)."""
     from haptic_teleop.scene.schema import Scene
 
     cls: Any = Scene
-    for part in [p for p in path.split(".") if p]:
+    parts = [p for p in path.split(".") if p]
+    i = 0
+    while i < len(parts):
+        part = parts[i]
         hints = typing.get_type_hints(cls)
         if part not in hints:
             raise KeyError(f"{path}: no section {part!r} in {cls.__name__}")
-        cls = _unwrap_optional(hints[part])
+        tp = _unwrap_optional(hints[part])
+        element = _section_list(tp)
+        if element is not None:
+            if i + 1 >= len(parts):
+                raise KeyError(f"{path}: {part!r} is a list of sections: name one ({part}.NAME)")
+            cls = element
+            i += 2
+            continue
+        cls = tp
         if not dataclasses.is_dataclass(cls):
             raise KeyError(f"{path}: {part!r} is a value, not a section")
+        i += 1
     return typing.cast(type, cls)
+
+
+def scene_section(config: Any, path: str) -> Any:
+    """The section object at a dotted path of a validated scene (`section_type`'s paths), or None
+    for an optional section the scene leaves out."""
+    obj = config
+    parts = [p for p in path.split(".") if p]
+    i = 0
+    while i < len(parts):
+        obj = getattr(obj, parts[i])
+        if isinstance(obj, tuple) and obj and dataclasses.is_dataclass(obj[0]):
+            name = parts[i + 1]
+            obj = next((x for x in obj if getattr(x, "name", None) == name), None)
+            if obj is None:
+                raise KeyError(f"{path}: no element named {name!r}")
+            i += 2
+            continue
+        if obj is None:
+            return None
+        i += 1
+    return obj
+
+
+def expand_sections(sections: Sequence[str], client_names: Sequence[str]) -> list[str]:
+    """`sections` with `nve` (the whole NVE section) spelled out: its own leaves plus one section
+    per client (`nve.clients.<name>`)."""
+    out: list[str] = []
+    for s in sections:
+        out.append(s)
+        if s in ("", "nve"):
+            out += [f"nve.{_CLIENTS}.{n}" for n in client_names]
+    return out
 
 
 def scene_param_specs(path: str) -> list[ParamSpec]:
@@ -64,6 +125,10 @@ def scene_param_specs(path: str) -> list[ParamSpec]:
         for f in dataclasses.fields(cls):
             name = f"{prefix}.{f.name}" if prefix else f.name
             tp = _unwrap_optional(hints[f.name])
+            if _section_list(tp) is not None:  # a list of sections: one section per element (expand_sections)
+                continue
+            if name.count(".") >= 3 and name.split(".")[-3] == _CLIENTS and f.name == "name":
+                continue  # an element's name is its key (nve.clients.<name>)
             if dataclasses.is_dataclass(tp):
                 walk(tp, name)
                 continue
@@ -144,6 +209,20 @@ def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str]
 
     raw: dict[str, Any] = {}
     declared: set[str] = set(extra_names) | {LOOP_PRIORITY_PARAM, LOOP_CATCH_UP_PARAM}
+    names: list[str] = []
+    if any(s in {"", "nve"} or s.startswith("nve.") for s in sections):
+        names = _declare_client_names(node)
+        declared.add(NVE_CLIENT_NAMES_PARAM)
+        for s in sections:
+            parts = s.split(".")
+            if len(parts) >= 3 and parts[:2] == ["nve", _CLIENTS] and parts[2] not in names:
+                raise ConfigError(
+                    f"parameters of node {node.get_name()}",
+                    NVE_CLIENT_NAMES_PARAM,
+                    names,
+                    f"must name client {parts[2]!r} (this node reads {s})",
+                )
+        sections = expand_sections(sections, names)
     for section in sections:
         for spec in scene_param_specs(section):
             declared.add(spec.name)
@@ -169,7 +248,20 @@ def declare_scene(node: Any, sections: Sequence[str], extra_names: Sequence[str]
             overrides[unknown[0]].value,
             "unknown parameter for this node; it reads " + ", ".join(sections),
         )
+    if names:
+        nve = raw.setdefault("nve", {})
+        given = nve.get(_CLIENTS, {})
+        nve[_CLIENTS] = [{**given.get(n, {}), "name": n} for n in names]
     return build(Scene, raw, "", f"parameters of node {node.get_name()}")
+
+
+def _declare_client_names(node: Any) -> list[str]:
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.parameter import Parameter
+
+    d = ParameterDescriptor(description="an NVE scene's clients, in scene order (their sections: nve.clients.<name>)")
+    p = node.declare_parameter(NVE_CLIENT_NAMES_PARAM, Parameter.Type.STRING_ARRAY, d)
+    return [] if int(p.type_) == 0 else [str(n) for n in p.value]
 
 
 def declare_value(

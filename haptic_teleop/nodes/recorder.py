@@ -25,6 +25,12 @@ written, up to the last tick every stream reached (at most scene.duration_s), an
 
 The resolved scene goes out once on /haptic_teleop/scene (std_msgs/String, reliable, transient
 local: a subscriber that starts later still gets it).
+
+An NVE scene (docs/live.md, "NVE scenes live") is recorded the same way with its own topic plan
+(`topic_plan`): the NVE bag's per-tick topics (record/nve_columns.py, `nve_topic_specs`) as
+state, the release ticks of each client's up and down sync buffers (`<c>.up_rx_seq`,
+`<c>.down_rx_seq`), the packets and buffer decisions of every `<client>/up|down` direction; the
+grid's end is set by the object and the clients' HIP streams, scene time 0 by the server's start.
 """
 
 from __future__ import annotations
@@ -90,6 +96,46 @@ MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams
 # Per-tick topics of a tick schema the recorder does not take as state: the packets' samples
 # (/<dir>/sent: the relays' records carry them; /<dir>/received: the release ticks, RECEIVED).
 _NOT_STATE = ("/forward/sent", "/backward/sent", "/forward/received", "/backward/received")
+
+
+class TopicPlan:
+    """What a recorder takes, per run kind: its per-tick state topics (layouts, row columns), the
+    sync buffers' released-sample topics (-> the row column of the release tick), the packet and
+    playout topics (-> their direction), the streams that set the grid's end, and the stream whose
+    first sample is scene time 0 when no start message came."""
+
+    def __init__(
+        self,
+        specs: dict[str, Any],
+        columns: dict[str, tuple[int, ...]],
+        received: dict[str, int],
+        directions: tuple[str, ...],
+        main: tuple[str, ...],
+        first: str,
+    ) -> None:
+        self.specs, self.columns, self.received = specs, columns, received
+        self.directions, self.main, self.first = directions, main, first
+        self.packets = {packets_topic(d): d for d in directions}
+        self.playout = {playout_topic(d): d for d in directions}
+
+
+def topic_plan(schema: Any) -> TopicPlan:
+    """The recorder's topics for a run with this schema (a TickSchema, or an NveSchema)."""
+    from haptic_teleop.record.nve_columns import NveSchema
+
+    if isinstance(schema, NveSchema):
+        from haptic_teleop.nodes.topics import NVE_OBJECT_STATE, nve_hip_topic
+        from haptic_teleop.record.layouts import nve_topic_specs
+
+        specs = nve_topic_specs(schema)
+        received = {received_topic(d): schema.index(f"{d.replace('/', '.')}_rx_seq") for d in schema.directions}
+        main = (NVE_OBJECT_STATE, *(nve_hip_topic(c) for c in schema.clients))
+        columns = {t: spec.columns for t, spec in specs.items()}
+        return TopicPlan(specs, columns, received, schema.directions, main, NVE_OBJECT_STATE)
+    from haptic_teleop.record.layouts import topic_specs
+
+    received = {t: schema.col[name] for t, name in RECEIVED.items()}
+    return TopicPlan(topic_specs(schema), state_columns(schema), received, DIRECTIONS, MAIN, OPERATOR_STATE)
 
 
 def state_columns(schema: Any) -> dict[str, tuple[int, ...]]:
@@ -174,7 +220,6 @@ class Recorder(LiveNode):
         from std_msgs.msg import Float64MultiArray, String
 
         from haptic_teleop.errors import ConfigError
-        from haptic_teleop.record.layouts import topic_specs
         from haptic_teleop.scene.schema import LoadedScene
 
         self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir",))
@@ -193,8 +238,9 @@ class Recorder(LiveNode):
             max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
         )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
-        self._specs = topic_specs(self.schema)
-        self._columns = state_columns(self.schema)
+        self.plan = plan = topic_plan(self.schema)
+        self._specs = plan.specs
+        self._columns = plan.columns
         # A side with its own period (<side>.period_s = k scene periods) publishes every k-th scene
         # tick: its rows repeat its last values in between (_on_grid), as the engine records them,
         # and only a missed tick of its own counts as a filled sample.
@@ -205,15 +251,15 @@ class Recorder(LiveNode):
         self._queues: dict[str, tuple[list[int], list[bytes]]] = {}
         self._subs: dict[str, Any] = {}
         self._pending: dict[str, _Pending] = {t: _Pending(len(c)) for t, c in self._columns.items()}
-        for topic in RECEIVED:
+        for topic in plan.received:
             self._pending[topic] = _Pending(1)  # index: the sample's tick; value: its release tick
-        self._packets: dict[str, list[np.ndarray]] = {d: [] for d in DIRECTIONS}
-        self._decided: dict[str, dict[int, int]] = {d: {} for d in DIRECTIONS}  # seq -> the buffer's fate
-        for topic in list(self._columns) + list(RECEIVED) + list(PACKETS) + list(PLAYOUT):
+        self._packets: dict[str, list[np.ndarray]] = {d: [] for d in plan.directions}
+        self._decided: dict[str, dict[int, int]] = {d: {} for d in plan.directions}  # seq -> the buffer's fate
+        for topic in list(self._columns) + list(plan.received) + list(plan.packets) + list(plan.playout):
             self._queues[topic] = ([], [])
-            if topic in PACKETS or topic in PLAYOUT:
+            if topic in plan.packets or topic in plan.playout:
                 msg_type, qos = Float64MultiArray, reliable_qos(100)
-            elif topic in RECEIVED:
+            elif topic in plan.received:
                 msg_type, qos = JointState, stream_qos(RECORDER_DEPTH)
             else:
                 msg_type, qos = self._ros_type(self._specs[topic].layout.msgtype), stream_qos(RECORDER_DEPTH)
@@ -221,8 +267,8 @@ class Recorder(LiveNode):
         self.received_count = {t: 0 for t in self._queues}
         self.start_tick: int | None = None  # absolute tick of scene time 0: the operator's first sample
         self.written = 0  # absolute tick up to which (exclusive) the bag holds the grid
-        self.packets_written = {d: 0 for d in DIRECTIONS}
-        self.late_marked = {d: 0 for d in DIRECTIONS}
+        self.packets_written = {d: 0 for d in plan.directions}
+        self.late_marked = {d: 0 for d in plan.directions}
         self._closed = False
         self._last_flush = time.monotonic()
         self.rec = self._open_bag()
@@ -308,11 +354,12 @@ class Recorder(LiveNode):
         recv = np.array(times[:n], dtype=np.int64)
         del q[:n], times[:n]
         self.received_count[topic] += n
-        if topic in PACKETS:
-            self._decode_packets(PACKETS[topic], raws)
-        elif topic in PLAYOUT:
-            self._decode_playout(PLAYOUT[topic], raws)
-        elif topic in RECEIVED:
+        plan = self.plan
+        if topic in plan.packets:
+            self._decode_packets(plan.packets[topic], raws)
+        elif topic in plan.playout:
+            self._decode_playout(plan.playout[topic], raws)
+        elif topic in plan.received:
             stamps = np.fromiter((_stamp_ns(_STAMP.unpack_from(r, 4)) for r in raws), dtype=np.int64, count=n)
             # Indexed by release tick (the column's row); the value is the sample's own tick.
             self._pending[topic].add(recv // period, (stamps // period).reshape(-1, 1).astype(np.float64))
@@ -339,9 +386,10 @@ class Recorder(LiveNode):
             m = deserialize_message(r, msg_type)
             if hasattr(m, "header"):
                 stamps[i] = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-            if self.schema.single_axis and layout.msgtype.endswith("JointState"):
+            single = getattr(self.schema, "single_axis", False)
+            if single and layout.msgtype.endswith("JointState"):
                 vals[i] = [float(getattr(m, f)[0]) for f in fields]
-            elif self.schema.single_axis and layout.msgtype.endswith("WrenchStamped"):
+            elif single and layout.msgtype.endswith("WrenchStamped"):
                 vals[i] = [m.wrench.force.x]
             elif layout.msgtype.endswith("JointState"):  # field by field, one value per name
                 names = {f.split("[")[0]: None for f in fields}
@@ -352,6 +400,9 @@ class Recorder(LiveNode):
             elif layout.msgtype.endswith("PoseStamped"):
                 p = m.pose.position
                 vals[i] = [p.x, p.y, p.z][:k]
+            elif layout.msgtype.endswith("TwistStamped"):
+                v = m.twist.linear
+                vals[i] = [v.x, v.y, v.z][:k]
             else:
                 vals[i] = list(m.data[:k])
         return vals, (stamps if layout.sec_offset >= 0 else None)
@@ -384,14 +435,15 @@ class Recorder(LiveNode):
         """Append the ticks that are complete (all of them when closing) and the packet records
         decided up to there; flush when due."""
         if self.start_tick is None:
-            first = self._pending[OPERATOR_STATE].first()
+            lead = self._pending[self.plan.first]
+            first = lead.first()
             told = take_all(self._start_sub)
             if told:  # the operator's scene time 0, even if its first samples did not get here
                 first = scene_start_ns(told[-1], self.grid_ns) // self.grid_ns
-            elif first is None or (not closing and self._pending[OPERATOR_STATE].newest - first < self.stall_ticks):
+            elif first is None or (not closing and lead.newest - first < self.stall_ticks):
                 return  # wait for it a little (an operator of another version may not send it)
             self.start_tick = self.written = first
-        newest = [self._pending[t].newest for t in MAIN]
+        newest = [self._pending[t].newest for t in self.plan.main]
         if min(newest) < 0 and not closing and max(newest) - self.written < self.stall_ticks:
             return
         if closing:
@@ -408,7 +460,6 @@ class Recorder(LiveNode):
             self._last_flush = now
 
     def _write_ticks(self, a: int, b: int) -> None:
-        col = self.schema.col
         n = b - a
         data = np.zeros((n, self.schema.width))
         for topic, cols in self._columns.items():
@@ -424,14 +475,14 @@ class Recorder(LiveNode):
             data[:, list(cols)] = grid
         start = self.start_tick
         assert start is not None
-        for topic, name in RECEIVED.items():
+        for topic, column_index in self.plan.received.items():
             at, seq = self._pending[topic].take(a, b, first=a == start)
             column = np.full(n, -1.0)
             s = seq[:, 0].astype(np.int64) - start
             ok = (s >= 0) & (s <= at - start)
             order = np.argsort(at[ok], kind="stable")  # the last release in a tick wins
             column[(at[ok] - a)[order]] = s[ok][order]
-            data[:, col[name]] = column
+            data[:, column_index] = column
         self.rec.append(data)
         self.written = b
 
@@ -442,12 +493,12 @@ class Recorder(LiveNode):
         from haptic_teleop.record.layouts import PACKET_FIELDS
 
         if not self.cfg.recording.packets or self.start_tick is None:
-            for d in DIRECTIONS:
+            for d in self.plan.directions:
                 self._packets[d].clear()
             return
         f = {name: i for i, name in enumerate(PACKET_FIELDS)}
         start, written = self.start_tick, self.written
-        for d in DIRECTIONS:
+        for d in self.plan.directions:
             if not self._packets[d]:
                 continue
             rows = np.concatenate(self._packets[d])
@@ -499,7 +550,7 @@ class Recorder(LiveNode):
         self._advance(closing=True)
         ticks = self.written - self.start_tick if self.start_tick is not None else 0
         if ticks < 2:
-            missing = [t for t in MAIN if self._pending[t].newest < 0]
+            missing = [t for t in self.plan.main if self._pending[t].newest < 0]
             why = f"no samples on {', '.join(missing)}" if missing else "fewer than two common ticks"
             self.get_logger().error(f"nothing to record: {why}")
             self.exit_code = 1
@@ -532,6 +583,10 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
     and the wall's point and normal (the analysis' penetration). A one-axis scene: ONE_DOF."""
     from haptic_teleop.record.columns import ONE_DOF, TickSchema
 
+    if cfg.is_nve:  # an NVE run: its record schema (the run facts' nve_schema is the recorder's own)
+        from haptic_teleop.record.nve_columns import NveSchema
+
+        return NveSchema(tuple(c.name for c in cfg.nve.clients), cfg.nve.axes), {}
     if not cfg.is_arm:
         return ONE_DOF, {}
     from haptic_teleop.plants import build_arm

@@ -22,19 +22,17 @@ from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.messages import JointStateOut, take_all
-from haptic_teleop.nodes.network_relay import declare_direction_scene, declare_task_axes
+from haptic_teleop.nodes.network_relay import declare_direction_scene, declare_task_axes, direction_config
 from haptic_teleop.nodes.topics import (
     READER_DEPTH,
     TASK_AXES_PARAM,
-    WIRE_FIELDS,
     delivered_topic,
-    payload_fields,
     playout_topic,
     received_topic,
     reliable_qos,
     stream_qos,
-    wire_names,
 )
+from haptic_teleop.nodes.wire import nve_direction, wire_of
 
 PLAYOUT_FIELDS = ("seq", "fate")
 _MAX_PENDING = 100_000
@@ -54,14 +52,19 @@ class SyncBuffer(LiveNode):
         self.direction = d
         axes = declare_task_axes(self)
         period_ns = round(cfg.scene.period_s * 1e9)
-        self.buffer = build_buffer(getattr(cfg.network, d).buffer, period_ns)
-        self._fields = payload_fields(d, axes)
-        out_fields = WIRE_FIELDS[d]
-        # payload -> JointState order (an arm payload is in the wire's order, one value per axis)
+        self.buffer = build_buffer(direction_config(cfg, d).buffer, period_ns)
+        self.wire = w = wire_of(d, axes)
+        self._fields = w.want
+        out_fields = w.fields
+        nve = nve_direction(d) is not None
+        # payload -> JointState order (an arm payload is in the wire's order, one value per axis;
+        # an NVE payload is mapped by its wire, nodes/wire.py)
         self._order = [self._fields.index(f) for f in out_fields] if axes == 1 else list(range(len(out_fields) * axes))
+        self._to_wire = w.values if nve else None
+        self._remap = w.payload if nve else None
         self.released = 0
-        self.out = JointStateOut(self, received_topic(d), wire_names(d, axes), out_fields)
-        self._read = JointStateReader(self._fields, [(wire_names(d, axes), out_fields)], axes)
+        self.out = JointStateOut(self, received_topic(d), w.names, out_fields)
+        self._read = JointStateReader(self._fields, [(w.names, out_fields)], w.width)
         self._sub = self.create_polled_subscription(JointState, delivered_topic(d), stream_qos(READER_DEPTH), raw=True)
         # Decisions: packets pushed and not decided yet (seq -> packet), and the decisions not
         # published yet (seq, fate pairs, flat).
@@ -75,7 +78,7 @@ class SyncBuffer(LiveNode):
         self._batch_ticks = max(1, round(0.1e9 / period_ns))
         self.setup_loop(period_ns)
         self.get_logger().info(
-            f"{d}: {delivered_topic(d)} -> {received_topic(d)}, policy {getattr(cfg.network, d).buffer.policy}"
+            f"{d}: {delivered_topic(d)} -> {received_topic(d)}, policy {direction_config(cfg, d).buffer.policy}"
         )
 
     def tick(self, index: int, stamp_ns: int) -> None:
@@ -87,6 +90,8 @@ class SyncBuffer(LiveNode):
                 stamp, payload = read(raw)
             except IndexError:  # not this direction's layout
                 continue
+            if self._remap is not None:
+                payload = self._remap(payload)
             packet = Packet(stamp // period, stamp, payload, 0, now)
             push(packet, now)
             if buf.duplicates != self._dup_seen:  # ignored: its first copy is decided
@@ -101,7 +106,10 @@ class SyncBuffer(LiveNode):
             self._collect_late()
         if p is not None:
             payload = p.payload
-            self.out.publish(p.send_time_ns, [payload[i] for i in self._order])
+            if self._to_wire is not None:
+                self.out.publish(p.send_time_ns, self._to_wire(payload))
+            else:
+                self.out.publish(p.send_time_ns, [payload[i] for i in self._order])
             self.released += 1
             if self._pending.pop(p.seq, None) is not None:
                 self._decided.extend((p.seq, DELIVERED))

@@ -146,3 +146,37 @@ def reliable_qos(depth: int = 100) -> Any:
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.VOLATILE,
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# NVE scenes (docs/live.md, "NVE scenes live"). A client's link pair is the directions
+# "<client>/up" and "<client>/down": /<client>/up/sent, /delivered, /received, /packets, /playout
+# as teleoperation's. The per-tick topics are the NVE bag's (NVE_DESIGN, "Record").
+
+NVE_OBJECT_STATE = "/nve/object/joint_states"  # JointState object_x..: position, velocity, effort (net coupling force)
+
+
+def nve_hip_topic(client: str) -> str:
+    """JointState <client>_hip_x..: position, velocity (the HIP at t), effort (the force fed back)."""
+    return f"/nve/{client}/hip/joint_states"
+
+
+def nve_pose_topic(client: str) -> str:
+    """PoseStamped: the object as the client uses it at t (NaN before the first)."""
+    return f"/nve/{client}/object_pose"
+
+
+def nve_twist_topic(client: str) -> str:
+    """TwistStamped: the object's velocity as the client uses it (NaN before the first)."""
+    return f"/nve/{client}/object_twist"
+
+
+def nve_wrench_topic(client: str) -> str:
+    """WrenchStamped: the force fed back to the user."""
+    return f"/nve/{client}/feedback_wrench"
+
+
+def nve_coupling_topic(client: str) -> str:
+    """Float64MultiArray spring_n_per_m, rtt_s, up_rx_seq, down_rx_seq, up_occupancy, down_occupancy
+    (record/nve_columns.COUPLING_GROUPS; what the client node does not know: NaN)."""
+    return f"/nve/{client}/coupling"

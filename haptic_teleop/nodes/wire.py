@@ -1,0 +1,101 @@
+"""What a link direction's samples look like on the wire (sensor_msgs/JointState), for the relay and
+the sync buffer of any direction: teleoperation's `forward` and `backward` (topics.py) and an NVE
+scene's `<client>/up` and `<client>/down` (NVE_DESIGN, docs/live.md "NVE scenes live").
+
+NVE layouts (a = the scene's axes):
+  up   (client -> server): names <client>_hip_x[, _y, _z]; position x[a], velocity v[a]
+  down (server -> client): names object_x[, _y, _z], hip_echo_s; position (x_o[a]..., echo_s),
+       velocity (v_o[a]..., 0)
+header.stamp = the sender's tick. The core payload (what the `Link` and `PlayoutBuffer` carry) is
+the engine's: up (x[a]..., v[a]...), down (x_o[a]..., v_o[a]..., echo_s).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from haptic_teleop.nodes.topics import DIRECTIONS, WIRE_FIELDS, payload_fields, wire_names
+
+AXIS_LABELS = ("x", "y", "z")
+NVE_UP, NVE_DOWN = "up", "down"
+_NVE_DIRECTION = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)/(up|down)\Z")
+ECHO_NAME = "hip_echo_s"
+
+
+def nve_direction(direction: str) -> tuple[str, str] | None:
+    """(client, "up" | "down") of an NVE direction `<client>/up|down`, or None for another."""
+    m = _NVE_DIRECTION.match(direction)
+    return (m.group(1), m.group(2)) if m else None
+
+
+def direction_problem(direction: str) -> str | None:
+    """Why `direction` is not a link direction, or None."""
+    if direction in DIRECTIONS or nve_direction(direction) is not None:
+        return None
+    return f"allowed: {' or '.join(DIRECTIONS)} (teleoperation), or <client>/up, <client>/down (an NVE scene)"
+
+
+def hip_names(client: str, axes: int) -> tuple[str, ...]:
+    return tuple(f"{client}_hip_{a}" for a in AXIS_LABELS[:axes])
+
+
+def object_names(axes: int) -> tuple[str, ...]:
+    return tuple(f"object_{a}" for a in AXIS_LABELS[:axes])
+
+
+@dataclass(frozen=True)
+class Wire:
+    """One direction's JointState layout and its mapping to and from the core payload."""
+
+    direction: str
+    axes: int
+    names: str | tuple[str, ...]  # JointState names (one string: a single joint)
+    fields: tuple[str, ...]  # the JointState arrays filled, in JointState order
+    want: tuple[str, ...]  # the arrays read, in the order the reader returns them
+    width: int  # values per array read
+    floats: int  # the engine's floats per axis of this direction's packet (its wire size)
+
+    def payload(self, values: Sequence[float]) -> tuple[float, ...]:
+        """Values as read (`want`, `width` each) -> the core payload."""
+        if not self._is_down():
+            return tuple(values)
+        a = self.axes
+        # read: position (x_o[a], echo), velocity (v_o[a], 0)
+        return (*values[:a], *values[a + 1 : 2 * a + 1], values[a])
+
+    def values(self, payload: Sequence[float]) -> list[float]:
+        """The core payload -> JointState values (field by field, one per name)."""
+        if self._is_down():
+            a = self.axes
+            return [*payload[:a], payload[2 * a], *payload[a : 2 * a], 0.0]
+        if self.axes == 1 and self.direction in DIRECTIONS:
+            by_field = dict(zip(self.want, payload, strict=True))
+            return [by_field[f] for f in self.fields]
+        return list(payload)
+
+    def _is_down(self) -> bool:
+        nd = nve_direction(self.direction)
+        return nd is not None and nd[1] == NVE_DOWN
+
+
+def wire_of(direction: str, axes: int = 1) -> Wire:
+    """The wire layout of a direction (`axes`: values per field of the payload: the task axes of an
+    arm scene, the NVE scene's axes)."""
+    nd = nve_direction(direction)
+    if nd is None:
+        if direction not in DIRECTIONS:
+            raise ValueError(f"direction {direction!r}: {direction_problem(direction)}")
+        floats = 3 if direction == "backward" else 2
+        return Wire(
+            direction, axes, wire_names(direction, axes), WIRE_FIELDS[direction],
+            payload_fields(direction, axes), axes, floats,
+        )  # fmt: skip
+    client, which = nd
+    if which == NVE_UP:
+        return Wire(
+            direction, axes, hip_names(client, axes), ("position", "velocity"), ("position", "velocity"), axes, 2
+        )
+    names = (*object_names(axes), ECHO_NAME)
+    return Wire(direction, axes, names, ("position", "velocity"), ("position", "velocity"), axes + 1, 3)

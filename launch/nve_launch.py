@@ -1,0 +1,18 @@
+"""ROS 2 launch file: the live node set of an NVE scene (a consistency server, its clients, and a
+relay and a sync buffer per direction of each client's link pair), for a full ROS 2 install.
+
+    ros2 launch haptic_teleop nve_launch.py scene:=nve_push [duration:=5.0] [seed:=7]
+        [set:="nve.clients.0.up.effects.delay.delay_s=0.05;nve.clients.0.down.effects.delay.delay_s=0.05"]
+        [sim_time:=false]
+
+The node set, names and parameters come from `haptic_teleop.launcher.node_plan`, the same plan
+`haptic-teleop launch nve_push` starts (docs/live.md, "NVE scenes live"). The run ends when the
+server finishes (after scene.duration_s); the first node that exits non-zero shuts the launch down.
+Where the package runs without ROS 2's launch (the PyPI wheels), use `haptic-teleop launch SCENE`.
+"""
+
+from haptic_teleop.launch_support import launch_description
+
+
+def generate_launch_description():
+    return launch_description(device="plant", scene_type="nve")
