@@ -639,10 +639,8 @@ def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, recor
             file=sys.stderr,
         )
         code = code or EXIT_FAILURE
-    elif record is not None and bag is not None and bag.exists() and scene.config.is_nve:
-        # An NVE run's bag (record/nve_columns.py); its summary and plots are `haptic-teleop analyze`'s.
-        print(f"\nbag:     {bag}\nrun:     {record / 'live_run.json'}")
     elif record is not None and bag is not None and bag.exists():
+        # write_outputs tells an NVE run's bag from a teleoperation one (analysis/outputs.py)
         from haptic_teleop.analysis.outputs import write_outputs
         from haptic_teleop.report import format_summary
 

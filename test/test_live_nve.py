@@ -186,7 +186,9 @@ def test_force_is_the_clients_spring_toward_the_object_it_received(push_run):
     # every object position the client used is one the server sent and the client's buffer released
     released = {float(m.position[0]) for m in d["/client/down/received"]}
     used = [float(x) for x in xo[got]]
-    assert sum(x in released for x in used) >= 0.99 * len(used)  # (this subscriber may miss a few)
+    # (this best-effort subscriber misses some under load: a third in one of four runs here; a force
+    # computed from anything but released samples would match almost none)
+    assert sum(x in released for x in used) >= 0.5 * len(used)
 
 
 def test_object_moves_toward_the_hip(push_run):
@@ -397,3 +399,14 @@ def test_live_bag_holds_what_the_nodes_published(push_run):
         assert pk.shape[0] >= ticks - 20 and np.array_equal(pk[:, 0], np.sort(pk[:, 0]))
         ok = (pk[:, 3] == DELIVERED) | (pk[:, 3] == LOST_LATE)
         assert np.all(ok) and np.allclose(pk[:, 2] - pk[:, 1], DELAY_S, atol=1e-9)  # scene seconds
+
+
+def test_recorded_live_run_ends_with_its_summary_from_the_bag(push_run):
+    """`launch --record` writes the NVE summary from the live bag: the measured round trip and the
+    server's energy balance from the recorded signals (passive at every step)."""
+    import json
+
+    summary = json.loads((push_run["bag"].parent / "summary.json").read_text())
+    assert summary["kind"] == "nve" and summary["finite"]
+    assert summary["server_energy"] is not None and summary["server_energy"]["passive"]
+    assert 0.1 <= summary["clients"]["client"]["round_trip_s"]["median"] < 0.13

@@ -1,4 +1,5 @@
-"""Every bundled scene runs, stays finite and keeps both EBA ports passive (energy margins >= 0)."""
+"""Every bundled scene runs, stays finite and keeps both EBA ports passive (energy margins >= 0);
+every bundled NVE scene runs, stays finite and keeps its server passive (docs/nve.md)."""
 
 from pathlib import Path
 
@@ -8,7 +9,9 @@ from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.engine.lockstep import record_run
 from haptic_teleop.scene.load import load_scene, scenes_dir
 
-SCENES = sorted(p.stem for p in scenes_dir().glob("*.yaml"))
+ALL_SCENES = sorted(p.stem for p in scenes_dir().glob("*.yaml"))
+NVE_SCENES = [n for n in ALL_SCENES if load_scene(scenes_dir() / f"{n}.yaml").config.is_nve]
+SCENES = [n for n in ALL_SCENES if n not in NVE_SCENES]  # teleoperation
 # Short runs that still hold each scene's events: the push starts at 0.5 s and reaches the wall
 # near 1.5 s (2.5 s leaves a second of contact); the blackout window is 3.0-3.5 s.
 DURATION_S = {
@@ -38,6 +41,20 @@ def test_every_scene_file_is_listed():
     assert {"wall_contact", "stiff_wall", "varying_delay", "jitter", "bursty_loss", "blackout", "bandwidth"} <= set(
         SCENES
     )
+    assert {"nve_push", "nve_two_clients"} <= set(NVE_SCENES)
+
+
+@pytest.mark.parametrize("name", NVE_SCENES)
+def test_nve_scene_runs_finite_with_a_passive_server(tmp_path, name):
+    from haptic_teleop.analysis.nve_summary import summarize_nve
+    from haptic_teleop.engine.nve_loop import record_nve_run
+
+    scene = load_scene(scenes_dir() / f"{name}.yaml", overrides=[f"scene.duration_s={DEFAULT_S}"])
+    record_nve_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False)
+    s = summarize_nve(tmp_path / "bag")
+    assert s["finite"] and s["ticks"] == round(DEFAULT_S / 0.001)
+    assert s["server_energy"]["passive"]
+    assert all(c["force_peak_n"] > 0 for c in s["clients"].values())
 
 
 @pytest.mark.parametrize("name", SCENES)

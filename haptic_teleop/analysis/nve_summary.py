@@ -194,6 +194,9 @@ def server_energy(schema: NveSchema, rows: np.ndarray, scene: dict[str, Any]) ->
             if ((cfg.get("up") or {}).get("buffer") or {}).get("gap") == "extrapolate":
                 return None
             k = cfg["coupling"]
+            rx = rows[:, schema.client_group(c, "up_rx_seq")][:, 0]
+            if not np.isfinite(rx).all():  # the server's releases are not in this bag
+                return None
             ports.append(
                 ClientPort(
                     float(k["server_stiffness_n_per_m"]),
