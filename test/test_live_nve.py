@@ -277,7 +277,7 @@ def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tm
 
 
 def test_wire_layouts_carry_the_engines_payloads():
-    """The NVE wire (NVE_DESIGN, "As built"): up = (x.., v..) as position, velocity; down = position
+    """The NVE wire (docs/live.md, "NVE scenes live"): up = (x.., v..) as position, velocity; down = position
     (x_o.., echo_s), velocity (v_o.., 0), both ways; teleoperation's wires as before."""
     from haptic_teleop.nodes.wire import direction_problem, wire_of
 

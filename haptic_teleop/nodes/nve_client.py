@@ -2,7 +2,7 @@
 HIP of `nve_assembly.build_nve_parts` (the engine's) on the 1 kHz absolute-deadline loop, in
 scene time (from the server's latched /haptic_teleop/scene_start; nothing before it).
 
-Per tick n (t = n T, NVE_DESIGN "One tick", steps 1 and 3):
+Per tick n (t = n T, docs/nve.md "Model", one tick, its client steps):
   1. the HIP at t from the client's operator profile goes up: /<client>/up/sent, JointState names
      <client>_hip_x.., position x[a], velocity v[a], stamp = this tick;
   3. the object samples its client-side sync buffer released (/<client>/down/received) update the

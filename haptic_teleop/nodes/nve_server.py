@@ -6,7 +6,7 @@ announces the first tick at least `start.delay_s` later on /haptic_teleop/scene_
 as the operator source does in teleoperation; the clients start their HIPs there and the relays
 run their links from there. After scene.duration_s it exits 0, which ends a launched run.
 
-Per tick n (t = n T, engine order, NVE_DESIGN "One tick", step 2), for each client in scene order:
+Per tick n (t = n T, engine order: docs/nve.md "Model", one tick, step 2), for each client in scene order:
 the HIP samples its server-side sync buffer released (/<client>/up/received: position x[a],
 velocity v[a], stamp = the client's send tick) become its held HIP, echo = that stamp in scene
 time; the object state at t goes down (/<client>/down/sent: object_x.., hip_echo_s; position
