@@ -55,6 +55,14 @@ def test_nve_scene_runs_finite_with_a_passive_server(tmp_path, name):
     assert s["finite"] and s["ticks"] == round(DEFAULT_S / 0.001)
     assert s["server_energy"]["passive"]
     assert all(c["force_peak_n"] > 0 for c in s["clients"].values())
+    # the analysis each client's summary gives counts every coupling that holds the object (its
+    # partners' too, docs/nve.md "Several clients"): b_h = b + (k_e + K) R at its median round trip
+    nve = scene.config.nve
+    holding = sum(c.coupling.server_stiffness_n_per_m for c in nve.clients)
+    for c in s["clients"].values():
+        an = c["analysis_at_median_round_trip"]
+        b_h = nve.object.damping_n_s_per_m + holding * an["round_trip_s"]
+        assert an["distorted_damping_n_s_per_m"] == pytest.approx(b_h, rel=1e-12)
 
 
 @pytest.mark.parametrize("name", SCENES)

@@ -23,6 +23,7 @@ from haptic_teleop.core.nve_transparency import (
     distorted_mass_kg,
     dominant_distortion,
     mass_based_spring_n_per_m,
+    with_partners,
 )
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.layouts import PACKET_FIELDS
@@ -90,6 +91,16 @@ def _model(scene: dict[str, Any], client: str) -> tuple[NveModel, float] | None:
                     float(k.get("server_damping_n_s_per_m", 0.0)),
                 )
             except (KeyError, TypeError, ValueError):
+                return None
+            # the other clients' couplings hold the object too (docs/nve.md, "Several clients")
+            others = [o.get("coupling") or {} for o in nve.get("clients") or () if o.get("name") != client]
+            try:
+                model = with_partners(
+                    model,
+                    [float(o.get("server_stiffness_n_per_m", 0.0)) for o in others],
+                    [float(o.get("server_damping_n_s_per_m", 0.0)) for o in others],
+                )
+            except (TypeError, ValueError):
                 return None
             return model, float(comp.get("interaction_rad_per_s", 1.0))
     return None
