@@ -129,11 +129,11 @@ def _check_field(name: str, value: object, meta: Mapping[str, Any]) -> None:
 
 
 def _norm(v: Sequence[float]) -> float:
-    return math.sqrt(math.fsum(x * x for x in v))
+    return math.hypot(*v)
 
 
 def _dist(a: Sequence[float], b: Sequence[float]) -> float:
-    return math.sqrt(math.fsum((x - y) * (x - y) for x, y in zip(a, b, strict=True)))
+    return math.dist(a, b)
 
 
 def effective_deadband(cfg: DeadbandConfig, speed: float) -> float:
