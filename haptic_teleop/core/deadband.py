@@ -277,8 +277,11 @@ class DeadbandDecoder:
         rate = self._rate
         if rate is None or n <= seq:
             return x
-        ahead = min(float(n - seq), self._max_ahead_ticks)
-        self.counters["extrapolated"] += 1
+        ahead = float(n - seq)
+        if ahead > self._max_ahead_ticks:
+            ahead = self._max_ahead_ticks  # past the cap: hold the value reached there
+        else:
+            self.counters["extrapolated"] += 1
         return tuple(xi + ri * ahead for xi, ri in zip(x, rate, strict=True))
 
 

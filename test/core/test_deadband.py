@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from haptic_teleop import typedconfig
 from haptic_teleop.core.deadband import (
     DeadbandConfig,
     DeadbandDecoder,
@@ -22,6 +23,7 @@ from haptic_teleop.core.deadband import (
     synthetic_contact_signal,
 )
 from haptic_teleop.core.link import Packet
+from haptic_teleop.errors import ConfigError
 from haptic_teleop.record.layouts import joint_state_size
 
 T = 1_000_000  # 1 ms period in ns
@@ -237,6 +239,7 @@ def test_extrapolation_cap_then_hold() -> None:
     assert dec.sample(13, 0) == pytest.approx((1.006,))
     for n in (15, 16, 100):
         assert dec.sample(n, 0) == pytest.approx((1.010,))
+    assert dec.counters["extrapolated"] == 2  # ticks 13 and 15; 16 and 100 hold
 
 
 def test_decoder_ignores_stale_and_duplicate_packets() -> None:
@@ -330,3 +333,16 @@ def test_bad_arguments_raise_value_error() -> None:
         enc.send(0, 0, (1.0, 2.0))
     with pytest.raises(ValueError, match="payload has 6 values, expected 3"):
         dec.receive(Packet(seq=0, send_time_ns=0, payload=(0.0,) * 6), 0)
+
+
+def test_config_builds_from_scene_data() -> None:
+    cfg = typedconfig.build(
+        DeadbandConfig, {"deadband": 0.05, "reconstruction": "extrapolate", "max_extrapolation_s": None}
+    )
+    assert cfg.deadband == 0.05 and cfg.sends_rate and cfg.max_extrapolation_s is None
+    with pytest.raises(ConfigError, match="deadband"):
+        typedconfig.build(DeadbandConfig, {"deadband": 2})
+    with pytest.raises(ConfigError, match="contradiction"):
+        typedconfig.build(DeadbandConfig, {"deadband": 0.3, "adaptive_gain": 1.0, "max_deadband": 0.1})
+    keys = {row[0] for row in typedconfig.describe(DeadbandConfig)}
+    assert keys == {f"{k}" for k in DeadbandConfig.__dataclass_fields__}
