@@ -1,0 +1,339 @@
+"""Perceptual deadband codec (seed 001, Hinterseer & Steinbach, Sec. 3.5): send a vector sample
+only when it leaves a sphere of radius p |v_i| around the last sent vector v_i.
+
+Pure core: no I/O, no clock (time is passed in as integer ns, the tick index as `n`). One
+`DeadbandEncoder` per stream on the sending side, one `DeadbandDecoder` on the receiving side,
+to the interface of the codec stage (docs/codec_deadband.md, the codec section of the docs).
+
+Rule (sender), for a stream of vectors of any length (1-D or 3-D):
+
+    send v_c  iff  this is the first sample, or  |v_i - v_c| > max(p(v) |v_i|, min_threshold)
+
+with v_i the last SENT sample. p(v) = p0 without the velocity-adaptive option, else our
+parametrisation p(v) = min(p0 (1 + adaptive_gain |v|), max_deadband) of Kammerl et al.'s
+velocity-adaptive deadband. With v_i = 0 and min_threshold = 0 the deadzone has radius 0: any
+change sends. Geometry: any direction change larger than arcsin(p) sends whatever the
+magnitude; at constant magnitude a direction change sends from 2 arcsin(p / 2) on (just below
+arcsin(p)); both are derived in the docs.
+
+Payload: the sample, then (reconstruction `extrapolate` with `extrapolate_from: sent_rate`) its
+rate (time derivative, unit per s). Receiver: `hold` the last received sample, or `extrapolate`
+linearly from the last received sample and its rate (sent, or the slope of the last two
+received samples), for at most `max_extrapolation_s`, then hold the value reached.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from haptic_teleop.core.link import Packet
+
+KIND = "deadband"  # the scene's `codec: {kind: deadband, ...}`
+RECONSTRUCTIONS = ("hold", "extrapolate")
+RATE_SOURCES = ("sent_rate", "last_two")
+
+_NS_PER_S = 1e9
+
+
+@dataclass(frozen=True)
+class DeadbandConfig:
+    """One stream's perceptual deadband (sender rule and receiver reconstruction)."""
+
+    deadband: float = field(
+        default=0.1,
+        metadata={"min": 0.0, "max": 1.0, "help": "p: send when |v_i - v_c| > p |v_i| (fraction, 0.05 = 5 %)"},
+    )
+    min_threshold: float = field(
+        default=0.0,
+        metadata={
+            "min": 0.0,
+            "max": 1e9,
+            "help": "absolute floor of the deadzone radius, in the stream's unit (0: the pure rule)",
+        },
+    )
+    adaptive_gain: float = field(
+        default=0.0,
+        metadata={
+            "min": 0.0,
+            "max": 1e6,
+            "help": "velocity-adaptive: alpha in p(v) = p0 (1 + alpha |v|), per unit of |v| (0: off)",
+        },
+    )
+    max_deadband: float = field(
+        default=0.4,
+        metadata={"min": 0.0, "max": 1.0, "help": "velocity-adaptive: upper clip of p(v)"},
+    )
+    reconstruction: str = field(
+        default="hold",
+        metadata={"choices": RECONSTRUCTIONS, "help": "receiver: hold the last sample or extrapolate it"},
+    )
+    extrapolate_from: str = field(
+        default="sent_rate",
+        metadata={
+            "choices": RATE_SOURCES,
+            "help": "extrapolate: the rate sent after the sample, or the slope of the last two received",
+        },
+    )
+    max_extrapolation_s: float | None = field(
+        default=0.1,
+        metadata={
+            "gt": 0.0,
+            "max": 3600.0,
+            "help": "extrapolate at most this long, then hold (unset: no cap)",
+        },
+    )
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _check_field(f.name, getattr(self, f.name), f.metadata)
+        if self.adaptive_gain > 0.0 and self.max_deadband < self.deadband:
+            raise ValueError(
+                f"max_deadband ({self.max_deadband}) must be >= deadband ({self.deadband}) when adaptive_gain > 0"
+            )
+
+    @property
+    def sends_rate(self) -> bool:
+        """Whether the payload carries the sample's rate after the sample."""
+        return self.reconstruction == "extrapolate" and self.extrapolate_from == "sent_rate"
+
+    @property
+    def floats_per_axis(self) -> int:
+        """Payload values per vector component: 1 (sample) or 2 (sample, rate)."""
+        return 2 if self.sends_rate else 1
+
+
+def _check_field(name: str, value: object, meta: Mapping[str, Any]) -> None:
+    """The schema's metadata checks, for configs built in code rather than from YAML."""
+    if value is None:
+        return
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        raise ValueError(f"deadband codec: {name} must be one of {', '.join(choices)}, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if choices is None:
+            raise ValueError(f"deadband codec: {name} must be a number, got {value!r}")
+        return
+    if not math.isfinite(value):
+        raise ValueError(f"deadband codec: {name} must be finite, got {value}")
+    lo, hi, gt = meta.get("min"), meta.get("max"), meta.get("gt")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise ValueError(f"deadband codec: {name} must be in [{lo}, {hi}], got {value}")
+    if gt is not None and not value > gt:
+        raise ValueError(f"deadband codec: {name} must be > {gt}, got {value}")
+
+
+def _norm(v: Sequence[float]) -> float:
+    return math.hypot(*v)
+
+
+def _dist(a: Sequence[float], b: Sequence[float]) -> float:
+    return math.dist(a, b)
+
+
+def effective_deadband(cfg: DeadbandConfig, speed: float) -> float:
+    """p(v): p0 without the adaptive option, else min(p0 (1 + alpha |v|), max_deadband)."""
+    if cfg.adaptive_gain == 0.0:
+        return cfg.deadband
+    return min(cfg.deadband * (1.0 + cfg.adaptive_gain * abs(speed)), cfg.max_deadband)
+
+
+def violates(last_sent: Sequence[float], current: Sequence[float], p: float, min_threshold: float = 0.0) -> bool:
+    """The deadzone test: |v_i - v_c| > max(p |v_i|, min_threshold)."""
+    return _dist(last_sent, current) > max(p * _norm(last_sent), min_threshold)
+
+
+class DeadbandEncoder:
+    """Sender side of one stream: decides per tick whether the sample leaves the deadzone.
+
+    `send(n, now_ns, sample, rate=None, velocity=None)`:
+    - `rate`: the sample's time derivative (a position stream's velocity), sent after the sample
+      when the payload carries a rate; unset, the backward difference of the last two samples
+      offered (zero for the first one).
+    - `velocity`: the velocity of the velocity-adaptive threshold (a force stream: the operator's
+      velocity); unset, the sample's rate is used (right for a position stream only).
+    """
+
+    kind = KIND
+
+    def __init__(self, cfg: DeadbandConfig, dim: int, size_bytes: int) -> None:
+        if dim < 1:
+            raise ValueError(f"deadband codec: dim must be >= 1, got {dim}")
+        if size_bytes < 0:
+            raise ValueError(f"deadband codec: size_bytes must be >= 0, got {size_bytes}")
+        self.cfg = cfg
+        self.dim = dim
+        self.size_bytes = size_bytes
+        self.counters: dict[str, int] = {"offered": 0, "sent": 0, "filtered": 0}
+        self.last_deadband = cfg.deadband  # p(v) of the last decision
+        self._last_sent: tuple[float, ...] | None = None
+        self._prev: tuple[float, ...] | None = None
+        self._prev_ns = 0
+
+    @property
+    def reduction(self) -> float:
+        """1 - sent / offered (0 before any sample)."""
+        offered = self.counters["offered"]
+        return 1.0 - self.counters["sent"] / offered if offered else 0.0
+
+    def _rate(self, now_ns: int, sample: tuple[float, ...]) -> tuple[float, ...]:
+        prev = self._prev
+        if prev is None or now_ns <= self._prev_ns:
+            return (0.0,) * self.dim
+        dt = (now_ns - self._prev_ns) / _NS_PER_S
+        return tuple((c - p) / dt for c, p in zip(sample, prev, strict=True))
+
+    def send(
+        self,
+        n: int,
+        now_ns: int,
+        sample: tuple[float, ...],
+        rate: Sequence[float] | None = None,
+        velocity: Sequence[float] | None = None,
+    ) -> list[Packet]:
+        if len(sample) != self.dim:
+            raise ValueError(f"deadband codec: sample has {len(sample)} values, the stream has {self.dim}")
+        cfg = self.cfg
+        need_rate = cfg.sends_rate or (cfg.adaptive_gain > 0.0 and velocity is None)
+        r: tuple[float, ...] = ()
+        if need_rate:
+            if rate is None:
+                r = self._rate(now_ns, sample)
+            elif len(rate) != self.dim:
+                raise ValueError(f"deadband codec: rate has {len(rate)} values, the stream has {self.dim}")
+            else:
+                r = tuple(float(x) for x in rate)
+        self._prev, self._prev_ns = sample, now_ns
+        self.counters["offered"] += 1
+        last = self._last_sent
+        if last is not None:
+            p = cfg.deadband
+            if cfg.adaptive_gain > 0.0:
+                p = effective_deadband(cfg, _norm(velocity if velocity is not None else r))
+            self.last_deadband = p
+            if not violates(last, sample, p, cfg.min_threshold):
+                self.counters["filtered"] += 1
+                return []
+        self._last_sent = sample
+        self.counters["sent"] += 1
+        payload = sample + r if cfg.sends_rate else sample
+        return [Packet(seq=n, send_time_ns=now_ns, payload=payload, size_bytes=self.size_bytes)]
+
+    def feedback(self, packet: Packet, now_ns: int) -> None:
+        """No return path: nothing to do."""
+
+
+class DeadbandDecoder:
+    """Receiver side: hold or extrapolate the newest received sample (by seq; older and
+    duplicate arrivals are counted `stale` and ignored)."""
+
+    kind = KIND
+
+    def __init__(self, cfg: DeadbandConfig, dim: int, period_ns: int) -> None:
+        if dim < 1:
+            raise ValueError(f"deadband codec: dim must be >= 1, got {dim}")
+        if not period_ns > 0:
+            raise ValueError(f"deadband codec: period_ns must be > 0, got {period_ns}")
+        self.cfg = cfg
+        self.dim = dim
+        self.period_ns = period_ns
+        self.counters: dict[str, int] = {"received": 0, "stale": 0, "extrapolated": 0}
+        cap = cfg.max_extrapolation_s
+        self._max_ahead_ticks = math.inf if cap is None else cap * _NS_PER_S / period_ns
+        self._last: tuple[int, tuple[float, ...]] | None = None  # (seq, sample)
+        self._prev: tuple[int, tuple[float, ...]] | None = None
+        self._rate: tuple[float, ...] | None = None  # unit per tick
+
+    def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
+        d = self.dim
+        want = d * self.cfg.floats_per_axis
+        if len(packet.payload) != want:
+            raise ValueError(f"deadband codec: payload has {len(packet.payload)} values, expected {want}")
+        if self._last is not None and packet.seq <= self._last[0]:
+            self.counters["stale"] += 1
+            return []
+        self.counters["received"] += 1
+        sample = tuple(packet.payload[:d])
+        self._prev, self._last = self._last, (packet.seq, sample)
+        if self.cfg.reconstruction == "extrapolate":
+            dt_tick = self.period_ns / _NS_PER_S
+            if self.cfg.sends_rate:
+                self._rate = tuple(x * dt_tick for x in packet.payload[d:])
+            elif self._prev is not None:
+                (s0, a), (s1, b) = self._prev, self._last
+                self._rate = tuple((y - x) / (s1 - s0) for x, y in zip(a, b, strict=True))
+        return []
+
+    def sample(self, n: int, now_ns: int) -> tuple[float, ...] | None:
+        last = self._last
+        if last is None:
+            return None
+        seq, x = last
+        rate = self._rate
+        if rate is None or n <= seq:
+            return x
+        ahead = float(n - seq)
+        if ahead > self._max_ahead_ticks:
+            ahead = self._max_ahead_ticks  # past the cap: hold the value reached there
+        else:
+            self.counters["extrapolated"] += 1
+        return tuple(xi + ri * ahead for xi, ri in zip(x, rate, strict=True))
+
+
+class DeadbandCodec(NamedTuple):
+    encoder: DeadbandEncoder
+    decoder: DeadbandDecoder
+
+
+def build_deadband(cfg: DeadbandConfig, dim: int, period_ns: int, size_bytes: int) -> DeadbandCodec:
+    """The encoder and decoder of one stream of `dim`-vectors sampled every `period_ns`.
+
+    `size_bytes` is the serialized size of the message carrying one payload of
+    `cfg.floats_per_axis` values per component (the engine passes
+    record.layouts.joint_state_size(cfg.floats_per_axis, dim); core cannot import record).
+    """
+    return DeadbandCodec(DeadbandEncoder(cfg, dim, size_bytes), DeadbandDecoder(cfg, dim, period_ns))
+
+
+def synthetic_contact_signal(
+    rng: np.random.Generator, ticks: int, period_s: float = 0.001
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A seeded haptic-like 3-D test signal (position m, velocity m/s, force N), shape (ticks, 3).
+
+    The operator's hand: per axis a sum of three sinusoids (0.2 to 2 Hz, 2 to 4 cm, random
+    phases) around the centre of a sphere of radius 5 cm, stiffness 500 N/m; force is seed 001's
+    sphere force F = k (r - |x - s|) (x - s)/|x - s| while inside it, zero outside, plus
+    N(0, 0.002 N) sensor noise on each component while in contact. Synthetic: for the codec's
+    tests and the docs' illustration table, not a measurement.
+    """
+    if ticks < 1 or not period_s > 0.0:
+        raise ValueError(f"synthetic_contact_signal: need ticks >= 1 and period_s > 0, got {ticks}, {period_s}")
+    t = np.arange(ticks) * period_s
+    freqs = rng.uniform(0.2, 2.0, size=(3, 3))
+    amps = rng.uniform(0.02, 0.04, size=(3, 3))
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=(3, 3))
+    arg = 2.0 * np.pi * freqs[None, :, :] * t[:, None, None] + phases[None, :, :]
+    pos = (amps[None, :, :] * np.sin(arg)).sum(axis=2)
+    vel = (amps[None, :, :] * 2.0 * np.pi * freqs[None, :, :] * np.cos(arg)).sum(axis=2)
+    radius_m, stiffness_n_per_m = 0.05, 500.0
+    dist = np.linalg.norm(pos, axis=1)
+    inside = dist < radius_m
+    unit = pos / np.maximum(dist, 1e-12)[:, None]
+    force = np.where(inside[:, None], stiffness_n_per_m * (radius_m - dist)[:, None] * unit, 0.0)
+    force = force + np.where(inside[:, None], rng.normal(0.0, 0.002, size=force.shape), 0.0)
+    return pos, vel, force
+
+
+def reduction_on(signal: np.ndarray, cfg: DeadbandConfig, velocity: np.ndarray | None = None) -> float:
+    """The deadband's packet-rate reduction (1 - sent/offered) on a (ticks, dim) signal at 1 kHz."""
+    enc = DeadbandEncoder(cfg, signal.shape[1], 0)
+    period_ns = 1_000_000
+    for n, row in enumerate(signal.tolist()):
+        v = None if velocity is None else velocity[n].tolist()
+        enc.send(n, n * period_ns, tuple(row), velocity=v)
+    return enc.reduction
