@@ -158,6 +158,8 @@ class HliEncoder:
         self.p_n_j = p_all_lost_filtered(ch, self.n_hli1, self.j_max, cfg.filtering, cfg.clock)
         kept = set(sent_slots(self.n_hli1, self.j_max, cfg.filtering))
         self._may_filter = frozenset(k for k in range(1, self.n_hli1 + 1) if k not in kept)
+        # followers after position k that are sent whatever the rate (not in the pattern)
+        self._fixed_after = [sum(1 for q in range(k + 1, self.n_hli1 + 1) if q in kept) for k in range(self.n_hli1 + 1)]
         self._linear = cfg.predictor == "linear"
         self._warmup = 2 if self._linear else 1
         self._t1: tuple[float, ...] | None = None  # mirrored receiver track at n-1
@@ -208,7 +210,10 @@ class HliEncoder:
         c[("hli0", "hli1", "hli2")[cls]] += 1
         send = cls != HLI0
         if cls == HLI1 and self._since in self._may_filter:
-            if self._window_bits + self._packet_bits(HLI1) > self._budget_bits:
+            # filter it if sending it and the followers that cannot be filtered would overrun the
+            # budget of the current window (nothing assumed to leave the window meanwhile)
+            need = self._packet_bits(HLI1) * (1 + self._fixed_after[self._since])
+            if self._window_bits + need > self._budget_bits:
                 send = False
                 c["filtered_hli1"] += 1
         elif cls == HLI0:
