@@ -258,7 +258,8 @@ def classify(
     """HLI class of every sample of a stream, all sent as classified (no bandwidth filtering).
 
     The predictor runs on the receiver's track as the sender mirrors it: a sent sample (HLI1 or
-    HLI2) puts itself on the track, a filtered one (HLI0) leaves the prediction there. The first
+    HLI2) puts itself and the true sample before it (carried in its packet) on the track, a
+    filtered one (HLI0) leaves the prediction there. The first
     samples (two for linear, one for hold) are HLI2: the receiver has nothing to predict from.
     """
     if not threshold > 0.0:
@@ -268,6 +269,7 @@ def classify(
     warmup = 2 if predictor == "linear" else 1
     track: list[np.ndarray] = []
     out: list[int] = []
+    prev: np.ndarray | None = None
     since_hli2 = n_followers + 1
     for k, s in enumerate(samples):
         x = np.asarray(s, dtype=float)
@@ -282,6 +284,9 @@ def classify(
         else:
             cls = HLI0
         out.append(cls)
-        track.append(x if cls != HLI0 or pred is None else pred)
-        del track[:-2]
+        if cls == HLI0 and pred is not None:
+            track = [track[-1], pred]
+        else:  # a sent sample carries the one before it: the track takes the true slope
+            track = [x if prev is None else prev, x]
+        prev = x
     return out

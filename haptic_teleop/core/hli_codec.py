@@ -121,8 +121,9 @@ def joint_state_bytes(values_per_name: int, names: int) -> int:
 
 def hli_message_bytes(dim: int, cls: int) -> int:
     """Wire message of an HLI packet: a JointState with the stream's `dim` axes and one more name
-    ("hli"); position = (x..., class), velocity = (copy..., offset) in HLI1 packets only."""
-    return joint_state_bytes(2 if cls == HLI1 else 1, dim + 1)
+    ("hli"); position = (x..., class), velocity = (previous sample..., offset), and in HLI1
+    packets effort = (copy of the HLI2 sample..., 0)."""
+    return joint_state_bytes(3 if cls == HLI1 else 2, dim + 1)
 
 
 def _pred(t1: tuple[float, ...] | None, t2: tuple[float, ...] | None, linear: bool) -> tuple[float, ...] | None:
@@ -167,6 +168,7 @@ class HliEncoder:
         self._seen = 0
         self._since = self.n_hli1 + 1  # ticks since the last HLI2 event
         self._hli2_sample: tuple[float, ...] = ()
+        self._prev: tuple[float, ...] | None = None  # the true sample at n-1
         self._window_ticks = max(1, round(cfg.rate_window_s * 1e9 / period_ns))
         bw = cfg.allowed_bandwidth_bps
         self._budget_bits = math.inf if bw is None else bw * self._window_ticks * period_ns * 1e-9
@@ -218,14 +220,18 @@ class HliEncoder:
                 c["filtered_hli1"] += 1
         elif cls == HLI0:
             c["filtered_hli0"] += 1
-        track = sample if send or pred is None else pred
-        self._t2, self._t1 = self._t1, track
+        prev = sample if self._prev is None else self._prev
+        self._prev = sample
+        if send or pred is None:  # a sent sample re-anchors the track with the true slope
+            self._t2, self._t1 = prev, sample
+        else:
+            self._t2, self._t1 = self._t1, pred
         if not send:
             return []
         if cls == HLI2:
-            payload = (*sample, float(HLI2), 0.0)
+            payload = (*sample, float(HLI2), 0.0, *prev)
         else:
-            payload = (*sample, float(HLI1), float(self._since), *self._hli2_sample)
+            payload = (*sample, float(HLI1), float(self._since), *prev, *self._hli2_sample)
         size = hli_message_bytes(self.dim, cls)
         bits = 8 * (DEFAULT_OVERHEAD_BYTES + size)
         self._window.append((n, bits))
@@ -251,7 +257,7 @@ class HliDecoder:
         if self.delay_ticks < 0:
             raise ValueError(f"n_followers must be >= 0, got {n_followers}")
         self._linear = cfg.predictor == "linear"
-        self._received: dict[int, tuple[float, ...]] = {}
+        self._received: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}  # (x, previous x)
         self._rebuilt: dict[int, tuple[float, ...]] = {}
         self._fresh: list[int] = []  # seqs received since the last sample() call
         self._lag: int | None = None  # smallest (tick - seq) seen: the link's delay in ticks
@@ -263,37 +269,41 @@ class HliDecoder:
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
         d = self.dim
         pl = packet.payload
-        if len(pl) < d + 2:
-            raise ValueError(f"codec hli: payload of {len(pl)} values, need at least {d + 2}")
+        if len(pl) < 2 * d + 2:
+            raise ValueError(f"codec hli: payload of {len(pl)} values, need at least {2 * d + 2}")
         seq = packet.seq
         self.counters["received"] += 1
         if self._cursor is not None and seq <= self._cursor:
             self.counters["late"] += 1
             return []
-        self._received[seq] = tuple(pl[:d])
+        self._received[seq] = (tuple(pl[:d]), tuple(pl[d + 2 : 2 * d + 2]))
         if round(pl[d]) == HLI1:
             m = round(pl[d + 1])
-            if len(pl) < 2 * d + 2:
-                raise ValueError(f"codec hli: HLI1 payload of {len(pl)} values, need {2 * d + 2}")
+            if len(pl) < 3 * d + 2:
+                raise ValueError(f"codec hli: HLI1 payload of {len(pl)} values, need {3 * d + 2}")
             if self._cursor is None or seq - m > self._cursor:
-                self._rebuilt.setdefault(seq - m, tuple(pl[d + 2 : 2 * d + 2]))
+                self._rebuilt.setdefault(seq - m, tuple(pl[2 * d + 2 : 3 * d + 2]))
         self._fresh.append(seq)
         return []
 
     def _play(self, t: int) -> tuple[float, ...] | None:
-        x = self._received.pop(t, None)
+        got = self._received.pop(t, None)
         rb = self._rebuilt.pop(t, None)
-        if x is not None:
+        if got is not None:
             self.counters["played_received"] += 1
-        elif rb is not None:
-            x = rb
+            x, prev = got
+            self._t2, self._t1 = prev, x  # the true slope, as the sender's mirror has it
+            return x
+        if rb is not None:
             self.counters["rebuilt"] += 1
+            x = rb
         else:
-            x = _pred(self._t1, self._t2, self._linear)
-            if x is not None:
-                self.counters["predicted"] += 1
-        if x is not None:
-            self._t2, self._t1 = self._t1, x
+            pred = _pred(self._t1, self._t2, self._linear)
+            if pred is None:
+                return None
+            self.counters["predicted"] += 1
+            x = pred
+        self._t2, self._t1 = self._t1, x
         return x
 
     def sample(self, n: int, now_ns: int) -> tuple[float, ...] | None:

@@ -79,10 +79,12 @@ def test_filtering_keeps_the_rate_under_the_allowed_bandwidth(filtering: str, di
     """Kinks >= 60 ticks apart put at most two events in a 100-tick window. The budget is chosen
     between one full event plus one filtered to j* (which must fit: the sender cannot know the
     next event is coming) and two full events (which must not fit: the limit bites). Wire bits per
-    packet (1-D / 3-D): HLI2 1248 / 1632, HLI1 1408 / 1920; N_HLI1 = 11; j* = 4 (sequential) or
-    6 (alternate). 1-D: one full event 16736 bits, two 33472; budget 30000 per 0.1 s."""
+    packet (1-D / 3-D): HLI2 1408 / 1920, HLI1 1568 / 2208; N_HLI1 = 11; j* = 4 (sequential) or
+    6 (alternate). 1-D: the start-up (two HLI2 and 11 HLI1) 20064 bits, one event filtered to j*
+    = 4 12384, two full events 37312: budget 35000 per 0.1 s (3-D: 28128 + 17376 <= 49000 <
+    52416)."""
     ch_kw = {"p": 0.125, "r": 0.5}  # 20 % loss, mean burst 2 packets: N_HLI1 = 11
-    allowed_bps = 300_000.0 if dim == 1 else 420_000.0
+    allowed_bps = 350_000.0 if dim == 1 else 490_000.0
     signal = kinked_signal(np.random.default_rng(2024), 6000, dim, 60, 140)
     window = 100  # rate_window_s 0.1 at 1 kHz
 
@@ -131,10 +133,12 @@ def test_payload_layout_and_wire_size() -> None:
     sig = [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1e-3, 0.0, 0.0), (2e-3, 0.0, 0.0), (3e-3, 0.0, 0.0)]
     pk = run(enc, sig)
     by_seq = {p.seq: p for p in pk}
-    assert by_seq[2].payload == (1e-3, 0.0, 0.0, 2.0, 0.0)  # the kink: HLI2
-    assert by_seq[4].payload == (3e-3, 0.0, 0.0, 1.0, 2.0, 1e-3, 0.0, 0.0)  # 2nd follower, HLI2 copy
-    assert by_seq[2].size_bytes == joint_state_size(1, 3) + 16 + 8  # one more name and its value
-    assert by_seq[4].size_bytes == hli_message_bytes(3, HLI1) == joint_state_bytes(2, 4)
+    # the kink: HLI2 (x, class, offset, previous x)
+    assert by_seq[2].payload == (1e-3, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0)
+    # its 2nd follower: HLI1 (x, class, offset 2, previous x, copy of the HLI2 sample)
+    assert by_seq[4].payload == (3e-3, 0.0, 0.0, 1.0, 2.0, 2e-3, 0.0, 0.0, 1e-3, 0.0, 0.0)
+    assert by_seq[2].size_bytes == joint_state_size(2, 3) + 16 + 2 * 8  # one more name and its values
+    assert by_seq[4].size_bytes == hli_message_bytes(3, HLI1) == joint_state_bytes(3, 4)
     assert enc.counters["wire_bits"] == sum(8 * (DEFAULT_OVERHEAD_BYTES + p.size_bytes) for p in pk)
 
 
@@ -245,3 +249,33 @@ def test_build_errors() -> None:
     enc = HliEncoder(HliConfig(p=0.2, r=0.8), PERIOD_NS, 2)
     with pytest.raises(ValueError, match="sample has 3 values, the stream has 2"):
         enc.send(0, 0, (0.0, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("filtering", ["sequential", "alternate"])
+@pytest.mark.parametrize("clock", ["slot", "packet"])
+def test_an_infeasible_budget_filters_exactly_the_pattern(filtering: str, clock: str) -> None:
+    """Allowed bandwidth far below one event: every event loses exactly its j* pattern positions,
+    the rest is sent anyway (P_N,j* <= P_allowable wins over the rate), and the encoder counts the
+    packets sent over budget."""
+    signal = kinked_signal(np.random.default_rng(11), 3000, 1, 60, 140)
+    cfg = HliConfig(p=0.125, r=0.5, filtering=filtering, clock=clock, allowed_bandwidth_bps=1000.0)
+    enc = HliEncoder(cfg, PERIOD_NS, 1)
+    sent = run(enc, signal)
+    full = run(HliEncoder(HliConfig(p=0.125, r=0.5), PERIOD_NS, 1), signal)
+    n, j = enc.n_hli1, enc.j_max
+    # j* from the chain: slot clock with the pattern's gaps, packet clock with n - j + 1 consecutive
+    ch = GilbertChannel(0.125, 0.5)
+
+    def prob(k: int) -> float:
+        keep = [0, *sorted(set(range(1, n + 1)) - pattern(n, k, filtering))]
+        return chain_probability(ch, keep if clock == "slot" else list(range(len(keep))))
+
+    top = n if filtering == "sequential" else (n + 1) // 2
+    assert j == max(k for k in range(top + 1) if prob(k) <= 1e-3)
+    assert j > 0
+    sent_seqs = {p.seq for p in sent}
+    for s in (p.seq for p in full if p.payload[1] == HLI2):
+        followers = [p.seq for p in full if p.payload[1] == HLI1 and s < p.seq <= s + n]
+        if len(followers) == n:
+            assert {q - s for q in followers if q not in sent_seqs} == pattern(n, j, filtering)
+    assert enc.counters["over_budget"] > 0
