@@ -6,8 +6,9 @@ an HLI2 event unless an allowed bandwidth is set and sending would push the rate
 filters those of the followers that the filtering pattern (sequential: the first j*, alternate:
 the 1st, 3rd, ... up to j* of them) allows, j* the largest j with P_N,j <= P_allowable.
 
-Payload: (x..., class, offset[, copy...]): the sample, its class code (2.0 or 1.0), the offset m of
-an HLI1 event from its HLI2 event (0 for HLI2), and in an HLI1 packet a copy of the HLI2 event's
+Payload: (x..., class, offset, previous x...[, copy...]): the sample, its class code (2.0 or 1.0),
+the offset m of an HLI1 event from its HLI2 event (0 for HLI2), the true sample before it (so the
+receiver's prediction takes the true slope), and in an HLI1 packet a copy of the HLI2 event's
 sample, so that any one received follower rebuilds a lost HLI2 event exactly.
 
 Receiver (`HliDecoder`): runs N_HLI1 ticks behind its newest possible packet, so that the HLI1
