@@ -279,3 +279,45 @@ def test_an_infeasible_budget_filters_exactly_the_pattern(filtering: str, clock:
         if len(followers) == n:
             assert {q - s for q in followers if q not in sent_seqs} == pattern(n, j, filtering)
     assert enc.counters["over_budget"] > 0
+
+
+def test_the_encoder_classifies_as_the_formula_module() -> None:
+    """Without a bandwidth limit the codec sends exactly the HLI1/HLI2 samples of core/hli.classify."""
+    from haptic_teleop.core.hli import classify
+
+    signal = kinked_signal(np.random.default_rng(8), 4000, 3, 20, 90)
+    enc = HliEncoder(HliConfig(p=0.125, r=0.5), PERIOD_NS, 3)
+    sent = {p.seq: int(p.payload[3]) for p in run(enc, signal)}
+    cls = classify(signal, TH, enc.n_hli1)
+    assert sent == {k: c for k, c in enumerate(cls) if c != 0}
+
+
+@pytest.mark.parametrize("filtering", ["sequential", "alternate"])
+def test_every_hli2_event_with_one_delivered_packet_is_played_exactly(filtering: str) -> None:
+    """Over core/loss.py's Gilbert model (20 % loss, bursts of 2), with filtering: an HLI2 event
+    whose packet or any follower's packet is delivered is played exactly; the events lost with all
+    their sent followers are rare (P_N,j* each)."""
+    from haptic_teleop.core.loss import GilbertElliottLoss
+
+    signal = kinked_signal(np.random.default_rng(3), 20_000, 1, 20, 60)
+    cfg = HliConfig(p=0.125, r=0.5, filtering=filtering, allowed_bandwidth_bps=1000.0)
+    enc, dec = build_hli_codec(cfg, PERIOD_NS, 1)
+    n = enc.n_hli1
+    loss = GilbertElliottLoss(0.125, 0.5, 1.0, 0.0, np.random.default_rng(17))
+    packets = run(enc, signal)
+    for p in packets:
+        loss.apply(p)
+    lost = {p.seq for p in packets if p.fate != 0}
+    assert 0.1 < len(lost) / len(packets) < 0.3
+    played = decode(dec, packets, len(signal) + n, lost)
+    events = [p.seq for p in packets if p.payload[1] == HLI2]
+    carriers: dict[int, list[int]] = {s: [s] for s in events}  # the packets that carry x(s)
+    for q in packets:
+        if q.payload[1] == HLI1:
+            carriers[q.seq - round(q.payload[2])].append(q.seq)
+    assert sum(len(c) == 1 for c in carriers.values()) == 1  # only start-up sample 0 (followed by an HLI2)
+    covered = [s for s in events if any(q not in lost for q in carriers[s])]
+    rebuilt = [s for s in covered if s in lost]
+    assert len(events) - len(covered) <= 3 and len(rebuilt) > 50
+    assert [s for s in covered if played[s + n] != signal[s]] == []
+    assert dec.counters["rebuilt"] == len(rebuilt)
