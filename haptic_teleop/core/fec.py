@@ -157,9 +157,7 @@ class FecDecoder:
         p = packet.payload
         groups = 1 + self.k if self.scheme == "repetition" else 2
         if len(p) % groups or not p:
-            raise ValueError(
-                f"fec {self.scheme} k={self.k}: a payload of {len(p)} floats is not {groups} equal groups"
-            )
+            raise ValueError(f"fec {self.scheme} k={self.k}: a payload of {len(p)} floats is not {groups} equal groups")
         d = len(p) // groups
         n = packet.seq
         if not self._add(n, tuple(p[:d]), packet, fresh=True):

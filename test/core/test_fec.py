@@ -29,7 +29,9 @@ def signal(ticks: int, dim: int = 3, seed: int = 5) -> list[tuple[float, ...]]:
     return [tuple(float(v) for v in rng.integers(-512, 512, dim) / 64.0) for _ in range(ticks)]
 
 
-def run(cfg: FecConfig, link: Link, samples: list[tuple[float, ...]]) -> tuple[FecDecoder, list[tuple[float, ...] | None]]:
+def run(
+    cfg: FecConfig, link: Link, samples: list[tuple[float, ...]]
+) -> tuple[FecDecoder, list[tuple[float, ...] | None]]:
     enc, dec = build_fec(cfg, PERIOD_NS)
     played = []
     for n in range(len(samples) + 3 * cfg.k + DELAY):
