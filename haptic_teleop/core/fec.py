@@ -186,30 +186,34 @@ class FecDecoder:
         return True
 
     def _parity_recover(self, carrier: Packet) -> None:
+        """Solve every window with exactly one unknown that the carrier's arrival may have
+        completed: the carrier's own, those covering its sample, and, for each sample recovered,
+        those covering it (a worklist: cost O(k) per window looked at, not per sum held)."""
         rec, k, sums = self.rec, self.k, self._sums
         newest = rec.newest_seq
         assert newest is not None
         oldest = newest - rec.keep_ticks
-        for s in [s for s in sums if s - k < oldest]:
-            del sums[s]  # its window reaches past the history
-        changed = True
-        while changed:  # a recovery may complete another window
-            changed = False
-            for p, total in sums.items():
-                window = range(max(0, p - k), p)
-                missing = [m for m in window if not rec.has(m)]
-                if len(missing) != 1:
-                    continue
-                m = missing[0]
-                if m < oldest:
-                    continue
-                others = [rec.get(j) for j in window if j != m]
-                value = tuple(
-                    math.fsum([total[i], *(-o[i] for o in others if o is not None)]) for i in range(len(total))
-                )
-                if self._add(m, value, carrier, fresh=False):
-                    changed = True
-            # `sums` is not changed inside the loop, only the history.
+        while sums:  # sums arrive nearly in seq order: drop from the front what reaches past the history
+            first = next(iter(sums))
+            if first - k >= oldest:
+                break
+            del sums[first]
+        n = carrier.seq
+        work = [n, *(p for p in range(n + 1, n + k + 1) if p in sums)]
+        while work:
+            p = work.pop()
+            total = sums.get(p)
+            if total is None:
+                continue
+            window = range(max(0, p - k), p)
+            missing = [m for m in window if not rec.has(m)]
+            if len(missing) != 1 or missing[0] < oldest:
+                continue
+            m = missing[0]
+            others = [o for j in window if j != m and (o := rec.get(j)) is not None]
+            value = tuple(math.fsum([total[i], *(-o[i] for o in others)]) for i in range(len(total)))
+            if self._add(m, value, carrier, fresh=False):
+                work.extend(q for q in range(m + 1, m + k + 1) if q in sums)
 
     def sample(self, n: int, now_ns: int) -> Sample | None:
         return self.rec.sample(n)
