@@ -161,8 +161,11 @@ class FecDecoder:
         d = len(p) // groups
         n = packet.seq
         if not self._add(n, tuple(p[:d]), packet, fresh=True):
+            # Held already: a duplicate, or an original its recovery beat (jitter). Its redundancy
+            # may still be news (parity: its sum completes windows), so it is used all the same.
             c["duplicates"] += 1
-            return []
+            if n in self._sums:
+                return []
         if self.scheme == "repetition":
             for j in range(1, self.k + 1):
                 m = n - j

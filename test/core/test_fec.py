@@ -152,9 +152,12 @@ def test_bad_config_names_the_field() -> None:
         FecConfig(scheme="reed_solomon")
 
 
-def test_parity_recovers_exactly_what_its_rule_says_under_gilbert_loss() -> None:
+@pytest.mark.parametrize("jitter_s", [0.0, 0.002])
+def test_parity_recovers_exactly_what_its_rule_says_under_gilbert_loss(jitter_s: float) -> None:
+    """With jitter packets overtake one another: a late packet can complete a later one's window."""
     k, ticks = 3, 3000
-    cfg = NetworkEffectsConfig(loss=LossConfig(model="gilbert", p=0.05, r=0.4), delay=DelayConfig(delay_s=0.002))
+    delay = DelayConfig(delay_s=0.004, jitter_s=jitter_s, distribution="uniform")
+    cfg = NetworkEffectsConfig(loss=LossConfig(model="gilbert", p=0.05, r=0.4), delay=delay)
     link = build_link(cfg, 4, "forward")
     x = signal(ticks, dim=2)
     dec, _ = run(FecConfig(scheme="parity", k=k), link, x)
@@ -173,5 +176,6 @@ def test_parity_recovers_exactly_what_its_rule_says_under_gilbert_loss() -> None
     expected = {m for m in range(ticks) if known[m] and not got[m]}
     assert len(expected) > 100 and len(expected) < ticks - sum(got)  # some losses are beyond its reach
     recovered = {p.seq: p.payload for p in dec.recovered_log}
-    assert set(recovered) == expected
+    # (With jitter a delayed original can be beaten by its recovery: recovered, not lost.)
+    assert {m for m in recovered if not got[m]} == expected
     assert all(v == x[m] for m, v in recovered.items())
