@@ -126,7 +126,8 @@ class FecEncoder:
 class FecDecoder:
     """Recovers what the received packets allow, predicts the rest (module docstring).
 
-    Counters: `received` packets, `duplicates`, `recovered` samples first obtained from
+    Counters: `received` packets, `duplicates` (the sample was held already: a copy, or an original
+    its recovery beat; its redundancy is still used), `recovered` samples first obtained from
     redundancy, of them `recovered_late` (after their slot was played). `recovered_log` holds a
     Packet per recovered sample (seq, the carrier's send time, the sample) for the record; its
     reader may drain it.
