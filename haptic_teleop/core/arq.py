@@ -1,0 +1,204 @@
+"""Automatic repeat request over the same lossy network in both directions: a baseline of seed 000.
+
+Seed 000's parameters are a retransmission timeout mu and at most nu retransmissions; the
+experiment uses (mu = 25 ms, nu = 4) and (mu = 4 ms, nu = 1) (`SEED_000_EXPERIMENT`).
+
+Protocol (positive acknowledgement per sample, selective repeat):
+- Sender: each tick sends the new sample (attempt 0). It keeps every unacknowledged sample with
+  the time of its last transmission. At the first tick at least mu after that transmission
+  without an ACK it retransmits the sample (attempt + 1), at most nu times; when the nu-th
+  retransmission has gone mu without an ACK it gives the sample up (counter `gave_up`). An ACK
+  removes the sample from the pending set, whichever transmission it acknowledges.
+- Receiver: acknowledges every data packet it is handed, duplicates included (so a lost ACK is
+  repaired by the ACK of the retransmission it causes; the duplicate sample is ignored). ACKs go
+  back over the reverse direction's Link with its own effects and can be lost too; a lost ACK
+  costs one needless retransmission (a harmless duplicate at the receiver).
+- Playing: an original transmission newer than anything received is played at once; a
+  retransmitted sample joins the history and is played only if its slot has not passed (never
+  with wait_ticks 0 unless it arrives in the same tick as its slot would be played); otherwise
+  it is kept for the record (`recovered_log`, counter `recovered_late`) and improves the
+  extrapolation base. Ticks with nothing are predicted (`core.prediction.Reconstructor`).
+
+Layouts: data payload = sample (d floats), attempt number (0 = original, 1..nu = retransmission);
+size `size_of(d + 1)`. ACK payload = (seq,) with `Packet.seq` = the acknowledged seq; size
+`size_of(1)`. Costs: one ACK per received data packet on the reverse path, plus one data packet
+per retransmission; no added latency for what is played (nothing waits for a retransmission).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from haptic_teleop.core.link import Packet
+from haptic_teleop.core.prediction import (
+    GAP_MODES,
+    Reconstructor,
+    Sample,
+    SizeOf,
+    check_fields,
+    float64_multiarray_size,
+    ticks,
+)
+
+KIND = "arq"
+
+
+@dataclass(frozen=True)
+class ArqConfig:
+    """Codec `arq`: retransmit after `timeout_s` (mu) without an ACK, at most `max_retransmissions` (nu)."""
+
+    timeout_s: float = field(
+        default=0.025, metadata={"gt": 0.0, "max": 10.0, "help": "mu: retransmit a sample not acknowledged this long"}
+    )
+    max_retransmissions: int = field(
+        default=4, metadata={"min": 0, "max": 100, "help": "nu: retransmissions per sample, then give it up"}
+    )
+    wait_ticks: int = field(
+        default=0,
+        metadata={"min": 0, "max": 10000, "help": "play this many ticks late so retransmissions are in time"},
+    )
+    gap: str = field(
+        default="extrapolate",
+        metadata={"choices": GAP_MODES, "help": "missing tick: extrapolate the last two samples or hold"},
+    )
+    max_extrapolation_s: float = field(
+        default=0.05, metadata={"min": 0.0, "max": 10.0, "help": "extrapolate at most this far, then hold"}
+    )
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+# Seed 000's experiment (slide 51): prediction + ARQ with (mu, nu) = (25 ms, 4) and (4 ms, 1).
+SEED_000_EXPERIMENT = (
+    ArqConfig(timeout_s=0.025, max_retransmissions=4),
+    ArqConfig(timeout_s=0.004, max_retransmissions=1),
+)
+
+
+class ArqEncoder:
+    """Sender side: new samples, retransmissions after `timeout_ns`, at most `max_retransmissions`.
+
+    Counters: `samples`, `sent` (data packets, retransmissions included), `retransmitted`,
+    `acked` (samples acknowledged), `acks_stale` (ACKs for samples no longer pending),
+    `gave_up`, `bytes`. `pending` is the number of samples awaiting an ACK.
+    """
+
+    def __init__(self, timeout_ns: int, max_retransmissions: int, size_of: SizeOf = float64_multiarray_size) -> None:
+        if not timeout_ns > 0:
+            raise ValueError(f"timeout_ns must be > 0, got {timeout_ns}")
+        if max_retransmissions < 0:
+            raise ValueError(f"max_retransmissions must be >= 0, got {max_retransmissions}")
+        self.timeout_ns, self.max_retransmissions = timeout_ns, max_retransmissions
+        self._size_of = size_of
+        # seq -> [sample, retransmissions so far, time of the last transmission]; insertion = seq order
+        self._pending: dict[int, tuple[Sample, int, int]] = {}
+        self.counters: dict[str, int] = {
+            "samples": 0,
+            "sent": 0,
+            "retransmitted": 0,
+            "acked": 0,
+            "acks_stale": 0,
+            "gave_up": 0,
+            "bytes": 0,
+        }
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def _packet(self, seq: int, now_ns: int, sample: Sample, attempt: int) -> Packet:
+        payload = (*sample, float(attempt))
+        size = self._size_of(len(payload))
+        self.counters["sent"] += 1
+        self.counters["bytes"] += size
+        return Packet(seq, now_ns, payload, size)
+
+    def send(self, n: int, now_ns: int, sample: Sample) -> list[Packet]:
+        c = self.counters
+        x = tuple(float(v) for v in sample)
+        c["samples"] += 1
+        out = [self._packet(n, now_ns, x, 0)]
+        pending = self._pending
+        for seq, (value, tries, last_ns) in list(pending.items()):
+            if now_ns - last_ns < self.timeout_ns:
+                continue
+            if tries >= self.max_retransmissions:
+                del pending[seq]
+                c["gave_up"] += 1
+                continue
+            pending[seq] = (value, tries + 1, now_ns)
+            c["retransmitted"] += 1
+            out.append(self._packet(seq, now_ns, value, tries + 1))
+        pending[n] = (x, 0, now_ns)
+        return out
+
+    def feedback(self, packet: Packet, now_ns: int) -> None:
+        """An ACK from the receiver (payload (seq,), `packet.seq` the acknowledged sample)."""
+        if self._pending.pop(packet.seq, None) is None:
+            self.counters["acks_stale"] += 1
+        else:
+            self.counters["acked"] += 1
+
+
+class ArqDecoder:
+    """Receiver side: ACKs every data packet, plays the newest, predicts over gaps.
+
+    Counters: `received` data packets, `duplicates` (a sample already held), `acks_sent`,
+    `recovered` (samples first received in a retransmission), `recovered_late` (of them, after
+    their slot was played). `recovered_log` holds those samples for the record (drainable).
+    """
+
+    def __init__(
+        self,
+        *,
+        wait_ticks: int = 0,
+        gap: str = "extrapolate",
+        max_extrapolation_ticks: int = 50,
+        size_of: SizeOf = float64_multiarray_size,
+    ) -> None:
+        self.rec = Reconstructor(gap, max_extrapolation_ticks, wait_ticks)
+        self._ack_size = size_of(1)
+        self.recovered_log: list[Packet] = []
+        self.counters: dict[str, int] = {
+            "received": 0,
+            "duplicates": 0,
+            "acks_sent": 0,
+            "recovered": 0,
+            "recovered_late": 0,
+        }
+
+    def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
+        c = self.counters
+        c["received"] += 1
+        p = packet.payload
+        if len(p) < 2:
+            raise ValueError(f"arq: a data payload needs the sample and the attempt number, got {len(p)} floats")
+        value, attempt = tuple(p[:-1]), int(p[-1])
+        late_before = self.rec.late
+        if not self.rec.add(packet.seq, value, fresh=attempt == 0):
+            c["duplicates"] += 1
+        elif attempt > 0:
+            c["recovered"] += 1
+            if self.rec.late > late_before:
+                c["recovered_late"] += 1
+            self.recovered_log.append(Packet(packet.seq, packet.send_time_ns, value, 0))
+        c["acks_sent"] += 1
+        return [Packet(packet.seq, now_ns, (float(packet.seq),), self._ack_size)]
+
+    def sample(self, n: int, now_ns: int) -> Sample | None:
+        return self.rec.sample(n)
+
+
+def build_arq(
+    cfg: ArqConfig, period_ns: int, *, size_of: SizeOf = float64_multiarray_size
+) -> tuple[ArqEncoder, ArqDecoder]:
+    """Encoder and decoder of codec `arq` for a stream with one sample every `period_ns`."""
+    enc = ArqEncoder(round(cfg.timeout_s * 1e9), cfg.max_retransmissions, size_of)
+    dec = ArqDecoder(
+        wait_ticks=cfg.wait_ticks,
+        gap=cfg.gap,
+        max_extrapolation_ticks=ticks(cfg.max_extrapolation_s, period_ns),
+        size_of=size_of,
+    )
+    return enc, dec
