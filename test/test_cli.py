@@ -452,6 +452,7 @@ def test_compression_flag_writes_a_compressed_bag_that_analyses_the_same(tmp_pat
         ["bench", "recording", "--rounds", "x"],
         ["bench", "network", "--packets", "0"],
         ["bench", "live", "--duration", "nan"],
+        ["bench", "codec", "--samples", "0"],
     ],
 )
 def test_bench_arguments_are_checked_before_anything_runs(capsys, argv):

@@ -18,6 +18,7 @@ BENCHMARKS = {
     "memory": "haptic_teleop.benchmarks.memory",
     "recording": "haptic_teleop.benchmarks.recording",
     "hardware": "haptic_teleop.benchmarks.hardware",
+    "codec": "haptic_teleop.benchmarks.codec",
 }
 
 

@@ -1,0 +1,124 @@
+"""`haptic-teleop bench codec`: what each codec of the codec stage costs per sample (docs/codec.md).
+
+Each case drives one stream the way a channel does at 1 kHz, with nothing lost in between: per
+tick the encoder's `send`, every packet straight into the decoder's `receive` (an ARQ
+acknowledgement straight back into the encoder's `feedback`), and one decoder `sample`. The signal
+is a smooth hand-like motion (sum of sinusoids, fixed seed) in 1 or 3 axes. The figure is this
+process's CPU time per sample (least and median of `--repeat` runs), and the same against a bare
+reference measured in the same run: one tick of the Python loop and of the compiled loop on the
+bench scene (no recording). A channel codes two streams per tick (forward and backward), so the
+codec's share of a tick is twice its cost per sample over the tick's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.benchmarks import add_scene_argument, positive
+
+HELP = "what each codec (deadband, HLI, prediction, FEC, ARQ) costs per sample, against a bare tick"
+PERIOD_NS = 1_000_000
+
+
+def _signal(samples: int, dim: int, seed: int = 1) -> list[tuple[float, ...]]:
+    """A smooth hand-like motion: three sinusoids per axis, amplitudes of centimetres."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) * PERIOD_NS * 1e-9
+    out = np.zeros((samples, dim))
+    for a in range(dim):
+        for _ in range(3):
+            f = rng.uniform(0.2, 3.0)
+            out[:, a] += rng.uniform(0.002, 0.02) * np.sin(2 * math.pi * f * t + rng.uniform(0, 2 * math.pi))
+    return [tuple(row) for row in out.tolist()]
+
+
+def _codecs(dim: int) -> list[tuple[str, Callable[[], tuple[Any, Any]]]]:
+    from haptic_teleop.core.arq import ArqConfig, build_arq
+    from haptic_teleop.core.deadband import DeadbandConfig, build_deadband
+    from haptic_teleop.core.fec import FecConfig, build_fec
+    from haptic_teleop.core.hli_codec import HliConfig, build_hli_codec
+    from haptic_teleop.core.prediction import PredictionConfig, build_prediction
+
+    size = 100 + 16 * dim  # about a JointState's; the cost does not depend on it
+
+    def deadband(**kw: Any) -> Callable[[], tuple[Any, Any]]:
+        return lambda: tuple(build_deadband(DeadbandConfig(**kw), dim, PERIOD_NS, size))
+
+    return [
+        ("deadband 10 %, hold", deadband(deadband=0.1)),
+        ("deadband 10 %, extrapolate", deadband(deadband=0.1, reconstruction="extrapolate")),
+        ("hli, 20 % Gilbert (bursts of 2)", lambda: build_hli_codec(HliConfig(p=0.125, r=0.5), PERIOD_NS, dim)),
+        ("prediction", lambda: build_prediction(PredictionConfig(), PERIOD_NS)),
+        ("fec repetition k = 2", lambda: build_fec(FecConfig(scheme="repetition", k=2), PERIOD_NS)),
+        ("fec parity k = 4", lambda: build_fec(FecConfig(scheme="parity", k=4), PERIOD_NS)),
+        ("arq 25 ms, 4 retries", lambda: build_arq(ArqConfig(timeout_s=0.025, max_retransmissions=4), PERIOD_NS)),
+    ]
+
+
+def per_sample_us(make: Callable[[], tuple[Any, Any]], signal: list[tuple[float, ...]], repeat: int) -> list[float]:
+    """CPU time per sample (us) of encoder -> decoder -> sample, lossless and immediate."""
+    out = []
+    for _ in range(repeat):
+        enc, dec = make()
+        send, receive, sample, feedback = enc.send, dec.receive, dec.sample, enc.feedback
+        t0 = time.process_time()
+        for n, x in enumerate(signal):
+            now = n * PERIOD_NS
+            for p in send(n, now, x):
+                for ack in receive(p, now):
+                    feedback(ack, now)
+            sample(n, now)
+        out.append((time.process_time() - t0) / len(signal) * 1e6)
+    return out
+
+
+def tick_us(scene_name: str, loop: str, seconds: float, repeat: int) -> list[float]:
+    """CPU time per tick (us) of the engine's `loop` on the scene, nothing recorded."""
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    out = []
+    scene = load_scene(find_scene(scene_name), overrides=[f"scene.duration_s={seconds}"])
+    for _ in range(repeat + (1 if loop == "compiled" else 0)):  # the first compiled run may compile
+        engine = Engine(scene, loop=loop)
+        t0 = time.process_time()
+        engine.run(handle_sigint=False)
+        out.append((time.process_time() - t0) / engine.ticks * 1e6)
+    return out[-repeat:]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_scene_argument(p, help="the scene whose tick is the reference (default wall_contact)")
+    p.add_argument("--samples", type=positive(int), default=20_000, help="samples per case (default 20000)")
+    p.add_argument("--repeat", type=positive(int), default=3, help="runs per case (default 3)")
+    p.add_argument("--seconds", type=positive(float), default=5.0, help="simulated seconds of the reference ticks")
+
+
+def main(args: argparse.Namespace) -> int:
+    ref = {loop: tick_us(args.scene, loop, args.seconds, args.repeat) for loop in ("python", "compiled")}
+    py, comp = min(ref["python"]), min(ref["compiled"])
+    print(
+        f"reference tick ({args.scene}, no recording): Python loop {py:.2f} us, "
+        f"compiled loop {comp:.2f} us (least of {args.repeat})"
+    )
+    print()
+    head = (
+        f"{'codec':34s} {'dim':>3s} {'us/sample':>17s} {'2 streams / Python tick':>24s} "
+        f"{'2 streams / compiled tick':>26s}"
+    )
+    print(head)
+    print("-" * len(head))
+    for dim in (1, 3):
+        signal = _signal(args.samples, dim)
+        for name, make in _codecs(dim):
+            times = per_sample_us(make, signal, args.repeat)
+            least, med = min(times), statistics.median(times)
+            print(f"{name:34s} {dim:3d} {least:7.2f} ({med:6.2f} med) {2 * least / py:23.0%} {2 * least / comp:25.0%}")
+    return 0
