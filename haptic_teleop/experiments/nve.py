@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.experiments.args import number
+from haptic_teleop.experiments.tables import markdown, rms, write_csv
 
 BASE_SCENE = "nve_push"
 CLIENT = 0  # the experiments push with the scene's first client
@@ -212,10 +213,6 @@ def push_window(ref: Trace) -> np.ndarray:
     return out
 
 
-def rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(x * x))) if len(x) else math.nan
-
-
 def errors(force: np.ndarray, ref: np.ndarray, window: np.ndarray) -> dict[str, float]:
     """RMS, peak (largest absolute) and mean (signed) error of `force` against `ref` over `window`,
     and the RMS relative to `ref`'s RMS there."""
@@ -228,26 +225,6 @@ def errors(force: np.ndarray, ref: np.ndarray, window: np.ndarray) -> dict[str, 
         "mean_error_n": float(np.mean(e)) if len(e) else math.nan,
         "relative_rms_error": r / ref_rms if ref_rms > 0.0 else math.nan,
     }
-
-
-def fmt(x: float) -> str:
-    if isinstance(x, str):
-        return x
-    return f"{x:.4g}" if math.isfinite(x) else "n/a"
-
-
-def markdown(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(fmt(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
-
-
-def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for row in rows:
-            w.writerow(["" if isinstance(c, float) and not math.isfinite(c) else c for c in row])
 
 
 def command_line(args: argparse.Namespace, name: str, flags: Sequence[str]) -> str:
