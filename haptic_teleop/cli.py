@@ -319,7 +319,8 @@ def build_parser() -> argparse.ArgumentParser:
     from haptic_teleop.experiments import add_arguments as add_experiment_arguments
 
     ex = sub.add_parser(
-        "experiment", help="the seeds' experiments as commands: plot, CSV and table (docs/nve_experiments.md)"
+        "experiment",
+        help="the seeds' experiments as commands: plot, CSV and table (docs/nve_experiments.md, docs/codec.md)",
     )
     add_experiment_arguments(ex)
 

@@ -3,6 +3,8 @@
 
 - `nve-analysis`, `nve-compensation`: seed 000's two NVE experiments (experiments/nve.py,
   docs/nve_experiments.md).
+- `hli-filtering`: seed 000's simulation of priority-based against deadband filtering
+  (experiments/codec.py, docs/codec.md).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from haptic_teleop.experiments.args import OneLineParser
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
-    from haptic_teleop.experiments import nve
+    from haptic_teleop.experiments import codec, nve
 
     p.__class__ = OneLineParser
     sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
@@ -25,3 +27,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     c = sub.add_parser("nve-compensation", help=nve.COMPENSATION_HELP, description=nve.COMPENSATION_HELP)
     nve.add_compensation_arguments(c)
     c.set_defaults(func=nve.main_compensation)
+    f = sub.add_parser("hli-filtering", help=codec.FILTERING_HELP, description=codec.FILTERING_HELP)
+    codec.add_filtering_arguments(f)
+    f.set_defaults(func=codec.main_filtering)
