@@ -66,7 +66,8 @@ def object_position_m(t_s: np.ndarray, period_s: float) -> np.ndarray:
 
 def force_n(x_obj_m: np.ndarray, stiffness_n_per_m: float) -> np.ndarray:
     """The device at 0 inside the object whose surface is at x_obj <= 0: F = k max(0, -x_obj)."""
-    return stiffness_n_per_m * np.maximum(0.0, -x_obj_m)
+    out: np.ndarray = stiffness_n_per_m * np.maximum(0.0, -x_obj_m)
+    return out
 
 
 def _links(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -150,7 +151,7 @@ def _size_of(floats: int) -> int:
 
 
 def _delay_ticks(args: argparse.Namespace) -> int:
-    return round(args.delay_s / PERIOD_S)
+    return round(float(args.delay_s) / PERIOD_S)
 
 
 def deadband(args: argparse.Namespace, threshold_m: float) -> tuple[Any, Any]:
@@ -160,7 +161,8 @@ def deadband(args: argparse.Namespace, threshold_m: float) -> tuple[Any, Any]:
     from haptic_teleop.record.layouts import joint_state_size
 
     cfg = DeadbandConfig(deadband=0.0, min_threshold=threshold_m)
-    return tuple(build_deadband(cfg, 1, PERIOD_NS, joint_state_size(1, 1)))
+    codec = build_deadband(cfg, 1, PERIOD_NS, joint_state_size(1, 1))
+    return codec.encoder, codec.decoder
 
 
 def hli(args: argparse.Namespace) -> tuple[tuple[Any, Any], int]:
