@@ -50,3 +50,25 @@ def test_bad_arguments_are_one_line_exit_2(tmp_path: Path, argv: list[str]) -> N
     assert r.returncode == 2
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_deadband_experiment_rates_grow_with_p_and_errors_with_them(tmp_path: Path) -> None:
+    """`experiment deadband` on a short tapping run: every p of seed 001's list for both streams,
+    packets saved and the error both grow with p, and p = 0 reconstructs exactly."""
+    out = tmp_path / "d"
+    r = subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.cli", "experiment", "deadband", "--out", str(out), "--duration-s", "3",
+         "--quiet"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert (out / "deadband.png").stat().st_size > 10_000
+    with (out / "deadband.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    for stream in ("force", "velocity"):
+        got = [row for row in rows if row["stream"] == stream]
+        assert [float(row["p [%]"]) for row in got] == [0, 2.5, 5, 7.5, 10, 12.5, 15, 20, 25, 30, 35, 40]
+        saved = [float(row["packets saved [%]"]) for row in got]
+        err = [float(row["RMS error"]) for row in got]
+        assert saved == sorted(saved) and saved[-1] > saved[1] > saved[0]
+        assert err[0] == 0.0 and err[-1] > err[1] > 0.0

@@ -3,6 +3,8 @@
 
 - `nve-analysis`, `nve-compensation`: seed 000's two NVE experiments (experiments/nve.py,
   docs/nve_experiments.md).
+- `deadband`: seed 001's deadband rate and distortion on a 3-DoF contact-rich scene
+  (experiments/deadband.py, docs/codec.md).
 - `hli-filtering`: seed 000's simulation of priority-based against deadband filtering
   (experiments/codec.py, docs/codec.md).
 """
@@ -17,7 +19,7 @@ from haptic_teleop.experiments.args import OneLineParser
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
-    from haptic_teleop.experiments import codec, nve
+    from haptic_teleop.experiments import codec, deadband, nve
 
     p.__class__ = OneLineParser
     sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
@@ -30,3 +32,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("hli-filtering", help=codec.FILTERING_HELP, description=codec.FILTERING_HELP)
     codec.add_filtering_arguments(f)
     f.set_defaults(func=codec.main_filtering)
+    d = sub.add_parser("deadband", help=deadband.HELP, description=deadband.HELP)
+    deadband.add_arguments(d)
+    d.set_defaults(func=deadband.main)
