@@ -153,7 +153,8 @@ def test_arq_acknowledgements_count_in_the_reverse_direction(tmp_path: Path) -> 
     brows = _packets(bag, "backward")
     borig = brows[brows[:, 4] == 0.0]
     assert len(borig) == ticks  # the backward direction runs without a codec: one packet a tick
-    bits = 8.0 * (float(np.sum(borig[:, 5] + DEFAULT_OVERHEAD_BYTES)) + info["ack_bytes"] + acks * DEFAULT_OVERHEAD_BYTES)
+    ack_bits = 8.0 * (info["ack_bytes"] + acks * DEFAULT_OVERHEAD_BYTES)
+    bits = 8.0 * float(np.sum(borig[:, 5] + DEFAULT_OVERHEAD_BYTES)) + ack_bits
     assert s["codec_kind_backward"] == "none"
     assert s["codec_wire_bits_per_s_backward"] == pytest.approx(bits / (ticks * engine.period_s))
     assert s["codec_packet_reduction_backward"] == pytest.approx(1.0 - (ticks + acks) / ticks)

@@ -66,7 +66,10 @@ def codec_wire_summary(bag: str | Path, ticks: int) -> dict[str, Any]:
             plain_bits = ticks * 8.0 * (joint_state_size(PLAIN_FLOATS[d]) + overhead)
             on_wire = packets + acks if packets >= 0 else -1
             bits = 8.0 * (message_bytes + ack_bytes + overhead * on_wire) if packets >= 0 else math.nan
-            per_s = (lambda x: x / duration) if duration > 0 else (lambda x: math.nan)  # noqa: E731
+
+            def per_s(x: float) -> float:
+                return x / duration if duration > 0 else math.nan
+
             out.update(
                 {
                     f"codec_kind_{d}": codec.get("kind", "none"),
