@@ -16,7 +16,6 @@ import pytest
 
 from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.cli import main
-from haptic_teleop.core.deadband import DeadbandConfig, DeadbandEncoder
 from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
 from haptic_teleop.engine.lockstep import COL, Engine, record_run
 from haptic_teleop.errors import ConfigError, InputError
@@ -83,16 +82,18 @@ def test_deadband_forward_packets_are_the_encoders(deadband_run: tuple[Engine, P
     assert 0 < sent < 0.5 * engine.ticks_done
     assert len(originals) == sent == summary["codec_packets_forward"]
     assert fwd.encoder.counters["offered"] == engine.ticks_done
-    # An encoder of its own, fed the master's recorded (x, v) tick by tick, sends at the very
-    # ticks the bag's records have (seq = tick, send time = tick * T).
-    enc = DeadbandEncoder(DeadbandConfig(deadband=0.1), 2, joint_state_size(2))
+    # The rule by hand on the master's recorded (x, v): forward, the deadband's threshold applies
+    # to the velocity (seed 001's velocity stream): send when |v - v_sent| > p |v_sent|; the
+    # bag's records are at exactly those ticks (seq = tick, send time = tick * T).
     data = engine.data
     T = engine.period_s
-    mine = [
-        n
-        for n in range(engine.ticks_done)
-        if enc.send(n, n * engine.period_ns, (data[n, COL["m_x_m"]], data[n, COL["m_v_m_per_s"]]))
-    ]
+    mine: list[int] = []
+    v_sent = None
+    for n in range(engine.ticks_done):
+        v = data[n, COL["m_v_m_per_s"]]
+        if v_sent is None or abs(v - v_sent) > 0.1 * abs(v_sent):
+            mine.append(n)
+            v_sent = v
     assert originals[:, 0].astype(int).tolist() == mine
     np.testing.assert_allclose(originals[:, 1], np.array(mine) * T, rtol=0, atol=1e-12)
     assert set(originals[:, 5].tolist()) == {float(joint_state_size(2))}  # the plain JointState
@@ -125,7 +126,8 @@ def test_the_controller_gets_the_decoders_sample(deadband_run: tuple[Engine, Pat
     arrivals nothing new comes (the decoder holds): as many arrivals as packets delivered."""
     engine, bag, _ = deadband_run
     rows = _packets(bag, "forward")
-    delivered = rows[(rows[:, 3] == 0.0) & (rows[:, 4] == 0.0)]
+    last_tick_s = (engine.ticks_done - 1) * engine.period_s
+    delivered = rows[(rows[:, 3] == 0.0) & (rows[:, 4] == 0.0) & (rows[:, 2] <= last_tick_s + 1e-12)]
     rx = engine.data[:, COL["fwd_rx_seq"]]
     got = rx[rx >= 0]
     assert np.all(np.diff(got) > 0)  # newest only, in order
@@ -207,10 +209,39 @@ def test_a_codec_needs_buffer_policy_none(capsys: pytest.CaptureFixture[str]) ->
     assert main(argv) == 0
 
 
-def test_arm_scenes_refuse_codecs(capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["run", "touch_ur5e_wall", "--dry-run", "--set", _codec("forward", "{kind: deadband}")])
-    line = _one_line(capsys.readouterr().err)
-    assert code == 2 and "network.forward.codec" in line and "arm scenes run no codec" in line
+def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
+    """The arm loop: forward deadband on the handle's velocity (3-D), backward FEC; the bag's
+    records are the encoders' packets and the plain reference is the arm's JointState."""
+    from haptic_teleop.engine.arm_loop import wire_payload_bytes
+
+    overrides = [
+        "scene.duration_s=1.5",
+        _codec("forward", "{kind: deadband, deadband: 0.1}"),
+        _codec("backward", "{kind: fec, k: 1}"),
+    ]
+    scene = load_scene(find_scene("touch_ur5e_wall"), overrides=overrides)
+    with pytest.raises(InputError, match="a codec is named on the forward link"):
+        Engine(scene, loop="compiled")
+    bag = tmp_path / "bag"
+    engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False)
+    assert engine.loop_kind == "python"
+    s = summarize_bag(bag)
+    fwd, bwd = engine.codecs
+    assert fwd is not None and bwd is not None
+    ticks = engine.ticks_done
+    sent = fwd.encoder.counters["sent"]
+    assert 0 < sent < ticks and s["codec_packets_forward"] == sent == len(_packets(bag, "forward"))
+    assert s["codec_packets_backward"] == ticks == len(_packets(bag, "backward"))
+    for d, fields in (("forward", 2), ("backward", 3)):
+        plain = 8.0 * (wire_payload_bytes(3, fields) + DEFAULT_OVERHEAD_BYTES) / engine.period_s
+        assert s[f"codec_plain_wire_bits_per_s_{d}"] == pytest.approx(plain)
+    # Each FEC packet carries the sample (9 values) and the previous one: 18 values, 6 names.
+    fec_bytes = set(_packets(bag, "backward")[:, 5].tolist())
+    assert fec_bytes == {float(wire_payload_bytes(6, 3))}
+    assert s["codec_packet_reduction_forward"] == pytest.approx(1.0 - sent / ticks)
+    for side in ("master", "slave"):
+        assert s[f"{side}_energy_margin_min_j"] >= -1e-9
+    assert s["all_finite"]
 
 
 def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

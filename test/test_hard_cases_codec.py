@@ -62,8 +62,8 @@ class Case:
 
 def _deadband(s: dict[str, Any], info: dict[str, Any]) -> None:
     for d in DIRECTIONS:  # coarse: most samples never reach the wire
-        assert s[f"codec_packet_reduction_{d}"] > 0.9
-        assert info[f"codec_{d}"]["encoder_filtered"] > 0.9 * s["ticks"]
+        assert s[f"codec_packet_reduction_{d}"] > 0.7
+        assert info[f"codec_{d}"]["encoder_filtered"] > 0.7 * s["ticks"]
 
 
 def _hli(s: dict[str, Any], info: dict[str, Any]) -> None:

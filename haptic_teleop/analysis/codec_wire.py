@@ -6,7 +6,8 @@ acknowledgements travel the other way and are counted from the run facts the rec
 (`codec_<direction>.ack_packets`, `ack_bytes`), in the direction they travel. Bits count the
 message and the per-packet headers (the scene's rate_limit.overhead_bytes, else
 core/link.DEFAULT_OVERHEAD_BYTES). The reference is the same stream without a codec: one packet of
-the plain JointState (2 values forward, 3 backward) every tick.
+the plain JointState every tick (its size from the run facts' `codec_plain_bytes`, else one
+axis': 2 values forward, 3 backward).
 
 The keys are added to summary.json only when the scene names a codec on either direction.
 """
@@ -63,7 +64,8 @@ def codec_wire_summary(bag: str | Path, ticks: int) -> dict[str, Any]:
             back = run_info.get(f"codec_{_REVERSE[d]}") or {}
             acks = int(back.get("ack_packets", 0))
             ack_bytes = float(back.get("ack_bytes", 0))
-            plain_bits = ticks * 8.0 * (joint_state_size(PLAIN_FLOATS[d]) + overhead)
+            plain = (run_info.get("codec_plain_bytes") or {}).get(d, joint_state_size(PLAIN_FLOATS[d]))
+            plain_bits = ticks * 8.0 * (float(plain) + overhead)
             on_wire = packets + acks if packets >= 0 else -1
             bits = 8.0 * (message_bytes + ack_bytes + overhead * on_wire) if packets >= 0 else math.nan
 

@@ -40,7 +40,7 @@ from haptic_teleop.assembly import (
 from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine import compiled_loop
-from haptic_teleop.engine.codec_channel import build_codec_channels
+from haptic_teleop.engine.codec_channel import LAYOUT_ARM, build_codec_channels
 from haptic_teleop.errors import InputError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
@@ -190,16 +190,35 @@ class Engine:
         self.master, self.slave = parts.master.plant, parts.slave.plant
         self.master_ctrl, self.slave_ctrl = parts.master, parts.slave
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
-        self.codecs = (None, None)
-        for d in ("forward", "backward"):  # scene/load.py refuses these with the key's path; a safety net
-            if getattr(self.scene.config.network, d).codec is not None:
-                raise InputError(f"network.{d}.codec: the codec stage runs in one-axis scenes only so far")
+        # The codec stage (docs/codec.md, "In the channels"): a codec payload's message is the
+        # JointState of one name per task axis (more names when the payload needs them).
+        def arm_size_of(floats: int) -> int:
+            names = max(3, -(-floats // 3))
+            return wire_payload_bytes(names, -(-floats // names))
+
+        self.codecs = build_codec_channels(
+            self.scene.config,
+            self.period_ns,
+            self.forward,
+            self.backward,
+            axes=3,
+            size_of=arm_size_of,
+            layout=LAYOUT_ARM,
+        )
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
         self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
         self._stop = False
         from haptic_teleop.engine import compiled_arm_loop
 
-        self.compiled_reason = (
+        codec_reason = next(
+            (
+                f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
+                for ch in self.codecs
+                if ch is not None
+            ),
+            None,
+        )
+        self.compiled_reason = codec_reason or (
             compiled_arm_loop.compiled_reason_arm(
                 parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer, self.period_s
             )
@@ -416,11 +435,7 @@ class Engine:
         f_step = fcodec.step if fcodec is not None else plain(fwd, fbuf, fwd_size)
         b_step = bcodec.step if bcodec is not None else plain(bwd, bbuf, bwd_size)
 
-        def settled(codec: Any, link: Link, buf: PlayoutBuffer) -> Settled:
-            if codec is not None:
-                return lambda sent, final: codec.settled(sent, final, period_ns)
-            return lambda sent, final: compiled_loop.settled_records(link, buf, sent, final)
-
+        settled = self._settled
         output = _Output(sink, settled(fcodec, fwd, fbuf), settled(bcodec, bwd, bbuf))
         block = output.block
         pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
@@ -479,9 +494,22 @@ class Engine:
         self.slave.close()
         return self._streamed(done, wall)
 
+    def _settled(self, codec: Any, link: Link, buf: PlayoutBuffer) -> Settled:
+        """A direction's packet records whose fate is final: its codec's, or its link and buffer's."""
+        if codec is not None:
+            period_ns = self.period_ns
+            return lambda sent, final: codec.settled(sent, final, period_ns)
+        return lambda sent, final: compiled_loop.settled_records(link, buf, sent, final)
+
     def codec_facts(self) -> dict[str, Any]:
-        """The run facts of the codec stage (`codec_<direction>`), for the bag's metadata."""
-        return {f"codec_{ch.direction}": ch.facts() for ch in self.codecs if ch is not None}
+        """The run facts of the codec stage (`codec_<direction>`, and the plain packet's message
+        size per direction, `codec_plain_bytes`: the reference of the wire accounting), for the
+        bag's metadata; none without a codec."""
+        if self.codecs == (None, None):
+            return {}
+        out: dict[str, Any] = {f"codec_{ch.direction}": ch.facts() for ch in self.codecs if ch is not None}
+        out["codec_plain_bytes"] = {"forward": self._sizes[0], "backward": self._sizes[1]}
+        return out
 
     def _streamed(self, done: int, wall_s: float) -> RunResult:
         """The result of a run whose rows and packets went to a sink: timing and tick count only."""
@@ -508,10 +536,11 @@ class Engine:
             window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
             output = _Output(sink, fwd.settled, bwd.settled, self.schema.width)
         else:
+            fcodec, bcodec = self.codecs
             output = _Output(
                 sink,
-                lambda sent, final: compiled_loop.settled_records(self.forward, self.forward_buffer, sent, final),
-                lambda sent, final: compiled_loop.settled_records(self.backward, self.backward_buffer, sent, final),
+                self._settled(fcodec, self.forward, self.forward_buffer),
+                self._settled(bcodec, self.backward, self.backward_buffer),
                 self.schema.width,
             )
         t0 = time.perf_counter()

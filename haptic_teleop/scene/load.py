@@ -197,22 +197,6 @@ def dynamixel_models() -> tuple[str, ...] | None:
     return tuple(tables.MODELS)
 
 
-def _check_codecs(config: Scene, source: str) -> None:
-    """The codec stage runs in one-axis teleoperation scenes only so far (docs/codec.md)."""
-    if not config.is_arm:
-        return
-    for d in ("forward", "backward"):
-        codec = getattr(config.network, d).codec
-        if codec is not None:
-            raise ConfigError(
-                source,
-                f"network.{d}.codec",
-                codec.kind,
-                "arm scenes run no codec yet (the codec stage is wired into one-axis scenes only); "
-                "leave network.forward.codec and network.backward.codec out",
-            )
-
-
 def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify: bool = False) -> None:
     """An arm scene's models, joints and per-joint lists agree; the tool starts in free space and
     the wall is not too stiff for the MuJoCo step. A one-axis scene names no arm model."""
@@ -362,7 +346,6 @@ def load_scene(
         config = build(Scene, raw, "", source)
         _check_models(config, source)
         _check_arm_scene(config, source, emulate, identify)
-        _check_codecs(config, source)
     except ConfigError as exc:
         raise blame_override(exc, ovs) from None
     config = resolve_scene_traces(config, p.parent, source)
