@@ -190,6 +190,7 @@ class Engine:
         self.master, self.slave = parts.master.plant, parts.slave.plant
         self.master_ctrl, self.slave_ctrl = parts.master, parts.slave
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
+
         # The codec stage (docs/codec.md, "In the channels"): a codec payload's message is the
         # JointState of one name per task axis (more names when the payload needs them).
         def arm_size_of(floats: int) -> int:
