@@ -7,7 +7,6 @@ Run: `.venv/bin/python -m pytest -q -p no:cacheprovider test/test_codec_channels
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -259,7 +258,10 @@ def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFix
     assert code == 2 and "a codec is named on the forward link (fec)" in line
 
 
-def test_config_errors_are_config_errors() -> None:
-    with pytest.raises(ConfigError):
-        load_scene(find_scene("wall_contact"), overrides=[_codec("forward", "{kind: hli}")])
-    assert math.isfinite(1.0)
+def test_launch_refuses_a_codec() -> None:
+    from haptic_teleop.launcher import node_plan
+
+    scene = load_scene(find_scene("wall_contact"), overrides=[_codec("backward", "{kind: prediction}")])
+    with pytest.raises(ConfigError, match=r"network\.backward\.codec.*the live nodes run no codec yet"):
+        node_plan(scene)
+    assert node_plan(load_scene(find_scene("wall_contact")))  # without one: the node set
