@@ -222,9 +222,13 @@ def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="a codec is named on the forward link"):
         Engine(scene, loop="compiled")
     bag = tmp_path / "bag"
-    engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False)
+    engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True)
     assert engine.loop_kind == "python"
     s = summarize_bag(bag)
+    # The slave follows the decoded handle: the tool goes down toward the table with the handle.
+    g = engine.schema.group
+    z_handle, z_tool = engine.data[:, g("m_x_m")][:, 2], engine.data[:, g("s_x_m")][:, 2]
+    assert z_handle[0] - z_handle[-1] > 0.005 and z_tool[0] - z_tool[-1] > 0.5 * (z_handle[0] - z_handle[-1])
     fwd, bwd = engine.codecs
     assert fwd is not None and bwd is not None
     ticks = engine.ticks_done
