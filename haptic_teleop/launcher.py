@@ -154,6 +154,17 @@ def node_plan(
         return nve_plan(scene, record_dir, side, device, sim_time_rate)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
+    for d in ("forward", "backward"):
+        codec = getattr(scene.config.network, d).codec
+        if codec is not None:  # the relays come later (docs/codec.md, "In the channels")
+            from haptic_teleop.errors import ConfigError
+
+            raise ConfigError(
+                scene.source,
+                f"network.{d}.codec",
+                codec.kind,
+                "the live nodes run no codec yet (the codec stage runs in `haptic-teleop run`); leave it out",
+            )
     if device != "plant" and scene.config.is_arm:
         from haptic_teleop.errors import ConfigError
 

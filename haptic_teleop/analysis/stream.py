@@ -471,17 +471,27 @@ def _received(r: BagReader, topic: str, period_ns: int) -> Iterator[tuple[np.nda
 def summarize_bag(bag: str | Path) -> dict[str, Any]:
     """summary.json of a bag (the keys and values of `metrics.compute_summary`), in bounded memory."""
     try:
-        return _summarize(bag)
+        summary = _summarize(bag)
     except NotStreamable:
-        from haptic_teleop.analysis.metrics import compute_summary, load_signals
+        summary = _whole(bag)
+    from haptic_teleop.analysis.codec_wire import codec_wire_summary
 
-        with BagReader(bag) as r:
-            single = r.schema.single_axis
-        if not single:
-            from haptic_teleop.analysis.taskmetrics import compute_task_summary, load_task_signals
+    # the codec stage's wire accounting, only when the scene names a codec (docs/codec.md)
+    summary.update(codec_wire_summary(bag, int(summary.get("ticks", 0))))
+    return summary
 
-            return compute_task_summary(load_task_signals(bag))
-        return compute_summary(load_signals(bag))
+
+def _whole(bag: str | Path) -> dict[str, Any]:
+    """summary.json of a bag the streaming pass cannot take (`metrics.compute_summary`)."""
+    from haptic_teleop.analysis.metrics import compute_summary, load_signals
+
+    with BagReader(bag) as r:
+        single = r.schema.single_axis
+    if not single:
+        from haptic_teleop.analysis.taskmetrics import compute_task_summary, load_task_signals
+
+        return compute_task_summary(load_task_signals(bag))
+    return compute_summary(load_signals(bag))
 
 
 @dataclass

@@ -193,6 +193,11 @@ class Link:
         seqs = [e[2].seq for e in self._fifo] + [e[2].seq for e in self._heap]
         return min(seqs) if seqs else None
 
+    def oldest_in_flight_send_ns(self) -> int | None:
+        """The earliest send time among the packets still in flight, or None if none is."""
+        times = [e[2].send_time_ns for e in self._fifo] + [e[2].send_time_ns for e in self._heap]
+        return min(times) if times else None
+
     @property
     def vectorized(self) -> bool:
         """True if `schedule_all` can decide the link's packets in batches (none went through `send`,

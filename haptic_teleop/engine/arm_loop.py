@@ -265,6 +265,9 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     fwd, bwd = engine.forward, engine.backward
     fbuf, bbuf = engine.forward_buffer, engine.backward_buffer
     fwd_size, bwd_size = engine._sizes
+    # The codec stage of a direction that names one (engine/codec_channel.py): its decoder's
+    # sample for the tick replaces the buffer's release (docs/codec.md, "In the channels").
+    fcodec, bcodec = getattr(engine, "codecs", (None, None))
     block = output.block
     cols = {
         name: g(name)
@@ -318,31 +321,41 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         if m_due:
             tau_m = mt.torque(x_m, v_m, m_remote)
         # 3. forward packet
-        fwd.send(Packet(n, now_ns, (*x_m.tolist(), *v_m.tolist()), fwd_size))
-        for p in fwd.deliver(now_ns):
-            fbuf.push(p, now_ns)
-        rel = fbuf.release(now_ns)
-        if rel is not None:
-            if s_guard.accept(rel.payload):
-                s_remote = rel.payload
-            frx = rel.seq
+        if fcodec is None:
+            fwd.send(Packet(n, now_ns, (*x_m.tolist(), *v_m.tolist()), fwd_size))
+            for p in fwd.deliver(now_ns):
+                fbuf.push(p, now_ns)
+            rel = fbuf.release(now_ns)
+            if rel is not None:
+                if s_guard.accept(rel.payload):
+                    s_remote = rel.payload
+                frx = rel.seq
+            else:
+                frx = -1
         else:
-            frx = -1
+            decoded, frx = fcodec.step(n, now_ns, (*x_m.tolist(), *v_m.tolist()))
+            if decoded is not None and s_guard.accept(decoded):
+                s_remote = decoded
         # 4. slave
         if s_due:
             tau_s = st.torque(xs, vs, s_remote)
         # 5. backward packet
-        bwd.send(Packet(n, now_ns, (*xs.tolist(), *vs.tolist(), *f_env.tolist()), bwd_size))
-        for p in bwd.deliver(now_ns):
-            bpush = bbuf.push
-            bpush(p, now_ns)
-        rel = bbuf.release(now_ns)
-        if rel is not None:
-            if m_guard.accept(rel.payload):
-                m_remote = rel.payload
-            brx = rel.seq
+        if bcodec is None:
+            bwd.send(Packet(n, now_ns, (*xs.tolist(), *vs.tolist(), *f_env.tolist()), bwd_size))
+            for p in bwd.deliver(now_ns):
+                bpush = bbuf.push
+                bpush(p, now_ns)
+            rel = bbuf.release(now_ns)
+            if rel is not None:
+                if m_guard.accept(rel.payload):
+                    m_remote = rel.payload
+                brx = rel.seq
+            else:
+                brx = -1
         else:
-            brx = -1
+            decoded, brx = bcodec.step(n, now_ns, (*xs.tolist(), *vs.tolist(), *f_env.tolist()))
+            if decoded is not None and m_guard.accept(decoded):
+                m_remote = decoded
         # 6. operator and plants
         xd_t, vd_t, f_hand = operator_hand(parts, n * period_s, xh_dev, vh_dev)
         if m_due:
@@ -378,8 +391,8 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
         row[cols["s_contact_torque_nm"]] = t_env
         row[cols["fwd_rx_seq"]] = frx
         row[cols["bwd_rx_seq"]] = brx
-        row[cols["fwd_occupancy"]] = fbuf.occupancy
-        row[cols["bwd_occupancy"]] = bbuf.occupancy
+        row[cols["fwd_occupancy"]] = fbuf.occupancy if fcodec is None else 0.0
+        row[cols["bwd_occupancy"]] = bbuf.occupancy if bcodec is None else 0.0
         done = engine.ticks_done = n + 1  # a failing tick leaves the ticks before it
         if done % 100 == 0:
             if progress is not None:

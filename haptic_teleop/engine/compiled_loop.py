@@ -111,6 +111,9 @@ def mujoco_timers_off() -> Iterator[None]:
 
 def compiled_reason(engine: Engine) -> str | None:
     """Why `engine`'s scene cannot run in the compiled loop, or None if it can."""
+    for ch in getattr(engine, "codecs", (None, None)):
+        if ch is not None:
+            return f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
     from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
 
     if type(engine.master) is not MujocoDevice or type(engine.slave) is not MujocoWallRobot:

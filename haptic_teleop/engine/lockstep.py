@@ -40,7 +40,8 @@ from haptic_teleop.assembly import (
 from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine import compiled_loop
-from haptic_teleop.errors import HapticTeleopError
+from haptic_teleop.engine.codec_channel import LAYOUT_ARM, build_codec_channels
+from haptic_teleop.errors import InputError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
@@ -114,12 +115,14 @@ class Engine:
             c.controllers.slave, "slave", self.period_s, s.damping_n_s_per_m, limits, s.effects.saturation
         )
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
+        # The codec stage of the directions that name one (docs/codec.md, "In the channels").
+        self.codecs = build_codec_channels(c, self.period_ns, self.forward, self.backward)
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
         self._stop = False
         self.compiled_reason = compiled_loop.compiled_reason(self) if loop != "python" else "loop 'python' asked for"
         if loop == "compiled" and self.compiled_reason is not None:
-            raise HapticTeleopError(
+            raise InputError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
                 "use --loop auto or python"
             )
@@ -187,12 +190,36 @@ class Engine:
         self.master, self.slave = parts.master.plant, parts.slave.plant
         self.master_ctrl, self.slave_ctrl = parts.master, parts.slave
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
+
+        # The codec stage (docs/codec.md, "In the channels"): a codec payload's message is the
+        # JointState of one name per task axis (more names when the payload needs them).
+        def arm_size_of(floats: int) -> int:
+            names = max(3, -(-floats // 3))
+            return wire_payload_bytes(names, -(-floats // names))
+
+        self.codecs = build_codec_channels(
+            self.scene.config,
+            self.period_ns,
+            self.forward,
+            self.backward,
+            axes=3,
+            size_of=arm_size_of,
+            layout=LAYOUT_ARM,
+        )
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
         self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
         self._stop = False
         from haptic_teleop.engine import compiled_arm_loop
 
-        self.compiled_reason = (
+        codec_reason = next(
+            (
+                f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
+                for ch in self.codecs
+                if ch is not None
+            ),
+            None,
+        )
+        self.compiled_reason = codec_reason or (
             compiled_arm_loop.compiled_reason_arm(
                 parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer, self.period_s
             )
@@ -200,7 +227,7 @@ class Engine:
             else "loop 'python' asked for"
         )
         if loop == "compiled" and self.compiled_reason is not None:
-            raise HapticTeleopError(
+            raise InputError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
                 "use --loop auto or python"
             )
@@ -272,6 +299,8 @@ class Engine:
     def _loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
         if self.schema is not ONE_DOF:
             return self._arm_loop(progress, sink)
+        if self.codecs != (None, None):
+            return self._codec_loop(progress, sink)
         n_ticks = self.ticks
         period_ns = self.period_ns
         period_s = self.period_s
@@ -378,6 +407,111 @@ class Engine:
         self.slave.close()
         return self._streamed(n, wall)
 
+    def _codec_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        """`_loop` with the codec stage on the directions that name one (engine/codec_channel.py):
+        the same tick in the same order; a codec direction's remote sample is its decoder's for
+        this tick, its `received` column the newest arrival's seq, its buffer occupancy 0."""
+        n_ticks, period_ns, period_s = self.ticks, self.period_ns, self.period_s
+        self.ticks_done = 0
+        master, slave = self.master, self.slave
+        mc, sc = self.master_ctrl, self.slave_ctrl
+        m_desired, s_desired = mc.force_desired, sc.force_desired
+        m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
+        hand = self.operator.hand_force_and_intended
+        fcodec, bcodec = self.codecs
+        fwd, bwd = self.forward, self.backward
+        fbuf, bbuf = self.forward_buffer, self.backward_buffer
+        fwd_size, bwd_size = self._sizes
+
+        def plain(link: Link, buf: PlayoutBuffer, size: int) -> Callable[[int, int, tuple[float, ...]], Any]:
+            def step(n: int, now_ns: int, sample: tuple[float, ...]) -> tuple[tuple[float, ...] | None, int]:
+                link.send(Packet(n, now_ns, sample, size))
+                for p in link.deliver(now_ns):
+                    buf.push(p, now_ns)
+                rel = buf.release(now_ns)
+                return (None, -1) if rel is None else (rel.payload, rel.seq)
+
+            return step
+
+        f_step = fcodec.step if fcodec is not None else plain(fwd, fbuf, fwd_size)
+        b_step = bcodec.step if bcodec is not None else plain(bwd, bbuf, bwd_size)
+
+        settled = self._settled
+        output = _Output(sink, settled(fcodec, fwd, fbuf), settled(bcodec, bwd, bbuf))
+        block = output.block
+        pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
+        row_bytes = 8 * len(COLUMNS)
+        base = 0
+        t0 = time.perf_counter()
+        done = 0
+        try:
+            for n in range(n_ticks):
+                now_ns = n * period_ns
+                xm, vm = master.read()
+                xs, vs = slave.read()
+                x_m, v_m, x_s, v_s = xm[0], vm[0], xs[0], vs[0]
+                f_env = slave.contact_force()[0]
+                fm = mc.step1(x_m, v_m)
+                remote, frx = f_step(n, now_ns, (x_m, v_m))
+                if remote is not None:
+                    sc.set_remote(remote)
+                fs = sc.step1(x_s, v_s)
+                remote, brx = b_step(n, now_ns, (f_env, x_s, v_s))
+                if remote is not None:
+                    mc.set_remote(remote)
+                fh, xd, vd = hand(n * period_s, xm, vm)
+                fm_applied = master.step([fm], fh)[0]
+                fs_applied = slave.step([fs])[0]
+                mc.bound.applied1(fm_applied)
+                sc.bound.applied1(fs_applied)
+                pack_row(
+                    block, (n - base) * row_bytes,
+                    xd, vd, fh[0],
+                    x_m, v_m, fm_applied, m_desired[0], m_energy[0],
+                    x_s, v_s, fs_applied, s_desired[0], s_energy[0], f_env,
+                    frx, brx,
+                    fbuf.occupancy if fcodec is None else 0.0, bbuf.occupancy if bcodec is None else 0.0,
+                )  # fmt: skip
+                done = n + 1
+                if done % 100 == 0:
+                    self.ticks_done = done
+                    if progress is not None:
+                        progress(done)
+                    if done - base == BLOCK_TICKS:
+                        output.block_done(done)
+                        base = done
+                if self._stop:
+                    break
+        except BaseException:
+            self.ticks_done = done
+            self.master.close()
+            self.slave.close()
+            output.end_after_error(done)
+            raise
+        self.ticks_done = done
+        output.end(done)
+        wall = time.perf_counter() - t0
+        self.master.close()
+        self.slave.close()
+        return self._streamed(done, wall)
+
+    def _settled(self, codec: Any, link: Link, buf: PlayoutBuffer) -> Settled:
+        """A direction's packet records whose fate is final: its codec's, or its link and buffer's."""
+        if codec is not None:
+            period_ns = self.period_ns
+            return lambda sent, final: codec.settled(sent, final, period_ns)
+        return lambda sent, final: compiled_loop.settled_records(link, buf, sent, final)
+
+    def codec_facts(self) -> dict[str, Any]:
+        """The run facts of the codec stage (`codec_<direction>`, and the plain packet's message
+        size per direction, `codec_plain_bytes`: the reference of the wire accounting), for the
+        bag's metadata; none without a codec."""
+        if self.codecs == (None, None):
+            return {}
+        out: dict[str, Any] = {f"codec_{ch.direction}": ch.facts() for ch in self.codecs if ch is not None}
+        out["codec_plain_bytes"] = {"forward": self._sizes[0], "backward": self._sizes[1]}
+        return out
+
     def _streamed(self, done: int, wall_s: float) -> RunResult:
         """The result of a run whose rows and packets went to a sink: timing and tick count only."""
         return RunResult(
@@ -403,10 +537,11 @@ class Engine:
             window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
             output = _Output(sink, fwd.settled, bwd.settled, self.schema.width)
         else:
+            fcodec, bcodec = self.codecs
             output = _Output(
                 sink,
-                lambda sent, final: compiled_loop.settled_records(self.forward, self.forward_buffer, sent, final),
-                lambda sent, final: compiled_loop.settled_records(self.backward, self.backward_buffer, sent, final),
+                self._settled(fcodec, self.forward, self.forward_buffer),
+                self._settled(bcodec, self.backward, self.backward_buffer),
                 self.schema.width,
             )
         t0 = time.perf_counter()
@@ -683,6 +818,7 @@ def record_run(
             "master_joint_damping": engine.master.joint_damping(),
             "slave_joint_damping": engine.slave.joint_damping(),
         }
+        info.update(engine.codec_facts())
         if c.is_arm:  # the wall plane in the task frame (the analysis' penetration)
             info["wall_point_m"] = list(c.slave.wall.point_m or ())
             info["wall_normal"] = list(c.slave.wall.normal or ())

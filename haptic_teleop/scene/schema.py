@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-from haptic_teleop.scene.direction import DirectionConfig
+from haptic_teleop.scene.direction import ChannelDirectionConfig
 from haptic_teleop.scene.nve_schema import NveConfig
 
 
@@ -511,8 +511,8 @@ class ControllersConfig:
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    forward: DirectionConfig = field(default_factory=DirectionConfig)
-    backward: DirectionConfig = field(default_factory=DirectionConfig)
+    forward: ChannelDirectionConfig = field(default_factory=ChannelDirectionConfig)
+    backward: ChannelDirectionConfig = field(default_factory=ChannelDirectionConfig)
 
 
 @dataclass(frozen=True)
@@ -625,5 +625,15 @@ ARM_KEYS = frozenset(
 
 def _without_absent_arm_keys(d: Any) -> Any:
     if isinstance(d, dict):
-        return {k: _without_absent_arm_keys(v) for k, v in d.items() if not (k in ARM_KEYS and v is None)}
+        return {
+            k: (_given_codec_keys(v) if k == "codec" else _without_absent_arm_keys(v))
+            for k, v in d.items()
+            if not ((k in ARM_KEYS or k == "codec") and v is None)
+        }
     return d
+
+
+def _given_codec_keys(d: Any) -> Any:
+    """A channel's codec section with only the keys its kind has that were given (the rest are
+    None: another codec's keys, or defaults the codec's own config fills in)."""
+    return {k: v for k, v in d.items() if v is not None} if isinstance(d, dict) else d
