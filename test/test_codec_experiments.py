@@ -72,3 +72,52 @@ def test_deadband_experiment_rates_grow_with_p_and_errors_with_them(tmp_path: Pa
         err = [float(row["RMS error"]) for row in got]
         assert saved == sorted(saved) and saved[-1] > saved[1] > saved[0]
         assert err[0] == 0.0 and err[-1] > err[1] > 0.0
+
+
+EC_CLI = [sys.executable, "-m", "haptic_teleop.cli", "experiment", "error-control"]
+
+
+def test_error_control_runs_and_shows_what_each_error_control_does(tmp_path: Path) -> None:
+    """`experiment error-control` on a short run: each row's rate and error ordering follow from what
+    its error control does (docs/codec.md, "Seed 000's experiment")."""
+    out = tmp_path / "e"
+    r = subprocess.run(
+        [*EC_CLI, "--out", str(out), "--duration-s", "6", "--quiet"], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr
+    for name in ("error_control.csv", "error_control.md", "error_control.png"):
+        assert (out / name).stat().st_size > 100
+    with (out / "error_control.csv").open() as fh:
+        rows = {row["scheme"]: {k: float(v) for k, v in row.items() if k != "scheme"} for row in csv.DictReader(fh)}
+    none, fec, fec_wait = (
+        rows["prediction-based filtering only"],
+        rows["+ FEC (k = 2)"],
+        rows["+ FEC (k = 2), playing 50 ms later"],
+    )
+    arq25, arq4 = rows["+ ARQ (mu = 25 ms, nu = 4)"], rows["+ ARQ (mu = 4 ms, nu = 1)"]
+    prio = rows["priority-based, 70 kbit/s"]
+    rms, peak, rate, acks = "RMS force error [N]", "peak force error [N]", "packets/s", "acks kbit/s (ROS)"
+    rms_now = "RMS force error incl. latency [N]"
+    # FEC sends the same events (so meets the same losses) with bigger packets; its copies come with
+    # the next event, which re-anchors the receiver anyway: without waiting it plays the same
+    assert fec[rate] == none[rate] and fec["wire kbit/s (ROS)"] > none["wire kbit/s (ROS)"]
+    assert fec[rms] == none[rms] and fec[peak] == none[peak]
+    # waiting for the copies: a smaller error against the delayed object, a larger one against the present
+    assert fec_wait[rms] < fec[rms] and fec_wait[rms_now] > fec[rms_now]
+    assert fec_wait["latency [ms]"] == none["latency [ms]"] + 50
+    # ARQ: only it sends ACKs; with 5 ms each way (RTT 10 ms) mu = 4 ms retransmits every event once
+    assert none[acks] == fec[acks] == prio[acks] == 0 < arq25[acks]
+    assert arq4[rate] == pytest.approx(2 * none[rate], rel=0.01)
+    assert none[rate] < arq25[rate] < arq4[rate]
+    # retransmissions re-base the receiver: a smaller error than no error control; and priority-based
+    # filtering (followers with copies of the event) the smallest RMS of all
+    assert arq25[rms] < none[rms] and arq4[rms] < none[rms]
+    assert prio[rms] < min(none[rms], arq25[rms], arq4[rms], fec_wait[rms])
+
+
+@pytest.mark.parametrize("argv", [["--fec-k", "0"], ["--fec-wait-s", "-1"], ["--loss", "2"], ["--fec-k", "x"]])
+def test_error_control_bad_arguments_are_one_line_exit_2(tmp_path: Path, argv: list[str]) -> None:
+    r = subprocess.run([*EC_CLI, "--out", str(tmp_path / "x"), *argv], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert not (tmp_path / "x").exists()

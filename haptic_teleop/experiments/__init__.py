@@ -7,6 +7,8 @@
   (experiments/deadband.py, docs/codec.md).
 - `hli-filtering`: seed 000's simulation of priority-based against deadband filtering
   (experiments/codec.py, docs/codec.md).
+- `error-control`: seed 000's experiment, prediction-based filtering with FEC or ARQ over its
+  events against priority-based filtering (experiments/codec.py, docs/codec.md).
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("hli-filtering", help=codec.FILTERING_HELP, description=codec.FILTERING_HELP)
     codec.add_filtering_arguments(f)
     f.set_defaults(func=codec.main_filtering)
+    e = sub.add_parser("error-control", help=codec.ERROR_CONTROL_HELP, description=codec.ERROR_CONTROL_HELP)
+    codec.add_error_control_arguments(e)
+    e.set_defaults(func=codec.main_error_control)
     d = sub.add_parser("deadband", help=deadband.HELP, description=deadband.HELP)
     deadband.add_arguments(d)
     d.set_defaults(func=deadband.main)

@@ -14,8 +14,9 @@ decoder, which the tables give as latency). Everything runs in simulated time on
 - `haptic-teleop experiment hli-filtering`: priority-based filtering under an allowed bandwidth
   (seed: 70 kbit/s) against deadband filtering at 0.7 mm and 2.5 mm: rate on the wire and force error.
 
-Seed 000's error-control experiment (prediction-based filtering with FEC or ARQ) needs the FEC and
-ARQ codecs composed behind a filter, which is not built yet (docs/codec.md).
+- `haptic-teleop experiment error-control`: seed 000's experiment, peak force error over the lossy
+  link: prediction-based filtering alone, with FEC over its events, with ARQ over its events
+  (mu = 25 ms, nu = 4 and mu = 4 ms, nu = 1), and priority-based filtering (core/event_codec.py).
 """
 
 from __future__ import annotations
@@ -37,6 +38,10 @@ PERIOD_NS = 1_000_000
 PERIOD_S = PERIOD_NS * 1e-9
 UDP_IP_HEADER_BYTES = 28  # IPv4 20 + UDP 8: a compact wire (the sample as float64s, no middleware)
 
+ERROR_CONTROL_HELP = (
+    "seed 000's experiment: peak force error over a 20 % lossy link of prediction-based filtering alone, "
+    "with FEC or ARQ over its events, and priority-based filtering; plot, CSV, table"
+)
 FILTERING_HELP = (
     "seed 000's simulation: priority-based (HLI) filtering under an allowed bandwidth against deadband "
     "filtering at 0.7 and 2.5 mm, over a 20 % lossy link: wire rate and force error; plot, CSV, table"
@@ -57,6 +62,7 @@ class Result:
     reverse_packets: int  # acknowledgements (ARQ)
     reverse_ros_bytes: int
     latency_ticks: int
+    present_n: np.ndarray | None = None  # from the true object one link delay ago (the codec's own latency is error)
 
 
 def object_position_m(t_s: np.ndarray, period_s: float) -> np.ndarray:
@@ -129,6 +135,9 @@ def simulate(
     lag = latency_ticks
     true_x = np.full(n_ticks, math.nan)
     true_x[lag:] = x[: n_ticks - lag]
+    d = min(_delay_ticks(args), lag)
+    present_x = np.full(n_ticks, math.nan)
+    present_x[d:] = x[: n_ticks - d]
     k = args.stiffness_n_per_m
     return Result(
         label,
@@ -141,6 +150,7 @@ def simulate(
         rpackets,
         rros,
         lag,
+        force_n(present_x, k),
     )
 
 
@@ -202,10 +212,25 @@ def prediction_filtering(args: argparse.Namespace) -> tuple[tuple[Any, Any], int
     return (enc, dec), dec.delay_ticks
 
 
-def _row(r: Result, args: argparse.Namespace, warmup_s: float = 1.0) -> list[Any]:
+def event_codec(args: argparse.Namespace, error_control: str, **kw: Any) -> tuple[tuple[Any, Any], int]:
+    """Prediction-based filtering (the same filter as `prediction_filtering`) with `error_control`
+    over its events (core/event_codec.py); messages as std_msgs/Float64MultiArray (its default)."""
+    from haptic_teleop.core.event_codec import EventCodecConfig, build_event_codec
+
+    cfg = EventCodecConfig(threshold_m=args.threshold_m, error_control=error_control, **kw)
+    enc, dec = build_event_codec(cfg, PERIOD_NS, 1)
+    return (enc, dec), dec.delay_ticks
+
+
+def _row(r: Result, args: argparse.Namespace, warmup_s: float = 1.0, present: bool = False) -> list[Any]:
     w = (r.t_s >= warmup_s) & np.isfinite(r.force_n) & np.isfinite(r.true_n)
     e = r.force_n[w] - r.true_n[w]
     dur = args.duration_s
+    extra: list[Any] = []
+    if present:
+        assert r.present_n is not None
+        ep = r.force_n[w] - r.present_n[w]
+        extra = [rms(ep), float(np.max(np.abs(ep))) if len(ep) else math.nan]
     return [
         r.label,
         r.packets / dur,
@@ -215,6 +240,7 @@ def _row(r: Result, args: argparse.Namespace, warmup_s: float = 1.0) -> list[Any
         rms(e),
         float(np.max(np.abs(e))) if len(e) else math.nan,
         r.latency_ticks * PERIOD_S * 1e3,
+        *extra,
     ]
 
 
@@ -228,6 +254,7 @@ HEADER = [
     "peak force error [N]",
     "latency [ms]",
 ]
+PRESENT_HEADER = ["RMS force error incl. latency [N]", "peak force error incl. latency [N]"]
 
 
 def _run_all(
@@ -281,10 +308,15 @@ def _plot(results: list[Result], path: Path, title: str, window_s: float) -> Non
     plt.close(fig)
 
 
-def _finish(args: argparse.Namespace, results: list[Result], out: Path, name: str, title: str) -> int:
-    rows = [_row(r, args) for r in results]
-    write_csv(out / f"{name}.csv", HEADER, rows)
-    table = markdown(HEADER, rows)
+def _finish(
+    args: argparse.Namespace, results: list[Result], out: Path, name: str, title: str, present: bool = False
+) -> int:
+    """CSV, markdown and plot; `present`: two more columns, the force error against the object one
+    link delay ago (the codec's added latency counted as error)."""
+    rows = [_row(r, args, present=present) for r in results]
+    header = HEADER + PRESENT_HEADER if present else HEADER
+    write_csv(out / f"{name}.csv", header, rows)
+    table = markdown(header, rows)
     (out / f"{name}.md").write_text(table)
     _plot(results, out / f"{name}.png", title, args.plot_window_s)
     if not args.quiet:
@@ -345,3 +377,48 @@ def main_filtering(args: argparse.Namespace) -> int:
         f"object -0.1..0 m, {args.loss:.0%} loss (bursts of {args.burst_packets:g}), k = {args.stiffness_n_per_m:g} N/m"
     )
     return _finish(args, results, out, "hli_filtering", title)
+
+
+def add_error_control_arguments(p: argparse.ArgumentParser) -> None:
+    add_common_arguments(p, "error-control")
+    p.add_argument(
+        "--fec-k",
+        type=number(1, 64, kind=int),
+        default=2,
+        help="previous events each FEC packet copies (default 2: a burst of two lost events)",
+    )
+    p.add_argument(
+        "--fec-wait-s",
+        type=number(0.0, 1.0),
+        default=0.05,
+        help="also run FEC with the receiver playing this much later, so copies of lost events can come "
+        "in time (default 0.05; 0: no such row)",
+    )
+
+
+def _arq_case(arq: Any) -> Callable[[argparse.Namespace], Any]:
+    return lambda a: event_codec(a, "arq", timeout_s=arq.timeout_s, max_retransmissions=arq.max_retransmissions)
+
+
+def main_error_control(args: argparse.Namespace) -> int:
+    from haptic_teleop.core.arq import SEED_000_EXPERIMENT
+
+    k = args.fec_k
+    cases: list[tuple[str, Callable[[argparse.Namespace], Any]]] = [
+        ("prediction-based filtering only", lambda a: event_codec(a, "none")),
+        (f"+ FEC (k = {k})", lambda a: event_codec(a, "fec", fec_k=k)),
+    ]
+    wait = round(args.fec_wait_s / PERIOD_S)
+    if wait > 0:
+        cases.append(
+            (f"+ FEC (k = {k}), playing {wait} ms later", lambda a: event_codec(a, "fec", fec_k=k, wait_ticks=wait))
+        )
+    for arq in SEED_000_EXPERIMENT:
+        cases.append((f"+ ARQ (mu = {arq.timeout_s * 1e3:g} ms, nu = {arq.max_retransmissions})", _arq_case(arq)))
+    cases.append((f"priority-based, {args.bandwidth_bps / 1e3:g} kbit/s", hli))
+    results, out = _run_all(args, cases, "error-control")
+    title = (
+        f"error control: object -0.1..0 m, {args.loss:.0%} loss (bursts of {args.burst_packets:g}), "
+        f"k = {args.stiffness_n_per_m:g} N/m"
+    )
+    return _finish(args, results, out, "error_control", title, present=True)
