@@ -156,9 +156,7 @@ def test_bad_facts_and_names_are_named() -> None:
     with pytest.raises(SchemaError, match="clients must be a list"):
         NveSchema.from_facts({"clients": "a", "axes": 1})
     s = SCHEMAS[2]
-    with pytest.raises(
-        SchemaError, match=r"no NVE column group 'client3.force_n'; groups: obj_x_m, .*client1, client2"
-    ):
+    with pytest.raises(SchemaError, match=r"no column group 'client3.force_n'; groups: obj_x_m, .*client1, client2"):
         s.group("client3.force_n")
     with pytest.raises(SchemaError, match="no NVE client 'client3'; clients: client1, client2"):
         s.client_group("client3", "force_n")

@@ -20,7 +20,7 @@ import gc
 import signal
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
@@ -268,28 +268,11 @@ class Engine:
         collector = Collector(self.schema.width) if sink is None else None
         out = sink if sink is not None else collector
         assert out is not None
-        previous = None
-        if handle_sigint:
-
-            def _on_sigint(signum: int, frame: FrameType | None) -> None:
-                self.request_stop()
-
-            previous = signal.signal(signal.SIGINT, _on_sigint)
-        # The tick allocates packets, lists and tuples but makes no reference cycles, so the
-        # cycle collector only rescans the packet logs: pause it for the loop (it was about 3 % of
-        # a tick, docs/performance.md) and put it back as it was.
-        gc_was_enabled = gc.isenabled()
-        gc.disable()
-        try:
+        with loop_guard(self.request_stop, handle_sigint):
             if self.loop_kind == "compiled" and self.schema is ONE_DOF:
                 result = self._compiled_loop(progress, out)
             else:
                 result = self._loop(progress, out)
-        finally:
-            if gc_was_enabled:
-                gc.enable()
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
         if collector is not None:
             result.data = self.data = collector.data()
             result.forward_log = collector.packets("forward")
@@ -624,6 +607,30 @@ class Engine:
         self.slave.close()
         wall = time.perf_counter() - t0
         return self._streamed(done, wall)
+
+
+@contextlib.contextmanager
+def loop_guard(request_stop: Callable[[], None], handle_sigint: bool) -> Iterator[None]:
+    """Around a run's loop: SIGINT (if asked) requests a stop at the next tick boundary, and the
+    cycle collector is paused. The tick allocates packets, lists and tuples but makes no reference
+    cycles, so the collector only rescans the packet logs (it was about 3 % of a tick,
+    docs/performance.md). Both are put back as they were."""
+    previous = None
+    if handle_sigint:
+
+        def _on_sigint(signum: int, frame: FrameType | None) -> None:
+            request_stop()
+
+        previous = signal.signal(signal.SIGINT, _on_sigint)
+    gc_was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if gc_was_enabled:
+            gc.enable()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 class RunSink(Protocol):

@@ -13,20 +13,17 @@ The rows follow the NVE record schema (record/nve_columns.py); packets are hande
 
 from __future__ import annotations
 
-import gc
 import math
-import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import numpy as np
 
 from haptic_teleop.core.link import Packet
 from haptic_teleop.engine.compiled_loop import settled_records
-from haptic_teleop.engine.lockstep import Collector, RunResult, RunSink, RunTiming, _Output, _Tee
+from haptic_teleop.engine.lockstep import Collector, RunResult, RunSink, RunTiming, _Output, _Tee, loop_guard
 from haptic_teleop.nve_assembly import DOWN, UP, NveParts, build_nve_parts
 from haptic_teleop.record.layouts import joint_state_size
 from haptic_teleop.record.nve_columns import NveSchema
@@ -83,22 +80,8 @@ class NveEngine:
         collector = Collector(self.schema.width) if sink is None else None
         out = sink if sink is not None else collector
         assert out is not None
-        previous = None
-        if handle_sigint:
-
-            def _on_sigint(signum: int, frame: FrameType | None) -> None:
-                self.request_stop()
-
-            previous = signal.signal(signal.SIGINT, _on_sigint)
-        gc_was_enabled = gc.isenabled()
-        gc.disable()
-        try:
+        with loop_guard(self.request_stop, handle_sigint):
             result = self._loop(progress, out)
-        finally:
-            if gc_was_enabled:
-                gc.enable()
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
         if collector is not None:
             result.data = self.data = collector.data()
             self.packets = {d: collector.packets(d) for d in self.directions()}

@@ -85,8 +85,46 @@ class SchemaError(ValueError):
     """A tick schema that cannot be built (names, axes)."""
 
 
+class ColumnLookup:
+    """Names and indices of a tick row's columns, shared by the teleoperation schema (`TickSchema`)
+    and the NVE one (record/nve_columns.py): `columns`, `col` (name -> index) and `_slices` (group
+    -> slice of the row) are set by the schema; `_groups_allowed` says what `group` accepts."""
+
+    columns: tuple[str, ...]
+    col: dict[str, int]
+    _slices: dict[str, slice]
+
+    def _groups_allowed(self) -> str:
+        raise NotImplementedError
+
+    @property
+    def width(self) -> int:
+        """Columns per tick row."""
+        return len(self.columns)
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+    def group(self, name: str) -> slice:
+        """The columns of one group (`schema.group("s_x_m")`), as a slice of the row."""
+        try:
+            return self._slices[name]
+        except KeyError:
+            raise SchemaError(f"no column group {name!r}; groups: {self._groups_allowed()}") from None
+
+    def index(self, name: str) -> int:
+        """The index of one column (`s_x_m[z]`, or a group of one column by the group's name)."""
+        try:
+            return self.col[name]
+        except KeyError:
+            raise SchemaError(f"no column {name!r} in this schema") from None
+
+    def group_columns(self, name: str) -> tuple[str, ...]:
+        return self.columns[self.group(name)]
+
+
 @dataclass(frozen=True)
-class TickSchema:
+class TickSchema(ColumnLookup):
     """The columns of one tick's row for a master with `master_joints`, a slave with
     `slave_joints` and a task space of `task_axes` Cartesian axes (1: the 1-DoF slide; 3: x, y, z)."""
 
@@ -154,30 +192,8 @@ class TickSchema:
     def axes(self) -> tuple[str, ...]:
         return AXES[: self.task_axes]
 
-    @property
-    def width(self) -> int:
-        """Columns per tick row."""
-        return len(self.columns)
-
-    def __len__(self) -> int:
-        return len(self.columns)
-
-    def group(self, name: str) -> slice:
-        """The columns of one group (`schema.group("s_x_m")`), as a slice of the row."""
-        try:
-            return self._slices[name]
-        except KeyError:
-            raise SchemaError(f"no column group {name!r}; groups: {', '.join(GROUPS)}") from None
-
-    def index(self, name: str) -> int:
-        """The index of one column (`s_x_m[z]`, or a group of one column by the group's name)."""
-        try:
-            return self.col[name]
-        except KeyError:
-            raise SchemaError(f"no column {name!r} in this schema") from None
-
-    def group_columns(self, name: str) -> tuple[str, ...]:
-        return self.columns[self.group(name)]
+    def _groups_allowed(self) -> str:
+        return ", ".join(GROUPS)
 
     def joints(self, side: str) -> tuple[str, ...]:
         if side == "master":

@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from haptic_teleop.record.columns import AXES, JOINT_STATE, MULTIARRAY, POSE, WRENCH, SchemaError
+from haptic_teleop.record.columns import AXES, JOINT_STATE, MULTIARRAY, POSE, WRENCH, ColumnLookup, SchemaError
 
 TWIST = "geometry_msgs/msg/TwistStamped"
 
@@ -51,7 +51,7 @@ _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
 
 @dataclass(frozen=True)
-class NveSchema:
+class NveSchema(ColumnLookup):
     """The columns of one tick's row of an NVE run with these `clients` (scene order) and `axes`
     (1, or 3: x, y, z)."""
 
@@ -103,39 +103,17 @@ class NveSchema:
         """x (1 axis) or x, y, z."""
         return AXES[: self.axes]
 
-    @property
-    def width(self) -> int:
-        """Columns per tick row: 3 axes + clients x (5 axes + 6)."""
-        return len(self.columns)
-
-    def __len__(self) -> int:
-        return len(self.columns)
-
-    def group(self, name: str) -> slice:
-        """The columns of one group (`schema.group("obj_x_m")`, `schema.group("client1.force_n")`)."""
-        try:
-            return self._slices[name]
-        except KeyError:
-            raise SchemaError(
-                f"no NVE column group {name!r}; groups: {', '.join(SERVER_GROUPS)} and, per client "
-                f"({', '.join(self.clients)}), <client>.{{{','.join(CLIENT_GROUPS)}}}"
-            ) from None
+    def _groups_allowed(self) -> str:
+        return (
+            f"{', '.join(SERVER_GROUPS)} and, per client ({', '.join(self.clients)}), "
+            f"<client>.{{{','.join(CLIENT_GROUPS)}}}"
+        )
 
     def client_group(self, client: str, name: str) -> slice:
         """`group(f"{client}.{name}")`, with the client checked."""
         if client not in self.clients:
             raise SchemaError(f"no NVE client {client!r}; clients: {', '.join(self.clients)}")
         return self.group(f"{client}.{name}")
-
-    def index(self, name: str) -> int:
-        """The index of one column (`client1.hip_x_m[y]`, or a one-column group by its name)."""
-        try:
-            return self.col[name]
-        except KeyError:
-            raise SchemaError(f"no column {name!r} in this NVE schema") from None
-
-    def group_columns(self, name: str) -> tuple[str, ...]:
-        return self.columns[self.group(name)]
 
     # -- what the bag records of it
     def facts(self) -> dict[str, Any]:
