@@ -46,6 +46,12 @@ RECORDER_STOP_TIMEOUT_S = 60.0
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal that stopped the launch
+# A node killed by SIGSEGV/SIGBUS at start is most often Fast DDS reopening a shared-memory port
+# segment that a killed process of the same ROS domain left in /dev/shm (docs/live.md).
+SHM_HINT = (
+    "a node crashed in native code; if it was at start after a process of this ROS domain was killed, "
+    "stale Fast DDS segments are the usual cause: see 'Native crashes at start' in docs/live.md"
+)
 
 
 @dataclass(frozen=True)
@@ -381,6 +387,7 @@ class Launcher:
         self.files = write_params_files(self.plan, params_dir)
         self.env = local_discovery_env(env)
         self.env["PYTHONUNBUFFERED"] = "1"
+        self.env.setdefault("PYTHONFAULTHANDLER", "1")  # a node that crashes prints where, in its log
         # Each node stops (SIGTERM, a clean stop) when this process dies, even by SIGKILL.
         self.env[LAUNCHER_PID_ENV] = str(os.getpid())
         self.out = out or sys.stdout
@@ -462,6 +469,8 @@ class Launcher:
                     f"{crashed.spec.name} exited with code {crashed.returncode}; stopping the rest in "
                     f"{self.crash_grace_s:.2f} s (watchdog bound)"
                 )
+                if crashed.returncode in (-signal.SIGSEGV, -signal.SIGBUS):
+                    self.log(SHM_HINT)
                 end = time.monotonic() + self.crash_grace_s
                 while time.monotonic() < end and not self._interrupt.is_set():
                     time.sleep(0.02)

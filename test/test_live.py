@@ -445,6 +445,24 @@ def test_killing_the_slave_fades_the_master_force_and_fails_the_launch(tmp_path,
     assert np.nanmax(np.abs(before[:, 2])) > 1.0  # it was rendering contact until then
 
 
+def test_a_node_dying_in_native_code_prints_its_stack_and_the_launcher_says_what_to_check(tmp_path):
+    """SIGSEGV to one node (what a crash inside Fast DDS or MuJoCo delivers): the node's log holds
+    its Python stack (the launcher runs nodes with the fault handler on), the launcher names the
+    crash, adds the hint for stale shared-memory segments and exits 1; the others exit 0."""
+    launch = Launch("wall_contact", "--duration", "60", cwd=tmp_path)
+    pid = launch.pid_of("forward_relay")
+    launch.wait_for(r"scene time 0 at stamp", 60)
+    os.kill(pid, signal.SIGSEGV)
+    assert launch.finish(60) == 1, launch.text[-4000:]
+    codes = launch.exit_codes()
+    assert codes.pop("forward_relay") == -signal.SIGSEGV
+    assert all(c == 0 for c in codes.values()), codes
+    relay_lines = [line for line in launch.lines if line.startswith("[forward_relay] ")]
+    assert any("Fatal Python error: Segmentation fault" in line for line in relay_lines), launch.text[-4000:]
+    assert any("most recent call first" in line for line in relay_lines)
+    assert "Native crashes at start" in launch.text
+
+
 def _read_killed_bag(bag: Path) -> np.ndarray:
     """The tick stamps (ns from scene time 0) of /operator/joint_states in a bag whose recorder was
     killed, rebuilt with `haptic-teleop bag recover`."""

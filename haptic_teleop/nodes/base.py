@@ -478,5 +478,8 @@ def run_nodes(
 
 
 def node_main(factory: Callable[..., LiveNode]) -> None:
-    """console_scripts entry point of one node."""
+    """console_scripts entry point of one node. A crash in native code (Fast DDS, MuJoCo) prints
+    the Python stack of every thread to stderr first, under `ros2 run` as under the launcher
+    (which also sets PYTHONFAULTHANDLER, so a crash while importing is covered too)."""
+    faulthandler.enable(all_threads=True)
     sys.exit(run_nodes([factory]))
