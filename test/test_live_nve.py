@@ -24,6 +24,9 @@ DURATION_S = 3.0
 K_H = 0.5  # nve_push: client_stiffness_n_per_m
 PUSH_START_S = 0.5  # nve_push: operator.start_s
 CATCH_UP_S = 0.005  # a late tick's samples may be up to this much newer than its deadline
+# R is a whole number of ticks, as a float in s: 0.1 - 0.005 reads 0.09499999999999997. Compare
+# with a nanosecond of slack, so R exactly at the bound passes (seen once on a loaded machine).
+R_FLOOR_S = 2 * DELAY_S - CATCH_UP_S - 1e-9
 DELAYS = ("--set", f"nve.clients.0.up.effects.delay.delay_s={DELAY_S}",
           "--set", f"nve.clients.0.down.effects.delay.delay_s={DELAY_S}")  # fmt: skip
 
@@ -136,7 +139,7 @@ def test_client_measures_the_round_trip_of_the_links_plus_a_few_ticks(push_run):
     print(f"measured R: min {measured.min():.4f} median {np.median(measured):.4f} max {measured.max():.4f} s")
     # A client tick run late (catch-up after a stall) takes samples released after its deadline,
     # so R may read a few ticks short then (docs/live.md, "NVE scenes live").
-    assert np.all(measured >= 2 * DELAY_S - CATCH_UP_S)
+    assert np.all(measured >= R_FLOOR_S), measured.min()
     assert np.median(measured) <= 2 * DELAY_S + 0.008
     assert np.percentile(measured, 99) <= 2 * DELAY_S + 0.05  # a loaded machine stalls a node now and then
     # the echo the server carried is the client's own send stamp: an up sample's tick in scene time
@@ -389,7 +392,7 @@ def test_live_bag_holds_what_the_nodes_published(push_run):
             assert tuple(rows[k, [s.index("obj_x_m"), s.index("obj_v_m_per_s"), s.index("obj_force_n")]]) == vals, k
     assert n_seen > 1000
     rtt = rows[:, s.index("client.rtt_s")]
-    assert np.nanmin(rtt) >= 2 * DELAY_S - CATCH_UP_S and np.isnan(rtt[0])
+    assert np.nanmin(rtt) >= R_FLOOR_S and np.isnan(rtt[0])
     # release ticks: a sample released at tick k was sent at least the link's delay before it
     for link in ("up", "down"):
         seq = rows[:, s.index(f"client.{link}_rx_seq")]
