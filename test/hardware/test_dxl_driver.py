@@ -114,7 +114,9 @@ def one_unit_nm(k):
 @pytest.mark.parametrize("fast", [False, True], ids=["sync-read", "fast-sync-read"])
 def test_round_trip_settles_at_tau_over_b_and_stops_with_torque_off(emulator, fast):
     bus = emulator()
-    drv = DynamixelDriver(chain(bus.port, fast_sync_read=fast))
+    # The physics and the units are under test here, not the fault detection: a loaded machine
+    # that leaves the emulator process unscheduled for 3 reads (150 ms) must not end the run.
+    drv = DynamixelDriver(chain(bus.port, fast_sync_read=fast, max_consecutive_comm_errors=20))
     first = drv.start()
     assert drv.fast_sync_read_used is fast
     assert first.stale == 0
