@@ -103,7 +103,13 @@ class MasterEba(LiveNode):
             self._read_device = JointStateReader(("position", "velocity"))  # a driver's layout: deserialized
             self.command_out = WrenchOut(self, command_topic, MASTER_JOINT, self.command_qos)
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
-        self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
+        self.codec: Any = None
+        if cfg.network.forward.codec is not None:  # the forward encoder (nodes/codec_stage.py)
+            from haptic_teleop.nodes.codec_stage import CodecSender
+
+            self.codec = CodecSender(self, "forward", cfg)
+        else:
+            self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"device {self.source}, period {cfg.scene.period_s * 1e3:g} ms, watchdog bound "
@@ -118,7 +124,9 @@ class MasterEba(LiveNode):
 
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.nodes.arm_side import ArmEbaSide
+        from haptic_teleop.nodes.codec_stage import check_live_codec
 
+        check_live_codec(f"parameters of node {self.get_name()}", cfg, "forward")
         if self.source != "plant":
             raise ConfigError(
                 f"parameters of node {self.get_name()}", "device.source", self.source,
@@ -177,7 +185,10 @@ class MasterEba(LiveNode):
                 return  # no device yet: nothing to control
             x, v = [self._device[0]], [self._device[1]]
         f = self.side.step(x, v, stamp_ns)
-        self.forward_out.publish(stamp_ns, (x[0], v[0]))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (x[0], v[0]))  # the codec's sample layout (x_m, v_m)
+        else:
+            self.forward_out.publish(stamp_ns, (x[0], v[0]))
         if self.plant is not None:
             applied = self.plant.step(f, [self._hand_n])
             self.side.applied(applied)
@@ -193,6 +204,8 @@ class MasterEba(LiveNode):
 
     def close(self) -> None:
         super().close()
+        if getattr(self, "codec", None) is not None:
+            self.codec.close()
         if self.arm is not None:
             self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
         elif self.plant is not None:
