@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -35,6 +36,7 @@ RELAY_CARRIES = ("samples", "codec", "ack")
 _FIELDS = ("position", "velocity", "effort")
 _NAME = re.compile(r"c(\d{3})_\d{3}\Z")
 COUNTERS_EVERY_S = 0.5
+SNAPSHOT_TICKS = 5000  # counter snapshots kept while scene time 0 is not known yet
 
 
 def ack_sent_topic(direction: str) -> str:
@@ -123,8 +125,10 @@ def check_live_codec(where: str, cfg: Any, direction: str) -> str | None:
 class WindowCounters:
     """A codec's counters over the scene's window: a snapshot at scene time 0 (the operator's
     /haptic_teleop/scene_start) and one at scene.duration_s, the difference published (latched)
-    every COUNTERS_EVERY_S and at close. Without a scene start (a node set without an operator
-    source) the counters since the node started."""
+    every COUNTERS_EVERY_S and at close. The operator source publishes the start at scene time 0
+    itself, so it reaches this node a little after: until it does, a snapshot per tick is kept
+    (the last SNAPSHOT_TICKS) and the one of scene time 0 is taken from there. Without a scene
+    start (a node set without an operator source) the counters since the node started."""
 
     def __init__(self, node: Any, topic: str, cfg: Any, counters: Callable[[], dict[str, Any]]) -> None:
         from std_msgs.msg import Header, String
@@ -142,6 +146,7 @@ class WindowCounters:
         self.end: dict[str, Any] | None = None
         self._every = max(1, round(COUNTERS_EVERY_S * 1e9 / self.period_ns))
         self._ticks = 0
+        self._early: deque[tuple[int, dict[str, Any]]] = deque(maxlen=SNAPSHOT_TICKS)
 
     def at_tick(self, stamp_ns: int) -> None:
         """Before the tick's work (so the window is ticks [0, duration))."""
@@ -151,7 +156,12 @@ class WindowCounters:
 
             told = take_all(self._start_sub)
             if told:
-                self.start_ns = scene_start_ns(told[-1], self.period_ns)
+                self.start_ns = start = scene_start_ns(told[-1], self.period_ns)
+                # the snapshot before the first tick of scene time >= 0 this node ran, if kept
+                self.base = next((c for s, c in self._early if s >= start), None)
+                self._early.clear()
+            else:
+                self._early.append((stamp_ns, dict(self._counters())))
         start = self.start_ns
         if start is not None:
             if self.base is None and stamp_ns >= start:
