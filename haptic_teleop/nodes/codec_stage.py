@@ -205,11 +205,10 @@ class CodecSender:
         self.encoder, _ = codec_pair(cfg, direction, self.period_ns)
         self.wire = CodecWire()
         self._send = raw_publish_fn(node.create_publisher(JointState, sent_topic(direction), stream_qos(READER_DEPTH)))
-        self._acks = (
-            node.create_polled_subscription(JointState, ack_delivered_topic(direction), stream_qos(READER_DEPTH), raw=True)
-            if kind == "arq"
-            else None
-        )
+        self._acks = None
+        if kind == "arq":
+            qos = stream_qos(READER_DEPTH)
+            self._acks = node.create_polled_subscription(JointState, ack_delivered_topic(direction), qos, raw=True)
         self.window = WindowCounters(
             node, counters_topic(direction, "encoder"), cfg, lambda: _prefixed("encoder", self.encoder)
         )

@@ -162,10 +162,9 @@ class NetworkRelay(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray, Header
 
+        from haptic_teleop.nodes.codec_stage import RELAY_CARRIES, ack_delivered_topic, ack_sent_topic
         from haptic_teleop.record.layouts import joint_state_size
         from haptic_teleop.traces import build_scene_link
-
-        from haptic_teleop.nodes.codec_stage import RELAY_CARRIES, ack_delivered_topic, ack_sent_topic
 
         self.carries = str(
             declare_value(

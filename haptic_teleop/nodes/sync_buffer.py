@@ -90,7 +90,8 @@ class SyncBuffer(LiveNode):
 
             self.codec = CodecReceiver(self, d, cfg)
         self.setup_loop(period_ns)
-        what = f"codec {self.codec.kind}" if self.codec is not None else f"policy {direction_config(cfg, d).buffer.policy}"
+        policy = direction_config(cfg, d).buffer.policy
+        what = f"codec {self.codec.kind}" if self.codec is not None else f"policy {policy}"
         self.get_logger().info(f"{d}: {delivered_topic(d)} -> {received_topic(d)}, {what}")
 
     def _codec_tick(self, index: int, stamp_ns: int) -> None:
