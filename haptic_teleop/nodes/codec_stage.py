@@ -156,9 +156,10 @@ class WindowCounters:
 
             told = take_all(self._start_sub)
             if told:
-                self.start_ns = start = scene_start_ns(told[-1], self.period_ns)
+                t0 = scene_start_ns(told[-1], self.period_ns)
+                self.start_ns = t0
                 # the snapshot before the first tick of scene time >= 0 this node ran, if kept
-                self.base = next((c for s, c in self._early if s >= start), None)
+                self.base = next((c for s, c in self._early if s >= t0), None)
                 self._early.clear()
             else:
                 self._early.append((stamp_ns, dict(self._counters())))
