@@ -213,7 +213,8 @@ def node_plan(
         buffer = {"direction": d, **axes, **scene_params(scene, "sync_buffer", d)}
         plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", buffer))
         if codecs[d] == "arq":  # its acknowledgements, over the reverse direction's effects
-            ack = {"direction": d, "carries": "ack", **relay_start, **scene_params(scene, "network_relay", reverse[d])}
+            effects = scene_params(scene, "network_relay", reverse[d])
+            ack = {"direction": d, "carries": "ack", **relay_start, **axes, **effects}
             plan.append(NodeSpec(f"{d}_ack_relay", "network_relay", ack))
     if record_dir is not None:
         plan.append(

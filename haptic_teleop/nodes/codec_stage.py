@@ -7,7 +7,9 @@ Wire message of a codec packet: the engine's (`engine.codec_channel.message_byte
 sensor_msgs/JointState with the payload's F values spread over position, velocity and effort,
 field by field, `names = ceil(F / 3)` values per field (the last field padded with zeros); the
 names are `cFFF_iii` (F the payload's length, i the name's index: 8 characters, the size the
-engine's accounting assumes), so a receiver knows F. header.stamp = the packet's seq (the tick of
+engine's accounting assumes), so a receiver knows F. An arm scene's (`engine.arm_loop.arm_message_bytes`):
+one name per task axis, more when the payload needs them (`max(3, ceil(F / 3))` names), names
+`cFFFii` (6 characters, as the engine's `axis_i`). header.stamp = the packet's seq (the tick of
 the sample it carries) on the node clock's tick grid: the relay takes seq = stamp / period from it,
 as for a plain sample. An acknowledgement is the same message with the payload (seq,).
 
@@ -34,7 +36,7 @@ LIVE_CODECS = ("deadband", "prediction", "fec", "arq")
 # acknowledgements of its codec (ARQ) over the reverse direction's effects.
 RELAY_CARRIES = ("samples", "codec", "ack")
 _FIELDS = ("position", "velocity", "effort")
-_NAME = re.compile(r"c(\d{3})_\d{3}\Z")
+_NAME = re.compile(r"c(\d{3})(?:_\d{3}|\d{2})\Z")
 COUNTERS_EVERY_S = 0.5
 SNAPSHOT_TICKS = 5000  # counter snapshots kept while scene time 0 is not known yet
 
@@ -54,19 +56,23 @@ def counters_topic(direction: str, side: str) -> str:
     return f"/{direction}/codec/{side}"
 
 
-def wire_layout(floats: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """(names, fields) of the JointState carrying a payload of `floats` values."""
-    if not 1 <= floats <= 999:
-        raise ValueError(f"a codec packet carries 1 to 999 values, got {floats}")
-    names = -(-floats // 3)
+def wire_layout(floats: int, arm: bool = False) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(names, fields) of the JointState carrying a payload of `floats` values (`arm`: an arm
+    scene's, one name per task axis at least)."""
+    if not 1 <= floats <= (297 if arm else 999):
+        raise ValueError(f"a codec packet carries 1 to {297 if arm else 999} values, got {floats}")
+    names = max(3, -(-floats // 3)) if arm else -(-floats // 3)
     fields = _FIELDS[: -(-floats // names)]
+    if arm:
+        return tuple(f"c{floats:03d}{i:02d}" for i in range(names)), fields
     return tuple(f"c{floats:03d}_{i:03d}" for i in range(names)), fields
 
 
 class CodecWire:
     """Encodes and decodes the codec packets' JointState (module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, arm: bool = False) -> None:
+        self.arm = arm
         self._codecs: dict[int, Any] = {}
 
     def _codec(self, floats: int) -> Any:
@@ -74,7 +80,7 @@ class CodecWire:
         if c is None:
             from haptic_teleop.nodes.cdr import JointStateCodec
 
-            names, fields = wire_layout(floats)
+            names, fields = wire_layout(floats, self.arm)
             c = self._codecs[floats] = JointStateCodec(names, fields)
         return c
 
@@ -110,10 +116,15 @@ def check_live_codec(where: str, cfg: Any, direction: str) -> str | None:
     if codec is None:
         return None
     if cfg.is_arm:
-        raise ConfigError(
-            where, f"network.{direction}.codec", codec.kind,
-            "an arm scene runs no codec live yet (the codec stage runs in `haptic-teleop run`); leave it out",
-        )  # fmt: skip
+        from haptic_teleop.scene.load import side_period_ticks
+
+        own = [r for r in ("master", "slave") if side_period_ticks(cfg, r) != 1]
+        if own:
+            raise ConfigError(
+                where, f"network.{direction}.codec", codec.kind,
+                f"an arm side with its own period ({own[0]}.period_s) runs no codec live yet (the engine's "
+                "encoder takes a sample every scene tick); leave one of them out",
+            )  # fmt: skip
     if codec.kind not in LIVE_CODECS:
         raise ConfigError(
             where, f"network.{direction}.codec", codec.kind,
@@ -185,6 +196,25 @@ class WindowCounters:
         self._pub.publish(self._string(data=json.dumps(self.window(), sort_keys=True)))
 
 
+def _pair(cfg: Any, direction: str, period_ns: int, arm: bool) -> tuple[Any, Any]:
+    """The encoder and decoder as the engine builds them for this scene (one axis, or an arm's)."""
+    if not arm:
+        return codec_pair(cfg, direction, period_ns)
+    from haptic_teleop.engine.arm_loop import arm_message_bytes
+    from haptic_teleop.engine.codec_channel import LAYOUT_ARM
+
+    return codec_pair(cfg, direction, period_ns, axes=3, size_of=arm_message_bytes, layout=LAYOUT_ARM)
+
+
+def wire_size_of(arm: bool) -> Callable[[int], int]:
+    """The engine's message size of a codec payload of F values (`arm`: in an arm scene)."""
+    if not arm:
+        return message_bytes
+    from haptic_teleop.engine.arm_loop import arm_message_bytes
+
+    return arm_message_bytes
+
+
 def _prefixed(side: str, obj: Any) -> dict[str, Any]:
     return {f"{side}_{k}": v for k, v in getattr(obj, "counters", {}).items()}
 
@@ -203,8 +233,8 @@ class CodecSender:
         assert kind is not None
         self.kind, self.direction = kind, direction
         self.period_ns = round(cfg.scene.period_s * 1e9)
-        self.encoder, _ = codec_pair(cfg, direction, self.period_ns)
-        self.wire = CodecWire()
+        self.encoder, _ = _pair(cfg, direction, self.period_ns, cfg.is_arm)
+        self.wire = CodecWire(cfg.is_arm)
         self._send = raw_publish_fn(node.create_publisher(JointState, sent_topic(direction), stream_qos(READER_DEPTH)))
         self._acks = None
         if kind == "arq":
@@ -241,7 +271,9 @@ class CodecReceiver:
     relay delivered into `receive` (its acknowledgements, ARQ, onto /<direction>/ack/sent), then
     `sample(n)`, the remote sample of this tick."""
 
-    def __init__(self, node: Any, direction: str, cfg: Any) -> None:
+    def __init__(self, node: Any, direction: str, cfg: Any, arm: bool = False) -> None:
+        """`arm`: an arm scene (the buffer node reads only the scene's network sections: its
+        `task_axes` tells)."""
         from sensor_msgs.msg import JointState
 
         from haptic_teleop.nodes.messages import raw_publish_fn
@@ -251,8 +283,9 @@ class CodecReceiver:
         assert kind is not None
         self.kind, self.direction = kind, direction
         self.period_ns = round(cfg.scene.period_s * 1e9)
-        _, self.decoder = codec_pair(cfg, direction, self.period_ns)
-        self.wire = CodecWire()
+        _, self.decoder = _pair(cfg, direction, self.period_ns, arm)
+        self.wire = CodecWire(arm)
+        self._size_of = wire_size_of(arm)
         self._ack = (
             raw_publish_fn(node.create_publisher(JointState, ack_sent_topic(direction), stream_qos(READER_DEPTH)))
             if kind == "arq"
@@ -283,7 +316,7 @@ class CodecReceiver:
                 self.malformed += 1
                 continue
             seq = stamp // period
-            back = dec.receive(Packet(seq, stamp, payload, message_bytes(len(payload)), stamp_ns), stamp_ns)
+            back = dec.receive(Packet(seq, stamp, payload, self._size_of(len(payload)), stamp_ns), stamp_ns)
             arrived(seq)
             if seq > self.newest_seq:
                 self.newest_seq = rx = seq
@@ -317,6 +350,10 @@ def codec_run_facts(cfg: Any, encoder: dict[str, Any], decoder: dict[str, Any]) 
         if missing:
             facts["counters_missing"] = ",".join(missing)
         out[f"codec_{d}"] = facts
-    if out:
+    if out and cfg.is_arm:
+        from haptic_teleop.engine.arm_loop import wire_payload_bytes
+
+        out["codec_plain_bytes"] = {"forward": wire_payload_bytes(3, 2), "backward": wire_payload_bytes(3, 3)}
+    elif out:
         out["codec_plain_bytes"] = {"forward": joint_state_size(2), "backward": joint_state_size(3)}
     return out

@@ -124,15 +124,16 @@ class MasterEba(LiveNode):
 
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.nodes.arm_side import ArmEbaSide
-        from haptic_teleop.nodes.codec_stage import check_live_codec
+        from haptic_teleop.nodes.codec_stage import CodecSender
 
-        check_live_codec(f"parameters of node {self.get_name()}", cfg, "forward")
         if self.source != "plant":
             raise ConfigError(
                 f"parameters of node {self.get_name()}", "device.source", self.source,
                 "an arm scene runs its simulated device only for now; allowed: plant",
             )  # fmt: skip
         self.arm = arm = ArmEbaSide(self, "master", cfg)
+        # the forward encoder (nodes/codec_stage.py), on the arm tick's payload (x[3], v[3])
+        self.codec = CodecSender(self, "forward", cfg) if cfg.network.forward.codec is not None else None
         self.side = arm
         self.plant = arm.plant
         self.command_out = None
@@ -158,7 +159,10 @@ class MasterEba(LiveNode):
         x = maps.to_task_x(x_dev)
         v = maps.to_task_v(v_dev)
         tau = arm.torque(x, v, stamp_ns)
-        arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (*x.tolist(), *v.tolist()))
+        else:
+            arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
         hand = take_latest(self._hand_sub)
         if hand is not None:
             self._hand_dev = maps.force_to_master(np.asarray(self._read_hand(hand)[1]))

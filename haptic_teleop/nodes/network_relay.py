@@ -50,7 +50,6 @@ from typing import Any
 
 from haptic_teleop.core.link import Packet
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
-from haptic_teleop.engine.codec_channel import message_bytes
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.nodes import NVE_SCENE_SECTIONS, RELAY_SCENE_STARTS, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
@@ -198,16 +197,19 @@ class NetworkRelay(LiveNode):
         self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
         self.codec_wire: Any = None
+        self._codec_size: Any = None
         if self.carries != "samples":
-            if nve_direction(d) is not None or axes != 1:
+            if nve_direction(d) is not None:
                 raise ConfigError(
                     f"parameters of node {self.get_name()}", "carries", self.carries,
-                    "codec packets and acknowledgements are relayed for one-axis teleoperation scenes only; "
+                    "codec packets and acknowledgements are relayed for teleoperation's directions only; "
                     "allowed: samples",
                 )  # fmt: skip
-            from haptic_teleop.nodes.codec_stage import CodecWire
+            from haptic_teleop.nodes.codec_stage import CodecWire, wire_size_of
 
-            self.codec_wire = CodecWire()
+            # task_axes 3: an arm scene's codec message (nodes/codec_stage.py)
+            self.codec_wire = CodecWire(arm=axes == 3)
+            self._codec_size = wire_size_of(axes == 3)
         # The link's random streams are named by the direction: "forward", "backward" as the
         # engine's; "<client>/up", "<client>/down" as the NVE engine's (nve_assembly.build_direction);
         # an ack relay's "<direction>:ack" as the engine's ACK link (engine/codec_channel.py), over
@@ -256,7 +258,7 @@ class NetworkRelay(LiveNode):
         try:
             if self.codec_wire is not None:
                 stamp, payload = self.codec_wire.decode(msg)
-                size = message_bytes(len(payload))
+                size = self._codec_size(len(payload))
             else:
                 stamp, payload = self._read(msg)
         except (IndexError, ValueError):  # not this direction's layout: drop it, say so once

@@ -31,10 +31,11 @@ class SlaveEba(LiveNode):
         self.arm: Any = None
         if cfg.is_arm:  # the slave arm in-process, the engine's slave half of the arm tick
             from haptic_teleop.nodes.arm_side import ArmEbaSide
-            from haptic_teleop.nodes.codec_stage import check_live_codec
+            from haptic_teleop.nodes.codec_stage import CodecSender
 
-            check_live_codec(f"parameters of node {self.get_name()}", cfg, "backward")
             self.arm = self.side = ArmEbaSide(self, "slave", cfg)
+            # the backward encoder (nodes/codec_stage.py), on the arm tick's payload (x[3], v[3], f[3])
+            self.codec = CodecSender(self, "backward", cfg) if cfg.network.backward.codec is not None else None
             self.plant = self.arm.plant
             self.setup_loop(round(self.arm.period_s * 1e9))  # the side's own period (slave.period_s), else the scene's
             if self.arm.hardware:
@@ -74,7 +75,10 @@ class SlaveEba(LiveNode):
         q, qd, x, v = arm.read_point()
         f_env, t_env = plant.contact_wrench()
         tau = arm.torque(x, v, stamp_ns)
-        arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+        else:
+            arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
         applied = arm.step(tau)
         arm.applied(applied)
         arm.publish("/slave/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))

@@ -88,7 +88,7 @@ class SyncBuffer(LiveNode):
         if nve_direction(d) is None and direction_config(cfg, d).codec is not None:
             from haptic_teleop.nodes.codec_stage import CodecReceiver
 
-            self.codec = CodecReceiver(self, d, cfg)
+            self.codec = CodecReceiver(self, d, cfg, arm=axes == 3)
         self.setup_loop(period_ns)
         policy = direction_config(cfg, d).buffer.policy
         what = f"codec {self.codec.kind}" if self.codec is not None else f"policy {policy}"
