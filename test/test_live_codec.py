@@ -260,7 +260,7 @@ FWD, BWD = "network.forward", "network.backward"
 BAD = [
     ("network_relay", ("carries:=everything",), ("carries", "samples")),
     ("network_relay", ("direction:=alice/up", "carries:=ack"), ("direction", "forward or backward")),
-    ("network_relay", ("direction:=forward", "carries:=codec", "task_axes:=3"), ("carries", "one-axis")),
+    ("network_relay", ("direction:=alice/up", "nve.client_names:=[alice]", "carries:=codec"), ("carries", "teleop")),
     ("sync_buffer", ("direction:=forward", f"{FWD}.codec.kind:=zip"), (f"{FWD}.codec", "kind")),
     ("sync_buffer", ("direction:=forward", f"{FWD}.codec.kind:=deadband", f"{FWD}.codec.deadband:=-1.0"), ("in [0",)),
     ("master_eba", (f"{FWD}.codec.kind:=arq", f"{FWD}.buffer.policy:=fixed"), ("buffer.policy none",)),

@@ -38,6 +38,7 @@ RELAY_CARRIES = ("samples", "codec", "ack")
 _FIELDS = ("position", "velocity", "effort")
 _NAME = re.compile(r"c(\d{3})(?:_\d{3}|\d{2})\Z")
 COUNTERS_EVERY_S = 0.5
+FINAL_ACK_S = 2.0  # at close, the last counters' wait for the recorder's acknowledgement
 SNAPSHOT_TICKS = 5000  # counter snapshots kept while scene time 0 is not known yet
 
 
@@ -192,8 +193,14 @@ class WindowCounters:
             base = self.base if self.base is not None else cur  # not started yet: nothing counted
         return {k: v - base.get(k, 0) for k, v in cur.items() if isinstance(v, (int, float))}
 
-    def publish(self) -> None:
+    def publish(self, final: bool = False) -> None:
+        """`final` (at close): wait until the recorder acknowledged it (at most FINAL_ACK_S), so the
+        last counters are not lost with this node's writer."""
         self._pub.publish(self._string(data=json.dumps(self.window(), sort_keys=True)))
+        if final:
+            from rclpy.duration import Duration
+
+            self._pub.wait_for_all_acked(Duration(nanoseconds=round(FINAL_ACK_S * 1e9)))
 
 
 def _pair(cfg: Any, direction: str, period_ns: int, arm: bool) -> tuple[Any, Any]:
@@ -263,7 +270,7 @@ class CodecSender:
             self.packets += 1
 
     def close(self) -> None:
-        self.window.publish()
+        self.window.publish(final=True)
 
 
 class CodecReceiver:
@@ -328,7 +335,7 @@ class CodecReceiver:
         return dec.sample(stamp_ns // period, stamp_ns), rx
 
     def close(self) -> None:
-        self.window.publish()
+        self.window.publish(final=True)
 
 
 def codec_run_facts(cfg: Any, encoder: dict[str, Any], decoder: dict[str, Any]) -> dict[str, Any]:
