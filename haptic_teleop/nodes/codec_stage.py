@@ -101,7 +101,7 @@ class CodecWire:
         m = deserialize_message(raw, JointState)
         match = _NAME.match(m.name[0]) if len(m.name) else None
         if match is None:
-            raise ValueError("not a codec packet (joint names cFFF_iii)")
+            raise ValueError("not a codec packet (joint names cFFF_iii, an arm scene's cFFFii)")
         f = int(match.group(1))
         values = (*m.position, *m.velocity, *m.effort)
         if len(values) < f:
