@@ -214,7 +214,7 @@ def test_live_arm_deadband_sends_the_engines_arm_messages_and_reduces_as_the_eng
     the engine's, the contact force comes back. The band is wider than the one-axis case's: the
     forward deadband fires on the handle's 3-D velocity, which the operator's hand force, reaching
     the master over DDS a tick early or late, perturbs more (live 0.69-0.74 forward against the
-    engine's 0.81 in three runs here; backward 0.78-0.79 against 0.77)."""
+    engine's 0.81 in four runs here; backward 0.78-0.80 against 0.77)."""
     live, eng = arm_runs["live"], arm_runs["engine"]
     print(live["launch"].loop_table())
     _clean_exit(live, NODES)
