@@ -39,8 +39,12 @@ SIDES = ("all", "master", "slave")
 DEVICES = ("plant", "topic")
 # Which side of a two-host setup each node belongs to: relays sit on the sending side, sync
 # buffers on the receiving side.
-MASTER_SIDE = ("clock_source", "operator_source", "master_eba", "forward_relay", "backward_buffer", "recorder")
-SLAVE_SIDE = ("slave_eba", "backward_relay", "forward_buffer")
+# An ack relay (ARQ) sits on the side that sends the acknowledgements: the receiving side's.
+MASTER_SIDE = (
+    "clock_source", "operator_source", "master_eba", "forward_relay", "backward_buffer", "backward_ack_relay",
+    "recorder",
+)  # fmt: skip
+SLAVE_SIDE = ("slave_eba", "backward_relay", "forward_buffer", "forward_ack_relay")
 STOP_TIMEOUT_S = 10.0
 RECORDER_STOP_TIMEOUT_S = 60.0
 EXIT_OK = 0
@@ -160,17 +164,11 @@ def node_plan(
         return nve_plan(scene, record_dir, side, device, sim_time_rate)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
-    for d in ("forward", "backward"):
-        codec = getattr(scene.config.network, d).codec
-        if codec is not None:  # the relays come later (docs/codec.md, "In the channels")
-            from haptic_teleop.errors import ConfigError
+    # The codec stage live (docs/live.md, "Codecs live"): what the nodes do not run is refused here,
+    # one line, before anything starts.
+    from haptic_teleop.nodes.codec_stage import check_live_codec
 
-            raise ConfigError(
-                scene.source,
-                f"network.{d}.codec",
-                codec.kind,
-                "the live nodes run no codec yet (the codec stage runs in `haptic-teleop run`); leave it out",
-            )
+    codecs = {d: check_live_codec(scene.source, scene.config, d) for d in ("forward", "backward")}
     if device != "plant" and scene.config.is_arm:
         from haptic_teleop.errors import ConfigError
 
@@ -207,11 +205,17 @@ def node_plan(
     relay_start = {} if device == "plant" else {"scene_start": "first_sample"}
     # An arm scene's payloads carry one value per task axis and field (docs/live.md, "Arm scenes").
     axes = {"task_axes": 3} if scene.config.is_arm else {}
+    reverse = {"forward": "backward", "backward": "forward"}
     for d in ("forward", "backward"):
-        relay = {"direction": d, **relay_start, **axes, **scene_params(scene, "network_relay", d)}
+        carries = {"carries": "codec"} if codecs[d] is not None else {}
+        relay = {"direction": d, **carries, **relay_start, **axes, **scene_params(scene, "network_relay", d)}
         plan.append(NodeSpec(f"{d}_relay", "network_relay", relay))
         buffer = {"direction": d, **axes, **scene_params(scene, "sync_buffer", d)}
         plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", buffer))
+        if codecs[d] == "arq":  # its acknowledgements, over the reverse direction's effects
+            effects = scene_params(scene, "network_relay", reverse[d])
+            ack = {"direction": d, "carries": "ack", **relay_start, **axes, **effects}
+            plan.append(NodeSpec(f"{d}_ack_relay", "network_relay", ack))
     if record_dir is not None:
         plan.append(
             NodeSpec(

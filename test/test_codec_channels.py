@@ -262,10 +262,29 @@ def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFix
     assert code == 2 and "a codec is named on the forward link (fec)" in line
 
 
-def test_launch_refuses_a_codec() -> None:
+def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:
+    """The live nodes run deadband, prediction, fec and arq (docs/live.md, "Codecs live"); hli and
+    a codec on an arm scene whose side has its own period are refused with one line."""
     from haptic_teleop.launcher import node_plan
 
     scene = load_scene(find_scene("wall_contact"), overrides=[_codec("backward", "{kind: prediction}")])
-    with pytest.raises(ConfigError, match=r"network\.backward\.codec.*the live nodes run no codec yet"):
-        node_plan(scene)
+    relay = next(s for s in node_plan(scene) if s.name == "backward_relay")
+    assert relay.params["carries"] == "codec"
+    hli = load_scene(
+        find_scene("wall_contact"),
+        overrides=[
+            _codec("forward", "{kind: hli}"),
+            "network.forward.effects.loss={model: gilbert, p: 0.01, r: 0.5}",
+        ],
+    )
+    with pytest.raises(ConfigError, match=r"network\.forward\.codec.*runs in `haptic-teleop run` only"):
+        node_plan(hli)
+    arm = load_scene(find_scene("touch_ur5e_wall"), overrides=[_codec("forward", "{kind: arq}")])
+    plan = {s.name: s for s in node_plan(arm)}
+    assert plan["forward_ack_relay"].params["task_axes"] == 3 and plan["forward_relay"].params["carries"] == "codec"
+    own = load_scene(
+        find_scene("touch_ur5e_wall"), overrides=[_codec("forward", "{kind: deadband}"), "slave.period_s=0.002"]
+    )
+    with pytest.raises(ConfigError, match=r"network\.forward\.codec.*slave\.period_s\) runs no codec live yet"):
+        node_plan(own)
     assert node_plan(load_scene(find_scene("wall_contact")))  # without one: the node set

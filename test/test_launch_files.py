@@ -165,3 +165,27 @@ def test_hardware_variant_runs_an_arm_scene_on_its_backends_with_set_overrides(t
     with pytest.raises(ConfigError) as exc:
         plan_from_arguments({"scene": "touch_dynamixel_wall", "set": "slave.backend=dynamixel"}, "topic", tmp_path)
     assert "slave.hardware.port" in str(exc.value)
+
+
+def test_a_codec_scene_plans_the_same_processes_in_the_launch_file_and_the_launcher(tmp_path):
+    """ARQ on the forward direction (docs/live.md, "Codecs live"): the codec direction's relay
+    carries codec packets, an ack relay over the backward effects is added (only for ARQ), on the
+    slave's side of a two-host setup; the launch file's plan is the launcher's."""
+    sets = ["network.forward.codec.kind=arq", "network.backward.codec.kind=deadband"]
+    pairs = plan_from_arguments({"scene": "wall_contact", "set": ";".join(sets)}, "plant", tmp_path)
+    scene = load_scene(find_scene("wall_contact"), overrides=sets)
+    want = node_plan(scene)
+    assert [s for s, _ in pairs] == want
+    by_name = {s.name: s for s in want}
+    assert "forward_ack_relay" in by_name and "backward_ack_relay" not in by_name
+    ack = by_name["forward_ack_relay"].params
+    assert ack["carries"] == "ack" and ack["direction"] == "forward"
+    assert list(ack["network"]) == ["backward"]  # the reverse direction's effects
+    assert by_name["forward_relay"].params["carries"] == "codec"
+    assert by_name["backward_relay"].params["carries"] == "codec"
+    assert by_name["master_eba"].params["network"]["forward"]["codec"]["kind"] == "arq"
+    assert by_name["backward_buffer"].params["network"]["backward"]["codec"]["kind"] == "deadband"
+    slave = node_plan(scene, side="slave")
+    assert "forward_ack_relay" in {s.name for s in slave}
+    plain = node_plan(load_scene(find_scene("wall_contact")))
+    assert all("carries" not in s.params and "_ack_" not in s.name for s in plain)

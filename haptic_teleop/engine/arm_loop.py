@@ -57,6 +57,14 @@ def wire_payload_bytes(names: int, fields: int) -> int:
     return len(bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState")))
 
 
+def arm_message_bytes(floats: int) -> int:
+    """Wire message of an arm scene's codec packet carrying `floats` values: the JointState of one
+    name per task axis (more names when the payload needs them, three values a name), so the
+    plain payloads (6 forward, 9 backward) have the plain arm packet's size (docs/codec.md)."""
+    names = max(3, -(-floats // 3))
+    return wire_payload_bytes(names, -(-floats // names))
+
+
 class _SideTick:
     """One side's per-tick arithmetic (law, saturation, motor room, bound) for the Python loop."""
 

@@ -219,6 +219,24 @@ def _codec_pair(
     raise ValueError(f"unknown codec kind {c.kind!r}")
 
 
+def codec_pair(
+    c: Scene,
+    direction: str,
+    period_ns: int,
+    axes: int = 1,
+    size_of: Callable[[int], int] = message_bytes,
+    layout: dict[str, tuple[str, ...]] | None = None,
+) -> tuple[Any, Any]:
+    """The encoder and the decoder of `direction`'s codec, as `build_codec_channels` builds them
+    (the live nodes run them apart: the encoder in the sending node, the decoder in the receiving
+    side's buffer node; nodes/codec_stage.py)."""
+    d: ChannelDirectionConfig = getattr(c.network, direction)
+    if d.codec is None:
+        raise ValueError(f"network.{direction} names no codec")
+    layout = LAYOUT_ONE_AXIS if layout is None else layout
+    return _codec_pair(d, layout[direction], direction, axes, period_ns, size_of)
+
+
 def build_codec_channels(
     c: Scene,
     period_ns: int,

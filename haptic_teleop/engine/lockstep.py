@@ -193,9 +193,7 @@ class Engine:
 
         # The codec stage (docs/codec.md, "In the channels"): a codec payload's message is the
         # JointState of one name per task axis (more names when the payload needs them).
-        def arm_size_of(floats: int) -> int:
-            names = max(3, -(-floats // 3))
-            return wire_payload_bytes(names, -(-floats // names))
+        from haptic_teleop.engine.arm_loop import arm_message_bytes
 
         self.codecs = build_codec_channels(
             self.scene.config,
@@ -203,7 +201,7 @@ class Engine:
             self.forward,
             self.backward,
             axes=3,
-            size_of=arm_size_of,
+            size_of=arm_message_bytes,
             layout=LAYOUT_ARM,
         )
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.

@@ -24,10 +24,33 @@ SCENE_SECTIONS = {
     # samples come from the workspace, the operator's speed and every force limit (engine.remote_limits).
     # Arm scenes: both EBA nodes and the operator build the scene's arm parts (the workspace
     # mapping's default offset comes from both arms' start points).
-    "master_eba": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
-    "slave_eba": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
+    # Each EBA node reads the codec of the direction it sends (its encoder, nodes/codec_stage.py)
+    # with that direction's buffer (a codec needs buffer.policy none); the sync buffer, the codec
+    # of its direction (its decoder).
+    "master_eba": (
+        "scene",
+        "operator",
+        "master",
+        "slave",
+        "simulation",
+        "controllers",
+        "mapping",
+        "network.forward.buffer",
+        "network.forward.codec",
+    ),
+    "slave_eba": (
+        "scene",
+        "operator",
+        "master",
+        "slave",
+        "simulation",
+        "controllers",
+        "mapping",
+        "network.backward.buffer",
+        "network.backward.codec",
+    ),
     "network_relay": ("scene", "network.{direction}.effects"),
-    "sync_buffer": ("scene", "network.{direction}.buffer"),
+    "sync_buffer": ("scene", "network.{direction}.buffer", "network.{direction}.codec"),
     "operator_source": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
     "recorder": ("",),
     "clock_source": ("scene",),

@@ -103,7 +103,13 @@ class MasterEba(LiveNode):
             self._read_device = JointStateReader(("position", "velocity"))  # a driver's layout: deserialized
             self.command_out = WrenchOut(self, command_topic, MASTER_JOINT, self.command_qos)
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
-        self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
+        self.codec: Any = None
+        if cfg.network.forward.codec is not None:  # the forward encoder (nodes/codec_stage.py)
+            from haptic_teleop.nodes.codec_stage import CodecSender
+
+            self.codec = CodecSender(self, "forward", cfg)
+        else:
+            self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"device {self.source}, period {cfg.scene.period_s * 1e3:g} ms, watchdog bound "
@@ -118,6 +124,7 @@ class MasterEba(LiveNode):
 
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.nodes.arm_side import ArmEbaSide
+        from haptic_teleop.nodes.codec_stage import CodecSender
 
         if self.source != "plant":
             raise ConfigError(
@@ -125,6 +132,8 @@ class MasterEba(LiveNode):
                 "an arm scene runs its simulated device only for now; allowed: plant",
             )  # fmt: skip
         self.arm = arm = ArmEbaSide(self, "master", cfg)
+        # the forward encoder (nodes/codec_stage.py), on the arm tick's payload (x[3], v[3])
+        self.codec = CodecSender(self, "forward", cfg) if cfg.network.forward.codec is not None else None
         self.side = arm
         self.plant = arm.plant
         self.command_out = None
@@ -150,7 +159,10 @@ class MasterEba(LiveNode):
         x = maps.to_task_x(x_dev)
         v = maps.to_task_v(v_dev)
         tau = arm.torque(x, v, stamp_ns)
-        arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (*x.tolist(), *v.tolist()))
+        else:
+            arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
         hand = take_latest(self._hand_sub)
         if hand is not None:
             self._hand_dev = maps.force_to_master(np.asarray(self._read_hand(hand)[1]))
@@ -177,7 +189,10 @@ class MasterEba(LiveNode):
                 return  # no device yet: nothing to control
             x, v = [self._device[0]], [self._device[1]]
         f = self.side.step(x, v, stamp_ns)
-        self.forward_out.publish(stamp_ns, (x[0], v[0]))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (x[0], v[0]))  # the codec's sample layout (x_m, v_m)
+        else:
+            self.forward_out.publish(stamp_ns, (x[0], v[0]))
         if self.plant is not None:
             applied = self.plant.step(f, [self._hand_n])
             self.side.applied(applied)
@@ -193,6 +208,8 @@ class MasterEba(LiveNode):
 
     def close(self) -> None:
         super().close()
+        if getattr(self, "codec", None) is not None:
+            self.codec.close()
         if self.arm is not None:
             self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
         elif self.plant is not None:

@@ -31,6 +31,14 @@ The fate of every packet of scene time >= 0 goes out in batches on /<direction>/
 (reliable), in the bag's row layout (`record.layouts.packet_rows`): seq = the sample's stamp /
 period (the node clock's tick, which the sync buffers' decisions name too; the recorder
 subtracts the scene start's), send and arrival times in scene seconds (the link's own).
+
+Parameter `carries` (docs/live.md, "Codecs live"): `samples` (the default) relays the direction's
+plain samples; `codec` its codec's packets (nodes/codec_stage.py's wire message: each packet
+relayed as its own message, retransmissions of one seq included, size the engine's
+`message_bytes`); `ack` the acknowledgements of the direction's codec (ARQ): from
+/<direction>/ack/sent to /<direction>/ack/delivered over the reverse direction's effects (the scene
+sections it reads are the reverse direction's), random streams "<direction>:ack" as the engine's ACK
+link, not recorded (the engine counts acknowledgements, it does not record them).
 """
 
 from __future__ import annotations
@@ -105,9 +113,12 @@ def declare_task_axes(node: LiveNode) -> int:
     )  # fmt: skip
 
 
-def declare_direction_scene(node: LiveNode, executable: str, extra_names: Sequence[str] = ()) -> tuple[str, Any]:
+def declare_direction_scene(
+    node: LiveNode, executable: str, extra_names: Sequence[str] = (), sections_of: str | None = None
+) -> tuple[str, Any]:
     """The node's `direction` parameter and the scene sections `executable` reads for it
-    (`extra_names`: the node's other own parameters). A direction is teleoperation's `forward` or
+    (`extra_names`: the node's other own parameters; `sections_of`: "reverse" reads the reverse
+    direction's sections, an ack relay's). A direction is teleoperation's `forward` or
     `backward`, or an NVE client's `<client>/up` or `<client>/down`."""
     d = str(
         declare_value(
@@ -119,8 +130,14 @@ def declare_direction_scene(node: LiveNode, executable: str, extra_names: Sequen
     if problem is not None:
         raise ConfigError(f"parameters of node {node.get_name()}", "direction", d, problem)
     nd = nve_direction(d)
+    if sections_of == "reverse" and nd is not None:
+        raise ConfigError(
+            f"parameters of node {node.get_name()}", "direction", d,
+            "acknowledgements are relayed for teleoperation's codecs only; allowed: forward or backward",
+        )  # fmt: skip
     if nd is None:
-        sections = [s.format(direction=d) for s in SCENE_SECTIONS[executable]]
+        of = {"forward": "backward", "backward": "forward"}[d] if sections_of == "reverse" else d
+        sections = [s.format(direction=of) for s in SCENE_SECTIONS[executable]]
     else:
         sections = [s.format(client=nd[0], link=nd[1]) for s in NVE_SCENE_SECTIONS[executable]]
     return d, declare_scene(node, sections, ("direction", *extra_names))
@@ -144,10 +161,22 @@ class NetworkRelay(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray, Header
 
+        from haptic_teleop.nodes.codec_stage import RELAY_CARRIES, ack_delivered_topic, ack_sent_topic
         from haptic_teleop.record.layouts import joint_state_size
         from haptic_teleop.traces import build_scene_link
 
-        d, cfg = declare_direction_scene(self, "network_relay", ("scene_start", TASK_AXES_PARAM))
+        self.carries = str(
+            declare_value(
+                self, "carries", "samples",
+                "samples: the direction's plain samples; codec: its codec's packets; ack: its codec's "
+                "acknowledgements, over the reverse direction's effects",
+                choices=RELAY_CARRIES,
+            )
+        )  # fmt: skip
+        ack = self.carries == "ack"
+        d, cfg = declare_direction_scene(
+            self, "network_relay", ("scene_start", TASK_AXES_PARAM, "carries"), "reverse" if ack else None
+        )
         self.direction = d
         axes = declare_task_axes(self)
         self.start_mode = str(
@@ -167,11 +196,31 @@ class NetworkRelay(LiveNode):
         self._settled: list[Packet] = []  # settling link records of scene time >= 0, not published yet
         self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
-        effects = direction_config(cfg, d).effects
+        self.codec_wire: Any = None
+        self._codec_size: Any = None
+        if self.carries != "samples":
+            if nve_direction(d) is not None:
+                raise ConfigError(
+                    f"parameters of node {self.get_name()}", "carries", self.carries,
+                    "codec packets and acknowledgements are relayed for teleoperation's directions only; "
+                    "allowed: samples",
+                )  # fmt: skip
+            from haptic_teleop.nodes.codec_stage import CodecWire, wire_size_of
+
+            # task_axes 3: an arm scene's codec message (nodes/codec_stage.py)
+            self.codec_wire = CodecWire(arm=axes == 3)
+            self._codec_size = wire_size_of(axes == 3)
         # The link's random streams are named by the direction: "forward", "backward" as the
-        # engine's; "<client>/up", "<client>/down" as the NVE engine's (nve_assembly.build_direction).
-        self.link = build_scene_link(effects, cfg.scene.seed, d)  # scene time, from 0
-        self.settling = build_scene_link(settling_effects(effects), cfg.scene.seed, f"{d}:settling")  # node clock
+        # engine's; "<client>/up", "<client>/down" as the NVE engine's (nve_assembly.build_direction);
+        # an ack relay's "<direction>:ack" as the engine's ACK link (engine/codec_channel.py), over
+        # the reverse direction's effects.
+        stream = f"{d}:ack" if ack else d
+        rev = {"forward": "backward", "backward": "forward"}
+        effects = direction_config(cfg, rev[d] if ack else d).effects
+        self.link = build_scene_link(effects, cfg.scene.seed, stream)  # scene time, from 0
+        self.settling = build_scene_link(settling_effects(effects), cfg.scene.seed, f"{stream}:settling")  # node clock
+        in_topic = ack_sent_topic(d) if ack else sent_topic(d)
+        out_topic = ack_delivered_topic(d) if ack else delivered_topic(d)
         self.wire = w = wire_of(d, axes)
         self._fields = w.want
         self._read = JointStateReader(w.want, [(w.names, w.fields)], w.width)
@@ -188,42 +237,53 @@ class NetworkRelay(LiveNode):
         self.delivered = 0
         self.malformed = 0
         # Forwards the sent bytes; rebuilds a message whose original is no longer kept.
-        self._rebuild = JointStateOut(self, delivered_topic(d), w.names, w.fields)
+        self._rebuild = JointStateOut(
+            self, out_topic, w.names, w.fields, stream_qos(READER_DEPTH) if self.codec_wire is not None else None
+        )
         self._axes = axes
-        self._packets_pub = self.create_publisher(Float64MultiArray, packets_topic(d), reliable_qos(100))
-        self.add_event_subscription(JointState, sent_topic(d), stream_qos(READER_DEPTH), self._on_sent, raw=True)
+        self._packets_pub = (
+            None if ack else self.create_publisher(Float64MultiArray, packets_topic(d), reliable_qos(100))
+        )
+        self.add_event_subscription(JointState, in_topic, stream_qos(READER_DEPTH), self._on_sent, raw=True)
         # Packet fates go out ten times a second: small batches, no long tick.
         self._batch_ticks = max(1, round(0.1e9 / period_ns))
         self.setup_loop(period_ns)
         self.get_logger().info(
-            f"{d}: {sent_topic(d)} -> {delivered_topic(d)}, effects: {[e.name for e in self.link.effects]}"
+            f"{d} ({self.carries}): {in_topic} -> {out_topic}, effects: {[e.name for e in self.link.effects]}"
         )
 
     def _on_sent(self, msg: bytes, now: int) -> None:
         """`msg`: the sent JointState's bytes, forwarded unchanged when the network delivers it."""
+        size = self._size
         try:
-            stamp, payload = self._read(msg)
-        except IndexError:  # not this direction's layout: drop it, say so once
+            if self.codec_wire is not None:
+                stamp, payload = self.codec_wire.decode(msg)
+                size = self._codec_size(len(payload))
+            else:
+                stamp, payload = self._read(msg)
+        except (IndexError, ValueError):  # not this direction's layout: drop it, say so once
             if not self.malformed:
-                self.get_logger().warning(f"dropping messages without {self._fields} values")
+                what = "codec messages" if self.codec_wire is not None else f"{self._fields} values"
+                self.get_logger().warning(f"dropping messages that are not {what}")
             self.malformed += 1
             return
         if self._remap is not None:
             payload = self._remap(payload)
         seq = stamp // self.period_ns
-        self._msgs[seq] = msg
+        if self.codec_wire is None:  # a codec's packets are rebuilt from the link's copy (retransmissions share a seq)
+            self._msgs[seq] = msg
         self._newest = max(self._newest, seq)
         start = self.scene_start_ns
         if start is None:
             start = self._learn_start(seq)
         if start is None or seq * self.period_ns < start:  # before scene time 0, or not known yet
-            self.settling.send(Packet(seq, now, payload, self._size))
+            self.settling.send(Packet(seq, now, payload, size))
             out = self.settling.deliver(now)
             if out:
                 self._publish(out, scene=False)
             return
         t = now - start
-        self.link.send(Packet(seq, t, payload, self._size))
+        self.link.send(Packet(seq, t, payload, size))
         out = self.link.deliver(t)
         if out:
             self._publish(out)
@@ -268,7 +328,11 @@ class NetworkRelay(LiveNode):
 
     def _publish(self, packets: list[Any], scene: bool = True) -> None:
         msgs = self._msgs
+        wire = self.codec_wire
         for p in packets:
+            if wire is not None:
+                self._rebuild.publish_raw(wire.encode(p.seq * self.period_ns, p.payload))
+                continue
             m = msgs.get(p.seq)
             if m is not None:
                 self._rebuild.publish_raw(m)
@@ -306,7 +370,7 @@ class NetworkRelay(LiveNode):
         if len(self._msgs) > _KEEP_TICKS:
             for seq in [s for s in self._msgs if s < horizon]:
                 del self._msgs[seq]
-        if not log:
+        if not log or self._packets_pub is None:  # an ack relay's packets are not recorded
             return
         rows = packet_rows(log)
         for start in range(0, rows.shape[0], PACKET_BATCH):

@@ -31,6 +31,12 @@ An NVE scene (docs/live.md, "NVE scenes live") is recorded the same way with its
 state, the release ticks of each client's up and down sync buffers (`<c>.up_rx_seq`,
 `<c>.down_rx_seq`), the packets and buffer decisions of every `<client>/up|down` direction; the
 grid's end is set by the object and the clients' HIP streams, scene time 0 by the server's start.
+
+A direction with a codec (docs/live.md, "Codecs live"): its packet records are the encoder's packets
+(the relay carries nothing else), decided "played" by the decoder as they arrive; the codec's
+counters come from the encoder's and the decoder's nodes (/<direction>/codec/encoder, /decoder:
+std_msgs/String, JSON, latched, over the scene's window) and go into the run facts `codec_<direction>`
+with `codec_plain_bytes`, as the engine writes them (engine/lockstep.py, `codec_facts`).
 """
 
 from __future__ import annotations
@@ -278,6 +284,17 @@ class Recorder(LiveNode):
         from std_msgs.msg import Header
 
         self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
+        # The codec stage's counters (nodes/codec_stage.py), latched: taken at close.
+        self._codec_subs: dict[tuple[str, str], Any] = {}
+        if not cfg.is_nve:
+            from haptic_teleop.nodes.codec_stage import counters_topic
+
+            for d in DIRECTIONS:
+                if getattr(cfg.network, d).codec is not None:
+                    for side in ("encoder", "decoder"):
+                        self._codec_subs[(d, side)] = self.create_polled_subscription(
+                            String, counters_topic(d, side), latched_qos()
+                        )
         topics = list(self._subs)
         self._poll_groups = [topics[i::POLL_GROUPS] for i in range(POLL_GROUPS)]
         self._decode_every = max(1, round(DECODE_EVERY_S / (cfg.scene.period_s * TAKE_EVERY)))
@@ -545,6 +562,22 @@ class Recorder(LiveNode):
             raise
         self.get_logger().info(f"bag written: {path}")
 
+    def _codec_facts(self) -> dict[str, Any]:
+        """`codec_<direction>` and `codec_plain_bytes` from the codec nodes' last counters."""
+        if not self._codec_subs:
+            return {}
+        from haptic_teleop.nodes.codec_stage import codec_run_facts
+
+        got: dict[str, dict[str, dict[str, Any]]] = {"encoder": {}, "decoder": {}}
+        for (d, side), sub in self._codec_subs.items():
+            msgs = take_all(sub)
+            if msgs:
+                try:
+                    got[side][d] = json.loads(msgs[-1].data)
+                except ValueError:
+                    self.get_logger().warning(f"unreadable codec counters of the {d} {side}")
+        return codec_run_facts(self.cfg, got["encoder"], got["decoder"])
+
     def finish(self) -> Path:
         """Write what is left and close the bag; returns its directory."""
         self._advance(closing=True)
@@ -570,6 +603,7 @@ class Recorder(LiveNode):
             "packets_late": dict(self.late_marked),
             "written_at_unix_s": round(time.time(), 3),
             **self.run_facts,
+            **self._codec_facts(),
         }
         path = Path(self.rec.close(info))
         (self.bag_dir.parent / "live_run.json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")

@@ -31,8 +31,11 @@ class SlaveEba(LiveNode):
         self.arm: Any = None
         if cfg.is_arm:  # the slave arm in-process, the engine's slave half of the arm tick
             from haptic_teleop.nodes.arm_side import ArmEbaSide
+            from haptic_teleop.nodes.codec_stage import CodecSender
 
             self.arm = self.side = ArmEbaSide(self, "slave", cfg)
+            # the backward encoder (nodes/codec_stage.py), on the arm tick's payload (x[3], v[3], f[3])
+            self.codec = CodecSender(self, "backward", cfg) if cfg.network.backward.codec is not None else None
             self.plant = self.arm.plant
             self.setup_loop(round(self.arm.period_s * 1e9))  # the side's own period (slave.period_s), else the scene's
             if self.arm.hardware:
@@ -51,7 +54,15 @@ class SlaveEba(LiveNode):
         self.plant = build_slave_plant(cfg)
         self.state_out = JointStateOut(self, SLAVE_STATE, SLAVE_JOINT, ("position", "velocity", "effort"))
         self.contact_out = WrenchOut(self, SLAVE_CONTACT, WALL_FRAME)
-        self.backward_out = JointStateOut(self, sent_topic("backward"), SLAVE_JOINT, ("position", "velocity", "effort"))
+        self.codec: Any = None
+        if cfg.network.backward.codec is not None:  # the backward encoder (nodes/codec_stage.py)
+            from haptic_teleop.nodes.codec_stage import CodecSender
+
+            self.codec = CodecSender(self, "backward", cfg)
+        else:
+            self.backward_out = JointStateOut(
+                self, sent_topic("backward"), SLAVE_JOINT, ("position", "velocity", "effort")
+            )
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"plant {s.backend} ({s.model}), wall at {s.wall.position_m} m, watchdog bound "
@@ -64,7 +75,10 @@ class SlaveEba(LiveNode):
         q, qd, x, v = arm.read_point()
         f_env, t_env = plant.contact_wrench()
         tau = arm.torque(x, v, stamp_ns)
-        arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+        else:
+            arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
         applied = arm.step(tau)
         arm.applied(applied)
         arm.publish("/slave/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
@@ -81,7 +95,10 @@ class SlaveEba(LiveNode):
         fenv = plant.contact_force()
         f = self.side.step(x, v, stamp_ns)
         # JointState field order (position, velocity, effort) carries the payload (f_env, x, v).
-        self.backward_out.publish(stamp_ns, (x[0], v[0], fenv[0]))
+        if self.codec is not None:
+            self.codec.send(stamp_ns, (fenv[0], x[0], v[0]))  # the codec's sample layout (f_env, x_s, v_s)
+        else:
+            self.backward_out.publish(stamp_ns, (x[0], v[0], fenv[0]))
         applied = plant.step(f)
         self.side.applied(applied)
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))
@@ -93,6 +110,8 @@ class SlaveEba(LiveNode):
 
     def close(self) -> None:
         super().close()
+        if getattr(self, "codec", None) is not None:
+            self.codec.close()
         if self.arm is not None:
             self.arm.close(self.get_logger().warning)  # the plant first (a real arm: torque off)
         else:

@@ -11,6 +11,14 @@ What the buffer decided for each packet it received goes out on /<direction>/pla
 batched ten times a second, rows [seq, fate] of std_msgs/Float64MultiArray): fate 0 played, 4
 late (arrived but skipped, the engine's LOST_LATE). The recorder applies them to the relay's
 packet records, so a live bag counts late packets as the engine's does.
+
+A direction whose scene names a codec (`network.<direction>.codec`; docs/live.md, "Codecs live")
+runs its decoder here instead of the playout buffer (the scene has `buffer.policy: none`): every
+packet delivered goes to the decoder at once (nodes/codec_stage.py's CodecReceiver), its decision
+"played" (fate 0) to /<direction>/playout, and each tick the decoder's sample for the tick goes out
+on /<direction>/received in the plain sample's layout (the receiving controller is unchanged),
+stamped with the newest arrival's seq when one newer than any before came this tick and with stamp
+0 otherwise (the recorder's release column then holds -1, as the engine's `received` column).
 """
 
 from __future__ import annotations
@@ -76,12 +84,33 @@ class SyncBuffer(LiveNode):
         self._dup_seen = 0
         self._fates_pub = self.create_publisher(Float64MultiArray, playout_topic(d), reliable_qos(100))
         self._batch_ticks = max(1, round(0.1e9 / period_ns))
+        self.codec: Any = None
+        if nve_direction(d) is None and direction_config(cfg, d).codec is not None:
+            from haptic_teleop.nodes.codec_stage import CodecReceiver
+
+            self.codec = CodecReceiver(self, d, cfg, arm=axes == 3)
         self.setup_loop(period_ns)
-        self.get_logger().info(
-            f"{d}: {delivered_topic(d)} -> {received_topic(d)}, policy {direction_config(cfg, d).buffer.policy}"
-        )
+        policy = direction_config(cfg, d).buffer.policy
+        what = f"codec {self.codec.kind}" if self.codec is not None else f"policy {policy}"
+        self.get_logger().info(f"{d}: {delivered_topic(d)} -> {received_topic(d)}, {what}")
+
+    def _codec_tick(self, index: int, stamp_ns: int) -> None:
+        decided = self._decided
+
+        def arrived(seq: int) -> None:
+            decided.extend((seq, DELIVERED))
+
+        out, rx = self.codec.tick(take_all(self._sub), stamp_ns, arrived)
+        if out is not None:
+            self.out.publish(rx * self.period_ns if rx >= 0 else 0, [out[i] for i in self._order])
+            self.released += 1
+        if index % self._batch_ticks == 0:
+            self.publish_fates()
 
     def tick(self, index: int, stamp_ns: int) -> None:
+        if self.codec is not None:
+            self._codec_tick(index, stamp_ns)
+            return
         now = self.now_ns()
         period, read, push = self.period_ns, self._read, self.buffer.push
         buf = self.buffer
@@ -147,8 +176,14 @@ class SyncBuffer(LiveNode):
     def close(self) -> None:
         super().close()
         self.publish_fates()
+        if getattr(self, "codec", None) is not None:
+            self.codec.close()
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
+        if self.codec is not None:
+            c = self.codec
+            return {"released": self.released, "late": 0, "decoded": c.decoder.counters.get("received", 0),
+                    "acks_sent": c.ack_packets}  # fmt: skip
         b = self.buffer
         return {
             "released": self.released,
