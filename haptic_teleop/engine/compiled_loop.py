@@ -76,6 +76,26 @@ def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
     return axis_kernel.run_ticks, None
 
 
+@functools.cache
+def _codec_kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
+    try:
+        from haptic_teleop.engine import codec_kernel
+    except Exception as exc:  # noqa: BLE001 - as `_kernel_or_error`
+        return None, f"the codec kernel cannot load ({type(exc).__name__}: {exc})"
+    return codec_kernel.run_ticks_codec, None
+
+
+def codec_kernel() -> Callable[..., int] | None:
+    """The compiled tick loop with the codec stage (engine/codec_kernel.py), loaded only for a
+    scene with a codec; None if it cannot load."""
+    return _codec_kernel_or_error()[0]
+
+
+def codec_kernel_error() -> str | None:
+    """Why there is no compiled codec loop on this machine, or None."""
+    return _codec_kernel_or_error()[1]
+
+
 def kernel() -> Callable[..., int] | None:
     """The compiled tick loop, built (or loaded from numba's cache) on first use; None without numba."""
     return _kernel_or_error()[0]
@@ -111,9 +131,14 @@ def mujoco_timers_off() -> Iterator[None]:
 
 def compiled_reason(engine: Engine) -> str | None:
     """Why `engine`'s scene cannot run in the compiled loop, or None if it can."""
-    for ch in getattr(engine, "codecs", (None, None)):
-        if ch is not None:
-            return f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
+    codecs = getattr(engine, "codecs", (None, None))
+    if codecs != (None, None):
+        from haptic_teleop.engine.compiled_codec import codec_reason
+
+        for ch in codecs:
+            why = None if ch is None else codec_reason(ch)
+            if why is not None:
+                return why
     from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
 
     if type(engine.master) is not MujocoDevice or type(engine.slave) is not MujocoWallRobot:
@@ -133,6 +158,8 @@ def compiled_reason(engine: Engine) -> str | None:
             return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
         if buf.extrapolates:
             return f"{name} buffer extrapolates payloads"
+    if codecs != (None, None):
+        return kernel_error() or codec_kernel_error()
     return kernel_error()
 
 
