@@ -102,6 +102,13 @@ llvm.add_symbol("mj_step", ctypes.cast(libmujoco.mj_step, ctypes.c_void_p).value
 mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
 
 jit = numba.njit(cache=True, nogil=True)
+# The tick's parts (accept2, accept3, finish_tick) are inlined into the loops that call them
+# (numba IR): a call between separately compiled functions passes every array field by value.
+inline = numba.njit(cache=True, nogil=True, inline="always")
+# The tick loop without numba's reference counting (NRT): it allocates nothing, and the array
+# views and arguments of its parts would otherwise be counted in and out with atomic operations
+# every tick (docs/performance.md).
+loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 reservoir1 = jit(eba.reservoir1)
 bounded1 = jit(eba.bounded1)
 ramp_limit1 = jit(eba.ramp_limit1)
@@ -148,7 +155,7 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
     return f, desired
 
 
-@jit  # type: ignore[misc]
+@inline  # type: ignore[misc]
 def accept2(P: np.ndarray, S: np.ndarray, a: float, b: float) -> None:
     # The slave's remote sample (x, v), through its guard (TeleopController.set_remote).
     if P[SLAVE + P_GUARD_ON] == 0.0 or within2(a, b, P[SLAVE + P_LIM0], P[SLAVE + P_LIM1]):
@@ -159,7 +166,7 @@ def accept2(P: np.ndarray, S: np.ndarray, a: float, b: float) -> None:
         S[SLAVE + S_REJECTED] += 1.0
 
 
-@jit  # type: ignore[misc]
+@inline  # type: ignore[misc]
 def accept3(P: np.ndarray, S: np.ndarray, a: float, b: float, c: float) -> None:
     # The master's remote sample (f_env, x, v), through its guard.
     if P[MASTER + P_GUARD_ON] == 0.0 or within3(a, b, c, P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]):
@@ -171,7 +178,7 @@ def accept3(P: np.ndarray, S: np.ndarray, a: float, b: float, c: float) -> None:
         S[MASTER + S_REJECTED] += 1.0
 
 
-@jit  # type: ignore[misc]
+@inline  # type: ignore[misc]
 def finish_tick(
     n: int,
     models: np.ndarray,
@@ -244,7 +251,7 @@ def finish_tick(
     row[C_BWD_OCCUPANCY] = bocc
 
 
-@jit  # type: ignore[misc]
+@loop_jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,

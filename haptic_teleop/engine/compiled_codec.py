@@ -72,16 +72,16 @@ def codec_reason(ch: CodecChannel) -> str | None:
 
 def link_reason(direction: str, link: Link) -> str | None:
     """Why the kernel cannot run `link`'s effects for a codec direction (None: it can)."""
-    allowed = "blackout, uncorrelated bernoulli or gilbert(_elliott) loss, a constant delay"
+    allowed = (
+        "compiled codec links take only blackout, uncorrelated bernoulli or gilbert(_elliott) loss and a "
+        "constant delay: effects that decide a packet's fate from its index in the stream and its send time"
+    )
     for e in link.effects:
         t = type(e)
         if t is BernoulliLoss and not e.vectorized:  # type: ignore[attr-defined]
-            return f"correlated loss on the {direction} link with a codec (compiled codec links take {allowed})"
+            return f"correlated loss on the {direction} link with a codec ({allowed})"
         if t not in (Blackout, BernoulliLoss, GilbertElliottLoss, ConstantDelay):
-            return (
-                f"effect {e.name} ({t.__name__}) on the {direction} link with a codec: its fates do not follow "
-                f"from the packet's index alone (compiled codec links take {allowed})"
-            )
+            return f"effect {e.name} ({t.__name__}) on the {direction} link with a codec ({allowed})"
     return None
 
 

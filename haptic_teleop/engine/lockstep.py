@@ -138,7 +138,7 @@ class Engine:
             if codec:
                 from haptic_teleop.engine.compiled_codec import no_codec
 
-                extra = no_codec(self.period_ns) * 2
+                extra = (*no_codec(self.period_ns), *no_codec(self.period_ns), np.zeros((3, 3)))
             self._kernel(
                 0,
                 0,
@@ -220,7 +220,8 @@ class Engine:
 
         codec_reason = next(
             (
-                f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
+                f"a codec is named on the {ch.direction} link ({ch.kind}): an arm scene's codecs run in the "
+                "Python arm loop only (the compiled codec stage is 1-DoF)"
                 for ch in self.codecs
                 if ch is not None
             ),
@@ -646,6 +647,7 @@ class Engine:
         run_ticks = self._kernel
         assert run_ticks is not None
         idle = no_codec(period_ns)
+        scratch = np.zeros((3, 3))
         done = 0
         try:
             with compiled_loop.mujoco_timers_off():
@@ -662,7 +664,7 @@ class Engine:
                                 net.ready(c1 - c0)
                         run_ticks(
                             c0, c1, *head, frel, focc, brel, bocc, hist.fwd, hist.bwd, P, S, block, w0, output.start,
-                            *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()),
+                            *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()), scratch,
                         )  # fmt: skip
                         done = self.ticks_done = c1
                         if progress is not None and done % 100 == 0:
