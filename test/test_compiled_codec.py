@@ -203,7 +203,8 @@ def test_cli_compiled_refuses_an_hli_codec_with_one_line(tmp_path):
     out = subprocess.run(
         [
             sys.executable, "-m", "haptic_teleop.cli", "run", "wall_contact", "--loop", "compiled",
-            "--out", str(tmp_path / "bag"), "--set", "scene.duration_s=0.1", "--set", "network.backward.codec={kind: fec}",
+            "--out", str(tmp_path / "bag"), "--set", "scene.duration_s=0.1",
+            "--set", "network.backward.codec={kind: fec}",
         ],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip

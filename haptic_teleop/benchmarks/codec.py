@@ -128,8 +128,8 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
             over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
         scenes[name] = load_scene(find_scene(scene_name), overrides=over)
     for loop in ("compiled", "python"):
-        for name in scenes:  # compile (or load numba's cache) before the timed runs
-            Engine(scenes[name], loop=loop)
+        for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
+            Engine(scene, loop=loop)
         for _ in range(repeat):
             for name, scene in scenes.items():
                 engine = Engine(scene, loop=loop)
