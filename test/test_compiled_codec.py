@@ -193,21 +193,3 @@ def test_arm_scene_with_a_codec_stays_on_the_python_arm_loop():
     e = Engine(scene)
     assert e.loop_kind == "python" and "arm" in e.compiled_reason
     e.close_plants()
-
-
-def test_cli_compiled_refuses_an_hli_codec_with_one_line(tmp_path):
-    """`--loop compiled` on a scene the compiled loop cannot run: exit 2, one line, no traceback."""
-    import subprocess
-    import sys
-
-    out = subprocess.run(
-        [
-            sys.executable, "-m", "haptic_teleop.cli", "run", "wall_contact", "--loop", "compiled",
-            "--out", str(tmp_path / "bag"), "--set", "scene.duration_s=0.1",
-            "--set", "network.backward.codec={kind: fec}",
-        ],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert out.returncode == 2, out.stderr
-    lines = [x for x in out.stderr.splitlines() if x.strip()]
-    assert len(lines) == 1 and "codec fec on the backward link" in lines[0] and "Traceback" not in out.stderr

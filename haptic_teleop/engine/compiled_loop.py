@@ -67,9 +67,57 @@ S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED
 S_SIZE = 32
 
 
+# The sources each compiled loop is built from (paths from this directory). numba's cache of a
+# function checks only its own file's time stamp, while a loop holds compiled copies of core's
+# functions, of the inlined tick parts and of the layout constants: when any of these files
+# changed since the cache was written, that kernel's cache is dropped first (`drop_stale_cache`).
+AXIS_SOURCES = (
+    "axis_kernel.py", "compiled_loop.py", "../core/eba.py", "../core/operator.py", "../plants/mujoco_plant.py",
+)  # fmt: skip
+CODEC_SOURCES = (
+    *AXIS_SOURCES, "codec_kernel.py", "compiled_codec.py", "../core/deadband.py", "../core/prediction.py",
+    "../core/loss.py",
+)  # fmt: skip
+
+
+def drop_stale_cache(kernel: str, sources: tuple[str, ...]) -> None:
+    """Remove numba's cached machine code of module `kernel` (engine/<kernel>.py) if any of
+    `sources` changed since it was written (a digest of them is kept beside the cache)."""
+    import glob
+    import hashlib
+    import os
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha256()
+    for name in sources:
+        with open(os.path.join(here, name), "rb") as fh:
+            digest.update(fh.read())
+    cache = os.path.join(here, "__pycache__")
+    stamp = os.path.join(cache, f"{kernel}.sources")
+    try:
+        with open(stamp) as fh:
+            if fh.read() == digest.hexdigest():
+                return
+    except OSError:
+        pass
+    found = glob.glob(os.path.join(cache, f"{kernel}.*.nb[ic]"))
+    elsewhere = os.environ.get("NUMBA_CACHE_DIR")
+    if elsewhere:  # numba's caches under another root, in a tree named after the source's path
+        found += glob.glob(os.path.join(elsewhere, "**", f"{kernel}.*.nb[ic]"), recursive=True)
+    try:
+        for path in found:
+            os.remove(path)
+        os.makedirs(cache, exist_ok=True)
+        with open(stamp, "w") as fh:
+            fh.write(digest.hexdigest())
+    except OSError:  # a read-only install: numba caches elsewhere or not at all
+        pass
+
+
 @functools.cache
 def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
     try:
+        drop_stale_cache("axis_kernel", AXIS_SOURCES)
         from haptic_teleop.engine import axis_kernel
     except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
         return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
@@ -79,6 +127,7 @@ def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
 @functools.cache
 def _codec_kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
     try:
+        drop_stale_cache("codec_kernel", CODEC_SOURCES)
         from haptic_teleop.engine import codec_kernel
     except Exception as exc:  # noqa: BLE001 - as `_kernel_or_error`
         return None, f"the codec kernel cannot load ({type(exc).__name__}: {exc})"
