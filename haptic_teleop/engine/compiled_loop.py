@@ -24,9 +24,14 @@ samples as deep as the oldest released sample needs. No array grows with the run
 The result is the same columns and packet records, bit for bit, as the Python loop
 (test_compiled_loop.py), and the same bag.
 
+A direction with a codec (deadband, prediction) cannot be decided ahead: which packets exist
+depends on the samples. Its network runs inside the kernel instead (engine/compiled_codec.py,
+engine/codec_kernel.py), for links whose effects give a packet its fate from its index and send
+time alone; a direction without a codec keeps its schedule.
+
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
-backends, operator traces, payload-changing effects (corruption), extrapolating buffers, and
-machines without numba. Arm scenes (more than one axis) have their own compiled loop,
+backends, operator traces, payload-changing effects (corruption), extrapolating buffers, other
+codecs or codec links (`compiled_codec.codec_reason`), and machines without numba. Arm scenes (more than one axis) have their own compiled loop,
 `haptic_teleop/engine/compiled_arm_loop.py`, which reuses this module's network schedule; it does not take arm
 plants with effects or another backend, the force law, an operator trace, corruption or
 extrapolating buffers either.
