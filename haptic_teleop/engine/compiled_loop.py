@@ -31,7 +31,8 @@ time alone; a direction without a codec keeps its schedule.
 
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
 backends, operator traces, payload-changing effects (corruption), extrapolating buffers, other
-codecs or codec links (`compiled_codec.codec_reason`), and machines without numba. Arm scenes (more than one axis) have their own compiled loop,
+codecs or codec links (`compiled_codec.codec_reason`), and machines without numba. Arm scenes
+(more than one axis) have their own compiled loop,
 `haptic_teleop/engine/compiled_arm_loop.py`, which reuses this module's network schedule; it does not take arm
 plants with effects or another backend, the force law, an operator trace, corruption or
 extrapolating buffers either.
