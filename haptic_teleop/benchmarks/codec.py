@@ -133,12 +133,42 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
         for _ in range(repeat):
             for name, scene in scenes.items():
                 engine = Engine(scene, loop=loop)
-                if engine.loop_kind != loop:
-                    raise RuntimeError(f"{name}: the {loop} loop cannot run it ({engine.compiled_reason})")
+                assert engine.loop_kind == loop  # `Engine(loop="compiled")` refuses with one line otherwise
                 t0 = time.process_time()
                 engine.run(handle_sigint=False)
                 rtf = engine.ticks * engine.period_s / (time.process_time() - t0)
                 out[loop][name] = max(out[loop].get(name, 0.0), rtf)
+    return out
+
+
+def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, float]:
+    """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks:
+    encoder, link, decoder; the backward direction, 3 values a sample, the scene's link), least
+    of `repeat` runs over the bench's smooth signal."""
+    from haptic_teleop.engine import codec_kernel
+    from haptic_teleop.engine.compiled_codec import CodecNet
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    signal = np.array(_signal(samples, 3))
+    out: dict[str, float] = {}
+    for name, codec in LOOP_CASES:
+        if codec is None:
+            continue
+        scene = load_scene(find_scene(scene_name), overrides=[f"network.backward.codec={codec}"])
+        engine = Engine(scene, loop="python")  # only for its codec channel
+        ch = engine.codecs[1]
+        assert ch is not None
+        best = math.inf
+        for _ in range(repeat + 1):  # the first may compile
+            net = CodecNet(ch, engine.period_ns)  # reads the channel's settings; a fresh state
+            net.ready(samples)
+            t0 = time.process_time()
+            codec_kernel.codec_ticks(*net.args(), signal, engine.period_ns, np.zeros((3, 3)))
+            best = min(best, time.process_time() - t0)
+        out[name] = best / samples * 1e9
+        engine.master.close()
+        engine.slave.close()
     return out
 
 
@@ -162,6 +192,12 @@ def main(args: argparse.Namespace) -> int:
         c, p = rtf["compiled"][name], rtf["python"][name]
         c0, p0 = rtf["compiled"]["no codec"], rtf["python"]["no codec"]
         print(f"{name:40s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
+    print()
+    reps = max(args.repeat, 5)
+    ns = compiled_codec_ns(args.scene, args.samples, reps)
+    print(f"one direction's compiled codec stage alone (3 values a sample, the scene's link; least of {reps}):")
+    for name, value in ns.items():
+        print(f"  {name:40s} {value:6.1f} ns per tick")
     print()
     ref = {loop: tick_us(args.scene, loop, args.seconds, args.repeat) for loop in ("python", "compiled")}
     py, comp = min(ref["python"]), min(ref["compiled"])

@@ -443,3 +443,30 @@ def run_ticks_codec(
             fm, m_desired, fs, s_desired, frx, brx, focc, bocc,
         )  # fmt: skip
     return n1
+
+
+@loop_jit  # type: ignore[misc]
+def codec_ticks(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    samples: np.ndarray,
+    period_ns: int,
+    scratch: np.ndarray,
+) -> int:
+    """One direction's codec stage alone over `samples` (a row a tick): what it costs a tick
+    (`bench codec`). Returns the ticks with a remote sample."""
+    smp = scratch[0]
+    rate = scratch[1]
+    out = scratch[2]
+    got_ticks = 0
+    for n in range(samples.shape[0]):
+        for i in range(samples.shape[1]):
+            smp[i] = samples[n, i]
+        _rx, got = codec_tick(C, S, U, B, ring, rec, n, n * period_ns, smp, rate, out)
+        if got:
+            got_ticks += 1
+    return got_ticks
