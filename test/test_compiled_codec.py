@@ -148,6 +148,34 @@ def test_compiled_codec_equals_python_loop(case):
     assert len(rows) == e.ticks and np.ptp(rows[:, COL["s_x_m"]]) > 1e-3
 
 
+OTHER_NETWORKS = {
+    # the direction without a codec ticked through the Python objects (jitter, a fixed buffer)
+    "ticked_other_direction": [
+        f"network.forward.codec={LAST_TWO}",
+        "network.backward.effects.delay.jitter_s=0.005",
+        "network.backward.buffer.policy=fixed",
+    ],
+    # delays longer than a block: records wait several blocks, the in-flight ring is 2048 deep
+    "long_delays": [
+        "scene.duration_s=3.0",
+        f"network.forward.codec={PREDICTION}",
+        f"network.backward.codec={HOLD}",
+        "network.forward.effects.delay.delay_s=1.5",
+        "network.backward.effects.delay.delay_s=1.3",
+        f"network.backward.effects.loss={BERNOULLI}",
+    ],
+}
+
+
+@pytest.mark.parametrize("case", sorted(OTHER_NETWORKS))
+def test_compiled_codec_beside_other_networks(case):
+    scene = _scene(["scene.duration_s=1.5", *MOVING, *OTHER_NETWORKS[case]])
+    compiled, python = _run(scene, "compiled"), _run(scene, "python")
+    _assert_same(compiled, python)
+    kinds = [k for k, _ in compiled[2].calls]
+    assert kinds.count("rows") >= 2 and {"forward", "backward"} <= set(kinds)
+
+
 def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     """Stopped at the same tick, both loops hand over the same columns and packet records."""
     scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
