@@ -1,6 +1,6 @@
 """The compiled 1-DoF loop with the codec stage (numba), imported only when a scene with a codec
-runs compiled (engine/compiled_codec.py has the design and the arrays' layouts), so codec-less
-runs never compile or load it.
+runs compiled, so codec-less runs never compile or load it (engine/compiled_codec.py has the
+design, engine/codec_layout.py the arrays' layouts).
 
 The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `accept2`, `accept3`,
 `finish_tick`); a direction with a codec replaces its schedule lookup by `codec_tick`, which is
@@ -17,8 +17,8 @@ import numpy as np
 from haptic_teleop.core import deadband as db
 from haptic_teleop.core import loss
 from haptic_teleop.core import prediction as pr
-from haptic_teleop.engine.axis_kernel import accept2, accept3, control, finish_tick
-from haptic_teleop.engine.compiled_codec import (
+from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
+from haptic_teleop.engine.codec_layout import (
     C_DELAY_NS,
     C_DIM,
     C_EXTRAP,
@@ -81,7 +81,6 @@ from haptic_teleop.engine.compiled_codec import (
     S_STALE,
     S_U,
 )
-from haptic_teleop.engine.compiled_loop import MASTER, S_CONTACT, SLAVE
 
 jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")  # as axis_kernel's tick parts

@@ -81,7 +81,7 @@ AXIS_SOURCES = (
     "axis_kernel.py", "compiled_loop.py", "../core/eba.py", "../core/operator.py", "../plants/mujoco_plant.py",
 )  # fmt: skip
 CODEC_SOURCES = (
-    *AXIS_SOURCES, "codec_kernel.py", "compiled_codec.py", "../core/deadband.py", "../core/prediction.py",
+    *AXIS_SOURCES, "codec_kernel.py", "codec_layout.py", "../core/deadband.py", "../core/prediction.py",
     "../core/loss.py",
 )  # fmt: skip
 
