@@ -219,7 +219,7 @@ def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
         _codec("backward", "{kind: fec, k: 1}"),
     ]
     scene = load_scene(find_scene("touch_ur5e_wall"), overrides=overrides)
-    with pytest.raises(InputError, match="a codec is named on the forward link"):
+    with pytest.raises(InputError, match=r"a codec is named on the forward link.*Python arm loop only"):
         Engine(scene, loop="compiled")
     bag = tmp_path / "bag"
     engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True)
@@ -250,7 +250,7 @@ def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
 def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     pytest.importorskip("numba")
     scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1", _codec("forward", "{kind: fec}")])
-    with pytest.raises(InputError, match="a codec is named on the forward link"):
+    with pytest.raises(InputError, match="codec fec on the forward link runs in the Python loop only"):
         Engine(scene, loop="compiled")
     e = Engine(scene, loop="auto")
     assert e.loop_kind == "python" and "codec" in (e.compiled_reason or "")
@@ -259,7 +259,7 @@ def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFix
     argv = ["run", "wall_contact", "--loop", "compiled", "--out", str(tmp_path / "o")]
     code = main([*argv, "--set", "scene.duration_s=0.1", "--set", _codec("forward", "{kind: fec}")])
     line = _one_line(capsys.readouterr().err)
-    assert code == 2 and "a codec is named on the forward link (fec)" in line
+    assert code == 2 and "codec fec on the forward link runs in the Python loop only" in line
 
 
 def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:

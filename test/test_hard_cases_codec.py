@@ -5,7 +5,8 @@ Each case is test/test_hard_cases.py's bursty-loss case (Gilbert-Elliott, 50 % l
 20 ms each way, the stiff coupling; wall 5 mm ahead, the operator pushing from 0.2 s) with a
 codec on both directions: a coarse deadband (p = 40 %, hold and extrapolation), HLI's
 priority-based filtering, FEC (repetition and parity) and ARQ (seed 000's two settings). Recorded
-to a real bag and analysed from it. Run:
+to a real bag and analysed from it. The deadband cases run in the compiled loop (`--loop auto`
+picks it), one of them in the Python loop too. Run:
 `.venv/bin/python -m pytest -q -p no:cacheprovider test/test_hard_cases_codec.py`.
 """
 
@@ -58,6 +59,7 @@ class Case:
     name: str
     codec: str
     check: Callable[[dict[str, Any], dict[str, Any]], None]  # (summary with codec keys, run facts)
+    loop: str = "auto"  # `--loop auto` runs a deadband compiled (docs/codec.md, "Compiled"), the rest in Python
 
 
 def _deadband(s: dict[str, Any], info: dict[str, Any]) -> None:
@@ -91,6 +93,7 @@ def _arq(s: dict[str, Any], info: dict[str, Any]) -> None:
 CASES = (
     Case("deadband_40pct_hold", "{kind: deadband, deadband: 0.4}", _deadband),
     Case("deadband_40pct_extrapolate", "{kind: deadband, deadband: 0.4, reconstruction: extrapolate}", _deadband),
+    Case("deadband_40pct_hold_python", "{kind: deadband, deadband: 0.4}", _deadband, loop="python"),
     Case("hli", "{kind: hli}", _hli),
     Case("fec_repetition", "{kind: fec, scheme: repetition, k: 2}", _fec),
     Case("fec_parity_wait", "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}", _fec),
@@ -116,8 +119,9 @@ def _record(case: Case, root: Path) -> Run:
     scene = load_scene(find_scene("wall_contact"), overrides=overrides)
     bag = root / case.name / "bag"
     bag.parent.mkdir(parents=True)
-    engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True)
-    assert engine.loop_kind == "python"
+    engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True, loop=case.loop)
+    compiled = case.loop == "auto" and "deadband" in case.codec
+    assert engine.loop_kind == ("compiled" if compiled else "python"), engine.compiled_reason
     summary, signals = analyze_bag(bag)
     summary = {**summary, **{k: v for k, v in summarize_bag(bag).items() if k.startswith("codec_")}}
     with BagReader(bag) as r:

@@ -8,6 +8,11 @@ process's CPU time per sample (least and median of `--repeat` runs), and the sam
 reference measured in the same run: one tick of the Python loop and of the compiled loop on the
 bench scene (no recording). A channel codes two streams per tick (forward and backward), so the
 codec's share of a tick is twice its cost per sample over the tick's.
+
+First, the codec stage in the loop itself: the real-time factor of the compiled and the Python
+loop on the scene with each compiled codec (deadband and prediction; `LOOP_CASES`) named on both
+directions, against the same loop without a codec, measured in the same run (best of at least 5,
+interleaved). Issue 13's budget: within 10 % of the codec-less run.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import numpy as np
 
 from haptic_teleop.benchmarks import add_scene_argument, positive
 
-HELP = "what each codec (deadband, HLI, prediction, FEC, ARQ) costs per sample, against a bare tick"
+HELP = "what each codec costs per sample against a bare tick, and in the loop (real-time factor with and without)"
 PERIOD_NS = 1_000_000
 
 
@@ -94,6 +99,79 @@ def tick_us(scene_name: str, loop: str, seconds: float, repeat: int) -> list[flo
     return out[-repeat:]
 
 
+# The codec stage in the loop: each case names the same codec on both directions of the scene.
+LOOP_CASES: tuple[tuple[str, str | None], ...] = (
+    ("no codec", None),
+    ("deadband 10 %, hold", "{kind: deadband, deadband: 0.1}"),
+    ("deadband 10 %, extrapolate (sent rate)", "{kind: deadband, deadband: 0.1, reconstruction: extrapolate}"),
+    (
+        "deadband 10 %, extrapolate (last two)",
+        "{kind: deadband, deadband: 0.1, reconstruction: extrapolate, extrapolate_from: last_two}",
+    ),
+    ("deadband 5 %, adaptive, floor", "{kind: deadband, deadband: 0.05, adaptive_gain: 10, min_threshold: 0.001}"),
+    ("prediction", "{kind: prediction}"),
+)
+
+
+def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str, float]]:
+    """Real-time factor (scene time over this process's CPU time of the run, nothing recorded) of
+    each `LOOP_CASES` case in each loop, the largest of `repeat` runs; the cases' runs are
+    interleaved so that a slow minute of the machine hits them alike."""
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    out: dict[str, dict[str, float]] = {"compiled": {}, "python": {}}
+    scenes = {}
+    for name, codec in LOOP_CASES:
+        over = [f"scene.duration_s={seconds}"]
+        if codec is not None:
+            over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
+        scenes[name] = load_scene(find_scene(scene_name), overrides=over)
+    for loop in ("compiled", "python"):
+        for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
+            Engine(scene, loop=loop)
+        for _ in range(repeat):
+            for name, scene in scenes.items():
+                engine = Engine(scene, loop=loop)
+                assert engine.loop_kind == loop  # `Engine(loop="compiled")` refuses with one line otherwise
+                t0 = time.process_time()
+                engine.run(handle_sigint=False)
+                rtf = engine.ticks * engine.period_s / (time.process_time() - t0)
+                out[loop][name] = max(out[loop].get(name, 0.0), rtf)
+    return out
+
+
+def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, float]:
+    """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks:
+    encoder, link, decoder; the backward direction, 3 values a sample, the scene's link), least
+    of `repeat` runs over the bench's smooth signal."""
+    from haptic_teleop.engine import codec_kernel
+    from haptic_teleop.engine.compiled_codec import CodecNet
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    signal = np.array(_signal(samples, 3))
+    out: dict[str, float] = {}
+    for name, codec in LOOP_CASES:
+        if codec is None:
+            continue
+        scene = load_scene(find_scene(scene_name), overrides=[f"network.backward.codec={codec}"])
+        engine = Engine(scene, loop="python")  # only for its codec channel
+        ch = engine.codecs[1]
+        assert ch is not None
+        best = math.inf
+        for _ in range(repeat + 1):  # the first may compile
+            net = CodecNet(ch, engine.period_ns)  # reads the channel's settings; a fresh state
+            net.ready(samples)
+            t0 = time.process_time()
+            codec_kernel.codec_ticks(*net.args(), signal, engine.period_ns, np.zeros((3, 3)))
+            best = min(best, time.process_time() - t0)
+        out[name] = best / samples * 1e9
+        engine.master.close()
+        engine.slave.close()
+    return out
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_scene_argument(p, help="the scene whose tick is the reference (default wall_contact)")
     p.add_argument("--samples", type=positive(int), default=20_000, help="samples per case (default 20000)")
@@ -102,6 +180,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    rtf = loop_rtf(args.scene, args.seconds, max(args.repeat, 5))
+    print(
+        f"the codec stage in the loop ({args.scene}, the codec on both directions, {args.seconds:g} s, "
+        f"no recording; real-time factor, best of {max(args.repeat, 5)}):"
+    )
+    head = f"{'case':40s} {'compiled RTF':>12s} {'/ no codec':>10s} {'Python RTF':>10s} {'/ no codec':>10s}"
+    print(head)
+    print("-" * len(head))
+    for name, _ in LOOP_CASES:
+        c, p = rtf["compiled"][name], rtf["python"][name]
+        c0, p0 = rtf["compiled"]["no codec"], rtf["python"]["no codec"]
+        print(f"{name:40s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
+    print()
+    reps = max(args.repeat, 5)
+    ns = compiled_codec_ns(args.scene, args.samples, reps)
+    print(f"one direction's compiled codec stage alone (3 values a sample, the scene's link; least of {reps}):")
+    for name, value in ns.items():
+        print(f"  {name:40s} {value:6.1f} ns per tick")
+    print()
     ref = {loop: tick_us(args.scene, loop, args.seconds, args.repeat) for loop in ("python", "compiled")}
     py, comp = min(ref["python"]), min(ref["compiled"])
     print(

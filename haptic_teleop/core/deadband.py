@@ -136,16 +136,35 @@ def _dist(a: Sequence[float], b: Sequence[float]) -> float:
     return math.dist(a, b)
 
 
+# The per-sample formulas as scalar functions of floats: the one definition the classes below use
+# and that the compiled loop compiles (engine/codec_kernel.py), as core/eba.py's scalar functions.
+
+
+def deadband_p(p0: float, adaptive_gain: float, max_deadband: float, speed: float) -> float:
+    """p(v) = min(p0 (1 + alpha |v|), max_deadband), the velocity-adaptive deadband (alpha > 0)."""
+    return min(p0 * (1.0 + adaptive_gain * abs(speed)), max_deadband)
+
+
+def outside(distance: float, norm_last: float, p: float, min_threshold: float) -> bool:
+    """The deadzone test from |v_i - v_c| and |v_i|: |v_i - v_c| > max(p |v_i|, min_threshold)."""
+    return distance > max(p * norm_last, min_threshold)
+
+
+def extrapolated(x: float, rate_per_tick: float, ahead_ticks: float) -> float:
+    """The receiver's linear extrapolation of one value `ahead_ticks` past its sample."""
+    return x + rate_per_tick * ahead_ticks
+
+
 def effective_deadband(cfg: DeadbandConfig, speed: float) -> float:
     """p(v): p0 without the adaptive option, else min(p0 (1 + alpha |v|), max_deadband)."""
     if cfg.adaptive_gain == 0.0:
         return cfg.deadband
-    return min(cfg.deadband * (1.0 + cfg.adaptive_gain * abs(speed)), cfg.max_deadband)
+    return deadband_p(cfg.deadband, cfg.adaptive_gain, cfg.max_deadband, speed)
 
 
 def violates(last_sent: Sequence[float], current: Sequence[float], p: float, min_threshold: float = 0.0) -> bool:
     """The deadzone test: |v_i - v_c| > max(p |v_i|, min_threshold)."""
-    return _dist(last_sent, current) > max(p * _norm(last_sent), min_threshold)
+    return outside(_dist(last_sent, current), _norm(last_sent), p, min_threshold)
 
 
 class DeadbandEncoder:
@@ -282,7 +301,7 @@ class DeadbandDecoder:
             ahead = self._max_ahead_ticks  # past the cap: hold the value reached there
         else:
             self.counters["extrapolated"] += 1
-        return tuple(xi + ri * ahead for xi, ri in zip(x, rate, strict=True))
+        return tuple(extrapolated(xi, ri, ahead) for xi, ri in zip(x, rate, strict=True))
 
 
 class DeadbandCodec(NamedTuple):

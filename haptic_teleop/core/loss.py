@@ -91,6 +91,18 @@ class BernoulliLoss:
         return None
 
 
+def gilbert_step(
+    bad: bool, move: float, u: float, p: float, r: float, loss_bad: float, loss_good: float
+) -> tuple[bool, bool]:
+    """One packet of the Gilbert-Elliott chain from its two uniforms (the transition's `move`,
+    then the loss draw `u`): (the state after it, whether the packet is lost). The loss uses the
+    state the packet met; then good->bad with p, bad->good with r. One definition for
+    `GilbertElliottLoss` and the compiled loop (engine/codec_kernel.py)."""
+    if bad:
+        return move >= r, u < loss_bad
+    return move < p, u < loss_good
+
+
 class GilbertElliottLoss:
     """2-state Markov loss (netem `loss gemodel p r 1-h 1-k`).
 
@@ -114,14 +126,7 @@ class GilbertElliottLoss:
     def apply(self, packet: Packet) -> Packet | None:
         u = self._u
         move = u()
-        if self.bad:
-            lost = u() < self.loss_bad
-            if move < self.r:
-                self.bad = False
-        else:
-            lost = u() < self.loss_good
-            if move < self.p:
-                self.bad = True
+        self.bad, lost = gilbert_step(self.bad, move, u(), self.p, self.r, self.loss_bad, self.loss_good)
         if lost and packet.fate == DELIVERED:
             packet.fate = LOST_NETWORK
             self.dropped += 1

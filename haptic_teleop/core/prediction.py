@@ -68,6 +68,11 @@ def _check(name: str, value: object, meta: Mapping[str, Any]) -> None:
             raise ValueError(f"{name} must be > {gt} and < {lt}, got {value}")
 
 
+def extrapolate1(a: float, b: float, ahead: int, span: int) -> float:
+    """One value's linear extrapolation: b at tick t, a at t - span, to tick t + ahead."""
+    return b + (b - a) * (ahead / span)
+
+
 def extrapolate(
     prev_seq: int, prev: Sample, last_seq: int, last: Sample, target_seq: int, max_ahead_ticks: int
 ) -> Sample:
@@ -76,8 +81,8 @@ def extrapolate(
     if not prev_seq < last_seq:
         raise ValueError(f"prev_seq ({prev_seq}) must be before last_seq ({last_seq})")
     ahead = min(target_seq - last_seq, max_ahead_ticks)
-    k = ahead / (last_seq - prev_seq)
-    return tuple(b + (b - a) * k for a, b in zip(prev, last, strict=True))
+    span = last_seq - prev_seq
+    return tuple(extrapolate1(a, b, ahead, span) for a, b in zip(prev, last, strict=True))
 
 
 class Reconstructor:

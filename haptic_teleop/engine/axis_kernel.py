@@ -102,6 +102,13 @@ llvm.add_symbol("mj_step", ctypes.cast(libmujoco.mj_step, ctypes.c_void_p).value
 mj_step = types.ExternalFunction("mj_step", types.void(types.intp, types.intp))
 
 jit = numba.njit(cache=True, nogil=True)
+# The tick's parts (accept2, accept3, finish_tick) are inlined into the loops that call them
+# (numba IR): a call between separately compiled functions passes every array field by value.
+inline = numba.njit(cache=True, nogil=True, inline="always")
+# The tick loop without numba's reference counting (NRT): it allocates nothing, and the array
+# views and arguments of its parts would otherwise be counted in and out with atomic operations
+# every tick (docs/performance.md).
+loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 reservoir1 = jit(eba.reservoir1)
 bounded1 = jit(eba.bounded1)
 ramp_limit1 = jit(eba.ramp_limit1)
@@ -148,7 +155,103 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
     return f, desired
 
 
-@jit  # type: ignore[misc]
+@inline  # type: ignore[misc]
+def accept2(P: np.ndarray, S: np.ndarray, a: float, b: float) -> None:
+    # The slave's remote sample (x, v), through its guard (TeleopController.set_remote).
+    if P[SLAVE + P_GUARD_ON] == 0.0 or within2(a, b, P[SLAVE + P_LIM0], P[SLAVE + P_LIM1]):
+        S[SLAVE + S_HAS_REMOTE] = 1.0
+        S[SLAVE + S_R0] = a
+        S[SLAVE + S_R1] = b
+    else:
+        S[SLAVE + S_REJECTED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def accept3(P: np.ndarray, S: np.ndarray, a: float, b: float, c: float) -> None:
+    # The master's remote sample (f_env, x, v), through its guard.
+    if P[MASTER + P_GUARD_ON] == 0.0 or within3(a, b, c, P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]):
+        S[MASTER + S_HAS_REMOTE] = 1.0
+        S[MASTER + S_R0] = a
+        S[MASTER + S_R1] = b
+        S[MASTER + S_R2] = c
+    else:
+        S[MASTER + S_REJECTED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def finish_tick(
+    n: int,
+    models: np.ndarray,
+    mctrl: np.ndarray,
+    sctrl: np.ndarray,
+    sqfrc: np.ndarray,
+    P: np.ndarray,
+    S: np.ndarray,
+    row: np.ndarray,
+    x_m: float,
+    v_m: float,
+    x_s: float,
+    v_s: float,
+    f_env: float,
+    fm: float,
+    m_desired: float,
+    fs: float,
+    s_desired: float,
+    frx: float,
+    brx: float,
+    focc: float,
+    bocc: float,
+) -> None:
+    # The tick after the controllers and the network: operator, plants, the tick's row.
+    tau = n * P[P_PERIOD_S] - P[OP + P_START]
+    profile = P[OP + P_PROFILE]
+    if profile == 0.0:
+        xd, vd = push1(tau, P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END])
+    elif profile == 1.0:
+        xd, vd = sinusoid1(tau, P[OP + P_X0], P[OP + P_AMP], P[OP + P_W])
+    else:
+        xd, vd = P[OP + P_X0], 0.0
+    fh = hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
+    fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
+    S[MASTER + S_HELD] = fm_applied  # EnergyBound.applied1: the reservoir accounts with it
+    mctrl[0] = fh
+    mctrl[1] = fm_applied
+    for _ in range(int(P[MASTER + P_SUBSTEPS])):
+        mj_step(models[0], models[1])
+    fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
+    S[SLAVE + S_HELD] = fs_applied
+    sctrl[0] = fs_applied
+    s_steps = int(P[SLAVE + P_SUBSTEPS])
+    if s_steps == 1:
+        mj_step(models[2], models[3])
+        S[SLAVE + S_CONTACT] = 0.0 + sqfrc[0]
+    else:
+        acc = 0.0
+        for _ in range(s_steps):
+            mj_step(models[2], models[3])
+            acc += sqfrc[0]
+        S[SLAVE + S_CONTACT] = acc / s_steps
+    row[C_OP_X_M] = xd
+    row[C_OP_V_M_PER_S] = vd
+    row[C_OP_FORCE_N] = fh
+    row[C_M_X_M] = x_m
+    row[C_M_V_M_PER_S] = v_m
+    row[C_M_FORCE_N] = fm_applied
+    row[C_M_FORCE_DESIRED_N] = m_desired
+    row[C_M_ENERGY_J] = S[MASTER + S_ENERGY]
+    row[C_S_X_M] = x_s
+    row[C_S_V_M_PER_S] = v_s
+    row[C_S_FORCE_N] = fs_applied
+    row[C_S_FORCE_DESIRED_N] = s_desired
+    row[C_S_ENERGY_J] = S[SLAVE + S_ENERGY]
+    row[C_S_CONTACT_N] = f_env
+    row[C_FWD_RX_SEQ] = frx
+    row[C_BWD_RX_SEQ] = brx
+    row[C_FWD_OCCUPANCY] = focc
+    row[C_BWD_OCCUPANCY] = bocc
+
+
+@loop_jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,
@@ -174,11 +277,8 @@ def run_ticks(
 ) -> int:
     # fwd_rel, fwd_occ, bwd_rel, bwd_occ hold the window of ticks from w0 on; data the block of
     # ticks from d0 on; the histories are rings (a power of two deep) indexed by seq.
-    period_s = P[P_PERIOD_S]
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
-    m_steps = int(P[MASTER + P_SUBSTEPS])
-    s_steps = int(P[SLAVE + P_SUBSTEPS])
     for n in range(n0, n1):
         x_m = mq[0]
         v_m = mv[0]
@@ -191,14 +291,7 @@ def run_ticks(
         fwd_hist[n & fmask, 1] = v_m
         frx = fwd_rel[n - w0]
         if frx >= 0:
-            a = fwd_hist[frx & fmask, 0]
-            b = fwd_hist[frx & fmask, 1]
-            if P[SLAVE + P_GUARD_ON] == 0.0 or within2(a, b, P[SLAVE + P_LIM0], P[SLAVE + P_LIM1]):
-                S[SLAVE + S_HAS_REMOTE] = 1.0
-                S[SLAVE + S_R0] = a
-                S[SLAVE + S_R1] = b
-            else:
-                S[SLAVE + S_REJECTED] += 1.0
+            accept2(P, S, fwd_hist[frx & fmask, 0], fwd_hist[frx & fmask, 1])
         # slave
         fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
         bwd_hist[n & bmask, 0] = f_env
@@ -206,65 +299,12 @@ def run_ticks(
         bwd_hist[n & bmask, 2] = v_s
         brx = bwd_rel[n - w0]
         if brx >= 0:
-            a = bwd_hist[brx & bmask, 0]
-            b = bwd_hist[brx & bmask, 1]
-            c = bwd_hist[brx & bmask, 2]
-            if P[MASTER + P_GUARD_ON] == 0.0 or within3(
-                a, b, c, P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]
-            ):
-                S[MASTER + S_HAS_REMOTE] = 1.0
-                S[MASTER + S_R0] = a
-                S[MASTER + S_R1] = b
-                S[MASTER + S_R2] = c
-            else:
-                S[MASTER + S_REJECTED] += 1.0
-        # operator and plants
-        tau = n * period_s - P[OP + P_START]
-        profile = P[OP + P_PROFILE]
-        if profile == 0.0:
-            xd, vd = push1(tau, P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END])
-        elif profile == 1.0:
-            xd, vd = sinusoid1(tau, P[OP + P_X0], P[OP + P_AMP], P[OP + P_W])
-        else:
-            xd, vd = P[OP + P_X0], 0.0
-        fh = hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
-        fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
-        S[MASTER + S_HELD] = fm_applied  # EnergyBound.applied1: the reservoir accounts with it
-        mctrl[0] = fh
-        mctrl[1] = fm_applied
-        for _ in range(m_steps):
-            mj_step(models[0], models[1])
-        fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
-        S[SLAVE + S_HELD] = fs_applied
-        sctrl[0] = fs_applied
-        if s_steps == 1:
-            mj_step(models[2], models[3])
-            S[SLAVE + S_CONTACT] = 0.0 + sqfrc[0]
-        else:
-            acc = 0.0
-            for _ in range(s_steps):
-                mj_step(models[2], models[3])
-                acc += sqfrc[0]
-            S[SLAVE + S_CONTACT] = acc / s_steps
-        row = data[n - d0]
-        row[C_OP_X_M] = xd
-        row[C_OP_V_M_PER_S] = vd
-        row[C_OP_FORCE_N] = fh
-        row[C_M_X_M] = x_m
-        row[C_M_V_M_PER_S] = v_m
-        row[C_M_FORCE_N] = fm_applied
-        row[C_M_FORCE_DESIRED_N] = m_desired
-        row[C_M_ENERGY_J] = S[MASTER + S_ENERGY]
-        row[C_S_X_M] = x_s
-        row[C_S_V_M_PER_S] = v_s
-        row[C_S_FORCE_N] = fs_applied
-        row[C_S_FORCE_DESIRED_N] = s_desired
-        row[C_S_ENERGY_J] = S[SLAVE + S_ENERGY]
-        row[C_S_CONTACT_N] = f_env
-        row[C_FWD_RX_SEQ] = frx
-        row[C_BWD_RX_SEQ] = brx
-        row[C_FWD_OCCUPANCY] = fwd_occ[n - w0]
-        row[C_BWD_OCCUPANCY] = bwd_occ[n - w0]
+            accept3(P, S, bwd_hist[brx & bmask, 0], bwd_hist[brx & bmask, 1], bwd_hist[brx & bmask, 2])
+        # operator, plants, the row
+        finish_tick(
+            n, models, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
+            fm, m_desired, fs, s_desired, frx, brx, fwd_occ[n - w0], bwd_occ[n - w0],
+        )  # fmt: skip
     return n1
 
 

@@ -40,35 +40,9 @@ _SOURCES = ("arm_kernel.py", "axis_kernel.py", "../core/eba.py", "../core/tasksp
 
 
 def _drop_stale_cache() -> None:
-    import glob
-    import hashlib
-    import os
+    from haptic_teleop.engine.compiled_loop import drop_stale_cache
 
-    here = os.path.dirname(os.path.abspath(__file__))
-    digest = hashlib.sha256()
-    for name in _SOURCES:
-        with open(os.path.join(here, name), "rb") as fh:
-            digest.update(fh.read())
-    cache = os.path.join(here, "__pycache__")
-    stamp = os.path.join(cache, "arm_kernel.sources")
-    try:
-        with open(stamp) as fh:
-            if fh.read() == digest.hexdigest():
-                return
-    except OSError:
-        pass
-    found = glob.glob(os.path.join(cache, "arm_kernel.*.nb[ic]"))
-    elsewhere = os.environ.get("NUMBA_CACHE_DIR")
-    if elsewhere:  # numba's caches under another root, in a tree named after the source's path
-        found += glob.glob(os.path.join(elsewhere, "**", "arm_kernel.*.nb[ic]"), recursive=True)
-    try:
-        for path in found:
-            os.remove(path)
-        os.makedirs(cache, exist_ok=True)
-        with open(stamp, "w") as fh:
-            fh.write(digest.hexdigest())
-    except OSError:  # a read-only install: numba caches elsewhere or not at all
-        pass
+    drop_stale_cache("arm_kernel", _SOURCES)
 
 
 @functools.cache

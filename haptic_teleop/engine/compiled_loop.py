@@ -24,9 +24,15 @@ samples as deep as the oldest released sample needs. No array grows with the run
 The result is the same columns and packet records, bit for bit, as the Python loop
 (test_compiled_loop.py), and the same bag.
 
+A direction with a codec (deadband, prediction) cannot be decided ahead: which packets exist
+depends on the samples. Its network runs inside the kernel instead (engine/compiled_codec.py,
+engine/codec_kernel.py), for links whose effects give a packet its fate from its index and send
+time alone; a direction without a codec keeps its schedule.
+
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
-backends, operator traces, payload-changing effects (corruption), extrapolating buffers, and
-machines without numba. Arm scenes (more than one axis) have their own compiled loop,
+backends, operator traces, payload-changing effects (corruption), extrapolating buffers, other
+codecs or codec links (`compiled_codec.codec_reason`), and machines without numba. Arm scenes
+(more than one axis) have their own compiled loop,
 `haptic_teleop/engine/compiled_arm_loop.py`, which reuses this module's network schedule; it does not take arm
 plants with effects or another backend, the force law, an operator trace, corruption or
 extrapolating buffers either.
@@ -67,13 +73,82 @@ S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED
 S_SIZE = 32
 
 
+# The sources each compiled loop is built from (paths from this directory). numba's cache of a
+# function checks only its own file's time stamp, while a loop holds compiled copies of core's
+# functions, of the inlined tick parts and of the layout constants: when any of these files
+# changed since the cache was written, that kernel's cache is dropped first (`drop_stale_cache`).
+AXIS_SOURCES = (
+    "axis_kernel.py", "compiled_loop.py", "../core/eba.py", "../core/operator.py", "../plants/mujoco_plant.py",
+)  # fmt: skip
+CODEC_SOURCES = (
+    *AXIS_SOURCES, "codec_kernel.py", "codec_layout.py", "../core/deadband.py", "../core/prediction.py",
+    "../core/loss.py",
+)  # fmt: skip
+
+
+def drop_stale_cache(kernel: str, sources: tuple[str, ...]) -> None:
+    """Remove numba's cached machine code of module `kernel` (engine/<kernel>.py) if any of
+    `sources` changed since it was written (a digest of them is kept beside the cache)."""
+    import glob
+    import hashlib
+    import os
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha256()
+    for name in sources:
+        with open(os.path.join(here, name), "rb") as fh:
+            digest.update(fh.read())
+    cache = os.path.join(here, "__pycache__")
+    stamp = os.path.join(cache, f"{kernel}.sources")
+    try:
+        with open(stamp) as fh:
+            if fh.read() == digest.hexdigest():
+                return
+    except OSError:
+        pass
+    found = glob.glob(os.path.join(cache, f"{kernel}.*.nb[ic]"))
+    elsewhere = os.environ.get("NUMBA_CACHE_DIR")
+    if elsewhere:  # numba's caches under another root, in a tree named after the source's path
+        found += glob.glob(os.path.join(elsewhere, "**", f"{kernel}.*.nb[ic]"), recursive=True)
+    try:
+        for path in found:
+            os.remove(path)
+        os.makedirs(cache, exist_ok=True)
+        with open(stamp, "w") as fh:
+            fh.write(digest.hexdigest())
+    except OSError:  # a read-only install: numba caches elsewhere or not at all
+        pass
+
+
 @functools.cache
 def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
     try:
+        drop_stale_cache("axis_kernel", AXIS_SOURCES)
         from haptic_teleop.engine import axis_kernel
     except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
         return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
     return axis_kernel.run_ticks, None
+
+
+@functools.cache
+def _codec_kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
+    try:
+        drop_stale_cache("codec_kernel", CODEC_SOURCES)
+        from haptic_teleop.engine import codec_kernel
+    except Exception as exc:  # noqa: BLE001 - as `_kernel_or_error`
+        return None, f"the codec kernel cannot load ({type(exc).__name__}: {exc})"
+    return codec_kernel.run_ticks_codec, None
+
+
+def codec_kernel() -> Callable[..., int] | None:
+    """The compiled tick loop with the codec stage (engine/codec_kernel.py), loaded only for a
+    scene with a codec; None if it cannot load."""
+    return _codec_kernel_or_error()[0]
+
+
+def codec_kernel_error() -> str | None:
+    """Why there is no compiled codec loop on this machine, or None."""
+    return _codec_kernel_or_error()[1]
 
 
 def kernel() -> Callable[..., int] | None:
@@ -111,9 +186,14 @@ def mujoco_timers_off() -> Iterator[None]:
 
 def compiled_reason(engine: Engine) -> str | None:
     """Why `engine`'s scene cannot run in the compiled loop, or None if it can."""
-    for ch in getattr(engine, "codecs", (None, None)):
-        if ch is not None:
-            return f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
+    codecs = getattr(engine, "codecs", (None, None))
+    if codecs != (None, None):
+        from haptic_teleop.engine.compiled_codec import codec_reason
+
+        for ch in codecs:
+            why = None if ch is None else codec_reason(ch)
+            if why is not None:
+                return why
     from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
 
     if type(engine.master) is not MujocoDevice or type(engine.slave) is not MujocoWallRobot:
@@ -133,6 +213,8 @@ def compiled_reason(engine: Engine) -> str | None:
             return f"{name} link corrupts payloads (the schedule must not depend on what packets carry)"
         if buf.extrapolates:
             return f"{name} buffer extrapolates payloads"
+    if codecs != (None, None):
+        return kernel_error() or codec_kernel_error()
     return kernel_error()
 
 

@@ -128,11 +128,17 @@ class Engine:
             )
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
-            self._kernel = compiled_loop.kernel()
+            codec = self.codecs != (None, None)
+            self._kernel = compiled_loop.codec_kernel() if codec else compiled_loop.kernel()
             assert self._kernel is not None  # compiled_reason is None only with a kernel
             # Compile (or load from numba's cache) now, not in the timed loop: zero ticks.
             head, tail = self._kernel_args()
             rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
+            extra: tuple[np.ndarray, ...] = ()
+            if codec:
+                from haptic_teleop.engine.compiled_codec import no_codec
+
+                extra = (*no_codec(self.period_ns), *no_codec(self.period_ns), np.zeros((3, 3)))
             self._kernel(
                 0,
                 0,
@@ -147,6 +153,7 @@ class Engine:
                 np.zeros((1, len(COLUMNS))),
                 0,
                 0,
+                *extra,
             )
 
     def _init_arm(self, loop: str) -> None:
@@ -211,7 +218,8 @@ class Engine:
 
         codec_reason = next(
             (
-                f"a codec is named on the {ch.direction} link ({ch.kind}): codecs run in the Python loop only"
+                f"a codec is named on the {ch.direction} link ({ch.kind}): an arm scene's codecs run in the "
+                "Python arm loop only (the compiled codec stage is 1-DoF)"
                 for ch in self.codecs
                 if ch is not None
             ),
@@ -555,6 +563,8 @@ class Engine:
         return head, (compiled_loop.parameters(self), compiled_loop.initial_state(self))
 
     def _compiled_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        if self.codecs != (None, None):
+            return self._compiled_codec_loop(progress, sink)
         from haptic_teleop.engine import compiled_loop
 
         n_ticks, period_ns = self.ticks, self.period_ns
@@ -600,6 +610,82 @@ class Engine:
             output.end_after_error(done)
             raise
         compiled_loop.store_state(self, S)
+        output.end(done)
+        self.master.close()
+        self.slave.close()
+        wall = time.perf_counter() - t0
+        return self._streamed(done, wall)
+
+    def _compiled_codec_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        """`_compiled_loop` with the codec stage run in the kernel on the directions that name a
+        codec (engine/compiled_codec.py); a direction without one keeps its schedule."""
+        from haptic_teleop.engine import compiled_loop
+        from haptic_teleop.engine.compiled_codec import CodecNet, no_codec
+
+        n_ticks, period_ns = self.ticks, self.period_ns
+        self.ticks_done = 0
+        t0 = time.perf_counter()
+        nets = [None if ch is None else CodecNet(ch, period_ns) for ch in self.codecs]
+        fnet, bnet = nets
+        fwd = (
+            None
+            if fnet is not None
+            else compiled_loop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
+        )
+        bwd = (
+            None
+            if bnet is not None
+            else compiled_loop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
+        )
+        window = VECTORIZED_WINDOW_TICKS if all(s is None or s.vectorized for s in (fwd, bwd)) else COMPILED_CHUNK_TICKS
+        head, (P, S) = self._kernel_args()
+        hist = compiled_loop.Rings((2, 3))
+        output = _Output(sink, (fnet or fwd).settled, (bnet or bwd).settled)  # type: ignore[union-attr]
+        block = output.block
+        run_ticks = self._kernel
+        assert run_ticks is not None
+        idle = no_codec(period_ns)
+        scratch = np.zeros((3, 3))
+        done = 0
+        try:
+            with compiled_loop.mujoco_timers_off():
+                while done < n_ticks:
+                    w0, w1 = done, min(done + window, n_ticks)
+                    none = np.full(w1 - w0, -1, dtype=np.int64), np.zeros(w1 - w0)
+                    frel, focc = none if fwd is None else fwd.window(w0, w1)
+                    brel, bocc = none if bwd is None else bwd.window(w0, w1)
+                    hist.fit(frel, brel, w0, w1)
+                    for c0 in range(w0, w1, COMPILED_CHUNK_TICKS):
+                        c1 = min(c0 + COMPILED_CHUNK_TICKS, w1)
+                        for net in nets:
+                            if net is not None:
+                                net.ready(c1 - c0)
+                        run_ticks(
+                            c0, c1, *head, frel, focc, brel, bocc, hist.fwd, hist.bwd, P, S, block, w0, output.start,
+                            *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()), scratch,
+                        )  # fmt: skip
+                        done = self.ticks_done = c1
+                        if progress is not None and done % 100 == 0:
+                            progress(done)
+                        if done - output.start == BLOCK_TICKS:
+                            output.block_done(done)
+                        if self._stop:
+                            break
+                    if self._stop:
+                        break
+        except BaseException:
+            compiled_loop.store_state(self, S)
+            for net in nets:
+                if net is not None:
+                    net.store()
+            self.master.close()
+            self.slave.close()
+            output.end_after_error(done)
+            raise
+        compiled_loop.store_state(self, S)
+        for net in nets:
+            if net is not None:
+                net.store()
         output.end(done)
         self.master.close()
         self.slave.close()

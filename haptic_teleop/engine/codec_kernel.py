@@ -1,0 +1,471 @@
+"""The compiled 1-DoF loop with the codec stage (numba), imported only when a scene with a codec
+runs compiled, so codec-less runs never compile or load it (engine/compiled_codec.py has the
+design, engine/codec_layout.py the arrays' layouts).
+
+The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `accept2`, `accept3`,
+`finish_tick`); a direction with a codec replaces its schedule lookup by `codec_tick`, which is
+`CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay), deliveries,
+decoder. The per-sample formulas are compiled from their one definition in core/deadband.py,
+core/prediction.py and core/loss.py.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from haptic_teleop.core import deadband as db
+from haptic_teleop.core import loss
+from haptic_teleop.core import prediction as pr
+from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
+from haptic_teleop.engine.codec_layout import (
+    C_DELAY_NS,
+    C_DIM,
+    C_EXTRAP,
+    C_GAIN,
+    C_KEEP,
+    C_KIND,
+    C_LBAD,
+    C_LGOOD,
+    C_LOSS,
+    C_LP,
+    C_LR,
+    C_MAX_AHEAD,
+    C_MAX_TICKS,
+    C_MIN,
+    C_P0,
+    C_PERIOD_NS,
+    C_PMAX,
+    C_SENDS_RATE,
+    C_SIZE,
+    C_TRIG0,
+    C_VEL,
+    DEADBAND,
+    LOSS_BERNOULLI,
+    LOSS_GILBERT,
+    NO_CODEC,
+    S_BAD,
+    S_BLACKOUT_I,
+    S_BYTES,
+    S_COUNT,
+    S_DROP_BLACKOUT,
+    S_DROP_LOSS,
+    S_EXTRAPOLATED,
+    S_FILTERED,
+    S_HAS_LAST,
+    S_HAS_OLD,
+    S_HAS_PREV,
+    S_HAS_RATE,
+    S_HAS_SENT,
+    S_HAS_SLOT,
+    S_HEAD,
+    S_LAST0,
+    S_LAST_SEQ,
+    S_LINK_LOST,
+    S_LINK_SENT,
+    S_NEWEST,
+    S_OFFERED,
+    S_OLD0,
+    S_OLD_SEQ,
+    S_PENDING,
+    S_PREDICTED,
+    S_PREV0,
+    S_PREV_NS,
+    S_RATE0,
+    S_RECEIVED,
+    S_RECS,
+    S_SENT,
+    S_SENT0,
+    S_SLOT,
+    S_SLOT_N,
+    S_STALE,
+    S_U,
+)
+
+jit = numba.njit(cache=True, nogil=True)
+inline = numba.njit(cache=True, nogil=True, inline="always")  # as axis_kernel's tick parts
+# The loop itself without numba's reference counting (NRT): it allocates nothing, and every
+# array handed to an inlined part would otherwise be counted in and out with atomic operations,
+# which cost ten times the codec's own work (180 against 15 ns a tick for `prediction`).
+loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
+deadband_p = jit(db.deadband_p)
+outside = jit(db.outside)
+extrapolated = jit(db.extrapolated)
+extrapolate1 = jit(pr.extrapolate1)
+gilbert_step = jit(loss.gilbert_step)
+
+DELIVERED = 0.0
+LOST_NETWORK = 1.0
+
+
+@inline  # type: ignore[misc]
+def link_send(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    seq: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    with_rate: bool,
+) -> None:
+    # Link.send of one packet: blackout, loss (its draws whatever the fate), constant delay;
+    # the record; a delivered packet joins the in-flight FIFO.
+    fate = DELIVERED
+    nb = B.shape[0]
+    if nb > 0:  # Blackout.apply: the window starting at or before `now` (send times only grow)
+        i = int(S[S_BLACKOUT_I])
+        while i < nb and B[i, 0] <= now:
+            i += 1
+        S[S_BLACKOUT_I] = i
+        if i > 0 and now < B[i - 1, 1]:
+            fate = LOST_NETWORK
+            S[S_DROP_BLACKOUT] += 1.0
+    kind = C[C_LOSS]
+    if kind == LOSS_BERNOULLI:
+        u = U[int(S[S_U])]
+        S[S_U] += 1.0
+        if u < C[C_LP] and fate == DELIVERED:
+            fate = LOST_NETWORK
+            S[S_DROP_LOSS] += 1.0
+    elif kind == LOSS_GILBERT:
+        k = int(S[S_U])
+        S[S_U] += 2.0
+        bad, lost = gilbert_step(S[S_BAD] != 0.0, U[k], U[k + 1], C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD])
+        S[S_BAD] = 1.0 if bad else 0.0
+        if lost and fate == DELIVERED:
+            fate = LOST_NETWORK
+            S[S_DROP_LOSS] += 1.0
+    arrival = now + int(C[C_DELAY_NS])
+    S[S_LINK_SENT] += 1.0
+    # (2-D arrays are indexed in full, never sliced: a view costs reference counting)
+    r = int(S[S_RECS])
+    S[S_RECS] += 1.0
+    rec[r, 0] = seq
+    rec[r, 1] = float(now) * 1e-9
+    rec[r, 3] = fate
+    rec[r, 4] = 0.0
+    rec[r, 5] = C[C_SIZE]
+    if fate != DELIVERED:
+        S[S_LINK_LOST] += 1.0
+        rec[r, 2] = np.nan
+        return
+    rec[r, 2] = float(arrival) * 1e-9
+    depth = ring.shape[0]
+    count = int(S[S_COUNT])
+    j = (int(S[S_HEAD]) + count) & (depth - 1)
+    S[S_COUNT] = count + 1
+    ring[j, 0] = seq
+    ring[j, 1] = arrival
+    dim = int(C[C_DIM])
+    for i in range(dim):
+        ring[j, 2 + i] = smp[i]
+        if with_rate:
+            ring[j, 2 + dim + i] = rate[i]
+
+
+@inline  # type: ignore[misc]
+def deadband_receive(C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int) -> None:
+    # DeadbandDecoder.receive; the payload: ring row j from column 2 on.
+    dim = int(C[C_DIM])
+    if S[S_HAS_LAST] != 0.0 and seq <= S[S_LAST_SEQ]:
+        S[S_STALE] += 1.0
+        return
+    S[S_RECEIVED] += 1.0
+    S[S_HAS_OLD] = S[S_HAS_LAST]
+    S[S_OLD_SEQ] = S[S_LAST_SEQ]
+    for i in range(dim):
+        S[S_OLD0 + i] = S[S_LAST0 + i]
+        S[S_LAST0 + i] = ring[j, 2 + i]
+    S[S_HAS_LAST] = 1.0
+    S[S_LAST_SEQ] = seq
+    if C[C_EXTRAP] != 0.0:
+        if C[C_SENDS_RATE] != 0.0:
+            dt_tick = C[C_PERIOD_NS] / 1e9
+            for i in range(dim):
+                S[S_RATE0 + i] = ring[j, 2 + dim + i] * dt_tick
+            S[S_HAS_RATE] = 1.0
+        elif S[S_HAS_OLD] != 0.0:
+            span = int(S[S_LAST_SEQ]) - int(S[S_OLD_SEQ])
+            for i in range(dim):
+                S[S_RATE0 + i] = (S[S_LAST0 + i] - S[S_OLD0 + i]) / span
+            S[S_HAS_RATE] = 1.0
+
+
+@inline  # type: ignore[misc]
+def deadband_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # DeadbandDecoder.sample: hold, or extrapolate at most the cap, then hold.
+    if S[S_HAS_LAST] == 0.0:
+        return False
+    dim = int(C[C_DIM])
+    seq = int(S[S_LAST_SEQ])
+    if S[S_HAS_RATE] == 0.0 or n <= seq:
+        for i in range(dim):
+            out[i] = S[S_LAST0 + i]
+        return True
+    ahead = float(n - seq)
+    if ahead > C[C_MAX_AHEAD]:
+        ahead = C[C_MAX_AHEAD]
+    else:
+        S[S_EXTRAPOLATED] += 1.0
+    for i in range(dim):
+        out[i] = extrapolated(S[S_LAST0 + i], S[S_RATE0 + i], ahead)
+    return True
+
+
+@inline  # type: ignore[misc]
+def prediction_receive(C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int) -> None:
+    # PredictionDecoder.receive -> Reconstructor.add(fresh=True). A constant delay keeps the order
+    # and nothing is duplicated, so every arrival is the newest: the history needs only the
+    # newest two samples (the older one kept while within `keep_ticks`, as `add` forgets).
+    dim = int(C[C_DIM])
+    S[S_RECEIVED] += 1.0
+    S[S_HAS_OLD] = S[S_HAS_LAST]
+    S[S_OLD_SEQ] = S[S_LAST_SEQ]
+    for i in range(dim):
+        S[S_OLD0 + i] = S[S_LAST0 + i]
+        S[S_LAST0 + i] = ring[j, 2 + i]
+    S[S_HAS_LAST] = 1.0
+    S[S_LAST_SEQ] = seq
+    if S[S_HAS_OLD] != 0.0 and S[S_OLD_SEQ] < seq - C[C_KEEP]:
+        S[S_HAS_OLD] = 0.0
+    S[S_PENDING] = 1.0
+
+
+@inline  # type: ignore[misc]
+def prediction_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # Reconstructor.sample: the playout slot (a fresh arrival sets it, each tick advances it),
+    # the sample at the slot or the prediction from the newest two (the slot is never behind the
+    # newest sample: every arrival is fresh).
+    if S[S_PENDING] != 0.0:
+        S[S_SLOT] = S[S_LAST_SEQ]
+        S[S_SLOT_N] = n
+        S[S_PENDING] = 0.0
+        S[S_HAS_SLOT] = 1.0
+    elif S[S_HAS_SLOT] != 0.0:
+        S[S_SLOT] = S[S_SLOT] + (n - S[S_SLOT_N])
+        S[S_SLOT_N] = n
+    else:
+        return False
+    dim = int(C[C_DIM])
+    target = int(S[S_SLOT])
+    last_seq = int(S[S_LAST_SEQ])
+    if target == last_seq:
+        for i in range(dim):
+            out[i] = S[S_LAST0 + i]
+        return True
+    S[S_PREDICTED] += 1.0
+    if C[C_EXTRAP] == 0.0 or S[S_HAS_OLD] == 0.0:
+        for i in range(dim):
+            out[i] = S[S_LAST0 + i]
+        return True
+    ahead = min(target - last_seq, int(C[C_MAX_TICKS]))
+    span = last_seq - int(S[S_OLD_SEQ])
+    for i in range(dim):
+        out[i] = extrapolate1(S[S_OLD0 + i], S[S_LAST0 + i], ahead, span)
+    return True
+
+
+@inline  # type: ignore[misc]
+def codec_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step: encode, send, deliver, decode. Returns (the `received` column's seq or
+    # -1, whether `out` holds the tick's remote sample).
+    dim = int(C[C_DIM])
+    deadband = C[C_KIND] == DEADBAND
+    if deadband:  # GroupedDeadbandEncoder.send
+        sends_rate = C[C_SENDS_RATE] != 0.0
+        if sends_rate:
+            if S[S_HAS_PREV] == 0.0 or now <= S[S_PREV_NS]:
+                for i in range(dim):
+                    rate[i] = 0.0
+            else:
+                dt = (now - int(S[S_PREV_NS])) * 1e-9
+                for i in range(dim):
+                    rate[i] = (smp[i] - S[S_PREV0 + i]) / dt
+        for i in range(dim):
+            S[S_PREV0 + i] = smp[i]
+        S[S_HAS_PREV] = 1.0
+        S[S_PREV_NS] = now
+        S[S_OFFERED] += 1.0
+        send = True
+        if S[S_HAS_SENT] != 0.0:
+            p = C[C_P0]
+            if C[C_GAIN] > 0.0:
+                p = deadband_p(C[C_P0], C[C_GAIN], C[C_PMAX], abs(smp[int(C[C_VEL])]))
+            send = False
+            for i in range(dim):
+                if C[C_TRIG0 + i] != 0.0:
+                    last = S[S_SENT0 + i]
+                    if outside(abs(last - smp[i]), abs(last), p, C[C_MIN]):
+                        send = True
+                        break
+            if not send:
+                S[S_FILTERED] += 1.0
+        if send:
+            for i in range(dim):
+                S[S_SENT0 + i] = smp[i]
+            S[S_HAS_SENT] = 1.0
+            S[S_SENT] += 1.0
+            link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate)
+    else:  # PredictionEncoder.send
+        S[S_OFFERED] += 1.0
+        S[S_SENT] += 1.0
+        S[S_BYTES] += C[C_SIZE]
+        link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+    # Link.deliver, Decoder.receive
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        if deadband:
+            deadband_receive(C, S, seq, ring, head)
+        else:
+            prediction_receive(C, S, seq, ring, head)
+        if seq > S[S_NEWEST]:
+            S[S_NEWEST] = seq
+            rx = seq
+    if deadband:
+        return rx, deadband_sample(C, S, n, out)
+    return rx, prediction_sample(C, S, n, out)
+
+
+@loop_jit  # type: ignore[misc]
+def run_ticks_codec(
+    n0: int,
+    n1: int,
+    models: np.ndarray,
+    mq: np.ndarray,
+    mv: np.ndarray,
+    mctrl: np.ndarray,
+    sq: np.ndarray,
+    sv: np.ndarray,
+    sctrl: np.ndarray,
+    sqfrc: np.ndarray,
+    fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray,
+    bwd_rel: np.ndarray,
+    bwd_occ: np.ndarray,
+    fwd_hist: np.ndarray,
+    bwd_hist: np.ndarray,
+    P: np.ndarray,
+    S: np.ndarray,
+    data: np.ndarray,
+    w0: int,
+    d0: int,
+    fC: np.ndarray,
+    fS: np.ndarray,
+    fU: np.ndarray,
+    fB: np.ndarray,
+    fring: np.ndarray,
+    frec: np.ndarray,
+    bC: np.ndarray,
+    bS: np.ndarray,
+    bU: np.ndarray,
+    bB: np.ndarray,
+    bring: np.ndarray,
+    brec: np.ndarray,
+    scratch: np.ndarray,
+) -> int:
+    # `axis_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
+    # others read their window of the schedule as there).
+    fmask = fwd_hist.shape[0] - 1
+    bmask = bwd_hist.shape[0] - 1
+    fcodec = fC[C_KIND] != NO_CODEC
+    bcodec = bC[C_KIND] != NO_CODEC
+    period_ns = int(fC[C_PERIOD_NS])
+    smp = scratch[0]  # the sample, its rate, the decoder's output (3 values each)
+    rate = scratch[1]
+    out = scratch[2]
+    for n in range(n0, n1):
+        now = n * period_ns
+        x_m = mq[0]
+        v_m = mv[0]
+        x_s = sq[0]
+        v_s = sv[0]
+        f_env = S[SLAVE + S_CONTACT]
+        # master
+        fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
+        if fcodec:
+            smp[0] = x_m
+            smp[1] = v_m
+            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, n, now, smp, rate, out)
+            if got:
+                accept2(P, S, out[0], out[1])
+            focc = 0.0
+        else:
+            fwd_hist[n & fmask, 0] = x_m
+            fwd_hist[n & fmask, 1] = v_m
+            frx = fwd_rel[n - w0]
+            if frx >= 0:
+                accept2(P, S, fwd_hist[frx & fmask, 0], fwd_hist[frx & fmask, 1])
+            focc = fwd_occ[n - w0]
+        # slave
+        fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
+        if bcodec:
+            smp[0] = f_env
+            smp[1] = x_s
+            smp[2] = v_s
+            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, n, now, smp, rate, out)
+            if got:
+                accept3(P, S, out[0], out[1], out[2])
+            bocc = 0.0
+        else:
+            bwd_hist[n & bmask, 0] = f_env
+            bwd_hist[n & bmask, 1] = x_s
+            bwd_hist[n & bmask, 2] = v_s
+            brx = bwd_rel[n - w0]
+            if brx >= 0:
+                accept3(P, S, bwd_hist[brx & bmask, 0], bwd_hist[brx & bmask, 1], bwd_hist[brx & bmask, 2])
+            bocc = bwd_occ[n - w0]
+        finish_tick(
+            n, models, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
+            fm, m_desired, fs, s_desired, frx, brx, focc, bocc,
+        )  # fmt: skip
+    return n1
+
+
+@loop_jit  # type: ignore[misc]
+def codec_ticks(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    samples: np.ndarray,
+    period_ns: int,
+    scratch: np.ndarray,
+) -> int:
+    """One direction's codec stage alone over `samples` (a row a tick): what it costs a tick
+    (`bench codec`). Returns the ticks with a remote sample."""
+    smp = scratch[0]
+    rate = scratch[1]
+    out = scratch[2]
+    got_ticks = 0
+    for n in range(samples.shape[0]):
+        for i in range(samples.shape[1]):
+            smp[i] = samples[n, i]
+        _rx, got = codec_tick(C, S, U, B, ring, rec, n, n * period_ns, smp, rate, out)
+        if got:
+            got_ticks += 1
+    return got_ticks

@@ -1,0 +1,30 @@
+"""Layouts of the compiled codec stage's per-direction arrays (C: constants, S: state) and its
+codes, shared by the Python side (engine/compiled_codec.py) and the kernel (engine/codec_kernel.py);
+imports nothing, so neither imports the other (docs/codec.md, "Compiled")."""
+
+# Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
+NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
+COMPILED_KINDS = ("deadband", "prediction")
+LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT = 0.0, 1.0, 2.0
+
+# C: one direction's constants.
+(
+    C_KIND, C_DIM, C_PERIOD_NS, C_SIZE, C_DELAY_NS, C_LOSS, C_LP, C_LR, C_LBAD, C_LGOOD,
+    C_P0, C_MIN, C_GAIN, C_PMAX, C_EXTRAP, C_SENDS_RATE, C_MAX_AHEAD, C_VEL,
+    C_TRIG0, C_TRIG1, C_TRIG2, C_KEEP, C_MAX_TICKS,
+) = range(23)  # fmt: skip
+C_SIZE_ALL = 24
+# S: one direction's state.
+(
+    S_HAS_SENT, S_SENT0, S_SENT1, S_SENT2, S_HAS_PREV, S_PREV0, S_PREV1, S_PREV2, S_PREV_NS,
+    S_OFFERED, S_SENT, S_FILTERED,
+    S_HAS_LAST, S_LAST_SEQ, S_LAST0, S_LAST1, S_LAST2,
+    S_HAS_OLD, S_OLD_SEQ, S_OLD0, S_OLD1, S_OLD2,
+    S_HAS_RATE, S_RATE0, S_RATE1, S_RATE2,
+    S_RECEIVED, S_STALE, S_EXTRAPOLATED,
+    S_PENDING, S_HAS_SLOT, S_SLOT, S_SLOT_N, S_PREDICTED, S_BYTES,
+    S_U, S_U_END, S_BAD, S_HEAD, S_COUNT, S_RECS, S_NEWEST, S_BLACKOUT_I,
+    S_LINK_SENT, S_LINK_LOST, S_DROP_BLACKOUT, S_DROP_LOSS,
+) = range(47)  # fmt: skip
+S_SIZE_ALL = 48
+RING_WIDTH = 8  # seq, arrival_ns, payload (at most 6 values: a 3-value sample and its rate)

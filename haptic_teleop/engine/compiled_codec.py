@@ -1,0 +1,261 @@
+"""The codec stage in the compiled 1-DoF loop (docs/codec.md, "Compiled").
+
+With a deadband the packets a direction sends depend on the samples, so its network cannot be
+decided ahead of the loop as `compiled_loop.schedule` does. A codec direction whose link effects
+all give a packet its fate from the packet's index in the stream and its send time alone (a
+blackout, uncorrelated Bernoulli loss, Gilbert-Elliott loss, a constant delay) is run inside the
+kernel instead (engine/codec_kernel.py): each tick the encoder decides, the k-th packet it sends
+takes the k-th random number(s) of the loss effect, a blackout is a table of windows, the arrival
+is the send time plus the delay, packets in flight wait in a FIFO ring (a constant delay keeps
+their order), the decoder takes the arrivals and gives the tick's remote sample, and each
+packet's record (record.layouts.PACKET_FIELDS) is written as it is sent.
+
+The random numbers are the effect's own: drawn here in blocks from the effect's numpy Generator,
+the numbers `UniformSource` hands out one at a time in the Python loop (`rng.random(n)` continues
+one stream whatever the block sizes; Gilbert-Elliott takes two per packet, the transition then
+the loss). The kernel never runs out: before each chunk of ticks `CodecNet.ready` tops the
+numbers up to at least two per tick of the chunk and makes room for a record per tick.
+
+This module is the Python side (the layouts of the kernel's per-direction arrays are in
+engine/codec_layout.py); it needs no numba. What it cannot run is said by `codec_reason`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.core.delay import ConstantDelay
+from haptic_teleop.core.link import Link
+from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
+from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
+from haptic_teleop.engine.codec_layout import (
+    C_DELAY_NS,
+    C_DIM,
+    C_EXTRAP,
+    C_GAIN,
+    C_KEEP,
+    C_KIND,
+    C_LBAD,
+    C_LGOOD,
+    C_LOSS,
+    C_LP,
+    C_LR,
+    C_MAX_AHEAD,
+    C_MAX_TICKS,
+    C_MIN,
+    C_P0,
+    C_PERIOD_NS,
+    C_PMAX,
+    C_SENDS_RATE,
+    C_SIZE,
+    C_SIZE_ALL,
+    C_TRIG0,
+    C_VEL,
+    COMPILED_KINDS,
+    DEADBAND,
+    LOSS_BERNOULLI,
+    LOSS_GILBERT,
+    LOSS_NONE,
+    PREDICTION,
+    RING_WIDTH,
+    S_BAD,
+    S_BYTES,
+    S_COUNT,
+    S_DROP_BLACKOUT,
+    S_DROP_LOSS,
+    S_EXTRAPOLATED,
+    S_FILTERED,
+    S_HEAD,
+    S_LINK_LOST,
+    S_LINK_SENT,
+    S_NEWEST,
+    S_OFFERED,
+    S_PREDICTED,
+    S_RECEIVED,
+    S_RECS,
+    S_SENT,
+    S_SIZE_ALL,
+    S_STALE,
+    S_U,
+    S_U_END,
+)
+
+_BLOCK = 4096  # random numbers drawn per refill
+
+
+def codec_reason(ch: CodecChannel) -> str | None:
+    """Why the compiled loop cannot run codec direction `ch` (None: it can)."""
+    if ch.kind not in COMPILED_KINDS:
+        return (
+            f"codec {ch.kind} on the {ch.direction} link runs in the Python loop only "
+            f"(compiled codecs: {', '.join(COMPILED_KINDS)})"
+        )
+    return link_reason(ch.direction, ch.link)
+
+
+def link_reason(direction: str, link: Link) -> str | None:
+    """Why the kernel cannot run `link`'s effects for a codec direction (None: it can)."""
+    allowed = (
+        "compiled codec links take only blackout, uncorrelated bernoulli or gilbert(_elliott) loss and a "
+        "constant delay: effects that decide a packet's fate from its index in the stream and its send time"
+    )
+    for e in link.effects:
+        t = type(e)
+        if t is BernoulliLoss and not e.vectorized:  # type: ignore[attr-defined]
+            return f"correlated loss on the {direction} link with a codec ({allowed})"
+        if t not in (Blackout, BernoulliLoss, GilbertElliottLoss, ConstantDelay):
+            return f"effect {e.name} ({t.__name__}) on the {direction} link with a codec ({allowed})"
+    return None
+
+
+def _uniform_rng(e: Any) -> np.random.Generator:
+    """The Generator an effect's `UniformSource` draws from (BernoulliLoss keeps it as `_rng`)."""
+    if type(e) is BernoulliLoss:
+        return e._rng  # type: ignore[no-any-return]
+    return e._u.__self__._rng  # type: ignore[no-any-return]  # GilbertElliottLoss: UniformSource(rng).next
+
+
+class CodecNet:
+    """One codec direction of the compiled loop: the kernel's arrays and what Python does between
+    chunks (random numbers, records, the counters written back)."""
+
+    def __init__(self, ch: CodecChannel, period_ns: int) -> None:
+        self.ch = ch
+        self.period_ns = period_ns
+        C = np.zeros(C_SIZE_ALL)
+        C[C_DIM] = ch.dim
+        C[C_PERIOD_NS] = period_ns
+        enc, dec = ch.encoder, ch.decoder
+        if ch.kind == "deadband":
+            assert type(enc) is GroupedDeadbandEncoder
+            cfg = enc.cfg
+            C[C_KIND] = DEADBAND
+            C[C_SIZE] = enc.size_bytes
+            C[C_P0], C[C_MIN], C[C_GAIN], C[C_PMAX] = (
+                cfg.deadband,
+                cfg.min_threshold,
+                cfg.adaptive_gain,
+                cfg.max_deadband,
+            )
+            C[C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
+            C[C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
+            C[C_MAX_AHEAD] = dec._max_ahead_ticks
+            C[C_VEL] = enc.velocity.start
+            for g in enc.triggers:
+                for i in range(g.start, g.stop):
+                    C[C_TRIG0 + i] = 1.0
+        else:
+            C[C_KIND] = PREDICTION
+            C[C_SIZE] = enc._size_of(ch.dim)
+            rec = dec.rec
+            C[C_EXTRAP] = 1.0 if rec.extrapolates else 0.0
+            C[C_KEEP] = rec.keep_ticks
+            C[C_MAX_TICKS] = rec.max_extrapolation_ticks
+        self._loss: Any = None
+        self._blackout: Blackout | None = None
+        windows: list[tuple[int, int]] = []
+        delay_ns = 0
+        for e in ch.link.effects:
+            if type(e) is ConstantDelay:
+                delay_ns += e.delay_ns
+            elif type(e) is Blackout:
+                self._blackout = e
+                windows = list(zip(e._starts, e._ends, strict=True))
+            elif type(e) is BernoulliLoss:
+                self._loss = e
+                C[C_LOSS], C[C_LP] = LOSS_BERNOULLI, e.probability
+            elif type(e) is GilbertElliottLoss:
+                self._loss = e
+                C[C_LOSS] = LOSS_GILBERT
+                C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
+        C[C_DELAY_NS] = delay_ns
+        self.C = C
+        self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
+        self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
+        self._rng = None if self._loss is None else _uniform_rng(self._loss)
+        S = np.zeros(S_SIZE_ALL)
+        S[S_NEWEST] = -1.0
+        if type(self._loss) is GilbertElliottLoss:
+            S[S_BAD] = 1.0 if self._loss.bad else 0.0
+        self.S = S
+        self.U = np.zeros(0)
+        depth = 4
+        while depth < delay_ns // period_ns + 3:  # in flight: at most the ticks of the delay, + 2
+            depth *= 2
+        self.ring = np.zeros((depth, RING_WIDTH))
+        self.records = np.zeros((1024, 6))
+
+    def ready(self, ticks: int) -> None:
+        """Before the kernel runs `ticks` ticks: random numbers and record rows for a packet a tick."""
+        S = self.S
+        need = ticks * self._draws_per_packet
+        u, end = int(S[S_U]), int(S[S_U_END])
+        if need and end - u < need:
+            assert self._rng is not None
+            fresh = self._rng.random(max(_BLOCK, need))
+            self.U = np.concatenate((self.U[u:end], fresh))
+            S[S_U], S[S_U_END] = 0.0, float(len(self.U))
+        recs = int(S[S_RECS])
+        if len(self.records) - recs < ticks:
+            grown = np.zeros((2 * (recs + ticks), 6))
+            grown[:recs] = self.records[:recs]
+            self.records = grown
+
+    def settled(self, sent: int, final: bool) -> np.ndarray | None:
+        """As `CodecChannel.settled`: the records of packets sent before tick `sent` and older than
+        the oldest one in flight (a packet's seq is its send tick)."""
+        S = self.S
+        mark = sent
+        if not final and S[S_COUNT] > 0:
+            oldest = int(self.ring[int(S[S_HEAD]), 0])
+            mark = min(mark, oldest)
+        recs = int(S[S_RECS])
+        k = int(np.searchsorted(self.records[:recs, 0], mark))
+        if k == 0:
+            return None
+        rows = self.records[:k].copy()
+        self.records[: recs - k] = self.records[k:recs]
+        S[S_RECS] = recs - k
+        return rows
+
+    def store(self) -> None:
+        """Write what the kernel decided back into the Python objects (the run facts read the
+        codec's counters; the link's and its effects' counts and the Gilbert state follow too)."""
+        S, ch = self.S, self.ch
+        enc, dec = ch.encoder, ch.decoder
+        if ch.kind == "deadband":
+            enc.counters.update(offered=int(S[S_OFFERED]), sent=int(S[S_SENT]), filtered=int(S[S_FILTERED]))
+            dec.counters.update(received=int(S[S_RECEIVED]), stale=int(S[S_STALE]), extrapolated=int(S[S_EXTRAPOLATED]))
+        else:
+            enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
+            dec.counters.update(received=int(S[S_RECEIVED]), duplicates=0)
+            dec.rec.predicted = int(S[S_PREDICTED])
+        ch.newest_seq = int(S[S_NEWEST])
+        link = ch.link
+        link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
+        if self._blackout is not None:
+            self._blackout.dropped = int(S[S_DROP_BLACKOUT])
+        if self._loss is not None:
+            self._loss.dropped = int(S[S_DROP_LOSS])
+            if type(self._loss) is GilbertElliottLoss:
+                self._loss.bad = bool(S[S_BAD])
+
+    def args(self) -> tuple[np.ndarray, ...]:
+        """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
+        return self.C, self.S, self.U, self.blackouts, self.ring, self.records
+
+
+def no_codec(period_ns: int) -> tuple[np.ndarray, ...]:
+    """The kernel's arguments for a direction without a codec (C_KIND 0: it runs on its schedule)."""
+    C = np.zeros(C_SIZE_ALL)
+    C[C_PERIOD_NS] = period_ns
+    return (
+        C,
+        np.zeros(S_SIZE_ALL),
+        np.zeros(1),
+        np.zeros((0, 2), dtype=np.int64),
+        np.zeros((1, RING_WIDTH)),
+        np.zeros((1, 6)),
+    )

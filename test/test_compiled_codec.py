@@ -1,0 +1,223 @@
+"""The codec stage in the compiled 1-DoF loop (engine/compiled_codec.py, engine/codec_kernel.py)
+gives the Python loop's run bit for bit, and says precisely what it cannot run.
+
+Each identity case runs one scene in both loops and compares every call on the sink (blocks of
+columns, batches of packet records, at the same points of the run), the controllers' final state,
+the codec counters of the run facts (`codec_<direction>`) and the links' counts. Together the
+cases cover each compiled codec configuration (deadband hold, extrapolation from the sent rate
+and from the last two, the velocity-adaptive p, the floor; prediction extrapolating and holding),
+on the forward link, the backward link and both, over constant delay with uncorrelated loss,
+Gilbert-Elliott loss and blackouts. 1.5 s of scene each, a sinusoidal operator in contact with the
+wall, so every quantity moves.
+"""
+
+import re
+
+import numpy as np
+import pytest
+
+from haptic_teleop.engine.lockstep import COL, Engine
+from haptic_teleop.errors import HapticTeleopError
+from haptic_teleop.scene.load import find_scene, load_scene
+
+MOVING = ("operator.profile=sinusoid", "operator.amplitude_m=0.03", "operator.frequency_hz=2")
+BERNOULLI = "{probability: 0.2}"
+GILBERT = "{model: gilbert_elliott, p: 0.05, r: 0.2, one_minus_h: 0.9, one_minus_k: 0.02}"
+BLACKOUT = "{starts_s: [0.5, 1.2], ends_s: [0.65, 1.25]}"
+# 150 ms down, one packet through (tick 650), 49 ms down again: after that packet the prediction
+# decoder has forgotten the one before it (151 ticks older, beyond its history's 64 + 20), so it
+# holds instead of extrapolating over the second window. Then the same with the packet through
+# exactly 84 ticks after the one before (tick 983 after 899): that one is still remembered.
+ONE_THROUGH = "{starts_s: [0.5, 0.651, 0.9, 0.984, 1.2], ends_s: [0.65, 0.7, 0.983, 1.0, 1.25]}"
+
+HOLD = "{kind: deadband, deadband: 0.1}"
+SENT_RATE = "{kind: deadband, deadband: 0.1, reconstruction: extrapolate, max_extrapolation_s: 0.08}"
+LAST_TWO = "{kind: deadband, deadband: 0.05, reconstruction: extrapolate, extrapolate_from: last_two}"
+ADAPTIVE = "{kind: deadband, deadband: 0.05, adaptive_gain: 20, max_deadband: 0.3}"
+FLOOR = "{kind: deadband, deadband: 0.1, min_threshold: 0.01}"
+PREDICTION = "{kind: prediction, max_extrapolation_s: 0.02}"
+PREDICTION_HOLD = "{kind: prediction, gap: hold}"
+
+# case: {direction: (codec, effects)}; effects: (loss, blackout) scene values or None.
+CASES = {
+    "hold_both_bernoulli_gilbert": {"forward": (HOLD, (BERNOULLI, None)), "backward": (HOLD, (GILBERT, None))},
+    "sent_rate_backward_blackout_bernoulli": {"backward": (SENT_RATE, (BERNOULLI, BLACKOUT))},
+    "last_two_forward_gilbert_blackout": {"forward": (LAST_TWO, (GILBERT, BLACKOUT))},
+    "adaptive_both": {"forward": (ADAPTIVE, (BERNOULLI, None)), "backward": (ADAPTIVE, (None, BLACKOUT))},
+    "floor_backward_gilbert": {"backward": (FLOOR, (GILBERT, None))},
+    "prediction_both": {"forward": (PREDICTION, (None, ONE_THROUGH)), "backward": (PREDICTION, (GILBERT, None))},
+    "prediction_hold_forward": {"forward": (PREDICTION_HOLD, (BERNOULLI, ONE_THROUGH))},
+}
+
+
+def _overrides(case):
+    out = ["scene.duration_s=1.5", *MOVING]
+    for d, (codec, (loss, blackout)) in CASES[case].items():
+        out.append(f"network.{d}.codec={codec}")
+        if loss is not None:
+            out.append(f"network.{d}.effects.loss={loss}")
+        if blackout is not None:
+            out.append(f"network.{d}.effects.blackout={blackout}")
+    return out
+
+
+def _scene(overrides, name="wall_contact"):
+    return load_scene(find_scene(name), overrides=list(overrides))
+
+
+class Calls:
+    """A sink that notes every call the engine makes on it, with a copy of its array."""
+
+    def __init__(self):
+        self.calls = []
+
+    def append(self, rows):
+        self.calls.append(("rows", np.array(rows)))
+
+    def append_packets(self, direction, rows):
+        self.calls.append((direction, np.array(rows)))
+
+    def packets(self, direction):
+        return np.concatenate([a for kind, a in self.calls if kind == direction])
+
+
+def _run(scene, loop, stop_at=None):
+    e = Engine(scene, loop=loop)
+    assert e.loop_kind == loop, e.compiled_reason
+    sink = Calls()
+
+    def progress(n):
+        if stop_at is not None and n >= stop_at:
+            e.request_stop()
+
+    r = e.run(handle_sigint=False, progress=progress, sink=sink)
+    return e, r, sink
+
+
+def _links(e):
+    out = {}
+    for d in ("forward", "backward"):
+        link = getattr(e, d)
+        out[d] = (link.sent, link.lost, tuple((x.name, getattr(x, "dropped", None)) for x in link.effects))
+    return out
+
+
+def _assert_same(compiled, python):
+    (ec, rc, sc), (ep, rp, sp) = compiled, python
+    assert rc.ticks == rp.ticks
+    assert [k for k, _ in sc.calls] == [k for k, _ in sp.calls]
+    for (kind, c), (_, p) in zip(sc.calls, sp.calls, strict=True):
+        assert np.array_equal(c, p, equal_nan=True), kind
+    for side in ("master_ctrl", "slave_ctrl"):
+        a, b = getattr(ec, side), getattr(ep, side)
+        assert a.rejected_samples == b.rejected_samples
+        assert a.bound.axis_state() == b.bound.axis_state()
+        assert a.remote == b.remote
+    assert ec.codec_facts() == ep.codec_facts()
+    for a, b in zip(ec.codecs, ep.codecs, strict=True):
+        if a is not None:
+            assert (a.encoder.counters, a.decoder.counters) == (b.encoder.counters, b.decoder.counters)
+            assert a.newest_seq == b.newest_seq
+            if a.kind == "prediction":
+                assert a.decoder.rec.predicted == b.decoder.rec.predicted
+    assert _links(ec) == _links(ep)
+    assert ec.slave.contact_force() == ep.slave.contact_force()
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_compiled_codec_equals_python_loop(case):
+    scene = _scene(_overrides(case))
+    compiled, python = _run(scene, "compiled"), _run(scene, "python")
+    _assert_same(compiled, python)
+    # Not vacuous: the codec decided, the link lost packets, the decoder reconstructed.
+    e, sink = compiled[0], compiled[2]
+    facts = e.codec_facts()
+    for d, (codec, _) in CASES[case].items():
+        f = facts[f"codec_{d}"]
+        rows = sink.packets(d)
+        assert len(rows) == f["encoder_sent"] and np.count_nonzero(rows[:, 3] != 0) > 10
+        if "deadband" in codec:
+            assert 0 < f["encoder_sent"] < 0.7 * f["encoder_offered"]
+            if "extrapolate" in codec:
+                assert f["decoder_extrapolated"] > 10
+        else:
+            assert (
+                f["encoder_sent"] == e.ticks and e.codecs[("forward", "backward").index(d)].decoder.rec.predicted > 10
+            )
+    rows = np.concatenate([a for kind, a in sink.calls if kind == "rows"])
+    assert len(rows) == e.ticks and np.ptp(rows[:, COL["s_x_m"]]) > 1e-3
+
+
+OTHER_NETWORKS = {
+    # the direction without a codec ticked through the Python objects (jitter, a fixed buffer)
+    "ticked_other_direction": [
+        f"network.forward.codec={LAST_TWO}",
+        "network.backward.effects.delay.jitter_s=0.005",
+        "network.backward.buffer.policy=fixed",
+    ],
+    # delays longer than a block: records wait several blocks, the in-flight ring is 2048 deep
+    "long_delays": [
+        "scene.duration_s=3.0",
+        f"network.forward.codec={PREDICTION}",
+        f"network.backward.codec={HOLD}",
+        "network.forward.effects.delay.delay_s=1.5",
+        "network.backward.effects.delay.delay_s=1.3",
+        f"network.backward.effects.loss={BERNOULLI}",
+    ],
+}
+
+
+@pytest.mark.parametrize("case", sorted(OTHER_NETWORKS))
+def test_compiled_codec_beside_other_networks(case):
+    scene = _scene(["scene.duration_s=1.5", *MOVING, *OTHER_NETWORKS[case]])
+    compiled, python = _run(scene, "compiled"), _run(scene, "python")
+    _assert_same(compiled, python)
+    kinds = [k for k, _ in compiled[2].calls]
+    assert kinds.count("rows") >= 2 and {"forward", "backward"} <= set(kinds)
+
+
+def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
+    """Stopped at the same tick, both loops hand over the same columns and packet records."""
+    scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
+    compiled, python = _run(scene, "compiled", stop_at=700), _run(scene, "python", stop_at=700)
+    assert compiled[1].interrupted and compiled[1].ticks == 700
+    _assert_same(compiled, python)
+
+
+def _codec_on(d, codec, *effects):
+    return [f"network.{d}.codec={codec}", *(f"network.{d}.effects.{e}" for e in effects)]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "reason"),
+    [
+        (_codec_on("forward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the forward link runs in the Python"),
+        (_codec_on("backward", "{kind: fec}"), "codec fec on the backward link"),
+        (_codec_on("forward", "{kind: arq}"), "codec arq on the forward link"),
+        (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
+        (
+            _codec_on("forward", HOLD, "rate_limit={rate_bps: 1000000, burst_bytes: 2000}"),
+            "effect rate_limit (TokenBucket) on the forward link",
+        ),
+        (_codec_on("forward", PREDICTION, "duplicate.probability=0.1"), "effect duplicate (Duplicate)"),
+        (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),
+    ],
+)
+def test_codec_scenes_the_compiled_loop_cannot_run_say_why(overrides, reason):
+    scene = _scene(["scene.duration_s=0.1", *overrides])
+    e = Engine(scene)
+    assert e.loop_kind == "python" and reason in e.compiled_reason
+    with pytest.raises(HapticTeleopError, match=re.escape(reason)):
+        Engine(scene, loop="compiled")
+
+
+def test_auto_runs_compiled_codecs_compiled():
+    e = Engine(_scene(["scene.duration_s=0.1", *_overrides("prediction_both")[2:]]))
+    assert e.loop_kind == "compiled" and e.compiled_reason is None
+
+
+def test_arm_scene_with_a_codec_stays_on_the_python_arm_loop():
+    scene = load_scene(find_scene("touch_ur5e_wall"), overrides=["scene.duration_s=0.05", *_codec_on("forward", HOLD)])
+    e = Engine(scene)
+    assert e.loop_kind == "python" and "arm" in e.compiled_reason
+    e.close_plants()
