@@ -65,8 +65,10 @@ setup(
         "ruamel.yaml>=0.17",
         "matplotlib>=3.6",
         "tqdm>=4.64",
-        # the engine's compiled loop (haptic_teleop/engine/compiled_loop.py); without it the Python loop runs
-        "numba>=0.60",
+        # the engine's compiled loop (haptic_teleop/engine/compiled_loop.py); without it the Python loop runs.
+        # Upper bound: the tick loops use njit's private `_nrt=False` (no reference counting; tested
+        # with 0.68.1); a numba that refuses it makes the compiled loop unavailable, not wrong.
+        "numba>=0.60,<0.69",
     ],
     extras_require={
         "standalone": STANDALONE,
