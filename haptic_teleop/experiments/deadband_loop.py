@@ -39,6 +39,7 @@ HELP = (
 )
 CASES = ("forward", "backward", "both")
 DIRS = ("forward", "backward")
+EBA_TOL_N = 1e-6  # a tick whose applied master force is below the desired one by more: EBA scaled it
 FORCE_FLOOR_N = 0.5  # the open-loop table's floor of the JND-relative force error
 HEADER = [
     "coded",
@@ -58,6 +59,8 @@ HEADER = [
     "contact force RMS diff [N]",
     "contact force peak diff [N]",
     "contact force max [N]",
+    "master EBA-scaled ticks [%]",
+    "master force EBA removed RMS [N]",
 ]
 OPEN_HEADER = [
     "stream",
@@ -115,6 +118,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--jobs", type=number(1, 64, kind=int), default=min(2, os.cpu_count() or 1), help="processes (default 2)"
     )
+    p.add_argument(
+        "--reconstruction",
+        choices=("hold", "extrapolate"),
+        default="hold",
+        help="the receiver's reconstruction (default hold, seed 001's; extrapolate: no held-sample error columns)",
+    )
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a key of the scene")
     p.add_argument(
         "--no-tapping", action="store_true", help="keep the scene's own operator and table (default: 1 Hz tapping)"
@@ -122,12 +131,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
-def codec_overrides(case: str | None, p: float) -> list[str]:
+def codec_overrides(case: str | None, p: float, reconstruction: str = "hold") -> list[str]:
     """The scene overrides that put the deadband at p on the case's directions (none: reference)."""
     if case is None:
         return []
     dirs = ("forward", "backward") if case == "both" else (case,)
-    return [f"network.{d}.codec={{kind: deadband, deadband: {p!r}}}" for d in dirs]
+    return [f"network.{d}.codec={{kind: deadband, deadband: {p!r}, reconstruction: {reconstruction}}}" for d in dirs]
 
 
 def run_case(scene_name: str, overrides: Sequence[str], seed: int | None) -> dict[str, Any]:
@@ -141,7 +150,8 @@ def run_case(scene_name: str, overrides: Sequence[str], seed: int | None) -> dic
     result = engine.run(handle_sigint=False)
     s = engine.schema
     out: dict[str, Any] = {
-        g: np.array(result.data[:, s.group(g)]) for g in ("m_force_n", "m_v_m_per_s", "s_x_m", "s_contact_n")
+        g: np.array(result.data[:, s.group(g)])
+        for g in ("m_force_n", "m_force_desired_n", "m_v_m_per_s", "s_x_m", "s_contact_n")
     }
     for d, col in (("forward", "fwd_rx_seq"), ("backward", "bwd_rx_seq")):
         out[f"held_{d}"] = held(result.data[:, s.col[col]])
@@ -185,10 +195,10 @@ def saved(facts: dict[str, Any], direction: str) -> float:
     f = facts.get(f"codec_{direction}")
     if not f:
         return math.nan
-    return 1.0 - f["encoder_sent"] / f["encoder_offered"]
+    return 1.0 - float(f["encoder_sent"]) / float(f["encoder_offered"])
 
 
-def compare(run: dict[str, Any], ref: dict[str, Any], jnd: float) -> dict[str, float]:
+def compare(run: dict[str, Any], ref: dict[str, Any], jnd: float, held_error: bool = True) -> dict[str, float]:
     """A coded run against the reference: the norm of the per-tick difference of the master's force,
     the tool's position and the contact force (RMS, peak), the master force's |e| / (JND |F_ref|)."""
     ef = np.linalg.norm(run["m_force_n"] - ref["m_force_n"], axis=1)
@@ -196,12 +206,17 @@ def compare(run: dict[str, Any], ref: dict[str, Any], jnd: float) -> dict[str, f
     ec = np.linalg.norm(run["s_contact_n"] - ref["s_contact_n"], axis=1)
     mag = np.linalg.norm(ref["m_force_n"], axis=1)
     big = mag > FORCE_FLOOR_N
+    applied = np.linalg.norm(run["m_force_n"], axis=1)
+    desired = np.linalg.norm(run["m_force_desired_n"], axis=1)
     rel = ef[big] / (jnd * mag[big]) if big.any() else np.zeros(0)
 
     def rms(e: np.ndarray) -> float:
         return float(np.sqrt(np.mean(e * e)))
 
-    own = {d: coding_error(run, ref, d, jnd) if f"codec_{d}" in run["facts"] else (math.nan, math.nan) for d in DIRS}
+    own = {
+        d: coding_error(run, ref, d, jnd) if held_error and f"codec_{d}" in run["facts"] else (math.nan, math.nan)
+        for d in DIRS
+    }
     return {
         "velocity_rms": own["forward"][0],
         "velocity_jnd": own["forward"][1],
@@ -218,6 +233,8 @@ def compare(run: dict[str, Any], ref: dict[str, Any], jnd: float) -> dict[str, f
         "contact_rms": rms(ec),
         "contact_peak": float(ec.max()),
         "contact_max": float(np.linalg.norm(run["s_contact_n"], axis=1).max()),
+        "eba_scaled": float(np.mean(applied < desired - EBA_TOL_N)),
+        "eba_removed": rms(desired - applied),
     }
 
 
@@ -232,19 +249,19 @@ def main(args: argparse.Namespace) -> int:
     if not scene.config.is_arm:
         raise InputError(f"--scene {args.scene}: not an arm scene; allowed: a 3-DoF arm scene (touch_ur5e_wall, ...)")
     # A coded case loads too (a --set that contradicts the codec is one line now, not in a worker).
-    load_scene(path, overrides=[*base, *codec_overrides("both", args.p[-1])], seed=args.seed)
+    load_scene(path, overrides=[*base, *codec_overrides("both", args.p[-1], args.reconstruction)], seed=args.seed)
     out = Path(args.out) if args.out else default_out("deadband-loop")
     check_out_dir(out)
     cases: list[tuple[str, float]] = [(c, p) for c in args.coded for p in args.p]
     jobs = [(args.scene, base, args.seed)] + [
-        (args.scene, [*base, *codec_overrides(c, p)], args.seed) for c, p in cases
+        (args.scene, [*base, *codec_overrides(c, p, args.reconstruction)], args.seed) for c, p in cases
     ]
     results = _run_all(jobs, args.jobs, args.quiet)
     ref, runs = results[0], results[1:]
     rows: list[list[Any]] = []
     table: dict[str, list[dict[str, float]]] = {c: [] for c in args.coded}
     for (c, p), run in zip(cases, runs, strict=True):
-        m = compare(run, ref, args.jnd)
+        m = compare(run, ref, args.jnd, held_error=args.reconstruction == "hold")
         table[c].append(m)
         rows.append(
             [
@@ -265,6 +282,8 @@ def main(args: argparse.Namespace) -> int:
                 m["contact_rms"],
                 m["contact_peak"],
                 m["contact_max"],
+                m["eba_scaled"] * 100,
+                m["eba_removed"],
             ]
         )
     # Open loop on the reference run's own streams (the `deadband` experiment's coding).
@@ -292,7 +311,7 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_all(jobs: list[tuple[str, Sequence[str], int | None]], n_proc: int, quiet: bool) -> list[dict[str, Any]]:
+def _run_all(jobs: Sequence[tuple[str, Sequence[str], int | None]], n_proc: int, quiet: bool) -> list[dict[str, Any]]:
     """Every run, in order; in `n_proc` spawned processes when more than one, with a progress bar."""
     bar: Any = None
     if not quiet:
