@@ -5,6 +5,9 @@
   docs/nve_experiments.md).
 - `deadband`: seed 001's deadband rate and distortion on a 3-DoF contact-rich scene
   (experiments/deadband.py, docs/codec.md).
+- `deadband-loop`: the same deadband in the loop: the scene run through the engine with the deadband
+  in the channel per p and direction, against the uncoded run (experiments/deadband_loop.py,
+  docs/codec.md).
 - `hli-filtering`: seed 000's simulation of priority-based against deadband filtering
   (experiments/codec.py, docs/codec.md).
 - `error-control`: seed 000's experiment, prediction-based filtering with FEC or ARQ over its
@@ -21,7 +24,7 @@ from haptic_teleop.experiments.args import OneLineParser
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
-    from haptic_teleop.experiments import codec, deadband, nve
+    from haptic_teleop.experiments import codec, deadband, deadband_loop, nve
 
     p.__class__ = OneLineParser
     sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
@@ -40,3 +43,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d = sub.add_parser("deadband", help=deadband.HELP, description=deadband.HELP)
     deadband.add_arguments(d)
     d.set_defaults(func=deadband.main)
+    dl = sub.add_parser("deadband-loop", help=deadband_loop.HELP, description=deadband_loop.HELP)
+    deadband_loop.add_arguments(dl)
+    dl.set_defaults(func=deadband_loop.main)
