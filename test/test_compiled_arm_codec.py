@@ -15,6 +15,8 @@ compiles once per process (about a minute cold): every compiled run of this modu
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -272,3 +274,19 @@ def test_eba_keeps_both_arms_passive_with_a_deadband_compiled(tmp_path: Path) ->
             e0,
         )
         assert m.pooled_min_j == pytest.approx(s[f"{side}_energy_margin_simulator_min_j"], abs=1e-9)
+
+
+def test_codec_less_arm_runs_never_load_the_arm_codec_kernel() -> None:
+    """A codec-less arm scene compiled loads the arm kernel only (its own process: nothing loaded
+    before)."""
+    code = (
+        "import sys\n"
+        "from haptic_teleop.engine.lockstep import Engine\n"
+        "from haptic_teleop.scene.load import find_scene, load_scene\n"
+        f"e = Engine(load_scene(find_scene({SCENE!r}), overrides=['scene.duration_s=0.05']), loop='compiled')\n"
+        "e.run(handle_sigint=False)\n"
+        "print(sorted(m for m in sys.modules if m.startswith('haptic_teleop.engine.') and 'kernel' in m))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    loaded = r.stdout.strip().splitlines()[-1]
+    assert "haptic_teleop.engine.arm_kernel" in loaded and "arm_codec_kernel" not in loaded, loaded
