@@ -216,7 +216,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeat", type=positive(int), default=3, help="runs per case (default 3)")
     p.add_argument("--seconds", type=positive(float), default=5.0, help="simulated seconds of the reference ticks")
     p.add_argument("--arm-scene", default="touch_ur5e_wall", help="the arm scene of the arm loop's figure")
-    p.add_argument("--arm-seconds", type=positive(float), default=4.0, help="simulated seconds of each arm run")
+    p.add_argument("--arm-seconds", type=positive(float), default=10.0, help="simulated seconds of each arm run")
 
 
 def main(args: argparse.Namespace) -> int:
