@@ -216,8 +216,9 @@ def test_auto_runs_compiled_codecs_compiled():
     assert e.loop_kind == "compiled" and e.compiled_reason is None
 
 
-def test_arm_scene_with_a_codec_stays_on_the_python_arm_loop():
-    scene = load_scene(find_scene("touch_ur5e_wall"), overrides=["scene.duration_s=0.05", *_codec_on("forward", HOLD)])
-    e = Engine(scene)
-    assert e.loop_kind == "python" and "arm" in e.compiled_reason
+def test_arm_scene_with_a_python_only_codec_stays_on_the_python_arm_loop():
+    """(deadband and prediction run in the compiled arm loop: test/test_compiled_arm_codec.py)"""
+    overrides = ["scene.duration_s=0.05", *_codec_on("forward", "{kind: fec}")]
+    e = Engine(load_scene(find_scene("touch_ur5e_wall"), overrides=overrides))
+    assert e.loop_kind == "python" and "codec fec on the forward link" in e.compiled_reason
     e.close_plants()

@@ -12,7 +12,8 @@ codec's share of a tick is twice its cost per sample over the tick's.
 First, the codec stage in the loop itself: the real-time factor of the compiled and the Python
 loop on the scene with each compiled codec (deadband and prediction; `LOOP_CASES`) named on both
 directions, against the same loop without a codec, measured in the same run (best of at least 5,
-interleaved). Issue 13's budget: within 10 % of the codec-less run.
+interleaved). Issue 13's budget: within 10 % of the codec-less run. The same for an arm scene
+(`--arm-scene`, default touch_ur5e_wall) in the compiled arm loop (`ARM_LOOP_CASES`).
 """
 
 from __future__ import annotations
@@ -141,6 +142,43 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
     return out
 
 
+# The codec stage in the compiled arm loop (engine/arm_codec_kernel.py): the same codec on both
+# directions of an arm scene, against the compiled arm loop without one (engine/arm_kernel.py).
+ARM_LOOP_CASES: tuple[tuple[str, str | None], ...] = (
+    ("no codec", None),
+    ("deadband 10 %, hold", "{kind: deadband, deadband: 0.1}"),
+    ("deadband 10 %, extrapolate (sent rate)", "{kind: deadband, deadband: 0.1, reconstruction: extrapolate}"),
+    ("deadband 5 %, adaptive, floor", "{kind: deadband, deadband: 0.05, adaptive_gain: 10, min_threshold: 0.001}"),
+    ("prediction", "{kind: prediction}"),
+)
+
+
+def arm_loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, float]:
+    """Real-time factor (scene time over this process's CPU time, nothing recorded) of the arm
+    scene in the compiled arm loop for each `ARM_LOOP_CASES` case, the largest of `repeat` runs
+    (the least CPU time), the cases interleaved."""
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    scenes = {}
+    for name, codec in ARM_LOOP_CASES:
+        over = [f"scene.duration_s={seconds}"]
+        if codec is not None:
+            over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
+        scenes[name] = load_scene(find_scene(scene_name), overrides=over)
+    for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
+        Engine(scene, loop="compiled").close_plants()
+    out: dict[str, float] = {}
+    for _ in range(repeat):
+        for name, scene in scenes.items():
+            engine = Engine(scene, loop="compiled")  # refuses with one line if it cannot
+            t0 = time.process_time()
+            engine.run(handle_sigint=False)
+            rtf = engine.ticks * engine.period_s / (time.process_time() - t0)
+            out[name] = max(out.get(name, 0.0), rtf)
+    return out
+
+
 def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, float]:
     """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks:
     encoder, link, decoder; the backward direction, 3 values a sample, the scene's link), least
@@ -177,6 +215,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--samples", type=positive(int), default=20_000, help="samples per case (default 20000)")
     p.add_argument("--repeat", type=positive(int), default=3, help="runs per case (default 3)")
     p.add_argument("--seconds", type=positive(float), default=5.0, help="simulated seconds of the reference ticks")
+    p.add_argument("--arm-scene", default="touch_ur5e_wall", help="the arm scene of the arm loop's figure")
+    p.add_argument("--arm-seconds", type=positive(float), default=10.0, help="simulated seconds of each arm run")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -194,6 +234,17 @@ def main(args: argparse.Namespace) -> int:
         print(f"{name:40s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
     print()
     reps = max(args.repeat, 5)
+    arm = arm_loop_rtf(args.arm_scene, args.arm_seconds, reps)
+    print(
+        f"the codec stage in the compiled arm loop ({args.arm_scene}, the codec on both directions, "
+        f"{args.arm_seconds:g} s, no recording; real-time factor, best of {reps}):"
+    )
+    head = f"{'case':40s} {'compiled RTF':>12s} {'/ no codec':>10s}"
+    print(head)
+    print("-" * len(head))
+    for name, _ in ARM_LOOP_CASES:
+        print(f"{name:40s} {arm[name]:12.1f} {arm[name] / arm['no codec']:10.3f}")
+    print()
     ns = compiled_codec_ns(args.scene, args.samples, reps)
     print(f"one direction's compiled codec stage alone (3 values a sample, the scene's link; least of {reps}):")
     for name, value in ns.items():

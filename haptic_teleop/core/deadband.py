@@ -128,12 +128,31 @@ def _check_field(name: str, value: object, meta: Mapping[str, Any]) -> None:
         raise ValueError(f"deadband codec: {name} must be > {gt}, got {value}")
 
 
-def _norm(v: Sequence[float]) -> float:
-    return math.hypot(*v)
+def vector_norm(v: Sequence[float]) -> float:
+    """|v|: |v_0| for one value, else the square root of the squares summed in order (not
+    math.hypot, whose extended-precision sum the compiled loop cannot reproduce bit for bit:
+    engine/arm_codec_kernel.py sums the same squares in the same order)."""
+    if len(v) == 1:
+        return abs(v[0])
+    s = 0.0
+    for x in v:
+        s += x * x
+    return math.sqrt(s)
 
 
-def _dist(a: Sequence[float], b: Sequence[float]) -> float:
-    return math.dist(a, b)
+def vector_distance(a: Sequence[float], b: Sequence[float]) -> float:
+    """|a - b|, as `vector_norm` (the differences a_i - b_i)."""
+    if len(a) == 1:
+        return abs(a[0] - b[0])
+    s = 0.0
+    for x, y in zip(a, b, strict=True):
+        d = x - y
+        s += d * d
+    return math.sqrt(s)
+
+
+_norm = vector_norm
+_dist = vector_distance
 
 
 # The per-sample formulas as scalar functions of floats: the one definition the classes below use

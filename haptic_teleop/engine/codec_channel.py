@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.arq import build_arq
-from haptic_teleop.core.deadband import DeadbandConfig, DeadbandDecoder, effective_deadband, violates
+from haptic_teleop.core.deadband import DeadbandConfig, DeadbandDecoder, effective_deadband, vector_norm, violates
 from haptic_teleop.core.fec import build_fec
 from haptic_teleop.core.hli_codec import build_hli_codec, joint_state_bytes
 from haptic_teleop.core.link import Link, Packet
@@ -99,7 +99,7 @@ class GroupedDeadbandEncoder:
         if last is not None:
             p = cfg.deadband
             if cfg.adaptive_gain > 0.0:
-                p = effective_deadband(cfg, math.hypot(*sample[self.velocity]))
+                p = effective_deadband(cfg, vector_norm(sample[self.velocity]))
             if not any(violates(last[g], sample[g], p, cfg.min_threshold) for g in self.triggers):
                 c["filtered"] += 1
                 return []

@@ -28,3 +28,17 @@ C_SIZE_ALL = 24
 ) = range(47)  # fmt: skip
 S_SIZE_ALL = 48
 RING_WIDTH = 8  # seq, arrival_ns, payload (at most 6 values: a 3-value sample and its rate)
+
+# An arm scene's codec directions (engine/arm_codec_kernel.py): the scalars above at the same
+# places; the vectors (a sample of up to 9 values: 3 quantities of 3 task axes) after them.
+ARM_AXES = 3
+ARM_DIM = 9
+ARM_C_TRIG0 = C_SIZE_ALL  # 9 flags: the value is in a trigger group (the groups: 3 values each)
+ARM_C_SIZE = ARM_C_TRIG0 + ARM_DIM
+ARM_S_SENT0 = S_SIZE_ALL
+ARM_S_PREV0 = ARM_S_SENT0 + ARM_DIM
+ARM_S_LAST0 = ARM_S_PREV0 + ARM_DIM
+ARM_S_OLD0 = ARM_S_LAST0 + ARM_DIM
+ARM_S_RATE0 = ARM_S_OLD0 + ARM_DIM
+ARM_S_SIZE = ARM_S_RATE0 + ARM_DIM
+ARM_RING_WIDTH = 2 + 2 * ARM_DIM  # seq, arrival_ns, a 9-value sample and its rate

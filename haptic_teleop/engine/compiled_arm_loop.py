@@ -64,6 +64,45 @@ def kernel_error() -> str | None:
     return _kernel_or_error()[1]
 
 
+# The arm loop with the codec stage (engine/arm_codec_kernel.py): its own module and cache, loaded
+# only when an arm scene with a codec runs compiled.
+_CODEC_SOURCES = (
+    "arm_codec_kernel.py",
+    *_SOURCES,
+    "codec_kernel.py",
+    "codec_layout.py",
+    "../core/deadband.py",
+    "../core/prediction.py",
+    "../core/loss.py",
+)
+
+
+@functools.cache
+def _codec_kernel_or_error() -> tuple[Any, str | None]:
+    err = kernel_error()
+    if err is not None:
+        return None, err
+    try:
+        from haptic_teleop.engine.compiled_loop import CODEC_SOURCES, drop_stale_cache
+
+        drop_stale_cache("codec_kernel", CODEC_SOURCES)  # as the 1-DoF codec loop's loader
+        drop_stale_cache("arm_codec_kernel", _CODEC_SOURCES)
+        from haptic_teleop.engine import arm_codec_kernel
+    except Exception as exc:  # noqa: BLE001 - as `_kernel_or_error`
+        return None, f"the arm codec kernel cannot load ({type(exc).__name__}: {exc})"
+    return arm_codec_kernel, None
+
+
+def codec_kernel() -> Any:
+    """The compiled arm loop with the codec stage (module engine/arm_codec_kernel), or None."""
+    return _codec_kernel_or_error()[0]
+
+
+def codec_kernel_error() -> str | None:
+    """Why the arm loop with the codec stage cannot load here, or None."""
+    return _codec_kernel_or_error()[1]
+
+
 # --------------------------------------------------------------------------------------------
 # mjData's contact array, read from compiled code.
 
@@ -372,14 +411,44 @@ def model_addresses(parts: ArmParts) -> np.ndarray:
 CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
 
 
+def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
+    """The kernel's codec arrays of each direction that has a codec (None for the others), in the
+    arm layout (`ArmCodecNet`)."""
+    from haptic_teleop.engine.codec_layout import (
+        ARM_C_SIZE,
+        ARM_C_TRIG0,
+        ARM_DIM,
+        ARM_RING_WIDTH,
+        ARM_S_SIZE,
+    )
+    from haptic_teleop.engine.compiled_codec import CodecNet
+
+    class ArmCodecNet(CodecNet):
+        """`CodecNet` with codec_layout's ARM_* layout (up to 9 values a sample, and their rate)."""
+
+        _c_size, _trig0, _s_size, _ring_width = ARM_C_SIZE, ARM_C_TRIG0, ARM_S_SIZE, ARM_RING_WIDTH
+
+    out = []
+    for ch in codecs:
+        if ch is not None:
+            assert ch.dim <= ARM_DIM
+        out.append(None if ch is None else ArmCodecNet(ch, period_ns))
+    return out
+
+
 class CompiledArm:
     """An arm scene's compiled loop: the kernel's arrays, built from (and sharing state with) the
-    scene's Python objects; `run` ticks it like `arm_loop.run_arm_loop`."""
+    scene's Python objects; `run` ticks it like `arm_loop.run_arm_loop`. With `codec` the loop is
+    engine/arm_codec_kernel.py's (the codec stage in the kernel; `run` takes the directions'
+    `arm_codec_nets`)."""
 
-    def __init__(self, parts: ArmParts, period_s: float) -> None:
+    def __init__(self, parts: ArmParts, period_s: float, codec: bool = False) -> None:
         from haptic_teleop.engine import arm_kernel as k
 
         self.k = k
+        self.codec = codec
+        self.ck = codec_kernel() if codec else None
+        assert not codec or self.ck is not None
         self.parts = parts
         self.take()
         self.mw = self._work(parts.master)
@@ -401,10 +470,17 @@ class CompiledArm:
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) now, not in the timed loop: zero ticks."""
         rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
-        self.k.run_ticks(
+        args = (
             0, 0, self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, rel, occ, rel, occ,
             np.zeros((1, 6)), np.zeros((1, 9)), np.zeros((1, self.width)), 0, 0,
         )  # fmt: skip
+        if self.codec:
+            from haptic_teleop.engine.compiled_codec import no_codec
+
+            idle = no_codec(1)
+            self.ck.run_ticks_codec(*args, *idle, *idle, np.zeros((3, 9)))
+        else:
+            self.k.run_ticks(*args)
 
     def store(self, engine: Any) -> None:
         """The kernel's state back into the scene's Python objects and `engine.joint_limit_ticks`."""
@@ -413,9 +489,12 @@ class CompiledArm:
             "slave": store_side(self.parts.slave, self.ss),
         }
 
-    def run(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int) -> int:
+    def run(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int, nets: Any = None) -> int:
         """Ticks from 0 until the scene's end or a stop into `output` (the engine's _Output built
-        on `fwd.settled`, `bwd.settled`); returns the ticks done."""
+        on `fwd.settled`, `bwd.settled`); returns the ticks done. `nets`: with a codec, each
+        direction's `arm_codec_nets` (its schedule, fwd or bwd, is None then)."""
+        if nets is not None:
+            return self._run_codec(engine, progress, output, fwd, bwd, window, nets)
         from haptic_teleop.engine import compiled_loop
 
         n_ticks = engine.ticks
@@ -463,6 +542,57 @@ class CompiledArm:
                         break
                 if engine.stop_requested:
                     break
+        return done
+
+    def _run_codec(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int, nets: Any) -> int:
+        """`run` with the codec stage in the kernel (arm_codec_kernel.run_ticks_codec) on the
+        directions with a net; the others read their schedule's window."""
+        from haptic_teleop.engine import compiled_loop
+        from haptic_teleop.engine.compiled_codec import no_codec
+
+        n_ticks = engine.ticks
+        self.take()
+        rings = compiled_loop.Rings((6, 9))
+        block = output.block
+        block_ticks = block.shape[0]
+        run_ticks = self.ck.run_ticks_codec
+        ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
+        fnet, bnet = nets
+        idle = no_codec(engine.period_ns)
+        scratch = np.zeros((3, 9))
+        done = 0
+        engine.ticks_done = 0
+        try:
+            with compiled_loop.mujoco_timers_off():
+                while done < n_ticks:
+                    w0, w1 = done, min(done + window, n_ticks)
+                    none = np.full(w1 - w0, -1, dtype=np.int64), np.zeros(w1 - w0)
+                    frel, focc = none if fwd is None else fwd.window(w0, w1)
+                    brel, bocc = none if bwd is None else bwd.window(w0, w1)
+                    rings.fit(frel, brel, w0, w1)
+                    for c0 in range(w0, w1, CHUNK_TICKS):
+                        c1 = min(c0 + CHUNK_TICKS, w1)
+                        for net in nets:
+                            if net is not None:
+                                net.ready(c1 - c0)
+                        run_ticks(
+                            c0, c1, ms, ss, mw, sw, ov, cols, frel, focc, brel, bocc, rings.fwd, rings.bwd,
+                            block, w0, output.start,
+                            *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()), scratch,
+                        )  # fmt: skip
+                        done = engine.ticks_done = c1
+                        if progress is not None and done % 100 == 0:
+                            progress(done)
+                        if done - output.start == block_ticks:
+                            output.block_done(done)
+                        if engine.stop_requested:
+                            break
+                    if engine.stop_requested:
+                        break
+        finally:
+            for net in nets:
+                if net is not None:
+                    net.store()
         return done
 
 

@@ -121,10 +121,14 @@ class CodecNet:
     """One codec direction of the compiled loop: the kernel's arrays and what Python does between
     chunks (random numbers, records, the counters written back)."""
 
+    # The arrays' sizes, where the trigger flags start, the in-flight ring's width (an arm
+    # scene's directions: compiled_arm_loop.ArmCodecNet, codec_layout's ARM_* layout).
+    _c_size, _trig0, _s_size, _ring_width = C_SIZE_ALL, C_TRIG0, S_SIZE_ALL, RING_WIDTH
+
     def __init__(self, ch: CodecChannel, period_ns: int) -> None:
         self.ch = ch
         self.period_ns = period_ns
-        C = np.zeros(C_SIZE_ALL)
+        C = np.zeros(self._c_size)
         C[C_DIM] = ch.dim
         C[C_PERIOD_NS] = period_ns
         enc, dec = ch.encoder, ch.decoder
@@ -145,7 +149,7 @@ class CodecNet:
             C[C_VEL] = enc.velocity.start
             for g in enc.triggers:
                 for i in range(g.start, g.stop):
-                    C[C_TRIG0 + i] = 1.0
+                    C[self._trig0 + i] = 1.0
         else:
             C[C_KIND] = PREDICTION
             C[C_SIZE] = enc._size_of(ch.dim)
@@ -175,7 +179,7 @@ class CodecNet:
         self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
         self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
         self._rng = None if self._loss is None else _uniform_rng(self._loss)
-        S = np.zeros(S_SIZE_ALL)
+        S = np.zeros(self._s_size)
         S[S_NEWEST] = -1.0
         if type(self._loss) is GilbertElliottLoss:
             S[S_BAD] = 1.0 if self._loss.bad else 0.0
@@ -184,7 +188,7 @@ class CodecNet:
         depth = 4
         while depth < delay_ns // period_ns + 3:  # in flight: at most the ticks of the delay, + 2
             depth *= 2
-        self.ring = np.zeros((depth, RING_WIDTH))
+        self.ring = np.zeros((depth, self._ring_width))
         self.records = np.zeros((1024, 6))
 
     def ready(self, ticks: int) -> None:

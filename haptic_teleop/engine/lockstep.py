@@ -216,22 +216,21 @@ class Engine:
         self._stop = False
         from haptic_teleop.engine import compiled_arm_loop
 
-        codec_reason = next(
-            (
-                f"a codec is named on the {ch.direction} link ({ch.kind}): an arm scene's codecs run in the "
-                "Python arm loop only (the compiled codec stage is 1-DoF)"
-                for ch in self.codecs
-                if ch is not None
-            ),
-            None,
-        )
-        self.compiled_reason = codec_reason or (
-            compiled_arm_loop.compiled_reason_arm(
-                parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer, self.period_s
-            )
-            if loop != "python"
-            else "loop 'python' asked for"
-        )
+        codec = self.codecs != (None, None)
+        if loop == "python":
+            self.compiled_reason = "loop 'python' asked for"
+        else:
+            # A codec the kernel runs (deadband, prediction) on a link it runs (compiled_codec.codec_reason).
+            from haptic_teleop.engine.compiled_codec import codec_reason
+
+            reasons = (codec_reason(ch) for ch in self.codecs if ch is not None)
+            self.compiled_reason = next((r for r in reasons if r is not None), None)
+            if self.compiled_reason is None:
+                self.compiled_reason = compiled_arm_loop.compiled_reason_arm(
+                    parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer, self.period_s
+                )
+            if self.compiled_reason is None and codec:
+                self.compiled_reason = compiled_arm_loop.codec_kernel_error()
         if loop == "compiled" and self.compiled_reason is not None:
             raise InputError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
@@ -239,7 +238,7 @@ class Engine:
             )
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
-            self._compiled_arm = compiled_arm_loop.CompiledArm(parts, self.period_s)
+            self._compiled_arm = compiled_arm_loop.CompiledArm(parts, self.period_s, codec=codec)
             self._compiled_arm.warm_up()  # compile (or load numba's cache) now, not in the timed loop
 
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
@@ -516,13 +515,25 @@ class Engine:
         )
 
     def _arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        from haptic_teleop.engine import compiled_arm_loop
         from haptic_teleop.engine.arm_loop import run_arm_loop
 
         self.ticks_done = 0
         compiled = self.loop_kind == "compiled"
-        if compiled:  # the network decided a window ahead (compiled_loop.schedule), as for one axis
-            fwd = compiled_loop.schedule(self.forward, self.forward_buffer, self.period_ns, self._sizes[0])
-            bwd = compiled_loop.schedule(self.backward, self.backward_buffer, self.period_ns, self._sizes[1])
+        nets = None
+        if compiled and self.codecs != (None, None):
+            # a codec direction runs in the kernel (compiled_arm_loop.arm_codec_nets), the other on its schedule
+            nets = compiled_arm_loop.arm_codec_nets(self.codecs, self.period_ns)
+            fnet, bnet = nets
+            fwd = None if fnet is not None else self._schedule("forward")
+            bwd = None if bnet is not None else self._schedule("backward")
+            window = (
+                VECTORIZED_WINDOW_TICKS if all(s is None or s.vectorized for s in (fwd, bwd)) else COMPILED_CHUNK_TICKS
+            )
+            output = _Output(sink, (fnet or fwd).settled, (bnet or bwd).settled, self.schema.width)
+        elif compiled:  # the network decided a window ahead (compiled_loop.schedule), as for one axis
+            fwd = self._schedule("forward")
+            bwd = self._schedule("backward")
             window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
             output = _Output(sink, fwd.settled, bwd.settled, self.schema.width)
         else:
@@ -538,7 +549,7 @@ class Engine:
         try:
             if compiled:
                 try:
-                    done = self._compiled_arm.run(self, progress, output, fwd, bwd, window)
+                    done = self._compiled_arm.run(self, progress, output, fwd, bwd, window, nets)
                 finally:
                     self._compiled_arm.store(self)
             else:
@@ -552,6 +563,12 @@ class Engine:
         output.end(done)
         wall = time.perf_counter() - t0
         return self._streamed(done, wall)
+
+    def _schedule(self, direction: str) -> Any:
+        """compiled_loop.schedule of a direction's link and buffer."""
+        i = ("forward", "backward").index(direction)
+        link, buf = (self.forward, self.forward_buffer) if i == 0 else (self.backward, self.backward_buffer)
+        return compiled_loop.schedule(link, buf, self.period_ns, self._sizes[i])
 
     def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
         """The compiled loop's arguments (axis_kernel.run_ticks) around the network's: the plants'
