@@ -33,7 +33,10 @@ ARQ = (
     "--set", "network.forward.effects.delay.delay_s=0.01",
     "--set", "network.backward.effects.delay.delay_s=0.01",
     "--set", "network.forward.effects.loss.probability=0.2",
-    "--set", "network.backward.effects.loss.probability=0.2",
+    # backward: a Gilbert channel losing 20 % in bursts (p / (p + r)), with HLI on that direction,
+    # so one launch runs both (the acknowledgements cross it too)
+    "--set", "network.backward.effects.loss={model: gilbert, p: 0.05, r: 0.2}",
+    "--set", "network.backward.codec.kind=hli",
 )  # fmt: skip
 NODES = ("operator_source", "master_eba", "slave_eba", "forward_relay", "forward_buffer", "backward_relay",
          "backward_buffer", "recorder")  # fmt: skip
@@ -208,6 +211,32 @@ def test_live_arq_retransmits_over_a_lossy_link_and_the_ack_relay_carries_the_ac
     assert s["codec_packets_forward"] == orig.shape[0] <= f["encoder_sent"]
 
 
+def test_live_hli_sends_the_engines_hli_messages_and_rebuilds(arq_run):
+    """HLI on the backward direction (the ARQ run's, over a Gilbert channel losing 20 % in bursts):
+    its packets are HLI's own messages, of the
+    engine's sizes by class (core/hli_codec.hli_message_bytes: HLI2 and HLI1 packets of a
+    3-value sample), HLI0 samples are never sent, and the decoder rebuilds lost HLI2 events from
+    the followers that came through; summary.json names the codec and its reduction."""
+    from haptic_teleop.core.hli_codec import HLI1, HLI2, hli_message_bytes
+
+    _clean_exit(arq_run, (*NODES, "forward_ack_relay"), code=130)
+    f = arq_run["info"]["codec_backward"]
+    print(f)
+    assert f["kind"] == "hli" and "counters_missing" not in f
+    assert f["encoder_hli0"] > 0 and f["encoder_hli2"] > 0 and f["encoder_hli1"] > 0
+    assert f["encoder_sent"] == f["encoder_hli2"] + f["encoder_hli1"] - f["encoder_filtered_hli1"]
+    assert f["decoder_received"] < f["encoder_sent"]  # the Gilbert channel lost some
+    assert f["decoder_rebuilt"] > 0, f
+    rows = arq_run["packets"]["backward"]
+    sizes = set(np.unique(rows[:, 5]).tolist())
+    assert sizes == {hli_message_bytes(3, HLI2), hli_message_bytes(3, HLI1)}, sizes
+    s = arq_run["summary"]
+    # The backward wire also carries the forward ARQ's acknowledgements (codec_ack_packets_backward,
+    # in its packet reduction): HLI's own packets are fewer than the samples.
+    assert s["codec_kind_backward"] == "hli" and s["codec_packets_backward"] == rows[rows[:, 4] == 0.0].shape[0]
+    assert s["codec_packets_backward"] < 0.8 * s["codec_samples_backward"]
+
+
 def test_live_arm_deadband_sends_the_engines_arm_messages_and_reduces_as_the_engine(arm_runs):
     """An arm scene: the encoders in the arm ticks, the arm's codec message (one name per task
     axis: the plain arm packet's size for the plain payloads), the packet reduction within 0.2 of
@@ -248,6 +277,18 @@ def test_codec_wire_message_is_the_engines_size_and_round_trips():
             raw = wire.encode(1_795_000_000_123_000_000, payload)
             assert len(raw) == size_of(f), (arm, f, len(raw), size_of(f))
             assert wire.decode(raw) == (1_795_000_000_123_000_000, payload)
+    # HLI's own message: (x..., class, offset, previous x...[, HLI2 copy...]) of d-value samples
+    from haptic_teleop.core.hli_codec import HLI1, HLI2, hli_message_bytes
+
+    for arm in (False, True):
+        for d in (2, 3, 6, 9):
+            wire = CodecWire(arm, hli_dim=d)
+            for cls, n in ((HLI2, 2 * d + 2), (HLI1, 3 * d + 2)):
+                payload = list(rng.normal(size=n).tolist())
+                payload[d], payload[d + 1] = float(cls), (0.0 if cls == HLI2 else 4.0)
+                raw = wire.encode(1_795_000_000_123_000_000, payload)
+                assert len(raw) == hli_message_bytes(d, cls) == wire.size_of(payload), (arm, d, cls)
+                assert wire.decode(raw) == (1_795_000_000_123_000_000, tuple(payload))
 
 
 def _node(module: str, *params: str) -> subprocess.CompletedProcess:
@@ -278,10 +319,10 @@ def test_bad_codec_parameters_stop_the_node_with_one_line(module, params, names)
 
 
 def test_launch_refuses_what_the_live_nodes_do_not_run(tmp_path):
-    """HLI and a codec on an arm scene: one line, exit 2, nothing started."""
-    hli = ("--set", "network.forward.codec.kind=hli", "--set", "network.forward.effects.loss.model=gilbert",
-           "--set", "network.forward.effects.loss.p=0.01", "--set", "network.forward.effects.loss.r=0.5")  # fmt: skip
-    r = subprocess.run([*CLI, "launch", "wall_contact", *hli], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    """A codec on an arm scene whose side runs at its own period: one line, exit 2, nothing started."""
+    own = ("--set", "network.forward.codec.kind=deadband", "--set", "slave.period_s=0.002")
+    r = subprocess.run([*CLI, "launch", "touch_ur5e_wall", *own], capture_output=True, text=True, timeout=60,
+                       cwd=tmp_path)  # fmt: skip
     assert r.returncode == 2, r.stdout + r.stderr
-    assert "network.forward.codec" in r.stderr and "deadband, prediction, fec, arq" in r.stderr
+    assert "network.forward.codec" in r.stderr and "slave.period_s" in r.stderr
     assert "Traceback" not in r.stderr and "[launcher] started" not in r.stdout

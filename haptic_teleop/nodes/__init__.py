@@ -26,7 +26,8 @@ SCENE_SECTIONS = {
     # mapping's default offset comes from both arms' start points).
     # Each EBA node reads the codec of the direction it sends (its encoder, nodes/codec_stage.py)
     # with that direction's buffer (a codec needs buffer.policy none); the sync buffer, the codec
-    # of its direction (its decoder).
+    # of its direction (its decoder). HLI's N_HLI1 comes from the direction's Gilbert loss, so the
+    # encoder's and decoder's nodes read that direction's loss model too.
     "master_eba": (
         "scene",
         "operator",
@@ -37,6 +38,7 @@ SCENE_SECTIONS = {
         "mapping",
         "network.forward.buffer",
         "network.forward.codec",
+        "network.forward.effects.loss",
     ),
     "slave_eba": (
         "scene",
@@ -48,9 +50,17 @@ SCENE_SECTIONS = {
         "mapping",
         "network.backward.buffer",
         "network.backward.codec",
+        "network.backward.effects.loss",
     ),
-    "network_relay": ("scene", "network.{direction}.effects"),
-    "sync_buffer": ("scene", "network.{direction}.buffer", "network.{direction}.codec"),
+    # A relay reads its direction's codec too: a packet's size on the wire is its codec's (HLI's
+    # own message, nodes/codec_stage.py), for the packet records and the links' rate limits.
+    "network_relay": ("scene", "network.{direction}.effects", "network.{direction}.codec"),
+    "sync_buffer": (
+        "scene",
+        "network.{direction}.buffer",
+        "network.{direction}.codec",
+        "network.{direction}.effects.loss",
+    ),
     "operator_source": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
     "recorder": ("",),
     "clock_source": ("scene",),

@@ -31,12 +31,13 @@ from haptic_teleop.engine.codec_channel import REVERSE, codec_pair, message_byte
 from haptic_teleop.errors import ConfigError
 
 # The codecs the live nodes run (HLI sizes its packets by class, not by this wire message).
-LIVE_CODECS = ("deadband", "prediction", "fec", "arq")
+LIVE_CODECS = ("deadband", "prediction", "fec", "arq", "hli")
 # network_relay `carries`: the direction's plain samples, its codec's packets, or the
 # acknowledgements of its codec (ARQ) over the reverse direction's effects.
 RELAY_CARRIES = ("samples", "codec", "ack")
 _FIELDS = ("position", "velocity", "effort")
 _NAME = re.compile(r"c(\d{3})(?:_\d{3}|\d{2})\Z")
+_HLI_NAME = re.compile(r"h(\d{3})_\d{3}\Z")
 COUNTERS_EVERY_S = 0.5
 FINAL_ACK_S = 2.0  # at close, the last counters' wait for the recorder's acknowledgement
 SNAPSHOT_TICKS = 5000  # counter snapshots kept while scene time 0 is not known yet
@@ -70,11 +71,17 @@ def wire_layout(floats: int, arm: bool = False) -> tuple[tuple[str, ...], tuple[
 
 
 class CodecWire:
-    """Encodes and decodes the codec packets' JointState (module docstring)."""
+    """Encodes and decodes the codec packets' JointState (module docstring). `hli_dim`: the
+    direction's codec is HLI with samples of that many values; its packets then take the engine's
+    HLI message (core/hli_codec.hli_message_bytes): `hli_dim + 1` names `hDDD_iii`, position =
+    (x..., class), velocity = (previous x..., offset), and in an HLI1 packet effort = (the HLI2
+    event's copy..., 0); the payload in the codec's order is rebuilt from it on decoding."""
 
-    def __init__(self, arm: bool = False) -> None:
+    def __init__(self, arm: bool = False, hli_dim: int | None = None) -> None:
         self.arm = arm
+        self.hli_dim = hli_dim
         self._codecs: dict[int, Any] = {}
+        self._size_of = wire_size_of(arm)
 
     def _codec(self, floats: int) -> Any:
         c = self._codecs.get(floats)
@@ -85,7 +92,40 @@ class CodecWire:
             c = self._codecs[floats] = JointStateCodec(names, fields)
         return c
 
+    def _hli_codec(self, fields: int) -> Any:
+        key = -fields  # apart from the payload lengths of the other layout
+        c = self._codecs.get(key)
+        if c is None:
+            from haptic_teleop.nodes.cdr import JointStateCodec
+
+            d = self.hli_dim
+            assert d is not None
+            names = tuple(f"h{d:03d}_{i:03d}" for i in range(d + 1))
+            c = self._codecs[key] = JointStateCodec(names, _FIELDS[:fields])
+        return c
+
+    def size_of(self, payload: Sequence[float]) -> int:
+        """The engine's message size of a packet with this payload (what the links count)."""
+        d = self.hli_dim
+        if d is None:
+            return self._size_of(len(payload))
+        from haptic_teleop.core.hli_codec import hli_message_bytes
+
+        return hli_message_bytes(d, round(payload[d]))
+
     def encode(self, stamp_ns: int, payload: Sequence[float]) -> bytes:
+        d = self.hli_dim
+        if d is not None:
+            pl = tuple(payload)
+            three = len(pl) == 3 * d + 2
+            if len(pl) != 2 * d + 2 and not three:
+                want = f"{2 * d + 2} or {3 * d + 2}"
+                raise ValueError(f"an HLI packet of {d}-value samples carries {want} values, got {len(pl)}")
+            values = (*pl[:d], pl[d], *pl[d + 2 : 2 * d + 2], pl[d + 1])
+            if three:
+                values = (*values, *pl[2 * d + 2 :], 0.0)
+            hli: bytes = self._hli_codec(3 if three else 2).encode(stamp_ns, values)
+            return hli
         f = len(payload)
         c = self._codec(f)
         slots = len(c.names) * len(c.fields)
@@ -99,15 +139,36 @@ class CodecWire:
         from sensor_msgs.msg import JointState
 
         m = deserialize_message(raw, JointState)
+        st = m.header.stamp
+        stamp = int(st.sec) * 1_000_000_000 + int(st.nanosec)
+        hli = _HLI_NAME.match(m.name[0]) if len(m.name) else None
+        if hli is not None:
+            d = int(hli.group(1))
+            pos, vel, eff = m.position, m.velocity, m.effort
+            if len(m.name) != d + 1 or len(pos) != d + 1 or len(vel) != d + 1 or len(eff) not in (0, d + 1):
+                raise ValueError(f"an HLI packet of {d}-value samples has {d + 1} names, positions and velocities")
+            out = (*pos[:d], pos[d], vel[d], *vel[:d], *eff[:d])
+            return stamp, tuple(float(v) for v in out)
         match = _NAME.match(m.name[0]) if len(m.name) else None
         if match is None:
-            raise ValueError("not a codec packet (joint names cFFF_iii, an arm scene's cFFFii)")
+            raise ValueError("not a codec packet (joint names cFFF_iii, an arm scene's cFFFii, HLI's hDDD_iii)")
         f = int(match.group(1))
         values = (*m.position, *m.velocity, *m.effort)
         if len(values) < f:
             raise ValueError(f"a codec packet of {f} values carries {len(values)}")
-        st = m.header.stamp
-        return int(st.sec) * 1_000_000_000 + int(st.nanosec), tuple(float(v) for v in values[:f])
+        return stamp, tuple(float(v) for v in values[:f])
+
+
+def direction_wire(cfg: Any, direction: str, arm: bool) -> CodecWire:
+    """The wire of `direction`'s codec packets in this scene (HLI's own message, else the engine's
+    codec message of the payload's length)."""
+    codec = getattr(cfg.network, direction).codec
+    if codec is None or codec.kind != "hli":
+        return CodecWire(arm)
+    from haptic_teleop.engine.codec_channel import LAYOUT_ARM, LAYOUT_ONE_AXIS
+
+    layout = LAYOUT_ARM if arm else LAYOUT_ONE_AXIS
+    return CodecWire(arm, hli_dim=len(layout[direction]) * (3 if arm else 1))
 
 
 def check_live_codec(where: str, cfg: Any, direction: str) -> str | None:
@@ -241,7 +302,7 @@ class CodecSender:
         self.kind, self.direction = kind, direction
         self.period_ns = round(cfg.scene.period_s * 1e9)
         self.encoder, _ = _pair(cfg, direction, self.period_ns, cfg.is_arm)
-        self.wire = CodecWire(cfg.is_arm)
+        self.wire = direction_wire(cfg, direction, cfg.is_arm)
         self._send = raw_publish_fn(node.create_publisher(JointState, sent_topic(direction), stream_qos(READER_DEPTH)))
         self._acks = None
         if kind == "arq":
@@ -291,8 +352,7 @@ class CodecReceiver:
         self.kind, self.direction = kind, direction
         self.period_ns = round(cfg.scene.period_s * 1e9)
         _, self.decoder = _pair(cfg, direction, self.period_ns, arm)
-        self.wire = CodecWire(arm)
-        self._size_of = wire_size_of(arm)
+        self.wire = direction_wire(cfg, direction, arm)
         self._ack = (
             raw_publish_fn(node.create_publisher(JointState, ack_sent_topic(direction), stream_qos(READER_DEPTH)))
             if kind == "arq"
@@ -323,7 +383,7 @@ class CodecReceiver:
                 self.malformed += 1
                 continue
             seq = stamp // period
-            back = dec.receive(Packet(seq, stamp, payload, self._size_of(len(payload)), stamp_ns), stamp_ns)
+            back = dec.receive(Packet(seq, stamp, payload, wire.size_of(payload), stamp_ns), stamp_ns)
             arrived(seq)
             if seq > self.newest_seq:
                 self.newest_seq = rx = seq

@@ -197,7 +197,6 @@ class NetworkRelay(LiveNode):
         self.settled = 0  # samples of scene time >= 0 that went through the settling link
         period_ns = round(cfg.scene.period_s * 1e9)
         self.codec_wire: Any = None
-        self._codec_size: Any = None
         if self.carries != "samples":
             if nve_direction(d) is not None:
                 raise ConfigError(
@@ -205,11 +204,12 @@ class NetworkRelay(LiveNode):
                     "codec packets and acknowledgements are relayed for teleoperation's directions only; "
                     "allowed: samples",
                 )  # fmt: skip
-            from haptic_teleop.nodes.codec_stage import CodecWire, wire_size_of
+            from haptic_teleop.nodes.codec_stage import CodecWire, direction_wire
 
-            # task_axes 3: an arm scene's codec message (nodes/codec_stage.py)
-            self.codec_wire = CodecWire(arm=axes == 3)
-            self._codec_size = wire_size_of(axes == 3)
+            # task_axes 3: an arm scene's codec message (nodes/codec_stage.py); the acknowledgements
+            # (ARQ's) take the plain codec message, the data packets their codec's
+            arm = axes == 3
+            self.codec_wire = CodecWire(arm) if self.carries == "ack" else direction_wire(cfg, d, arm)
         # The link's random streams are named by the direction: "forward", "backward" as the
         # engine's; "<client>/up", "<client>/down" as the NVE engine's (nve_assembly.build_direction);
         # an ack relay's "<direction>:ack" as the engine's ACK link (engine/codec_channel.py), over
@@ -258,7 +258,7 @@ class NetworkRelay(LiveNode):
         try:
             if self.codec_wire is not None:
                 stamp, payload = self.codec_wire.decode(msg)
-                size = self._codec_size(len(payload))
+                size = self.codec_wire.size_of(payload)
             else:
                 stamp, payload = self._read(msg)
         except (IndexError, ValueError):  # not this direction's layout: drop it, say so once
