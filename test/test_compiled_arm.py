@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from compiled_identity import Calls
 
 from haptic_teleop.engine import compiled_arm_loop
 from haptic_teleop.engine.lockstep import Engine
@@ -63,22 +64,6 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
 
 def _scene(name: str, overrides: tuple[str, ...], duration_s: float = 2.0) -> Any:
     return load_scene(find_scene(name), overrides=[f"scene.duration_s={duration_s}", *overrides])
-
-
-class Calls:
-    """A sink that notes every call the engine makes on it, with a copy of its array."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, np.ndarray]] = []
-
-    def append(self, rows: np.ndarray) -> None:
-        self.calls.append(("rows", np.array(rows)))
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self.calls.append((direction, np.array(rows)))
-
-    def data(self) -> np.ndarray:
-        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
 
 
 def _run(e: Engine, stop_at: int | None = None) -> tuple[Any, Calls]:

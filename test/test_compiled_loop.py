@@ -11,6 +11,7 @@ scheduled buffer policy).
 
 import numpy as np
 import pytest
+from compiled_identity import Calls
 
 from haptic_teleop.engine import compiled_loop
 from haptic_teleop.engine.lockstep import Engine
@@ -64,22 +65,6 @@ CASES = {
 def _scene(name, overrides):
     extra = [] if any(o.startswith("scene.duration_s") for o in overrides) else [SHORT]
     return load_scene(find_scene(name), overrides=[*extra, *overrides])
-
-
-class Calls:
-    """A sink that notes every call the engine makes on it, with a copy of its array."""
-
-    def __init__(self):
-        self.calls = []
-
-    def append(self, rows):
-        self.calls.append(("rows", np.array(rows)))
-
-    def append_packets(self, direction, rows):
-        self.calls.append((direction, np.array(rows)))
-
-    def data(self):
-        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
 
 
 def _both(scene, stop_at=None):
