@@ -46,6 +46,7 @@ from haptic_teleop.engine.arm_kernel import (
     forward_sample,
     guarded,
     released,
+    run_constants,
     sense,
     side_torque,
     tick_vectors,
@@ -264,11 +265,12 @@ def run_ticks_codec(
     nm, ns = ms[T_I][I_N], ss[T_I][I_N]
     own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
     v = tick_vectors(own, nm, ns)
+    c = run_constants(ms, ss, ov)
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
     for n in range(n0, n1):
         now = n * period_ns
-        sense(ms, ss, mw, sw, v)  # 1. both arms
+        sense(ms, ss, mw, sw, v, c)  # 1. both arms
         side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
         # 3. forward packet (the codec's, or the schedule's release)
         if fcodec:
@@ -294,6 +296,6 @@ def run_ticks_codec(
             brx = released(ms, bwd_rel[n - w0], bwd_hist, bmask)
             bocc = bwd_occ[n - w0]
         # 6. operator, plants, the row
-        finish_tick(n, ms, ss, mw, sw, ov, cols, v, data[n - d0], frx, brx, focc, bocc)
+        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views
     return n1

@@ -476,11 +476,23 @@ def tick_vectors(own: np.ndarray, nm: int, ns: int) -> Any:
     )
 
 
+# The run's constants the tick reads (`run_constants`), in this order.
+K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS = range(7)
+
+
 @inline  # type: ignore[misc]
-def sense(ms: Any, ss: Any, mw: Any, sw: Any, v: Any) -> None:
+def run_constants(ms: Any, ss: Any, ov: np.ndarray) -> Any:
+    """What the tick reads of the parameters, read once before the loop: the mapping's scales, the
+    hand's stiffness and damping, the period, both sides' joint counts."""
+    MF = ms[T_F]
+    return (MF[F_SCALE], MF[F_FORCE_SCALE], MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N])
+
+
+@inline  # type: ignore[misc]
+def sense(ms: Any, ss: Any, mw: Any, sw: Any, v: Any, c: Any) -> None:
     """Step 1 of the tick: both arms (mj_step1: the state, kinematics and gravity torques of this
     instant), the wall's wrench of the last period, the master's point in the task frame."""
-    MI, SI, MF = ms[T_I], ss[T_I], ms[T_F]
+    MI, SI = ms[T_I], ss[T_I]
     xm_dev, vm_dev = v[V_XM_DEV], v[V_VM_DEV]
     f_env, t_env, s_wrench = v[V_F_ENV], v[V_T_ENV], ss[T_WRENCH]
     mj_step1(MI[I_MODEL], MI[I_DATA])
@@ -492,8 +504,8 @@ def sense(ms: Any, ss: Any, mw: Any, sw: Any, v: Any) -> None:
     for k in range(3):
         f_env[k] = s_wrench[k]
         t_env[k] = s_wrench[3 + k]
-    map_point(v[V_XM], ms[T_ROT], MF[F_SCALE], ms[T_OFFSET], xm_dev)
-    map_vector(v[V_VM], ms[T_ROT], MF[F_SCALE], vm_dev)
+    map_point(v[V_XM], ms[T_ROT], c[K_SCALE], ms[T_OFFSET], xm_dev)
+    map_vector(v[V_VM], ms[T_ROT], c[K_SCALE], vm_dev)
 
 
 @inline  # type: ignore[misc]
@@ -526,16 +538,13 @@ def released(side: Any, seq: int, hist: np.ndarray, mask: int) -> int:
 
 @inline  # type: ignore[misc]
 def finish_tick(
-    n: int, ms: Any, ss: Any, mw: Any, sw: Any, ov: np.ndarray, cols: np.ndarray, v: Any, row: np.ndarray,
-    frx: float, brx: float, focc: float, bocc: float,
+    n: int, ms: Any, ss: Any, mw: Any, sw: Any, ov: np.ndarray, cols: np.ndarray, v: Any, c: Any,
+    row: np.ndarray, frx: float, brx: float, focc: float, bocc: float,
 ) -> None:  # fmt: skip
     """Step 6 of the tick, after both sides' torques and the network: the operator, both plants'
     steps (the hand force on the master), the held torques, the tick's row."""
-    MF = ms[T_F]
     rot, offset = ms[T_ROT], ms[T_OFFSET]
-    scale, force_scale = MF[F_SCALE], MF[F_FORCE_SCALE]
-    k_h, b_h = MF[F_K_HAND], MF[F_B_HAND]
-    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
+    scale, force_scale, k_h, b_h, nm, ns = c[K_SCALE], c[K_FORCE_SCALE], c[K_K_HAND], c[K_B_HAND], c[K_NM], c[K_NS]
     qm, qdm, qs, qds = v[V_QM], v[V_QDM], v[V_QS], v[V_QDS]
     app_m, app_s = v[V_APP_M], v[V_APP_S]
     xm_dev, vm_dev, x_m, v_m, xs, vs = v[V_XM_DEV], v[V_VM_DEV], v[V_XM], v[V_VM], v[V_XS], v[V_VS]
@@ -543,7 +552,7 @@ def finish_tick(
     xd_t, vd_t, xd, vd = v[V_XD_T], v[V_VD_T], v[V_XD], v[V_VD]
     m_S, s_S = ms[T_S], ss[T_S]
     m_force, s_force = ms[T_FORCE], ss[T_FORCE]
-    t = n * ov[O_PERIOD] - ov[O_START]
+    t = n * c[K_PERIOD] - ov[O_START]
     profile = ov[O_PROFILE]
     if profile == 0.0:
         xd1, vd1 = push1(t, ov[O_X0], ov[O_SPEED], ov[O_T_END], ov[O_X_END])
@@ -765,10 +774,11 @@ def run_ticks(
     nm, ns = ms[T_I][I_N], ss[T_I][I_N]
     own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
     v = tick_vectors(own, nm, ns)
+    c = run_constants(ms, ss, ov)
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
     for n in range(n0, n1):
-        sense(ms, ss, mw, sw, v)  # 1. both arms
+        sense(ms, ss, mw, sw, v, c)  # 1. both arms
         side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
         forward_sample(fwd_hist[n & fmask], v)  # 3. forward packet
         frx = released(ss, fwd_rel[n - w0], fwd_hist, fmask)
@@ -776,7 +786,7 @@ def run_ticks(
         backward_sample(bwd_hist[n & bmask], v)  # 5. backward packet
         brx = released(ms, bwd_rel[n - w0], bwd_hist, bmask)
         # 6. operator, plants, the row
-        finish_tick(n, ms, ss, mw, sw, ov, cols, v, data[n - d0], frx, brx, fwd_occ[n - w0], bwd_occ[n - w0])
+        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, fwd_occ[n - w0], bwd_occ[n - w0])
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views
     return n1
 
