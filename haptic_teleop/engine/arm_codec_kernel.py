@@ -25,13 +25,10 @@ import numpy as np
 
 from haptic_teleop.engine import codec_kernel as ck
 from haptic_teleop.engine.arm_kernel import (
-    I_N,
-    T_I,
     V_QDM,
     V_QDS,
     V_QM,
     V_QS,
-    V_SIZE,
     V_TAU_M,
     V_TAU_S,
     V_VM,
@@ -40,16 +37,13 @@ from haptic_teleop.engine.arm_kernel import (
     V_XS,
     backward_sample,
     borrowed,
-    detach,
-    detach_work,
     finish_tick,
     forward_sample,
     guarded,
     released,
-    run_constants,
+    run_start,
     sense,
     side_torque,
-    tick_vectors,
 )
 from haptic_teleop.engine.codec_layout import (
     ARM_AXES,
@@ -208,6 +202,24 @@ def arm_codec_tick(
     return rx, prediction_sample(C, S, n, out)
 
 
+@inline  # type: ignore[misc]
+def delivered(
+    codec: bool, side: Any, n: int, now: int, w0: int, rel: np.ndarray, occ: np.ndarray, hist: np.ndarray,
+    mask: int, net: Any, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray,
+) -> tuple[int, float]:  # fmt: skip
+    """A direction's network at tick n after its sample was written (`smp` with a codec, else the
+    sender's ring): the codec's tick (`net`: C, S, U, B, ring, rec) with the decoded sample through
+    the receiving `side`'s guard, or the schedule's release. Returns the row's `received` seq (-1:
+    none) and buffer occupancy (0 with a codec)."""
+    if codec:
+        C, S, U, B, ring, rec = net
+        rx, got = arm_codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, dec)
+        if got:
+            guarded(side, dec)
+        return rx, 0.0
+    return released(side, rel[n - w0], hist, mask), occ[n - w0]
+
+
 @jit  # type: ignore[misc]
 def run_ticks_codec(
     n0: int,
@@ -245,27 +257,15 @@ def run_ticks_codec(
     others read their window of the schedule as there). fC ... frec, bC ... brec: each
     direction's codec arrays (compiled_codec.CodecNet.args, the arm layout); scratch: 3 rows of
     9 (the sample, its rate, the decoder's output)."""
-    ms, ss, mw, sw = detach(ms_own), detach(ss_own), detach_work(mw_own), detach_work(sw_own)
-    fwd_rel, fwd_occ, bwd_rel, bwd_occ = borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ)
-    fwd_hist, bwd_hist, data, ov, cols = (
-        borrowed(fwd_hist),
-        borrowed(bwd_hist),
-        borrowed(data),
-        borrowed(ov),
-        borrowed(cols),
+    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
+        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
     )
-    fC, fS, fU, fB = borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB)
-    fring, frec = borrowed(fring), borrowed(frec)
-    bC, bS, bU, bB = borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB)
-    bring, brec = borrowed(bring), borrowed(brec)
+    fnet = (borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB), borrowed(fring), borrowed(frec))
+    bnet = (borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB), borrowed(bring), borrowed(brec))
     smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
     fcodec = fC[C_KIND] != NO_CODEC
     bcodec = bC[C_KIND] != NO_CODEC
     period_ns = int(fC[C_PERIOD_NS])
-    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
-    own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
-    v = tick_vectors(own, nm, ns)
-    c = run_constants(ms, ss, ov)
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
     for n in range(n0, n1):
@@ -273,28 +273,12 @@ def run_ticks_codec(
         sense(ms, ss, mw, sw, v, c)  # 1. both arms
         side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
         # 3. forward packet (the codec's, or the schedule's release)
-        if fcodec:
-            forward_sample(smp, v)
-            frx, got = arm_codec_tick(fC, fS, fU, fB, fring, frec, n, now, smp, rate, dec)
-            if got:
-                guarded(ss, dec)
-            focc = 0.0
-        else:
-            forward_sample(fwd_hist[n & fmask], v)
-            frx = released(ss, fwd_rel[n - w0], fwd_hist, fmask)
-            focc = fwd_occ[n - w0]
+        forward_sample(smp if fcodec else fwd_hist[n & fmask], v)
+        frx, focc = delivered(fcodec, ss, n, now, w0, fwd_rel, fwd_occ, fwd_hist, fmask, fnet, smp, rate, dec)
         side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
         # 5. backward packet
-        if bcodec:
-            backward_sample(smp, v)
-            brx, got = arm_codec_tick(bC, bS, bU, bB, bring, brec, n, now, smp, rate, dec)
-            if got:
-                guarded(ms, dec)
-            bocc = 0.0
-        else:
-            backward_sample(bwd_hist[n & bmask], v)
-            brx = released(ms, bwd_rel[n - w0], bwd_hist, bmask)
-            bocc = bwd_occ[n - w0]
+        backward_sample(smp if bcodec else bwd_hist[n & bmask], v)
+        brx, bocc = delivered(bcodec, ms, n, now, w0, bwd_rel, bwd_occ, bwd_hist, bmask, bnet, smp, rate, dec)
         # 6. operator, plants, the row
         finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views

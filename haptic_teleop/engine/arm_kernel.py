@@ -737,6 +737,28 @@ def side_end(side_own: Any, work_own: Any, tau: np.ndarray, hand: np.ndarray, ap
     plant_step(detach(side_own), tau, hand, applied, detach_work(work_own))
 
 
+@inline  # type: ignore[misc]
+def run_start(
+    ms_own: Any, ss_own: Any, mw_own: Any, sw_own: Any, ov: np.ndarray, cols: np.ndarray, fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray, bwd_rel: np.ndarray, bwd_occ: np.ndarray, fwd_hist: np.ndarray, bwd_hist: np.ndarray,
+    data: np.ndarray,
+) -> Any:  # fmt: skip
+    """The start of a run of ticks (`run_ticks`, arm_codec_kernel.run_ticks_codec): its arguments
+    as `borrowed` views (no reference counting in the loop; the caller's arguments own them), in
+    the order given, then the tick's vectors (`own`, which the caller keeps alive past every use
+    of its views, and `tick_vectors`) and the `run_constants`."""
+    ms, ss = detach(ms_own), detach(ss_own)
+    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
+    own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
+    ovb = borrowed(ov)
+    return (
+        ms, ss, detach_work(mw_own), detach_work(sw_own), ovb, borrowed(cols),
+        borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ),
+        borrowed(fwd_hist), borrowed(bwd_hist), borrowed(data),
+        own, tick_vectors(own, nm, ns), run_constants(ms, ss, ovb),
+    )  # fmt: skip
+
+
 @jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
@@ -762,19 +784,9 @@ def run_ticks(
     histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
     # Every array the ticks use is a borrowed view (no reference counting in the loop); the
     # arguments and the locals below own them until the function returns.
-    ms, ss, mw, sw = detach(ms_own), detach(ss_own), detach_work(mw_own), detach_work(sw_own)
-    fwd_rel, fwd_occ, bwd_rel, bwd_occ = borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ)
-    fwd_hist, bwd_hist, data, ov, cols = (
-        borrowed(fwd_hist),
-        borrowed(bwd_hist),
-        borrowed(data),
-        borrowed(ov),
-        borrowed(cols),
+    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
+        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
     )
-    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
-    own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
-    v = tick_vectors(own, nm, ns)
-    c = run_constants(ms, ss, ov)
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
     for n in range(n0, n1):
