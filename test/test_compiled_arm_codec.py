@@ -33,6 +33,8 @@ from compiled_identity import (
     PREDICTION_HOLD,
     SENT_RATE,
     Calls,
+    assert_same_arm_sides,
+    assert_same_calls,
 )
 
 from haptic_teleop.analysis.energy import energy_margins
@@ -121,20 +123,8 @@ def _links(e: Engine) -> dict[str, Any]:
 def _assert_same(compiled: Run, python: Run) -> None:
     (ec, rc, sc), (ep, rp, sp) = compiled, python
     assert rc.ticks == rp.ticks
-    assert [k for k, _ in sc.calls] == [k for k, _ in sp.calls]
-    for (kind, c), (_, p) in zip(sc.calls, sp.calls, strict=True):
-        assert np.array_equal(c, p, equal_nan=True), (kind, np.flatnonzero(np.any(c != p, axis=0)))
-    assert ec.joint_limit_ticks == ep.joint_limit_ticks
-    for role in ("master", "slave"):
-        a, b = getattr(ec.arm, role), getattr(ep.arm, role)
-        assert a.rejected_samples == b.rejected_samples
-        assert a.bound.energy_j == b.bound.energy_j
-        assert np.array_equal(a.bound.held, b.bound.held)
-        sa, sb = a.bound.state(), b.bound.state()
-        assert np.array_equal(sa.last_q_rad, sb.last_q_rad)
-        assert (sa.has_last, sa.scale) == (sb.has_last, sb.scale)
-        assert np.array_equal(a.plant.data.qpos, b.plant.data.qpos)
-        assert np.array_equal(a.plant.data.qvel, b.plant.data.qvel)
+    assert_same_calls(sc.calls, sp.calls)
+    assert_same_arm_sides(ec, ep)
     assert ec.codec_facts() == ep.codec_facts()
     for a, b in zip(ec.codecs, ep.codecs, strict=True):
         if a is not None:
