@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from compiled_identity import Calls, assert_same_arm_sides, assert_same_calls
 
 from haptic_teleop.engine import compiled_arm_loop
 from haptic_teleop.engine.lockstep import Engine
@@ -65,22 +66,6 @@ def _scene(name: str, overrides: tuple[str, ...], duration_s: float = 2.0) -> An
     return load_scene(find_scene(name), overrides=[f"scene.duration_s={duration_s}", *overrides])
 
 
-class Calls:
-    """A sink that notes every call the engine makes on it, with a copy of its array."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, np.ndarray]] = []
-
-    def append(self, rows: np.ndarray) -> None:
-        self.calls.append(("rows", np.array(rows)))
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self.calls.append((direction, np.array(rows)))
-
-    def data(self) -> np.ndarray:
-        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
-
-
 def _run(e: Engine, stop_at: int | None = None) -> tuple[Any, Calls]:
     sink = Calls()
 
@@ -106,22 +91,8 @@ def _both(scene: Any, stop_at: int | None = None, tweak: Any = None) -> list[tup
 def _assert_same_run(runs: list[tuple[Engine, Any, Calls]]) -> None:
     (ec, rc, sc), (ep, rp, sp) = runs
     assert rc.ticks == rp.ticks
-    assert [k for k, _ in sc.calls] == [k for k, _ in sp.calls]
-    for (kind, c), (_, p) in zip(sc.calls, sp.calls, strict=True):
-        assert np.array_equal(c, p, equal_nan=True), (kind, np.flatnonzero(np.any(c != p, axis=0)))
-    assert all(len(a) <= BLOCK_TICKS for k, a in sc.calls if k == "rows")
-    assert ec.joint_limit_ticks == ep.joint_limit_ticks
-    for role in ("master", "slave"):
-        a, b = getattr(ec.arm, role), getattr(ep.arm, role)
-        assert a.rejected_samples == b.rejected_samples
-        assert a.bound.energy_j == b.bound.energy_j
-        assert np.array_equal(a.bound.held, b.bound.held)
-        sa, sb = a.bound.state(), b.bound.state()
-        assert np.array_equal(sa.last_q_rad, sb.last_q_rad)
-        assert (sa.has_last, sa.scale) == (sb.has_last, sb.scale)
-        assert np.array_equal(a.plant.data.qpos, b.plant.data.qpos)
-        assert np.array_equal(a.plant.data.qvel, b.plant.data.qvel)
-        assert np.array_equal(np.concatenate(a.plant.contact_wrench()), np.concatenate(b.plant.contact_wrench()))
+    assert_same_calls(sc.calls, sp.calls)
+    assert_same_arm_sides(ec, ep)
 
 
 @pytest.mark.parametrize("case", sorted(CASES))

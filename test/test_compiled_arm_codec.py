@@ -22,6 +22,20 @@ from typing import Any
 
 import numpy as np
 import pytest
+from compiled_identity import (
+    ADAPTIVE,
+    BERNOULLI,
+    FLOOR,
+    GILBERT,
+    HOLD,
+    LAST_TWO,
+    PREDICTION,
+    PREDICTION_HOLD,
+    SENT_RATE,
+    Calls,
+    assert_same_arm_sides,
+    assert_same_calls,
+)
 
 from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.analysis.stream import summarize_bag
@@ -32,20 +46,10 @@ from haptic_teleop.scene.load import find_scene, load_scene
 
 SCENE = "touch_ur5e_wall"
 MOVING = ("operator.start_s=0.1", "operator.speed_m_per_s=0.1", "operator.distance_m=0.06")
-BERNOULLI = "{probability: 0.2}"
-GILBERT = "{model: gilbert_elliott, p: 0.05, r: 0.2, one_minus_h: 0.9, one_minus_k: 0.02}"
 BLACKOUT = "{starts_s: [0.3, 0.7], ends_s: [0.42, 0.75]}"
 # 120 ms down, one packet through (tick 421), 49 ms down again: the prediction decoder has
 # forgotten the packet before it (beyond its history) and holds over the second window.
 ONE_THROUGH = "{starts_s: [0.3, 0.422, 0.7], ends_s: [0.421, 0.471, 0.75]}"
-
-HOLD = "{kind: deadband, deadband: 0.1}"
-SENT_RATE = "{kind: deadband, deadband: 0.1, reconstruction: extrapolate, max_extrapolation_s: 0.08}"
-LAST_TWO = "{kind: deadband, deadband: 0.05, reconstruction: extrapolate, extrapolate_from: last_two}"
-ADAPTIVE = "{kind: deadband, deadband: 0.05, adaptive_gain: 20, max_deadband: 0.3}"
-FLOOR = "{kind: deadband, deadband: 0.1, min_threshold: 0.01}"
-PREDICTION = "{kind: prediction, max_extrapolation_s: 0.02}"
-PREDICTION_HOLD = "{kind: prediction, gap: hold}"
 
 # case: {direction: (codec, loss, blackout)}, and overrides of the scene besides
 CASES: dict[str, tuple[dict[str, tuple[str, str | None, str | None]], tuple[str, ...]]] = {
@@ -78,25 +82,6 @@ def _overrides(case: str, duration_s: float = 1.0) -> list[str]:
 
 def _scene(overrides: list[str]) -> Any:
     return load_scene(find_scene(SCENE), overrides=overrides)
-
-
-class Calls:
-    """A sink that notes every call the engine makes on it, with a copy of its array."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, np.ndarray]] = []
-
-    def append(self, rows: np.ndarray) -> None:
-        self.calls.append(("rows", np.array(rows)))
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self.calls.append((direction, np.array(rows)))
-
-    def packets(self, direction: str) -> np.ndarray:
-        return np.concatenate([a for kind, a in self.calls if kind == direction])
-
-    def data(self) -> np.ndarray:
-        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
 
 
 Run = tuple[Engine, Any, Calls]
@@ -138,20 +123,8 @@ def _links(e: Engine) -> dict[str, Any]:
 def _assert_same(compiled: Run, python: Run) -> None:
     (ec, rc, sc), (ep, rp, sp) = compiled, python
     assert rc.ticks == rp.ticks
-    assert [k for k, _ in sc.calls] == [k for k, _ in sp.calls]
-    for (kind, c), (_, p) in zip(sc.calls, sp.calls, strict=True):
-        assert np.array_equal(c, p, equal_nan=True), (kind, np.flatnonzero(np.any(c != p, axis=0)))
-    assert ec.joint_limit_ticks == ep.joint_limit_ticks
-    for role in ("master", "slave"):
-        a, b = getattr(ec.arm, role), getattr(ep.arm, role)
-        assert a.rejected_samples == b.rejected_samples
-        assert a.bound.energy_j == b.bound.energy_j
-        assert np.array_equal(a.bound.held, b.bound.held)
-        sa, sb = a.bound.state(), b.bound.state()
-        assert np.array_equal(sa.last_q_rad, sb.last_q_rad)
-        assert (sa.has_last, sa.scale) == (sb.has_last, sb.scale)
-        assert np.array_equal(a.plant.data.qpos, b.plant.data.qpos)
-        assert np.array_equal(a.plant.data.qvel, b.plant.data.qvel)
+    assert_same_calls(sc.calls, sp.calls)
+    assert_same_arm_sides(ec, ep)
     assert ec.codec_facts() == ep.codec_facts()
     for a, b in zip(ec.codecs, ep.codecs, strict=True):
         if a is not None:

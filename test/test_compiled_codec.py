@@ -15,28 +15,30 @@ import re
 
 import numpy as np
 import pytest
+from compiled_identity import (
+    ADAPTIVE,
+    BERNOULLI,
+    FLOOR,
+    GILBERT,
+    HOLD,
+    LAST_TWO,
+    PREDICTION,
+    PREDICTION_HOLD,
+    SENT_RATE,
+    Calls,
+)
 
 from haptic_teleop.engine.lockstep import COL, Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.scene.load import find_scene, load_scene
 
 MOVING = ("operator.profile=sinusoid", "operator.amplitude_m=0.03", "operator.frequency_hz=2")
-BERNOULLI = "{probability: 0.2}"
-GILBERT = "{model: gilbert_elliott, p: 0.05, r: 0.2, one_minus_h: 0.9, one_minus_k: 0.02}"
 BLACKOUT = "{starts_s: [0.5, 1.2], ends_s: [0.65, 1.25]}"
 # 150 ms down, one packet through (tick 650), 49 ms down again: after that packet the prediction
 # decoder has forgotten the one before it (151 ticks older, beyond its history's 64 + 20), so it
 # holds instead of extrapolating over the second window. Then the same with the packet through
 # exactly 84 ticks after the one before (tick 983 after 899): that one is still remembered.
 ONE_THROUGH = "{starts_s: [0.5, 0.651, 0.9, 0.984, 1.2], ends_s: [0.65, 0.7, 0.983, 1.0, 1.25]}"
-
-HOLD = "{kind: deadband, deadband: 0.1}"
-SENT_RATE = "{kind: deadband, deadband: 0.1, reconstruction: extrapolate, max_extrapolation_s: 0.08}"
-LAST_TWO = "{kind: deadband, deadband: 0.05, reconstruction: extrapolate, extrapolate_from: last_two}"
-ADAPTIVE = "{kind: deadband, deadband: 0.05, adaptive_gain: 20, max_deadband: 0.3}"
-FLOOR = "{kind: deadband, deadband: 0.1, min_threshold: 0.01}"
-PREDICTION = "{kind: prediction, max_extrapolation_s: 0.02}"
-PREDICTION_HOLD = "{kind: prediction, gap: hold}"
 
 # case: {direction: (codec, effects)}; effects: (loss, blackout) scene values or None.
 CASES = {
@@ -63,22 +65,6 @@ def _overrides(case):
 
 def _scene(overrides, name="wall_contact"):
     return load_scene(find_scene(name), overrides=list(overrides))
-
-
-class Calls:
-    """A sink that notes every call the engine makes on it, with a copy of its array."""
-
-    def __init__(self):
-        self.calls = []
-
-    def append(self, rows):
-        self.calls.append(("rows", np.array(rows)))
-
-    def append_packets(self, direction, rows):
-        self.calls.append((direction, np.array(rows)))
-
-    def packets(self, direction):
-        return np.concatenate([a for kind, a in self.calls if kind == direction])
 
 
 def _run(scene, loop, stop_at=None):

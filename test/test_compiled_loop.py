@@ -11,11 +11,11 @@ scheduled buffer policy).
 
 import numpy as np
 import pytest
+from compiled_identity import Calls, assert_same_calls
 
 from haptic_teleop.engine import compiled_loop
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
-from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene.load import find_scene, load_scene
 
 SHORT = "scene.duration_s=2.0"
@@ -66,22 +66,6 @@ def _scene(name, overrides):
     return load_scene(find_scene(name), overrides=[*extra, *overrides])
 
 
-class Calls:
-    """A sink that notes every call the engine makes on it, with a copy of its array."""
-
-    def __init__(self):
-        self.calls = []
-
-    def append(self, rows):
-        self.calls.append(("rows", np.array(rows)))
-
-    def append_packets(self, direction, rows):
-        self.calls.append((direction, np.array(rows)))
-
-    def data(self):
-        return np.concatenate([a for kind, a in self.calls if kind == "rows"])
-
-
 def _both(scene, stop_at=None):
     out = []
     for loop in ("compiled", "python"):
@@ -107,10 +91,7 @@ def _run(e, progress=None):
 def _assert_same_run(compiled, python):
     (ec, rc), (ep, rp) = compiled, python
     assert rc.ticks == rp.ticks
-    assert [k for k, _ in rc.calls] == [k for k, _ in rp.calls]
-    for (kind, c), (_, p) in zip(rc.calls, rp.calls, strict=True):
-        assert np.array_equal(c, p, equal_nan=True), kind
-    assert all(len(a) <= BLOCK_TICKS for k, a in rc.calls if k == "rows")
+    assert_same_calls(rc.calls, rp.calls)
     for side in ("master_ctrl", "slave_ctrl"):
         a, b = getattr(ec, side), getattr(ep, side)
         assert a.rejected_samples == b.rejected_samples

@@ -2,9 +2,9 @@
 codec runs compiled (`compiled_arm_loop.codec_kernel`), so codec-less arm runs never compile or
 load it (docs/codec.md, "Compiled", "Arm scenes").
 
-The tick is `arm_kernel.run_ticks`'s (the same inlined parts: `read_joints`, `point`,
-`side_torque`, `plant_step`, the maps and the operator); a direction with a codec replaces its
-schedule lookup by `arm_codec_tick`, which is `CodecChannel.step` for an arm scene's sample
+The tick is `arm_kernel.run_ticks`'s, from the same inlined parts (`sense`, `side_torque`,
+`forward_sample`, `backward_sample`, `released`, `guarded`, `finish_tick`); a direction with a
+codec replaces its schedule lookup by `arm_codec_tick`, which is `CodecChannel.step` for an arm scene's sample
 (codec_channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the grouped
 deadband's encoder on 3-value groups (`GroupedDeadbandEncoder`: the distance and the norm of a
 group summed in order as core/deadband.vector_norm), or prediction's; the link and the decoders
@@ -25,78 +25,25 @@ import numpy as np
 
 from haptic_teleop.engine import codec_kernel as ck
 from haptic_teleop.engine.arm_kernel import (
-    C_BOCC,
-    C_BRX,
-    C_FOCC,
-    C_FRX,
-    C_M_E,
-    C_M_F,
-    C_M_FD,
-    C_M_Q,
-    C_M_QD,
-    C_M_TAU,
-    C_M_V,
-    C_M_X,
-    C_OP_F,
-    C_OP_V,
-    C_OP_X,
-    C_S_CF,
-    C_S_CT,
-    C_S_E,
-    C_S_F,
-    C_S_FD,
-    C_S_Q,
-    C_S_QD,
-    C_S_TAU,
-    C_S_V,
-    C_S_X,
-    F_B_HAND,
-    F_FORCE_SCALE,
-    F_K_HAND,
-    F_SCALE,
-    I_DATA,
-    I_MODEL,
-    I_N,
-    O_AMP,
-    O_DIR,
-    O_ORIGIN,
-    O_PERIOD,
-    O_PROFILE,
-    O_SPEED,
-    O_START,
-    O_T_END,
-    O_W,
-    O_X0,
-    O_X_END,
-    S_ENERGY,
-    S_HAS_REMOTE,
-    S_RATIO,
-    S_REJECTED,
-    T_F,
-    T_FORCE,
-    T_HELD,
-    T_I,
-    T_LIMITS,
-    T_OFFSET,
-    T_REMOTE,
-    T_ROT,
-    T_S,
-    T_WRENCH,
+    V_QDM,
+    V_QDS,
+    V_QM,
+    V_QS,
+    V_TAU_M,
+    V_TAU_S,
+    V_VM,
+    V_VS,
+    V_XM,
+    V_XS,
+    backward_sample,
     borrowed,
-    detach,
-    detach_work,
+    finish_tick,
+    forward_sample,
     guarded,
-    map_point,
-    map_vector,
-    map_vector_back,
-    mj_step1,
-    plant_step,
-    point,
-    push1,
-    read_joints,
+    released,
+    run_start,
+    sense,
     side_torque,
-    sinusoid1,
-    unmap_point,
 )
 from haptic_teleop.engine.codec_layout import (
     ARM_AXES,
@@ -256,17 +203,21 @@ def arm_codec_tick(
 
 
 @inline  # type: ignore[misc]
-def guarded_sample(side: Any, sample: np.ndarray) -> None:
-    """SampleGuard.accept on the decoder's sample: taken as the remote sample, or counted
-    (`arm_kernel.guarded` on a vector instead of a ring row)."""
-    lim, S, remote = side[T_LIMITS], side[T_S], side[T_REMOTE]
-    for i in range(lim.shape[0]):
-        if not abs(sample[i]) <= lim[i]:
-            S[S_REJECTED] += 1.0
-            return
-    for i in range(lim.shape[0]):
-        remote[i] = sample[i]
-    S[S_HAS_REMOTE] = 1.0
+def delivered(
+    codec: bool, side: Any, n: int, now: int, w0: int, rel: np.ndarray, occ: np.ndarray, hist: np.ndarray,
+    mask: int, net: Any, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray,
+) -> tuple[int, float]:  # fmt: skip
+    """A direction's network at tick n after its sample was written (`smp` with a codec, else the
+    sender's ring): the codec's tick (`net`: C, S, U, B, ring, rec) with the decoded sample through
+    the receiving `side`'s guard, or the schedule's release. Returns the row's `received` seq (-1:
+    none) and buffer occupancy (0 with a codec)."""
+    if codec:
+        C, S, U, B, ring, rec = net
+        rx, got = arm_codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, dec)
+        if got:
+            guarded(side, dec)
+        return rx, 0.0
+    return released(side, rel[n - w0], hist, mask), occ[n - w0]
 
 
 @jit  # type: ignore[misc]
@@ -306,152 +257,29 @@ def run_ticks_codec(
     others read their window of the schedule as there). fC ... frec, bC ... brec: each
     direction's codec arrays (compiled_codec.CodecNet.args, the arm layout); scratch: 3 rows of
     9 (the sample, its rate, the decoder's output)."""
-    ms, ss, mw, sw = detach(ms_own), detach(ss_own), detach_work(mw_own), detach_work(sw_own)
-    fwd_rel, fwd_occ, bwd_rel, bwd_occ = borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ)
-    fwd_hist, bwd_hist, data, ov, cols = (
-        borrowed(fwd_hist),
-        borrowed(bwd_hist),
-        borrowed(data),
-        borrowed(ov),
-        borrowed(cols),
+    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
+        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
     )
-    fC, fS, fU, fB = borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB)
-    fring, frec = borrowed(fring), borrowed(frec)
-    bC, bS, bU, bB = borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB)
-    bring, brec = borrowed(bring), borrowed(brec)
+    fnet = (borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB), borrowed(fring), borrowed(frec))
+    bnet = (borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB), borrowed(bring), borrowed(brec))
     smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
     fcodec = fC[C_KIND] != NO_CODEC
     bcodec = bC[C_KIND] != NO_CODEC
     period_ns = int(fC[C_PERIOD_NS])
-    MI, MF = ms[T_I], ms[T_F]
-    SI = ss[T_I]
-    nm, ns = MI[I_N], SI[I_N]
-    own = np.zeros((22, max(nm, ns, 3)))  # the tick's vectors, one row each
-    qm, qdm, qs, qds = borrowed(own[0, :nm]), borrowed(own[1, :nm]), borrowed(own[2, :ns]), borrowed(own[3, :ns])
-    tau_m, tau_s = borrowed(own[4, :nm]), borrowed(own[5, :ns])
-    app_m, app_s = borrowed(own[6, :nm]), borrowed(own[7, :ns])
-    xm_dev, vm_dev, x_m, v_m = borrowed(own[8, :3]), borrowed(own[9, :3]), borrowed(own[10, :3]), borrowed(own[11, :3])
-    xs, vs, f_env, t_env = borrowed(own[12, :3]), borrowed(own[13, :3]), borrowed(own[14, :3]), borrowed(own[15, :3])
-    xd_t, vd_t, xd, vd = borrowed(own[16, :3]), borrowed(own[17, :3]), borrowed(own[18, :3]), borrowed(own[19, :3])
-    f_hand, op_f = borrowed(own[20, :3]), borrowed(own[21, :3])
-    rot, offset = ms[T_ROT], ms[T_OFFSET]
-    scale, force_scale = MF[F_SCALE], MF[F_FORCE_SCALE]
-    k_h, b_h = MF[F_K_HAND], MF[F_B_HAND]
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
-    period_s = ov[O_PERIOD]
-    m_S, s_S = ms[T_S], ss[T_S]
-    m_force, s_force = ms[T_FORCE], ss[T_FORCE]
-    s_wrench = ss[T_WRENCH]
     for n in range(n0, n1):
         now = n * period_ns
-        # 1. both arms (mj_step1: the state, kinematics and gravity torques of this instant)
-        mj_step1(MI[I_MODEL], MI[I_DATA])
-        read_joints(ms, qm, qdm)
-        point(ms, qdm, xm_dev, vm_dev, mw)
-        mj_step1(SI[I_MODEL], SI[I_DATA])
-        read_joints(ss, qs, qds)
-        point(ss, qds, xs, vs, sw)
-        for k in range(3):
-            f_env[k] = s_wrench[k]
-            t_env[k] = s_wrench[3 + k]
-        map_point(x_m, rot, scale, offset, xm_dev)
-        map_vector(v_m, rot, scale, vm_dev)
-        # 2. master
-        side_torque(ms, qm, qdm, x_m, v_m, tau_m, mw)
+        sense(ms, ss, mw, sw, v, c)  # 1. both arms
+        side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
         # 3. forward packet (the codec's, or the schedule's release)
-        if fcodec:
-            for k in range(3):
-                smp[k] = x_m[k]
-                smp[3 + k] = v_m[k]
-            frx, got = arm_codec_tick(fC, fS, fU, fB, fring, frec, n, now, smp, rate, dec)
-            if got:
-                guarded_sample(ss, dec)
-            focc = 0.0
-        else:
-            slot = fwd_hist[n & fmask]
-            for k in range(3):
-                slot[k] = x_m[k]
-                slot[3 + k] = v_m[k]
-            frx = fwd_rel[n - w0]
-            if frx >= 0:
-                guarded(ss, fwd_hist, frx, fmask)
-            focc = fwd_occ[n - w0]
-        # 4. slave
-        side_torque(ss, qs, qds, xs, vs, tau_s, sw)
+        forward_sample(smp if fcodec else fwd_hist[n & fmask], v)
+        frx, focc = delivered(fcodec, ss, n, now, w0, fwd_rel, fwd_occ, fwd_hist, fmask, fnet, smp, rate, dec)
+        side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
         # 5. backward packet
-        if bcodec:
-            for k in range(3):
-                smp[k] = xs[k]
-                smp[3 + k] = vs[k]
-                smp[6 + k] = f_env[k]
-            brx, got = arm_codec_tick(bC, bS, bU, bB, bring, brec, n, now, smp, rate, dec)
-            if got:
-                guarded_sample(ms, dec)
-            bocc = 0.0
-        else:
-            slot = bwd_hist[n & bmask]
-            for k in range(3):
-                slot[k] = xs[k]
-                slot[3 + k] = vs[k]
-                slot[6 + k] = f_env[k]
-            brx = bwd_rel[n - w0]
-            if brx >= 0:
-                guarded(ms, bwd_hist, brx, bmask)
-            bocc = bwd_occ[n - w0]
-        # 6. operator and plants
-        t = n * period_s - ov[O_START]
-        profile = ov[O_PROFILE]
-        if profile == 0.0:
-            xd1, vd1 = push1(t, ov[O_X0], ov[O_SPEED], ov[O_T_END], ov[O_X_END])
-        elif profile == 1.0:
-            xd1, vd1 = sinusoid1(t, ov[O_X0], ov[O_AMP], ov[O_W])
-        else:
-            xd1, vd1 = ov[O_X0], 0.0
-        s1 = xd1 - ov[O_X0]
-        for k in range(3):
-            xd_t[k] = ov[O_ORIGIN + k] + s1 * ov[O_DIR + k]
-            vd_t[k] = vd1 * ov[O_DIR + k]
-        unmap_point(xd, rot, scale, offset, xd_t)
-        map_vector_back(vd, rot, 1.0 / scale, vd_t)
-        for k in range(3):
-            f_hand[k] = k_h * (xd[k] - xm_dev[k]) + b_h * (vd[k] - vm_dev[k])
-        plant_step(ms, tau_m, f_hand, app_m, mw)
-        plant_step(ss, tau_s, f_hand, app_s, sw)
-        held_m, held_s = ms[T_HELD], ss[T_HELD]
-        for i in range(nm):
-            held_m[i] = app_m[i]
-        for i in range(ns):
-            held_s[i] = app_s[i]
-        map_vector(op_f, rot, 1.0 / force_scale, f_hand)
-        row = data[n - d0]
-        for k in range(3):
-            row[cols[C_OP_X] + k] = xd_t[k]
-            row[cols[C_OP_V] + k] = vd_t[k]
-            row[cols[C_OP_F] + k] = op_f[k]
-            row[cols[C_M_X] + k] = x_m[k]
-            row[cols[C_M_V] + k] = v_m[k]
-            row[cols[C_M_F] + k] = m_S[S_RATIO] * m_force[k]
-            row[cols[C_M_FD] + k] = m_force[k]
-            row[cols[C_S_X] + k] = xs[k]
-            row[cols[C_S_V] + k] = vs[k]
-            row[cols[C_S_F] + k] = s_S[S_RATIO] * s_force[k]
-            row[cols[C_S_FD] + k] = s_force[k]
-            row[cols[C_S_CF] + k] = f_env[k]
-            row[cols[C_S_CT] + k] = t_env[k]
-        for i in range(nm):
-            row[cols[C_M_Q] + i] = qm[i]
-            row[cols[C_M_QD] + i] = qdm[i]
-            row[cols[C_M_TAU] + i] = app_m[i]
-        for i in range(ns):
-            row[cols[C_S_Q] + i] = qs[i]
-            row[cols[C_S_QD] + i] = qds[i]
-            row[cols[C_S_TAU] + i] = app_s[i]
-        row[cols[C_M_E]] = m_S[S_ENERGY]
-        row[cols[C_S_E]] = s_S[S_ENERGY]
-        row[cols[C_FRX]] = frx
-        row[cols[C_BRX]] = brx
-        row[cols[C_FOCC]] = focc
-        row[cols[C_BOCC]] = bocc
+        backward_sample(smp if bcodec else bwd_hist[n & bmask], v)
+        brx, bocc = delivered(bcodec, ms, n, now, w0, bwd_rel, bwd_occ, bwd_hist, bmask, bnet, smp, rate, dec)
+        # 6. operator, plants, the row
+        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views
     return n1

@@ -424,17 +424,186 @@ def point(side: Any, qd: np.ndarray, x: np.ndarray, v: np.ndarray, w: Any) -> No
 
 
 @inline  # type: ignore[misc]
-def guarded(side: Any, hist: np.ndarray, seq: int, mask: int) -> None:
-    """SampleGuard.accept on the released sample: taken as the remote sample, or counted."""
+def guarded(side: Any, sample: np.ndarray) -> None:
+    """SampleGuard.accept on a released (or decoded) sample: taken as the remote sample, or counted."""
     lim, S, remote = side[T_LIMITS], side[T_S], side[T_REMOTE]
-    row = hist[seq & mask]
     for i in range(lim.shape[0]):
-        if not abs(row[i]) <= lim[i]:
+        if not abs(sample[i]) <= lim[i]:
             S[S_REJECTED] += 1.0
             return
     for i in range(lim.shape[0]):
-        remote[i] = row[i]
+        remote[i] = sample[i]
     S[S_HAS_REMOTE] = 1.0
+
+
+# The tick's vectors (`tick_vectors`), in this order: joints, torques and points of both sides,
+# the wall's force and torque, the operator's target (task and device frames), the hand force.
+(
+    V_QM, V_QDM, V_QS, V_QDS, V_TAU_M, V_TAU_S, V_APP_M, V_APP_S,
+    V_XM_DEV, V_VM_DEV, V_XM, V_VM, V_XS, V_VS, V_F_ENV, V_T_ENV,
+    V_XD_T, V_VD_T, V_XD, V_VD, V_F_HAND, V_OP_F,
+) = range(22)  # fmt: skip
+V_SIZE = 22
+
+
+@inline  # type: ignore[misc]
+def tick_vectors(own: np.ndarray, nm: int, ns: int) -> Any:
+    """The tick's vectors: `borrowed` views of the rows of `own` (V_SIZE rows, at least 3 and
+    each side's joint count wide), which the caller keeps alive while they are used."""
+    return (
+        borrowed(own[V_QM, :nm]),
+        borrowed(own[V_QDM, :nm]),
+        borrowed(own[V_QS, :ns]),
+        borrowed(own[V_QDS, :ns]),
+        borrowed(own[V_TAU_M, :nm]),
+        borrowed(own[V_TAU_S, :ns]),
+        borrowed(own[V_APP_M, :nm]),
+        borrowed(own[V_APP_S, :ns]),
+        borrowed(own[V_XM_DEV, :3]),
+        borrowed(own[V_VM_DEV, :3]),
+        borrowed(own[V_XM, :3]),
+        borrowed(own[V_VM, :3]),
+        borrowed(own[V_XS, :3]),
+        borrowed(own[V_VS, :3]),
+        borrowed(own[V_F_ENV, :3]),
+        borrowed(own[V_T_ENV, :3]),
+        borrowed(own[V_XD_T, :3]),
+        borrowed(own[V_VD_T, :3]),
+        borrowed(own[V_XD, :3]),
+        borrowed(own[V_VD, :3]),
+        borrowed(own[V_F_HAND, :3]),
+        borrowed(own[V_OP_F, :3]),
+    )
+
+
+# The run's constants the tick reads (`run_constants`), in this order.
+K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS = range(7)
+
+
+@inline  # type: ignore[misc]
+def run_constants(ms: Any, ss: Any, ov: np.ndarray) -> Any:
+    """What the tick reads of the parameters, read once before the loop: the mapping's scales, the
+    hand's stiffness and damping, the period, both sides' joint counts."""
+    MF = ms[T_F]
+    return (MF[F_SCALE], MF[F_FORCE_SCALE], MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N])
+
+
+@inline  # type: ignore[misc]
+def sense(ms: Any, ss: Any, mw: Any, sw: Any, v: Any, c: Any) -> None:
+    """Step 1 of the tick: both arms (mj_step1: the state, kinematics and gravity torques of this
+    instant), the wall's wrench of the last period, the master's point in the task frame."""
+    MI, SI = ms[T_I], ss[T_I]
+    xm_dev, vm_dev = v[V_XM_DEV], v[V_VM_DEV]
+    f_env, t_env, s_wrench = v[V_F_ENV], v[V_T_ENV], ss[T_WRENCH]
+    mj_step1(MI[I_MODEL], MI[I_DATA])
+    read_joints(ms, v[V_QM], v[V_QDM])
+    point(ms, v[V_QDM], xm_dev, vm_dev, mw)
+    mj_step1(SI[I_MODEL], SI[I_DATA])
+    read_joints(ss, v[V_QS], v[V_QDS])
+    point(ss, v[V_QDS], v[V_XS], v[V_VS], sw)
+    for k in range(3):
+        f_env[k] = s_wrench[k]
+        t_env[k] = s_wrench[3 + k]
+    map_point(v[V_XM], ms[T_ROT], c[K_SCALE], ms[T_OFFSET], xm_dev)
+    map_vector(v[V_VM], ms[T_ROT], c[K_SCALE], vm_dev)
+
+
+@inline  # type: ignore[misc]
+def forward_sample(out: np.ndarray, v: Any) -> None:
+    """The forward packet's payload: the master's x, v in the task frame."""
+    x, vel = v[V_XM], v[V_VM]
+    for k in range(3):
+        out[k] = x[k]
+        out[3 + k] = vel[k]
+
+
+@inline  # type: ignore[misc]
+def backward_sample(out: np.ndarray, v: Any) -> None:
+    """The backward packet's payload: the slave's x, v and the wall's force."""
+    x, vel, f = v[V_XS], v[V_VS], v[V_F_ENV]
+    for k in range(3):
+        out[k] = x[k]
+        out[3 + k] = vel[k]
+        out[6 + k] = f[k]
+
+
+@inline  # type: ignore[misc]
+def released(side: Any, seq: int, hist: np.ndarray, mask: int) -> int:
+    """The schedule's release at this tick (`seq`, -1: none) from the sender's ring, through the
+    receiving side's guard; returns `seq` (the row's `received` column)."""
+    if seq >= 0:
+        guarded(side, hist[seq & mask])
+    return seq
+
+
+@inline  # type: ignore[misc]
+def finish_tick(
+    n: int, ms: Any, ss: Any, mw: Any, sw: Any, ov: np.ndarray, cols: np.ndarray, v: Any, c: Any,
+    row: np.ndarray, frx: float, brx: float, focc: float, bocc: float,
+) -> None:  # fmt: skip
+    """Step 6 of the tick, after both sides' torques and the network: the operator, both plants'
+    steps (the hand force on the master), the held torques, the tick's row."""
+    rot, offset = ms[T_ROT], ms[T_OFFSET]
+    scale, force_scale, k_h, b_h, nm, ns = c[K_SCALE], c[K_FORCE_SCALE], c[K_K_HAND], c[K_B_HAND], c[K_NM], c[K_NS]
+    qm, qdm, qs, qds = v[V_QM], v[V_QDM], v[V_QS], v[V_QDS]
+    app_m, app_s = v[V_APP_M], v[V_APP_S]
+    xm_dev, vm_dev, x_m, v_m, xs, vs = v[V_XM_DEV], v[V_VM_DEV], v[V_XM], v[V_VM], v[V_XS], v[V_VS]
+    f_env, t_env, f_hand, op_f = v[V_F_ENV], v[V_T_ENV], v[V_F_HAND], v[V_OP_F]
+    xd_t, vd_t, xd, vd = v[V_XD_T], v[V_VD_T], v[V_XD], v[V_VD]
+    m_S, s_S = ms[T_S], ss[T_S]
+    m_force, s_force = ms[T_FORCE], ss[T_FORCE]
+    t = n * c[K_PERIOD] - ov[O_START]
+    profile = ov[O_PROFILE]
+    if profile == 0.0:
+        xd1, vd1 = push1(t, ov[O_X0], ov[O_SPEED], ov[O_T_END], ov[O_X_END])
+    elif profile == 1.0:
+        xd1, vd1 = sinusoid1(t, ov[O_X0], ov[O_AMP], ov[O_W])
+    else:
+        xd1, vd1 = ov[O_X0], 0.0
+    s1 = xd1 - ov[O_X0]
+    for k in range(3):
+        xd_t[k] = ov[O_ORIGIN + k] + s1 * ov[O_DIR + k]
+        vd_t[k] = vd1 * ov[O_DIR + k]
+    unmap_point(xd, rot, scale, offset, xd_t)
+    map_vector_back(vd, rot, 1.0 / scale, vd_t)
+    for k in range(3):
+        f_hand[k] = k_h * (xd[k] - xm_dev[k]) + b_h * (vd[k] - vm_dev[k])
+    plant_step(ms, v[V_TAU_M], f_hand, app_m, mw)
+    plant_step(ss, v[V_TAU_S], f_hand, app_s, sw)
+    held_m, held_s = ms[T_HELD], ss[T_HELD]
+    for i in range(nm):
+        held_m[i] = app_m[i]
+    for i in range(ns):
+        held_s[i] = app_s[i]
+    map_vector(op_f, rot, 1.0 / force_scale, f_hand)
+    for k in range(3):
+        row[cols[C_OP_X] + k] = xd_t[k]
+        row[cols[C_OP_V] + k] = vd_t[k]
+        row[cols[C_OP_F] + k] = op_f[k]
+        row[cols[C_M_X] + k] = x_m[k]
+        row[cols[C_M_V] + k] = v_m[k]
+        row[cols[C_M_F] + k] = m_S[S_RATIO] * m_force[k]
+        row[cols[C_M_FD] + k] = m_force[k]
+        row[cols[C_S_X] + k] = xs[k]
+        row[cols[C_S_V] + k] = vs[k]
+        row[cols[C_S_F] + k] = s_S[S_RATIO] * s_force[k]
+        row[cols[C_S_FD] + k] = s_force[k]
+        row[cols[C_S_CF] + k] = f_env[k]
+        row[cols[C_S_CT] + k] = t_env[k]
+    for i in range(nm):
+        row[cols[C_M_Q] + i] = qm[i]
+        row[cols[C_M_QD] + i] = qdm[i]
+        row[cols[C_M_TAU] + i] = app_m[i]
+    for i in range(ns):
+        row[cols[C_S_Q] + i] = qs[i]
+        row[cols[C_S_QD] + i] = qds[i]
+        row[cols[C_S_TAU] + i] = app_s[i]
+    row[cols[C_M_E]] = m_S[S_ENERGY]
+    row[cols[C_S_E]] = s_S[S_ENERGY]
+    row[cols[C_FRX]] = frx
+    row[cols[C_BRX]] = brx
+    row[cols[C_FOCC]] = focc
+    row[cols[C_BOCC]] = bocc
 
 
 def work_arrays(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:
@@ -568,6 +737,28 @@ def side_end(side_own: Any, work_own: Any, tau: np.ndarray, hand: np.ndarray, ap
     plant_step(detach(side_own), tau, hand, applied, detach_work(work_own))
 
 
+@inline  # type: ignore[misc]
+def run_start(
+    ms_own: Any, ss_own: Any, mw_own: Any, sw_own: Any, ov: np.ndarray, cols: np.ndarray, fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray, bwd_rel: np.ndarray, bwd_occ: np.ndarray, fwd_hist: np.ndarray, bwd_hist: np.ndarray,
+    data: np.ndarray,
+) -> Any:  # fmt: skip
+    """The start of a run of ticks (`run_ticks`, arm_codec_kernel.run_ticks_codec): its arguments
+    as `borrowed` views (no reference counting in the loop; the caller's arguments own them), in
+    the order given, then the tick's vectors (`own`, which the caller keeps alive past every use
+    of its views, and `tick_vectors`) and the `run_constants`."""
+    ms, ss = detach(ms_own), detach(ss_own)
+    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
+    own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
+    ovb = borrowed(ov)
+    return (
+        ms, ss, detach_work(mw_own), detach_work(sw_own), ovb, borrowed(cols),
+        borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ),
+        borrowed(fwd_hist), borrowed(bwd_hist), borrowed(data),
+        own, tick_vectors(own, nm, ns), run_constants(ms, ss, ovb),
+    )  # fmt: skip
+
+
 @jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
@@ -593,123 +784,21 @@ def run_ticks(
     histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
     # Every array the ticks use is a borrowed view (no reference counting in the loop); the
     # arguments and the locals below own them until the function returns.
-    ms, ss, mw, sw = detach(ms_own), detach(ss_own), detach_work(mw_own), detach_work(sw_own)
-    fwd_rel, fwd_occ, bwd_rel, bwd_occ = borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ)
-    fwd_hist, bwd_hist, data, ov, cols = (
-        borrowed(fwd_hist),
-        borrowed(bwd_hist),
-        borrowed(data),
-        borrowed(ov),
-        borrowed(cols),
+    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
+        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
     )
-    MI, MF = ms[T_I], ms[T_F]
-    SI = ss[T_I]
-    nm, ns = MI[I_N], SI[I_N]
-    own = np.zeros((22, max(nm, ns, 3)))  # the tick's vectors, one row each
-    qm, qdm, qs, qds = borrowed(own[0, :nm]), borrowed(own[1, :nm]), borrowed(own[2, :ns]), borrowed(own[3, :ns])
-    tau_m, tau_s = borrowed(own[4, :nm]), borrowed(own[5, :ns])
-    app_m, app_s = borrowed(own[6, :nm]), borrowed(own[7, :ns])
-    xm_dev, vm_dev, x_m, v_m = borrowed(own[8, :3]), borrowed(own[9, :3]), borrowed(own[10, :3]), borrowed(own[11, :3])
-    xs, vs, f_env, t_env = borrowed(own[12, :3]), borrowed(own[13, :3]), borrowed(own[14, :3]), borrowed(own[15, :3])
-    xd_t, vd_t, xd, vd = borrowed(own[16, :3]), borrowed(own[17, :3]), borrowed(own[18, :3]), borrowed(own[19, :3])
-    f_hand, op_f = borrowed(own[20, :3]), borrowed(own[21, :3])
-    rot, offset = ms[T_ROT], ms[T_OFFSET]
-    scale, force_scale = MF[F_SCALE], MF[F_FORCE_SCALE]
-    k_h, b_h = MF[F_K_HAND], MF[F_B_HAND]
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
-    period_s = ov[O_PERIOD]
-    m_S, s_S = ms[T_S], ss[T_S]
-    m_force, s_force = ms[T_FORCE], ss[T_FORCE]
-    s_wrench = ss[T_WRENCH]
     for n in range(n0, n1):
-        # 1. both arms (mj_step1: the state, kinematics and gravity torques of this instant)
-        mj_step1(MI[I_MODEL], MI[I_DATA])
-        read_joints(ms, qm, qdm)
-        point(ms, qdm, xm_dev, vm_dev, mw)
-        mj_step1(SI[I_MODEL], SI[I_DATA])
-        read_joints(ss, qs, qds)
-        point(ss, qds, xs, vs, sw)
-        for k in range(3):
-            f_env[k] = s_wrench[k]
-            t_env[k] = s_wrench[3 + k]
-        map_point(x_m, rot, scale, offset, xm_dev)
-        map_vector(v_m, rot, scale, vm_dev)
-        # 2. master
-        side_torque(ms, qm, qdm, x_m, v_m, tau_m, mw)
-        # 3. forward packet
-        slot = fwd_hist[n & fmask]
-        for k in range(3):
-            slot[k] = x_m[k]
-            slot[3 + k] = v_m[k]
-        frx = fwd_rel[n - w0]
-        if frx >= 0:
-            guarded(ss, fwd_hist, frx, fmask)
-        # 4. slave
-        side_torque(ss, qs, qds, xs, vs, tau_s, sw)
-        # 5. backward packet
-        slot = bwd_hist[n & bmask]
-        for k in range(3):
-            slot[k] = xs[k]
-            slot[3 + k] = vs[k]
-            slot[6 + k] = f_env[k]
-        brx = bwd_rel[n - w0]
-        if brx >= 0:
-            guarded(ms, bwd_hist, brx, bmask)
-        # 6. operator and plants
-        t = n * period_s - ov[O_START]
-        profile = ov[O_PROFILE]
-        if profile == 0.0:
-            xd1, vd1 = push1(t, ov[O_X0], ov[O_SPEED], ov[O_T_END], ov[O_X_END])
-        elif profile == 1.0:
-            xd1, vd1 = sinusoid1(t, ov[O_X0], ov[O_AMP], ov[O_W])
-        else:
-            xd1, vd1 = ov[O_X0], 0.0
-        s1 = xd1 - ov[O_X0]
-        for k in range(3):
-            xd_t[k] = ov[O_ORIGIN + k] + s1 * ov[O_DIR + k]
-            vd_t[k] = vd1 * ov[O_DIR + k]
-        unmap_point(xd, rot, scale, offset, xd_t)
-        map_vector_back(vd, rot, 1.0 / scale, vd_t)
-        for k in range(3):
-            f_hand[k] = k_h * (xd[k] - xm_dev[k]) + b_h * (vd[k] - vm_dev[k])
-        plant_step(ms, tau_m, f_hand, app_m, mw)
-        plant_step(ss, tau_s, f_hand, app_s, sw)
-        held_m, held_s = ms[T_HELD], ss[T_HELD]
-        for i in range(nm):
-            held_m[i] = app_m[i]
-        for i in range(ns):
-            held_s[i] = app_s[i]
-        map_vector(op_f, rot, 1.0 / force_scale, f_hand)
-        row = data[n - d0]
-        for k in range(3):
-            row[cols[C_OP_X] + k] = xd_t[k]
-            row[cols[C_OP_V] + k] = vd_t[k]
-            row[cols[C_OP_F] + k] = op_f[k]
-            row[cols[C_M_X] + k] = x_m[k]
-            row[cols[C_M_V] + k] = v_m[k]
-            row[cols[C_M_F] + k] = m_S[S_RATIO] * m_force[k]
-            row[cols[C_M_FD] + k] = m_force[k]
-            row[cols[C_S_X] + k] = xs[k]
-            row[cols[C_S_V] + k] = vs[k]
-            row[cols[C_S_F] + k] = s_S[S_RATIO] * s_force[k]
-            row[cols[C_S_FD] + k] = s_force[k]
-            row[cols[C_S_CF] + k] = f_env[k]
-            row[cols[C_S_CT] + k] = t_env[k]
-        for i in range(nm):
-            row[cols[C_M_Q] + i] = qm[i]
-            row[cols[C_M_QD] + i] = qdm[i]
-            row[cols[C_M_TAU] + i] = app_m[i]
-        for i in range(ns):
-            row[cols[C_S_Q] + i] = qs[i]
-            row[cols[C_S_QD] + i] = qds[i]
-            row[cols[C_S_TAU] + i] = app_s[i]
-        row[cols[C_M_E]] = m_S[S_ENERGY]
-        row[cols[C_S_E]] = s_S[S_ENERGY]
-        row[cols[C_FRX]] = frx
-        row[cols[C_BRX]] = brx
-        row[cols[C_FOCC]] = fwd_occ[n - w0]
-        row[cols[C_BOCC]] = bwd_occ[n - w0]
+        sense(ms, ss, mw, sw, v, c)  # 1. both arms
+        side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
+        forward_sample(fwd_hist[n & fmask], v)  # 3. forward packet
+        frx = released(ss, fwd_rel[n - w0], fwd_hist, fmask)
+        side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
+        backward_sample(bwd_hist[n & bmask], v)  # 5. backward packet
+        brx = released(ms, bwd_rel[n - w0], bwd_hist, bmask)
+        # 6. operator, plants, the row
+        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, fwd_occ[n - w0], bwd_occ[n - w0])
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views
     return n1
 

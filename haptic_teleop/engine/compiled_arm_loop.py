@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import importlib
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -39,20 +40,28 @@ PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
 _SOURCES = ("arm_kernel.py", "axis_kernel.py", "../core/eba.py", "../core/taskspace.py", "../core/operator.py")
 
 
-def _drop_stale_cache() -> None:
+def _drop_stale_cache(caches: tuple[tuple[str, tuple[str, ...]], ...] = (("arm_kernel", _SOURCES),)) -> None:
+    """Drop the numba cache of each (kernel, its sources) of `caches` that is stale
+    (compiled_loop.drop_stale_cache)."""
     from haptic_teleop.engine.compiled_loop import drop_stale_cache
 
-    drop_stale_cache("arm_kernel", _SOURCES)
+    for kernel, sources in caches:
+        drop_stale_cache(kernel, sources)
+
+
+def _load(module: str, caches: tuple[tuple[str, tuple[str, ...]], ...], failing: str) -> tuple[Any, str | None]:
+    """engine/<module>, imported after `_drop_stale_cache(caches)`; or None and why (`failing`:
+    what failed)."""
+    try:
+        _drop_stale_cache(caches)
+        return importlib.import_module(f"haptic_teleop.engine.{module}"), None
+    except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
+        return None, f"{failing} ({type(exc).__name__}: {exc})"
 
 
 @functools.cache
 def _kernel_or_error() -> tuple[Any, str | None]:
-    try:
-        _drop_stale_cache()
-        from haptic_teleop.engine import arm_kernel
-    except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python loop runs
-        return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
-    return arm_kernel, None
+    return _load("arm_kernel", (("arm_kernel", _SOURCES),), "numba unavailable or failing")
 
 
 def kernel() -> Any:
@@ -82,15 +91,14 @@ def _codec_kernel_or_error() -> tuple[Any, str | None]:
     err = kernel_error()
     if err is not None:
         return None, err
-    try:
-        from haptic_teleop.engine.compiled_loop import CODEC_SOURCES, drop_stale_cache
+    from haptic_teleop.engine.compiled_loop import CODEC_SOURCES
 
-        drop_stale_cache("codec_kernel", CODEC_SOURCES)  # as the 1-DoF codec loop's loader
-        drop_stale_cache("arm_codec_kernel", _CODEC_SOURCES)
-        from haptic_teleop.engine import arm_codec_kernel
-    except Exception as exc:  # noqa: BLE001 - as `_kernel_or_error`
-        return None, f"the arm codec kernel cannot load ({type(exc).__name__}: {exc})"
-    return arm_codec_kernel, None
+    # the 1-DoF codec kernel's cache as its own loader checks it: the arm's compiles its functions
+    return _load(
+        "arm_codec_kernel",
+        (("codec_kernel", CODEC_SOURCES), ("arm_codec_kernel", _CODEC_SOURCES)),
+        "the arm codec kernel cannot load",
+    )
 
 
 def codec_kernel() -> Any:
@@ -408,8 +416,6 @@ def model_addresses(parts: ArmParts) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # The loop around the kernel.
 
-CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
-
 
 def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
     """The kernel's codec arrays of each direction that has a codec (None for the others), in the
@@ -489,111 +495,29 @@ class CompiledArm:
             "slave": store_side(self.parts.slave, self.ss),
         }
 
-    def run(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int, nets: Any = None) -> int:
+    def run(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int, nets: Any) -> int:
         """Ticks from 0 until the scene's end or a stop into `output` (the engine's _Output built
-        on `fwd.settled`, `bwd.settled`); returns the ticks done. `nets`: with a codec, each
-        direction's `arm_codec_nets` (its schedule, fwd or bwd, is None then)."""
-        if nets is not None:
-            return self._run_codec(engine, progress, output, fwd, bwd, window, nets)
-        from haptic_teleop.engine import compiled_loop
-
-        n_ticks = engine.ticks
-        self.take()
-        rings = compiled_loop.Rings((6, 9))
-        block = output.block
-        block_ticks = block.shape[0]
-        run_ticks = self.k.run_ticks
-        ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
-        done = 0
-        engine.ticks_done = 0
-        with compiled_loop.mujoco_timers_off():
-            while done < n_ticks:  # a stop requested before the loop still runs one chunk
-                w0, w1 = done, min(done + window, n_ticks)
-                frel, focc = fwd.window(w0, w1)
-                brel, bocc = bwd.window(w0, w1)
-                rings.fit(frel, brel, w0, w1)
-                for c0 in range(w0, w1, CHUNK_TICKS):
-                    c1 = min(c0 + CHUNK_TICKS, w1)
-                    run_ticks(
-                        c0,
-                        c1,
-                        ms,
-                        ss,
-                        mw,
-                        sw,
-                        ov,
-                        cols,
-                        frel,
-                        focc,
-                        brel,
-                        bocc,
-                        rings.fwd,
-                        rings.bwd,
-                        block,
-                        w0,
-                        output.start,
-                    )
-                    done = engine.ticks_done = c1
-                    if progress is not None and done % 100 == 0:
-                        progress(done)
-                    if done - output.start == block_ticks:
-                        output.block_done(done)
-                    if engine.stop_requested:
-                        break
-                if engine.stop_requested:
-                    break
-        return done
-
-    def _run_codec(self, engine: Any, progress: Any, output: Any, fwd: Any, bwd: Any, window: int, nets: Any) -> int:
-        """`run` with the codec stage in the kernel (arm_codec_kernel.run_ticks_codec) on the
-        directions with a net; the others read their schedule's window."""
+        on the directions' `settled`); returns the ticks done. `nets`: each direction's
+        `arm_codec_nets` (with a codec, that direction's schedule, fwd or bwd, is None)."""
         from haptic_teleop.engine import compiled_loop
         from haptic_teleop.engine.compiled_codec import no_codec
+        from haptic_teleop.engine.compiled_driver import codec_args, run_windows
 
-        n_ticks = engine.ticks
         self.take()
-        rings = compiled_loop.Rings((6, 9))
         block = output.block
-        block_ticks = block.shape[0]
-        run_ticks = self.ck.run_ticks_codec
         ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
-        fnet, bnet = nets
+        codec = self.codec
+        run_ticks = self.ck.run_ticks_codec if codec else self.k.run_ticks
         idle = no_codec(engine.period_ns)
         scratch = np.zeros((3, 9))
-        done = 0
-        engine.ticks_done = 0
-        try:
-            with compiled_loop.mujoco_timers_off():
-                while done < n_ticks:
-                    w0, w1 = done, min(done + window, n_ticks)
-                    none = np.full(w1 - w0, -1, dtype=np.int64), np.zeros(w1 - w0)
-                    frel, focc = none if fwd is None else fwd.window(w0, w1)
-                    brel, bocc = none if bwd is None else bwd.window(w0, w1)
-                    rings.fit(frel, brel, w0, w1)
-                    for c0 in range(w0, w1, CHUNK_TICKS):
-                        c1 = min(c0 + CHUNK_TICKS, w1)
-                        for net in nets:
-                            if net is not None:
-                                net.ready(c1 - c0)
-                        run_ticks(
-                            c0, c1, ms, ss, mw, sw, ov, cols, frel, focc, brel, bocc, rings.fwd, rings.bwd,
-                            block, w0, output.start,
-                            *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()), scratch,
-                        )  # fmt: skip
-                        done = engine.ticks_done = c1
-                        if progress is not None and done % 100 == 0:
-                            progress(done)
-                        if done - output.start == block_ticks:
-                            output.block_done(done)
-                        if engine.stop_requested:
-                            break
-                    if engine.stop_requested:
-                        break
-        finally:
-            for net in nets:
-                if net is not None:
-                    net.store()
-        return done
+
+        def call(c0: int, c1: int, *network: Any) -> None:
+            w0 = network[-1]
+            tail = codec_args(nets, idle, scratch) if codec else ()
+            run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, *network[:-1], block, w0, output.start, *tail)
+
+        rings = compiled_loop.Rings((6, 9))
+        return run_windows(engine, call, (fwd, bwd), nets, rings, output, window, progress)
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ import gc
 import signal
 import struct
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
@@ -41,6 +41,7 @@ from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine import compiled_loop
 from haptic_teleop.engine.codec_channel import LAYOUT_ARM, build_codec_channels
+from haptic_teleop.engine.compiled_driver import CHUNK_TICKS, codec_args, run_windows
 from haptic_teleop.errors import InputError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
@@ -75,7 +76,6 @@ class RunResult:
 
 
 LOOPS = ("auto", "compiled", "python")
-COMPILED_CHUNK_TICKS = 100  # the compiled loop returns to Python this often (progress, blocks, Ctrl-C)
 VECTORIZED_WINDOW_TICKS = 10 * BLOCK_TICKS  # a vectorized network schedule is decided this far ahead
 
 
@@ -520,22 +520,10 @@ class Engine:
 
         self.ticks_done = 0
         compiled = self.loop_kind == "compiled"
-        nets = None
-        if compiled and self.codecs != (None, None):
-            # a codec direction runs in the kernel (compiled_arm_loop.arm_codec_nets), the other on its schedule
+        if compiled:  # a codec direction runs in the kernel (arm_codec_nets), the other on its schedule
             nets = compiled_arm_loop.arm_codec_nets(self.codecs, self.period_ns)
-            fnet, bnet = nets
-            fwd = None if fnet is not None else self._schedule("forward")
-            bwd = None if bnet is not None else self._schedule("backward")
-            window = (
-                VECTORIZED_WINDOW_TICKS if all(s is None or s.vectorized for s in (fwd, bwd)) else COMPILED_CHUNK_TICKS
-            )
-            output = _Output(sink, (fnet or fwd).settled, (bnet or bwd).settled, self.schema.width)
-        elif compiled:  # the network decided a window ahead (compiled_loop.schedule), as for one axis
-            fwd = self._schedule("forward")
-            bwd = self._schedule("backward")
-            window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
-            output = _Output(sink, fwd.settled, bwd.settled, self.schema.width)
+            (fwd, bwd), window = self._compiled_network(nets)
+            output = _Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled, self.schema.width)
         else:
             fcodec, bcodec = self.codecs
             output = _Output(
@@ -579,130 +567,50 @@ class Engine:
         head = (compiled_loop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint)
         return head, (compiled_loop.parameters(self), compiled_loop.initial_state(self))
 
+    def _compiled_network(self, nets: Sequence[Any]) -> tuple[tuple[Any, Any], int]:
+        """Each direction's schedule (None where its net runs the codec in the kernel) and the
+        window the network is decided ahead: a vectorized schedule's is long, a ticked one's is
+        the loop's chunk, so it never runs ahead of a stop."""
+        fwd = None if nets[0] is not None else self._schedule("forward")
+        bwd = None if nets[1] is not None else self._schedule("backward")
+        vectorized = all(s is None or s.vectorized for s in (fwd, bwd))
+        return (fwd, bwd), VECTORIZED_WINDOW_TICKS if vectorized else CHUNK_TICKS
+
     def _compiled_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        if self.codecs != (None, None):
-            return self._compiled_codec_loop(progress, sink)
-        from haptic_teleop.engine import compiled_loop
-
-        n_ticks, period_ns = self.ticks, self.period_ns
-        self.ticks_done = 0
-        t0 = time.perf_counter()
-        # The network's decisions a window ahead of the loop: they do not depend on payloads. A
-        # ticked schedule's window is the loop's chunk, so it never runs ahead of a stop.
-        fwd = compiled_loop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
-        bwd = compiled_loop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
-        window = VECTORIZED_WINDOW_TICKS if fwd.vectorized and bwd.vectorized else COMPILED_CHUNK_TICKS
-        head, (P, S) = self._kernel_args()
-        hist = compiled_loop.Rings((2, 3))
-        output = _Output(sink, fwd.settled, bwd.settled)
-        block = output.block
-        run_ticks = self._kernel
-        assert run_ticks is not None
-        done = 0
-        try:
-            with compiled_loop.mujoco_timers_off():
-                while done < n_ticks:  # a stop requested before the loop still runs one chunk
-                    w0, w1 = done, min(done + window, n_ticks)
-                    frel, focc = fwd.window(w0, w1)
-                    brel, bocc = bwd.window(w0, w1)
-                    hist.fit(frel, brel, w0, w1)
-                    for c0 in range(w0, w1, COMPILED_CHUNK_TICKS):
-                        c1 = min(c0 + COMPILED_CHUNK_TICKS, w1)
-                        run_ticks(
-                            c0, c1, *head, frel, focc, brel, bocc, hist.fwd, hist.bwd, P, S, block, w0, output.start
-                        )
-                        done = self.ticks_done = c1
-                        if progress is not None and done % 100 == 0:
-                            progress(done)
-                        if done - output.start == BLOCK_TICKS:
-                            output.block_done(done)
-                        if self._stop:
-                            break
-                    if self._stop:
-                        break
-        except BaseException:
-            compiled_loop.store_state(self, S)
-            self.master.close()
-            self.slave.close()
-            output.end_after_error(done)
-            raise
-        compiled_loop.store_state(self, S)
-        output.end(done)
-        self.master.close()
-        self.slave.close()
-        wall = time.perf_counter() - t0
-        return self._streamed(done, wall)
-
-    def _compiled_codec_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        """`_compiled_loop` with the codec stage run in the kernel on the directions that name a
-        codec (engine/compiled_codec.py); a direction without one keeps its schedule."""
+        """The compiled 1-DoF loop (axis_kernel.run_ticks), or with the codec stage run in the kernel
+        on the directions that name a codec (codec_kernel, engine/compiled_codec.py); a direction
+        without one keeps its schedule."""
         from haptic_teleop.engine import compiled_loop
         from haptic_teleop.engine.compiled_codec import CodecNet, no_codec
 
-        n_ticks, period_ns = self.ticks, self.period_ns
+        period_ns = self.period_ns
         self.ticks_done = 0
         t0 = time.perf_counter()
+        codec = self.codecs != (None, None)
         nets = [None if ch is None else CodecNet(ch, period_ns) for ch in self.codecs]
-        fnet, bnet = nets
-        fwd = (
-            None
-            if fnet is not None
-            else compiled_loop.schedule(self.forward, self.forward_buffer, period_ns, self._sizes[0])
-        )
-        bwd = (
-            None
-            if bnet is not None
-            else compiled_loop.schedule(self.backward, self.backward_buffer, period_ns, self._sizes[1])
-        )
-        window = VECTORIZED_WINDOW_TICKS if all(s is None or s.vectorized for s in (fwd, bwd)) else COMPILED_CHUNK_TICKS
+        (fwd, bwd), window = self._compiled_network(nets)
         head, (P, S) = self._kernel_args()
-        hist = compiled_loop.Rings((2, 3))
-        output = _Output(sink, (fnet or fwd).settled, (bnet or bwd).settled)  # type: ignore[union-attr]
+        output = _Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled)
         block = output.block
         run_ticks = self._kernel
         assert run_ticks is not None
         idle = no_codec(period_ns)
         scratch = np.zeros((3, 3))
-        done = 0
+
+        def call(c0: int, c1: int, *network: Any) -> None:
+            w0 = network[-1]
+            tail = codec_args(nets, idle, scratch) if codec else ()
+            run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
+
         try:
-            with compiled_loop.mujoco_timers_off():
-                while done < n_ticks:
-                    w0, w1 = done, min(done + window, n_ticks)
-                    none = np.full(w1 - w0, -1, dtype=np.int64), np.zeros(w1 - w0)
-                    frel, focc = none if fwd is None else fwd.window(w0, w1)
-                    brel, bocc = none if bwd is None else bwd.window(w0, w1)
-                    hist.fit(frel, brel, w0, w1)
-                    for c0 in range(w0, w1, COMPILED_CHUNK_TICKS):
-                        c1 = min(c0 + COMPILED_CHUNK_TICKS, w1)
-                        for net in nets:
-                            if net is not None:
-                                net.ready(c1 - c0)
-                        run_ticks(
-                            c0, c1, *head, frel, focc, brel, bocc, hist.fwd, hist.bwd, P, S, block, w0, output.start,
-                            *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()), scratch,
-                        )  # fmt: skip
-                        done = self.ticks_done = c1
-                        if progress is not None and done % 100 == 0:
-                            progress(done)
-                        if done - output.start == BLOCK_TICKS:
-                            output.block_done(done)
-                        if self._stop:
-                            break
-                    if self._stop:
-                        break
+            done = run_windows(self, call, (fwd, bwd), nets, compiled_loop.Rings((2, 3)), output, window, progress)
         except BaseException:
             compiled_loop.store_state(self, S)
-            for net in nets:
-                if net is not None:
-                    net.store()
             self.master.close()
             self.slave.close()
-            output.end_after_error(done)
+            output.end_after_error(self.ticks_done)
             raise
         compiled_loop.store_state(self, S)
-        for net in nets:
-            if net is not None:
-                net.store()
         output.end(done)
         self.master.close()
         self.slave.close()
