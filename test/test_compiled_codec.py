@@ -5,7 +5,8 @@ Each identity case runs one scene in both loops and compares every call on the s
 columns, batches of packet records, at the same points of the run), the controllers' final state,
 the codec counters of the run facts (`codec_<direction>`) and the links' counts. Together the
 cases cover each compiled codec configuration (deadband hold, extrapolation from the sent rate
-and from the last two, the velocity-adaptive p, the floor; prediction extrapolating and holding),
+and from the last two, the velocity-adaptive p, the floor; prediction extrapolating and holding;
+FEC repetition and parity, playing late by wait_ticks or not, extrapolating or holding),
 on the forward link, the backward link and both, over constant delay with uncorrelated loss,
 Gilbert-Elliott loss and blackouts. 1.5 s of scene each, a sinusoidal operator in contact with the
 wall, so every quantity moves.
@@ -37,6 +38,10 @@ ADAPTIVE = "{kind: deadband, deadband: 0.05, adaptive_gain: 20, max_deadband: 0.
 FLOOR = "{kind: deadband, deadband: 0.1, min_threshold: 0.01}"
 PREDICTION = "{kind: prediction, max_extrapolation_s: 0.02}"
 PREDICTION_HOLD = "{kind: prediction, gap: hold}"
+REPETITION_WAIT = "{kind: fec, scheme: repetition, k: 3, wait_ticks: 2}"
+REPETITION_HOLD = "{kind: fec, scheme: repetition, k: 2, gap: hold}"
+PARITY_WAIT = "{kind: fec, scheme: parity, k: 3, wait_ticks: 3, max_extrapolation_s: 0.02}"
+PARITY_HOLD = "{kind: fec, scheme: parity, k: 4, gap: hold}"
 
 # case: {direction: (codec, effects)}; effects: (loss, blackout) scene values or None.
 CASES = {
@@ -47,6 +52,11 @@ CASES = {
     "floor_backward_gilbert": {"backward": (FLOOR, (GILBERT, None))},
     "prediction_both": {"forward": (PREDICTION, (None, ONE_THROUGH)), "backward": (PREDICTION, (GILBERT, None))},
     "prediction_hold_forward": {"forward": (PREDICTION_HOLD, (BERNOULLI, ONE_THROUGH))},
+    "fec_repetition_both": {
+        "forward": (REPETITION_WAIT, (BERNOULLI, None)),
+        "backward": (REPETITION_HOLD, (GILBERT, BLACKOUT)),
+    },
+    "fec_parity_both": {"forward": (PARITY_WAIT, (GILBERT, BLACKOUT)), "backward": (PARITY_HOLD, (BERNOULLI, None))},
 }
 
 
@@ -118,8 +128,8 @@ def _assert_same(compiled, python):
         if a is not None:
             assert (a.encoder.counters, a.decoder.counters) == (b.encoder.counters, b.decoder.counters)
             assert a.newest_seq == b.newest_seq
-            if a.kind == "prediction":
-                assert a.decoder.rec.predicted == b.decoder.rec.predicted
+            if a.kind in ("prediction", "fec"):
+                assert (a.decoder.rec.predicted, a.decoder.rec.late) == (b.decoder.rec.predicted, b.decoder.rec.late)
     assert _links(ec) == _links(ep)
     assert ec.slave.contact_force() == ep.slave.contact_force()
 
@@ -141,9 +151,12 @@ def test_compiled_codec_equals_python_loop(case):
             if "extrapolate" in codec:
                 assert f["decoder_extrapolated"] > 10
         else:
-            assert (
-                f["encoder_sent"] == e.ticks and e.codecs[("forward", "backward").index(d)].decoder.rec.predicted > 10
-            )
+            predicted = e.codecs[("forward", "backward").index(d)].decoder.rec.predicted
+            assert f["encoder_sent"] == e.ticks and predicted > (0 if "fec" in codec else 10)
+            if "fec" in codec:  # recovered in time (with wait_ticks) and too late
+                assert f["decoder_recovered"] > 10 and 0 < f["decoder_recovered_late"]
+                if "wait" in codec:
+                    assert f["decoder_recovered_late"] < f["decoder_recovered"]
     rows = np.concatenate([a for kind, a in sink.calls if kind == "rows"])
     assert len(rows) == e.ticks and np.ptp(rows[:, COL["s_x_m"]]) > 1e-3
 
@@ -192,7 +205,8 @@ def _codec_on(d, codec, *effects):
     ("overrides", "reason"),
     [
         (_codec_on("forward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the forward link runs in the Python"),
-        (_codec_on("backward", "{kind: fec}"), "codec fec on the backward link"),
+        (_codec_on("backward", "{kind: arq}"), "codec arq on the backward link"),
+        (_codec_on("backward", "{kind: fec}", "duplicate.probability=0.1"), "effect duplicate (Duplicate) on the back"),
         (_codec_on("forward", "{kind: arq}"), "codec arq on the forward link"),
         (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
         (

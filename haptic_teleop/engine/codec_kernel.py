@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from haptic_teleop.core import deadband as db
-from haptic_teleop.core import loss
+from haptic_teleop.core import fec, loss
 from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
 from haptic_teleop.engine.codec_layout import (
@@ -23,6 +23,7 @@ from haptic_teleop.engine.codec_layout import (
     C_DIM,
     C_EXTRAP,
     C_GAIN,
+    C_K,
     C_KEEP,
     C_KIND,
     C_LBAD,
@@ -34,13 +35,16 @@ from haptic_teleop.engine.codec_layout import (
     C_MAX_TICKS,
     C_MIN,
     C_P0,
+    C_PARITY,
     C_PERIOD_NS,
     C_PMAX,
     C_SENDS_RATE,
     C_SIZE,
     C_TRIG0,
     C_VEL,
+    C_WAIT,
     DEADBAND,
+    FEC,
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     NO_CODEC,
@@ -50,20 +54,28 @@ from haptic_teleop.engine.codec_layout import (
     S_COUNT,
     S_DROP_BLACKOUT,
     S_DROP_LOSS,
+    S_DUPLICATES,
     S_EXTRAPOLATED,
     S_FILTERED,
+    S_HAS_FRESH,
+    S_HAS_HELD,
     S_HAS_LAST,
     S_HAS_OLD,
+    S_HAS_PLAYED,
     S_HAS_PREV,
     S_HAS_RATE,
     S_HAS_SENT,
     S_HAS_SLOT,
     S_HEAD,
     S_LAST0,
+    S_LAST_PLAYED,
     S_LAST_SEQ,
+    S_LATE,
     S_LINK_LOST,
     S_LINK_SENT,
+    S_MAXHELD,
     S_NEWEST,
+    S_NEWEST_FRESH,
     S_OFFERED,
     S_OLD0,
     S_OLD_SEQ,
@@ -73,6 +85,8 @@ from haptic_teleop.engine.codec_layout import (
     S_PREV_NS,
     S_RATE0,
     S_RECEIVED,
+    S_RECOVERED,
+    S_RECOVERED_LATE,
     S_RECS,
     S_SENT,
     S_SENT0,
@@ -80,6 +94,14 @@ from haptic_teleop.engine.codec_layout import (
     S_SLOT_N,
     S_STALE,
     S_U,
+    W_STACK,
+    W_TERMS,
+    W_VALUE,
+    X_HELD,
+    X_SENT,
+    X_SUM,
+    X_SUM_SEQ,
+    X_VALUE,
 )
 
 jit = numba.njit(cache=True, nogil=True)
@@ -93,6 +115,7 @@ outside = jit(db.outside)
 extrapolated = jit(db.extrapolated)
 extrapolate1 = jit(pr.extrapolate1)
 gilbert_step = jit(loss.gilbert_step)
+rounded_sum = jit(fec.rounded_sum)
 
 DELIVERED = 0.0
 LOST_NETWORK = 1.0
@@ -349,6 +372,248 @@ def codec_tick(
     return rx, prediction_sample(C, S, n, out)
 
 
+# ------------------------------------------------------------------------------------------
+# FEC: the decoder's history of samples (`Reconstructor` over any seqs), recovery, the tick.
+
+
+@inline  # type: ignore[misc]
+def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
+    # Reconstructor.has: held and not yet forgotten (within keep_ticks of the newest held).
+    if seq < 0 or S[S_HAS_HELD] == 0.0 or seq < S[S_MAXHELD] - C[C_KEEP]:
+        return False
+    return X[seq & (X.shape[0] - 1), X_HELD] == seq
+
+
+@jit  # type: ignore[misc]
+def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
+    # Reconstructor.add of the value in W[W_VALUE:]; False if held already or too old to keep.
+    if rec_held(C, S, X, seq):
+        return False
+    if S[S_HAS_HELD] != 0.0 and seq < S[S_MAXHELD] - C[C_KEEP]:
+        if not fresh:
+            S[S_LATE] += 1.0
+        return False
+    if not fresh and S[S_HAS_PLAYED] != 0.0 and seq <= S[S_LAST_PLAYED]:
+        S[S_LATE] += 1.0
+    j = seq & (X.shape[0] - 1)
+    X[j, X_HELD] = seq
+    for i in range(int(C[C_DIM])):
+        X[j, X_VALUE + i] = W[W_VALUE + i]
+    if S[S_HAS_HELD] == 0.0 or seq > S[S_MAXHELD]:
+        S[S_MAXHELD] = seq
+        S[S_HAS_HELD] = 1.0
+    if fresh and (S[S_HAS_FRESH] == 0.0 or seq > S[S_NEWEST_FRESH]):
+        S[S_NEWEST_FRESH] = seq
+        S[S_HAS_FRESH] = 1.0
+        S[S_PENDING] = 1.0
+    return True
+
+
+@inline  # type: ignore[misc]
+def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # Reconstructor.sample: the playout slot, the sample at the slot (wait_ticks behind), or the
+    # prediction from the newest two held at or before it.
+    if S[S_PENDING] != 0.0:
+        S[S_SLOT] = S[S_NEWEST_FRESH]
+        S[S_SLOT_N] = n
+        S[S_PENDING] = 0.0
+        S[S_HAS_SLOT] = 1.0
+    elif S[S_HAS_SLOT] != 0.0:
+        S[S_SLOT] = S[S_SLOT] + (n - S[S_SLOT_N])
+        S[S_SLOT_N] = n
+    elif S[S_HAS_HELD] != 0.0:
+        S[S_SLOT] = S[S_MAXHELD]
+        S[S_SLOT_N] = n
+        S[S_HAS_SLOT] = 1.0
+    else:
+        return False
+    target = int(S[S_SLOT]) - int(C[C_WAIT])
+    if S[S_HAS_PLAYED] == 0.0 or target > S[S_LAST_PLAYED]:
+        S[S_LAST_PLAYED] = target
+        S[S_HAS_PLAYED] = 1.0
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    newest = int(S[S_MAXHELD])
+    lo = max(0, newest - int(C[C_KEEP]))
+    last = min(target, newest)
+    while last >= lo and X[last & mask, X_HELD] != last:
+        last -= 1
+    if last < lo:
+        return False  # everything held is newer than the target
+    j = last & mask
+    if last == target:
+        for i in range(dim):
+            out[i] = X[j, X_VALUE + i]
+        return True
+    S[S_PREDICTED] += 1.0
+    prev = last - 1
+    if C[C_EXTRAP] != 0.0:
+        while prev >= lo and X[prev & mask, X_HELD] != prev:
+            prev -= 1
+    if C[C_EXTRAP] == 0.0 or prev < lo:
+        for i in range(dim):
+            out[i] = X[j, X_VALUE + i]
+        return True
+    ahead = min(target - last, int(C[C_MAX_TICKS]))
+    span = last - prev
+    k = prev & mask
+    for i in range(dim):
+        out[i] = extrapolate1(X[k, X_VALUE + i], X[j, X_VALUE + i], ahead, span)
+    return True
+
+
+@inline  # type: ignore[misc]
+def fec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int) -> bool:
+    # FecDecoder._add of a recovered sample (not fresh).
+    late_before = S[S_LATE]
+    if not rec_add(C, S, X, W, seq, False):
+        return False
+    S[S_RECOVERED] += 1.0
+    if S[S_LATE] > late_before:
+        S[S_RECOVERED_LATE] += 1.0
+    return True
+
+
+@inline  # type: ignore[misc]
+def sum_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, p: int) -> bool:
+    # `p in FecDecoder._sums` after its front was dropped (what reaches past the history).
+    if p < S[S_MAXHELD] - C[C_KEEP] + C[C_K]:
+        return False
+    return X[p & (X.shape[0] - 1), X_SUM_SEQ] == p
+
+
+@jit  # type: ignore[misc]
+def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: int) -> None:
+    # FecDecoder.receive of packet n. A constant delay keeps the stream in order, so the payload
+    # is the sender's samples of ticks n, n-1, ..., n-k (repetition) or x(n) and the sum of
+    # x(n-k) .. x(n-1) (parity): read here from the sender's rows of X (as many as the packets
+    # in flight and k need), the same floats the packet carries.
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    k = int(C[C_K])
+    S[S_RECEIVED] += 1.0
+    jn = n & mask
+    for i in range(dim):
+        W[W_VALUE + i] = X[jn, X_SENT + i]
+    if not rec_add(C, S, X, W, n, True):
+        S[S_DUPLICATES] += 1.0
+        if C[C_PARITY] != 0.0 and sum_held(C, S, X, n):
+            return
+    if C[C_PARITY] == 0.0:
+        for q in range(1, k + 1):
+            m = n - q
+            if m >= 0:
+                jm = m & mask
+                for i in range(dim):
+                    W[W_VALUE + i] = X[jm, X_SENT + i]
+                fec_add(C, S, X, W, m)
+        return
+    # the carrier's parity sum, as the encoder's math.fsum (correctly rounded: any order)
+    for i in range(dim):
+        c = 0
+        for m in range(max(0, n - k), n):
+            W[W_TERMS + c] = X[m & mask, X_SENT + i]
+            c += 1
+        X[jn, X_SUM + i] = rounded_sum(W, W_TERMS, c, W)
+    X[jn, X_SUM_SEQ] = n
+    # FecDecoder._parity_recover: solve each window with one unknown (a LIFO worklist)
+    oldest = int(S[S_MAXHELD]) - int(C[C_KEEP])
+    W[W_STACK] = n
+    top = 1
+    while top > 0:
+        top -= 1
+        p = int(W[W_STACK + top])
+        if not sum_held(C, S, X, p):
+            continue
+        missing = 0
+        m = -1
+        for q in range(max(0, p - k), p):
+            if not rec_held(C, S, X, q):
+                missing += 1
+                m = q
+                if missing > 1:
+                    break
+        if missing != 1 or m < oldest:
+            continue
+        jp = p & mask
+        for i in range(dim):
+            W[W_TERMS] = X[jp, X_SUM + i]
+            c = 1
+            for q in range(max(0, p - k), p):
+                if q != m:
+                    W[W_TERMS + c] = -X[q & mask, X_VALUE + i]
+                    c += 1
+            W[W_VALUE + i] = rounded_sum(W, W_TERMS, c, W)
+        if fec_add(C, S, X, W, m):
+            for q in range(m + 1, m + k + 1):
+                if sum_held(C, S, X, q):
+                    W[W_STACK + top] = q
+                    top += 1
+
+
+@jit  # type: ignore[misc]
+def fec_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with FecEncoder / FecDecoder.
+    dim = int(C[C_DIM])
+    j = n & (X.shape[0] - 1)
+    for i in range(dim):
+        X[j, X_SENT + i] = smp[i]
+    S[S_OFFERED] += 1.0
+    S[S_SENT] += 1.0
+    S[S_BYTES] += C[C_SIZE]
+    link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        fec_receive(C, S, X, W, seq)
+        if seq > S[S_NEWEST]:
+            S[S_NEWEST] = seq
+            rx = seq
+    return rx, rec_sample(C, S, X, n, out)
+
+
+@inline  # type: ignore[misc]
+def codec_tick_x(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # `codec_tick` for every compiled codec (those with a sample history: FEC).
+    if C[C_KIND] == FEC:
+        return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
+    return codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, out)
+
+
 @loop_jit  # type: ignore[misc]
 def run_ticks_codec(
     n0: int,
@@ -385,6 +650,10 @@ def run_ticks_codec(
     bring: np.ndarray,
     brec: np.ndarray,
     scratch: np.ndarray,
+    fX: np.ndarray,
+    fW: np.ndarray,
+    bX: np.ndarray,
+    bW: np.ndarray,
 ) -> int:
     # `axis_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
     # others read their window of the schedule as there).
@@ -408,7 +677,7 @@ def run_ticks_codec(
         if fcodec:
             smp[0] = x_m
             smp[1] = v_m
-            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, n, now, smp, rate, out)
+            frx, got = codec_tick_x(fC, fS, fU, fB, fring, frec, fX, fW, n, now, smp, rate, out)
             if got:
                 accept2(P, S, out[0], out[1])
             focc = 0.0
@@ -425,7 +694,7 @@ def run_ticks_codec(
             smp[0] = f_env
             smp[1] = x_s
             smp[2] = v_s
-            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, n, now, smp, rate, out)
+            brx, got = codec_tick_x(bC, bS, bU, bB, bring, brec, bX, bW, n, now, smp, rate, out)
             if got:
                 accept3(P, S, out[0], out[1], out[2])
             bocc = 0.0
@@ -466,6 +735,35 @@ def codec_ticks(
         for i in range(samples.shape[1]):
             smp[i] = samples[n, i]
         _rx, got = codec_tick(C, S, U, B, ring, rec, n, n * period_ns, smp, rate, out)
+        if got:
+            got_ticks += 1
+    return got_ticks
+
+
+@loop_jit  # type: ignore[misc]
+def codec_ticks_x(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    samples: np.ndarray,
+    period_ns: int,
+    scratch: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+) -> int:
+    """`codec_ticks` for every compiled codec (the sample history X and scratch W of
+    `CodecNet.history`)."""
+    smp = scratch[0]
+    rate = scratch[1]
+    out = scratch[2]
+    got_ticks = 0
+    for n in range(samples.shape[0]):
+        for i in range(samples.shape[1]):
+            smp[i] = samples[n, i]
+        _rx, got = codec_tick_x(C, S, U, B, ring, rec, X, W, n, n * period_ns, smp, rate, out)
         if got:
             got_ticks += 1
     return got_ticks

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.delay import ConstantDelay
+from haptic_teleop.core.fec import payload_floats
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
@@ -35,6 +36,7 @@ from haptic_teleop.engine.codec_layout import (
     C_DIM,
     C_EXTRAP,
     C_GAIN,
+    C_K,
     C_KEEP,
     C_KIND,
     C_LBAD,
@@ -46,15 +48,18 @@ from haptic_teleop.engine.codec_layout import (
     C_MAX_TICKS,
     C_MIN,
     C_P0,
+    C_PARITY,
     C_PERIOD_NS,
     C_PMAX,
     C_SENDS_RATE,
     C_SIZE,
-    C_SIZE_ALL,
+    C_SIZE_X,
     C_TRIG0,
     C_VEL,
+    C_WAIT,
     COMPILED_KINDS,
     DEADBAND,
+    FEC,
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     LOSS_NONE,
@@ -65,21 +70,29 @@ from haptic_teleop.engine.codec_layout import (
     S_COUNT,
     S_DROP_BLACKOUT,
     S_DROP_LOSS,
+    S_DUPLICATES,
     S_EXTRAPOLATED,
     S_FILTERED,
     S_HEAD,
+    S_LATE,
     S_LINK_LOST,
     S_LINK_SENT,
     S_NEWEST,
     S_OFFERED,
     S_PREDICTED,
     S_RECEIVED,
+    S_RECOVERED,
+    S_RECOVERED_LATE,
     S_RECS,
     S_SENT,
-    S_SIZE_ALL,
+    S_SIZE_X,
     S_STALE,
     S_U,
     S_U_END,
+    W_STACK,
+    X_HELD,
+    X_SUM_SEQ,
+    X_WIDTH,
 )
 
 _BLOCK = 4096  # random numbers drawn per refill
@@ -124,7 +137,7 @@ class CodecNet:
     def __init__(self, ch: CodecChannel, period_ns: int) -> None:
         self.ch = ch
         self.period_ns = period_ns
-        C = np.zeros(C_SIZE_ALL)
+        C = np.zeros(C_SIZE_X)
         C[C_DIM] = ch.dim
         C[C_PERIOD_NS] = period_ns
         enc, dec = ch.encoder, ch.decoder
@@ -147,12 +160,17 @@ class CodecNet:
                 for i in range(g.start, g.stop):
                     C[C_TRIG0 + i] = 1.0
         else:
-            C[C_KIND] = PREDICTION
-            C[C_SIZE] = enc._size_of(ch.dim)
+            fec = ch.kind == "fec"
+            C[C_KIND] = FEC if fec else PREDICTION
+            C[C_SIZE] = enc._size_of(payload_floats(enc.scheme, enc.k, ch.dim) if fec else ch.dim)
             rec = dec.rec
             C[C_EXTRAP] = 1.0 if rec.extrapolates else 0.0
             C[C_KEEP] = rec.keep_ticks
             C[C_MAX_TICKS] = rec.max_extrapolation_ticks
+            if fec:
+                C[C_PARITY] = 1.0 if enc.scheme == "parity" else 0.0
+                C[C_K] = enc.k
+                C[C_WAIT] = rec.wait_ticks
         self._loss: Any = None
         self._blackout: Blackout | None = None
         windows: list[tuple[int, int]] = []
@@ -175,7 +193,7 @@ class CodecNet:
         self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
         self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
         self._rng = None if self._loss is None else _uniform_rng(self._loss)
-        S = np.zeros(S_SIZE_ALL)
+        S = np.zeros(S_SIZE_X)
         S[S_NEWEST] = -1.0
         if type(self._loss) is GilbertElliottLoss:
             S[S_BAD] = 1.0 if self._loss.bad else 0.0
@@ -186,6 +204,17 @@ class CodecNet:
             depth *= 2
         self.ring = np.zeros((depth, RING_WIDTH))
         self.records = np.zeros((1024, 6))
+        # The sample history (FEC): the decoder's held samples reach keep_ticks back, the sender's
+        # the packets in flight and k more; the scratch's worklist: at most k per recovery.
+        self.X, self.W = no_history()
+        if ch.kind == "fec":
+            rows = 4
+            while rows < max(C[C_KEEP] + 2, delay_ns // period_ns + C[C_K] + 3):
+                rows *= 2
+            self.X = np.zeros((rows, X_WIDTH))
+            self.X[:, X_HELD] = -1.0
+            self.X[:, X_SUM_SEQ] = -1.0
+            self.W = np.zeros(W_STACK + 1 + int(C[C_K]) * (int(C[C_KEEP]) + 1))
 
     def ready(self, ticks: int) -> None:
         """Before the kernel runs `ticks` ticks: random numbers and record rows for a packet a tick."""
@@ -228,10 +257,19 @@ class CodecNet:
         if ch.kind == "deadband":
             enc.counters.update(offered=int(S[S_OFFERED]), sent=int(S[S_SENT]), filtered=int(S[S_FILTERED]))
             dec.counters.update(received=int(S[S_RECEIVED]), stale=int(S[S_STALE]), extrapolated=int(S[S_EXTRAPOLATED]))
-        else:
+        elif ch.kind == "prediction":
             enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
             dec.counters.update(received=int(S[S_RECEIVED]), duplicates=0)
             dec.rec.predicted = int(S[S_PREDICTED])
+        else:  # fec (its recovered_log, for a reader of the decoder alone, stays empty)
+            enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
+            dec.counters.update(
+                received=int(S[S_RECEIVED]),
+                duplicates=int(S[S_DUPLICATES]),
+                recovered=int(S[S_RECOVERED]),
+                recovered_late=int(S[S_RECOVERED_LATE]),
+            )
+            dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
         ch.newest_seq = int(S[S_NEWEST])
         link = ch.link
         link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
@@ -246,14 +284,23 @@ class CodecNet:
         """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
         return self.C, self.S, self.U, self.blackouts, self.ring, self.records
 
+    def history(self) -> tuple[np.ndarray, np.ndarray]:
+        """The kernel's sample history and scratch for this direction (X, W: codec_layout)."""
+        return self.X, self.W
+
+
+def no_history() -> tuple[np.ndarray, np.ndarray]:
+    """X and W of a direction whose codec keeps no sample history (or that has no codec)."""
+    return np.full((1, X_WIDTH), -1.0), np.zeros(1)
+
 
 def no_codec(period_ns: int) -> tuple[np.ndarray, ...]:
     """The kernel's arguments for a direction without a codec (C_KIND 0: it runs on its schedule)."""
-    C = np.zeros(C_SIZE_ALL)
+    C = np.zeros(C_SIZE_X)
     C[C_PERIOD_NS] = period_ns
     return (
         C,
-        np.zeros(S_SIZE_ALL),
+        np.zeros(S_SIZE_X),
         np.zeros(1),
         np.zeros((0, 2), dtype=np.int64),
         np.zeros((1, RING_WIDTH)),

@@ -136,9 +136,10 @@ class Engine:
             rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
             extra: tuple[np.ndarray, ...] = ()
             if codec:
-                from haptic_teleop.engine.compiled_codec import no_codec
+                from haptic_teleop.engine.compiled_codec import no_codec, no_history
 
-                extra = (*no_codec(self.period_ns), *no_codec(self.period_ns), np.zeros((3, 3)))
+                idle = no_codec(self.period_ns)
+                extra = (*idle, *idle, np.zeros((3, 3)), *no_history(), *no_history())
             self._kernel(
                 0,
                 0,
@@ -620,7 +621,7 @@ class Engine:
         """`_compiled_loop` with the codec stage run in the kernel on the directions that name a
         codec (engine/compiled_codec.py); a direction without one keeps its schedule."""
         from haptic_teleop.engine import compiled_loop
-        from haptic_teleop.engine.compiled_codec import CodecNet, no_codec
+        from haptic_teleop.engine.compiled_codec import CodecNet, no_codec, no_history
 
         n_ticks, period_ns = self.ticks, self.period_ns
         self.ticks_done = 0
@@ -644,7 +645,7 @@ class Engine:
         block = output.block
         run_ticks = self._kernel
         assert run_ticks is not None
-        idle = no_codec(period_ns)
+        idle, no_x = no_codec(period_ns), no_history()
         scratch = np.zeros((3, 3))
         done = 0
         try:
@@ -663,6 +664,7 @@ class Engine:
                         run_ticks(
                             c0, c1, *head, frel, focc, brel, bocc, hist.fwd, hist.bwd, P, S, block, w0, output.start,
                             *(idle if fnet is None else fnet.args()), *(idle if bnet is None else bnet.args()), scratch,
+                            *(no_x if fnet is None else fnet.history()), *(no_x if bnet is None else bnet.history()),
                         )  # fmt: skip
                         done = self.ticks_done = c1
                         if progress is not None and done % 100 == 0:
