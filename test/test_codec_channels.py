@@ -247,19 +247,23 @@ def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
     assert s["all_finite"]
 
 
+_GILBERT = "{model: gilbert_elliott, p: 0.05, r: 0.2, one_minus_h: 0.9, one_minus_k: 0.02}"
+
+
 def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     pytest.importorskip("numba")
-    scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1", _codec("forward", "{kind: arq}")])
-    with pytest.raises(InputError, match="codec arq on the forward link runs in the Python loop only"):
+    hli = [_codec("forward", "{kind: hli}"), f"network.forward.effects.loss={_GILBERT}"]
+    scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1", *hli])
+    with pytest.raises(InputError, match="codec hli on the forward link runs in the Python loop only"):
         Engine(scene, loop="compiled")
     e = Engine(scene, loop="auto")
     assert e.loop_kind == "python" and "codec" in (e.compiled_reason or "")
     plain = Engine(load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1"]), loop="auto")
     assert plain.codecs == (None, None)
     argv = ["run", "wall_contact", "--loop", "compiled", "--out", str(tmp_path / "o")]
-    code = main([*argv, "--set", "scene.duration_s=0.1", "--set", _codec("forward", "{kind: arq}")])
+    code = main([*argv, "--set", "scene.duration_s=0.1", "--set", hli[0], "--set", hli[1]])
     line = _one_line(capsys.readouterr().err)
-    assert code == 2 and "codec arq on the forward link runs in the Python loop only" in line
+    assert code == 2 and "codec hli on the forward link runs in the Python loop only" in line
 
 
 def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:

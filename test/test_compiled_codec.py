@@ -104,12 +104,16 @@ def _run(scene, loop, stop_at=None):
     return e, r, sink
 
 
+def _link(link):
+    return (
+        link.sent,
+        link.lost,
+        tuple((x.name, getattr(x, "dropped", None), getattr(x, "bad", None)) for x in link.effects),
+    )
+
+
 def _links(e):
-    out = {}
-    for d in ("forward", "backward"):
-        link = getattr(e, d)
-        out[d] = (link.sent, link.lost, tuple((x.name, getattr(x, "dropped", None)) for x in link.effects))
-    return out
+    return {d: _link(getattr(e, d)) for d in ("forward", "backward")}
 
 
 def _assert_same(compiled, python):
@@ -131,6 +135,10 @@ def _assert_same(compiled, python):
             if a.kind in ("prediction", "fec"):
                 assert (a.decoder.rec.predicted, a.decoder.rec.late) == (b.decoder.rec.predicted, b.decoder.rec.late)
     assert _links(ec) == _links(ep)
+    for a, b in zip(ec.codecs, ep.codecs, strict=True):
+        if a is not None and a.ack_link is not None:
+            assert (a.ack_packets, a.ack_bytes) == (b.ack_packets, b.ack_bytes)
+            assert _link(a.ack_link) == _link(b.ack_link)
     assert ec.slave.contact_force() == ep.slave.contact_force()
 
 
@@ -189,6 +197,51 @@ def test_compiled_codec_beside_other_networks(case):
     assert kinds.count("rows") >= 2 and {"forward", "backward"} <= set(kinds)
 
 
+ARQ_SLOW = "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"
+ARQ_FAST = "{kind: arq, timeout_s: 0.004, max_retransmissions: 1, wait_ticks: 5, gap: hold}"
+ARQ_CASES = {
+    # the ACKs come back within mu (10 ms each way): retransmissions only for what was lost
+    "arq_both_in_time": [
+        f"network.forward.codec={ARQ_SLOW}",
+        f"network.backward.codec={ARQ_SLOW}",
+        "network.forward.effects.delay.delay_s=0.01",
+        "network.backward.effects.delay.delay_s=0.01",
+        f"network.forward.effects.loss={BERNOULLI}",
+        f"network.backward.effects.loss={GILBERT}",
+        f"network.backward.effects.blackout={BLACKOUT}",
+    ],
+    # mu below the round trip (50 ms each way): every sample retransmitted, then given up; the
+    # ACKs over the backward link's Gilbert loss and blackouts
+    "arq_forward_late_acks": [
+        f"network.forward.codec={ARQ_FAST}",
+        f"network.forward.effects.loss={BERNOULLI}",
+        f"network.backward.effects.loss={GILBERT}",
+        f"network.backward.effects.blackout={BLACKOUT}",
+    ],
+}
+
+
+@pytest.mark.parametrize("case", sorted(ARQ_CASES))
+def test_compiled_arq_equals_python_loop(case):
+    """ARQ: several packets a tick (retransmissions), records handed over by send time, the ACK
+    link run in the kernel with its own random numbers."""
+    scene = _scene(["scene.duration_s=1.5", *MOVING, *ARQ_CASES[case]])
+    compiled, python = _run(scene, "compiled"), _run(scene, "python")
+    _assert_same(compiled, python)
+    e = compiled[0]
+    for d, ch in zip(("forward", "backward"), e.codecs, strict=True):
+        if ch is None:
+            continue
+        f = e.codec_facts()[f"codec_{d}"]
+        rows = compiled[2].packets(d)
+        assert len(rows) == f["encoder_sent"] > e.ticks and f["encoder_retransmitted"] > 10
+        assert np.any(np.diff(rows[:, 0]) < 0)  # retransmissions: not in seq order
+        assert f["decoder_recovered"] > 10 and f["decoder_duplicates"] > 10 and ch.ack_link.lost > 10
+        in_time = case == "arq_both_in_time"
+        assert f["encoder_gave_up"] > 0 and (f["encoder_acks_stale"] > 0) != in_time
+        assert (f["encoder_acked"] > 0.5 * e.ticks) == in_time
+
+
 def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     """Stopped at the same tick, both loops hand over the same columns and packet records."""
     scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
@@ -205,9 +258,13 @@ def _codec_on(d, codec, *effects):
     ("overrides", "reason"),
     [
         (_codec_on("forward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the forward link runs in the Python"),
-        (_codec_on("backward", "{kind: arq}"), "codec arq on the backward link"),
+        (_codec_on("backward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the backward link"),
+        (
+            [*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"],
+            "effect delay (Delay) on the forward:ack link",
+        ),
+        (_codec_on("forward", "{kind: arq, max_retransmissions: 100, timeout_s: 0.05}"), "keeps a sample up to"),
         (_codec_on("backward", "{kind: fec}", "duplicate.probability=0.1"), "effect duplicate (Duplicate) on the back"),
-        (_codec_on("forward", "{kind: arq}"), "codec arq on the forward link"),
         (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
         (
             _codec_on("forward", HOLD, "rate_limit={rate_bps: 1000000, burst_bytes: 2000}"),

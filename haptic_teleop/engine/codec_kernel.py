@@ -19,6 +19,8 @@ from haptic_teleop.core import fec, loss
 from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
 from haptic_teleop.engine.codec_layout import (
+    ARQ,
+    C_ACK_SIZE,
     C_DELAY_NS,
     C_DIM,
     C_EXTRAP,
@@ -34,12 +36,14 @@ from haptic_teleop.engine.codec_layout import (
     C_MAX_AHEAD,
     C_MAX_TICKS,
     C_MIN,
+    C_NU,
     C_P0,
     C_PARITY,
     C_PERIOD_NS,
     C_PMAX,
     C_SENDS_RATE,
     C_SIZE,
+    C_TIMEOUT_NS,
     C_TRIG0,
     C_VEL,
     C_WAIT,
@@ -48,6 +52,13 @@ from haptic_teleop.engine.codec_layout import (
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     NO_CODEC,
+    RING_ATTEMPT,
+    RING_SENT,
+    S_ACK_BYTES,
+    S_ACK_PACKETS,
+    S_ACKED,
+    S_ACKS_SENT,
+    S_ACKS_STALE,
     S_BAD,
     S_BLACKOUT_I,
     S_BYTES,
@@ -57,6 +68,7 @@ from haptic_teleop.engine.codec_layout import (
     S_DUPLICATES,
     S_EXTRAPOLATED,
     S_FILTERED,
+    S_GAVE_UP,
     S_HAS_FRESH,
     S_HAS_HELD,
     S_HAS_LAST,
@@ -79,6 +91,7 @@ from haptic_teleop.engine.codec_layout import (
     S_OFFERED,
     S_OLD0,
     S_OLD_SEQ,
+    S_PEND_LO,
     S_PENDING,
     S_PREDICTED,
     S_PREV0,
@@ -88,6 +101,7 @@ from haptic_teleop.engine.codec_layout import (
     S_RECOVERED,
     S_RECOVERED_LATE,
     S_RECS,
+    S_RETRANSMITTED,
     S_SENT,
     S_SENT0,
     S_SLOT,
@@ -98,9 +112,11 @@ from haptic_teleop.engine.codec_layout import (
     W_TERMS,
     W_VALUE,
     X_HELD,
+    X_LAST_NS,
+    X_PEND,
     X_SENT,
-    X_SUM,
     X_SUM_SEQ,
+    X_TRIES,
     X_VALUE,
 )
 
@@ -110,12 +126,15 @@ inline = numba.njit(cache=True, nogil=True, inline="always")  # as axis_kernel's
 # array handed to an inlined part would otherwise be counted in and out with atomic operations,
 # which cost ten times the codec's own work (180 against 15 ns a tick for `prediction`).
 loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
+# The FEC and ARQ ticks are compiled once (not inlined into each direction: compile time), also
+# without reference counting (every array they are handed would be counted in and out).
+part_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 deadband_p = jit(db.deadband_p)
 outside = jit(db.outside)
 extrapolated = jit(db.extrapolated)
 extrapolate1 = jit(pr.extrapolate1)
 gilbert_step = jit(loss.gilbert_step)
-rounded_sum = jit(fec.rounded_sum)
+rounded_sum = part_jit(fec.rounded_sum)
 
 DELIVERED = 0.0
 LOST_NETWORK = 1.0
@@ -384,7 +403,7 @@ def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
     return X[seq & (X.shape[0] - 1), X_HELD] == seq
 
 
-@jit  # type: ignore[misc]
+@inline  # type: ignore[misc]
 def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
     # Reconstructor.add of the value in W[W_VALUE:]; False if held already or too old to keep.
     if rec_held(C, S, X, seq):
@@ -482,7 +501,7 @@ def sum_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, p: int) -> bool:
     return X[p & (X.shape[0] - 1), X_SUM_SEQ] == p
 
 
-@jit  # type: ignore[misc]
+@inline  # type: ignore[misc]
 def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: int) -> None:
     # FecDecoder.receive of packet n. A constant delay keeps the stream in order, so the payload
     # is the sender's samples of ticks n, n-1, ..., n-k (repetition) or x(n) and the sum of
@@ -508,13 +527,8 @@ def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: i
                     W[W_VALUE + i] = X[jm, X_SENT + i]
                 fec_add(C, S, X, W, m)
         return
-    # the carrier's parity sum, as the encoder's math.fsum (correctly rounded: any order)
-    for i in range(dim):
-        c = 0
-        for m in range(max(0, n - k), n):
-            W[W_TERMS + c] = X[m & mask, X_SENT + i]
-            c += 1
-        X[jn, X_SUM + i] = rounded_sum(W, W_TERMS, c, W)
+    # the carrier's parity sum is the encoder's math.fsum of x(n-k) .. x(n-1): computed when a
+    # window is solved, from the sender's rows (they reach back far enough: CodecNet)
     X[jn, X_SUM_SEQ] = n
     # FecDecoder._parity_recover: solve each window with one unknown (a LIFO worklist)
     oldest = int(S[S_MAXHELD]) - int(C[C_KEEP])
@@ -535,9 +549,12 @@ def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: i
                     break
         if missing != 1 or m < oldest:
             continue
-        jp = p & mask
         for i in range(dim):
-            W[W_TERMS] = X[jp, X_SUM + i]
+            c = 0
+            for q in range(max(0, p - k), p):
+                W[W_TERMS + c] = X[q & mask, X_SENT + i]
+                c += 1
+            W[W_TERMS] = rounded_sum(W, W_TERMS, c, W)  # S(p), as the encoder's math.fsum
             c = 1
             for q in range(max(0, p - k), p):
                 if q != m:
@@ -551,7 +568,7 @@ def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: i
                     top += 1
 
 
-@jit  # type: ignore[misc]
+@part_jit  # type: ignore[misc]
 def fec_tick(
     C: np.ndarray,
     S: np.ndarray,
@@ -592,6 +609,131 @@ def fec_tick(
     return rx, rec_sample(C, S, X, n, out)
 
 
+# ------------------------------------------------------------------------------------------
+# ARQ: pending samples, retransmissions, the decoder's ACKs through the ACK link (A: its arrays,
+# as a codec direction's C, S, U, B, ring, records; the records are not kept).
+
+
+@inline  # type: ignore[misc]
+def arq_send(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    seq: int,
+    now: int,
+    value: np.ndarray,
+    attempt: int,
+    unused: np.ndarray,
+) -> None:
+    # ArqEncoder._packet into Link.send; a delivered packet carries its attempt and send tick.
+    S[S_SENT] += 1.0
+    S[S_BYTES] += C[C_SIZE]
+    before = S[S_COUNT]
+    link_send(C, S, U, B, ring, rec, seq, now, value, unused, False)
+    if S[S_COUNT] > before:
+        j = (int(S[S_HEAD]) + int(before)) & (ring.shape[0] - 1)
+        ring[j, RING_ATTEMPT] = attempt
+        ring[j, RING_SENT] = now // int(C[C_PERIOD_NS])
+
+
+@part_jit  # type: ignore[misc]
+def arq_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link.
+    aC, aS, aU, aB, aring, arec = A
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    # the ACKs due: ArqEncoder.feedback
+    adepth = aring.shape[0]
+    while aS[S_COUNT] > 0.0:
+        head = int(aS[S_HEAD])
+        if aring[head, 1] > now:
+            break
+        aS[S_HEAD] = (head + 1) & (adepth - 1)
+        aS[S_COUNT] -= 1.0
+        seq = int(aring[head, 0])
+        j = seq & mask
+        if X[j, X_PEND] == seq:
+            X[j, X_PEND] = -1.0
+            S[S_ACKED] += 1.0
+        else:
+            S[S_ACKS_STALE] += 1.0
+    # ArqEncoder.send: the new sample, then the pending ones due (in seq order)
+    S[S_OFFERED] += 1.0
+    j = n & mask
+    for i in range(dim):
+        X[j, X_SENT + i] = smp[i]
+    arq_send(C, S, U, B, ring, rec, n, now, smp, 0, out)
+    timeout = C[C_TIMEOUT_NS]
+    lo = int(S[S_PEND_LO])
+    while lo < n and X[lo & mask, X_PEND] != lo:
+        lo += 1
+    S[S_PEND_LO] = lo
+    for seq in range(lo, n):
+        k = seq & mask
+        if X[k, X_PEND] != seq or now - X[k, X_LAST_NS] < timeout:
+            continue
+        if X[k, X_TRIES] >= C[C_NU]:
+            X[k, X_PEND] = -1.0
+            S[S_GAVE_UP] += 1.0
+            continue
+        X[k, X_TRIES] += 1.0
+        X[k, X_LAST_NS] = now
+        S[S_RETRANSMITTED] += 1.0
+        for i in range(dim):
+            rate[i] = X[k, X_SENT + i]
+        arq_send(C, S, U, B, ring, rec, seq, now, rate, int(X[k, X_TRIES]), out)
+    X[j, X_PEND] = n
+    X[j, X_TRIES] = 0.0
+    X[j, X_LAST_NS] = now
+    # Link.deliver, ArqDecoder.receive, its ACK into the ACK link
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        attempt = ring[head, RING_ATTEMPT]
+        S[S_RECEIVED] += 1.0
+        for i in range(dim):
+            W[W_VALUE + i] = ring[head, 2 + i]
+        late_before = S[S_LATE]
+        if not rec_add(C, S, X, W, seq, attempt == 0.0):
+            S[S_DUPLICATES] += 1.0
+        elif attempt > 0.0:
+            S[S_RECOVERED] += 1.0
+            if S[S_LATE] > late_before:
+                S[S_RECOVERED_LATE] += 1.0
+        S[S_ACKS_SENT] += 1.0
+        if seq > S[S_NEWEST]:
+            S[S_NEWEST] = seq
+            rx = seq
+        S[S_ACK_PACKETS] += 1.0
+        S[S_ACK_BYTES] += C[C_ACK_SIZE]
+        link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False)
+    return rx, rec_sample(C, S, X, n, out)
+
+
 @inline  # type: ignore[misc]
 def codec_tick_x(
     C: np.ndarray,
@@ -602,13 +744,16 @@ def codec_tick_x(
     rec: np.ndarray,
     X: np.ndarray,
     W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     n: int,
     now: int,
     smp: np.ndarray,
     rate: np.ndarray,
     out: np.ndarray,
 ) -> tuple[int, bool]:
-    # `codec_tick` for every compiled codec (those with a sample history: FEC).
+    # `codec_tick` for every compiled codec (those with a sample history: FEC, ARQ).
+    if C[C_KIND] == ARQ:
+        return arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, out)
     if C[C_KIND] == FEC:
         return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
     return codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, out)
@@ -652,8 +797,10 @@ def run_ticks_codec(
     scratch: np.ndarray,
     fX: np.ndarray,
     fW: np.ndarray,
+    fA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     bX: np.ndarray,
     bW: np.ndarray,
+    bA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> int:
     # `axis_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
     # others read their window of the schedule as there).
@@ -677,7 +824,7 @@ def run_ticks_codec(
         if fcodec:
             smp[0] = x_m
             smp[1] = v_m
-            frx, got = codec_tick_x(fC, fS, fU, fB, fring, frec, fX, fW, n, now, smp, rate, out)
+            frx, got = codec_tick_x(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, now, smp, rate, out)
             if got:
                 accept2(P, S, out[0], out[1])
             focc = 0.0
@@ -694,7 +841,7 @@ def run_ticks_codec(
             smp[0] = f_env
             smp[1] = x_s
             smp[2] = v_s
-            brx, got = codec_tick_x(bC, bS, bU, bB, bring, brec, bX, bW, n, now, smp, rate, out)
+            brx, got = codec_tick_x(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, now, smp, rate, out)
             if got:
                 accept3(P, S, out[0], out[1], out[2])
             bocc = 0.0
@@ -753,8 +900,9 @@ def codec_ticks_x(
     scratch: np.ndarray,
     X: np.ndarray,
     W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> int:
-    """`codec_ticks` for every compiled codec (the sample history X and scratch W of
+    """`codec_ticks` for every compiled codec (the sample history X, scratch W and ACK link A of
     `CodecNet.history`)."""
     smp = scratch[0]
     rate = scratch[1]
@@ -763,7 +911,7 @@ def codec_ticks_x(
     for n in range(samples.shape[0]):
         for i in range(samples.shape[1]):
             smp[i] = samples[n, i]
-        _rx, got = codec_tick_x(C, S, U, B, ring, rec, X, W, n, n * period_ns, smp, rate, out)
+        _rx, got = codec_tick_x(C, S, U, B, ring, rec, X, W, A, n, n * period_ns, smp, rate, out)
         if got:
             got_ticks += 1
     return got_ticks

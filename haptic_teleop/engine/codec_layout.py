@@ -4,8 +4,8 @@ imports nothing, so neither imports the other (docs/codec.md, "Compiled")."""
 
 # Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
 NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
-COMPILED_KINDS = ("deadband", "prediction", "fec")
-FEC = 3.0
+COMPILED_KINDS = ("deadband", "prediction", "fec", "arq")
+FEC, ARQ = 3.0, 4.0
 LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT = 0.0, 1.0, 2.0
 
 # C: one direction's constants.
@@ -30,16 +30,21 @@ C_SIZE_ALL = 24
 S_SIZE_ALL = 48
 RING_WIDTH = 8  # seq, arrival_ns, payload (at most 6 values: a 3-value sample and its rate)
 
-# FEC (and the shared reconstruction over a sample history): constants and state after the above.
-C_PARITY, C_K, C_WAIT = range(24, 27)
-C_SIZE_X = 28  # C's length with these
+# FEC, ARQ (and the shared reconstruction over a sample history): constants and state after the above.
+C_PARITY, C_K, C_WAIT, C_TIMEOUT_NS, C_NU, C_ACK_SIZE = range(24, 30)
+C_SIZE_X = 32  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
-) = range(48, 58)  # fmt: skip
-S_SIZE_X = 58  # S's length with these
+    S_ACKED, S_ACKS_STALE, S_GAVE_UP, S_RETRANSMITTED, S_ACKS_SENT, S_ACK_PACKETS, S_ACK_BYTES, S_PEND_LO,
+) = range(48, 66)  # fmt: skip
+S_SIZE_X = 66  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
-# sample (seq, values), a parity sum received (seq, values), the sender's sample of that tick.
+# sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
+# retransmissions, last sent), the sender's sample of that tick.
 X_HELD, X_VALUE, X_SUM_SEQ, X_SUM, X_SENT, X_WIDTH = 0, 1, 4, 5, 8, 11
+X_PEND, X_TRIES, X_LAST_NS = 4, 5, 6
+# ARQ's data packets in flight: the ring's attempt and send tick columns
+RING_ATTEMPT, RING_SENT = 6, 7
 # W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist.
 W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0

@@ -32,6 +32,8 @@ from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
 from haptic_teleop.engine.codec_layout import (
+    ARQ,
+    C_ACK_SIZE,
     C_DELAY_NS,
     C_DIM,
     C_EXTRAP,
@@ -47,6 +49,7 @@ from haptic_teleop.engine.codec_layout import (
     C_MAX_AHEAD,
     C_MAX_TICKS,
     C_MIN,
+    C_NU,
     C_P0,
     C_PARITY,
     C_PERIOD_NS,
@@ -54,6 +57,7 @@ from haptic_teleop.engine.codec_layout import (
     C_SENDS_RATE,
     C_SIZE,
     C_SIZE_X,
+    C_TIMEOUT_NS,
     C_TRIG0,
     C_VEL,
     C_WAIT,
@@ -64,7 +68,13 @@ from haptic_teleop.engine.codec_layout import (
     LOSS_GILBERT,
     LOSS_NONE,
     PREDICTION,
+    RING_SENT,
     RING_WIDTH,
+    S_ACK_BYTES,
+    S_ACK_PACKETS,
+    S_ACKED,
+    S_ACKS_SENT,
+    S_ACKS_STALE,
     S_BAD,
     S_BYTES,
     S_COUNT,
@@ -73,6 +83,7 @@ from haptic_teleop.engine.codec_layout import (
     S_DUPLICATES,
     S_EXTRAPOLATED,
     S_FILTERED,
+    S_GAVE_UP,
     S_HEAD,
     S_LATE,
     S_LINK_LOST,
@@ -84,6 +95,7 @@ from haptic_teleop.engine.codec_layout import (
     S_RECOVERED,
     S_RECOVERED_LATE,
     S_RECS,
+    S_RETRANSMITTED,
     S_SENT,
     S_SIZE_X,
     S_STALE,
@@ -96,6 +108,7 @@ from haptic_teleop.engine.codec_layout import (
 )
 
 _BLOCK = 4096  # random numbers drawn per refill
+ARQ_MAX_SPAN_S = 2.0  # how long ARQ may keep a sample pending in the compiled loop (array sizes)
 
 
 def codec_reason(ch: CodecChannel) -> str | None:
@@ -105,6 +118,18 @@ def codec_reason(ch: CodecChannel) -> str | None:
             f"codec {ch.kind} on the {ch.direction} link runs in the Python loop only "
             f"(compiled codecs: {', '.join(COMPILED_KINDS)})"
         )
+    if ch.kind == "arq":
+        enc = ch.encoder
+        span_s = (enc.max_retransmissions + 1) * enc.timeout_ns * 1e-9
+        if span_s > ARQ_MAX_SPAN_S:
+            return (
+                f"arq on the {ch.direction} link keeps a sample up to (max_retransmissions + 1) timeout_s = "
+                f"{span_s:g} s (compiled: at most {ARQ_MAX_SPAN_S:g} s)"
+            )
+        assert ch.ack_link is not None
+        why = link_reason(f"{ch.direction}:ack", ch.ack_link)
+        if why is not None:
+            return why
     return link_reason(ch.direction, ch.link)
 
 
@@ -130,7 +155,86 @@ def _uniform_rng(e: Any) -> np.random.Generator:
     return e._u.__self__._rng  # type: ignore[no-any-return]  # GilbertElliottLoss: UniformSource(rng).next
 
 
-class CodecNet:
+class LinkArrays:
+    """A link run in the kernel: C's link fields, S, the random numbers U, the blackout windows,
+    the in-flight ring and the records (codec_layout); topped up between chunks, written back."""
+
+    C: np.ndarray
+    S: np.ndarray
+    per_tick = 1
+
+    def _load(self, link: Link, C: np.ndarray, S: np.ndarray, period_ns: int, per_tick: int = 0) -> None:
+        if per_tick:
+            self.per_tick = per_tick
+        self.link = link
+        self._loss: Any = None
+        self._blackout: Blackout | None = None
+        windows: list[tuple[int, int]] = []
+        delay_ns = 0
+        for e in link.effects:
+            if type(e) is ConstantDelay:
+                delay_ns += e.delay_ns
+            elif type(e) is Blackout:
+                self._blackout = e
+                windows = list(zip(e._starts, e._ends, strict=True))
+            elif type(e) is BernoulliLoss:
+                self._loss = e
+                C[C_LOSS], C[C_LP] = LOSS_BERNOULLI, e.probability
+            elif type(e) is GilbertElliottLoss:
+                self._loss = e
+                C[C_LOSS] = LOSS_GILBERT
+                C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
+        C[C_DELAY_NS] = delay_ns
+        self.C = C
+        self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
+        self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
+        self._rng = None if self._loss is None else _uniform_rng(self._loss)
+        if type(self._loss) is GilbertElliottLoss:
+            S[S_BAD] = 1.0 if self._loss.bad else 0.0
+        self.S = S
+        self.U = np.zeros(0)
+        depth = 4
+        # in flight: at most the ticks of the delay, + 2, times the packets a tick
+        while depth < (delay_ns // period_ns + 3) * self.per_tick:
+            depth *= 2
+        self.ring = np.zeros((depth, RING_WIDTH))
+        self.records = np.zeros((1024, 6))
+
+    def ready(self, ticks: int) -> None:
+        """Before the kernel runs `ticks` ticks: random numbers and record rows for `per_tick`
+        packets a tick."""
+        S = self.S
+        need = ticks * self.per_tick * self._draws_per_packet
+        u, end = int(S[S_U]), int(S[S_U_END])
+        if need and end - u < need:
+            assert self._rng is not None
+            fresh = self._rng.random(max(_BLOCK, need if self.per_tick == 1 else 4 * need))
+            self.U = np.concatenate((self.U[u:end], fresh))
+            S[S_U], S[S_U_END] = 0.0, float(len(self.U))
+        recs, rows = int(S[S_RECS]), ticks * self.per_tick
+        if len(self.records) - recs < rows:
+            grown = np.zeros((2 * (recs + rows), 6))
+            grown[:recs] = self.records[:recs]
+            self.records = grown
+
+    def store_link(self) -> None:
+        """The link's and its effects' counts and the Gilbert state, as the kernel left them."""
+        S = self.S
+        link = self.link
+        link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
+        if self._blackout is not None:
+            self._blackout.dropped = int(S[S_DROP_BLACKOUT])
+        if self._loss is not None:
+            self._loss.dropped = int(S[S_DROP_LOSS])
+            if type(self._loss) is GilbertElliottLoss:
+                self._loss.bad = bool(S[S_BAD])
+
+    def args(self) -> tuple[np.ndarray, ...]:
+        """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
+        return self.C, self.S, self.U, self.blackouts, self.ring, self.records
+
+
+class CodecNet(LinkArrays):
     """One codec direction of the compiled loop: the kernel's arrays and what Python does between
     chunks (random numbers, records, the counters written back)."""
 
@@ -160,56 +264,47 @@ class CodecNet:
                 for i in range(g.start, g.stop):
                     C[C_TRIG0 + i] = 1.0
         else:
-            fec = ch.kind == "fec"
-            C[C_KIND] = FEC if fec else PREDICTION
-            C[C_SIZE] = enc._size_of(payload_floats(enc.scheme, enc.k, ch.dim) if fec else ch.dim)
+            fec, arq = ch.kind == "fec", ch.kind == "arq"
+            C[C_KIND] = FEC if fec else ARQ if arq else PREDICTION
+            floats = payload_floats(enc.scheme, enc.k, ch.dim) if fec else ch.dim + 1 if arq else ch.dim
+            C[C_SIZE] = enc._size_of(floats)
             rec = dec.rec
             C[C_EXTRAP] = 1.0 if rec.extrapolates else 0.0
             C[C_KEEP] = rec.keep_ticks
             C[C_MAX_TICKS] = rec.max_extrapolation_ticks
+            C[C_WAIT] = rec.wait_ticks
             if fec:
                 C[C_PARITY] = 1.0 if enc.scheme == "parity" else 0.0
                 C[C_K] = enc.k
-                C[C_WAIT] = rec.wait_ticks
-        self._loss: Any = None
-        self._blackout: Blackout | None = None
-        windows: list[tuple[int, int]] = []
-        delay_ns = 0
-        for e in ch.link.effects:
-            if type(e) is ConstantDelay:
-                delay_ns += e.delay_ns
-            elif type(e) is Blackout:
-                self._blackout = e
-                windows = list(zip(e._starts, e._ends, strict=True))
-            elif type(e) is BernoulliLoss:
-                self._loss = e
-                C[C_LOSS], C[C_LP] = LOSS_BERNOULLI, e.probability
-            elif type(e) is GilbertElliottLoss:
-                self._loss = e
-                C[C_LOSS] = LOSS_GILBERT
-                C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
-        C[C_DELAY_NS] = delay_ns
-        self.C = C
-        self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
-        self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
-        self._rng = None if self._loss is None else _uniform_rng(self._loss)
+            if arq:
+                C[C_TIMEOUT_NS], C[C_NU], C[C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
+        # Packets a tick at most: one, and with ARQ each pending sample's retransmission (a sample
+        # is pending from its tick until its nu-th retransmission has gone mu without an ACK).
+        self.span = 0
+        if ch.kind == "arq":
+            self.span = (int(C[C_NU]) + 1) * -(-int(C[C_TIMEOUT_NS]) // period_ns) + 2
+        self.per_tick = 1 + self.span
         S = np.zeros(S_SIZE_X)
         S[S_NEWEST] = -1.0
-        if type(self._loss) is GilbertElliottLoss:
-            S[S_BAD] = 1.0 if self._loss.bad else 0.0
-        self.S = S
-        self.U = np.zeros(0)
-        depth = 4
-        while depth < delay_ns // period_ns + 3:  # in flight: at most the ticks of the delay, + 2
-            depth *= 2
-        self.ring = np.zeros((depth, RING_WIDTH))
-        self.records = np.zeros((1024, 6))
-        # The sample history (FEC): the decoder's held samples reach keep_ticks back, the sender's
-        # the packets in flight and k more; the scratch's worklist: at most k per recovery.
-        self.X, self.W = no_history()
-        if ch.kind == "fec":
+        self._load(ch.link, C, S, period_ns)
+        self.ack: LinkArrays | None = None
+        if ch.kind == "arq":
+            assert ch.ack_link is not None
+            aC = np.zeros(C_SIZE_X)
+            aC[C_PERIOD_NS] = period_ns
+            aC[C_SIZE] = C[C_ACK_SIZE]
+            self.ack = LinkArrays()
+            self.ack._load(ch.ack_link, aC, np.zeros(S_SIZE_X), period_ns, self.per_tick)
+        # The sample history (FEC, ARQ): the decoder's held samples reach keep_ticks back, the
+        # sender's the packets in flight and k more (FEC; parity: and keep_ticks) or the pending
+        # span (ARQ); the scratch's
+        # worklist: at most k per recovery.
+        self.X, self.W, _ = no_history()
+        if ch.kind in ("fec", "arq"):
             rows = 4
-            while rows < max(C[C_KEEP] + 2, delay_ns // period_ns + C[C_K] + 3):
+            # (parity: a window is solved up to keep_ticks after its packet arrived)
+            sender = C[C_DELAY_NS] // period_ns + C[C_K] + 3 + (C[C_KEEP] if C[C_PARITY] else 0)
+            while rows < max(C[C_KEEP] + 2, sender, self.span + 2):
                 rows *= 2
             self.X = np.zeros((rows, X_WIDTH))
             self.X[:, X_HELD] = -1.0
@@ -217,31 +312,26 @@ class CodecNet:
             self.W = np.zeros(W_STACK + 1 + int(C[C_K]) * (int(C[C_KEEP]) + 1))
 
     def ready(self, ticks: int) -> None:
-        """Before the kernel runs `ticks` ticks: random numbers and record rows for a packet a tick."""
-        S = self.S
-        need = ticks * self._draws_per_packet
-        u, end = int(S[S_U]), int(S[S_U_END])
-        if need and end - u < need:
-            assert self._rng is not None
-            fresh = self._rng.random(max(_BLOCK, need))
-            self.U = np.concatenate((self.U[u:end], fresh))
-            S[S_U], S[S_U_END] = 0.0, float(len(self.U))
-        recs = int(S[S_RECS])
-        if len(self.records) - recs < ticks:
-            grown = np.zeros((2 * (recs + ticks), 6))
-            grown[:recs] = self.records[:recs]
-            self.records = grown
+        """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets
+        they may send (the ACK link's records are not kept)."""
+        LinkArrays.ready(self, ticks)
+        if self.ack is not None:
+            self.ack.S[S_RECS] = 0.0
+            self.ack.ready(ticks)
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
         """As `CodecChannel.settled`: the records of packets sent before tick `sent` and older than
-        the oldest one in flight (a packet's seq is its send tick)."""
+        the oldest one in flight (a packet's seq is its send tick, except ARQ's retransmissions:
+        the ring keeps their send tick, the records their send time)."""
         S = self.S
         mark = sent
+        col = RING_SENT if self.C[C_KIND] == ARQ else 0
         if not final and S[S_COUNT] > 0:
-            oldest = int(self.ring[int(S[S_HEAD]), 0])
+            oldest = int(self.ring[int(S[S_HEAD]), col])
             mark = min(mark, oldest)
         recs = int(S[S_RECS])
-        k = int(np.searchsorted(self.records[:recs, 0], mark))
+        # the records' send times are float(tick * period_ns) * 1e-9, as this mark's
+        k = int(np.searchsorted(self.records[:recs, 1], float(mark * int(self.C[C_PERIOD_NS])) * 1e-9))
         if k == 0:
             return None
         rows = self.records[:k].copy()
@@ -261,6 +351,27 @@ class CodecNet:
             enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
             dec.counters.update(received=int(S[S_RECEIVED]), duplicates=0)
             dec.rec.predicted = int(S[S_PREDICTED])
+        elif ch.kind == "arq":
+            enc.counters.update(
+                samples=int(S[S_OFFERED]),
+                sent=int(S[S_SENT]),
+                retransmitted=int(S[S_RETRANSMITTED]),
+                acked=int(S[S_ACKED]),
+                acks_stale=int(S[S_ACKS_STALE]),
+                gave_up=int(S[S_GAVE_UP]),
+                bytes=int(S[S_BYTES]),
+            )
+            dec.counters.update(
+                received=int(S[S_RECEIVED]),
+                duplicates=int(S[S_DUPLICATES]),
+                acks_sent=int(S[S_ACKS_SENT]),
+                recovered=int(S[S_RECOVERED]),
+                recovered_late=int(S[S_RECOVERED_LATE]),
+            )
+            dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
+            ch.ack_packets, ch.ack_bytes = int(S[S_ACK_PACKETS]), int(S[S_ACK_BYTES])
+            assert self.ack is not None
+            self.ack.store_link()
         else:  # fec (its recovered_log, for a reader of the decoder alone, stays empty)
             enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
             dec.counters.update(
@@ -271,27 +382,16 @@ class CodecNet:
             )
             dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
         ch.newest_seq = int(S[S_NEWEST])
-        link = ch.link
-        link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
-        if self._blackout is not None:
-            self._blackout.dropped = int(S[S_DROP_BLACKOUT])
-        if self._loss is not None:
-            self._loss.dropped = int(S[S_DROP_LOSS])
-            if type(self._loss) is GilbertElliottLoss:
-                self._loss.bad = bool(S[S_BAD])
+        self.store_link()
 
-    def args(self) -> tuple[np.ndarray, ...]:
-        """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
-        return self.C, self.S, self.U, self.blackouts, self.ring, self.records
-
-    def history(self) -> tuple[np.ndarray, np.ndarray]:
-        """The kernel's sample history and scratch for this direction (X, W: codec_layout)."""
-        return self.X, self.W
+    def history(self) -> tuple[Any, ...]:
+        """The kernel's sample history, scratch and ACK link for this direction (X, W, A)."""
+        return self.X, self.W, (no_codec(1) if self.ack is None else self.ack.args())
 
 
-def no_history() -> tuple[np.ndarray, np.ndarray]:
-    """X and W of a direction whose codec keeps no sample history (or that has no codec)."""
-    return np.full((1, X_WIDTH), -1.0), np.zeros(1)
+def no_history() -> tuple[Any, ...]:
+    """X, W and A of a direction whose codec keeps no sample history (or that has no codec)."""
+    return np.full((1, X_WIDTH), -1.0), np.zeros(1), no_codec(1)
 
 
 def no_codec(period_ns: int) -> tuple[np.ndarray, ...]:
