@@ -10,7 +10,7 @@ bench scene (no recording). A channel codes two streams per tick (forward and ba
 codec's share of a tick is twice its cost per sample over the tick's.
 
 First, the codec stage in the loop itself: the real-time factor of the compiled and the Python
-loop on the scene with each compiled codec (deadband, prediction and FEC; `LOOP_CASES`) named on both
+loop on the scene with each compiled codec (deadband, prediction, FEC, ARQ; `LOOP_CASES`) named on both
 directions, against the same loop without a codec, measured in the same run (best of at least 5,
 interleaved). Issue 13's budget: within 10 % of the codec-less run.
 """
@@ -115,10 +115,13 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("prediction", "{kind: prediction}"),
     ("fec repetition k = 2", "{kind: fec, scheme: repetition, k: 2}"),
     ("fec parity k = 4", "{kind: fec, scheme: parity, k: 4}"),
+    ("arq 25 ms, 4 retries", "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("arq 4 ms, 1 retry", "{kind: arq, timeout_s: 0.004, max_retransmissions: 1}"),
     # over 10 % loss each way (the FEC decoder recovers): against the same lossy run without a codec
     ("no codec" + LOSSY, None),
     ("fec repetition k = 2" + LOSSY, "{kind: fec, scheme: repetition, k: 2}"),
     ("fec parity k = 3, wait 3" + LOSSY, "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}"),
+    ("arq 25 ms, 4 retries" + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
 )
 
 

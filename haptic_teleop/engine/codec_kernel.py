@@ -5,8 +5,10 @@ design, engine/codec_layout.py the arrays' layouts).
 The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `accept2`, `accept3`,
 `finish_tick`); a direction with a codec replaces its schedule lookup by `codec_tick`, which is
 `CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay), deliveries,
-decoder. The per-sample formulas are compiled from their one definition in core/deadband.py,
-core/prediction.py and core/loss.py.
+decoder (`codec_tick_x`: FEC and ARQ in `fec_tick` and `arq_tick`, with ARQ's ACK link). The
+per-sample formulas are compiled from their one definition in core/deadband.py,
+core/prediction.py, core/loss.py; the parity sums (`math.fsum` in core/fec.py's classes) from
+`fec.rounded_sum`, which gives the same value.
 """
 
 from __future__ import annotations
@@ -91,7 +93,6 @@ from haptic_teleop.engine.codec_layout import (
     S_OFFERED,
     S_OLD0,
     S_OLD_SEQ,
-    S_PEND_LO,
     S_PENDING,
     S_PREDICTED,
     S_PREV0,
@@ -681,12 +682,14 @@ def arq_tick(
     for i in range(dim):
         X[j, X_SENT + i] = smp[i]
     arq_send(C, S, U, B, ring, rec, n, now, smp, 0, out)
+    # A pending sample is due every m = ceil(mu / period) ticks after it was sent (the encoder
+    # runs every tick), so the only candidates this tick are n - j m, j = nu + 1 .. 1 (seq order).
     timeout = C[C_TIMEOUT_NS]
-    lo = int(S[S_PEND_LO])
-    while lo < n and X[lo & mask, X_PEND] != lo:
-        lo += 1
-    S[S_PEND_LO] = lo
-    for seq in range(lo, n):
+    m_ticks = int(-(-int(timeout) // int(C[C_PERIOD_NS])))
+    for jj in range(int(C[C_NU]) + 1, 0, -1):
+        seq = n - jj * m_ticks
+        if seq < 0:
+            continue
         k = seq & mask
         if X[k, X_PEND] != seq or now - X[k, X_LAST_NS] < timeout:
             continue

@@ -10,11 +10,16 @@ is the send time plus the delay, packets in flight wait in a FIFO ring (a consta
 their order), the decoder takes the arrivals and gives the tick's remote sample, and each
 packet's record (record.layouts.PACKET_FIELDS) is written as it is sent.
 
+FEC and ARQ keep a sample history (X: the decoder's held samples as `Reconstructor`'s, the
+sender's samples, ARQ's pending ones) and ARQ runs its ACK link in the kernel too (its own arrays
+and random numbers); ARQ may send several packets a tick (its retransmissions), so its arrays are
+sized for every pending sample retransmitted in one tick.
+
 The random numbers are the effect's own: drawn here in blocks from the effect's numpy Generator,
 the numbers `UniformSource` hands out one at a time in the Python loop (`rng.random(n)` continues
 one stream whatever the block sizes; Gilbert-Elliott takes two per packet, the transition then
 the loss). The kernel never runs out: before each chunk of ticks `CodecNet.ready` tops the
-numbers up to at least two per tick of the chunk and makes room for a record per tick.
+numbers up to what the chunk's packets may take and makes room for their records.
 
 This module is the Python side (the layouts of the kernel's per-direction arrays are in
 engine/codec_layout.py); it needs no numba. What it cannot run is said by `codec_reason`.
