@@ -42,6 +42,8 @@ REPETITION_WAIT = "{kind: fec, scheme: repetition, k: 3, wait_ticks: 2}"
 REPETITION_HOLD = "{kind: fec, scheme: repetition, k: 2, gap: hold}"
 PARITY_WAIT = "{kind: fec, scheme: parity, k: 3, wait_ticks: 3, max_extrapolation_s: 0.02}"
 PARITY_HOLD = "{kind: fec, scheme: parity, k: 4, gap: hold}"
+HLI_LINEAR = "{kind: hli}"
+HLI_HOLD_BUDGET = "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1500000, rate_window_s: 0.02}"
 
 # case: {direction: (codec, effects)}; effects: (loss, blackout) scene values or None.
 CASES = {
@@ -57,6 +59,8 @@ CASES = {
         "backward": (REPETITION_HOLD, (GILBERT, BLACKOUT)),
     },
     "fec_parity_both": {"forward": (PARITY_WAIT, (GILBERT, BLACKOUT)), "backward": (PARITY_HOLD, (BERNOULLI, None))},
+    # HLI needs Gilbert loss on its direction (N_HLI1); backward: HLI1 followers filtered under a budget
+    "hli_both": {"forward": (HLI_LINEAR, (GILBERT, None)), "backward": (HLI_HOLD_BUDGET, (GILBERT, BLACKOUT))},
 }
 
 
@@ -154,6 +158,10 @@ def test_compiled_codec_equals_python_loop(case):
         f = facts[f"codec_{d}"]
         rows = sink.packets(d)
         assert len(rows) == f["encoder_sent"] and np.count_nonzero(rows[:, 3] != 0) > 10
+        if "hli" in codec:
+            assert f["encoder_filtered_hli0"] > 100 and f["decoder_rebuilt"] > 0 and f["decoder_predicted"] > 100
+            assert (f["encoder_filtered_hli1"] > 10) == ("bandwidth" in codec)
+            continue
         if "deadband" in codec:
             assert 0 < f["encoder_sent"] < 0.7 * f["encoder_offered"]
             if "extrapolate" in codec:
@@ -257,8 +265,10 @@ def _codec_on(d, codec, *effects):
 @pytest.mark.parametrize(
     ("overrides", "reason"),
     [
-        (_codec_on("forward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the forward link runs in the Python"),
-        (_codec_on("backward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the backward link"),
+        (
+            _codec_on("forward", "{kind: hli}", f"loss={GILBERT}", "delay.jitter_s=0.002"),
+            "effect delay (Delay) on the for",
+        ),
         (
             [*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"],
             "effect delay (Delay) on the forward:ack link",

@@ -13,6 +13,8 @@ core/prediction.py, core/loss.py; the parity sums (`math.fsum` in core/fec.py's 
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -27,6 +29,17 @@ from haptic_teleop.engine.codec_layout import (
     C_DIM,
     C_EXTRAP,
     C_GAIN,
+    C_HBITS1,
+    C_HBITS2,
+    C_HBUDGET,
+    C_HDELAY,
+    C_HLINEAR,
+    C_HN,
+    C_HSIZE1,
+    C_HSIZE2,
+    C_HTHRESH,
+    C_HWARMUP,
+    C_HWIN,
     C_K,
     C_KEEP,
     C_KIND,
@@ -51,6 +64,16 @@ from haptic_teleop.engine.codec_layout import (
     C_WAIT,
     DEADBAND,
     FEC,
+    H_BTAG,
+    H_BX,
+    H_CLASS,
+    H_COPY,
+    H_NONE,
+    H_OFF,
+    H_PREV,
+    H_RTAG,
+    H_SMP,
+    HLI,
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     NO_CODEC,
@@ -65,11 +88,32 @@ from haptic_teleop.engine.codec_layout import (
     S_BLACKOUT_I,
     S_BYTES,
     S_COUNT,
+    S_CUR,
+    S_CURH,
+    S_DLATE,
+    S_DPREDICTED,
     S_DROP_BLACKOUT,
     S_DROP_LOSS,
+    S_DT1,
+    S_DT1H,
+    S_DT2,
+    S_DT2H,
     S_DUPLICATES,
+    S_EH2,
+    S_EPREV,
+    S_EPREVH,
+    S_ESEEN,
+    S_ESINCE,
+    S_ET1,
+    S_ET1H,
+    S_ET2,
+    S_ET2H,
     S_EXTRAPOLATED,
+    S_FILT0,
+    S_FILT1,
     S_FILTERED,
+    S_FRH,
+    S_FRMAX,
     S_GAVE_UP,
     S_HAS_FRESH,
     S_HAS_HELD,
@@ -81,23 +125,32 @@ from haptic_teleop.engine.codec_layout import (
     S_HAS_SENT,
     S_HAS_SLOT,
     S_HEAD,
+    S_HLI0,
+    S_LAG,
+    S_LAGH,
     S_LAST0,
+    S_LAST_CLASS,
     S_LAST_PLAYED,
     S_LAST_SEQ,
     S_LATE,
     S_LINK_LOST,
     S_LINK_SENT,
     S_MAXHELD,
+    S_MIN,
+    S_MINH,
     S_NEWEST,
     S_NEWEST_FRESH,
     S_OFFERED,
     S_OLD0,
     S_OLD_SEQ,
+    S_OVER,
     S_PENDING,
+    S_PLAYED,
     S_PREDICTED,
     S_PREV0,
     S_PREV_NS,
     S_RATE0,
+    S_REBUILT,
     S_RECEIVED,
     S_RECOVERED,
     S_RECOVERED_LATE,
@@ -109,6 +162,10 @@ from haptic_teleop.engine.codec_layout import (
     S_SLOT_N,
     S_STALE,
     S_U,
+    S_WIN_BITS,
+    S_WIN_COUNT,
+    S_WIN_HEAD,
+    S_WIRE_BITS,
     W_STACK,
     W_TERMS,
     W_VALUE,
@@ -737,6 +794,210 @@ def arq_tick(
     return rx, rec_sample(C, S, X, n, out)
 
 
+# ------------------------------------------------------------------------------------------
+# HLI: the sender's classes and rate window, the receiver N_HLI1 ticks behind its newest packet
+# (X's rows: H_* of codec_layout; W: which followers may be filtered, how many follow that may
+# not, the window's (tick, bits) ring).
+
+
+@inline  # type: ignore[misc]
+def hli_play(C: np.ndarray, S: np.ndarray, X: np.ndarray, t: int) -> None:
+    # HliDecoder._play
+    dim = int(C[C_DIM])
+    j = t & (X.shape[0] - 1)
+    got = X[j, H_RTAG] == t
+    if got:
+        X[j, H_RTAG] = H_NONE
+    rb = X[j, H_BTAG] == t
+    if rb:
+        X[j, H_BTAG] = H_NONE
+    if got:
+        S[S_PLAYED] += 1.0
+        for i in range(dim):
+            S[S_DT2 + i] = X[j, H_PREV + i]
+            S[S_DT1 + i] = X[j, H_SMP + i]
+        S[S_DT1H] = 1.0
+        S[S_DT2H] = 1.0
+        return
+    if rb:
+        S[S_REBUILT] += 1.0
+        for i in range(dim):
+            S[S_DT2 + i] = S[S_DT1 + i]
+            S[S_DT1 + i] = X[j, H_BX + i]
+        S[S_DT2H] = S[S_DT1H]
+        S[S_DT1H] = 1.0
+        return
+    if S[S_DT1H] == 0.0:
+        return
+    S[S_DPREDICTED] += 1.0
+    linear = C[C_HLINEAR] != 0.0 and S[S_DT2H] != 0.0
+    for i in range(dim):
+        a = S[S_DT1 + i]
+        x = 2.0 * a - S[S_DT2 + i] if linear else a
+        S[S_DT2 + i] = a
+        S[S_DT1 + i] = x
+    S[S_DT2H] = 1.0
+
+
+@part_jit  # type: ignore[misc]
+def hli_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with HliEncoder / HliDecoder.
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    N = int(C[C_HN])
+    S[S_OFFERED] += 1.0
+    # HliEncoder.send: the rate window
+    wt = int(C[C_HWIN])
+    base = 2 * N + 2
+    cap = wt + 1
+    while S[S_WIN_COUNT] > 0.0:
+        h = int(S[S_WIN_HEAD])
+        if W[base + 2 * h] > n - wt:
+            break
+        S[S_WIN_BITS] -= W[base + 2 * h + 1]
+        S[S_WIN_HEAD] = (h + 1) % cap
+        S[S_WIN_COUNT] -= 1.0
+    # the prediction of the mirrored track (into `rate`, unused by HLI)
+    has_pred = S[S_ET1H] != 0.0
+    if has_pred:
+        linear = C[C_HLINEAR] != 0.0 and S[S_ET2H] != 0.0
+        for i in range(dim):
+            rate[i] = 2.0 * S[S_ET1 + i] - S[S_ET2 + i] if linear else S[S_ET1 + i]
+    S[S_ESINCE] += 1.0
+    cls = 0
+    big = S[S_ESEEN] < C[C_HWARMUP] or not has_pred
+    if not big:
+        acc = 0.0
+        for i in range(dim):
+            d = smp[i] - rate[i]
+            acc += d * d
+        big = math.sqrt(acc) >= C[C_HTHRESH]
+    if big:
+        cls = 2
+        S[S_ESINCE] = 0.0
+        for i in range(dim):
+            S[S_EH2 + i] = smp[i]
+    elif S[S_ESINCE] <= N:
+        cls = 1
+    S[S_ESEEN] += 1.0
+    S[S_LAST_CLASS] = cls
+    S[S_HLI0 + cls] += 1.0
+    send = cls != 0
+    since = int(S[S_ESINCE])
+    if cls == 1 and W[since] != 0.0:
+        need = C[C_HBITS1] * (1.0 + W[N + 1 + since])
+        if S[S_WIN_BITS] + need > C[C_HBUDGET]:
+            send = False
+            S[S_FILT1] += 1.0
+    elif cls == 0:
+        S[S_FILT0] += 1.0
+    # the previous true sample (into `out` for now), the track
+    for i in range(dim):
+        out[i] = smp[i] if S[S_EPREVH] == 0.0 else S[S_EPREV + i]
+        S[S_EPREV + i] = smp[i]
+    S[S_EPREVH] = 1.0
+    if send or not has_pred:
+        for i in range(dim):
+            S[S_ET2 + i] = out[i]
+            S[S_ET1 + i] = smp[i]
+        S[S_ET2H] = 1.0
+    else:
+        for i in range(dim):
+            S[S_ET2 + i] = S[S_ET1 + i]
+            S[S_ET1 + i] = rate[i]
+        S[S_ET2H] = S[S_ET1H]
+    S[S_ET1H] = 1.0
+    if send:
+        j = n & mask
+        for i in range(dim):
+            X[j, H_SMP + i] = smp[i]
+            X[j, H_PREV + i] = out[i]
+            X[j, H_COPY + i] = S[S_EH2 + i]
+        X[j, H_CLASS] = cls
+        X[j, H_OFF] = 0.0 if cls == 2 else since
+        bits = C[C_HBITS2] if cls == 2 else C[C_HBITS1]
+        k = (int(S[S_WIN_HEAD]) + int(S[S_WIN_COUNT])) % cap
+        W[base + 2 * k] = n
+        W[base + 2 * k + 1] = bits
+        S[S_WIN_COUNT] += 1.0
+        S[S_WIN_BITS] += bits
+        S[S_SENT] += 1.0
+        S[S_WIRE_BITS] += bits
+        if S[S_WIN_BITS] > C[C_HBUDGET]:
+            S[S_OVER] += 1.0
+        C[C_SIZE] = C[C_HSIZE2] if cls == 2 else C[C_HSIZE1]
+        link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+    # Link.deliver, HliDecoder.receive
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        S[S_RECEIVED] += 1.0
+        if S[S_NEWEST] < seq:
+            S[S_NEWEST] = seq
+            rx = seq
+        if S[S_CURH] != 0.0 and seq <= S[S_CUR]:
+            S[S_DLATE] += 1.0
+            continue
+        j = seq & mask
+        X[j, H_RTAG] = seq
+        if S[S_CURH] == 0.0 and (S[S_MINH] == 0.0 or seq < S[S_MIN]):
+            S[S_MIN] = seq
+            S[S_MINH] = 1.0
+        if X[j, H_CLASS] == 1.0:
+            key = seq - int(X[j, H_OFF])
+            if S[S_CURH] == 0.0 or key > S[S_CUR]:
+                jr = key & mask
+                if X[jr, H_BTAG] != key:
+                    X[jr, H_BTAG] = key
+                    for i in range(dim):
+                        X[jr, H_BX + i] = X[j, H_COPY + i]
+        if S[S_FRH] == 0.0 or seq > S[S_FRMAX]:
+            S[S_FRMAX] = seq
+            S[S_FRH] = 1.0
+    # HliDecoder.sample
+    if S[S_FRH] != 0.0:
+        lag = n - int(S[S_FRMAX])
+        if S[S_LAGH] == 0.0 or lag < S[S_LAG]:
+            S[S_LAG] = lag
+            S[S_LAGH] = 1.0
+        S[S_FRH] = 0.0
+    if S[S_LAGH] == 0.0:
+        return rx, False
+    target = n - int(S[S_LAG]) - int(C[C_HDELAY])
+    if S[S_CURH] == 0.0:
+        first = int(S[S_MIN]) if S[S_MINH] != 0.0 else target
+        S[S_CUR] = min(first, target + 1) - 1
+        S[S_CURH] = 1.0
+    while S[S_CUR] < target:
+        S[S_CUR] += 1.0
+        hli_play(C, S, X, int(S[S_CUR]))
+    if S[S_DT1H] == 0.0:
+        return rx, False
+    for i in range(dim):
+        out[i] = S[S_DT1 + i]
+    return rx, True
+
+
 @inline  # type: ignore[misc]
 def codec_tick_x(
     C: np.ndarray,
@@ -755,6 +1016,8 @@ def codec_tick_x(
     out: np.ndarray,
 ) -> tuple[int, bool]:
     # `codec_tick` for every compiled codec (those with a sample history: FEC, ARQ).
+    if C[C_KIND] == HLI:
+        return hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
     if C[C_KIND] == ARQ:
         return arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, out)
     if C[C_KIND] == FEC:

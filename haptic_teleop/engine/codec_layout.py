@@ -4,8 +4,8 @@ imports nothing, so neither imports the other (docs/codec.md, "Compiled")."""
 
 # Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
 NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
-COMPILED_KINDS = ("deadband", "prediction", "fec", "arq")
-FEC, ARQ = 3.0, 4.0
+COMPILED_KINDS = ("deadband", "prediction", "fec", "arq", "hli")
+FEC, ARQ, HLI = 3.0, 4.0, 5.0
 LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT = 0.0, 1.0, 2.0
 
 # C: one direction's constants.
@@ -32,13 +32,28 @@ RING_WIDTH = 8  # seq, arrival_ns, payload (at most 6 values: a 3-value sample a
 
 # FEC, ARQ (and the shared reconstruction over a sample history): constants and state after the above.
 C_PARITY, C_K, C_WAIT, C_TIMEOUT_NS, C_NU, C_ACK_SIZE = range(24, 30)
-C_SIZE_X = 32  # C's length with these
+# HLI: N_HLI1, predictor, warm-up, threshold, rate window, budget, bits and sizes by class, the
+# decoder's delay
+(
+    C_HN, C_HLINEAR, C_HWARMUP, C_HTHRESH, C_HWIN, C_HBUDGET, C_HBITS1, C_HBITS2, C_HSIZE1, C_HSIZE2,
+    C_HDELAY,
+) = range(30, 41)  # fmt: skip
+C_SIZE_X = 42  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
     S_ACKED, S_ACKS_STALE, S_GAVE_UP, S_RETRANSMITTED, S_ACKS_SENT, S_ACK_PACKETS, S_ACK_BYTES, S_PEND_LO,
 ) = range(48, 66)  # fmt: skip
-S_SIZE_X = 66  # S's length with these
+# HLI: the encoder's mirrored track, counters and rate window; the decoder's track, lag, cursor
+(
+    S_ET1H, S_ET1, S_ET1B, S_ET1C, S_ET2H, S_ET2, S_ET2B, S_ET2C, S_ESEEN, S_ESINCE,
+    S_EH2, S_EH2B, S_EH2C, S_EPREVH, S_EPREV, S_EPREVB, S_EPREVC, S_WIN_HEAD, S_WIN_COUNT, S_WIN_BITS,
+    S_HLI0, S_HLI1, S_HLI2, S_FILT0, S_FILT1, S_WIRE_BITS, S_OVER, S_LAST_CLASS,
+    S_DT1H, S_DT1, S_DT1B, S_DT1C, S_DT2H, S_DT2, S_DT2B, S_DT2C,
+    S_LAGH, S_LAG, S_CURH, S_CUR, S_MINH, S_MIN, S_FRH, S_FRMAX,
+    S_REBUILT, S_DPREDICTED, S_PLAYED, S_DLATE,
+) = range(66, 114)  # fmt: skip
+S_SIZE_X = 114  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent), the sender's sample of that tick.
@@ -48,3 +63,7 @@ X_PEND, X_TRIES, X_LAST_NS = 4, 5, 6
 RING_ATTEMPT, RING_SENT = 6, 7
 # W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist.
 W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0
+# HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
+# decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
+H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16
+H_NONE = -1e18

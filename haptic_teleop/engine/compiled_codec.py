@@ -33,6 +33,8 @@ import numpy as np
 
 from haptic_teleop.core.delay import ConstantDelay
 from haptic_teleop.core.fec import payload_floats
+from haptic_teleop.core.hli import HLI1, HLI2
+from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
@@ -43,6 +45,17 @@ from haptic_teleop.engine.codec_layout import (
     C_DIM,
     C_EXTRAP,
     C_GAIN,
+    C_HBITS1,
+    C_HBITS2,
+    C_HBUDGET,
+    C_HDELAY,
+    C_HLINEAR,
+    C_HN,
+    C_HSIZE1,
+    C_HSIZE2,
+    C_HTHRESH,
+    C_HWARMUP,
+    C_HWIN,
     C_K,
     C_KEEP,
     C_KIND,
@@ -69,6 +82,11 @@ from haptic_teleop.engine.codec_layout import (
     COMPILED_KINDS,
     DEADBAND,
     FEC,
+    H_BTAG,
+    H_NONE,
+    H_RTAG,
+    H_WIDTH,
+    HLI,
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     LOSS_NONE,
@@ -83,19 +101,31 @@ from haptic_teleop.engine.codec_layout import (
     S_BAD,
     S_BYTES,
     S_COUNT,
+    S_DLATE,
+    S_DPREDICTED,
     S_DROP_BLACKOUT,
     S_DROP_LOSS,
     S_DUPLICATES,
+    S_ESINCE,
     S_EXTRAPOLATED,
+    S_FILT0,
+    S_FILT1,
     S_FILTERED,
     S_GAVE_UP,
     S_HEAD,
+    S_HLI0,
+    S_HLI1,
+    S_HLI2,
+    S_LAST_CLASS,
     S_LATE,
     S_LINK_LOST,
     S_LINK_SENT,
     S_NEWEST,
     S_OFFERED,
+    S_OVER,
+    S_PLAYED,
     S_PREDICTED,
+    S_REBUILT,
     S_RECEIVED,
     S_RECOVERED,
     S_RECOVERED_LATE,
@@ -106,6 +136,7 @@ from haptic_teleop.engine.codec_layout import (
     S_STALE,
     S_U,
     S_U_END,
+    S_WIRE_BITS,
     W_STACK,
     X_HELD,
     X_SUM_SEQ,
@@ -268,6 +299,13 @@ class CodecNet(LinkArrays):
             for g in enc.triggers:
                 for i in range(g.start, g.stop):
                     C[C_TRIG0 + i] = 1.0
+        elif ch.kind == "hli":
+            C[C_KIND] = HLI
+            C[C_HN], C[C_HLINEAR], C[C_HWARMUP] = enc.n_hli1, 1.0 if enc._linear else 0.0, enc._warmup
+            C[C_HTHRESH], C[C_HWIN], C[C_HBUDGET] = enc.cfg.threshold_m, enc._window_ticks, enc._budget_bits
+            C[C_HBITS1], C[C_HBITS2] = enc._packet_bits(HLI1), enc._packet_bits(HLI2)
+            C[C_HSIZE1], C[C_HSIZE2] = hli_message_bytes(ch.dim, HLI1), hli_message_bytes(ch.dim, HLI2)
+            C[C_HDELAY] = dec.delay_ticks
         else:
             fec, arq = ch.kind == "fec", ch.kind == "arq"
             C[C_KIND] = FEC if fec else ARQ if arq else PREDICTION
@@ -305,6 +343,20 @@ class CodecNet(LinkArrays):
         # span (ARQ); the scratch's
         # worklist: at most k per recovery.
         self.X, self.W, _ = no_history()
+        if ch.kind == "hli":
+            # X: a packet's row until it is played (the link's delay and twice N_HLI1 at most)
+            N = int(C[C_HN])
+            rows = 4
+            while rows < 2 * (C[C_DELAY_NS] // period_ns + 2 * (N + C[C_HDELAY]) + 8):
+                rows *= 2
+            self.X = np.zeros((rows, H_WIDTH))
+            self.X[:, H_RTAG] = H_NONE
+            self.X[:, H_BTAG] = H_NONE
+            self.W = np.zeros(2 * N + 2 + 2 * (int(C[C_HWIN]) + 1))
+            for k in range(1, N + 1):
+                self.W[k] = 1.0 if k in enc._may_filter else 0.0
+            self.W[N + 1 : 2 * N + 2] = enc._fixed_after
+            S[S_ESINCE] = N + 1
         if ch.kind in ("fec", "arq"):
             rows = 4
             # (parity: a window is solved up to keep_ticks after its packet arrived)
@@ -356,6 +408,26 @@ class CodecNet(LinkArrays):
             enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
             dec.counters.update(received=int(S[S_RECEIVED]), duplicates=0)
             dec.rec.predicted = int(S[S_PREDICTED])
+        elif ch.kind == "hli":
+            enc.counters.update(
+                samples=int(S[S_OFFERED]),
+                sent=int(S[S_SENT]),
+                hli0=int(S[S_HLI0]),
+                hli1=int(S[S_HLI1]),
+                hli2=int(S[S_HLI2]),
+                filtered_hli0=int(S[S_FILT0]),
+                filtered_hli1=int(S[S_FILT1]),
+                wire_bits=int(S[S_WIRE_BITS]),
+                over_budget=int(S[S_OVER]),
+            )
+            enc.last_class = int(S[S_LAST_CLASS])
+            dec.counters.update(
+                received=int(S[S_RECEIVED]),
+                rebuilt=int(S[S_REBUILT]),
+                predicted=int(S[S_DPREDICTED]),
+                played_received=int(S[S_PLAYED]),
+                late=int(S[S_DLATE]),
+            )
         elif ch.kind == "arq":
             enc.counters.update(
                 samples=int(S[S_OFFERED]),
