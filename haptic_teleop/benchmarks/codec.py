@@ -10,7 +10,7 @@ bench scene (no recording). A channel codes two streams per tick (forward and ba
 codec's share of a tick is twice its cost per sample over the tick's.
 
 First, the codec stage in the loop itself: the real-time factor of the compiled and the Python
-loop on the scene with each compiled codec (deadband, prediction, FEC, ARQ; `LOOP_CASES`) named on both
+loop on the scene with each compiled codec (deadband, prediction, FEC, ARQ, HLI; `LOOP_CASES`) named on both
 directions, against the same loop without a codec, measured in the same run (best of at least 5,
 interleaved). Issue 13's budget: within 10 % of the codec-less run.
 """
@@ -100,9 +100,20 @@ def tick_us(scene_name: str, loop: str, seconds: float, repeat: int) -> list[flo
 
 
 # The codec stage in the loop: each case names the same codec on both directions of the scene
-# (a name ending in LOSSY: with LOSS on both links, its reference the lossy run without a codec).
+# (a name ending in a key of LOSSES: with that loss on both links, its reference the same lossy
+# run without a codec; HLI needs a Gilbert model, its N_HLI1 comes from it).
 LOSSY = ", 10 % loss"
-LOSS = "{probability: 0.1}"
+GILBERT = ", Gilbert 20 % loss"
+LOSSES = {
+    LOSSY: "{probability: 0.1}",
+    GILBERT: "{model: gilbert_elliott, p: 0.125, r: 0.5, one_minus_h: 1.0, one_minus_k: 0.0}",
+}
+
+
+def _loss_of(name: str) -> str | None:
+    return next((s for s in LOSSES if name.endswith(s)), None)
+
+
 LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("no codec", None),
     ("deadband 10 %, hold", "{kind: deadband, deadband: 0.1}"),
@@ -122,6 +133,9 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("fec repetition k = 2" + LOSSY, "{kind: fec, scheme: repetition, k: 2}"),
     ("fec parity k = 3, wait 3" + LOSSY, "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}"),
     ("arq 25 ms, 4 retries" + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("no codec" + GILBERT, None),
+    ("hli (defaults)" + GILBERT, "{kind: hli}"),
+    ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
 )
 
 
@@ -138,8 +152,9 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
         over = [f"scene.duration_s={seconds}"]
         if codec is not None:
             over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
-        if name.endswith(LOSSY):
-            over += [f"network.forward.effects.loss={LOSS}", f"network.backward.effects.loss={LOSS}"]
+        loss = _loss_of(name)
+        if loss is not None:
+            over += [f"network.{d}.effects.loss={LOSSES[loss]}" for d in ("forward", "backward")]
         scenes[name] = load_scene(find_scene(scene_name), overrides=over)
     for loop in ("compiled", "python"):
         for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
@@ -167,9 +182,13 @@ def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, f
     signal = np.array(_signal(samples, 3))
     out: dict[str, float] = {}
     for name, codec in LOOP_CASES:
-        if codec is None or name.endswith(LOSSY):
+        loss = _loss_of(name)
+        if codec is None or (loss is not None and "hli" not in codec):
             continue
-        scene = load_scene(find_scene(scene_name), overrides=[f"network.backward.codec={codec}"])
+        over = [f"network.backward.codec={codec}"]
+        if loss is not None:
+            over.append(f"network.backward.effects.loss={LOSSES[loss]}")
+        scene = load_scene(find_scene(scene_name), overrides=over)
         engine = Engine(scene, loop="python")  # only for its codec channel
         ch = engine.codecs[1]
         assert ch is not None
@@ -204,7 +223,7 @@ def main(args: argparse.Namespace) -> int:
     print("-" * len(head))
     for name, _ in LOOP_CASES:
         c, p = rtf["compiled"][name], rtf["python"][name]
-        ref = "no codec" + (LOSSY if name.endswith(LOSSY) else "")
+        ref = "no codec" + (_loss_of(name) or "")
         c0, p0 = rtf["compiled"][ref], rtf["python"][ref]
         print(f"{name:40s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
     print()
