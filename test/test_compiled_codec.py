@@ -6,7 +6,8 @@ columns, batches of packet records, at the same points of the run), the controll
 the codec counters of the run facts (`codec_<direction>`) and the links' counts. Together the
 cases cover each compiled codec configuration (deadband hold, extrapolation from the sent rate
 and from the last two, the velocity-adaptive p, the floor; prediction extrapolating and holding;
-FEC repetition and parity, playing late by wait_ticks or not, extrapolating or holding),
+FEC repetition and parity, playing late by wait_ticks or not, extrapolating or holding; HLI with
+and without a bandwidth budget; ARQ with ACKs in time and late, in its own test),
 on the forward link, the backward link and both, over constant delay with uncorrelated loss,
 Gilbert-Elliott loss and blackouts. 1.5 s of scene each, a sinusoidal operator in contact with the
 wall, so every quantity moves.

@@ -7,7 +7,7 @@ The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `accept2`, `
 `CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay), deliveries,
 decoder (`codec_tick_x`: FEC and ARQ in `fec_tick` and `arq_tick`, with ARQ's ACK link). The
 per-sample formulas are compiled from their one definition in core/deadband.py,
-core/prediction.py, core/loss.py; the parity sums (`math.fsum` in core/fec.py's classes) from
+core/prediction.py, core/loss.py, core/hli_codec.py; the parity sums (`math.fsum` in core/fec.py's classes) from
 `fec.rounded_sum`, which gives the same value.
 """
 
@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from haptic_teleop.core import deadband as db
-from haptic_teleop.core import fec, loss
+from haptic_teleop.core import fec, hli_codec, loss
 from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
 from haptic_teleop.engine.codec_layout import (
@@ -193,6 +193,7 @@ extrapolated = jit(db.extrapolated)
 extrapolate1 = jit(pr.extrapolate1)
 gilbert_step = jit(loss.gilbert_step)
 rounded_sum = part_jit(fec.rounded_sum)
+linear1 = jit(hli_codec.linear1)
 
 DELIVERED = 0.0
 LOST_NETWORK = 1.0
@@ -833,7 +834,7 @@ def hli_play(C: np.ndarray, S: np.ndarray, X: np.ndarray, t: int) -> None:
     linear = C[C_HLINEAR] != 0.0 and S[S_DT2H] != 0.0
     for i in range(dim):
         a = S[S_DT1 + i]
-        x = 2.0 * a - S[S_DT2 + i] if linear else a
+        x = linear1(a, S[S_DT2 + i]) if linear else a
         S[S_DT2 + i] = a
         S[S_DT1 + i] = x
     S[S_DT2H] = 1.0
@@ -876,7 +877,7 @@ def hli_tick(
     if has_pred:
         linear = C[C_HLINEAR] != 0.0 and S[S_ET2H] != 0.0
         for i in range(dim):
-            rate[i] = 2.0 * S[S_ET1 + i] - S[S_ET2 + i] if linear else S[S_ET1 + i]
+            rate[i] = linear1(S[S_ET1 + i], S[S_ET2 + i]) if linear else S[S_ET1 + i]
     S[S_ESINCE] += 1.0
     cls = 0
     big = S[S_ESEEN] < C[C_HWARMUP] or not has_pred

@@ -82,7 +82,7 @@ AXIS_SOURCES = (
 )  # fmt: skip
 CODEC_SOURCES = (
     *AXIS_SOURCES, "codec_kernel.py", "codec_layout.py", "../core/deadband.py", "../core/prediction.py",
-    "../core/loss.py", "../core/fec.py",
+    "../core/loss.py", "../core/fec.py", "../core/hli_codec.py",
 )  # fmt: skip
 
 
