@@ -321,12 +321,14 @@ class CodecNet(LinkArrays):
                 C[C_K] = enc.k
             if arq:
                 C[C_TIMEOUT_NS], C[C_NU], C[C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
-        # Packets a tick at most: one, and with ARQ each pending sample's retransmission (a sample
-        # is pending from its tick until its nu-th retransmission has gone mu without an ACK).
+        # Packets a tick at most: one, and with ARQ nu retransmissions: a sample is due every
+        # m = ceil(mu / period) ticks after it was sent, so at tick n only n - j m (j = 1 .. nu)
+        # can go out again (n - (nu + 1) m is given up). A sample is pending for at most `span`.
         self.span = 0
+        self.per_tick = 1
         if ch.kind == "arq":
             self.span = (int(C[C_NU]) + 1) * -(-int(C[C_TIMEOUT_NS]) // period_ns) + 2
-        self.per_tick = 1 + self.span
+            self.per_tick = 1 + int(C[C_NU])
         S = np.zeros(S_SIZE_X)
         S[S_NEWEST] = -1.0
         self._load(ch.link, C, S, period_ns)
