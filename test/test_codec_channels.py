@@ -249,17 +249,18 @@ def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
 
 def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     pytest.importorskip("numba")
-    scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1", _codec("forward", "{kind: fec}")])
-    with pytest.raises(InputError, match="codec fec on the forward link runs in the Python loop only"):
+    jittery = [_codec("forward", "{kind: prediction}"), "network.forward.effects.delay.jitter_s=0.002"]
+    scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1", *jittery])
+    with pytest.raises(InputError, match=r"effect delay \(Delay\) on the forward link with a codec"):
         Engine(scene, loop="compiled")
     e = Engine(scene, loop="auto")
     assert e.loop_kind == "python" and "codec" in (e.compiled_reason or "")
     plain = Engine(load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.1"]), loop="auto")
     assert plain.codecs == (None, None)
     argv = ["run", "wall_contact", "--loop", "compiled", "--out", str(tmp_path / "o")]
-    code = main([*argv, "--set", "scene.duration_s=0.1", "--set", _codec("forward", "{kind: fec}")])
+    code = main([*argv, "--set", "scene.duration_s=0.1", "--set", jittery[0], "--set", jittery[1]])
     line = _one_line(capsys.readouterr().err)
-    assert code == 2 and "codec fec on the forward link runs in the Python loop only" in line
+    assert code == 2 and "effect delay (Delay) on the forward link with a codec" in line
 
 
 def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:

@@ -5,7 +5,9 @@ Each identity case runs one scene in both loops and compares every call on the s
 columns, batches of packet records, at the same points of the run), the controllers' final state,
 the codec counters of the run facts (`codec_<direction>`) and the links' counts. Together the
 cases cover each compiled codec configuration (deadband hold, extrapolation from the sent rate
-and from the last two, the velocity-adaptive p, the floor; prediction extrapolating and holding),
+and from the last two, the velocity-adaptive p, the floor; prediction extrapolating and holding;
+FEC repetition and parity, playing late by wait_ticks or not, extrapolating or holding; HLI with
+and without a bandwidth budget; ARQ with ACKs in time and late, in its own test),
 on the forward link, the backward link and both, over constant delay with uncorrelated loss,
 Gilbert-Elliott loss and blackouts. 1.5 s of scene each, a sinusoidal operator in contact with the
 wall, so every quantity moves.
@@ -40,6 +42,13 @@ BLACKOUT = "{starts_s: [0.5, 1.2], ends_s: [0.65, 1.25]}"
 # exactly 84 ticks after the one before (tick 983 after 899): that one is still remembered.
 ONE_THROUGH = "{starts_s: [0.5, 0.651, 0.9, 0.984, 1.2], ends_s: [0.65, 0.7, 0.983, 1.0, 1.25]}"
 
+REPETITION_WAIT = "{kind: fec, scheme: repetition, k: 3, wait_ticks: 2}"
+REPETITION_HOLD = "{kind: fec, scheme: repetition, k: 2, gap: hold}"
+PARITY_WAIT = "{kind: fec, scheme: parity, k: 3, wait_ticks: 3, max_extrapolation_s: 0.02}"
+PARITY_HOLD = "{kind: fec, scheme: parity, k: 4, gap: hold}"
+HLI_LINEAR = "{kind: hli}"
+HLI_HOLD_BUDGET = "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1500000, rate_window_s: 0.02}"
+
 # case: {direction: (codec, effects)}; effects: (loss, blackout) scene values or None.
 CASES = {
     "hold_both_bernoulli_gilbert": {"forward": (HOLD, (BERNOULLI, None)), "backward": (HOLD, (GILBERT, None))},
@@ -49,6 +58,13 @@ CASES = {
     "floor_backward_gilbert": {"backward": (FLOOR, (GILBERT, None))},
     "prediction_both": {"forward": (PREDICTION, (None, ONE_THROUGH)), "backward": (PREDICTION, (GILBERT, None))},
     "prediction_hold_forward": {"forward": (PREDICTION_HOLD, (BERNOULLI, ONE_THROUGH))},
+    "fec_repetition_both": {
+        "forward": (REPETITION_WAIT, (BERNOULLI, None)),
+        "backward": (REPETITION_HOLD, (GILBERT, BLACKOUT)),
+    },
+    "fec_parity_both": {"forward": (PARITY_WAIT, (GILBERT, BLACKOUT)), "backward": (PARITY_HOLD, (BERNOULLI, None))},
+    # HLI needs Gilbert loss on its direction (N_HLI1); backward: HLI1 followers filtered under a budget
+    "hli_both": {"forward": (HLI_LINEAR, (GILBERT, None)), "backward": (HLI_HOLD_BUDGET, (GILBERT, BLACKOUT))},
 }
 
 
@@ -80,12 +96,16 @@ def _run(scene, loop, stop_at=None):
     return e, r, sink
 
 
+def _link(link):
+    return (
+        link.sent,
+        link.lost,
+        tuple((x.name, getattr(x, "dropped", None), getattr(x, "bad", None)) for x in link.effects),
+    )
+
+
 def _links(e):
-    out = {}
-    for d in ("forward", "backward"):
-        link = getattr(e, d)
-        out[d] = (link.sent, link.lost, tuple((x.name, getattr(x, "dropped", None)) for x in link.effects))
-    return out
+    return {d: _link(getattr(e, d)) for d in ("forward", "backward")}
 
 
 def _assert_same(compiled, python):
@@ -104,9 +124,13 @@ def _assert_same(compiled, python):
         if a is not None:
             assert (a.encoder.counters, a.decoder.counters) == (b.encoder.counters, b.decoder.counters)
             assert a.newest_seq == b.newest_seq
-            if a.kind == "prediction":
-                assert a.decoder.rec.predicted == b.decoder.rec.predicted
+            if a.kind in ("prediction", "fec"):
+                assert (a.decoder.rec.predicted, a.decoder.rec.late) == (b.decoder.rec.predicted, b.decoder.rec.late)
     assert _links(ec) == _links(ep)
+    for a, b in zip(ec.codecs, ep.codecs, strict=True):
+        if a is not None and a.ack_link is not None:
+            assert (a.ack_packets, a.ack_bytes) == (b.ack_packets, b.ack_bytes)
+            assert _link(a.ack_link) == _link(b.ack_link)
     assert ec.slave.contact_force() == ep.slave.contact_force()
 
 
@@ -122,14 +146,21 @@ def test_compiled_codec_equals_python_loop(case):
         f = facts[f"codec_{d}"]
         rows = sink.packets(d)
         assert len(rows) == f["encoder_sent"] and np.count_nonzero(rows[:, 3] != 0) > 10
+        if "hli" in codec:
+            assert f["encoder_filtered_hli0"] > 100 and f["decoder_rebuilt"] > 0 and f["decoder_predicted"] > 100
+            assert (f["encoder_filtered_hli1"] > 10) == ("bandwidth" in codec)
+            continue
         if "deadband" in codec:
             assert 0 < f["encoder_sent"] < 0.7 * f["encoder_offered"]
             if "extrapolate" in codec:
                 assert f["decoder_extrapolated"] > 10
         else:
-            assert (
-                f["encoder_sent"] == e.ticks and e.codecs[("forward", "backward").index(d)].decoder.rec.predicted > 10
-            )
+            predicted = e.codecs[("forward", "backward").index(d)].decoder.rec.predicted
+            assert f["encoder_sent"] == e.ticks and predicted > (0 if "fec" in codec else 10)
+            if "fec" in codec:  # recovered in time (with wait_ticks) and too late
+                assert f["decoder_recovered"] > 10 and 0 < f["decoder_recovered_late"]
+                if "wait" in codec:
+                    assert f["decoder_recovered_late"] < f["decoder_recovered"]
     rows = np.concatenate([a for kind, a in sink.calls if kind == "rows"])
     assert len(rows) == e.ticks and np.ptp(rows[:, COL["s_x_m"]]) > 1e-3
 
@@ -162,6 +193,51 @@ def test_compiled_codec_beside_other_networks(case):
     assert kinds.count("rows") >= 2 and {"forward", "backward"} <= set(kinds)
 
 
+ARQ_SLOW = "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"
+ARQ_FAST = "{kind: arq, timeout_s: 0.004, max_retransmissions: 1, wait_ticks: 5, gap: hold}"
+ARQ_CASES = {
+    # the ACKs come back within mu (10 ms each way): retransmissions only for what was lost
+    "arq_both_in_time": [
+        f"network.forward.codec={ARQ_SLOW}",
+        f"network.backward.codec={ARQ_SLOW}",
+        "network.forward.effects.delay.delay_s=0.01",
+        "network.backward.effects.delay.delay_s=0.01",
+        f"network.forward.effects.loss={BERNOULLI}",
+        f"network.backward.effects.loss={GILBERT}",
+        f"network.backward.effects.blackout={BLACKOUT}",
+    ],
+    # mu below the round trip (50 ms each way): every sample retransmitted, then given up; the
+    # ACKs over the backward link's Gilbert loss and blackouts
+    "arq_forward_late_acks": [
+        f"network.forward.codec={ARQ_FAST}",
+        f"network.forward.effects.loss={BERNOULLI}",
+        f"network.backward.effects.loss={GILBERT}",
+        f"network.backward.effects.blackout={BLACKOUT}",
+    ],
+}
+
+
+@pytest.mark.parametrize("case", sorted(ARQ_CASES))
+def test_compiled_arq_equals_python_loop(case):
+    """ARQ: several packets a tick (retransmissions), records handed over by send time, the ACK
+    link run in the kernel with its own random numbers."""
+    scene = _scene(["scene.duration_s=1.5", *MOVING, *ARQ_CASES[case]])
+    compiled, python = _run(scene, "compiled"), _run(scene, "python")
+    _assert_same(compiled, python)
+    e = compiled[0]
+    for d, ch in zip(("forward", "backward"), e.codecs, strict=True):
+        if ch is None:
+            continue
+        f = e.codec_facts()[f"codec_{d}"]
+        rows = compiled[2].packets(d)
+        assert len(rows) == f["encoder_sent"] > e.ticks and f["encoder_retransmitted"] > 10
+        assert np.any(np.diff(rows[:, 0]) < 0)  # retransmissions: not in seq order
+        assert f["decoder_recovered"] > 10 and f["decoder_duplicates"] > 10 and ch.ack_link.lost > 10
+        in_time = case == "arq_both_in_time"
+        assert f["encoder_gave_up"] > 0 and (f["encoder_acks_stale"] > 0) != in_time
+        assert (f["encoder_acked"] > 0.5 * e.ticks) == in_time
+
+
 def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     """Stopped at the same tick, both loops hand over the same columns and packet records."""
     scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
@@ -177,9 +253,16 @@ def _codec_on(d, codec, *effects):
 @pytest.mark.parametrize(
     ("overrides", "reason"),
     [
-        (_codec_on("forward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the forward link runs in the Python"),
-        (_codec_on("backward", "{kind: fec}"), "codec fec on the backward link"),
-        (_codec_on("forward", "{kind: arq}"), "codec arq on the forward link"),
+        (
+            _codec_on("forward", "{kind: hli}", f"loss={GILBERT}", "delay.jitter_s=0.002"),
+            "effect delay (Delay) on the for",
+        ),
+        (
+            [*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"],
+            "effect delay (Delay) on the forward:ack link",
+        ),
+        (_codec_on("forward", "{kind: arq, max_retransmissions: 100, timeout_s: 0.05}"), "keeps a sample up to"),
+        (_codec_on("backward", "{kind: fec}", "duplicate.probability=0.1"), "effect duplicate (Duplicate) on the back"),
         (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
         (
             _codec_on("forward", HOLD, "rate_limit={rate_bps: 1000000, burst_bytes: 2000}"),

@@ -5,7 +5,7 @@ Each case is test/test_hard_cases.py's bursty-loss case (Gilbert-Elliott, 50 % l
 20 ms each way, the stiff coupling; wall 5 mm ahead, the operator pushing from 0.2 s) with a
 codec on both directions: a coarse deadband (p = 40 %, hold and extrapolation), HLI's
 priority-based filtering, FEC (repetition and parity) and ARQ (seed 000's two settings). Recorded
-to a real bag and analysed from it. The deadband cases run in the compiled loop (`--loop auto`
+to a real bag and analysed from it. All cases run in the compiled loop (`--loop auto`
 picks it), one of them in the Python loop too. Run:
 `.venv/bin/python -m pytest -q -p no:cacheprovider test/test_hard_cases_codec.py`.
 """
@@ -59,7 +59,7 @@ class Case:
     name: str
     codec: str
     check: Callable[[dict[str, Any], dict[str, Any]], None]  # (summary with codec keys, run facts)
-    loop: str = "auto"  # `--loop auto` runs a deadband compiled (docs/codec.md, "Compiled"), the rest in Python
+    loop: str = "auto"  # `--loop auto` runs every codec compiled (docs/codec.md, "Compiled")
 
 
 def _deadband(s: dict[str, Any], info: dict[str, Any]) -> None:
@@ -120,7 +120,7 @@ def _record(case: Case, root: Path) -> Run:
     bag = root / case.name / "bag"
     bag.parent.mkdir(parents=True)
     engine, _ = record_run(scene, bag, parallel=False, handle_sigint=False, keep=True, loop=case.loop)
-    compiled = case.loop == "auto" and "deadband" in case.codec
+    compiled = case.loop == "auto"
     assert engine.loop_kind == ("compiled" if compiled else "python"), engine.compiled_reason
     summary, signals = analyze_bag(bag)
     summary = {**summary, **{k: v for k, v in summarize_bag(bag).items() if k.startswith("codec_")}}

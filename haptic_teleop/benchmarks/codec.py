@@ -10,7 +10,7 @@ bench scene (no recording). A channel codes two streams per tick (forward and ba
 codec's share of a tick is twice its cost per sample over the tick's.
 
 First, the codec stage in the loop itself: the real-time factor of the compiled and the Python
-loop on the scene with each compiled codec (deadband and prediction; `LOOP_CASES`) named on both
+loop on the scene with each compiled codec (deadband, prediction, FEC, ARQ, HLI; `LOOP_CASES`) named on both
 directions, against the same loop without a codec, measured in the same run (best of at least 5,
 interleaved). Issue 13's budget: within 10 % of the codec-less run. The same for an arm scene
 (`--arm-scene`, default touch_ur5e_wall) in the compiled arm loop (`ARM_LOOP_CASES`).
@@ -100,7 +100,21 @@ def tick_us(scene_name: str, loop: str, seconds: float, repeat: int) -> list[flo
     return out[-repeat:]
 
 
-# The codec stage in the loop: each case names the same codec on both directions of the scene.
+# The codec stage in the loop: each case names the same codec on both directions of the scene
+# (a name ending in a key of LOSSES: with that loss on both links, its reference the same lossy
+# run without a codec; HLI needs a Gilbert model, its N_HLI1 comes from it).
+LOSSY = ", 10 % loss"
+GILBERT = ", Gilbert 20 % loss"
+LOSSES = {
+    LOSSY: "{probability: 0.1}",
+    GILBERT: "{model: gilbert_elliott, p: 0.125, r: 0.5, one_minus_h: 1.0, one_minus_k: 0.0}",
+}
+
+
+def _loss_of(name: str) -> str | None:
+    return next((s for s in LOSSES if name.endswith(s)), None)
+
+
 LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("no codec", None),
     ("deadband 10 %, hold", "{kind: deadband, deadband: 0.1}"),
@@ -111,6 +125,18 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ),
     ("deadband 5 %, adaptive, floor", "{kind: deadband, deadband: 0.05, adaptive_gain: 10, min_threshold: 0.001}"),
     ("prediction", "{kind: prediction}"),
+    ("fec repetition k = 2", "{kind: fec, scheme: repetition, k: 2}"),
+    ("fec parity k = 4", "{kind: fec, scheme: parity, k: 4}"),
+    ("arq 25 ms, 4 retries", "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("arq 4 ms, 1 retry", "{kind: arq, timeout_s: 0.004, max_retransmissions: 1}"),
+    # over 10 % loss each way (the FEC decoder recovers): against the same lossy run without a codec
+    ("no codec" + LOSSY, None),
+    ("fec repetition k = 2" + LOSSY, "{kind: fec, scheme: repetition, k: 2}"),
+    ("fec parity k = 3, wait 3" + LOSSY, "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}"),
+    ("arq 25 ms, 4 retries" + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("no codec" + GILBERT, None),
+    ("hli (defaults)" + GILBERT, "{kind: hli}"),
+    ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
 )
 
 
@@ -127,6 +153,9 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
         over = [f"scene.duration_s={seconds}"]
         if codec is not None:
             over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
+        loss = _loss_of(name)
+        if loss is not None:
+            over += [f"network.{d}.effects.loss={LOSSES[loss]}" for d in ("forward", "backward")]
         scenes[name] = load_scene(find_scene(scene_name), overrides=over)
     for loop in ("compiled", "python"):
         for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
@@ -180,7 +209,7 @@ def arm_loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, floa
 
 
 def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, float]:
-    """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks:
+    """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks_x:
     encoder, link, decoder; the backward direction, 3 values a sample, the scene's link), least
     of `repeat` runs over the bench's smooth signal."""
     from haptic_teleop.engine import codec_kernel
@@ -191,9 +220,13 @@ def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, f
     signal = np.array(_signal(samples, 3))
     out: dict[str, float] = {}
     for name, codec in LOOP_CASES:
-        if codec is None:
+        loss = _loss_of(name)
+        if codec is None or (loss is not None and "hli" not in codec):
             continue
-        scene = load_scene(find_scene(scene_name), overrides=[f"network.backward.codec={codec}"])
+        over = [f"network.backward.codec={codec}"]
+        if loss is not None:
+            over.append(f"network.backward.effects.loss={LOSSES[loss]}")
+        scene = load_scene(find_scene(scene_name), overrides=over)
         engine = Engine(scene, loop="python")  # only for its codec channel
         ch = engine.codecs[1]
         assert ch is not None
@@ -202,7 +235,7 @@ def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, f
             net = CodecNet(ch, engine.period_ns)  # reads the channel's settings; a fresh state
             net.ready(samples)
             t0 = time.process_time()
-            codec_kernel.codec_ticks(*net.args(), signal, engine.period_ns, np.zeros((3, 3)))
+            codec_kernel.codec_ticks_x(*net.args(), signal, engine.period_ns, np.zeros((3, 3)), *net.history())
             best = min(best, time.process_time() - t0)
         out[name] = best / samples * 1e9
         engine.master.close()
@@ -230,7 +263,8 @@ def main(args: argparse.Namespace) -> int:
     print("-" * len(head))
     for name, _ in LOOP_CASES:
         c, p = rtf["compiled"][name], rtf["python"][name]
-        c0, p0 = rtf["compiled"]["no codec"], rtf["python"]["no codec"]
+        ref = "no codec" + (_loss_of(name) or "")
+        c0, p0 = rtf["compiled"][ref], rtf["python"][ref]
         print(f"{name:40s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
     print()
     reps = max(args.repeat, 5)

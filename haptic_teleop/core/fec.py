@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 from haptic_teleop.core.link import Packet
 from haptic_teleop.core.prediction import (
@@ -81,6 +82,51 @@ def payload_floats(scheme: str, k: int, dim: int) -> int:
     if scheme == "parity":
         return 2 * dim
     raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
+
+
+def rounded_sum(xs: Any, start: int, count: int, partials: Any) -> float:
+    """The sum of the finite floats xs[start:start + count] rounded once, the value `math.fsum` gives (the
+    compiled loop's parity sums, engine/codec_kernel.py; the Python classes call `math.fsum`).
+    Shewchuk's exact partials (non-overlapping, kept in `partials` from index 0, room for `count`; it may be
+    `xs` itself when the two regions do not meet), then
+    the top partials added with the half-way case rounded as one rounding would."""
+    m = 0
+    for t in range(start, start + count):
+        x = xs[t]
+        i = 0
+        for j in range(m):
+            y = partials[j]
+            if abs(x) < abs(y):
+                x, y = y, x
+            hi = x + y
+            lo = y - (hi - x)
+            if lo != 0.0:
+                partials[i] = lo
+                i += 1
+            x = hi
+        m = i
+        if x != 0.0:
+            partials[m] = x
+            m += 1
+    if m == 0:
+        return 0.0
+    m -= 1
+    hi = partials[m]
+    lo = 0.0
+    while m > 0:
+        x = hi
+        m -= 1
+        y = partials[m]
+        hi = x + y
+        lo = y - (hi - x)
+        if lo != 0.0:
+            break
+    if m > 0 and ((lo < 0.0 and partials[m - 1] < 0.0) or (lo > 0.0 and partials[m - 1] > 0.0)):
+        y = lo * 2.0
+        x = hi + y
+        if y == x - hi:
+            hi = x
+    return float(hi)
 
 
 class FecEncoder:

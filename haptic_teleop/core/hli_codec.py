@@ -127,12 +127,18 @@ def hli_message_bytes(dim: int, cls: int) -> int:
     return joint_state_bytes(3 if cls == HLI1 else 2, dim + 1)
 
 
+def linear1(a: float, b: float) -> float:
+    """The linear predictor of one value: a at n-1, b at n-2, to n (the compiled loop compiles it,
+    engine/codec_kernel.py)."""
+    return 2.0 * a - b
+
+
 def _pred(t1: tuple[float, ...] | None, t2: tuple[float, ...] | None, linear: bool) -> tuple[float, ...] | None:
     if t1 is None:
         return None
     if not linear or t2 is None:
         return t1
-    return tuple(2.0 * a - b for a, b in zip(t1, t2, strict=True))
+    return tuple(linear1(a, b) for a, b in zip(t1, t2, strict=True))
 
 
 def _norm(a: tuple[float, ...], b: tuple[float, ...]) -> float:

@@ -5,24 +5,42 @@ design, engine/codec_layout.py the arrays' layouts).
 The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `accept2`, `accept3`,
 `finish_tick`); a direction with a codec replaces its schedule lookup by `codec_tick`, which is
 `CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay), deliveries,
-decoder. The per-sample formulas are compiled from their one definition in core/deadband.py,
-core/prediction.py and core/loss.py.
+decoder (`codec_tick_x`: FEC and ARQ in `fec_tick` and `arq_tick`, with ARQ's ACK link). The
+per-sample formulas are compiled from their one definition in core/deadband.py,
+core/prediction.py, core/loss.py, core/hli_codec.py; the parity sums (`math.fsum` in core/fec.py's classes) from
+`fec.rounded_sum`, which gives the same value.
 """
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
 
 from haptic_teleop.core import deadband as db
-from haptic_teleop.core import loss
+from haptic_teleop.core import fec, hli_codec, loss
 from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
 from haptic_teleop.engine.codec_layout import (
+    ARQ,
+    C_ACK_SIZE,
     C_DELAY_NS,
     C_DIM,
     C_EXTRAP,
     C_GAIN,
+    C_HBITS1,
+    C_HBITS2,
+    C_HBUDGET,
+    C_HDELAY,
+    C_HLINEAR,
+    C_HN,
+    C_HSIZE1,
+    C_HSIZE2,
+    C_HTHRESH,
+    C_HWARMUP,
+    C_HWIN,
+    C_K,
     C_KEEP,
     C_KIND,
     C_LBAD,
@@ -33,53 +51,131 @@ from haptic_teleop.engine.codec_layout import (
     C_MAX_AHEAD,
     C_MAX_TICKS,
     C_MIN,
+    C_NU,
     C_P0,
+    C_PARITY,
     C_PERIOD_NS,
     C_PMAX,
     C_SENDS_RATE,
     C_SIZE,
+    C_TIMEOUT_NS,
     C_TRIG0,
     C_VEL,
+    C_WAIT,
     DEADBAND,
+    FEC,
+    H_BTAG,
+    H_BX,
+    H_CLASS,
+    H_COPY,
+    H_NONE,
+    H_OFF,
+    H_PREV,
+    H_RTAG,
+    H_SMP,
+    HLI,
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     NO_CODEC,
+    RING_ATTEMPT,
+    RING_SENT,
+    S_ACK_BYTES,
+    S_ACK_PACKETS,
+    S_ACKED,
+    S_ACKS_SENT,
+    S_ACKS_STALE,
     S_BAD,
     S_BLACKOUT_I,
     S_BYTES,
     S_COUNT,
+    S_CUR,
+    S_CURH,
+    S_DLATE,
+    S_DPREDICTED,
     S_DROP_BLACKOUT,
     S_DROP_LOSS,
+    S_DT1,
+    S_DT1H,
+    S_DT2,
+    S_DT2H,
+    S_DUPLICATES,
+    S_EH2,
+    S_EPREV,
+    S_EPREVH,
+    S_ESEEN,
+    S_ESINCE,
+    S_ET1,
+    S_ET1H,
+    S_ET2,
+    S_ET2H,
     S_EXTRAPOLATED,
+    S_FILT0,
+    S_FILT1,
     S_FILTERED,
+    S_FRH,
+    S_FRMAX,
+    S_GAVE_UP,
+    S_HAS_FRESH,
+    S_HAS_HELD,
     S_HAS_LAST,
     S_HAS_OLD,
+    S_HAS_PLAYED,
     S_HAS_PREV,
     S_HAS_RATE,
     S_HAS_SENT,
     S_HAS_SLOT,
     S_HEAD,
+    S_HLI0,
+    S_LAG,
+    S_LAGH,
     S_LAST0,
+    S_LAST_CLASS,
+    S_LAST_PLAYED,
     S_LAST_SEQ,
+    S_LATE,
     S_LINK_LOST,
     S_LINK_SENT,
+    S_MAXHELD,
+    S_MIN,
+    S_MINH,
     S_NEWEST,
+    S_NEWEST_FRESH,
     S_OFFERED,
     S_OLD0,
     S_OLD_SEQ,
+    S_OVER,
     S_PENDING,
+    S_PLAYED,
     S_PREDICTED,
     S_PREV0,
     S_PREV_NS,
     S_RATE0,
+    S_REBUILT,
     S_RECEIVED,
+    S_RECOVERED,
+    S_RECOVERED_LATE,
     S_RECS,
+    S_RETRANSMITTED,
     S_SENT,
     S_SENT0,
     S_SLOT,
     S_SLOT_N,
     S_STALE,
     S_U,
+    S_WIN_BITS,
+    S_WIN_COUNT,
+    S_WIN_HEAD,
+    S_WIRE_BITS,
+    W_STACK,
+    W_TERMS,
+    W_VALUE,
+    X_HELD,
+    X_LAST_NS,
+    X_PEND,
+    X_SENT,
+    X_SUM_SEQ,
+    X_TRIES,
+    X_VALUE,
 )
 
 jit = numba.njit(cache=True, nogil=True)
@@ -88,11 +184,16 @@ inline = numba.njit(cache=True, nogil=True, inline="always")  # as axis_kernel's
 # array handed to an inlined part would otherwise be counted in and out with atomic operations,
 # which cost ten times the codec's own work (180 against 15 ns a tick for `prediction`).
 loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
+# The FEC and ARQ ticks are compiled once (not inlined into each direction: compile time), also
+# without reference counting (every array they are handed would be counted in and out).
+part_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 deadband_p = jit(db.deadband_p)
 outside = jit(db.outside)
 extrapolated = jit(db.extrapolated)
 extrapolate1 = jit(pr.extrapolate1)
 gilbert_step = jit(loss.gilbert_step)
+rounded_sum = part_jit(fec.rounded_sum)
+linear1 = jit(hli_codec.linear1)
 
 DELIVERED = 0.0
 LOST_NETWORK = 1.0
@@ -349,6 +450,582 @@ def codec_tick(
     return rx, prediction_sample(C, S, n, out)
 
 
+# ------------------------------------------------------------------------------------------
+# FEC: the decoder's history of samples (`Reconstructor` over any seqs), recovery, the tick.
+
+
+@inline  # type: ignore[misc]
+def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
+    # Reconstructor.has: held and not yet forgotten (within keep_ticks of the newest held).
+    if seq < 0 or S[S_HAS_HELD] == 0.0 or seq < S[S_MAXHELD] - C[C_KEEP]:
+        return False
+    return X[seq & (X.shape[0] - 1), X_HELD] == seq
+
+
+@inline  # type: ignore[misc]
+def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
+    # Reconstructor.add of the value in W[W_VALUE:]; False if held already or too old to keep.
+    if rec_held(C, S, X, seq):
+        return False
+    if S[S_HAS_HELD] != 0.0 and seq < S[S_MAXHELD] - C[C_KEEP]:
+        if not fresh:
+            S[S_LATE] += 1.0
+        return False
+    if not fresh and S[S_HAS_PLAYED] != 0.0 and seq <= S[S_LAST_PLAYED]:
+        S[S_LATE] += 1.0
+    j = seq & (X.shape[0] - 1)
+    X[j, X_HELD] = seq
+    for i in range(int(C[C_DIM])):
+        X[j, X_VALUE + i] = W[W_VALUE + i]
+    if S[S_HAS_HELD] == 0.0 or seq > S[S_MAXHELD]:
+        S[S_MAXHELD] = seq
+        S[S_HAS_HELD] = 1.0
+    if fresh and (S[S_HAS_FRESH] == 0.0 or seq > S[S_NEWEST_FRESH]):
+        S[S_NEWEST_FRESH] = seq
+        S[S_HAS_FRESH] = 1.0
+        S[S_PENDING] = 1.0
+    return True
+
+
+@inline  # type: ignore[misc]
+def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # Reconstructor.sample: the playout slot, the sample at the slot (wait_ticks behind), or the
+    # prediction from the newest two held at or before it.
+    if S[S_PENDING] != 0.0:
+        S[S_SLOT] = S[S_NEWEST_FRESH]
+        S[S_SLOT_N] = n
+        S[S_PENDING] = 0.0
+        S[S_HAS_SLOT] = 1.0
+    elif S[S_HAS_SLOT] != 0.0:
+        S[S_SLOT] = S[S_SLOT] + (n - S[S_SLOT_N])
+        S[S_SLOT_N] = n
+    elif S[S_HAS_HELD] != 0.0:
+        S[S_SLOT] = S[S_MAXHELD]
+        S[S_SLOT_N] = n
+        S[S_HAS_SLOT] = 1.0
+    else:
+        return False
+    target = int(S[S_SLOT]) - int(C[C_WAIT])
+    if S[S_HAS_PLAYED] == 0.0 or target > S[S_LAST_PLAYED]:
+        S[S_LAST_PLAYED] = target
+        S[S_HAS_PLAYED] = 1.0
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    newest = int(S[S_MAXHELD])
+    lo = max(0, newest - int(C[C_KEEP]))
+    last = min(target, newest)
+    while last >= lo and X[last & mask, X_HELD] != last:
+        last -= 1
+    if last < lo:
+        return False  # everything held is newer than the target
+    j = last & mask
+    if last == target:
+        for i in range(dim):
+            out[i] = X[j, X_VALUE + i]
+        return True
+    S[S_PREDICTED] += 1.0
+    prev = last - 1
+    if C[C_EXTRAP] != 0.0:
+        while prev >= lo and X[prev & mask, X_HELD] != prev:
+            prev -= 1
+    if C[C_EXTRAP] == 0.0 or prev < lo:
+        for i in range(dim):
+            out[i] = X[j, X_VALUE + i]
+        return True
+    ahead = min(target - last, int(C[C_MAX_TICKS]))
+    span = last - prev
+    k = prev & mask
+    for i in range(dim):
+        out[i] = extrapolate1(X[k, X_VALUE + i], X[j, X_VALUE + i], ahead, span)
+    return True
+
+
+@inline  # type: ignore[misc]
+def fec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int) -> bool:
+    # FecDecoder._add of a recovered sample (not fresh).
+    late_before = S[S_LATE]
+    if not rec_add(C, S, X, W, seq, False):
+        return False
+    S[S_RECOVERED] += 1.0
+    if S[S_LATE] > late_before:
+        S[S_RECOVERED_LATE] += 1.0
+    return True
+
+
+@inline  # type: ignore[misc]
+def sum_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, p: int) -> bool:
+    # `p in FecDecoder._sums` after its front was dropped (what reaches past the history).
+    if p < S[S_MAXHELD] - C[C_KEEP] + C[C_K]:
+        return False
+    return X[p & (X.shape[0] - 1), X_SUM_SEQ] == p
+
+
+@inline  # type: ignore[misc]
+def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: int) -> None:
+    # FecDecoder.receive of packet n. A constant delay keeps the stream in order, so the payload
+    # is the sender's samples of ticks n, n-1, ..., n-k (repetition) or x(n) and the sum of
+    # x(n-k) .. x(n-1) (parity): read here from the sender's rows of X (as many as the packets
+    # in flight and k need), the same floats the packet carries.
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    k = int(C[C_K])
+    S[S_RECEIVED] += 1.0
+    jn = n & mask
+    for i in range(dim):
+        W[W_VALUE + i] = X[jn, X_SENT + i]
+    if not rec_add(C, S, X, W, n, True):
+        S[S_DUPLICATES] += 1.0
+        if C[C_PARITY] != 0.0 and sum_held(C, S, X, n):
+            return
+    if C[C_PARITY] == 0.0:
+        for q in range(1, k + 1):
+            m = n - q
+            if m >= 0:
+                jm = m & mask
+                for i in range(dim):
+                    W[W_VALUE + i] = X[jm, X_SENT + i]
+                fec_add(C, S, X, W, m)
+        return
+    # the carrier's parity sum is the encoder's math.fsum of x(n-k) .. x(n-1): computed when a
+    # window is solved, from the sender's rows (they reach back far enough: CodecNet)
+    X[jn, X_SUM_SEQ] = n
+    # FecDecoder._parity_recover: solve each window with one unknown (a LIFO worklist)
+    oldest = int(S[S_MAXHELD]) - int(C[C_KEEP])
+    W[W_STACK] = n
+    top = 1
+    while top > 0:
+        top -= 1
+        p = int(W[W_STACK + top])
+        if not sum_held(C, S, X, p):
+            continue
+        missing = 0
+        m = -1
+        for q in range(max(0, p - k), p):
+            if not rec_held(C, S, X, q):
+                missing += 1
+                m = q
+                if missing > 1:
+                    break
+        if missing != 1 or m < oldest:
+            continue
+        for i in range(dim):
+            c = 0
+            for q in range(max(0, p - k), p):
+                W[W_TERMS + c] = X[q & mask, X_SENT + i]
+                c += 1
+            W[W_TERMS] = rounded_sum(W, W_TERMS, c, W)  # S(p), as the encoder's math.fsum
+            c = 1
+            for q in range(max(0, p - k), p):
+                if q != m:
+                    W[W_TERMS + c] = -X[q & mask, X_VALUE + i]
+                    c += 1
+            W[W_VALUE + i] = rounded_sum(W, W_TERMS, c, W)
+        if fec_add(C, S, X, W, m):
+            for q in range(m + 1, m + k + 1):
+                if sum_held(C, S, X, q):
+                    W[W_STACK + top] = q
+                    top += 1
+
+
+@part_jit  # type: ignore[misc]
+def fec_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with FecEncoder / FecDecoder.
+    dim = int(C[C_DIM])
+    j = n & (X.shape[0] - 1)
+    for i in range(dim):
+        X[j, X_SENT + i] = smp[i]
+    S[S_OFFERED] += 1.0
+    S[S_SENT] += 1.0
+    S[S_BYTES] += C[C_SIZE]
+    link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        fec_receive(C, S, X, W, seq)
+        if seq > S[S_NEWEST]:
+            S[S_NEWEST] = seq
+            rx = seq
+    return rx, rec_sample(C, S, X, n, out)
+
+
+# ------------------------------------------------------------------------------------------
+# ARQ: pending samples, retransmissions, the decoder's ACKs through the ACK link (A: its arrays,
+# as a codec direction's C, S, U, B, ring, records; the records are not kept).
+
+
+@inline  # type: ignore[misc]
+def arq_send(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    seq: int,
+    now: int,
+    value: np.ndarray,
+    attempt: int,
+    unused: np.ndarray,
+) -> None:
+    # ArqEncoder._packet into Link.send; a delivered packet carries its attempt and send tick.
+    S[S_SENT] += 1.0
+    S[S_BYTES] += C[C_SIZE]
+    before = S[S_COUNT]
+    link_send(C, S, U, B, ring, rec, seq, now, value, unused, False)
+    if S[S_COUNT] > before:
+        j = (int(S[S_HEAD]) + int(before)) & (ring.shape[0] - 1)
+        ring[j, RING_ATTEMPT] = attempt
+        ring[j, RING_SENT] = now // int(C[C_PERIOD_NS])
+
+
+@part_jit  # type: ignore[misc]
+def arq_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link.
+    aC, aS, aU, aB, aring, arec = A
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    # the ACKs due: ArqEncoder.feedback
+    adepth = aring.shape[0]
+    while aS[S_COUNT] > 0.0:
+        head = int(aS[S_HEAD])
+        if aring[head, 1] > now:
+            break
+        aS[S_HEAD] = (head + 1) & (adepth - 1)
+        aS[S_COUNT] -= 1.0
+        seq = int(aring[head, 0])
+        j = seq & mask
+        if X[j, X_PEND] == seq:
+            X[j, X_PEND] = -1.0
+            S[S_ACKED] += 1.0
+        else:
+            S[S_ACKS_STALE] += 1.0
+    # ArqEncoder.send: the new sample, then the pending ones due (in seq order)
+    S[S_OFFERED] += 1.0
+    j = n & mask
+    for i in range(dim):
+        X[j, X_SENT + i] = smp[i]
+    arq_send(C, S, U, B, ring, rec, n, now, smp, 0, out)
+    # A pending sample is due every m = ceil(mu / period) ticks after it was sent (the encoder
+    # runs every tick), so the only candidates this tick are n - j m, j = nu + 1 .. 1 (seq order).
+    timeout = C[C_TIMEOUT_NS]
+    m_ticks = int(-(-int(timeout) // int(C[C_PERIOD_NS])))
+    for jj in range(int(C[C_NU]) + 1, 0, -1):
+        seq = n - jj * m_ticks
+        if seq < 0:
+            continue
+        k = seq & mask
+        if X[k, X_PEND] != seq or now - X[k, X_LAST_NS] < timeout:
+            continue
+        if X[k, X_TRIES] >= C[C_NU]:
+            X[k, X_PEND] = -1.0
+            S[S_GAVE_UP] += 1.0
+            continue
+        X[k, X_TRIES] += 1.0
+        X[k, X_LAST_NS] = now
+        S[S_RETRANSMITTED] += 1.0
+        for i in range(dim):
+            rate[i] = X[k, X_SENT + i]
+        arq_send(C, S, U, B, ring, rec, seq, now, rate, int(X[k, X_TRIES]), out)
+    X[j, X_PEND] = n
+    X[j, X_TRIES] = 0.0
+    X[j, X_LAST_NS] = now
+    # Link.deliver, ArqDecoder.receive, its ACK into the ACK link
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        attempt = ring[head, RING_ATTEMPT]
+        S[S_RECEIVED] += 1.0
+        for i in range(dim):
+            W[W_VALUE + i] = ring[head, 2 + i]
+        late_before = S[S_LATE]
+        if not rec_add(C, S, X, W, seq, attempt == 0.0):
+            S[S_DUPLICATES] += 1.0
+        elif attempt > 0.0:
+            S[S_RECOVERED] += 1.0
+            if S[S_LATE] > late_before:
+                S[S_RECOVERED_LATE] += 1.0
+        S[S_ACKS_SENT] += 1.0
+        if seq > S[S_NEWEST]:
+            S[S_NEWEST] = seq
+            rx = seq
+        S[S_ACK_PACKETS] += 1.0
+        S[S_ACK_BYTES] += C[C_ACK_SIZE]
+        link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False)
+    return rx, rec_sample(C, S, X, n, out)
+
+
+# ------------------------------------------------------------------------------------------
+# HLI: the sender's classes and rate window, the receiver N_HLI1 ticks behind its newest packet
+# (X's rows: H_* of codec_layout; W: which followers may be filtered, how many follow that may
+# not, the window's (tick, bits) ring).
+
+
+@inline  # type: ignore[misc]
+def hli_play(C: np.ndarray, S: np.ndarray, X: np.ndarray, t: int) -> None:
+    # HliDecoder._play
+    dim = int(C[C_DIM])
+    j = t & (X.shape[0] - 1)
+    got = X[j, H_RTAG] == t
+    if got:
+        X[j, H_RTAG] = H_NONE
+    rb = X[j, H_BTAG] == t
+    if rb:
+        X[j, H_BTAG] = H_NONE
+    if got:
+        S[S_PLAYED] += 1.0
+        for i in range(dim):
+            S[S_DT2 + i] = X[j, H_PREV + i]
+            S[S_DT1 + i] = X[j, H_SMP + i]
+        S[S_DT1H] = 1.0
+        S[S_DT2H] = 1.0
+        return
+    if rb:
+        S[S_REBUILT] += 1.0
+        for i in range(dim):
+            S[S_DT2 + i] = S[S_DT1 + i]
+            S[S_DT1 + i] = X[j, H_BX + i]
+        S[S_DT2H] = S[S_DT1H]
+        S[S_DT1H] = 1.0
+        return
+    if S[S_DT1H] == 0.0:
+        return
+    S[S_DPREDICTED] += 1.0
+    linear = C[C_HLINEAR] != 0.0 and S[S_DT2H] != 0.0
+    for i in range(dim):
+        a = S[S_DT1 + i]
+        x = linear1(a, S[S_DT2 + i]) if linear else a
+        S[S_DT2 + i] = a
+        S[S_DT1 + i] = x
+    S[S_DT2H] = 1.0
+
+
+@part_jit  # type: ignore[misc]
+def hli_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with HliEncoder / HliDecoder.
+    dim = int(C[C_DIM])
+    mask = X.shape[0] - 1
+    N = int(C[C_HN])
+    S[S_OFFERED] += 1.0
+    # HliEncoder.send: the rate window
+    wt = int(C[C_HWIN])
+    base = 2 * N + 2
+    cap = wt + 1
+    while S[S_WIN_COUNT] > 0.0:
+        h = int(S[S_WIN_HEAD])
+        if W[base + 2 * h] > n - wt:
+            break
+        S[S_WIN_BITS] -= W[base + 2 * h + 1]
+        S[S_WIN_HEAD] = (h + 1) % cap
+        S[S_WIN_COUNT] -= 1.0
+    # the prediction of the mirrored track (into `rate`, unused by HLI)
+    has_pred = S[S_ET1H] != 0.0
+    if has_pred:
+        linear = C[C_HLINEAR] != 0.0 and S[S_ET2H] != 0.0
+        for i in range(dim):
+            rate[i] = linear1(S[S_ET1 + i], S[S_ET2 + i]) if linear else S[S_ET1 + i]
+    S[S_ESINCE] += 1.0
+    cls = 0
+    big = S[S_ESEEN] < C[C_HWARMUP] or not has_pred
+    if not big:
+        acc = 0.0
+        for i in range(dim):
+            d = smp[i] - rate[i]
+            acc += d * d
+        big = math.sqrt(acc) >= C[C_HTHRESH]
+    if big:
+        cls = 2
+        S[S_ESINCE] = 0.0
+        for i in range(dim):
+            S[S_EH2 + i] = smp[i]
+    elif S[S_ESINCE] <= N:
+        cls = 1
+    S[S_ESEEN] += 1.0
+    S[S_LAST_CLASS] = cls
+    S[S_HLI0 + cls] += 1.0
+    send = cls != 0
+    since = int(S[S_ESINCE])
+    if cls == 1 and W[since] != 0.0:
+        need = C[C_HBITS1] * (1.0 + W[N + 1 + since])
+        if S[S_WIN_BITS] + need > C[C_HBUDGET]:
+            send = False
+            S[S_FILT1] += 1.0
+    elif cls == 0:
+        S[S_FILT0] += 1.0
+    # the previous true sample (into `out` for now), the track
+    for i in range(dim):
+        out[i] = smp[i] if S[S_EPREVH] == 0.0 else S[S_EPREV + i]
+        S[S_EPREV + i] = smp[i]
+    S[S_EPREVH] = 1.0
+    if send or not has_pred:
+        for i in range(dim):
+            S[S_ET2 + i] = out[i]
+            S[S_ET1 + i] = smp[i]
+        S[S_ET2H] = 1.0
+    else:
+        for i in range(dim):
+            S[S_ET2 + i] = S[S_ET1 + i]
+            S[S_ET1 + i] = rate[i]
+        S[S_ET2H] = S[S_ET1H]
+    S[S_ET1H] = 1.0
+    if send:
+        j = n & mask
+        for i in range(dim):
+            X[j, H_SMP + i] = smp[i]
+            X[j, H_PREV + i] = out[i]
+            X[j, H_COPY + i] = S[S_EH2 + i]
+        X[j, H_CLASS] = cls
+        X[j, H_OFF] = 0.0 if cls == 2 else since
+        bits = C[C_HBITS2] if cls == 2 else C[C_HBITS1]
+        k = (int(S[S_WIN_HEAD]) + int(S[S_WIN_COUNT])) % cap
+        W[base + 2 * k] = n
+        W[base + 2 * k + 1] = bits
+        S[S_WIN_COUNT] += 1.0
+        S[S_WIN_BITS] += bits
+        S[S_SENT] += 1.0
+        S[S_WIRE_BITS] += bits
+        if S[S_WIN_BITS] > C[C_HBUDGET]:
+            S[S_OVER] += 1.0
+        C[C_SIZE] = C[C_HSIZE2] if cls == 2 else C[C_HSIZE1]
+        link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+    # Link.deliver, HliDecoder.receive
+    rx = -1
+    depth = ring.shape[0]
+    while S[S_COUNT] > 0.0:
+        head = int(S[S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[S_HEAD] = (head + 1) & (depth - 1)
+        S[S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        S[S_RECEIVED] += 1.0
+        if S[S_NEWEST] < seq:
+            S[S_NEWEST] = seq
+            rx = seq
+        if S[S_CURH] != 0.0 and seq <= S[S_CUR]:
+            S[S_DLATE] += 1.0
+            continue
+        j = seq & mask
+        X[j, H_RTAG] = seq
+        if S[S_CURH] == 0.0 and (S[S_MINH] == 0.0 or seq < S[S_MIN]):
+            S[S_MIN] = seq
+            S[S_MINH] = 1.0
+        if X[j, H_CLASS] == 1.0:
+            key = seq - int(X[j, H_OFF])
+            if S[S_CURH] == 0.0 or key > S[S_CUR]:
+                jr = key & mask
+                if X[jr, H_BTAG] != key:
+                    X[jr, H_BTAG] = key
+                    for i in range(dim):
+                        X[jr, H_BX + i] = X[j, H_COPY + i]
+        if S[S_FRH] == 0.0 or seq > S[S_FRMAX]:
+            S[S_FRMAX] = seq
+            S[S_FRH] = 1.0
+    # HliDecoder.sample
+    if S[S_FRH] != 0.0:
+        lag = n - int(S[S_FRMAX])
+        if S[S_LAGH] == 0.0 or lag < S[S_LAG]:
+            S[S_LAG] = lag
+            S[S_LAGH] = 1.0
+        S[S_FRH] = 0.0
+    if S[S_LAGH] == 0.0:
+        return rx, False
+    target = n - int(S[S_LAG]) - int(C[C_HDELAY])
+    if S[S_CURH] == 0.0:
+        first = int(S[S_MIN]) if S[S_MINH] != 0.0 else target
+        S[S_CUR] = min(first, target + 1) - 1
+        S[S_CURH] = 1.0
+    while S[S_CUR] < target:
+        S[S_CUR] += 1.0
+        hli_play(C, S, X, int(S[S_CUR]))
+    if S[S_DT1H] == 0.0:
+        return rx, False
+    for i in range(dim):
+        out[i] = S[S_DT1 + i]
+    return rx, True
+
+
+@inline  # type: ignore[misc]
+def codec_tick_x(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # `codec_tick` for every compiled codec (those with a sample history: FEC, ARQ).
+    if C[C_KIND] == HLI:
+        return hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
+    if C[C_KIND] == ARQ:
+        return arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, out)
+    if C[C_KIND] == FEC:
+        return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
+    return codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, out)
+
+
 @loop_jit  # type: ignore[misc]
 def run_ticks_codec(
     n0: int,
@@ -385,6 +1062,12 @@ def run_ticks_codec(
     bring: np.ndarray,
     brec: np.ndarray,
     scratch: np.ndarray,
+    fX: np.ndarray,
+    fW: np.ndarray,
+    fA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    bX: np.ndarray,
+    bW: np.ndarray,
+    bA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> int:
     # `axis_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
     # others read their window of the schedule as there).
@@ -408,7 +1091,7 @@ def run_ticks_codec(
         if fcodec:
             smp[0] = x_m
             smp[1] = v_m
-            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, n, now, smp, rate, out)
+            frx, got = codec_tick_x(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, now, smp, rate, out)
             if got:
                 accept2(P, S, out[0], out[1])
             focc = 0.0
@@ -425,7 +1108,7 @@ def run_ticks_codec(
             smp[0] = f_env
             smp[1] = x_s
             smp[2] = v_s
-            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, n, now, smp, rate, out)
+            brx, got = codec_tick_x(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, now, smp, rate, out)
             if got:
                 accept3(P, S, out[0], out[1], out[2])
             bocc = 0.0
@@ -466,6 +1149,36 @@ def codec_ticks(
         for i in range(samples.shape[1]):
             smp[i] = samples[n, i]
         _rx, got = codec_tick(C, S, U, B, ring, rec, n, n * period_ns, smp, rate, out)
+        if got:
+            got_ticks += 1
+    return got_ticks
+
+
+@loop_jit  # type: ignore[misc]
+def codec_ticks_x(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    samples: np.ndarray,
+    period_ns: int,
+    scratch: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> int:
+    """`codec_ticks` for every compiled codec (the sample history X, scratch W and ACK link A of
+    `CodecNet.history`)."""
+    smp = scratch[0]
+    rate = scratch[1]
+    out = scratch[2]
+    got_ticks = 0
+    for n in range(samples.shape[0]):
+        for i in range(samples.shape[1]):
+            smp[i] = samples[n, i]
+        _rx, got = codec_tick_x(C, S, U, B, ring, rec, X, W, A, n, n * period_ns, smp, rate, out)
         if got:
             got_ticks += 1
     return got_ticks

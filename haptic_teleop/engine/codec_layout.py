@@ -4,7 +4,9 @@ imports nothing, so neither imports the other (docs/codec.md, "Compiled")."""
 
 # Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
 NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
-COMPILED_KINDS = ("deadband", "prediction")
+COMPILED_KINDS = ("deadband", "prediction", "fec", "arq", "hli")
+ARM_COMPILED_KINDS = ("deadband", "prediction")  # the compiled arm loop's (engine/arm_codec_kernel.py)
+FEC, ARQ, HLI = 3.0, 4.0, 5.0
 LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT = 0.0, 1.0, 2.0
 
 # C: one direction's constants.
@@ -29,8 +31,10 @@ C_SIZE_ALL = 24
 S_SIZE_ALL = 48
 RING_WIDTH = 8  # seq, arrival_ns, payload (at most 6 values: a 3-value sample and its rate)
 
-# An arm scene's codec directions (engine/arm_codec_kernel.py): the scalars above at the same
-# places; the vectors (a sample of up to 9 values: 3 quantities of 3 task axes) after them.
+# An arm scene's codec directions (engine/arm_codec_kernel.py: deadband and prediction only): the
+# scalars above at the same places; the vectors (a sample of up to 9 values: 3 quantities of 3 task
+# axes) after them, where the 1-DoF kernel keeps FEC's, ARQ's and HLI's state (below), which the
+# arm kernel never runs.
 ARM_AXES = 3
 ARM_DIM = 9
 ARM_C_TRIG0 = C_SIZE_ALL  # 9 flags: the value is in a trigger group (the groups: 3 values each)
@@ -42,3 +46,41 @@ ARM_S_OLD0 = ARM_S_LAST0 + ARM_DIM
 ARM_S_RATE0 = ARM_S_OLD0 + ARM_DIM
 ARM_S_SIZE = ARM_S_RATE0 + ARM_DIM
 ARM_RING_WIDTH = 2 + 2 * ARM_DIM  # seq, arrival_ns, a 9-value sample and its rate
+
+# FEC, ARQ (and the shared reconstruction over a sample history): constants and state after the above.
+C_PARITY, C_K, C_WAIT, C_TIMEOUT_NS, C_NU, C_ACK_SIZE = range(24, 30)
+# HLI: N_HLI1, predictor, warm-up, threshold, rate window, budget, bits and sizes by class, the
+# decoder's delay
+(
+    C_HN, C_HLINEAR, C_HWARMUP, C_HTHRESH, C_HWIN, C_HBUDGET, C_HBITS1, C_HBITS2, C_HSIZE1, C_HSIZE2,
+    C_HDELAY,
+) = range(30, 41)  # fmt: skip
+C_SIZE_X = 42  # C's length with these
+(
+    S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
+    S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
+    S_ACKED, S_ACKS_STALE, S_GAVE_UP, S_RETRANSMITTED, S_ACKS_SENT, S_ACK_PACKETS, S_ACK_BYTES, S_PEND_LO,
+) = range(48, 66)  # fmt: skip
+# HLI: the encoder's mirrored track, counters and rate window; the decoder's track, lag, cursor
+(
+    S_ET1H, S_ET1, S_ET1B, S_ET1C, S_ET2H, S_ET2, S_ET2B, S_ET2C, S_ESEEN, S_ESINCE,
+    S_EH2, S_EH2B, S_EH2C, S_EPREVH, S_EPREV, S_EPREVB, S_EPREVC, S_WIN_HEAD, S_WIN_COUNT, S_WIN_BITS,
+    S_HLI0, S_HLI1, S_HLI2, S_FILT0, S_FILT1, S_WIRE_BITS, S_OVER, S_LAST_CLASS,
+    S_DT1H, S_DT1, S_DT1B, S_DT1C, S_DT2H, S_DT2, S_DT2B, S_DT2C,
+    S_LAGH, S_LAG, S_CURH, S_CUR, S_MINH, S_MIN, S_FRH, S_FRMAX,
+    S_REBUILT, S_DPREDICTED, S_PLAYED, S_DLATE,
+) = range(66, 114)  # fmt: skip
+S_SIZE_X = 114  # S's length with these
+# X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
+# sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
+# retransmissions, last sent), the sender's sample of that tick.
+X_HELD, X_VALUE, X_SUM_SEQ, X_SUM, X_SENT, X_WIDTH = 0, 1, 4, 5, 8, 11
+X_PEND, X_TRIES, X_LAST_NS = 4, 5, 6
+# ARQ's data packets in flight: the ring's attempt and send tick columns
+RING_ATTEMPT, RING_SENT = 6, 7
+# W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist.
+W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0
+# HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
+# decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
+H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16
+H_NONE = -1e18

@@ -10,11 +10,16 @@ is the send time plus the delay, packets in flight wait in a FIFO ring (a consta
 their order), the decoder takes the arrivals and gives the tick's remote sample, and each
 packet's record (record.layouts.PACKET_FIELDS) is written as it is sent.
 
+FEC and ARQ keep a sample history (X: the decoder's held samples as `Reconstructor`'s, the
+sender's samples, ARQ's pending ones) and ARQ runs its ACK link in the kernel too (its own arrays
+and random numbers); ARQ may send several packets a tick (its retransmissions), so its arrays are
+sized for every pending sample retransmitted in one tick.
+
 The random numbers are the effect's own: drawn here in blocks from the effect's numpy Generator,
 the numbers `UniformSource` hands out one at a time in the Python loop (`rng.random(n)` continues
 one stream whatever the block sizes; Gilbert-Elliott takes two per packet, the transition then
 the loss). The kernel never runs out: before each chunk of ticks `CodecNet.ready` tops the
-numbers up to at least two per tick of the chunk and makes room for a record per tick.
+numbers up to what the chunk's packets may take and makes room for their records.
 
 This module is the Python side (the layouts of the kernel's per-direction arrays are in
 engine/codec_layout.py); it needs no numba. What it cannot run is said by `codec_reason`.
@@ -27,14 +32,31 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.delay import ConstantDelay
+from haptic_teleop.core.fec import payload_floats
+from haptic_teleop.core.hli import HLI1, HLI2
+from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
 from haptic_teleop.engine.codec_layout import (
+    ARQ,
+    C_ACK_SIZE,
     C_DELAY_NS,
     C_DIM,
     C_EXTRAP,
     C_GAIN,
+    C_HBITS1,
+    C_HBITS2,
+    C_HBUDGET,
+    C_HDELAY,
+    C_HLINEAR,
+    C_HN,
+    C_HSIZE1,
+    C_HSIZE2,
+    C_HTHRESH,
+    C_HWARMUP,
+    C_HWIN,
+    C_K,
     C_KEEP,
     C_KIND,
     C_LBAD,
@@ -45,53 +67,106 @@ from haptic_teleop.engine.codec_layout import (
     C_MAX_AHEAD,
     C_MAX_TICKS,
     C_MIN,
+    C_NU,
     C_P0,
+    C_PARITY,
     C_PERIOD_NS,
     C_PMAX,
     C_SENDS_RATE,
     C_SIZE,
-    C_SIZE_ALL,
+    C_SIZE_X,
+    C_TIMEOUT_NS,
     C_TRIG0,
     C_VEL,
+    C_WAIT,
     COMPILED_KINDS,
     DEADBAND,
+    FEC,
+    H_BTAG,
+    H_NONE,
+    H_RTAG,
+    H_WIDTH,
+    HLI,
     LOSS_BERNOULLI,
     LOSS_GILBERT,
     LOSS_NONE,
     PREDICTION,
+    RING_SENT,
     RING_WIDTH,
+    S_ACK_BYTES,
+    S_ACK_PACKETS,
+    S_ACKED,
+    S_ACKS_SENT,
+    S_ACKS_STALE,
     S_BAD,
     S_BYTES,
     S_COUNT,
+    S_DLATE,
+    S_DPREDICTED,
     S_DROP_BLACKOUT,
     S_DROP_LOSS,
+    S_DUPLICATES,
+    S_ESINCE,
     S_EXTRAPOLATED,
+    S_FILT0,
+    S_FILT1,
     S_FILTERED,
+    S_GAVE_UP,
     S_HEAD,
+    S_HLI0,
+    S_HLI1,
+    S_HLI2,
+    S_LAST_CLASS,
+    S_LATE,
     S_LINK_LOST,
     S_LINK_SENT,
     S_NEWEST,
     S_OFFERED,
+    S_OVER,
+    S_PLAYED,
     S_PREDICTED,
+    S_REBUILT,
     S_RECEIVED,
+    S_RECOVERED,
+    S_RECOVERED_LATE,
     S_RECS,
+    S_RETRANSMITTED,
     S_SENT,
-    S_SIZE_ALL,
+    S_SIZE_X,
     S_STALE,
     S_U,
     S_U_END,
+    S_WIRE_BITS,
+    W_STACK,
+    X_HELD,
+    X_SUM_SEQ,
+    X_WIDTH,
 )
 
 _BLOCK = 4096  # random numbers drawn per refill
+ARQ_MAX_SPAN_S = 2.0  # how long ARQ may keep a sample pending in the compiled loop (array sizes)
 
 
-def codec_reason(ch: CodecChannel) -> str | None:
-    """Why the compiled loop cannot run codec direction `ch` (None: it can)."""
-    if ch.kind not in COMPILED_KINDS:
+def codec_reason(ch: CodecChannel, kinds: tuple[str, ...] = COMPILED_KINDS) -> str | None:
+    """Why the compiled loop cannot run codec direction `ch` (None: it can); `kinds`: the codecs
+    that loop compiles (the arm loop's: codec_layout.ARM_COMPILED_KINDS)."""
+    if ch.kind not in kinds:
         return (
             f"codec {ch.kind} on the {ch.direction} link runs in the Python loop only "
-            f"(compiled codecs: {', '.join(COMPILED_KINDS)})"
+            f"(compiled codecs: {', '.join(kinds)})"
         )
+    if ch.kind == "arq":
+        enc = ch.encoder
+        span_s = (enc.max_retransmissions + 1) * enc.timeout_ns * 1e-9
+        if span_s > ARQ_MAX_SPAN_S:
+            return (
+                f"arq on the {ch.direction} link keeps a sample up to (max_retransmissions + 1) timeout_s = "
+                f"{span_s:g} s (compiled: at most {ARQ_MAX_SPAN_S:g} s)"
+            )
+        assert ch.ack_link is not None
+        why = link_reason(f"{ch.direction}:ack", ch.ack_link)
+        if why is not None:
+            return why
     return link_reason(ch.direction, ch.link)
 
 
@@ -117,13 +192,93 @@ def _uniform_rng(e: Any) -> np.random.Generator:
     return e._u.__self__._rng  # type: ignore[no-any-return]  # GilbertElliottLoss: UniformSource(rng).next
 
 
-class CodecNet:
+class LinkArrays:
+    """A link run in the kernel: C's link fields, S, the random numbers U, the blackout windows,
+    the in-flight ring and the records (codec_layout); topped up between chunks, written back."""
+
+    C: np.ndarray
+    S: np.ndarray
+    per_tick = 1
+    _ring_width = RING_WIDTH  # an arm scene's directions: wider (compiled_arm_loop.ArmCodecNet)
+
+    def _load(self, link: Link, C: np.ndarray, S: np.ndarray, period_ns: int, per_tick: int = 0) -> None:
+        if per_tick:
+            self.per_tick = per_tick
+        self.link = link
+        self._loss: Any = None
+        self._blackout: Blackout | None = None
+        windows: list[tuple[int, int]] = []
+        delay_ns = 0
+        for e in link.effects:
+            if type(e) is ConstantDelay:
+                delay_ns += e.delay_ns
+            elif type(e) is Blackout:
+                self._blackout = e
+                windows = list(zip(e._starts, e._ends, strict=True))
+            elif type(e) is BernoulliLoss:
+                self._loss = e
+                C[C_LOSS], C[C_LP] = LOSS_BERNOULLI, e.probability
+            elif type(e) is GilbertElliottLoss:
+                self._loss = e
+                C[C_LOSS] = LOSS_GILBERT
+                C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
+        C[C_DELAY_NS] = delay_ns
+        self.C = C
+        self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
+        self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
+        self._rng = None if self._loss is None else _uniform_rng(self._loss)
+        if type(self._loss) is GilbertElliottLoss:
+            S[S_BAD] = 1.0 if self._loss.bad else 0.0
+        self.S = S
+        self.U = np.zeros(0)
+        depth = 4
+        # in flight: at most the ticks of the delay, + 2, times the packets a tick
+        while depth < (delay_ns // period_ns + 3) * self.per_tick:
+            depth *= 2
+        self.ring = np.zeros((depth, self._ring_width))
+        self.records = np.zeros((1024, 6))
+
+    def ready(self, ticks: int) -> None:
+        """Before the kernel runs `ticks` ticks: random numbers and record rows for `per_tick`
+        packets a tick."""
+        S = self.S
+        need = ticks * self.per_tick * self._draws_per_packet
+        u, end = int(S[S_U]), int(S[S_U_END])
+        if need and end - u < need:
+            assert self._rng is not None
+            fresh = self._rng.random(max(_BLOCK, need if self.per_tick == 1 else 4 * need))
+            self.U = np.concatenate((self.U[u:end], fresh))
+            S[S_U], S[S_U_END] = 0.0, float(len(self.U))
+        recs, rows = int(S[S_RECS]), ticks * self.per_tick
+        if len(self.records) - recs < rows:
+            grown = np.zeros((2 * (recs + rows), 6))
+            grown[:recs] = self.records[:recs]
+            self.records = grown
+
+    def store_link(self) -> None:
+        """The link's and its effects' counts and the Gilbert state, as the kernel left them."""
+        S = self.S
+        link = self.link
+        link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
+        if self._blackout is not None:
+            self._blackout.dropped = int(S[S_DROP_BLACKOUT])
+        if self._loss is not None:
+            self._loss.dropped = int(S[S_DROP_LOSS])
+            if type(self._loss) is GilbertElliottLoss:
+                self._loss.bad = bool(S[S_BAD])
+
+    def args(self) -> tuple[np.ndarray, ...]:
+        """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
+        return self.C, self.S, self.U, self.blackouts, self.ring, self.records
+
+
+class CodecNet(LinkArrays):
     """One codec direction of the compiled loop: the kernel's arrays and what Python does between
     chunks (random numbers, records, the counters written back)."""
 
     # The arrays' sizes, where the trigger flags start, the in-flight ring's width (an arm
     # scene's directions: compiled_arm_loop.ArmCodecNet, codec_layout's ARM_* layout).
-    _c_size, _trig0, _s_size, _ring_width = C_SIZE_ALL, C_TRIG0, S_SIZE_ALL, RING_WIDTH
+    _c_size, _trig0, _s_size, _ring_width = C_SIZE_X, C_TRIG0, S_SIZE_X, RING_WIDTH
 
     def __init__(self, ch: CodecChannel, period_ns: int) -> None:
         self.ch = ch
@@ -150,73 +305,98 @@ class CodecNet:
             for g in enc.triggers:
                 for i in range(g.start, g.stop):
                     C[self._trig0 + i] = 1.0
+        elif ch.kind == "hli":
+            C[C_KIND] = HLI
+            C[C_HN], C[C_HLINEAR], C[C_HWARMUP] = enc.n_hli1, 1.0 if enc._linear else 0.0, enc._warmup
+            C[C_HTHRESH], C[C_HWIN], C[C_HBUDGET] = enc.cfg.threshold_m, enc._window_ticks, enc._budget_bits
+            C[C_HBITS1], C[C_HBITS2] = enc._packet_bits(HLI1), enc._packet_bits(HLI2)
+            C[C_HSIZE1], C[C_HSIZE2] = hli_message_bytes(ch.dim, HLI1), hli_message_bytes(ch.dim, HLI2)
+            C[C_HDELAY] = dec.delay_ticks
         else:
-            C[C_KIND] = PREDICTION
-            C[C_SIZE] = enc._size_of(ch.dim)
+            fec, arq = ch.kind == "fec", ch.kind == "arq"
+            C[C_KIND] = FEC if fec else ARQ if arq else PREDICTION
+            floats = payload_floats(enc.scheme, enc.k, ch.dim) if fec else ch.dim + 1 if arq else ch.dim
+            C[C_SIZE] = enc._size_of(floats)
             rec = dec.rec
             C[C_EXTRAP] = 1.0 if rec.extrapolates else 0.0
             C[C_KEEP] = rec.keep_ticks
             C[C_MAX_TICKS] = rec.max_extrapolation_ticks
-        self._loss: Any = None
-        self._blackout: Blackout | None = None
-        windows: list[tuple[int, int]] = []
-        delay_ns = 0
-        for e in ch.link.effects:
-            if type(e) is ConstantDelay:
-                delay_ns += e.delay_ns
-            elif type(e) is Blackout:
-                self._blackout = e
-                windows = list(zip(e._starts, e._ends, strict=True))
-            elif type(e) is BernoulliLoss:
-                self._loss = e
-                C[C_LOSS], C[C_LP] = LOSS_BERNOULLI, e.probability
-            elif type(e) is GilbertElliottLoss:
-                self._loss = e
-                C[C_LOSS] = LOSS_GILBERT
-                C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
-        C[C_DELAY_NS] = delay_ns
-        self.C = C
-        self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
-        self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
-        self._rng = None if self._loss is None else _uniform_rng(self._loss)
+            C[C_WAIT] = rec.wait_ticks
+            if fec:
+                C[C_PARITY] = 1.0 if enc.scheme == "parity" else 0.0
+                C[C_K] = enc.k
+            if arq:
+                C[C_TIMEOUT_NS], C[C_NU], C[C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
+        # Packets a tick at most: one, and with ARQ nu retransmissions: a sample is due every
+        # m = ceil(mu / period) ticks after it was sent, so at tick n only n - j m (j = 1 .. nu)
+        # can go out again (n - (nu + 1) m is given up). A sample is pending for at most `span`.
+        self.span = 0
+        self.per_tick = 1
+        if ch.kind == "arq":
+            self.span = (int(C[C_NU]) + 1) * -(-int(C[C_TIMEOUT_NS]) // period_ns) + 2
+            self.per_tick = 1 + int(C[C_NU])
         S = np.zeros(self._s_size)
         S[S_NEWEST] = -1.0
-        if type(self._loss) is GilbertElliottLoss:
-            S[S_BAD] = 1.0 if self._loss.bad else 0.0
-        self.S = S
-        self.U = np.zeros(0)
-        depth = 4
-        while depth < delay_ns // period_ns + 3:  # in flight: at most the ticks of the delay, + 2
-            depth *= 2
-        self.ring = np.zeros((depth, self._ring_width))
-        self.records = np.zeros((1024, 6))
+        self._load(ch.link, C, S, period_ns)
+        self.ack: LinkArrays | None = None
+        if ch.kind == "arq":
+            assert ch.ack_link is not None
+            aC = np.zeros(C_SIZE_X)
+            aC[C_PERIOD_NS] = period_ns
+            aC[C_SIZE] = C[C_ACK_SIZE]
+            self.ack = LinkArrays()
+            self.ack._load(ch.ack_link, aC, np.zeros(S_SIZE_X), period_ns, self.per_tick)
+        # The sample history (FEC, ARQ): the decoder's held samples reach keep_ticks back, the
+        # sender's the packets in flight and k more (FEC; parity: and keep_ticks) or the pending
+        # span (ARQ); the scratch's
+        # worklist: at most k per recovery.
+        self.X, self.W, _ = no_history()
+        if ch.kind == "hli":
+            # X: a packet's row until it is played (the link's delay and twice N_HLI1 at most)
+            N = int(C[C_HN])
+            rows = 4
+            while rows < 2 * (C[C_DELAY_NS] // period_ns + 2 * (N + C[C_HDELAY]) + 8):
+                rows *= 2
+            self.X = np.zeros((rows, H_WIDTH))
+            self.X[:, H_RTAG] = H_NONE
+            self.X[:, H_BTAG] = H_NONE
+            self.W = np.zeros(2 * N + 2 + 2 * (int(C[C_HWIN]) + 1))
+            for k in range(1, N + 1):
+                self.W[k] = 1.0 if k in enc._may_filter else 0.0
+            self.W[N + 1 : 2 * N + 2] = enc._fixed_after
+            S[S_ESINCE] = N + 1
+        if ch.kind in ("fec", "arq"):
+            rows = 4
+            # (parity: a window is solved up to keep_ticks after its packet arrived)
+            sender = C[C_DELAY_NS] // period_ns + C[C_K] + 3 + (C[C_KEEP] if C[C_PARITY] else 0)
+            while rows < max(C[C_KEEP] + 2, sender, self.span + 2):
+                rows *= 2
+            self.X = np.zeros((rows, X_WIDTH))
+            self.X[:, X_HELD] = -1.0
+            self.X[:, X_SUM_SEQ] = -1.0
+            self.W = np.zeros(W_STACK + 1 + int(C[C_K]) * (int(C[C_KEEP]) + 1))
 
     def ready(self, ticks: int) -> None:
-        """Before the kernel runs `ticks` ticks: random numbers and record rows for a packet a tick."""
-        S = self.S
-        need = ticks * self._draws_per_packet
-        u, end = int(S[S_U]), int(S[S_U_END])
-        if need and end - u < need:
-            assert self._rng is not None
-            fresh = self._rng.random(max(_BLOCK, need))
-            self.U = np.concatenate((self.U[u:end], fresh))
-            S[S_U], S[S_U_END] = 0.0, float(len(self.U))
-        recs = int(S[S_RECS])
-        if len(self.records) - recs < ticks:
-            grown = np.zeros((2 * (recs + ticks), 6))
-            grown[:recs] = self.records[:recs]
-            self.records = grown
+        """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets
+        they may send (the ACK link's records are not kept)."""
+        LinkArrays.ready(self, ticks)
+        if self.ack is not None:
+            self.ack.S[S_RECS] = 0.0
+            self.ack.ready(ticks)
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
         """As `CodecChannel.settled`: the records of packets sent before tick `sent` and older than
-        the oldest one in flight (a packet's seq is its send tick)."""
+        the oldest one in flight (a packet's seq is its send tick, except ARQ's retransmissions:
+        the ring keeps their send tick, the records their send time)."""
         S = self.S
         mark = sent
+        col = RING_SENT if self.C[C_KIND] == ARQ else 0
         if not final and S[S_COUNT] > 0:
-            oldest = int(self.ring[int(S[S_HEAD]), 0])
+            oldest = int(self.ring[int(S[S_HEAD]), col])
             mark = min(mark, oldest)
         recs = int(S[S_RECS])
-        k = int(np.searchsorted(self.records[:recs, 0], mark))
+        # the records' send times are float(tick * period_ns) * 1e-9, as this mark's
+        k = int(np.searchsorted(self.records[:recs, 1], float(mark * int(self.C[C_PERIOD_NS])) * 1e-9))
         if k == 0:
             return None
         rows = self.records[:k].copy()
@@ -232,32 +412,80 @@ class CodecNet:
         if ch.kind == "deadband":
             enc.counters.update(offered=int(S[S_OFFERED]), sent=int(S[S_SENT]), filtered=int(S[S_FILTERED]))
             dec.counters.update(received=int(S[S_RECEIVED]), stale=int(S[S_STALE]), extrapolated=int(S[S_EXTRAPOLATED]))
-        else:
+        elif ch.kind == "prediction":
             enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
             dec.counters.update(received=int(S[S_RECEIVED]), duplicates=0)
             dec.rec.predicted = int(S[S_PREDICTED])
+        elif ch.kind == "hli":
+            enc.counters.update(
+                samples=int(S[S_OFFERED]),
+                sent=int(S[S_SENT]),
+                hli0=int(S[S_HLI0]),
+                hli1=int(S[S_HLI1]),
+                hli2=int(S[S_HLI2]),
+                filtered_hli0=int(S[S_FILT0]),
+                filtered_hli1=int(S[S_FILT1]),
+                wire_bits=int(S[S_WIRE_BITS]),
+                over_budget=int(S[S_OVER]),
+            )
+            enc.last_class = int(S[S_LAST_CLASS])
+            dec.counters.update(
+                received=int(S[S_RECEIVED]),
+                rebuilt=int(S[S_REBUILT]),
+                predicted=int(S[S_DPREDICTED]),
+                played_received=int(S[S_PLAYED]),
+                late=int(S[S_DLATE]),
+            )
+        elif ch.kind == "arq":
+            enc.counters.update(
+                samples=int(S[S_OFFERED]),
+                sent=int(S[S_SENT]),
+                retransmitted=int(S[S_RETRANSMITTED]),
+                acked=int(S[S_ACKED]),
+                acks_stale=int(S[S_ACKS_STALE]),
+                gave_up=int(S[S_GAVE_UP]),
+                bytes=int(S[S_BYTES]),
+            )
+            dec.counters.update(
+                received=int(S[S_RECEIVED]),
+                duplicates=int(S[S_DUPLICATES]),
+                acks_sent=int(S[S_ACKS_SENT]),
+                recovered=int(S[S_RECOVERED]),
+                recovered_late=int(S[S_RECOVERED_LATE]),
+            )
+            dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
+            ch.ack_packets, ch.ack_bytes = int(S[S_ACK_PACKETS]), int(S[S_ACK_BYTES])
+            assert self.ack is not None
+            self.ack.store_link()
+        else:  # fec (its recovered_log, for a reader of the decoder alone, stays empty)
+            enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
+            dec.counters.update(
+                received=int(S[S_RECEIVED]),
+                duplicates=int(S[S_DUPLICATES]),
+                recovered=int(S[S_RECOVERED]),
+                recovered_late=int(S[S_RECOVERED_LATE]),
+            )
+            dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
         ch.newest_seq = int(S[S_NEWEST])
-        link = ch.link
-        link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
-        if self._blackout is not None:
-            self._blackout.dropped = int(S[S_DROP_BLACKOUT])
-        if self._loss is not None:
-            self._loss.dropped = int(S[S_DROP_LOSS])
-            if type(self._loss) is GilbertElliottLoss:
-                self._loss.bad = bool(S[S_BAD])
+        self.store_link()
 
-    def args(self) -> tuple[np.ndarray, ...]:
-        """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
-        return self.C, self.S, self.U, self.blackouts, self.ring, self.records
+    def history(self) -> tuple[Any, ...]:
+        """The kernel's sample history, scratch and ACK link for this direction (X, W, A)."""
+        return self.X, self.W, (no_codec(1) if self.ack is None else self.ack.args())
+
+
+def no_history() -> tuple[Any, ...]:
+    """X, W and A of a direction whose codec keeps no sample history (or that has no codec)."""
+    return np.full((1, X_WIDTH), -1.0), np.zeros(1), no_codec(1)
 
 
 def no_codec(period_ns: int) -> tuple[np.ndarray, ...]:
     """The kernel's arguments for a direction without a codec (C_KIND 0: it runs on its schedule)."""
-    C = np.zeros(C_SIZE_ALL)
+    C = np.zeros(C_SIZE_X)
     C[C_PERIOD_NS] = period_ns
     return (
         C,
-        np.zeros(S_SIZE_ALL),
+        np.zeros(S_SIZE_X),
         np.zeros(1),
         np.zeros((0, 2), dtype=np.int64),
         np.zeros((1, RING_WIDTH)),

@@ -24,7 +24,7 @@ samples as deep as the oldest released sample needs. No array grows with the run
 The result is the same columns and packet records, bit for bit, as the Python loop
 (test_compiled_loop.py), and the same bag.
 
-A direction with a codec (deadband, prediction) cannot be decided ahead: which packets exist
+A direction with a codec (deadband, prediction, FEC, ARQ) cannot be decided ahead: which packets exist
 depends on the samples. Its network runs inside the kernel instead (engine/compiled_codec.py,
 engine/codec_kernel.py), for links whose effects give a packet its fate from its index and send
 time alone; a direction without a codec keeps its schedule.
@@ -82,7 +82,7 @@ AXIS_SOURCES = (
 )  # fmt: skip
 CODEC_SOURCES = (
     *AXIS_SOURCES, "codec_kernel.py", "codec_layout.py", "../core/deadband.py", "../core/prediction.py",
-    "../core/loss.py",
+    "../core/loss.py", "../core/fec.py", "../core/hli_codec.py",
 )  # fmt: skip
 
 

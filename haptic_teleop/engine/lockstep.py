@@ -136,9 +136,10 @@ class Engine:
             rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
             extra: tuple[np.ndarray, ...] = ()
             if codec:
-                from haptic_teleop.engine.compiled_codec import no_codec
+                from haptic_teleop.engine.compiled_codec import no_codec, no_history
 
-                extra = (*no_codec(self.period_ns), *no_codec(self.period_ns), np.zeros((3, 3)))
+                idle = no_codec(self.period_ns)
+                extra = (*idle, *idle, np.zeros((3, 3)), *no_history(), *no_history())
             self._kernel(
                 0,
                 0,
@@ -220,10 +221,11 @@ class Engine:
         if loop == "python":
             self.compiled_reason = "loop 'python' asked for"
         else:
-            # A codec the kernel runs (deadband, prediction) on a link it runs (compiled_codec.codec_reason).
+            # A codec the arm kernel runs (deadband, prediction) on a link it runs (compiled_codec.codec_reason).
+            from haptic_teleop.engine.codec_layout import ARM_COMPILED_KINDS
             from haptic_teleop.engine.compiled_codec import codec_reason
 
-            reasons = (codec_reason(ch) for ch in self.codecs if ch is not None)
+            reasons = (codec_reason(ch, ARM_COMPILED_KINDS) for ch in self.codecs if ch is not None)
             self.compiled_reason = next((r for r in reasons if r is not None), None)
             if self.compiled_reason is None:
                 self.compiled_reason = compiled_arm_loop.compiled_reason_arm(
@@ -581,7 +583,7 @@ class Engine:
         on the directions that name a codec (codec_kernel, engine/compiled_codec.py); a direction
         without one keeps its schedule."""
         from haptic_teleop.engine import compiled_loop
-        from haptic_teleop.engine.compiled_codec import CodecNet, no_codec
+        from haptic_teleop.engine.compiled_codec import CodecNet, no_codec, no_history
 
         period_ns = self.period_ns
         self.ticks_done = 0
@@ -594,12 +596,21 @@ class Engine:
         block = output.block
         run_ticks = self._kernel
         assert run_ticks is not None
-        idle = no_codec(period_ns)
+        idle, no_x = no_codec(period_ns), no_history()
         scratch = np.zeros((3, 3))
+
+        no_x = no_history()
 
         def call(c0: int, c1: int, *network: Any) -> None:
             w0 = network[-1]
-            tail = codec_args(nets, idle, scratch) if codec else ()
+            tail: tuple[Any, ...] = ()
+            if codec:  # the codec arrays, then each direction's sample history (FEC, ARQ, HLI)
+                fnet, bnet = nets
+                tail = (
+                    *codec_args(nets, idle, scratch),
+                    *(no_x if fnet is None else fnet.history()),
+                    *(no_x if bnet is None else bnet.history()),
+                )
             run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
 
         try:
