@@ -4,13 +4,21 @@ import itertools
 import os
 
 import pytest
+from shm_clean import remove_stale
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("MPLBACKEND", "Agg")
 _USER_DOMAIN = os.environ.get("ROS_DOMAIN_ID")
-_SESSION = 100 + os.getpid() % 100
+# Domains 1 to 100: their DDS ports stay below Linux's ephemeral range (32768 and up), where a
+# participant's port could be taken by another socket (ROS 2's domain-ID guidance: 0 to 101).
+_SESSION = 1 + os.getpid() % 100
 _MODULES = itertools.count()
 os.environ.setdefault("ROS_DOMAIN_ID", str(_SESSION))
+
+
+def pytest_sessionstart(session):
+    """Stale Fast DDS shared-memory files of killed processes go before the session (shm_clean.py)."""
+    remove_stale()
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -24,6 +32,6 @@ def _own_ros_domain():
     if _USER_DOMAIN is not None:
         yield
         return
-    os.environ["ROS_DOMAIN_ID"] = str(100 + (_SESSION + next(_MODULES)) % 100)
+    os.environ["ROS_DOMAIN_ID"] = str(1 + (_SESSION + next(_MODULES)) % 100)
     yield
     os.environ["ROS_DOMAIN_ID"] = str(_SESSION)
