@@ -5,7 +5,8 @@ design, engine/codec_layout.py the arrays' layouts).
 The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `accept2`, `accept3`,
 `finish_tick`); a direction with a codec replaces its schedule lookup by `codec_tick`, which is
 `CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay), deliveries,
-decoder (`codec_tick_x`: FEC and ARQ in `fec_tick` and `arq_tick`, with ARQ's ACK link). The
+decoder; it dispatches on the kind: deadband and prediction inlined (`deadband_prediction_tick`),
+FEC, ARQ (with its ACK link) and HLI compiled once each (`fec_tick`, `arq_tick`, `hli_tick`). The
 per-sample formulas are compiled from their one definition in core/deadband.py,
 core/prediction.py, core/loss.py, core/hli_codec.py; the parity sums (`math.fsum` in core/fec.py's classes) from
 `fec.rounded_sum`, which gives the same value.
@@ -269,6 +270,40 @@ def link_send(
 
 
 @inline  # type: ignore[misc]
+def packet_send(
+    C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, ring: np.ndarray, rec: np.ndarray,
+    seq: int, now: int, value: np.ndarray, unused: np.ndarray,
+) -> None:  # fmt: skip
+    # An encoder's packet of `value` (no rate) counted and into Link.send.
+    S[S_SENT] += 1.0
+    S[S_BYTES] += C[C_SIZE]
+    link_send(C, S, U, B, ring, rec, seq, now, value, unused, False)
+
+
+@inline  # type: ignore[misc]
+def link_next(S: np.ndarray, ring: np.ndarray, now: int) -> int:
+    # Link.deliver, one packet: the ring row of the next packet due by `now` (taken off the
+    # in-flight FIFO), or -1.
+    if S[S_COUNT] <= 0.0:
+        return -1
+    head = int(S[S_HEAD])
+    if ring[head, 1] > now:
+        return -1
+    S[S_HEAD] = (head + 1) & (ring.shape[0] - 1)
+    S[S_COUNT] -= 1.0
+    return head
+
+
+@inline  # type: ignore[misc]
+def newest(S: np.ndarray, seq: int, rx: int) -> int:
+    # The `received` column's seq after a delivery of `seq` (the newest delivered so far, else rx).
+    if seq > S[S_NEWEST]:
+        S[S_NEWEST] = seq
+        return seq
+    return rx
+
+
+@inline  # type: ignore[misc]
 def deadband_receive(C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int) -> None:
     # DeadbandDecoder.receive; the payload: ring row j from column 2 on.
     dim = int(C[C_DIM])
@@ -371,7 +406,22 @@ def prediction_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> 
 
 
 @inline  # type: ignore[misc]
-def codec_tick(
+def deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
+    # GroupedDeadbandEncoder.send's test (a sample was sent before): a trigger value outside its
+    # deadband around the last sent (1-value groups; the arm loop's: arm_codec_kernel.py).
+    p = C[C_P0]
+    if C[C_GAIN] > 0.0:
+        p = deadband_p(C[C_P0], C[C_GAIN], C[C_PMAX], abs(smp[int(C[C_VEL])]))
+    for i in range(int(C[C_DIM])):
+        if C[C_TRIG0 + i] != 0.0:
+            last = S[S_SENT0 + i]
+            if outside(abs(last - smp[i]), abs(last), p, C[C_MIN]):
+                return True
+    return False
+
+
+@inline  # type: ignore[misc]
+def deadband_prediction_tick(
     C: np.ndarray,
     S: np.ndarray,
     U: np.ndarray,
@@ -384,8 +434,9 @@ def codec_tick(
     rate: np.ndarray,
     out: np.ndarray,
 ) -> tuple[int, bool]:
-    # CodecChannel.step: encode, send, deliver, decode. Returns (the `received` column's seq or
-    # -1, whether `out` holds the tick's remote sample).
+    # CodecChannel.step with deadband or prediction (decoders that keep the newest two samples):
+    # encode, send, deliver, decode. Returns (the `received` column's seq or -1, whether `out`
+    # holds the tick's remote sample). The arm loop compiles it with its layout (`relaid`).
     dim = int(C[C_DIM])
     deadband = C[C_KIND] == DEADBAND
     if deadband:  # GroupedDeadbandEncoder.send
@@ -405,16 +456,7 @@ def codec_tick(
         S[S_OFFERED] += 1.0
         send = True
         if S[S_HAS_SENT] != 0.0:
-            p = C[C_P0]
-            if C[C_GAIN] > 0.0:
-                p = deadband_p(C[C_P0], C[C_GAIN], C[C_PMAX], abs(smp[int(C[C_VEL])]))
-            send = False
-            for i in range(dim):
-                if C[C_TRIG0 + i] != 0.0:
-                    last = S[S_SENT0 + i]
-                    if outside(abs(last - smp[i]), abs(last), p, C[C_MIN]):
-                        send = True
-                        break
+            send = deadband_triggered(C, S, smp)
             if not send:
                 S[S_FILTERED] += 1.0
         if send:
@@ -425,26 +467,19 @@ def codec_tick(
             link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate)
     else:  # PredictionEncoder.send
         S[S_OFFERED] += 1.0
-        S[S_SENT] += 1.0
-        S[S_BYTES] += C[C_SIZE]
-        link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+        packet_send(C, S, U, B, ring, rec, n, now, smp, rate)
     # Link.deliver, Decoder.receive
     rx = -1
-    depth = ring.shape[0]
-    while S[S_COUNT] > 0.0:
-        head = int(S[S_HEAD])
-        if ring[head, 1] > now:
+    while True:
+        head = link_next(S, ring, now)
+        if head < 0:
             break
-        S[S_HEAD] = (head + 1) & (depth - 1)
-        S[S_COUNT] -= 1.0
         seq = int(ring[head, 0])
         if deadband:
             deadband_receive(C, S, seq, ring, head)
         else:
             prediction_receive(C, S, seq, ring, head)
-        if seq > S[S_NEWEST]:
-            S[S_NEWEST] = seq
-            rx = seq
+        rx = newest(S, seq, rx)
     if deadband:
         return rx, deadband_sample(C, S, n, out)
     return rx, prediction_sample(C, S, n, out)
@@ -465,14 +500,18 @@ def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
 @inline  # type: ignore[misc]
 def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
     # Reconstructor.add of the value in W[W_VALUE:]; False if held already or too old to keep.
+    # Not `fresh`: a recovered sample, counted.
     if rec_held(C, S, X, seq):
         return False
     if S[S_HAS_HELD] != 0.0 and seq < S[S_MAXHELD] - C[C_KEEP]:
         if not fresh:
             S[S_LATE] += 1.0
         return False
-    if not fresh and S[S_HAS_PLAYED] != 0.0 and seq <= S[S_LAST_PLAYED]:
-        S[S_LATE] += 1.0
+    if not fresh:  # a recovered sample (FecDecoder._add, ArqDecoder's retransmission), maybe late
+        S[S_RECOVERED] += 1.0
+        if S[S_HAS_PLAYED] != 0.0 and seq <= S[S_LAST_PLAYED]:
+            S[S_LATE] += 1.0
+            S[S_RECOVERED_LATE] += 1.0
     j = seq & (X.shape[0] - 1)
     X[j, X_HELD] = seq
     for i in range(int(C[C_DIM])):
@@ -541,18 +580,6 @@ def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndar
 
 
 @inline  # type: ignore[misc]
-def fec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int) -> bool:
-    # FecDecoder._add of a recovered sample (not fresh).
-    late_before = S[S_LATE]
-    if not rec_add(C, S, X, W, seq, False):
-        return False
-    S[S_RECOVERED] += 1.0
-    if S[S_LATE] > late_before:
-        S[S_RECOVERED_LATE] += 1.0
-    return True
-
-
-@inline  # type: ignore[misc]
 def sum_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, p: int) -> bool:
     # `p in FecDecoder._sums` after its front was dropped (what reaches past the history).
     if p < S[S_MAXHELD] - C[C_KEEP] + C[C_K]:
@@ -584,7 +611,7 @@ def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: i
                 jm = m & mask
                 for i in range(dim):
                     W[W_VALUE + i] = X[jm, X_SENT + i]
-                fec_add(C, S, X, W, m)
+                rec_add(C, S, X, W, m, False)
         return
     # the carrier's parity sum is the encoder's math.fsum of x(n-k) .. x(n-1): computed when a
     # window is solved, from the sender's rows (they reach back far enough: CodecNet)
@@ -620,7 +647,7 @@ def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: i
                     W[W_TERMS + c] = -X[q & mask, X_VALUE + i]
                     c += 1
             W[W_VALUE + i] = rounded_sum(W, W_TERMS, c, W)
-        if fec_add(C, S, X, W, m):
+        if rec_add(C, S, X, W, m, False):
             for q in range(m + 1, m + k + 1):
                 if sum_held(C, S, X, q):
                     W[W_STACK + top] = q
@@ -649,22 +676,15 @@ def fec_tick(
     for i in range(dim):
         X[j, X_SENT + i] = smp[i]
     S[S_OFFERED] += 1.0
-    S[S_SENT] += 1.0
-    S[S_BYTES] += C[C_SIZE]
-    link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
+    packet_send(C, S, U, B, ring, rec, n, now, smp, rate)
     rx = -1
-    depth = ring.shape[0]
-    while S[S_COUNT] > 0.0:
-        head = int(S[S_HEAD])
-        if ring[head, 1] > now:
+    while True:
+        head = link_next(S, ring, now)
+        if head < 0:
             break
-        S[S_HEAD] = (head + 1) & (depth - 1)
-        S[S_COUNT] -= 1.0
         seq = int(ring[head, 0])
         fec_receive(C, S, X, W, seq)
-        if seq > S[S_NEWEST]:
-            S[S_NEWEST] = seq
-            rx = seq
+        rx = newest(S, seq, rx)
     return rx, rec_sample(C, S, X, n, out)
 
 
@@ -688,10 +708,8 @@ def arq_send(
     unused: np.ndarray,
 ) -> None:
     # ArqEncoder._packet into Link.send; a delivered packet carries its attempt and send tick.
-    S[S_SENT] += 1.0
-    S[S_BYTES] += C[C_SIZE]
     before = S[S_COUNT]
-    link_send(C, S, U, B, ring, rec, seq, now, value, unused, False)
+    packet_send(C, S, U, B, ring, rec, seq, now, value, unused)
     if S[S_COUNT] > before:
         j = (int(S[S_HEAD]) + int(before)) & (ring.shape[0] - 1)
         ring[j, RING_ATTEMPT] = attempt
@@ -720,13 +738,10 @@ def arq_tick(
     dim = int(C[C_DIM])
     mask = X.shape[0] - 1
     # the ACKs due: ArqEncoder.feedback
-    adepth = aring.shape[0]
-    while aS[S_COUNT] > 0.0:
-        head = int(aS[S_HEAD])
-        if aring[head, 1] > now:
+    while True:
+        head = link_next(aS, aring, now)
+        if head < 0:
             break
-        aS[S_HEAD] = (head + 1) & (adepth - 1)
-        aS[S_COUNT] -= 1.0
         seq = int(aring[head, 0])
         j = seq & mask
         if X[j, X_PEND] == seq:
@@ -766,29 +781,18 @@ def arq_tick(
     X[j, X_LAST_NS] = now
     # Link.deliver, ArqDecoder.receive, its ACK into the ACK link
     rx = -1
-    depth = ring.shape[0]
-    while S[S_COUNT] > 0.0:
-        head = int(S[S_HEAD])
-        if ring[head, 1] > now:
+    while True:
+        head = link_next(S, ring, now)
+        if head < 0:
             break
-        S[S_HEAD] = (head + 1) & (depth - 1)
-        S[S_COUNT] -= 1.0
         seq = int(ring[head, 0])
-        attempt = ring[head, RING_ATTEMPT]
         S[S_RECEIVED] += 1.0
         for i in range(dim):
             W[W_VALUE + i] = ring[head, 2 + i]
-        late_before = S[S_LATE]
-        if not rec_add(C, S, X, W, seq, attempt == 0.0):
+        if not rec_add(C, S, X, W, seq, ring[head, RING_ATTEMPT] == 0.0):
             S[S_DUPLICATES] += 1.0
-        elif attempt > 0.0:
-            S[S_RECOVERED] += 1.0
-            if S[S_LATE] > late_before:
-                S[S_RECOVERED_LATE] += 1.0
         S[S_ACKS_SENT] += 1.0
-        if seq > S[S_NEWEST]:
-            S[S_NEWEST] = seq
-            rx = seq
+        rx = newest(S, seq, rx)
         S[S_ACK_PACKETS] += 1.0
         S[S_ACK_BYTES] += C[C_ACK_SIZE]
         link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False)
@@ -944,18 +948,13 @@ def hli_tick(
         link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
     # Link.deliver, HliDecoder.receive
     rx = -1
-    depth = ring.shape[0]
-    while S[S_COUNT] > 0.0:
-        head = int(S[S_HEAD])
-        if ring[head, 1] > now:
+    while True:
+        head = link_next(S, ring, now)
+        if head < 0:
             break
-        S[S_HEAD] = (head + 1) & (depth - 1)
-        S[S_COUNT] -= 1.0
         seq = int(ring[head, 0])
         S[S_RECEIVED] += 1.0
-        if S[S_NEWEST] < seq:
-            S[S_NEWEST] = seq
-            rx = seq
+        rx = newest(S, seq, rx)
         if S[S_CURH] != 0.0 and seq <= S[S_CUR]:
             S[S_DLATE] += 1.0
             continue
@@ -1000,7 +999,7 @@ def hli_tick(
 
 
 @inline  # type: ignore[misc]
-def codec_tick_x(
+def codec_tick(
     C: np.ndarray,
     S: np.ndarray,
     U: np.ndarray,
@@ -1016,14 +1015,15 @@ def codec_tick_x(
     rate: np.ndarray,
     out: np.ndarray,
 ) -> tuple[int, bool]:
-    # `codec_tick` for every compiled codec (those with a sample history: FEC, ARQ).
+    # CodecChannel.step of a direction, whatever its compiled kind (FEC, ARQ, HLI: X, W, A their
+    # history, scratch and ACK link).
     if C[C_KIND] == HLI:
         return hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
     if C[C_KIND] == ARQ:
         return arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, out)
     if C[C_KIND] == FEC:
         return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
-    return codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, out)
+    return deadband_prediction_tick(C, S, U, B, ring, rec, n, now, smp, rate, out)
 
 
 @loop_jit  # type: ignore[misc]
@@ -1091,7 +1091,7 @@ def run_ticks_codec(
         if fcodec:
             smp[0] = x_m
             smp[1] = v_m
-            frx, got = codec_tick_x(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, now, smp, rate, out)
+            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, now, smp, rate, out)
             if got:
                 accept2(P, S, out[0], out[1])
             focc = 0.0
@@ -1108,7 +1108,7 @@ def run_ticks_codec(
             smp[0] = f_env
             smp[1] = x_s
             smp[2] = v_s
-            brx, got = codec_tick_x(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, now, smp, rate, out)
+            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, now, smp, rate, out)
             if got:
                 accept3(P, S, out[0], out[1], out[2])
             bocc = 0.0
@@ -1138,39 +1138,12 @@ def codec_ticks(
     samples: np.ndarray,
     period_ns: int,
     scratch: np.ndarray,
-) -> int:
-    """One direction's codec stage alone over `samples` (a row a tick): what it costs a tick
-    (`bench codec`). Returns the ticks with a remote sample."""
-    smp = scratch[0]
-    rate = scratch[1]
-    out = scratch[2]
-    got_ticks = 0
-    for n in range(samples.shape[0]):
-        for i in range(samples.shape[1]):
-            smp[i] = samples[n, i]
-        _rx, got = codec_tick(C, S, U, B, ring, rec, n, n * period_ns, smp, rate, out)
-        if got:
-            got_ticks += 1
-    return got_ticks
-
-
-@loop_jit  # type: ignore[misc]
-def codec_ticks_x(
-    C: np.ndarray,
-    S: np.ndarray,
-    U: np.ndarray,
-    B: np.ndarray,
-    ring: np.ndarray,
-    rec: np.ndarray,
-    samples: np.ndarray,
-    period_ns: int,
-    scratch: np.ndarray,
     X: np.ndarray,
     W: np.ndarray,
     A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> int:
-    """`codec_ticks` for every compiled codec (the sample history X, scratch W and ACK link A of
-    `CodecNet.history`)."""
+    """One direction's codec stage alone over `samples` (a row a tick): what it costs a tick
+    (`bench codec`). X, W, A: `CodecNet.history`. Returns the ticks with a remote sample."""
     smp = scratch[0]
     rate = scratch[1]
     out = scratch[2]
@@ -1178,7 +1151,7 @@ def codec_ticks_x(
     for n in range(samples.shape[0]):
         for i in range(samples.shape[1]):
             smp[i] = samples[n, i]
-        _rx, got = codec_tick_x(C, S, U, B, ring, rec, X, W, A, n, n * period_ns, smp, rate, out)
+        _rx, got = codec_tick(C, S, U, B, ring, rec, X, W, A, n, n * period_ns, smp, rate, out)
         if got:
             got_ticks += 1
     return got_ticks
