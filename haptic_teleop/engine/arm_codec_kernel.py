@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from haptic_teleop.engine import codec_kernel as ck
+from haptic_teleop.engine import codec_layout as L
 from haptic_teleop.engine.arm_kernel import (
     V_QDM,
     V_QDS,
@@ -44,45 +45,35 @@ from haptic_teleop.engine.arm_kernel import (
     sense,
     side_torque,
 )
-from haptic_teleop.engine.codec_layout import (
-    ARM_AXES,
-    ARM_C_TRIG0,
-    ARM_S_LAST0,
-    ARM_S_OLD0,
-    ARM_S_PREV0,
-    ARM_S_RATE0,
-    ARM_S_SENT0,
-    C_DIM,
-    C_GAIN,
-    C_KIND,
-    C_MIN,
-    C_P0,
-    C_PERIOD_NS,
-    C_PMAX,
-    C_VEL,
-    NO_CODEC,
-)
 
 jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")
 
 # Where the vectors of a direction's state are in the arm layout (the 1-DoF names they replace).
 ARM_PLACES = {
-    "S_SENT0": ARM_S_SENT0,
-    "S_PREV0": ARM_S_PREV0,
-    "S_LAST0": ARM_S_LAST0,
-    "S_OLD0": ARM_S_OLD0,
-    "S_RATE0": ARM_S_RATE0,
+    "S_SENT0": L.ARM_S_SENT0,
+    "S_PREV0": L.ARM_S_PREV0,
+    "S_LAST0": L.ARM_S_LAST0,
+    "S_OLD0": L.ARM_S_OLD0,
+    "S_RATE0": L.ARM_S_RATE0,
 }
 
 
 def relaid(f: Any, places: dict[str, Any]) -> Any:
     """The inlined codec_kernel function `f` compiled from its own definition with the layout
-    constants (or inlined callees) `places` in place of its module's (its other globals, compiled
-    callees included, are its module's)."""
+    constants of `places` (ints: in place of codec_layout's, which `f` reads as `L.NAME`) and
+    the inlined callees of `places` (functions) in place of its module's (its other globals,
+    compiled callees included, are its module's)."""
     py = f.py_func
+    layout = pytypes.ModuleType(L.__name__ + "_relaid")
+    layout.__dict__.update(vars(L))
     glob = dict(py.__globals__)
-    glob.update(places)
+    for name, value in places.items():
+        if isinstance(value, int):
+            setattr(layout, name, value)
+        else:
+            glob[name] = value
+    glob["L"] = layout
     fn = pytypes.FunctionType(py.__code__, glob, py.__name__, py.__defaults__, py.__closure__)
     fn.__qualname__ = py.__qualname__
     fn.__module__ = py.__module__
@@ -93,23 +84,23 @@ def relaid(f: Any, places: dict[str, Any]) -> Any:
 def arm_deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
     # codec_kernel.deadband_triggered on 3-value groups (GroupedDeadbandEncoder: the distance and
     # the norm of a group summed in order as core/deadband.vector_norm; p(|v|) likewise).
-    p = C[C_P0]
-    if C[C_GAIN] > 0.0:
-        vel = int(C[C_VEL])
+    p = C[L.C_P0]
+    if C[L.C_GAIN] > 0.0:
+        vel = int(C[L.C_VEL])
         s2 = 0.0
-        for i in range(vel, vel + ARM_AXES):
+        for i in range(vel, vel + L.ARM_AXES):
             s2 += smp[i] * smp[i]
-        p = ck.deadband_p(C[C_P0], C[C_GAIN], C[C_PMAX], math.sqrt(s2))
-    for g in range(0, int(C[C_DIM]), ARM_AXES):
-        if C[ARM_C_TRIG0 + g] != 0.0:  # violates(last[g], sample[g], p, min_threshold)
+        p = ck.deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], math.sqrt(s2))
+    for g in range(0, int(C[L.C_DIM]), L.ARM_AXES):
+        if C[L.ARM_C_TRIG0 + g] != 0.0:  # violates(last[g], sample[g], p, min_threshold)
             d2 = 0.0
             l2 = 0.0
-            for i in range(g, g + ARM_AXES):
-                last = S[ARM_S_SENT0 + i]
+            for i in range(g, g + L.ARM_AXES):
+                last = S[L.ARM_S_SENT0 + i]
                 d = last - smp[i]
                 d2 += d * d
                 l2 += last * last
-            if ck.outside(math.sqrt(d2), math.sqrt(l2), p, C[C_MIN]):
+            if ck.outside(math.sqrt(d2), math.sqrt(l2), p, C[L.C_MIN]):
                 return True
     return False
 
@@ -190,9 +181,9 @@ def run_ticks_codec(
     fnet = (borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB), borrowed(fring), borrowed(frec))
     bnet = (borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB), borrowed(bring), borrowed(brec))
     smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
-    fcodec = fC[C_KIND] != NO_CODEC
-    bcodec = bC[C_KIND] != NO_CODEC
-    period_ns = int(fC[C_PERIOD_NS])
+    fcodec = fC[L.C_KIND] != L.NO_CODEC
+    bcodec = bC[L.C_KIND] != L.NO_CODEC
+    period_ns = int(fC[L.C_PERIOD_NS])
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
     for n in range(n0, n1):
