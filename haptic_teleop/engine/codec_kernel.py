@@ -23,7 +23,17 @@ from haptic_teleop.core import deadband as db
 from haptic_teleop.core import fec, hli_codec, loss
 from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine import codec_layout as L
-from haptic_teleop.engine.axis_kernel import MASTER, S_CONTACT, SLAVE, accept2, accept3, control, finish_tick
+from haptic_teleop.engine.axis_kernel import (
+    MASTER,
+    S_CONTACT,
+    SLAVE,
+    accept2,
+    accept3,
+    backward_released,
+    control,
+    finish_tick,
+    forward_released,
+)
 
 jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")  # as axis_kernel's tick parts
@@ -942,11 +952,7 @@ def run_ticks_codec(
                 accept2(P, S, out[0], out[1])
             focc = 0.0
         else:
-            fwd_hist[n & fmask, 0] = x_m
-            fwd_hist[n & fmask, 1] = v_m
-            frx = fwd_rel[n - w0]
-            if frx >= 0:
-                accept2(P, S, fwd_hist[frx & fmask, 0], fwd_hist[frx & fmask, 1])
+            frx = forward_released(P, S, n - w0, n & fmask, fmask, fwd_rel, fwd_hist, x_m, v_m)
             focc = fwd_occ[n - w0]
         # slave
         fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
@@ -959,12 +965,7 @@ def run_ticks_codec(
                 accept3(P, S, out[0], out[1], out[2])
             bocc = 0.0
         else:
-            bwd_hist[n & bmask, 0] = f_env
-            bwd_hist[n & bmask, 1] = x_s
-            bwd_hist[n & bmask, 2] = v_s
-            brx = bwd_rel[n - w0]
-            if brx >= 0:
-                accept3(P, S, bwd_hist[brx & bmask, 0], bwd_hist[brx & bmask, 1], bwd_hist[brx & bmask, 2])
+            brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
             bocc = bwd_occ[n - w0]
         finish_tick(
             n, models, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
