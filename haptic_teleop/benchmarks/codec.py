@@ -209,7 +209,7 @@ def arm_loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, floa
 
 
 def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, float]:
-    """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks_x:
+    """ns per tick of one direction's compiled codec stage alone (engine/codec_kernel.codec_ticks:
     encoder, link, decoder; the backward direction, 3 values a sample, the scene's link), least
     of `repeat` runs over the bench's smooth signal."""
     from haptic_teleop.engine import codec_kernel
@@ -235,7 +235,7 @@ def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, f
             net = CodecNet(ch, engine.period_ns)  # reads the channel's settings; a fresh state
             net.ready(samples)
             t0 = time.process_time()
-            codec_kernel.codec_ticks_x(*net.args(), signal, engine.period_ns, np.zeros((3, 3)), *net.history())
+            codec_kernel.codec_ticks(*net.args(), signal, engine.period_ns, np.zeros((3, 3)), *net.history())
             best = min(best, time.process_time() - t0)
         out[name] = best / samples * 1e9
         engine.master.close()

@@ -4,13 +4,12 @@ load it (docs/codec.md, "Compiled", "Arm scenes").
 
 The tick is `arm_kernel.run_ticks`'s, from the same inlined parts (`sense`, `side_torque`,
 `forward_sample`, `backward_sample`, `released`, `guarded`, `finish_tick`); a direction with a
-codec replaces its schedule lookup by `arm_codec_tick`, which is `CodecChannel.step` for an arm scene's sample
-(codec_channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the grouped
-deadband's encoder on 3-value groups (`GroupedDeadbandEncoder`: the distance and the norm of a
-group summed in order as core/deadband.vector_norm), or prediction's; the link and the decoders
-are the 1-DoF codec kernel's own functions (engine/codec_kernel.py), compiled from their one
-definition with the arm layout's places of the vectors (`relaid`: codec_layout's ARM_S_* instead
-of S_SENT0, S_LAST0, ...). The decoded sample goes through the receiving side's guard every tick
+codec replaces its schedule lookup by `arm_codec_tick`, which is `CodecChannel.step` for an arm
+scene's sample (codec_channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the
+1-DoF codec kernel's `deadband_prediction_tick` (engine/codec_kernel.py) and its encoder, link
+and decoders, compiled from their one definition with the arm layout's places of the vectors
+(`relaid`: codec_layout's ARM_S_* instead of S_SENT0, S_LAST0, ...) and the grouped deadband's
+test on 3-value groups (`arm_deadband_triggered`). The decoded sample goes through the receiving side's guard every tick
 the decoder gives one, as in the Python arm loop.
 """
 
@@ -24,6 +23,7 @@ import numba
 import numpy as np
 
 from haptic_teleop.engine import codec_kernel as ck
+from haptic_teleop.engine import codec_layout as L
 from haptic_teleop.engine.arm_kernel import (
     V_QDM,
     V_QDS,
@@ -45,161 +45,79 @@ from haptic_teleop.engine.arm_kernel import (
     sense,
     side_torque,
 )
-from haptic_teleop.engine.codec_layout import (
-    ARM_AXES,
-    ARM_C_TRIG0,
-    ARM_S_LAST0,
-    ARM_S_OLD0,
-    ARM_S_PREV0,
-    ARM_S_RATE0,
-    ARM_S_SENT0,
-    C_DIM,
-    C_GAIN,
-    C_KIND,
-    C_MIN,
-    C_P0,
-    C_PERIOD_NS,
-    C_PMAX,
-    C_SENDS_RATE,
-    C_SIZE,
-    C_VEL,
-    DEADBAND,
-    NO_CODEC,
-    S_BYTES,
-    S_COUNT,
-    S_FILTERED,
-    S_HAS_PREV,
-    S_HAS_SENT,
-    S_HEAD,
-    S_NEWEST,
-    S_OFFERED,
-    S_PREV_NS,
-    S_SENT,
-)
 
 jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")
 
 # Where the vectors of a direction's state are in the arm layout (the 1-DoF names they replace).
 ARM_PLACES = {
-    "S_SENT0": ARM_S_SENT0,
-    "S_PREV0": ARM_S_PREV0,
-    "S_LAST0": ARM_S_LAST0,
-    "S_OLD0": ARM_S_OLD0,
-    "S_RATE0": ARM_S_RATE0,
+    "S_SENT0": L.ARM_S_SENT0,
+    "S_PREV0": L.ARM_S_PREV0,
+    "S_LAST0": L.ARM_S_LAST0,
+    "S_OLD0": L.ARM_S_OLD0,
+    "S_RATE0": L.ARM_S_RATE0,
 }
 
 
-def relaid(f: Any, places: dict[str, int]) -> Any:
+def relaid(f: Any, places: dict[str, Any]) -> Any:
     """The inlined codec_kernel function `f` compiled from its own definition with the layout
-    constants `places` in place of the 1-DoF ones (its other globals, compiled callees included,
-    are its module's)."""
+    constants of `places` (ints: in place of codec_layout's, which `f` reads as `L.NAME`) and
+    the inlined callees of `places` (functions) in place of its module's (its other globals,
+    compiled callees included, are its module's)."""
     py = f.py_func
+    layout = pytypes.ModuleType(L.__name__ + "_relaid")
+    layout.__dict__.update(vars(L))
     glob = dict(py.__globals__)
-    glob.update(places)
+    for name, value in places.items():
+        if isinstance(value, int):
+            setattr(layout, name, value)
+        else:
+            glob[name] = value
+    glob["L"] = layout
     fn = pytypes.FunctionType(py.__code__, glob, py.__name__, py.__defaults__, py.__closure__)
     fn.__qualname__ = py.__qualname__
     fn.__module__ = py.__module__
     return numba.njit(nogil=True, inline="always")(fn)
 
 
-link_send = ck.link_send  # scalars of the state only: the same in both layouts
-deadband_receive = relaid(ck.deadband_receive, ARM_PLACES)
-deadband_sample = relaid(ck.deadband_sample, ARM_PLACES)
-prediction_receive = relaid(ck.prediction_receive, ARM_PLACES)
-prediction_sample = relaid(ck.prediction_sample, ARM_PLACES)
-deadband_p = ck.deadband_p
-outside = ck.outside
-
-
 @inline  # type: ignore[misc]
-def arm_codec_tick(
-    C: np.ndarray,
-    S: np.ndarray,
-    U: np.ndarray,
-    B: np.ndarray,
-    ring: np.ndarray,
-    rec: np.ndarray,
-    n: int,
-    now: int,
-    smp: np.ndarray,
-    rate: np.ndarray,
-    out: np.ndarray,
-) -> tuple[int, bool]:
-    # CodecChannel.step of an arm scene's direction: encode, send, deliver, decode. Returns (the
-    # `received` column's seq or -1, whether `out` holds the tick's remote sample).
-    dim = int(C[C_DIM])
-    deadband = C[C_KIND] == DEADBAND
-    if deadband:  # GroupedDeadbandEncoder.send, 3-value groups
-        sends_rate = C[C_SENDS_RATE] != 0.0
-        if sends_rate:
-            if S[S_HAS_PREV] == 0.0 or now <= S[S_PREV_NS]:
-                for i in range(dim):
-                    rate[i] = 0.0
-            else:
-                dt = (now - int(S[S_PREV_NS])) * 1e-9
-                for i in range(dim):
-                    rate[i] = (smp[i] - S[ARM_S_PREV0 + i]) / dt
-        for i in range(dim):
-            S[ARM_S_PREV0 + i] = smp[i]
-        S[S_HAS_PREV] = 1.0
-        S[S_PREV_NS] = now
-        S[S_OFFERED] += 1.0
-        send = True
-        if S[S_HAS_SENT] != 0.0:
-            p = C[C_P0]
-            if C[C_GAIN] > 0.0:  # p(|v|), |v| as core/deadband.vector_norm
-                vel = int(C[C_VEL])
-                s2 = 0.0
-                for i in range(vel, vel + ARM_AXES):
-                    s2 += smp[i] * smp[i]
-                p = deadband_p(C[C_P0], C[C_GAIN], C[C_PMAX], math.sqrt(s2))
-            send = False
-            for g in range(0, dim, ARM_AXES):
-                if C[ARM_C_TRIG0 + g] != 0.0:  # violates(last[g], sample[g], p, min_threshold)
-                    d2 = 0.0
-                    l2 = 0.0
-                    for i in range(g, g + ARM_AXES):
-                        last = S[ARM_S_SENT0 + i]
-                        d = last - smp[i]
-                        d2 += d * d
-                        l2 += last * last
-                    if outside(math.sqrt(d2), math.sqrt(l2), p, C[C_MIN]):
-                        send = True
-                        break
-            if not send:
-                S[S_FILTERED] += 1.0
-        if send:
-            for i in range(dim):
-                S[ARM_S_SENT0 + i] = smp[i]
-            S[S_HAS_SENT] = 1.0
-            S[S_SENT] += 1.0
-            link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate)
-    else:  # PredictionEncoder.send
-        S[S_OFFERED] += 1.0
-        S[S_SENT] += 1.0
-        S[S_BYTES] += C[C_SIZE]
-        link_send(C, S, U, B, ring, rec, n, now, smp, rate, False)
-    # Link.deliver, Decoder.receive
-    rx = -1
-    depth = ring.shape[0]
-    while S[S_COUNT] > 0.0:
-        head = int(S[S_HEAD])
-        if ring[head, 1] > now:
-            break
-        S[S_HEAD] = (head + 1) & (depth - 1)
-        S[S_COUNT] -= 1.0
-        seq = int(ring[head, 0])
-        if deadband:
-            deadband_receive(C, S, seq, ring, head)
-        else:
-            prediction_receive(C, S, seq, ring, head)
-        if seq > S[S_NEWEST]:
-            S[S_NEWEST] = seq
-            rx = seq
-    if deadband:
-        return rx, deadband_sample(C, S, n, out)
-    return rx, prediction_sample(C, S, n, out)
+def arm_deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
+    # codec_kernel.deadband_triggered on 3-value groups (GroupedDeadbandEncoder: the distance and
+    # the norm of a group summed in order as core/deadband.vector_norm; p(|v|) likewise).
+    p = C[L.C_P0]
+    if C[L.C_GAIN] > 0.0:
+        vel = int(C[L.C_VEL])
+        s2 = 0.0
+        for i in range(vel, vel + L.ARM_AXES):
+            s2 += smp[i] * smp[i]
+        p = ck.deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], math.sqrt(s2))
+    for g in range(0, int(C[L.C_DIM]), L.ARM_AXES):
+        if C[L.ARM_C_TRIG0 + g] != 0.0:  # violates(last[g], sample[g], p, min_threshold)
+            d2 = 0.0
+            l2 = 0.0
+            for i in range(g, g + L.ARM_AXES):
+                last = S[L.ARM_S_SENT0 + i]
+                d = last - smp[i]
+                d2 += d * d
+                l2 += last * last
+            if ck.outside(math.sqrt(d2), math.sqrt(l2), p, C[L.C_MIN]):
+                return True
+    return False
+
+
+# CodecChannel.step of an arm scene's direction: codec_kernel's deadband/prediction tick with the
+# arm layout's places and the group trigger (link_send uses scalars of the state only: the same).
+arm_codec_tick = relaid(
+    ck.deadband_prediction_tick,
+    {
+        **ARM_PLACES,
+        "deadband_triggered": arm_deadband_triggered,
+        "deadband_receive": relaid(ck.deadband_receive, ARM_PLACES),
+        "deadband_sample": relaid(ck.deadband_sample, ARM_PLACES),
+        "prediction_receive": relaid(ck.prediction_receive, ARM_PLACES),
+        "prediction_sample": relaid(ck.prediction_sample, ARM_PLACES),
+    },
+)
 
 
 @inline  # type: ignore[misc]
@@ -263,9 +181,9 @@ def run_ticks_codec(
     fnet = (borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB), borrowed(fring), borrowed(frec))
     bnet = (borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB), borrowed(bring), borrowed(brec))
     smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
-    fcodec = fC[C_KIND] != NO_CODEC
-    bcodec = bC[C_KIND] != NO_CODEC
-    period_ns = int(fC[C_PERIOD_NS])
+    fcodec = fC[L.C_KIND] != L.NO_CODEC
+    bcodec = bC[L.C_KIND] != L.NO_CODEC
+    period_ns = int(fC[L.C_PERIOD_NS])
     fmask = fwd_hist.shape[0] - 1
     bmask = bwd_hist.shape[0] - 1
     for n in range(n0, n1):

@@ -251,6 +251,35 @@ def finish_tick(
     row[C_BWD_OCCUPANCY] = bocc
 
 
+@inline  # type: ignore[misc]
+def forward_released(
+    P: np.ndarray, S: np.ndarray, w: int, j: int, mask: int, rel: np.ndarray, hist: np.ndarray, x_m: float, v_m: float
+) -> int:
+    # The forward direction on its schedule: the master's sample into the sender's ring (row j),
+    # the packet the window's row w releases (if any) to the slave. Returns its seq or -1.
+    hist[j, 0] = x_m
+    hist[j, 1] = v_m
+    rx = rel[w]
+    if rx >= 0:
+        accept2(P, S, hist[rx & mask, 0], hist[rx & mask, 1])
+    return rx
+
+
+@inline  # type: ignore[misc]
+def backward_released(
+    P: np.ndarray, S: np.ndarray, w: int, j: int, mask: int, rel: np.ndarray, hist: np.ndarray,
+    f_env: float, x_s: float, v_s: float,
+) -> int:  # fmt: skip
+    # `forward_released` of the backward direction (the slave's contact force, x, v).
+    hist[j, 0] = f_env
+    hist[j, 1] = x_s
+    hist[j, 2] = v_s
+    rx = rel[w]
+    if rx >= 0:
+        accept3(P, S, hist[rx & mask, 0], hist[rx & mask, 1], hist[rx & mask, 2])
+    return rx
+
+
 @loop_jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
@@ -287,19 +316,10 @@ def run_ticks(
         f_env = S[SLAVE + S_CONTACT]
         # master
         fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
-        fwd_hist[n & fmask, 0] = x_m
-        fwd_hist[n & fmask, 1] = v_m
-        frx = fwd_rel[n - w0]
-        if frx >= 0:
-            accept2(P, S, fwd_hist[frx & fmask, 0], fwd_hist[frx & fmask, 1])
+        frx = forward_released(P, S, n - w0, n & fmask, fmask, fwd_rel, fwd_hist, x_m, v_m)
         # slave
         fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
-        bwd_hist[n & bmask, 0] = f_env
-        bwd_hist[n & bmask, 1] = x_s
-        bwd_hist[n & bmask, 2] = v_s
-        brx = bwd_rel[n - w0]
-        if brx >= 0:
-            accept3(P, S, bwd_hist[brx & bmask, 0], bwd_hist[brx & bmask, 1], bwd_hist[brx & bmask, 2])
+        brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
         # operator, plants, the row
         finish_tick(
             n, models, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,

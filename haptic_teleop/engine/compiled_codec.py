@@ -37,117 +37,14 @@ from haptic_teleop.core.hli import HLI1, HLI2
 from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
+from haptic_teleop.engine import codec_layout as L
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
-from haptic_teleop.engine.codec_layout import (
-    ARQ,
-    C_ACK_SIZE,
-    C_DELAY_NS,
-    C_DIM,
-    C_EXTRAP,
-    C_GAIN,
-    C_HBITS1,
-    C_HBITS2,
-    C_HBUDGET,
-    C_HDELAY,
-    C_HLINEAR,
-    C_HN,
-    C_HSIZE1,
-    C_HSIZE2,
-    C_HTHRESH,
-    C_HWARMUP,
-    C_HWIN,
-    C_K,
-    C_KEEP,
-    C_KIND,
-    C_LBAD,
-    C_LGOOD,
-    C_LOSS,
-    C_LP,
-    C_LR,
-    C_MAX_AHEAD,
-    C_MAX_TICKS,
-    C_MIN,
-    C_NU,
-    C_P0,
-    C_PARITY,
-    C_PERIOD_NS,
-    C_PMAX,
-    C_SENDS_RATE,
-    C_SIZE,
-    C_SIZE_X,
-    C_TIMEOUT_NS,
-    C_TRIG0,
-    C_VEL,
-    C_WAIT,
-    COMPILED_KINDS,
-    DEADBAND,
-    FEC,
-    H_BTAG,
-    H_NONE,
-    H_RTAG,
-    H_WIDTH,
-    HLI,
-    LOSS_BERNOULLI,
-    LOSS_GILBERT,
-    LOSS_NONE,
-    PREDICTION,
-    RING_SENT,
-    RING_WIDTH,
-    S_ACK_BYTES,
-    S_ACK_PACKETS,
-    S_ACKED,
-    S_ACKS_SENT,
-    S_ACKS_STALE,
-    S_BAD,
-    S_BYTES,
-    S_COUNT,
-    S_DLATE,
-    S_DPREDICTED,
-    S_DROP_BLACKOUT,
-    S_DROP_LOSS,
-    S_DUPLICATES,
-    S_ESINCE,
-    S_EXTRAPOLATED,
-    S_FILT0,
-    S_FILT1,
-    S_FILTERED,
-    S_GAVE_UP,
-    S_HEAD,
-    S_HLI0,
-    S_HLI1,
-    S_HLI2,
-    S_LAST_CLASS,
-    S_LATE,
-    S_LINK_LOST,
-    S_LINK_SENT,
-    S_NEWEST,
-    S_OFFERED,
-    S_OVER,
-    S_PLAYED,
-    S_PREDICTED,
-    S_REBUILT,
-    S_RECEIVED,
-    S_RECOVERED,
-    S_RECOVERED_LATE,
-    S_RECS,
-    S_RETRANSMITTED,
-    S_SENT,
-    S_SIZE_X,
-    S_STALE,
-    S_U,
-    S_U_END,
-    S_WIRE_BITS,
-    W_STACK,
-    X_HELD,
-    X_SUM_SEQ,
-    X_WIDTH,
-)
 
 _BLOCK = 4096  # random numbers drawn per refill
 ARQ_MAX_SPAN_S = 2.0  # how long ARQ may keep a sample pending in the compiled loop (array sizes)
 
 
-def codec_reason(ch: CodecChannel, kinds: tuple[str, ...] = COMPILED_KINDS) -> str | None:
+def codec_reason(ch: CodecChannel, kinds: tuple[str, ...] = L.COMPILED_KINDS) -> str | None:
     """Why the compiled loop cannot run codec direction `ch` (None: it can); `kinds`: the codecs
     that loop compiles (the arm loop's: codec_layout.ARM_COMPILED_KINDS)."""
     if ch.kind not in kinds:
@@ -199,7 +96,7 @@ class LinkArrays:
     C: np.ndarray
     S: np.ndarray
     per_tick = 1
-    _ring_width = RING_WIDTH  # an arm scene's directions: wider (compiled_arm_loop.ArmCodecNet)
+    _ring_width = L.RING_WIDTH  # an arm scene's directions: wider (compiled_arm_loop.ArmCodecNet)
 
     def _load(self, link: Link, C: np.ndarray, S: np.ndarray, period_ns: int, per_tick: int = 0) -> None:
         if per_tick:
@@ -217,18 +114,18 @@ class LinkArrays:
                 windows = list(zip(e._starts, e._ends, strict=True))
             elif type(e) is BernoulliLoss:
                 self._loss = e
-                C[C_LOSS], C[C_LP] = LOSS_BERNOULLI, e.probability
+                C[L.C_LOSS], C[L.C_LP] = L.LOSS_BERNOULLI, e.probability
             elif type(e) is GilbertElliottLoss:
                 self._loss = e
-                C[C_LOSS] = LOSS_GILBERT
-                C[C_LP], C[C_LR], C[C_LBAD], C[C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
-        C[C_DELAY_NS] = delay_ns
+                C[L.C_LOSS] = L.LOSS_GILBERT
+                C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
+        C[L.C_DELAY_NS] = delay_ns
         self.C = C
         self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
-        self._draws_per_packet = {LOSS_NONE: 0, LOSS_BERNOULLI: 1, LOSS_GILBERT: 2}[C[C_LOSS]]
+        self._draws_per_packet = {L.LOSS_NONE: 0, L.LOSS_BERNOULLI: 1, L.LOSS_GILBERT: 2}[C[L.C_LOSS]]
         self._rng = None if self._loss is None else _uniform_rng(self._loss)
         if type(self._loss) is GilbertElliottLoss:
-            S[S_BAD] = 1.0 if self._loss.bad else 0.0
+            S[L.S_BAD] = 1.0 if self._loss.bad else 0.0
         self.S = S
         self.U = np.zeros(0)
         depth = 4
@@ -243,13 +140,13 @@ class LinkArrays:
         packets a tick."""
         S = self.S
         need = ticks * self.per_tick * self._draws_per_packet
-        u, end = int(S[S_U]), int(S[S_U_END])
+        u, end = int(S[L.S_U]), int(S[L.S_U_END])
         if need and end - u < need:
             assert self._rng is not None
             fresh = self._rng.random(max(_BLOCK, need if self.per_tick == 1 else 4 * need))
             self.U = np.concatenate((self.U[u:end], fresh))
-            S[S_U], S[S_U_END] = 0.0, float(len(self.U))
-        recs, rows = int(S[S_RECS]), ticks * self.per_tick
+            S[L.S_U], S[L.S_U_END] = 0.0, float(len(self.U))
+        recs, rows = int(S[L.S_RECS]), ticks * self.per_tick
         if len(self.records) - recs < rows:
             grown = np.zeros((2 * (recs + rows), 6))
             grown[:recs] = self.records[:recs]
@@ -259,17 +156,75 @@ class LinkArrays:
         """The link's and its effects' counts and the Gilbert state, as the kernel left them."""
         S = self.S
         link = self.link
-        link.sent, link.lost = int(S[S_LINK_SENT]), int(S[S_LINK_LOST])
+        link.sent, link.lost = int(S[L.S_LINK_SENT]), int(S[L.S_LINK_LOST])
         if self._blackout is not None:
-            self._blackout.dropped = int(S[S_DROP_BLACKOUT])
+            self._blackout.dropped = int(S[L.S_DROP_BLACKOUT])
         if self._loss is not None:
-            self._loss.dropped = int(S[S_DROP_LOSS])
+            self._loss.dropped = int(S[L.S_DROP_LOSS])
             if type(self._loss) is GilbertElliottLoss:
-                self._loss.bad = bool(S[S_BAD])
+                self._loss.bad = bool(S[L.S_BAD])
 
     def args(self) -> tuple[np.ndarray, ...]:
         """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
         return self.C, self.S, self.U, self.blackouts, self.ring, self.records
+
+
+# The encoder's and the decoder's counters of each compiled kind: where the kernel keeps them in S
+# (`CodecNet.store` writes them back).
+STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
+    "deadband": (
+        {"offered": L.S_OFFERED, "sent": L.S_SENT, "filtered": L.S_FILTERED},
+        {"received": L.S_RECEIVED, "stale": L.S_STALE, "extrapolated": L.S_EXTRAPOLATED},
+    ),
+    "prediction": ({"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES}, {"received": L.S_RECEIVED}),
+    "hli": (
+        {
+            "samples": L.S_OFFERED,
+            "sent": L.S_SENT,
+            "hli0": L.S_HLI0,
+            "hli1": L.S_HLI1,
+            "hli2": L.S_HLI2,
+            "filtered_hli0": L.S_FILT0,
+            "filtered_hli1": L.S_FILT1,
+            "wire_bits": L.S_WIRE_BITS,
+            "over_budget": L.S_OVER,
+        },
+        {
+            "received": L.S_RECEIVED,
+            "rebuilt": L.S_REBUILT,
+            "predicted": L.S_DPREDICTED,
+            "played_received": L.S_PLAYED,
+            "late": L.S_DLATE,
+        },
+    ),
+    "arq": (
+        {
+            "samples": L.S_OFFERED,
+            "sent": L.S_SENT,
+            "retransmitted": L.S_RETRANSMITTED,
+            "acked": L.S_ACKED,
+            "acks_stale": L.S_ACKS_STALE,
+            "gave_up": L.S_GAVE_UP,
+            "bytes": L.S_BYTES,
+        },
+        {
+            "received": L.S_RECEIVED,
+            "duplicates": L.S_DUPLICATES,
+            "acks_sent": L.S_ACKS_SENT,
+            "recovered": L.S_RECOVERED,
+            "recovered_late": L.S_RECOVERED_LATE,
+        },
+    ),
+    "fec": (
+        {"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES},
+        {
+            "received": L.S_RECEIVED,
+            "duplicates": L.S_DUPLICATES,
+            "recovered": L.S_RECOVERED,
+            "recovered_late": L.S_RECOVERED_LATE,
+        },
+    ),
+}
 
 
 class CodecNet(LinkArrays):
@@ -278,74 +233,74 @@ class CodecNet(LinkArrays):
 
     # The arrays' sizes, where the trigger flags start, the in-flight ring's width (an arm
     # scene's directions: compiled_arm_loop.ArmCodecNet, codec_layout's ARM_* layout).
-    _c_size, _trig0, _s_size, _ring_width = C_SIZE_X, C_TRIG0, S_SIZE_X, RING_WIDTH
+    _c_size, _trig0, _s_size, _ring_width = L.C_SIZE_X, L.C_TRIG0, L.S_SIZE_X, L.RING_WIDTH
 
     def __init__(self, ch: CodecChannel, period_ns: int) -> None:
         self.ch = ch
         self.period_ns = period_ns
         C = np.zeros(self._c_size)
-        C[C_DIM] = ch.dim
-        C[C_PERIOD_NS] = period_ns
+        C[L.C_DIM] = ch.dim
+        C[L.C_PERIOD_NS] = period_ns
         enc, dec = ch.encoder, ch.decoder
         if ch.kind == "deadband":
             assert type(enc) is GroupedDeadbandEncoder
             cfg = enc.cfg
-            C[C_KIND] = DEADBAND
-            C[C_SIZE] = enc.size_bytes
-            C[C_P0], C[C_MIN], C[C_GAIN], C[C_PMAX] = (
+            C[L.C_KIND] = L.DEADBAND
+            C[L.C_SIZE] = enc.size_bytes
+            C[L.C_P0], C[L.C_MIN], C[L.C_GAIN], C[L.C_PMAX] = (
                 cfg.deadband,
                 cfg.min_threshold,
                 cfg.adaptive_gain,
                 cfg.max_deadband,
             )
-            C[C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
-            C[C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
-            C[C_MAX_AHEAD] = dec._max_ahead_ticks
-            C[C_VEL] = enc.velocity.start
+            C[L.C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
+            C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
+            C[L.C_MAX_AHEAD] = dec._max_ahead_ticks
+            C[L.C_VEL] = enc.velocity.start
             for g in enc.triggers:
                 for i in range(g.start, g.stop):
                     C[self._trig0 + i] = 1.0
         elif ch.kind == "hli":
-            C[C_KIND] = HLI
-            C[C_HN], C[C_HLINEAR], C[C_HWARMUP] = enc.n_hli1, 1.0 if enc._linear else 0.0, enc._warmup
-            C[C_HTHRESH], C[C_HWIN], C[C_HBUDGET] = enc.cfg.threshold_m, enc._window_ticks, enc._budget_bits
-            C[C_HBITS1], C[C_HBITS2] = enc._packet_bits(HLI1), enc._packet_bits(HLI2)
-            C[C_HSIZE1], C[C_HSIZE2] = hli_message_bytes(ch.dim, HLI1), hli_message_bytes(ch.dim, HLI2)
-            C[C_HDELAY] = dec.delay_ticks
+            C[L.C_KIND] = L.HLI
+            C[L.C_HN], C[L.C_HLINEAR], C[L.C_HWARMUP] = enc.n_hli1, 1.0 if enc._linear else 0.0, enc._warmup
+            C[L.C_HTHRESH], C[L.C_HWIN], C[L.C_HBUDGET] = enc.cfg.threshold_m, enc._window_ticks, enc._budget_bits
+            C[L.C_HBITS1], C[L.C_HBITS2] = enc._packet_bits(HLI1), enc._packet_bits(HLI2)
+            C[L.C_HSIZE1], C[L.C_HSIZE2] = hli_message_bytes(ch.dim, HLI1), hli_message_bytes(ch.dim, HLI2)
+            C[L.C_HDELAY] = dec.delay_ticks
         else:
             fec, arq = ch.kind == "fec", ch.kind == "arq"
-            C[C_KIND] = FEC if fec else ARQ if arq else PREDICTION
+            C[L.C_KIND] = L.FEC if fec else L.ARQ if arq else L.PREDICTION
             floats = payload_floats(enc.scheme, enc.k, ch.dim) if fec else ch.dim + 1 if arq else ch.dim
-            C[C_SIZE] = enc._size_of(floats)
+            C[L.C_SIZE] = enc._size_of(floats)
             rec = dec.rec
-            C[C_EXTRAP] = 1.0 if rec.extrapolates else 0.0
-            C[C_KEEP] = rec.keep_ticks
-            C[C_MAX_TICKS] = rec.max_extrapolation_ticks
-            C[C_WAIT] = rec.wait_ticks
+            C[L.C_EXTRAP] = 1.0 if rec.extrapolates else 0.0
+            C[L.C_KEEP] = rec.keep_ticks
+            C[L.C_MAX_TICKS] = rec.max_extrapolation_ticks
+            C[L.C_WAIT] = rec.wait_ticks
             if fec:
-                C[C_PARITY] = 1.0 if enc.scheme == "parity" else 0.0
-                C[C_K] = enc.k
+                C[L.C_PARITY] = 1.0 if enc.scheme == "parity" else 0.0
+                C[L.C_K] = enc.k
             if arq:
-                C[C_TIMEOUT_NS], C[C_NU], C[C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
+                C[L.C_TIMEOUT_NS], C[L.C_NU], C[L.C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
         # Packets a tick at most: one, and with ARQ nu retransmissions: a sample is due every
         # m = ceil(mu / period) ticks after it was sent, so at tick n only n - j m (j = 1 .. nu)
         # can go out again (n - (nu + 1) m is given up). A sample is pending for at most `span`.
         self.span = 0
         self.per_tick = 1
         if ch.kind == "arq":
-            self.span = (int(C[C_NU]) + 1) * -(-int(C[C_TIMEOUT_NS]) // period_ns) + 2
-            self.per_tick = 1 + int(C[C_NU])
+            self.span = (int(C[L.C_NU]) + 1) * -(-int(C[L.C_TIMEOUT_NS]) // period_ns) + 2
+            self.per_tick = 1 + int(C[L.C_NU])
         S = np.zeros(self._s_size)
-        S[S_NEWEST] = -1.0
+        S[L.S_NEWEST] = -1.0
         self._load(ch.link, C, S, period_ns)
         self.ack: LinkArrays | None = None
         if ch.kind == "arq":
             assert ch.ack_link is not None
-            aC = np.zeros(C_SIZE_X)
-            aC[C_PERIOD_NS] = period_ns
-            aC[C_SIZE] = C[C_ACK_SIZE]
+            aC = np.zeros(L.C_SIZE_X)
+            aC[L.C_PERIOD_NS] = period_ns
+            aC[L.C_SIZE] = C[L.C_ACK_SIZE]
             self.ack = LinkArrays()
-            self.ack._load(ch.ack_link, aC, np.zeros(S_SIZE_X), period_ns, self.per_tick)
+            self.ack._load(ch.ack_link, aC, np.zeros(L.S_SIZE_X), period_ns, self.per_tick)
         # The sample history (FEC, ARQ): the decoder's held samples reach keep_ticks back, the
         # sender's the packets in flight and k more (FEC; parity: and keep_ticks) or the pending
         # span (ARQ); the scratch's
@@ -353,35 +308,35 @@ class CodecNet(LinkArrays):
         self.X, self.W, _ = no_history()
         if ch.kind == "hli":
             # X: a packet's row until it is played (the link's delay and twice N_HLI1 at most)
-            N = int(C[C_HN])
+            N = int(C[L.C_HN])
             rows = 4
-            while rows < 2 * (C[C_DELAY_NS] // period_ns + 2 * (N + C[C_HDELAY]) + 8):
+            while rows < 2 * (C[L.C_DELAY_NS] // period_ns + 2 * (N + C[L.C_HDELAY]) + 8):
                 rows *= 2
-            self.X = np.zeros((rows, H_WIDTH))
-            self.X[:, H_RTAG] = H_NONE
-            self.X[:, H_BTAG] = H_NONE
-            self.W = np.zeros(2 * N + 2 + 2 * (int(C[C_HWIN]) + 1))
+            self.X = np.zeros((rows, L.H_WIDTH))
+            self.X[:, L.H_RTAG] = L.H_NONE
+            self.X[:, L.H_BTAG] = L.H_NONE
+            self.W = np.zeros(2 * N + 2 + 2 * (int(C[L.C_HWIN]) + 1))
             for k in range(1, N + 1):
                 self.W[k] = 1.0 if k in enc._may_filter else 0.0
             self.W[N + 1 : 2 * N + 2] = enc._fixed_after
-            S[S_ESINCE] = N + 1
+            S[L.S_ESINCE] = N + 1
         if ch.kind in ("fec", "arq"):
             rows = 4
             # (parity: a window is solved up to keep_ticks after its packet arrived)
-            sender = C[C_DELAY_NS] // period_ns + C[C_K] + 3 + (C[C_KEEP] if C[C_PARITY] else 0)
-            while rows < max(C[C_KEEP] + 2, sender, self.span + 2):
+            sender = C[L.C_DELAY_NS] // period_ns + C[L.C_K] + 3 + (C[L.C_KEEP] if C[L.C_PARITY] else 0)
+            while rows < max(C[L.C_KEEP] + 2, sender, self.span + 2):
                 rows *= 2
-            self.X = np.zeros((rows, X_WIDTH))
-            self.X[:, X_HELD] = -1.0
-            self.X[:, X_SUM_SEQ] = -1.0
-            self.W = np.zeros(W_STACK + 1 + int(C[C_K]) * (int(C[C_KEEP]) + 1))
+            self.X = np.zeros((rows, L.X_WIDTH))
+            self.X[:, L.X_HELD] = -1.0
+            self.X[:, L.X_SUM_SEQ] = -1.0
+            self.W = np.zeros(L.W_STACK + 1 + int(C[L.C_K]) * (int(C[L.C_KEEP]) + 1))
 
     def ready(self, ticks: int) -> None:
         """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets
         they may send (the ACK link's records are not kept)."""
         LinkArrays.ready(self, ticks)
         if self.ack is not None:
-            self.ack.S[S_RECS] = 0.0
+            self.ack.S[L.S_RECS] = 0.0
             self.ack.ready(ticks)
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
@@ -390,18 +345,18 @@ class CodecNet(LinkArrays):
         the ring keeps their send tick, the records their send time)."""
         S = self.S
         mark = sent
-        col = RING_SENT if self.C[C_KIND] == ARQ else 0
-        if not final and S[S_COUNT] > 0:
-            oldest = int(self.ring[int(S[S_HEAD]), col])
+        col = L.RING_SENT if self.C[L.C_KIND] == L.ARQ else 0
+        if not final and S[L.S_COUNT] > 0:
+            oldest = int(self.ring[int(S[L.S_HEAD]), col])
             mark = min(mark, oldest)
-        recs = int(S[S_RECS])
+        recs = int(S[L.S_RECS])
         # the records' send times are float(tick * period_ns) * 1e-9, as this mark's
-        k = int(np.searchsorted(self.records[:recs, 1], float(mark * int(self.C[C_PERIOD_NS])) * 1e-9))
+        k = int(np.searchsorted(self.records[:recs, 1], float(mark * int(self.C[L.C_PERIOD_NS])) * 1e-9))
         if k == 0:
             return None
         rows = self.records[:k].copy()
         self.records[: recs - k] = self.records[k:recs]
-        S[S_RECS] = recs - k
+        S[L.S_RECS] = recs - k
         return rows
 
     def store(self) -> None:
@@ -409,64 +364,21 @@ class CodecNet(LinkArrays):
         codec's counters; the link's and its effects' counts and the Gilbert state follow too)."""
         S, ch = self.S, self.ch
         enc, dec = ch.encoder, ch.decoder
-        if ch.kind == "deadband":
-            enc.counters.update(offered=int(S[S_OFFERED]), sent=int(S[S_SENT]), filtered=int(S[S_FILTERED]))
-            dec.counters.update(received=int(S[S_RECEIVED]), stale=int(S[S_STALE]), extrapolated=int(S[S_EXTRAPOLATED]))
-        elif ch.kind == "prediction":
-            enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
-            dec.counters.update(received=int(S[S_RECEIVED]), duplicates=0)
-            dec.rec.predicted = int(S[S_PREDICTED])
+        enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
+        enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
+        dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
+        if ch.kind == "prediction":
+            dec.counters["duplicates"] = 0
+            dec.rec.predicted = int(S[L.S_PREDICTED])
         elif ch.kind == "hli":
-            enc.counters.update(
-                samples=int(S[S_OFFERED]),
-                sent=int(S[S_SENT]),
-                hli0=int(S[S_HLI0]),
-                hli1=int(S[S_HLI1]),
-                hli2=int(S[S_HLI2]),
-                filtered_hli0=int(S[S_FILT0]),
-                filtered_hli1=int(S[S_FILT1]),
-                wire_bits=int(S[S_WIRE_BITS]),
-                over_budget=int(S[S_OVER]),
-            )
-            enc.last_class = int(S[S_LAST_CLASS])
-            dec.counters.update(
-                received=int(S[S_RECEIVED]),
-                rebuilt=int(S[S_REBUILT]),
-                predicted=int(S[S_DPREDICTED]),
-                played_received=int(S[S_PLAYED]),
-                late=int(S[S_DLATE]),
-            )
-        elif ch.kind == "arq":
-            enc.counters.update(
-                samples=int(S[S_OFFERED]),
-                sent=int(S[S_SENT]),
-                retransmitted=int(S[S_RETRANSMITTED]),
-                acked=int(S[S_ACKED]),
-                acks_stale=int(S[S_ACKS_STALE]),
-                gave_up=int(S[S_GAVE_UP]),
-                bytes=int(S[S_BYTES]),
-            )
-            dec.counters.update(
-                received=int(S[S_RECEIVED]),
-                duplicates=int(S[S_DUPLICATES]),
-                acks_sent=int(S[S_ACKS_SENT]),
-                recovered=int(S[S_RECOVERED]),
-                recovered_late=int(S[S_RECOVERED_LATE]),
-            )
-            dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
-            ch.ack_packets, ch.ack_bytes = int(S[S_ACK_PACKETS]), int(S[S_ACK_BYTES])
+            enc.last_class = int(S[L.S_LAST_CLASS])
+        elif ch.kind in ("arq", "fec"):  # (fec's recovered_log, for a reader of the decoder alone, stays empty)
+            dec.rec.predicted, dec.rec.late = int(S[L.S_PREDICTED]), int(S[L.S_LATE])
+        if ch.kind == "arq":
+            ch.ack_packets, ch.ack_bytes = int(S[L.S_ACK_PACKETS]), int(S[L.S_ACK_BYTES])
             assert self.ack is not None
             self.ack.store_link()
-        else:  # fec (its recovered_log, for a reader of the decoder alone, stays empty)
-            enc.counters.update(samples=int(S[S_OFFERED]), sent=int(S[S_SENT]), bytes=int(S[S_BYTES]))
-            dec.counters.update(
-                received=int(S[S_RECEIVED]),
-                duplicates=int(S[S_DUPLICATES]),
-                recovered=int(S[S_RECOVERED]),
-                recovered_late=int(S[S_RECOVERED_LATE]),
-            )
-            dec.rec.predicted, dec.rec.late = int(S[S_PREDICTED]), int(S[S_LATE])
-        ch.newest_seq = int(S[S_NEWEST])
+        ch.newest_seq = int(S[L.S_NEWEST])
         self.store_link()
 
     def history(self) -> tuple[Any, ...]:
@@ -476,18 +388,18 @@ class CodecNet(LinkArrays):
 
 def no_history() -> tuple[Any, ...]:
     """X, W and A of a direction whose codec keeps no sample history (or that has no codec)."""
-    return np.full((1, X_WIDTH), -1.0), np.zeros(1), no_codec(1)
+    return np.full((1, L.X_WIDTH), -1.0), np.zeros(1), no_codec(1)
 
 
 def no_codec(period_ns: int) -> tuple[np.ndarray, ...]:
     """The kernel's arguments for a direction without a codec (C_KIND 0: it runs on its schedule)."""
-    C = np.zeros(C_SIZE_X)
-    C[C_PERIOD_NS] = period_ns
+    C = np.zeros(L.C_SIZE_X)
+    C[L.C_PERIOD_NS] = period_ns
     return (
         C,
-        np.zeros(S_SIZE_X),
+        np.zeros(L.S_SIZE_X),
         np.zeros(1),
         np.zeros((0, 2), dtype=np.int64),
-        np.zeros((1, RING_WIDTH)),
+        np.zeros((1, L.RING_WIDTH)),
         np.zeros((1, 6)),
     )
