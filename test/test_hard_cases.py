@@ -448,9 +448,7 @@ def test_eba_holds_in_hard_case(case: Case, runs: Callable[..., Run]) -> None:
 TWO_CONDITION = ("controllers.master.eba.law=two_condition", "controllers.slave.eba.law=two_condition")
 
 
-@pytest.mark.parametrize(
-    "case", [c for c in CASES if c.name != "actuator_slew_200_n_per_s"], ids=lambda c: c.name
-)
+@pytest.mark.parametrize("case", [c for c in CASES if c.name != "actuator_slew_200_n_per_s"], ids=lambda c: c.name)
 def test_two_condition_law_holds_in_hard_case(case: Case, runs: Callable[..., Run]) -> None:
     """Every case (the slew one aside) with the two-condition law on both sides: every tick ran,
     finite, within saturation; both ports passive from the bag's plant signals, with the damping
@@ -462,7 +460,7 @@ def test_two_condition_law_holds_in_hard_case(case: Case, runs: Callable[..., Ru
     assert s["ticks"] == round(case.duration_s / run.config.scene.period_s) and not s["interrupted"]
     assert np.all(np.isfinite(run.data)) and s["all_finite"]
     for side in SIDES:
-        plant, ctrl, _ = run.side(side)
+        _, ctrl, _ = run.side(side)
         assert ctrl.eba.law == "two_condition"
         prefix = "m" if side == "master" else "s"
         assert np.max(np.abs(run.col(f"{prefix}_force_n"))) <= ctrl.force_limit_n
