@@ -112,6 +112,7 @@ def build_controller(
         enabled=cfg.eba.enabled,
         force_limit_n=saturation.force_limit_n if saturation is not None else None,
         slew_rate_n_per_s=saturation.slew_rate_n_per_s if saturation is not None else None,
+        law=cfg.eba.law,
     )
     return TeleopController(params, bound)
 

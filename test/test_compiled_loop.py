@@ -166,6 +166,7 @@ def test_bound_with_actuator_limits_is_the_same_in_both_loops():
         (["slave.effects.noise.force_std_n=0.1"], "plant effects"),
         ([f"{FWD}.effects.corrupt.probability=0.01"], "corrupts payloads"),
         ([f"{BWD}.buffer.gap=extrapolate"], "extrapolates"),
+        (["controllers.slave.eba.law=two_condition"], "energy bound law two_condition on the slave side"),
     ],
 )
 def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, reason):

@@ -443,6 +443,38 @@ def test_eba_holds_in_hard_case(case: Case, runs: Callable[..., Run]) -> None:
     CHECKS[case.name](run)
 
 
+# The published two-condition law on both sides (docs/eba.md, "The published two-condition law").
+# It does not model a slew limit, so the scene refuses it with one (test/test_eba_law_scene.py).
+TWO_CONDITION = ("controllers.master.eba.law=two_condition", "controllers.slave.eba.law=two_condition")
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.name != "actuator_slew_200_n_per_s"], ids=lambda c: c.name)
+def test_two_condition_law_holds_in_hard_case(case: Case, runs: Callable[..., Run]) -> None:
+    """Every case (the slew one aside) with the two-condition law on both sides: every tick ran,
+    finite, within saturation; both ports passive from the bag's plant signals, with the damping
+    configured and with the damping the simulator really had; the controller energy recorded in
+    the bag (its `reservoir` column) never below 0 and never above the port's true margin; the
+    bound set the force on some ticks."""
+    run = runs(case, extra=TWO_CONDITION)
+    s = run.summary
+    assert s["ticks"] == round(case.duration_s / run.config.scene.period_s) and not s["interrupted"]
+    assert np.all(np.isfinite(run.data)) and s["all_finite"]
+    for side in SIDES:
+        _, ctrl, _ = run.side(side)
+        assert ctrl.eba.law == "two_condition"
+        prefix = "m" if side == "master" else "s"
+        assert np.max(np.abs(run.col(f"{prefix}_force_n"))) <= ctrl.force_limit_n
+        eps = side_epsilon_j(run, side)
+        assert s[f"{side}_energy_margin_min_j"] >= -eps, (side, s[f"{side}_energy_margin_min_j"], eps)
+        assert s[f"{side}_energy_margin_simulator_min_j"] >= -eps, side
+        ledger = run.signals.master_reservoir_j if side == "master" else run.signals.slave_reservoir_j
+        assert ledger is not None
+        assert np.min(ledger) >= -eps
+        assert np.max(ledger - run.absorbed_j(side)) <= eps
+    assert plant_energy_excess_j(run) <= 1e-12
+    assert bound_clipped_ticks(run, "master") + bound_clipped_ticks(run, "slave") > 0
+
+
 @pytest.mark.parametrize("case", [c for c in CASES if c.unprotected_fails], ids=lambda c: c.name)
 def test_unprotected_variant_fails(case: Case, runs: Callable[..., Run]) -> None:
     protected, unprotected = runs(case, True), runs(case, False)

@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from haptic_teleop.core.eba_two_condition import EBA_LAWS, TwoConditionBound
+
 LAWS = ("position", "force")
 
 
@@ -132,8 +134,18 @@ class EnergyBoundParams:
     # period. None: no such limit (the bound is then the plain one, bit for bit).
     force_limit_n: float | None = None
     slew_rate_n_per_s: float | None = None
+    # Which bound: "reservoir" (one pooled reservoir per axis, `EnergyBound`) or "two_condition"
+    # (the ZOH and controller energy conditions, `core.eba_two_condition.TwoConditionBound`);
+    # docs/eba.md, "The published two-condition law".
+    law: str = "reservoir"
 
     def __post_init__(self) -> None:
+        if self.law not in EBA_LAWS:
+            raise ValueError(f"law must be one of {', '.join(EBA_LAWS)}, got {self.law!r}")
+        if self.law == "two_condition" and self.slew_rate_n_per_s is not None:
+            raise ValueError(
+                "the two_condition law does not model an actuator slew limit; allowed with a slew limit: law reservoir"
+            )
         for name in ("force_limit_n", "slew_rate_n_per_s"):
             v = getattr(self, name)
             if v is not None and not 0.0 < v < math.inf:
@@ -424,7 +436,10 @@ class TeleopController:
     )
 
     def __init__(self, params: ControllerParams, bound: EnergyBoundParams) -> None:
-        self.bound = EnergyBound(bound)
+        # The bound `bound.law` names; both have the same step/applied interface.
+        self.bound: EnergyBound | TwoConditionBound = (
+            EnergyBound(bound) if bound.law == "reservoir" else TwoConditionBound(bound)
+        )
         self._n = bound.axes
         self._remote: tuple[float, ...] | None = None
         # The controller's own lists, overwritten in place every tick (copy them to keep a value).

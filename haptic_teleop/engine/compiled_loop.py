@@ -30,7 +30,8 @@ engine/codec_kernel.py), for links whose effects give a packet its fate from its
 time alone; a direction without a codec keeps its schedule.
 
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
-backends, operator traces, payload-changing effects (corruption), extrapolating buffers, other
+backends, operator traces, payload-changing effects (corruption), extrapolating buffers, the
+two-condition energy bound (`controllers.<side>.eba.law`), other
 codecs or codec links (`compiled_codec.codec_reason`), and machines without numba. Arm scenes
 (more than one axis) have their own compiled loop,
 `haptic_teleop/engine/compiled_arm_loop.py`, which reuses this module's network schedule; it does not take arm
@@ -202,6 +203,10 @@ def compiled_reason(engine: Engine) -> str | None:
         return "this mujoco's bindings do not expose model addresses (MjModel._address)"
     if engine.master_ctrl.bound.params.axes != 1 or engine.slave_ctrl.bound.params.axes != 1:
         return "more than one axis"
+    for side, ctrl in (("master", engine.master_ctrl), ("slave", engine.slave_ctrl)):
+        law = ctrl.bound.params.law
+        if law != "reservoir":
+            return f"energy bound law {law} on the {side} side runs in the Python loop only (compiled laws: reservoir)"
     profile = engine.operator.constants().profile
     if profile not in PROFILE_CODES:
         return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"

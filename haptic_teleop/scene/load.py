@@ -290,6 +290,13 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
     for side in ("master", "slave"):
         if getattr(config.controllers, side).law != "position":
             raise ConfigError(source, f"controllers.{side}.law", "force", "allowed for arms: position")
+        if getattr(config.controllers, side).eba.law != "reservoir":
+            raise ConfigError(
+                source,
+                f"controllers.{side}.eba.law",
+                getattr(config.controllers, side).eba.law,
+                "allowed for arms: reservoir (the pooled joint bound; the two-condition law is one-axis only)",
+            )
     from haptic_teleop.plants import build_slave_arm
 
     try:

@@ -436,6 +436,14 @@ class SimulationConfig:
 class EBAConfig:
     enabled: bool = field(default=True, metadata={"help": "false runs the unprotected control law"})
     initial_energy_j: float = field(default=0.0, metadata={"min": 0.0, "max": 1e3, "help": "per-axis budget E0"})
+    law: str = field(
+        default="reservoir",
+        metadata={
+            "choices": ("reservoir", "two_condition"),
+            "help": "reservoir: one pooled reservoir; two_condition: the ZOH and controller energy conditions "
+            "(docs/eba.md)",
+        },
+    )
 
 
 @dataclass(frozen=True)
@@ -559,6 +567,12 @@ class Scene:
             ("master", self.controllers.master, self.master),
             ("slave", self.controllers.slave, self.slave),
         ):
+            sat = plant.effects.saturation
+            if ctrl.eba.law == "two_condition" and sat is not None and sat.slew_rate_n_per_s is not None:
+                raise ValueError(
+                    f"controllers.{side}.eba.law two_condition does not model {side}.effects.saturation."
+                    "slew_rate_n_per_s; allowed with a slew limit: law reservoir (docs/eba.md)"
+                )
             if ctrl.force_limit_n > plant.force_limit_n:
                 raise ValueError(
                     f"controllers.{side}.force_limit_n ({ctrl.force_limit_n}) exceeds {side}.force_limit_n "
