@@ -27,6 +27,17 @@ ROWS = (
     ("buffering_delay_forward_mean_s", "buffering delay forward mean (s)", "{:.4f}"),
     ("buffering_delay_backward_mean_s", "buffering delay backward mean (s)", "{:.4f}"),
     ("wire_bits_per_s_forward", "bits/s on the wire forward", "{:.0f}"),
+    # seed 000's transparency analysis of a contact run (docs/transparency.md): predicted, measured
+    ("force_slope_predicted_n_per_s", "force slope in contact, predicted (N/s)", "{:.4f}"),
+    ("force_slope_measured_n_per_s", "force slope in contact, measured (N/s)", "{:.4f}"),
+    ("force_drop_predicted_n", "force drop for the delay, predicted (N)", "{:.4f}"),
+    ("force_drop_measured_n", "force drop for the delay, measured (N)", "{:.4f}"),
+    ("transparent_loss_time_predicted_s", "transparent loss time, predicted (s)", "{:.3f}"),
+    ("transparent_loss_time_measured_s", "transparent loss time, measured (s)", "{:.3f}"),
+    ("allowable_delay_s", "allowable delay each way for the force error (s)", "{:.4g}"),
+    ("allowable_loss_time_s", "allowable loss time for the force error (s)", "{:.4g}"),
+    ("force_rms_error_vs_reference_n", "force RMS error vs undisturbed run (N)", "{:.4f}"),
+    ("force_peak_error_vs_reference_n", "force peak error vs undisturbed run (N)", "{:.4f}"),
     ("master_energy_margin_min_j", "master energy margin min (J)", "{:.4g}"),
     ("slave_energy_margin_min_j", "slave energy margin min (J)", "{:.4g}"),
 )

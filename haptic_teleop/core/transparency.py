@@ -101,6 +101,9 @@ class ContactModel:
     wall_stiffness_n_per_m: float  # K
     contact_force_n: float  # F0 at the start
     master_eba: bool = True
+    slave_damping_n_s_per_m: float = 0.0  # c2s (the coupling's damper)
+    slave_physical_damping_n_s_per_m: float = 0.0  # b_s
+    wall_damping_n_s_per_m: float = 0.0  # B
 
     def __post_init__(self) -> None:
         if self.master_law not in MASTER_LAWS:
@@ -114,6 +117,22 @@ class ContactModel:
         moves by dF / K, so the wall force grows with it per metre the master advances."""
         c, k = self.slave_stiffness_n_per_m, self.wall_stiffness_n_per_m
         return c * k / (c + k)
+
+    @property
+    def wall_lead_s(self) -> float:
+        """How far the wall force's ramp leads the quasi-static one c1s K / (c1s + K) x_m: the robot
+        (m x'' + (c2s + b_s + B) x' + (c1s + K) x = c1s x_m + c2s v_m) follows a ramp with the
+        coupling damper's feed-forward c2s / c1s ahead and its own damping's lag
+        (c2s + b_s + B) / (c1s + K) behind."""
+        c1, k = self.slave_stiffness_n_per_m, self.wall_stiffness_n_per_m
+        damping = self.slave_damping_n_s_per_m + self.slave_physical_damping_n_s_per_m + self.wall_damping_n_s_per_m
+        return self.slave_damping_n_s_per_m / c1 - damping / (c1 + k)
+
+    def force_onset_s(self, round_trip_s: float) -> float:
+        """Force reflection: when the felt (desired) force's ramp starts, extrapolated back, after
+        the master starts: the round trip, one period (the master uses a backward sample the tick
+        after it arrives), less the wall force's lead (`wall_lead_s`); 0 at the earliest."""
+        return max(0.0, round_trip_s + self.period_s - self.wall_lead_s)
 
     @property
     def desired_stiffness_n_per_m(self) -> float:
@@ -203,38 +222,58 @@ class DropPrediction:
 
 
 def force_drop(
-    m: ContactModel, forward_delay_s: float, backward_delay_s: float, law: str = "reservoir"
+    m: ContactModel, forward_delay_s: float, backward_delay_s: float, law: str = "reservoir", at_s: float = math.inf
 ) -> DropPrediction:
-    """The seed's "force feedback decrease caused by delay", per regime (docs/transparency.md):
+    """The seed's "force feedback decrease caused by delay" `at_s` after the master starts moving
+    (default: once steady), per regime (docs/transparency.md, "Force drop"), R = d_f + d_b:
 
     - force reflection, bound not binding: the felt force is the wall force a round trip late:
-      drop = s R, R = d_f + d_b (the seed's c2m v_m d with d the round trip);
+      drop = s min(R, t) (the seed's c2m v_m d with d the round trip);
     - force reflection, bound binding, reservoir law: the operator keeps charging the reservoir
-      while the delayed desired force is flat, so the bound is ahead when it rises:
-      drop = s_b R - (s_d - s_b) tau (`catch_up_s`), between s_b R (F_m0 -> 0, the seed's value)
-      and 0 (F_m0 >> s R);
+      while the delayed desired force is flat, so the bound is ahead when it rises; once the
+      desired force has caught up (`catch_up_s`): drop = s_b R - (s_d - s_b) tau, between s_b R
+      (F_m0 -> 0, the seed's value) and 0 (F_m0 >> s R); before: s_b t - s_d max(0, t - R);
     - position law, bound not binding: the master's own spring stretches at once; the robot's
       position comes back a round trip late, less deep, so the felt force is HIGHER by
-      c1m c1s / (c1s + K) v_m R (a negative drop);
+      c1m c1s / (c1s + K) v_m min(R, t) (a negative drop);
     - position law, bound binding: the bound's ramp, 2 b_m v_m / T from the start whatever the
       delay: no drop.
     """
     _check_law(law)
     r = forward_delay_s + backward_delay_s
+    t = at_s
     v = m.speed_m_per_s
     if m.master_law == "position":
         if m.binding:
             return DropPrediction(0.0, "position law, bound binding: the bound's ramp does not see the delay")
         c1m, c1s, k = m.master_stiffness_n_per_m, m.slave_stiffness_n_per_m, m.wall_stiffness_n_per_m
         return DropPrediction(
-            -c1m * c1s / (c1s + k) * v * r, "position law, bound not binding: the felt force rises with delay"
+            -c1m * c1s / (c1s + k) * v * min(r, t), "position law, bound not binding: the felt force rises with delay"
         )
     if not m.binding:
-        return DropPrediction(force_slope(m, law) * r, "force reflection, bound not binding: drop s (d_f + d_b)")
+        return DropPrediction(force_slope(m, law) * min(r, t), "force reflection, bound not binding: drop s R")
     sb = m.bound_stiffness_n_per_m * v
     sd = m.desired_stiffness_n_per_m * v
+    r = m.force_onset_s(r)  # the undelayed run's onset is 0 (the wall force leads by more than a tick)
     tau = catch_up_s(m, r)
-    return DropPrediction(sb * r - (sd - sb) * tau, "force reflection, bound binding: the reservoir catches up")
+    if t >= r + tau:
+        return DropPrediction(sb * r - (sd - sb) * tau, "force reflection, bound binding: the reservoir caught up")
+    return DropPrediction(
+        sb * t - sd * max(0.0, t - r), "force reflection, bound binding: the delayed force still below the bound"
+    )
+
+
+def force_slope_between(
+    m: ContactModel, forward_delay_s: float, backward_delay_s: float, t0_s: float, t1_s: float, law: str = "reservoir"
+) -> float:
+    """The felt force's mean slope between t0 and t1 after the master starts, N/s: the undelayed
+    slope s less the change of the drop (`force_drop`) over the interval. It is s once steady; it
+    differs while the delayed force reflection is still below the bound (it rises at s_d then)."""
+    if not t1_s > t0_s:
+        raise ValueError(f"t1_s must be after t0_s, got {t0_s}, {t1_s}")
+    d0 = force_drop(m, forward_delay_s, backward_delay_s, law, t0_s).drop_n
+    d1 = force_drop(m, forward_delay_s, backward_delay_s, law, t1_s).drop_n
+    return force_slope(m, law) - (d1 - d0) / (t1_s - t0_s)
 
 
 def transparent_loss_time(m: ContactModel, gap_n: float, felt_n: float, law: str = "reservoir") -> float:
