@@ -3,7 +3,8 @@
 For a one-axis scene whose operator pushes toward the wall (`push`, or the seed's `imposed`
 position source), from the bag alone (its scene and run facts, its signals) and, unless the scene
 says `analysis.reference: false`, an undisturbed reference run of the same scene (no network
-effects: no delay, no loss, buffer none, no codec; the engine is deterministic):
+effects: no delay, no loss, buffer none, no codec; the engine is deterministic; by default for
+in-contact starts only):
 
 - the felt force's slope in contact, `force_slope_predicted_n_per_s` (s = gamma v_m,
   core/transparency.py) and `_measured_` (a line through |F_m| over the second half of the ramp);
@@ -204,8 +205,9 @@ def transparency_summary(bag: str | Path) -> dict[str, Any]:
         out["transparency_regime"] = drop.regime
         out["force_drop_predicted_n"] = drop.drop_n
         out["allowable_delay_s"] = allowable_delay(model, allowed, law)
-    reference = bool((sc.get("analysis") or {}).get("reference", True))
-    if reference:
+    # The reference run costs a second run: by default for the seed's in-contact premise only.
+    reference = (sc.get("analysis") or {}).get("reference")
+    if reference if reference is not None else in_contact:
         ref = reference_force(sc)
         m = min(len(ref), n)
         err = felt[:m] - ref[:m]

@@ -573,8 +573,11 @@ class AnalysisConfig:
         default=0.1,
         metadata={"gt": 0.0, "max": 1e3, "help": "the force distortion E the allowable delay and loss time are for"},
     )
-    reference: bool = field(
-        default=True, metadata={"help": "compare with an undisturbed reference run (no network effects)"}
+    reference: bool | None = field(
+        default=None,
+        metadata={
+            "help": "compare with an undisturbed reference run (no network effects); default: in-contact starts only"
+        },
     )
 
 
