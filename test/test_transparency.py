@@ -146,10 +146,12 @@ def test_summary_has_the_predicted_and_measured_pairs(seed_summary):
 
 
 def test_scenes_the_analysis_does_not_apply_to_get_no_keys(tmp_path):
-    scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.3", "operator.profile=hold"])
-    record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False)
-    s = summarize_bag(tmp_path / "bag")
-    assert not [k for k in s if "_predicted_" in k or "vs_reference" in k or k.startswith("transparen")]
+    """A hold with an analysis section, and the default push without one: no transparency key."""
+    for i, ov in enumerate((["operator.profile=hold", "analysis.allowed_force_error_n=0.2"], [])):
+        scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.3", *ov])
+        record_run(scene, tmp_path / f"bag{i}", parallel=False, handle_sigint=False)
+        s = summarize_bag(tmp_path / f"bag{i}")
+        assert not [k for k in s if "_predicted_" in k or "vs_reference" in k or k.startswith("transparen")]
 
 
 @pytest.mark.parametrize(

@@ -1,10 +1,10 @@
 """Seed 000's transparency analysis of a contact run: predicted against measured (docs/transparency.md).
 
-For a one-axis scene whose operator pushes toward the wall (`push`, or the seed's `imposed`
-position source), from the bag alone (its scene and run facts, its signals) and, unless the scene
-says `analysis.reference: false`, an undisturbed reference run of the same scene (no network
-effects: no delay, no loss, buffer none, no codec; the engine is deterministic; by default for
-in-contact starts only):
+For a one-axis scene of the seed's premise (`operator.profile: imposed` or `slave.start:
+in_contact`), or a push toward the wall with an `analysis:` section (`applies`), from the bag
+alone (its scene and run facts, its signals) and an undisturbed reference run of the same scene
+(`analysis.reference`, by default for in-contact starts only: no network effects, i.e. no delay,
+no loss, buffer none, no codec; the engine is deterministic):
 
 - the felt force's slope in contact, `force_slope_predicted_n_per_s` (s = gamma v_m,
   core/transparency.py) and `_measured_` (a line through |F_m| over the second half of the ramp);
@@ -49,11 +49,18 @@ _REFERENCES: dict[str, np.ndarray] = {}  # the reference run's |F_m| per referen
 
 
 def applies(sc: dict[str, Any]) -> bool:
-    """A one-axis teleoperation scene whose operator moves toward the wall (push or imposed)."""
+    """A one-axis teleoperation scene whose operator moves toward the wall (push or imposed) and
+    that asks for the analysis: the seed's premise (`operator.profile: imposed` or
+    `slave.start: in_contact`), or an `analysis:` section (a push from free space opts in). The
+    analysis reads the run whole (its memory grows with the run, unlike the streaming summary),
+    so the other scenes, long runs among them, are left alone."""
     if sc.get("nve") is not None or (sc.get("slave") or {}).get("wall", {}).get("point_m") is not None:
         return False
     op = sc.get("operator") or {}
-    return op.get("profile") in ("push", "imposed") and float(op.get("speed_m_per_s", 0.0)) > 0.0
+    if op.get("profile") not in ("push", "imposed") or not float(op.get("speed_m_per_s", 0.0)) > 0.0:
+        return False
+    asked = op.get("profile") == "imposed" or (sc["slave"].get("start") or "free") == "in_contact"
+    return asked or sc.get("analysis") is not None
 
 
 def _ramp(sc: dict[str, Any], period_s: float, n: int) -> tuple[int, int]:
