@@ -25,6 +25,7 @@ from haptic_teleop.core.transparency import (
 )
 from haptic_teleop.engine.lockstep import COL, Engine, record_run
 from haptic_teleop.errors import ConfigError
+from haptic_teleop.launcher import node_plan
 from haptic_teleop.scene.load import find_scene, load_scene
 
 SHORT = ("operator.duration_s=1.0", "scene.duration_s=1.6", "operator.speed_m_per_s=0.01")
@@ -177,6 +178,8 @@ def test_bad_seed_keys_are_one_line_config_errors(overrides, key, allowed):
 def test_arm_scenes_and_the_command_line_refuse_the_keys_in_one_line(tmp_path, capsys):
     with pytest.raises(ConfigError, match="one-axis scenes"):
         load_scene(find_scene("touch_ur5e_wall"), overrides=["operator.profile=imposed", "operator.duration_s=1"])
+    with pytest.raises(ConfigError, match="run` only"):  # live nodes: the engine only
+        node_plan(load_scene(find_scene("seed_contact")), None)
     code = main(["run", "seed_contact", "--set", "slave.initial_contact_force_n=0", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "initial_contact_force_n" in err

@@ -45,6 +45,7 @@ from haptic_teleop.core.transparency import (
 DEFAULT_ALLOWED_FORCE_ERROR_N = 0.1  # the seed's transparency requirement (force error < 0.1 N)
 MIN_WINDOW_TICKS = 20
 MIN_HOLD_TICKS = 3  # a hold of the master's remote sample shorter than this is not a loss burst
+MAX_REFERENCES = 8
 _REFERENCES: dict[str, np.ndarray] = {}  # the reference run's |F_m| per reference scene (YAML text)
 
 
@@ -96,6 +97,8 @@ def reference_force(sc: dict[str, Any]) -> np.ndarray:
         engine = Engine(LoadedScene(config=config, source="reference run", raw=ref), loop="auto")
         run = engine.run(handle_sigint=False)
         got = np.abs(run.data[: run.ticks, COL["m_force_n"]])
+        if len(_REFERENCES) >= MAX_REFERENCES:  # a sweep's process: keep the newest few
+            del _REFERENCES[next(iter(_REFERENCES))]
         _REFERENCES[key] = got
     return got
 
