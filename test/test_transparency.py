@@ -139,6 +139,10 @@ def test_summary_has_the_predicted_and_measured_pairs(seed_summary):
     assert abs(s["transparent_loss_time_measured_s"] - s["transparent_loss_time_predicted_s"]) <= 0.0011
     assert s["force_peak_error_vs_reference_n"] >= s["force_rms_error_vs_reference_n"] > 0.0
     assert s["allowable_delay_s"] > 0.0 and s["allowable_loss_time_s"] > 0.0
+    # the energy margins start from the reservoirs' start values: the holding energy (g F0 = 2.5 N
+    # on the master, F0 = 5 N on the slave) on top of eba.initial_energy_j (0, 0.5 J)
+    assert s["master_initial_energy_j"] == pytest.approx(2.5**2 * T / (4 * 0.1), rel=1e-12)
+    assert s["slave_initial_energy_j"] == pytest.approx(0.5 + 5.0**2 * T / (4 * 5.0), rel=1e-12)
     # every predicted key has its measured twin (the report pairs them by stem)
     predicted = {k.split("_predicted_")[0] + "|" + k.split("_predicted_")[1] for k in s if "_predicted_" in k}
     measured = {k.split("_measured_")[0] + "|" + k.split("_measured_")[1] for k in s if "_measured_" in k}

@@ -287,6 +287,8 @@ def transparent_loss_time(m: ContactModel, gap_n: float, felt_n: float, law: str
     when the bound does not bind: the force stops at once)."""
     _check_law(law)
     s = force_slope(m, law)
+    if not s > 0.0:  # a law without stiffness: the force does not rise at all
+        return 0.0
     if m.master_law == "position":
         return max(0.0, m.master_force_limit_n - felt_n) / s
     if not m.binding:
@@ -325,4 +327,5 @@ def allowable_loss_time(m: ContactModel, error_n: float, transparent_s: float, l
     _check_law(law)
     if not error_n > 0.0:
         raise ValueError(f"error_n must be > 0, got {error_n}")
-    return transparent_s + error_n / force_slope(m, law)
+    s = force_slope(m, law)
+    return transparent_s + error_n / s if s > 0.0 else math.inf
