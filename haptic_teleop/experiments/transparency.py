@@ -11,9 +11,9 @@ law's stiffness) or not. For each one:
 2. over backward loss bursts (a blackout of the backward link in the middle of the ramp): the
    transparent loss time (how long the felt force still rises while the master holds its last
    sample), predicted and measured;
-3. the free start the issue measured (the default scene with a stiff hand and the bound binding):
-   the master's reservoir at the robot's first contact and the felt force a fixed time after it,
-   over delay: why delay raises that force there.
+3. the free start the issue measured (the default scene with a stiff hand, the bound binding or
+   not): the master's reservoir and lead at the robot's first contact and the felt and wall forces
+   a fixed time after it, over delay: why delay raises the felt force there.
 
 Every run is the engine in memory (deterministic); the measurements are the analysis'
 (analysis/transparency.py) on the runs' columns. Writes transparency_delay.csv,
@@ -207,52 +207,57 @@ LOSS_HEADER = [
 
 
 def free_start_table(delays_s: Sequence[float], after_s: float) -> list[list[Any]]:
-    """The issue's free start: wall_contact with a stiff hand and the bound binding."""
+    """The issue's free start: wall_contact with a stiff hand, the bound binding (b_m 0.1) or not (1.0)."""
     from haptic_teleop.engine.lockstep import COL, Engine
     from haptic_teleop.scene.load import find_scene, load_scene
 
     rows = []
-    ref_f = None
-    for d in delays_s:
-        ov = [
-            "scene.duration_s=4.0",
-            "operator.stiffness_n_per_m=100000",
-            "operator.damping_n_s_per_m=500",
-            "master.damping_n_s_per_m=0.1",
-            *_delay(d),
-        ]
-        scene = load_scene(find_scene("wall_contact"), overrides=ov)
-        r = Engine(scene).run(handle_sigint=False)
-        data = r.data[: r.ticks]
-        T = scene.config.scene.period_s
-        contact = np.flatnonzero(np.abs(data[:, COL["s_contact_n"]]) > 0.0)
-        if not contact.size:
-            continue
-        c = int(contact[0])
-        k = min(c + round(after_s / T), r.ticks - 1)
-        felt = float(abs(data[k, COL["m_force_n"]]))
-        if ref_f is None:
-            ref_f = felt
-        rows.append(
-            [
-                d * 1e3,
-                c * T,
-                float(data[c, COL["m_energy_j"]]),
-                float(data[c, COL["m_x_m"]] - data[c, COL["s_x_m"]]),
-                felt,
-                felt - ref_f,
+    for b_m in (0.1, 1.0):
+        ref_f = None
+        for d in delays_s:
+            ov = [
+                "scene.duration_s=4.0",
+                "operator.stiffness_n_per_m=100000",
+                "operator.damping_n_s_per_m=500",
+                f"master.damping_n_s_per_m={b_m!r}",
+                *_delay(d),
             ]
-        )
+            scene = load_scene(find_scene("wall_contact"), overrides=ov)
+            r = Engine(scene).run(handle_sigint=False)
+            data = r.data[: r.ticks]
+            T = scene.config.scene.period_s
+            contact = np.flatnonzero(np.abs(data[:, COL["s_contact_n"]]) > 0.0)
+            if not contact.size:
+                continue
+            c = int(contact[0])
+            k = min(c + round(after_s / T), r.ticks - 1)
+            felt = float(abs(data[k, COL["m_force_n"]]))
+            if ref_f is None:
+                ref_f = felt
+            rows.append(
+                [
+                    b_m,
+                    d * 1e3,
+                    c * T,
+                    float(data[c, COL["m_energy_j"]]),
+                    float(data[c, COL["m_x_m"]] - data[c, COL["s_x_m"]]),
+                    felt,
+                    felt - ref_f,
+                    float(abs(data[k, COL["s_contact_n"]])),
+                ]
+            )
     return rows
 
 
 FREE_HEADER = [
+    "master_damping_n_s_per_m",
     "delay_each_way_ms",
     "slave_contact_s",
     "master_reservoir_at_contact_j",
     "master_ahead_of_slave_at_contact_m",
     "felt_force_after_n",
     "felt_minus_undelayed_n",
+    "wall_force_after_n",
 ]
 
 
