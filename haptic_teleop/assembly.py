@@ -19,6 +19,7 @@ from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLi
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.operator import Operator, OperatorParams
 from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
+from haptic_teleop.core.transparency import ContactStart, contact_start
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.scene.schema import ControllerConfig, OperatorConfig, SaturationConfig, Scene
 from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
@@ -35,12 +36,14 @@ if TYPE_CHECKING:
 
 __all__ = [
     "REMOTE_LIMIT_MARGIN",
+    "apply_contact_start",
     "build_arm_parts",
     "build_controller",
     "build_master_plant",
     "build_network",
     "build_operator",
     "build_slave_plant",
+    "contact_start_of",
     "read_operator_trace",
     "remote_limits",
 ]
@@ -55,6 +58,8 @@ def operator_reach(
     """How far (m) and how fast (m/s) the operator's profile moves the hand at most (0 for hold)."""
     if op.profile == "push":
         return abs(op.distance_m), abs(op.speed_m_per_s)
+    if op.profile == "imposed":
+        return abs(op.speed_m_per_s) * (op.duration_s or 0.0), abs(op.speed_m_per_s)
     if op.profile == "sinusoid":
         return abs(op.amplitude_m), 2.0 * math.pi * op.frequency_hz * abs(op.amplitude_m)
     if op.profile == "trace" and trace is not None:
@@ -73,7 +78,9 @@ def remote_limits(config: Scene, trace: tuple[tuple[float, ...], tuple[float, ..
     can push is a sensor fault).
     """
     reach, speed = operator_reach(config.operator, trace)
-    workspace = max(0.1, abs(config.slave.wall.position_m), reach, abs(config.slave.start_position_m))
+    start = contact_start_of(config)
+    x0 = abs(start.master_x_m) if start is not None else 0.0
+    workspace = max(0.1, abs(config.slave.wall.position_m), reach + x0, abs(config.slave.start_position_m))
     forces = (
         config.master.force_limit_n,
         config.slave.force_limit_n,
@@ -117,11 +124,20 @@ def build_controller(
     return TeleopController(params, bound)
 
 
-def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[float, ...]] | None) -> Operator:
-    """The core operator model a scene's `operator` section names (engine and operator_source)."""
+def build_operator(
+    op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[float, ...]] | None, start: ContactStart | None = None
+) -> Operator:
+    """The core operator model a scene's `operator` section names (engine and operator_source).
+    `start`: an in-contact start (`contact_start_of`): the profile starts where the master rests,
+    a hand's intended position as far beyond it as its spring needs to hold the master's force."""
+    x0 = 0.0
+    if start is not None:
+        x0 = start.master_x_m + (0.0 if op.profile == "imposed" else start.hand_offset_m)
     return Operator(
         OperatorParams(
             profile=op.profile,
+            start_position_m=x0,
+            duration_s=op.duration_s if op.duration_s is not None else 1.0,
             mass_kg=op.mass_kg,
             stiffness_n_per_m=op.stiffness_n_per_m,
             damping_n_s_per_m=op.damping_n_s_per_m,
@@ -136,6 +152,49 @@ def build_operator(op: OperatorConfig, trace: tuple[tuple[float, ...], tuple[flo
     )
 
 
+def contact_start_of(c: Scene) -> ContactStart | None:
+    """The equilibrium a one-axis scene with `slave.start: in_contact` starts in (core/transparency.py),
+    or None for a free start."""
+    s = c.slave
+    if not s.in_contact or s.initial_contact_force_n is None:
+        return None
+    m, sl = c.controllers.master, c.controllers.slave
+    return contact_start(
+        wall_position_m=s.wall.position_m,
+        wall_stiffness_n_per_m=s.wall.stiffness_n_per_m,
+        contact_force_n=s.initial_contact_force_n,
+        slave_stiffness_n_per_m=sl.stiffness_n_per_m,
+        master_law=m.law,
+        master_stiffness_n_per_m=m.stiffness_n_per_m,
+        master_force_gain=m.force_gain,
+        master_damping_n_s_per_m=c.master.damping_n_s_per_m,
+        slave_damping_n_s_per_m=s.damping_n_s_per_m,
+        period_s=c.scene.period_s,
+        hand_stiffness_n_per_m=c.operator.stiffness_n_per_m,
+    )
+
+
+def apply_contact_start(
+    start: ContactStart, master: TeleopController, slave: TeleopController, slave_plant: Any
+) -> dict[str, float]:
+    """Put both controllers and the robot's wall force into the in-contact equilibrium: each
+    controller already holds the remote sample of the resting other side (so the delay's first
+    period is the rest state, as if it had lasted forever), each reservoir its holding energy on
+    top of the scene's `eba.initial_energy_j`, and the robot's last wall force is -F0. Returns
+    the reservoirs' start values (the run facts `master_initial_energy_j`, `slave_initial_energy_j`)."""
+    from haptic_teleop.core.eba import AxisBoundState
+
+    master.remote = (start.wall_force_n, start.slave_x_m, 0.0)
+    slave.remote = (start.master_x_m, 0.0)
+    out = {}
+    for name, ctrl, hold in (("master", master, start.master_energy_j), ("slave", slave, start.slave_energy_j)):
+        energy = ctrl.bound.params.initial_energy_j + hold
+        ctrl.bound.set_axis_state(AxisBoundState(energy, 0.0, 0.0, False))
+        out[f"{name}_initial_energy_j"] = energy
+    slave_plant.set_contact_force(start.wall_force_n)
+    return out
+
+
 def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
     """Fresh links and playout buffers for both directions, as the scene names them."""
     op = c.operator
@@ -146,7 +205,11 @@ def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, 
     backward_buffer = build_buffer(c.network.backward.buffer, period_ns)
     # The transparency-driven buffers need the contact force slope (docs/eba.md): the bounded
     # coupling stiffness min(c1, 2b/T) times the operator's speed, unless the scene gives it.
-    speed = abs(op.speed_m_per_s) if op.profile == "push" else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
+    speed = (
+        abs(op.speed_m_per_s)
+        if op.profile in ("push", "imposed")
+        else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
+    )
     for buf, bcfg, ctrl, b in (
         (backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
         (forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),

@@ -169,6 +169,21 @@ def node_plan(
     from haptic_teleop.nodes.codec_stage import check_live_codec
 
     codecs = {d: check_live_codec(scene.source, scene.config, d) for d in ("forward", "backward")}
+    # The seed scenario (docs/transparency.md) runs in the engine only: its position source puts
+    # the handle on the trajectory inside the tick, and its in-contact start sets both sides' state.
+    from haptic_teleop.errors import ConfigError as _ConfigError
+
+    if scene.config.operator.profile == "imposed":
+        raise _ConfigError(
+            scene.source,
+            "operator.profile",
+            "imposed",
+            "runs in `haptic-teleop run` only; allowed live: push, sinusoid, hold, trace",
+        )
+    if scene.config.slave.in_contact:
+        raise _ConfigError(
+            scene.source, "slave.start", "in_contact", "runs in `haptic-teleop run` only; allowed live: free"
+        )
     if device != "plant" and scene.config.is_arm:
         from haptic_teleop.errors import ConfigError
 

@@ -3,7 +3,8 @@
 Each case runs a scene in both loops and compares what each hands its sink, call by call (every
 block of columns, every batch of packet records, at the same points of the run), the guards'
 rejection counts and the controllers' final state. The cases cover what the compiled
-loop takes: both laws, EBA on and off, the three operator profiles, saturating controllers, substeps, gravity, zero
+loop takes: both laws, EBA on and off, the operator profiles (hands and the imposed trajectory;
+free and in-contact starts), saturating controllers, substeps, gravity, zero
 delay, the vectorized network (constant delay, uncorrelated loss, blackouts, policy `none`) and
 the network ticked through the Python objects (bursty loss, jitter with reordering, every
 scheduled buffer policy).
@@ -33,6 +34,9 @@ CASES = {
     "gravity": ("wall_contact", ["master.effects.gravity.incline_deg=10", "slave.effects.gravity.incline_deg=-5"]),
     "zero_delay": ("wall_contact", [f"{FWD}.effects.delay.delay_s=0", f"{BWD}.effects.delay.delay_s=0.0005"]),
     "blackout": ("blackout", ["scene.duration_s=4.0"]),
+    # The seed scenario: an in-contact start and the imposed (position source) profile.
+    "seed_contact": ("seed_contact", []),
+    "seed_contact_force_law": ("seed_contact", ["controllers.master.law=force", "controllers.master.force_gain=1"]),
     "bursty_loss": ("bursty_loss", []),
     "jitter_reorder": (
         "wall_contact",

@@ -97,6 +97,13 @@ def penetration(x: np.ndarray, plane: tuple[np.ndarray, np.ndarray] | None) -> n
     return depth
 
 
+def initial_energy(sc: dict[str, Any], run_info: dict[str, Any], side: str) -> float:
+    """A side's reservoir at the start: the run fact `<side>_initial_energy_j` when the run wrote one
+    (an in-contact start adds the holding energy, docs/transparency.md), else the scene's E0."""
+    got = run_info.get(f"{side}_initial_energy_j")
+    return float(got) if got is not None else float(sc["controllers"][side]["eba"]["initial_energy_j"])
+
+
 def _lag_ticks(delays_s: np.ndarray, period_s: float) -> int:
     if delays_s.size == 0:
         return 0
@@ -267,8 +274,8 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
     pos = _aligned_error(sig.slave_x_m, sig.master_x_m, sig.forward_lag_ticks)
     mb = float(sc["master"]["damping_n_s_per_m"])
     sb = float(sc["slave"]["damping_n_s_per_m"])
-    me0 = float(sc["controllers"]["master"]["eba"]["initial_energy_j"])
-    se0 = float(sc["controllers"]["slave"]["eba"]["initial_energy_j"])
+    me0 = initial_energy(sc, sig.run_info, "master")
+    se0 = initial_energy(sc, sig.run_info, "slave")
     m_abs = port_energy(sig.master_x_m, sig.master_force_n, mb, T)
     s_abs = port_energy(sig.slave_x_m, sig.slave_force_n, sb, T)
     # The true margins: the same ledger with the damping the simulator really has (run facts).

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.analysis.decimate import DEFAULT_COLUMNS, SCATTER_COLUMNS, SCATTER_ROWS, minmax_envelope
-from haptic_teleop.analysis.metrics import Signals, port_energy
+from haptic_teleop.analysis.metrics import Signals, initial_energy, port_energy
 from haptic_teleop.analysis.timeline import (
     _LOSS_MODEL_KIND,
     ARRIVAL,
@@ -312,7 +312,7 @@ def from_signals(sig: Signals) -> PlotData:
         ("slave", sig.slave_x_m, sig.slave_force_n, sig.slave_reservoir_j),
     ):
         b = float(sc[side]["damping_n_s_per_m"])
-        e0 = float(sc["controllers"][side]["eba"]["initial_energy_j"])
+        e0 = initial_energy(sc, sig.run_info, side)
         margin = e0 + port_energy(x, f, b, sig.period_s)
         ok = np.flatnonzero(np.isfinite(margin))
         i = int(ok[np.argmin(margin[ok])]) if ok.size else 0
@@ -556,6 +556,7 @@ class _Occupancy:
 def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData:
     import yaml
 
+    from haptic_teleop.analysis.metrics import read_run_info
     from haptic_teleop.analysis.stream import (
         TICK_TOPICS,
         ExactQuantiles,
@@ -571,6 +572,7 @@ def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData
 
     with BagReader(bag) as r:
         sc = yaml.safe_load(r.string("/haptic_teleop/scene"))
+        run_info = read_run_info(r)
         T = float(sc["scene"]["period_s"])
         period_ns = round(T * 1e9)
         n, last_log = _tick_count(r)
@@ -626,7 +628,7 @@ def _from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> PlotData
         env["error"] = Envelope(n - lag if shifted else n)
         delay_src, err_src = _Lagged(lag if shifted else 0), _Lagged(lag if shifted else 0)
         energies = {side: _Energy(float(sc[side]["damping_n_s_per_m"]), T) for side in ("master", "slave")}
-        e0 = {side: float(sc["controllers"][side]["eba"]["initial_energy_j"]) for side in ("master", "slave")}
+        e0 = {side: initial_energy(sc, run_info, side) for side in ("master", "slave")}
         low = {side: (math.inf, 0.0, math.nan, 0.0) for side in ("master", "slave")}  # (min, at t, first, t0)
         rng: dict[str, list[float]] = {side: [math.inf, -math.inf] for side in ("master", "slave")}
         gap = {side: -math.inf for side in ("master", "slave")}

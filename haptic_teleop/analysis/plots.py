@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
-from haptic_teleop.analysis.metrics import Signals, port_energy
+from haptic_teleop.analysis.metrics import Signals, initial_energy, port_energy
 from haptic_teleop.analysis.plotdata import PlotData, Series, TaskPlotData, from_signals
 from haptic_teleop.core.link import CANONICAL_ORDER
 
@@ -110,7 +110,7 @@ def energy_margins(sig: Signals) -> dict[str, np.ndarray]:
     out = {}
     for side, x, f in (("master", sig.master_x_m, sig.master_force_n), ("slave", sig.slave_x_m, sig.slave_force_n)):
         b = float(sc[side]["damping_n_s_per_m"])
-        e0 = float(sc["controllers"][side]["eba"]["initial_energy_j"])
+        e0 = initial_energy(sc, sig.run_info, side)
         out[side] = e0 + port_energy(x, f, b, sig.period_s)
     return out
 

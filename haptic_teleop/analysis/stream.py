@@ -34,6 +34,7 @@ import numpy as np
 from haptic_teleop.analysis.metrics import (
     FATE_LATE,
     FATE_LOST,
+    initial_energy,
     penetration,
     read_run_info,
     simulator_damping,
@@ -478,6 +479,10 @@ def summarize_bag(bag: str | Path) -> dict[str, Any]:
 
     # the codec stage's wire accounting, only when the scene names a codec (docs/codec.md)
     summary.update(codec_wire_summary(bag, int(summary.get("ticks", 0))))
+    from haptic_teleop.analysis.transparency import transparency_summary
+
+    # seed 000's predicted against measured, only for contact scenes it applies to (docs/transparency.md)
+    summary.update(transparency_summary(bag))
     return summary
 
 
@@ -634,8 +639,8 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
             if seen >= n:
                 break
 
-    me0 = float(sc["controllers"]["master"]["eba"]["initial_energy_j"])
-    se0 = float(sc["controllers"]["slave"]["eba"]["initial_energy_j"])
+    me0 = initial_energy(sc, run_info, "master")
+    se0 = initial_energy(sc, run_info, "slave")
     return {
         "scene": sc["scene"]["name"],
         "seed": sc["scene"]["seed"],

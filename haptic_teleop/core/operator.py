@@ -9,6 +9,12 @@ the plant (no algebraic loop). The force on the device along each axis is
 The intended trajectory acts along axis 0; other axes are held at their start position. In 3-D
 (arms, `intended_along`), the same profile moves the intended point from an origin along a unit
 direction of the task frame.
+
+Profile "imposed" (seed 000's premise, docs/transparency.md) is no hand: the device's position IS
+the trajectory (constant velocity for duration_s from start_s, then hold). The loops step the
+device with no hand force and then set its position and velocity to the trajectory's at the next
+tick (`imposed_force1` gives the force such a position source applies, for the record), so the
+master moves at exactly v_m whatever its actuator does. One axis only.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-PROFILES = ("push", "sinusoid", "hold", "trace")
+PROFILES = ("push", "sinusoid", "hold", "trace", "imposed")
 
 
 # One-axis formulas on floats, called by `Operator` and compiled by the engine's compiled loop
@@ -42,6 +48,13 @@ def sinusoid1(tau: float, x0: float, amplitude: float, w: float) -> tuple[float,
     return x0 + amplitude * math.sin(w * tau), amplitude * w * math.cos(w * tau)
 
 
+def imposed_force1(mass: float, damping: float, period: float, v: float, v_next: float, actuator: float) -> float:
+    """The force a position source applies over one period so that the device (mass, viscous
+    damping, both in the integrator's implicit form) goes from velocity v to v_next while its own
+    actuator holds `actuator`: m (v_next - v) / T + b v_next - actuator."""
+    return mass * (v_next - v) / period + damping * v_next - actuator
+
+
 def hand1(k: float, b: float, xd: float, vd: float, x: float, v: float) -> float:
     """The hand's spring-damper force towards the intended position and velocity."""
     return k * (xd - x) + b * (vd - v)
@@ -62,6 +75,8 @@ class OperatorParams:
     # sinusoid: x_d = start + amplitude * sin(2 pi f (t - start_s)) after start_s
     amplitude_m: float = 0.02
     frequency_hz: float = 0.5
+    # imposed: the device moves at speed_m_per_s for duration_s, then holds (a position source)
+    duration_s: float = 1.0
     # trace: piecewise-linear (time_s, position_m) samples
     trace_time_s: tuple[float, ...] = ()
     trace_position_m: tuple[float, ...] = ()
@@ -75,6 +90,8 @@ class OperatorParams:
                 raise ValueError("trace needs at least two (time_s, position_m) rows of equal length")
             if any(b <= a for a, b in itertools.pairwise(ts)):
                 raise ValueError("trace time_s must be strictly increasing")
+        if self.profile == "imposed" and not (self.duration_s >= 0.0 and math.isfinite(self.duration_s)):
+            raise ValueError(f"imposed duration_s must be finite and >= 0, got {self.duration_s}")
 
 
 @dataclass(frozen=True)
@@ -84,8 +101,8 @@ class OperatorConstants:
 
     profile: the profile it runs ("push" with speed 0 runs as "hold"); x0_m: the start position;
     stiffness/damping: the hand's (`hand1`); start_s: when the profile starts; speed_m_per_s,
-    t_end_s, x_end_m: `push1`'s arguments (the push's duration, 0 unless the profile is "push",
-    and its end point).
+    t_end_s, x_end_m: `push1`'s arguments (the push's duration, 0 unless the profile is "push"
+    or "imposed", and its end point). "imposed" runs `push1` as the device's own trajectory.
     """
 
     profile: str
@@ -115,8 +132,12 @@ class Operator:
             profile = "hold"
         self._profile = profile
         self._speed = params.speed_m_per_s
-        self._t_end = abs(params.distance_m / params.speed_m_per_s) if profile == "push" else 0.0
-        self._x_end = self._x0 + math.copysign(abs(params.distance_m), params.speed_m_per_s)
+        if profile == "imposed":
+            self._t_end = params.duration_s
+            self._x_end = self._x0 + params.speed_m_per_s * params.duration_s
+        else:
+            self._t_end = abs(params.distance_m / params.speed_m_per_s) if profile == "push" else 0.0
+            self._x_end = self._x0 + math.copysign(abs(params.distance_m), params.speed_m_per_s)
 
     def constants(self) -> OperatorConstants:
         """The resolved profile and its numbers, as the tick uses them."""
@@ -128,7 +149,7 @@ class Operator:
         """Intended position (m) and velocity (m/s) along axis 0 at time t."""
         profile = self._profile
         tau = t - self._start
-        if profile == "push":
+        if profile in {"push", "imposed"}:
             return push1(tau, self._x0, self._speed, self._t_end, self._x_end)
         x0 = self._x0
         if profile == "hold":
@@ -157,6 +178,11 @@ class Operator:
             tuple(vd * u for u in direction),
         )
 
+    @property
+    def imposed(self) -> bool:
+        """The device is driven along the trajectory (profile "imposed"), not pulled by a hand."""
+        return self._profile == "imposed"
+
     def hand_force(self, t: float, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """Force of the hand on the device, per axis (N)."""
         return self.hand_force_and_intended(t, x, v)[0]
@@ -166,6 +192,8 @@ class Operator:
     ) -> tuple[list[float], float, float]:
         """`hand_force` and the intended position and velocity it used, from one evaluation."""
         xd, vd = self.intended(t)
+        if self._profile == "imposed":  # no hand: the loop drives the device (module docstring)
+            return [0.0] * len(x), xd, vd
         k, b = self._k, self._b
         out = [hand1(k, b, xd, vd, x[0], v[0])]
         if len(x) > 1:

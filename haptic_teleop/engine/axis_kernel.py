@@ -27,6 +27,7 @@ from haptic_teleop.engine.compiled_loop import (
     P_BOUND_GAIN,
     P_C1,
     P_C2,
+    P_DAMP,
     P_EBA_GAIN,
     P_EBA_ON,
     P_FORCE_LAW,
@@ -37,6 +38,7 @@ from haptic_teleop.engine.compiled_loop import (
     P_LIM1,
     P_LIM2,
     P_LIMIT,
+    P_MASS,
     P_PERIOD_S,
     P_PLANT_LIMIT,
     P_PROFILE,
@@ -120,6 +122,7 @@ within3 = jit(eba.within3)
 push1 = jit(op.push1)
 sinusoid1 = jit(op.sinusoid1)
 hand1 = jit(op.hand1)
+imposed_force1 = jit(op.imposed_force1)
 actuator_limited1 = jit(mujoco_plant.actuator_limited1)
 
 
@@ -182,6 +185,8 @@ def accept3(P: np.ndarray, S: np.ndarray, a: float, b: float, c: float) -> None:
 def finish_tick(
     n: int,
     models: np.ndarray,
+    mq: np.ndarray,
+    mv: np.ndarray,
     mctrl: np.ndarray,
     sctrl: np.ndarray,
     sqfrc: np.ndarray,
@@ -205,19 +210,27 @@ def finish_tick(
     # The tick after the controllers and the network: operator, plants, the tick's row.
     tau = n * P[P_PERIOD_S] - P[OP + P_START]
     profile = P[OP + P_PROFILE]
-    if profile == 0.0:
+    imposed = profile == 3.0
+    if profile == 0.0 or imposed:
         xd, vd = push1(tau, P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END])
     elif profile == 1.0:
         xd, vd = sinusoid1(tau, P[OP + P_X0], P[OP + P_AMP], P[OP + P_W])
     else:
         xd, vd = P[OP + P_X0], 0.0
-    fh = hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
+    fh = 0.0 if imposed else hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
     fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
     S[MASTER + S_HELD] = fm_applied  # EnergyBound.applied1: the reservoir accounts with it
     mctrl[0] = fh
     mctrl[1] = fm_applied
     for _ in range(int(P[MASTER + P_SUBSTEPS])):
         mj_step(models[0], models[1])
+    if imposed:  # the handle put on the trajectory at tick n + 1 (Engine._drive)
+        x1, v1 = push1(
+            (n + 1) * P[P_PERIOD_S] - P[OP + P_START], P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END]
+        )
+        mq[0] = x1
+        mv[0] = v1
+        fh = imposed_force1(P[OP + P_MASS], P[OP + P_DAMP], P[P_PERIOD_S], v_m, v1, fm_applied)
     fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
     S[SLAVE + S_HELD] = fs_applied
     sctrl[0] = fs_applied
@@ -322,7 +335,7 @@ def run_ticks(
         brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
         # operator, plants, the row
         finish_tick(
-            n, models, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
+            n, models, mq, mv, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
             fm, m_desired, fs, s_desired, frx, brx, fwd_occ[n - w0], bwd_occ[n - w0],
         )  # fmt: skip
     return n1

@@ -976,7 +976,7 @@ def run_ticks_codec(
             brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
             bocc = bwd_occ[n - w0]
         finish_tick(
-            n, models, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
+            n, models, mq, mv, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
             fm, m_desired, fs, s_desired, frx, brx, focc, bocc,
         )  # fmt: skip
     return n1

@@ -4,7 +4,8 @@ A tick of the Python loop costs 20 to 50 us on this project's 2-vCPU machine, of
 5 to 9 us; the rest is the interpreter (docs/performance.md). This module runs the same tick in
 machine code: the one-axis formulas of `core` (`eba.reservoir1`, `bounded1`, `actuator_bounded1`,
 `saturated1`,
-`coupling1`, `within2/3`, `operator.push1`, `sinusoid1`, `hand1`, `plants.actuator_limited1`)
+`coupling1`, `within2/3`, `operator.push1`, `sinusoid1`, `hand1`, `imposed_force1`,
+`plants.actuator_limited1`)
 are compiled by numba from their single definition, and MuJoCo's `mj_step` is called straight
 from the compiled code on the same `MjModel`/`MjData` the plants own.
 
@@ -66,9 +67,10 @@ P_ACT_LIMIT, P_SLEW_STEP = 14, 15  # the actuator limits the bound models (inf: 
 # the operator and the clock, in P
 OP = 32
 P_PROFILE, P_X0, P_K, P_B, P_START, P_SPEED, P_T_END, P_X_END, P_AMP, P_W = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+P_MASS, P_DAMP = 10, 11  # imposed: the handle's mass and damping (operator.imposed_force1)
 P_PERIOD_S = 48
 P_SIZE = 49
-PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2}
+PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2, "imposed": 3}
 # per side, in S
 S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED, S_CONTACT = range(10)
 S_SIZE = 32
@@ -406,6 +408,9 @@ def parameters(engine: Engine) -> np.ndarray:
     P[OP + P_X_END] = oc.x_end_m
     P[OP + P_AMP] = o.params.amplitude_m
     P[OP + P_W] = 2.0 * np.pi * o.params.frequency_hz if oc.profile == "sinusoid" else 0.0
+    if oc.profile == "imposed":
+        P[OP + P_MASS] = engine.master.inertia_kg()  # type: ignore[attr-defined]
+        P[OP + P_DAMP] = engine.master.joint_damping()[0]
     P[P_PERIOD_S] = engine.period_s
     return P
 

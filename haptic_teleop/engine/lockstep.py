@@ -30,14 +30,17 @@ import numpy as np
 
 from haptic_teleop.assembly import (
     REMOTE_LIMIT_MARGIN,
+    apply_contact_start,
     build_controller,
     build_master_plant,
     build_network,
     build_operator,
     build_slave_plant,
+    contact_start_of,
     remote_limits,
 )
 from haptic_teleop.core.link import Link, Packet
+from haptic_teleop.core.operator import imposed_force1
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine import compiled_loop
 from haptic_teleop.engine.codec_channel import LAYOUT_ARM, build_codec_channels
@@ -103,9 +106,11 @@ class Engine:
             return
         op = c.operator
         trace = scene.operator_trace
-        self.operator = build_operator(op, trace)
-        self.master = build_master_plant(c)
-        self.slave = build_slave_plant(c)
+        # An in-contact start (slave.start: in_contact): both sides at rest in the equilibrium.
+        self.contact_start = start = contact_start_of(c)
+        self.operator = build_operator(op, trace, start)
+        self.master = build_master_plant(c, start.master_x_m if start is not None else 0.0)
+        self.slave = build_slave_plant(c, start.slave_x_m if start is not None else None)
         limits = remote_limits(c, scene.operator_trace)
         m, s = c.master, c.slave
         self.master_ctrl = build_controller(
@@ -114,6 +119,9 @@ class Engine:
         self.slave_ctrl = build_controller(
             c.controllers.slave, "slave", self.period_s, s.damping_n_s_per_m, limits, s.effects.saturation
         )
+        self.initial_energy: dict[str, float] = {}
+        if start is not None:
+            self.initial_energy = apply_contact_start(start, self.master_ctrl, self.slave_ctrl, self.slave)
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
         # The codec stage of the directions that name one (docs/codec.md, "In the channels").
         self.codecs = build_codec_channels(c, self.period_ns, self.forward, self.backward)
@@ -308,6 +316,7 @@ class Engine:
         # The reservoirs account with the force the plants really applied (docs/eba.md).
         m_applied, s_applied = mc.bound.applied1, sc.bound.applied1
         hand = self.operator.hand_force_and_intended
+        drive = self._drive()
         fwd, bwd = self.forward, self.backward
         fwd_send, bwd_send = fwd.send, bwd.send
         fwd_deliver, bwd_deliver = fwd.deliver, bwd.deliver
@@ -364,6 +373,8 @@ class Engine:
                 # operator and plants
                 fh, xd, vd = hand(n * period_s, xm, vm)
                 fm_applied = m_step([fm], fh)[0]
+                if drive is not None:  # an imposed trajectory: the handle is put on it
+                    fh = drive(n + 1, v_m, fm_applied)
                 fs_applied = s_step([fs])[0]
                 m_applied(fm_applied)
                 s_applied(fs_applied)
@@ -408,6 +419,7 @@ class Engine:
         m_desired, s_desired = mc.force_desired, sc.force_desired
         m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
         hand = self.operator.hand_force_and_intended
+        drive = self._drive()
         fcodec, bcodec = self.codecs
         fwd, bwd = self.forward, self.backward
         fbuf, bbuf = self.forward_buffer, self.backward_buffer
@@ -451,6 +463,8 @@ class Engine:
                     mc.set_remote(remote)
                 fh, xd, vd = hand(n * period_s, xm, vm)
                 fm_applied = master.step([fm], fh)[0]
+                if drive is not None:
+                    fh = drive(n + 1, v_m, fm_applied)
                 fs_applied = slave.step([fs])[0]
                 mc.bound.applied1(fm_applied)
                 sc.bound.applied1(fs_applied)
@@ -484,6 +498,25 @@ class Engine:
         self.master.close()
         self.slave.close()
         return self._streamed(done, wall)
+
+    def _drive(self) -> Callable[[int, float, float], list[float]] | None:
+        """With operator.profile imposed (core/operator.py): after the master's step, put its
+        handle on the trajectory at tick n + 1 and return the force the position source applied
+        (`imposed_force1`, the op_force_n column); None for a hand."""
+        op = self.operator
+        if not op.imposed:
+            return None
+        intended, set_state = op.intended, self.master.set_state  # type: ignore[attr-defined]
+        period_s = self.period_s
+        mass = self.master.inertia_kg()  # type: ignore[attr-defined]
+        damping = self.master.joint_damping()[0]
+
+        def drive(n1: int, v: float, applied: float) -> list[float]:
+            x1, v1 = intended(n1 * period_s)
+            set_state(x1, v1)
+            return [imposed_force1(mass, damping, period_s, v, v1, applied)]
+
+        return drive
 
     def _settled(self, codec: Any, link: Link, buf: PlayoutBuffer) -> Settled:
         """A direction's packet records whose fate is final: its codec's, or its link and buffer's."""
@@ -846,6 +879,8 @@ def record_run(
             "slave_joint_damping": engine.slave.joint_damping(),
         }
         info.update(engine.codec_facts())
+        # An in-contact start: each reservoir's start value (holding energy + eba.initial_energy_j).
+        info.update(getattr(engine, "initial_energy", {}))
         if c.is_arm:  # the wall plane in the task frame (the analysis' penetration)
             info["wall_point_m"] = list(c.slave.wall.point_m or ())
             info["wall_normal"] = list(c.slave.wall.normal or ())

@@ -12,6 +12,8 @@
   (experiments/codec.py, docs/codec.md).
 - `error-control`: seed 000's experiment, prediction-based filtering with FEC or ARQ over its
   events against priority-based filtering (experiments/codec.py, docs/codec.md).
+- `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent
+  loss time, predicted against measured (experiments/transparency.py, docs/transparency.md).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from haptic_teleop.experiments.args import OneLineParser
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
-    from haptic_teleop.experiments import codec, deadband, deadband_loop, nve
+    from haptic_teleop.experiments import codec, deadband, deadband_loop, nve, transparency
 
     p.__class__ = OneLineParser
     sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
@@ -46,3 +48,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     dl = sub.add_parser("deadband-loop", help=deadband_loop.HELP, description=deadband_loop.HELP)
     deadband_loop.add_arguments(dl)
     dl.set_defaults(func=deadband_loop.main)
+    tr = sub.add_parser("transparency", help=transparency.HELP, description=transparency.HELP)
+    transparency.add_arguments(tr)
+    tr.set_defaults(func=transparency.main)

@@ -43,8 +43,9 @@ def sim_settings(config: Scene) -> SimSettings:
     )
 
 
-def build_master_plant(config: Scene) -> Plant:
-    """The operator's device of `config` (its `master` section), with `master.effects`."""
+def build_master_plant(config: Scene, start_position_m: float = 0.0) -> Plant:
+    """The operator's device of `config` (its `master` section), with `master.effects`, its handle
+    at `start_position_m` (an in-contact start moves it)."""
     m = config.master
     plant = backend_class("mujoco", "master")(
         sim_settings(config),
@@ -53,12 +54,14 @@ def build_master_plant(config: Scene) -> Plant:
         force_limit_n=m.force_limit_n,
         hand_mass_kg=config.operator.mass_kg,
         model=m.model,
+        start_position_m=start_position_m,
     )
     return _with_effects(plant, config, "master", m.effects)
 
 
-def build_slave_plant(config: Scene) -> Plant:
-    """The robot and wall of `config` (its `slave` section), with `slave.effects`."""
+def build_slave_plant(config: Scene, start_position_m: float | None = None) -> Plant:
+    """The robot and wall of `config` (its `slave` section), with `slave.effects`; the robot at
+    `start_position_m` (default the scene's `slave.start_position_m`; an in-contact start gives it)."""
     s = config.slave
     plant = backend_class("mujoco", "slave")(
         sim_settings(config),
@@ -70,7 +73,7 @@ def build_slave_plant(config: Scene) -> Plant:
         wall_damping_n_s_per_m=s.wall.damping_n_s_per_m,
         contact_impedance=s.contact_impedance,
         model=s.model,
-        start_position_m=s.start_position_m,
+        start_position_m=s.start_position_m if start_position_m is None else start_position_m,
     )
     return _with_effects(plant, config, "slave", s.effects)
 

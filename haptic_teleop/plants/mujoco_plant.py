@@ -160,6 +160,17 @@ class MujocoDevice:
     def contact_force(self) -> list[float]:
         return [0.0]
 
+    def set_state(self, position_m: float, velocity_m_per_s: float) -> None:
+        """Put the handle at a position and velocity (an imposed trajectory, core/operator.py):
+        what `read` returns until the next `step`."""
+        self._qpos[0] = position_m
+        self._qvel[0] = velocity_m_per_s
+
+    def inertia_kg(self) -> float:
+        """The mass the joint moves (handle and hand, plus the joint's armature), kg."""
+        m = self.model
+        return float(m.body_mass[m.body("handle").id] + m.dof_armature[m.joint("master_x").dofadr[0]])
+
     def joint_damping(self) -> list[float]:
         """The simulator's damping of the joint (MjModel dof_damping, N s/m), read now: it is the
         scene's damping plus any viscous friction effect, or whatever was written into the model."""

@@ -33,7 +33,13 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class OperatorConfig:
-    profile: str = field(default="push", metadata={"choices": ("push", "sinusoid", "hold", "trace")})
+    profile: str = field(
+        default="push",
+        metadata={
+            "choices": ("push", "sinusoid", "hold", "trace", "imposed"),
+            "help": "imposed: the device is driven along the push (a position source), one-axis scenes only",
+        },
+    )
     mass_kg: float = field(default=0.5, metadata={"min": 0.0, "max": 20.0, "help": "arm mass moving with the handle"})
     stiffness_n_per_m: float = field(default=200.0, metadata={"min": 0.0, "max": 1e5})
     damping_n_s_per_m: float = field(default=10.0, metadata={"min": 0.0, "max": 1e4})
@@ -43,6 +49,10 @@ class OperatorConfig:
     amplitude_m: float = field(default=0.02, metadata={"min": 0.0, "max": 10.0})
     frequency_hz: float = field(default=0.5, metadata={"gt": 0.0, "max": 100.0})
     trace_file: str | None = field(default=None, metadata={"help": "CSV time_s,position_m (profile trace)"})
+    duration_s: float | None = field(
+        default=None,
+        metadata={"min": 0.0, "max": 86400.0, "help": "imposed: how long it moves at speed_m_per_s, then holds"},
+    )
     direction: tuple[float, ...] | None = field(
         default=None,
         metadata={
@@ -57,6 +67,10 @@ class OperatorConfig:
             raise ValueError("profile 'trace' needs trace_file")
         if self.profile != "trace" and self.trace_file:
             raise ValueError(f"trace_file is only used with profile 'trace', not {self.profile!r}")
+        if self.profile == "imposed" and self.duration_s is None:
+            raise ValueError("profile 'imposed' needs duration_s (s at speed_m_per_s, then hold)")
+        if self.profile != "imposed" and self.duration_s is not None:
+            raise ValueError(f"duration_s is only used with profile 'imposed', not {self.profile!r}")
 
 
 @dataclass(frozen=True)
@@ -378,6 +392,17 @@ class SlaveConfig:
     damping_n_s_per_m: float = field(default=5.0, metadata={"gt": 0.0, "max": 1e5, "help": "physical damping b_s"})
     force_limit_n: float = field(default=50.0, metadata={"gt": 0.0, "max": 1e5, "help": "actuator limit"})
     start_position_m: float = field(default=0.0, metadata={"min": -10.0, "max": 10.0})
+    start: str | None = field(
+        default=None,
+        metadata={
+            "choices": ("free", "in_contact"),
+            "help": "in_contact: start pressed against the wall at equilibrium (one-axis; docs/transparency.md)",
+        },
+    )
+    initial_contact_force_n: float | None = field(
+        default=None,
+        metadata={"gt": 0.0, "max": 1e4, "help": "start in_contact: the wall force at the start"},
+    )
     contact_impedance: float = field(
         default=0.1, metadata={"gt": 0.0, "max": 0.5, "help": "MuJoCo solimp d of the wall contact"}
     )
@@ -415,8 +440,24 @@ class SlaveConfig:
         },
     )
 
+    @property
+    def in_contact(self) -> bool:
+        """The robot starts pressed against the wall (`start: in_contact`)."""
+        return self.start == "in_contact"
+
     def __post_init__(self) -> None:
         _check_saturation("slave", self.effects, self.force_limit_n)
+        if self.in_contact != (self.initial_contact_force_n is not None):
+            raise ValueError(
+                "start: in_contact and initial_contact_force_n go together (the wall force at the start, > 0); "
+                "a free start has no initial_contact_force_n"
+            )
+        if self.in_contact:
+            if self.start_position_m != 0.0:
+                raise ValueError(
+                    "start: in_contact sets the start position from the contact force; leave start_position_m out"
+                )
+            return
         if self.wall.position_m <= self.start_position_m:
             raise ValueError(
                 f"wall.position_m ({self.wall.position_m}) must be beyond start_position_m "
@@ -532,6 +573,22 @@ class RecordingConfig:
     )
 
 
+@dataclass(frozen=True)
+class AnalysisConfig:
+    """What the transparency analysis of a contact run takes from the scene (docs/transparency.md)."""
+
+    allowed_force_error_n: float = field(
+        default=0.1,
+        metadata={"gt": 0.0, "max": 1e3, "help": "the force distortion E the allowable delay and loss time are for"},
+    )
+    reference: bool | None = field(
+        default=None,
+        metadata={
+            "help": "compare with an undisturbed reference run (no network effects); default: in-contact starts only"
+        },
+    )
+
+
 WALL_STEP_LIMIT = math.sqrt(2.0)  # largest stable omega * h of the wall contact (docs/robustness.md)
 
 
@@ -550,6 +607,9 @@ class Scene:
     mapping: MappingConfig | None = field(default=None, metadata={"help": "arms: workspace mapping master -> slave"})
     nve: NveConfig | None = field(
         default=None, metadata={"help": "an NVE scene: a server's virtual object and its clients (docs/nve.md)"}
+    )
+    analysis: AnalysisConfig | None = field(
+        default=None, metadata={"help": "the transparency analysis of contact runs (docs/transparency.md)"}
     )
 
     @property
@@ -598,11 +658,44 @@ class Scene:
                 f"step of {h * 1e3:g} ms: omega * h = {omega * h:.2f} > {WALL_STEP_LIMIT:.2f} makes the simulated wall "
                 f"active; allowed: simulation.substeps >= {need} for this wall, or a softer wall or heavier robot"
             )
+        self._check_seed_premise()
         friction = self.slave.effects.friction
         if friction is not None and friction.coulomb_n > 0.0 and self.simulation.substeps != 1:
             raise ValueError(
                 "slave.effects.friction.coulomb_n needs simulation.substeps: 1 (the wall force is told "
                 "apart from the joint friction force per MuJoCo step, docs/effects.md)"
+            )
+
+    def _check_seed_premise(self) -> None:
+        """The seed scenario's keys (docs/transparency.md): one axis; an in-contact start that can
+        be held (each side's equilibrium force within its saturation)."""
+        op, s = self.operator, self.slave
+        if self.is_arm and (op.profile == "imposed" or s.in_contact):
+            key = "operator.profile imposed" if op.profile == "imposed" else "slave.start in_contact"
+            raise ValueError(
+                f"{key} is for one-axis scenes; an arm scene starts free with a hand (push, sinusoid, hold)"
+            )
+        if not s.in_contact:
+            return
+        if op.profile == "trace":
+            raise ValueError(
+                "slave.start in_contact moves the start positions; operator.profile trace gives absolute ones "
+                "(allowed: push, sinusoid, hold, imposed)"
+            )
+        f0 = s.initial_contact_force_n or 0.0
+        ms, cs = self.controllers.master, self.controllers.slave
+        if cs.stiffness_n_per_m <= 0.0:
+            raise ValueError("slave.start in_contact needs controllers.slave.stiffness_n_per_m > 0 to hold the contact")
+        fm = ms.force_gain * f0 if ms.law == "force" else ms.stiffness_n_per_m * f0 / cs.stiffness_n_per_m
+        for side, need, lim in (("slave", f0, cs.force_limit_n), ("master", fm, ms.force_limit_n)):
+            if need > lim:
+                raise ValueError(
+                    f"slave.initial_contact_force_n ({f0:g}) needs {need:g} N from the {side} controller, beyond "
+                    f"controllers.{side}.force_limit_n ({lim:g}); allowed: a contact force the controllers can hold"
+                )
+        if op.profile in ("push", "hold", "sinusoid") and fm > 0.0 and op.stiffness_n_per_m <= 0.0:
+            raise ValueError(
+                "slave.start in_contact with a hand needs operator.stiffness_n_per_m > 0 to hold the master"
             )
 
 
@@ -635,6 +728,8 @@ ARM_KEYS = frozenset(
         "orientation", "direction", "slew_nm_per_s", "hardware", "nve",
     }
 )  # fmt: skip
+# Keys of the seed scenario (docs/transparency.md), left out the same way when absent.
+SEED_KEYS = frozenset({"duration_s", "start", "initial_contact_force_n", "analysis"})
 
 
 def _without_absent_arm_keys(d: Any) -> Any:
@@ -642,7 +737,7 @@ def _without_absent_arm_keys(d: Any) -> Any:
         return {
             k: (_given_codec_keys(v) if k == "codec" else _without_absent_arm_keys(v))
             for k, v in d.items()
-            if not ((k in ARM_KEYS or k == "codec") and v is None)
+            if not ((k in ARM_KEYS or k in SEED_KEYS or k == "codec") and v is None)
         }
     return d
 
