@@ -115,8 +115,8 @@ def test_allowable_delay_and_loss_time_formulas():
     assert abs(force_drop(m, d, d).drop_n) == pytest.approx(0.1, rel=1e-9)  # E = s 2 d
     assert allowable_delay(_model("position", 0.1), 0.1) == math.inf  # the bound's ramp ignores delay
     assert allowable_loss_time(m, 0.1, 0.0) == pytest.approx(0.1 / force_slope(m))
-    with pytest.raises(NotImplementedError, match="two_condition"):
-        force_slope(m, law="two_condition")
+    with pytest.raises(ValueError, match="reservoir"):
+        force_slope(m, law="pooled")
 
 
 @pytest.fixture(scope="module")
@@ -201,3 +201,24 @@ def test_experiment_writes_tables_whose_predictions_hold(tmp_path):
     last = rows[-1]
     assert float(last[6]) == pytest.approx(float(last[5]), rel=1e-3)  # drop measured = predicted (s R)
     assert (out / "transparency.png").stat().st_size > 1000
+
+
+def test_two_condition_law_gives_the_seeds_drop_and_the_reservoir_law_less():
+    """Force reflection with the bound binding (g 0.5: 238 N/m asked, 200 N/m allowed): under the
+    two-condition law the ZOH cap ramps the felt force at s_b from the delayed onset, so the drop is
+    the seed's s_b R exactly; the reservoir law charged its reservoir while the delayed force was
+    flat and drops less (docs/transparency.md, "Force drop")."""
+    m = _model("force", 0.1, gain=0.5)
+    assert m.binding
+    felt = {}
+    for law in ("two_condition", "reservoir"):
+        base = ("controllers.master.law=force", "controllers.master.force_gain=0.5", "master.damping_n_s_per_m=0.1",
+                f"controllers.master.eba.law={law}")  # fmt: skip
+        felt[law] = {d: np.abs(_run(*base, *_delay(d))[:, COL["m_force_n"]]) for d in (0.0, 0.05)}
+    i = 1500  # 1 s after the master starts
+    two = felt["two_condition"][0.0][i] - felt["two_condition"][0.05][i]
+    res = felt["reservoir"][0.0][i] - felt["reservoir"][0.05][i]
+    assert force_drop(m, 0.05, 0.05, "two_condition", at_s=1.0).drop_n == pytest.approx(force_slope(m) * 0.1)
+    assert two == pytest.approx(force_drop(m, 0.05, 0.05, "two_condition", at_s=1.0).drop_n, rel=1e-6)
+    assert res == pytest.approx(force_drop(m, 0.05, 0.05, "reservoir", at_s=1.0).drop_n, abs=2e-3)
+    assert res < 0.5 * two

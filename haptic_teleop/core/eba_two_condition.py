@@ -34,8 +34,8 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # the params type only; core.eba imports this module
-    from haptic_teleop.core.eba import EnergyBoundParams
+if TYPE_CHECKING:  # the types only; core.eba imports this module
+    from haptic_teleop.core.eba import AxisBoundState, EnergyBoundParams
 
 # The energy-bound laws a side can run (`controllers.<side>.eba.law`).
 EBA_LAWS = ("reservoir", "two_condition")
@@ -213,3 +213,24 @@ class TwoConditionBound:
     @property
     def total_energy_j(self) -> float:
         return sum(self.energy_j)
+
+    def axis_state(self) -> AxisBoundState:
+        """A one-axis bound's state (ValueError for more axes), as `EnergyBound.axis_state`: the
+        controller ledger E_c, the force held, the last position and whether there was one."""
+        from haptic_teleop.core.eba import AxisBoundState
+
+        self._one_axis()
+        return AxisBoundState(self.energy_j[0], self._held[0], self._last_x[0], self._has_last)
+
+    def set_axis_state(self, state: AxisBoundState) -> None:
+        """Restore a one-axis bound's state (ValueError for more axes), e.g. the in-contact start's
+        holding energy (assembly.apply_contact_start): the next `step1` goes on from it."""
+        self._one_axis()
+        self.energy_j[0] = state.energy_j
+        self._held[0] = state.held_n
+        self._last_x[0] = state.last_x_m
+        self._has_last = state.has_last
+
+    def _one_axis(self) -> None:
+        if len(self.energy_j) != 1:
+            raise ValueError(f"the axis state is that of a one-axis bound; this one has {len(self.energy_j)} axes")

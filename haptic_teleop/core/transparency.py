@@ -165,18 +165,9 @@ class ContactModel:
         return self.master_stiffness_n_per_m * f0 / self.slave_stiffness_n_per_m
 
 
-def _two_condition_pending() -> NotImplementedError:
-    return NotImplementedError(
-        "law 'two_condition' (the published two-condition EBA, core/eba_two_condition.py) is not merged into "
-        "this branch yet: its slope and drop are wired here when it is; allowed now: 'reservoir'"
-    )
-
-
 def _check_law(law: str) -> None:
     if law not in LAWS:
         raise ValueError(f"law must be one of {LAWS}, got {law!r}")
-    if law == "two_condition":
-        raise _two_condition_pending()
 
 
 def force_stiffness(m: ContactModel, law: str = "reservoir") -> float:
@@ -229,6 +220,9 @@ def force_drop(
 
     - force reflection, bound not binding: the felt force is the wall force a round trip late:
       drop = s min(R, t) (the seed's c2m v_m d with d the round trip);
+    - force reflection, bound binding, two-condition law: the ZOH condition's per-step cap
+      gamma_max = 2 b_m / T holds whatever energy is stored, so the felt force ramps at s_b from
+      the delayed onset: drop = s_b min(R, t), the seed's value;
     - force reflection, bound binding, reservoir law: the operator keeps charging the reservoir
       while the delayed desired force is flat, so the bound is ahead when it rises; once the
       desired force has caught up (`catch_up_s`): drop = s_b R - (s_d - s_b) tau, between s_b R
@@ -254,6 +248,13 @@ def force_drop(
         return DropPrediction(force_slope(m, law) * min(r, t), "force reflection, bound not binding: drop s R")
     sb = m.bound_stiffness_n_per_m * v
     sd = m.desired_stiffness_n_per_m * v
+    if law == "two_condition":
+        # the ZOH condition caps each step's rise at (2 b_m / T) dx whatever energy is stored, so
+        # both runs' felt forces ramp at s_b from their desired forces' onsets, a round trip
+        # apart: the seed's s_b R
+        return DropPrediction(
+            sb * min(r, t), "force reflection, bound binding, two-condition law: the ZOH cap's ramp, a round trip late"
+        )
     r = m.force_onset_s(r)  # the undelayed run's onset is 0 (the wall force leads by more than a tick)
     tau = catch_up_s(m, r)
     if t >= r + tau:
