@@ -26,6 +26,7 @@ from haptic_teleop.reporting.document import Block, Document, Image, Para, Secti
 from haptic_teleop.reporting.inputs import Inputs, Run, read_inputs
 from haptic_teleop.reporting.stats import (
     Key,
+    Paired,
     fmt,
     fmt_spread,
     fmt_value,
@@ -358,7 +359,7 @@ def category_section(
                         fmt_value(c),
                         label_of(m),
                         str(d.n),
-                        "n/a" if d.n == 0 else (fmt(d.mean) if d.n == 1 else f"{fmt(d.mean)} ± {fmt(d.std)}"),
+                        _fmt_paired(d),
                         "n/a" if math.isnan(rel) else f"{rel:+.3g} %",
                     )
                 )
@@ -379,6 +380,15 @@ def category_section(
             )
         s.subsections.append(sub)
     return s
+
+
+def _fmt_paired(d: Paired) -> str:
+    if d.n == 0:
+        return "n/a"
+    if d.n == 1:
+        return fmt(d.mean)
+    std = 0.0 if d.std <= 1e-12 * max(abs(d.mean), abs(d.mean_baseline)) else d.std
+    return f"{fmt(d.mean)} ± {fmt(std)}"
 
 
 def drill_section(runs: Sequence[Run], keys: Sequence[Key], metrics: Sequence[str], max_runs: int) -> Section | None:

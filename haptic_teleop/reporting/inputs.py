@@ -184,6 +184,14 @@ def _csv_header(path: Path) -> list[str]:
         return next(csv.reader(fh), [])
 
 
+def _beside(table: Path, text: str) -> Path:
+    """A path in a table: relative to the table's directory (else to the working directory)."""
+    p = Path(text)
+    if not p.is_absolute() and ((table.parent / p).exists() or not p.exists()):
+        p = table.parent / p
+    return p.resolve()
+
+
 def read_table(path: Path) -> list[Run]:
     """The runs of a results table (module docstring): exit 2 (InputError) when it has no metric."""
     rows = _table_rows(path)
@@ -214,12 +222,10 @@ def read_table(path: Path) -> list[Run]:
         bag: Path | None = None
         plots: Path | None = None
         if r.get("bag_path"):
-            p = Path(str(r["bag_path"]))
-            bag = p if p.is_absolute() or p.exists() else path.parent / p
+            bag = _beside(path, str(r["bag_path"]))
         run_dir = path.parent / "runs" / str(r["run"]) if legacy and r.get("run") else None
         if r.get("run_dir"):
-            p = Path(str(r["run_dir"]))
-            run_dir = p if p.is_absolute() or p.exists() else path.parent / p
+            run_dir = _beside(path, str(r["run_dir"]))
         if run_dir is not None:
             if bag is None and (run_dir / "bag" / "metadata.yaml").is_file():
                 bag = run_dir / "bag"
