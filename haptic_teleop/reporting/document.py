@@ -91,7 +91,7 @@ h3 { font-size: 1.1em; margin-top: 1.5em; }
 .table { overflow-x: auto; margin: .6em 0 1.2em; }
 table { border-collapse: collapse; font-size: .85em; }
 th, td { border: 1px solid #ccc; padding: .25em .55em; text-align: right; vertical-align: top; }
-th { background: #f0f0f0; max-width: 16em; overflow-wrap: anywhere; }
+th { background: #f0f0f0; max-width: 16em; }
 td { white-space: nowrap; }
 td:first-child, th:first-child { text-align: left; }
 caption { caption-side: top; text-align: left; font-style: italic; padding-bottom: .3em; }
@@ -128,12 +128,17 @@ def _inline(text: str) -> str:
     return "".join(f"<code>{html.escape(p)}</code>" if i % 2 else html.escape(p) for i, p in enumerate(parts))
 
 
+def _breakable(text: str) -> str:
+    """A column header: long key paths and metric names may break after `.`, `_` and `+`."""
+    return re.sub(r"([._+])(?=\w)", r"\1<wbr>", _inline(text)) if "`" not in text else _inline(text)
+
+
 def _html_block(b: Block) -> str:
     if isinstance(b, Para):
         return f"<p>{_inline(b.text)}</p>"
     if isinstance(b, Table):
         cap = f"<caption>{_inline(b.caption)}</caption>" if b.caption else ""
-        head = "".join(f"<th>{_inline(h)}</th>" for h in b.header)
+        head = "".join(f"<th>{_breakable(h)}</th>" for h in b.header)
         body = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>" for row in b.rows)
         return f'<div class="table"><table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
     data = base64.b64encode(b.png).decode("ascii")
@@ -210,19 +215,23 @@ def render_markdown(doc: Document) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
-def write(doc: Document, out: Path) -> tuple[Path, Path]:
-    """report.html, report.md and figures/*.png in `out` (which exists); their paths."""
-    from haptic_teleop.analysis.outputs import write_atomic as write_text
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Whole or not at all: through a temporary file and a rename."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(data)
+    tmp.replace(path)
 
+
+def write(doc: Document, out: Path) -> tuple[Path, Path]:
+    """report.html, report.md and figures/*.png in `out` (which exists); their paths. The figures
+    and the Markdown first: the HTML appears last, whole."""
     unique_names(doc)
     images = doc.images()
     if images:
         fig_dir = out / FIGURE_DIR
         fig_dir.mkdir(exist_ok=True)
         for img in images:
-            tmp = fig_dir / f".{img.name}.tmp"
-            tmp.write_bytes(img.png)
-            tmp.replace(fig_dir / img.name)
-    write_text(out / MD_FILE, render_markdown(doc))
-    write_text(out / HTML_FILE, render_html(doc))
+            _write_bytes(fig_dir / img.name, img.png)
+    _write_bytes(out / MD_FILE, render_markdown(doc).encode("utf-8"))
+    _write_bytes(out / HTML_FILE, render_html(doc).encode("utf-8"))
     return out / HTML_FILE, out / MD_FILE

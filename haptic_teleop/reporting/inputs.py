@@ -159,7 +159,7 @@ def _table_rows(path: Path) -> list[dict[str, Any]]:
             raise InputError(f"{path}: not a readable Parquet table ({exc}); {ALLOWED}") from None
         return [{str(k): _scalar(v) for k, v in r.items()} for r in rows]
     try:
-        with path.open(newline="") as fh:
+        with path.open(newline="", encoding="utf-8") as fh:
             reader = csv.reader(fh)
             header = next(reader, None)
             body = list(reader)
@@ -180,7 +180,7 @@ def _table_rows(path: Path) -> list[dict[str, Any]]:
 def _csv_header(path: Path) -> list[str]:
     if path.suffix.lower() != ".csv":
         return []
-    with path.open(newline="") as fh:
+    with path.open(newline="", encoding="utf-8") as fh:
         return next(csv.reader(fh), [])
 
 
@@ -263,13 +263,13 @@ def _load_yaml(text: str) -> Any:
 def read_run_dir(path: Path) -> Run:
     """A run directory of `run` (or of a sweep's runs/): its summary.json and scene.yaml."""
     try:
-        summary = json.loads((path / "summary.json").read_text())
+        summary = json.loads((path / "summary.json").read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{path / 'summary.json'}: not a readable summary ({exc}); {ALLOWED}") from None
     if not isinstance(summary, dict):
         raise InputError(f"{path / 'summary.json'}: not a summary (a JSON object); {ALLOWED}")
     scene_file = path / "scene.yaml"
-    scene: Any = _load_yaml(scene_file.read_text()) if scene_file.is_file() else None
+    scene: Any = _load_yaml(scene_file.read_text(encoding="utf-8")) if scene_file.is_file() else None
     if scene is None:
         bag_dir = path / "bag"
         scene = _bag_scene(bag_dir) if (bag_dir / "metadata.yaml").is_file() else {}
@@ -401,6 +401,8 @@ def read_path(path: Path) -> tuple[list[Run], str]:
 
 def read_inputs(paths: Sequence[str | Path]) -> Inputs:
     """Every path's runs, in the order given; InputError (exit 2) names the first bad one."""
+    import yaml
+
     runs: list[Run] = []
     sources: list[str] = []
     for p in paths:
@@ -408,7 +410,7 @@ def read_inputs(paths: Sequence[str | Path]) -> Inputs:
             got, what = read_path(Path(p))
         except HapticTeleopError:
             raise
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, yaml.YAMLError) as exc:
             raise InputError(f"{p}: cannot be read ({exc}); {ALLOWED}") from None
         runs.extend(got)
         sources.append(what)
