@@ -142,6 +142,13 @@ def overview(inputs: Inputs, keys: Sequence[Key], metrics: Sequence[str], why: s
                 caption="Scene keys whose value differs between the runs",
             )
         )
+        if any(k.paths == ("scene.name",) for k in keys):
+            s.blocks.append(
+                Para(
+                    "The runs come from different scenes: every key in which those scenes differ is "
+                    "listed as swept, and the sections below treat each as a parameter."
+                )
+            )
     else:
         s.blocks.append(Para("No scene key differs between the runs."))
     seeds = sorted({r.seed for r in runs if r.seed is not None})
