@@ -113,7 +113,10 @@ def _synthetic(path: Path, bag: Path | None) -> None:
                     "force_drop_predicted_n": 0.1,  # no measured twin: not a pair
                     "force_rms_error_n": float(seed) + (0.25 if policy == "transparency" else 0.0) + d,
                     "buffering_delay_backward_mean_s": 0.01 * seed, "engine_loop": "compiled",
-                    "bag_path": os.path.relpath(bag, path.parent) if bag is not None and not rows else "",
+                    # the first row's bag relative to the table; the second's as the sweep ran it
+                    # elsewhere: found in runs/<run_hash>/ beside the table
+                    "bag_path": os.path.relpath(bag, path.parent) if bag is not None and not rows
+                    else "elsewhere/runs/x/bag" if bag is not None and len(rows) == 1 else "",
                 })  # fmt: skip
     with path.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -203,9 +206,11 @@ def test_synthetic_table_predictions_and_pairs_by_seed(sweep_dir, tmp_path, caps
     assert diff[2:4] == ["6", "0.25 ± 0"]
     unpaired = statistics.stdev(s + 0.25 + d for d in (0.0, 0.2) for s in (1, 2, 3))
     assert f"± {unpaired:.4g} " in page.row("transparency", "6")[2]  # unpaired: the seeds' spread
-    # bag_path is taken relative to the table's directory
+    # bag_path is taken relative to the table's directory, else found in runs/<run_hash>/
+    second = table.parent / "runs" / "0n20000000000000" / "bag"
+    shutil.copytree(sweep_dir / "runs" / "002-seed1" / "bag", second)
     runs = read_inputs([table]).runs
-    assert [r.bag for r in runs] == [(sweep_dir / "runs" / "002-seed1" / "bag").resolve(), *[None] * 11]
+    assert [r.bag for r in runs] == [(sweep_dir / "runs" / "002-seed1" / "bag").resolve(), second, *[None] * 10]
 
 
 def test_sections_absent_without_their_data(tmp_path, capsys):

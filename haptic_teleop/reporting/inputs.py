@@ -6,9 +6,11 @@ Accepted, in any mix:
   - today's `sweep.csv` (haptic_teleop/sweep.py `write_csv`): `run`, one column per swept
     parameter (its key path, or several joined with `+`), `seed`, then every scalar summary key;
     the run's directory is `runs/<run>/` beside the table (its `bag/` when the sweep kept bags);
-  - the results table of `sweep SWEEP.yaml`: one column per scene key named by its key path
-    (`network.backward.effects.delay.delay_s`), `seed`, `run_hash`, every scalar metric of the
-    run's summary.json, optional `bag_path` (relative paths are taken from the table's directory);
+  - the results table of `sweep SWEEP.yaml` (sweep.parquet, sweep.csv): one column per scene key
+    named by its key path (`network.backward.effects.delay.delay_s`), `seed`, `run_hash`, every
+    scalar metric of the run's summary.json, optional `bag_path` (a relative path is taken from the
+    table's directory, else from the working directory); the run's directory is
+    `runs/<run_hash>/` beside the table when it exists;
 - a sweep's output directory (the table in it: a `.parquet` file, else `sweep.csv`/`results.csv`);
 - a run directory of `haptic-teleop run` (summary.json, scene.yaml, bag/, plots/);
 - a bag (the rosbag2 directory, its metadata.yaml or its .mcap file): summarised here with the same
@@ -221,11 +223,17 @@ def read_table(path: Path) -> list[Run]:
         label = r.get("run") or (str(r["run_hash"])[:12] if r.get("run_hash") else f"row {i + 1}")
         bag: Path | None = None
         plots: Path | None = None
-        if r.get("bag_path"):
-            bag = _beside(path, str(r["bag_path"]))
-        run_dir = path.parent / "runs" / str(r["run"]) if legacy and r.get("run") else None
+        run_dir: Path | None = None
+        if legacy and r.get("run"):
+            run_dir = path.parent / "runs" / str(r["run"])
+        elif r.get("run_hash") and (path.parent / "runs" / str(r["run_hash"])).is_dir():
+            run_dir = path.parent / "runs" / str(r["run_hash"])  # `sweep SWEEP.yaml`: runs/<run_hash>/
         if r.get("run_dir"):
             run_dir = _beside(path, str(r["run_dir"]))
+        if r.get("bag_path"):
+            bag = _beside(path, str(r["bag_path"]))
+            if not bag.exists() and run_dir is not None and (run_dir / "bag").exists():
+                bag = run_dir / "bag"  # a path relative to where the sweep ran, read from elsewhere
         if run_dir is not None:
             if bag is None and (run_dir / "bag" / "metadata.yaml").is_file():
                 bag = run_dir / "bag"
