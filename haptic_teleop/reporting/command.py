@@ -266,7 +266,8 @@ def parameter_section(runs: Sequence[Run], keys: Sequence[Key], metrics: Sequenc
             "deviation and a shaded band from the minimum to the maximum."
         )
     )
-    for k in numeric:
+    drawn = _drawn_metrics(runs, metrics, s)
+    for k in numeric if drawn else ():
         line = _line_key(k, keys)
         rest = [o.name for o in keys if o is not k and o is not line]
         over = "seeds" + (f" and {', '.join(rest)}" if rest else "")
@@ -275,7 +276,7 @@ def parameter_section(runs: Sequence[Run], keys: Sequence[Key], metrics: Sequenc
         sub.blocks.append(
             Image(
                 f"against-{k.name}",
-                png(parameter_figure(runs, k, line, metrics)),
+                png(parameter_figure(runs, k, line, drawn)),
                 f"metrics against {k.name}",
                 f"Mean over {over}{lines}.",
             )
@@ -297,6 +298,24 @@ def parameter_section(runs: Sequence[Run], keys: Sequence[Key], metrics: Sequenc
     table.blocks.append(Table((*(k.name for k in keys), "runs", *(label_of(m) for m in metrics)), tuple(rows), cap))
     s.subsections.append(table)
     return s
+
+
+def _drawn_metrics(runs: Sequence[Run], metrics: Sequence[str], s: Section) -> list[str]:
+    """The metrics worth a panel: those whose value differs between runs; the others (equal in
+    every run, or computed in none) are named in one line of `s` and stay in its tables."""
+    drawn, same = [], []
+    for m in metrics:
+        values = [r.metrics.get(m, math.nan) for r in runs]
+        finite = {v for v in values if math.isfinite(v)}
+        if not finite:
+            same.append(f"`{m}` (n/a)")
+        elif len(finite) == 1 and all(math.isfinite(v) for v in values):
+            same.append(f"`{m}` = {fmt(finite.pop())}")
+        else:
+            drawn.append(m)
+    if same:
+        s.blocks.append(Para(f"Equal in every run, so not plotted: {', '.join(same)}."))
+    return drawn
 
 
 def _anchor(text: str) -> str:
@@ -323,20 +342,22 @@ def category_section(
         )
     )
     seeded = any(r.seed is not None for r in runs)
+    drawn = _drawn_metrics(runs, metrics, s)
     for k in cats:
         base = baselines[k.name]
         others = [o for o in keys if o is not k]
         sub = Section(f"per-{_anchor(k.name)}", f"Per {k.name} (baseline {fmt_value(base)})")
-        sub.blocks.append(
-            Image(
-                f"per-{k.name}",
-                png(category_figure(runs, k, metrics, base)),
-                f"per {k.name}",
-                "Bars: mean over the category's runs"
-                + (f" (all values of {', '.join(o.name for o in others)})" if others else "")
-                + "; error bars: ± 1 sample std; dots: the runs.",
+        if drawn:
+            sub.blocks.append(
+                Image(
+                    f"per-{k.name}",
+                    png(category_figure(runs, k, drawn, base)),
+                    f"per {k.name}",
+                    "Bars: mean over the category's runs"
+                    + (f" (all values of {', '.join(o.name for o in others)})" if others else "")
+                    + "; error bars: ± 1 sample std; dots: the runs.",
+                )
             )
-        )
         rows = []
         for c in k.values:
             members = [r for r in runs if k.of(r) == c]

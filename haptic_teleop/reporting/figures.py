@@ -100,7 +100,8 @@ def prediction_figure(runs: Sequence[Run], pairs: Sequence[Pair], color_key: Key
         if all_pts:
             lo = min(min(a, b) for a, b in all_pts)
             hi = max(max(a, b) for a, b in all_pts)
-            pad = (hi - lo) * 0.08 or max(abs(hi) * 0.1, 1e-9)
+            # a tenth of the spread, at least 5 % of the values' size (all equal: a visible window)
+            pad = max((hi - lo) * 0.08, 0.05 * max(abs(lo), abs(hi))) or 1.0
             lim = (lo - pad, hi + pad)
             ax.plot(lim, lim, color="k", ls="--", lw=0.9, label="measured = predicted", zorder=2)
             ax.set_xlim(*lim)
