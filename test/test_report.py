@@ -38,6 +38,7 @@ class Page(HTMLParser):
 
     def __init__(self, text: str) -> None:
         super().__init__()
+        self.text = text
         self.tags: list[tuple[str, dict[str, str]]] = []
         self.rows: list[list[str]] = []
         self._cell: list[str] | None = None
@@ -149,6 +150,7 @@ def _self_contained(page: Page) -> None:
             else:
                 raise AssertionError(f"<{tag} {name}={v[:60]!r}>")
     assert not [a for t, a in page.tags if t == "script" and "src" in a]
+    assert "url(" not in page.text and "@import" not in page.text  # nothing fetched by the style sheet
 
 
 def _markdown_twin(md: str, out: Path, page: Page) -> None:
