@@ -296,6 +296,12 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_arguments(sw)
     sw.set_defaults(func=sweep.main)
 
+    from haptic_teleop.reporting import command as report_command
+
+    rp = sub.add_parser("report", help="one self-contained HTML report (and a Markdown twin) of sweeps, runs and bags")
+    report_command.add_arguments(rp)
+    rp.set_defaults(func=report_command.main)
+
     b = sub.add_parser("bench", help="benchmarks that print figures")
     bsub = b.add_subparsers(dest="what", required=True, metavar="NAME")
     import importlib
