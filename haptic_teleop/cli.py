@@ -1,4 +1,4 @@
-"""`haptic-teleop run | analyze | sweep | scenes | bench | launch | identify | experiment`: the command line."""
+"""`haptic-teleop run | analyze | sweep | report | compile | bench | launch | ...`: the command line."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from haptic_teleop.analysis.outputs import (
     write_atomic,
     write_outputs,
 )
-from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, PlantError
+from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, InputError, PlantError
 from haptic_teleop.lifetime import deadline
 
 EXIT_OK = 0
@@ -285,6 +285,14 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("scenes", help="list the bundled scenes, one line each: name and description")
     sc.set_defaults(func=cmd_scenes)
 
+    co = sub.add_parser(
+        "compile",
+        help="build the compiled tick loops into numba's cache now (else each compiles on its first run: 10-60 s)",
+    )
+    co.add_argument("--only", metavar="K1,K2", help="kernels to build (default all: axis,codec,arm,arm_codec)")
+    co.add_argument("--done-dir", help="touch NAME.done (NAME.failed) in this directory as each kernel is ready")
+    co.set_defaults(func=cmd_compile)
+
     bg = sub.add_parser("bag", help="info BAG: topics, counts, QoS, integrity; recover BAG: rebuild a cut bag")
     bg.add_argument("action", choices=("info", "recover"))
     bg.add_argument("bag", help="rosbag2 directory (or its .mcap file)")
@@ -344,6 +352,19 @@ def build_parser() -> argparse.ArgumentParser:
     emd.add_argument("--die-with-stdin", action="store_true", help="also stop when stdin is closed")
     emd.set_defaults(func=cmd_emulate)
     return p
+
+
+def cmd_compile(args: argparse.Namespace) -> int:
+    from haptic_teleop.engine.warm import parse_names, warm
+
+    try:
+        names = parse_names(args.only)
+    except ValueError as exc:
+        raise InputError(f"--only: {exc}") from exc
+    done = None if args.done_dir is None else Path(args.done_dir)
+    if done is not None and not done.is_dir():
+        raise InputError(f"--done-dir: {done} is not a directory")
+    return warm(names, done)
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:

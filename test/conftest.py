@@ -2,6 +2,9 @@
 
 import itertools
 import os
+import subprocess
+import sys
+import tempfile
 
 import pytest
 from shm_clean import remove_stale
@@ -16,9 +19,37 @@ _MODULES = itertools.count()
 os.environ.setdefault("ROS_DOMAIN_ID", str(_SESSION))
 
 
+_COMPILE: list[subprocess.Popen] = []
+
+
 def pytest_sessionstart(session):
-    """Stale Fast DDS shared-memory files of killed processes go before the session (shm_clean.py)."""
+    """Stale Fast DDS shared-memory files of killed processes go before the session (shm_clean.py).
+
+    Then the compiled tick loops are built in a background process (`haptic-teleop compile`), on
+    the core the tests leave idle, instead of inside the first tests that need them: on a fresh
+    clone that is about two minutes of numba compiling. A test that reaches a kernel first compiles
+    it itself and the background process waits for it and loads it (compiled_loop.first_compile),
+    so nothing is compiled twice. HAPTIC_TELEOP_TEST_COMPILE=0 turns it off."""
     remove_stale()
+    if os.environ.get("HAPTIC_TELEOP_TEST_COMPILE", "1") == "0":
+        return
+    log = tempfile.NamedTemporaryFile(prefix="haptic-teleop-compile-", suffix=".log", delete=False)
+    _COMPILE.append(
+        subprocess.Popen(
+            [sys.executable, "-m", "haptic_teleop.cli", "compile", "--only", "arm,codec,arm_codec,axis"],
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    )
+    log.close()
+
+
+def pytest_sessionfinish(session):
+    for proc in _COMPILE:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -480,13 +480,17 @@ class CompiledArm:
             0, 0, self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, rel, occ, rel, occ,
             np.zeros((1, 6)), np.zeros((1, 9)), np.zeros((1, self.width)), 0, 0,
         )  # fmt: skip
+        from haptic_teleop.engine.compiled_loop import first_compile
+
         if self.codec:
             from haptic_teleop.engine.compiled_codec import no_codec
 
             idle = no_codec(1)
-            self.ck.run_ticks_codec(*args, *idle, *idle, np.zeros((3, 9)))
+            with first_compile(self.ck.run_ticks_codec):
+                self.ck.run_ticks_codec(*args, *idle, *idle, np.zeros((3, 9)))
         else:
-            self.k.run_ticks(*args)
+            with first_compile(self.k.run_ticks):
+                self.k.run_ticks(*args)
 
     def store(self, engine: Any) -> None:
         """The kernel's state back into the scene's Python objects and `engine.joint_limit_ticks`."""

@@ -123,6 +123,36 @@ def drop_stale_cache(kernel: str, sources: tuple[str, ...]) -> None:
         pass
 
 
+@contextlib.contextmanager
+def first_compile(dispatcher: Any) -> Iterator[None]:
+    """Around a compiled loop's first call in this process: an inter-process lock per kernel, so
+    that processes that start together (a sweep's workers, a test session and its warm-up,
+    `haptic-teleop compile`) compile a kernel once: the first one compiles and writes numba's
+    cache, the others wait for it and then load the cache. Nothing is held once the kernel is
+    compiled or loaded in this process (numba lists its signatures), nor where no lock file can be
+    opened (the call then compiles as it would without the lock)."""
+    import fcntl
+    import os
+    import tempfile
+
+    if getattr(dispatcher, "signatures", None):
+        yield
+        return
+    name = getattr(getattr(dispatcher, "py_func", None), "__module__", "haptic_teleop.kernel")
+    path = os.path.join(tempfile.gettempdir(), f"haptic_teleop-{os.getuid()}-{name}.compile.lock")
+    try:
+        fh = open(path, "a")  # noqa: SIM115 - held across the yield
+    except OSError:
+        yield
+        return
+    with fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 @functools.cache
 def _kernel_or_error() -> tuple[Callable[..., int] | None, str | None]:
     try:

@@ -644,7 +644,8 @@ class Engine:
                     *(no_x if fnet is None else fnet.history()),
                     *(no_x if bnet is None else bnet.history()),
                 )
-            run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
+            with compiled_loop.first_compile(run_ticks):  # compiled once among processes starting together
+                run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
 
         try:
             done = run_windows(self, call, (fwd, bwd), nets, compiled_loop.Rings((2, 3)), output, window, progress)

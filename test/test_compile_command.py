@@ -1,0 +1,85 @@
+"""`haptic-teleop compile` (engine/warm.py) and the lock that makes processes starting together
+compile a kernel once (compiled_loop.first_compile)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import threading
+import types
+
+import pytest
+
+from haptic_teleop.cli import main
+from haptic_teleop.engine.compiled_loop import first_compile, kernel
+
+
+def test_compile_builds_the_named_kernel_and_marks_it_done(tmp_path, capsys):
+    if kernel() is None:
+        pytest.skip("no numba here: the compiled loop cannot load")
+    assert main(["compile", "--only", "axis", "--done-dir", str(tmp_path)]) == 0
+    assert (tmp_path / "axis.done").is_file()
+    assert not (tmp_path / "codec.done").exists()  # only what was named
+    assert capsys.readouterr().out.startswith("axis: ready in ")
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["compile", "--only", "axis,nope"], "unknown kernel nope; allowed: axis, codec, arm, arm_codec"),
+        (["compile", "--only", ","], "allowed: axis, codec, arm, arm_codec"),
+        (["compile", "--done-dir", "/nonexistent/dir"], "--done-dir: /nonexistent/dir is not a directory"),
+    ],
+)
+def test_bad_arguments_are_one_line_and_exit_2(argv, says, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert says in err and err.count("\n") == 1
+
+
+def _dispatcher(module: str, signatures: list[str]) -> types.SimpleNamespace:
+    def fn() -> None:
+        pass
+
+    fn.__module__ = module
+    return types.SimpleNamespace(py_func=fn, signatures=signatures)
+
+
+def test_a_kernel_being_compiled_by_another_process_is_waited_for():
+    """Another process holds the kernel's compile lock (as a process compiling it does): the first
+    call here waits until it lets go; a kernel already loaded in this process does not wait."""
+    name = f"test_kernel_{threading.get_ident()}"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(f"""
+            import sys, types
+            from haptic_teleop.engine.compiled_loop import first_compile
+            def fn(): pass
+            fn.__module__ = {name!r}
+            with first_compile(types.SimpleNamespace(py_func=fn, signatures=[])):
+                print("held", flush=True)
+                sys.stdin.readline()
+        """)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdin is not None
+        assert holder.stdout.readline().strip() == "held"
+        entered = threading.Event()
+
+        def first_call() -> None:
+            with first_compile(_dispatcher(name, [])):
+                entered.set()
+
+        waiter = threading.Thread(target=first_call, daemon=True)
+        waiter.start()
+        with first_compile(_dispatcher(name, ["(float64,)"])):  # compiled here already: no wait
+            pass
+        assert not entered.wait(1.0)  # still held by the other process
+        holder.stdin.write("\n")
+        holder.stdin.flush()
+        assert entered.wait(60.0)  # a safety net only: it enters as soon as the lock is free
+        waiter.join(60.0)
+    finally:
+        holder.kill()
+        holder.wait()
