@@ -622,7 +622,7 @@ def arq_tick(
     # A pending sample is due every m = ceil(mu / period) ticks after it was sent (the encoder
     # runs every tick), so the only candidates this tick are n - j m, j = nu + 1 .. 1 (seq order).
     timeout = C[L.C_TIMEOUT_NS]
-    m_ticks = int(-(-int(timeout) // int(C[L.C_PERIOD_NS])))
+    m_ticks = int(C[L.C_M_TICKS])
     for jj in range(int(C[L.C_NU]) + 1, 0, -1):
         seq = n - jj * m_ticks
         if seq < 0:

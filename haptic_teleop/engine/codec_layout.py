@@ -55,6 +55,7 @@ C_PARITY, C_K, C_WAIT, C_TIMEOUT_NS, C_NU, C_ACK_SIZE = range(24, 30)
     C_HN, C_HLINEAR, C_HWARMUP, C_HTHRESH, C_HWIN, C_HBUDGET, C_HBITS1, C_HBITS2, C_HSIZE1, C_HSIZE2,
     C_HDELAY,
 ) = range(30, 41)  # fmt: skip
+C_M_TICKS = 41  # ARQ: m = ceil(mu / period), the ticks between a sample's tries
 C_SIZE_X = 42  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,

@@ -282,6 +282,7 @@ class CodecNet(LinkArrays):
                 C[L.C_K] = enc.k
             if arq:
                 C[L.C_TIMEOUT_NS], C[L.C_NU], C[L.C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
+                C[L.C_M_TICKS] = -(-int(enc.timeout_ns) // period_ns)
         # Packets a tick at most: one, and with ARQ nu retransmissions: a sample is due every
         # m = ceil(mu / period) ticks after it was sent, so at tick n only n - j m (j = 1 .. nu)
         # can go out again (n - (nu + 1) m is given up). A sample is pending for at most `span`.

@@ -633,6 +633,7 @@ class Engine:
         scratch = np.zeros((3, 3))
 
         no_x = no_history()
+        first = [True]
 
         def call(c0: int, c1: int, *network: Any) -> None:
             w0 = network[-1]
@@ -644,8 +645,12 @@ class Engine:
                     *(no_x if fnet is None else fnet.history()),
                     *(no_x if bnet is None else bnet.history()),
                 )
-            with compiled_loop.first_compile(run_ticks):  # compiled once among processes starting together
-                run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
+            if first:  # compiled once among processes that start together (compiled_loop.first_compile)
+                first.clear()
+                with compiled_loop.first_compile(run_ticks):
+                    run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
+                return
+            run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
 
         try:
             done = run_windows(self, call, (fwd, bwd), nets, compiled_loop.Rings((2, 3)), output, window, progress)
