@@ -53,6 +53,15 @@ CONFIGS = {
         "force reflection (g 0.5), bound binding",
         ("controllers.master.law=force", "controllers.master.force_gain=0.5", "master.damping_n_s_per_m=0.1"),
     ),
+    "fr_binding_two_condition": (
+        "force reflection (g 0.5), bound binding, two-condition law",
+        (
+            "controllers.master.law=force",
+            "controllers.master.force_gain=0.5",
+            "master.damping_n_s_per_m=0.1",
+            "controllers.master.eba.law=two_condition",
+        ),
+    ),
     "fr_free": (
         "force reflection, bound not binding",
         ("controllers.master.law=force", "master.damping_n_s_per_m=1.0"),
@@ -132,9 +141,10 @@ def delay_table(configs: Sequence[str], delays_s: Sequence[float], extra: Sequen
             if ref is None:
                 ref = run  # the first delay is 0: the undisturbed run
             m = _model(scene)
+            law = scene.config.controllers.master.eba.law
             T = scene.config.scene.period_s
-            s_pred = force_slope_between(m, d, d, (w0 - first) * T, (last - first) * T)
-            drop = force_drop(m, d, d, at_s=(last - first) * T)
+            s_pred = force_slope_between(m, d, d, (w0 - first) * T, (last - first) * T, law)
+            drop = force_drop(m, d, d, law, at_s=(last - first) * T)
             drop_meas = float(ref.felt_n[last] - run.felt_n[last])
             rows.append(
                 [
@@ -187,7 +197,7 @@ def loss_table(configs: Sequence[str], bursts_s: Sequence[float], extra: Sequenc
             held = (b - a - 1) * T
             m = _model(scene)
             gap = float(run.desired_n[a + 1] - run.felt_n[a + 1])
-            t_tr = transparent_loss_time(m, gap, float(run.felt_n[a + 1]))
+            t_tr = transparent_loss_time(m, gap, float(run.felt_n[a + 1]), scene.config.controllers.master.eba.law)
             pred = min(held, t_tr)
             meas = rise_ticks(run.felt_n, a, b) * T
             rows.append([label, burst * 1e3, held * 1e3, gap, t_tr * 1e3, pred * 1e3, meas * 1e3, (meas - pred) * 1e3])
