@@ -33,7 +33,7 @@ def pytest_sessionstart(session):
     remove_stale()
     if os.environ.get("HAPTIC_TELEOP_TEST_COMPILE", "1") == "0":
         return
-    log = tempfile.NamedTemporaryFile(prefix="haptic-teleop-compile-", suffix=".log", delete=False)
+    log = open(os.path.join(tempfile.gettempdir(), f"haptic-teleop-test-compile-{os.getuid()}.log"), "w")
     _COMPILE.append(
         subprocess.Popen(
             [sys.executable, "-m", "haptic_teleop.cli", "compile", "--only", "arm,codec,arm_codec,axis"],
