@@ -181,23 +181,35 @@ def run_sweep(args: argparse.Namespace) -> int:
     metrics = split_values(args.metrics) if args.metrics else list(spec.metrics or DEFAULT_METRICS)
     keep_bags = bool(args.keep_bags or spec.keep_bags)
     parquet = check_format(args.format)
+    if not parquet and args.format == "auto" and not args.quiet:
+        print(
+            "haptic-teleop: pyarrow is not installed: sweep.csv only (pip install 'haptic_teleop[sweep]' "
+            "for sweep.parquet)",
+            file=sys.stderr,
+        )
     # Every point is loaded (validated) before anything runs: a bad key or value exits 2 now.
     points = resolve(spec, seeds_arg)
     name = points[0].scene.config.scene.name
     out = Path(args.out) if args.out else default_out(f"sweep-{name}")
     resuming = is_sweep_dir(out)
-    check_out_dir(out, empty=not resuming)
     store = Store(out, parquet)
-    done = store.load()
-    todo = [p for p in points if p.run_hash not in done]
-    skipped = len(points) - len(todo)
+    done = store.load() if resuming else {}
+    todo = list({p.run_hash: p for p in points if p.run_hash not in done}.values())  # equal scenes run once
+    skipped = sum(p.run_hash in done for p in points)
+    # The cluster is reached (or refused, exit 2) before the output directory is made.
+    runner = make_runner(args.workers, args.scheduler, len(todo)) if todo else None
+    try:
+        check_out_dir(out, empty=not resuming)
+    except BaseException:
+        if runner is not None:
+            runner.close()
+        raise
     if resuming and not args.quiet:
         print(
             f"haptic-teleop: sweep: {skipped} of {len(points)} points already done in {out}, skipped; "
             f"{len(todo)} to run",
             file=sys.stderr,
         )
-    runner = make_runner(args.workers, args.scheduler, max(1, len(todo))) if todo else None
     tasks = [Task(p.run_hash, p.scene.to_yaml(), str(out / RUNS / p.run_hash), keep_bags, args.run_plots) for p in todo]
     by_hash = {p.run_hash: p for p in points}
     # From here on: a first Ctrl-C / SIGTERM starts no other point, stops the running ones' loops

@@ -185,7 +185,8 @@ def _check_axes_once(params: Sequence[Param], source: str) -> None:
 
 
 def is_sweep_file(path: Path) -> bool:
-    """A YAML mapping with a `grid` or `random` section (a scene file has neither)."""
+    """A YAML mapping with a `grid` or `random` section, or whose `scene` is a name (a scene file
+    has neither, and its `scene` is a section)."""
     from haptic_teleop.scene.yaml_text import parse_yaml
 
     if path.suffix not in (".yaml", ".yml") or not path.is_file():
@@ -194,7 +195,7 @@ def is_sweep_file(path: Path) -> bool:
         raw = parse_yaml(path.read_text(encoding="utf-8"), str(path))
     except (ConfigError, OSError, UnicodeDecodeError):
         return False
-    return isinstance(raw, dict) and ("grid" in raw or "random" in raw)
+    return isinstance(raw, dict) and ("grid" in raw or "random" in raw or isinstance(raw.get("scene"), str))
 
 
 def find_sweep(name: str) -> Path | None:
@@ -431,24 +432,32 @@ def key_value(config: Any, key: str) -> Any:
 
 
 def resolve(spec: Spec, seeds: Sequence[int] | None = None) -> list[Point]:
-    """Load (validate) every point's scene, in plan order: combinations, each with every seed."""
+    """Load (validate) every point's scene, in plan order: combinations, each with every seed.
+    Without seeds (`--seeds`, the file's `seeds`) each point keeps its scene's `scene.seed`, which
+    may be a swept key; with them, sweeping scene.seed too is refused (the two would collide)."""
     from haptic_teleop.scene.load import load_scene
 
-    first = _load(load_scene, spec, list(spec.sets), None)
-    use_seeds = list(seeds if seeds is not None else spec.seeds or [first.config.scene.seed])
+    use_seeds: list[int | None] = list(seeds if seeds is not None else spec.seeds or [None])
     keys = [k for p in spec.params for k in p.keys]
+    if use_seeds != [None] and "scene.seed" in keys:
+        source = "--seeds" if seeds is not None else spec.source
+        raise ConfigError(
+            source, "scene.seed", use_seeds, "scene.seed is swept too; allowed: sweep the seed one way, not both"
+        )
+    _load(load_scene, spec, list(spec.sets), None)  # the fixed part alone: its errors first
     points = []
     for combo in spec.combos:
         ov = [*spec.sets, *overrides_for(spec.params, combo)]
         for seed in use_seeds:
             scene = _load(load_scene, spec, ov, seed)
+            used = int(scene.config.scene.seed)
             points.append(
                 Point(
                     index=len(points),
                     combo=combo,
-                    seed=seed,
+                    seed=used,
                     scene=scene,
-                    run_hash=run_hash(scene.config, seed),
+                    run_hash=run_hash(scene.config, used),
                     keys={k: key_value(scene.config, k) for k in keys},
                 )
             )

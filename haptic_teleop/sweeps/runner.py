@@ -244,20 +244,17 @@ class DaskRunner:
             self._futures[self.client.submit(run_point, t, key=f"haptic-teleop-{t.run_hash}", pure=False)] = t
 
     def results(self, stopped: Callable[[], bool]) -> Iterator[Result]:
-        from distributed import wait
-
-        pending = set(self._futures)
+        pending = dict(self._futures)
         while pending and not stopped():
-            try:
-                done, pending = wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                continue
-            pending = set(pending)
+            done = [f for f in pending if f.done()]
+            if not done:
+                time.sleep(POLL_S / 4)
             for f in done:
+                task = pending.pop(f)
                 if f.status == "cancelled":
                     continue
                 exc = f.exception() if f.status == "error" else None
-                yield self._futures[f], (None if exc else f.result()), exc
+                yield task, (None if exc else f.result()), exc
 
     def stop(self) -> None:
         """Cancel every point not finished: a task already running on a worker cannot be stopped
