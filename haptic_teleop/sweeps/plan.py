@@ -324,7 +324,7 @@ def _random(section: Any, src: str, origins: dict[str, str]) -> tuple[list[Param
     for k in section:
         if k not in RANDOM_KEYS:
             raise ConfigError(src, f"random.{k}", section[k], f"unknown key; allowed: {', '.join(RANDOM_KEYS)}")
-    count = section.get("count")
+    count: Any = section.get("count")
     if not _is_int(count) or count < 1:
         raise ConfigError(src, "random.count", count, "required; allowed: a whole number >= 1 (points drawn)")
     seed = section.get("seed", 0)
@@ -445,7 +445,7 @@ def resolve(spec: Spec, seeds: Sequence[int] | None = None) -> list[Point]:
             source, "scene.seed", use_seeds, "scene.seed is swept too; allowed: sweep the seed one way, not both"
         )
     _load(load_scene, spec, list(spec.sets), None)  # the fixed part alone: its errors first
-    points = []
+    points: list[Point] = []
     for combo in spec.combos:
         ov = [*spec.sets, *overrides_for(spec.params, combo)]
         for seed in use_seeds:

@@ -228,8 +228,9 @@ class DaskRunner:
                 f"--scheduler {address}: dask.distributed is not installed; allowed: "
                 "pip install 'haptic_teleop[sweep]', or no --scheduler (local processes)"
             ) from None
+        connect: Any = Client  # dask's API is not fully typed
         try:
-            self.client = Client(address, timeout=30)
+            self.client: Any = connect(address, timeout=30)
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(
                 f"--scheduler {address}: no Dask scheduler answered ({exc}); allowed: the address of a "
