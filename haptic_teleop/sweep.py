@@ -214,7 +214,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     by_hash = {p.run_hash: p for p in points}
     # From here on: a first Ctrl-C / SIGTERM starts no other point, stops the running ones' loops
     # (they are not results) and writes the tables of every point finished; a second aborts.
-    failures: list[tuple[Point, BaseException]] = []
+    failures: list[tuple[Point, str]] = []
     t0 = time.perf_counter()
     with interrupt.finishing():
         bar = None
@@ -230,9 +230,12 @@ def run_sweep(args: argparse.Namespace) -> int:
                     for task, result, exc in runner.results(lambda: interrupt.received() is not None):
                         point = by_hash[task.run_hash]
                         if exc is not None:
-                            failures.append((point, exc))
+                            failures.append((point, f"{type(exc).__name__}: {exc}"))
                             continue
                         assert result is not None
+                        if result.get("error"):
+                            failures.append((point, str(result["error"])))
+                            continue
                         if result["interrupted"]:
                             continue
                         if len(store.records) == 0:
@@ -272,15 +275,14 @@ def _finish(
     store: Any,
     metrics: Sequence[str],
     skipped: int,
-    failures: Sequence[tuple[Point, BaseException]],
+    failures: Sequence[tuple[Point, str]],
     wall_s: float,
     name: str,
 ) -> int:
     finished = [p for p in points if p.run_hash in store.records]
-    for point, exc in failures[:3]:
+    for point, why in failures[:3]:
         print(
-            f"haptic-teleop: sweep point {point.run_hash} ({', '.join(point.combo)}, seed {point.seed}) "
-            f"failed: {type(exc).__name__}: {exc}",
+            f"haptic-teleop: sweep point {point.run_hash} ({', '.join(point.combo)}, seed {point.seed}) failed: {why}",
             file=sys.stderr,
         )
     if len(failures) > 3:

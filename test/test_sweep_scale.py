@@ -229,3 +229,19 @@ def test_sweeping_scene_seed_and_seeds_at_once_is_refused(tmp_path, capsys):
     argv = ["sweep", "wall_contact", "--param", "scene.seed=1,2", "--seeds", "3", "--out", str(tmp_path / "o")]
     assert main(argv) == 2
     assert "config error: --seeds: scene.seed = [3]: scene.seed is swept too" in capsys.readouterr().err
+
+
+def test_a_point_failing_in_a_worker_is_reported_and_the_others_run(tmp_path):
+    from haptic_teleop.sweeps.runner import LocalPool, Task
+
+    pool = LocalPool(2)
+    bad = Task("bad", "scene: {duration_s: -1}\n", str(tmp_path / "runs" / "bad"))
+    good = Task("good", "scene: {duration_s: 0.2}\n", str(tmp_path / "runs" / "good"))
+    try:
+        pool.submit([bad, good])
+        got = {t.run_hash: (r, e) for t, r, e in pool.results(lambda: False)}
+    finally:
+        pool.close()
+    assert got["bad"][1] is None and "ConfigError" in got["bad"][0]["error"]
+    assert "scene.duration_s = -1.0" in got["bad"][0]["error"]
+    assert got["good"][0]["summary"]["ticks"] == 200  # the pool survived the other point's error

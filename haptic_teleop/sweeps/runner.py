@@ -107,6 +107,16 @@ def run_point(task: Task, on_engine: Callable[[Any], None] | None = None) -> dic
     }
 
 
+def run_point_safe(task: Task) -> dict[str, Any]:
+    """`run_point` in a worker process: an exception comes back as text (`error`), not as an
+    object to unpickle in the sweep's process (the project's errors take several arguments and
+    do not unpickle; a failed unpickling would break the whole pool)."""
+    try:
+        return run_point(task)
+    except Exception as exc:  # noqa: BLE001 - reported with the point, the other points run on
+        return {"run_hash": task.run_hash, "interrupted": False, "error": f"{type(exc).__name__}: {exc}"}
+
+
 def _worker_init() -> None:
     """In each local worker: SIGINT and SIGTERM stop the running loop (and every later point at
     once); never an exception between points. The bag writer a worker forks ignores them."""
@@ -180,7 +190,7 @@ class LocalPool:
 
     def submit(self, tasks: list[Task]) -> None:
         for t in tasks:
-            self._futures[self._pool.submit(run_point, t)] = t
+            self._futures[self._pool.submit(run_point_safe, t)] = t
 
     def results(self, stopped: Callable[[], bool]) -> Iterator[Result]:
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -242,7 +252,7 @@ class DaskRunner:
     def submit(self, tasks: list[Task]) -> None:
         for t in tasks:
             # key: the run hash, so a point is never run twice on the cluster at once
-            self._futures[self.client.submit(run_point, t, key=f"haptic-teleop-{t.run_hash}", pure=False)] = t
+            self._futures[self.client.submit(run_point_safe, t, key=f"haptic-teleop-{t.run_hash}", pure=False)] = t
 
     def results(self, stopped: Callable[[], bool]) -> Iterator[Result]:
         pending = dict(self._futures)
