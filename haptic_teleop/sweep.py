@@ -244,7 +244,8 @@ def run_sweep(args: argparse.Namespace) -> int:
                         if bar is not None:
                             bar.set_postfix_str(", ".join(point.combo) + f", seed {point.seed}", refresh=False)
                             bar.update(1)
-                        interrupt.pause_for_test("sweep-run")
+                        if interrupt.received() is None:
+                            interrupt.pause_for_test("sweep-run")
         except interrupt.Interrupted:
             if runner is not None:
                 runner.abort()

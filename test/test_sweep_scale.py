@@ -245,3 +245,32 @@ def test_a_point_failing_in_a_worker_is_reported_and_the_others_run(tmp_path):
     assert got["bad"][1] is None and "ConfigError" in got["bad"][0]["error"]
     assert "scene.duration_s = -1.0" in got["bad"][0]["error"]
     assert got["good"][0]["summary"]["ticks"] == 200  # the pool survived the other point's error
+
+
+def test_sigint_in_a_parallel_sweep_keeps_what_finished_and_resume_redoes_none_of_it(tmp_path, capsys):
+    import os
+    import signal
+    import subprocess
+
+    f = _sweep_file(tmp_path / "s.yaml", [0.0, 0.1, 0.2, 0.3, 0.4, 0.5])
+    out = tmp_path / "o"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", HAPTIC_TELEOP_TEST_PAUSE="sweep-run")
+    argv = [sys.executable, "-m", "haptic_teleop.cli", "sweep", str(f), "--out", str(out), "--workers", "2"]
+    p = subprocess.Popen([*argv, "--no-plots"], stderr=subprocess.PIPE, text=True, env=env)
+    assert p.stderr is not None
+    for line in p.stderr:  # the first point is stored; the other worker is running or done
+        if "phase sweep-run" in line:
+            break
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err and "sweep interrupted after" in err
+    kept = {r["run_hash"] for r in _ledger(out)}
+    assert 1 <= len(kept) < 6
+    assert {d.name for d in (out / "runs").iterdir()} == kept  # no folder of a cut point
+    assert len(read_csv(out / "sweep.csv")) == len(kept)
+    mtimes = {h: (out / "runs" / h / "summary.json").stat().st_mtime_ns for h in kept}
+    assert main(["sweep", str(f), "--out", str(out), "--workers", "1", "--no-plots"]) == 0
+    assert f"{len(kept)} of 6 points already done" in capsys.readouterr().err
+    assert len(_ledger(out)) == 6 and len(read_csv(out / "sweep.csv")) == 6
+    assert all((out / "runs" / h / "summary.json").stat().st_mtime_ns == m for h, m in mtimes.items())
