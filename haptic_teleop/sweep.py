@@ -300,7 +300,9 @@ def _finish(
     seeds = sorted({p.seed for p in points})
     agg = aggregate(spec.params, rows, metrics) if rows else []
     table = write_markdown(out / "sweep.md", _command(args), spec.params, agg, metrics, seeds) if rows else ""
+    # A random sample over several keys is no grid: its points would be one series each.
     plot = bool(rows) and not args.no_plots and len(agg) <= MAX_PLOT_COMBOS
+    plot = plot and not (spec.random and len(spec.params) > 1)
     if plot:
         write_plot(out / "sweep.png", spec.params, rows, agg, metrics)
     if not args.quiet:

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from haptic_teleop.cli import main
-from haptic_teleop.sweeps.plan import load_sweep_file, resolve, run_hash
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.sweeps.plan import key_value, load_sweep_file, resolve, run_hash
 from haptic_teleop.sweeps.store import LEDGER, read_csv
 
 LOSS = "network.forward.effects.loss.probability"
@@ -100,6 +101,9 @@ def test_grid_is_every_combination_tied_keys_set_together(tmp_path):
     assert len({p.run_hash for p in points}) == 12
     # the hash is of the resolved scene: the same scene and seed reached another way hash the same
     assert run_hash(points[-1].scene.config, 5) == points[-1].run_hash
+    # a key path through a list of sections (an NVE scene's clients) names its cell too
+    nve = load_scene(find_scene("nve_push"), overrides=["nve.clients.0.up.effects.delay.delay_s=0.07"])
+    assert key_value(nve.config, "nve.clients.0.up.effects.delay.delay_s") == 0.07
 
 
 def test_random_sample_is_reproducible_within_its_ranges(tmp_path):

@@ -420,7 +420,7 @@ def key_value(config: Any, key: str) -> Any:
     a bool, None, or JSON text for a list or a section."""
     node: Any = asdict(config)
     for part in key.split("."):
-        if isinstance(node, list) and part.isdigit() and int(part) < len(node):
+        if isinstance(node, (list, tuple)) and part.isdigit() and int(part) < len(node):
             node = node[int(part)]
         elif isinstance(node, dict) and part in node:
             node = node[part]
