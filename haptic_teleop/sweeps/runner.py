@@ -13,7 +13,9 @@ a point gives the same summary wherever it runs: the scene and seed fix every ra
   of a second, and its processes are this command's children, so a signal reaches their loops.
   A worker stops its running loop on SIGINT/SIGTERM (the terminal's Ctrl-C reaches the whole
   process group; a signal sent to the parent alone is passed on by `stop`).
-- `DaskRunner` (`--scheduler ADDRESS`): `dask.distributed.Client(ADDRESS)`, one task per point. A
+- `DaskRunner` (`--scheduler ADDRESS`): `dask.distributed.Client(ADDRESS)`, one task per point; on
+  a signal the points no worker has taken are cancelled and the ones being processed finish and
+  are kept (a running Dask task cannot be stopped). A
   Dask worker process is daemonic, so there the bag is written in the worker's own process
   (`RunRecorder(parallel=False)`): the same bytes. The workers need this package and the scene's
   files (models, traces) at the same paths, and --out on a shared filesystem for runs/ (the
@@ -256,7 +258,11 @@ class DaskRunner:
 
     def results(self, stopped: Callable[[], bool]) -> Iterator[Result]:
         pending = dict(self._futures)
-        while pending and not stopped():
+        cancelled = False
+        while pending:
+            if stopped() and not cancelled:
+                self._cancel_waiting(pending)
+                cancelled = True
             done = [f for f in pending if f.done()]
             if not done:
                 time.sleep(POLL_S / 4)
@@ -267,13 +273,16 @@ class DaskRunner:
                 exc = f.exception() if f.status == "error" else None
                 yield task, (None if exc else f.result()), exc
 
+    def _cancel_waiting(self, pending: dict[Any, Task]) -> None:
+        """Cancel the points no worker has taken; the ones being processed finish and are kept
+        (a running Dask task cannot be stopped)."""
+        busy = {key for keys in self.client.processing().values() for key in keys}
+        self.client.cancel([f for f in pending if not f.done() and f.key not in busy])
+
     def stop(self) -> None:
-        """Cancel every point not finished: a task already running on a worker cannot be stopped
-        and its result is dropped (it runs again on resume)."""
-        self.client.cancel([f for f in self._futures if not f.done()])
+        pass  # from the signal handler: no call into the client there; results() cancels
 
     def abort(self) -> None:
-        self.stop()
         self.client.close()
 
     def close(self) -> None:
