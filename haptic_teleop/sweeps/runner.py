@@ -15,11 +15,10 @@ a point gives the same summary wherever it runs: the scene and seed fix every ra
   process group; a signal sent to the parent alone is passed on by `stop`).
 - `DaskRunner` (`--scheduler ADDRESS`): `dask.distributed.Client(ADDRESS)`, one task per point; on
   a signal the points no worker has taken are cancelled and the ones being processed finish and
-  are kept (a running Dask task cannot be stopped). A
-  Dask worker process is daemonic, so there the bag is written in the worker's own process
-  (`RunRecorder(parallel=False)`): the same bytes. The workers need this package and the scene's
-  files (models, traces) at the same paths, and --out on a shared filesystem for runs/ (the
-  results come back to this process either way).
+  are kept (a running Dask task cannot be stopped). A Dask worker process is daemonic, so there
+  the bag is written in the worker's own process (`RunRecorder(parallel=False)`). The workers need
+  this package and the scene's files (models, traces) at the same paths, and --out on a shared
+  filesystem for runs/ (the results come back to this process either way).
 """
 
 from __future__ import annotations
