@@ -11,8 +11,8 @@ PACKAGE = "haptic_teleop"
 # read without importing the package (it needs numpy and friends, which may not be installed yet).
 NODES = runpy.run_path(str(Path(__file__).parent / PACKAGE / "nodes" / "__init__.py"))["EXECUTABLES"]
 
-SCENES, MODELS = "scenes/*.yaml", "models/*.xml"  # inside the package folder
-DATA = [SCENES, MODELS]
+SCENES, MODELS, SWEEPS = "scenes/*.yaml", "models/*.xml", "config/sweeps/*.yaml"  # inside the package folder
+DATA = [SCENES, MODELS, SWEEPS]
 
 STANDALONE = [
     # rclpy and the standard message packages as PyPI wheels, for machines without a ROS 2 install.
@@ -31,6 +31,16 @@ HARDWARE = [
     "ur-rtde>=1.6.5",
 ]
 
+# `haptic-teleop sweep --scheduler ADDRESS` (a Dask distributed cluster) and the Parquet results table
+# (docs/sweep.md); without them a sweep runs in local processes and writes CSV only. Lower bounds:
+# Client(address, timeout), submit(key=, pure=), Future.done/status/exception/cancel and
+# LocalCluster(n_workers, processes, threads_per_worker) are in every dask release since 2023.1;
+# pyarrow 16 is the first that imports under numpy 2. Tested with dask 2026.8.0, pyarrow 26.0.1.
+SWEEP = [
+    "dask[distributed]>=2023.1",
+    "pyarrow>=16.0",
+]
+
 setup(
     name=PACKAGE,
     version="0.1.0",
@@ -45,6 +55,7 @@ setup(
         (f"share/{PACKAGE}/launch", sorted(glob("launch/*_launch.py"))),
         (f"share/{PACKAGE}/config/scenes", sorted(glob(f"{PACKAGE}/{SCENES}"))),
         (f"share/{PACKAGE}/models", sorted(glob(f"{PACKAGE}/{MODELS}"))),
+        (f"share/{PACKAGE}/config/sweeps", sorted(glob(f"{PACKAGE}/{SWEEPS}"))),
     ],
     python_requires=">=3.10",
     # Lower bounds: the oldest releases this package was tested with (README, "Install"). numpy 1.25:
@@ -73,8 +84,10 @@ setup(
     extras_require={
         "standalone": STANDALONE,
         "hardware": HARDWARE,
+        "sweep": SWEEP,
         "test": [
             *HARDWARE,  # the backends are tested against emulators through the real SDKs
+            *SWEEP,  # sweeps on a local Dask cluster, the Parquet table (test/test_sweep_scale.py)
             "pytest>=8.0",
             "hypothesis>=6.100",
             "ruff>=0.17,<0.18",

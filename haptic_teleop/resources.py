@@ -1,10 +1,11 @@
-"""Where the bundled scenes and MuJoCo models are, however the package was installed.
+"""Where the bundled scenes, MuJoCo models and example sweeps are, however the package was installed.
 
-The files live once, inside the package (`haptic_teleop/scenes/*.yaml`, `haptic_teleop/models/*.xml`),
-so a wheel or sdist install carries them next to the code and finds them from any directory. The
-same files are also installed as ROS 2 share data (`share/haptic_teleop/config/scenes`,
-`share/haptic_teleop/models`, see setup.py): when the ament index knows this package and this very
-module was installed under that prefix (a colcon install), the share folders are used; otherwise
+The files live once, inside the package (`haptic_teleop/scenes/*.yaml`, `haptic_teleop/models/*.xml`,
+`haptic_teleop/config/sweeps/*.yaml`), so a wheel or sdist install carries them next to the code and
+finds them from any directory. The same files are also installed as ROS 2 share data
+(`share/haptic_teleop/config/scenes`, `share/haptic_teleop/models`, `share/haptic_teleop/config/sweeps`,
+see setup.py): when the ament index knows this package and this very module was installed under that
+prefix (a colcon install), the share folders are used; otherwise
 (a wheel in a venv, an editable or `colcon build --symlink-install` install, or an ament index that
 holds another copy of the package) the package's own folders are. `HAPTIC_TELEOP_MODELS` names
 another models folder.
@@ -18,7 +19,11 @@ from pathlib import Path
 PACKAGE = "haptic_teleop"
 PACKAGE_DIR = Path(__file__).resolve().parent
 # kind -> (folder inside the package, folder inside share/haptic_teleop)
-FOLDERS = {"scenes": ("scenes", "config/scenes"), "models": ("models", "models")}
+FOLDERS = {
+    "scenes": ("scenes", "config/scenes"),
+    "models": ("models", "models"),
+    "sweeps": ("config/sweeps", "config/sweeps"),
+}
 MODELS_ENV = "HAPTIC_TELEOP_MODELS"
 
 
@@ -60,6 +65,16 @@ def models_dir() -> Path:
     if env:
         return Path(env)
     return _folder("models")
+
+
+def sweeps_dir() -> Path:
+    """The folder of the bundled example sweep files (`haptic-teleop sweep NAME`, docs/sweep.md)."""
+    return _folder("sweeps")
+
+
+def bundled_sweeps() -> list[str]:
+    """Names of the bundled sweep files, sorted."""
+    return sorted(p.stem for p in sweeps_dir().glob("*.yaml"))
 
 
 def bundled_scenes() -> list[str]:

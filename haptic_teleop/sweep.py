@@ -1,27 +1,51 @@
-"""`haptic-teleop sweep`: run every combination of scene parameters and seeds, tabulate the metrics.
+"""`haptic-teleop sweep`: run a grid or a random sample of scene keys and seeds; tabulate every metric.
 
-Each run goes through the same path as `haptic-teleop run` (engine.record_run, then
-analysis.outputs.write_outputs on the bag just written), so a row of sweep.csv holds the numbers
-`run` would print for that combination and seed.
+`haptic-teleop sweep SWEEP.yaml` (a sweep file, docs/sweep.md) or `haptic-teleop sweep SCENE
+--param KEY=V1,V2 ...` (today's flags). Each point runs through the same path as `haptic-teleop
+run` (haptic_teleop/sweeps/runner.py: `record_run`, then `write_outputs` on the bag just written),
+in local worker processes (`--workers`, default the CPU count) or on a Dask cluster
+(`--scheduler`). Finished points are kept in OUT/points.jsonl the moment they finish; a rerun into
+the same --out skips them (haptic_teleop/sweeps/store.py). Outputs: sweep.parquet and sweep.csv
+(every point, every scalar metric), sweep.md (mean ± std over seeds per combination) and sweep.png.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import csv
-import itertools
-import json
 import math
-import shutil
 import sys
+import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from haptic_teleop import interrupt
 from haptic_teleop.errors import ConfigError
+from haptic_teleop.sweeps.plan import (
+    Param,
+    Point,
+    Spec,
+    combinations,
+    find_sweep,
+    load_sweep_file,
+    overrides_for,
+    parse_param,
+    parse_seeds,
+    resolve,
+    spec_from_flags,
+    split_values,
+)
+
+__all__ = [
+    "DEFAULT_METRICS",
+    "Param",
+    "aggregate",
+    "combinations",
+    "overrides_for",
+    "parse_param",
+    "parse_seeds",
+    "split_values",
+]
 
 DEFAULT_METRICS = (
     "force_rms_error_n",
@@ -30,84 +54,7 @@ DEFAULT_METRICS = (
     "buffering_delay_forward_mean_s",
     "late_loss_rate_forward",
 )
-_KEY_JOIN = "+"
-
-
-@dataclass(frozen=True)
-class Param:
-    """One swept parameter: the key paths it sets (all to the same value) and the values as typed."""
-
-    keys: tuple[str, ...]
-    values: tuple[str, ...]
-
-    @property
-    def label(self) -> str:
-        return _KEY_JOIN.join(self.keys)
-
-
-def split_values(text: str) -> list[str]:
-    """`a,b,[1, 2],{x: 1}` -> ["a", "b", "[1, 2]", "{x: 1}"]: commas inside brackets stay."""
-    out: list[str] = []
-    depth = 0
-    cur: list[str] = []
-    for ch in text:
-        if ch in "[{":
-            depth += 1
-        elif ch in "]}":
-            depth -= 1
-        if ch == "," and depth == 0:
-            out.append("".join(cur).strip())
-            cur = []
-        else:
-            cur.append(ch)
-    out.append("".join(cur).strip())
-    return out
-
-
-def parse_param(text: str) -> Param:
-    """`KEY.PATH[+KEY.PATH...]=v1,v2,...` -> Param; ConfigError (exit 2) when it is malformed."""
-    allowed = "allowed: KEY.PATH=v1,v2,... (join keys with + to set them together), e.g. scene.seed=1,2"
-    key, eq, values = text.partition("=")
-    if not eq:
-        raise ConfigError("--param", text, text, allowed)
-    keys = tuple(k.strip() for k in key.split(_KEY_JOIN))
-    for k in keys:
-        if not k or any(not part for part in k.split(".")):
-            raise ConfigError("--param", key, text, allowed)
-    vals = tuple(split_values(values))
-    if any(v == "" for v in vals):
-        raise ConfigError("--param", key, values, "allowed: a comma-separated list of non-empty values")
-    if len(set(vals)) != len(vals):
-        raise ConfigError("--param", key, values, "allowed: each value once")
-    return Param(keys, vals)
-
-
-def parse_seeds(text: str | None) -> list[int] | None:
-    if text is None:
-        return None
-    seeds: list[int] = []
-    for part in split_values(text):
-        try:
-            seed = int(part)
-        except ValueError:
-            raise ConfigError(
-                "--seeds", "scene.seed", part, "allowed: comma-separated integers from 0 to 2**63 - 1"
-            ) from None
-        if not 0 <= seed <= 2**63 - 1:
-            raise ConfigError("--seeds", "scene.seed", part, "allowed: comma-separated integers from 0 to 2**63 - 1")
-        seeds.append(seed)
-    if len(set(seeds)) != len(seeds):
-        raise ConfigError("--seeds", "scene.seed", text, "allowed: each seed once")
-    return seeds
-
-
-def combinations(params: Sequence[Param]) -> list[tuple[str, ...]]:
-    """Every combination of the parameters' values, the first parameter varying slowest."""
-    return list(itertools.product(*(p.values for p in params)))
-
-
-def overrides_for(params: Sequence[Param], combo: Sequence[str]) -> list[str]:
-    return [f"{k}={v}" for p, v in zip(params, combo, strict=True) for k in p.keys]
+MAX_PLOT_COMBOS = 60  # a random sample of more points than this: no sweep.png (the table has them all)
 
 
 def _mean_std(values: Sequence[float]) -> tuple[float, float]:
@@ -132,28 +79,6 @@ def _fmt_pm(mean: float, std: float) -> str:
     if std <= 1e-12 * abs(mean):
         std = 0.0  # equal values whose mean rounded
     return f"{_fmt(mean)} ± {_fmt(std)}"
-
-
-def _scalar(v: Any) -> bool:
-    return isinstance(v, (int, float, str, bool)) or v is None
-
-
-def write_csv(path: Path, params: Sequence[Param], rows: Sequence[dict[str, Any]]) -> None:
-    """One row per run: run, the parameters' values, seed, then every scalar summary key (sorted)."""
-    fixed = ["run", *(p.label for p in params), "seed"]
-    keys = sorted({k for r in rows for k, v in r["summary"].items() if _scalar(v)} - set(fixed))
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow([*fixed, *keys])
-        for r in rows:
-            s = r["summary"]
-            w.writerow([r["run"], *r["combo"], r["seed"], *(_csv_value(s.get(k)) for k in keys)])
-
-
-def _csv_value(v: Any) -> Any:
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return ""
-    return v
 
 
 def aggregate(
@@ -211,7 +136,7 @@ def write_plot(
 
 def _command(args: argparse.Namespace) -> str:
     parts = ["haptic-teleop sweep", str(args.scene)]
-    parts += [f"--param {p}" for p in args.param]
+    parts += [f"--param {p}" for p in args.param or ()]
     if args.seeds:
         parts.append(f"--seeds {args.seeds}")
     parts += [f"--set {s}" for s in (args.set or ())]
@@ -220,99 +145,176 @@ def _command(args: argparse.Namespace) -> str:
     return " ".join(parts)
 
 
+def build_spec(args: argparse.Namespace) -> Spec:
+    """The sweep file the positional names (with --param/--set adding to it), or a scene and --param."""
+    import dataclasses
+
+    sweep_file = find_sweep(args.scene)
+    extra = [parse_param(t) for t in args.param or ()]
+    if sweep_file is None:
+        if not extra:
+            raise ConfigError(
+                "--param",
+                "",
+                args.scene,
+                "required with a scene; allowed: --param KEY.PATH=V1,V2,..., or a sweep file "
+                "(a YAML file with a grid or random section, docs/sweep.md) in place of the scene",
+            )
+        spec = spec_from_flags(args.scene, args.param)
+    else:
+        spec = load_sweep_file(sweep_file)
+        if extra:  # --param on a sweep file: more grid axes, crossed with the file's points
+            params = (*spec.params, *extra)
+            combos = tuple(c + e for c in spec.combos for e in combinations(extra))
+            spec = dataclasses.replace(spec, params=params, combos=combos)
+    sets = (*spec.sets, *(args.set or ()))
+    return dataclasses.replace(spec, sets=sets)
+
+
 def run_sweep(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
-    from haptic_teleop.scene.load import find_scene, load_scene
+    from haptic_teleop.sweeps.runner import RUNS, Task, make_runner
+    from haptic_teleop.sweeps.store import Store, check_format, is_sweep_dir
 
-    params = [parse_param(t) for t in args.param]
-    labels = [p.label for p in params]
-    if len(set(labels)) != len(labels):
-        raise ConfigError("--param", labels[0], labels, "allowed: each key swept once")
+    spec = build_spec(args)
     seeds_arg = parse_seeds(args.seeds)
-    metrics = split_values(args.metrics) if args.metrics else list(DEFAULT_METRICS)
-    path = find_scene(args.scene)
-    base = list(args.set or ())
-    # Every combination is loaded (validated) before anything runs: a bad key or value exits 2 now.
-    first = load_scene(path, overrides=base)
-    seeds = seeds_arg if seeds_arg is not None else [first.config.scene.seed]
-    plan = []
-    for ci, combo in enumerate(combinations(params)):
-        ov = [*base, *overrides_for(params, combo)]
-        for seed in seeds:
-            plan.append((ci, combo, seed, load_scene(path, overrides=ov, seed=seed)))
-    out = Path(args.out) if args.out else default_out(f"sweep-{first.config.scene.name}")
-    check_out_dir(out)
-    # From here on: a first Ctrl-C / SIGTERM stops the current run's loop, finishes its outputs,
-    # starts no other run and writes the table, CSV and plot of the runs done; a second aborts.
+    metrics = split_values(args.metrics) if args.metrics else list(spec.metrics or DEFAULT_METRICS)
+    keep_bags = bool(args.keep_bags or spec.keep_bags)
+    parquet = check_format(args.format)
+    if not parquet and args.format == "auto" and not args.quiet:
+        print(
+            "haptic-teleop: pyarrow is not installed: sweep.csv only (pip install 'haptic_teleop[sweep]' "
+            "for sweep.parquet)",
+            file=sys.stderr,
+        )
+    # Every point is loaded (validated) before anything runs: a bad key or value exits 2 now.
+    points = resolve(spec, seeds_arg)
+    name = points[0].scene.config.scene.name
+    out = Path(args.out) if args.out else default_out(f"sweep-{name}")
+    resuming = is_sweep_dir(out)
+    store = Store(out, parquet)
+    done = store.load() if resuming else {}
+    todo = list({p.run_hash: p for p in points if p.run_hash not in done}.values())  # equal scenes run once
+    skipped = sum(p.run_hash in done for p in points)
+    # The cluster is reached (or refused, exit 2) before the output directory is made.
+    runner = make_runner(args.workers, args.scheduler, len(todo)) if todo else None
+    try:
+        check_out_dir(out, empty=not resuming)
+    except BaseException:
+        if runner is not None:
+            runner.close()
+        raise
+    if resuming and not args.quiet:
+        print(
+            f"haptic-teleop: sweep: {skipped} of {len(points)} points already done in {out}, skipped; "
+            f"{len(todo)} to run",
+            file=sys.stderr,
+        )
+    tasks = [Task(p.run_hash, p.scene.to_yaml(), str(out / RUNS / p.run_hash), keep_bags, args.run_plots) for p in todo]
+    by_hash = {p.run_hash: p for p in points}
+    # From here on: a first Ctrl-C / SIGTERM starts no other point, stops the running ones' loops
+    # (they are not results) and writes the tables of every point finished; a second aborts.
+    failures: list[tuple[Point, str]] = []
+    t0 = time.perf_counter()
     with interrupt.finishing():
-        return _run_plan(args, out, params, plan, metrics, seeds, first.config.scene.name)
+        bar = None
+        try:
+            if runner is not None:
+                if not args.quiet:
+                    from tqdm import tqdm
+
+                    where = f"{runner.workers} worker" + ("s" if runner.workers != 1 else "")
+                    bar = tqdm(total=len(tasks), unit="run", desc=f"sweep {name} ({where})", file=sys.stderr)
+                runner.submit(tasks)
+                with interrupt.on_stop(runner.stop):
+                    for task, result, exc in runner.results(lambda: interrupt.received() is not None):
+                        point = by_hash[task.run_hash]
+                        if exc is not None:
+                            failures.append((point, f"{type(exc).__name__}: {exc}"))
+                            continue
+                        assert result is not None
+                        if result.get("error"):
+                            failures.append((point, str(result["error"])))
+                            continue
+                        if result["interrupted"]:
+                            continue
+                        if len(store.records) == 0:
+                            _check_metrics(metrics, result["summary"])
+                        store.append(_record(point, result["summary"], result["bag_path"]))
+                        if bar is not None:
+                            bar.set_postfix_str(", ".join(point.combo) + f", seed {point.seed}", refresh=False)
+                            bar.update(1)
+                        if interrupt.received() is None:
+                            interrupt.pause_for_test("sweep-run")
+        except interrupt.Interrupted:
+            if runner is not None:
+                runner.abort()
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+            if runner is not None and interrupt.received() is None:
+                runner.close()
+            elif runner is not None:
+                runner.abort()
+            store.close()
+        wall_s = time.perf_counter() - t0
+        return _finish(args, out, spec, points, store, metrics, skipped, failures, wall_s, name)
 
 
-def _run_plan(
+def _record(point: Point, summary: dict[str, Any], bag: str | None) -> dict[str, Any]:
+    from haptic_teleop.sweeps.store import record
+
+    return record(point.run_hash, point.seed, point.keys, summary, bag)
+
+
+def _finish(
     args: argparse.Namespace,
     out: Path,
-    params: Sequence[Param],
-    plan: Sequence[tuple[int, tuple[str, ...], int, Any]],
+    spec: Spec,
+    points: Sequence[Point],
+    store: Any,
     metrics: Sequence[str],
-    seeds: Sequence[int],
+    skipped: int,
+    failures: Sequence[tuple[Point, str]],
+    wall_s: float,
     name: str,
 ) -> int:
-    from haptic_teleop.analysis.outputs import TIMING_FILE, write_atomic, write_outputs
-    from haptic_teleop.engine.lockstep import record_run
-
-    bar = None
-    if not args.quiet:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(plan), unit="run", desc=f"sweep {name}", file=sys.stderr)
-    rows: list[dict[str, Any]] = []
-    try:
-        for ci, combo, seed, scene in plan:
-            if interrupt.received() is not None:
-                break
-            run_name = f"{ci:03d}-seed{seed}"
-            if bar is not None:
-                bar.set_postfix_str(", ".join(combo) + f", seed {seed}", refresh=False)
-            run_dir = out / "runs" / run_name
-            run_dir.mkdir(parents=True)
-            bag_dir = run_dir / "bag"
-            with contextlib.ExitStack() as stack:
-
-                def on_engine(engine: Any, stack: contextlib.ExitStack = stack) -> None:
-                    stack.enter_context(interrupt.on_stop(engine.request_stop))
-
-                _, timing = record_run(scene, bag_dir, handle_sigint=False, on_engine=on_engine)
-            write_atomic(run_dir / TIMING_FILE, json.dumps(timing.as_dict(), indent=2, sort_keys=True) + "\n")
-            summary = write_outputs(bag_dir, run_dir, plots=args.run_plots)
-            if timing.interrupted:
-                break  # its outputs stay in runs/; a part of a run is not a row of the table
-            if not rows:
-                _check_metrics(metrics, summary)
-            if not args.keep_bags:
-                shutil.rmtree(bag_dir)
-            rows.append({"run": run_name, "combo": combo, "seed": seed, "summary": summary})
-            if bar is not None:
-                bar.update(1)
-            interrupt.pause_for_test("sweep-run")
-    finally:
-        if bar is not None:
-            bar.close()
-    if len(rows) < len(plan):
-        print(f"haptic-teleop: sweep interrupted after {len(rows)} of {len(plan)} runs", file=sys.stderr)
-    if not rows:
-        return 130
-    write_csv(out / "sweep.csv", params, rows)
-    agg = aggregate(params, rows, metrics)
-    table = write_markdown(out / "sweep.md", _command(args), params, agg, metrics, seeds)
-    if not args.no_plots:
-        write_plot(out / "sweep.png", params, rows, agg, metrics)
+    finished = [p for p in points if p.run_hash in store.records]
+    for point, why in failures[:3]:
+        print(
+            f"haptic-teleop: sweep point {point.run_hash} ({', '.join(point.combo)}, seed {point.seed}) failed: {why}",
+            file=sys.stderr,
+        )
+    if len(failures) > 3:
+        print(f"haptic-teleop: ... and {len(failures) - 3} more points failed", file=sys.stderr)
+    if len(finished) < len(points) and not failures:
+        print(f"haptic-teleop: sweep interrupted after {len(finished)} of {len(points)} runs", file=sys.stderr)
+    if not store.records:
+        return 130 if interrupt.received() is not None else 1
+    written = store.write_tables([p.run_hash for p in points])
+    rows = [
+        {"run": p.run_hash, "combo": p.combo, "seed": p.seed, "summary": store.records[p.run_hash]["summary"]}
+        for p in finished
+    ]
+    seeds = sorted({p.seed for p in points})
+    agg = aggregate(spec.params, rows, metrics) if rows else []
+    table = write_markdown(out / "sweep.md", _command(args), spec.params, agg, metrics, seeds) if rows else ""
+    # A random sample over several keys is no grid: its points would be one series each.
+    plot = bool(rows) and not args.no_plots and len(agg) <= MAX_PLOT_COMBOS
+    plot = plot and not (spec.random and len(spec.params) > 1)
+    if plot:
+        write_plot(out / "sweep.png", spec.params, rows, agg, metrics)
     if not args.quiet:
         print(table)
-        print(
-            f"csv:   {out / 'sweep.csv'}\ntable: {out / 'sweep.md'}"
-            + ("" if args.no_plots else f"\nplot:  {out / 'sweep.png'}")
-        )
-    return 0 if len(rows) == len(plan) else 130
+        ran = len(finished) - skipped
+        print(f"{ran} runs in {wall_s:.1f} s" + (f", {skipped} skipped (done before)" if skipped else ""))
+        for path in written:
+            print(f"{path.suffix[1:]:<8} {path}")
+        print(f"table:   {out / 'sweep.md'}" + (f"\nplot:    {out / 'sweep.png'}" if plot else ""))
+    if failures:
+        return 1
+    return 0 if len(finished) == len(points) else 130
 
 
 def _check_metrics(metrics: Sequence[str], summary: dict[str, Any]) -> None:
@@ -323,27 +325,50 @@ def _check_metrics(metrics: Sequence[str], summary: dict[str, Any]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", help="scene YAML path, or a bundled scene name (e.g. varying_delay)")
+    from haptic_teleop.benchmarks import positive
+
+    p.add_argument(
+        "scene",
+        help="a sweep file (YAML with grid/random, docs/sweep.md) or a bundled sweep's name; "
+        "or a scene YAML path or bundled scene name with --param",
+    )
     p.add_argument(
         "--param",
         action="append",
-        required=True,
         metavar="KEY.PATH=V1,V2,...",
         help="a swept key and its values (repeatable: every combination runs); "
         "KEY1+KEY2=... sets several keys to the same value",
     )
     p.add_argument("--seeds", metavar="S1,S2,...", help="seeds to run each combination with (default: scene.seed)")
-    p.add_argument("--out", help="output directory (default runs/sweep-<scene>-NNN)")
+    p.add_argument("--out", help="output directory (default runs/sweep-<scene>-NNN); an earlier sweep's: resume it")
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="fixed override for every run (repeatable)")
     p.add_argument(
         "--metrics",
         metavar="K1,K2,...",
-        help=f"summary keys in the table and plot (default: {','.join(DEFAULT_METRICS)})",
+        help=f"summary keys in sweep.md and sweep.png (default: {','.join(DEFAULT_METRICS)}); "
+        "sweep.parquet/csv hold every scalar",
     )
     p.add_argument("--keep-bags", action="store_true", help="keep every run's bag (about 1.3 MB per simulated second)")
     p.add_argument("--run-plots", action="store_true", help="also write each run's plots/")
     p.add_argument("--no-plots", action="store_true", help="skip sweep.png")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
+    p.add_argument(
+        "--workers",
+        type=positive(int),
+        metavar="N",
+        help="local worker processes (default: the CPU count; 1: in this process)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run the points on this Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of locally",
+    )
+    p.add_argument(
+        "--format",
+        choices=("auto", "parquet", "csv"),
+        default="auto",
+        help="results table: sweep.parquet and sweep.csv (parquet; auto: if pyarrow is installed) or sweep.csv only",
+    )
 
 
 def main(args: argparse.Namespace) -> int:

@@ -43,6 +43,7 @@ def test_install_tree_has_executables_launch_config_models(install):
         ("launch", "launch", "*_launch.py"),
         ("haptic_teleop/scenes", "config/scenes", "*.yaml"),
         ("haptic_teleop/models", "models", "*.xml"),
+        ("haptic_teleop/config/sweeps", "config/sweeps", "*.yaml"),
     ):
         want = sorted(p.name for p in (ROOT / source).glob(pattern))
         got = sorted(p.name for p in (share / folder).glob(pattern))

@@ -16,15 +16,16 @@ METRICS = "force_rms_error_n,buffering_delay_forward_mean_s,packets_lost_forward
 
 def test_sweep_runs_every_combination_like_run(tmp_path, capsys):
     out = tmp_path / "sweep"
-    argv = ["sweep", "wall_contact", *SHORT, "--param", POLICIES, "--seeds", "1,2", "--out", str(out)]
+    argv = ["sweep", "wall_contact", *SHORT, "--param", POLICIES, "--seeds", "1,2", "--out", str(out), "--workers", "1"]
     assert main([*argv, "--quiet", "--metrics", METRICS]) == 0
     with (out / "sweep.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    key = "network.forward.buffer.policy+network.backward.buffer.policy"
-    assert [(r[key], r["seed"]) for r in rows] == [("none", "1"), ("none", "2"), ("fixed", "1"), ("fixed", "2")]
+    keys = ("network.forward.buffer.policy", "network.backward.buffer.policy")
+    cells = [(r[keys[0]], r[keys[1]], r["seed"]) for r in rows]  # one column per swept key, in plan order
+    assert cells == [("none", "none", "1"), ("none", "none", "2"), ("fixed", "fixed", "1"), ("fixed", "fixed", "2")]
     # Each row is that run's summary.json, and a plain `run` with the same settings gives the same numbers.
     for r in rows:
-        summary = json.loads((out / "runs" / r["run"] / "summary.json").read_text())
+        summary = json.loads((out / "runs" / r["run_hash"] / "summary.json").read_text())
         assert float(r["force_rms_error_n"]) == summary["force_rms_error_n"]
     run_out = tmp_path / "run"
     set_fixed = ["--set", "network.forward.buffer.policy=fixed", "--set", "network.backward.buffer.policy=fixed"]
@@ -47,7 +48,8 @@ def test_sweep_runs_every_combination_like_run(tmp_path, capsys):
     assert mean == pytest.approx(statistics.mean(lost), rel=1e-3)
     assert std == pytest.approx(statistics.stdev(lost), rel=1e-3)
     assert (out / "sweep.png").stat().st_size > 0
-    assert not (out / "runs" / rows[0]["run"] / "bag").exists()  # bags dropped unless --keep-bags
+    assert not (out / "runs" / rows[0]["run_hash"] / "bag").exists()  # bags dropped unless --keep-bags
+    assert rows[0]["bag_path"] == ""
 
 
 @pytest.mark.parametrize(

@@ -19,6 +19,7 @@ BENCHMARKS = {
     "recording": "haptic_teleop.benchmarks.recording",
     "hardware": "haptic_teleop.benchmarks.hardware",
     "codec": "haptic_teleop.benchmarks.codec",
+    "sweep": "haptic_teleop.benchmarks.sweep",
 }
 
 
