@@ -182,7 +182,7 @@ def apply_contact_start(
     period is the rest state, as if it had lasted forever), each reservoir its holding energy on
     top of the scene's `eba.initial_energy_j`, and the robot's last wall force is -F0. Returns
     the reservoirs' start values (the run facts `master_initial_energy_j`, `slave_initial_energy_j`)."""
-    from haptic_teleop.core.eba import AxisBoundState
+    from haptic_teleop.core.eba_state import AxisBoundState
 
     master.remote = (start.wall_force_n, start.slave_x_m, 0.0)
     slave.remote = (start.master_x_m, 0.0)

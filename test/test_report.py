@@ -174,16 +174,18 @@ def test_sweep_csv_report_is_one_self_contained_file_with_its_markdown_twin(swee
     # a number and a name swept, bags kept: every section but the one whose data may be missing
     expected = TOP if pairs else TOP - {"predicted-against-measured"}
     assert _sections(page) & TOP == expected
-    # swept keys read from today's column naming: run, the keys, seed
+    # swept keys read from the sweep's column naming: the key paths, seed, run_hash
     assert page.row(DELAY, "number", "0.01, 0.1")
     assert page.row(POLICY, "category", "none, adaptive")
-    # drill-down capped at one run: its forces, positions and network timeline
-    drill = [a for a in page.images() if a["alt"].startswith("000-seed1:")]
-    assert [a["alt"] for a in drill] == ["000-seed1: forces", "000-seed1: positions", "000-seed1: network"]
+    # drill-down capped at one run (the table's first, named by its hash): forces, positions, network
+    rows = _rows(sweep_dir / "sweep.csv")
+    first = rows[0]["run_hash"][:12]
+    drill = [a for a in page.images() if a["alt"].startswith(f"{first}:")]
+    assert [a["alt"] for a in drill] == [f"{first}: forces", f"{first}: positions", f"{first}: network"]
     assert "the first 1 of 4" in md
     # the overview's numbers are the table's
-    row = next(r for r in _rows(sweep_dir / "sweep.csv") if r["run"] == "001-seed1")
-    cells = page.row("001-seed1")
+    row = rows[1]
+    cells = page.row(row["run_hash"][:12])
     assert f"{float(row['force_rms_error_n']):.4g}" in cells
 
 
@@ -192,7 +194,8 @@ def test_synthetic_table_predictions_and_pairs_by_seed(sweep_dir, tmp_path, caps
 
     table = tmp_path / "tables" / "results.csv"
     table.parent.mkdir()
-    _synthetic(table, sweep_dir / "runs" / "002-seed1" / "bag")
+    bag = sweep_dir / "runs" / _rows(sweep_dir / "sweep.csv")[2]["run_hash"] / "bag"
+    _synthetic(table, bag)
     page, md = _report([str(table), "--baseline", "none", "--max-runs", "0"], tmp_path / "out", capsys)
     _self_contained(page)
     _markdown_twin(md, tmp_path / "out", page)
@@ -210,9 +213,9 @@ def test_synthetic_table_predictions_and_pairs_by_seed(sweep_dir, tmp_path, caps
     assert f"± {unpaired:.4g} " in page.row("transparency", "6")[2]  # unpaired: the seeds' spread
     # bag_path is taken relative to the table's directory, else found in runs/<run_hash>/
     second = table.parent / "runs" / "0n20000000000000" / "bag"
-    shutil.copytree(sweep_dir / "runs" / "002-seed1" / "bag", second)
+    shutil.copytree(bag, second)
     runs = read_inputs([table]).runs
-    assert [r.bag for r in runs] == [(sweep_dir / "runs" / "002-seed1" / "bag").resolve(), second, *[None] * 10]
+    assert [r.bag for r in runs] == [bag.resolve(), second, *[None] * 10]
 
 
 def test_sections_absent_without_their_data(tmp_path, capsys):
@@ -230,17 +233,19 @@ def test_sections_absent_without_their_data(tmp_path, capsys):
 def test_run_directory_and_bare_bag_read_like_the_sweep(sweep_dir, tmp_path, capsys):
     from haptic_teleop.reporting.inputs import read_inputs
 
+    rows = _rows(sweep_dir / "sweep.csv")
+    names = (rows[0]["run_hash"], rows[3]["run_hash"])
     bag = tmp_path / "elsewhere" / "bag"
-    shutil.copytree(sweep_dir / "runs" / "003-seed1" / "bag", bag)  # no summary.json beside it
-    inputs = read_inputs([sweep_dir / "runs" / "000-seed1", bag])
-    table = {r["run"]: r for r in _rows(sweep_dir / "sweep.csv")}
-    for run, name in zip(inputs.runs, ("000-seed1", "003-seed1"), strict=True):
+    shutil.copytree(sweep_dir / "runs" / names[1] / "bag", bag)  # no summary.json beside it
+    inputs = read_inputs([sweep_dir / "runs" / names[0], bag])
+    table = {r["run_hash"]: r for r in rows}
+    for run, name in zip(inputs.runs, names, strict=True):
         assert run.seed == int(table[name]["seed"])
         assert run.params[DELAY] == float(table[name][DELAY])
         assert run.params[POLICY] == table[name][POLICY]
         for m in ("force_rms_error_n", "late_loss_rate_backward", "buffering_delay_backward_mean_s"):
             assert math.isclose(run.metrics[m], float(table[name][m]), rel_tol=1e-12, abs_tol=1e-15), m
-    page, _ = _report([str(sweep_dir / "runs" / "000-seed1"), str(bag), "--max-runs", "0"], tmp_path / "o", capsys)
+    page, _ = _report([str(sweep_dir / "runs" / names[0]), str(bag), "--max-runs", "0"], tmp_path / "o", capsys)
     assert _sections(page) & TOP == {"overview", "metrics-against-parameters", "comparisons-per-category"}
 
 

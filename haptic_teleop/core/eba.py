@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from haptic_teleop.core.eba_state import AxisBoundState
 from haptic_teleop.core.eba_two_condition import EBA_LAWS, TwoConditionBound
 
 LAWS = ("position", "force")
@@ -183,19 +184,6 @@ class EnergyBoundParams:
     def bound_gains(self) -> tuple[float, ...]:
         """4 b / T per axis: the bound's gain, |F| <= sqrt(bound_gain E) (`bounded1`'s `bound_gain`)."""
         return tuple(4.0 * b / self.period_s for b in self.damping_n_s_per_m)
-
-
-@dataclass(frozen=True)
-class AxisBoundState:
-    """What a one-axis `EnergyBound` carries from one tick to the next: the reservoir, the force
-    held over the current period (the reservoir's F(n-1)), the position of the last step and
-    whether there was one. `EnergyBound.axis_state`
-    and `set_axis_state` move it in and out (the compiled loop, engine/compiled_loop.py, carries it)."""
-
-    energy_j: float
-    held_n: float
-    last_x_m: float
-    has_last: bool
 
 
 class EnergyBound:

@@ -34,8 +34,10 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # the types only; core.eba imports this module
-    from haptic_teleop.core.eba import AxisBoundState, EnergyBoundParams
+from haptic_teleop.core.eba_state import AxisBoundState
+
+if TYPE_CHECKING:  # the params type only; core.eba imports this module
+    from haptic_teleop.core.eba import EnergyBoundParams
 
 # The energy-bound laws a side can run (`controllers.<side>.eba.law`).
 EBA_LAWS = ("reservoir", "two_condition")
@@ -217,8 +219,6 @@ class TwoConditionBound:
     def axis_state(self) -> AxisBoundState:
         """A one-axis bound's state (ValueError for more axes), as `EnergyBound.axis_state`: the
         controller ledger E_c, the force held, the last position and whether there was one."""
-        from haptic_teleop.core.eba import AxisBoundState
-
         self._one_axis()
         return AxisBoundState(self.energy_j[0], self._held[0], self._last_x[0], self._has_last)
 

@@ -51,7 +51,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from haptic_teleop.core.eba import AxisBoundState
+from haptic_teleop.core.eba_state import AxisBoundState
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
 
