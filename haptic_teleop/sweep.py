@@ -361,7 +361,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
-        help="run the points on this Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of locally",
+        help="run the points on this Dask distributed scheduler (e.g. tcp://scheduler.example:8786) instead of locally",
     )
     p.add_argument(
         "--format",
