@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.experiments.args import number
-from haptic_teleop.experiments.tables import markdown, rms, write_csv
+from haptic_teleop.experiments.tables import finish_figure, markdown, rms, write_csv
 
 PERIOD_NS = 1_000_000
 PERIOD_S = PERIOD_NS * 1e-9
@@ -300,12 +300,7 @@ def _plot(results: list[Result], path: Path, title: str, window_s: float) -> Non
         a2.plot(r.t_s[view], (r.force_n - r.true_n)[view], lw=1, label=r.label)
     a1.set(ylabel="force fed back [N]", title=title)
     a2.set(xlabel="time [s]", ylabel="force error [N]")
-    for a in (a1, a2):
-        a.grid(alpha=0.3)
-        a.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    finish_figure(fig, (a1, a2), path, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
 def _finish(

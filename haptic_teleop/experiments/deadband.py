@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.experiments.args import number
-from haptic_teleop.experiments.tables import markdown, write_csv
+from haptic_teleop.experiments.tables import finish_figure, markdown, write_csv
 
 HELP = (
     "seed 001's perceptual deadband on a 3-DoF contact-rich scene: packet-rate reduction and distortion "
@@ -154,9 +154,4 @@ def plot(results: dict[str, list[dict[str, float]]], path: Path, jnd: float) -> 
     a1.set(xlabel="deadband p [%]", ylabel="packets saved [%]", title="Packet-rate reduction", ylim=(0, 100))
     a2.axhline(1.0, color="0.5", ls=":", label="1 JND")
     a2.set(xlabel="deadband p [%]", ylabel=f"mean |error| / (JND |signal|), JND = {jnd:g}", title="Distortion")
-    for a in (a1, a2):
-        a.grid(alpha=0.3)
-        a.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    finish_figure(fig, (a1, a2), path, fontsize=8)

@@ -1,4 +1,4 @@
-"""Tables shared by the experiments: RMS, number formatting, markdown and CSV."""
+"""Tables shared by the experiments: RMS, number formatting, markdown and CSV; finishing a figure."""
 
 from __future__ import annotations
 
@@ -33,3 +33,16 @@ def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) 
         w.writerow(header)
         for row in rows:
             w.writerow(["" if isinstance(c, float) and not math.isfinite(c) else c for c in row])
+
+
+def finish_figure(fig: Any, axes: Sequence[Any], path: Path, **legend: Any) -> None:
+    """Grid and legend (`legend`: matplotlib's keyword arguments) on every axes, then the figure
+    laid out, written to `path` at the experiments' resolution and closed."""
+    import matplotlib.pyplot as plt
+
+    for a in axes:
+        a.grid(alpha=0.3)
+        a.legend(**legend)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

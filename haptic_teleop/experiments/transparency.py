@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.experiments.args import number
-from haptic_teleop.experiments.tables import markdown, write_csv
+from haptic_teleop.experiments.tables import finish_figure, markdown, write_csv
 
 HELP = (
     "seed 000's EBA transparency analysis: force slope, force drop over delay and transparent loss time over "
@@ -293,12 +293,7 @@ def _plot(delay_rows: list[list[Any]], loss_rows: list[list[Any]], path: Path) -
     a2.set(
         xlabel="hold of the master's sample [ms]", ylabel="felt force still rising [ms]", title="transparent loss time"
     )
-    for a in (a1, a2):
-        a.grid(alpha=0.3)
-        a.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    finish_figure(fig, (a1, a2), path, fontsize=6)
 
 
 def _list(text: str) -> list[float]:
