@@ -55,14 +55,29 @@ POLICIES: dict[str, tuple[str, dict[str, Any]]] = {
     "none": ("play on arrival", {"policy": "none"}),
 }
 DIRS = ("forward", "backward")
+# name -> (label, scene overrides): the scene as bundled, the same without netem's reordering
+# (reordering by jitter remains), and force reflection without the bound binding.
+CONFIGS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "binding": ("bound binding, reordering", ()),
+    "binding_no_reorder": (
+        "bound binding, no netem reorder",
+        ("network.forward.effects.reorder=null", "network.backward.effects.reorder=null"),
+    ),
+    "not_binding": (
+        "bound not binding (b_m 1, g 1), reordering",
+        ("master.damping_n_s_per_m=1.0", "controllers.master.force_gain=1.0"),
+    ),
+}
 
 
-def fixed_above_delay_s(delays_s: np.ndarray) -> float:
-    """The `fixed` buffering time whose constant latency is at or above every delay in `delays_s`:
-    `fixed` plays at (the least relative delay before playout starts) + buffering, and that least
-    delay is at least min(delays), so max - min puts it at or above max(delays)."""
+def fixed_above_delay_s(delays_s: np.ndarray, period_s: float) -> float:
+    """The `fixed` buffering time whose constant latency is above every delay in `delays_s`:
+    `fixed` plays at (the least relative delay before playout starts) + buffering, that least
+    delay is at least min(delays), and the engine pushes a packet at the first tick at or after
+    its arrival (up to one period later), so max - min + one period puts the playout point after
+    every packet's push."""
     d = delays_s[np.isfinite(delays_s)]
-    return float(d.max() - d.min()) if d.size else 0.0
+    return float(d.max() - d.min()) + period_s if d.size else 0.0
 
 
 def _scene(overrides: Sequence[str]) -> Any:
@@ -159,8 +174,8 @@ PAIRED = METRICS[:4]
 def run_experiment(
     policies: Sequence[str], seeds: Sequence[int], extra: Sequence[str]
 ) -> tuple[list[list[Any]], dict[str, float]]:
-    """Every policy on every seed: rows [policy, seed, fixed buffering (s), *METRICS]; and the run
-    facts (the seed policy's D_a, L_a, d0)."""
+    """Every policy on every seed of one configuration (`extra`: scene overrides): rows
+    [policy, seed, fixed buffering (s), *METRICS]; and the facts the seed policy runs on (D_a, L_a, d0)."""
     no_net = [f"network.{d}.effects={{}}" for d in DIRS] + _buffer_overrides({"policy": "none"})
     ref, scene = _run((*extra, *no_net))
     period = scene.config.scene.period_s
@@ -170,7 +185,8 @@ def run_experiment(
         seed_ov = (*extra, f"scene.seed={seed}")
         arrival_run, _ = _run((*seed_ov, *_buffer_overrides({"policy": "none"})))
         fixed_s = max(
-            fixed_above_delay_s(_delays(arrival_run.fwd_log)), fixed_above_delay_s(_delays(arrival_run.bwd_log))
+            fixed_above_delay_s(_delays(arrival_run.fwd_log), period),
+            fixed_above_delay_s(_delays(arrival_run.bwd_log), period),
         )
         for name in policies:
             keys = dict(POLICIES[name][1])
@@ -268,58 +284,69 @@ def markdown_tables(table: list[list[Any]], paired: list[list[Any]], n_seeds: in
     return out + "\n" + markdown(phead, pbody)
 
 
-def _plot(rows: list[list[Any]], policies: Sequence[str], path: Path) -> None:
+def _plot(rows: list[list[Any]], configs: Sequence[str], policies: Sequence[str], path: Path) -> None:
+    """Per configuration: RMS and peak error against the undisturbed run per policy (a box over the
+    seeds, one dot per seed), and RMS error against the mean buffering."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.5))
-    for ax, key, title in (
-        (axes[0], "force_rms_error_vs_reference_n", "RMS force error vs undisturbed run [N]"),
-        (axes[1], "force_peak_error_vs_reference_n", "peak force error vs undisturbed run [N]"),
-    ):
-        i = 3 + METRICS.index(key)
-        data = [[r[i] for r in rows if r[0] == p] for p in policies]
-        ax.boxplot(data, showmeans=True)
-        for j, d in enumerate(data):
-            ax.plot(np.full(len(d), j + 1.0) + np.linspace(-0.15, 0.15, len(d)), d, ".", color="C0", alpha=0.6)
-        ax.set_xticks(range(1, len(policies) + 1), list(policies), rotation=30, ha="right", fontsize=8)
-        ax.set(title=title)
+    fig, axes = plt.subplots(len(configs), 3, figsize=(15, 4.2 * len(configs)), squeeze=False)
+    ib = 4 + METRICS.index("buffering_backward_mean_ms")
+    ie = 4 + METRICS.index("force_rms_error_vs_reference_n")
+    for ci, c in enumerate(configs):
+        crows = [r for r in rows if r[0] == c]
+        for ax, key, title in (
+            (axes[ci][0], "force_rms_error_vs_reference_n", "RMS force error vs undisturbed run [N]"),
+            (axes[ci][1], "force_peak_error_vs_reference_n", "peak force error vs undisturbed run [N]"),
+        ):
+            i = 4 + METRICS.index(key)
+            data = [[r[i] for r in crows if r[1] == p] for p in policies]
+            ax.boxplot(data, showmeans=True)
+            for j, d in enumerate(data):
+                ax.plot(np.full(len(d), j + 1.0) + np.linspace(-0.15, 0.15, len(d)), d, ".", color="C0", alpha=0.5)
+            ax.set_xticks(range(1, len(policies) + 1), list(policies), rotation=25, ha="right", fontsize=8)
+            ax.set_title(f"{CONFIGS[c][0]}:\n{title}", fontsize=9)
+            ax.grid(alpha=0.3)
+        ax = axes[ci][2]
+        for j, p in enumerate(policies):
+            rs = [r for r in crows if r[1] == p]
+            ax.plot([r[ib] for r in rs], [r[ie] for r in rs], "o", color=f"C{j}", label=p, alpha=0.6)
+        ax.set_xlabel("mean buffering, backward [ms]")
+        ax.set_ylabel("RMS error vs undisturbed run [N]")
+        ax.set_title(f"{CONFIGS[c][0]}:\nerror against buffering (one dot per seed)", fontsize=9)
         ax.grid(alpha=0.3)
-    ib, ie = 3 + METRICS.index("buffering_backward_mean_ms"), 3 + METRICS.index("force_rms_error_vs_reference_n")
-    for j, p in enumerate(policies):
-        rs = [r for r in rows if r[0] == p]
-        axes[2].plot([r[ib] for r in rs], [r[ie] for r in rs], "o", color=f"C{j}", label=p, alpha=0.7)
-    axes[2].set(
-        xlabel="mean buffering, backward [ms]",
-        ylabel="RMS force error vs undisturbed run [N]",
-        title="error against buffering (one dot per seed)",
-    )
-    axes[2].grid(alpha=0.3)
-    axes[2].legend(fontsize=7)
+        ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="output directory, new or empty (default runs/playout-NNN)")
-    p.add_argument("--seeds", type=number(1, 1000, kind=int), default=10, help="seeds 1..N (paired across policies)")
+    p.add_argument("--seeds", type=number(1, 1000, kind=int), default=20, help="seeds 1..N (paired across policies)")
     p.add_argument("--policies", default=",".join(POLICIES), help=f"which policies ({', '.join(POLICIES)})")
-    p.add_argument("--quick", action="store_true", help="3 seeds, 1.5 s runs (for tests)")
+    p.add_argument("--configs", default=",".join(CONFIGS), help=f"which configurations ({', '.join(CONFIGS)})")
+    p.add_argument("--quick", action="store_true", help="3 seeds, 1.5 s runs, the first configuration (for tests)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of the base scene")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
-def main(args: argparse.Namespace) -> int:
-    from haptic_teleop.analysis.outputs import check_out_dir, default_out
+def _subset(text: str, allowed: Sequence[str], flag: str) -> list[str]:
     from haptic_teleop.errors import InputError
 
-    policies = [c.strip() for c in args.policies.split(",") if c.strip()]
-    bad = [c for c in policies if c not in POLICIES]
-    if bad or not policies:
-        raise InputError(f"--policies {args.policies}: allowed: a comma-separated subset of {', '.join(POLICIES)}")
+    names = [c.strip() for c in text.split(",") if c.strip()]
+    if not names or any(c not in allowed for c in names):
+        raise InputError(f"{flag} {text}: allowed: a comma-separated subset of {', '.join(allowed)}")
+    return names
+
+
+def main(args: argparse.Namespace) -> int:
+    from haptic_teleop.analysis.outputs import check_out_dir, default_out
+
+    policies = _subset(args.policies, list(POLICIES), "--policies")
+    configs = _subset(args.configs, list(CONFIGS), "--configs")
     if SEED_POLICY not in policies:
         policies.insert(0, SEED_POLICY)
     extra: tuple[str, ...] = tuple(args.set or ())
@@ -327,18 +354,29 @@ def main(args: argparse.Namespace) -> int:
     if args.quick:
         extra = ("scene.duration_s=1.5", "operator.duration_s=0.9", *extra)
         seeds = min(seeds, 3)
-    _scene(extra)  # a bad --set fails here, before anything is written
+        configs = configs[:1]
+    for c in configs:  # a bad --set fails here, before anything is written
+        _scene((*CONFIGS[c][1], *extra))
     out = Path(args.out) if args.out else default_out("playout")
     check_out_dir(out)
-    rows, facts = run_experiment(policies, range(1, seeds + 1), extra)
-    table, paired = summary(rows, policies)
-    write_csv(out / "playout_runs.csv", RUNS_HEADER, rows)
-    write_csv(out / "playout.csv", TABLE_HEADER, table)
-    write_csv(out / "playout_paired.csv", PAIRED_HEADER, paired)
-    text = markdown_tables(table, paired, seeds)
-    text += "\n" + ", ".join(f"{k} = {v:.4g}" for k, v in facts.items()) + "\n"
+    all_rows: list[list[Any]] = []
+    all_table: list[list[Any]] = []
+    all_paired: list[list[Any]] = []
+    text = ""
+    for c in configs:
+        label, ov = CONFIGS[c]
+        rows, facts = run_experiment(policies, range(1, seeds + 1), (*ov, *extra))
+        table, paired = summary(rows, policies)
+        all_rows += [[c, *r] for r in rows]
+        all_table += [[c, *r] for r in table]
+        all_paired += [[c, *r] for r in paired]
+        text += f"### {label}\n\n" + markdown_tables(table, paired, seeds)
+        text += "\n" + ", ".join(f"{k} = {v:.4g}" for k, v in facts.items()) + "\n\n"
+    write_csv(out / "playout_runs.csv", ["configuration", *RUNS_HEADER], all_rows)
+    write_csv(out / "playout.csv", ["configuration", *TABLE_HEADER], all_table)
+    write_csv(out / "playout_paired.csv", ["configuration", *PAIRED_HEADER], all_paired)
     (out / "playout.md").write_text(text)
-    _plot(rows, policies, out / "playout.png")
+    _plot(all_rows, configs, policies, out / "playout.png")
     if not args.quiet:
         sys.stdout.write(text)
         sys.stdout.write(f"{out / 'playout.png'}\n")
