@@ -251,6 +251,35 @@ def transparency_budget_of(c: Scene) -> tuple[float, float] | None:
     return allowable_delay(m, error, law), allowable_loss_time(m, error, t_tr, law)
 
 
+def configure_network_adaptive(buf: PlayoutBuffer, c: Scene, direction: str) -> None:
+    """Give a `network_adaptive` buffer (core/playout.py) what it cannot observe: the link's
+    minimum one-way delay (`core.netconfig.min_one_way_delay_s` of the direction's effects, unless
+    the scene sets `min_one_way_delay_s`) and the allowable delay and loss time of the scene's
+    transparency analysis (`transparency_budget_of`, unless the scene sets them). Any other buffer
+    is left alone. The engine and the live sync_buffer node both call it."""
+    if not isinstance(buf, NetworkAdaptiveBuffer):
+        return
+    ch = getattr(c.network, direction)
+    bcfg = ch.buffer
+    d0 = bcfg.min_one_way_delay_s
+    buf.set_min_one_way_delay(round((min_one_way_delay_s(ch.effects) if d0 is None else d0) * 1e9))
+    d_a, l_a = bcfg.allowable_delay_s, bcfg.allowable_loss_time_s
+    if d_a is None or l_a is None:
+        budget = transparency_budget_of(c)
+        if budget is None:  # the scene's validation refuses this already (scene/schema.py)
+            raise ValueError(
+                f"network.{direction}.buffer: policy network_adaptive needs allowable_delay_s and "
+                "allowable_loss_time_s, or a one-axis scene whose operator profile is push or imposed"
+            )
+        d_a = budget[0] if d_a is None else d_a
+        l_a = budget[1] if l_a is None else l_a
+    never = 1 << 62
+    buf.set_allowable(
+        None if math.isinf(d_a) else min(round(d_a * 1e9), never),
+        min(round(l_a * 1e9), never) if math.isfinite(l_a) else never,
+    )
+
+
 def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
     """Fresh links and playout buffers for both directions, as the scene names them."""
     op = c.operator
@@ -274,31 +303,8 @@ def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, 
             buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / c.scene.period_s), speed))
     # The network-adaptive buffers (seed 000) need the link's minimum delay, which a buffer cannot
     # observe, and the allowable delay and loss time of the scene's transparency analysis.
-    budget: tuple[float, float] | None = None
-    for buf, bcfg, effects, name in (
-        (forward_buffer, c.network.forward.buffer, c.network.forward.effects, "forward"),
-        (backward_buffer, c.network.backward.buffer, c.network.backward.effects, "backward"),
-    ):
-        if not isinstance(buf, NetworkAdaptiveBuffer):
-            continue
-        d0 = bcfg.min_one_way_delay_s
-        buf.set_min_one_way_delay(round((min_one_way_delay_s(effects) if d0 is None else d0) * 1e9))
-        d_a, l_a = bcfg.allowable_delay_s, bcfg.allowable_loss_time_s
-        if d_a is None or l_a is None:
-            if budget is None:
-                budget = transparency_budget_of(c)
-            if budget is None:
-                raise ValueError(
-                    f"network.{name}.buffer: policy network_adaptive needs allowable_delay_s and "
-                    "allowable_loss_time_s, or a one-axis scene whose operator profile is push or imposed "
-                    "(their transparency analysis gives them)"
-                )
-            d_a = budget[0] if d_a is None else d_a
-            l_a = budget[1] if l_a is None else l_a
-        buf.set_allowable(
-            None if math.isinf(d_a) else round(d_a * 1e9),
-            min(round(l_a * 1e9), 1 << 62) if math.isfinite(l_a) else 1 << 62,
-        )
+    configure_network_adaptive(forward_buffer, c, "forward")
+    configure_network_adaptive(backward_buffer, c, "backward")
     return forward, backward, forward_buffer, backward_buffer
 
 
