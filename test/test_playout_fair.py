@@ -183,3 +183,24 @@ def test_policies_that_should_differ_do(quick):
     assert np.all(col("network_adaptive", err) < col("adaptive", err))
     assert np.all(col("network_adaptive", err) < col("fixed_above", err))
     assert all(math.isfinite(v) for v in col("percentile", err))
+
+
+def test_bad_input_is_one_line(tmp_path, capsys):
+    from haptic_teleop.cli import main
+    from haptic_teleop.errors import ConfigError
+
+    code = main(["experiment", "playout", "--policies", "none,nope", "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--policies" in err
+    assert not (tmp_path / "x").exists()
+    # network_adaptive on a scene without a contact model and without its two keys
+    with pytest.raises(ConfigError, match="allowable_delay_s and allowable_loss_time_s"):
+        load_scene(
+            find_scene("wall_contact"),
+            overrides=["operator.profile=hold", "network.backward.buffer.policy=network_adaptive"],
+        )
+    ok = ["network.backward.buffer.allowable_delay_s=0.05", "network.backward.buffer.allowable_loss_time_s=0.01"]
+    load_scene(
+        find_scene("wall_contact"),
+        overrides=["operator.profile=hold", "network.backward.buffer.policy=network_adaptive", *ok],
+    )
