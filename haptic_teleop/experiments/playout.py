@@ -5,7 +5,9 @@ Seed 000 says its network-adaptive buffering (the buffering time from the transp
 allowable delay and loss time, with the minimum network delay) gives less force feedback error than
 the existing haptic synchronization schemes over a time-varying delay. This runs, on the bundled
 scene seed_contact_playout (the seed's premise with force reflection and the master's bound binding;
-a sinusoidal delay with jitter and netem reordering, both ways), every policy in both directions:
+a sinusoidal delay with jitter and netem reordering, both ways) in four configurations (`CONFIGS`:
+as bundled, without netem reorder, with the published two-condition EBA, without the bound
+binding), every policy in both directions:
 
 - `network_adaptive`: the seed's rule (core/playout.py `NetworkAdaptiveBuffer`; D_a, L_a and d0 are
   passed by the engine from the scene's transparency analysis and the link, assembly.build_network);
@@ -56,12 +58,18 @@ POLICIES: dict[str, tuple[str, dict[str, Any]]] = {
 }
 DIRS = ("forward", "backward")
 # name -> (label, scene overrides): the scene as bundled, the same without netem's reordering
-# (reordering by jitter remains), and force reflection without the bound binding.
+# (reordering by jitter remains), the same with the published two-condition EBA at the master (a
+# per-step cap: a hold past the transparent loss time stops the ramp for good; Python loop), and
+# force reflection without the bound binding.
 CONFIGS: dict[str, tuple[str, tuple[str, ...]]] = {
     "binding": ("bound binding, reordering", ()),
     "binding_no_reorder": (
         "bound binding, no netem reorder",
         ("network.forward.effects.reorder=null", "network.backward.effects.reorder=null"),
+    ),
+    "two_condition": (
+        "bound binding, published two-condition EBA, reordering",
+        ("controllers.master.eba.law=two_condition",),
     ),
     "not_binding": (
         "bound not binding (b_m 1, g 1), reordering",
