@@ -17,9 +17,23 @@ from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
 from haptic_teleop.core.link import Link
+from haptic_teleop.core.netconfig import min_one_way_delay_s
 from haptic_teleop.core.operator import Operator, OperatorParams
-from haptic_teleop.core.playout import PlayoutBuffer, TransparencyBuffer, build_buffer, contact_force_slope
-from haptic_teleop.core.transparency import ContactStart, contact_start
+from haptic_teleop.core.playout import (
+    NetworkAdaptiveBuffer,
+    PlayoutBuffer,
+    TransparencyBuffer,
+    build_buffer,
+    contact_force_slope,
+)
+from haptic_teleop.core.transparency import (
+    ContactModel,
+    ContactStart,
+    allowable_delay,
+    allowable_loss_time,
+    contact_start,
+    transparent_loss_time,
+)
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.scene.schema import ControllerConfig, OperatorConfig, SaturationConfig, Scene
 from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
@@ -195,6 +209,77 @@ def apply_contact_start(
     return out
 
 
+def contact_model_of(c: Scene) -> ContactModel | None:
+    """The transparency analysis' contact model of a one-axis scene whose operator moves toward the
+    wall at a set speed (`push` or `imposed`), from the scene alone (core/transparency.py; the
+    analysis of a bag uses the measured speed instead): None for any other scene."""
+    op = c.operator
+    if c.is_arm or op.profile not in ("push", "imposed") or op.speed_m_per_s == 0.0:
+        return None
+    m, sl, s = c.controllers.master, c.controllers.slave, c.slave
+    return ContactModel(
+        period_s=c.scene.period_s,
+        speed_m_per_s=abs(op.speed_m_per_s),
+        master_law=m.law,
+        master_stiffness_n_per_m=m.stiffness_n_per_m,
+        master_damping_n_s_per_m=m.damping_n_s_per_m,
+        master_force_gain=m.force_gain,
+        master_physical_damping_n_s_per_m=c.master.damping_n_s_per_m,
+        master_force_limit_n=m.force_limit_n,
+        slave_stiffness_n_per_m=sl.stiffness_n_per_m,
+        wall_stiffness_n_per_m=s.wall.stiffness_n_per_m,
+        contact_force_n=s.initial_contact_force_n or 0.0,
+        master_eba=m.eba.enabled,
+        slave_damping_n_s_per_m=sl.damping_n_s_per_m,
+        slave_physical_damping_n_s_per_m=s.damping_n_s_per_m,
+        wall_damping_n_s_per_m=s.wall.damping_n_s_per_m,
+    )
+
+
+def transparency_budget_of(c: Scene) -> tuple[float, float] | None:
+    """(allowable one-way delay D_a, allowable loss time L_a) in s for the scene's required force
+    distortion E (`analysis.allowed_force_error_n`, 0.1 N without an `analysis` section), from its
+    contact model and the master's EBA law (core/transparency.py): L_a = T_tr + E / s with T_tr the
+    transparent loss time at the ramp's start (the felt force at the start, desired = felt: the
+    least T_tr over a ramp whose gap only grows). None when the scene has no contact model."""
+    m = contact_model_of(c)
+    if m is None:
+        return None
+    law = c.controllers.master.eba.law
+    error = c.analysis.allowed_force_error_n if c.analysis is not None else 0.1
+    t_tr = transparent_loss_time(m, 0.0, m.master_start_force_n, law)
+    return allowable_delay(m, error, law), allowable_loss_time(m, error, t_tr, law)
+
+
+def configure_network_adaptive(buf: PlayoutBuffer, c: Scene, direction: str) -> None:
+    """Give a `network_adaptive` buffer (core/playout.py) what it cannot observe: the link's
+    minimum one-way delay (`core.netconfig.min_one_way_delay_s` of the direction's effects, unless
+    the scene sets `min_one_way_delay_s`) and the allowable delay and loss time of the scene's
+    transparency analysis (`transparency_budget_of`, unless the scene sets them). Any other buffer
+    is left alone. The engine and the live sync_buffer node both call it."""
+    if not isinstance(buf, NetworkAdaptiveBuffer):
+        return
+    ch = getattr(c.network, direction)
+    bcfg = ch.buffer
+    d0 = bcfg.min_one_way_delay_s
+    buf.set_min_one_way_delay(round((min_one_way_delay_s(ch.effects) if d0 is None else d0) * 1e9))
+    d_a, l_a = bcfg.allowable_delay_s, bcfg.allowable_loss_time_s
+    if d_a is None or l_a is None:
+        budget = transparency_budget_of(c)
+        if budget is None:  # the scene's validation refuses this already (scene/schema.py)
+            raise ValueError(
+                f"network.{direction}.buffer: policy network_adaptive needs allowable_delay_s and "
+                "allowable_loss_time_s, or a one-axis scene whose operator profile is push or imposed"
+            )
+        d_a = budget[0] if d_a is None else d_a
+        l_a = budget[1] if l_a is None else l_a
+    never = 1 << 62
+    buf.set_allowable(
+        None if math.isinf(d_a) else min(round(d_a * 1e9), never),
+        min(round(l_a * 1e9), never) if math.isfinite(l_a) else never,
+    )
+
+
 def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
     """Fresh links and playout buffers for both directions, as the scene names them."""
     op = c.operator
@@ -216,6 +301,10 @@ def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, 
     ):
         if isinstance(buf, TransparencyBuffer) and bcfg.force_slope_n_per_s is None:
             buf.set_force_slope(contact_force_slope(min(ctrl.stiffness_n_per_m, 2 * b / c.scene.period_s), speed))
+    # The network-adaptive buffers (seed 000) need the link's minimum delay, which a buffer cannot
+    # observe, and the allowable delay and loss time of the scene's transparency analysis.
+    configure_network_adaptive(forward_buffer, c, "forward")
+    configure_network_adaptive(backward_buffer, c, "backward")
     return forward, backward, forward_buffer, backward_buffer
 
 

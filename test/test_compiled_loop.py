@@ -50,6 +50,16 @@ CASES = {
     "adaptive": ("jitter", [f"{FWD}.buffer.policy=adaptive", f"{BWD}.buffer.policy=adaptive"]),
     "percentile": ("jitter", [f"{FWD}.buffer.policy=percentile", f"{BWD}.buffer.policy=percentile"]),
     "transparency": ("varying_delay", []),
+    # Seed 000's network-adaptive buffer: D_a, L_a and d0 passed by the engine (assembly.build_network).
+    "network_adaptive": (
+        "seed_contact",
+        [
+            f"{FWD}.effects.delay.jitter_s=0.004",
+            f"{BWD}.effects.delay.jitter_s=0.004",
+            f"{FWD}.buffer.policy=network_adaptive",
+            f"{BWD}.buffer.policy=network_adaptive",
+        ],
+    ),
     # Delays longer than the compiled loop's first history ring (1024 ticks) and than a block:
     # the ring grows, records wait several blocks for their fates.
     "long_delay": ("wall_contact", ["scene.duration_s=4.0", f"{FWD}.effects.delay.delay_s=1.5"]),

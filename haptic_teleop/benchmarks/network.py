@@ -73,6 +73,7 @@ POLICY_PARAMS: dict[str, dict[str, Any]] = {
     "adaptive": {},
     "percentile": {},
     "transparency": {"force_slope_n_per_s": 10.0},
+    "network_adaptive": {"allowable_delay_s": 0.1, "allowable_loss_time_s": 0.02, "min_one_way_delay_s": 0.03},
 }
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from haptic_teleop.core.delay import ConstantDelay, Delay, PiecewiseDelay, SinusoidDelay, TokenBucket
 from haptic_teleop.core.link import CANONICAL_ORDER, DEFAULT_OVERHEAD_BYTES, Duplicate, Effect, Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, Corrupt, FourStateLoss, GilbertElliottLoss, TraceLoss
-from haptic_teleop.core.uniform import CORRELATION_MODELS, DISTRIBUTIONS, effect_rng
+from haptic_teleop.core.uniform import CORRELATION_MODELS, DISTRIBUTIONS, effect_rng, jitter_table
 
 _P = {"min": 0.0, "max": 1.0}
 _CORR = {"min": 0.0, "lt": 1.0, "help": "netem correlation with the previous draw, as a fraction (25% = 0.25)"}
@@ -326,6 +326,31 @@ class NetworkEffectsConfig:
                 "reorder needs a delay: it sends some packets at once while the others keep the delay "
                 "(netem refuses reorder without a delay too)"
             )
+
+
+def min_one_way_delay_s(cfg: NetworkEffectsConfig | None) -> float:
+    """The smallest one-way delay the link `cfg` can give a packet, s: what the engine knows about
+    the link and a playout buffer cannot observe without synchronized clocks (a live node estimates
+    it as half the minimum round trip). The constant delay plus the time-varying part's minimum plus
+    the jitter distribution's lowest value (netem's tables are finite: normal -3.67 sigma, pareto
+    -0.67, paretonormal -1.42; uniform -jitter_s), clamped at 0; 0 with `reorder` (reordered packets
+    skip the delay) and for a trace (its rows are not known here). Queues (rate_limit, keep_order)
+    only add delay."""
+    if cfg is None or cfg.delay is None:
+        return 0.0
+    if cfg.reorder is not None:
+        return 0.0
+    d = cfg.delay
+    lo = d.delay_s
+    if d.schedule is not None:
+        lo += min(d.schedule.delays_s)
+    elif d.sinusoid is not None:
+        lo += d.sinusoid.min_delay_s
+    elif d.trace is not None:
+        return 0.0
+    if d.jitter_s > 0.0:
+        lo += d.jitter_s * (-1.0 if d.distribution == "uniform" else min(jitter_table(d.distribution)))
+    return max(0.0, lo)
 
 
 def canonical_order(cfg: NetworkEffectsConfig | None = None) -> tuple[str, ...]:

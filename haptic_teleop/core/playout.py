@@ -8,8 +8,10 @@ as a constant that cancels. Formulas, derivations and parameters are in docs/pla
 
 Policies: `none` (play on arrival), `fixed` (minimum relative delay + a fixed buffering time),
 `adaptive` (Ramjee et al. 1994, algorithm 1: d + 4 v), `percentile` (NetEq-like quantile of a
-sliding window) and `transparency` (the buffering time that minimises the EBA force error of
-seed 000 under its allowable-delay cap).
+sliding window), `transparency` (the buffering time that minimises the EBA force error of
+seed 000 under its allowable-delay cap, with a contact horizon) and `network_adaptive` (seed 000's
+network-adaptive buffering as the seed describes it: the buffering time from the transparency
+analysis' allowable delay and loss time and the minimum network delay, no free horizon).
 
 The tick path is plain Python on ints: a heap of held packets, a ring of recently seen sequence
 numbers (duplicates), and per-policy estimators that cost O(1) or O(log window) per packet.
@@ -29,7 +31,7 @@ from typing import Any, Protocol
 
 from haptic_teleop.core.link import LOST_LATE, Packet
 
-POLICIES = ("none", "fixed", "adaptive", "percentile", "transparency")
+POLICIES = ("none", "fixed", "adaptive", "percentile", "transparency", "network_adaptive")
 GAP_MODES = ("hold", "extrapolate")
 RAMJEE_SMOOTHING = 0.998002  # alpha of Ramjee et al. (1994), algorithm 1
 
@@ -587,6 +589,94 @@ class TransparencyBuffer(_ScheduledBuffer):
         self.expected_force_error_n = None if s is None else s * (self._d0 + best_cost) * 1e-9
 
 
+class NetworkAdaptiveBuffer(_ScheduledBuffer):
+    """Policy `network_adaptive`: seed 000's network-adaptive buffering time control, read as the
+    seed states it (docs/playout.md, "The haptic-synchronization claim, tested fairly").
+
+    From the transparency analysis of the scene (core/transparency.py) it takes the allowable
+    delay D_a (the largest one-way delay whose force drop stays within the required distortion E)
+    and the allowable loss time L_a = T_tr + E / s (the transparent loss time, then as long as the
+    undisturbed force takes to rise by E); from the network, the minimum one-way delay d0. With x
+    the relative delays above the window's minimum, a sample x late is held about x - b past its
+    slot; the buffering time is the least that keeps every hold the window predicts within L_a,
+    as long as the latency d0 + b stays within D_a:
+
+        b = min( max(0, max(x) - L_a), max(0, D_a - d0) )
+
+    No free parameter decides between latency and holds: both bounds come from the analysis.
+    `requirement_met` is False when the window's holds need more buffering than D_a - d0 allows
+    (the seed's requirement cannot be met at this jitter; the latency bound wins).
+    """
+
+    name = "network_adaptive"
+
+    def __init__(
+        self,
+        period_ns: int,
+        *,
+        allowable_delay_ns: int | None = None,
+        allowable_loss_time_ns: int = 0,
+        min_one_way_delay_ns: int = 0,
+        window_packets: int = 1000,
+        gap: str = "hold",
+        max_extrapolation_ns: int = 0,
+        max_slew_rate: float = 0.05,
+        hysteresis_ns: int = 0,
+    ) -> None:
+        super().__init__(
+            period_ns,
+            gap=gap,
+            max_extrapolation_ns=max_extrapolation_ns,
+            max_slew_rate=max_slew_rate,
+            hysteresis_ns=hysteresis_ns,
+        )
+        self._window = _Window(window_packets)
+        self._allow_delay: int | None = None
+        self._allow_loss = 0
+        self._d0 = 0
+        self.set_allowable(allowable_delay_ns, allowable_loss_time_ns)
+        self.set_min_one_way_delay(min_one_way_delay_ns)
+        self.buffering_ns = 0  # b: the chosen buffering above the window's minimum relative delay
+        self.requirement_met = True
+
+    def set_allowable(self, delay_ns: int | None, loss_time_ns: int) -> None:
+        """D_a (None: no delay bound) and L_a, from the transparency analysis (the engine passes
+        them, `assembly.build_network`); the next arrival's decision uses them."""
+        if delay_ns is not None and delay_ns < 0:
+            raise ValueError(f"allowable delay must be >= 0, got {delay_ns}")
+        if loss_time_ns < 0:
+            raise ValueError(f"allowable loss time must be >= 0, got {loss_time_ns}")
+        self._allow_delay = delay_ns
+        self._allow_loss = loss_time_ns
+
+    def set_min_one_way_delay(self, delay_ns: int) -> None:
+        """d0: the smallest one-way delay (the engine: the link's; a node: half the minimum round trip)."""
+        if delay_ns < 0:
+            raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
+        self._d0 = delay_ns
+
+    @property
+    def delay_budget_ns(self) -> int | None:
+        """D_a - d0 (at least 0): the most buffering the allowable delay leaves; None: no bound."""
+        a = self._allow_delay
+        return None if a is None else max(0, a - self._d0)
+
+    def _observe(self, rel_ns: int) -> None:
+        w = self._window
+        w.add(rel_ns)
+        srt = w.sorted
+        need = srt[-1] - srt[0] - self._allow_loss
+        need = max(need, 0)
+        cap = self.delay_budget_ns
+        if cap is not None and need > cap:
+            self.requirement_met = False
+            need = cap
+        else:
+            self.requirement_met = True
+        self.buffering_ns = need
+        self._target_rel = srt[0] + need
+
+
 @dataclass(frozen=True)
 class BufferConfig:
     """One receiving side's sync buffer. Parameters a policy does not use are ignored."""
@@ -617,7 +707,8 @@ class BufferConfig:
         default=0.95, metadata={"gt": 0.0, "lt": 1.0, "help": "percentile: fraction of packets in time"}
     )
     window_packets: int = field(
-        default=1000, metadata={"min": 1, "max": 100_000, "help": "percentile, transparency: delay window"}
+        default=1000,
+        metadata={"min": 1, "max": 100_000, "help": "percentile, transparency, network_adaptive: delay window"},
     )
     allowed_force_error_n: float = field(
         default=0.1, metadata={"gt": 0.0, "max": 1e4, "help": "transparency: allowed felt-force distortion"}
@@ -630,8 +721,30 @@ class BufferConfig:
             "help": "transparency: contact force slope c*vm (unset: engine passes it)",
         },
     )
-    min_one_way_delay_s: float = field(
-        default=0.0, metadata={"min": 0.0, "max": 100.0, "help": "transparency: smallest one-way delay (d0)"}
+    min_one_way_delay_s: float | None = field(
+        default=None,
+        metadata={
+            "min": 0.0,
+            "max": 100.0,
+            "help": "transparency, network_adaptive: smallest one-way delay d0 (unset: 0 for transparency, "
+            "the link's minimum for network_adaptive)",
+        },
+    )
+    allowable_delay_s: float | None = field(
+        default=None,
+        metadata={
+            "min": 0.0,
+            "max": 3600.0,
+            "help": "network_adaptive: allowable one-way delay D_a (unset: from the scene's transparency analysis)",
+        },
+    )
+    allowable_loss_time_s: float | None = field(
+        default=None,
+        metadata={
+            "min": 0.0,
+            "max": 3600.0,
+            "help": "network_adaptive: allowable loss time L_a (unset: from the scene's transparency analysis)",
+        },
     )
     contact_horizon_s: float = field(
         default=1.0,
@@ -715,8 +828,20 @@ def build_buffer(cfg: BufferConfig, period_ns: int) -> PlayoutBuffer:
             period_ns,
             allowed_force_error_n=cfg.allowed_force_error_n,
             force_slope_n_per_s=cfg.force_slope_n_per_s,
-            min_one_way_delay_ns=_ns(cfg.min_one_way_delay_s),
+            min_one_way_delay_ns=_ns(cfg.min_one_way_delay_s or 0.0),
             contact_horizon_ns=_ns(cfg.contact_horizon_s),
+            window_packets=cfg.window_packets,
+            gap=gap,
+            max_extrapolation_ns=extra_ns,
+            max_slew_rate=slew,
+            hysteresis_ns=hyst_ns,
+        )
+    if cfg.policy == "network_adaptive":
+        return NetworkAdaptiveBuffer(
+            period_ns,
+            allowable_delay_ns=None if cfg.allowable_delay_s is None else _ns(cfg.allowable_delay_s),
+            allowable_loss_time_ns=_ns(cfg.allowable_loss_time_s or 0.0),
+            min_one_way_delay_ns=_ns(cfg.min_one_way_delay_s or 0.0),
             window_packets=cfg.window_packets,
             gap=gap,
             max_extrapolation_ns=extra_ns,

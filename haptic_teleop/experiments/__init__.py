@@ -12,6 +12,8 @@
   (experiments/codec.py, docs/codec.md).
 - `error-control`: seed 000's experiment, prediction-based filtering with FEC or ARQ over its
   events against priority-based filtering (experiments/codec.py, docs/codec.md).
+- `playout`: seed 000's haptic-synchronization claim, its network-adaptive buffering against the
+  existing schemes on paired seeds (experiments/playout.py, docs/playout.md).
 - `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent
   loss time, predicted against measured (experiments/transparency.py, docs/transparency.md).
 """
@@ -26,7 +28,7 @@ from haptic_teleop.experiments.args import OneLineParser
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
-    from haptic_teleop.experiments import codec, deadband, deadband_loop, nve, transparency
+    from haptic_teleop.experiments import codec, deadband, deadband_loop, nve, playout, transparency
 
     p.__class__ = OneLineParser
     sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
@@ -51,3 +53,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     tr = sub.add_parser("transparency", help=transparency.HELP, description=transparency.HELP)
     transparency.add_arguments(tr)
     tr.set_defaults(func=transparency.main)
+    pl = sub.add_parser("playout", help=playout.HELP, description=playout.HELP)
+    playout.add_arguments(pl)
+    pl.set_defaults(func=playout.main)

@@ -61,6 +61,10 @@ class SyncBuffer(LiveNode):
         axes = declare_task_axes(self)
         period_ns = round(cfg.scene.period_s * 1e9)
         self.buffer = build_buffer(direction_config(cfg, d).buffer, period_ns)
+        if not cfg.is_nve:
+            from haptic_teleop.assembly import configure_network_adaptive
+
+            configure_network_adaptive(self.buffer, cfg, d)  # network_adaptive: d0, D_a, L_a from the scene
         self.wire = w = wire_of(d, axes)
         self._fields = w.want
         out_fields = w.fields

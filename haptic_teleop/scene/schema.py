@@ -623,6 +623,16 @@ class Scene:
         return self.slave.wall.point_m is not None
 
     def __post_init__(self) -> None:
+        for name in ("forward", "backward"):
+            buf = getattr(self.network, name).buffer
+            if buf.policy != "network_adaptive" or None not in (buf.allowable_delay_s, buf.allowable_loss_time_s):
+                continue
+            if self.is_arm or self.operator.profile not in ("push", "imposed") or self.operator.speed_m_per_s == 0.0:
+                raise ValueError(
+                    f"network.{name}.buffer: policy network_adaptive takes its allowable delay and loss time from "
+                    "the transparency analysis of a one-axis scene whose operator profile is push or imposed; "
+                    "allowed here: set allowable_delay_s and allowable_loss_time_s (docs/playout.md)"
+                )
         for side, ctrl, plant in (
             ("master", self.controllers.master, self.master),
             ("slave", self.controllers.slave, self.slave),

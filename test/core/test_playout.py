@@ -32,7 +32,7 @@ from haptic_teleop.errors import ConfigError
 
 T = 1_000_000  # 1 ms period
 MS = 1_000_000
-SCHEDULED = ("fixed", "adaptive", "percentile", "transparency")
+SCHEDULED = ("fixed", "adaptive", "percentile", "transparency", "network_adaptive")
 
 Arrival = tuple[int, Packet]  # (arrival time on the receiver's clock, packet)
 Trace = list[tuple[int, int | None, int, int, int]]  # per tick: seq released, buffering, occupancy, late
@@ -82,7 +82,14 @@ def make(policy: str, **kw: object) -> PlayoutBuffer:
     return build_buffer(BufferConfig(**params), T)  # type: ignore[arg-type]
 
 
-EXPECTED_BUFFERING = {"none": 0, "fixed": 10 * MS, "adaptive": 0, "percentile": 0, "transparency": 0}
+EXPECTED_BUFFERING = {
+    "none": 0,
+    "fixed": 10 * MS,
+    "adaptive": 0,
+    "percentile": 0,
+    "transparency": 0,
+    "network_adaptive": 0,
+}
 
 
 @pytest.mark.parametrize("policy", POLICIES)
