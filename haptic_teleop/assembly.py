@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from haptic_teleop.contact_assembly import contact_start_of, transparency_budget_of
 from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, RemoteLimits, TeleopController
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.netconfig import min_one_way_delay_s
@@ -26,14 +27,7 @@ from haptic_teleop.core.playout import (
     build_buffer,
     contact_force_slope,
 )
-from haptic_teleop.core.transparency import (
-    ContactModel,
-    ContactStart,
-    allowable_delay,
-    allowable_loss_time,
-    contact_start,
-    transparent_loss_time,
-)
+from haptic_teleop.core.transparency import ContactStart
 from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.scene.schema import ControllerConfig, OperatorConfig, SaturationConfig, Scene
 from haptic_teleop.traces import build_scene_link as build_link  # the link with its trace files' rows
@@ -50,14 +44,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "REMOTE_LIMIT_MARGIN",
-    "apply_contact_start",
     "build_arm_parts",
     "build_controller",
     "build_master_plant",
     "build_network",
     "build_operator",
     "build_slave_plant",
-    "contact_start_of",
     "read_operator_trace",
     "remote_limits",
 ]
@@ -164,91 +156,6 @@ def build_operator(
             trace_position_m=trace[1] if trace else (),
         )
     )
-
-
-def contact_start_of(c: Scene) -> ContactStart | None:
-    """The equilibrium a one-axis scene with `slave.start: in_contact` starts in (core/transparency.py),
-    or None for a free start."""
-    s = c.slave
-    if not s.in_contact or s.initial_contact_force_n is None:
-        return None
-    m, sl = c.controllers.master, c.controllers.slave
-    return contact_start(
-        wall_position_m=s.wall.position_m,
-        wall_stiffness_n_per_m=s.wall.stiffness_n_per_m,
-        contact_force_n=s.initial_contact_force_n,
-        slave_stiffness_n_per_m=sl.stiffness_n_per_m,
-        master_law=m.law,
-        master_stiffness_n_per_m=m.stiffness_n_per_m,
-        master_force_gain=m.force_gain,
-        master_damping_n_s_per_m=c.master.damping_n_s_per_m,
-        slave_damping_n_s_per_m=s.damping_n_s_per_m,
-        period_s=c.scene.period_s,
-        hand_stiffness_n_per_m=c.operator.stiffness_n_per_m,
-    )
-
-
-def apply_contact_start(
-    start: ContactStart, master: TeleopController, slave: TeleopController, slave_plant: Any
-) -> dict[str, float]:
-    """Put both controllers and the robot's wall force into the in-contact equilibrium: each
-    controller already holds the remote sample of the resting other side (so the delay's first
-    period is the rest state, as if it had lasted forever), each reservoir its holding energy on
-    top of the scene's `eba.initial_energy_j`, and the robot's last wall force is -F0. Returns
-    the reservoirs' start values (the run facts `master_initial_energy_j`, `slave_initial_energy_j`)."""
-    from haptic_teleop.core.eba_state import AxisBoundState
-
-    master.remote = (start.wall_force_n, start.slave_x_m, 0.0)
-    slave.remote = (start.master_x_m, 0.0)
-    out = {}
-    for name, ctrl, hold in (("master", master, start.master_energy_j), ("slave", slave, start.slave_energy_j)):
-        energy = ctrl.bound.params.initial_energy_j + hold
-        ctrl.bound.set_axis_state(AxisBoundState(energy, 0.0, 0.0, False))
-        out[f"{name}_initial_energy_j"] = energy
-    slave_plant.set_contact_force(start.wall_force_n)
-    return out
-
-
-def contact_model_of(c: Scene) -> ContactModel | None:
-    """The transparency analysis' contact model of a one-axis scene whose operator moves toward the
-    wall at a set speed (`push` or `imposed`), from the scene alone (core/transparency.py; the
-    analysis of a bag uses the measured speed instead): None for any other scene."""
-    op = c.operator
-    if c.is_arm or op.profile not in ("push", "imposed") or op.speed_m_per_s == 0.0:
-        return None
-    m, sl, s = c.controllers.master, c.controllers.slave, c.slave
-    return ContactModel(
-        period_s=c.scene.period_s,
-        speed_m_per_s=abs(op.speed_m_per_s),
-        master_law=m.law,
-        master_stiffness_n_per_m=m.stiffness_n_per_m,
-        master_damping_n_s_per_m=m.damping_n_s_per_m,
-        master_force_gain=m.force_gain,
-        master_physical_damping_n_s_per_m=c.master.damping_n_s_per_m,
-        master_force_limit_n=m.force_limit_n,
-        slave_stiffness_n_per_m=sl.stiffness_n_per_m,
-        wall_stiffness_n_per_m=s.wall.stiffness_n_per_m,
-        contact_force_n=s.initial_contact_force_n or 0.0,
-        master_eba=m.eba.enabled,
-        slave_damping_n_s_per_m=sl.damping_n_s_per_m,
-        slave_physical_damping_n_s_per_m=s.damping_n_s_per_m,
-        wall_damping_n_s_per_m=s.wall.damping_n_s_per_m,
-    )
-
-
-def transparency_budget_of(c: Scene) -> tuple[float, float] | None:
-    """(allowable one-way delay D_a, allowable loss time L_a) in s for the scene's required force
-    distortion E (`analysis.allowed_force_error_n`, 0.1 N without an `analysis` section), from its
-    contact model and the master's EBA law (core/transparency.py): L_a = T_tr + E / s with T_tr the
-    transparent loss time at the ramp's start (the felt force at the start, desired = felt: the
-    least T_tr over a ramp whose gap only grows). None when the scene has no contact model."""
-    m = contact_model_of(c)
-    if m is None:
-        return None
-    law = c.controllers.master.eba.law
-    error = c.analysis.allowed_force_error_n if c.analysis is not None else 0.1
-    t_tr = transparent_loss_time(m, 0.0, m.master_start_force_n, law)
-    return allowable_delay(m, error, law), allowable_loss_time(m, error, t_tr, law)
 
 
 def configure_network_adaptive(buf: PlayoutBuffer, c: Scene, direction: str) -> None:

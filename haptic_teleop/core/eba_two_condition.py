@@ -224,7 +224,7 @@ class TwoConditionBound:
 
     def set_axis_state(self, state: AxisBoundState) -> None:
         """Restore a one-axis bound's state (ValueError for more axes), e.g. the in-contact start's
-        holding energy (assembly.apply_contact_start): the next `step1` goes on from it."""
+        holding energy (contact_assembly.apply_contact_start): the next `step1` goes on from it."""
         self._one_axis()
         self.energy_j[0] = state.energy_j
         self._held[0] = state.held_n

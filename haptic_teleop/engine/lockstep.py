@@ -30,15 +30,14 @@ import numpy as np
 
 from haptic_teleop.assembly import (
     REMOTE_LIMIT_MARGIN,
-    apply_contact_start,
     build_controller,
     build_master_plant,
     build_network,
     build_operator,
     build_slave_plant,
-    contact_start_of,
     remote_limits,
 )
+from haptic_teleop.contact_assembly import apply_contact_start, contact_start_of
 from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.operator import imposed_force1
 from haptic_teleop.core.playout import PlayoutBuffer

@@ -203,7 +203,7 @@ def run_experiment(
             m = arrival_run if name == "none" else _run((*seed_ov, *_buffer_overrides(keys)))[0]
             st = _stats(m, ref, period)
             rows.append([name, seed, fixed_s if name == "fixed_above" else math.nan, *(st[k] for k in METRICS)])
-    from haptic_teleop.assembly import transparency_budget_of
+    from haptic_teleop.contact_assembly import transparency_budget_of
     from haptic_teleop.core.netconfig import min_one_way_delay_s
 
     budget = transparency_budget_of(scene.config)
