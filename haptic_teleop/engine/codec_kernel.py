@@ -670,13 +670,24 @@ def arq_tick(
             break
         seq = int(aring[head, 0])
         if cumulative:  # (N, B, r...): N, N - 1 - i for each bit i of B, the r
-            acked = ack_one(S, X, seq)
-            bits = int(aring[head, L.ACK_RING_BITS])
+            # (a seq an ACK taken before named is pending no more: only the others are looked up,
+            # as the window of those named so far allows; ACKs come in order over a constant delay)
+            full = (int(aring[head, L.ACK_RING_BITS]) << 1) | 1  # bit i: seq - i
+            todo = full
+            shift = seq - int(S[L.S_FB_N])
+            if shift >= 0:
+                seen = 0
+                if shift < ACK_WIDTH:
+                    seen = (int(S[L.S_FB_BITS]) & ((1 << (ACK_WIDTH - shift)) - 1)) << shift
+                todo = full & ~seen
+                S[L.S_FB_N] = seq
+                S[L.S_FB_BITS] = float(full | seen)
+            acked = 0.0
             i = 0
-            while bits != 0:
-                if bits & 1:
-                    acked += ack_one(S, X, seq - 1 - i)
-                bits >>= 1
+            while todo != 0:
+                if todo & 1:
+                    acked += ack_one(S, X, seq - i)
+                todo >>= 1
                 i += 1
             for q in range(int(aring[head, L.ACK_RING_COUNT])):
                 acked += ack_one(S, X, int(aring[head, L.ACK_RING_OLD + q]))

@@ -78,7 +78,10 @@ C_SIZE_X = 44  # C's length with these
 # the seqs received ever and since the last ACK (53 bits: exact in a float64), an ACK due, the
 # tick of the last ACK, the number of seqs below the window to name (listed in W from W_OLD)
 S_AK_NEWEST, S_AK_BITS, S_AK_NEW, S_AK_DUE, S_AK_LAST_N, S_AK_OLD = range(114, 120)
-S_SIZE_X = 120  # S's length with these
+# and the sender's: the newest seq of the last cumulative ACK it took and the window of the seqs
+# the ACKs it took named (bit i: that newest - i), which it need not look up again
+S_FB_N, S_FB_BITS = 120, 121
+S_SIZE_X = 122  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent), the sender's sample of that tick.

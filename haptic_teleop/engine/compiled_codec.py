@@ -298,6 +298,7 @@ class CodecNet(LinkArrays):
         S[L.S_NEWEST] = -1.0
         if ch.kind == "arq":
             S[L.S_AK_NEWEST], S[L.S_AK_LAST_N] = -1.0, -1e18  # nothing received, no ACK yet
+            S[L.S_FB_N] = -1e18  # no cumulative ACK taken yet (all its seqs are looked up)
         self._load(ch.link, C, S, period_ns)
         self.ack: LinkArrays | None = None
         if ch.kind == "arq":
