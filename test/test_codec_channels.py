@@ -16,6 +16,7 @@ import pytest
 from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.cli import main
 from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
+from haptic_teleop.engine.codec_channel import message_bytes
 from haptic_teleop.engine.lockstep import COL, Engine, record_run
 from haptic_teleop.errors import ConfigError, InputError
 from haptic_teleop.record.layouts import joint_state_size
@@ -135,14 +136,22 @@ def test_the_controller_gets_the_decoders_sample(deadband_run: tuple[Engine, Pat
     assert np.all(engine.data[:, COL["fwd_occupancy"]] == 0.0)
 
 
-def test_arq_acknowledgements_count_in_the_reverse_direction(tmp_path: Path) -> None:
-    engine, bag = _record(tmp_path, _codec("forward", "{kind: arq, timeout_s: 0.02, max_retransmissions: 2}"))
+@pytest.mark.parametrize("every", [1, 4])
+def test_arq_acknowledgements_count_in_the_reverse_direction(tmp_path: Path, every: int) -> None:
+    arq = f"{{kind: arq, timeout_s: 0.02, max_retransmissions: 2, ack_every_ticks: {every}}}"
+    engine, bag = _record(tmp_path, _codec("forward", arq))
     s = summarize_bag(bag)
     info = _run_info(bag)["codec_forward"]
     fwd = engine.codecs[0]
     assert fwd is not None and engine.codecs[1] is None
     acks = fwd.ack_packets
     assert acks == info["ack_packets"] == info["decoder_acks_sent"] > 0
+    # each ACK's message is its payload's: k = 1 (seq,); k > 1 (newest, bitmap): the retransmissions
+    # arrive 25 ticks after their original's slot, inside the 52-seq window, so none is named below it
+    if every == 1:
+        assert acks > engine.ticks_done and info["ack_bytes"] == acks * message_bytes(1)
+    else:
+        assert acks <= engine.ticks_done // every + 1 and info["ack_bytes"] == acks * message_bytes(2)
     # Retransmissions are in the forward records (same seq again), ACKs only in the counts.
     rows = _packets(bag, "forward")
     orig = rows[rows[:, 4] == 0.0]

@@ -306,6 +306,11 @@ BAD = [
     ("sync_buffer", ("direction:=forward", f"{FWD}.codec.kind:=deadband", f"{FWD}.codec.deadband:=-1.0"), ("in [0",)),
     ("master_eba", (f"{FWD}.codec.kind:=arq", f"{FWD}.buffer.policy:=fixed"), ("buffer.policy none",)),
     ("slave_eba", (f"{BWD}.codec.kind:=arq", f"{BWD}.codec.k:=2"), ("no key k",)),
+    (
+        "master_eba",
+        (f"{FWD}.codec.kind:=arq", f"{FWD}.codec.ack_every_ticks:=4", f"{FWD}.buffer.policy:=none"),
+        (f"{FWD}.codec.ack_every_ticks", "must be 1"),
+    ),
 ]
 
 

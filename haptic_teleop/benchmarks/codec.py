@@ -129,11 +129,23 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("fec parity k = 4", "{kind: fec, scheme: parity, k: 4}"),
     ("arq 25 ms, 4 retries", "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
     ("arq 4 ms, 1 retry", "{kind: arq, timeout_s: 0.004, max_retransmissions: 1}"),
+    # mu above the scene's 100 ms round trip: each sample sent once; an ACK per packet, or a
+    # cumulative one at most every 4 ticks (ack_every_ticks)
+    ("arq mu = 150 ms, nu = 4", "{kind: arq, timeout_s: 0.15, max_retransmissions: 4}"),
+    (
+        "arq mu = 150 ms, nu = 4, ACK every 4 ticks",
+        "{kind: arq, timeout_s: 0.15, max_retransmissions: 4, ack_every_ticks: 4}",
+    ),
     # over 10 % loss each way (the FEC decoder recovers): against the same lossy run without a codec
     ("no codec" + LOSSY, None),
     ("fec repetition k = 2" + LOSSY, "{kind: fec, scheme: repetition, k: 2}"),
     ("fec parity k = 3, wait 3" + LOSSY, "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}"),
     ("arq 25 ms, 4 retries" + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("arq mu = 150 ms, nu = 4" + LOSSY, "{kind: arq, timeout_s: 0.15, max_retransmissions: 4}"),
+    (
+        "arq mu = 150 ms, nu = 4, ACK every 4 ticks" + LOSSY,
+        "{kind: arq, timeout_s: 0.15, max_retransmissions: 4, ack_every_ticks: 4}",
+    ),
     ("no codec" + GILBERT, None),
     ("hli (defaults)" + GILBERT, "{kind: hli}"),
     ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
@@ -258,14 +270,15 @@ def main(args: argparse.Namespace) -> int:
         f"the codec stage in the loop ({args.scene}, the codec on both directions, {args.seconds:g} s, "
         f"no recording; real-time factor, best of {max(args.repeat, 5)}):"
     )
-    head = f"{'case':40s} {'compiled RTF':>12s} {'/ no codec':>10s} {'Python RTF':>10s} {'/ no codec':>10s}"
+    w = max(len(name) for name, _ in LOOP_CASES)
+    head = f"{'case':{w}s} {'compiled RTF':>12s} {'/ no codec':>10s} {'Python RTF':>10s} {'/ no codec':>10s}"
     print(head)
     print("-" * len(head))
     for name, _ in LOOP_CASES:
         c, p = rtf["compiled"][name], rtf["python"][name]
         ref = "no codec" + (_loss_of(name) or "")
         c0, p0 = rtf["compiled"][ref], rtf["python"][ref]
-        print(f"{name:40s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
+        print(f"{name:{w}s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
     print()
     reps = max(args.repeat, 5)
     arm = arm_loop_rtf(args.arm_scene, args.arm_seconds, reps)
@@ -282,7 +295,7 @@ def main(args: argparse.Namespace) -> int:
     ns = compiled_codec_ns(args.scene, args.samples, reps)
     print(f"one direction's compiled codec stage alone (3 values a sample, the scene's link; least of {reps}):")
     for name, value in ns.items():
-        print(f"  {name:40s} {value:6.1f} ns per tick")
+        print(f"  {name:{w}s} {value:6.1f} ns per tick")
     print()
     ref = {loop: tick_us(args.scene, loop, args.seconds, args.repeat) for loop in ("python", "compiled")}
     py, comp = min(ref["python"]), min(ref["compiled"])

@@ -23,6 +23,21 @@ Layouts: data payload = sample (d floats), attempt number (0 = original, 1..nu =
 size `size_of(d + 1)`. ACK payload = (seq,) with `Packet.seq` = the acknowledged seq; size
 `size_of(1)`. Costs: one ACK per received data packet on the reverse path, plus one data packet
 per retransmission; no added latency for what is played (nothing waits for a retransmission).
+
+Cumulative selective ACKs (`ack_every_ticks` k > 1; k = 1 is the per-packet ACK above): the
+receiver ACKs nothing in `receive`; at the end of each tick's deliveries (`acks`) it sends one
+ACK if it received any data packet (duplicates included) since its last ACK and its last ACK is
+at least k ticks old (so at most one every k ticks, and none on quiet ticks). ACK payload =
+(N, B, r_1, .., r_j): N the newest seq received so far (`Packet.seq` = N), B a bitmap of the
+`ACK_WINDOW` = 52 seqs below it, bit i set when seq N - 1 - i was received (a float64 holds it
+exactly: B < 2^52), then the seqs received since the last ACK that lie below the window
+(retransmissions of old samples, each named once); size `size_of(2 + j)`. The sender takes every
+seq named as acknowledged. ACK loss: the bitmap repeats in every ACK, so a seq within the window
+is acknowledged again by each later ACK; with a constant delay the originals of 2k ticks fit in
+52 bits for k <= 26 (`ack_every_ticks`' maximum), so one lost ACK (up to 52 / k - 1 in a row)
+costs no retransmission if the next ACK arrives before the timeout, i.e. when
+(k - 1) period + round trip < mu; a seq below the window (a retransmission) is named once, as
+k = 1 names it: its lost ACK costs one more retransmission, whose duplicate is ACKed again.
 """
 
 from __future__ import annotations
@@ -41,6 +56,7 @@ from haptic_teleop.core.prediction import (
 )
 
 KIND = "arq"
+ACK_WINDOW = 52  # seqs below the newest in a cumulative ACK's bitmap (a float64 holds 2^52 - 1 exactly)
 
 
 @dataclass(frozen=True)
@@ -63,6 +79,14 @@ class ArqConfig:
     )
     max_extrapolation_s: float = field(
         default=0.05, metadata={"min": 0.0, "max": 10.0, "help": "extrapolate at most this far, then hold"}
+    )
+    ack_every_ticks: int = field(
+        default=1,
+        metadata={
+            "min": 1,
+            "max": ACK_WINDOW // 2,
+            "help": "1: an ACK per data packet; k > 1: one cumulative selective ACK at most every k ticks",
+        },
     )
 
     def __post_init__(self) -> None:
@@ -134,11 +158,38 @@ class ArqEncoder:
         return out
 
     def feedback(self, packet: Packet, now_ns: int) -> None:
-        """An ACK from the receiver (payload (seq,), `packet.seq` the acknowledged sample)."""
-        if self._pending.pop(packet.seq, None) is None:
-            self.counters["acks_stale"] += 1
+        """An ACK from the receiver: payload (seq,) with `packet.seq` the acknowledged sample, or a
+        cumulative one (N, B, r...) acknowledging every seq it names (module docstring); `acked`
+        counts the samples it acknowledged, `acks_stale` the ACKs that acknowledged none."""
+        pending = self._pending
+        if len(packet.payload) == 1:
+            if pending.pop(packet.seq, None) is None:
+                self.counters["acks_stale"] += 1
+            else:
+                self.counters["acked"] += 1
+            return
+        acked = 0
+        for seq in cumulative_seqs(packet.payload):
+            if pending.pop(seq, None) is not None:
+                acked += 1
+        if acked:
+            self.counters["acked"] += acked
         else:
-            self.counters["acked"] += 1
+            self.counters["acks_stale"] += 1
+
+
+def cumulative_seqs(payload: tuple[float, ...]) -> list[int]:
+    """The seqs a cumulative ACK (N, B, r...) names: N, N - 1 - i for each bit i of B, the r."""
+    newest, bits = int(payload[0]), int(payload[1])
+    out = [newest]
+    i = 0
+    while bits:
+        if bits & 1:
+            out.append(newest - 1 - i)
+        bits >>= 1
+        i += 1
+    out.extend(int(r) for r in payload[2:])
+    return out
 
 
 class ArqDecoder:
@@ -156,9 +207,23 @@ class ArqDecoder:
         gap: str = "extrapolate",
         max_extrapolation_ticks: int = 50,
         size_of: SizeOf = float64_multiarray_size,
+        ack_every_ticks: int = 1,
     ) -> None:
+        if not 1 <= ack_every_ticks <= ACK_WINDOW // 2:
+            raise ValueError(f"ack_every_ticks must be 1 to {ACK_WINDOW // 2}, got {ack_every_ticks}")
         self.rec = Reconstructor(gap, max_extrapolation_ticks, wait_ticks)
         self._ack_size = size_of(1)
+        self._size_of = size_of
+        self.ack_every_ticks = ack_every_ticks
+        # cumulative ACKs: the newest seq received, bit i of `_bits` = seq newest - i received
+        # (i = 0 .. ACK_WINDOW), the seqs below the window received since the last ACK, whether
+        # anything arrived since then, the tick of the last ACK
+        self._newest = -1
+        self._bits = 0
+        self._new = 0
+        self._old: list[int] = []
+        self._due = False
+        self._last_ack_n: int | None = None
         self.recovered_log: list[Packet] = []
         self.counters: dict[str, int] = {
             "received": 0,
@@ -183,8 +248,54 @@ class ArqDecoder:
             if self.rec.late > late_before:
                 c["recovered_late"] += 1
             self.recovered_log.append(Packet(packet.seq, packet.send_time_ns, value, 0))
+        if self.ack_every_ticks > 1:
+            self._mark(packet.seq)
+            return []
         c["acks_sent"] += 1
         return [Packet(packet.seq, now_ns, (float(packet.seq),), self._ack_size)]
+
+    def _mark(self, seq: int) -> None:
+        # `_bits` / `_new`: bit i = seq newest - i received (ever / since the last ACK); a seq of
+        # `_new` pushed out of the window by a newer one joins `_old` (named in the next ACK)
+        self._due = True
+        newest = self._newest
+        width = ACK_WINDOW + 1
+        if seq > newest:
+            shift = seq - newest
+            new = self._new
+            if shift >= width:
+                out, self._bits, new = new, 0, 0
+            else:
+                keep = (1 << (width - shift)) - 1
+                out = new >> (width - shift)
+                self._bits, new = (self._bits & keep) << shift, (new & keep) << shift
+            i = 0
+            while out:  # bit i of `out`: seq newest - (width - shift) - i, or newest - i (shift >= width)
+                if out & 1:
+                    self._old.append(newest - i - (width - shift if shift < width else 0))
+                out >>= 1
+                i += 1
+            self._bits |= 1
+            self._new = new | 1
+            self._newest = seq
+        elif newest - seq <= ACK_WINDOW:
+            self._bits |= 1 << (newest - seq)
+            self._new |= 1 << (newest - seq)
+        elif seq not in self._old:
+            self._old.append(seq)
+
+    def acks(self, n: int, now_ns: int) -> list[Packet]:
+        """After tick n's deliveries: the cumulative ACK due (k > 1; module docstring), if any."""
+        if not self._due or (self._last_ack_n is not None and n - self._last_ack_n < self.ack_every_ticks):
+            return []
+        newest = self._newest
+        payload = (float(newest), float(self._bits >> 1), *(float(r) for r in self._old))
+        self._old.clear()
+        self._new = 0
+        self._due = False
+        self._last_ack_n = n
+        self.counters["acks_sent"] += 1
+        return [Packet(newest, now_ns, payload, self._size_of(len(payload)))]
 
     def sample(self, n: int, now_ns: int) -> Sample | None:
         return self.rec.sample(n)
@@ -200,5 +311,6 @@ def build_arq(
         gap=cfg.gap,
         max_extrapolation_ticks=ticks(cfg.max_extrapolation_s, period_ns),
         size_of=size_of,
+        ack_every_ticks=cfg.ack_every_ticks,
     )
     return enc, dec

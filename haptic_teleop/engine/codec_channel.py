@@ -152,6 +152,11 @@ class CodecChannel:
                     self.ack_packets += 1
                     self.ack_bytes += b.size_bytes
                     ack.send(b)
+        if ack is not None and dec.ack_every_ticks > 1:  # ARQ's cumulative ACK of the tick
+            for b in dec.acks(n, now_ns):
+                self.ack_packets += 1
+                self.ack_bytes += b.size_bytes
+                ack.send(b)
         out = dec.sample(n, now_ns)
         return (None if out is None else tuple(out[: self.dim])), rx
 

@@ -580,6 +580,67 @@ def arq_send(
         ring[j, L.RING_SENT] = now // int(C[L.C_PERIOD_NS])
 
 
+ACK_WIDTH = 53  # core/arq.ACK_WINDOW + 1: the newest seq and the window below it
+
+
+@inline  # type: ignore[misc]
+def ack_old(C: np.ndarray, S: np.ndarray, W: np.ndarray, seq: int) -> None:
+    # ArqDecoder: a seq below the window joins the list the next ACK names
+    cnt = int(S[L.S_AK_OLD])
+    if cnt < C[L.C_ACK_CAP]:
+        W[L.W_OLD + cnt] = seq
+        S[L.S_AK_OLD] = cnt + 1
+
+
+@inline  # type: ignore[misc]
+def ack_mark(C: np.ndarray, S: np.ndarray, W: np.ndarray, seq: int) -> None:
+    # ArqDecoder._mark: the window's bitmaps (as int64: 53 bits), a seq of the since-last-ACK map
+    # pushed out of the window onto the list, a seq received below the window onto it once
+    S[L.S_AK_DUE] = 1.0
+    newest = int(S[L.S_AK_NEWEST])
+    if seq > newest:
+        shift = seq - newest
+        new = int(S[L.S_AK_NEW])
+        if shift >= ACK_WIDTH:
+            out, off, bits, new = new, 0, 0, 0
+        else:
+            off = ACK_WIDTH - shift
+            keep = (1 << off) - 1
+            out = new >> off
+            bits = (int(S[L.S_AK_BITS]) & keep) << shift
+            new = (new & keep) << shift
+        i = 0
+        while out != 0:
+            if out & 1:
+                ack_old(C, S, W, newest - i - off)
+            out >>= 1
+            i += 1
+        S[L.S_AK_BITS] = float(bits | 1)
+        S[L.S_AK_NEW] = float(new | 1)
+        S[L.S_AK_NEWEST] = seq
+    elif newest - seq < ACK_WIDTH:
+        b = 1 << (newest - seq)
+        S[L.S_AK_BITS] = float(int(S[L.S_AK_BITS]) | b)
+        S[L.S_AK_NEW] = float(int(S[L.S_AK_NEW]) | b)
+    else:
+        for q in range(int(S[L.S_AK_OLD])):
+            if W[L.W_OLD + q] == seq:
+                return
+        ack_old(C, S, W, seq)
+
+
+@inline  # type: ignore[misc]
+def ack_one(S: np.ndarray, X: np.ndarray, seq: int) -> float:
+    # ArqEncoder.feedback of one seq a cumulative ACK names: 1 if it was pending
+    if seq < 0:
+        return 0.0
+    j = seq & (X.shape[0] - 1)
+    if X[j, L.X_PEND] == seq:
+        X[j, L.X_PEND] = -1.0
+        return 1.0
+    return 0.0
+
+
 @part_jit  # type: ignore[misc]
 def arq_tick(
     C: np.ndarray,
@@ -601,12 +662,40 @@ def arq_tick(
     aC, aS, aU, aB, aring, arec = A
     dim = int(C[L.C_DIM])
     mask = X.shape[0] - 1
+    cumulative = C[L.C_ACK_EVERY] > 1.0
     # the ACKs due: ArqEncoder.feedback
     while True:
         head = link_next(aS, aring, now)
         if head < 0:
             break
         seq = int(aring[head, 0])
+        if cumulative:  # (N, B, r...): N, N - 1 - i for each bit i of B, the r
+            # (a seq an ACK taken before named is pending no more: only the others are looked up,
+            # as the window of those named so far allows; ACKs come in order over a constant delay)
+            full = (int(aring[head, L.ACK_RING_BITS]) << 1) | 1  # bit i: seq - i
+            todo = full
+            shift = seq - int(S[L.S_FB_N])
+            if shift >= 0:
+                seen = 0
+                if shift < ACK_WIDTH:
+                    seen = (int(S[L.S_FB_BITS]) & ((1 << (ACK_WIDTH - shift)) - 1)) << shift
+                todo = full & ~seen
+                S[L.S_FB_N] = seq
+                S[L.S_FB_BITS] = float(full | seen)
+            acked = 0.0
+            i = 0
+            while todo != 0:
+                if todo & 1:
+                    acked += ack_one(S, X, seq - i)
+                todo >>= 1
+                i += 1
+            for q in range(int(aring[head, L.ACK_RING_COUNT])):
+                acked += ack_one(S, X, int(aring[head, L.ACK_RING_OLD + q]))
+            if acked > 0.0:
+                S[L.S_ACKED] += acked
+            else:
+                S[L.S_ACKS_STALE] += 1.0
+            continue
         j = seq & mask
         if X[j, L.X_PEND] == seq:
             X[j, L.X_PEND] = -1.0
@@ -655,11 +744,36 @@ def arq_tick(
             W[L.W_VALUE + i] = ring[head, 2 + i]
         if not rec_add(C, S, X, W, seq, ring[head, L.RING_ATTEMPT] == 0.0):
             S[L.S_DUPLICATES] += 1.0
+        if cumulative:
+            rx = newest(S, seq, rx)
+            ack_mark(C, S, W, seq)
+            continue
         S[L.S_ACKS_SENT] += 1.0
         rx = newest(S, seq, rx)
         S[L.S_ACK_PACKETS] += 1.0
         S[L.S_ACK_BYTES] += C[L.C_ACK_SIZE]
         link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False)
+    # ArqDecoder.acks: the cumulative ACK of the tick (k > 1), at most one every k ticks
+    if cumulative and S[L.S_AK_DUE] != 0.0 and n - S[L.S_AK_LAST_N] >= C[L.C_ACK_EVERY]:
+        cnt = int(S[L.S_AK_OLD])
+        cap = int(C[L.C_ACK_CAP])
+        size = W[L.W_OLD + cap + 1 + cnt]
+        S[L.S_ACKS_SENT] += 1.0
+        S[L.S_ACK_PACKETS] += 1.0
+        S[L.S_ACK_BYTES] += size
+        aC[L.C_SIZE] = size  # (the ACK link's records, not kept)
+        before = aS[L.S_COUNT]
+        link_send(aC, aS, aU, aB, aring, arec, int(S[L.S_AK_NEWEST]), now, out, out, False)
+        if aS[L.S_COUNT] > before:
+            j = (int(aS[L.S_HEAD]) + int(before)) & (aring.shape[0] - 1)
+            aring[j, L.ACK_RING_BITS] = float(int(S[L.S_AK_BITS]) >> 1)
+            aring[j, L.ACK_RING_COUNT] = cnt
+            for q in range(cnt):
+                aring[j, L.ACK_RING_OLD + q] = W[L.W_OLD + q]
+        S[L.S_AK_OLD] = 0.0
+        S[L.S_AK_NEW] = 0.0
+        S[L.S_AK_DUE] = 0.0
+        S[L.S_AK_LAST_N] = n
     return rx, rec_sample(C, S, X, n, out)
 
 

@@ -56,7 +56,10 @@ C_PARITY, C_K, C_WAIT, C_TIMEOUT_NS, C_NU, C_ACK_SIZE = range(24, 30)
     C_HDELAY,
 ) = range(30, 41)  # fmt: skip
 C_M_TICKS = 41  # ARQ: m = ceil(mu / period), the ticks between a sample's tries
-C_SIZE_X = 42  # C's length with these
+# ARQ's cumulative ACKs: k (ack_every_ticks; 1: an ACK per data packet), the capacity of the list
+# of seqs below the window (k (1 + nu): the data packets of k ticks)
+C_ACK_EVERY, C_ACK_CAP = 42, 43
+C_SIZE_X = 44  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
@@ -71,7 +74,14 @@ C_SIZE_X = 42  # C's length with these
     S_LAGH, S_LAG, S_CURH, S_CUR, S_MINH, S_MIN, S_FRH, S_FRMAX,
     S_REBUILT, S_DPREDICTED, S_PLAYED, S_DLATE,
 ) = range(66, 114)  # fmt: skip
-S_SIZE_X = 114  # S's length with these
+# ARQ's cumulative ACKs (core/arq.ArqDecoder): the newest seq received, the window's bitmaps of
+# the seqs received ever and since the last ACK (53 bits: exact in a float64), an ACK due, the
+# tick of the last ACK, the number of seqs below the window to name (listed in W from W_OLD)
+S_AK_NEWEST, S_AK_BITS, S_AK_NEW, S_AK_DUE, S_AK_LAST_N, S_AK_OLD = range(114, 120)
+# and the sender's: the newest seq of the last cumulative ACK it took and the window of the seqs
+# the ACKs it took named (bit i: that newest - i), which it need not look up again
+S_FB_N, S_FB_BITS = 120, 121
+S_SIZE_X = 122  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent), the sender's sample of that tick.
@@ -81,6 +91,11 @@ X_PEND, X_TRIES, X_LAST_NS = 4, 5, 6
 RING_ATTEMPT, RING_SENT = 6, 7
 # W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist.
 W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0
+# ARQ's cumulative ACKs: the seqs below the window (C_ACK_CAP of them at most), then the ACK's
+# message size by that count (0 .. C_ACK_CAP); the ACK link's ring: seq (the newest), arrival,
+# bitmap, count, the seqs below the window
+W_OLD = W_STACK
+ACK_RING_BITS, ACK_RING_COUNT, ACK_RING_OLD = 2, 3, 4
 # HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
 # decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
 H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16

@@ -283,6 +283,9 @@ class CodecNet(LinkArrays):
             if arq:
                 C[L.C_TIMEOUT_NS], C[L.C_NU], C[L.C_ACK_SIZE] = enc.timeout_ns, enc.max_retransmissions, dec._ack_size
                 C[L.C_M_TICKS] = -(-int(enc.timeout_ns) // period_ns)
+                C[L.C_ACK_EVERY] = dec.ack_every_ticks
+                if dec.ack_every_ticks > 1:  # the data packets of k ticks: 1 + nu a tick at most
+                    C[L.C_ACK_CAP] = dec.ack_every_ticks * (1 + enc.max_retransmissions)
         # Packets a tick at most: one, and with ARQ nu retransmissions: a sample is due every
         # m = ceil(mu / period) ticks after it was sent, so at tick n only n - j m (j = 1 .. nu)
         # can go out again (n - (nu + 1) m is given up). A sample is pending for at most `span`.
@@ -293,6 +296,9 @@ class CodecNet(LinkArrays):
             self.per_tick = 1 + int(C[L.C_NU])
         S = np.zeros(self._s_size)
         S[L.S_NEWEST] = -1.0
+        if ch.kind == "arq":
+            S[L.S_AK_NEWEST], S[L.S_AK_LAST_N] = -1.0, -1e18  # nothing received, no ACK yet
+            S[L.S_FB_N] = -1e18  # no cumulative ACK taken yet (all its seqs are looked up)
         self._load(ch.link, C, S, period_ns)
         self.ack: LinkArrays | None = None
         if ch.kind == "arq":
@@ -301,6 +307,9 @@ class CodecNet(LinkArrays):
             aC[L.C_PERIOD_NS] = period_ns
             aC[L.C_SIZE] = C[L.C_ACK_SIZE]
             self.ack = LinkArrays()
+            cap = int(C[L.C_ACK_CAP])
+            if cap:  # a cumulative ACK's ring row: its bitmap, count and the seqs below the window
+                self.ack._ring_width = max(L.RING_WIDTH, L.ACK_RING_OLD + cap)
             self.ack._load(ch.ack_link, aC, np.zeros(L.S_SIZE_X), period_ns, self.per_tick)
         # The sample history (FEC, ARQ): the decoder's held samples reach keep_ticks back, the
         # sender's the packets in flight and k more (FEC; parity: and keep_ticks) or the pending
@@ -331,6 +340,11 @@ class CodecNet(LinkArrays):
             self.X[:, L.X_HELD] = -1.0
             self.X[:, L.X_SUM_SEQ] = -1.0
             self.W = np.zeros(L.W_STACK + 1 + int(C[L.C_K]) * (int(C[L.C_KEEP]) + 1))
+            cap = int(C[L.C_ACK_CAP])
+            if cap:  # ARQ's cumulative ACKs: the seqs below the window, the ACK's size by their count
+                self.W = np.zeros(L.W_OLD + 2 * cap + 2)
+                for j in range(cap + 1):
+                    self.W[L.W_OLD + cap + 1 + j] = dec._size_of(2 + j)
 
     def ready(self, ticks: int) -> None:
         """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets

@@ -192,6 +192,13 @@ def check_live_codec(where: str, cfg: Any, direction: str) -> str | None:
             where, f"network.{direction}.codec", codec.kind,
             f"codec {codec.kind} runs in `haptic-teleop run` only; live: {', '.join(LIVE_CODECS)}",
         )  # fmt: skip
+    every = getattr(codec.settings(), "ack_every_ticks", 1) if codec.kind == "arq" else 1
+    if every != 1:
+        raise ConfigError(
+            where, f"network.{direction}.codec.ack_every_ticks", every,
+            "live ARQ sends one ACK per data packet: ack_every_ticks must be 1 (cumulative ACKs run in "
+            "`haptic-teleop run` only)",
+        )  # fmt: skip
     return str(codec.kind)
 
 

@@ -74,6 +74,7 @@ class CodecConfig:
     # arq
     timeout_s: float | None = field(default=None, metadata=_N)
     max_retransmissions: int | None = field(default=None, metadata=_N)
+    ack_every_ticks: int | None = field(default=None, metadata=_N)
     # hli
     threshold_m: float | None = field(default=None, metadata=_N)
     predictor: str | None = field(default=None, metadata=_N)
