@@ -190,6 +190,8 @@ def run_sweep(args: argparse.Namespace) -> int:
     # Every point is loaded (validated) before anything runs: a bad key or value exits 2 now.
     points = resolve(spec, seeds_arg)
     name = points[0].scene.config.scene.name
+    if not args.metrics and spec.metrics is None and points[0].scene.config.is_nve:
+        metrics = nve_metrics(points[0].scene.config)
     out = Path(args.out) if args.out else default_out(f"sweep-{name}")
     resuming = is_sweep_dir(out)
     store = Store(out, parquet)
@@ -317,8 +319,21 @@ def _finish(
     return 0 if len(finished) == len(points) else 130
 
 
+def nve_metrics(config: Any) -> list[str]:
+    """The default metrics of an NVE scene's sweep: each client's force (RMS, peak) and median
+    round trip, as the sweep's table names them (`sweeps.store.flat_scalars`)."""
+    return [
+        f"clients.{c.name}.{m}"
+        for c in config.nve.clients
+        for m in ("force_rms_n", "force_peak_n", "round_trip_s.median")
+    ]
+
+
 def _check_metrics(metrics: Sequence[str], summary: dict[str, Any]) -> None:
-    numeric = sorted(k for k, v in summary.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
+    from haptic_teleop.sweeps.store import flat_scalars
+
+    flat = flat_scalars(summary)
+    numeric = sorted(k for k, v in flat.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
     for m in metrics:
         if m not in numeric:
             raise ConfigError("--metrics", m, m, f"allowed: numeric summary keys: {', '.join(numeric)}")

@@ -278,3 +278,22 @@ def test_sigint_in_a_parallel_sweep_keeps_what_finished_and_resume_redoes_none_o
     assert f"{len(kept)} of 6 points already done" in capsys.readouterr().err
     assert len(_ledger(out)) == 6 and len(read_csv(out / "sweep.csv")) == 6
     assert all((out / "runs" / h / "summary.json").stat().st_mtime_ns == m for h, m in mtimes.items())
+
+
+def test_an_nve_sweep_tables_each_clients_figures_under_dotted_names(tmp_path):
+    """An NVE summary keeps its per-client figures in sections: the table flattens them into
+    dotted names and the sweep's default metrics are each client's force and round trip."""
+    out = tmp_path / "nve"
+    argv = ["sweep", "nve_push", "--param", "nve.clients.0.up.effects.delay.delay_s=0.05,0.1",
+            "--set", "scene.duration_s=0.3", "--workers", "1", "--out", str(out), "--quiet", "--no-plots"]  # fmt: skip
+    assert main(argv) == 0
+    rows = read_csv(out / "sweep.csv")
+    summaries = [json.loads((out / "runs" / r["run_hash"] / "summary.json").read_text()) for r in rows]
+    for r, s in zip(rows, summaries, strict=True):
+        client = s["clients"]["client"]
+        assert float(r["clients.client.force_rms_n"]) == client["force_rms_n"]
+        assert float(r["clients.client.round_trip_s.median"]) == client["round_trip_s"]["median"]
+    # the longer up-link delay shows in the measured round trip the table carries
+    assert float(rows[1]["clients.client.round_trip_s.median"]) > float(rows[0]["clients.client.round_trip_s.median"])
+    md = (out / "sweep.md").read_text()
+    assert "clients.client.force_rms_n" in md and "clients.client.round_trip_s.median" in md

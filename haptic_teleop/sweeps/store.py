@@ -63,6 +63,19 @@ def scalar(v: Any) -> bool:
     return v is None or isinstance(v, (int, float, str, bool))
 
 
+def flat_scalars(summary: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A summary's scalars by name, sections flattened into dotted names (an NVE run's
+    `clients.<name>.force_rms_n`, `clients.<name>.round_trip_s.median`); lists left out. A
+    teleoperation summary has no sections: its scalars keep their names."""
+    out: dict[str, Any] = {}
+    for k, v in summary.items():
+        if isinstance(v, Mapping):
+            out.update(flat_scalars(v, f"{prefix}{k}."))
+        elif scalar(v):
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 class Store:
     """The ledger of one output directory and the tables written from it."""
 
@@ -126,7 +139,7 @@ def record(
         "run_hash": run_hash,
         "seed": seed,
         "keys": dict(keys),
-        "summary": {k: v for k, v in summary.items() if scalar(v)},
+        "summary": flat_scalars(summary),
         "bag_path": bag,
     }
 
