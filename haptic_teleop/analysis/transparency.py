@@ -25,6 +25,7 @@ A scene the analysis does not apply to gets no key at all.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -104,28 +105,19 @@ def reference_force(sc: dict[str, Any]) -> np.ndarray:
 
 
 def contact_model(sc: dict[str, Any], run_info: dict[str, Any], speed_m_per_s: float) -> ContactModel:
-    """The numbers the predictions use, from a scene (as recorded) and its run facts."""
-    cm, cs = sc["controllers"]["master"], sc["controllers"]["slave"]
+    """The numbers the predictions use: the scene's contact model (`contact_assembly.contact_model_of`,
+    the scene as recorded) with the speed measured and the master's damping as the plant had it
+    (the run facts), where the bag has them."""
+    from haptic_teleop.contact_assembly import contact_model_of
+    from haptic_teleop.scene.schema import Scene
+    from haptic_teleop.typedconfig import build
+
+    model = contact_model_of(build(Scene, sc, "", "recorded scene"))
+    if model is None:
+        raise ValueError("the transparency analysis needs a one-axis scene whose operator pushes or is imposed")
     damping = run_info.get("master_joint_damping")
-    b_m = float(damping[0]) if damping else float(sc["master"]["damping_n_s_per_m"])
-    slave = sc["slave"]
-    return ContactModel(
-        period_s=float(sc["scene"]["period_s"]),
-        speed_m_per_s=speed_m_per_s,
-        master_law=str(cm["law"]),
-        master_stiffness_n_per_m=float(cm["stiffness_n_per_m"]),
-        master_damping_n_s_per_m=float(cm["damping_n_s_per_m"]),
-        master_force_gain=float(cm.get("force_gain", 1.0)),
-        master_physical_damping_n_s_per_m=b_m,
-        master_force_limit_n=float(cm["force_limit_n"]),
-        slave_stiffness_n_per_m=float(cs["stiffness_n_per_m"]),
-        wall_stiffness_n_per_m=float(slave["wall"]["stiffness_n_per_m"]),
-        contact_force_n=float(slave.get("initial_contact_force_n") or 0.0),
-        master_eba=bool(cm["eba"]["enabled"]),
-        slave_damping_n_s_per_m=float(cs["damping_n_s_per_m"]),
-        slave_physical_damping_n_s_per_m=float(slave["damping_n_s_per_m"]),
-        wall_damping_n_s_per_m=float(slave["wall"]["damping_n_s_per_m"]),
-    )
+    b_m = float(damping[0]) if damping else model.master_physical_damping_n_s_per_m
+    return dataclasses.replace(model, speed_m_per_s=speed_m_per_s, master_physical_damping_n_s_per_m=b_m)
 
 
 def _released_ticks(release_s: np.ndarray, period_s: float) -> np.ndarray:
