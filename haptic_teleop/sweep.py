@@ -178,7 +178,6 @@ def run_sweep(args: argparse.Namespace) -> int:
 
     spec = build_spec(args)
     seeds_arg = parse_seeds(args.seeds)
-    metrics = split_values(args.metrics) if args.metrics else list(spec.metrics or DEFAULT_METRICS)
     keep_bags = bool(args.keep_bags or spec.keep_bags)
     parquet = check_format(args.format)
     if not parquet and args.format == "auto" and not args.quiet:
@@ -190,8 +189,9 @@ def run_sweep(args: argparse.Namespace) -> int:
     # Every point is loaded (validated) before anything runs: a bad key or value exits 2 now.
     points = resolve(spec, seeds_arg)
     name = points[0].scene.config.scene.name
-    if not args.metrics and spec.metrics is None and points[0].scene.config.is_nve:
-        metrics = nve_metrics(points[0].scene.config)
+    metrics = (
+        split_values(args.metrics) if args.metrics else list(spec.metrics or default_metrics(points[0].scene.config))
+    )
     out = Path(args.out) if args.out else default_out(f"sweep-{name}")
     resuming = is_sweep_dir(out)
     store = Store(out, parquet)
@@ -319,9 +319,12 @@ def _finish(
     return 0 if len(finished) == len(points) else 130
 
 
-def nve_metrics(config: Any) -> list[str]:
-    """The default metrics of an NVE scene's sweep: each client's force (RMS, peak) and median
-    round trip, as the sweep's table names them (`sweeps.store.flat_scalars`)."""
+def default_metrics(config: Any) -> list[str]:
+    """A sweep's metrics when neither the file nor --metrics names them: `DEFAULT_METRICS`, or for
+    an NVE scene each client's force (RMS, peak) and median round trip, as the sweep's table
+    names them (`sweeps.store.flat_scalars`)."""
+    if not config.is_nve:
+        return list(DEFAULT_METRICS)
     return [
         f"clients.{c.name}.{m}"
         for c in config.nve.clients
