@@ -14,6 +14,25 @@ from pathlib import Path
 CLI = [sys.executable, "-m", "haptic_teleop.cli"]
 
 
+def wait_for_bag_messages(bag: Path, timeout_s: float) -> None:
+    """Until the bag's MCAP file, still being written, holds a complete chunk of messages (the
+    recorder has ticks on disk): a condition, not a sleep, since DDS discovery on this shared
+    machine can take seconds."""
+    from haptic_teleop.errors import BagError
+    from haptic_teleop.record.mcapread import scan
+
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        for mcap in bag.glob("*.mcap"):
+            try:
+                if scan(mcap).messages > 0:
+                    return
+            except (OSError, BagError):  # a file still being started: look again
+                pass
+        time.sleep(0.1)
+    raise AssertionError(f"no recorded messages in {bag} within {timeout_s} s")
+
+
 class Launch:
     """`haptic-teleop launch ...` as a child process; its output lines are collected as they come."""
 

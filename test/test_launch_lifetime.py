@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from launched import wait_for_bag_messages
 
 pytest.importorskip("rclpy")
 
@@ -53,8 +54,9 @@ def test_sigkill_of_the_launcher_stops_every_node_and_the_bag_is_closed(tmp_path
     else:
         p.kill()
     assert "recorder" in pids and len(pids) >= 8, "".join(lines[-40:])
-    # let the recorder write a few blocks, then kill the launcher (not its nodes)
-    time.sleep(1.0)
+    # wait until the recorder has flushed recorded ticks (on this shared machine DDS discovery can
+    # take seconds), then kill the launcher (not its nodes)
+    wait_for_bag_messages(out / "bag", 120)
     os.kill(p.pid, signal.SIGKILL)
     p.wait(timeout=30)
     end = time.monotonic() + 60

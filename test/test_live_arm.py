@@ -14,12 +14,11 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from launched import Launch
+from launched import Launch, wait_for_bag_messages
 
 pytest.importorskip("rclpy")
 
@@ -149,10 +148,7 @@ def test_ctrl_c_mid_run_leaves_a_readable_arm_bag(tmp_path):
                     cwd=tmp_path)  # fmt: skip
     launch.wait_for(r"scene time 0 at stamp (\d+) ns", 120)
     bag = out / "bag"
-    end = time.monotonic() + 60
-    while time.monotonic() < end and not any(bag.glob("*.mcap")):  # the recorder is writing
-        time.sleep(0.1)
-    time.sleep(1.0)  # a second of scene time in the bag; not a measurement
+    wait_for_bag_messages(bag, 120)  # the recorder has ticks on disk
     launch.proc.send_signal(signal.SIGINT)
     code = launch.finish(120)
     assert code == 130, launch.text[-4000:]

@@ -180,7 +180,7 @@ def test_a_hardware_error_mid_run_is_one_line_exit_1_torque_off_and_the_rest_sto
         launch = Launch("--set", f"slave.hardware.port={bus.port}", "--set", "scene.duration_s=30", "--record",
                         str(out), "--no-plots", "--single-process", cwd=tmp_path)  # fmt: skip
         launch.wait_for(SCENE_TIME_0, 180)
-        time.sleep(0.5)  # not a measurement: the run is under way
+        launched.wait_for_bag_messages(out / "bag", 120)  # the run is under way, ticks on disk
         # The first servo of the chain: a FAST SYNC READ's one packet starts with its reply.
         bus.inject(servo_id=1, kind="drop_replies", count=20)
         code = launch.finish()
@@ -202,7 +202,7 @@ def test_sigint_or_sigterm_to_the_node_process_turns_the_torque_off_and_closes_t
         launch = Launch("--set", f"slave.hardware.port={bus.port}", "--set", "scene.duration_s=30", "--record",
                         str(out), "--no-plots", "--single-process", cwd=tmp_path)  # fmt: skip
         launch.wait_for(SCENE_TIME_0, 180)
-        time.sleep(0.5)
+        launched.wait_for_bag_messages(out / "bag", 120)
         launch.proc.send_signal(signum)  # composed: the launcher's process is the node's
         code = launch.finish()
         torque = _registers(bus.port, ADDR_TORQUE_ENABLE)
