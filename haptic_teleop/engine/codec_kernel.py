@@ -70,9 +70,12 @@ def link_send(
     smp: np.ndarray,
     rate: np.ndarray,
     with_rate: bool,
+    with_record: bool = True,
+    with_payload: bool = True,
 ) -> None:
     # Link.send of one packet: blackout, loss (its draws whatever the fate), constant delay;
-    # the record; a delivered packet joins the in-flight FIFO.
+    # the record; a delivered packet joins the in-flight FIFO. (ARQ's ACK link keeps neither its
+    # records nor a payload: `with_record`, `with_payload` False, constants once inlined.)
     fate = DELIVERED
     nb = B.shape[0]
     if nb > 0:  # Blackout.apply: the window starting at or before `now` (send times only grow)
@@ -102,23 +105,28 @@ def link_send(
     S[L.S_LINK_SENT] += 1.0
     # (2-D arrays are indexed in full, never sliced: a view costs reference counting)
     r = int(S[L.S_RECS])
-    S[L.S_RECS] += 1.0
-    rec[r, 0] = seq
-    rec[r, 1] = float(now) * 1e-9
-    rec[r, 3] = fate
-    rec[r, 4] = 0.0
-    rec[r, 5] = C[L.C_SIZE]
+    if with_record:
+        S[L.S_RECS] += 1.0
+        rec[r, 0] = seq
+        rec[r, 1] = float(now) * 1e-9
+        rec[r, 3] = fate
+        rec[r, 4] = 0.0
+        rec[r, 5] = C[L.C_SIZE]
     if fate != DELIVERED:
         S[L.S_LINK_LOST] += 1.0
-        rec[r, 2] = np.nan
+        if with_record:
+            rec[r, 2] = np.nan
         return
-    rec[r, 2] = float(arrival) * 1e-9
+    if with_record:
+        rec[r, 2] = float(arrival) * 1e-9
     depth = ring.shape[0]
     count = int(S[L.S_COUNT])
     j = (int(S[L.S_HEAD]) + count) & (depth - 1)
     S[L.S_COUNT] = count + 1
     ring[j, 0] = seq
     ring[j, 1] = arrival
+    if not with_payload:
+        return
     dim = int(C[L.C_DIM])
     for i in range(dim):
         ring[j, 2 + i] = smp[i]
@@ -566,18 +574,20 @@ def arq_send(
     ring: np.ndarray,
     rec: np.ndarray,
     seq: int,
+    n: int,
     now: int,
     value: np.ndarray,
     attempt: int,
     unused: np.ndarray,
 ) -> None:
-    # ArqEncoder._packet into Link.send; a delivered packet carries its attempt and send tick.
+    # ArqEncoder._packet into Link.send at tick n (time `now`); a delivered packet carries its
+    # attempt and send tick.
     before = S[L.S_COUNT]
     packet_send(C, S, U, B, ring, rec, seq, now, value, unused)
     if S[L.S_COUNT] > before:
         j = (int(S[L.S_HEAD]) + int(before)) & (ring.shape[0] - 1)
         ring[j, L.RING_ATTEMPT] = attempt
-        ring[j, L.RING_SENT] = now // int(C[L.C_PERIOD_NS])
+        ring[j, L.RING_SENT] = n
 
 
 ACK_WIDTH = 53  # core/arq.ACK_WINDOW + 1: the newest seq and the window below it
@@ -707,7 +717,7 @@ def arq_tick(
     j = n & mask
     for i in range(dim):
         X[j, L.X_SENT + i] = smp[i]
-    arq_send(C, S, U, B, ring, rec, n, now, smp, 0, out)
+    arq_send(C, S, U, B, ring, rec, n, n, now, smp, 0, out)
     # A pending sample is due every m = ceil(mu / period) ticks after it was sent (the encoder
     # runs every tick), so the only candidates this tick are n - j m, j = nu + 1 .. 1 (seq order).
     timeout = C[L.C_TIMEOUT_NS]
@@ -728,7 +738,7 @@ def arq_tick(
         S[L.S_RETRANSMITTED] += 1.0
         for i in range(dim):
             rate[i] = X[k, L.X_SENT + i]
-        arq_send(C, S, U, B, ring, rec, seq, now, rate, int(X[k, L.X_TRIES]), out)
+        arq_send(C, S, U, B, ring, rec, seq, n, now, rate, int(X[k, L.X_TRIES]), out)
     X[j, L.X_PEND] = n
     X[j, L.X_TRIES] = 0.0
     X[j, L.X_LAST_NS] = now
@@ -752,7 +762,7 @@ def arq_tick(
         rx = newest(S, seq, rx)
         S[L.S_ACK_PACKETS] += 1.0
         S[L.S_ACK_BYTES] += C[L.C_ACK_SIZE]
-        link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False)
+        link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False, False, False)
     # ArqDecoder.acks: the cumulative ACK of the tick (k > 1), at most one every k ticks
     if cumulative and S[L.S_AK_DUE] != 0.0 and n - S[L.S_AK_LAST_N] >= C[L.C_ACK_EVERY]:
         cnt = int(S[L.S_AK_OLD])
@@ -763,7 +773,7 @@ def arq_tick(
         S[L.S_ACK_BYTES] += size
         aC[L.C_SIZE] = size  # (the ACK link's records, not kept)
         before = aS[L.S_COUNT]
-        link_send(aC, aS, aU, aB, aring, arec, int(S[L.S_AK_NEWEST]), now, out, out, False)
+        link_send(aC, aS, aU, aB, aring, arec, int(S[L.S_AK_NEWEST]), now, out, out, False, False, False)
         if aS[L.S_COUNT] > before:
             j = (int(aS[L.S_HEAD]) + int(before)) & (aring.shape[0] - 1)
             aring[j, L.ACK_RING_BITS] = float(int(S[L.S_AK_BITS]) >> 1)

@@ -348,10 +348,9 @@ class CodecNet(LinkArrays):
 
     def ready(self, ticks: int) -> None:
         """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets
-        they may send (the ACK link's records are not kept)."""
+        they may send (the kernel writes none for the ACK link: they are not kept)."""
         LinkArrays.ready(self, ticks)
         if self.ack is not None:
-            self.ack.S[L.S_RECS] = 0.0
             self.ack.ready(ticks)
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
