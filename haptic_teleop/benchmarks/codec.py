@@ -111,8 +111,33 @@ LOSSES = {
 }
 
 
+# Seed 000's error-control experiment's network (docs/codec.md, experiment c): 5 ms each way, a
+# round trip of 10 ms, under its ARQ's timeout of 25 ms, so ARQ retransmits only what was lost (on
+# the scene's own 50 ms each way, mu = 25 ms sends every sample 4 times). A name with this before
+# its loss suffix runs with this delay on both links, its reference the codec-less run with it.
+SEED_NET = ", 5 ms each way"
+SEED_DELAY = "{delay_s: 0.005}"
+
+
 def _loss_of(name: str) -> str | None:
     return next((s for s in LOSSES if name.endswith(s)), None)
+
+
+def _network_overrides(name: str, directions: tuple[str, ...] = ("forward", "backward")) -> list[str]:
+    """The case's network on `directions`: the seed's delay and the loss its name ends with."""
+    over = []
+    loss = _loss_of(name)
+    for d in directions:
+        if SEED_NET in name:
+            over.append(f"network.{d}.effects.delay={SEED_DELAY}")
+        if loss is not None:
+            over.append(f"network.{d}.effects.loss={LOSSES[loss]}")
+    return over
+
+
+def _reference(name: str) -> str:
+    """The codec-less case a case is set against: the same network."""
+    return "no codec" + (SEED_NET if SEED_NET in name else "") + (_loss_of(name) or "")
 
 
 LOOP_CASES: tuple[tuple[str, str | None], ...] = (
@@ -146,6 +171,11 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
         "arq mu = 150 ms, nu = 4, ACK every 4 ticks" + LOSSY,
         "{kind: arq, timeout_s: 0.15, max_retransmissions: 4, ack_every_ticks: 4}",
     ),
+    # ARQ as seed 000's experiment sets it (mu = 25 ms, nu = 4) on that experiment's network
+    ("no codec" + SEED_NET, None),
+    ("arq 25 ms, 4 retries" + SEED_NET, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("no codec" + SEED_NET + LOSSY, None),
+    ("arq 25 ms, 4 retries" + SEED_NET + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
     ("no codec" + GILBERT, None),
     ("hli (defaults)" + GILBERT, "{kind: hli}"),
     ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
@@ -165,9 +195,7 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
         over = [f"scene.duration_s={seconds}"]
         if codec is not None:
             over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
-        loss = _loss_of(name)
-        if loss is not None:
-            over += [f"network.{d}.effects.loss={LOSSES[loss]}" for d in ("forward", "backward")]
+        over += _network_overrides(name)
         scenes[name] = load_scene(find_scene(scene_name), overrides=over)
     for loop in ("compiled", "python"):
         for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
@@ -235,9 +263,7 @@ def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, f
         loss = _loss_of(name)
         if codec is None or (loss is not None and "hli" not in codec):
             continue
-        over = [f"network.backward.codec={codec}"]
-        if loss is not None:
-            over.append(f"network.backward.effects.loss={LOSSES[loss]}")
+        over = [f"network.backward.codec={codec}", *_network_overrides(name, ("backward",))]
         scene = load_scene(find_scene(scene_name), overrides=over)
         engine = Engine(scene, loop="python")  # only for its codec channel
         ch = engine.codecs[1]
@@ -276,7 +302,7 @@ def main(args: argparse.Namespace) -> int:
     print("-" * len(head))
     for name, _ in LOOP_CASES:
         c, p = rtf["compiled"][name], rtf["python"][name]
-        ref = "no codec" + (_loss_of(name) or "")
+        ref = _reference(name)
         c0, p0 = rtf["compiled"][ref], rtf["python"][ref]
         print(f"{name:{w}s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
     print()
