@@ -720,11 +720,18 @@ def arq_tick(
     arq_send(C, S, U, B, ring, rec, n, n, now, smp, 0, out)
     # A pending sample is due every m = ceil(mu / period) ticks after it was sent (the encoder
     # runs every tick), so the only candidates this tick are n - j m, j = nu + 1 .. 1 (seq order).
+    # Every seq below S_PEND_LO was acknowledged or given up: its rows are not read (with mu above
+    # the round trip that is every candidate but a lost sample's, and X's rows that far back are
+    # cache misses once the plants' step has run). Moved up lazily, a row at a time.
+    lo = int(S[L.S_PEND_LO])
+    while lo < n and X[lo & mask, L.X_PEND] != lo:
+        lo += 1
+    S[L.S_PEND_LO] = lo
     timeout = C[L.C_TIMEOUT_NS]
     m_ticks = int(C[L.C_M_TICKS])
     for jj in range(int(C[L.C_NU]) + 1, 0, -1):
         seq = n - jj * m_ticks
-        if seq < 0:
+        if seq < lo:
             continue
         k = seq & mask
         if X[k, L.X_PEND] != seq or now - X[k, L.X_LAST_NS] < timeout:

@@ -65,6 +65,7 @@ C_SIZE_X = 44  # C's length with these
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
     S_ACKED, S_ACKS_STALE, S_GAVE_UP, S_RETRANSMITTED, S_ACKS_SENT, S_ACK_PACKETS, S_ACK_BYTES, S_PEND_LO,
 ) = range(48, 66)  # fmt: skip
+# (S_PEND_LO, ARQ's sender: every seq below it was acknowledged or given up)
 # HLI: the encoder's mirrored track, counters and rate window; the decoder's track, lag, cursor
 (
     S_ET1H, S_ET1, S_ET1B, S_ET1C, S_ET2H, S_ET2, S_ET2B, S_ET2C, S_ESEEN, S_ESINCE,
