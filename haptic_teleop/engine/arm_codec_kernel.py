@@ -152,6 +152,17 @@ def delivered(
     return released(side, rel[n - w0], hist, mask), occ[n - w0]
 
 
+@inline  # type: ignore[misc]
+def borrowed_net(
+    C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, ring: np.ndarray, rec: np.ndarray, X: np.ndarray,
+    W: np.ndarray, A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> Any:  # fmt: skip
+    """A direction's codec arrays as `delivered` takes them (`net`), each a `borrowed` view."""
+    a = (borrowed(A[0]), borrowed(A[1]), borrowed(A[2]), borrowed(A[3]), borrowed(A[4]), borrowed(A[5]))
+    arrays = (borrowed(C), borrowed(S), borrowed(U), borrowed(B), borrowed(ring), borrowed(rec))
+    return (*arrays, borrowed(X), borrowed(W), a)
+
+
 @jit  # type: ignore[misc]
 def run_ticks_codec(
     n0: int,
@@ -199,14 +210,8 @@ def run_ticks_codec(
     ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
         ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
     )
-    fnet = (
-        borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB), borrowed(fring), borrowed(frec), borrowed(fX),
-        borrowed(fW), (borrowed(fA[0]), borrowed(fA[1]), borrowed(fA[2]), borrowed(fA[3]), borrowed(fA[4]), borrowed(fA[5])),
-    )  # fmt: skip
-    bnet = (
-        borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB), borrowed(bring), borrowed(brec), borrowed(bX),
-        borrowed(bW), (borrowed(bA[0]), borrowed(bA[1]), borrowed(bA[2]), borrowed(bA[3]), borrowed(bA[4]), borrowed(bA[5])),
-    )  # fmt: skip
+    fnet = borrowed_net(fC, fS, fU, fB, fring, frec, fX, fW, fA)
+    bnet = borrowed_net(bC, bS, bU, bB, bring, brec, bX, bW, bA)
     smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
     fcodec = fC[L.C_KIND] != L.NO_CODEC
     bcodec = bC[L.C_KIND] != L.NO_CODEC

@@ -27,7 +27,7 @@ engine/codec_layout.py); it needs no numba. What it cannot run is said by `codec
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -235,7 +235,7 @@ class CodecNet(LinkArrays):
     # places of X's, W's and the ring's columns that differ from codec_layout's (an arm scene's
     # directions: compiled_arm_loop.ArmCodecNet, codec_layout's ARM_* layout and ARM_LAYOUT).
     _c_size, _trig0, _s_size, _ring_width = L.C_SIZE_X, L.C_TRIG0, L.S_SIZE_X, L.RING_WIDTH
-    _places: dict[str, int] = {}
+    _places: ClassVar[dict[str, int]] = {}
 
     def _at(self, name: str) -> int:
         """codec_layout's place `name` in this direction's layout."""
