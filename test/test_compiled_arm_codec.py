@@ -8,8 +8,11 @@ the sides' final state, the run facts `codec_<direction>`, the codecs' and the l
 The cases cover deadband hold, extrapolation from the sent rate and from the last two, the
 velocity-adaptive p (the 3-D speed), the floor, and prediction extrapolating and holding, on each
 direction and both, over constant delay with uncorrelated loss, Gilbert-Elliott loss and
-blackouts, beside a direction on its schedule (vectorized and ticked). The arm codec kernel
-compiles once per process (about a minute cold): every compiled run of this module shares it.
+blackouts, beside a direction on its schedule (vectorized and ticked); FEC repetition and parity
+recovering losses (in time with wait_ticks, and late), ARQ with its timeout above and below the
+round trip, an ACK per packet and cumulative ACKs, lossy both ways; HLI over Gilbert loss with
+its default and under an allowed bandwidth. The arm codec kernel compiles once per process
+(about a minute cold): every compiled run of this module shares it.
 """
 
 from __future__ import annotations
@@ -65,7 +68,38 @@ CASES: dict[str, tuple[dict[str, tuple[str, str | None, str | None]], tuple[str,
     "prediction_both": ({"forward": (PREDICTION, None, ONE_THROUGH), "backward": (PREDICTION, GILBERT, None)}, ()),
     "prediction_hold_forward": ({"forward": (PREDICTION_HOLD, BERNOULLI, ONE_THROUGH)}, ()),
 }
-STOP_AT = 600  # the stopped case: "hold_both_bernoulli_gilbert" stopped at this tick in both loops
+# FEC: forward repetition (its recoveries late: extrapolation bases), backward parity played
+# 3 ticks late (recoveries in time); ARQ: per-packet ACKs forward (played 40 ticks late: the
+# retransmissions in time), cumulative ones backward (every 4 and 5 ticks), with mu above the
+# round trip (10 ms each way) and below it (4 and 51 ms over 50 ms each way: the ACKs come late,
+# samples are given up), the ACKs lost on the reverse links; HLI: the default
+# forward, backward held under an allowed bandwidth that filters HLI1 followers (a threshold of
+# 20 mm on the 9-value sample of which the force is part, in N).
+REPETITION = "{kind: fec, scheme: repetition, k: 2}"
+PARITY = "{kind: fec, scheme: parity, k: 3, wait_ticks: 3, max_extrapolation_s: 0.02}"
+ARQ_ACK = "{kind: arq, timeout_s: 0.025, max_retransmissions: 4, wait_ticks: 40}"
+ARQ_CUMULATIVE = "{kind: arq, timeout_s: 0.025, max_retransmissions: 3, ack_every_ticks: 4, gap: hold}"
+ARQ_FAST = "{kind: arq, timeout_s: 0.004, max_retransmissions: 1, wait_ticks: 5, gap: hold}"
+ARQ_LATE_CUMULATIVE = "{kind: arq, timeout_s: 0.051, max_retransmissions: 3, ack_every_ticks: 5}"
+HLI = "{kind: hli}"
+HLI_BUDGET = "{kind: hli, predictor: hold, threshold_m: 0.02, allowed_bandwidth_bps: 1000000, rate_window_s: 0.02}"
+DELAY_10MS = tuple(f"network.{d}.effects.delay.delay_s=0.01" for d in ("forward", "backward"))
+CASES.update(
+    {
+        "fec_both": ({"forward": (REPETITION, BERNOULLI, None), "backward": (PARITY, GILBERT, BLACKOUT)}, ()),
+        "arq_in_time": (
+            {"forward": (ARQ_ACK, BERNOULLI, None), "backward": (ARQ_CUMULATIVE, GILBERT, BLACKOUT)},
+            DELAY_10MS,
+        ),
+        "arq_late_acks": (
+            {"forward": (ARQ_FAST, GILBERT, None), "backward": (ARQ_LATE_CUMULATIVE, BERNOULLI, BLACKOUT)},
+            (),
+        ),
+        "hli_both": ({"forward": (HLI, GILBERT, None), "backward": (HLI_BUDGET, GILBERT, BLACKOUT)}, ()),
+    }
+)
+STOP_AT = 600  # the stopped cases (STOPPED) stopped at this tick in both loops
+STOPPED = ("hold_both_bernoulli_gilbert", "arq_late_acks")
 
 
 def _overrides(case: str, duration_s: float = 1.0) -> list[str]:
@@ -107,16 +141,22 @@ def runs() -> dict[str, tuple[Run, Run]]:
     for case in CASES:
         scene = _scene(_overrides(case))
         out[case] = (_run(scene, "compiled"), _run(scene, "python"))
-    scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
-    out["stopped"] = (_run(scene, "compiled", STOP_AT), _run(scene, "python", STOP_AT))
+    for case in STOPPED:
+        scene = _scene(_overrides(case))
+        out[f"stopped_{case}"] = (_run(scene, "compiled", STOP_AT), _run(scene, "python", STOP_AT))
     return out
 
 
+def _link(link: Any) -> tuple[Any, ...]:
+    effects = tuple((x.name, getattr(x, "dropped", None), getattr(x, "bad", None)) for x in link.effects)
+    return link.sent, link.lost, effects
+
+
 def _links(e: Engine) -> dict[str, Any]:
-    out = {}
-    for d in ("forward", "backward"):
-        link = getattr(e, d)
-        out[d] = (link.sent, link.lost, tuple((x.name, getattr(x, "dropped", None)) for x in link.effects))
+    out = {d: _link(getattr(e, d)) for d in ("forward", "backward")}
+    for d, ch in zip(("forward", "backward"), e.codecs, strict=True):
+        if ch is not None and ch.ack_link is not None:  # ARQ's ACKs: counted, their link's counts
+            out[f"{d}:ack"] = (ch.ack_packets, ch.ack_bytes, _link(ch.ack_link))
     return out
 
 
@@ -130,8 +170,10 @@ def _assert_same(compiled: Run, python: Run) -> None:
         if a is not None:
             assert (a.encoder.counters, a.decoder.counters) == (b.encoder.counters, b.decoder.counters)
             assert a.newest_seq == b.newest_seq
-            if a.kind == "prediction":
-                assert a.decoder.rec.predicted == b.decoder.rec.predicted
+            if a.kind in ("prediction", "fec", "arq"):
+                assert (a.decoder.rec.predicted, a.decoder.rec.late) == (b.decoder.rec.predicted, b.decoder.rec.late)
+            if a.kind == "hli":
+                assert a.encoder.last_class == b.encoder.last_class
     assert _links(ec) == _links(ep)
 
 
@@ -145,29 +187,51 @@ def test_compiled_arm_codec_equals_python_arm_loop(runs: dict[str, tuple[Run, Ru
     facts = e.codec_facts()
     for d, (codec, _, _) in CASES[case][0].items():
         f = facts[f"codec_{d}"]
+        ch = e.codecs[("forward", "backward").index(d)]
         rows = sink.packets(d)
         assert len(rows) == f["encoder_sent"] and np.count_nonzero(rows[:, 3] != 0) > 5
         if "deadband" in codec:
             assert 0 < f["encoder_sent"] < 0.7 * f["encoder_offered"]
             if "extrapolate" in codec:
                 assert f["decoder_extrapolated"] > 10
+        elif "fec" in codec:  # recovered: in time (played late: wait_ticks) or after the slot only
+            in_time = f["decoder_recovered"] - f["decoder_recovered_late"]
+            assert f["encoder_sent"] == e.ticks and ch.decoder.rec.predicted > 0
+            assert f["decoder_recovered"] > 20 and (in_time > 20) == ("wait" in codec)
+        elif "arq" in codec:
+            # (4 ms: every sample given up before its ACKs come back, all stale; a cumulative ACK is
+            # stale only if it names no pending sample)
+            fast = codec == ARQ_FAST
+            assert f["encoder_sent"] > e.ticks and f["encoder_retransmitted"] > 10 and ch.ack_link.lost > 5
+            assert f["encoder_gave_up"] > 0 and (f["encoder_acks_stale"] > 0) == fast
+            assert f["decoder_recovered"] > 10 and (f["encoder_acked"] > 0.5 * e.ticks) != fast
+            in_time = f["decoder_recovered"] - f["decoder_recovered_late"]
+            assert (in_time > 50) == ("wait" in codec)
+            assert (ch.ack_packets < e.ticks / 3) == ("ack_every" in codec)
+        elif "hli" in codec:
+            assert f["encoder_filtered_hli0"] > 100 and f["decoder_rebuilt"] > 0 and f["decoder_predicted"] > 100
+            assert (f["encoder_filtered_hli1"] > 10) == ("bandwidth" in codec)
         else:
-            assert (
-                f["encoder_sent"] == e.ticks and e.codecs[("forward", "backward").index(d)].decoder.rec.predicted > 10
-            )
+            assert f["encoder_sent"] == e.ticks and ch.decoder.rec.predicted > 10
     data = sink.data()
     assert len(data) == e.ticks
     assert np.abs(data[:, e.schema.group("s_contact_n")]).max() > 0.1
 
 
-def test_stopped_compiled_arm_codec_run_leaves_the_python_loops_records(runs: dict[str, tuple[Run, Run]]) -> None:
-    compiled, python = runs["stopped"]
+@pytest.mark.parametrize("case", STOPPED)
+def test_stopped_compiled_arm_codec_run_leaves_the_python_loops_records(
+    runs: dict[str, tuple[Run, Run]], case: str
+) -> None:
+    compiled, python = runs[f"stopped_{case}"]
     assert compiled[1].interrupted and compiled[1].ticks == STOP_AT
     _assert_same(compiled, python)
 
 
-def test_auto_runs_an_arm_scenes_deadband_compiled() -> None:
-    e = Engine(_scene(["scene.duration_s=0.05", f"network.forward.codec={ADAPTIVE}"]))
+@pytest.mark.parametrize("codec", [ADAPTIVE, REPETITION, ARQ_ACK, HLI])
+def test_auto_runs_an_arm_scenes_codec_compiled(codec: str) -> None:
+    e = Engine(
+        _scene(["scene.duration_s=0.05", f"network.forward.codec={codec}", f"network.forward.effects.loss={GILBERT}"])
+    )
     try:
         assert e.loop_kind == "compiled" and e.compiled_reason is None
     finally:
@@ -179,9 +243,13 @@ def _codec_on(d: str, codec: str, *effects: str) -> list[str]:
 
 
 REFUSED = [
-    (_codec_on("forward", "{kind: hli}", f"loss={GILBERT}"), "codec hli on the forward link runs in the Python"),
-    (_codec_on("backward", "{kind: fec}"), "codec fec on the backward link"),
-    (_codec_on("forward", "{kind: arq}"), "codec arq on the forward link"),
+    (
+        _codec_on("forward", "{kind: arq, timeout_s: 0.5, max_retransmissions: 4}"),
+        "arq on the forward link keeps a sample up to (max_retransmissions + 1) timeout_s = 2.5 s",
+    ),
+    (_codec_on("backward", "{kind: fec}", "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
+    # the ACKs run over the reverse direction's effects
+    ([*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"], "forward:ack link"),
     (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
     (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),
     # the arm loop's own limits hold with a codec too
@@ -205,11 +273,12 @@ def test_loop_compiled_refusal_on_the_command_line(tmp_path: Path, capsys: pytes
     """`run --loop compiled` on an arm scene whose codec the kernel cannot run: exit 2, one line."""
     argv = ["run", SCENE, "--loop", "compiled", "--out", str(tmp_path / "o"), "--quiet"]
     argv += ["--set", "scene.duration_s=0.05", "--set", "network.backward.codec={kind: fec}"]
+    argv += ["--set", "network.backward.effects.delay.jitter_s=0.002"]
     code = main(argv)
     err = capsys.readouterr().err
     lines = [x for x in err.splitlines() if x.strip()]
     assert code == 2 and len(lines) == 1 and "Traceback" not in err
-    assert "--loop compiled" in lines[0] and "codec fec on the backward link" in lines[0]
+    assert "--loop compiled" in lines[0] and "effect delay (Delay) on the backward link with a codec" in lines[0]
 
 
 # The EBA with a coarse deadband both ways on the arm (p = 40 %, the forward one extrapolating)

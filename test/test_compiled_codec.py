@@ -315,11 +315,3 @@ def test_codec_scenes_the_compiled_loop_cannot_run_say_why(overrides, reason):
 def test_auto_runs_compiled_codecs_compiled():
     e = Engine(_scene(["scene.duration_s=0.1", *_overrides("prediction_both")[2:]]))
     assert e.loop_kind == "compiled" and e.compiled_reason is None
-
-
-def test_arm_scene_with_a_python_only_codec_stays_on_the_python_arm_loop():
-    """(deadband and prediction run in the compiled arm loop: test/test_compiled_arm_codec.py)"""
-    overrides = ["scene.duration_s=0.05", *_codec_on("forward", "{kind: fec}")]
-    e = Engine(load_scene(find_scene("touch_ur5e_wall"), overrides=overrides))
-    assert e.loop_kind == "python" and "codec fec on the forward link" in e.compiled_reason
-    e.close_plants()

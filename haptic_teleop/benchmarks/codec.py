@@ -212,13 +212,31 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
 
 
 # The codec stage in the compiled arm loop (engine/arm_codec_kernel.py): the same codec on both
-# directions of an arm scene, against the compiled arm loop without one (engine/arm_kernel.py).
+# directions of an arm scene, against the compiled arm loop without one (engine/arm_kernel.py;
+# a name ending in a key of LOSSES: with that loss on both links, against the same lossy run
+# without a codec, as LOOP_CASES).
 ARM_LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("no codec", None),
     ("deadband 10 %, hold", "{kind: deadband, deadband: 0.1}"),
     ("deadband 10 %, extrapolate (sent rate)", "{kind: deadband, deadband: 0.1, reconstruction: extrapolate}"),
     ("deadband 5 %, adaptive, floor", "{kind: deadband, deadband: 0.05, adaptive_gain: 10, min_threshold: 0.001}"),
     ("prediction", "{kind: prediction}"),
+    ("fec repetition k = 2", "{kind: fec, scheme: repetition, k: 2}"),
+    ("fec parity k = 4", "{kind: fec, scheme: parity, k: 4}"),
+    ("arq 25 ms, 4 retries", "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("arq mu = 150 ms, nu = 4", "{kind: arq, timeout_s: 0.15, max_retransmissions: 4}"),
+    (
+        "arq mu = 150 ms, nu = 4, ACK every 4 ticks",
+        "{kind: arq, timeout_s: 0.15, max_retransmissions: 4, ack_every_ticks: 4}",
+    ),
+    ("no codec" + LOSSY, None),
+    ("fec repetition k = 2" + LOSSY, "{kind: fec, scheme: repetition, k: 2}"),
+    ("fec parity k = 3, wait 3" + LOSSY, "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}"),
+    ("arq 25 ms, 4 retries" + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("arq mu = 150 ms, nu = 4" + LOSSY, "{kind: arq, timeout_s: 0.15, max_retransmissions: 4}"),
+    ("no codec" + GILBERT, None),
+    ("hli (defaults)" + GILBERT, "{kind: hli}"),
+    ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
 )
 
 
@@ -234,6 +252,9 @@ def arm_loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, floa
         over = [f"scene.duration_s={seconds}"]
         if codec is not None:
             over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
+        loss = _loss_of(name)
+        if loss is not None:
+            over += [f"network.{d}.effects.loss={LOSSES[loss]}" for d in ("forward", "backward")]
         scenes[name] = load_scene(find_scene(scene_name), overrides=over)
     for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
         Engine(scene, loop="compiled").close_plants()
@@ -312,11 +333,15 @@ def main(args: argparse.Namespace) -> int:
         f"the codec stage in the compiled arm loop ({args.arm_scene}, the codec on both directions, "
         f"{args.arm_seconds:g} s, no recording; real-time factor, best of {reps}):"
     )
-    head = f"{'case':40s} {'compiled RTF':>12s} {'/ no codec':>10s}"
+    wa = max(len(name) for name, _ in ARM_LOOP_CASES)
+    # (and against the lossless codec-less run: a codec-less run with Gilbert loss ticks its
+    # schedule in Python, compiled_loop.TickedSchedule, a codec direction runs its link in the kernel)
+    head = f"{'case':{wa}s} {'compiled RTF':>12s} {'/ no codec':>10s} {'/ lossless no codec':>19s}"
     print(head)
     print("-" * len(head))
     for name, _ in ARM_LOOP_CASES:
-        print(f"{name:40s} {arm[name]:12.1f} {arm[name] / arm['no codec']:10.3f}")
+        ref = arm["no codec" + (_loss_of(name) or "")]
+        print(f"{name:{wa}s} {arm[name]:12.1f} {arm[name] / ref:10.3f} {arm[name] / arm['no codec']:19.3f}")
     print()
     ns = compiled_codec_ns(args.scene, args.samples, reps)
     print(f"one direction's compiled codec stage alone (3 values a sample, the scene's link; least of {reps}):")

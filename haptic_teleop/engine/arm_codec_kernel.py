@@ -4,13 +4,14 @@ load it (docs/codec.md, "Compiled", "Arm scenes").
 
 The tick is `arm_kernel.run_ticks`'s, from the same inlined parts (`sense`, `side_torque`,
 `forward_sample`, `backward_sample`, `released`, `guarded`, `finish_tick`); a direction with a
-codec replaces its schedule lookup by `arm_codec_tick`, which is `CodecChannel.step` for an arm
-scene's sample (codec_channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the
-1-DoF codec kernel's `deadband_prediction_tick` (engine/codec_kernel.py) and its encoder, link
-and decoders, compiled from their one definition with the arm layout's places of the vectors
-(`relaid`: codec_layout's ARM_S_* instead of S_SENT0, S_LAST0, ...) and the grouped deadband's
-test on 3-value groups (`arm_deadband_triggered`). The decoded sample goes through the receiving side's guard every tick
-the decoder gives one, as in the Python arm loop.
+codec replaces its schedule lookup by `CodecChannel.step` for an arm scene's sample
+(codec_channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the 1-DoF codec
+kernel's ticks (engine/codec_kernel.py: `deadband_prediction_tick` inlined, `fec_tick`,
+`arq_tick`, `hli_tick` compiled once each) with their encoders, links, decoders and helpers,
+compiled from their one definition with the arm layout's places (`relaid`: codec_layout's
+ARM_LAYOUT, the vectors of S, X's, the ring's, W's and HLI's columns for 9 values) and the
+grouped deadband's test on 3-value groups (`arm_deadband_triggered`). The decoded sample goes
+through the receiving side's guard every tick the decoder gives one, as in the Python arm loop.
 """
 
 from __future__ import annotations
@@ -49,21 +50,20 @@ from haptic_teleop.engine.arm_kernel import (
 jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")
 
-# Where the vectors of a direction's state are in the arm layout (the 1-DoF names they replace).
-ARM_PLACES = {
-    "S_SENT0": L.ARM_S_SENT0,
-    "S_PREV0": L.ARM_S_PREV0,
-    "S_LAST0": L.ARM_S_LAST0,
-    "S_OLD0": L.ARM_S_OLD0,
-    "S_RATE0": L.ARM_S_RATE0,
-}
+# The places of the arm layout that differ from the 1-DoF layout's (by codec_layout name).
+ARM_PLACES: dict[str, Any] = dict(L.ARM_LAYOUT)
 
 
-def relaid(f: Any, places: dict[str, Any]) -> Any:
-    """The inlined codec_kernel function `f` compiled from its own definition with the layout
-    constants of `places` (ints: in place of codec_layout's, which `f` reads as `L.NAME`) and
-    the inlined callees of `places` (functions) in place of its module's (its other globals,
-    compiled callees included, are its module's)."""
+def relaid(f: Any, places: dict[str, Any], _done: dict[Any, Any] | None = None) -> Any:
+    """The codec_kernel function `f` compiled from its own definition with the layout constants
+    of `places` (ints: in place of codec_layout's, which `f` reads as `L.NAME`) and the callees
+    of `places` (functions) in place of its module's; every other inlined codec_kernel function
+    it calls is relaid the same way (its other globals, compiled callees included, are its
+    module's). Compiled as `f` is (inlined, or compiled once without reference counting) but not
+    cached: the kernel calling it is."""
+    done: dict[Any, Any] = {} if _done is None else _done
+    if f in done:
+        return done[f]
     py = f.py_func
     layout = pytypes.ModuleType(L.__name__ + "_relaid")
     layout.__dict__.update(vars(L))
@@ -71,13 +71,23 @@ def relaid(f: Any, places: dict[str, Any]) -> Any:
     for name, value in places.items():
         if isinstance(value, int):
             setattr(layout, name, value)
-        else:
-            glob[name] = value
     glob["L"] = layout
+    for name in py.__code__.co_names:
+        g = glob.get(name)
+        if name in places and not isinstance(places[name], int):
+            glob[name] = places[name]
+        elif (
+            isinstance(g, numba.core.registry.CPUDispatcher)
+            and g.py_func.__module__ == ck.__name__
+            and g.targetoptions.get("inline") == "always"
+        ):
+            glob[name] = relaid(g, places, done)
     fn = pytypes.FunctionType(py.__code__, glob, py.__name__, py.__defaults__, py.__closure__)
     fn.__qualname__ = py.__qualname__
     fn.__module__ = py.__module__
-    return numba.njit(nogil=True, inline="always")(fn)
+    options = {k: v for k, v in f.targetoptions.items() if k not in ("nopython", "boundscheck")}
+    done[f] = out = numba.njit(**options)(fn)
+    return out
 
 
 @inline  # type: ignore[misc]
@@ -105,19 +115,14 @@ def arm_deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> boo
     return False
 
 
-# CodecChannel.step of an arm scene's direction: codec_kernel's deadband/prediction tick with the
-# arm layout's places and the group trigger (link_send uses scalars of the state only: the same).
-arm_codec_tick = relaid(
-    ck.deadband_prediction_tick,
-    {
-        **ARM_PLACES,
-        "deadband_triggered": arm_deadband_triggered,
-        "deadband_receive": relaid(ck.deadband_receive, ARM_PLACES),
-        "deadband_sample": relaid(ck.deadband_sample, ARM_PLACES),
-        "prediction_receive": relaid(ck.prediction_receive, ARM_PLACES),
-        "prediction_sample": relaid(ck.prediction_sample, ARM_PLACES),
-    },
-)
+# CodecChannel.step of an arm scene's direction: codec_kernel's ticks with the arm layout's places
+# and the group trigger (one relaying: the helpers they share are compiled once).
+_relaid: dict[Any, Any] = {}
+_ARM = {**ARM_PLACES, "deadband_triggered": arm_deadband_triggered}
+arm_codec_tick = relaid(ck.deadband_prediction_tick, _ARM, _relaid)
+arm_fec_tick = relaid(ck.fec_tick, _ARM, _relaid)
+arm_arq_tick = relaid(ck.arq_tick, _ARM, _relaid)
+arm_hli_tick = relaid(ck.hli_tick, _ARM, _relaid)
 
 
 @inline  # type: ignore[misc]
@@ -126,16 +131,36 @@ def delivered(
     mask: int, net: Any, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray,
 ) -> tuple[int, float]:  # fmt: skip
     """A direction's network at tick n after its sample was written (`smp` with a codec, else the
-    sender's ring): the codec's tick (`net`: C, S, U, B, ring, rec) with the decoded sample through
-    the receiving `side`'s guard, or the schedule's release. Returns the row's `received` seq (-1:
-    none) and buffer occupancy (0 with a codec)."""
+    sender's ring): the codec's tick (`net`: C, S, U, B, ring, rec, and X, W, A: the sample
+    history, scratch and ACK link) with the decoded sample through the receiving `side`'s guard,
+    or the schedule's release. Returns the row's `received` seq (-1: none) and buffer occupancy
+    (0 with a codec)."""
     if codec:
-        C, S, U, B, ring, rec = net
-        rx, got = arm_codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, dec)
+        C, S, U, B, ring, rec, X, W, A = net
+        kind = C[L.C_KIND]
+        if kind == L.FEC:
+            rx, got = arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+        elif kind == L.ARQ:
+            rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, dec)
+        elif kind == L.HLI:
+            rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+        else:
+            rx, got = arm_codec_tick(C, S, U, B, ring, rec, n, now, smp, rate, dec)
         if got:
             guarded(side, dec)
         return rx, 0.0
     return released(side, rel[n - w0], hist, mask), occ[n - w0]
+
+
+@inline  # type: ignore[misc]
+def borrowed_net(
+    C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, ring: np.ndarray, rec: np.ndarray, X: np.ndarray,
+    W: np.ndarray, A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> Any:  # fmt: skip
+    """A direction's codec arrays as `delivered` takes them (`net`), each a `borrowed` view."""
+    a = (borrowed(A[0]), borrowed(A[1]), borrowed(A[2]), borrowed(A[3]), borrowed(A[4]), borrowed(A[5]))
+    arrays = (borrowed(C), borrowed(S), borrowed(U), borrowed(B), borrowed(ring), borrowed(rec))
+    return (*arrays, borrowed(X), borrowed(W), a)
 
 
 @jit  # type: ignore[misc]
@@ -170,16 +195,23 @@ def run_ticks_codec(
     bring: np.ndarray,
     brec: np.ndarray,
     scratch: np.ndarray,
+    fX: np.ndarray,
+    fW: np.ndarray,
+    fA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    bX: np.ndarray,
+    bW: np.ndarray,
+    bA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> int:
     """`arm_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
     others read their window of the schedule as there). fC ... frec, bC ... brec: each
     direction's codec arrays (compiled_codec.CodecNet.args, the arm layout); scratch: 3 rows of
-    9 (the sample, its rate, the decoder's output)."""
+    9 (the sample, its rate, the decoder's output); fX, fW, fA, bX, bW, bA: each direction's
+    sample history, scratch and ACK link (CodecNet.history)."""
     ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
         ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
     )
-    fnet = (borrowed(fC), borrowed(fS), borrowed(fU), borrowed(fB), borrowed(fring), borrowed(frec))
-    bnet = (borrowed(bC), borrowed(bS), borrowed(bU), borrowed(bB), borrowed(bring), borrowed(brec))
+    fnet = borrowed_net(fC, fS, fU, fB, fring, frec, fX, fW, fA)
+    bnet = borrowed_net(bC, bS, bU, bB, bring, brec, bX, bW, bA)
     smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
     fcodec = fC[L.C_KIND] != L.NO_CODEC
     bcodec = bC[L.C_KIND] != L.NO_CODEC

@@ -5,7 +5,7 @@ imports nothing, so neither imports the other (docs/codec.md, "Compiled")."""
 # Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
 NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
 COMPILED_KINDS = ("deadband", "prediction", "fec", "arq", "hli")
-ARM_COMPILED_KINDS = ("deadband", "prediction")  # the compiled arm loop's (engine/arm_codec_kernel.py)
+ARM_COMPILED_KINDS = COMPILED_KINDS  # the compiled arm loop's (engine/arm_codec_kernel.py)
 FEC, ARQ, HLI = 3.0, 4.0, 5.0
 LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT = 0.0, 1.0, 2.0
 
@@ -30,22 +30,6 @@ C_SIZE_ALL = 24
 ) = range(47)  # fmt: skip
 S_SIZE_ALL = 48
 RING_WIDTH = 8  # seq, arrival_ns, payload (at most 6 values: a 3-value sample and its rate)
-
-# An arm scene's codec directions (engine/arm_codec_kernel.py: deadband and prediction only): the
-# scalars above at the same places; the vectors (a sample of up to 9 values: 3 quantities of 3 task
-# axes) after them, where the 1-DoF kernel keeps FEC's, ARQ's and HLI's state (below), which the
-# arm kernel never runs.
-ARM_AXES = 3
-ARM_DIM = 9
-ARM_C_TRIG0 = C_SIZE_ALL  # 9 flags: the value is in a trigger group (the groups: 3 values each)
-ARM_C_SIZE = ARM_C_TRIG0 + ARM_DIM
-ARM_S_SENT0 = S_SIZE_ALL
-ARM_S_PREV0 = ARM_S_SENT0 + ARM_DIM
-ARM_S_LAST0 = ARM_S_PREV0 + ARM_DIM
-ARM_S_OLD0 = ARM_S_LAST0 + ARM_DIM
-ARM_S_RATE0 = ARM_S_OLD0 + ARM_DIM
-ARM_S_SIZE = ARM_S_RATE0 + ARM_DIM
-ARM_RING_WIDTH = 2 + 2 * ARM_DIM  # seq, arrival_ns, a 9-value sample and its rate
 
 # FEC, ARQ (and the shared reconstruction over a sample history): constants and state after the above.
 C_PARITY, C_K, C_WAIT, C_TIMEOUT_NS, C_NU, C_ACK_SIZE = range(24, 30)
@@ -101,3 +85,58 @@ ACK_RING_BITS, ACK_RING_COUNT, ACK_RING_OLD = 2, 3, 4
 # decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
 H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16
 H_NONE = -1e18
+
+# An arm scene's codec directions (engine/arm_codec_kernel.py): the scalars above at the same
+# places; the vectors (a sample of up to 9 values: 3 quantities of 3 task axes) after them, and
+# X, the ring and W laid out for 9 values (ARM_LAYOUT: the places that differ from the 1-DoF
+# layout's, by name; the kernel is compiled with them, `arm_codec_kernel.relaid`).
+ARM_AXES = 3
+ARM_DIM = 9
+ARM_C_TRIG0 = C_SIZE_X  # 9 flags: the value is in a trigger group (the groups: 3 values each)
+ARM_C_SIZE = ARM_C_TRIG0 + ARM_DIM
+# S's vectors: the deadband's and prediction's (sent, previous, last, old, rate), HLI's tracks
+(
+    ARM_S_SENT0, ARM_S_PREV0, ARM_S_LAST0, ARM_S_OLD0, ARM_S_RATE0,
+    ARM_S_ET1, ARM_S_ET2, ARM_S_EH2, ARM_S_EPREV, ARM_S_DT1, ARM_S_DT2,
+) = range(S_SIZE_X, S_SIZE_X + 11 * ARM_DIM, ARM_DIM)  # fmt: skip
+ARM_S_SIZE = S_SIZE_X + 11 * ARM_DIM
+ARM_RING_WIDTH = 2 + 2 * ARM_DIM  # seq, arrival_ns, a 9-value sample and its rate (ARQ: no rate,
+ARM_RING_ATTEMPT, ARM_RING_SENT = 2 + ARM_DIM, 3 + ARM_DIM  # its attempt and send tick there)
+ARM_X_SUM_SEQ = 1 + ARM_DIM
+ARM_X_SENT = 2 + 2 * ARM_DIM
+ARM_H_PREV, ARM_H_COPY, ARM_H_CLASS = ARM_DIM, 2 * ARM_DIM, 3 * ARM_DIM
+ARM_LAYOUT = {
+    "S_SENT0": ARM_S_SENT0,
+    "S_PREV0": ARM_S_PREV0,
+    "S_LAST0": ARM_S_LAST0,
+    "S_OLD0": ARM_S_OLD0,
+    "S_RATE0": ARM_S_RATE0,
+    "S_ET1": ARM_S_ET1,
+    "S_ET2": ARM_S_ET2,
+    "S_EH2": ARM_S_EH2,
+    "S_EPREV": ARM_S_EPREV,
+    "S_DT1": ARM_S_DT1,
+    "S_DT2": ARM_S_DT2,
+    "RING_ATTEMPT": ARM_RING_ATTEMPT,
+    "RING_SENT": ARM_RING_SENT,
+    "RING_WIDTH": ARM_RING_WIDTH,
+    # X: held seq, value; parity sum seq (ARQ: pending seq, tries, last sent); the sender's sample
+    "X_SUM_SEQ": ARM_X_SUM_SEQ,
+    "X_SUM": ARM_X_SUM_SEQ + 1,
+    "X_PEND": ARM_X_SUM_SEQ,
+    "X_TRIES": ARM_X_SUM_SEQ + 1,
+    "X_LAST_NS": ARM_X_SUM_SEQ + 2,
+    "X_SENT": ARM_X_SENT,
+    "X_WIDTH": ARM_X_SENT + ARM_DIM,
+    # W: a value of 9, then the terms of a sum (at most 65: k <= 64) before W_STACK
+    "W_TERMS": W_VALUE + ARM_DIM,
+    # HLI's X
+    "H_PREV": ARM_H_PREV,
+    "H_COPY": ARM_H_COPY,
+    "H_CLASS": ARM_H_CLASS,
+    "H_OFF": ARM_H_CLASS + 1,
+    "H_RTAG": ARM_H_CLASS + 2,
+    "H_BTAG": ARM_H_CLASS + 3,
+    "H_BX": ARM_H_CLASS + 4,
+    "H_WIDTH": ARM_H_CLASS + 4 + ARM_DIM,
+}

@@ -83,6 +83,8 @@ _CODEC_SOURCES = (
     "../core/deadband.py",
     "../core/prediction.py",
     "../core/loss.py",
+    "../core/fec.py",
+    "../core/hli_codec.py",
 )
 
 
@@ -424,6 +426,7 @@ def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
         ARM_C_SIZE,
         ARM_C_TRIG0,
         ARM_DIM,
+        ARM_LAYOUT,
         ARM_RING_WIDTH,
         ARM_S_SIZE,
     )
@@ -433,6 +436,7 @@ def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
         """`CodecNet` with codec_layout's ARM_* layout (up to 9 values a sample, and their rate)."""
 
         _c_size, _trig0, _s_size, _ring_width = ARM_C_SIZE, ARM_C_TRIG0, ARM_S_SIZE, ARM_RING_WIDTH
+        _places = ARM_LAYOUT
 
     out = []
     for ch in codecs:
@@ -483,11 +487,11 @@ class CompiledArm:
         from haptic_teleop.engine.compiled_loop import first_compile
 
         if self.codec:
-            from haptic_teleop.engine.compiled_codec import no_codec
+            from haptic_teleop.engine.compiled_codec import no_codec, no_history
 
             idle = no_codec(1)
             with first_compile(self.ck.run_ticks_codec):
-                self.ck.run_ticks_codec(*args, *idle, *idle, np.zeros((3, 9)))
+                self.ck.run_ticks_codec(*args, *idle, *idle, np.zeros((3, 9)), *no_history(), *no_history())
         else:
             with first_compile(self.k.run_ticks):
                 self.k.run_ticks(*args)
@@ -504,7 +508,7 @@ class CompiledArm:
         on the directions' `settled`); returns the ticks done. `nets`: each direction's
         `arm_codec_nets` (with a codec, that direction's schedule, fwd or bwd, is None)."""
         from haptic_teleop.engine import compiled_loop
-        from haptic_teleop.engine.compiled_codec import no_codec
+        from haptic_teleop.engine.compiled_codec import no_codec, no_history
         from haptic_teleop.engine.compiled_driver import codec_args, run_windows
 
         self.take()
@@ -514,10 +518,18 @@ class CompiledArm:
         run_ticks = self.ck.run_ticks_codec if codec else self.k.run_ticks
         idle = no_codec(engine.period_ns)
         scratch = np.zeros((3, 9))
+        no_x = no_history()
 
         def call(c0: int, c1: int, *network: Any) -> None:
             w0 = network[-1]
-            tail = codec_args(nets, idle, scratch) if codec else ()
+            tail: tuple[Any, ...] = ()
+            if codec:  # the codec arrays, then each direction's sample history (FEC, ARQ, HLI)
+                fnet, bnet = nets
+                tail = (
+                    *codec_args(nets, idle, scratch),
+                    *(no_x if fnet is None else fnet.history()),
+                    *(no_x if bnet is None else bnet.history()),
+                )
             run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, *network[:-1], block, w0, output.start, *tail)
 
         rings = compiled_loop.Rings((6, 9))

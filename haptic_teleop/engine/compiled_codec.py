@@ -27,7 +27,7 @@ engine/codec_layout.py); it needs no numba. What it cannot run is said by `codec
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -231,9 +231,15 @@ class CodecNet(LinkArrays):
     """One codec direction of the compiled loop: the kernel's arrays and what Python does between
     chunks (random numbers, records, the counters written back)."""
 
-    # The arrays' sizes, where the trigger flags start, the in-flight ring's width (an arm
-    # scene's directions: compiled_arm_loop.ArmCodecNet, codec_layout's ARM_* layout).
+    # The arrays' sizes, where the trigger flags start, the in-flight ring's width, and the
+    # places of X's, W's and the ring's columns that differ from codec_layout's (an arm scene's
+    # directions: compiled_arm_loop.ArmCodecNet, codec_layout's ARM_* layout and ARM_LAYOUT).
     _c_size, _trig0, _s_size, _ring_width = L.C_SIZE_X, L.C_TRIG0, L.S_SIZE_X, L.RING_WIDTH
+    _places: ClassVar[dict[str, int]] = {}
+
+    def _at(self, name: str) -> int:
+        """codec_layout's place `name` in this direction's layout."""
+        return self._places.get(name, getattr(L, name))  # type: ignore[no-any-return]
 
     def __init__(self, ch: CodecChannel, period_ns: int) -> None:
         self.ch = ch
@@ -322,9 +328,9 @@ class CodecNet(LinkArrays):
             rows = 4
             while rows < 2 * (C[L.C_DELAY_NS] // period_ns + 2 * (N + C[L.C_HDELAY]) + 8):
                 rows *= 2
-            self.X = np.zeros((rows, L.H_WIDTH))
-            self.X[:, L.H_RTAG] = L.H_NONE
-            self.X[:, L.H_BTAG] = L.H_NONE
+            self.X = np.zeros((rows, self._at("H_WIDTH")))
+            self.X[:, self._at("H_RTAG")] = L.H_NONE
+            self.X[:, self._at("H_BTAG")] = L.H_NONE
             self.W = np.zeros(2 * N + 2 + 2 * (int(C[L.C_HWIN]) + 1))
             for k in range(1, N + 1):
                 self.W[k] = 1.0 if k in enc._may_filter else 0.0
@@ -336,15 +342,16 @@ class CodecNet(LinkArrays):
             sender = C[L.C_DELAY_NS] // period_ns + C[L.C_K] + 3 + (C[L.C_KEEP] if C[L.C_PARITY] else 0)
             while rows < max(C[L.C_KEEP] + 2, sender, self.span + 2):
                 rows *= 2
-            self.X = np.zeros((rows, L.X_WIDTH))
-            self.X[:, L.X_HELD] = -1.0
-            self.X[:, L.X_SUM_SEQ] = -1.0
-            self.W = np.zeros(L.W_STACK + 1 + int(C[L.C_K]) * (int(C[L.C_KEEP]) + 1))
+            self.X = np.zeros((rows, self._at("X_WIDTH")))
+            self.X[:, self._at("X_HELD")] = -1.0
+            self.X[:, self._at("X_SUM_SEQ")] = -1.0  # (ARQ: X_PEND)
+            self.W = np.zeros(self._at("W_STACK") + 1 + int(C[L.C_K]) * (int(C[L.C_KEEP]) + 1))
             cap = int(C[L.C_ACK_CAP])
             if cap:  # ARQ's cumulative ACKs: the seqs below the window, the ACK's size by their count
-                self.W = np.zeros(L.W_OLD + 2 * cap + 2)
+                w_old = self._at("W_OLD")
+                self.W = np.zeros(w_old + 2 * cap + 2)
                 for j in range(cap + 1):
-                    self.W[L.W_OLD + cap + 1 + j] = dec._size_of(2 + j)
+                    self.W[w_old + cap + 1 + j] = dec._size_of(2 + j)
 
     def ready(self, ticks: int) -> None:
         """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets
@@ -359,7 +366,7 @@ class CodecNet(LinkArrays):
         the ring keeps their send tick, the records their send time)."""
         S = self.S
         mark = sent
-        col = L.RING_SENT if self.C[L.C_KIND] == L.ARQ else 0
+        col = self._at("RING_SENT") if self.C[L.C_KIND] == L.ARQ else 0
         if not final and S[L.S_COUNT] > 0:
             oldest = int(self.ring[int(S[L.S_HEAD]), col])
             mark = min(mark, oldest)
