@@ -182,14 +182,18 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
 )
 
 
-def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str, float]]:
+def loop_rtf(
+    scene_name: str, seconds: float, repeat: int
+) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, list[float]]]]:
     """Real-time factor (scene time over this process's CPU time of the run, nothing recorded) of
-    each `LOOP_CASES` case in each loop, the largest of `repeat` runs; the cases' runs are
-    interleaved so that a slow minute of the machine hits them alike."""
+    each `LOOP_CASES` case in each loop: the largest of `repeat` runs, and every run's by round
+    (a round runs each case once: the cases' runs are interleaved so that a slow minute of the
+    machine hits them alike, and a ratio taken within a round compares runs a second apart)."""
     from haptic_teleop.engine.lockstep import Engine
     from haptic_teleop.scene.load import find_scene, load_scene
 
     out: dict[str, dict[str, float]] = {"compiled": {}, "python": {}}
+    rounds: dict[str, dict[str, list[float]]] = {"compiled": {}, "python": {}}
     scenes = {}
     for name, codec in LOOP_CASES:
         over = [f"scene.duration_s={seconds}"]
@@ -208,7 +212,13 @@ def loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, dict[str
                 engine.run(handle_sigint=False)
                 rtf = engine.ticks * engine.period_s / (time.process_time() - t0)
                 out[loop][name] = max(out[loop].get(name, 0.0), rtf)
-    return out
+                rounds[loop].setdefault(name, []).append(rtf)
+    return out, rounds
+
+
+def paired_ratios(rounds: dict[str, list[float]], name: str) -> list[float]:
+    """Each round's RTF of case `name` over its reference's in the same round (`_reference`)."""
+    return [a / b for a, b in zip(rounds[name], rounds[_reference(name)], strict=True)]
 
 
 # The codec stage in the compiled arm loop (engine/arm_codec_kernel.py): the same codec on both
@@ -285,6 +295,8 @@ def compiled_codec_ns(scene_name: str, samples: int, repeat: int) -> dict[str, f
         if codec is None or (loss is not None and "hli" not in codec):
             continue
         over = [f"network.backward.codec={codec}", *_network_overrides(name, ("backward",))]
+        if SEED_NET in name:  # and on the link of its ACKs
+            over.append(f"network.forward.effects.delay={SEED_DELAY}")
         scene = load_scene(find_scene(scene_name), overrides=over)
         engine = Engine(scene, loop="python")  # only for its codec channel
         ch = engine.codecs[1]
@@ -312,20 +324,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    rtf = loop_rtf(args.scene, args.seconds, max(args.repeat, 5))
+    rtf, rounds = loop_rtf(args.scene, args.seconds, max(args.repeat, 5))
     print(
         f"the codec stage in the loop ({args.scene}, the codec on both directions, {args.seconds:g} s, "
-        f"no recording; real-time factor, best of {max(args.repeat, 5)}):"
+        f"no recording; real-time factor, best of {max(args.repeat, 5)}; 'paired': the median and range "
+        "of each round's ratio to the reference run a second apart):"
     )
     w = max(len(name) for name, _ in LOOP_CASES)
-    head = f"{'case':{w}s} {'compiled RTF':>12s} {'/ no codec':>10s} {'Python RTF':>10s} {'/ no codec':>10s}"
+    head = (
+        f"{'case':{w}s} {'compiled RTF':>12s} {'/ no codec':>10s} {'paired':>19s} {'Python RTF':>10s} "
+        f"{'/ no codec':>10s}"
+    )
     print(head)
     print("-" * len(head))
     for name, _ in LOOP_CASES:
         c, p = rtf["compiled"][name], rtf["python"][name]
         ref = _reference(name)
         c0, p0 = rtf["compiled"][ref], rtf["python"][ref]
-        print(f"{name:{w}s} {c:12.0f} {c / c0:10.3f} {p:10.1f} {p / p0:10.3f}")
+        pr = paired_ratios(rounds["compiled"], name)
+        paired = f"{statistics.median(pr):.3f} ({min(pr):.2f}-{max(pr):.2f})"
+        print(f"{name:{w}s} {c:12.0f} {c / c0:10.3f} {paired:>19s} {p:10.1f} {p / p0:10.3f}")
     print()
     reps = max(args.repeat, 5)
     arm = arm_loop_rtf(args.arm_scene, args.arm_seconds, reps)
