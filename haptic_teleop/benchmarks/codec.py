@@ -221,33 +221,10 @@ def paired_ratios(rounds: dict[str, list[float]], name: str) -> list[float]:
     return [a / b for a, b in zip(rounds[name], rounds[_reference(name)], strict=True)]
 
 
-# The codec stage in the compiled arm loop (engine/arm_codec_kernel.py): the same codec on both
-# directions of an arm scene, against the compiled arm loop without one (engine/arm_kernel.py;
-# a name ending in a key of LOSSES: with that loss on both links, against the same lossy run
-# without a codec, as LOOP_CASES).
-ARM_LOOP_CASES: tuple[tuple[str, str | None], ...] = (
-    ("no codec", None),
-    ("deadband 10 %, hold", "{kind: deadband, deadband: 0.1}"),
-    ("deadband 10 %, extrapolate (sent rate)", "{kind: deadband, deadband: 0.1, reconstruction: extrapolate}"),
-    ("deadband 5 %, adaptive, floor", "{kind: deadband, deadband: 0.05, adaptive_gain: 10, min_threshold: 0.001}"),
-    ("prediction", "{kind: prediction}"),
-    ("fec repetition k = 2", "{kind: fec, scheme: repetition, k: 2}"),
-    ("fec parity k = 4", "{kind: fec, scheme: parity, k: 4}"),
-    ("arq 25 ms, 4 retries", "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
-    ("arq mu = 150 ms, nu = 4", "{kind: arq, timeout_s: 0.15, max_retransmissions: 4}"),
-    (
-        "arq mu = 150 ms, nu = 4, ACK every 4 ticks",
-        "{kind: arq, timeout_s: 0.15, max_retransmissions: 4, ack_every_ticks: 4}",
-    ),
-    ("no codec" + LOSSY, None),
-    ("fec repetition k = 2" + LOSSY, "{kind: fec, scheme: repetition, k: 2}"),
-    ("fec parity k = 3, wait 3" + LOSSY, "{kind: fec, scheme: parity, k: 3, wait_ticks: 3}"),
-    ("arq 25 ms, 4 retries" + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
-    ("arq mu = 150 ms, nu = 4" + LOSSY, "{kind: arq, timeout_s: 0.15, max_retransmissions: 4}"),
-    ("no codec" + GILBERT, None),
-    ("hli (defaults)" + GILBERT, "{kind: hli}"),
-    ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
-)
+# The codec stage in the compiled arm loop (engine/arm_codec_kernel.py): the same cases on both
+# directions of an arm scene, against the compiled arm loop without one (engine/arm_kernel.py),
+# each case's reference as in LOOP_CASES (`_reference`).
+ARM_LOOP_CASES = LOOP_CASES
 
 
 def arm_loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, float]:
@@ -262,9 +239,7 @@ def arm_loop_rtf(scene_name: str, seconds: float, repeat: int) -> dict[str, floa
         over = [f"scene.duration_s={seconds}"]
         if codec is not None:
             over += [f"network.forward.codec={codec}", f"network.backward.codec={codec}"]
-        loss = _loss_of(name)
-        if loss is not None:
-            over += [f"network.{d}.effects.loss={LOSSES[loss]}" for d in ("forward", "backward")]
+        over += _network_overrides(name)
         scenes[name] = load_scene(find_scene(scene_name), overrides=over)
     for scene in scenes.values():  # compile (or load numba's cache) before the timed runs
         Engine(scene, loop="compiled").close_plants()
@@ -358,7 +333,7 @@ def main(args: argparse.Namespace) -> int:
     print(head)
     print("-" * len(head))
     for name, _ in ARM_LOOP_CASES:
-        ref = arm["no codec" + (_loss_of(name) or "")]
+        ref = arm[_reference(name)]
         print(f"{name:{wa}s} {arm[name]:12.1f} {arm[name] / ref:10.3f} {arm[name] / arm['no codec']:19.3f}")
     print()
     ns = compiled_codec_ns(args.scene, args.samples, reps)
