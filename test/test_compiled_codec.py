@@ -270,6 +270,32 @@ def test_compiled_arq_cumulative_acks_equal_python_loop():
         assert f["encoder_acked"] > 0.5 * e.ticks and f["encoder_gave_up"] > 0
 
 
+def test_codec_nets_are_made_ready_a_thousand_ticks_ahead(monkeypatch):
+    """The nets' random numbers and record rows are topped up once per READY_TICKS, not once per
+    chunk of CHUNK_TICKS, and enough for every packet ARQ may send in them (four a tick here: its
+    timeout under the round trip, with losses): the run is still the Python loop's."""
+    from haptic_teleop.engine import compiled_codec, compiled_driver
+
+    assert compiled_driver.READY_TICKS == 10 * compiled_driver.CHUNK_TICKS
+    asked = []
+    ready = compiled_codec.CodecNet.ready
+
+    def counting(net, ticks):
+        asked.append(ticks)
+        ready(net, ticks)
+
+    monkeypatch.setattr(compiled_codec.CodecNet, "ready", counting)
+    arq = "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"
+    scene = _scene(
+        ["scene.duration_s=2.5", *MOVING, f"network.forward.codec={arq}", f"network.forward.effects.loss={BERNOULLI}"]
+    )
+    compiled = _run(scene, "compiled")
+    assert asked == [1000, 1000, 500]  # the forward direction's net: ticks 0, 1000, 2000
+    python = _run(scene, "python")
+    _assert_same(compiled, python)
+    assert compiled[0].codec_facts()["codec_forward"]["encoder_sent"] > 4 * compiled[0].ticks
+
+
 def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     """Stopped at the same tick, both loops hand over the same columns and packet records."""
     scene = _scene(_overrides("hold_both_bernoulli_gilbert"))

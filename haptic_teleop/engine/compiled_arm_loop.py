@@ -508,32 +508,21 @@ class CompiledArm:
         on the directions' `settled`); returns the ticks done. `nets`: each direction's
         `arm_codec_nets` (with a codec, that direction's schedule, fwd or bwd, is None)."""
         from haptic_teleop.engine import compiled_loop
-        from haptic_teleop.engine.compiled_codec import no_codec, no_history
-        from haptic_teleop.engine.compiled_driver import codec_args, run_windows
+        from haptic_teleop.engine.compiled_driver import run_windows
 
         self.take()
         block = output.block
         ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
         codec = self.codec
         run_ticks = self.ck.run_ticks_codec if codec else self.k.run_ticks
-        idle = no_codec(engine.period_ns)
-        scratch = np.zeros((3, 9))
-        no_x = no_history()
 
         def call(c0: int, c1: int, *network: Any) -> None:
-            w0 = network[-1]
-            tail: tuple[Any, ...] = ()
-            if codec:  # the codec arrays, then each direction's sample history (FEC, ARQ, HLI)
-                fnet, bnet = nets
-                tail = (
-                    *codec_args(nets, idle, scratch),
-                    *(no_x if fnet is None else fnet.history()),
-                    *(no_x if bnet is None else bnet.history()),
-                )
-            run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, *network[:-1], block, w0, output.start, *tail)
+            # (network: the schedules' window, rings, w0, then the codec arrays: `codec_tail`)
+            w0, tail = network[-2:]
+            run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, *network[:-2], block, w0, output.start, *tail)
 
         rings = compiled_loop.Rings((6, 9))
-        return run_windows(engine, call, (fwd, bwd), nets, rings, output, window, progress)
+        return run_windows(engine, call, (fwd, bwd), nets, rings, output, window, progress, np.zeros((3, 9)))
 
 
 # --------------------------------------------------------------------------------------------

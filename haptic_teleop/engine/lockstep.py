@@ -43,7 +43,7 @@ from haptic_teleop.core.operator import imposed_force1
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine import compiled_loop
 from haptic_teleop.engine.codec_channel import LAYOUT_ARM, build_codec_channels
-from haptic_teleop.engine.compiled_driver import CHUNK_TICKS, codec_args, run_windows
+from haptic_teleop.engine.compiled_driver import CHUNK_TICKS, run_windows
 from haptic_teleop.errors import InputError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_FIELDS
@@ -615,12 +615,11 @@ class Engine:
         on the directions that name a codec (codec_kernel, engine/compiled_codec.py); a direction
         without one keeps its schedule."""
         from haptic_teleop.engine import compiled_loop
-        from haptic_teleop.engine.compiled_codec import CodecNet, no_codec, no_history
+        from haptic_teleop.engine.compiled_codec import CodecNet
 
         period_ns = self.period_ns
         self.ticks_done = 0
         t0 = time.perf_counter()
-        codec = self.codecs != (None, None)
         nets = [None if ch is None else CodecNet(ch, period_ns) for ch in self.codecs]
         (fwd, bwd), window = self._compiled_network(nets)
         head, (P, S) = self._kernel_args()
@@ -628,31 +627,22 @@ class Engine:
         block = output.block
         run_ticks = self._kernel
         assert run_ticks is not None
-        idle, no_x = no_codec(period_ns), no_history()
-        scratch = np.zeros((3, 3))
-
-        no_x = no_history()
         first = [True]
 
         def call(c0: int, c1: int, *network: Any) -> None:
-            w0 = network[-1]
-            tail: tuple[Any, ...] = ()
-            if codec:  # the codec arrays, then each direction's sample history (FEC, ARQ, HLI)
-                fnet, bnet = nets
-                tail = (
-                    *codec_args(nets, idle, scratch),
-                    *(no_x if fnet is None else fnet.history()),
-                    *(no_x if bnet is None else bnet.history()),
-                )
+            # (network: the schedules' window, rings, w0, then the codec arrays: `codec_tail`)
+            w0, tail = network[-2:]
             if first:  # compiled once among processes that start together (compiled_loop.first_compile)
                 first.clear()
                 with compiled_loop.first_compile(run_ticks):
-                    run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
+                    run_ticks(c0, c1, *head, *network[:-2], P, S, block, w0, output.start, *tail)
                 return
-            run_ticks(c0, c1, *head, *network[:-1], P, S, block, w0, output.start, *tail)
+            run_ticks(c0, c1, *head, *network[:-2], P, S, block, w0, output.start, *tail)
 
         try:
-            done = run_windows(self, call, (fwd, bwd), nets, compiled_loop.Rings((2, 3)), output, window, progress)
+            done = run_windows(
+                self, call, (fwd, bwd), nets, compiled_loop.Rings((2, 3)), output, window, progress, np.zeros((3, 3))
+            )
         except BaseException:
             compiled_loop.store_state(self, S)
             self.master.close()
