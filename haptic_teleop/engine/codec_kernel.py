@@ -58,24 +58,9 @@ LOST_NETWORK = 1.0
 
 
 @inline  # type: ignore[misc]
-def link_send(
-    C: np.ndarray,
-    S: np.ndarray,
-    U: np.ndarray,
-    B: np.ndarray,
-    ring: np.ndarray,
-    rec: np.ndarray,
-    seq: int,
-    now: int,
-    smp: np.ndarray,
-    rate: np.ndarray,
-    with_rate: bool,
-    with_record: bool = True,
-    with_payload: bool = True,
-) -> None:
-    # Link.send of one packet: blackout, loss (its draws whatever the fate), constant delay;
-    # the record; a delivered packet joins the in-flight FIFO. (ARQ's ACK link keeps neither its
-    # records nor a payload: `with_record`, `with_payload` False, constants once inlined.)
+def link_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int) -> float:
+    # Link.send's effects on one packet sent at `now`: blackout, loss (its draws whatever the
+    # fate), the link's counts. Returns the fate.
     fate = DELIVERED
     nb = B.shape[0]
     if nb > 0:  # Blackout.apply: the window starting at or before `now` (send times only grow)
@@ -101,8 +86,33 @@ def link_send(
         if lost and fate == DELIVERED:
             fate = LOST_NETWORK
             S[L.S_DROP_LOSS] += 1.0
-    arrival = now + int(C[L.C_DELAY_NS])
     S[L.S_LINK_SENT] += 1.0
+    if fate != DELIVERED:
+        S[L.S_LINK_LOST] += 1.0
+    return fate
+
+
+@inline  # type: ignore[misc]
+def link_send(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    seq: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    with_rate: bool,
+    with_record: bool = True,
+    with_payload: bool = True,
+) -> None:
+    # Link.send of one packet: blackout, loss (its draws whatever the fate), constant delay;
+    # the record; a delivered packet joins the in-flight FIFO. (ARQ's ACK link keeps neither its
+    # records nor a payload: `with_record`, `with_payload` False, constants once inlined.)
+    fate = link_fate(C, S, U, B, now)
+    arrival = now + int(C[L.C_DELAY_NS])
     # (2-D arrays are indexed in full, never sliced: a view costs reference counting)
     r = int(S[L.S_RECS])
     if with_record:
@@ -113,7 +123,6 @@ def link_send(
         rec[r, 4] = 0.0
         rec[r, 5] = C[L.C_SIZE]
     if fate != DELIVERED:
-        S[L.S_LINK_LOST] += 1.0
         if with_record:
             rec[r, 2] = np.nan
         return
@@ -651,6 +660,35 @@ def ack_one(S: np.ndarray, X: np.ndarray, seq: int) -> float:
     return 0.0
 
 
+@inline  # type: ignore[misc]
+def arq_ack(
+    C: np.ndarray, S: np.ndarray, X: np.ndarray, aC: np.ndarray, aS: np.ndarray, aU: np.ndarray, aB: np.ndarray,
+    aring: np.ndarray, seq: int, n: int, now: int,
+) -> None:  # fmt: skip
+    # The decoder's ACK of `seq` at tick n into the ACK link (its fate: blackout, loss) and, when
+    # it gets through, what ArqEncoder.feedback makes of it at tick t = n + D: it takes the sample
+    # off the pending ones if the sample is still pending then, that is: still the sample of
+    # its row of X (not given up, the row not reused), no ACK on its way before this one (ACKs
+    # arrive in the order they are sent), and t not after the tick it would be given up at,
+    # seq + (nu + 1) m (ACKs are taken before the sends of a tick). Else the ACK is stale. The
+    # counts are the encoder's at t: an ACK still on its way when the run ends is taken back
+    # (`CodecNet.store`) from the ring of ACKs on their way (t, taken).
+    if link_fate(aC, aS, aU, aB, now) != DELIVERED:
+        return
+    t = n + int(C[L.C_ACK_TICKS])
+    k = seq & (X.shape[0] - 1)
+    taken = X[k, L.X_PEND] == seq and X[k, L.X_ACK_AT] == L.X_NO_ACK and t <= seq + (C[L.C_NU] + 1.0) * C[L.C_M_TICKS]
+    if taken:
+        X[k, L.X_ACK_AT] = t
+        S[L.S_ACKED] += 1.0
+    else:
+        S[L.S_ACKS_STALE] += 1.0
+    j = int(aS[L.S_HEAD]) & (aring.shape[0] - 1)
+    aS[L.S_HEAD] += 1.0
+    aring[j, 0] = t
+    aring[j, 1] = 1.0 if taken else 0.0
+
+
 @part_jit  # type: ignore[misc]
 def arq_tick(
     C: np.ndarray,
@@ -668,48 +706,44 @@ def arq_tick(
     rate: np.ndarray,
     out: np.ndarray,
 ) -> tuple[int, bool]:
-    # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link.
+    # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link. An ACK per data packet
+    # (ack_every_ticks 1) is not carried through the ACK link's ring: over its constant delay it
+    # is taken D = max(1, ceil(delay / period)) ticks after it is sent, and what `feedback` will
+    # make of it is known when it is sent (`arq_ack`); the sender's pending test reads X_ACK_AT.
     aC, aS, aU, aB, aring, arec = A
     dim = int(C[L.C_DIM])
     mask = X.shape[0] - 1
     cumulative = C[L.C_ACK_EVERY] > 1.0
-    # the ACKs due: ArqEncoder.feedback
-    while True:
+    # the cumulative ACKs due: ArqEncoder.feedback
+    while cumulative:
         head = link_next(aS, aring, now)
         if head < 0:
             break
         seq = int(aring[head, 0])
-        if cumulative:  # (N, B, r...): N, N - 1 - i for each bit i of B, the r
-            # (a seq an ACK taken before named is pending no more: only the others are looked up,
-            # as the window of those named so far allows; ACKs come in order over a constant delay)
-            full = (int(aring[head, L.ACK_RING_BITS]) << 1) | 1  # bit i: seq - i
-            todo = full
-            shift = seq - int(S[L.S_FB_N])
-            if shift >= 0:
-                seen = 0
-                if shift < ACK_WIDTH:
-                    seen = (int(S[L.S_FB_BITS]) & ((1 << (ACK_WIDTH - shift)) - 1)) << shift
-                todo = full & ~seen
-                S[L.S_FB_N] = seq
-                S[L.S_FB_BITS] = float(full | seen)
-            acked = 0.0
-            i = 0
-            while todo != 0:
-                if todo & 1:
-                    acked += ack_one(S, X, seq - i)
-                todo >>= 1
-                i += 1
-            for q in range(int(aring[head, L.ACK_RING_COUNT])):
-                acked += ack_one(S, X, int(aring[head, L.ACK_RING_OLD + q]))
-            if acked > 0.0:
-                S[L.S_ACKED] += acked
-            else:
-                S[L.S_ACKS_STALE] += 1.0
-            continue
-        j = seq & mask
-        if X[j, L.X_PEND] == seq:
-            X[j, L.X_PEND] = -1.0
-            S[L.S_ACKED] += 1.0
+        # (N, B, r...): N, N - 1 - i for each bit i of B, the r
+        # (a seq an ACK taken before named is pending no more: only the others are looked up,
+        # as the window of those named so far allows; ACKs come in order over a constant delay)
+        full = (int(aring[head, L.ACK_RING_BITS]) << 1) | 1  # bit i: seq - i
+        todo = full
+        shift = seq - int(S[L.S_FB_N])
+        if shift >= 0:
+            seen = 0
+            if shift < ACK_WIDTH:
+                seen = (int(S[L.S_FB_BITS]) & ((1 << (ACK_WIDTH - shift)) - 1)) << shift
+            todo = full & ~seen
+            S[L.S_FB_N] = seq
+            S[L.S_FB_BITS] = float(full | seen)
+        acked = 0.0
+        i = 0
+        while todo != 0:
+            if todo & 1:
+                acked += ack_one(S, X, seq - i)
+            todo >>= 1
+            i += 1
+        for q in range(int(aring[head, L.ACK_RING_COUNT])):
+            acked += ack_one(S, X, int(aring[head, L.ACK_RING_OLD + q]))
+        if acked > 0.0:
+            S[L.S_ACKED] += acked
         else:
             S[L.S_ACKS_STALE] += 1.0
     # ArqEncoder.send: the new sample, then the pending ones due (in seq order)
@@ -724,7 +758,7 @@ def arq_tick(
     # the round trip that is every candidate but a lost sample's, and X's rows that far back are
     # cache misses once the plants' step has run). Moved up lazily, a row at a time.
     lo = int(S[L.S_PEND_LO])
-    while lo < n and X[lo & mask, L.X_PEND] != lo:
+    while lo < n and not (X[lo & mask, L.X_PEND] == lo and X[lo & mask, L.X_ACK_AT] > n):
         lo += 1
     S[L.S_PEND_LO] = lo
     timeout = C[L.C_TIMEOUT_NS]
@@ -734,7 +768,7 @@ def arq_tick(
         if seq < lo:
             continue
         k = seq & mask
-        if X[k, L.X_PEND] != seq or now - X[k, L.X_LAST_NS] < timeout:
+        if X[k, L.X_PEND] != seq or X[k, L.X_ACK_AT] <= n or now - X[k, L.X_LAST_NS] < timeout:
             continue
         if X[k, L.X_TRIES] >= C[L.C_NU]:
             X[k, L.X_PEND] = -1.0
@@ -749,6 +783,7 @@ def arq_tick(
     X[j, L.X_PEND] = n
     X[j, L.X_TRIES] = 0.0
     X[j, L.X_LAST_NS] = now
+    X[j, L.X_ACK_AT] = L.X_NO_ACK
     # Link.deliver, ArqDecoder.receive, its ACK into the ACK link
     rx = -1
     while True:
@@ -769,7 +804,7 @@ def arq_tick(
         rx = newest(S, seq, rx)
         S[L.S_ACK_PACKETS] += 1.0
         S[L.S_ACK_BYTES] += C[L.C_ACK_SIZE]
-        link_send(aC, aS, aU, aB, aring, arec, seq, now, out, out, False, False, False)
+        arq_ack(C, S, X, aC, aS, aU, aB, aring, seq, n, now)
     # ArqDecoder.acks: the cumulative ACK of the tick (k > 1), at most one every k ticks
     if cumulative and S[L.S_AK_DUE] != 0.0 and n - S[L.S_AK_LAST_N] >= C[L.C_ACK_EVERY]:
         cnt = int(S[L.S_AK_OLD])

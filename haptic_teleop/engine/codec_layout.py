@@ -43,7 +43,10 @@ C_M_TICKS = 41  # ARQ: m = ceil(mu / period), the ticks between a sample's tries
 # ARQ's cumulative ACKs: k (ack_every_ticks; 1: an ACK per data packet), the capacity of the list
 # of seqs below the window (k (1 + nu): the data packets of k ticks)
 C_ACK_EVERY, C_ACK_CAP = 42, 43
-C_SIZE_X = 44  # C's length with these
+# ARQ with an ACK per data packet: D = max(1, ceil(ACK link delay / period)), the ticks after
+# its sending that the sender takes an ACK (`codec_kernel.arq_ack`)
+C_ACK_TICKS = 44
+C_SIZE_X = 45  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
@@ -69,9 +72,11 @@ S_FB_N, S_FB_BITS = 120, 121
 S_SIZE_X = 122  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
-# retransmissions, last sent), the sender's sample of that tick.
+# retransmissions, last sent, the tick its first ACK to arrive is taken: X_NO_ACK while none is
+# on its way), the sender's sample of that tick.
 X_HELD, X_VALUE, X_SUM_SEQ, X_SUM, X_SENT, X_WIDTH = 0, 1, 4, 5, 8, 11
-X_PEND, X_TRIES, X_LAST_NS = 4, 5, 6
+X_PEND, X_TRIES, X_LAST_NS, X_ACK_AT = 4, 5, 6, 7
+X_NO_ACK = 1e18
 # ARQ's data packets in flight: the ring's attempt and send tick columns
 RING_ATTEMPT, RING_SENT = 6, 7
 # W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist.
@@ -126,6 +131,7 @@ ARM_LAYOUT = {
     "X_PEND": ARM_X_SUM_SEQ,
     "X_TRIES": ARM_X_SUM_SEQ + 1,
     "X_LAST_NS": ARM_X_SUM_SEQ + 2,
+    "X_ACK_AT": ARM_X_SUM_SEQ + 3,
     "X_SENT": ARM_X_SENT,
     "X_WIDTH": ARM_X_SENT + ARM_DIM,
     # W: a value of 9, then the terms of a sum (at most 65: k <= 64) before W_STACK

@@ -317,6 +317,10 @@ class CodecNet(LinkArrays):
             if cap:  # a cumulative ACK's ring row: its bitmap, count and the seqs below the window
                 self.ack._ring_width = max(L.RING_WIDTH, L.ACK_RING_OLD + cap)
             self.ack._load(ch.ack_link, aC, np.zeros(L.S_SIZE_X), period_ns, self.per_tick)
+            if not cap:  # an ACK per data packet: taken D ticks after it is sent (codec_kernel.arq_ack);
+                # the ACK link's ring holds those on their way as (tick taken, taken or stale)
+                C[L.C_ACK_TICKS] = max(1, -(-int(aC[L.C_DELAY_NS]) // period_ns))
+                self.ack.ring[:, 0] = -1.0
         # The sample history (FEC, ARQ): the decoder's held samples reach keep_ticks back, the
         # sender's the packets in flight and k more (FEC; parity: and keep_ticks) or the pending
         # span (ARQ); the scratch's
@@ -386,6 +390,15 @@ class CodecNet(LinkArrays):
         S, ch = self.S, self.ch
         enc, dec = ch.encoder, ch.decoder
         enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
+        if ch.kind == "arq" and self.C[L.C_ACK_EVERY] <= 1.0:
+            # the kernel counted each ACK as it was sent: those still on their way are not the
+            # encoder's yet (taken at a tick the run did not reach)
+            assert self.ack is not None
+            on_way = self.ack.ring[self.ack.ring[:, 0] >= S[L.S_OFFERED]]
+            taken = int(np.count_nonzero(on_way[:, 1]))
+            S[L.S_ACKED] -= taken
+            S[L.S_ACKS_STALE] -= len(on_way) - taken
+            self.ack.ring[:, 0] = -1.0  # (counted back once)
         enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
         dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
