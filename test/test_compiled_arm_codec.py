@@ -96,10 +96,20 @@ CASES.update(
             (),
         ),
         "hli_both": ({"forward": (HLI, GILBERT, None), "backward": (HLI_BUDGET, GILBERT, BLACKOUT)}, ()),
+        # a deadband's link jitters in the kernel too: packets overtake each other forward, keep
+        # their order backward
+        "deadband_jitter_both": (
+            {"forward": (HOLD, BERNOULLI, None), "backward": (SENT_RATE, None, BLACKOUT)},
+            (
+                "network.forward.effects.delay={delay_s: 0.02, jitter_s: 0.006}",
+                "network.backward.effects.delay={delay_s: 0.03, jitter_s: 0.01, distribution: paretonormal, "
+                "keep_order: true}",
+            ),
+        ),
     }
 )
 STOP_AT = 600  # the stopped cases (STOPPED) stopped at this tick in both loops
-STOPPED = ("hold_both_bernoulli_gilbert", "arq_late_acks")
+STOPPED = ("hold_both_bernoulli_gilbert", "arq_late_acks", "deadband_jitter_both")
 
 
 def _overrides(case: str, duration_s: float = 1.0) -> list[str]:
@@ -213,6 +223,8 @@ def test_compiled_arm_codec_equals_python_arm_loop(runs: dict[str, tuple[Run, Ru
             assert (f["encoder_filtered_hli1"] > 10) == ("bandwidth" in codec)
         else:
             assert f["encoder_sent"] == e.ticks and ch.decoder.rec.predicted > 10
+    if case == "deadband_jitter_both":  # overtaken forward (stale on arrival), in order backward
+        assert facts["codec_forward"]["decoder_stale"] > 0 == facts["codec_backward"]["decoder_stale"]
     data = sink.data()
     assert len(data) == e.ticks
     assert np.abs(data[:, e.schema.group("s_contact_n")]).max() > 0.1
@@ -250,7 +262,10 @@ REFUSED = [
     (_codec_on("backward", "{kind: fec}", "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
     # the ACKs run over the reverse direction's effects
     ([*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"], "forward:ack link"),
-    (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
+    (
+        _codec_on("backward", HOLD, "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}"),
+        "correlated jitter on the backward link",
+    ),
     (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),
     # the arm loop's own limits hold with a codec too
     ([*_codec_on("forward", HOLD), "master.period_s=0.002"], "master: its own period 0.002 s"),

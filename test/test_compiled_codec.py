@@ -296,6 +296,48 @@ def test_codec_nets_are_made_ready_a_thousand_ticks_ahead(monkeypatch):
     assert compiled[0].codec_facts()["codec_forward"]["encoder_sent"] > 4 * compiled[0].ticks
 
 
+# A deadband direction's link may jitter in the kernel (uncorrelated, any distribution, with or
+# without keep_order): packets overtake each other, the in-flight ring keeps them in arrival order,
+# the decoder counts the ones older than what it holds as stale.
+NORMAL_JITTER = "{delay_s: 0.02, jitter_s: 0.004}"
+UNIFORM_JITTER = "{delay_s: 0.03, jitter_s: 0.01, distribution: uniform}"
+PARETONORMAL_KEEP = "{delay_s: 0.025, jitter_s: 0.01, distribution: paretonormal, keep_order: true}"
+PARETO_JITTER = "{delay_s: 0.01, jitter_s: 0.006, distribution: pareto}"
+JITTER_CASES = {
+    "hold_normal_bernoulli_sent_rate_uniform_blackout": [
+        f"network.forward.codec={HOLD}",
+        f"network.forward.effects.delay={NORMAL_JITTER}",
+        f"network.forward.effects.loss={BERNOULLI}",
+        f"network.backward.codec={SENT_RATE}",
+        f"network.backward.effects.delay={UNIFORM_JITTER}",
+        f"network.backward.effects.blackout={BLACKOUT}",
+    ],
+    "last_two_keep_order_gilbert_adaptive_pareto": [
+        f"network.forward.codec={LAST_TWO}",
+        f"network.forward.effects.delay={PARETONORMAL_KEEP}",
+        f"network.forward.effects.loss={GILBERT}",
+        f"network.backward.codec={ADAPTIVE}",
+        f"network.backward.effects.delay={PARETO_JITTER}",
+    ],
+}
+
+
+@pytest.mark.parametrize("stop_at", [None, 700])
+@pytest.mark.parametrize("case", sorted(JITTER_CASES))
+def test_compiled_deadband_over_jitter_equals_python_loop(case, stop_at):
+    """Jitter on a deadband's link runs in the kernel, bit for bit the Python loop (stopped or not:
+    the records handed over up to the oldest packet in flight, which is no longer the ring's first)."""
+    scene = _scene(["scene.duration_s=1.5", *MOVING, *JITTER_CASES[case]])
+    compiled, python = _run(scene, "compiled", stop_at), _run(scene, "python", stop_at)
+    _assert_same(compiled, python)
+    facts = compiled[0].codec_facts()
+    keep = case.startswith("last_two_keep_order")
+    # packets overtook each other where the order is not kept (stale arrivals), never where it is
+    assert (facts["codec_forward"]["decoder_stale"] > 0) != keep
+    assert facts["codec_backward"]["decoder_stale"] > 0
+    assert compiled[0].forward.effects[-1]._last_arrival == python[0].forward.effects[-1]._last_arrival
+
+
 def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     """Stopped at the same tick, both loops hand over the same columns and packet records."""
     scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
@@ -321,7 +363,21 @@ def _codec_on(d, codec, *effects):
         ),
         (_codec_on("forward", "{kind: arq, max_retransmissions: 100, timeout_s: 0.05}"), "keeps a sample up to"),
         (_codec_on("backward", "{kind: fec}", "duplicate.probability=0.1"), "effect duplicate (Duplicate) on the back"),
-        (_codec_on("backward", HOLD, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
+        (_codec_on("backward", PREDICTION, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
+        (
+            _codec_on("backward", HOLD, "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}"),
+            "correlated jitter on the backward link",
+        ),
+        (
+            _codec_on("forward", HOLD, "delay.jitter_s=0.002", "reorder={probability: 0.02}"),
+            "reordering on the forward",
+        ),
+        (
+            _codec_on(
+                "forward", HOLD, "delay={delay_s: 0.0, sinusoid: {min_delay_s: 0.0, max_delay_s: 0.04, period_s: 2.0}}"
+            ),
+            "a time-varying delay (schedule, sinusoid or trace) on the forward link",
+        ),
         (
             _codec_on("forward", HOLD, "rate_limit={rate_bps: 1000000, burst_bytes: 2000}"),
             "effect rate_limit (TokenBucket) on the forward link",

@@ -117,6 +117,11 @@ LOSSES = {
 # its loss suffix runs with this delay on both links, its reference the codec-less run with it.
 SEED_NET = ", 5 ms each way"
 SEED_DELAY = "{delay_s: 0.005}"
+# The scene's 50 ms each way with 4 ms of normal jitter (packets overtake each other): a deadband's
+# link runs it in the kernel; the codec-less reference ticks its schedule in Python
+# (compiled_loop.TickedSchedule), so these rows are also set against the plain codec-less run.
+JITTER = ", 4 ms jitter"
+JITTER_DELAY = "{delay_s: 0.05, jitter_s: 0.004}"
 
 
 def _loss_of(name: str) -> str | None:
@@ -130,6 +135,8 @@ def _network_overrides(name: str, directions: tuple[str, ...] = ("forward", "bac
     for d in directions:
         if SEED_NET in name:
             over.append(f"network.{d}.effects.delay={SEED_DELAY}")
+        if JITTER in name:
+            over.append(f"network.{d}.effects.delay={JITTER_DELAY}")
         if loss is not None:
             over.append(f"network.{d}.effects.loss={LOSSES[loss]}")
     return over
@@ -137,7 +144,8 @@ def _network_overrides(name: str, directions: tuple[str, ...] = ("forward", "bac
 
 def _reference(name: str) -> str:
     """The codec-less case a case is set against: the same network."""
-    return "no codec" + (SEED_NET if SEED_NET in name else "") + (_loss_of(name) or "")
+    net = "".join(n for n in (SEED_NET, JITTER) if n in name)
+    return "no codec" + net + (_loss_of(name) or "")
 
 
 LOOP_CASES: tuple[tuple[str, str | None], ...] = (
@@ -176,6 +184,9 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     ("arq 25 ms, 4 retries" + SEED_NET, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
     ("no codec" + SEED_NET + LOSSY, None),
     ("arq 25 ms, 4 retries" + SEED_NET + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("no codec" + JITTER, None),
+    ("deadband 10 %, hold" + JITTER, "{kind: deadband, deadband: 0.1}"),
+    ("deadband 10 %, extrapolate (sent rate)" + JITTER, "{kind: deadband, deadband: 0.1, reconstruction: extrapolate}"),
     ("no codec" + GILBERT, None),
     ("hli (defaults)" + GILBERT, "{kind: hli}"),
     ("hli, hold, 1 Mbit/s" + GILBERT, "{kind: hli, predictor: hold, allowed_bandwidth_bps: 1000000}"),
@@ -306,9 +317,11 @@ def main(args: argparse.Namespace) -> int:
         "of each round's ratio to the reference run a second apart):"
     )
     w = max(len(name) for name, _ in LOOP_CASES)
+    # ('/ plain': against the codec-less run without network effects besides the delay, for the
+    # rows whose own reference ticks its schedule in Python: Gilbert loss, jitter)
     head = (
-        f"{'case':{w}s} {'compiled RTF':>12s} {'/ no codec':>10s} {'paired':>19s} {'Python RTF':>10s} "
-        f"{'/ no codec':>10s}"
+        f"{'case':{w}s} {'compiled RTF':>12s} {'/ no codec':>10s} {'paired':>19s} {'/ plain':>8s} "
+        f"{'Python RTF':>10s} {'/ no codec':>10s}"
     )
     print(head)
     print("-" * len(head))
@@ -318,7 +331,8 @@ def main(args: argparse.Namespace) -> int:
         c0, p0 = rtf["compiled"][ref], rtf["python"][ref]
         pr = paired_ratios(rounds["compiled"], name)
         paired = f"{statistics.median(pr):.3f} ({min(pr):.2f}-{max(pr):.2f})"
-        print(f"{name:{w}s} {c:12.0f} {c / c0:10.3f} {paired:>19s} {p:10.1f} {p / p0:10.3f}")
+        plain = c / rtf["compiled"]["no codec"]
+        print(f"{name:{w}s} {c:12.0f} {c / c0:10.3f} {paired:>19s} {plain:8.3f} {p:10.1f} {p / p0:10.3f}")
     print()
     reps = max(args.repeat, 5)
     arm = arm_loop_rtf(args.arm_scene, args.arm_seconds, reps)

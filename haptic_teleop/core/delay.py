@@ -208,6 +208,7 @@ class Delay:
             raise ValueError("need 0 <= reorder_probability <= 1 and reorder_gap_packets >= 1")
         self._base_ns = delay_s * 1e9
         self._sigma_ns = jitter_s * 1e9
+        self.distribution = distribution
         self._quantile = jitter_quantile(distribution)
         self._profile = profile
         self._keep_order = keep_order

@@ -93,6 +93,28 @@ def link_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: i
 
 
 @inline  # type: ignore[misc]
+def jitter_arrival(C: np.ndarray, S: np.ndarray, W: np.ndarray, now: int, fate: float) -> int:
+    # Delay.apply without a time-varying part or reordering: delay_s + jitter_s J, J the
+    # distribution's value of the packet's uniform number (every packet draws one, lost or not),
+    # rounded to the ns, 0 if not positive; with keep_order a delivered packet arrives no earlier
+    # than the one delivered before it. W: the distribution's table (C_JN values), then the
+    # uniform numbers.
+    n = int(C[L.C_JN])
+    u = W[n + int(S[L.S_JU])]
+    S[L.S_JU] += 1.0
+    q = 2.0 * u - 1.0 if n == 0 else W[int(u * n)]
+    d = C[L.C_JBASE_NS]
+    d += C[L.C_JSIGMA_NS] * q
+    t = now + int(C[L.C_DELAY_NS])  # (a constant delay before it: none that build_link makes)
+    arrival = t + int(d + 0.5) if d > 0.0 else t
+    if C[L.C_JKEEP] != 0.0 and fate == DELIVERED:
+        if arrival < S[L.S_LAST_ARRIVAL]:
+            arrival = int(S[L.S_LAST_ARRIVAL])
+        S[L.S_LAST_ARRIVAL] = arrival
+    return arrival
+
+
+@inline  # type: ignore[misc]
 def link_send(
     C: np.ndarray,
     S: np.ndarray,
@@ -107,12 +129,19 @@ def link_send(
     with_rate: bool,
     with_record: bool = True,
     with_payload: bool = True,
+    W: np.ndarray | None = None,
 ) -> None:
     # Link.send of one packet: blackout, loss (its draws whatever the fate), constant delay;
     # the record; a delivered packet joins the in-flight FIFO. (ARQ's ACK link keeps neither its
-    # records nor a payload: `with_record`, `with_payload` False, constants once inlined.)
+    # records nor a payload: `with_record`, `with_payload` False, constants once inlined.) With
+    # `W` (a deadband direction's) the link may have jitter (`jitter_arrival`): the packet then
+    # joins the FIFO in arrival order.
     fate = link_fate(C, S, U, B, now)
-    arrival = now + int(C[L.C_DELAY_NS])
+    jitter = W is not None and C[L.C_JIT] != 0.0
+    if jitter:
+        arrival = jitter_arrival(C, S, W, now, fate)
+    else:
+        arrival = now + int(C[L.C_DELAY_NS])
     # (2-D arrays are indexed in full, never sliced: a view costs reference counting)
     r = int(S[L.S_RECS])
     if with_record:
@@ -132,6 +161,14 @@ def link_send(
     count = int(S[L.S_COUNT])
     j = (int(S[L.S_HEAD]) + count) & (depth - 1)
     S[L.S_COUNT] = count + 1
+    if jitter:  # Link._enqueue: in arrival order, equal arrivals in send order
+        head = int(S[L.S_HEAD])
+        while count > 0 and ring[(head + count - 1) & (depth - 1), 1] > arrival:
+            k = (head + count - 1) & (depth - 1)
+            for c in range(ring.shape[1]):
+                ring[j, c] = ring[k, c]
+            j = k
+            count -= 1
     ring[j, 0] = seq
     ring[j, 1] = arrival
     if not with_payload:
@@ -302,6 +339,7 @@ def deadband_prediction_tick(
     B: np.ndarray,
     ring: np.ndarray,
     rec: np.ndarray,
+    W: np.ndarray,
     n: int,
     now: int,
     smp: np.ndarray,
@@ -338,7 +376,7 @@ def deadband_prediction_tick(
                 S[L.S_SENT0 + i] = smp[i]
             S[L.S_HAS_SENT] = 1.0
             S[L.S_SENT] += 1.0
-            link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate)
+            link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate, True, True, W)
     else:  # PredictionEncoder.send
         S[L.S_OFFERED] += 1.0
         packet_send(C, S, U, B, ring, rec, n, now, smp, rate)
@@ -1053,7 +1091,7 @@ def codec_tick(
         return arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, out)
     if C[L.C_KIND] == L.FEC:
         return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
-    return deadband_prediction_tick(C, S, U, B, ring, rec, n, now, smp, rate, out)
+    return deadband_prediction_tick(C, S, U, B, ring, rec, W, n, now, smp, rate, out)
 
 
 @loop_jit  # type: ignore[misc]

@@ -31,12 +31,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from haptic_teleop.core.delay import ConstantDelay
+from haptic_teleop.core.delay import ConstantDelay, Delay
 from haptic_teleop.core.fec import payload_floats
 from haptic_teleop.core.hli import HLI1, HLI2
 from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
+from haptic_teleop.core.uniform import UniformSource, jitter_table
 from haptic_teleop.engine import codec_layout as L
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
 
@@ -64,21 +65,39 @@ def codec_reason(ch: CodecChannel, kinds: tuple[str, ...] = L.COMPILED_KINDS) ->
         why = link_reason(f"{ch.direction}:ack", ch.ack_link)
         if why is not None:
             return why
-    return link_reason(ch.direction, ch.link)
+    return link_reason(ch.direction, ch.link, jitter=ch.kind == "deadband")
 
 
-def link_reason(direction: str, link: Link) -> str | None:
-    """Why the kernel cannot run `link`'s effects for a codec direction (None: it can)."""
+def link_reason(direction: str, link: Link, jitter: bool = False) -> str | None:
+    """Why the kernel cannot run `link`'s effects for a codec direction (None: it can); `jitter`:
+    the direction's decoder takes packets out of order (the deadband's), so the link may jitter."""
     allowed = (
         "compiled codec links take only blackout, uncorrelated bernoulli or gilbert(_elliott) loss and a "
-        "constant delay: effects that decide a packet's fate from its index in the stream and its send time"
+        "constant delay (a deadband's also uncorrelated jitter, with or without keep_order): effects that "
+        "decide a packet's fate and arrival from its index in the stream and its send time"
     )
     for e in link.effects:
         t = type(e)
         if t is BernoulliLoss and not e.vectorized:  # type: ignore[attr-defined]
             return f"correlated loss on the {direction} link with a codec ({allowed})"
+        if t is Delay and jitter:
+            why = _jitter_reason(e)  # type: ignore[arg-type]
+            if why is not None:
+                return f"{why} on the {direction} link with a codec ({allowed})"
+            continue
         if t not in (Blackout, BernoulliLoss, GilbertElliottLoss, ConstantDelay):
             return f"effect {e.name} ({t.__name__}) on the {direction} link with a codec ({allowed})"
+    return None
+
+
+def _jitter_reason(e: Delay) -> str | None:
+    """What of a Delay the kernel does not run (None: it runs it)."""
+    if e._profile is not None:
+        return "a time-varying delay (schedule, sinusoid or trace)"
+    if e._ru is not None:
+        return "reordering"
+    if e._ju is not None and not isinstance(getattr(e._ju, "__self__", None), UniformSource):
+        return "correlated jitter"
     return None
 
 
@@ -106,9 +125,22 @@ class LinkArrays:
         self._blackout: Blackout | None = None
         windows: list[tuple[int, int]] = []
         delay_ns = 0
+        jitter_ns = 0  # the longest a Delay with jitter holds a packet
+        self._jitter: Delay | None = None
+        self.jitter_table = np.zeros(0)
         for e in link.effects:
             if type(e) is ConstantDelay:
                 delay_ns += e.delay_ns
+            elif type(e) is Delay:  # (`link_reason`: a deadband's, uncorrelated, no profile, no reorder)
+                self._jitter = e
+                table = () if e.distribution == "uniform" else jitter_table(e.distribution)
+                self.jitter_table = np.array(table, dtype=float)
+                C[L.C_JIT], C[L.C_JN], C[L.C_JKEEP] = 1.0, len(self.jitter_table), 1.0 if e._keep_order else 0.0
+                C[L.C_JBASE_NS], C[L.C_JSIGMA_NS] = e._base_ns, e._sigma_ns
+                S[L.S_LAST_ARRIVAL] = e._last_arrival
+                # the longest delay: the table's largest value (uniform: 1) jitters
+                top = 1.0 if len(self.jitter_table) == 0 else max(0.0, float(self.jitter_table.max()))
+                jitter_ns = int(e._base_ns + e._sigma_ns * top + 1.0)
             elif type(e) is Blackout:
                 self._blackout = e
                 windows = list(zip(e._starts, e._ends, strict=True))
@@ -130,7 +162,7 @@ class LinkArrays:
         self.U = np.zeros(0)
         depth = 4
         # in flight: at most the ticks of the delay, + 2, times the packets a tick
-        while depth < (delay_ns // period_ns + 3) * self.per_tick:
+        while depth < ((delay_ns + jitter_ns) // period_ns + 3) * self.per_tick:
             depth *= 2
         self.ring = np.zeros((depth, self._ring_width))
         self.records = np.zeros((1024, 6))
@@ -157,6 +189,8 @@ class LinkArrays:
         S = self.S
         link = self.link
         link.sent, link.lost = int(S[L.S_LINK_SENT]), int(S[L.S_LINK_LOST])
+        if self._jitter is not None:
+            self._jitter._last_arrival = int(S[L.S_LAST_ARRIVAL])
         if self._blackout is not None:
             self._blackout.dropped = int(S[L.S_DROP_BLACKOUT])
         if self._loss is not None:
@@ -326,6 +360,10 @@ class CodecNet(LinkArrays):
         # span (ARQ); the scratch's
         # worklist: at most k per recovery.
         self.X, self.W, _ = no_history()
+        if C[L.C_JIT] != 0.0:  # a deadband's jitter: its table, then its uniform numbers (`ready`)
+            self.W = self.jitter_table.copy()
+            assert self._jitter is not None and self._jitter._ju is not None
+            self._jitter_rng = self._jitter._ju.__self__._rng  # type: ignore[attr-defined]
         if ch.kind == "hli":
             # X: a packet's row until it is played (the link's delay and twice N_HLI1 at most)
             N = int(C[L.C_HN])
@@ -363,6 +401,13 @@ class CodecNet(LinkArrays):
         LinkArrays.ready(self, ticks)
         if self.ack is not None:
             self.ack.ready(ticks)
+        if self.C[L.C_JIT] != 0.0:  # a number a packet (one packet a tick at most)
+            S, n = self.S, int(self.C[L.C_JN])
+            u, end = int(S[L.S_JU]), int(S[L.S_JU_END])
+            if end - u < ticks:
+                fresh = self._jitter_rng.random(max(_BLOCK, ticks))
+                self.W = np.concatenate((self.jitter_table, self.W[n + u : n + end], fresh))
+                S[L.S_JU], S[L.S_JU_END] = 0.0, float(len(self.W) - n)
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
         """As `CodecChannel.settled`: the records of packets sent before tick `sent` and older than
@@ -372,7 +417,11 @@ class CodecNet(LinkArrays):
         mark = sent
         col = self._at("RING_SENT") if self.C[L.C_KIND] == L.ARQ else 0
         if not final and S[L.S_COUNT] > 0:
-            oldest = int(self.ring[int(S[L.S_HEAD]), col])
+            head, count, depth = int(S[L.S_HEAD]), int(S[L.S_COUNT]), len(self.ring)
+            if self.C[L.C_JIT] != 0.0:  # in arrival order: the oldest sent is any of them
+                oldest = int(self.ring[(head + np.arange(count)) & (depth - 1), col].min())
+            else:
+                oldest = int(self.ring[head, col])
             mark = min(mark, oldest)
         recs = int(S[L.S_RECS])
         # the records' send times are float(tick * period_ns) * 1e-9, as this mark's
