@@ -101,7 +101,7 @@ CASES.update(
         "deadband_jitter_both": (
             {"forward": (HOLD, BERNOULLI, None), "backward": (SENT_RATE, None, BLACKOUT)},
             (
-                "network.forward.effects.delay={delay_s: 0.02, jitter_s: 0.006}",
+                "network.forward.effects.delay={delay_s: 0.02, jitter_s: 0.006, correlation: 0.25}",
                 "network.backward.effects.delay={delay_s: 0.03, jitter_s: 0.01, distribution: paretonormal, "
                 "keep_order: true}",
             ),
@@ -263,8 +263,13 @@ REFUSED = [
     # the ACKs run over the reverse direction's effects
     ([*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"], "forward:ack link"),
     (
-        _codec_on("backward", HOLD, "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}"),
-        "correlated jitter on the backward link",
+        _codec_on(
+            "backward",
+            HOLD,
+            "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}",
+            "correlation_model=gaussian_copula",
+        ),
+        "gaussian_copula-correlated jitter on the backward link",
     ),
     (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),
     # the arm loop's own limits hold with a codec too

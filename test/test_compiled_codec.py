@@ -296,10 +296,10 @@ def test_codec_nets_are_made_ready_a_thousand_ticks_ahead(monkeypatch):
     assert compiled[0].codec_facts()["codec_forward"]["encoder_sent"] > 4 * compiled[0].ticks
 
 
-# A deadband direction's link may jitter in the kernel (uncorrelated, any distribution, with or
-# without keep_order): packets overtake each other, the in-flight ring keeps them in arrival order,
-# the decoder counts the ones older than what it holds as stale.
-NORMAL_JITTER = "{delay_s: 0.02, jitter_s: 0.004}"
+# A deadband direction's link may jitter in the kernel (uncorrelated or netem-correlated, any
+# distribution, with or without keep_order): packets overtake each other, the in-flight ring keeps
+# them in arrival order, the decoder counts the ones older than what it holds as stale.
+NORMAL_JITTER = "{delay_s: 0.02, jitter_s: 0.004, correlation: 0.25}"  # (netem-correlated)
 UNIFORM_JITTER = "{delay_s: 0.03, jitter_s: 0.01, distribution: uniform}"
 PARETONORMAL_KEEP = "{delay_s: 0.025, jitter_s: 0.01, distribution: paretonormal, keep_order: true}"
 PARETO_JITTER = "{delay_s: 0.01, jitter_s: 0.006, distribution: pareto}"
@@ -365,8 +365,13 @@ def _codec_on(d, codec, *effects):
         (_codec_on("backward", "{kind: fec}", "duplicate.probability=0.1"), "effect duplicate (Duplicate) on the back"),
         (_codec_on("backward", PREDICTION, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
         (
-            _codec_on("backward", HOLD, "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}"),
-            "correlated jitter on the backward link",
+            _codec_on(
+                "backward",
+                HOLD,
+                "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}",
+                "correlation_model=gaussian_copula",
+            ),
+            "gaussian_copula-correlated jitter on the backward link",
         ),
         (
             _codec_on("forward", HOLD, "delay.jitter_s=0.002", "reorder={probability: 0.02}"),

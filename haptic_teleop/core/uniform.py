@@ -52,6 +52,14 @@ class UniformSource:
             self._it = iter(self._rng.random(_BLOCK).tolist()).__next__
             return self._it()
 
+    def take_rest(self) -> list[float]:
+        """The numbers left of the block drawn last, taken (so the next ones come from the
+        Generator): for a reader that goes on drawing the stream from `rng` itself (the compiled
+        loop's jitter)."""
+        rest: list[float] = list(iter(self._it, None))  # (the bound __next__ raises StopIteration at the end)
+        self._it = iter(()).__next__
+        return rest
+
 
 class NetemCorrelatedUniform:
     """netem's correlated random: u_n = (1 - rho) v_n + rho u_(n-1), v_n fresh uniform.

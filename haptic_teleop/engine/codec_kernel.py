@@ -95,13 +95,18 @@ def link_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: i
 @inline  # type: ignore[misc]
 def jitter_arrival(C: np.ndarray, S: np.ndarray, W: np.ndarray, now: int, fate: float) -> int:
     # Delay.apply without a time-varying part or reordering: delay_s + jitter_s J, J the
-    # distribution's value of the packet's uniform number (every packet draws one, lost or not),
+    # distribution's value of the packet's uniform number (every packet draws one, lost or not;
+    # netem-correlated with the one before if C_JRHO),
     # rounded to the ns, 0 if not positive; with keep_order a delivered packet arrives no earlier
     # than the one delivered before it. W: the distribution's table (C_JN values), then the
     # uniform numbers.
     n = int(C[L.C_JN])
     u = W[n + int(S[L.S_JU])]
     S[L.S_JU] += 1.0
+    rho = C[L.C_JRHO]
+    if rho != 0.0:  # NetemCorrelatedUniform.next
+        u = (1.0 - rho) * u + rho * S[L.S_JLAST]
+        S[L.S_JLAST] = u
     q = 2.0 * u - 1.0 if n == 0 else W[int(u * n)]
     d = C[L.C_JBASE_NS]
     d += C[L.C_JSIGMA_NS] * q

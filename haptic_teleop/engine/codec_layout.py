@@ -46,11 +46,13 @@ C_ACK_EVERY, C_ACK_CAP = 42, 43
 # ARQ with an ACK per data packet: D = max(1, ceil(ACK link delay / period)), the ticks after
 # its sending that the sender takes an ACK (`codec_kernel.arq_ack`)
 C_ACK_TICKS = 44
-# A deadband direction's link with jitter (core/delay.Delay: uncorrelated, no time-varying part, no
-# reordering): the jitter distribution's table length in W (0: uniform, 2 u - 1), the delay and the
-# jitter (ns, as Delay keeps them), whether arrivals keep their order (1.0) or not
+# A deadband direction's link with jitter (core/delay.Delay: uncorrelated or netem-correlated, no
+# time-varying part, no reordering): the jitter distribution's table length in W (0: uniform,
+# 2 u - 1), the delay and the jitter (ns, as Delay keeps them), whether arrivals keep their order
+# (1.0) or not
 C_JIT, C_JN, C_JBASE_NS, C_JSIGMA_NS, C_JKEEP = range(45, 50)
-C_SIZE_X = 50  # C's length with these
+C_JRHO = 50  # netem's correlation of the jitter's uniform numbers (0: none)
+C_SIZE_X = 51  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
@@ -75,7 +77,8 @@ S_AK_NEWEST, S_AK_BITS, S_AK_NEW, S_AK_DUE, S_AK_LAST_N, S_AK_OLD = range(114, 1
 S_FB_N, S_FB_BITS = 120, 121
 # the jitter's uniform numbers in W (the next, the end) and the last arrival kept in order
 S_JU, S_JU_END, S_LAST_ARRIVAL = 122, 123, 124
-S_SIZE_X = 125  # S's length with these
+S_JLAST = 125  # netem's last correlated uniform number
+S_SIZE_X = 126  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent, the tick its first ACK to arrive is taken: X_NO_ACK while none is

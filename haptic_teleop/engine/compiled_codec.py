@@ -37,7 +37,7 @@ from haptic_teleop.core.hli import HLI1, HLI2
 from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
-from haptic_teleop.core.uniform import UniformSource, jitter_table
+from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, jitter_table
 from haptic_teleop.engine import codec_layout as L
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
 
@@ -96,9 +96,18 @@ def _jitter_reason(e: Delay) -> str | None:
         return "a time-varying delay (schedule, sinusoid or trace)"
     if e._ru is not None:
         return "reordering"
-    if e._ju is not None and not isinstance(getattr(e._ju, "__self__", None), UniformSource):
-        return "correlated jitter"
+    if e._ju is not None and not isinstance(getattr(e._ju, "__self__", None), UniformSource | NetemCorrelatedUniform):
+        return "gaussian_copula-correlated jitter"
     return None
+
+
+def _jitter_source(e: Delay) -> tuple[UniformSource, float, float]:
+    """A Delay's jitter stream as the kernel takes it: the uniform source its numbers come from,
+    netem's correlation (0: none) and its last correlated number."""
+    src = e._ju.__self__  # type: ignore[union-attr]
+    if type(src) is NetemCorrelatedUniform:
+        return src._fresh.__self__, src._rho, src._last  # type: ignore[attr-defined, return-value]
+    return src, 0.0, 0.0  # type: ignore[return-value]
 
 
 def _uniform_rng(e: Any) -> np.random.Generator:
@@ -191,6 +200,8 @@ class LinkArrays:
         link.sent, link.lost = int(S[L.S_LINK_SENT]), int(S[L.S_LINK_LOST])
         if self._jitter is not None:
             self._jitter._last_arrival = int(S[L.S_LAST_ARRIVAL])
+            if type(src := getattr(self, "_jitter_src", None)) is NetemCorrelatedUniform:
+                src._last = S[L.S_JLAST]
         if self._blackout is not None:
             self._blackout.dropped = int(S[L.S_DROP_BLACKOUT])
         if self._loss is not None:
@@ -361,9 +372,14 @@ class CodecNet(LinkArrays):
         # worklist: at most k per recovery.
         self.X, self.W, _ = no_history()
         if C[L.C_JIT] != 0.0:  # a deadband's jitter: its table, then its uniform numbers (`ready`)
-            self.W = self.jitter_table.copy()
             assert self._jitter is not None and self._jitter._ju is not None
-            self._jitter_rng = self._jitter._ju.__self__._rng  # type: ignore[attr-defined]
+            # (netem's source drew its first block when it was built: the rest of it comes first)
+            src, C[L.C_JRHO], S[L.S_JLAST] = _jitter_source(self._jitter)
+            self._jitter_src = self._jitter._ju.__self__  # type: ignore[attr-defined]
+            rest = src.take_rest()
+            self.W = np.concatenate((self.jitter_table, rest))
+            S[L.S_JU], S[L.S_JU_END] = 0.0, float(len(rest))
+            self._jitter_rng = src._rng
         if ch.kind == "hli":
             # X: a packet's row until it is played (the link's delay and twice N_HLI1 at most)
             N = int(C[L.C_HN])
