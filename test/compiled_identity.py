@@ -15,6 +15,8 @@ BERNOULLI = "{probability: 0.2}"
 GILBERT = "{model: gilbert_elliott, p: 0.05, r: 0.2, one_minus_h: 0.9, one_minus_k: 0.02}"
 
 HOLD = "{kind: deadband, deadband: 0.1}"
+# jitter correlated by a Gaussian copula, which a deadband's compiled link refuses (netem's it runs)
+COPULA_JITTER = ("delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}", "correlation_model=gaussian_copula")
 SENT_RATE = "{kind: deadband, deadband: 0.1, reconstruction: extrapolate, max_extrapolation_s: 0.08}"
 LAST_TWO = "{kind: deadband, deadband: 0.05, reconstruction: extrapolate, extrapolate_from: last_two}"
 ADAPTIVE = "{kind: deadband, deadband: 0.05, adaptive_gain: 20, max_deadband: 0.3}"

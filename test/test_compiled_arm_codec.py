@@ -28,6 +28,7 @@ import pytest
 from compiled_identity import (
     ADAPTIVE,
     BERNOULLI,
+    COPULA_JITTER,
     FLOOR,
     GILBERT,
     HOLD,
@@ -263,12 +264,7 @@ REFUSED = [
     # the ACKs run over the reverse direction's effects
     ([*_codec_on("forward", "{kind: arq}"), "network.backward.effects.delay.jitter_s=0.002"], "forward:ack link"),
     (
-        _codec_on(
-            "backward",
-            HOLD,
-            "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}",
-            "correlation_model=gaussian_copula",
-        ),
+        _codec_on("backward", HOLD, *COPULA_JITTER),
         "gaussian_copula-correlated jitter on the backward link",
     ),
     (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),

@@ -20,6 +20,7 @@ import pytest
 from compiled_identity import (
     ADAPTIVE,
     BERNOULLI,
+    COPULA_JITTER,
     FLOOR,
     GILBERT,
     HOLD,
@@ -365,12 +366,7 @@ def _codec_on(d, codec, *effects):
         (_codec_on("backward", "{kind: fec}", "duplicate.probability=0.1"), "effect duplicate (Duplicate) on the back"),
         (_codec_on("backward", PREDICTION, "delay.jitter_s=0.002"), "effect delay (Delay) on the backward link"),
         (
-            _codec_on(
-                "backward",
-                HOLD,
-                "delay={delay_s: 0.05, jitter_s: 0.002, correlation: 0.5}",
-                "correlation_model=gaussian_copula",
-            ),
+            _codec_on("backward", HOLD, *COPULA_JITTER),
             "gaussian_copula-correlated jitter on the backward link",
         ),
         (
