@@ -411,5 +411,10 @@ def test_recorded_live_run_ends_with_its_summary_from_the_bag(push_run):
 
     summary = json.loads((push_run["bag"].parent / "summary.json").read_text())
     assert summary["kind"] == "nve" and summary["finite"]
-    assert summary["server_energy"] is not None and summary["server_energy"]["passive"]
+    # The recorder takes the 1 kHz streams best effort: under load it may miss messages, and then
+    # the energy balance is not judged (rows out of step with their ticks), never judged wrongly.
+    if summary["messages_missing"]:
+        assert summary["server_energy"] is None and all(k > 0 for k in summary["messages_missing"].values())
+    else:
+        assert summary["server_energy"] is not None and summary["server_energy"]["passive"]
     assert 0.1 <= summary["clients"]["client"]["round_trip_s"]["median"] < 0.13

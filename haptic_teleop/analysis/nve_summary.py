@@ -28,13 +28,14 @@ from haptic_teleop.core.nve_transparency import (
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.nve_columns import NveSchema, nve_topics
-from haptic_teleop.record.reader import BagReader
+from haptic_teleop.record.reader import BagReader, TopicData
 
 PLOT_FILES = ("nve_forces.png", "nve_positions.png", "nve_round_trip.png")
 
 
 def nve_rows(reader: BagReader) -> tuple[NveSchema, np.ndarray, np.ndarray]:
-    """(schema, tick times in s, the run's tick rows rebuilt from its per-tick topics)."""
+    """(schema, tick times in s, the run's tick rows rebuilt from its per-tick topics: the k-th
+    message of each topic is tick k's; `missing_messages` says where that does not hold)."""
     schema = reader.nve_schema
     if schema is None:
         raise BagError(f"{reader.path} is not an NVE run's bag")
@@ -53,6 +54,51 @@ def nve_rows(reader: BagReader) -> tuple[NveSchema, np.ndarray, np.ndarray]:
     if rows is None:
         rows = np.zeros((0, schema.width))
     return schema, times, rows
+
+
+def missing_messages(reader: BagReader, schema: NveSchema) -> dict[str, int]:
+    """Per-tick topics of the bag that lack messages of ticks the run recorded, and how many: a
+    live run's recorder takes the 1 kHz streams best effort, so under load it may miss some, and
+    then a topic's k-th message is no longer tick k's (`nve_rows`). `topics_missing` on the bag's
+    per-tick topics."""
+    return topics_missing([(t.topic, reader.read(t.topic)) for t in nve_topics(schema)])
+
+
+def topics_missing(topics: list[tuple[str, TopicData]]) -> dict[str, int]:
+    """`missing_messages` of (topic, data) pairs, the first the reference: judged against its ticks
+    (its own gaps in stamps are ticks it lacks), a topic with a header by the stamps, one without
+    by its count (one message short at the end is a killed run's last tick, not a loss)."""
+    (name0, ref), rest = topics[0], topics[1:]
+    n = len(ref.log_ns)  # ticks the run recorded: the reference's, and the ones it lacks
+    expected = ref.stamp_ns
+    out: dict[str, int] = {}
+    if ref.stamp_ns is not None and n > 1:
+        step = int(np.min(np.diff(ref.stamp_ns)))
+        if step > 0:
+            expected = ref.stamp_ns[0] + step * np.arange((int(ref.stamp_ns[-1] - ref.stamp_ns[0])) // step + 1)
+            if len(expected) > n:
+                out[name0] = len(expected) - n
+                n = len(expected)
+    for name, data in rest:
+        if data.stamp_ns is not None and expected is not None:
+            k = min(len(data.stamp_ns), n)
+            lost = int(np.count_nonzero(~np.isin(expected[: max(k, n - 1)], data.stamp_ns)))
+        else:  # (one short is taken for a killed run's last tick: a single lost message is not seen)
+            lost = n - len(data.log_ns) if len(data.log_ns) < n - 1 else 0
+        if lost:
+            out[name] = lost
+    return out
+
+
+def samples_missing(absent: dict[str, int], info: dict[str, Any]) -> dict[str, int]:
+    """Per topic, the ticks whose sample the bag does not hold as it was sent: messages absent
+    (`missing_messages`) and, in a live run's bag, the ticks its recorder filled by holding the
+    previous value (run_info `samples_filled`: it takes the 1 kHz streams best effort)."""
+    out = dict(absent)
+    for topic, k in (info.get("samples_filled") or {}).items():
+        if isinstance(k, int) and k > 0:
+            out[topic] = max(out.get(topic, 0), k)
+    return out
 
 
 def _scene(reader: BagReader) -> dict[str, Any]:
@@ -119,6 +165,7 @@ def summarize_nve(bag_dir: Path) -> dict[str, Any]:
         schema, t, rows = nve_rows(reader)
         scene = _scene(reader)
         info = _run_info(reader)
+        missing = samples_missing(missing_messages(reader, schema), info)
         packets = {
             d: reader.packets(schema.packet_topic(d)) for d in schema.directions if reader.has(schema.packet_topic(d))
         }
@@ -186,7 +233,9 @@ def summarize_nve(bag_dir: Path) -> dict[str, Any]:
         clients[c] = entry
     out["clients"] = clients
     out["finite"] = out["finite"] and all(e["finite"] for e in clients.values())
-    out["server_energy"] = server_energy(schema, rows, scene)
+    # (rows out of step with their ticks would make up or hide energy: not judged then)
+    out["messages_missing"] = missing
+    out["server_energy"] = None if missing else server_energy(schema, rows, scene)
     return out
 
 
@@ -250,6 +299,9 @@ def format_nve_summary(s: dict[str, Any]) -> str:
             f"peak speed {obj['peak_speed_m_per_s']:.4g} m/s"
         )
     en = s.get("server_energy")
+    if s.get("messages_missing"):
+        lost = ", ".join(f"{t} {k}" for t, k in s["messages_missing"].items())
+        lines.append(f"  server energy not judged: the bag misses per-tick messages ({lost})")
     if en is not None:
         lines.append(
             f"  server: dissipated {en['dissipated_j']:.4g} J, "
