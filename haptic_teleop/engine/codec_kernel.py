@@ -5,8 +5,8 @@ design, engine/codec_layout.py the arrays' layouts).
 The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `forward_released`,
 `backward_released`, `accept2`, `accept3`, `finish_tick`); a direction with a codec replaces
 its schedule lookup by `codec_tick`, which is
-`CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay), deliveries,
-decoder; it dispatches on the kind: deadband and prediction inlined (`deadband_prediction_tick`),
+`CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay; a deadband's
+jitter), deliveries, decoder; it dispatches on the kind: deadband and prediction inlined (`deadband_prediction_tick`),
 FEC, ARQ (with its ACK link) and HLI compiled once each (`fec_tick`, `arq_tick`, `hli_tick`). The
 per-sample formulas are compiled from their one definition in core/deadband.py,
 core/prediction.py, core/loss.py, core/hli_codec.py; the parity sums (`math.fsum` in core/fec.py's classes) from

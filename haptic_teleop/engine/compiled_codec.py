@@ -8,7 +8,9 @@ kernel instead (engine/codec_kernel.py): each tick the encoder decides, the k-th
 takes the k-th random number(s) of the loss effect, a blackout is a table of windows, the arrival
 is the send time plus the delay, packets in flight wait in a FIFO ring (a constant delay keeps
 their order), the decoder takes the arrivals and gives the tick's remote sample, and each
-packet's record (record.layouts.PACKET_FIELDS) is written as it is sent.
+packet's record (record.layouts.PACKET_FIELDS) is written as it is sent. A deadband's link may
+also jitter (uncorrelated or netem-correlated, from the delay effect's own numbers): the ring is
+then kept in arrival order, and the deadband's decoder counts an overtaken packet as stale.
 
 FEC and ARQ keep a sample history (X: the decoder's held samples as `Reconstructor`'s, the
 sender's samples, ARQ's pending ones) and ARQ runs its ACK link in the kernel too (its own arrays
@@ -18,8 +20,9 @@ sized for every pending sample retransmitted in one tick.
 The random numbers are the effect's own: drawn here in blocks from the effect's numpy Generator,
 the numbers `UniformSource` hands out one at a time in the Python loop (`rng.random(n)` continues
 one stream whatever the block sizes; Gilbert-Elliott takes two per packet, the transition then
-the loss). The kernel never runs out: before each chunk of ticks `CodecNet.ready` tops the
-numbers up to what the chunk's packets may take and makes room for their records.
+the loss). The kernel never runs out: before the kernel runs the next ticks (up to
+`compiled_driver.READY_TICKS` of them) `CodecNet.ready` tops the numbers up to what their
+packets may take and makes room for their records.
 
 This module is the Python side (the layouts of the kernel's per-direction arrays are in
 engine/codec_layout.py); it needs no numba. What it cannot run is said by `codec_reason`.
@@ -73,8 +76,8 @@ def link_reason(direction: str, link: Link, jitter: bool = False) -> str | None:
     the direction's decoder takes packets out of order (the deadband's), so the link may jitter."""
     allowed = (
         "compiled codec links take only blackout, uncorrelated bernoulli or gilbert(_elliott) loss and a "
-        "constant delay (a deadband's also uncorrelated jitter, with or without keep_order): effects that "
-        "decide a packet's fate and arrival from its index in the stream and its send time"
+        "constant delay (a deadband's also uncorrelated or netem-correlated jitter, with or without keep_order): "
+        "effects that decide a packet's fate and arrival from its index in the stream and its send time"
     )
     for e in link.effects:
         t = type(e)
@@ -140,7 +143,7 @@ class LinkArrays:
         for e in link.effects:
             if type(e) is ConstantDelay:
                 delay_ns += e.delay_ns
-            elif type(e) is Delay:  # (`link_reason`: a deadband's, uncorrelated, no profile, no reorder)
+            elif type(e) is Delay:  # (`link_reason`: a deadband's; no profile, no reorder, no copula)
                 self._jitter = e
                 table = () if e.distribution == "uniform" else jitter_table(e.distribution)
                 self.jitter_table = np.array(table, dtype=float)
@@ -200,7 +203,7 @@ class LinkArrays:
         link.sent, link.lost = int(S[L.S_LINK_SENT]), int(S[L.S_LINK_LOST])
         if self._jitter is not None:
             self._jitter._last_arrival = int(S[L.S_LAST_ARRIVAL])
-            if type(src := getattr(self, "_jitter_src", None)) is NetemCorrelatedUniform:
+            if type(src := getattr(self._jitter._ju, "__self__", None)) is NetemCorrelatedUniform:
                 src._last = S[L.S_JLAST]
         if self._blackout is not None:
             self._blackout.dropped = int(S[L.S_DROP_BLACKOUT])
@@ -375,7 +378,6 @@ class CodecNet(LinkArrays):
             assert self._jitter is not None and self._jitter._ju is not None
             # (netem's source drew its first block when it was built: the rest of it comes first)
             src, C[L.C_JRHO], S[L.S_JLAST] = _jitter_source(self._jitter)
-            self._jitter_src = self._jitter._ju.__self__  # type: ignore[attr-defined]
             rest = src.take_rest()
             self.W = np.concatenate((self.jitter_table, rest))
             S[L.S_JU], S[L.S_JU_END] = 0.0, float(len(rest))
