@@ -125,7 +125,7 @@ def _assert_same(compiled, python):
         if a is not None:
             assert (a.encoder.counters, a.decoder.counters) == (b.encoder.counters, b.decoder.counters)
             assert a.newest_seq == b.newest_seq
-            if a.kind in ("prediction", "fec"):
+            if a.kind in ("prediction", "fec", "arq"):
                 assert (a.decoder.rec.predicted, a.decoder.rec.late) == (b.decoder.rec.predicted, b.decoder.rec.late)
     assert _links(ec) == _links(ep)
     for a, b in zip(ec.codecs, ep.codecs, strict=True):
@@ -214,6 +214,20 @@ ARQ_CASES = {
         f"network.forward.effects.loss={BERNOULLI}",
         f"network.backward.effects.loss={GILBERT}",
         f"network.backward.effects.blackout={BLACKOUT}",
+    ],
+    # mu = 10 ms, 4 retries, 120 ms each way: a sample's copies arrive 120 to 160 ticks after it
+    # was sampled, the later ones after its row of X (128 rows: the delay, the pending span and
+    # the decoder's history) went to a newer sample; the decoder plays 20 ticks behind the newest
+    # (wait_ticks), so a sample whose first copies were lost is played from one of those. 1550
+    # ticks: the last chunk, and so the last plan, is a half one.
+    "arq_forward_last_copies_late": [
+        "network.forward.codec={kind: arq, timeout_s: 0.01, max_retransmissions: 4, wait_ticks: 20,"
+        " max_extrapolation_s: 0.0}",
+        "network.forward.effects.delay.delay_s=0.12",
+        f"network.forward.effects.loss={BERNOULLI}",
+        f"network.forward.effects.blackout={BLACKOUT}",
+        f"network.backward.effects.loss={GILBERT}",
+        "scene.duration_s=1.55",
     ],
 }
 
@@ -342,6 +356,15 @@ def test_compiled_deadband_over_jitter_equals_python_loop(case, stop_at):
 def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     """Stopped at the same tick, both loops hand over the same columns and packet records."""
     scene = _scene(_overrides("hold_both_bernoulli_gilbert"))
+    compiled, python = _run(scene, "compiled", stop_at=700), _run(scene, "python", stop_at=700)
+    assert compiled[1].interrupted and compiled[1].ticks == 700
+    _assert_same(compiled, python)
+
+
+def test_stopped_compiled_arq_run_leaves_the_python_loops_records():
+    """ARQ plans its ticks ahead (`codec_kernel.arq_block`): stopped at the same tick, both loops
+    still hand over the same columns, packet records and codec counts."""
+    scene = _scene(["scene.duration_s=1.5", *MOVING, *ARQ_CASES["arq_both_in_time"]])
     compiled, python = _run(scene, "compiled", stop_at=700), _run(scene, "python", stop_at=700)
     assert compiled[1].interrupted and compiled[1].ticks == 700
     _assert_same(compiled, python)

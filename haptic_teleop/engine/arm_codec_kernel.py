@@ -6,8 +6,9 @@ The tick is `arm_kernel.run_ticks`'s, from the same inlined parts (`sense`, `sid
 `forward_sample`, `backward_sample`, `released`, `guarded`, `finish_tick`); a direction with a
 codec replaces its schedule lookup by `CodecChannel.step` for an arm scene's sample
 (codec_channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the 1-DoF codec
-kernel's ticks (engine/codec_kernel.py: `deadband_prediction_tick` inlined, `fec_tick`,
-`arq_tick`, `hli_tick` compiled once each) with their encoders, links, decoders and helpers,
+kernel's ticks (engine/codec_kernel.py: `deadband_prediction_tick` and `arq_tick` inlined,
+`fec_tick`, `hli_tick` and ARQ's plan, `arq_block`, compiled once each) with their encoders,
+links, decoders and helpers,
 compiled from their one definition with the arm layout's places (`relaid`: codec_layout's
 ARM_LAYOUT, the vectors of S, X's, the ring's, W's and HLI's columns for 9 values) and the
 grouped deadband's test on 3-value groups (`arm_deadband_triggered`). The decoded sample goes
@@ -57,10 +58,11 @@ ARM_PLACES: dict[str, Any] = dict(L.ARM_LAYOUT)
 def relaid(f: Any, places: dict[str, Any], _done: dict[Any, Any] | None = None) -> Any:
     """The codec_kernel function `f` compiled from its own definition with the layout constants
     of `places` (ints: in place of codec_layout's, which `f` reads as `L.NAME`) and the callees
-    of `places` (functions) in place of its module's; every other inlined codec_kernel function
-    it calls is relaid the same way (its other globals, compiled callees included, are its
-    module's). Compiled as `f` is (inlined, or compiled once without reference counting) but not
-    cached: the kernel calling it is."""
+    of `places` (functions) in place of its module's; every other codec_kernel function it calls
+    (inlined or not: `arq_tick`'s `arq_block`) is relaid the same way (its other globals,
+    compiled callees of other modules included, are their module's). Compiled as `f` is
+    (inlined, or compiled once without reference counting) but not cached: the kernel calling
+    it is."""
     done: dict[Any, Any] = {} if _done is None else _done
     if f in done:
         return done[f]
@@ -76,11 +78,7 @@ def relaid(f: Any, places: dict[str, Any], _done: dict[Any, Any] | None = None) 
         g = glob.get(name)
         if name in places and not isinstance(places[name], int):
             glob[name] = places[name]
-        elif (
-            isinstance(g, numba.core.registry.CPUDispatcher)
-            and g.py_func.__module__ == ck.__name__
-            and g.targetoptions.get("inline") == "always"
-        ):
+        elif isinstance(g, numba.core.registry.CPUDispatcher) and g.py_func.__module__ == ck.__name__:
             glob[name] = relaid(g, places, done)
     fn = pytypes.FunctionType(py.__code__, glob, py.__name__, py.__defaults__, py.__closure__)
     fn.__qualname__ = py.__qualname__
@@ -127,7 +125,7 @@ arm_hli_tick = relaid(ck.hli_tick, _ARM, _relaid)
 
 @inline  # type: ignore[misc]
 def delivered(
-    codec: bool, side: Any, n: int, now: int, w0: int, rel: np.ndarray, occ: np.ndarray, hist: np.ndarray,
+    codec: bool, side: Any, n: int, n1: int, now: int, w0: int, rel: np.ndarray, occ: np.ndarray, hist: np.ndarray,
     mask: int, net: Any, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray,
 ) -> tuple[int, float]:  # fmt: skip
     """A direction's network at tick n after its sample was written (`smp` with a codec, else the
@@ -141,7 +139,7 @@ def delivered(
         if kind == L.FEC:
             rx, got = arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
         elif kind == L.ARQ:
-            rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, dec)
+            rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, dec)
         elif kind == L.HLI:
             rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
         else:
@@ -224,11 +222,11 @@ def run_ticks_codec(
         side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
         # 3. forward packet (the codec's, or the schedule's release)
         forward_sample(smp if fcodec else fwd_hist[n & fmask], v)
-        frx, focc = delivered(fcodec, ss, n, now, w0, fwd_rel, fwd_occ, fwd_hist, fmask, fnet, smp, rate, dec)
+        frx, focc = delivered(fcodec, ss, n, n1, now, w0, fwd_rel, fwd_occ, fwd_hist, fmask, fnet, smp, rate, dec)
         side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
         # 5. backward packet
         backward_sample(smp if bcodec else bwd_hist[n & bmask], v)
-        brx, bocc = delivered(bcodec, ms, n, now, w0, bwd_rel, bwd_occ, bwd_hist, bmask, bnet, smp, rate, dec)
+        brx, bocc = delivered(bcodec, ms, n, n1, now, w0, bwd_rel, bwd_occ, bwd_hist, bmask, bnet, smp, rate, dec)
         # 6. operator, plants, the row
         finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views

@@ -7,7 +7,8 @@ The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `forward_rel
 its schedule lookup by `codec_tick`, which is
 `CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay; a deadband's
 jitter), deliveries, decoder; it dispatches on the kind: deadband and prediction inlined (`deadband_prediction_tick`),
-FEC, ARQ (with its ACK link) and HLI compiled once each (`fec_tick`, `arq_tick`, `hli_tick`). The
+FEC and HLI compiled once each (`fec_tick`, `hli_tick`), ARQ (with its ACK link) planned ahead
+a chunk at a time by `arq_block`, compiled once, and its samples moved by `arq_tick`. The
 per-sample formulas are compiled from their one definition in core/deadband.py,
 core/prediction.py, core/loss.py, core/hli_codec.py; the parity sums (`math.fsum` in core/fec.py's classes) from
 `fec.rounded_sum`, which gives the same value.
@@ -615,31 +616,44 @@ def fec_tick(
 # ------------------------------------------------------------------------------------------
 # ARQ: pending samples, retransmissions, the decoder's ACKs through the ACK link (A: its arrays,
 # as a codec direction's C, S, U, B, ring, records; the records are not kept).
+#
+# What ARQ sends, when, what arrives and what the decoder plays do not depend on the samples,
+# only on the links' fates: `arq_block` runs the encoder, both links and the decoder ahead for
+# up to L.PLAN_TICKS ticks (never past the kernel's chunk, so the state is exact wherever the run
+# stops) and writes the plan of each tick into W from C_PLAN: what the decoder gives (nothing,
+# a held sample, or an extrapolation from two) and the seqs it accepted. `arq_tick` then only
+# moves the samples: the tick's sample into X, each accepted seq's sample from the sender's
+# column of its row to the decoder's, the plan's output. (The packets in flight carry no
+# payload here: a packet's payload is its seq's sample, X_SENT of its row until that row is
+# reused, which the history's length puts after the last copy of the seq can arrive.)
 
 
 @inline  # type: ignore[misc]
-def arq_send(
-    C: np.ndarray,
-    S: np.ndarray,
-    U: np.ndarray,
-    B: np.ndarray,
-    ring: np.ndarray,
-    rec: np.ndarray,
-    seq: int,
-    n: int,
-    now: int,
-    value: np.ndarray,
-    attempt: int,
-    unused: np.ndarray,
-) -> None:
-    # ArqEncoder._packet into Link.send at tick n (time `now`); a delivered packet carries its
-    # attempt and send tick.
-    before = S[L.S_COUNT]
-    packet_send(C, S, U, B, ring, rec, seq, now, value, unused)
-    if S[L.S_COUNT] > before:
-        j = (int(S[L.S_HEAD]) + int(before)) & (ring.shape[0] - 1)
-        ring[j, L.RING_ATTEMPT] = attempt
-        ring[j, L.RING_SENT] = n
+def fate_of(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int, u: int) -> tuple[int, int]:
+    # `link_fate`'s effects with the link's counts and its next random number kept by the
+    # caller: 0 delivered, 1 lost in a blackout, 2 lost by the loss model (its draws whatever
+    # the fate); and the next random number.
+    fate = 0
+    nb = B.shape[0]
+    if nb > 0:
+        i = int(S[L.S_BLACKOUT_I])
+        while i < nb and B[i, 0] <= now:
+            i += 1
+        S[L.S_BLACKOUT_I] = i
+        if i > 0 and now < B[i - 1, 1]:
+            fate = 1
+    kind = C[L.C_LOSS]
+    if kind == L.LOSS_BERNOULLI:
+        if U[u] < C[L.C_LP] and fate == 0:
+            fate = 2
+        u += 1
+    elif kind == L.LOSS_GILBERT:
+        bad, lost = gilbert_step(S[L.S_BAD] != 0.0, U[u], U[u + 1], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD])
+        S[L.S_BAD] = 1.0 if bad else 0.0
+        if lost and fate == 0:
+            fate = 2
+        u += 2
+    return fate, u
 
 
 ACK_WIDTH = 53  # core/arq.ACK_WINDOW + 1: the newest seq and the window below it
@@ -704,68 +718,16 @@ def ack_one(S: np.ndarray, X: np.ndarray, seq: int) -> float:
 
 
 @inline  # type: ignore[misc]
-def arq_ack(
-    C: np.ndarray, S: np.ndarray, X: np.ndarray, aC: np.ndarray, aS: np.ndarray, aU: np.ndarray, aB: np.ndarray,
-    aring: np.ndarray, seq: int, n: int, now: int,
-) -> None:  # fmt: skip
-    # The decoder's ACK of `seq` at tick n into the ACK link (its fate: blackout, loss) and, when
-    # it gets through, what ArqEncoder.feedback makes of it at tick t = n + D: it takes the sample
-    # off the pending ones if the sample is still pending then, that is: still the sample of
-    # its row of X (not given up, the row not reused), no ACK on its way before this one (ACKs
-    # arrive in the order they are sent), and t not after the tick it would be given up at,
-    # seq + (nu + 1) m (ACKs are taken before the sends of a tick). Else the ACK is stale. The
-    # counts are the encoder's at t: an ACK still on its way when the run ends is taken back
-    # (`CodecNet.store`) from the ring of ACKs on their way (t, taken).
-    if link_fate(aC, aS, aU, aB, now) != DELIVERED:
-        return
-    t = n + int(C[L.C_ACK_TICKS])
-    k = seq & (X.shape[0] - 1)
-    taken = X[k, L.X_PEND] == seq and X[k, L.X_ACK_AT] == L.X_NO_ACK and t <= seq + (C[L.C_NU] + 1.0) * C[L.C_M_TICKS]
-    if taken:
-        X[k, L.X_ACK_AT] = t
-        S[L.S_ACKED] += 1.0
-    else:
-        S[L.S_ACKS_STALE] += 1.0
-    j = int(aS[L.S_HEAD]) & (aring.shape[0] - 1)
-    aS[L.S_HEAD] += 1.0
-    aring[j, 0] = t
-    aring[j, 1] = 1.0 if taken else 0.0
-
-
-@part_jit  # type: ignore[misc]
-def arq_tick(
-    C: np.ndarray,
-    S: np.ndarray,
-    U: np.ndarray,
-    B: np.ndarray,
-    ring: np.ndarray,
-    rec: np.ndarray,
-    X: np.ndarray,
-    W: np.ndarray,
-    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    n: int,
-    now: int,
-    smp: np.ndarray,
-    rate: np.ndarray,
-    out: np.ndarray,
-) -> tuple[int, bool]:
-    # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link. An ACK per data packet
-    # (ack_every_ticks 1) is not carried through the ACK link's ring: over its constant delay it
-    # is taken D = max(1, ceil(delay / period)) ticks after it is sent, and what `feedback` will
-    # make of it is known when it is sent (`arq_ack`); the sender's pending test reads X_ACK_AT.
-    aC, aS, aU, aB, aring, arec = A
-    dim = int(C[L.C_DIM])
-    mask = X.shape[0] - 1
-    cumulative = C[L.C_ACK_EVERY] > 1.0
-    # the cumulative ACKs due: ArqEncoder.feedback
-    while cumulative:
+def arq_feedback(S: np.ndarray, X: np.ndarray, aS: np.ndarray, aring: np.ndarray, now: int) -> None:
+    # ArqEncoder.feedback of the cumulative ACKs due by `now`: (N, B, r...) names N, N - 1 - i
+    # for each bit i of B, and the r. A seq an ACK taken before named is pending no more: only
+    # the others are looked up, as the window of those named so far allows (ACKs come in order
+    # over a constant delay).
+    while True:
         head = link_next(aS, aring, now)
         if head < 0:
             break
         seq = int(aring[head, 0])
-        # (N, B, r...): N, N - 1 - i for each bit i of B, the r
-        # (a seq an ACK taken before named is pending no more: only the others are looked up,
-        # as the window of those named so far allows; ACKs come in order over a constant delay)
         full = (int(aring[head, L.ACK_RING_BITS]) << 1) | 1  # bit i: seq - i
         todo = full
         shift = seq - int(S[L.S_FB_N])
@@ -789,87 +751,400 @@ def arq_tick(
             S[L.S_ACKED] += acked
         else:
             S[L.S_ACKS_STALE] += 1.0
-    # ArqEncoder.send: the new sample, then the pending ones due (in seq order)
-    S[L.S_OFFERED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def arq_cumulative_ack(
+    C: np.ndarray, S: np.ndarray, W: np.ndarray, aC: np.ndarray, aS: np.ndarray, aU: np.ndarray, aB: np.ndarray,
+    aring: np.ndarray, arec: np.ndarray, n: int, now: int,
+) -> None:  # fmt: skip
+    # ArqDecoder.acks: the cumulative ACK of tick n (k > 1), at most one every k ticks, into the
+    # ACK link (its records not kept, no payload: the ring's columns carry the ACK)
+    if S[L.S_AK_DUE] == 0.0 or n - S[L.S_AK_LAST_N] < C[L.C_ACK_EVERY]:
+        return
+    cnt = int(S[L.S_AK_OLD])
+    cap = int(C[L.C_ACK_CAP])
+    size = W[L.W_OLD + cap + 1 + cnt]
+    S[L.S_ACKS_SENT] += 1.0
+    S[L.S_ACK_PACKETS] += 1.0
+    S[L.S_ACK_BYTES] += size
+    aC[L.C_SIZE] = size
+    before = aS[L.S_COUNT]
+    link_send(aC, aS, aU, aB, aring, arec, int(S[L.S_AK_NEWEST]), now, W, W, False, False, False)
+    if aS[L.S_COUNT] > before:
+        j = (int(aS[L.S_HEAD]) + int(before)) & (aring.shape[0] - 1)
+        aring[j, L.ACK_RING_BITS] = float(int(S[L.S_AK_BITS]) >> 1)
+        aring[j, L.ACK_RING_COUNT] = cnt
+        for q in range(cnt):
+            aring[j, L.ACK_RING_OLD + q] = W[L.W_OLD + q]
+    S[L.S_AK_OLD] = 0.0
+    S[L.S_AK_NEW] = 0.0
+    S[L.S_AK_DUE] = 0.0
+    S[L.S_AK_LAST_N] = n
+
+
+@part_jit  # type: ignore[misc]
+def arq_block(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    n0: int,
+    n1: int,
+) -> None:
+    # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link for ticks n0 .. n1 - 1,
+    # all but the samples; the plan of tick n in W's row n - n0 from C_PLAN. The state the
+    # ticks change most is kept in locals and written back at the end. An ACK per data packet
+    # (ack_every_ticks 1) is not carried through the ACK link's ring: over its constant delay it
+    # is taken D = max(1, ceil(delay / period)) ticks after it is sent, and what `feedback` will
+    # make of it is known when it is sent (below); the sender's pending test reads X_ACK_AT.
+    aC, aS, aU, aB, aring, arec = A
+    mask = X.shape[0] - 1
+    dmask = ring.shape[0] - 1
+    period_ns = int(C[L.C_PERIOD_NS])
+    delay_ns = int(C[L.C_DELAY_NS])
+    size = C[L.C_SIZE]
+    timeout = C[L.C_TIMEOUT_NS]
+    m_ticks = int(C[L.C_M_TICKS])
+    nu = C[L.C_NU]
+    keep = int(C[L.C_KEEP])
+    wait = int(C[L.C_WAIT])
+    extrap = C[L.C_EXTRAP] != 0.0
+    max_ticks = int(C[L.C_MAX_TICKS])
+    cumulative = C[L.C_ACK_EVERY] > 1.0
+    plan = int(C[L.C_PLAN])
+    taken_at = plan + L.PLAN_TICKS * L.P_WIDTH  # the seqs the decoder takes
+    # the data link, the sender, the decoder
+    u = int(S[L.S_U])
+    recs = int(S[L.S_RECS])
+    head = int(S[L.S_HEAD])
+    count = int(S[L.S_COUNT])
+    link_sent = 0
+    link_lost = 0
+    drop_blackout = 0
+    drop_loss = 0
+    sent = 0
+    retransmitted = 0
+    gave_up = 0
+    lo = int(S[L.S_PEND_LO])
+    received = 0
+    duplicates = 0
+    recovered = 0
+    late = 0
+    recovered_late = 0
+    newest_rx = int(S[L.S_NEWEST])
+    has_held = S[L.S_HAS_HELD] != 0.0
+    maxheld = int(S[L.S_MAXHELD])
+    has_fresh = S[L.S_HAS_FRESH] != 0.0
+    newest_fresh = int(S[L.S_NEWEST_FRESH])
+    pending = S[L.S_PENDING] != 0.0
+    has_slot = S[L.S_HAS_SLOT] != 0.0
+    slot = int(S[L.S_SLOT])
+    slot_n = int(S[L.S_SLOT_N])
+    has_played = S[L.S_HAS_PLAYED] != 0.0
+    last_played = int(S[L.S_LAST_PLAYED])
+    predicted = 0
+    # the ACK link (an ACK per data packet; cumulative ACKs keep its state in aS)
+    au = int(aS[L.S_U])
+    ahead = int(aS[L.S_HEAD])
+    amask = aring.shape[0] - 1
+    ack_ticks = int(C[L.C_ACK_TICKS])
+    give_up = (nu + 1.0) * C[L.C_M_TICKS]  # a sample is given up at seq + (nu + 1) m
+    acks = 0
+    acked = 0
+    stale = 0
+    a_lost = 0
+    a_blackout = 0
+    a_loss = 0
+    taken = 0  # the seqs the decoder took in the plan's ticks so far
+    for n in range(n0, n1):
+        now = n * period_ns
+        row = plan + (n - n0) * L.P_WIDTH
+        if cumulative:  # the cumulative ACKs due: ArqEncoder.feedback
+            arq_feedback(S, X, aS, aring, now)
+        # ArqEncoder.send: the new sample (its value: `arq_tick`), then the pending ones due
+        # (in seq order). A pending sample is due every m = ceil(mu / period) ticks after it was
+        # sent (the encoder runs every tick), so the only candidates this tick are n - j m,
+        # j = nu + 1 .. 1. Every seq below `lo` was acknowledged or given up: its rows are not
+        # read. Moved up lazily, a row at a time.
+        j = n & mask
+        seq = n
+        attempt = 0
+        jj = int(nu) + 2
+        while True:
+            # ArqEncoder._packet into Link.send: blackout, loss (its draws whatever the fate),
+            # the constant delay, the record; a delivered packet joins the in-flight FIFO with
+            # its attempt and send tick
+            fate, u = fate_of(C, S, U, B, now, u)
+            sent += 1
+            link_sent += 1
+            rec[recs, 0] = seq
+            rec[recs, 1] = float(now) * 1e-9
+            rec[recs, 4] = 0.0
+            rec[recs, 5] = size
+            if fate == 0:
+                arrival = now + delay_ns
+                rec[recs, 2] = float(arrival) * 1e-9
+                rec[recs, 3] = DELIVERED
+                k = (head + count) & dmask
+                count += 1
+                ring[k, 0] = seq
+                ring[k, 1] = arrival
+                ring[k, L.RING_ATTEMPT] = attempt
+                ring[k, L.RING_SENT] = n
+            else:
+                rec[recs, 2] = np.nan
+                rec[recs, 3] = LOST_NETWORK
+                link_lost += 1
+                if fate == 1:
+                    drop_blackout += 1
+                else:
+                    drop_loss += 1
+            recs += 1
+            if jj == int(nu) + 2:  # (after the new sample: the candidates' floor)
+                while lo < n and not (X[lo & mask, L.X_PEND] == lo and X[lo & mask, L.X_ACK_AT] > n):
+                    lo += 1
+            # the next candidate due
+            seq = -1
+            jj -= 1
+            while jj > 0:
+                c = n - jj * m_ticks
+                if c >= lo:
+                    k = c & mask
+                    if X[k, L.X_PEND] == c and X[k, L.X_ACK_AT] > n and now - X[k, L.X_LAST_NS] >= timeout:
+                        if X[k, L.X_TRIES] >= nu:
+                            X[k, L.X_PEND] = -1.0
+                            gave_up += 1
+                        else:
+                            X[k, L.X_TRIES] += 1.0
+                            X[k, L.X_LAST_NS] = now
+                            retransmitted += 1
+                            seq = c
+                            attempt = int(X[k, L.X_TRIES])
+                            break
+                jj -= 1
+            if seq < 0:
+                break
+        X[j, L.X_PEND] = n
+        X[j, L.X_TRIES] = 0.0
+        X[j, L.X_LAST_NS] = now
+        X[j, L.X_ACK_AT] = L.X_NO_ACK
+        # Link.deliver, ArqDecoder.receive (Reconstructor.add), its ACK into the ACK link
+        rx = -1
+        while count > 0 and ring[head, 1] <= now:
+            h = head
+            head = (head + 1) & dmask
+            count -= 1
+            seq = int(ring[h, 0])
+            fresh = ring[h, L.RING_ATTEMPT] == 0.0
+            received += 1
+            k = seq & mask
+            floor = maxheld - keep
+            if has_held and seq >= floor and X[k, L.X_HELD] == seq:
+                duplicates += 1  # held already
+            elif has_held and seq < floor:
+                duplicates += 1  # too old to keep
+                if not fresh:
+                    late += 1
+            else:
+                if not fresh:  # a retransmission, maybe late
+                    recovered += 1
+                    if has_played and seq <= last_played:
+                        late += 1
+                        recovered_late += 1
+                X[k, L.X_HELD] = seq
+                if not has_held or seq > maxheld:
+                    maxheld = seq
+                    has_held = True
+                if fresh and (not has_fresh or seq > newest_fresh):
+                    newest_fresh = seq
+                    has_fresh = True
+                    pending = True
+                W[taken_at + taken] = seq
+                taken += 1
+            if seq > newest_rx:
+                newest_rx = seq
+                rx = seq
+            if cumulative:
+                ack_mark(C, S, W, seq)
+                continue
+            # The ACK of `seq` into the ACK link (its fate: blackout, loss) and, when it gets
+            # through, what ArqEncoder.feedback makes of it at tick t = n + D: it takes the
+            # sample off the pending ones if the sample is still pending then, that is: still
+            # the sample of its row of X (not given up, the row not reused), no ACK on its way
+            # before this one (ACKs arrive in the order they are sent), and t not after the tick
+            # it would be given up at (ACKs are taken before the sends of a tick). Else the ACK
+            # is stale. The counts are the encoder's at t: an ACK still on its way when the run
+            # ends is taken back (`CodecNet.store`) from the ring of ACKs on their way (t, taken).
+            acks += 1
+            afate, au = fate_of(aC, aS, aU, aB, now, au)
+            if afate != 0:
+                a_lost += 1
+                if afate == 1:
+                    a_blackout += 1
+                else:
+                    a_loss += 1
+                continue
+            t = n + ack_ticks
+            took = X[k, L.X_PEND] == seq and X[k, L.X_ACK_AT] == L.X_NO_ACK and t <= seq + give_up
+            if took:
+                X[k, L.X_ACK_AT] = t
+                acked += 1
+            else:
+                stale += 1
+            a = ahead & amask
+            ahead += 1
+            aring[a, 0] = t
+            aring[a, 1] = 1.0 if took else 0.0
+        if cumulative:  # ArqDecoder.acks: the cumulative ACK of the tick, at most one every k ticks
+            arq_cumulative_ack(C, S, W, aC, aS, aU, aB, aring, arec, n, now)
+        W[row + L.P_RX] = rx
+        W[row + L.P_TAKEN] = taken
+        # Reconstructor.sample: the playout slot, the sample at the slot (wait_ticks behind), or
+        # the prediction from the newest two held at or before it
+        got = True
+        if pending:
+            slot = newest_fresh
+            slot_n = n
+            pending = False
+            has_slot = True
+        elif has_slot:
+            slot = slot + (n - slot_n)
+            slot_n = n
+        elif has_held:
+            slot = maxheld
+            slot_n = n
+            has_slot = True
+        else:
+            got = False
+        if got:
+            target = slot - wait
+            if not has_played or target > last_played:
+                last_played = target
+                has_played = True
+            low = max(0, maxheld - keep)
+            last = min(target, maxheld)
+            while last >= low and X[last & mask, L.X_HELD] != last:
+                last -= 1
+            if last < low:
+                got = False  # everything held is newer than the target
+            else:
+                W[row + L.P_LAST] = last
+                W[row + L.P_EXTRAP] = 0.0
+                if last != target:
+                    predicted += 1
+                    prev = last - 1
+                    if extrap:
+                        while prev >= low and X[prev & mask, L.X_HELD] != prev:
+                            prev -= 1
+                        if prev >= low:
+                            W[row + L.P_EXTRAP] = 1.0
+                            W[row + L.P_PREV] = prev
+                            W[row + L.P_AHEAD] = min(target - last, max_ticks)
+                            W[row + L.P_SPAN] = last - prev
+        W[row + L.P_GOT] = 1.0 if got else 0.0
+    S[L.S_U] = u
+    S[L.S_RECS] = recs
+    S[L.S_HEAD] = head
+    S[L.S_COUNT] = count
+    S[L.S_LINK_SENT] += link_sent
+    S[L.S_LINK_LOST] += link_lost
+    S[L.S_DROP_BLACKOUT] += drop_blackout
+    S[L.S_DROP_LOSS] += drop_loss
+    S[L.S_OFFERED] += n1 - n0
+    S[L.S_SENT] += sent
+    S[L.S_BYTES] += sent * size
+    S[L.S_RETRANSMITTED] += retransmitted
+    S[L.S_GAVE_UP] += gave_up
+    S[L.S_PEND_LO] = lo
+    S[L.S_RECEIVED] += received
+    S[L.S_DUPLICATES] += duplicates
+    S[L.S_RECOVERED] += recovered
+    S[L.S_LATE] += late
+    S[L.S_RECOVERED_LATE] += recovered_late
+    S[L.S_NEWEST] = newest_rx
+    S[L.S_HAS_HELD] = 1.0 if has_held else 0.0
+    S[L.S_MAXHELD] = maxheld
+    S[L.S_HAS_FRESH] = 1.0 if has_fresh else 0.0
+    S[L.S_NEWEST_FRESH] = newest_fresh
+    S[L.S_PENDING] = 1.0 if pending else 0.0
+    S[L.S_HAS_SLOT] = 1.0 if has_slot else 0.0
+    S[L.S_SLOT] = slot
+    S[L.S_SLOT_N] = slot_n
+    S[L.S_HAS_PLAYED] = 1.0 if has_played else 0.0
+    S[L.S_LAST_PLAYED] = last_played
+    S[L.S_PREDICTED] += predicted
+    if not cumulative:
+        S[L.S_ACKS_SENT] += acks
+        S[L.S_ACK_PACKETS] += acks
+        S[L.S_ACK_BYTES] += acks * C[L.C_ACK_SIZE]
+        S[L.S_ACKED] += acked
+        S[L.S_ACKS_STALE] += stale
+        aS[L.S_U] = au
+        aS[L.S_HEAD] = ahead
+        aS[L.S_LINK_SENT] += acks
+        aS[L.S_LINK_LOST] += a_lost
+        aS[L.S_DROP_BLACKOUT] += a_blackout
+        aS[L.S_DROP_LOSS] += a_loss
+
+
+@inline  # type: ignore[misc]
+def arq_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    n: int,
+    n1: int,
+    smp: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with ArqEncoder / ArqDecoder at tick n (the kernel's chunk ends at n1):
+    # the plan of the next ticks made when the last one is used up (`arq_block`), then the
+    # tick's samples moved as it says.
+    if n >= S[L.S_PLAN_END]:
+        end = min(n + L.PLAN_TICKS, n1)
+        arq_block(C, S, U, B, ring, rec, X, W, A, n, end)
+        S[L.S_PLAN_N0] = n
+        S[L.S_PLAN_END] = end
+    dim = int(C[L.C_DIM])
+    mask = X.shape[0] - 1
     j = n & mask
     for i in range(dim):
         X[j, L.X_SENT + i] = smp[i]
-    arq_send(C, S, U, B, ring, rec, n, n, now, smp, 0, out)
-    # A pending sample is due every m = ceil(mu / period) ticks after it was sent (the encoder
-    # runs every tick), so the only candidates this tick are n - j m, j = nu + 1 .. 1 (seq order).
-    # Every seq below S_PEND_LO was acknowledged or given up: its rows are not read (with mu above
-    # the round trip that is every candidate but a lost sample's, and X's rows that far back are
-    # cache misses once the plants' step has run). Moved up lazily, a row at a time.
-    lo = int(S[L.S_PEND_LO])
-    while lo < n and not (X[lo & mask, L.X_PEND] == lo and X[lo & mask, L.X_ACK_AT] > n):
-        lo += 1
-    S[L.S_PEND_LO] = lo
-    timeout = C[L.C_TIMEOUT_NS]
-    m_ticks = int(C[L.C_M_TICKS])
-    for jj in range(int(C[L.C_NU]) + 1, 0, -1):
-        seq = n - jj * m_ticks
-        if seq < lo:
-            continue
-        k = seq & mask
-        if X[k, L.X_PEND] != seq or X[k, L.X_ACK_AT] <= n or now - X[k, L.X_LAST_NS] < timeout:
-            continue
-        if X[k, L.X_TRIES] >= C[L.C_NU]:
-            X[k, L.X_PEND] = -1.0
-            S[L.S_GAVE_UP] += 1.0
-            continue
-        X[k, L.X_TRIES] += 1.0
-        X[k, L.X_LAST_NS] = now
-        S[L.S_RETRANSMITTED] += 1.0
+    plan = int(C[L.C_PLAN])
+    i0 = n - int(S[L.S_PLAN_N0])
+    row = plan + i0 * L.P_WIDTH
+    first = 0 if i0 == 0 else int(W[row - L.P_WIDTH + L.P_TAKEN])
+    taken_at = plan + L.PLAN_TICKS * L.P_WIDTH
+    for q in range(taken_at + first, taken_at + int(W[row + L.P_TAKEN])):
+        k = int(W[q]) & mask
         for i in range(dim):
-            rate[i] = X[k, L.X_SENT + i]
-        arq_send(C, S, U, B, ring, rec, seq, n, now, rate, int(X[k, L.X_TRIES]), out)
-    X[j, L.X_PEND] = n
-    X[j, L.X_TRIES] = 0.0
-    X[j, L.X_LAST_NS] = now
-    X[j, L.X_ACK_AT] = L.X_NO_ACK
-    # Link.deliver, ArqDecoder.receive, its ACK into the ACK link
-    rx = -1
-    while True:
-        head = link_next(S, ring, now)
-        if head < 0:
-            break
-        seq = int(ring[head, 0])
-        S[L.S_RECEIVED] += 1.0
+            X[k, L.X_VALUE + i] = X[k, L.X_SENT + i]
+    rx = int(W[row + L.P_RX])
+    if W[row + L.P_GOT] == 0.0:
+        return rx, False
+    k = int(W[row + L.P_LAST]) & mask
+    if W[row + L.P_EXTRAP] == 0.0:
         for i in range(dim):
-            W[L.W_VALUE + i] = ring[head, 2 + i]
-        if not rec_add(C, S, X, W, seq, ring[head, L.RING_ATTEMPT] == 0.0):
-            S[L.S_DUPLICATES] += 1.0
-        if cumulative:
-            rx = newest(S, seq, rx)
-            ack_mark(C, S, W, seq)
-            continue
-        S[L.S_ACKS_SENT] += 1.0
-        rx = newest(S, seq, rx)
-        S[L.S_ACK_PACKETS] += 1.0
-        S[L.S_ACK_BYTES] += C[L.C_ACK_SIZE]
-        arq_ack(C, S, X, aC, aS, aU, aB, aring, seq, n, now)
-    # ArqDecoder.acks: the cumulative ACK of the tick (k > 1), at most one every k ticks
-    if cumulative and S[L.S_AK_DUE] != 0.0 and n - S[L.S_AK_LAST_N] >= C[L.C_ACK_EVERY]:
-        cnt = int(S[L.S_AK_OLD])
-        cap = int(C[L.C_ACK_CAP])
-        size = W[L.W_OLD + cap + 1 + cnt]
-        S[L.S_ACKS_SENT] += 1.0
-        S[L.S_ACK_PACKETS] += 1.0
-        S[L.S_ACK_BYTES] += size
-        aC[L.C_SIZE] = size  # (the ACK link's records, not kept)
-        before = aS[L.S_COUNT]
-        link_send(aC, aS, aU, aB, aring, arec, int(S[L.S_AK_NEWEST]), now, out, out, False, False, False)
-        if aS[L.S_COUNT] > before:
-            j = (int(aS[L.S_HEAD]) + int(before)) & (aring.shape[0] - 1)
-            aring[j, L.ACK_RING_BITS] = float(int(S[L.S_AK_BITS]) >> 1)
-            aring[j, L.ACK_RING_COUNT] = cnt
-            for q in range(cnt):
-                aring[j, L.ACK_RING_OLD + q] = W[L.W_OLD + q]
-        S[L.S_AK_OLD] = 0.0
-        S[L.S_AK_NEW] = 0.0
-        S[L.S_AK_DUE] = 0.0
-        S[L.S_AK_LAST_N] = n
-    return rx, rec_sample(C, S, X, n, out)
+            out[i] = X[k, L.X_VALUE + i]
+    else:
+        p = int(W[row + L.P_PREV]) & mask
+        ahead = int(W[row + L.P_AHEAD])
+        span = int(W[row + L.P_SPAN])
+        for i in range(dim):
+            out[i] = extrapolate1(X[p, L.X_VALUE + i], X[k, L.X_VALUE + i], ahead, span)
+    return rx, True
 
 
 # ------------------------------------------------------------------------------------------
@@ -1083,17 +1358,18 @@ def codec_tick(
     W: np.ndarray,
     A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     n: int,
+    n1: int,
     now: int,
     smp: np.ndarray,
     rate: np.ndarray,
     out: np.ndarray,
 ) -> tuple[int, bool]:
-    # CodecChannel.step of a direction, whatever its compiled kind (FEC, ARQ, HLI: X, W, A their
-    # history, scratch and ACK link).
+    # CodecChannel.step of a direction at tick n, whatever its compiled kind (FEC, ARQ, HLI: X,
+    # W, A their history, scratch and ACK link; ARQ plans ahead up to n1, the end of the chunk).
     if C[L.C_KIND] == L.HLI:
         return hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
     if C[L.C_KIND] == L.ARQ:
-        return arq_tick(C, S, U, B, ring, rec, X, W, A, n, now, smp, rate, out)
+        return arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, out)
     if C[L.C_KIND] == L.FEC:
         return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
     return deadband_prediction_tick(C, S, U, B, ring, rec, W, n, now, smp, rate, out)
@@ -1164,7 +1440,7 @@ def run_ticks_codec(
         if fcodec:
             smp[0] = x_m
             smp[1] = v_m
-            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, now, smp, rate, out)
+            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, n1, now, smp, rate, out)
             if got:
                 accept2(P, S, out[0], out[1])
             focc = 0.0
@@ -1177,7 +1453,7 @@ def run_ticks_codec(
             smp[0] = f_env
             smp[1] = x_s
             smp[2] = v_s
-            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, now, smp, rate, out)
+            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, n1, now, smp, rate, out)
             if got:
                 accept3(P, S, out[0], out[1], out[2])
             bocc = 0.0
@@ -1215,7 +1491,7 @@ def codec_ticks(
     for n in range(samples.shape[0]):
         for i in range(samples.shape[1]):
             smp[i] = samples[n, i]
-        _rx, got = codec_tick(C, S, U, B, ring, rec, X, W, A, n, n * period_ns, smp, rate, out)
+        _rx, got = codec_tick(C, S, U, B, ring, rec, X, W, A, n, samples.shape[0], n * period_ns, smp, rate, out)
         if got:
             got_ticks += 1
     return got_ticks

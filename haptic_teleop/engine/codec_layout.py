@@ -44,7 +44,7 @@ C_M_TICKS = 41  # ARQ: m = ceil(mu / period), the ticks between a sample's tries
 # of seqs below the window (k (1 + nu): the data packets of k ticks)
 C_ACK_EVERY, C_ACK_CAP = 42, 43
 # ARQ with an ACK per data packet: D = max(1, ceil(ACK link delay / period)), the ticks after
-# its sending that the sender takes an ACK (`codec_kernel.arq_ack`)
+# its sending that the sender takes an ACK (`codec_kernel.arq_block`)
 C_ACK_TICKS = 44
 # A deadband direction's link with jitter (core/delay.Delay: uncorrelated or netem-correlated, no
 # time-varying part, no reordering): the jitter distribution's table length in W (0: uniform,
@@ -52,7 +52,8 @@ C_ACK_TICKS = 44
 # (1.0) or not
 C_JIT, C_JN, C_JBASE_NS, C_JSIGMA_NS, C_JKEEP = range(45, 50)
 C_JRHO = 50  # netem's correlation of the jitter's uniform numbers (0: none)
-C_SIZE_X = 51  # C's length with these
+C_PLAN = 51  # ARQ: where its plan starts in W (`codec_kernel.arq_block`)
+C_SIZE_X = 52  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
@@ -78,7 +79,8 @@ S_FB_N, S_FB_BITS = 120, 121
 # the jitter's uniform numbers in W (the next, the end) and the last arrival kept in order
 S_JU, S_JU_END, S_LAST_ARRIVAL = 122, 123, 124
 S_JLAST = 125  # netem's last correlated uniform number
-S_SIZE_X = 126  # S's length with these
+S_PLAN_N0, S_PLAN_END = 126, 127  # ARQ: the ticks its plan in W covers (from, to)
+S_SIZE_X = 128  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent, the tick its first ACK to arrive is taken: X_NO_ACK while none is
@@ -95,6 +97,14 @@ W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0
 # bitmap, count, the seqs below the window
 W_OLD = W_STACK
 ACK_RING_BITS, ACK_RING_COUNT, ACK_RING_OLD = 2, 3, 4
+# ARQ's plan (`codec_kernel.arq_block`), in W from C_PLAN: PLAN_TICKS rows of P_WIDTH values, a
+# tick each: the received column's seq, whether the decoder gives a sample, whether it is
+# extrapolated, the held seq it gives (the newest at or before its target), the one before it,
+# the ticks ahead and the span of the extrapolation, and how many seqs the decoder took in the
+# plan's ticks up to this one; then those seqs, in the order taken (at most the packets that
+# arrive in a tick, 1 + nu over a constant delay, a tick).
+PLAN_TICKS = 100  # (compiled_driver.CHUNK_TICKS: a chunk's ticks planned at once)
+P_RX, P_GOT, P_EXTRAP, P_LAST, P_PREV, P_AHEAD, P_SPAN, P_TAKEN, P_WIDTH = range(9)
 # HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
 # decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
 H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16

@@ -365,7 +365,7 @@ class CodecNet(LinkArrays):
             if cap:  # a cumulative ACK's ring row: its bitmap, count and the seqs below the window
                 self.ack._ring_width = max(L.RING_WIDTH, L.ACK_RING_OLD + cap)
             self.ack._load(ch.ack_link, aC, np.zeros(L.S_SIZE_X), period_ns, self.per_tick)
-            if not cap:  # an ACK per data packet: taken D ticks after it is sent (codec_kernel.arq_ack);
+            if not cap:  # an ACK per data packet: taken D ticks after it is sent (codec_kernel.arq_block);
                 # the ACK link's ring holds those on their way as (tick taken, taken or stale)
                 C[L.C_ACK_TICKS] = max(1, -(-int(aC[L.C_DELAY_NS]) // period_ns))
                 self.ack.ring[:, 0] = -1.0
@@ -400,7 +400,10 @@ class CodecNet(LinkArrays):
             rows = 4
             # (parity: a window is solved up to keep_ticks after its packet arrived)
             sender = C[L.C_DELAY_NS] // period_ns + C[L.C_K] + 3 + (C[L.C_KEEP] if C[L.C_PARITY] else 0)
-            while rows < max(C[L.C_KEEP] + 2, sender, self.span + 2):
+            # (ARQ: a sample's last copy arrives up to the delay after its span; its value is read
+            # from the sender's column of its row then)
+            arq_values = self.span + C[L.C_DELAY_NS] // period_ns + 2 if ch.kind == "arq" else 0
+            while rows < max(C[L.C_KEEP] + 2, sender, self.span + 2, arq_values):
                 rows *= 2
             self.X = np.zeros((rows, self._at("X_WIDTH")))
             self.X[:, self._at("X_HELD")] = -1.0
@@ -412,6 +415,10 @@ class CodecNet(LinkArrays):
                 self.W = np.zeros(w_old + 2 * cap + 2)
                 for j in range(cap + 1):
                     self.W[w_old + cap + 1 + j] = dec._size_of(2 + j)
+            if ch.kind == "arq":  # its plan after the rest (`codec_kernel.arq_block`)
+                C[L.C_PLAN] = len(self.W)
+                plan = L.PLAN_TICKS * (L.P_WIDTH + int(C[L.C_NU]) + 2)
+                self.W = np.concatenate((self.W, np.zeros(plan)))
 
     def ready(self, ticks: int) -> None:
         """Before the kernel runs `ticks` ticks: random numbers and record rows for the packets
