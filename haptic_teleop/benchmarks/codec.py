@@ -182,6 +182,7 @@ LOOP_CASES: tuple[tuple[str, str | None], ...] = (
     # ARQ as seed 000's experiment sets it (mu = 25 ms, nu = 4) on that experiment's network
     ("no codec" + SEED_NET, None),
     ("arq 25 ms, 4 retries" + SEED_NET, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
+    ("arq 4 ms, 1 retry" + SEED_NET, "{kind: arq, timeout_s: 0.004, max_retransmissions: 1}"),
     ("no codec" + SEED_NET + LOSSY, None),
     ("arq 25 ms, 4 retries" + SEED_NET + LOSSY, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"),
     ("no codec" + JITTER, None),
