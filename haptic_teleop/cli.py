@@ -81,6 +81,11 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
     from haptic_teleop.engine.lockstep import record_run  # before the directory is made: a signal here leaves nothing
 
     check_out_dir(out)
+    if not args.quiet and not scene.config.is_nve:
+        from haptic_teleop.engine.codec_channel import arq_round_trip_notes
+
+        for note in arq_round_trip_notes(scene.config):
+            print(f"haptic-teleop: note: {note}", file=sys.stderr)
 
     # From here on the outputs exist: a first Ctrl-C / SIGTERM stops the loop and the rest is
     # still written; a second one aborts (haptic_teleop/interrupt.py).

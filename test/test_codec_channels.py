@@ -296,3 +296,46 @@ def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:
     with pytest.raises(ConfigError, match=r"network\.forward\.codec.*slave\.period_s\) runs no codec live yet"):
         node_plan(own)
     assert node_plan(load_scene(find_scene("wall_contact")))  # without one: the node set
+
+
+@pytest.mark.parametrize(
+    ("delay_s", "fwd", "bwd", "copies"),
+    [
+        # the default scene's 100 ms round trip: mu = 25 ms sends each sample 4 times, mu = 4 ms
+        # with nu = 1 twice, mu = 150 ms once
+        (0.05, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}", "{kind: arq, timeout_s: 0.15}", (4, 1)),
+        (0.05, "{kind: arq, timeout_s: 0.15}", "{kind: arq, timeout_s: 0.004, max_retransmissions: 1}", (1, 2)),
+        (0.05, "{kind: arq, timeout_s: 0.075}", None, (2, None)),  # above one way, under the round trip
+        # seed 000's network (10 ms round trip): its 25 ms once, its 4 ms (nu = 1) twice
+        (0.005, "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}", None, (1, None)),
+        (0.005, "{kind: arq, timeout_s: 0.004, max_retransmissions: 1}", None, (2, None)),
+    ],
+)
+def test_arq_under_its_round_trip_is_named_with_the_copies_it_sends(delay_s, fwd, bwd, copies) -> None:
+    """`arq_round_trip_notes` names each ARQ direction whose timeout is under its round trip with
+    the copies it sends of every sample, as many as a lossless run sends (sent / samples rounded)."""
+    from haptic_teleop.engine.codec_channel import arq_round_trip_notes
+
+    over = ["scene.duration_s=2", *(f"network.{d}.effects.delay.delay_s={delay_s}" for d in ("forward", "backward"))]
+    over += [f"network.forward.codec={fwd}"] + ([f"network.backward.codec={bwd}"] if bwd else [])
+    scene = load_scene(find_scene("wall_contact"), overrides=over)
+    notes = arq_round_trip_notes(scene.config)
+    e = Engine(scene)
+    e.run(handle_sigint=False)
+    for d, n in zip(("forward", "backward"), copies, strict=True):
+        if n is None:
+            continue
+        f = e.codec_facts()[f"codec_{d}"]
+        assert round(f["encoder_sent"] / f["encoder_samples"]) == n
+        said = [s for s in notes if f"on the {d} link" in s]
+        assert said == ([] if n == 1 else [said[0]]) and (n == 1 or f"goes out {n} times" in said[0])
+    assert len(notes) == sum(1 for n in copies if n is not None and n > 1)
+
+
+def test_run_notes_arq_under_its_round_trip_unless_quiet(tmp_path: Path, capsys: Any) -> None:
+    over = ["--set", "scene.duration_s=0.3", "--set", "network.forward.codec={kind: arq, timeout_s: 0.025}"]
+    assert main(["run", "wall_contact", "--out", str(tmp_path / "a"), "--no-plots", *over]) == 0
+    err = capsys.readouterr().err
+    assert "haptic-teleop: note: ARQ on the forward link retransmits after 25 ms, under its 100 ms round trip" in err
+    assert main(["run", "wall_contact", "--out", str(tmp_path / "b"), "--no-plots", "--quiet", *over]) == 0
+    assert "note:" not in capsys.readouterr().err

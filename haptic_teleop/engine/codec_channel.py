@@ -242,6 +242,38 @@ def codec_pair(
     return _codec_pair(d, layout[direction], direction, axes, period_ns, size_of)
 
 
+def arq_round_trip_notes(c: Scene) -> list[str]:
+    """One line for each ARQ direction whose timeout is under its round trip (the constant delays
+    of its link and of its ACKs' link, the reverse direction's; jitter and time-varying parts
+    aside): the sender then sends every sample again before its ACK can come back, loss or not,
+    ARQ working as repetition (docs/codec.md, "Cost")."""
+    out = []
+    period = c.scene.period_s
+    for name in ("forward", "backward"):
+        d: ChannelDirectionConfig = getattr(c.network, name)
+        if d.codec is None or d.codec.kind != "arq":
+            continue
+        cfg = d.codec.settings()
+        delays = [getattr(c.network, k).effects.delay for k in (name, REVERSE[name])]
+        one_way = [0.0 if e is None else e.delay_s for e in delays]
+        rtt = sum(one_way)
+        if cfg.timeout_s >= rtt:
+            continue
+        # the sample's ACK is taken ceil(d_f / T) + max(1, ceil(d_b / T)) ticks after it was
+        # sent; a copy goes out every m = ceil(mu / T) ticks before that, nu at most
+        ticks = math.ceil(one_way[0] / period - 1e-9) + max(1, math.ceil(one_way[1] / period - 1e-9))
+        m = math.ceil(cfg.timeout_s / period - 1e-9)
+        copies = 1 + min(cfg.max_retransmissions, -(-ticks // m) - 1)
+        if copies < 2:
+            continue
+        out.append(
+            f"ARQ on the {name} link retransmits after {cfg.timeout_s * 1e3:g} ms, under its "
+            f"{rtt * 1e3:g} ms round trip: every sample goes out {copies} times, lost or not "
+            f"(a timeout_s above the round trip resends only what was lost)"
+        )
+    return out
+
+
 def build_codec_channels(
     c: Scene,
     period_ns: int,
