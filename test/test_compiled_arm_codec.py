@@ -29,6 +29,8 @@ from compiled_identity import (
     ADAPTIVE,
     BERNOULLI,
     COPULA_JITTER,
+    COPULA_LOSS,
+    CORRELATED,
     FLOOR,
     GILBERT,
     HOLD,
@@ -97,6 +99,11 @@ CASES.update(
             (),
         ),
         "hli_both": ({"forward": (HLI, GILBERT, None), "backward": (HLI_BUDGET, GILBERT, BLACKOUT)}, ()),
+        # netem-correlated loss both ways (ARQ's ACKs too)
+        "correlated_arq_fec": (
+            {"forward": (ARQ_ACK, CORRELATED, None), "backward": (REPETITION, CORRELATED, BLACKOUT)},
+            DELAY_10MS,
+        ),
         # a deadband's link jitters in the kernel too: packets overtake each other forward, keep
         # their order backward
         "deadband_jitter_both": (
@@ -267,7 +274,7 @@ REFUSED = [
         _codec_on("backward", HOLD, *COPULA_JITTER),
         "gaussian_copula-correlated jitter on the backward link",
     ),
-    (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),
+    (_codec_on("forward", HOLD, *COPULA_LOSS), "gaussian_copula-correlated loss on the forward"),
     # the arm loop's own limits hold with a codec too
     ([*_codec_on("forward", HOLD), "master.period_s=0.002"], "master: its own period 0.002 s"),
 ]

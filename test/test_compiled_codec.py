@@ -21,6 +21,8 @@ from compiled_identity import (
     ADAPTIVE,
     BERNOULLI,
     COPULA_JITTER,
+    COPULA_LOSS,
+    CORRELATED,
     FLOOR,
     GILBERT,
     HOLD,
@@ -58,6 +60,11 @@ CASES = {
     "adaptive_both": {"forward": (ADAPTIVE, (BERNOULLI, None)), "backward": (ADAPTIVE, (None, BLACKOUT))},
     "floor_backward_gilbert": {"backward": (FLOOR, (GILBERT, None))},
     "prediction_both": {"forward": (PREDICTION, (None, ONE_THROUGH)), "backward": (PREDICTION, (GILBERT, None))},
+    # netem-correlated loss (bursts) both ways, its numbers from the effects' own sources
+    "hold_correlated_fec_backward_correlated_blackout": {
+        "forward": (HOLD, (CORRELATED, None)),
+        "backward": (REPETITION_WAIT, (CORRELATED, BLACKOUT)),
+    },
     "prediction_hold_forward": {"forward": (PREDICTION_HOLD, (BERNOULLI, ONE_THROUGH))},
     "fec_repetition_both": {
         "forward": (REPETITION_WAIT, (BERNOULLI, None)),
@@ -97,11 +104,23 @@ def _run(scene, loop, stop_at=None):
     return e, r, sink
 
 
+def _last(draw):
+    """A netem-correlated source's last number (written back after a compiled run), else None."""
+    return getattr(getattr(draw, "__self__", None), "_last", None)
+
+
+def _effect_state(x):
+    """An effect's counts and state: dropped, the Gilbert state, the correlated numbers' last,
+    the jitter's last arrival kept in order."""
+    u, ju = _last(getattr(x, "_u", None)), _last(getattr(x, "_ju", None))
+    return (x.name, getattr(x, "dropped", None), getattr(x, "bad", None), u, ju, getattr(x, "_last_arrival", None))
+
+
 def _link(link):
     return (
         link.sent,
         link.lost,
-        tuple((x.name, getattr(x, "dropped", None), getattr(x, "bad", None)) for x in link.effects),
+        tuple(_effect_state(x) for x in link.effects),
     )
 
 
@@ -207,6 +226,16 @@ ARQ_CASES = {
         f"network.backward.effects.loss={GILBERT}",
         f"network.backward.effects.blackout={BLACKOUT}",
     ],
+    # the same over netem-correlated loss both ways (the ACKs' too)
+    "arq_both_in_time_correlated": [
+        f"network.forward.codec={ARQ_SLOW}",
+        f"network.backward.codec={ARQ_SLOW}",
+        "network.forward.effects.delay.delay_s=0.01",
+        "network.backward.effects.delay.delay_s=0.01",
+        f"network.forward.effects.loss={CORRELATED}",
+        f"network.backward.effects.loss={CORRELATED}",
+        f"network.backward.effects.blackout={BLACKOUT}",
+    ],
     # mu below the round trip (50 ms each way): every sample retransmitted, then given up; the
     # ACKs over the backward link's Gilbert loss and blackouts
     "arq_forward_late_acks": [
@@ -248,7 +277,7 @@ def test_compiled_arq_equals_python_loop(case):
         assert len(rows) == f["encoder_sent"] > e.ticks and f["encoder_retransmitted"] > 10
         assert np.any(np.diff(rows[:, 0]) < 0)  # retransmissions: not in seq order
         assert f["decoder_recovered"] > 10 and f["decoder_duplicates"] > 10 and ch.ack_link.lost > 10
-        in_time = case == "arq_both_in_time"
+        in_time = case.startswith("arq_both_in_time")
         assert f["encoder_gave_up"] > 0 and (f["encoder_acks_stale"] > 0) != in_time
         assert (f["encoder_acked"] > 0.5 * e.ticks) == in_time
 
@@ -407,7 +436,7 @@ def _codec_on(d, codec, *effects):
             "effect rate_limit (TokenBucket) on the forward link",
         ),
         (_codec_on("forward", PREDICTION, "duplicate.probability=0.1"), "effect duplicate (Duplicate)"),
-        (_codec_on("forward", HOLD, "loss={probability: 0.1, correlation: 0.5}"), "correlated loss on the forward"),
+        (_codec_on("forward", HOLD, *COPULA_LOSS), "gaussian_copula-correlated loss on the forward"),
     ],
 )
 def test_codec_scenes_the_compiled_loop_cannot_run_say_why(overrides, reason):

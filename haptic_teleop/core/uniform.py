@@ -55,7 +55,7 @@ class UniformSource:
     def take_rest(self) -> list[float]:
         """The numbers left of the block drawn last, taken (so the next ones come from the
         Generator): for a reader that goes on drawing the stream from `rng` itself (the compiled
-        loop's jitter)."""
+        codec links' jitter and correlated loss)."""
         rest: list[float] = list(iter(self._it, None))  # (the bound __next__ raises StopIteration at the end)
         self._it = iter(()).__next__
         return rest

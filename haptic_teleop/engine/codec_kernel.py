@@ -76,6 +76,10 @@ def link_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: i
     if kind == L.LOSS_BERNOULLI:
         u = U[int(S[L.S_U])]
         S[L.S_U] += 1.0
+        rho = C[L.C_LRHO]
+        if rho != 0.0:  # NetemCorrelatedUniform.next
+            u = (1.0 - rho) * u + rho * S[L.S_LLAST]
+            S[L.S_LLAST] = u
         if u < C[L.C_LP] and fate == DELIVERED:
             fate = LOST_NETWORK
             S[L.S_DROP_LOSS] += 1.0
@@ -644,7 +648,12 @@ def fate_of(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int
             fate = 1
     kind = C[L.C_LOSS]
     if kind == L.LOSS_BERNOULLI:
-        if U[u] < C[L.C_LP] and fate == 0:
+        x = U[u]
+        rho = C[L.C_LRHO]
+        if rho != 0.0:  # NetemCorrelatedUniform.next
+            x = (1.0 - rho) * x + rho * S[L.S_LLAST]
+            S[L.S_LLAST] = x
+        if x < C[L.C_LP] and fate == 0:
             fate = 2
         u += 1
     elif kind == L.LOSS_GILBERT:

@@ -53,7 +53,8 @@ C_ACK_TICKS = 44
 C_JIT, C_JN, C_JBASE_NS, C_JSIGMA_NS, C_JKEEP = range(45, 50)
 C_JRHO = 50  # netem's correlation of the jitter's uniform numbers (0: none)
 C_PLAN = 51  # ARQ: where its plan starts in W (`codec_kernel.arq_block`)
-C_SIZE_X = 52  # C's length with these
+C_LRHO = 52  # netem's correlation of a Bernoulli loss's uniform numbers (0: none)
+C_SIZE_X = 53  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
@@ -80,7 +81,8 @@ S_FB_N, S_FB_BITS = 120, 121
 S_JU, S_JU_END, S_LAST_ARRIVAL = 122, 123, 124
 S_JLAST = 125  # netem's last correlated uniform number
 S_PLAN_N0, S_PLAN_END = 126, 127  # ARQ: the ticks its plan in W covers (from, to)
-S_SIZE_X = 128  # S's length with these
+S_LLAST = 128  # netem's last correlated uniform number of a Bernoulli loss
+S_SIZE_X = 129  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent, the tick its first ACK to arrive is taken: X_NO_ACK while none is

@@ -3,7 +3,7 @@
 With a deadband the packets a direction sends depend on the samples, so its network cannot be
 decided ahead of the loop as `compiled_loop.schedule` does. A codec direction whose link effects
 all give a packet its fate from the packet's index in the stream and its send time alone (a
-blackout, uncorrelated Bernoulli loss, Gilbert-Elliott loss, a constant delay) is run inside the
+blackout, uncorrelated or netem-correlated Bernoulli loss, Gilbert-Elliott loss, a constant delay) is run inside the
 kernel instead (engine/codec_kernel.py): each tick the encoder decides, the k-th packet it sends
 takes the k-th random number(s) of the loss effect, a blackout is a table of windows, the arrival
 is the send time plus the delay, packets in flight wait in a FIFO ring (a constant delay keeps
@@ -75,14 +75,15 @@ def link_reason(direction: str, link: Link, jitter: bool = False) -> str | None:
     """Why the kernel cannot run `link`'s effects for a codec direction (None: it can); `jitter`:
     the direction's decoder takes packets out of order (the deadband's), so the link may jitter."""
     allowed = (
-        "compiled codec links take only blackout, uncorrelated bernoulli or gilbert(_elliott) loss and a "
-        "constant delay (a deadband's also uncorrelated or netem-correlated jitter, with or without keep_order): "
-        "effects that decide a packet's fate and arrival from its index in the stream and its send time"
+        "compiled codec links take only blackout, uncorrelated or netem-correlated bernoulli or "
+        "gilbert(_elliott) loss and a constant delay (a deadband's also uncorrelated or netem-correlated "
+        "jitter, with or without keep_order): effects that decide a packet's fate and arrival from its "
+        "index in the stream and its send time"
     )
     for e in link.effects:
         t = type(e)
-        if t is BernoulliLoss and not e.vectorized:  # type: ignore[attr-defined]
-            return f"correlated loss on the {direction} link with a codec ({allowed})"
+        if t is BernoulliLoss and not e.vectorized and _netem(e._u) is None:  # type: ignore[attr-defined]
+            return f"gaussian_copula-correlated loss on the {direction} link with a codec ({allowed})"
         if t is Delay and jitter:
             why = _jitter_reason(e)  # type: ignore[arg-type]
             if why is not None:
@@ -104,13 +105,19 @@ def _jitter_reason(e: Delay) -> str | None:
     return None
 
 
+def _netem(draw: Any) -> NetemCorrelatedUniform | None:
+    """The netem-correlated source behind an effect's draw function (None: another source)."""
+    src = getattr(draw, "__self__", None)
+    return src if type(src) is NetemCorrelatedUniform else None
+
+
 def _jitter_source(e: Delay) -> tuple[UniformSource, float, float]:
     """A Delay's jitter stream as the kernel takes it: the uniform source its numbers come from,
     netem's correlation (0: none) and its last correlated number."""
-    src = e._ju.__self__  # type: ignore[union-attr]
-    if type(src) is NetemCorrelatedUniform:
+    src = _netem(e._ju)
+    if src is not None:
         return src._fresh.__self__, src._rho, src._last  # type: ignore[attr-defined, return-value]
-    return src, 0.0, 0.0  # type: ignore[return-value]
+    return e._ju.__self__, 0.0, 0.0  # type: ignore[union-attr, return-value]
 
 
 def _uniform_rng(e: Any) -> np.random.Generator:
@@ -172,6 +179,11 @@ class LinkArrays:
             S[L.S_BAD] = 1.0 if self._loss.bad else 0.0
         self.S = S
         self.U = np.zeros(0)
+        src = _netem(self._loss._u) if type(self._loss) is BernoulliLoss else None
+        if src is not None:  # netem-correlated loss: its source drew its first block when it was built
+            C[L.C_LRHO], S[L.S_LLAST] = src._rho, src._last
+            self.U = np.array(src._fresh.__self__.take_rest())  # type: ignore[attr-defined]
+            S[L.S_U], S[L.S_U_END] = 0.0, float(len(self.U))
         depth = 4
         # in flight: at most the ticks of the delay, + 2, times the packets a tick
         while depth < ((delay_ns + jitter_ns) // period_ns + 3) * self.per_tick:
@@ -203,12 +215,14 @@ class LinkArrays:
         link.sent, link.lost = int(S[L.S_LINK_SENT]), int(S[L.S_LINK_LOST])
         if self._jitter is not None:
             self._jitter._last_arrival = int(S[L.S_LAST_ARRIVAL])
-            if type(src := getattr(self._jitter._ju, "__self__", None)) is NetemCorrelatedUniform:
+            if (src := _netem(self._jitter._ju)) is not None:
                 src._last = S[L.S_JLAST]
         if self._blackout is not None:
             self._blackout.dropped = int(S[L.S_DROP_BLACKOUT])
         if self._loss is not None:
             self._loss.dropped = int(S[L.S_DROP_LOSS])
+            if type(self._loss) is BernoulliLoss and (src := _netem(self._loss._u)) is not None:
+                src._last = S[L.S_LLAST]
             if type(self._loss) is GilbertElliottLoss:
                 self._loss.bad = bool(S[L.S_BAD])
 
