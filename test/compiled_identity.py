@@ -14,6 +14,7 @@ from haptic_teleop.record.streams import BLOCK_TICKS
 BERNOULLI = "{probability: 0.2}"
 GILBERT = "{model: gilbert_elliott, p: 0.05, r: 0.2, one_minus_h: 0.9, one_minus_k: 0.02}"
 CORRELATED = "{probability: 0.3, correlation: 0.3}"  # netem-correlated Bernoulli loss (the default model): 17 %
+FOUR_STATE = "{model: four_state, p13: 0.05, p31: 0.5, p32: 0.3, p23: 0.4, p14: 0.02}"  # netem's GI model
 # loss correlated by a Gaussian copula, which a compiled codec link refuses (netem's it runs)
 COPULA_LOSS = ("loss={probability: 0.1, correlation: 0.5}", "correlation_model=gaussian_copula")
 

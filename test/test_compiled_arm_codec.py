@@ -32,6 +32,7 @@ from compiled_identity import (
     COPULA_LOSS,
     CORRELATED,
     FLOOR,
+    FOUR_STATE,
     GILBERT,
     HOLD,
     LAST_TWO,
@@ -99,9 +100,13 @@ CASES.update(
             (),
         ),
         "hli_both": ({"forward": (HLI, GILBERT, None), "backward": (HLI_BUDGET, GILBERT, BLACKOUT)}, ()),
-        # netem-correlated loss both ways (ARQ's ACKs too)
+        # netem-correlated loss both ways (ARQ's ACKs too); the 4-state chain
         "correlated_arq_fec": (
             {"forward": (ARQ_ACK, CORRELATED, None), "backward": (REPETITION, CORRELATED, BLACKOUT)},
+            DELAY_10MS,
+        ),
+        "four_state_fec_arq": (
+            {"forward": (REPETITION, FOUR_STATE, BLACKOUT), "backward": (ARQ_ACK, FOUR_STATE, None)},
             DELAY_10MS,
         ),
         # a deadband's link jitters in the kernel too: packets overtake each other forward, keep

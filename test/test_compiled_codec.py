@@ -24,6 +24,7 @@ from compiled_identity import (
     COPULA_LOSS,
     CORRELATED,
     FLOOR,
+    FOUR_STATE,
     GILBERT,
     HOLD,
     LAST_TWO,
@@ -110,10 +111,11 @@ def _last(draw):
 
 
 def _effect_state(x):
-    """An effect's counts and state: dropped, the Gilbert state, the correlated numbers' last,
-    the jitter's last arrival kept in order."""
+    """An effect's counts and state: dropped, the Gilbert and 4-state chains' state, a trace's
+    packets so far, the correlated numbers' last, the jitter's last arrival kept in order."""
     u, ju = _last(getattr(x, "_u", None)), _last(getattr(x, "_ju", None))
-    return (x.name, getattr(x, "dropped", None), getattr(x, "bad", None), u, ju, getattr(x, "_last_arrival", None))
+    state = (getattr(x, "bad", None), getattr(x, "state", None), getattr(x, "_n", None))
+    return (x.name, getattr(x, "dropped", None), *state, u, ju, getattr(x, "_last_arrival", None))
 
 
 def _link(link):
@@ -388,6 +390,33 @@ def test_stopped_compiled_codec_run_leaves_the_python_loops_records():
     compiled, python = _run(scene, "compiled", stop_at=700), _run(scene, "python", stop_at=700)
     assert compiled[1].interrupted and compiled[1].ticks == 700
     _assert_same(compiled, python)
+
+
+@pytest.mark.parametrize(("repeat", "stop_at"), [(True, None), (False, None), (True, 700)])
+def test_compiled_codec_over_four_state_and_trace_loss_equals_python_loop(tmp_path, repeat, stop_at):
+    """The 4-state chain and a loss trace in the kernel: ARQ forward over 4-state loss, its ACKs
+    and a deadband backward over a 100-packet trace (repeated: every link starts it over; not
+    repeated: the packets after it all pass), a run stopped at tick 700 too."""
+    rng = np.random.default_rng(7)
+    trace = tmp_path / "loss.csv"
+    trace.write_text("lost\n" + "".join(f"{int(x)}\n" for x in rng.random(100) < 0.2))
+    over = [
+        "scene.duration_s=1.5",
+        *MOVING,
+        f"network.forward.codec={ARQ_SLOW}",
+        f"network.backward.codec={HOLD}",
+        *(f"network.{d}.effects.delay.delay_s=0.01" for d in ("forward", "backward")),
+        f"network.forward.effects.loss={FOUR_STATE}",
+        f"network.backward.effects.loss={{model: trace, file: {trace}, repeat: {str(repeat).lower()}}}",
+    ]
+    scene = _scene(over)
+    compiled, python = _run(scene, "compiled", stop_at), _run(scene, "python", stop_at)
+    _assert_same(compiled, python)
+    e = compiled[0]
+    fwd, bwd = (next(x for x in getattr(e, d).effects if x.name == "loss") for d in ("forward", "backward"))
+    assert type(fwd).__name__ == "FourStateLoss" and fwd.dropped > 20
+    assert type(bwd).__name__ == "TraceLoss" and bwd.dropped > 5 and (bwd._n > 100 or stop_at is not None)
+    assert e.codecs[0].ack_link.lost > 10
 
 
 def test_stopped_compiled_arq_run_leaves_the_python_loops_records():

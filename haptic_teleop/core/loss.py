@@ -133,6 +133,27 @@ class GilbertElliottLoss:
         return None
 
 
+def four_state_step(s: int, u: float, p13: float, p31: float, p32: float, p23: float, p14: float) -> int:
+    """One packet of netem's 4-state chain from its uniform `u`: the state after it (the packet is
+    lost in 3 and 4). One definition for `FourStateLoss` and the compiled loop
+    (engine/codec_kernel.py)."""
+    if s == 1:
+        if u < p14:
+            return 4
+        if u < p14 + p13:
+            return 3
+        return 1
+    if s == 2:
+        return 3 if u < p23 else 2
+    if s == 3:
+        if u < p32:
+            return 2
+        if u < p32 + p31:
+            return 1
+        return 3
+    return 1
+
+
 class FourStateLoss:
     """netem's 4-state Markov loss (`loss state p13 p31 p32 p23 p14`, the GI model).
 
@@ -155,24 +176,7 @@ class FourStateLoss:
         self.dropped = 0
 
     def apply(self, packet: Packet) -> Packet | None:
-        u = self._u()
-        s = self.state
-        if s == 1:
-            if u < self.p14:
-                s = 4
-            elif u < self.p14 + self.p13:
-                s = 3
-        elif s == 2:
-            if u < self.p23:
-                s = 3
-        elif s == 3:
-            if u < self.p32:
-                s = 2
-            elif u < self.p32 + self.p31:
-                s = 1
-        else:
-            s = 1
-        self.state = s
+        s = self.state = four_state_step(self.state, self._u(), self.p13, self.p31, self.p32, self.p23, self.p14)
         if s >= 3 and packet.fate == DELIVERED:
             packet.fate = LOST_NETWORK
             self.dropped += 1

@@ -51,6 +51,7 @@ outside = jit(db.outside)
 extrapolated = jit(db.extrapolated)
 extrapolate1 = jit(pr.extrapolate1)
 gilbert_step = jit(loss.gilbert_step)
+four_state_step = jit(loss.four_state_step)
 rounded_sum = part_jit(fec.rounded_sum)
 linear1 = jit(hli_codec.linear1)
 
@@ -59,42 +60,72 @@ LOST_NETWORK = 1.0
 
 
 @inline  # type: ignore[misc]
-def link_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int) -> float:
-    # Link.send's effects on one packet sent at `now`: blackout, loss (its draws whatever the
-    # fate), the link's counts. Returns the fate.
-    fate = DELIVERED
+def loss_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> tuple[bool, int]:
+    # The loss effect's verdict on the next packet (its draws whatever the packet's fate) from
+    # its numbers U from index u; and the next index. Bernoulli (netem-correlated if C_LRHO:
+    # NetemCorrelatedUniform.next), Gilbert-Elliott (two numbers), the 4-state chain, a trace
+    # (U its pattern, u the packets so far).
+    kind = C[L.C_LOSS]
+    if kind == L.LOSS_BERNOULLI:
+        x = U[u]
+        rho = C[L.C_LRHO]
+        if rho != 0.0:
+            x = (1.0 - rho) * x + rho * S[L.S_LLAST]
+            S[L.S_LLAST] = x
+        return x < C[L.C_LP], u + 1
+    if kind == L.LOSS_GILBERT:
+        bad, lost = gilbert_step(S[L.S_BAD] != 0.0, U[u], U[u + 1], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD])
+        S[L.S_BAD] = 1.0 if bad else 0.0
+        return lost, u + 2
+    if kind == L.LOSS_FOUR_STATE:
+        state = four_state_step(int(S[L.S_BAD]), U[u], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD], C[L.C_LP14])
+        S[L.S_BAD] = state
+        return state >= 3, u + 1
+    if kind == L.LOSS_TRACE:
+        n = u
+        if n >= U.shape[0]:
+            if C[L.C_LP] == 0.0:  # (not repeated: the packets after it all pass)
+                return False, u + 1
+            n %= U.shape[0]
+        return U[n] != 0.0, u + 1
+    return False, u
+
+
+@inline  # type: ignore[misc]
+def fate_of(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int, u: int) -> tuple[int, int]:
+    # Link.send's effects on one packet sent at `now` (blackout, loss: its draws whatever the
+    # fate), the link's counts and its next random number kept by the caller: 0 delivered,
+    # 1 lost in a blackout, 2 lost by the loss model; and the next random number.
+    fate = 0
     nb = B.shape[0]
-    if nb > 0:  # Blackout.apply: the window starting at or before `now` (send times only grow)
+    if nb > 0:
         i = int(S[L.S_BLACKOUT_I])
         while i < nb and B[i, 0] <= now:
             i += 1
         S[L.S_BLACKOUT_I] = i
         if i > 0 and now < B[i - 1, 1]:
-            fate = LOST_NETWORK
-            S[L.S_DROP_BLACKOUT] += 1.0
-    kind = C[L.C_LOSS]
-    if kind == L.LOSS_BERNOULLI:
-        u = U[int(S[L.S_U])]
-        S[L.S_U] += 1.0
-        rho = C[L.C_LRHO]
-        if rho != 0.0:  # NetemCorrelatedUniform.next
-            u = (1.0 - rho) * u + rho * S[L.S_LLAST]
-            S[L.S_LLAST] = u
-        if u < C[L.C_LP] and fate == DELIVERED:
-            fate = LOST_NETWORK
-            S[L.S_DROP_LOSS] += 1.0
-    elif kind == L.LOSS_GILBERT:
-        k = int(S[L.S_U])
-        S[L.S_U] += 2.0
-        bad, lost = gilbert_step(S[L.S_BAD] != 0.0, U[k], U[k + 1], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD])
-        S[L.S_BAD] = 1.0 if bad else 0.0
-        if lost and fate == DELIVERED:
-            fate = LOST_NETWORK
-            S[L.S_DROP_LOSS] += 1.0
+            fate = 1
+    if C[L.C_LOSS] != L.LOSS_NONE:
+        lost, u = loss_fate(C, S, U, u)
+        if lost and fate == 0:
+            fate = 2
+    return fate, u
+
+
+@inline  # type: ignore[misc]
+def link_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int) -> float:
+    # `fate_of` with the link's counts and its next random number in S. Returns the fate.
+    fate, u = fate_of(C, S, U, B, now, int(S[L.S_U]))
+    S[L.S_U] = u
     S[L.S_LINK_SENT] += 1.0
-    if fate != DELIVERED:
-        S[L.S_LINK_LOST] += 1.0
-    return fate
+    if fate == 0:
+        return DELIVERED
+    S[L.S_LINK_LOST] += 1.0
+    if fate == 1:
+        S[L.S_DROP_BLACKOUT] += 1.0
+    else:
+        S[L.S_DROP_LOSS] += 1.0
+    return LOST_NETWORK
 
 
 @inline  # type: ignore[misc]
@@ -630,39 +661,6 @@ def fec_tick(
 # column of its row to the decoder's, the plan's output. (The packets in flight carry no
 # payload here: a packet's payload is its seq's sample, X_SENT of its row until that row is
 # reused, which the history's length puts after the last copy of the seq can arrive.)
-
-
-@inline  # type: ignore[misc]
-def fate_of(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int, u: int) -> tuple[int, int]:
-    # `link_fate`'s effects with the link's counts and its next random number kept by the
-    # caller: 0 delivered, 1 lost in a blackout, 2 lost by the loss model (its draws whatever
-    # the fate); and the next random number.
-    fate = 0
-    nb = B.shape[0]
-    if nb > 0:
-        i = int(S[L.S_BLACKOUT_I])
-        while i < nb and B[i, 0] <= now:
-            i += 1
-        S[L.S_BLACKOUT_I] = i
-        if i > 0 and now < B[i - 1, 1]:
-            fate = 1
-    kind = C[L.C_LOSS]
-    if kind == L.LOSS_BERNOULLI:
-        x = U[u]
-        rho = C[L.C_LRHO]
-        if rho != 0.0:  # NetemCorrelatedUniform.next
-            x = (1.0 - rho) * x + rho * S[L.S_LLAST]
-            S[L.S_LLAST] = x
-        if x < C[L.C_LP] and fate == 0:
-            fate = 2
-        u += 1
-    elif kind == L.LOSS_GILBERT:
-        bad, lost = gilbert_step(S[L.S_BAD] != 0.0, U[u], U[u + 1], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD])
-        S[L.S_BAD] = 1.0 if bad else 0.0
-        if lost and fate == 0:
-            fate = 2
-        u += 2
-    return fate, u
 
 
 ACK_WIDTH = 53  # core/arq.ACK_WINDOW + 1: the newest seq and the window below it

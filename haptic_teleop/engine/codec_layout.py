@@ -7,7 +7,7 @@ NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
 COMPILED_KINDS = ("deadband", "prediction", "fec", "arq", "hli")
 ARM_COMPILED_KINDS = COMPILED_KINDS  # the compiled arm loop's (engine/arm_codec_kernel.py)
 FEC, ARQ, HLI = 3.0, 4.0, 5.0
-LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT = 0.0, 1.0, 2.0
+LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT, LOSS_FOUR_STATE, LOSS_TRACE = 0.0, 1.0, 2.0, 3.0, 4.0
 
 # C: one direction's constants.
 (
@@ -54,7 +54,12 @@ C_JIT, C_JN, C_JBASE_NS, C_JSIGMA_NS, C_JKEEP = range(45, 50)
 C_JRHO = 50  # netem's correlation of the jitter's uniform numbers (0: none)
 C_PLAN = 51  # ARQ: where its plan starts in W (`codec_kernel.arq_block`)
 C_LRHO = 52  # netem's correlation of a Bernoulli loss's uniform numbers (0: none)
-C_SIZE_X = 53  # C's length with these
+# The loss's parameters: Bernoulli's probability (C_LP); Gilbert-Elliott's p, r, 1-h, 1-k (C_LP,
+# C_LR, C_LBAD, C_LGOOD); the 4-state chain's p13, p31, p32, p23 there and p14 (C_LP14), its state
+# in S_BAD; a trace's pattern in U (0/1, a packet each) and whether it repeats (C_LP), S_U the
+# packets so far
+C_LP14 = 53
+C_SIZE_X = 54  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,

@@ -39,7 +39,7 @@ from haptic_teleop.core.fec import payload_floats
 from haptic_teleop.core.hli import HLI1, HLI2
 from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
-from haptic_teleop.core.loss import BernoulliLoss, Blackout, GilbertElliottLoss
+from haptic_teleop.core.loss import BernoulliLoss, Blackout, FourStateLoss, GilbertElliottLoss, TraceLoss
 from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, jitter_table
 from haptic_teleop.engine import codec_layout as L
 from haptic_teleop.engine.codec_channel import CodecChannel, GroupedDeadbandEncoder
@@ -75,10 +75,10 @@ def link_reason(direction: str, link: Link, jitter: bool = False) -> str | None:
     """Why the kernel cannot run `link`'s effects for a codec direction (None: it can); `jitter`:
     the direction's decoder takes packets out of order (the deadband's), so the link may jitter."""
     allowed = (
-        "compiled codec links take only blackout, uncorrelated or netem-correlated bernoulli or "
-        "gilbert(_elliott) loss and a constant delay (a deadband's also uncorrelated or netem-correlated "
-        "jitter, with or without keep_order): effects that decide a packet's fate and arrival from its "
-        "index in the stream and its send time"
+        "compiled codec links take only blackout, loss (uncorrelated or netem-correlated bernoulli, "
+        "gilbert(_elliott), four_state or trace) and a constant delay (a deadband's also uncorrelated or "
+        "netem-correlated jitter, with or without keep_order): effects that decide a packet's fate and "
+        "arrival from its index in the stream and its send time"
     )
     for e in link.effects:
         t = type(e)
@@ -89,7 +89,7 @@ def link_reason(direction: str, link: Link, jitter: bool = False) -> str | None:
             if why is not None:
                 return f"{why} on the {direction} link with a codec ({allowed})"
             continue
-        if t not in (Blackout, BernoulliLoss, GilbertElliottLoss, ConstantDelay):
+        if t not in (Blackout, BernoulliLoss, GilbertElliottLoss, FourStateLoss, TraceLoss, ConstantDelay):
             return f"effect {e.name} ({t.__name__}) on the {direction} link with a codec ({allowed})"
     return None
 
@@ -124,7 +124,7 @@ def _uniform_rng(e: Any) -> np.random.Generator:
     """The Generator an effect's `UniformSource` draws from (BernoulliLoss keeps it as `_rng`)."""
     if type(e) is BernoulliLoss:
         return e._rng  # type: ignore[no-any-return]
-    return e._u.__self__._rng  # type: ignore[no-any-return]  # GilbertElliottLoss: UniformSource(rng).next
+    return e._u.__self__._rng  # type: ignore[no-any-return]  # GilbertElliottLoss, FourStateLoss: UniformSource(rng).next
 
 
 class LinkArrays:
@@ -170,15 +170,29 @@ class LinkArrays:
                 self._loss = e
                 C[L.C_LOSS] = L.LOSS_GILBERT
                 C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD] = e.p, e.r, e.loss_bad, e.loss_good
+            elif type(e) is FourStateLoss:
+                self._loss = e
+                C[L.C_LOSS] = L.LOSS_FOUR_STATE
+                C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD] = e.p13, e.p31, e.p32, e.p23
+                C[L.C_LP14] = e.p14
+            elif type(e) is TraceLoss:
+                self._loss = e
+                C[L.C_LOSS], C[L.C_LP] = L.LOSS_TRACE, 1.0 if e._repeat else 0.0
         C[L.C_DELAY_NS] = delay_ns
         self.C = C
         self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
-        self._draws_per_packet = {L.LOSS_NONE: 0, L.LOSS_BERNOULLI: 1, L.LOSS_GILBERT: 2}[C[L.C_LOSS]]
-        self._rng = None if self._loss is None else _uniform_rng(self._loss)
+        draws = {L.LOSS_NONE: 0, L.LOSS_BERNOULLI: 1, L.LOSS_GILBERT: 2, L.LOSS_FOUR_STATE: 1, L.LOSS_TRACE: 0}
+        self._draws_per_packet = draws[C[L.C_LOSS]]
+        self._rng = None if self._loss is None or self._draws_per_packet == 0 else _uniform_rng(self._loss)
         if type(self._loss) is GilbertElliottLoss:
             S[L.S_BAD] = 1.0 if self._loss.bad else 0.0
+        elif type(self._loss) is FourStateLoss:
+            S[L.S_BAD] = self._loss.state
         self.S = S
         self.U = np.zeros(0)
+        if type(self._loss) is TraceLoss:  # U: its pattern; S_U: the packets so far
+            self.U = np.array(self._loss._pattern, dtype=float)
+            S[L.S_U], S[L.S_U_END] = self._loss._n, len(self.U)
         src = _netem(self._loss._u) if type(self._loss) is BernoulliLoss else None
         if src is not None:  # netem-correlated loss: its source drew its first block when it was built
             C[L.C_LRHO], S[L.S_LLAST] = src._rho, src._last
@@ -225,6 +239,10 @@ class LinkArrays:
                 src._last = S[L.S_LLAST]
             if type(self._loss) is GilbertElliottLoss:
                 self._loss.bad = bool(S[L.S_BAD])
+            elif type(self._loss) is FourStateLoss:
+                self._loss.state = int(S[L.S_BAD])
+            elif type(self._loss) is TraceLoss:
+                self._loss._n = int(S[L.S_U])
 
     def args(self) -> tuple[np.ndarray, ...]:
         """The kernel's arguments for this direction (re-read after `ready`: it may replace arrays)."""
