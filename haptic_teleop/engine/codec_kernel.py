@@ -59,12 +59,28 @@ DELIVERED = 0.0
 LOST_NETWORK = 1.0
 
 
+@part_jit  # type: ignore[misc]
+def chain_or_trace_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> tuple[bool, int]:
+    # `loss_fate` of the 4-state chain and of a trace (U its pattern, u the packets so far):
+    # compiled once, not inlined into every link (cold compile time).
+    if C[L.C_LOSS] == L.LOSS_FOUR_STATE:
+        state = four_state_step(int(S[L.S_BAD]), U[u], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD], C[L.C_LP14])
+        S[L.S_BAD] = state
+        return state >= 3, u + 1
+    n = u
+    if n >= U.shape[0]:
+        if C[L.C_LP] == 0.0:  # (not repeated: the packets after it all pass)
+            return False, u + 1
+        n %= U.shape[0]
+    return U[n] != 0.0, u + 1
+
+
 @inline  # type: ignore[misc]
 def loss_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> tuple[bool, int]:
     # The loss effect's verdict on the next packet (its draws whatever the packet's fate) from
     # its numbers U from index u; and the next index. Bernoulli (netem-correlated if C_LRHO:
-    # NetemCorrelatedUniform.next), Gilbert-Elliott (two numbers), the 4-state chain, a trace
-    # (U its pattern, u the packets so far).
+    # NetemCorrelatedUniform.next), Gilbert-Elliott (two numbers), the 4-state chain and a
+    # trace (`chain_or_trace_fate`).
     kind = C[L.C_LOSS]
     if kind == L.LOSS_BERNOULLI:
         x = U[u]
@@ -77,18 +93,7 @@ def loss_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> tuple[bool
         bad, lost = gilbert_step(S[L.S_BAD] != 0.0, U[u], U[u + 1], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD])
         S[L.S_BAD] = 1.0 if bad else 0.0
         return lost, u + 2
-    if kind == L.LOSS_FOUR_STATE:
-        state = four_state_step(int(S[L.S_BAD]), U[u], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD], C[L.C_LP14])
-        S[L.S_BAD] = state
-        return state >= 3, u + 1
-    if kind == L.LOSS_TRACE:
-        n = u
-        if n >= U.shape[0]:
-            if C[L.C_LP] == 0.0:  # (not repeated: the packets after it all pass)
-                return False, u + 1
-            n %= U.shape[0]
-        return U[n] != 0.0, u + 1
-    return False, u
+    return chain_or_trace_fate(C, S, U, u)
 
 
 @inline  # type: ignore[misc]
