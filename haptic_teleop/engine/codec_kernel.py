@@ -463,9 +463,9 @@ def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
 
 
 @inline  # type: ignore[misc]
-def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
-    # Reconstructor.add of the value in W[W_VALUE:]; False if held already or too old to keep.
-    # Not `fresh`: a recovered sample, counted.
+def rec_take(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int, fresh: bool) -> bool:
+    # Reconstructor.add of `seq` but its value (`rec_add`; ARQ's plan moves the value later);
+    # False if held already or too old to keep. Not `fresh`: a recovered sample, counted.
     if rec_held(C, S, X, seq):
         return False
     if S[L.S_HAS_HELD] != 0.0 and seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
@@ -477,10 +477,7 @@ def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int
         if S[L.S_HAS_PLAYED] != 0.0 and seq <= S[L.S_LAST_PLAYED]:
             S[L.S_LATE] += 1.0
             S[L.S_RECOVERED_LATE] += 1.0
-    j = seq & (X.shape[0] - 1)
-    X[j, L.X_HELD] = seq
-    for i in range(int(C[L.C_DIM])):
-        X[j, L.X_VALUE + i] = W[L.W_VALUE + i]
+    X[seq & (X.shape[0] - 1), L.X_HELD] = seq
     if S[L.S_HAS_HELD] == 0.0 or seq > S[L.S_MAXHELD]:
         S[L.S_MAXHELD] = seq
         S[L.S_HAS_HELD] = 1.0
@@ -492,9 +489,22 @@ def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int
 
 
 @inline  # type: ignore[misc]
-def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndarray) -> bool:
-    # Reconstructor.sample: the playout slot, the sample at the slot (wait_ticks behind), or the
-    # prediction from the newest two held at or before it.
+def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
+    # Reconstructor.add of the value in W[W_VALUE:] (`rec_take`, then the value).
+    if not rec_take(C, S, X, seq, fresh):
+        return False
+    j = seq & (X.shape[0] - 1)
+    for i in range(int(C[L.C_DIM])):
+        X[j, L.X_VALUE + i] = W[L.W_VALUE + i]
+    return True
+
+
+@inline  # type: ignore[misc]
+def rec_choose(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int) -> tuple[int, int, int, int]:
+    # Reconstructor.sample but its values (`rec_sample`; ARQ's plan keeps the choice): the
+    # playout slot, then the held seq to give (the sample at the slot, wait_ticks behind, or the
+    # newest held before it; -1: none) and, for a prediction from the newest two held at or
+    # before the target, the one before it (-1: hold), the ticks ahead and the span.
     if S[L.S_PENDING] != 0.0:
         S[L.S_SLOT] = S[L.S_NEWEST_FRESH]
         S[L.S_SLOT_N] = n
@@ -508,12 +518,11 @@ def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndar
         S[L.S_SLOT_N] = n
         S[L.S_HAS_SLOT] = 1.0
     else:
-        return False
+        return -1, -1, 0, 0
     target = int(S[L.S_SLOT]) - int(C[L.C_WAIT])
     if S[L.S_HAS_PLAYED] == 0.0 or target > S[L.S_LAST_PLAYED]:
         S[L.S_LAST_PLAYED] = target
         S[L.S_HAS_PLAYED] = 1.0
-    dim = int(C[L.C_DIM])
     mask = X.shape[0] - 1
     newest = int(S[L.S_MAXHELD])
     lo = max(0, newest - int(C[L.C_KEEP]))
@@ -521,27 +530,42 @@ def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndar
     while last >= lo and X[last & mask, L.X_HELD] != last:
         last -= 1
     if last < lo:
-        return False  # everything held is newer than the target
-    j = last & mask
+        return -1, -1, 0, 0  # everything held is newer than the target
     if last == target:
-        for i in range(dim):
-            out[i] = X[j, L.X_VALUE + i]
-        return True
+        return last, -1, 0, 0
     S[L.S_PREDICTED] += 1.0
+    if C[L.C_EXTRAP] == 0.0:
+        return last, -1, 0, 0
     prev = last - 1
-    if C[L.C_EXTRAP] != 0.0:
-        while prev >= lo and X[prev & mask, L.X_HELD] != prev:
-            prev -= 1
-    if C[L.C_EXTRAP] == 0.0 or prev < lo:
-        for i in range(dim):
+    while prev >= lo and X[prev & mask, L.X_HELD] != prev:
+        prev -= 1
+    if prev < lo:
+        return last, -1, 0, 0
+    return last, prev, min(target - last, int(C[L.C_MAX_TICKS])), last - prev
+
+
+@inline  # type: ignore[misc]
+def rec_give(C: np.ndarray, X: np.ndarray, last: int, prev: int, ahead: int, span: int, out: np.ndarray) -> bool:
+    # The values of `rec_choose`'s choice into `out` (False: nothing to give).
+    if last < 0:
+        return False
+    mask = X.shape[0] - 1
+    j = last & mask
+    if prev < 0:
+        for i in range(int(C[L.C_DIM])):
             out[i] = X[j, L.X_VALUE + i]
         return True
-    ahead = min(target - last, int(C[L.C_MAX_TICKS]))
-    span = last - prev
     k = prev & mask
-    for i in range(dim):
+    for i in range(int(C[L.C_DIM])):
         out[i] = extrapolate1(X[k, L.X_VALUE + i], X[j, L.X_VALUE + i], ahead, span)
     return True
+
+
+@inline  # type: ignore[misc]
+def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # Reconstructor.sample: the choice (`rec_choose`) and its values.
+    last, prev, ahead, span = rec_choose(C, S, X, n)
+    return rec_give(C, X, last, prev, ahead, span, out)
 
 
 @inline  # type: ignore[misc]
@@ -811,7 +835,8 @@ def arq_block(
 ) -> None:
     # CodecChannel.step with ArqEncoder / ArqDecoder and the ACK link for ticks n0 .. n1 - 1,
     # all but the samples; the plan of tick n in W's row n - n0 from C_PLAN. The state the
-    # ticks change most is kept in locals and written back at the end. An ACK per data packet
+    # ticks change most (the data link's, the sender's, the ACK link's) is kept in locals and
+    # written back at the end; the decoder's is `rec_take`'s and `rec_choose`'s, as FEC's. An ACK per data packet
     # (ack_every_ticks 1) is not carried through the ACK link's ring: over its constant delay it
     # is taken D = max(1, ceil(delay / period)) ticks after it is sent, and what `feedback` will
     # make of it is known when it is sent (below); the sender's pending test reads X_ACK_AT.
@@ -824,10 +849,6 @@ def arq_block(
     timeout = C[L.C_TIMEOUT_NS]
     m_ticks = int(C[L.C_M_TICKS])
     nu = C[L.C_NU]
-    keep = int(C[L.C_KEEP])
-    wait = int(C[L.C_WAIT])
-    extrap = C[L.C_EXTRAP] != 0.0
-    max_ticks = int(C[L.C_MAX_TICKS])
     cumulative = C[L.C_ACK_EVERY] > 1.0
     plan = int(C[L.C_PLAN])
     taken_at = plan + L.PLAN_TICKS * L.P_WIDTH  # the seqs the decoder takes
@@ -846,21 +867,7 @@ def arq_block(
     lo = int(S[L.S_PEND_LO])
     received = 0
     duplicates = 0
-    recovered = 0
-    late = 0
-    recovered_late = 0
     newest_rx = int(S[L.S_NEWEST])
-    has_held = S[L.S_HAS_HELD] != 0.0
-    maxheld = int(S[L.S_MAXHELD])
-    has_fresh = S[L.S_HAS_FRESH] != 0.0
-    newest_fresh = int(S[L.S_NEWEST_FRESH])
-    pending = S[L.S_PENDING] != 0.0
-    has_slot = S[L.S_HAS_SLOT] != 0.0
-    slot = int(S[L.S_SLOT])
-    slot_n = int(S[L.S_SLOT_N])
-    has_played = S[L.S_HAS_PLAYED] != 0.0
-    last_played = int(S[L.S_LAST_PLAYED])
-    predicted = 0
     # the ACK link (an ACK per data packet; cumulative ACKs keep its state in aS)
     au = int(aS[L.S_U])
     ahead = int(aS[L.S_HEAD])
@@ -956,29 +963,11 @@ def arq_block(
             fresh = ring[h, L.RING_ATTEMPT] == 0.0
             received += 1
             k = seq & mask
-            floor = maxheld - keep
-            if has_held and seq >= floor and X[k, L.X_HELD] == seq:
-                duplicates += 1  # held already
-            elif has_held and seq < floor:
-                duplicates += 1  # too old to keep
-                if not fresh:
-                    late += 1
-            else:
-                if not fresh:  # a retransmission, maybe late
-                    recovered += 1
-                    if has_played and seq <= last_played:
-                        late += 1
-                        recovered_late += 1
-                X[k, L.X_HELD] = seq
-                if not has_held or seq > maxheld:
-                    maxheld = seq
-                    has_held = True
-                if fresh and (not has_fresh or seq > newest_fresh):
-                    newest_fresh = seq
-                    has_fresh = True
-                    pending = True
+            if rec_take(C, S, X, seq, fresh):
                 W[taken_at + taken] = seq
                 taken += 1
+            else:
+                duplicates += 1
             if seq > newest_rx:
                 newest_rx = seq
                 rx = seq
@@ -1017,49 +1006,12 @@ def arq_block(
             arq_cumulative_ack(C, S, W, aC, aS, aU, aB, aring, arec, n, now)
         W[row + L.P_RX] = rx
         W[row + L.P_TAKEN] = taken
-        # Reconstructor.sample: the playout slot, the sample at the slot (wait_ticks behind), or
-        # the prediction from the newest two held at or before it
-        got = True
-        if pending:
-            slot = newest_fresh
-            slot_n = n
-            pending = False
-            has_slot = True
-        elif has_slot:
-            slot = slot + (n - slot_n)
-            slot_n = n
-        elif has_held:
-            slot = maxheld
-            slot_n = n
-            has_slot = True
-        else:
-            got = False
-        if got:
-            target = slot - wait
-            if not has_played or target > last_played:
-                last_played = target
-                has_played = True
-            low = max(0, maxheld - keep)
-            last = min(target, maxheld)
-            while last >= low and X[last & mask, L.X_HELD] != last:
-                last -= 1
-            if last < low:
-                got = False  # everything held is newer than the target
-            else:
-                W[row + L.P_LAST] = last
-                W[row + L.P_EXTRAP] = 0.0
-                if last != target:
-                    predicted += 1
-                    prev = last - 1
-                    if extrap:
-                        while prev >= low and X[prev & mask, L.X_HELD] != prev:
-                            prev -= 1
-                        if prev >= low:
-                            W[row + L.P_EXTRAP] = 1.0
-                            W[row + L.P_PREV] = prev
-                            W[row + L.P_AHEAD] = min(target - last, max_ticks)
-                            W[row + L.P_SPAN] = last - prev
-        W[row + L.P_GOT] = 1.0 if got else 0.0
+        # Reconstructor.sample's choice (its values: `arq_tick`)
+        last, prev, ahead_ticks, span = rec_choose(C, S, X, n)
+        W[row + L.P_LAST] = last
+        W[row + L.P_PREV] = prev
+        W[row + L.P_AHEAD] = ahead_ticks
+        W[row + L.P_SPAN] = span
     S[L.S_U] = u
     S[L.S_RECS] = recs
     S[L.S_HEAD] = head
@@ -1076,21 +1028,7 @@ def arq_block(
     S[L.S_PEND_LO] = lo
     S[L.S_RECEIVED] += received
     S[L.S_DUPLICATES] += duplicates
-    S[L.S_RECOVERED] += recovered
-    S[L.S_LATE] += late
-    S[L.S_RECOVERED_LATE] += recovered_late
     S[L.S_NEWEST] = newest_rx
-    S[L.S_HAS_HELD] = 1.0 if has_held else 0.0
-    S[L.S_MAXHELD] = maxheld
-    S[L.S_HAS_FRESH] = 1.0 if has_fresh else 0.0
-    S[L.S_NEWEST_FRESH] = newest_fresh
-    S[L.S_PENDING] = 1.0 if pending else 0.0
-    S[L.S_HAS_SLOT] = 1.0 if has_slot else 0.0
-    S[L.S_SLOT] = slot
-    S[L.S_SLOT_N] = slot_n
-    S[L.S_HAS_PLAYED] = 1.0 if has_played else 0.0
-    S[L.S_LAST_PLAYED] = last_played
-    S[L.S_PREDICTED] += predicted
     if not cumulative:
         S[L.S_ACKS_SENT] += acks
         S[L.S_ACK_PACKETS] += acks
@@ -1143,20 +1081,9 @@ def arq_tick(
         k = int(W[q]) & mask
         for i in range(dim):
             X[k, L.X_VALUE + i] = X[k, L.X_SENT + i]
-    rx = int(W[row + L.P_RX])
-    if W[row + L.P_GOT] == 0.0:
-        return rx, False
-    k = int(W[row + L.P_LAST]) & mask
-    if W[row + L.P_EXTRAP] == 0.0:
-        for i in range(dim):
-            out[i] = X[k, L.X_VALUE + i]
-    else:
-        p = int(W[row + L.P_PREV]) & mask
-        ahead = int(W[row + L.P_AHEAD])
-        span = int(W[row + L.P_SPAN])
-        for i in range(dim):
-            out[i] = extrapolate1(X[p, L.X_VALUE + i], X[k, L.X_VALUE + i], ahead, span)
-    return rx, True
+    last, prev = int(W[row + L.P_LAST]), int(W[row + L.P_PREV])
+    got = rec_give(C, X, last, prev, int(W[row + L.P_AHEAD]), int(W[row + L.P_SPAN]), out)
+    return int(W[row + L.P_RX]), got
 
 
 # ------------------------------------------------------------------------------------------

@@ -105,13 +105,13 @@ W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0
 W_OLD = W_STACK
 ACK_RING_BITS, ACK_RING_COUNT, ACK_RING_OLD = 2, 3, 4
 # ARQ's plan (`codec_kernel.arq_block`), in W from C_PLAN: PLAN_TICKS rows of P_WIDTH values, a
-# tick each: the received column's seq, whether the decoder gives a sample, whether it is
-# extrapolated, the held seq it gives (the newest at or before its target), the one before it,
-# the ticks ahead and the span of the extrapolation, and how many seqs the decoder took in the
-# plan's ticks up to this one; then those seqs, in the order taken (at most the packets that
-# arrive in a tick, 1 + nu over a constant delay, a tick).
+# tick each: the received column's seq, the decoder's choice (`codec_kernel.rec_choose`: the held
+# seq it gives, -1 none; the one before it to extrapolate from, -1 none; the ticks ahead and the
+# span), and how many seqs the decoder took in the plan's ticks up to this one; then those seqs,
+# in the order taken (at most the packets that arrive in a tick, 1 + nu over a constant delay, a
+# tick).
 PLAN_TICKS = 100  # (compiled_driver.CHUNK_TICKS: a chunk's ticks planned at once)
-P_RX, P_GOT, P_EXTRAP, P_LAST, P_PREV, P_AHEAD, P_SPAN, P_TAKEN, P_WIDTH = range(9)
+P_RX, P_LAST, P_PREV, P_AHEAD, P_SPAN, P_TAKEN, P_WIDTH = range(7)
 # HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
 # decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
 H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16

@@ -111,20 +111,14 @@ def _netem(draw: Any) -> NetemCorrelatedUniform | None:
     return src if type(src) is NetemCorrelatedUniform else None
 
 
-def _jitter_source(e: Delay) -> tuple[UniformSource, float, float]:
-    """A Delay's jitter stream as the kernel takes it: the uniform source its numbers come from,
-    netem's correlation (0: none) and its last correlated number."""
-    src = _netem(e._ju)
+def _stream(draw: Any) -> tuple[UniformSource, float, float]:
+    """An effect's uniform numbers (its draw function: a loss's `_u`, a jitter's `_ju`) as the
+    kernel takes them: the `UniformSource` they come from, netem's correlation (0: none) and its
+    last correlated number."""
+    src = _netem(draw)
     if src is not None:
         return src._fresh.__self__, src._rho, src._last  # type: ignore[attr-defined, return-value]
-    return e._ju.__self__, 0.0, 0.0  # type: ignore[union-attr, return-value]
-
-
-def _uniform_rng(e: Any) -> np.random.Generator:
-    """The Generator an effect's `UniformSource` draws from (BernoulliLoss keeps it as `_rng`)."""
-    if type(e) is BernoulliLoss:
-        return e._rng  # type: ignore[no-any-return]
-    return e._u.__self__._rng  # type: ignore[no-any-return]  # GilbertElliottLoss, FourStateLoss: UniformSource(rng).next
+    return draw.__self__, 0.0, 0.0
 
 
 class LinkArrays:
@@ -183,7 +177,7 @@ class LinkArrays:
         self.blackouts = np.array(windows, dtype=np.int64).reshape(-1, 2)
         draws = {L.LOSS_NONE: 0, L.LOSS_BERNOULLI: 1, L.LOSS_GILBERT: 2, L.LOSS_FOUR_STATE: 1, L.LOSS_TRACE: 0}
         self._draws_per_packet = draws[C[L.C_LOSS]]
-        self._rng = None if self._loss is None or self._draws_per_packet == 0 else _uniform_rng(self._loss)
+        self._rng = None
         if type(self._loss) is GilbertElliottLoss:
             S[L.S_BAD] = 1.0 if self._loss.bad else 0.0
         elif type(self._loss) is FourStateLoss:
@@ -193,10 +187,11 @@ class LinkArrays:
         if type(self._loss) is TraceLoss:  # U: its pattern; S_U: the packets so far
             self.U = np.array(self._loss._pattern, dtype=float)
             S[L.S_U], S[L.S_U_END] = self._loss._n, len(self.U)
-        src = _netem(self._loss._u) if type(self._loss) is BernoulliLoss else None
-        if src is not None:  # netem-correlated loss: its source drew its first block when it was built
-            C[L.C_LRHO], S[L.S_LLAST] = src._rho, src._last
-            self.U = np.array(src._fresh.__self__.take_rest())  # type: ignore[attr-defined]
+        elif self._loss is not None:  # the numbers left of its source's last block first (`ready`:
+            # then the Generator's; netem's source drew its first block when it was built)
+            src, C[L.C_LRHO], S[L.S_LLAST] = _stream(self._loss._u)
+            self._rng = src._rng
+            self.U = np.array(src.take_rest())
             S[L.S_U], S[L.S_U_END] = 0.0, float(len(self.U))
         depth = 4
         # in flight: at most the ticks of the delay, + 2, times the packets a tick
@@ -409,7 +404,7 @@ class CodecNet(LinkArrays):
         if C[L.C_JIT] != 0.0:  # a deadband's jitter: its table, then its uniform numbers (`ready`)
             assert self._jitter is not None and self._jitter._ju is not None
             # (netem's source drew its first block when it was built: the rest of it comes first)
-            src, C[L.C_JRHO], S[L.S_JLAST] = _jitter_source(self._jitter)
+            src, C[L.C_JRHO], S[L.S_JLAST] = _stream(self._jitter._ju)
             rest = src.take_rest()
             self.W = np.concatenate((self.jitter_table, rest))
             S[L.S_JU], S[L.S_JU_END] = 0.0, float(len(rest))
