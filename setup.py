@@ -11,8 +11,10 @@ PACKAGE = "haptic_teleop"
 # read without importing the package (it needs numpy and friends, which may not be installed yet).
 NODES = runpy.run_path(str(Path(__file__).parent / PACKAGE / "nodes" / "__init__.py"))["EXECUTABLES"]
 
-SCENES, MODELS, SWEEPS = "scenes/*.yaml", "models/*.xml", "config/sweeps/*.yaml"  # inside the package folder
-DATA = [SCENES, MODELS, SWEEPS]
+# The bundled scenes and sweeps live once, in the top-level config/ folder; wheels carry them as the
+# data package haptic_teleop.config (haptic_teleop/config/ once installed), found by resources.py.
+SCENES, SWEEPS = "scenes/*.yaml", "sweeps/*.yaml"  # inside config/
+MODELS = "models/*.xml"  # inside the package folder
 
 STANDALONE = [
     # rclpy and the standard message packages as PyPI wheels, for machines without a ROS 2 install.
@@ -44,18 +46,19 @@ SWEEP = [
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*"]),
-    # The bundled scenes and models live once, inside the package, so every install (wheel, sdist,
-    # editable, colcon) carries them next to the code (found by haptic_teleop/resources.py) ...
-    package_data={PACKAGE: ["py.typed", *DATA]},
+    packages=[*find_packages(exclude=["test", "test.*"]), f"{PACKAGE}.config"],
+    # The models live inside the package; config/ becomes the package's config/ folder in a wheel,
+    # so every install (wheel, sdist, editable, colcon) finds them (haptic_teleop/resources.py) ...
+    package_dir={f"{PACKAGE}.config": "config"},
+    package_data={PACKAGE: ["py.typed", MODELS], f"{PACKAGE}.config": [SCENES, SWEEPS]},
     # ... and a ROS 2 install also has them where ROS 2 tools look: share/haptic_teleop/...
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", sorted(glob("launch/*_launch.py"))),
-        (f"share/{PACKAGE}/config/scenes", sorted(glob(f"{PACKAGE}/{SCENES}"))),
+        (f"share/{PACKAGE}/config/scenes", sorted(glob(f"config/{SCENES}"))),
         (f"share/{PACKAGE}/models", sorted(glob(f"{PACKAGE}/{MODELS}"))),
-        (f"share/{PACKAGE}/config/sweeps", sorted(glob(f"{PACKAGE}/{SWEEPS}"))),
+        (f"share/{PACKAGE}/config/sweeps", sorted(glob(f"config/{SWEEPS}"))),
     ],
     python_requires=">=3.10",
     # Lower bounds: the oldest releases this package was tested with (README, "Install"). numpy 1.25:
@@ -76,7 +79,7 @@ setup(
         "ruamel.yaml>=0.17",
         "matplotlib>=3.6",
         "tqdm>=4.64",
-        # the engine's compiled loop (haptic_teleop/engine/compiled_loop.py); without it the Python loop runs.
+        # the engine's compiled loop (haptic_teleop/engine/compiled/axis_host.py); without it the Python loop runs.
         # Upper bound: the tick loops use njit's private `_nrt=False` (no reference counting; tested
         # with 0.68.1); a numba that refuses it makes the compiled loop unavailable, not wrong.
         "numba>=0.60,<0.69",
@@ -107,7 +110,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "haptic-teleop = haptic_teleop.cli:main",
+            "haptic-teleop = haptic_teleop.cli.main:main",
             *(f"{name} = {module}:main" for name, module in NODES.items()),
         ],
     },

@@ -1,8 +1,11 @@
 """Where the bundled scenes, MuJoCo models and example sweeps are, however the package was installed.
 
-The files live once, inside the package (`haptic_teleop/scenes/*.yaml`, `haptic_teleop/models/*.xml`,
-`haptic_teleop/config/sweeps/*.yaml`), so a wheel or sdist install carries them next to the code and
-finds them from any directory. The same files are also installed as ROS 2 share data
+The files live once in the source tree: the scenes and sweeps in the top-level `config/`
+(`config/scenes/*.yaml`, `config/sweeps/*.yaml`), the models in the package
+(`haptic_teleop/models/*.xml`). A wheel (and an sdist install) carries `config/` as the package's
+own `haptic_teleop/config/`, so it finds them from any directory; an editable install or a source
+checkout reads the top-level `config/` beside the package. The same files are also installed as
+ROS 2 share data
 (`share/haptic_teleop/config/scenes`, `share/haptic_teleop/models`, `share/haptic_teleop/config/sweeps`,
 see setup.py): when the ament index knows this package and this very module was installed under that
 prefix (a colcon install), the share folders are used; otherwise
@@ -18,9 +21,10 @@ from pathlib import Path
 
 PACKAGE = "haptic_teleop"
 PACKAGE_DIR = Path(__file__).resolve().parent
-# kind -> (folder inside the package, folder inside share/haptic_teleop)
+# kind -> (folder inside the installed package, folder inside share/haptic_teleop; in a source tree
+# the scenes and sweeps are in the top-level config/ beside the package folder)
 FOLDERS = {
-    "scenes": ("scenes", "config/scenes"),
+    "scenes": ("config/scenes", "config/scenes"),
     "models": ("models", "models"),
     "sweeps": ("config/sweeps", "config/sweeps"),
 }
@@ -51,7 +55,10 @@ def _folder(kind: str) -> Path:
     share = ament_share()
     if share is not None and (share / shared).is_dir():
         return share / shared
-    return PACKAGE_DIR / inside
+    installed = PACKAGE_DIR / inside
+    if installed.is_dir() or not inside.startswith("config/"):
+        return installed
+    return PACKAGE_DIR.parent / inside  # a source tree (editable install): the top-level config/
 
 
 def scenes_dir() -> Path:

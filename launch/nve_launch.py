@@ -5,13 +5,13 @@ relay and a sync buffer per direction of each client's link pair), for a full RO
         [set:="nve.clients.0.up.effects.delay.delay_s=0.05;nve.clients.0.down.effects.delay.delay_s=0.05"]
         [sim_time:=false]
 
-The node set, names and parameters come from `haptic_teleop.launcher.node_plan`, the same plan
+The node set, names and parameters come from `haptic_teleop.live.launcher.node_plan`, the same plan
 `haptic-teleop launch nve_push` starts (docs/live.md, "NVE scenes live"). The run ends when the
 server finishes (after scene.duration_s); the first node that exits non-zero shuts the launch down.
 Where the package runs without ROS 2's launch (the PyPI wheels), use `haptic-teleop launch SCENE`.
 """
 
-from haptic_teleop.launch_support import launch_description
+from haptic_teleop.live.ros2_launch import launch_description
 
 
 def generate_launch_description():

@@ -15,7 +15,7 @@ overrides separated by ';':
         set:="slave.backend=dynamixel;slave.hardware.port=/dev/ttyUSB0"
 """
 
-from haptic_teleop.launch_support import launch_description
+from haptic_teleop.live.ros2_launch import launch_description
 
 
 def generate_launch_description():

@@ -3,14 +3,14 @@
     ros2 launch haptic_teleop teleop_launch.py scene:=wall_contact [record:=/tmp/run1] [side:=all]
         [seed:=7] [duration:=5.0] [sim_time:=false]
 
-The node set, names and parameters come from `haptic_teleop.launcher.node_plan`, the same plan
+The node set, names and parameters come from `haptic_teleop.live.launcher.node_plan`, the same plan
 `haptic-teleop launch` starts, so both paths run the very same processes from the same scene file
-(arguments and rules: `haptic_teleop.launch_support`). The run ends when the operator source
+(arguments and rules: `haptic_teleop.live.ros2_launch`). The run ends when the operator source
 finishes (after scene.duration_s); the first node that exits non-zero shuts the launch down.
 Where the package runs without ROS 2's launch (the PyPI wheels), use `haptic-teleop launch SCENE`.
 """
 
-from haptic_teleop.launch_support import launch_description
+from haptic_teleop.live.ros2_launch import launch_description
 
 
 def generate_launch_description():

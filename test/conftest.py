@@ -28,7 +28,7 @@ def pytest_sessionstart(session):
     Then the compiled tick loops are built in a background process (`haptic-teleop compile`), on
     the core the tests leave idle, instead of inside the first tests that need them: on a fresh
     clone that is about two minutes of numba compiling. A test that reaches a kernel first compiles
-    it itself and the background process waits for it and loads it (compiled_loop.first_compile),
+    it itself and the background process waits for it and loads it (compiling.first_compile),
     so nothing is compiled twice. HAPTIC_TELEOP_TEST_COMPILE=0 turns it off."""
     remove_stale()
     if os.environ.get("HAPTIC_TELEOP_TEST_COMPILE", "1") == "0":

@@ -9,8 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from haptic_teleop.benchmarks import BENCHMARKS
-from haptic_teleop.benchmarks.accuracy import (
+from haptic_teleop.cli.bench import BENCHMARKS
+from haptic_teleop.cli.main import main as cli_main
+from haptic_teleop.errors import HapticTeleopError
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.studies.benchmarks.accuracy import (
     INTEGRATORS,
     Signals,
     base_setting,
@@ -22,9 +25,6 @@ from haptic_teleop.benchmarks.accuracy import (
     reference_setting,
     run_setting,
 )
-from haptic_teleop.cli import main as cli_main
-from haptic_teleop.errors import HapticTeleopError
-from haptic_teleop.scene.load import find_scene, load_scene
 
 
 def test_pareto_front_against_a_hand_made_set():

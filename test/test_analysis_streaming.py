@@ -11,7 +11,7 @@ import pytest
 from haptic_teleop.analysis import stream
 from haptic_teleop.analysis.metrics import compute_summary, load_signals
 from haptic_teleop.analysis.stream import ExactQuantiles, summarize_bag
-from haptic_teleop.cli import main
+from haptic_teleop.cli.main import main
 
 SCENES = {
     "wall_contact": [],
@@ -215,3 +215,36 @@ def test_high_percentiles_from_the_kept_largest_values(monkeypatch):
         raise AssertionError("a pass over the values was made")
 
     assert q.percentiles(no_pass, (99.9, 100)) == [float(np.percentile(v, 99.9)), float(np.max(v))]
+
+
+# `analyze BAG` in a process where MuJoCo and numba cannot be imported: what it compares the run
+# with (a contact scene's undisturbed reference run) must come from the bag.
+BLOCKED = "import sys; sys.modules.update(mujoco=None, numba=None, llvmlite=None); "
+
+
+def test_analyze_reads_the_bag_alone_without_mujoco_or_numba(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    args = ["run", "seed_contact", "--set", "scene.duration_s=2.0", "--out", str(out), "--quiet", "--no-plots"]
+    assert main(args) == 0
+    recorded = json.loads((out / "summary.json").read_text())
+    assert recorded["force_rms_error_vs_reference_n"] > 0.0  # the scene compares with its reference
+    code = BLOCKED + "from haptic_teleop.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    again = tmp_path / "again"
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "analyze", str(out / "bag"), "--out", str(again), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((again / "summary.json").read_text())
+    for key in ("force_rms_error_vs_reference_n", "force_drop_measured_n", "force_slope_measured_n_per_s"):
+        assert summary[key] == recorded[key], key
+    assert (again / "plots").is_dir() and list((again / "plots").glob("*.png"))
+    # and the blocked imports really are blocked there
+    probe = subprocess.run([sys.executable, "-c", BLOCKED + "import mujoco"], capture_output=True, text=True)
+    assert probe.returncode != 0 and "ImportError" in probe.stderr

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.cli import main
-from haptic_teleop.engine.lockstep import Engine, record_run
+from haptic_teleop.cli.main import main
+from haptic_teleop.engine.lockstep import Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.scene.load import find_scene, load_scene
 
 ARM_SCENES = ("touch_ur5e_wall", "touch_dynamixel_wall", "touch_ur5e_oblique_wall")
@@ -45,7 +46,7 @@ def test_arm_scene_runs_from_the_command_line_to_a_summary_bag_and_plots(tmp_pat
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_joint_damping_simulator"] == [0.1, 0.1, 0.04]  # dxl_arm.xml's joint damping
     assert {p.name for p in (out / "plots").glob("*.png")}
-    assert "compiled" in (out / "timing.json").read_text()  # arm scenes run in the compiled loop (compiled_arm_loop.py)
+    assert "compiled" in (out / "timing.json").read_text()  # arm scenes run in the compiled loop (arm_host.py)
 
 
 def test_the_tool_stops_at_the_wall(arm_run: tuple[Any, ...]) -> None:

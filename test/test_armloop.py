@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from haptic_teleop.assembly import arm_kernels, build_arm_parts
-from haptic_teleop.engine.arm_loop import _SideTick
+from haptic_teleop.assembly.parts import arm_kernels, build_arm_parts
+from haptic_teleop.assembly.side import _SideTick
 from haptic_teleop.scene.load import find_scene, load_scene
 
 pytest.importorskip("numba")

@@ -297,7 +297,7 @@ def test_a_killed_runs_bag_analyses_after_recover(tmp_path):
     summary holds the recovered ticks and says the run was interrupted."""
     import json
 
-    from haptic_teleop.cli import main
+    from haptic_teleop.cli.main import main
 
     run = tmp_path / "run"
     assert main(["run", "wall_contact", "--set", "scene.duration_s=3", "--out", str(run), "--no-plots", "--quiet"]) == 0

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from haptic_teleop.cli import main
+from haptic_teleop.cli.main import main
 from haptic_teleop.record.reader import BagReader
 from haptic_teleop.scene.load import bundled_scenes, find_scene, load_scene
 
@@ -418,7 +418,7 @@ def test_version_falls_back_to_the_package_version_when_not_installed(monkeypatc
     import importlib.metadata
 
     from haptic_teleop import __version__
-    from haptic_teleop.cli import package_version
+    from haptic_teleop.cli.main import package_version
 
     def missing(name):
         raise importlib.metadata.PackageNotFoundError(name)
@@ -470,7 +470,7 @@ def test_a_slow_engine_build_is_explained_not_silent():
     notice comes while the body still runs, and never for a body that ends before the delay."""
     import threading
 
-    from haptic_teleop.cli import SLOW_START_NOTICE, slow_notice
+    from haptic_teleop.cli.main import SLOW_START_NOTICE, slow_notice
 
     written: list[str] = []
     seen = threading.Event()

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.cli import main
+from haptic_teleop.assembly.channel import message_bytes
+from haptic_teleop.cli.main import main
 from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
-from haptic_teleop.engine.codec_channel import message_bytes
-from haptic_teleop.engine.lockstep import COL, Engine, record_run
+from haptic_teleop.engine.lockstep import COL, Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import ConfigError, InputError
 from haptic_teleop.record.layouts import joint_state_size
 from haptic_teleop.record.reader import BagReader
@@ -220,7 +221,7 @@ def test_a_codec_needs_buffer_policy_none(capsys: pytest.CaptureFixture[str]) ->
 def test_arm_scene_runs_codecs_in_the_python_loop(tmp_path: Path) -> None:
     """The arm loop: forward deadband on the handle's velocity (3-D), backward FEC; the bag's
     records are the encoders' packets and the plain reference is the arm's JointState."""
-    from haptic_teleop.engine.arm_loop import wire_payload_bytes
+    from haptic_teleop.assembly.side import wire_payload_bytes
 
     overrides = [
         "scene.duration_s=1.5",
@@ -274,7 +275,7 @@ def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFix
 def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:
     """The live nodes run every codec (docs/live.md, "Codecs live"); a codec on an arm scene whose
     side has its own period is refused with one line."""
-    from haptic_teleop.launcher import node_plan
+    from haptic_teleop.live.launcher import node_plan
 
     scene = load_scene(find_scene("wall_contact"), overrides=[_codec("backward", "{kind: prediction}")])
     relay = next(s for s in node_plan(scene) if s.name == "backward_relay")
@@ -314,7 +315,7 @@ def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:
 def test_arq_under_its_round_trip_is_named_with_the_copies_it_sends(delay_s, fwd, bwd, copies) -> None:
     """`arq_round_trip_notes` names each ARQ direction whose timeout is under its round trip with
     the copies it sends of every sample, as many as a lossless run sends (sent / samples rounded)."""
-    from haptic_teleop.engine.codec_channel import arq_round_trip_notes
+    from haptic_teleop.assembly.channel import arq_round_trip_notes
 
     over = ["scene.duration_s=2", *(f"network.{d}.effects.delay.delay_s={delay_s}" for d in ("forward", "backward"))]
     over += [f"network.forward.codec={fwd}"] + ([f"network.backward.codec={bwd}"] if bwd else [])

@@ -1,4 +1,4 @@
-"""`haptic-teleop experiment hli-filtering` (experiments/codec.py): seed 000's simulation end to end
+"""`haptic-teleop experiment hli-filtering` (studies/replications/codec.py): seed 000's simulation end to end
 on a short run, the ordering its numbers must show, and one-line argument errors."""
 
 from __future__ import annotations

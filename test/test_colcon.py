@@ -41,9 +41,9 @@ def test_install_tree_has_executables_launch_config_models(install):
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "haptic_teleop").is_file()
     for source, folder, pattern in (
         ("launch", "launch", "*_launch.py"),
-        ("haptic_teleop/scenes", "config/scenes", "*.yaml"),
+        ("config/scenes", "config/scenes", "*.yaml"),
         ("haptic_teleop/models", "models", "*.xml"),
-        ("haptic_teleop/config/sweeps", "config/sweeps", "*.yaml"),
+        ("config/sweeps", "config/sweeps", "*.yaml"),
     ):
         want = sorted(p.name for p in (ROOT / source).glob(pattern))
         got = sorted(p.name for p in (share / folder).glob(pattern))
@@ -76,7 +76,7 @@ def test_installed_package_finds_its_share_files(install):
     assert Path(models) == share / "models"
     assert (Path(scenes) / "wall_contact.yaml").is_file()
     # the package's own copies too (used when the ament index points at another install)
-    assert (site / "haptic_teleop" / "scenes" / "wall_contact.yaml").is_file()
+    assert (site / "haptic_teleop" / "config" / "scenes" / "wall_contact.yaml").is_file()
     assert (site / "haptic_teleop" / "models" / "wall_scene.xml").is_file()
 
 

@@ -1,5 +1,5 @@
 """`haptic-teleop compile` (engine/warm.py) and the lock that makes processes starting together
-compile a kernel once (compiled_loop.first_compile)."""
+compile a kernel once (compiling.first_compile)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import types
 
 import pytest
 
-from haptic_teleop.cli import main
-from haptic_teleop.engine.compiled_loop import first_compile, kernel
+from haptic_teleop.cli.main import main
+from haptic_teleop.compiling import first_compile
+from haptic_teleop.engine.compiled.axis_host import kernel
 
 
 def test_compile_builds_the_named_kernel_and_marks_it_done(tmp_path, capsys):
@@ -53,7 +54,7 @@ def test_a_kernel_being_compiled_by_another_process_is_waited_for():
     holder = subprocess.Popen(
         [sys.executable, "-c", textwrap.dedent(f"""
             import sys, types
-            from haptic_teleop.engine.compiled_loop import first_compile
+            from haptic_teleop.compiling import first_compile
             def fn(): pass
             fn.__module__ = {name!r}
             with first_compile(types.SimpleNamespace(py_func=fn, signatures=[])):

@@ -1,4 +1,4 @@
-"""The compiled arm loop (haptic_teleop/compiled_arm_loop.py) gives the Python arm loop's run, bit for bit.
+"""The compiled arm loop (haptic_teleop/arm_host.py) gives the Python arm loop's run, bit for bit.
 
 Each case runs an arm scene in both loops and compares what each hands its sink, call by call
 (every block of columns, every batch of packet records, at the same points of the run), and the
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from compiled_identity import Calls, assert_same_arm_sides, assert_same_calls
 
-from haptic_teleop.engine import compiled_arm_loop
+from haptic_teleop.assembly import compiled_side
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.record.streams import BLOCK_TICKS
@@ -173,7 +173,9 @@ def test_the_contact_layout_reads_what_the_bindings_read() -> None:
 
     import mujoco
 
-    layout = compiled_arm_loop.contact_layout()
+    from haptic_teleop.plants.mujoco_native import contact_layout
+
+    layout = contact_layout()
     assert not isinstance(layout, str), layout
     ncon_off, contact_off, stride, pos, frame, g1, g2, efc = layout
     e = Engine(_scene("touch_ur5e_wall", ()), loop="python")
@@ -212,7 +214,7 @@ def test_arm_scenes_run_compiled_unless_they_cannot() -> None:
 def test_both_arm_loops_record_the_same_bag_bytes(tmp_path: Any) -> None:
     """The loops hand the recorder the same blocks and packet records at the same points, so an
     arm scene's bag is the same file from either loop."""
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
 
     name, overrides = CASES["ur5e_delay_loss"]
     scene = _scene(name, overrides, duration_s=1.5)
@@ -264,43 +266,14 @@ def test_compiled_arm_loop_memory_does_not_grow_with_duration(case: str) -> None
     assert peaks[1] <= 1.1 * peaks[0] + 64_000, peaks
 
 
-def test_a_changed_source_drops_the_compiled_arm_loops_cache(tmp_path: Any) -> None:
-    """numba checks only the kernel file's stamp; compiled_arm_loop drops the kernel's cache when any source
-    it is built from changed (here: a stamp that does not match), and keeps it otherwise."""
-    import shutil
-    from pathlib import Path
-
-    assert compiled_arm_loop.kernel() is not None  # the stamp is written, the kernel imported
-    cache = Path(compiled_arm_loop.__file__).parent / "__pycache__"
-    stamp = cache / "arm_kernel.sources"
-    kept = list(cache.glob("arm_kernel.*.nb[ic]"))
-    for path in kept:  # the real cache comes back after the test
-        shutil.copy2(path, tmp_path / path.name)
-    before = stamp.read_text()
-    dummy = cache / "arm_kernel.dummy-1.py311.nbi"
-    try:
-        dummy.write_text("x")
-        compiled_arm_loop._drop_stale_cache()
-        assert dummy.exists()  # sources unchanged: the cache stays
-        stamp.write_text("another source")
-        compiled_arm_loop._drop_stale_cache()
-        assert not dummy.exists() and not list(cache.glob("arm_kernel.*.nb[ic]"))
-        assert stamp.read_text() == before
-    finally:
-        dummy.unlink(missing_ok=True)
-        for path in kept:
-            shutil.copy2(tmp_path / path.name, path)
-        stamp.write_text(before)
-
-
 def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[str, Any]:
     """One side of an arm scene stepped alone as a live node steps it (nodes/arm_side.py): its own
     plant, remote samples through its guard, the watchdog's gain on the force limit, the ledger's
     restart at scene time 0, the torques the plant applied back into the ledger. `compiled`: "" (the
     Python SideTick and plant), "law" (CompiledSideTick.torque after the plant's read and point),
     "tick" (CompiledSideTick's read_point, torque and step: the whole side tick compiled)."""
-    from haptic_teleop.assembly import build_arm_parts
-    from haptic_teleop.engine.arm_loop import side_ticks
+    from haptic_teleop.assembly.parts import build_arm_parts
+    from haptic_teleop.assembly.side import side_ticks
 
     scene = _scene(name, ())
     parts = build_arm_parts(scene.config)
@@ -309,8 +282,8 @@ def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[st
     side = parts.master if master else parts.slave
     tick: Any = mt if master else st
     if compiled:
-        tick, why = compiled_arm_loop.side_tick(side, parts, master, tick)
-        assert why is None and isinstance(tick, compiled_arm_loop.CompiledSideTick)
+        tick, why = compiled_side.side_tick(side, parts, master, tick)
+        assert why is None and isinstance(tick, compiled_side.CompiledSideTick)
     plant: Any = side.plant
     limit0 = tick.limit
     other = parts.slave if master else parts.master
@@ -376,8 +349,8 @@ def test_the_live_nodes_compiled_side_tick_is_the_python_side_tick(name: str, ro
 def test_a_side_the_kernel_does_not_compile_keeps_the_python_side_tick() -> None:
     """A plant other than the bare MujocoArm (here a subclass, as plant effects wrap it): the live
     node gets its Python SideTick back, with the reason it logs."""
-    from haptic_teleop.assembly import build_arm_parts
-    from haptic_teleop.engine.arm_loop import side_ticks
+    from haptic_teleop.assembly.parts import build_arm_parts
+    from haptic_teleop.assembly.side import side_ticks
     from haptic_teleop.plants.arm import MujocoArm
 
     class Wrapped(MujocoArm):
@@ -386,6 +359,6 @@ def test_a_side_the_kernel_does_not_compile_keeps_the_python_side_tick() -> None
     parts = build_arm_parts(_scene("touch_ur5e_wall", ()).config)
     _, st = side_ticks(parts)
     parts.slave.plant.__class__ = Wrapped
-    tick, why = compiled_arm_loop.side_tick(parts.slave, parts, False, st)
+    tick, why = compiled_side.side_tick(parts.slave, parts, False, st)
     assert tick is st
     assert why is not None and "MuJoCo" in why

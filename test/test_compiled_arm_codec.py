@@ -1,4 +1,4 @@
-"""An arm scene's codec stage in the compiled arm loop (engine/arm_codec_kernel.py, loaded only with
+"""An arm scene's codec stage in the compiled arm loop (engine/compiled/arm_codec_kernel.py, loaded only with
 a codec) gives the Python arm loop's run bit for bit, and says precisely what it cannot run.
 
 Each identity case runs `touch_ur5e_wall` (1 s; the operator starts at 0.1 s at 0.1 m/s, so the
@@ -46,8 +46,9 @@ from compiled_identity import (
 
 from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.cli import main
-from haptic_teleop.engine.lockstep import Engine, record_run
+from haptic_teleop.cli.main import main
+from haptic_teleop.engine.lockstep import Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.scene.load import find_scene, load_scene
 
@@ -359,4 +360,4 @@ def test_codec_less_arm_runs_never_load_the_arm_codec_kernel() -> None:
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
     loaded = r.stdout.strip().splitlines()[-1]
-    assert "haptic_teleop.engine.arm_kernel" in loaded and "arm_codec_kernel" not in loaded, loaded
+    assert "haptic_teleop.engine.compiled.arm_kernel" in loaded and "arm_codec_kernel" not in loaded, loaded

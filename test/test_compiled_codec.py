@@ -1,5 +1,5 @@
-"""The codec stage in the compiled 1-DoF loop (engine/compiled_codec.py, engine/codec_kernel.py)
-gives the Python loop's run bit for bit, and says precisely what it cannot run.
+"""The codec stage in the compiled 1-DoF loop (engine/compiled/codec_host.py, engine/compiled/codec_kernel.py
+and its stages, codec_*.py) gives the Python loop's run bit for bit, and says precisely what it cannot run.
 
 Each identity case runs one scene in both loops and compares every call on the sink (blocks of
 columns, batches of packet records, at the same points of the run), the controllers' final state,
@@ -299,7 +299,7 @@ ARQ_CUMULATIVE = [
 
 
 def test_compiled_arq_cumulative_acks_equal_python_loop():
-    from haptic_teleop.engine.codec_channel import message_bytes
+    from haptic_teleop.assembly.channel import message_bytes
 
     scene = _scene(["scene.duration_s=1.5", *MOVING, *ARQ_CUMULATIVE])
     compiled, python = _run(scene, "compiled"), _run(scene, "python")
@@ -320,17 +320,17 @@ def test_codec_nets_are_made_ready_a_thousand_ticks_ahead(monkeypatch):
     """The nets' random numbers and record rows are topped up once per READY_TICKS, not once per
     chunk of CHUNK_TICKS, and enough for every packet ARQ may send in them (four a tick here: its
     timeout under the round trip, with losses): the run is still the Python loop's."""
-    from haptic_teleop.engine import compiled_codec, compiled_driver
+    from haptic_teleop.engine.compiled import codec_host, driver
 
-    assert compiled_driver.READY_TICKS == 10 * compiled_driver.CHUNK_TICKS
+    assert driver.READY_TICKS == 10 * driver.CHUNK_TICKS
     asked = []
-    ready = compiled_codec.CodecNet.ready
+    ready = codec_host.CodecNet.ready
 
     def counting(net, ticks):
         asked.append(ticks)
         ready(net, ticks)
 
-    monkeypatch.setattr(compiled_codec.CodecNet, "ready", counting)
+    monkeypatch.setattr(codec_host.CodecNet, "ready", counting)
     arq = "{kind: arq, timeout_s: 0.025, max_retransmissions: 4}"
     scene = _scene(
         ["scene.duration_s=2.5", *MOVING, f"network.forward.codec={arq}", f"network.forward.effects.loss={BERNOULLI}"]
@@ -420,7 +420,7 @@ def test_compiled_codec_over_four_state_and_trace_loss_equals_python_loop(tmp_pa
 
 
 def test_stopped_compiled_arq_run_leaves_the_python_loops_records():
-    """ARQ plans its ticks ahead (`codec_kernel.arq_block`): stopped at the same tick, both loops
+    """ARQ plans its ticks ahead (`codec_arq.arq_block`): stopped at the same tick, both loops
     still hand over the same columns, packet records and codec counts."""
     scene = _scene(["scene.duration_s=1.5", *MOVING, *ARQ_CASES["arq_both_in_time"]])
     compiled, python = _run(scene, "compiled", stop_at=700), _run(scene, "python", stop_at=700)

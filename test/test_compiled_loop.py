@@ -1,4 +1,4 @@
-"""The compiled loop (haptic_teleop/compiled_loop.py) gives the Python loop's run, bit for bit.
+"""The compiled loop (haptic_teleop/axis_host.py) gives the Python loop's run, bit for bit.
 
 Each case runs a scene in both loops and compares what each hands its sink, call by call (every
 block of columns, every batch of packet records, at the same points of the run), the guards'
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from compiled_identity import Calls, assert_same_calls
 
-from haptic_teleop.engine import compiled_loop
+from haptic_teleop.engine.compiled import axis_host
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.scene.load import find_scene, load_scene
@@ -196,14 +196,14 @@ def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, re
 def test_vectorized_network_only_where_it_is_exact():
     """The default network is decided in numpy, window by window; bursty (Markov) loss is ticked."""
     e = Engine(_scene("wall_contact", [f"{FWD}.effects.loss.probability=0.3"]))
-    s = compiled_loop.schedule(e.forward, e.forward_buffer, e.period_ns, 72)
+    s = axis_host.schedule(e.forward, e.forward_buffer, e.period_ns, 72)
     assert s.vectorized
     released = np.concatenate([s.window(0, 30)[0], s.window(30, 100)[0]])  # two windows, one stream
     rows = s.settled(100, final=True)
     assert np.count_nonzero(released >= 0) == np.count_nonzero(rows[:50, 3] == 0)  # 50 ms delay
     assert np.array_equal(released[50:], np.where(rows[:50, 3] == 0, np.arange(50), -1))
     b = Engine(_scene("bursty_loss", []))
-    assert not compiled_loop.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
+    assert not axis_host.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
 
 
 def test_settled_records_wait_for_packets_in_flight():

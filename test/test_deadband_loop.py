@@ -1,4 +1,4 @@
-"""`haptic-teleop experiment deadband-loop` (experiments/deadband_loop.py): seed 001's deadband in the
+"""`haptic-teleop experiment deadband-loop` (studies/replications/deadband_loop.py): seed 001's deadband in the
 channels of the engine's arm loop, on a short tapping run: what each case codes, the p = 0 runs
 against the reference, the reduction against `haptic-teleop run`'s summary.json, and one-line
 argument errors."""
@@ -84,8 +84,8 @@ def test_p0_runs_are_the_reference_run_and_coding_changes_the_loop(
 def test_run_case_codec_facts_and_reduction_match_run_summary(tmp_path: Path) -> None:
     """The reference run has no codec facts; a coded run's reduction (the encoder's counters) is
     summary.json's codec_packet_reduction of `haptic-teleop run` of the same scene and seed."""
-    from haptic_teleop.experiments.deadband import TAPPING
-    from haptic_teleop.experiments.deadband_loop import codec_overrides, run_case, saved
+    from haptic_teleop.studies.replications.deadband import TAPPING
+    from haptic_teleop.studies.replications.deadband_loop import codec_overrides, run_case, saved
 
     base = ["scene.duration_s=1", *TAPPING]
     ref = run_case("touch_ur5e_wall", base, 3)

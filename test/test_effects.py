@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from haptic_teleop.assembly.plants import build_master_plant, build_slave_plant
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.plants import build_master_plant, build_slave_plant
 from haptic_teleop.plants.effects import EffectsPlant
 from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
 from haptic_teleop.scene.load import find_scene, load_scene
@@ -282,7 +282,7 @@ def test_live_nodes_build_the_same_effects_from_their_parameters(tmp_path):
     """The launcher writes each node's scene sections as parameters; master_eba and slave_eba
     build their plants through the same factory, so they hold the effects the scene names."""
     rclpy = pytest.importorskip("rclpy")
-    from haptic_teleop.launcher import node_plan, write_params_files
+    from haptic_teleop.live.launcher import node_plan, write_params_files
     from haptic_teleop.nodes.master_eba import MasterEba
     from haptic_teleop.nodes.slave_eba import SlaveEba
 
@@ -318,10 +318,10 @@ def test_per_tick_calls_grow_only_with_the_effects_named():
     """`bench effects`' exact column: physical effects add no call per tick (they are inside
     MuJoCo's step; they change the motion, and with it which branches the controllers take, so
     the count may move by one), a sensor effect adds a few, and the bench is registered."""
-    from haptic_teleop.benchmarks import BENCHMARKS
-    from haptic_teleop.benchmarks.effects import NO_NETWORK, calls_per_tick
+    from haptic_teleop.cli.bench import BENCHMARKS
+    from haptic_teleop.studies.benchmarks.effects import NO_NETWORK, calls_per_tick
 
-    assert BENCHMARKS["effects"] == "haptic_teleop.benchmarks.effects"
+    assert BENCHMARKS["effects"] == "haptic_teleop.studies.benchmarks.effects"
     bare = calls_per_tick(str(SCENE), NO_NETWORK, ticks=200)
     for physical in ("master.effects.gravity.incline_deg=10", "master.effects.friction.coulomb_n=0.2"):
         # Not exactly 0: a different motion takes other branches in the controllers (about one

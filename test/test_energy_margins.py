@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from haptic_teleop.analysis import stream
 from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.analysis.metrics import analyze_bag, compute_summary, port_energy, simulator_damping
-from haptic_teleop.engine.lockstep import Engine, record_run
+from haptic_teleop.engine.lockstep import Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.scene.load import find_scene, load_scene
 
 T = 0.001

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from haptic_teleop.analysis.metrics import analyze_bag, port_energy
-from haptic_teleop.engine.lockstep import Engine, record_run
+from haptic_teleop.engine.lockstep import Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.record.reader import BagReader
 from haptic_teleop.scene.load import find_scene, load_scene
 
@@ -179,7 +180,7 @@ def test_cli_sigint_finishes_the_bag(tmp_path):
         [
             sys.executable,
             "-m",
-            "haptic_teleop.cli",
+            "haptic_teleop.cli.main",
             "run",
             "wall_contact",
             "--out",

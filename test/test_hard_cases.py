@@ -19,7 +19,8 @@ import pytest
 
 from haptic_teleop.analysis.metrics import Signals, analyze_bag, port_energy
 from haptic_teleop.core.eba import EnergyBound
-from haptic_teleop.engine.lockstep import COL, Engine, record_run
+from haptic_teleop.engine.lockstep import COL, Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.plants.mujoco_plant import MujocoWallRobot, SimSettings
 from haptic_teleop.scene.load import find_scene, load_scene
 from haptic_teleop.scene.schema import Scene

@@ -22,8 +22,9 @@ import pytest
 
 from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.core.eba import joint_limited
-from haptic_teleop.engine.lockstep import Engine, record_run
+from haptic_teleop.core.eba_coupled import joint_limited
+from haptic_teleop.engine.lockstep import Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.scene.load import find_scene, load_scene
 
 SIDES = ("master", "slave")

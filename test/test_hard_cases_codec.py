@@ -23,7 +23,8 @@ import pytest
 
 from haptic_teleop.analysis.metrics import Signals, analyze_bag, port_energy
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.engine.lockstep import COL, record_run
+from haptic_teleop.engine.lockstep import COL
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.record.reader import BagReader
 from haptic_teleop.scene.load import find_scene, load_scene
 from haptic_teleop.scene.schema import Scene

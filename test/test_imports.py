@@ -1,29 +1,23 @@
-"""The package's import graph has no cycles (docs/architecture.md, "Layers").
+"""The package's layers and its import graph (docs/architecture.md, "Layers").
 
-Every module of haptic_teleop is parsed (ast, nothing is imported) and every import it makes,
-at module level or inside a function, is an edge to the most specific module of the package it
-names (`from haptic_teleop.core import eba` is an edge to `haptic_teleop.core.eba`). Imports under
-`if TYPE_CHECKING:` run only for the type checker and are left out. Known cycles are listed in
-KNOWN_BACK_EDGES, one edge per cycle: the list only shrinks. When a change removes one of its
-imports, the test fails until the entry is removed too.
+Every module of haptic_teleop is parsed (ast, nothing is imported) and every import it makes, at
+module level, inside a function or for types only (`if TYPE_CHECKING:`), is an edge to the most
+specific module of the package it names (`from haptic_teleop.core import eba` is an edge to
+`haptic_teleop.core.eba`). The layer table of docs/architecture.md says which layer may import
+which; an edge between two layers that the table does not allow fails, and so does any cycle.
 """
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "haptic_teleop"
+import pytest
 
-# (importer, imported): the import that closes a known cycle, with why it is still there.
-KNOWN_BACK_EDGES = {
-    # The compiled kernel takes the layout of its parameter and state arrays (P_*, S_*) from the
-    # loop that drives it; they belong in a module below both.
-    (
-        "haptic_teleop.engine.axis_kernel",
-        "haptic_teleop.engine.compiled_loop",
-    ): "array layout shared through compiled_loop",
-}
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "haptic_teleop"
+ARCHITECTURE = ROOT / "docs" / "architecture.md"
 
 
 def _modules() -> dict[str, Path]:
@@ -36,14 +30,8 @@ def _modules() -> dict[str, Path]:
     return mods
 
 
-def _is_type_checking(test: ast.expr) -> bool:
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
-    )
-
-
 def import_graph() -> dict[str, set[str]]:
-    """Module -> the package's modules it imports (module level and inside functions)."""
+    """Module -> the package's modules it imports (module level, inside functions, for types)."""
     mods = _modules()
 
     def target(name: str) -> str | None:
@@ -54,12 +42,7 @@ def import_graph() -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for mod, path in mods.items():
         out: set[str] = set()
-
-        def visit(node: ast.AST, mod: str = mod, out: set[str] = out) -> None:
-            if isinstance(node, ast.If) and _is_type_checking(node.test):
-                for n in node.orelse:
-                    visit(n)
-                return
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
             names: list[str] = []
             if isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
@@ -70,10 +53,6 @@ def import_graph() -> dict[str, set[str]]:
                 t = target(name)
                 if t is not None and t != mod:
                     out.add(t)
-            for child in ast.iter_child_nodes(node):
-                visit(child)
-
-        visit(ast.parse(path.read_text(), str(path)))
         graph[mod] = out
     return graph
 
@@ -113,32 +92,108 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
-def test_the_graph_sees_function_level_imports():
+def layer_table(text: str) -> dict[str, tuple[str, frozenset[str]]]:
+    """layer -> (its folder, the layers it may import), from the table under "## Layers"."""
+    section = text.split("## Layers", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("|")]
+    header = [c.strip() for c in rows[0].strip("|").split("|")]
+    col = {name: header.index(name) for name in ("layer", "folder", "may import")}
+    table = {}
+    for line in rows[2:]:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        folder = cells[col["folder"]].strip("`")
+        allowed = frozenset(x.strip() for x in cells[col["may import"]].split(",") if x.strip())
+        table[cells[col["layer"]]] = (folder, allowed)
+    return table
+
+
+def layer_of(module: str, path: Path, table: dict[str, tuple[str, frozenset[str]]]) -> str:
+    """The layer whose folder holds `module` (the longest folder that does; the package's own
+    top-level modules are the layer whose folder is `haptic_teleop/*.py`)."""
+    rel = path.relative_to(ROOT).as_posix()
+    best, best_len = None, -1
+    for name, (folder, _) in table.items():
+        if folder.endswith("*.py"):
+            ok = re.fullmatch(re.escape(folder[:-4]) + r"[^/]+\.py", rel) is not None
+            length = len(folder) - 4
+        else:
+            ok = rel.startswith("haptic_teleop/" + folder)
+            length = len(folder)
+        if ok and length > best_len:
+            best, best_len = name, length
+    assert best is not None, f"{module} ({rel}) is in no layer's folder of docs/architecture.md"
+    return best
+
+
+def layer_violations(graph: dict[str, set[str]], table: dict[str, tuple[str, frozenset[str]]]) -> list[str]:
+    mods = _modules()
+    layer = {m: layer_of(m, p, table) for m, p in mods.items()}
+    bad = []
+    for a, targets in graph.items():
+        for b in targets:
+            la, lb = layer[a], layer[b]
+            if la != lb and lb not in table[la][1]:
+                bad.append(f"{a} ({la}) -> {b} ({lb})")
+    return sorted(bad)
+
+
+def test_the_graph_sees_function_level_and_type_only_imports():
     graph = import_graph()
-    # cli imports the launcher inside a function only; the outputs module at module level.
-    assert "haptic_teleop.launcher" in graph["haptic_teleop.cli"]
-    assert "haptic_teleop.analysis.outputs" in graph["haptic_teleop.cli"]
+    # cli imports the launch command inside a function only; the outputs module at module level.
+    assert "haptic_teleop.cli.launch" in graph["haptic_teleop.cli.main"]
+    assert "haptic_teleop.analysis.outputs" in graph["haptic_teleop.cli.main"]
+    # arm_loop names ArmParts for the type checker only
+    assert "haptic_teleop.assembly.parts" in graph["haptic_teleop.engine.arm_loop"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
-def test_no_import_cycles_but_the_known_ones():
-    graph = import_graph()
-    stale = [e for e in KNOWN_BACK_EDGES if e[1] not in graph.get(e[0], set())]
-    assert not stale, f"these imports are gone: remove them from KNOWN_BACK_EDGES: {stale}"
-    for a, b in KNOWN_BACK_EDGES:
-        graph[a].discard(b)
-    found = cycles(graph)
+def test_no_import_cycles():
+    found = cycles(import_graph())
     assert not found, (
-        "import cycles (a module imports, maybe inside a function, one that imports it back): "
+        "import cycles (a module imports, maybe inside a function or for types only, one that imports it back): "
         + "; ".join(" <-> ".join(c) for c in found)
     )
+
+
+def test_every_import_keeps_to_the_layer_table():
+    table = layer_table(ARCHITECTURE.read_text())
+    bad = layer_violations(import_graph(), table)
+    assert not bad, "imports the layer table of docs/architecture.md does not allow: " + "; ".join(bad)
+
+
+def test_the_layer_table_is_read_and_catches_an_upward_import():
+    table = layer_table(ARCHITECTURE.read_text())
+    assert {"ground", "core", "record", "plants", "engine", "engine.compiled", "nodes", "analysis", "cli"} <= set(table)
+    assert table["core"][1] == {"ground"} and "engine" not in table["nodes"][1]
+    graph = import_graph()
+    graph["haptic_teleop.core.eba"].add("haptic_teleop.scene.schema")  # core reaching up
+    graph["haptic_teleop.nodes.arm_side"].add("haptic_teleop.engine.lockstep")  # nodes into the engine
+    graph["haptic_teleop.engine.compiled.driver"].add("haptic_teleop.engine.lockstep")  # compiled above itself
+    bad = layer_violations(graph, table)
+    assert len(bad) == 3, bad
+    mods = _modules()
+    assert layer_of("haptic_teleop.errors", mods["haptic_teleop.errors"], table) == "ground"
+    assert layer_of("haptic_teleop.engine.compiled.layout", mods["haptic_teleop.engine.compiled.layout"], table) == (
+        "engine.compiled"
+    )
+
+
+@pytest.mark.parametrize("limit", [6])
+def test_the_package_root_holds_only_the_ground(limit):
+    root = sorted(p.name for p in PACKAGE.glob("*.py") if p.name != "__init__.py")
+    assert len(root) <= limit, root
+
+
+def test_no_module_is_over_800_lines():
+    big = {str(p.relative_to(ROOT)): n for p in PACKAGE.rglob("*.py") if (n := len(p.read_text().splitlines())) > 800}
+    assert not big, big
 
 
 # The compiled loops pack the kernels' arrays from, and carry the kernels' state back into, core
 # objects and plants through their public seams (`constants()`, `state()`/`set_state()`,
 # `axis_state()`, `remote`, ...), never through their private attributes: a refactor of a core
 # class then cannot silently desynchronise the compiled loop from the Python one.
-SEAM_USERS = ("engine/compiled_loop.py", "engine/compiled_arm_loop.py")
+SEAM_USERS = ("engine/compiled/axis_host.py", "engine/compiled/arm_host.py")
 ALLOWED_PRIVATE = {"_address"}  # MuJoCo's bindings: the MjModel/MjData addresses the kernels call with
 
 

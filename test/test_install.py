@@ -24,9 +24,9 @@ import pytest
 from haptic_teleop import resources
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENES = sorted(p.name for p in (ROOT / "haptic_teleop" / "scenes").glob("*.yaml"))
+SCENES = sorted(p.name for p in (ROOT / "config" / "scenes").glob("*.yaml"))
 MODELS = sorted(p.name for p in (ROOT / "haptic_teleop" / "models").glob("*.xml"))
-SWEEPS = sorted(p.name for p in (ROOT / "haptic_teleop" / "config" / "sweeps").glob("*.yaml"))
+SWEEPS = sorted(p.name for p in (ROOT / "config" / "sweeps").glob("*.yaml"))
 SKIP_DIRS = {".git", ".venv", "build", "install", "log", "runs", "__pycache__", ".pytest_cache", ".mypy_cache",
              ".ruff_cache", ".hypothesis"}  # fmt: skip
 
@@ -102,16 +102,16 @@ def test_sdist_and_wheel_carry_scenes_models_and_ros_files(built):
     assert SCENES and MODELS and SWEEPS
     with tarfile.open(sdist) as tf:
         names = {n.split("/", 1)[1] for n in tf.getnames() if "/" in n}
-    want = {f"haptic_teleop/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
-    want |= {f"haptic_teleop/config/sweeps/{s}" for s in SWEEPS}
+    want = {f"config/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
+    want |= {f"config/sweeps/{s}" for s in SWEEPS}
     want |= {"package.xml", "setup.cfg", "resource/haptic_teleop", "launch/teleop_launch.py"}
     assert want <= names, f"missing from the sdist: {sorted(want - names)}"
     with zipfile.ZipFile(wheel) as zf:
         names = set(zf.namelist())
     data = "haptic_teleop-0.1.0.data/data/share/haptic_teleop"
-    want = {f"haptic_teleop/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
+    want = {f"haptic_teleop/config/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
     want |= {f"{data}/config/scenes/{s}" for s in SCENES} | {f"{data}/models/{m}" for m in MODELS}
-    want |= {f"haptic_teleop/config/sweeps/{s}" for s in SWEEPS} | {f"{data}/config/sweeps/{s}" for s in SWEEPS}
+    want |= {f"config/sweeps/{s}" for s in SWEEPS} | {f"{data}/config/sweeps/{s}" for s in SWEEPS}
     assert want <= names, f"missing from the wheel: {sorted(want - names)}"
 
 
@@ -158,7 +158,7 @@ def test_ament_share_is_used_only_for_this_install(tmp_path, monkeypatch):
     monkeypatch.delenv("HAPTIC_TELEOP_MODELS", raising=False)
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(other))
     assert resources.ament_share() is None
-    assert resources.scenes_dir() == resources.PACKAGE_DIR / "scenes"
+    assert resources.scenes_dir() == resources.PACKAGE_DIR.parent / "config" / "scenes"  # this source tree
     assert resources.models_dir() == resources.PACKAGE_DIR / "models"
     assert "wall_contact" in resources.bundled_scenes()
     # the same prefix layout around this very module: its share folders are used

@@ -1,7 +1,7 @@
 """The ROS 2 launch files and the launcher build one node plan from one scene file.
 
 ROS 2's `launch` cannot be installed here, so the launch files themselves are checked for what
-they consume (their arguments) and `launch_support.plan_from_arguments`, which they call, is
+they consume (their arguments) and `ros2_launch.plan_from_arguments`, which they call, is
 checked against the plan `haptic-teleop launch` starts.
 """
 
@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.launch_support import ARGUMENTS, DEVICE_ARGUMENTS, NVE_ARGUMENTS, plan_from_arguments
-from haptic_teleop.launcher import format_double, node_plan, params_yaml
+from haptic_teleop.live.launcher import format_double, node_plan, params_yaml
+from haptic_teleop.live.ros2_launch import ARGUMENTS, DEVICE_ARGUMENTS, NVE_ARGUMENTS, plan_from_arguments
 from haptic_teleop.nodes import EXECUTABLES
 from haptic_teleop.scene.load import find_scene, load_scene
 
@@ -31,7 +31,7 @@ def test_launch_files_exist_and_build_their_variant():
 
 
 def test_every_launch_argument_is_read_by_the_plan():
-    src = (ROOT / "haptic_teleop" / "launch_support.py").read_text()
+    src = (ROOT / "haptic_teleop" / "live/ros2_launch.py").read_text()
     body = src[src.index("def plan_from_arguments") :]
     for name, _, _ in ARGUMENTS + DEVICE_ARGUMENTS + NVE_ARGUMENTS:
         assert f'arg("{name}")' in body, f"launch argument {name} is declared but not read"

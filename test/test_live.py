@@ -251,7 +251,7 @@ def test_every_loop_reports_its_figures_on_diagnostics(default_run):
     """Each node's loop publishes its report about once a second (from the loop thread); the
     cumulative counters are consistent: every tick counted is in the lateness histogram, and two
     reports give the figures between them (what `bench live` uses)."""
-    from haptic_teleop.benchmarks.live import window_figures
+    from haptic_teleop.studies.benchmarks.live import window_figures
 
     reports = default_run["diagnostics"]
     nodes = ("operator_source", "master_eba", "slave_eba", "forward_relay", "backward_relay",
@@ -344,7 +344,7 @@ def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_pat
     tolerance documented in the README (live timing is not lockstep: samples can be taken one
     tick apart and the operator's hand reaches the master over DDS)."""
     from haptic_teleop.analysis.metrics import analyze_bag
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
     from haptic_teleop.scene.load import find_scene, load_scene
 
     live = json.loads((default_run["out"] / "summary.json").read_text())
@@ -726,8 +726,8 @@ def test_shared_loop_catches_up_every_member_and_counts_skips_per_member():
 def test_loop_stats_reports_give_exact_figures_between_two_reports():
     """What `bench live` computes from two diagnostics reports: ticks run per second of wall time,
     late ticks and lateness percentiles of exactly the ticks in between."""
-    from haptic_teleop.benchmarks.live import window_figures
     from haptic_teleop.nodes.rtloop import LoopStats
+    from haptic_teleop.studies.benchmarks.live import window_figures
 
     st = LoopStats(P_NS)
     lateness = [(i * 7919) % 2500 * 1000 + 100 for i in range(3000)]  # 0.1 us to 2.5 ms, fixed

@@ -190,8 +190,8 @@ def test_ros2_launch_files_plan_an_arm_scene_as_the_launcher_does(tmp_path):
     import yaml
 
     from haptic_teleop.errors import ConfigError
-    from haptic_teleop.launch_support import plan_from_arguments
-    from haptic_teleop.launcher import node_plan
+    from haptic_teleop.live.launcher import node_plan
+    from haptic_teleop.live.ros2_launch import plan_from_arguments
     from haptic_teleop.scene.load import find_scene, load_scene
 
     pairs = plan_from_arguments({"scene": SCENE, "record": str(tmp_path / "rec")}, "plant", tmp_path / "p")
@@ -214,7 +214,7 @@ def test_ros2_launch_files_plan_an_arm_scene_as_the_launcher_does(tmp_path):
 def test_ledger_restart_starts_afresh_and_the_next_step_books_no_period_before_it():
     """CoupledEnergyBound.restart (the arm nodes' restart at scene time 0): the reservoir is the
     given energy and the next step takes its q as the first, as a new bound's first step does."""
-    from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
 
     params = CoupledEnergyBoundParams(period_s=0.001, damping_nm_s_per_rad=(0.5, 0.5), initial_energy_j=0.01)
     bound, fresh = CoupledEnergyBound(params), CoupledEnergyBound(params)

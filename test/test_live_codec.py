@@ -263,10 +263,10 @@ def test_live_arm_deadband_sends_the_engines_arm_messages_and_reduces_as_the_eng
 
 def test_codec_wire_message_is_the_engines_size_and_round_trips():
     """The live wire message of a codec payload of F values is exactly
-    engine.codec_channel.message_bytes(F) bytes (an arm scene's: engine.arm_loop.arm_message_bytes(F))
+    assembly.channel.message_bytes(F) bytes (an arm scene's: assembly.side.arm_message_bytes(F))
     and decodes to the payload and the stamp."""
-    from haptic_teleop.engine.arm_loop import arm_message_bytes
-    from haptic_teleop.engine.codec_channel import message_bytes
+    from haptic_teleop.assembly.channel import message_bytes
+    from haptic_teleop.assembly.side import arm_message_bytes
     from haptic_teleop.nodes.codec_stage import CodecWire
 
     rng = np.random.default_rng(3)

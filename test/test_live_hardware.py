@@ -55,9 +55,9 @@ def _scene(name: str = SCENE, side: str = "slave"):
 
 
 def _start_emulator(name: str = SCENE, side: str = "slave", hand_delay_s: float = 0.0):
-    """The side's bus emulator from the scene (haptic_teleop/emulate.py), realtime, with the holding
+    """The side's bus emulator from the scene (haptic_teleop/assembly/emulation.py), realtime, with the holding
     friction; a leader's operator hand starts its push `hand_delay_s` later in emulator time."""
-    from haptic_teleop.emulate import bus_config
+    from haptic_teleop.assembly.emulation import bus_config
     from haptic_teleop.emulators.dynamixel.process import start_bus
 
     cfg = bus_config(_scene(name, side), side, "realtime", source="test")

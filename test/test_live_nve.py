@@ -168,7 +168,7 @@ def test_force_is_the_clients_spring_toward_the_object_it_received(push_run):
     assert np.all(before[t < DELAY_S])  # the down link delays the first object sample (if seen)
     # The spring k_h each tick used is the scheme's (nve_push: seed 000's transparency scheme) at the
     # R measured: both are in each coupling message. Below the allowable delay (0.195 s) it is k_h.
-    from haptic_teleop.nve_assembly import build_schedule
+    from haptic_teleop.assembly.nve import build_schedule
     from haptic_teleop.scene.load import find_scene, load_scene
 
     nve = load_scene(find_scene("nve_push")).config.nve

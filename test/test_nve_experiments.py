@@ -8,10 +8,11 @@ import itertools
 import numpy as np
 import pytest
 
-from haptic_teleop.cli import main
+from haptic_teleop.cli.main import main
 from haptic_teleop.core.nve_transparency import NveModel, distorted_damping_n_s_per_m, distorted_mass_kg
 from haptic_teleop.engine.nve_loop import NveEngine
-from haptic_teleop.experiments.nve import (
+from haptic_teleop.scene.load import find_scene, load_scene
+from haptic_teleop.studies.replications.nve import (
     NO_COMPENSATION,
     Case,
     Runner,
@@ -20,7 +21,6 @@ from haptic_teleop.experiments.nve import (
     push_window,
     write_ramp_trace,
 )
-from haptic_teleop.scene.load import find_scene, load_scene
 
 # nve_push: m = 0.25 kg, b = 0.0025 N s/m, k_h = k_e = 0.5 N/m, push at 0.1 m/s from 0.5 s for 0.9 m.
 KH, V, R = 0.5, 0.1, 0.3

@@ -5,16 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from haptic_teleop import assembly as assembly_module
 from haptic_teleop.analysis.metrics import analyze_bag
-from haptic_teleop.core.eba import (
-    ControllerParams,
-    EnergyBoundParams,
-    RemoteLimits,
-    SampleGuard,
-    TeleopController,
-)
-from haptic_teleop.engine.lockstep import COL, COLUMNS, Engine, record_run, remote_limits
+from haptic_teleop.assembly import parts as assembly_module
+from haptic_teleop.core.controller import ControllerParams, RemoteLimits, SampleGuard, TeleopController
+from haptic_teleop.core.eba_state import EnergyBoundParams
+from haptic_teleop.engine.lockstep import COL, COLUMNS, Engine, remote_limits
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.scene.load import find_scene, load_scene
 
 T = 0.001
@@ -163,7 +159,7 @@ def test_live_nodes_guard_their_remote_samples_with_the_engines_limits(tmp_path)
     from the parameters the launcher writes; a NaN sample is rejected and counted."""
     rclpy = pytest.importorskip("rclpy")
     from haptic_teleop.engine.lockstep import Engine
-    from haptic_teleop.launcher import node_plan, write_params_files
+    from haptic_teleop.live.launcher import node_plan, write_params_files
     from haptic_teleop.nodes.master_eba import MasterEba
     from haptic_teleop.nodes.slave_eba import SlaveEba
     from haptic_teleop.scene.load import find_scene, load_scene

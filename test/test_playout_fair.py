@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from haptic_teleop.core.link import Packet
-from haptic_teleop.core.playout import BufferConfig, NetworkAdaptiveBuffer, build_buffer
+from haptic_teleop.core.playout_config import BufferConfig, build_buffer
+from haptic_teleop.core.playout_seed import NetworkAdaptiveBuffer
 from haptic_teleop.scene.load import find_scene, load_scene
 
 MS = 1_000_000
@@ -108,7 +109,7 @@ def test_constant_latency_baseline_is_above_the_network_delay():
     """`fixed` with `fixed_above_delay_s` of a run's delays plays every packet of the same seed's
     network (common random numbers) after its arrival: D above every delay, nothing late."""
     from haptic_teleop.engine.lockstep import Engine
-    from haptic_teleop.experiments.playout import _buffer_overrides, _delays, _run, fixed_above_delay_s
+    from haptic_teleop.studies.replications.playout import _buffer_overrides, _delays, _run, fixed_above_delay_s
 
     short = ("scene.duration_s=1.5", "operator.duration_s=0.9", "scene.seed=2")
     none, _ = _run((*short, *_buffer_overrides({"policy": "none"})))
@@ -128,7 +129,7 @@ def test_constant_latency_baseline_is_above_the_network_delay():
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
-    from haptic_teleop.experiments import playout
+    from haptic_teleop.studies.replications import playout
 
     out = tmp_path_factory.mktemp("playout") / "out"
     args = Namespace(
@@ -142,7 +143,7 @@ def quick(tmp_path_factory):
 
 def test_quick_experiment_writes_paired_tables(quick):
     out, runs = quick
-    from haptic_teleop.experiments.playout import POLICIES
+    from haptic_teleop.studies.replications.playout import POLICIES
 
     for name in ("playout.csv", "playout_paired.csv", "playout.md", "playout.png"):
         assert (out / name).stat().st_size > 0
@@ -186,7 +187,7 @@ def test_policies_that_should_differ_do(quick):
 
 
 def test_bad_input_is_one_line(tmp_path, capsys):
-    from haptic_teleop.cli import main
+    from haptic_teleop.cli.main import main
     from haptic_teleop.errors import ConfigError
 
     code = main(["experiment", "playout", "--policies", "none,nope", "--out", str(tmp_path / "x")])

@@ -22,10 +22,11 @@ from haptic_teleop.analysis.decimate import (
 from haptic_teleop.analysis.metrics import load_signals
 from haptic_teleop.analysis.plots import FIGURES, energy_figure, energy_margins, network_figure
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.analysis.sweep_plot import key_label, metric_unit, sweep_figure, wrap_key
 from haptic_teleop.analysis.timeline import buffer_exits, buffer_occupancy, loss_causes, skip_times
-from haptic_teleop.cli import main
-from haptic_teleop.sweep import Param, aggregate
+from haptic_teleop.cli.main import main
+from haptic_teleop.studies.batch.figure import key_label, metric_unit, sweep_figure, wrap_key
+from haptic_teleop.studies.batch.plan import Param
+from haptic_teleop.studies.batch.tables import aggregate
 
 SCENE = [
     "--set", "scene.duration_s=1.0",
@@ -405,7 +406,7 @@ def test_plot_data_memory_does_not_grow_with_the_run(tmp_path):
     """tracemalloc peak of the streamed reduction: a 16 s run allocates about what a 4 s one does."""
     import tracemalloc
 
-    from haptic_teleop.analysis.plotdata import from_bag
+    from haptic_teleop.analysis.bag_plotdata import from_bag
 
     peaks = []
     for d in (4, 16):

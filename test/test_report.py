@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from haptic_teleop.cli import main
+from haptic_teleop.cli.main import main
 
 DELAY = "network.backward.effects.delay.delay_s"
 POLICY = "network.backward.buffer.policy"
@@ -190,7 +190,7 @@ def test_sweep_csv_report_is_one_self_contained_file_with_its_markdown_twin(swee
 
 
 def test_synthetic_table_predictions_and_pairs_by_seed(sweep_dir, tmp_path, capsys):
-    from haptic_teleop.reporting.inputs import read_inputs
+    from haptic_teleop.studies.document.inputs import read_inputs
 
     table = tmp_path / "tables" / "results.csv"
     table.parent.mkdir()
@@ -231,7 +231,7 @@ def test_sections_absent_without_their_data(tmp_path, capsys):
 
 
 def test_run_directory_and_bare_bag_read_like_the_sweep(sweep_dir, tmp_path, capsys):
-    from haptic_teleop.reporting.inputs import read_inputs
+    from haptic_teleop.studies.document.inputs import read_inputs
 
     rows = _rows(sweep_dir / "sweep.csv")
     names = (rows[0]["run_hash"], rows[3]["run_hash"])
@@ -250,7 +250,7 @@ def test_run_directory_and_bare_bag_read_like_the_sweep(sweep_dir, tmp_path, cap
 
 
 def test_parquet_table_reads_like_its_csv(sweep_dir, tmp_path, capsys):
-    from haptic_teleop.reporting.inputs import read_inputs
+    from haptic_teleop.studies.document.inputs import read_inputs
 
     table = tmp_path / "results.csv"
     _synthetic(table, None)

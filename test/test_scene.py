@@ -112,7 +112,7 @@ def test_cli_config_error_exit_code_2(tmp_path):
         [
             sys.executable,
             "-m",
-            "haptic_teleop.cli",
+            "haptic_teleop.cli.main",
             "run",
             str(DEFAULT),
             "--out",

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from haptic_teleop.analysis.stream import summarize_bag
-from haptic_teleop.engine.lockstep import record_run
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.scene.load import load_scene, scenes_dir
 
 ALL_SCENES = sorted(p.stem for p in scenes_dir().glob("*.yaml"))

@@ -104,7 +104,7 @@ def test_start_up_does_no_work_for_the_duration(loop):
 def test_both_loops_record_the_same_bag_bytes(tmp_path, overrides):
     """The loops hand the recorder the same blocks and packet records at the same points, so
     the bags are byte for byte the same (records wait for packets 1.2 s on their way)."""
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
 
     delay = ["network.backward.effects.delay.delay_s=1.2", "scene.duration_s=3.5"]
     scene = load_scene(find_scene("wall_contact"), overrides=[*overrides, *delay])

@@ -6,8 +6,8 @@ import statistics
 
 import pytest
 
-from haptic_teleop.cli import main
-from haptic_teleop.sweep import parse_param, split_values
+from haptic_teleop.cli.main import main
+from haptic_teleop.studies.batch.plan import parse_param, split_values
 
 SHORT = ["--set", "scene.duration_s=0.5", "--set", "network.forward.effects.loss.probability=0.1"]
 POLICIES = "network.forward.buffer.policy+network.backward.buffer.policy=none,fixed"

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from haptic_teleop.cli import main
+from haptic_teleop.cli.main import main
 from haptic_teleop.scene.load import find_scene, load_scene
-from haptic_teleop.sweeps.plan import key_value, load_sweep_file, resolve, run_hash
-from haptic_teleop.sweeps.store import LEDGER, read_csv
+from haptic_teleop.studies.batch.plan import key_value, load_sweep_file, resolve, run_hash
+from haptic_teleop.studies.batch.store import LEDGER, read_csv
 
 LOSS = "network.forward.effects.loss.probability"
 DELAY = "network.forward.effects.delay.delay_s+network.backward.effects.delay.delay_s"
@@ -236,7 +236,7 @@ def test_sweeping_scene_seed_and_seeds_at_once_is_refused(tmp_path, capsys):
 
 
 def test_a_point_failing_in_a_worker_is_reported_and_the_others_run(tmp_path):
-    from haptic_teleop.sweeps.runner import LocalPool, Task
+    from haptic_teleop.studies.batch.runner import LocalPool, Task
 
     pool = LocalPool(2)
     bad = Task("bad", "scene: {duration_s: -1}\n", str(tmp_path / "runs" / "bad"))

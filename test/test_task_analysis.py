@@ -210,7 +210,8 @@ def test_summary_equals_the_analytic_values(bag):
 
 
 def test_plots_draw_paths_wall_forces_and_ports(bag, tmp_path):
-    from haptic_teleop.analysis.plotdata import TaskPlotData, from_bag
+    from haptic_teleop.analysis.bag_plotdata import from_bag
+    from haptic_teleop.analysis.plotdata import TaskPlotData
     from haptic_teleop.analysis.plots import task_energy_figure, task_forces_figure, task_path_figure, write_plots
 
     data = from_bag(bag)

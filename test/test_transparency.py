@@ -14,7 +14,7 @@ import pytest
 
 from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.analysis.transparency import longest_hold, rise_ticks
-from haptic_teleop.cli import main
+from haptic_teleop.cli.main import main
 from haptic_teleop.core.transparency import (
     ContactModel,
     allowable_delay,
@@ -23,9 +23,10 @@ from haptic_teleop.core.transparency import (
     force_slope,
     transparent_loss_time,
 )
-from haptic_teleop.engine.lockstep import COL, Engine, record_run
+from haptic_teleop.engine.lockstep import COL, Engine
+from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.launcher import node_plan
+from haptic_teleop.live.launcher import node_plan
 from haptic_teleop.scene.load import find_scene, load_scene
 
 SHORT = ("operator.duration_s=1.0", "scene.duration_s=1.6", "operator.speed_m_per_s=0.01")

@@ -1,8 +1,8 @@
 """Where a run's outputs go and how they are written: summary.json and plots from a bag, files
 written whole (by a rename), the default and the checks of an output directory.
 
-Shared by `haptic-teleop run` and `analyze` (cli.py), `sweep` (sweep.py) and `launch --record`
-(launcher.py), which all write the same files the same way.
+Shared by `haptic-teleop run` and `analyze` (cli/main.py), `sweep` (cli/sweep.py) and `launch --record`
+(live/launcher.py), which all write the same files the same way.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def write_outputs(bag_dir: Path, out_dir: Path, plots: bool = True) -> dict[str,
     out_dir.mkdir(parents=True, exist_ok=True)
     write_atomic(out_dir / "summary.json", json.dumps(_clean(summary), indent=2, sort_keys=True) + "\n")
     if plots:
-        from haptic_teleop.analysis.plotdata import from_bag
+        from haptic_teleop.analysis.bag_plotdata import from_bag
         from haptic_teleop.analysis.plots import write_plots
 
         interrupt.pause_for_test("plots")

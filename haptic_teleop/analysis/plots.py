@@ -4,7 +4,7 @@ Each plot is built by a `*_figure(data)` function that returns the matplotlib Fi
 its axes and artists), and `write_plots` saves them all. Figures are plain `matplotlib.figure.Figure`
 objects (no pyplot state). They draw a `plotdata.PlotData`: every series already reduced to the
 plot's width (`decimate.py`), from whole signals (`plotdata.from_signals`) or streamed from the bag
-(`plotdata.from_bag`, what `run` and `analyze` use), so neither the drawing cost nor the memory
+(`bag_plotdata.from_bag`, what `run` and `analyze` use), so neither the drawing cost nor the memory
 grows with the run's length. A `Signals` given instead is reduced first.
 """
 

@@ -2,9 +2,11 @@
 
 For a one-axis scene of the seed's premise (`operator.profile: imposed` or `slave.start:
 in_contact`), or a push toward the wall with an `analysis:` section (`applies`), from the bag
-alone (its scene and run facts, its signals) and an undisturbed reference run of the same scene
-(`analysis.reference`, by default for in-contact starts only: no network effects, i.e. no delay,
-no loss, buffer none, no codec; the engine is deterministic):
+alone (its scene and run facts, its signals), and the undisturbed reference run of the same scene
+that the run recorded beside itself when the scene asks for one (`analysis.reference`, by default
+for in-contact starts only: no network effects, i.e. no delay, no loss, buffer none, no codec;
+engine/reference.py; a bag without it, a live run's, gets `transparency_reference` instead of the
+reference keys):
 
 - the felt force's slope in contact, `force_slope_predicted_n_per_s` (s = gamma v_m,
   core/transparency.py) and `_measured_` (a line through |F_m| over the second half of the ramp);
@@ -24,7 +26,6 @@ A scene the analysis does not apply to gets no key at all.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 from pathlib import Path
@@ -42,27 +43,15 @@ from haptic_teleop.core.transparency import (
     force_slope_between,
     transparent_loss_time,
 )
+from haptic_teleop.scene.contact import contact_model_of, reference_wanted, transparency_applies
+from haptic_teleop.scene.schema import Scene
+from haptic_teleop.typedconfig import build
 
 DEFAULT_ALLOWED_FORCE_ERROR_N = 0.1  # the seed's transparency requirement (force error < 0.1 N)
 MIN_WINDOW_TICKS = 20
 MIN_HOLD_TICKS = 3  # a hold of the master's remote sample shorter than this is not a loss burst
-MAX_REFERENCES = 8
-_REFERENCES: dict[str, np.ndarray] = {}  # the reference run's |F_m| per reference scene (YAML text)
-
-
-def applies(sc: dict[str, Any]) -> bool:
-    """A one-axis teleoperation scene whose operator moves toward the wall (push or imposed) and
-    that asks for the analysis: the seed's premise (`operator.profile: imposed` or
-    `slave.start: in_contact`), or an `analysis:` section (a push from free space opts in). The
-    analysis reads the run whole (its memory grows with the run, unlike the streaming summary),
-    so the other scenes, long runs among them, are left alone."""
-    if sc.get("nve") is not None or (sc.get("slave") or {}).get("wall", {}).get("point_m") is not None:
-        return False
-    op = sc.get("operator") or {}
-    if op.get("profile") not in ("push", "imposed") or not float(op.get("speed_m_per_s", 0.0)) > 0.0:
-        return False
-    asked = op.get("profile") == "imposed" or (sc["slave"].get("start") or "free") == "in_contact"
-    return asked or sc.get("analysis") is not None
+# The run fact that holds the reference run's |F_m| per tick (engine/reference.py writes it).
+REFERENCE_FACT = "reference_master_force_n"
 
 
 def _ramp(sc: dict[str, Any], period_s: float, n: int) -> tuple[int, int]:
@@ -76,43 +65,11 @@ def _ramp(sc: dict[str, Any], period_s: float, n: int) -> tuple[int, int]:
     return first, last
 
 
-def reference_scene(sc: dict[str, Any]) -> dict[str, Any]:
-    """The scene with its network effects removed: links that deliver at once, no buffering, no codec."""
-    ref = copy.deepcopy(sc)
-    for d in ("forward", "backward"):
-        ref["network"][d] = {"effects": {}, "buffer": {"policy": "none"}}
-    return ref
-
-
-def reference_force(sc: dict[str, Any]) -> np.ndarray:
-    """|F_m| of the undisturbed reference run of scene `sc` (run once per process and scene)."""
-    from haptic_teleop.engine.lockstep import COL, Engine
-    from haptic_teleop.scene.schema import LoadedScene, Scene
-    from haptic_teleop.typedconfig import build
-
-    ref = reference_scene(sc)
-    key = yaml.safe_dump(ref, sort_keys=True)
-    got = _REFERENCES.get(key)
-    if got is None:
-        config = build(Scene, ref, "", "reference run")
-        engine = Engine(LoadedScene(config=config, source="reference run", raw=ref), loop="auto")
-        run = engine.run(handle_sigint=False)
-        got = np.abs(run.data[: run.ticks, COL["m_force_n"]])
-        if len(_REFERENCES) >= MAX_REFERENCES:  # a sweep's process: keep the newest few
-            del _REFERENCES[next(iter(_REFERENCES))]
-        _REFERENCES[key] = got
-    return got
-
-
-def contact_model(sc: dict[str, Any], run_info: dict[str, Any], speed_m_per_s: float) -> ContactModel:
-    """The numbers the predictions use: the scene's contact model (`contact_assembly.contact_model_of`,
+def contact_model(config: Scene, run_info: dict[str, Any], speed_m_per_s: float) -> ContactModel:
+    """The numbers the predictions use: the scene's contact model (`scene.contact.contact_model_of`,
     the scene as recorded) with the speed measured and the master's damping as the plant had it
     (the run facts), where the bag has them."""
-    from haptic_teleop.contact_assembly import contact_model_of
-    from haptic_teleop.scene.schema import Scene
-    from haptic_teleop.typedconfig import build
-
-    model = contact_model_of(build(Scene, sc, "", "recorded scene"))
+    model = contact_model_of(config)
     if model is None:
         raise ValueError("the transparency analysis needs a one-axis scene whose operator pushes or is imposed")
     damping = run_info.get("master_joint_damping")
@@ -158,7 +115,10 @@ def transparency_summary(bag: str | Path) -> dict[str, Any]:
 
     with BagReader(bag) as r:
         sc = yaml.safe_load(r.string("/haptic_teleop/scene"))
-        if not r.schema.single_axis or not applies(sc):
+        if not r.schema.single_axis:
+            return {}
+        config = build(Scene, sc, "", "recorded scene")
+        if not transparency_applies(config):
             return {}
         desired = np.abs(r.read("/master/eba").field("force_desired_n")) if r.has("/master/eba") else None
     sig = load_signals(bag)
@@ -185,7 +145,7 @@ def transparency_summary(bag: str | Path) -> dict[str, Any]:
         return {}
     law = str(((sc["controllers"]["master"].get("eba") or {}).get("law")) or "reservoir")
     allowed = float((sc.get("analysis") or {}).get("allowed_force_error_n", DEFAULT_ALLOWED_FORCE_ERROR_N))
-    model = contact_model(sc, sig.run_info, speed)
+    model = contact_model(config, sig.run_info, speed)
     out: dict[str, Any] = {
         "transparency_law": law,
         "transparency_bound_binding": model.binding,
@@ -203,10 +163,13 @@ def transparency_summary(bag: str | Path) -> dict[str, Any]:
         out["transparency_regime"] = drop.regime
         out["force_drop_predicted_n"] = drop.drop_n
         out["allowable_delay_s"] = allowable_delay(model, allowed, law)
-    # The reference run costs a second run: by default for the seed's in-contact premise only.
-    reference = (sc.get("analysis") or {}).get("reference")
-    if reference if reference is not None else in_contact:
-        ref = reference_force(sc)
+    # The undisturbed reference run, recorded with the run when its scene asks for one
+    # (scene.contact.reference_wanted: by default for the seed's in-contact premise only).
+    recorded = sig.run_info.get(REFERENCE_FACT) if reference_wanted(config) else None
+    if reference_wanted(config) and recorded is None:  # a live run's bag, or one from before
+        out["transparency_reference"] = "not recorded in this bag"
+    if recorded is not None:
+        ref = np.asarray(recorded, dtype=float)
         m = min(len(ref), n)
         err = felt[:m] - ref[:m]
         out["force_rms_error_vs_reference_n"] = float(np.sqrt(np.mean(err * err)))

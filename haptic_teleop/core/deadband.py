@@ -131,7 +131,7 @@ def _check_field(name: str, value: object, meta: Mapping[str, Any]) -> None:
 def vector_norm(v: Sequence[float]) -> float:
     """|v|: |v_0| for one value, else the square root of the squares summed in order (not
     math.hypot, whose extended-precision sum the compiled loop cannot reproduce bit for bit:
-    engine/arm_codec_kernel.py sums the same squares in the same order)."""
+    engine/compiled/arm_codec_kernel.py sums the same squares in the same order)."""
     if len(v) == 1:
         return abs(v[0])
     s = 0.0
@@ -156,7 +156,7 @@ _dist = vector_distance
 
 
 # The per-sample formulas as scalar functions of floats: the one definition the classes below use
-# and that the compiled loop compiles (engine/codec_kernel.py), as core/eba.py's scalar functions.
+# and that the compiled loop compiles (engine/compiled/codec_kernel.py), as core/eba.py's scalar functions.
 
 
 def deadband_p(p0: float, adaptive_gain: float, max_deadband: float, speed: float) -> float:

@@ -1,10 +1,15 @@
-"""What a one-axis energy bound carries from one tick to the next (`core.eba.EnergyBound`,
-`core.eba_two_condition.TwoConditionBound`): its own module so that both laws use it without
-importing each other."""
+"""What both one-axis energy-bound laws (`core.eba.EnergyBound`, the reservoir;
+`core.eba_two_condition.TwoConditionBound`, the published two conditions) share: their parameters
+(`EnergyBoundParams`, the law named in it), and the state a bound carries from one tick to the
+next (`AxisBoundState`). Its own module, so that both laws use it without importing each other."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+# The energy-bound laws a side can run (`controllers.<side>.eba.law`).
+EBA_LAWS = ("reservoir", "two_condition")
 
 
 @dataclass(frozen=True)
@@ -12,9 +17,73 @@ class AxisBoundState:
     """What a one-axis `EnergyBound` carries from one tick to the next: the reservoir, the force
     held over the current period (the reservoir's F(n-1)), the position of the last step and
     whether there was one. `EnergyBound.axis_state`
-    and `set_axis_state` move it in and out (the compiled loop, engine/compiled_loop.py, carries it)."""
+    and `set_axis_state` move it in and out (the compiled loop, engine/compiled/axis_host.py, carries it)."""
 
     energy_j: float
     held_n: float
     last_x_m: float
     has_last: bool
+
+
+@dataclass(frozen=True)
+class EnergyBoundParams:
+    """Parameters of one side's energy bound."""
+
+    period_s: float
+    damping_n_s_per_m: tuple[float, ...]
+    initial_energy_j: float = 0.0
+    enabled: bool = True
+    # The actuator's limits downstream of the bound (docs/eba.md, "Actuator limits inside the
+    # bound"): it clips |F| to force_limit_n and changes F by at most slew_rate_n_per_s * T per
+    # period. None: no such limit (the bound is then the plain one, bit for bit).
+    force_limit_n: float | None = None
+    slew_rate_n_per_s: float | None = None
+    # Which bound: "reservoir" (one pooled reservoir per axis, `EnergyBound`) or "two_condition"
+    # (the ZOH and controller energy conditions, `core.eba_two_condition.TwoConditionBound`);
+    # docs/eba.md, "The published two-condition law".
+    law: str = "reservoir"
+
+    def __post_init__(self) -> None:
+        if self.law not in EBA_LAWS:
+            raise ValueError(f"law must be one of {', '.join(EBA_LAWS)}, got {self.law!r}")
+        if self.law == "two_condition" and self.slew_rate_n_per_s is not None:
+            raise ValueError(
+                "the two_condition law does not model an actuator slew limit; allowed with a slew limit: law reservoir"
+            )
+        for name in ("force_limit_n", "slew_rate_n_per_s"):
+            v = getattr(self, name)
+            if v is not None and not 0.0 < v < math.inf:
+                raise ValueError(f"{name} must be finite and > 0 (or None), got {v}")
+        if not self.period_s > 0.0:
+            raise ValueError(f"period_s must be > 0, got {self.period_s}")
+        if not self.damping_n_s_per_m or any(not b > 0.0 for b in self.damping_n_s_per_m):
+            raise ValueError(f"damping_n_s_per_m must be > 0 on every axis, got {self.damping_n_s_per_m}")
+        if not self.initial_energy_j >= 0.0:
+            raise ValueError(f"initial_energy_j must be >= 0, got {self.initial_energy_j}")
+
+    @property
+    def axes(self) -> int:
+        return len(self.damping_n_s_per_m)
+
+    @property
+    def limited(self) -> bool:
+        """Whether the bound models an actuator limit (`actuator_bounded1`) or is the plain one."""
+        return self.force_limit_n is not None or self.slew_rate_n_per_s is not None
+
+    def actuator_limits(self) -> tuple[float, float]:
+        """(force limit, slew step S T) of the actuator, inf where there is none."""
+        f = math.inf if self.force_limit_n is None else self.force_limit_n
+        s = math.inf if self.slew_rate_n_per_s is None else self.slew_rate_n_per_s * self.period_s
+        return f, s
+
+    def max_stiffness_n_per_m(self) -> tuple[float, ...]:
+        """The stiffness the bounded force can grow with at most: 2 b / T per axis (Colgate)."""
+        return tuple(2.0 * b / self.period_s for b in self.damping_n_s_per_m)
+
+    def reservoir_gains(self) -> tuple[float, ...]:
+        """b / T per axis: the reservoir's gain on dx^2 (`reservoir1`'s `gain`)."""
+        return tuple(b / self.period_s for b in self.damping_n_s_per_m)
+
+    def bound_gains(self) -> tuple[float, ...]:
+        """4 b / T per axis: the bound's gain, |F| <= sqrt(bound_gain E) (`bounded1`'s `bound_gain`)."""
+        return tuple(4.0 * b / self.period_s for b in self.damping_n_s_per_m)

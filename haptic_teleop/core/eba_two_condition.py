@@ -32,15 +32,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
-from haptic_teleop.core.eba_state import AxisBoundState
-
-if TYPE_CHECKING:  # the params type only; core.eba imports this module
-    from haptic_teleop.core.eba import EnergyBoundParams
-
-# The energy-bound laws a side can run (`controllers.<side>.eba.law`).
-EBA_LAWS = ("reservoir", "two_condition")
+from haptic_teleop.core.eba_state import EBA_LAWS, AxisBoundState, EnergyBoundParams
 
 
 def two_condition_interval1(

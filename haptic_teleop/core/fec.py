@@ -86,7 +86,7 @@ def payload_floats(scheme: str, k: int, dim: int) -> int:
 
 def rounded_sum(xs: Any, start: int, count: int, partials: Any) -> float:
     """The sum of the finite floats xs[start:start + count] rounded once, the value `math.fsum` gives (the
-    compiled loop's parity sums, engine/codec_kernel.py; the Python classes call `math.fsum`).
+    compiled loop's parity sums, engine/compiled/codec_kernel.py; the Python classes call `math.fsum`).
     Shewchuk's exact partials (non-overlapping, kept in `partials` from index 0, room for `count`; it may be
     `xs` itself when the two regions do not meet), then
     the top partials added with the half-way case rounded as one rounding would."""

@@ -129,7 +129,7 @@ def hli_message_bytes(dim: int, cls: int) -> int:
 
 def linear1(a: float, b: float) -> float:
     """The linear predictor of one value: a at n-1, b at n-2, to n (the compiled loop compiles it,
-    engine/codec_kernel.py)."""
+    engine/compiled/codec_kernel.py)."""
     return 2.0 * a - b
 
 

@@ -97,7 +97,7 @@ def gilbert_step(
     """One packet of the Gilbert-Elliott chain from its two uniforms (the transition's `move`,
     then the loss draw `u`): (the state after it, whether the packet is lost). The loss uses the
     state the packet met; then good->bad with p, bad->good with r. One definition for
-    `GilbertElliottLoss` and the compiled loop (engine/codec_kernel.py)."""
+    `GilbertElliottLoss` and the compiled loop (engine/compiled/codec_kernel.py)."""
     if bad:
         return move >= r, u < loss_bad
     return move < p, u < loss_good
@@ -136,7 +136,7 @@ class GilbertElliottLoss:
 def four_state_step(s: int, u: float, p13: float, p31: float, p32: float, p23: float, p14: float) -> int:
     """One packet of netem's 4-state chain from its uniform `u`: the state after it (the packet is
     lost in 3 and 4). One definition for `FourStateLoss` and the compiled loop
-    (engine/codec_kernel.py)."""
+    (engine/compiled/codec_kernel.py)."""
     if s == 1:
         if u < p14:
             return 4

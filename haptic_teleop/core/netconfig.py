@@ -2,7 +2,7 @@
 the conventions), and `build_link`: a `Link` with exactly the effects a config names.
 
 Core reads no files: a trace's rows come in `LinkTraces`, read by the scene layer
-(`haptic_teleop/traces.py`).
+(`haptic_teleop/scene/traces.py`).
 """
 
 from __future__ import annotations
@@ -363,7 +363,7 @@ def canonical_order(cfg: NetworkEffectsConfig | None = None) -> tuple[str, ...]:
 @dataclass(frozen=True)
 class LinkTraces:
     """The rows of the trace files a link's config names, read by the scene layer
-    (`haptic_teleop.traces.link_traces`): `delay` = (time_s, delay_s) arrays, `loss` = one bool
+    (`haptic_teleop.scene.traces.link_traces`): `delay` = (time_s, delay_s) arrays, `loss` = one bool
     per packet (True = lost)."""
 
     delay: tuple[np.ndarray, np.ndarray] | None = None
@@ -394,7 +394,7 @@ def build_link(
     """A `Link` with exactly the effects `cfg` names, in CANONICAL_ORDER, each on its own stream.
 
     A trace the config names (`delay.trace`, loss model `trace`) comes as its rows in `traces`;
-    `haptic_teleop.traces.build_scene_link` reads the files and calls this."""
+    `haptic_teleop.scene.traces.build_scene_link` reads the files and calls this."""
     traces = traces if traces is not None else LinkTraces()
 
     def rng(name: str) -> np.random.Generator:

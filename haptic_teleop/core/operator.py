@@ -29,7 +29,7 @@ PROFILES = ("push", "sinusoid", "hold", "trace", "imposed")
 
 
 # One-axis formulas on floats, called by `Operator` and compiled by the engine's compiled loop
-# (haptic_teleop/engine/compiled_loop.py): each exists once.
+# (haptic_teleop/engine/compiled/axis_host.py): each exists once.
 
 
 def push1(tau: float, x0: float, speed: float, t_end: float, x_end: float) -> tuple[float, float]:

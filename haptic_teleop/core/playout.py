@@ -19,30 +19,39 @@ numbers (duplicates), and per-policy estimators that cost O(1) or O(log window) 
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import math
 from array import array
-from bisect import bisect_left, bisect_right, insort
+from bisect import bisect_left, insort
 from collections import deque
-from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from dataclasses import dataclass
+from typing import Protocol
 
 from haptic_teleop.core.link import LOST_LATE, Packet
 
 POLICIES = ("none", "fixed", "adaptive", "percentile", "transparency", "network_adaptive")
+
+
 GAP_MODES = ("hold", "extrapolate")
+
+
 RAMJEE_SMOOTHING = 0.998002  # alpha of Ramjee et al. (1994), algorithm 1
+
 
 # Duplicate detection remembers the last _SEEN_SLOTS sequence numbers in a ring (32 s at 1 kHz):
 # an arrival that repeats a sequence number older than that is counted late, not duplicate.
 _SEEN_SLOTS = 1 << 15
+
+
 _SEEN_MASK = _SEEN_SLOTS - 1
+
+
 _NO_SEQ = -(1 << 63)
-# Transparency policy: a new decision (O(window)) every _RETARGET_PACKETS arrivals, and at
+
+
+# Transparency policy: a new decision (O(window)) every RETARGET_PACKETS arrivals, and at
 # arrivals 1, 2, 4, ... while the window fills.
-_RETARGET_PACKETS = 64
+RETARGET_PACKETS = 64
 
 
 @dataclass(slots=True)
@@ -84,7 +93,7 @@ def contact_force_slope(stiffness_n_per_m: float, speed_m_per_s: float) -> float
     return abs(stiffness_n_per_m * speed_m_per_s)
 
 
-class _BufferBase:
+class BufferBase:
     """Accounting shared by every policy: duplicates, late marking, played / gap bookkeeping."""
 
     name = "base"
@@ -156,7 +165,7 @@ class _BufferBase:
         )
 
 
-class PlayOnArrival(_BufferBase):
+class PlayOnArrival(BufferBase):
     """Policy `none`: play the newest arrival at once; anything older than what was played is late.
 
     With `gap="extrapolate"`, a tick that brings nothing new extrapolates to the slot that many
@@ -208,7 +217,7 @@ class PlayOnArrival(_BufferBase):
         return None
 
 
-class _ScheduledBuffer(_BufferBase):
+class ScheduledBuffer(BufferBase):
     """Play sample k at send_time_k + D on the receiver's clock, D the playout delay.
 
     D includes the unknown clock offset: policies estimate it from relative delays
@@ -316,7 +325,7 @@ class _ScheduledBuffer(_BufferBase):
         return None
 
 
-class FixedBuffer(_ScheduledBuffer):
+class FixedBuffer(ScheduledBuffer):
     """Policy `fixed`: D = min relative delay seen until playout starts + buffering time; then frozen.
 
     The base is the minimum over the packets that arrive before the first one is played (the
@@ -342,7 +351,7 @@ class FixedBuffer(_ScheduledBuffer):
             self._target_rel = rel_ns + self.buffering_ns
 
 
-class AdaptiveBuffer(_ScheduledBuffer):
+class AdaptiveBuffer(ScheduledBuffer):
     """Policy `adaptive`: Ramjee et al. (1994) algorithm 1, adapted continuously.
 
         d_i = a d_(i-1) + (1 - a) n_i
@@ -408,7 +417,7 @@ class AdaptiveBuffer(_ScheduledBuffer):
         self._target_rel = round(d + self._beta * v)
 
 
-class _Window:
+class Window:
     """The last `size` relative delays, also kept sorted (insort / bisect: O(log n) + a memmove)."""
 
     __slots__ = ("order", "size", "sorted")
@@ -428,7 +437,7 @@ class _Window:
             del srt[bisect_left(srt, order.popleft())]
 
 
-class PercentileBuffer(_ScheduledBuffer):
+class PercentileBuffer(ScheduledBuffer):
     """Policy `percentile` (NetEq-like): D = the q-quantile of the window's relative delays.
 
     That is the window minimum (the clock offset plus the smallest network delay) plus the
@@ -459,7 +468,7 @@ class PercentileBuffer(_ScheduledBuffer):
             hysteresis_ns=hysteresis_ns,
         )
         self.quantile = quantile
-        self._window = _Window(window_packets)
+        self._window = Window(window_packets)
 
     def _observe(self, rel_ns: int) -> None:
         w = self._window
@@ -468,384 +477,3 @@ class PercentileBuffer(_ScheduledBuffer):
         n = len(srt)
         rank = math.ceil(self.quantile * n - 1e-9)  # 1-based nearest rank
         self._target_rel = srt[min(n, max(1, rank)) - 1]
-
-
-class TransparencyBuffer(_ScheduledBuffer):
-    """Policy `transparency` (seed 000): the buffering time that minimises the EBA force error.
-
-    Seed 000: in contact the felt force rises at slope s = c * v_m; a latency D lowers it by
-    s * D and every hold (the due sample missing) lowers it by s * the hold time. With b the
-    buffering above the window's minimum relative delay, d0 the smallest one-way delay, x the
-    relative delays above the window minimum and H the contact horizon, the expected force error
-    at the end of a contact is (derivation in docs/playout.md)
-
-        e(b) = s * (d0 + b + H * P(x > b))
-
-    b is the minimiser of e over {0} and the window's values, subject to the allowable-latency
-    cap d0 + b <= D_allow = allowed_force_error / s (b = 0 when the cap is below d0).
-    """
-
-    name = "transparency"
-
-    def __init__(
-        self,
-        period_ns: int,
-        *,
-        allowed_force_error_n: float = 0.1,
-        force_slope_n_per_s: float | None = None,
-        min_one_way_delay_ns: int = 0,
-        contact_horizon_ns: int = 1_000_000_000,
-        window_packets: int = 1000,
-        gap: str = "hold",
-        max_extrapolation_ns: int = 0,
-        max_slew_rate: float = 0.05,
-        hysteresis_ns: int = 0,
-    ) -> None:
-        if not allowed_force_error_n > 0.0:
-            raise ValueError(f"allowed_force_error_n must be > 0, got {allowed_force_error_n}")
-        if not contact_horizon_ns > 0:
-            raise ValueError(f"contact_horizon_ns must be > 0, got {contact_horizon_ns}")
-        super().__init__(
-            period_ns,
-            gap=gap,
-            max_extrapolation_ns=max_extrapolation_ns,
-            max_slew_rate=max_slew_rate,
-            hysteresis_ns=hysteresis_ns,
-        )
-        self.allowed_force_error_n = allowed_force_error_n
-        self.contact_horizon_ns = contact_horizon_ns
-        self._slope: float | None = None
-        self._d0 = 0
-        self.set_force_slope(force_slope_n_per_s)
-        self.set_min_one_way_delay(min_one_way_delay_ns)
-        self._window = _Window(window_packets)
-        self._count = 0
-        self._dirty = False
-        self.buffering_ns = 0  # b: the chosen buffering above the minimum relative delay
-        self.expected_hold_ns = 0  # H * P(x > b) at the last decision
-        self.expected_force_error_n: float | None = None  # e(b) at the last decision (None: no slope)
-
-    def set_force_slope(self, slope_n_per_s: float | None) -> None:
-        """The engine's current s (e.g. `contact_force_slope(stiffness, speed)`); None: no cap.
-
-        Cheap enough to call every tick: the next decision (at the next arrival) uses it.
-        """
-        if slope_n_per_s is not None and not (slope_n_per_s >= 0.0 and math.isfinite(slope_n_per_s)):
-            raise ValueError(f"force slope must be a finite value >= 0, got {slope_n_per_s}")
-        if slope_n_per_s != self._slope:
-            self._slope = slope_n_per_s
-            self._dirty = True
-
-    def set_min_one_way_delay(self, delay_ns: int) -> None:
-        """d0: the smallest one-way delay (e.g. half the minimum round trip); not observable here."""
-        if delay_ns < 0:
-            raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
-        if delay_ns != self._d0:
-            self._d0 = delay_ns
-            self._dirty = True
-
-    @property
-    def allowed_latency_ns(self) -> int | None:
-        """D_allow = allowed_force_error / s, or None when s is unknown or 0 (no cap)."""
-        s = self._slope
-        if not s:
-            return None
-        return min(round(self.allowed_force_error_n / s * 1e9), 1 << 62)
-
-    def _observe(self, rel_ns: int) -> None:
-        self._window.add(rel_ns)
-        self._count += 1
-        c = self._count
-        if self._dirty or c % _RETARGET_PACKETS == 0 or (c < _RETARGET_PACKETS and c & (c - 1) == 0):
-            self._decide()
-
-    def _decide(self) -> None:
-        self._dirty = False
-        srt = self._window.sorted
-        w = len(srt)
-        lo = srt[0]
-        per_packet = self.contact_horizon_ns / w  # H * P(x > b) drops by this per value covered
-        cap = math.inf
-        allow = self.allowed_latency_ns
-        if allow is not None:
-            cap = max(0, allow - self._d0)
-        # e(b) / s - d0 = b + H * P(x > b): linear between window values, a step down at each, so
-        # the minimum is at b = 0 or at a window value (the last of a run of equal values).
-        first_above = bisect_right(srt, lo)
-        best_b, best_cost = 0, (w - first_above) * per_packet
-        for i in range(first_above, w):
-            b = srt[i] - lo
-            if b > cap or b >= best_cost:
-                break  # the cost is at least b: no larger b can win
-            if i + 1 < w and srt[i + 1] == srt[i]:
-                continue
-            cost = b + (w - 1 - i) * per_packet
-            if cost < best_cost:
-                best_b, best_cost = b, cost
-        self.buffering_ns = best_b
-        self.expected_hold_ns = round(best_cost) - best_b
-        self._target_rel = lo + best_b
-        s = self._slope
-        self.expected_force_error_n = None if s is None else s * (self._d0 + best_cost) * 1e-9
-
-
-class NetworkAdaptiveBuffer(_ScheduledBuffer):
-    """Policy `network_adaptive`: seed 000's network-adaptive buffering time control, read as the
-    seed states it (docs/playout.md, "The haptic-synchronization claim, tested fairly").
-
-    From the transparency analysis of the scene (core/transparency.py) it takes the allowable
-    delay D_a (the largest one-way delay whose force drop stays within the required distortion E)
-    and the allowable loss time L_a = T_tr + E / s (the transparent loss time, then as long as the
-    undisturbed force takes to rise by E); from the network, the minimum one-way delay d0. With x
-    the relative delays above the window's minimum, a sample x late is held about x - b past its
-    slot; the buffering time is the least that keeps every hold the window predicts within L_a,
-    as long as the latency d0 + b stays within D_a:
-
-        b = min( max(0, max(x) - L_a), max(0, D_a - d0) )
-
-    No free parameter decides between latency and holds: both bounds come from the analysis.
-    `requirement_met` is False when the window's holds need more buffering than D_a - d0 allows
-    (the seed's requirement cannot be met at this jitter; the latency bound wins).
-    """
-
-    name = "network_adaptive"
-
-    def __init__(
-        self,
-        period_ns: int,
-        *,
-        allowable_delay_ns: int | None = None,
-        allowable_loss_time_ns: int = 0,
-        min_one_way_delay_ns: int = 0,
-        window_packets: int = 1000,
-        gap: str = "hold",
-        max_extrapolation_ns: int = 0,
-        max_slew_rate: float = 0.05,
-        hysteresis_ns: int = 0,
-    ) -> None:
-        super().__init__(
-            period_ns,
-            gap=gap,
-            max_extrapolation_ns=max_extrapolation_ns,
-            max_slew_rate=max_slew_rate,
-            hysteresis_ns=hysteresis_ns,
-        )
-        self._window = _Window(window_packets)
-        self._allow_delay: int | None = None
-        self._allow_loss = 0
-        self._d0 = 0
-        self.set_allowable(allowable_delay_ns, allowable_loss_time_ns)
-        self.set_min_one_way_delay(min_one_way_delay_ns)
-        self.buffering_ns = 0  # b: the chosen buffering above the window's minimum relative delay
-        self.requirement_met = True
-
-    def set_allowable(self, delay_ns: int | None, loss_time_ns: int) -> None:
-        """D_a (None: no delay bound) and L_a, from the transparency analysis (the engine passes
-        them, `assembly.build_network`); the next arrival's decision uses them."""
-        if delay_ns is not None and delay_ns < 0:
-            raise ValueError(f"allowable delay must be >= 0, got {delay_ns}")
-        if loss_time_ns < 0:
-            raise ValueError(f"allowable loss time must be >= 0, got {loss_time_ns}")
-        self._allow_delay = delay_ns
-        self._allow_loss = loss_time_ns
-
-    def set_min_one_way_delay(self, delay_ns: int) -> None:
-        """d0: the smallest one-way delay (the engine: the link's; a node: half the minimum round trip)."""
-        if delay_ns < 0:
-            raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
-        self._d0 = delay_ns
-
-    @property
-    def delay_budget_ns(self) -> int | None:
-        """D_a - d0 (at least 0): the most buffering the allowable delay leaves; None: no bound."""
-        a = self._allow_delay
-        return None if a is None else max(0, a - self._d0)
-
-    def _observe(self, rel_ns: int) -> None:
-        w = self._window
-        w.add(rel_ns)
-        srt = w.sorted
-        need = srt[-1] - srt[0] - self._allow_loss
-        need = max(need, 0)
-        cap = self.delay_budget_ns
-        if cap is not None and need > cap:
-            self.requirement_met = False
-            need = cap
-        else:
-            self.requirement_met = True
-        self.buffering_ns = need
-        self._target_rel = srt[0] + need
-
-
-@dataclass(frozen=True)
-class BufferConfig:
-    """One receiving side's sync buffer. Parameters a policy does not use are ignored."""
-
-    policy: str = field(default="none", metadata={"choices": POLICIES, "help": "sync buffer policy"})
-    gap: str = field(
-        default="hold",
-        metadata={
-            "choices": GAP_MODES,
-            "help": "empty slot: hold the last sample or extrapolate the last two",
-        },
-    )
-    max_extrapolation_s: float = field(
-        default=0.05, metadata={"min": 0.0, "max": 10.0, "help": "extrapolate at most this far, then hold"}
-    )
-    buffering_time_s: float = field(
-        default=0.01,
-        metadata={"min": 0.0, "max": 10.0, "help": "fixed: buffering above the minimum relative delay"},
-    )
-    smoothing: float = field(
-        default=RAMJEE_SMOOTHING,
-        metadata={"gt": 0.0, "lt": 1.0, "help": "adaptive: alpha of the delay estimates"},
-    )
-    variation_factor: float = field(
-        default=4.0, metadata={"min": 0.0, "max": 100.0, "help": "adaptive: beta in D = d + beta v"}
-    )
-    quantile: float = field(
-        default=0.95, metadata={"gt": 0.0, "lt": 1.0, "help": "percentile: fraction of packets in time"}
-    )
-    window_packets: int = field(
-        default=1000,
-        metadata={"min": 1, "max": 100_000, "help": "percentile, transparency, network_adaptive: delay window"},
-    )
-    allowed_force_error_n: float = field(
-        default=0.1, metadata={"gt": 0.0, "max": 1e4, "help": "transparency: allowed felt-force distortion"}
-    )
-    force_slope_n_per_s: float | None = field(
-        default=None,
-        metadata={
-            "min": 0.0,
-            "max": 1e9,
-            "help": "transparency: contact force slope c*vm (unset: engine passes it)",
-        },
-    )
-    min_one_way_delay_s: float | None = field(
-        default=None,
-        metadata={
-            "min": 0.0,
-            "max": 100.0,
-            "help": "transparency, network_adaptive: smallest one-way delay d0 (unset: 0 for transparency, "
-            "the link's minimum for network_adaptive)",
-        },
-    )
-    allowable_delay_s: float | None = field(
-        default=None,
-        metadata={
-            "min": 0.0,
-            "max": 3600.0,
-            "help": "network_adaptive: allowable one-way delay D_a (unset: from the scene's transparency analysis)",
-        },
-    )
-    allowable_loss_time_s: float | None = field(
-        default=None,
-        metadata={
-            "min": 0.0,
-            "max": 3600.0,
-            "help": "network_adaptive: allowable loss time L_a (unset: from the scene's transparency analysis)",
-        },
-    )
-    contact_horizon_s: float = field(
-        default=1.0,
-        metadata={"gt": 0.0, "max": 3600.0, "help": "transparency: contact length the error builds over"},
-    )
-    max_slew_rate: float = field(
-        default=0.05,
-        metadata={"gt": 0.0, "max": 1.0, "help": "adaptive policies: playout delay change, s per s"},
-    )
-    hysteresis_s: float = field(
-        default=0.002,
-        metadata={"min": 0.0, "max": 10.0, "help": "adaptive policies: ignore target changes this small"},
-    )
-
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            _check_field(f.name, getattr(self, f.name), f.metadata)
-        if self.gap == "extrapolate" and self.max_extrapolation_s == 0.0:
-            raise ValueError("gap 'extrapolate' with max_extrapolation_s 0 never extrapolates: use gap 'hold'")
-        if self.policy == "percentile" and self.window_packets * (1.0 - self.quantile) < 1.0 - 1e-9:
-            need = math.ceil(1.0 / (1.0 - self.quantile) - 1e-9)
-            raise ValueError(
-                f"window_packets {self.window_packets} cannot resolve quantile {self.quantile} "
-                f"(it would be the window maximum): use at least {need} packets"
-            )
-
-
-def _check_field(name: str, value: object, meta: Mapping[str, Any]) -> None:
-    """The schema's metadata checks, for configs built in code rather than from YAML."""
-    if value is None:
-        return
-    choices = meta.get("choices")
-    if choices is not None and value not in choices:
-        raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        if not math.isfinite(value):
-            raise ValueError(f"{name} must be finite, got {value}")
-        lo, hi, gt, lt = meta.get("min"), meta.get("max"), meta.get("gt"), meta.get("lt")
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}")
-        if (gt is not None and not value > gt) or (lt is not None and not value < lt):
-            raise ValueError(f"{name} must be > {gt} and < {lt}, got {value}")
-
-
-def _ns(seconds: float) -> int:
-    return round(seconds * 1e9)
-
-
-def build_buffer(cfg: BufferConfig, period_ns: int) -> PlayoutBuffer:
-    """The buffer `cfg` names, for a stream with one sample every `period_ns` (seq = send / period)."""
-    if not period_ns > 0:
-        raise ValueError(f"period_ns must be > 0, got {period_ns}")
-    gap, extra_ns = cfg.gap, _ns(cfg.max_extrapolation_s)
-    slew, hyst_ns = cfg.max_slew_rate, _ns(cfg.hysteresis_s)
-    if cfg.policy == "none":
-        return PlayOnArrival(period_ns, gap, extra_ns)
-    if cfg.policy == "fixed":
-        return FixedBuffer(period_ns, _ns(cfg.buffering_time_s), gap, extra_ns)
-    if cfg.policy == "adaptive":
-        return AdaptiveBuffer(
-            period_ns,
-            smoothing=cfg.smoothing,
-            variation_factor=cfg.variation_factor,
-            gap=gap,
-            max_extrapolation_ns=extra_ns,
-            max_slew_rate=slew,
-            hysteresis_ns=hyst_ns,
-        )
-    if cfg.policy == "percentile":
-        return PercentileBuffer(
-            period_ns,
-            quantile=cfg.quantile,
-            window_packets=cfg.window_packets,
-            gap=gap,
-            max_extrapolation_ns=extra_ns,
-            max_slew_rate=slew,
-            hysteresis_ns=hyst_ns,
-        )
-    if cfg.policy == "transparency":
-        return TransparencyBuffer(
-            period_ns,
-            allowed_force_error_n=cfg.allowed_force_error_n,
-            force_slope_n_per_s=cfg.force_slope_n_per_s,
-            min_one_way_delay_ns=_ns(cfg.min_one_way_delay_s or 0.0),
-            contact_horizon_ns=_ns(cfg.contact_horizon_s),
-            window_packets=cfg.window_packets,
-            gap=gap,
-            max_extrapolation_ns=extra_ns,
-            max_slew_rate=slew,
-            hysteresis_ns=hyst_ns,
-        )
-    if cfg.policy == "network_adaptive":
-        return NetworkAdaptiveBuffer(
-            period_ns,
-            allowable_delay_ns=None if cfg.allowable_delay_s is None else _ns(cfg.allowable_delay_s),
-            allowable_loss_time_ns=_ns(cfg.allowable_loss_time_s or 0.0),
-            min_one_way_delay_ns=_ns(cfg.min_one_way_delay_s or 0.0),
-            window_packets=cfg.window_packets,
-            gap=gap,
-            max_extrapolation_ns=extra_ns,
-            max_slew_rate=slew,
-            hysteresis_ns=hyst_ns,
-        )
-    raise ValueError(f"unknown policy {cfg.policy!r}; allowed: {', '.join(POLICIES)}")

@@ -6,7 +6,7 @@ Cartesian, metres. The master's handle point lives in the master device's base f
 force (and, for a 6-DoF slave, a moment from the orientation coupling); `jacobian_transpose`
 turns it into joint torques, `null_space_damping` damps the self-motion of a redundant arm, and
 the caller adds gravity compensation. The torque vector then goes through the joints' pooled
-energy bound (`haptic_teleop.core.eba.CoupledEnergyBound`).
+energy bound (`haptic_teleop.core.eba_coupled.CoupledEnergyBound`).
 
 The per-tick functions work in place on float64 numpy arrays with plain loops and no Python
 objects: the same definitions run interpreted and compiled by numba (each formula exists once).
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from haptic_teleop.core import eba
+from haptic_teleop.core import eba, eba_coupled
 from haptic_teleop.core.eba import coupling1
 
 Vec = npt.NDArray[np.float64]
@@ -276,15 +276,15 @@ KERNEL_FUNCTIONS: tuple[Callable[..., Any], ...] = (
     eba.ramp_limit1,
     eba.actuator_bounded1,
     eba.coupling1,
-    eba.coupled_reservoir,
-    eba.coupled_demand,
-    eba.descent_cost1,
-    eba.coupled_descent_cost,
-    eba.coupled_scale,
-    eba.coupled_bounded,
-    eba.joint_limited,
-    eba.slew_bounded,
-    eba.task_demand,
+    eba_coupled.coupled_reservoir,
+    eba_coupled.coupled_demand,
+    eba_coupled.descent_cost1,
+    eba_coupled.coupled_descent_cost,
+    eba_coupled.coupled_scale,
+    eba_coupled.coupled_bounded,
+    eba_coupled.joint_limited,
+    eba_coupled.slew_bounded,
+    eba_coupled.task_demand,
     map_point,
     unmap_point,
     map_vector,
@@ -485,7 +485,7 @@ class TaskCouplingParams:
 @dataclass(frozen=True)
 class TaskLawConstants:
     """The arrays a `TaskSpaceLaw` builds from its parameters once and uses every tick (copies:
-    `TaskSpaceLaw.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
+    `TaskSpaceLaw.constants`); the compiled arm loop (engine/compiled/arm_host.py) takes them from here.
 
     stiffness/damping: c1, c2 per task axis (`coupling`); rot_stiffness/rot_damping: k_rot, d_rot
     (`orientation_coupling`); null_damping: per joint (zeros without); null_space: whether the

@@ -24,177 +24,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from haptic_teleop.core.eba import joint_limited
+from haptic_teleop.assembly.side import operator_hand
 from haptic_teleop.core.link import Packet
-from haptic_teleop.core.taskspace import dot, matrix_times
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
-
-    from haptic_teleop.assembly import ArmParts, ArmSide
-    from haptic_teleop.core.taskspace import WorkspaceMapping
-    from haptic_teleop.engine.lockstep import Engine
-
-
-def wire_payload_bytes(names: int, fields: int) -> int:
-    """CDR size of the sensor_msgs/JointState carrying `fields` arrays of `names` values (one per axis)."""
-    from haptic_teleop.record.layouts import typestore
-
-    ts = typestore()
-    cls = ts.types["sensor_msgs/msg/JointState"]
-    hdr = ts.types["std_msgs/msg/Header"]
-    stamp = ts.types["builtin_interfaces/msg/Time"]
-    vals = np.zeros(names)
-    empty = np.zeros(0)
-    arrays = [vals if i < fields else empty for i in range(3)]
-    msg = cls(
-        header=hdr(stamp=stamp(sec=0, nanosec=0), frame_id=""),
-        name=[f"axis_{i}" for i in range(names)],
-        position=arrays[0],
-        velocity=arrays[1],
-        effort=arrays[2],
-    )
-    return len(bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState")))
-
-
-def arm_message_bytes(floats: int) -> int:
-    """Wire message of an arm scene's codec packet carrying `floats` values: the JointState of one
-    name per task axis (more names when the payload needs them, three values a name), so the
-    plain payloads (6 forward, 9 backward) have the plain arm packet's size (docs/codec.md)."""
-    names = max(3, -(-floats // 3))
-    return wire_payload_bytes(names, -(-floats // names))
-
-
-class _SideTick:
-    """One side's per-tick arithmetic (law, saturation, motor room, bound) for the Python loop."""
-
-    def __init__(self, side: ArmSide, jac_scale: np.ndarray | None) -> None:
-        self.side = side
-        self.plant = side.plant
-        self.law = side.law
-        self.bound = side.bound
-        self.limit = side.force_limit_n
-        # The master's law acts in the task frame: its Jacobian there is force_scale R J_device
-        # (tau = J_device^T f_device with f_device = force_scale R^T F).
-        self.jac_scale = jac_scale
-        self.limited = np.zeros(self.plant.n)
-        self.force = np.zeros(3)  # the desired task force (before saturation)
-        self.ratio = 0.0  # applied / desired torque (direction kept): scales the task force
-        self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
-        k = side.kernels
-        self.joint_limited = k["joint_limited"] if k is not None else joint_limited
-        self.safe = getattr(self.plant, "safe_torque", None)  # HardwareArm's guards; none on MuJoCo
-
-    def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
-        plant = self.plant
-        q, qd = plant.read()
-        jac = plant.jacobian(rotational=self.side.rotational)
-        if self.jac_scale is not None:
-            matrix_times(jac[:3], self.jac_scale, jac[:3].copy())  # summed in order: the compiled loop's bits
-        if remote is None:
-            rx = rv = None
-        else:
-            rx = np.asarray(remote[0:3])
-            rv = np.asarray(remote[3:6])
-        r_tool = plant.orientation() if self.side.rotational else None
-        tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
-        f = self.law.wrench[:3]
-        self.force[:] = f
-        norm = float(np.sqrt(dot(f, f)))
-        if norm > self.limit:
-            tau = tau * (self.limit / norm)
-        lo, hi = plant.torque_room()
-        self.joint_limited(self.limited, tau, lo, hi, True)
-        if not np.array_equal(self.limited, tau):
-            self.limited_ticks += 1
-        # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
-        out = self.bound.step(q, self.limited if self.safe is None else self.safe(self.limited))
-        tt = dot(tau, tau)
-        self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
-        sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
-        self.ratio *= sat
-        return out
-
-
-class _Maps:
-    """The workspace mapping's five maps for the tick: `WorkspaceMapping`'s own methods, or the same
-    functions compiled (the kernels) when the scene has them."""
-
-    def __init__(self, mapping: WorkspaceMapping, kernels: Mapping[str, Callable[..., Any]] | None) -> None:
-        self.to_task_x = mapping.position_to_task
-        self.to_task_v = mapping.velocity_to_task
-        self.to_master_x = mapping.position_to_master
-        self.to_master_v = mapping.velocity_to_master
-        self.force_to_task = mapping.force_to_task
-        self.force_to_master = mapping.force_to_master
-        if kernels is None:
-            return
-        r, s, o, fs = mapping.matrix, mapping.scale, mapping.offset, mapping.force_scale
-        mp, ump, mv, mvb = (kernels[k] for k in ("map_point", "unmap_point", "map_vector", "map_vector_back"))
-
-        def to_task_x(x: np.ndarray) -> np.ndarray:
-            out = np.empty(3)
-            mp(out, r, s, o, x)
-            return out
-
-        def to_task_v(v: np.ndarray) -> np.ndarray:
-            out = np.empty(3)
-            mv(out, r, s, v)
-            return out
-
-        def to_master_x(x: np.ndarray) -> np.ndarray:
-            out = np.empty(3)
-            ump(out, r, s, o, x)
-            return out
-
-        def to_master_v(v: np.ndarray) -> np.ndarray:
-            out = np.empty(3)
-            mvb(out, r, 1.0 / s, v)
-            return out
-
-        def force_to_task(f: np.ndarray) -> np.ndarray:
-            out = np.empty(3)
-            mv(out, r, 1.0 / fs, f)
-            return out
-
-        def force_to_master(f: np.ndarray) -> np.ndarray:
-            out = np.empty(3)
-            mvb(out, r, fs, f)
-            return out
-
-        self.to_task_x, self.to_task_v, self.to_master_x = to_task_x, to_task_v, to_master_x
-        self.to_master_v, self.force_to_task, self.force_to_master = to_master_v, force_to_task, force_to_master
-        z = np.zeros(3)  # compile (or load) them now, not in the timed loop
-        for fn in (to_task_x, to_task_v, to_master_x, to_master_v, force_to_task, force_to_master):
-            fn(z)
-
-
-# The per-side tick and the maps by their public names: the live nodes (master_eba, slave_eba,
-# operator_source) run the very same arithmetic per tick as this loop (docs/live.md, "Arm scenes").
-SideTick = _SideTick
-Maps = _Maps
-
-
-def operator_hand(
-    parts: ArmParts, t_s: float, x_dev: np.ndarray, v_dev: np.ndarray
-) -> tuple[tuple[float, ...], tuple[float, ...], np.ndarray]:
-    """The operator at scene time `t_s` on a handle at `x_dev`, `v_dev` (device frame): the intended
-    point and velocity (task frame) and the hand's force on the handle (device frame), a 3-D
-    spring-damper toward the intended point mapped into the device frame (docs/arms.md, step 6)."""
-    maps = parts.maps
-    op = parts.operator
-    xd_t, vd_t = op.intended_along(t_s, parts.operator_origin_m, parts.operator_direction)
-    xd = maps.to_master_x(np.asarray(xd_t))
-    vd = maps.to_master_v(np.asarray(vd_t))
-    f_hand = op.params.stiffness_n_per_m * (xd - x_dev) + op.params.damping_n_s_per_m * (vd - v_dev)
-    return xd_t, vd_t, f_hand
-
-
-def side_ticks(parts: ArmParts) -> tuple[_SideTick, _SideTick]:
-    """The per-side tick state of an arm scene (built, and the law compiled, before the loop)."""
-    mapping = parts.mapping
-    parts.maps = _Maps(mapping, parts.master.kernels)
-    return _SideTick(parts.master, mapping.force_scale * mapping.matrix), _SideTick(parts.slave, None)
+    from haptic_teleop.assembly.parts import ArmParts
 
 
 class Pacer:
@@ -258,8 +92,9 @@ def stall_for_test() -> tuple[int, float]:
     return (int(every), float(seconds)) if every else (0, 0.0)
 
 
-def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:
-    """Run the arm scene's ticks into `output` (the engine's _Output); returns the ticks done."""
+def run_arm_loop(engine: Any, parts: ArmParts, progress: Callable[[int], None] | None, output: Any) -> int:
+    """Run the arm scene's ticks into `output` (the engine's output.Output); returns the ticks done.
+    `engine`: the Engine running the scene (engine/lockstep.py: its ticks, period, network and pacing)."""
     n_ticks = engine.ticks
     period_ns = engine.period_ns
     period_s = engine.period_s
@@ -273,7 +108,7 @@ def run_arm_loop(engine: Engine, parts: ArmParts, progress: Callable[[int], None
     fwd, bwd = engine.forward, engine.backward
     fbuf, bbuf = engine.forward_buffer, engine.backward_buffer
     fwd_size, bwd_size = engine._sizes
-    # The codec stage of a direction that names one (engine/codec_channel.py): its decoder's
+    # The codec stage of a direction that names one (assembly/channel.py): its decoder's
     # sample for the tick replaces the buffer's release (docs/codec.md, "In the channels").
     fcodec, bcodec = getattr(engine, "codecs", (None, None))
     block = output.block

@@ -15,42 +15,35 @@ hold grows with the run's length (docs/performance.md, "Memory").
 
 from __future__ import annotations
 
-import contextlib
-import gc
-import signal
 import struct
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
-from types import FrameType
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from haptic_teleop.assembly import (
+from haptic_teleop import compiling
+from haptic_teleop.assembly.channel import LAYOUT_ARM, build_codec_channels
+from haptic_teleop.assembly.parts import (
     REMOTE_LIMIT_MARGIN,
-    build_controller,
-    build_master_plant,
+    assemble_axis,
     build_network,
     build_operator,
-    build_slave_plant,
     remote_limits,
 )
-from haptic_teleop.contact_assembly import apply_contact_start, contact_start_of
 from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.operator import imposed_force1
 from haptic_teleop.core.playout import PlayoutBuffer
-from haptic_teleop.engine import compiled_loop
-from haptic_teleop.engine.codec_channel import LAYOUT_ARM, build_codec_channels
-from haptic_teleop.engine.compiled_driver import CHUNK_TICKS, run_windows
+from haptic_teleop.engine.compiled import axis_host
+from haptic_teleop.engine.compiled.driver import CHUNK_TICKS, run_windows
+from haptic_teleop.engine.output import NO_PACKETS, Collector, Output, RunSink, Settled, loop_guard
 from haptic_teleop.errors import InputError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
-from haptic_teleop.record.layouts import PACKET_FIELDS
 from haptic_teleop.record.streams import BLOCK_TICKS
 from haptic_teleop.scene.schema import LoadedScene
 
-__all__ = ["COL", "COLUMNS", "REMOTE_LIMIT_MARGIN", "Engine", "build_operator", "record_run", "remote_limits"]
+__all__ = ["COL", "COLUMNS", "REMOTE_LIMIT_MARGIN", "Engine", "build_operator", "remote_limits"]
 
 # Per-tick columns, in record order: the 1-DoF tick schema (record/columns.py).
 COLUMNS = ONE_DOF.columns
@@ -84,7 +77,7 @@ VECTORIZED_WINDOW_TICKS = 10 * BLOCK_TICKS  # a vectorized network schedule is d
 class Engine:
     """Builds the parts a scene names and runs them in lockstep.
 
-    `loop`: "compiled" runs the tick in machine code (haptic_teleop/compiled_loop.py), "python" in
+    `loop`: "compiled" runs the tick in machine code (haptic_teleop/axis_host.py), "python" in
     the interpreter, "auto" the compiled loop when the scene allows it. Both give the same
     columns bit for bit; `loop_kind` says which one runs, `compiled_reason` why not compiled.
     """
@@ -103,31 +96,20 @@ class Engine:
         if c.is_arm:
             self._init_arm(loop)
             return
-        op = c.operator
-        trace = scene.operator_trace
-        # An in-contact start (slave.start: in_contact): both sides at rest in the equilibrium.
-        self.contact_start = start = contact_start_of(c)
-        self.operator = build_operator(op, trace, start)
-        self.master = build_master_plant(c, start.master_x_m if start is not None else 0.0)
-        self.slave = build_slave_plant(c, start.slave_x_m if start is not None else None)
-        limits = remote_limits(c, scene.operator_trace)
-        m, s = c.master, c.slave
-        self.master_ctrl = build_controller(
-            c.controllers.master, "master", self.period_s, m.damping_n_s_per_m, limits, m.effects.saturation
-        )
-        self.slave_ctrl = build_controller(
-            c.controllers.slave, "slave", self.period_s, s.damping_n_s_per_m, limits, s.effects.saturation
-        )
-        self.initial_energy: dict[str, float] = {}
-        if start is not None:
-            self.initial_energy = apply_contact_start(start, self.master_ctrl, self.slave_ctrl, self.slave)
-        self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
+        self.parts = parts = assemble_axis(c, scene.operator_trace, self.period_ns)
+        self.contact_start = parts.contact_start
+        self.operator = parts.operator
+        self.master, self.slave = parts.master, parts.slave
+        self.master_ctrl, self.slave_ctrl = parts.master_ctrl, parts.slave_ctrl
+        self.initial_energy = parts.initial_energy
+        self.forward, self.backward = parts.forward, parts.backward
+        self.forward_buffer, self.backward_buffer = parts.forward_buffer, parts.backward_buffer
         # The codec stage of the directions that name one (docs/codec.md, "In the channels").
-        self.codecs = build_codec_channels(c, self.period_ns, self.forward, self.backward)
+        self.codecs = parts.codecs
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
         self._stop = False
-        self.compiled_reason = compiled_loop.compiled_reason(self) if loop != "python" else "loop 'python' asked for"
+        self.compiled_reason = axis_host.compiled_reason(self.parts) if loop != "python" else "loop 'python' asked for"
         if loop == "compiled" and self.compiled_reason is not None:
             raise InputError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
@@ -136,14 +118,14 @@ class Engine:
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
             codec = self.codecs != (None, None)
-            self._kernel = compiled_loop.codec_kernel() if codec else compiled_loop.kernel()
+            self._kernel = axis_host.codec_kernel() if codec else axis_host.kernel()
             assert self._kernel is not None  # compiled_reason is None only with a kernel
             # Compile (or load from numba's cache) now, not in the timed loop: zero ticks.
             head, tail = self._kernel_args()
             rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
             extra: tuple[np.ndarray, ...] = ()
             if codec:
-                from haptic_teleop.engine.compiled_codec import no_codec, no_history
+                from haptic_teleop.engine.compiled.codec_host import no_codec, no_history
 
                 idle = no_codec(self.period_ns)
                 extra = (*idle, *idle, np.zeros((3, 3)), *no_history(), *no_history())
@@ -166,7 +148,7 @@ class Engine:
 
     def _init_arm(self, loop: str) -> None:
         """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (arm_loop.py)."""
-        from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.assembly.parts import build_arm_parts
         from haptic_teleop.engine.arm_loop import Pacer
         from haptic_teleop.plants.hardware_arm import HardwareArm
 
@@ -191,7 +173,7 @@ class Engine:
             self.arm.slave.plant.close()
 
     def _init_arm_rest(self, parts: Any, loop: str) -> None:
-        from haptic_teleop.engine.arm_loop import side_ticks, wire_payload_bytes
+        from haptic_teleop.assembly.side import side_ticks, wire_payload_bytes
         from haptic_teleop.scene.load import side_period_ticks
 
         self.arm_ticks = side_ticks(parts)
@@ -208,7 +190,7 @@ class Engine:
 
         # The codec stage (docs/codec.md, "In the channels"): a codec payload's message is the
         # JointState of one name per task axis (more names when the payload needs them).
-        from haptic_teleop.engine.arm_loop import arm_message_bytes
+        from haptic_teleop.assembly.side import arm_message_bytes
 
         self.codecs = build_codec_channels(
             self.scene.config,
@@ -222,24 +204,24 @@ class Engine:
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
         self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
         self._stop = False
-        from haptic_teleop.engine import compiled_arm_loop
+        from haptic_teleop.engine.compiled import arm_host
 
         codec = self.codecs != (None, None)
         if loop == "python":
             self.compiled_reason = "loop 'python' asked for"
         else:
-            # A codec the arm kernel runs (deadband, prediction) on a link it runs (compiled_codec.codec_reason).
-            from haptic_teleop.engine.codec_layout import ARM_COMPILED_KINDS
-            from haptic_teleop.engine.compiled_codec import codec_reason
+            # A codec the arm kernel runs (deadband, prediction) on a link it runs (codec_host.codec_reason).
+            from haptic_teleop.engine.compiled.codec_host import codec_reason
+            from haptic_teleop.engine.compiled.codec_layout import ARM_COMPILED_KINDS
 
             reasons = (codec_reason(ch, ARM_COMPILED_KINDS) for ch in self.codecs if ch is not None)
             self.compiled_reason = next((r for r in reasons if r is not None), None)
             if self.compiled_reason is None:
-                self.compiled_reason = compiled_arm_loop.compiled_reason_arm(
+                self.compiled_reason = arm_host.compiled_reason_arm(
                     parts, self.forward, self.backward, self.forward_buffer, self.backward_buffer, self.period_s
                 )
             if self.compiled_reason is None and codec:
-                self.compiled_reason = compiled_arm_loop.codec_kernel_error()
+                self.compiled_reason = arm_host.codec_kernel_error()
         if loop == "compiled" and self.compiled_reason is not None:
             raise InputError(
                 f"--loop compiled: the compiled loop cannot run this scene: {self.compiled_reason}; "
@@ -247,7 +229,7 @@ class Engine:
             )
         self.loop_kind = "compiled" if self.compiled_reason is None else "python"
         if self.loop_kind == "compiled":
-            self._compiled_arm = compiled_arm_loop.CompiledArm(parts, self.period_s, codec=codec)
+            self._compiled_arm = arm_host.CompiledArm(parts, self.period_s, codec=codec)
             self._compiled_arm.warm_up()  # compile (or load numba's cache) now, not in the timed loop
 
     def _network(self) -> tuple[Link, Link, PlayoutBuffer, PlayoutBuffer]:
@@ -273,7 +255,7 @@ class Engine:
 
         The ticks' columns go to `sink.append` in blocks of BLOCK_TICKS rows (the last one
         shorter); each packet's record goes to `sink.append_packets` once its fate is final (see
-        `compiled_loop.settled_records`), at the end of each block, and the rest at the end. Memory
+        `axis_host.settled_records`), at the end of each block, and the rest at the end. Memory
         does not grow with the run's length. Without a sink the run is kept whole in memory
         (`Collector`; for tests and short runs) and returned in `RunResult.data` and the logs;
         with one, those are empty. If the loop raises, `self.ticks_done` says how many ticks
@@ -324,10 +306,10 @@ class Engine:
         bpush, brelease = bbuf.push, bbuf.release
         m_set_remote, s_set_remote = mc.set_remote, sc.set_remote
         fwd_size, bwd_size = self._sizes
-        output = _Output(
+        output = Output(
             sink,
-            lambda sent, final: compiled_loop.settled_records(fwd, fbuf, sent, final),
-            lambda sent, final: compiled_loop.settled_records(bwd, bbuf, sent, final),
+            lambda sent, final: axis_host.settled_records(fwd, fbuf, sent, final),
+            lambda sent, final: axis_host.settled_records(bwd, bbuf, sent, final),
         )
         block = output.block
         # A tick's row goes straight into the block's memory: one C call, no tuple, no numpy
@@ -408,7 +390,7 @@ class Engine:
         return self._streamed(n, wall)
 
     def _codec_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        """`_loop` with the codec stage on the directions that name one (engine/codec_channel.py):
+        """`_loop` with the codec stage on the directions that name one (assembly/channel.py):
         the same tick in the same order; a codec direction's remote sample is its decoder's for
         this tick, its `received` column the newest arrival's seq, its buffer occupancy 0."""
         n_ticks, period_ns, period_s = self.ticks, self.period_ns, self.period_s
@@ -438,7 +420,7 @@ class Engine:
         b_step = bcodec.step if bcodec is not None else plain(bwd, bbuf, bwd_size)
 
         settled = self._settled
-        output = _Output(sink, settled(fcodec, fwd, fbuf), settled(bcodec, bwd, bbuf))
+        output = Output(sink, settled(fcodec, fwd, fbuf), settled(bcodec, bwd, bbuf))
         block = output.block
         pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
         row_bytes = 8 * len(COLUMNS)
@@ -522,7 +504,7 @@ class Engine:
         if codec is not None:
             period_ns = self.period_ns
             return lambda sent, final: codec.settled(sent, final, period_ns)
-        return lambda sent, final: compiled_loop.settled_records(link, buf, sent, final)
+        return lambda sent, final: axis_host.settled_records(link, buf, sent, final)
 
     def codec_facts(self) -> dict[str, Any]:
         """The run facts of the codec stage (`codec_<direction>`, and the plain packet's message
@@ -541,26 +523,26 @@ class Engine:
             ticks=done,
             period_ns=self.period_ns,
             data=np.zeros((0, self.schema.width)),
-            forward_log=_NO_PACKETS,
-            backward_log=_NO_PACKETS,
+            forward_log=NO_PACKETS,
+            backward_log=NO_PACKETS,
             loop_wall_s=wall_s,
             interrupted=done < self.ticks,
             schema=self.schema,
         )
 
     def _arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        from haptic_teleop.engine import compiled_arm_loop
         from haptic_teleop.engine.arm_loop import run_arm_loop
+        from haptic_teleop.engine.compiled import arm_host
 
         self.ticks_done = 0
         compiled = self.loop_kind == "compiled"
         if compiled:  # a codec direction runs in the kernel (arm_codec_nets), the other on its schedule
-            nets = compiled_arm_loop.arm_codec_nets(self.codecs, self.period_ns)
+            nets = arm_host.arm_codec_nets(self.codecs, self.period_ns)
             (fwd, bwd), window = self._compiled_network(nets)
-            output = _Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled, self.schema.width)
+            output = Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled, self.schema.width)
         else:
             fcodec, bcodec = self.codecs
-            output = _Output(
+            output = Output(
                 sink,
                 self._settled(fcodec, self.forward, self.forward_buffer),
                 self._settled(bcodec, self.backward, self.backward_buffer),
@@ -587,19 +569,28 @@ class Engine:
         return self._streamed(done, wall)
 
     def _schedule(self, direction: str) -> Any:
-        """compiled_loop.schedule of a direction's link and buffer."""
+        """axis_host.schedule of a direction's link and buffer."""
         i = ("forward", "backward").index(direction)
         link, buf = (self.forward, self.forward_buffer) if i == 0 else (self.backward, self.backward_buffer)
-        return compiled_loop.schedule(link, buf, self.period_ns, self._sizes[i])
+        return axis_host.schedule(link, buf, self.period_ns, self._sizes[i])
 
     def _kernel_args(self) -> tuple[tuple[object, ...], tuple[object, ...]]:
         """The compiled loop's arguments (axis_kernel.run_ticks) around the network's: the plants'
         MuJoCo arrays (after the tick range), the parameters and a fresh state vector (S, last)."""
-        from haptic_teleop.engine import compiled_loop
+        from haptic_teleop.engine.compiled import axis_host
 
         m, s = self.master.data, self.slave.data  # type: ignore[attr-defined]
-        head = (compiled_loop.model_addresses(self), m.qpos, m.qvel, m.ctrl, s.qpos, s.qvel, s.ctrl, s.qfrc_constraint)
-        return head, (compiled_loop.parameters(self), compiled_loop.initial_state(self))
+        head = (
+            axis_host.model_addresses(self.parts),
+            m.qpos,
+            m.qvel,
+            m.ctrl,
+            s.qpos,
+            s.qvel,
+            s.ctrl,
+            s.qfrc_constraint,
+        )
+        return head, (axis_host.parameters(self.parts, self.period_s), axis_host.initial_state(self.parts))
 
     def _compiled_network(self, nets: Sequence[Any]) -> tuple[tuple[Any, Any], int]:
         """Each direction's schedule (None where its net runs the codec in the kernel) and the
@@ -612,10 +603,10 @@ class Engine:
 
     def _compiled_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
         """The compiled 1-DoF loop (axis_kernel.run_ticks), or with the codec stage run in the kernel
-        on the directions that name a codec (codec_kernel, engine/compiled_codec.py); a direction
+        on the directions that name a codec (codec_kernel, engine/compiled/codec_host.py); a direction
         without one keeps its schedule."""
-        from haptic_teleop.engine import compiled_loop
-        from haptic_teleop.engine.compiled_codec import CodecNet
+        from haptic_teleop.engine.compiled import axis_host
+        from haptic_teleop.engine.compiled.codec_host import CodecNet
 
         period_ns = self.period_ns
         self.ticks_done = 0
@@ -623,7 +614,7 @@ class Engine:
         nets = [None if ch is None else CodecNet(ch, period_ns) for ch in self.codecs]
         (fwd, bwd), window = self._compiled_network(nets)
         head, (P, S) = self._kernel_args()
-        output = _Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled)
+        output = Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled)
         block = output.block
         run_ticks = self._kernel
         assert run_ticks is not None
@@ -632,273 +623,29 @@ class Engine:
         def call(c0: int, c1: int, *network: Any) -> None:
             # (network: the schedules' window, rings, w0, then the codec arrays: `codec_tail`)
             w0, tail = network[-2:]
-            if first:  # compiled once among processes that start together (compiled_loop.first_compile)
+            if first:  # compiled once among processes that start together (compiling.first_compile)
                 first.clear()
-                with compiled_loop.first_compile(run_ticks):
+                with compiling.first_compile(run_ticks):
                     run_ticks(c0, c1, *head, *network[:-2], P, S, block, w0, output.start, *tail)
                 return
             run_ticks(c0, c1, *head, *network[:-2], P, S, block, w0, output.start, *tail)
 
         try:
             done = run_windows(
-                self, call, (fwd, bwd), nets, compiled_loop.Rings((2, 3)), output, window, progress, np.zeros((3, 3))
+                self, call, (fwd, bwd), nets, axis_host.Rings((2, 3)), output, window, progress, np.zeros((3, 3))
             )
         except BaseException:
-            compiled_loop.store_state(self, S)
+            axis_host.store_state(self.parts, S)
             self.master.close()
             self.slave.close()
             output.end_after_error(self.ticks_done)
             raise
-        compiled_loop.store_state(self, S)
+        axis_host.store_state(self.parts, S)
         output.end(done)
         self.master.close()
         self.slave.close()
         wall = time.perf_counter() - t0
         return self._streamed(done, wall)
-
-
-@contextlib.contextmanager
-def loop_guard(request_stop: Callable[[], None], handle_sigint: bool) -> Iterator[None]:
-    """Around a run's loop: SIGINT (if asked) requests a stop at the next tick boundary, and the
-    cycle collector is paused. The tick allocates packets, lists and tuples but makes no reference
-    cycles, so the collector only rescans the packet logs (it was about 3 % of a tick,
-    docs/performance.md). Both are put back as they were."""
-    previous = None
-    if handle_sigint:
-
-        def _on_sigint(signum: int, frame: FrameType | None) -> None:
-            request_stop()
-
-        previous = signal.signal(signal.SIGINT, _on_sigint)
-    gc_was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if gc_was_enabled:
-            gc.enable()
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-
-
-class RunSink(Protocol):
-    """Where a run's output goes as it is made (`Engine.run`): the recorder, or a `Collector`."""
-
-    def append(self, rows: np.ndarray) -> None:
-        """The next ticks' columns, (k, len(COLUMNS)) float64, in order; the array is reused after."""
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        """Packet records (record.layouts.PACKET_FIELDS) whose fates are final; "forward" or "backward"."""
-
-
-class Collector:
-    """A sink that keeps a whole run in memory (tests and short runs; never `haptic-teleop run`)."""
-
-    def __init__(self, width: int = len(COLUMNS)) -> None:
-        self.width = width
-        self._blocks: list[np.ndarray] = []
-        self._packets: dict[str, list[np.ndarray]] = {"forward": [], "backward": []}
-
-    def append(self, rows: np.ndarray) -> None:
-        self._blocks.append(np.array(rows))
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self._packets.setdefault(direction, []).append(np.array(rows))
-
-    def data(self) -> np.ndarray:
-        """Every tick's columns so far, (ticks, len(COLUMNS))."""
-        return np.concatenate(self._blocks) if self._blocks else np.zeros((0, self.width))
-
-    def packets(self, direction: str) -> np.ndarray:
-        """Every packet record handed over so far for a direction, in hand-over order."""
-        chunks = self._packets.get(direction, [])
-        return np.concatenate(chunks) if chunks else np.zeros((0, len(PACKET_FIELDS)))
-
-
-class _Tee:
-    """Hands everything to two sinks (record_run's recorder and, if asked, a Collector)."""
-
-    def __init__(self, first: RunSink, second: RunSink) -> None:
-        self.first, self.second = first, second
-
-    def append(self, rows: np.ndarray) -> None:
-        self.first.append(rows)
-        self.second.append(rows)
-
-    def append_packets(self, direction: str, rows: np.ndarray) -> None:
-        self.first.append_packets(direction, rows)
-        self.second.append_packets(direction, rows)
-
-
-_NO_PACKETS = np.zeros((0, len(PACKET_FIELDS)))
-Settled = Callable[[int, bool], "np.ndarray | None"]
-
-
-class _Output:
-    """The loops' output path: one block of BLOCK_TICKS rows the loop writes into, handed to the
-    sink when full, and the packet records settled at each block's end. Both loops make the same
-    calls on the sink with the same arrays, so they give the same bag."""
-
-    def __init__(
-        self,
-        sink: RunSink,
-        forward: Settled | None,
-        backward: Settled | None,
-        width: int = len(COLUMNS),
-        directions: tuple[tuple[str, Settled], ...] | None = None,
-    ) -> None:
-        self.sink = sink
-        self.block = np.zeros((BLOCK_TICKS, width))
-        self.start = 0  # tick of the block's first row
-        # teleoperation's two directions, or any named ones (an NVE run: "<client>/up", ...)
-        self._settled: tuple[tuple[str, Settled], ...] = (
-            directions
-            if directions is not None
-            else tuple((d, s) for d, s in (("forward", forward), ("backward", backward)) if s is not None)
-        )
-        self._ended = False
-
-    def block_done(self, stop: int) -> None:
-        """Ticks [start, stop) are in the block: hand them over, then the settled packets."""
-        self.sink.append(self.block[: stop - self.start])
-        self.start = stop
-        self._packets(stop, False)
-
-    def end(self, stop: int) -> None:
-        """The run ended after tick `stop - 1`: the last rows, then every packet record left."""
-        self._ended = True
-        if stop > self.start:
-            self.sink.append(self.block[: stop - self.start])
-            self.start = stop
-        self._packets(stop, True)
-
-    def end_after_error(self, stop: int) -> None:
-        """`end` while an exception is on its way: a failure here must not hide it."""
-        if not self._ended:
-            with contextlib.suppress(Exception):
-                self.end(stop)
-
-    def _packets(self, sent: int, final: bool) -> None:
-        for direction, settled in self._settled:
-            rows = settled(sent, final)
-            if rows is not None and len(rows):
-                self.sink.append_packets(direction, rows)
-
-
-@dataclass(frozen=True)
-class RunTiming:
-    """Wall-clock facts of one recorded run (kept beside the bag, never in it)."""
-
-    simulated_s: float
-    loop_wall_s: float
-    record_wall_s: float  # loop start to bag closed
-    interrupted: bool
-    loop: str = "python"  # which loop ran: "compiled" or "python" (Engine.loop_kind)
-    pacing: dict[str, float | int] | None = None  # a real device's run: arm_loop.Pacer.facts()
-
-    @property
-    def realtime_factor(self) -> float:
-        """Simulated seconds per wall second of the loop with recording included."""
-        return self.simulated_s / self.record_wall_s if self.record_wall_s > 0 else float("inf")
-
-    def as_dict(self) -> dict[str, float | bool | str]:
-        return {
-            "simulated_s": self.simulated_s,
-            "loop_wall_s": self.loop_wall_s,
-            "record_wall_s": self.record_wall_s,
-            "realtime_factor": self.realtime_factor,
-            "loop_realtime_factor": self.simulated_s / self.loop_wall_s if self.loop_wall_s > 0 else float("inf"),
-            "interrupted": self.interrupted,
-            "loop": self.loop,
-            **({"realtime": True, **self.pacing} if self.pacing is not None else {}),
-        }
-
-
-def record_run(
-    scene: LoadedScene,
-    bag_dir: Path,
-    progress: Callable[[int], None] | None = None,
-    parallel: bool = True,
-    handle_sigint: bool = True,
-    loop: str = "auto",
-    on_engine: Callable[[Engine], None] | None = None,
-    keep: bool = False,
-) -> tuple[Engine, RunTiming]:
-    """Run a scene and record it: the bag is written by a second process while the loop runs.
-
-    The loop streams to the recorder (`Engine.run` with it as the sink): memory does not grow
-    with the run's length. `keep=True` also keeps the whole run in `engine.data` (tests). Whatever
-    ends the run (last tick, Ctrl-C, an exception in a tick) the bag is closed with every tick
-    that finished, and is readable. `on_engine(engine)` is called once the engine is built, before
-    the bag is opened (the command line registers its stop request there).
-    """
-    from haptic_teleop.record.recorder import RunRecorder
-
-    engine = Engine(scene, loop=loop)
-    c = scene.config
-    try:
-        if on_engine is not None:
-            on_engine(engine)
-        rec = RunRecorder(
-            bag_dir,
-            scene.to_yaml(),
-            engine.period_ns,
-            c.recording.eba_internals,
-            c.recording.packets,
-            engine.schema.width,
-            parallel=parallel,
-            compression=c.recording.compression,
-            schema=engine.schema,
-        )
-    except BaseException:
-        engine.close_plants()  # a real device's torque off: no tick will run
-        raise
-    collector = Collector(engine.schema.width) if keep else None
-    sink: RunSink = rec if collector is None else _Tee(rec, collector)
-    t0 = time.perf_counter()
-    result: RunResult | None = None
-    try:
-        result = engine.run(progress=progress, handle_sigint=handle_sigint, sink=sink)
-    finally:
-        done = getattr(engine, "ticks_done", 0)
-        info = {
-            "ticks": done,
-            "interrupted": done < engine.ticks,
-            "failed": result is None,
-            # Remote samples each side's guard rejected (the slave checks the forward direction).
-            "rejected_samples_forward": engine.slave_ctrl.rejected_samples,
-            "rejected_samples_backward": engine.master_ctrl.rejected_samples,
-            # The damping each port's joint really has in the simulator (MjModel dof_damping, SI
-            # per joint): the analysis' true energy margin uses it (docs/eba.md).
-            "master_joint_damping": engine.master.joint_damping(),
-            "slave_joint_damping": engine.slave.joint_damping(),
-        }
-        info.update(engine.codec_facts())
-        # An in-contact start: each reservoir's start value (holding energy + eba.initial_energy_j).
-        info.update(getattr(engine, "initial_energy", {}))
-        if c.is_arm:  # the wall plane in the task frame (the analysis' penetration)
-            info["wall_point_m"] = list(c.slave.wall.point_m or ())
-            info["wall_normal"] = list(c.slave.wall.normal or ())
-            # A real device's side: its damping above is the scene's assumption (docs/hardware.md).
-            info["master_backend"] = c.master.backend
-            info["slave_backend"] = c.slave.backend
-        if collector is not None:
-            engine.data = collector.data()
-        rec.close(info)
-    wall = time.perf_counter() - t0
-    pacing = engine.pacer.facts() if engine.pacer is not None else None
-    if pacing is not None:  # a real device's reads that failed (the driver repeated its last sample)
-        for side, plant in (("master", engine.master), ("slave", engine.slave)):
-            if hasattr(plant, "stale_ticks"):
-                pacing[f"{side}_stale_reads"] = plant.stale_ticks
-            if hasattr(plant, "hold_budget_s"):  # its holds between reads (docs/eba.md, "Late ticks ...")
-                pacing[f"{side}_long_holds"] = plant.long_holds
-                pacing[f"{side}_over_budget_holds"] = plant.over_budget_holds
-                pacing[f"{side}_longest_hold_s"] = plant.longest_hold_s
-                pacing[f"{side}_max_hold_s"] = plant.hold_budget_s
-    return engine, RunTiming(
-        done * engine.period_s, result.loop_wall_s, wall, result.interrupted, engine.loop_kind, pacing
-    )
 
 
 def _wire_payload_bytes(floats: int) -> int:

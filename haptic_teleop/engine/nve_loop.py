@@ -21,10 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from haptic_teleop.assembly.nve import DOWN, UP, NveParts, build_nve_parts
 from haptic_teleop.core.link import Packet
-from haptic_teleop.engine.compiled_loop import settled_records
-from haptic_teleop.engine.lockstep import Collector, RunResult, RunSink, RunTiming, _Output, _Tee, loop_guard
-from haptic_teleop.nve_assembly import DOWN, UP, NveParts, build_nve_parts
+from haptic_teleop.engine.compiled.axis_host import settled_records
+from haptic_teleop.engine.lockstep import RunResult
+from haptic_teleop.engine.output import Collector, Output, RunSink, Tee, loop_guard
+from haptic_teleop.engine.run import RunTiming
 from haptic_teleop.record.layouts import joint_state_size
 from haptic_teleop.record.nve_columns import NveSchema
 from haptic_teleop.record.streams import BLOCK_TICKS
@@ -97,7 +99,7 @@ class NveEngine:
         for p in clients:
             settled.append((f"{p.name}/{UP}", _settler(p.up, p.up_buffer)))
             settled.append((f"{p.name}/{DOWN}", _settler(p.down, p.down_buffer)))
-        output = _Output(sink, None, None, self.schema.width, directions=tuple(settled))
+        output = Output(sink, None, None, self.schema.width, directions=tuple(settled))
         block = output.block
         schema = self.schema
         width = schema.width
@@ -234,7 +236,7 @@ def record_nve_run(
     on_engine: Callable[[NveEngine], None] | None = None,
     keep: bool = False,
 ) -> tuple[NveEngine, RunTiming]:
-    """Run an NVE scene and record it (the same guarantees as `lockstep.record_run`: a closed,
+    """Run an NVE scene and record it (the same guarantees as `run.record_run`: a closed,
     readable bag with every finished tick, whatever ends the run)."""
     from haptic_teleop.record.recorder import RunRecorder
 
@@ -254,7 +256,7 @@ def record_nve_run(
         schema=engine.schema,
     )
     collector = Collector(engine.schema.width) if keep else None
-    sink: RunSink = rec if collector is None else _Tee(rec, collector)
+    sink: RunSink = rec if collector is None else Tee(rec, collector)
     t0 = time.perf_counter()
     result: RunResult | None = None
     try:

@@ -5,7 +5,7 @@ numba's cache afterwards (docs/performance.md, "Compile cost"): the 1-DoF loop (
 loop with the codec stage (`codec`), the arm loop (`arm`) and the arm loop with the codec stage
 (`arm_codec`). This runs a few ticks of a bundled scene through each, so that a first real run, a
 benchmark, a sweep or a test session does not pay it. A kernel that another process is compiling
-at the same time is waited for and then loaded (`compiled_loop.first_compile`).
+at the same time is waited for and then loaded (`compiling.first_compile`).
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 The node hosts its side's MuJoCo arm in-process (the master device; the slave arm as a ros2_control
 hardware interface would) and runs the engine's per-side tick on it: with numba, the side's part of
-the engine's compiled tick (`compiled_arm_loop.CompiledSideTick`, `arm_kernel.side_tick`), else
-`arm_loop.SideTick` (the same results, in the interpreter): the task-space law, the task force's
+the engine's compiled tick (`compiled_side.CompiledSideTick`, `side_kernel.side_tick`), else
+`side.SideTick` (the same results, in the interpreter): the task-space law, the task force's
 saturation, each motor's room left by gravity compensation, the pooled joint energy bound, on the
 parts `assembly.build_arm_parts` builds. No arithmetic of the tick is written here: the node only
 takes the newest released remote sample (through the side's `SampleGuard`), feeds the remote-data
@@ -44,12 +44,12 @@ class ArmEbaSide:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Header
 
-        from haptic_teleop.assembly import build_arm_parts
-        from haptic_teleop.engine import compiled_arm_loop
-        from haptic_teleop.engine.arm_loop import side_ticks
-        from haptic_teleop.plants import side_period_s
+        from haptic_teleop.assembly import compiled_side
+        from haptic_teleop.assembly.parts import build_arm_parts
+        from haptic_teleop.assembly.side import side_ticks
         from haptic_teleop.record.layouts import topic_specs
         from haptic_teleop.scene.load import side_period_ticks
+        from haptic_teleop.scene.sides import side_period_s
 
         self.role = role
         self.parts = parts = build_arm_parts(config)  # both arms: the mapping's offset needs both starts
@@ -65,7 +65,7 @@ class ArmEbaSide:
         if self.every > 1:  # the compiled side tick steps its arm once per tick (as the engine's compiled loop)
             self.tick, why = fallback, f"its own period {side_period_s(config, role):g} s"
         else:
-            self.tick, why = compiled_arm_loop.side_tick(self.side, parts, role == "master", fallback)
+            self.tick, why = compiled_side.side_tick(self.side, parts, role == "master", fallback)
         self.compiled = why is None
         if why is not None:
             node.get_logger().warning(f"{role} arm tick runs in Python, not compiled: {why}")

@@ -3,11 +3,11 @@ in the sending node, its decoder in the receiving side's buffer node, the relay 
 carrying the encoder's packets, and (ARQ) an ack relay carrying the decoder's acknowledgements
 back over the reverse direction's effects.
 
-Wire message of a codec packet: the engine's (`engine.codec_channel.message_bytes`), a
+Wire message of a codec packet: the engine's (`assembly.channel.message_bytes`), a
 sensor_msgs/JointState with the payload's F values spread over position, velocity and effort,
 field by field, `names = ceil(F / 3)` values per field (the last field padded with zeros); the
 names are `cFFF_iii` (F the payload's length, i the name's index: 8 characters, the size the
-engine's accounting assumes), so a receiver knows F. An arm scene's (`engine.arm_loop.arm_message_bytes`):
+engine's accounting assumes), so a receiver knows F. An arm scene's (`assembly.side.arm_message_bytes`):
 one name per task axis, more when the payload needs them (`max(3, ceil(F / 3))` names), names
 `cFFFii` (6 characters, as the engine's `axis_i`). header.stamp = the packet's seq (the tick of
 the sample it carries) on the node clock's tick grid: the relay takes seq = stamp / period from it,
@@ -27,7 +27,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from haptic_teleop.engine.codec_channel import REVERSE, codec_pair, message_bytes
+from haptic_teleop.assembly.channel import REVERSE, codec_pair, message_bytes
 from haptic_teleop.errors import ConfigError
 
 # The codecs the live nodes run (HLI sizes its packets by class, not by this wire message).
@@ -165,7 +165,7 @@ def direction_wire(cfg: Any, direction: str, arm: bool) -> CodecWire:
     codec = getattr(cfg.network, direction).codec
     if codec is None or codec.kind != "hli":
         return CodecWire(arm)
-    from haptic_teleop.engine.codec_channel import LAYOUT_ARM, LAYOUT_ONE_AXIS
+    from haptic_teleop.assembly.channel import LAYOUT_ARM, LAYOUT_ONE_AXIS
 
     layout = LAYOUT_ARM if arm else LAYOUT_ONE_AXIS
     return CodecWire(arm, hli_dim=len(layout[direction]) * (3 if arm else 1))
@@ -275,8 +275,8 @@ def _pair(cfg: Any, direction: str, period_ns: int, arm: bool) -> tuple[Any, Any
     """The encoder and decoder as the engine builds them for this scene (one axis, or an arm's)."""
     if not arm:
         return codec_pair(cfg, direction, period_ns)
-    from haptic_teleop.engine.arm_loop import arm_message_bytes
-    from haptic_teleop.engine.codec_channel import LAYOUT_ARM
+    from haptic_teleop.assembly.channel import LAYOUT_ARM
+    from haptic_teleop.assembly.side import arm_message_bytes
 
     return codec_pair(cfg, direction, period_ns, axes=3, size_of=arm_message_bytes, layout=LAYOUT_ARM)
 
@@ -285,7 +285,7 @@ def wire_size_of(arm: bool) -> Callable[[int], int]:
     """The engine's message size of a codec payload of F values (`arm`: in an arm scene)."""
     if not arm:
         return message_bytes
-    from haptic_teleop.engine.arm_loop import arm_message_bytes
+    from haptic_teleop.assembly.side import arm_message_bytes
 
     return arm_message_bytes
 
@@ -425,7 +425,7 @@ def codec_run_facts(cfg: Any, encoder: dict[str, Any], decoder: dict[str, Any]) 
             facts["counters_missing"] = ",".join(missing)
         out[f"codec_{d}"] = facts
     if out and cfg.is_arm:
-        from haptic_teleop.engine.arm_loop import wire_payload_bytes
+        from haptic_teleop.assembly.side import wire_payload_bytes
 
         out["codec_plain_bytes"] = {"forward": wire_payload_bytes(3, 2), "backward": wire_payload_bytes(3, 3)}
     elif out:

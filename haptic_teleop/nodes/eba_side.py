@@ -46,8 +46,8 @@ class EbaSide:
 
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.assembly import build_controller, remote_limits
-        from haptic_teleop.traces import read_operator_trace
+        from haptic_teleop.assembly.parts import side_controller
+        from haptic_teleop.scene.traces import read_operator_trace
 
         period_s = config.scene.period_s
         self.period_s = period_s
@@ -58,15 +58,7 @@ class EbaSide:
             if op.trace_file
             else None
         )
-        plant = config.master if role == "master" else config.slave
-        self.ctrl = build_controller(
-            getattr(config.controllers, role),
-            role,
-            period_s,
-            plant.damping_n_s_per_m,
-            remote_limits(config, trace),
-            plant.effects.saturation,
-        )
+        self.ctrl = side_controller(config, role, trace)
         self.fade = ForceFade(self.ctrl)
         remote = "backward" if role == "master" else "forward"
         self._read = JointStateReader(PAYLOAD_FIELDS[remote], [(DIRECTION_JOINT[remote], WIRE_FIELDS[remote])])

@@ -46,7 +46,7 @@ class MasterEba(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.assembly import build_master_plant
+        from haptic_teleop.assembly.parts import build_master_plant
         from haptic_teleop.nodes.params import declare_scene
 
         names = (

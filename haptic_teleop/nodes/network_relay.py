@@ -84,7 +84,7 @@ def settling_effects(cfg: NetworkEffectsConfig) -> NetworkEffectsConfig:
     0, added to the constant delay. What is left depends on no absolute time (the token bucket and
     the jitter use differences and counts only)."""
     from haptic_teleop.core.delay import PiecewiseDelay, SinusoidDelay
-    from haptic_teleop.traces import load_delay_trace
+    from haptic_teleop.scene.traces import load_delay_trace
 
     delay = cfg.delay
     if delay is not None:
@@ -163,7 +163,7 @@ class NetworkRelay(LiveNode):
 
         from haptic_teleop.nodes.codec_stage import RELAY_CARRIES, ack_delivered_topic, ack_sent_topic
         from haptic_teleop.record.layouts import joint_state_size
-        from haptic_teleop.traces import build_scene_link
+        from haptic_teleop.scene.traces import build_scene_link
 
         self.carries = str(
             declare_value(
@@ -211,8 +211,8 @@ class NetworkRelay(LiveNode):
             arm = axes == 3
             self.codec_wire = CodecWire(arm) if self.carries == "ack" else direction_wire(cfg, d, arm)
         # The link's random streams are named by the direction: "forward", "backward" as the
-        # engine's; "<client>/up", "<client>/down" as the NVE engine's (nve_assembly.build_direction);
-        # an ack relay's "<direction>:ack" as the engine's ACK link (engine/codec_channel.py), over
+        # engine's; "<client>/up", "<client>/down" as the NVE engine's (assembly.nve.build_direction);
+        # an ack relay's "<direction>:ack" as the engine's ACK link (assembly/channel.py), over
         # the reverse direction's effects.
         stream = f"{d}:ack" if ack else d
         rev = {"forward": "backward", "backward": "forward"}
@@ -228,8 +228,8 @@ class NetworkRelay(LiveNode):
         floats = w.floats
         if axes == 1 or nve_direction(d) is not None:  # the NVE engine's size: joint_state_size(floats, axes)
             self._size = joint_state_size(floats, axes)
-        else:  # the engine's wire size of an arm payload (arm_loop.wire_payload_bytes)
-            from haptic_teleop.engine.arm_loop import wire_payload_bytes
+        else:  # the engine's wire size of an arm payload (side.wire_payload_bytes)
+            from haptic_teleop.assembly.side import wire_payload_bytes
 
             self._size = wire_payload_bytes(axes, floats)
         self._msgs: dict[int, Any] = {}

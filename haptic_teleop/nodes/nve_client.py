@@ -1,5 +1,5 @@
 """nve_client: one client of an NVE scene (parameter `client`: its name), the core `NveClient` and
-HIP of `nve_assembly.build_nve_parts` (the engine's) on the 1 kHz absolute-deadline loop, in
+HIP of `assembly.nve.build_nve_parts` (the engine's) on the 1 kHz absolute-deadline loop, in
 scene time (from the server's latched /haptic_teleop/scene_start; nothing before it).
 
 Per tick n (t = n T, docs/nve.md "Model", one tick, its client steps):
@@ -55,7 +55,7 @@ class NveClientNode(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Header
 
-        from haptic_teleop.nve_assembly import build_nve_parts
+        from haptic_teleop.assembly.nve import build_nve_parts
         from haptic_teleop.record.layouts import nve_topic_specs
         from haptic_teleop.record.nve_columns import NveSchema
 

@@ -1,5 +1,5 @@
 """nve_server: an NVE scene's consistency server, the core `ObjectServer` (the engine's, built by
-`nve_assembly.build_nve_parts`) on the 1 kHz absolute-deadline loop, in scene time.
+`assembly.nve.build_nve_parts`) on the 1 kHz absolute-deadline loop, in scene time.
 
 Scene time 0: once the node graph is up (every client's node, its relays and buffers), the server
 announces the first tick at least `start.delay_s` later on /haptic_teleop/scene_start (latched),
@@ -47,7 +47,7 @@ class NveServer(LiveNode):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Header
 
-        from haptic_teleop.nve_assembly import build_nve_parts
+        from haptic_teleop.assembly.nve import build_nve_parts
 
         cfg = declare_scene(self, SCENE_SECTIONS["nve_server"], _NAMES)
         if cfg.nve is None:

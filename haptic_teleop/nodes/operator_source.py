@@ -44,8 +44,8 @@ class OperatorSource(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.assembly import build_operator
-        from haptic_teleop.traces import read_operator_trace
+        from haptic_teleop.assembly.parts import build_operator
+        from haptic_teleop.scene.traces import read_operator_trace
 
         cfg = declare_scene(self, SCENE_SECTIONS["operator_source"], _NAMES)
         op = cfg.operator
@@ -100,18 +100,18 @@ class OperatorSource(LiveNode):
         self.setup_loop(period_ns)
 
     def _init_arm(self, cfg: Any) -> None:
-        """An arm scene: the 3-D operator (arm_loop.operator_hand: the intended point along
+        """An arm scene: the 3-D operator (side.operator_hand: the intended point along
         `operator.direction`, the hand a spring-damper in the device frame) on the master handle's
         newest task-frame state, which the master sends forward (/forward/sent: x, v per axis)."""
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.assembly import build_arm_parts
+        from haptic_teleop.assembly.parts import build_arm_parts
         from haptic_teleop.nodes.messages import SpecOut
         from haptic_teleop.nodes.topics import WIRE_FIELDS, sent_topic, wire_names
         from haptic_teleop.record.layouts import topic_specs
 
         self.arm = parts = build_arm_parts(cfg)
-        from haptic_teleop.engine.arm_loop import side_ticks
+        from haptic_teleop.assembly.side import side_ticks
 
         side_ticks(parts)  # builds parts.maps (the mapping's functions, compiled)
         parts.master.plant.close()
@@ -136,7 +136,7 @@ class OperatorSource(LiveNode):
             self._master = ([], [])
 
     def _arm_publish(self, t: float, stamp_ns: int) -> None:
-        from haptic_teleop.engine.arm_loop import operator_hand
+        from haptic_teleop.assembly.side import operator_hand
 
         xd_t, vd_t, f_dev = operator_hand(self.arm, t, self._x_dev, self._v_dev)
         self.out.publish(stamp_ns, (*xd_t, *vd_t, *self.arm.maps.force_to_task(f_dev).tolist()))

@@ -623,7 +623,7 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
         return NveSchema(tuple(c.name for c in cfg.nve.clients), cfg.nve.axes), {}
     if not cfg.is_arm:
         return ONE_DOF, {}
-    from haptic_teleop.plants import build_arm
+    from haptic_teleop.assembly.plants import build_arm
 
     # A real arm's plant (built, its driver never started here): the damping the scene lets EBA
     # assume, as the engine records it for a hardware side (docs/hardware.md).

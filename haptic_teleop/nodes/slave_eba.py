@@ -24,7 +24,7 @@ class SlaveEba(LiveNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        from haptic_teleop.assembly import build_slave_plant
+        from haptic_teleop.assembly.parts import build_slave_plant
 
         cfg = declare_scene(self, SCENE_SECTIONS["slave_eba"], WATCHDOG_PARAMS)
         period_ns = round(cfg.scene.period_s * 1e9)

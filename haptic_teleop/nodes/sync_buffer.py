@@ -54,7 +54,7 @@ class SyncBuffer(LiveNode):
         super().__init__(**kwargs)
         from sensor_msgs.msg import JointState
 
-        from haptic_teleop.core.playout import build_buffer
+        from haptic_teleop.core.playout_config import build_buffer
 
         d, cfg = declare_direction_scene(self, "sync_buffer", (TASK_AXES_PARAM,))
         self.direction = d
@@ -62,7 +62,7 @@ class SyncBuffer(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.buffer = build_buffer(direction_config(cfg, d).buffer, period_ns)
         if not cfg.is_nve:
-            from haptic_teleop.assembly import configure_network_adaptive
+            from haptic_teleop.assembly.parts import configure_network_adaptive
 
             configure_network_adaptive(self.buffer, cfg, d)  # network_adaptive: d0, D_a, L_a from the scene
         self.wire = w = wire_of(d, axes)

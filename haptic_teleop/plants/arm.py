@@ -86,7 +86,7 @@ def _quat_z_to(normal: Sequence[float]) -> list[float]:
 @dataclass(frozen=True)
 class ArmConstants:
     """What a `MujocoArm` resolves in its model once and uses every tick (copies:
-    `MujocoArm.constants`); the compiled arm loop (engine/compiled_arm_loop.py) takes them from here.
+    `MujocoArm.constants`); the compiled arm loop (engine/compiled/arm_host.py) takes them from here.
 
     site_id: the handle/tool site; substeps: MuJoCo steps per period; gravity_compensation: whether
     the motors carry `qfrc_gravcomp`; wall_geoms: (wall, tool tip) geom ids of the contact pair, None

@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from haptic_teleop.core.eba import DEFAULT_MAX_HOLD_PERIODS, late_hold_excess_j
+from haptic_teleop.core.eba_coupled import DEFAULT_MAX_HOLD_PERIODS, late_hold_excess_j
 from haptic_teleop.core.safety import SafetyGuard, SafetyParams
 from haptic_teleop.errors import PlantError
 from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample

@@ -37,7 +37,7 @@ def resolve_model(name: str) -> Path:
 def actuator_limited1(force: float, limit: float) -> float:
     """The force a plant's actuator applies for a command: clamped to +-limit, NaN gives 0.
 
-    Also compiled by the engine's compiled loop (haptic_teleop/engine/compiled_loop.py)."""
+    Also compiled by the engine's compiled loop (haptic_teleop/engine/compiled/axis_host.py)."""
     if not -limit <= force <= limit:
         return 0.0 if math.isnan(force) else math.copysign(limit, force)
     return force

@@ -16,7 +16,7 @@ from haptic_teleop.core.fec import FecConfig
 from haptic_teleop.core.hli_codec import KIND as HLI_KIND
 from haptic_teleop.core.hli_codec import HliConfig
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
-from haptic_teleop.core.playout import BufferConfig
+from haptic_teleop.core.playout_config import BufferConfig
 from haptic_teleop.core.prediction import KIND as PREDICTION_KIND
 from haptic_teleop.core.prediction import PredictionConfig
 

@@ -13,8 +13,8 @@ from typing import Any
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.scene.overrides import Override, apply_overrides, blame_override, parse_override
 from haptic_teleop.scene.schema import NVE_SECTIONS, LoadedScene, Scene
+from haptic_teleop.scene.traces import read_operator_trace, resolve_scene_traces, resolve_trace_paths
 from haptic_teleop.scene.yaml_text import parse_yaml, read_scene_text
-from haptic_teleop.traces import read_operator_trace, resolve_scene_traces, resolve_trace_paths
 from haptic_teleop.typedconfig import build
 
 
@@ -297,10 +297,11 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                 getattr(config.controllers, side).eba.law,
                 "allowed for arms: reservoir (the pooled joint bound; the two-condition law is one-axis only)",
             )
-    from haptic_teleop.plants import build_slave_arm
+    from haptic_teleop.plants.arm import MujocoArm
+    from haptic_teleop.scene.sides import arm_settings
 
     try:
-        slave = build_slave_arm(config)
+        slave = MujocoArm(**arm_settings(config, "slave"))
     except PlantError as exc:
         raise ConfigError(source, "slave", config.slave.model, str(exc)) from None
     h = config.scene.period_s / config.simulation.substeps

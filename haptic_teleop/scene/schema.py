@@ -594,7 +594,7 @@ WALL_STEP_LIMIT = math.sqrt(2.0)  # largest stable omega * h of the wall contact
 
 @dataclass(frozen=True)
 class Scene:
-    """A whole scene. Every default here is the default scene (haptic_teleop/scenes/wall_contact.yaml)."""
+    """A whole scene. Every default here is the default scene (config/scenes/wall_contact.yaml)."""
 
     scene: RunConfig = field(default_factory=RunConfig)
     operator: OperatorConfig = field(default_factory=OperatorConfig)

@@ -8,16 +8,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.core.eba import (
+from haptic_teleop.core.eba import EnergyBound
+from haptic_teleop.core.eba_coupled import (
     CoupledEnergyBound,
     CoupledEnergyBoundParams,
-    EnergyBound,
-    EnergyBoundParams,
     coupled_demand,
     coupled_descent_cost,
     descent_cost1,
     task_demand,
 )
+from haptic_teleop.core.eba_state import EnergyBoundParams
 
 T = 0.001
 

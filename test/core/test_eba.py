@@ -8,7 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from haptic_teleop.analysis.metrics import port_energy
-from haptic_teleop.core.eba import ControllerParams, EnergyBound, EnergyBoundParams, TeleopController
+from haptic_teleop.core.controller import ControllerParams, TeleopController
+from haptic_teleop.core.eba import EnergyBound
+from haptic_teleop.core.eba_state import EnergyBoundParams
 
 T = 0.001
 finite = st.floats(min_value=-1.0, max_value=1.0, allow_nan=False)

@@ -10,13 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from haptic_teleop.analysis.metrics import port_energy
-from haptic_teleop.core.eba import (
-    EnergyBound,
-    EnergyBoundParams,
-    actuator_bounded1,
-    bounded1,
-    ramp_limit1,
-)
+from haptic_teleop.core.eba import EnergyBound, actuator_bounded1, bounded1, ramp_limit1
+from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.sensing import ActuatorLimit
 
 T = 0.001

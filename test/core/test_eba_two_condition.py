@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from haptic_teleop.analysis.metrics import port_energy
-from haptic_teleop.core.eba import EnergyBound, EnergyBoundParams, reservoir1
+from haptic_teleop.core.eba import EnergyBound, reservoir1
+from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.eba_two_condition import (
     TwoConditionBound,
     contact_force_slope_n_per_s,

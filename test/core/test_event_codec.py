@@ -87,7 +87,7 @@ def event_ticks(fwd: Link) -> list[int]:
 )
 @pytest.mark.parametrize("dim", [1, 3])
 def test_lossless_equals_prediction_based_filtering(cfg: EventCodecConfig, dim: int) -> None:
-    """The HLI codec with N_HLI1 = 0 is prediction-based filtering (experiments/codec.py); with no
+    """The HLI codec with N_HLI1 = 0 is prediction-based filtering (studies/replications/codec.py); with no
     loss every error control plays exactly what it plays and sends its events at the same ticks."""
     t = np.arange(3000) * 1e-3
     x = [tuple(float(-0.05 * (1 - math.cos(2 * math.pi * s / (1.5 + 0.3 * i)))) for i in range(dim)) for s in t]

@@ -1,4 +1,4 @@
-"""The friction estimator and the excitation profile (core/identify.py), on synthetic data."""
+"""The friction estimator and the excitation profile (core/friction.py), on synthetic data."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.core.identify import (
+from haptic_teleop.core.friction import (
     FIT_SHARE,
     Excitation,
     Pass,

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import find, given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams, late_hold_excess_j
+from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams, late_hold_excess_j
 from haptic_teleop.core.safety import SafetyGuard, SafetyParams
 
 T = 0.001

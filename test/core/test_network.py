@@ -32,7 +32,7 @@ from haptic_teleop.core.loss import BernoulliLoss
 from haptic_teleop.core.netconfig import LinkTraces, LossConfig, NetworkEffectsConfig, build_link, canonical_order
 from haptic_teleop.core.uniform import effect_rng
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.traces import build_scene_link, load_delay_trace, load_loss_trace, resolve_trace_paths
+from haptic_teleop.scene.traces import build_scene_link, load_delay_trace, load_loss_trace, resolve_trace_paths
 from haptic_teleop.typedconfig import build
 
 MS = 1_000_000

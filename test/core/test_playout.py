@@ -18,16 +18,15 @@ from haptic_teleop.core.playout import (
     POLICIES,
     RAMJEE_SMOOTHING,
     AdaptiveBuffer,
-    BufferConfig,
     ExtrapolatedPacket,
     FixedBuffer,
     PercentileBuffer,
     PlayOnArrival,
     PlayoutBuffer,
-    TransparencyBuffer,
-    build_buffer,
     contact_force_slope,
 )
+from haptic_teleop.core.playout_config import BufferConfig, build_buffer
+from haptic_teleop.core.playout_seed import TransparencyBuffer
 from haptic_teleop.errors import ConfigError
 
 T = 1_000_000  # 1 ms period

@@ -246,8 +246,8 @@ def _arm_run(guarded, tau_const, ticks=3000, e0=0.5, margin=0.3, bound_on=True):
     """The touch_dynamixel_wall scene's slave (MuJoCo, gravity compensated), a constant torque through
     the guard, then the pooled energy bound with the model's damping, into the plant; the plant's
     applied torques and positions per tick."""
-    from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams
-    from haptic_teleop.plants import build_slave_arm
+    from haptic_teleop.assembly.plants import build_slave_arm
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
     from haptic_teleop.scene.load import find_scene, load_scene
 
     config = load_scene(find_scene("touch_dynamixel_wall")).config

@@ -5,16 +5,10 @@ the first; constants are what the tick uses; state values are copies."""
 import numpy as np
 import pytest
 
-from haptic_teleop.core.eba import (
-    ControllerParams,
-    CoupledEnergyBound,
-    CoupledEnergyBoundParams,
-    EnergyBound,
-    EnergyBoundParams,
-    RemoteLimits,
-    TeleopController,
-    bounded1,
-)
+from haptic_teleop.core.controller import ControllerParams, RemoteLimits, TeleopController
+from haptic_teleop.core.eba import EnergyBound, bounded1
+from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
+from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.operator import Operator, OperatorParams, push1
 from haptic_teleop.core.playout import PlayOnArrival
 

@@ -308,7 +308,7 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
             else:
                 assert nb_args[out_index] == pytest.approx(py_args[out_index], rel=1e-12, abs=1e-12), name
     # the per-side objects with the compiled functions: the same results as interpreted
-    from haptic_teleop.core.eba import CoupledEnergyBound, CoupledEnergyBoundParams
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
 
     for slew in ((), (300.0,) * 6):
         params = CoupledEnergyBoundParams(1e-3, tuple(10.0 ** rng.uniform(-2, 0, size=6)), 0.05, slew_nm_per_s=slew)
@@ -344,7 +344,8 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
 def test_one_axis_task_law_is_the_one_dof_law(x, v, rx, rv, rf, c1, c2):
     """One axis, one joint, J = [[1]], identity mapping: the task-space law gives the bits of the
     1-DoF controller's law (position on both sides, force reflection on the master)."""
-    from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, TeleopController
+    from haptic_teleop.core.controller import ControllerParams, TeleopController
+    from haptic_teleop.core.eba_state import EnergyBoundParams
 
     bound = EnergyBoundParams(1e-3, (1.0,), enabled=False)
     wm = WorkspaceMapping.identity(1)

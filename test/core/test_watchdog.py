@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from haptic_teleop.core.eba import ControllerParams, EnergyBoundParams, TeleopController
+from haptic_teleop.core.controller import ControllerParams, TeleopController
+from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.watchdog import ForceFade, Watchdog
 
 PERIOD_NS = 1_000_000

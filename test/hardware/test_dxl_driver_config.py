@@ -223,7 +223,7 @@ def test_wire_limit_is_the_issues_figure():
     ],
 )
 def test_bench_hardware_refuses_bad_arguments_in_one_line(capsys, argv, allowed):
-    from haptic_teleop.cli import main
+    from haptic_teleop.cli.main import main
 
     with pytest.raises(SystemExit) as e:
         main(["bench", "hardware", *argv])

@@ -2,7 +2,7 @@
 the Dynamixel bus emulator, spoken to by the unmodified dynamixel_sdk (docs/hardware.md).
 
 The test starts the emulator (its own process, a pseudo-terminal) from the scene
-(`haptic_teleop.emulate.bus_config`: the same ids, models, signs and offsets, the arm's MJCF, true
+(`haptic_teleop.assembly.emulation.bus_config`: the same ids, models, signs and offsets, the arm's MJCF, true
 viscous friction = the damping the scene lets EBA assume, the wall for a slave, the operator's
 hand for a master, lockstep time), runs the real command line against its port, then analyses the
 bag as a simulated run is analysed and reads Torque Enable(64) of every servo through the SDK: 0
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from haptic_teleop.emulate import bus_config
+from haptic_teleop.assembly.emulation import bus_config
 from haptic_teleop.emulators.dynamixel.config import FaultConfig
 from haptic_teleop.emulators.dynamixel.process import DynamixelBus, start_bus
 from haptic_teleop.plants.dynamixel.driver import read_byte_each
@@ -115,7 +115,7 @@ def test_a_session_with_one_side_on_the_emulator_is_recorded_analysed_and_passiv
 def test_the_slave_contact_estimate_points_out_of_the_wall(emulator: Any, tmp_path: Path) -> None:
     """The quasi-static estimate f = -(J^T)^+ (tau_measured - g) at rest against the wall: along the
     wall's normal, and the servos hold it against the coupling's push."""
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
 
     bus = emulator(*SLAVE[:2], ["scene.duration_s=2.5"])
     scene = load_scene(
@@ -212,7 +212,7 @@ def test_a_signal_stops_the_run_at_a_tick_writes_the_outputs_and_turns_the_torqu
 
 
 def test_an_exception_in_the_loop_turns_the_torque_off_and_leaves_a_readable_bag(emulator: Any, tmp_path: Path) -> None:
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
     from haptic_teleop.record.reader import BagReader
 
     bus = emulator(*SLAVE[:2], [])
@@ -272,7 +272,8 @@ def test_the_engine_itself_turns_the_torque_off_when_the_run_ends(
 ) -> None:
     """In this process (the driver's atexit has not run): the engine stops the servos at the end of
     the run, and when a stop request (Ctrl-C, SIGTERM through interrupt.py) ends it at a tick."""
-    from haptic_teleop.engine.lockstep import Engine, record_run
+    from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.engine.run import record_run
 
     bus = emulator(*SLAVE[:2], [])
     scene = load_scene(
@@ -351,7 +352,7 @@ def test_a_real_clock_stretches_the_ledger_over_the_time_each_tick_took(emulator
     """device_clock real (a real arm): the slave's ledger credits its damping over the wall time
     between reads (CoupledEnergyBound.stretch), never more than over one period, so its reservoir
     ends lower than the same run's on the emulator's lockstep clock (one period per command)."""
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
 
     ends = {}
     for clock in ("lockstep", "real"):

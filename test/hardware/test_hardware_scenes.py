@@ -166,10 +166,10 @@ def test_identify_builds_the_runs_dynamixel_driver_and_refuses_a_ur_side(tmp_pat
     here started against the emulator, read at the scene's start pose, stopped with torque off."""
     import dynamixel_sdk as sdk
 
-    from haptic_teleop.emulate import bus_config
+    from haptic_teleop.assembly.emulation import bus_config
+    from haptic_teleop.cli.identify import joint_driver_for
     from haptic_teleop.emulators.dynamixel.process import start_bus
     from haptic_teleop.errors import InputError
-    from haptic_teleop.identify import joint_driver_for
 
     sets = ["slave.backend=dynamixel", "slave.damping_nm_s_per_rad=null"]
     first = load_scene(find_scene("touch_dynamixel_wall"), sets, emulate=True, identify=True)
@@ -206,7 +206,7 @@ def test_a_hardware_backend_without_its_sdk_is_refused_in_one_line_before_anythi
     out = tmp_path / "run"
     code = (
         "import sys; sys.modules['dynamixel_sdk'] = None; "  # absent: its import raises ImportError
-        "from haptic_teleop.cli import main; "
+        "from haptic_teleop.cli.main import main; "
         "sys.exit(main(['run', 'touch_dynamixel_wall', '--set', 'slave.backend=dynamixel', '--emulate', "
         f"'--out', {str(out)!r}]))"
     )

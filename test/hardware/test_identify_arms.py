@@ -1,4 +1,4 @@
-"""Friction identification end to end on the simulated arms (engine/identify.py on
+"""Friction identification end to end on the simulated arms (engine/excitation.py on
 plants/sim_driver.py), and the `haptic-teleop identify` command (docs/identify.md).
 
 The simulator's friction is the truth: MuJoCo's dof_damping (viscous) and dof_frictionloss
@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from haptic_teleop.cli import main
-from haptic_teleop.core.identify import Excitation, Pass, Plan
-from haptic_teleop.engine.identify import Gains, Identifier, IdentifyFault
-from haptic_teleop.identify import format_table
+from haptic_teleop.cli.identify import format_table
+from haptic_teleop.cli.main import main
+from haptic_teleop.core.friction import Excitation, Pass, Plan
+from haptic_teleop.engine.excitation import Gains, Identifier, IdentifyFault
 from haptic_teleop.plants.hardware import HardwareError
 from haptic_teleop.plants.kinematics import ArmKinematics
 from haptic_teleop.plants.sim_driver import MujocoJointDriver

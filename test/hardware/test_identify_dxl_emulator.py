@@ -1,7 +1,7 @@
 """Friction identification through the unmodified dynamixel_sdk: the Dynamixel driver
 (plants/dynamixel/driver.py) against the bus emulator (emulators/dynamixel, its own process on a
 pseudo-terminal) running the MuJoCo Dynamixel arm with a chosen true friction; the excitation
-(engine/identify.py) recovers it within 10 % (docs/identify.md)."""
+(engine/excitation.py) recovers it within 10 % (docs/identify.md)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import math
 
 import pytest
 
-from haptic_teleop.core.identify import Excitation
+from haptic_teleop.core.friction import Excitation
 from haptic_teleop.emulators.dynamixel.config import BusConfig
 from haptic_teleop.emulators.dynamixel.process import start_bus
-from haptic_teleop.engine.identify import Identifier
+from haptic_teleop.engine.excitation import Identifier
 from haptic_teleop.plants.dynamixel.chain import DynamixelChainConfig, DynamixelJoint
 from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 from haptic_teleop.plants.kinematics import ArmKinematics

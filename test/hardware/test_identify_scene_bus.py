@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from haptic_teleop.core.identify import Excitation
-from haptic_teleop.emulate import bus_config
+from haptic_teleop.assembly.emulation import bus_config
+from haptic_teleop.cli.identify import POINT_SITES, joint_driver_for
+from haptic_teleop.core.friction import Excitation
 from haptic_teleop.emulators.dynamixel.process import start_bus
-from haptic_teleop.engine.identify import Identifier
-from haptic_teleop.identify import POINT_SITES, joint_driver_for
+from haptic_teleop.engine.excitation import Identifier
 from haptic_teleop.plants.kinematics import ArmKinematics
 from haptic_teleop.scene.load import find_scene, load_scene
 

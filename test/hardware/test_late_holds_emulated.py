@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from haptic_teleop.emulate import bus_config
+from haptic_teleop.assembly.emulation import bus_config
 from haptic_teleop.emulators.dynamixel.process import start_bus
 from haptic_teleop.plants.dynamixel.driver import read_byte_each
 from haptic_teleop.plants.dynamixel.tables import ADDR_TORQUE_ENABLE
@@ -74,7 +74,7 @@ def _true_margin(engine: Any, scene: Any) -> tuple[float, float]:
 def test_stalls_within_max_hold_keep_the_leader_port_passive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The loop stalls 25 ms before every 150th tick; max_hold_s 60 ms (the bound budgets it): the
     master's true margin over the real intervals stays >= 0, the run ends normally, torque off."""
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
 
     monkeypatch.setenv("HAPTIC_TELEOP_TEST_STALL", "150:0.025")
     with _bus() as bus:

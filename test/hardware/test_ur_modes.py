@@ -53,7 +53,7 @@ def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
         [
             sys.executable,
             "-m",
-            "haptic_teleop.cli",
+            "haptic_teleop.cli.main",
             "run",
             "touch_ur5e_wall",
             *[a for s in sets for a in ("--set", s)],
@@ -172,7 +172,7 @@ def test_a_side_period_that_is_not_a_whole_multiple_is_one_clear_error(tmp_path:
         [
             sys.executable,
             "-m",
-            "haptic_teleop.cli",
+            "haptic_teleop.cli.main",
             "run",
             "touch_ur5e_wall",
             "--set",
@@ -210,7 +210,7 @@ def test_sigterm_mid_session_in_the_admittance_mode_stops_the_robot_and_keeps_th
             [
                 sys.executable,
                 "-m",
-                "haptic_teleop.cli",
+                "haptic_teleop.cli.main",
                 "run",
                 "touch_ur5e_wall",
                 *[a for s in sets for a in ("--set", s)],
@@ -241,7 +241,7 @@ def test_the_live_nodes_plan_a_side_period_and_a_one_axis_scene_refuses_the_key(
     """The live nodes run a side at its own period (test/test_live_arm.py runs it): the plan
     passes `slave.period_s` to the EBA nodes; on a one-axis scene the key is one clear error."""
     from haptic_teleop.errors import ConfigError
-    from haptic_teleop.launcher import node_plan
+    from haptic_teleop.live.launcher import node_plan
 
     scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.002"])
     plan = {s.name: s.params for s in node_plan(scene)}
@@ -255,7 +255,7 @@ def test_the_analysis_books_a_slow_side_at_its_own_period(tmp_path: Path) -> Non
     """The summary's ledger of a side with its own period, recomputed from the rows (which repeat
     the side's q between its ticks), is the side's own reservoir as the bound kept it."""
     from haptic_teleop.analysis.stream import summarize_bag
-    from haptic_teleop.engine.lockstep import record_run
+    from haptic_teleop.engine.run import record_run
 
     scene = load_scene(find_scene("touch_ur5e_wall"), ["slave.period_s=0.003", "scene.duration_s=1.5"])
     engine, _ = record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False, keep=True)

@@ -1,0 +1,295 @@
+"""One side of an arm scene's tick, compiled, from the side's objects (the live nodes: nodes/arm_side.py;
+the engine's compiled arm loop packs both sides the same way): `side_tuple` packs a side's plant,
+law, bound and guard into the arrays of side_kernel.py's T_* layout, `store_side` writes the state
+back, and `CompiledSideTick` runs the side's tick (`side_kernel.side_tick`, `side_begin`,
+`side_law`, `side_end`) with the interface of the Python `side.SideTick`. `side_tick` gives the
+compiled one where it can run, else the Python one and why.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from haptic_teleop import compiling
+from haptic_teleop.core.eba_coupled import CoupledBoundState
+
+if TYPE_CHECKING:
+    from haptic_teleop.assembly.parts import ArmParts, ArmSide
+
+
+@functools.cache
+def _side_kernel_or_error() -> tuple[Any, str | None]:
+    try:
+        return compiling.load("haptic_teleop.assembly.side_kernel"), None
+    except Exception as exc:  # noqa: BLE001 - no numba, or it cannot load here: the Python tick runs
+        return None, f"numba unavailable or failing ({type(exc).__name__}: {exc})"
+
+
+def side_kernel() -> Any:
+    """The compiled side stage (module assembly/side_kernel.py); raises if it cannot load."""
+    k, err = _side_kernel_or_error()
+    if k is None:
+        raise RuntimeError(err)
+    return k
+
+
+@functools.cache
+def side_unusable() -> str | None:
+    """Why a side's tick cannot run compiled on this machine (no numba, or an mjData contact
+    layout it does not know), or None."""
+    err = _side_kernel_or_error()[1]
+    if err is not None:
+        return err
+    from haptic_teleop.plants.mujoco_native import contact_layout
+
+    layout = contact_layout()
+    return layout if isinstance(layout, str) else None
+
+
+def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -> tuple[Any, ...]:
+    """The kernel's side tuple (side_kernel's T_* order) of one side, sharing the plant's MjData
+    arrays (or those of `data`, another MjData of the same model), with the constants and a copy
+    of the state the side's objects give through their public seams (`constants()`, `state()`):
+    `store_side` writes the state back (`set_state`, `stepped_externally`)."""
+    from haptic_teleop.plants.mujoco_native import contact_layout
+
+    k = side_kernel()
+    layout = contact_layout()
+    assert not isinstance(layout, str)
+    plant: Any = side.plant
+    m, d = plant.model, plant.data if data is None else data
+    n = plant.n
+    law, bound = side.law, side.bound
+    bp = bound.params
+    pc = plant.constants()  # the plant's, the law's and the bound's constants, and the bound's state
+    lc = law.constants()
+    bc = bound.constants()
+    bs = bound.state()
+    iv = np.zeros(k.I_SIZE, dtype=np.int64)
+    iv[k.I_MODEL], iv[k.I_DATA] = m._address, d._address
+    iv[k.I_N] = n
+    iv[k.I_SITE] = pc.site_id
+    iv[k.I_SUBSTEPS] = pc.substeps
+    iv[k.I_GRAVITY] = 1 if pc.gravity_compensation else 0
+    iv[k.I_ROTATIONAL] = 1 if side.rotational else 0
+    iv[k.I_NULL] = 1 if lc.null_space else 0
+    iv[k.I_ENABLED] = 1 if bp.enabled else 0
+    iv[k.I_KEEP_DIRECTION] = 1 if bc.keep_direction else 0
+    iv[k.I_SLEW] = 0 if bc.slew_step_nm is None else 1
+    pg = pc.wall_geoms
+    iv[k.I_WALL] = 0 if pg is None else 1
+    iv[k.I_GEOM1], iv[k.I_GEOM2] = (-1, -1) if pg is None else pg
+    for pos, value in zip(
+        (k.I_NCON, k.I_CONTACT, k.I_STRIDE, k.I_POS, k.I_FRAME, k.I_G1, k.I_G2, k.I_EFC), layout, strict=True
+    ):
+        iv[pos] = value
+    iv[k.I_HAND] = 1 if master else 0
+    iv[k.I_JAC_SCALE] = 1 if master else 0
+    iv[k.I_NV] = m.nv
+    mp = parts.mapping
+    F = np.zeros(k.F_SIZE)
+    F[k.F_LIMIT] = side.force_limit_n
+    F[k.F_MU] = law.params.pinv_damping_m
+    F[k.F_SCALE] = mp.scale
+    F[k.F_FORCE_SCALE] = mp.force_scale
+    opp = parts.operator.params
+    F[k.F_K_HAND] = opp.stiffness_n_per_m
+    F[k.F_B_HAND] = opp.damping_n_s_per_m
+    S = np.zeros(k.S_SIZE)
+    S[k.S_ENERGY] = bs.energy_j
+    S[k.S_HAS_LAST] = 1.0 if bs.has_last else 0.0
+    S[k.S_REJECTED] = side.guard.rejected
+    S[k.S_SCALE] = bs.scale
+    r_hold = np.zeros((3, 3))
+    if law.r_hold is not None:
+        r_hold[:] = law.r_hold
+        S[k.S_HAS_HOLD] = 1.0
+    lim = np.array(side.guard.limits, dtype=float)
+    step = bc.slew_step_nm if bc.slew_step_nm is not None else np.zeros(n)
+    return (
+        iv,
+        np.asarray(pc.qpos_adr, dtype=np.int64),
+        np.asarray(pc.dof_adr, dtype=np.int64),
+        np.asarray(pc.actuator_ids, dtype=np.int64),
+        F,
+        lc.stiffness_n_per_m,
+        lc.damping_n_s_per_m,
+        lc.rot_stiffness_nm_per_rad,
+        lc.rot_damping_nm_s_per_rad,
+        lc.null_damping_nm_s_per_rad,
+        bc.gain,
+        bc.bound_gain,
+        np.asarray(step, dtype=float),
+        bc.low,
+        bc.high,
+        np.asarray(plant.torque_lo, dtype=float),
+        np.asarray(plant.torque_hi, dtype=float),
+        np.asarray(pc.hand_support_n, dtype=float),
+        np.ascontiguousarray(mp.force_scale * mp.matrix),
+        lim,
+        np.ascontiguousarray(mp.matrix),
+        np.ascontiguousarray(mp.offset),
+        d.qpos,
+        d.qvel,
+        d.ctrl,
+        d.qfrc_applied,
+        d.qfrc_gravcomp,
+        d.site_xpos,
+        d.site_xmat,
+        S,
+        bs.last_q_rad,
+        bs.held_nm,
+        np.zeros(len(lim)),
+        r_hold,
+        np.zeros(3),
+        np.concatenate(plant.contact_wrench()),
+    )
+
+
+def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
+    """Write a side's compiled state back into its Python objects (the bound's state, guard count,
+    held orientation, the plant's wall wrench); returns the ticks a motor's room scaled the torque down."""
+    k = side_kernel()
+    S = t[k.T_S]
+    side.bound.set_state(
+        CoupledBoundState(
+            energy_j=float(S[k.S_ENERGY]),
+            held_nm=t[k.T_HELD],
+            last_q_rad=t[k.T_LAST_Q],
+            has_last=bool(S[k.S_HAS_LAST]),
+            scale=float(S[k.S_SCALE]),
+        )
+    )
+    side.guard.rejected = int(S[k.S_REJECTED])
+    if S[k.S_HAS_HOLD]:
+        side.law.r_hold = np.array(t[k.T_RHOLD])
+    side.plant.stepped_externally(t[k.T_WRENCH])  # type: ignore[attr-defined]  # mj_step1 is due
+    return int(S[k.S_LIMITED])
+
+
+def compiled_reason_side(side: ArmSide) -> str | None:
+    """Why one side's tick cannot run compiled (`CompiledSideTick`), or None if it can."""
+    from haptic_teleop.plants.arm import MujocoArm
+
+    if type(side.plant) is not MujocoArm:
+        return "plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
+    if side.law.params.law != "position":
+        return f"task law {side.law.params.law!r} (compiled: position)"
+    return side_unusable()
+
+
+class _Ledger:
+    """The compiled side's energy bound as `SideTick.bound` is used by the nodes: the reservoir,
+    the parameters, `restart`, and `held` (the kernel's own array: writing it is the ledger's input)."""
+
+    def __init__(self, side: ArmSide, t: tuple[Any, ...], k: Any) -> None:
+        self.params = side.bound.params
+        self.held: np.ndarray = t[k.T_HELD]
+        self._S: np.ndarray = t[k.T_S]
+        self._k = k
+
+    @property
+    def energy_j(self) -> float:
+        return float(self._S[self._k.S_ENERGY])
+
+    def restart(self, energy_j: float) -> None:
+        """`CoupledEnergyBound.restart`: the reservoir set, the next tick's q taken as the first."""
+        self._S[self._k.S_ENERGY] = float(energy_j)
+        self._S[self._k.S_HAS_LAST] = 0.0
+
+
+class CompiledSideTick:
+    """`side.SideTick` for one side, compiled: `torque` runs `side_kernel.side_tick` (the side's
+    part of the engine's compiled tick) on the plant's MjData after mj_step1. Its state (reservoir,
+    held torques, last q, held orientation) lives in the kernel's arrays, built from the side's
+    Python objects when made; `limit`, `force`, `ratio`, `limited_ticks` and `bound` as SideTick's."""
+
+    def __init__(self, side: ArmSide, parts: ArmParts, master: bool) -> None:
+        self.k = k = side_kernel()
+        plant: Any = side.plant
+        self.t = t = side_tuple(side, parts, master)
+        self.w = tuple(k.work_arrays(plant.n, plant.model.nv, 6 if side.rotational else 3))
+        self._F: np.ndarray = t[k.T_F]
+        self._S: np.ndarray = t[k.T_S]
+        self._remote: np.ndarray = t[k.T_REMOTE]
+        self.force: np.ndarray = t[k.T_FORCE]
+        self.bound = _Ledger(side, t, k)
+        self._last: Any = None
+        self.q = np.zeros(plant.n)
+        self.qd = np.zeros(plant.n)
+        self.plant = plant
+        self.wrench: np.ndarray = t[k.T_WRENCH]
+        self._run = k.side_tick
+        self._begun = False
+        self.torque(np.zeros(3), np.zeros(3), None, dry=True)  # compile (or load) now, not in the loop
+
+    @property
+    def limit(self) -> float:
+        return float(self._F[self.k.F_LIMIT])
+
+    @limit.setter
+    def limit(self, value: float) -> None:
+        self._F[self.k.F_LIMIT] = value
+
+    @property
+    def ratio(self) -> float:
+        return float(self._S[self.k.S_RATIO])
+
+    @property
+    def limited_ticks(self) -> int:
+        return int(self._S[self.k.S_LIMITED])
+
+    def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None, dry: bool = False) -> np.ndarray:
+        """The side's torque (SideTick.torque) on the newest accepted remote sample (None: none yet).
+        `dry`: only compile, on a copy of the state (the side is left as it was)."""
+        if remote is not None and remote is not self._last:
+            self._remote[: len(remote)] = remote
+            self._S[self.k.S_HAS_REMOTE] = 1.0
+            self._last = remote
+        out = np.zeros(len(self.q))
+        if dry:
+            k = self.k
+            t = tuple(np.array(a) if i >= k.T_S else a for i, a in enumerate(self.t))
+            self._run(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), x, v, out)
+            k.side_law(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), x, v, out)
+            k.side_begin(t, self.w, np.zeros_like(self.q), np.zeros_like(self.qd), np.zeros(3), np.zeros(3))
+            from numba import typeof  # side_end steps the plant: compiled (or loaded), not run
+
+            k.side_end.compile(tuple(typeof(a) for a in (self.t, self.w, out, np.zeros(3), out)))
+            return out
+        if self._begun:
+            self.k.side_law(self.t, self.w, self.q, self.qd, x, v, out)
+            return out
+        self._run(self.t, self.w, self.q, self.qd, x, v, out)
+        return out
+
+    def read_point(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The plant's `read` and `point` compiled (mj_step1, q, qd, the point's x, v in the world
+        frame); then `torque` and `step` finish the tick. Copies."""
+        x, v = np.zeros(3), np.zeros(3)
+        self.k.side_begin(self.t, self.w, self.q, self.qd, x, v)
+        self._begun = True
+        return self.q.copy(), self.qd.copy(), x, v
+
+    def step(self, tau: np.ndarray, hand_force_n: np.ndarray | None = None) -> np.ndarray:
+        """The plant's `step` compiled, after `read_point` and `torque`; returns the torques applied.
+        The plant is told (`stepped_externally`): its `contact_wrench` is this step's."""
+        assert self._begun, "step after read_point"
+        applied = np.zeros(len(self.q))
+        hand = np.zeros(3) if hand_force_n is None else np.asarray(hand_force_n, dtype=float)
+        self.k.side_end(self.t, self.w, np.asarray(tau, dtype=float), hand, applied)
+        self._begun = False
+        self.plant.stepped_externally(self.wrench)
+        return applied
+
+
+def side_tick(side: ArmSide, parts: ArmParts, master: bool, fallback: Any) -> tuple[Any, str | None]:
+    """The compiled tick of one side (`CompiledSideTick`), or `fallback` (the Python SideTick) and
+    the reason it is not compiled."""
+    reason = compiled_reason_side(side)
+    if reason is not None:
+        return fallback, reason
+    return CompiledSideTick(side, parts, master), None

@@ -1,0 +1,3 @@
+"""Every command of `haptic-teleop` (`main.py` the parser and `run`, `analyze`, `scenes`, `bag`,
+`compile`, `launch`, `emulate`; one module per larger command: `sweep.py`, `report.py`,
+`experiment.py`, `bench.py`, `identify.py`). The top layer: it may import any other."""

@@ -1,0 +1,7 @@
+"""`python -m haptic_teleop.cli ...`: the `haptic-teleop` command."""
+
+import sys
+
+from haptic_teleop.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,68 @@
+"""`haptic-teleop experiment NAME`: the experiments of the seeds as commands, each writing its plot
+(PNG) and table (CSV, and markdown printed to stdout). Command-line layer: imported by cli/main.py only.
+
+- `nve-analysis`, `nve-compensation`: seed 000's two NVE experiments (studies/replications/nve.py,
+  docs/nve_experiments.md).
+- `deadband`: seed 001's deadband rate and distortion on a 3-DoF contact-rich scene
+  (studies/replications/deadband.py, docs/codec.md).
+- `deadband-loop`: the same deadband in the loop: the scene run through the engine with the deadband
+  in the channel per p and direction, against the uncoded run (studies/replications/deadband_loop.py,
+  docs/codec.md).
+- `hli-filtering`: seed 000's simulation of priority-based against deadband filtering
+  (studies/replications/codec.py, docs/codec.md).
+- `error-control`: seed 000's experiment, prediction-based filtering with FEC or ARQ over its
+  events against priority-based filtering (studies/replications/codec.py, docs/codec.md).
+- `playout`: seed 000's haptic-synchronization claim, its network-adaptive buffering against the
+  existing schemes on paired seeds (studies/replications/playout.py, docs/playout.md).
+- `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent
+  loss time, predicted against measured (studies/replications/transparency.py, docs/transparency.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from haptic_teleop.studies.replications.args import OneLineParser
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """`haptic-teleop experiment NAME ...` on `p` (made by cli/main.py's subparsers: it becomes a
+    OneLineParser too, so an unknown NAME is one line as well)."""
+    from haptic_teleop.studies.replications import (
+        codec,
+        deadband,
+        deadband_loop,
+        nve,
+        nve_compensation,
+        playout,
+        transparency,
+    )
+
+    p.__class__ = OneLineParser
+    sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
+    a = sub.add_parser("nve-analysis", help=nve.ANALYSIS_HELP, description=nve.ANALYSIS_HELP)
+    nve.add_analysis_arguments(a)
+    a.set_defaults(func=nve.main_analysis)
+    c = sub.add_parser(
+        "nve-compensation", help=nve_compensation.COMPENSATION_HELP, description=nve_compensation.COMPENSATION_HELP
+    )
+    nve_compensation.add_compensation_arguments(c)
+    c.set_defaults(func=nve_compensation.main_compensation)
+    f = sub.add_parser("hli-filtering", help=codec.FILTERING_HELP, description=codec.FILTERING_HELP)
+    codec.add_filtering_arguments(f)
+    f.set_defaults(func=codec.main_filtering)
+    e = sub.add_parser("error-control", help=codec.ERROR_CONTROL_HELP, description=codec.ERROR_CONTROL_HELP)
+    codec.add_error_control_arguments(e)
+    e.set_defaults(func=codec.main_error_control)
+    d = sub.add_parser("deadband", help=deadband.HELP, description=deadband.HELP)
+    deadband.add_arguments(d)
+    d.set_defaults(func=deadband.main)
+    dl = sub.add_parser("deadband-loop", help=deadband_loop.HELP, description=deadband_loop.HELP)
+    deadband_loop.add_arguments(dl)
+    dl.set_defaults(func=deadband_loop.main)
+    tr = sub.add_parser("transparency", help=transparency.HELP, description=transparency.HELP)
+    transparency.add_arguments(tr)
+    tr.set_defaults(func=transparency.main)
+    pl = sub.add_parser("playout", help=playout.HELP, description=playout.HELP)
+    playout.add_arguments(pl)
+    pl.set_defaults(func=playout.main)

@@ -1,0 +1,219 @@
+"""Seed 000's playout buffers (docs/playout.md): transparency-driven buffering (`TransparencyBuffer`:
+hold a sample as long as the force error it costs stays within the allowed distortion) and the
+network-adaptive buffer (`NetworkAdaptiveBuffer`: the allowable delay and loss time of the scene's
+transparency analysis against the link's measured delay). Built by core/playout_config.py.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+
+from haptic_teleop.core.playout import RETARGET_PACKETS, ScheduledBuffer, Window
+
+
+class TransparencyBuffer(ScheduledBuffer):
+    """Policy `transparency` (seed 000): the buffering time that minimises the EBA force error.
+
+    Seed 000: in contact the felt force rises at slope s = c * v_m; a latency D lowers it by
+    s * D and every hold (the due sample missing) lowers it by s * the hold time. With b the
+    buffering above the window's minimum relative delay, d0 the smallest one-way delay, x the
+    relative delays above the window minimum and H the contact horizon, the expected force error
+    at the end of a contact is (derivation in docs/playout.md)
+
+        e(b) = s * (d0 + b + H * P(x > b))
+
+    b is the minimiser of e over {0} and the window's values, subject to the allowable-latency
+    cap d0 + b <= D_allow = allowed_force_error / s (b = 0 when the cap is below d0).
+    """
+
+    name = "transparency"
+
+    def __init__(
+        self,
+        period_ns: int,
+        *,
+        allowed_force_error_n: float = 0.1,
+        force_slope_n_per_s: float | None = None,
+        min_one_way_delay_ns: int = 0,
+        contact_horizon_ns: int = 1_000_000_000,
+        window_packets: int = 1000,
+        gap: str = "hold",
+        max_extrapolation_ns: int = 0,
+        max_slew_rate: float = 0.05,
+        hysteresis_ns: int = 0,
+    ) -> None:
+        if not allowed_force_error_n > 0.0:
+            raise ValueError(f"allowed_force_error_n must be > 0, got {allowed_force_error_n}")
+        if not contact_horizon_ns > 0:
+            raise ValueError(f"contact_horizon_ns must be > 0, got {contact_horizon_ns}")
+        super().__init__(
+            period_ns,
+            gap=gap,
+            max_extrapolation_ns=max_extrapolation_ns,
+            max_slew_rate=max_slew_rate,
+            hysteresis_ns=hysteresis_ns,
+        )
+        self.allowed_force_error_n = allowed_force_error_n
+        self.contact_horizon_ns = contact_horizon_ns
+        self._slope: float | None = None
+        self._d0 = 0
+        self.set_force_slope(force_slope_n_per_s)
+        self.set_min_one_way_delay(min_one_way_delay_ns)
+        self._window = Window(window_packets)
+        self._count = 0
+        self._dirty = False
+        self.buffering_ns = 0  # b: the chosen buffering above the minimum relative delay
+        self.expected_hold_ns = 0  # H * P(x > b) at the last decision
+        self.expected_force_error_n: float | None = None  # e(b) at the last decision (None: no slope)
+
+    def set_force_slope(self, slope_n_per_s: float | None) -> None:
+        """The engine's current s (e.g. `contact_force_slope(stiffness, speed)`); None: no cap.
+
+        Cheap enough to call every tick: the next decision (at the next arrival) uses it.
+        """
+        if slope_n_per_s is not None and not (slope_n_per_s >= 0.0 and math.isfinite(slope_n_per_s)):
+            raise ValueError(f"force slope must be a finite value >= 0, got {slope_n_per_s}")
+        if slope_n_per_s != self._slope:
+            self._slope = slope_n_per_s
+            self._dirty = True
+
+    def set_min_one_way_delay(self, delay_ns: int) -> None:
+        """d0: the smallest one-way delay (e.g. half the minimum round trip); not observable here."""
+        if delay_ns < 0:
+            raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
+        if delay_ns != self._d0:
+            self._d0 = delay_ns
+            self._dirty = True
+
+    @property
+    def allowed_latency_ns(self) -> int | None:
+        """D_allow = allowed_force_error / s, or None when s is unknown or 0 (no cap)."""
+        s = self._slope
+        if not s:
+            return None
+        return min(round(self.allowed_force_error_n / s * 1e9), 1 << 62)
+
+    def _observe(self, rel_ns: int) -> None:
+        self._window.add(rel_ns)
+        self._count += 1
+        c = self._count
+        if self._dirty or c % RETARGET_PACKETS == 0 or (c < RETARGET_PACKETS and c & (c - 1) == 0):
+            self._decide()
+
+    def _decide(self) -> None:
+        self._dirty = False
+        srt = self._window.sorted
+        w = len(srt)
+        lo = srt[0]
+        per_packet = self.contact_horizon_ns / w  # H * P(x > b) drops by this per value covered
+        cap = math.inf
+        allow = self.allowed_latency_ns
+        if allow is not None:
+            cap = max(0, allow - self._d0)
+        # e(b) / s - d0 = b + H * P(x > b): linear between window values, a step down at each, so
+        # the minimum is at b = 0 or at a window value (the last of a run of equal values).
+        first_above = bisect_right(srt, lo)
+        best_b, best_cost = 0, (w - first_above) * per_packet
+        for i in range(first_above, w):
+            b = srt[i] - lo
+            if b > cap or b >= best_cost:
+                break  # the cost is at least b: no larger b can win
+            if i + 1 < w and srt[i + 1] == srt[i]:
+                continue
+            cost = b + (w - 1 - i) * per_packet
+            if cost < best_cost:
+                best_b, best_cost = b, cost
+        self.buffering_ns = best_b
+        self.expected_hold_ns = round(best_cost) - best_b
+        self._target_rel = lo + best_b
+        s = self._slope
+        self.expected_force_error_n = None if s is None else s * (self._d0 + best_cost) * 1e-9
+
+
+class NetworkAdaptiveBuffer(ScheduledBuffer):
+    """Policy `network_adaptive`: seed 000's network-adaptive buffering time control, read as the
+    seed states it (docs/playout.md, "The haptic-synchronization claim, tested fairly").
+
+    From the transparency analysis of the scene (core/transparency.py) it takes the allowable
+    delay D_a (the largest one-way delay whose force drop stays within the required distortion E)
+    and the allowable loss time L_a = T_tr + E / s (the transparent loss time, then as long as the
+    undisturbed force takes to rise by E); from the network, the minimum one-way delay d0. With x
+    the relative delays above the window's minimum, a sample x late is held about x - b past its
+    slot; the buffering time is the least that keeps every hold the window predicts within L_a,
+    as long as the latency d0 + b stays within D_a:
+
+        b = min( max(0, max(x) - L_a), max(0, D_a - d0) )
+
+    No free parameter decides between latency and holds: both bounds come from the analysis.
+    `requirement_met` is False when the window's holds need more buffering than D_a - d0 allows
+    (the seed's requirement cannot be met at this jitter; the latency bound wins).
+    """
+
+    name = "network_adaptive"
+
+    def __init__(
+        self,
+        period_ns: int,
+        *,
+        allowable_delay_ns: int | None = None,
+        allowable_loss_time_ns: int = 0,
+        min_one_way_delay_ns: int = 0,
+        window_packets: int = 1000,
+        gap: str = "hold",
+        max_extrapolation_ns: int = 0,
+        max_slew_rate: float = 0.05,
+        hysteresis_ns: int = 0,
+    ) -> None:
+        super().__init__(
+            period_ns,
+            gap=gap,
+            max_extrapolation_ns=max_extrapolation_ns,
+            max_slew_rate=max_slew_rate,
+            hysteresis_ns=hysteresis_ns,
+        )
+        self._window = Window(window_packets)
+        self._allow_delay: int | None = None
+        self._allow_loss = 0
+        self._d0 = 0
+        self.set_allowable(allowable_delay_ns, allowable_loss_time_ns)
+        self.set_min_one_way_delay(min_one_way_delay_ns)
+        self.buffering_ns = 0  # b: the chosen buffering above the window's minimum relative delay
+        self.requirement_met = True
+
+    def set_allowable(self, delay_ns: int | None, loss_time_ns: int) -> None:
+        """D_a (None: no delay bound) and L_a, from the transparency analysis (the engine passes
+        them, `assembly.build_network`); the next arrival's decision uses them."""
+        if delay_ns is not None and delay_ns < 0:
+            raise ValueError(f"allowable delay must be >= 0, got {delay_ns}")
+        if loss_time_ns < 0:
+            raise ValueError(f"allowable loss time must be >= 0, got {loss_time_ns}")
+        self._allow_delay = delay_ns
+        self._allow_loss = loss_time_ns
+
+    def set_min_one_way_delay(self, delay_ns: int) -> None:
+        """d0: the smallest one-way delay (the engine: the link's; a node: half the minimum round trip)."""
+        if delay_ns < 0:
+            raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
+        self._d0 = delay_ns
+
+    @property
+    def delay_budget_ns(self) -> int | None:
+        """D_a - d0 (at least 0): the most buffering the allowable delay leaves; None: no bound."""
+        a = self._allow_delay
+        return None if a is None else max(0, a - self._d0)
+
+    def _observe(self, rel_ns: int) -> None:
+        w = self._window
+        w.add(rel_ns)
+        srt = w.sorted
+        need = srt[-1] - srt[0] - self._allow_loss
+        need = max(need, 0)
+        cap = self.delay_budget_ns
+        if cap is not None and need > cap:
+            self.requirement_met = False
+            need = cap
+        else:
+            self.requirement_met = True
+        self.buffering_ns = need
+        self._target_rel = srt[0] + need

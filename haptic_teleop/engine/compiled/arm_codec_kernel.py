@@ -1,0 +1,236 @@
+"""The compiled arm loop with the codec stage (numba), imported only when an arm scene with a
+codec runs compiled (`arm_host.codec_kernel`), so codec-less arm runs never compile or
+load it (docs/codec.md, "Compiled", "Arm scenes").
+
+The tick is `arm_kernel.run_ticks`'s, from the same inlined parts (`sense`, `side_torque`,
+`forward_sample`, `backward_sample`, `released`, `guarded`, `finish_tick`); a direction with a
+codec replaces its schedule lookup by `CodecChannel.step` for an arm scene's sample
+(assembly.channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the 1-DoF codec
+kernel's ticks (engine/compiled/codec_kernel.py: `deadband_prediction_tick` and `arq_tick` inlined,
+`fec_tick`, `hli_tick` and ARQ's plan, `arq_block`, compiled once each) with their encoders,
+links, decoders and helpers,
+compiled from their one definition with the arm layout's places (`relaid`: codec_layout's
+ARM_LAYOUT, the vectors of S, X's, the ring's, W's and HLI's columns for 9 values) and the
+grouped deadband's test on 3-value groups (`arm_deadband_triggered`). The decoded sample goes
+through the receiving side's guard every tick the decoder gives one, as in the Python arm loop.
+"""
+
+from __future__ import annotations
+
+import math
+import types as pytypes
+from typing import Any
+
+import numba
+import numpy as np
+
+from haptic_teleop.engine.compiled import codec_arq, codec_deadband, codec_fec, codec_hli, codec_link
+from haptic_teleop.engine.compiled import codec_layout as L
+from haptic_teleop.engine.compiled.arm_kernel import (
+    V_QDM,
+    V_QDS,
+    V_QM,
+    V_QS,
+    V_TAU_M,
+    V_TAU_S,
+    V_VM,
+    V_VS,
+    V_XM,
+    V_XS,
+    backward_sample,
+    borrowed,
+    finish_tick,
+    forward_sample,
+    guarded,
+    released,
+    run_start,
+    sense,
+    side_torque,
+)
+
+jit = numba.njit(cache=True, nogil=True)
+inline = numba.njit(cache=True, nogil=True, inline="always")
+
+# The places of the arm layout that differ from the 1-DoF layout's (by codec_layout name).
+ARM_PLACES: dict[str, Any] = dict(L.ARM_LAYOUT)
+# The modules of the 1-DoF loop's codec stage, whose functions `relaid` compiles again.
+_CODEC_MODULES = {m.__name__ for m in (codec_link, codec_deadband, codec_fec, codec_arq, codec_hli)}
+
+
+def relaid(f: Any, places: dict[str, Any], _done: dict[Any, Any] | None = None) -> Any:
+    """The codec stage's function `f` (a function of `_CODEC_MODULES`) compiled from its own
+    definition with the layout constants of `places` (ints: in place of codec_layout's, which `f`
+    reads as `L.NAME`) and the callees of `places` (functions) in place of its module's; every
+    other function of the codec stage it calls
+    (inlined or not: `arq_tick`'s `arq_block`) is relaid the same way (its other globals,
+    compiled callees of other modules included, are their module's). Compiled as `f` is
+    (inlined, or compiled once without reference counting) but not cached: the kernel calling
+    it is."""
+    done: dict[Any, Any] = {} if _done is None else _done
+    if f in done:
+        return done[f]
+    py = f.py_func
+    layout = pytypes.ModuleType(L.__name__ + "_relaid")
+    layout.__dict__.update(vars(L))
+    glob = dict(py.__globals__)
+    for name, value in places.items():
+        if isinstance(value, int):
+            setattr(layout, name, value)
+    glob["L"] = layout
+    for name in py.__code__.co_names:
+        g = glob.get(name)
+        if name in places and not isinstance(places[name], int):
+            glob[name] = places[name]
+        elif isinstance(g, numba.core.registry.CPUDispatcher) and g.py_func.__module__ in _CODEC_MODULES:
+            glob[name] = relaid(g, places, done)
+    fn = pytypes.FunctionType(py.__code__, glob, py.__name__, py.__defaults__, py.__closure__)
+    fn.__qualname__ = py.__qualname__
+    fn.__module__ = py.__module__
+    options = {k: v for k, v in f.targetoptions.items() if k not in ("nopython", "boundscheck")}
+    done[f] = out = numba.njit(**options)(fn)
+    return out
+
+
+@inline  # type: ignore[misc]
+def arm_deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
+    # codec_deadband.deadband_triggered on 3-value groups (GroupedDeadbandEncoder: the distance and
+    # the norm of a group summed in order as core/deadband.vector_norm; p(|v|) likewise).
+    p = C[L.C_P0]
+    if C[L.C_GAIN] > 0.0:
+        vel = int(C[L.C_VEL])
+        s2 = 0.0
+        for i in range(vel, vel + L.ARM_AXES):
+            s2 += smp[i] * smp[i]
+        p = codec_deadband.deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], math.sqrt(s2))
+    for g in range(0, int(C[L.C_DIM]), L.ARM_AXES):
+        if C[L.ARM_C_TRIG0 + g] != 0.0:  # violates(last[g], sample[g], p, min_threshold)
+            d2 = 0.0
+            l2 = 0.0
+            for i in range(g, g + L.ARM_AXES):
+                last = S[L.ARM_S_SENT0 + i]
+                d = last - smp[i]
+                d2 += d * d
+                l2 += last * last
+            if codec_deadband.outside(math.sqrt(d2), math.sqrt(l2), p, C[L.C_MIN]):
+                return True
+    return False
+
+
+# CodecChannel.step of an arm scene's direction: codec_kernel's ticks with the arm layout's places
+# and the group trigger (one relaying: the helpers they share are compiled once).
+_relaid: dict[Any, Any] = {}
+_ARM = {**ARM_PLACES, "deadband_triggered": arm_deadband_triggered}
+arm_codec_tick = relaid(codec_deadband.deadband_prediction_tick, _ARM, _relaid)
+arm_fec_tick = relaid(codec_fec.fec_tick, _ARM, _relaid)
+arm_arq_tick = relaid(codec_arq.arq_tick, _ARM, _relaid)
+arm_hli_tick = relaid(codec_hli.hli_tick, _ARM, _relaid)
+
+
+@inline  # type: ignore[misc]
+def delivered(
+    codec: bool, side: Any, n: int, n1: int, now: int, w0: int, rel: np.ndarray, occ: np.ndarray, hist: np.ndarray,
+    mask: int, net: Any, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray,
+) -> tuple[int, float]:  # fmt: skip
+    """A direction's network at tick n after its sample was written (`smp` with a codec, else the
+    sender's ring): the codec's tick (`net`: C, S, U, B, ring, rec, and X, W, A: the sample
+    history, scratch and ACK link) with the decoded sample through the receiving `side`'s guard,
+    or the schedule's release. Returns the row's `received` seq (-1: none) and buffer occupancy
+    (0 with a codec)."""
+    if codec:
+        C, S, U, B, ring, rec, X, W, A = net
+        kind = C[L.C_KIND]
+        if kind == L.FEC:
+            rx, got = arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+        elif kind == L.ARQ:
+            rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, dec)
+        elif kind == L.HLI:
+            rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+        else:
+            rx, got = arm_codec_tick(C, S, U, B, ring, rec, W, n, now, smp, rate, dec)
+        if got:
+            guarded(side, dec)
+        return rx, 0.0
+    return released(side, rel[n - w0], hist, mask), occ[n - w0]
+
+
+@inline  # type: ignore[misc]
+def borrowed_net(
+    C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, ring: np.ndarray, rec: np.ndarray, X: np.ndarray,
+    W: np.ndarray, A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> Any:  # fmt: skip
+    """A direction's codec arrays as `delivered` takes them (`net`), each a `borrowed` view."""
+    a = (borrowed(A[0]), borrowed(A[1]), borrowed(A[2]), borrowed(A[3]), borrowed(A[4]), borrowed(A[5]))
+    arrays = (borrowed(C), borrowed(S), borrowed(U), borrowed(B), borrowed(ring), borrowed(rec))
+    return (*arrays, borrowed(X), borrowed(W), a)
+
+
+@jit  # type: ignore[misc]
+def run_ticks_codec(
+    n0: int,
+    n1: int,
+    ms_own: Any,
+    ss_own: Any,
+    mw_own: Any,
+    sw_own: Any,
+    ov: np.ndarray,
+    cols: np.ndarray,
+    fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray,
+    bwd_rel: np.ndarray,
+    bwd_occ: np.ndarray,
+    fwd_hist: np.ndarray,
+    bwd_hist: np.ndarray,
+    data: np.ndarray,
+    w0: int,
+    d0: int,
+    fC: np.ndarray,
+    fS: np.ndarray,
+    fU: np.ndarray,
+    fB: np.ndarray,
+    fring: np.ndarray,
+    frec: np.ndarray,
+    bC: np.ndarray,
+    bS: np.ndarray,
+    bU: np.ndarray,
+    bB: np.ndarray,
+    bring: np.ndarray,
+    brec: np.ndarray,
+    scratch: np.ndarray,
+    fX: np.ndarray,
+    fW: np.ndarray,
+    fA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    bX: np.ndarray,
+    bW: np.ndarray,
+    bA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> int:
+    """`arm_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
+    others read their window of the schedule as there). fC ... frec, bC ... brec: each
+    direction's codec arrays (codec_host.CodecNet.args, the arm layout); scratch: 3 rows of
+    9 (the sample, its rate, the decoder's output); fX, fW, fA, bX, bW, bA: each direction's
+    sample history, scratch and ACK link (CodecNet.history)."""
+    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
+        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
+    )
+    fnet = borrowed_net(fC, fS, fU, fB, fring, frec, fX, fW, fA)
+    bnet = borrowed_net(bC, bS, bU, bB, bring, brec, bX, bW, bA)
+    smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
+    fcodec = fC[L.C_KIND] != L.NO_CODEC
+    bcodec = bC[L.C_KIND] != L.NO_CODEC
+    period_ns = int(fC[L.C_PERIOD_NS])
+    fmask = fwd_hist.shape[0] - 1
+    bmask = bwd_hist.shape[0] - 1
+    for n in range(n0, n1):
+        now = n * period_ns
+        sense(ms, ss, mw, sw, v, c)  # 1. both arms
+        side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
+        # 3. forward packet (the codec's, or the schedule's release)
+        forward_sample(smp if fcodec else fwd_hist[n & fmask], v)
+        frx, focc = delivered(fcodec, ss, n, n1, now, w0, fwd_rel, fwd_occ, fwd_hist, fmask, fnet, smp, rate, dec)
+        side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
+        # 5. backward packet
+        backward_sample(smp if bcodec else bwd_hist[n & bmask], v)
+        brx, bocc = delivered(bcodec, ms, n, n1, now, w0, bwd_rel, bwd_occ, bwd_hist, bmask, bnet, smp, rate, dec)
+        # 6. operator, plants, the row
+        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
+    own[0, 0] = 0.0  # `own` lives until here, past every use of its views
+    return n1

@@ -1,0 +1,341 @@
+"""The compiled tick loop for arm scenes (numba), imported only by `haptic_teleop.engine.compiled.arm_host`.
+
+The tick is `arm_loop.run_arm_loop`'s, in the same order, composed of each side's compiled stage
+(assembly/side_kernel.py: `point`, `side_torque`, `guarded`, `plant_step`, inlined) and the
+operator's profile (core/operator.py, compiled from its one definition). Importing this module
+needs numba and links MuJoCo's C functions (plants/mujoco_native.py). numba caches the compiled
+loop beside this file; `compiling.load` drops that cache when any source it is built from changed.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+
+from haptic_teleop.assembly.side_kernel import (
+    F_B_HAND,
+    F_FORCE_SCALE,
+    F_K_HAND,
+    F_SCALE,
+    I_DATA,
+    I_MODEL,
+    I_N,
+    I_NV,
+    I_ROTATIONAL,
+    S_ENERGY,
+    S_RATIO,
+    T_F,
+    T_FORCE,
+    T_HELD,
+    T_I,
+    T_OFFSET,
+    T_ROT,
+    T_S,
+    T_WRENCH,
+    detach,
+    detach_work,
+    guarded,
+    jacobian,
+    map_point,
+    map_vector,
+    map_vector_back,
+    plant_step,
+    point,
+    read_joints,
+    side_torque,
+    unmap_point,
+    work,
+)
+from haptic_teleop.compiling import compile_tree
+from haptic_teleop.core import operator as op
+from haptic_teleop.plants.mujoco_native import borrowed, mj_step, mj_step1, mj_step2
+
+jit = numba.njit(cache=True, nogil=True)
+# The tick's own helpers take the side tuples: inlined (numba IR), so a call does not copy the
+# tuples (36 and 17 array structs, by value) onto the stack.
+inline = numba.njit(cache=True, nogil=True, inline="always")
+push1 = compile_tree(op.push1)
+sinusoid1 = compile_tree(op.sinusoid1)
+
+
+# The operator, in OP: profile code (axis_host.PROFILE_CODES), x0, start, speed, t_end, x_end,
+# amplitude, omega, origin (3), direction (3), period.
+O_PROFILE, O_X0, O_START, O_SPEED, O_T_END, O_X_END, O_AMP, O_W, O_ORIGIN, O_DIR, O_PERIOD = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 11, 14,
+)  # fmt: skip
+O_SIZE = 15
+# Row columns, in COLS: the first column of each group, in this order.
+GROUPS = (
+    "op_x_m", "op_v_m_per_s", "op_force_n",
+    "m_q", "m_qd", "m_tau_nm", "m_x_m", "m_v_m_per_s", "m_force_n", "m_force_desired_n", "m_energy_j",
+    "s_q", "s_qd", "s_tau_nm", "s_x_m", "s_v_m_per_s", "s_force_n", "s_force_desired_n", "s_energy_j",
+    "s_contact_n", "s_contact_torque_nm", "fwd_rx_seq", "bwd_rx_seq", "fwd_occupancy", "bwd_occupancy",
+)  # fmt: skip
+(
+    C_OP_X, C_OP_V, C_OP_F,
+    C_M_Q, C_M_QD, C_M_TAU, C_M_X, C_M_V, C_M_F, C_M_FD, C_M_E,
+    C_S_Q, C_S_QD, C_S_TAU, C_S_X, C_S_V, C_S_F, C_S_FD, C_S_E,
+    C_S_CF, C_S_CT, C_FRX, C_BRX, C_FOCC, C_BOCC,
+) = range(len(GROUPS))  # fmt: skip
+
+
+# The tick's vectors (`tick_vectors`), in this order: joints, torques and points of both sides,
+# the wall's force and torque, the operator's target (task and device frames), the hand force.
+(
+    V_QM, V_QDM, V_QS, V_QDS, V_TAU_M, V_TAU_S, V_APP_M, V_APP_S,
+    V_XM_DEV, V_VM_DEV, V_XM, V_VM, V_XS, V_VS, V_F_ENV, V_T_ENV,
+    V_XD_T, V_VD_T, V_XD, V_VD, V_F_HAND, V_OP_F,
+) = range(22)  # fmt: skip
+V_SIZE = 22
+
+
+@inline  # type: ignore[misc]
+def tick_vectors(own: np.ndarray, nm: int, ns: int) -> Any:
+    """The tick's vectors: `borrowed` views of the rows of `own` (V_SIZE rows, at least 3 and
+    each side's joint count wide), which the caller keeps alive while they are used."""
+    return (
+        borrowed(own[V_QM, :nm]),
+        borrowed(own[V_QDM, :nm]),
+        borrowed(own[V_QS, :ns]),
+        borrowed(own[V_QDS, :ns]),
+        borrowed(own[V_TAU_M, :nm]),
+        borrowed(own[V_TAU_S, :ns]),
+        borrowed(own[V_APP_M, :nm]),
+        borrowed(own[V_APP_S, :ns]),
+        borrowed(own[V_XM_DEV, :3]),
+        borrowed(own[V_VM_DEV, :3]),
+        borrowed(own[V_XM, :3]),
+        borrowed(own[V_VM, :3]),
+        borrowed(own[V_XS, :3]),
+        borrowed(own[V_VS, :3]),
+        borrowed(own[V_F_ENV, :3]),
+        borrowed(own[V_T_ENV, :3]),
+        borrowed(own[V_XD_T, :3]),
+        borrowed(own[V_VD_T, :3]),
+        borrowed(own[V_XD, :3]),
+        borrowed(own[V_VD, :3]),
+        borrowed(own[V_F_HAND, :3]),
+        borrowed(own[V_OP_F, :3]),
+    )
+
+
+# The run's constants the tick reads (`run_constants`), in this order.
+K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS = range(7)
+
+
+@inline  # type: ignore[misc]
+def run_constants(ms: Any, ss: Any, ov: np.ndarray) -> Any:
+    """What the tick reads of the parameters, read once before the loop: the mapping's scales, the
+    hand's stiffness and damping, the period, both sides' joint counts."""
+    MF = ms[T_F]
+    return (MF[F_SCALE], MF[F_FORCE_SCALE], MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N])
+
+
+@inline  # type: ignore[misc]
+def sense(ms: Any, ss: Any, mw: Any, sw: Any, v: Any, c: Any) -> None:
+    """Step 1 of the tick: both arms (mj_step1: the state, kinematics and gravity torques of this
+    instant), the wall's wrench of the last period, the master's point in the task frame."""
+    MI, SI = ms[T_I], ss[T_I]
+    xm_dev, vm_dev = v[V_XM_DEV], v[V_VM_DEV]
+    f_env, t_env, s_wrench = v[V_F_ENV], v[V_T_ENV], ss[T_WRENCH]
+    mj_step1(MI[I_MODEL], MI[I_DATA])
+    read_joints(ms, v[V_QM], v[V_QDM])
+    point(ms, v[V_QDM], xm_dev, vm_dev, mw)
+    mj_step1(SI[I_MODEL], SI[I_DATA])
+    read_joints(ss, v[V_QS], v[V_QDS])
+    point(ss, v[V_QDS], v[V_XS], v[V_VS], sw)
+    for k in range(3):
+        f_env[k] = s_wrench[k]
+        t_env[k] = s_wrench[3 + k]
+    map_point(v[V_XM], ms[T_ROT], c[K_SCALE], ms[T_OFFSET], xm_dev)
+    map_vector(v[V_VM], ms[T_ROT], c[K_SCALE], vm_dev)
+
+
+@inline  # type: ignore[misc]
+def forward_sample(out: np.ndarray, v: Any) -> None:
+    """The forward packet's payload: the master's x, v in the task frame."""
+    x, vel = v[V_XM], v[V_VM]
+    for k in range(3):
+        out[k] = x[k]
+        out[3 + k] = vel[k]
+
+
+@inline  # type: ignore[misc]
+def backward_sample(out: np.ndarray, v: Any) -> None:
+    """The backward packet's payload: the slave's x, v and the wall's force."""
+    x, vel, f = v[V_XS], v[V_VS], v[V_F_ENV]
+    for k in range(3):
+        out[k] = x[k]
+        out[3 + k] = vel[k]
+        out[6 + k] = f[k]
+
+
+@inline  # type: ignore[misc]
+def released(side: Any, seq: int, hist: np.ndarray, mask: int) -> int:
+    """The schedule's release at this tick (`seq`, -1: none) from the sender's ring, through the
+    receiving side's guard; returns `seq` (the row's `received` column)."""
+    if seq >= 0:
+        guarded(side, hist[seq & mask])
+    return seq
+
+
+@inline  # type: ignore[misc]
+def finish_tick(
+    n: int, ms: Any, ss: Any, mw: Any, sw: Any, ov: np.ndarray, cols: np.ndarray, v: Any, c: Any,
+    row: np.ndarray, frx: float, brx: float, focc: float, bocc: float,
+) -> None:  # fmt: skip
+    """Step 6 of the tick, after both sides' torques and the network: the operator, both plants'
+    steps (the hand force on the master), the held torques, the tick's row."""
+    rot, offset = ms[T_ROT], ms[T_OFFSET]
+    scale, force_scale, k_h, b_h, nm, ns = c[K_SCALE], c[K_FORCE_SCALE], c[K_K_HAND], c[K_B_HAND], c[K_NM], c[K_NS]
+    qm, qdm, qs, qds = v[V_QM], v[V_QDM], v[V_QS], v[V_QDS]
+    app_m, app_s = v[V_APP_M], v[V_APP_S]
+    xm_dev, vm_dev, x_m, v_m, xs, vs = v[V_XM_DEV], v[V_VM_DEV], v[V_XM], v[V_VM], v[V_XS], v[V_VS]
+    f_env, t_env, f_hand, op_f = v[V_F_ENV], v[V_T_ENV], v[V_F_HAND], v[V_OP_F]
+    xd_t, vd_t, xd, vd = v[V_XD_T], v[V_VD_T], v[V_XD], v[V_VD]
+    m_S, s_S = ms[T_S], ss[T_S]
+    m_force, s_force = ms[T_FORCE], ss[T_FORCE]
+    t = n * c[K_PERIOD] - ov[O_START]
+    profile = ov[O_PROFILE]
+    if profile == 0.0:
+        xd1, vd1 = push1(t, ov[O_X0], ov[O_SPEED], ov[O_T_END], ov[O_X_END])
+    elif profile == 1.0:
+        xd1, vd1 = sinusoid1(t, ov[O_X0], ov[O_AMP], ov[O_W])
+    else:
+        xd1, vd1 = ov[O_X0], 0.0
+    s1 = xd1 - ov[O_X0]
+    for k in range(3):
+        xd_t[k] = ov[O_ORIGIN + k] + s1 * ov[O_DIR + k]
+        vd_t[k] = vd1 * ov[O_DIR + k]
+    unmap_point(xd, rot, scale, offset, xd_t)
+    map_vector_back(vd, rot, 1.0 / scale, vd_t)
+    for k in range(3):
+        f_hand[k] = k_h * (xd[k] - xm_dev[k]) + b_h * (vd[k] - vm_dev[k])
+    plant_step(ms, v[V_TAU_M], f_hand, app_m, mw)
+    plant_step(ss, v[V_TAU_S], f_hand, app_s, sw)
+    held_m, held_s = ms[T_HELD], ss[T_HELD]
+    for i in range(nm):
+        held_m[i] = app_m[i]
+    for i in range(ns):
+        held_s[i] = app_s[i]
+    map_vector(op_f, rot, 1.0 / force_scale, f_hand)
+    for k in range(3):
+        row[cols[C_OP_X] + k] = xd_t[k]
+        row[cols[C_OP_V] + k] = vd_t[k]
+        row[cols[C_OP_F] + k] = op_f[k]
+        row[cols[C_M_X] + k] = x_m[k]
+        row[cols[C_M_V] + k] = v_m[k]
+        row[cols[C_M_F] + k] = m_S[S_RATIO] * m_force[k]
+        row[cols[C_M_FD] + k] = m_force[k]
+        row[cols[C_S_X] + k] = xs[k]
+        row[cols[C_S_V] + k] = vs[k]
+        row[cols[C_S_F] + k] = s_S[S_RATIO] * s_force[k]
+        row[cols[C_S_FD] + k] = s_force[k]
+        row[cols[C_S_CF] + k] = f_env[k]
+        row[cols[C_S_CT] + k] = t_env[k]
+    for i in range(nm):
+        row[cols[C_M_Q] + i] = qm[i]
+        row[cols[C_M_QD] + i] = qdm[i]
+        row[cols[C_M_TAU] + i] = app_m[i]
+    for i in range(ns):
+        row[cols[C_S_Q] + i] = qs[i]
+        row[cols[C_S_QD] + i] = qds[i]
+        row[cols[C_S_TAU] + i] = app_s[i]
+    row[cols[C_M_E]] = m_S[S_ENERGY]
+    row[cols[C_S_E]] = s_S[S_ENERGY]
+    row[cols[C_FRX]] = frx
+    row[cols[C_BRX]] = brx
+    row[cols[C_FOCC]] = focc
+    row[cols[C_BOCC]] = bocc
+
+
+@inline  # type: ignore[misc]
+def run_start(
+    ms_own: Any, ss_own: Any, mw_own: Any, sw_own: Any, ov: np.ndarray, cols: np.ndarray, fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray, bwd_rel: np.ndarray, bwd_occ: np.ndarray, fwd_hist: np.ndarray, bwd_hist: np.ndarray,
+    data: np.ndarray,
+) -> Any:  # fmt: skip
+    """The start of a run of ticks (`run_ticks`, arm_codec_kernel.run_ticks_codec): its arguments
+    as `borrowed` views (no reference counting in the loop; the caller's arguments own them), in
+    the order given, then the tick's vectors (`own`, which the caller keeps alive past every use
+    of its views, and `tick_vectors`) and the `run_constants`."""
+    ms, ss = detach(ms_own), detach(ss_own)
+    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
+    own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
+    ovb = borrowed(ov)
+    return (
+        ms, ss, detach_work(mw_own), detach_work(sw_own), ovb, borrowed(cols),
+        borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ),
+        borrowed(fwd_hist), borrowed(bwd_hist), borrowed(data),
+        own, tick_vectors(own, nm, ns), run_constants(ms, ss, ovb),
+    )  # fmt: skip
+
+
+@jit  # type: ignore[misc]
+def run_ticks(
+    n0: int,
+    n1: int,
+    ms_own: Any,
+    ss_own: Any,
+    mw_own: Any,
+    sw_own: Any,
+    ov: np.ndarray,
+    cols: np.ndarray,
+    fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray,
+    bwd_rel: np.ndarray,
+    bwd_occ: np.ndarray,
+    fwd_hist: np.ndarray,
+    bwd_hist: np.ndarray,
+    data: np.ndarray,
+    w0: int,
+    d0: int,
+) -> int:
+    """Ticks [n0, n1) of an arm scene (arm_loop.run_arm_loop's order). fwd_rel, fwd_occ, bwd_rel,
+    bwd_occ hold the window of ticks from w0 on; data the block of ticks from d0 on; the
+    histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
+    # Every array the ticks use is a borrowed view (no reference counting in the loop); the
+    # arguments and the locals below own them until the function returns.
+    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
+        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
+    )
+    fmask = fwd_hist.shape[0] - 1
+    bmask = bwd_hist.shape[0] - 1
+    for n in range(n0, n1):
+        sense(ms, ss, mw, sw, v, c)  # 1. both arms
+        side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
+        forward_sample(fwd_hist[n & fmask], v)  # 3. forward packet
+        frx = released(ss, fwd_rel[n - w0], fwd_hist, fmask)
+        side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
+        backward_sample(bwd_hist[n & bmask], v)  # 5. backward packet
+        brx = released(ms, bwd_rel[n - w0], bwd_hist, bmask)
+        # 6. operator, plants, the row
+        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, fwd_occ[n - w0], bwd_occ[n - w0])
+    own[0, 0] = 0.0  # `own` lives until here, past every use of its views
+    return n1
+
+
+@jit  # type: ignore[misc]
+def bare_steps(models: np.ndarray, steps: int) -> None:
+    """`steps` mj_steps of the master model then the slave's, nothing else (`bench speed`)."""
+    for _ in range(steps):
+        mj_step(models[0], models[1])
+        mj_step(models[2], models[3])
+
+
+@jit  # type: ignore[misc]
+def mujoco_steps(ms: Any, ss: Any, steps: int) -> None:
+    """`steps` of what a tick asks of MuJoCo, nothing else: mj_step1, mj_jacSite, mj_step2 of the
+    master then the slave, with the controls left as they are (`bench speed`: the tick's MuJoCo
+    part against a bare mj_step)."""
+    mw = work(ms[T_I][I_N], ms[T_I][I_NV], 6 if ms[T_I][I_ROTATIONAL] != 0 else 3)
+    sw = work(ss[T_I][I_N], ss[T_I][I_NV], 6 if ss[T_I][I_ROTATIONAL] != 0 else 3)
+    for _ in range(steps):
+        mj_step1(ms[T_I][I_MODEL], ms[T_I][I_DATA])
+        jacobian(ms, mw[2], mw[3], mw[4], False)
+        mj_step2(ms[T_I][I_MODEL], ms[T_I][I_DATA])
+        mj_step1(ss[T_I][I_MODEL], ss[T_I][I_DATA])
+        jacobian(ss, sw[2], sw[3], sw[4], ss[T_I][I_ROTATIONAL] != 0)
+        mj_step2(ss[T_I][I_MODEL], ss[T_I][I_DATA])

@@ -1,0 +1,328 @@
+"""The compiled tick loop (numba), imported only by `haptic_teleop.engine.compiled.axis_host`; see its docstring.
+
+Importing this module needs numba and links `mj_step` of the libmujoco the `mujoco` bindings
+loaded. Every formula comes from `core` and `plants` and is compiled here from its one
+definition; this module holds only the tick's order, which is `Engine._loop`'s, line for line.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from haptic_teleop.core import eba
+from haptic_teleop.core import operator as op
+from haptic_teleop.engine.compiled.layout import (
+    MASTER,
+    OP,
+    P_ACT_LIMIT,
+    P_AMP,
+    P_B,
+    P_BOUND_GAIN,
+    P_C1,
+    P_C2,
+    P_DAMP,
+    P_EBA_GAIN,
+    P_EBA_ON,
+    P_FORCE_LAW,
+    P_GAIN,
+    P_GUARD_ON,
+    P_K,
+    P_LIM0,
+    P_LIM1,
+    P_LIM2,
+    P_LIMIT,
+    P_MASS,
+    P_PERIOD_S,
+    P_PLANT_LIMIT,
+    P_PROFILE,
+    P_SLEW_STEP,
+    P_SPEED,
+    P_START,
+    P_SUBSTEPS,
+    P_T_END,
+    P_W,
+    P_X0,
+    P_X_END,
+    S_CONTACT,
+    S_ENERGY,
+    S_HAS_LAST,
+    S_HAS_REMOTE,
+    S_HELD,
+    S_LAST,
+    S_R0,
+    S_R1,
+    S_R2,
+    S_REJECTED,
+    SLAVE,
+)
+from haptic_teleop.plants import mujoco_plant
+from haptic_teleop.plants.mujoco_native import mj_step
+from haptic_teleop.record.columns import ONE_DOF
+
+# Where each value goes in a tick's row (the 1-DoF tick schema; compile-time constants).
+C_OP_X_M = ONE_DOF.col["op_x_m"]
+C_OP_V_M_PER_S = ONE_DOF.col["op_v_m_per_s"]
+C_OP_FORCE_N = ONE_DOF.col["op_force_n"]
+C_M_X_M = ONE_DOF.col["m_x_m"]
+C_M_V_M_PER_S = ONE_DOF.col["m_v_m_per_s"]
+C_M_FORCE_N = ONE_DOF.col["m_force_n"]
+C_M_FORCE_DESIRED_N = ONE_DOF.col["m_force_desired_n"]
+C_M_ENERGY_J = ONE_DOF.col["m_energy_j"]
+C_S_X_M = ONE_DOF.col["s_x_m"]
+C_S_V_M_PER_S = ONE_DOF.col["s_v_m_per_s"]
+C_S_FORCE_N = ONE_DOF.col["s_force_n"]
+C_S_FORCE_DESIRED_N = ONE_DOF.col["s_force_desired_n"]
+C_S_ENERGY_J = ONE_DOF.col["s_energy_j"]
+C_S_CONTACT_N = ONE_DOF.col["s_contact_n"]
+C_FWD_RX_SEQ = ONE_DOF.col["fwd_rx_seq"]
+C_BWD_RX_SEQ = ONE_DOF.col["bwd_rx_seq"]
+C_FWD_OCCUPANCY = ONE_DOF.col["fwd_occupancy"]
+C_BWD_OCCUPANCY = ONE_DOF.col["bwd_occupancy"]
+
+
+jit = numba.njit(cache=True, nogil=True)
+# The tick's parts (accept2, accept3, finish_tick) are inlined into the loops that call them
+# (numba IR): a call between separately compiled functions passes every array field by value.
+inline = numba.njit(cache=True, nogil=True, inline="always")
+# The tick loop without numba's reference counting (NRT): it allocates nothing, and the array
+# views and arguments of its parts would otherwise be counted in and out with atomic operations
+# every tick (docs/performance.md).
+loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
+reservoir1 = jit(eba.reservoir1)
+bounded1 = jit(eba.bounded1)
+ramp_limit1 = jit(eba.ramp_limit1)
+actuator_bounded1 = jit(eba.actuator_bounded1)
+saturated1 = jit(eba.saturated1)
+coupling1 = jit(eba.coupling1)
+within2 = jit(eba.within2)
+within3 = jit(eba.within3)
+push1 = jit(op.push1)
+sinusoid1 = jit(op.sinusoid1)
+hand1 = jit(op.hand1)
+imposed_force1 = jit(op.imposed_force1)
+actuator_limited1 = jit(mujoco_plant.actuator_limited1)
+
+
+@jit  # type: ignore[misc]
+def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master: bool) -> tuple[float, float]:
+    # TeleopController.step1 then EnergyBound.step1: returns (applied, desired).
+    if S[side + S_HAS_REMOTE] == 0.0:
+        f = 0.0
+    elif P[side + P_FORCE_LAW] != 0.0:
+        f = P[side + P_GAIN] * S[side + S_R0]
+    elif master:  # the master's remote sample is (f_env, x, v)
+        f = coupling1(P[side + P_C1], P[side + P_C2], S[side + S_R1], S[side + S_R2], x, v)
+    else:  # the slave's is (x, v)
+        f = coupling1(P[side + P_C1], P[side + P_C2], S[side + S_R0], S[side + S_R1], x, v)
+    desired = f
+    f = saturated1(f, P[side + P_LIMIT])
+    if S[side + S_HAS_LAST] != 0.0:
+        S[side + S_ENERGY] = reservoir1(
+            S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], x - S[side + S_LAST]
+        )
+    else:
+        S[side + S_HAS_LAST] = 1.0
+    S[side + S_LAST] = x
+    if P[side + P_EBA_ON] == 0.0:
+        pass
+    elif P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf:  # EnergyBoundParams.limited
+        step = P[side + P_SLEW_STEP]
+        limit = ramp_limit1(S[side + S_ENERGY], P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT], step)
+        f = actuator_bounded1(f, limit, S[side + S_HELD], step)
+    else:
+        f = bounded1(f, S[side + S_ENERGY], P[side + P_BOUND_GAIN])
+    S[side + S_HELD] = f
+    return f, desired
+
+
+@inline  # type: ignore[misc]
+def accept2(P: np.ndarray, S: np.ndarray, a: float, b: float) -> None:
+    # The slave's remote sample (x, v), through its guard (TeleopController.set_remote).
+    if P[SLAVE + P_GUARD_ON] == 0.0 or within2(a, b, P[SLAVE + P_LIM0], P[SLAVE + P_LIM1]):
+        S[SLAVE + S_HAS_REMOTE] = 1.0
+        S[SLAVE + S_R0] = a
+        S[SLAVE + S_R1] = b
+    else:
+        S[SLAVE + S_REJECTED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def accept3(P: np.ndarray, S: np.ndarray, a: float, b: float, c: float) -> None:
+    # The master's remote sample (f_env, x, v), through its guard.
+    if P[MASTER + P_GUARD_ON] == 0.0 or within3(a, b, c, P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]):
+        S[MASTER + S_HAS_REMOTE] = 1.0
+        S[MASTER + S_R0] = a
+        S[MASTER + S_R1] = b
+        S[MASTER + S_R2] = c
+    else:
+        S[MASTER + S_REJECTED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def finish_tick(
+    n: int,
+    models: np.ndarray,
+    mq: np.ndarray,
+    mv: np.ndarray,
+    mctrl: np.ndarray,
+    sctrl: np.ndarray,
+    sqfrc: np.ndarray,
+    P: np.ndarray,
+    S: np.ndarray,
+    row: np.ndarray,
+    x_m: float,
+    v_m: float,
+    x_s: float,
+    v_s: float,
+    f_env: float,
+    fm: float,
+    m_desired: float,
+    fs: float,
+    s_desired: float,
+    frx: float,
+    brx: float,
+    focc: float,
+    bocc: float,
+) -> None:
+    # The tick after the controllers and the network: operator, plants, the tick's row.
+    tau = n * P[P_PERIOD_S] - P[OP + P_START]
+    profile = P[OP + P_PROFILE]
+    imposed = profile == 3.0
+    if profile == 0.0 or imposed:
+        xd, vd = push1(tau, P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END])
+    elif profile == 1.0:
+        xd, vd = sinusoid1(tau, P[OP + P_X0], P[OP + P_AMP], P[OP + P_W])
+    else:
+        xd, vd = P[OP + P_X0], 0.0
+    fh = 0.0 if imposed else hand1(P[OP + P_K], P[OP + P_B], xd, vd, x_m, v_m)
+    fm_applied = actuator_limited1(fm, P[MASTER + P_PLANT_LIMIT])
+    S[MASTER + S_HELD] = fm_applied  # EnergyBound.applied1: the reservoir accounts with it
+    mctrl[0] = fh
+    mctrl[1] = fm_applied
+    for _ in range(int(P[MASTER + P_SUBSTEPS])):
+        mj_step(models[0], models[1])
+    if imposed:  # the handle put on the trajectory at tick n + 1 (Engine._drive)
+        x1, v1 = push1(
+            (n + 1) * P[P_PERIOD_S] - P[OP + P_START], P[OP + P_X0], P[OP + P_SPEED], P[OP + P_T_END], P[OP + P_X_END]
+        )
+        mq[0] = x1
+        mv[0] = v1
+        fh = imposed_force1(P[OP + P_MASS], P[OP + P_DAMP], P[P_PERIOD_S], v_m, v1, fm_applied)
+    fs_applied = actuator_limited1(fs, P[SLAVE + P_PLANT_LIMIT])
+    S[SLAVE + S_HELD] = fs_applied
+    sctrl[0] = fs_applied
+    s_steps = int(P[SLAVE + P_SUBSTEPS])
+    if s_steps == 1:
+        mj_step(models[2], models[3])
+        S[SLAVE + S_CONTACT] = 0.0 + sqfrc[0]
+    else:
+        acc = 0.0
+        for _ in range(s_steps):
+            mj_step(models[2], models[3])
+            acc += sqfrc[0]
+        S[SLAVE + S_CONTACT] = acc / s_steps
+    row[C_OP_X_M] = xd
+    row[C_OP_V_M_PER_S] = vd
+    row[C_OP_FORCE_N] = fh
+    row[C_M_X_M] = x_m
+    row[C_M_V_M_PER_S] = v_m
+    row[C_M_FORCE_N] = fm_applied
+    row[C_M_FORCE_DESIRED_N] = m_desired
+    row[C_M_ENERGY_J] = S[MASTER + S_ENERGY]
+    row[C_S_X_M] = x_s
+    row[C_S_V_M_PER_S] = v_s
+    row[C_S_FORCE_N] = fs_applied
+    row[C_S_FORCE_DESIRED_N] = s_desired
+    row[C_S_ENERGY_J] = S[SLAVE + S_ENERGY]
+    row[C_S_CONTACT_N] = f_env
+    row[C_FWD_RX_SEQ] = frx
+    row[C_BWD_RX_SEQ] = brx
+    row[C_FWD_OCCUPANCY] = focc
+    row[C_BWD_OCCUPANCY] = bocc
+
+
+@inline  # type: ignore[misc]
+def forward_released(
+    P: np.ndarray, S: np.ndarray, w: int, j: int, mask: int, rel: np.ndarray, hist: np.ndarray, x_m: float, v_m: float
+) -> int:
+    # The forward direction on its schedule: the master's sample into the sender's ring (row j),
+    # the packet the window's row w releases (if any) to the slave. Returns its seq or -1.
+    hist[j, 0] = x_m
+    hist[j, 1] = v_m
+    rx = rel[w]
+    if rx >= 0:
+        accept2(P, S, hist[rx & mask, 0], hist[rx & mask, 1])
+    return rx
+
+
+@inline  # type: ignore[misc]
+def backward_released(
+    P: np.ndarray, S: np.ndarray, w: int, j: int, mask: int, rel: np.ndarray, hist: np.ndarray,
+    f_env: float, x_s: float, v_s: float,
+) -> int:  # fmt: skip
+    # `forward_released` of the backward direction (the slave's contact force, x, v).
+    hist[j, 0] = f_env
+    hist[j, 1] = x_s
+    hist[j, 2] = v_s
+    rx = rel[w]
+    if rx >= 0:
+        accept3(P, S, hist[rx & mask, 0], hist[rx & mask, 1], hist[rx & mask, 2])
+    return rx
+
+
+@loop_jit  # type: ignore[misc]
+def run_ticks(
+    n0: int,
+    n1: int,
+    models: np.ndarray,  # int64: master model, master data, slave model, slave data addresses
+    mq: np.ndarray,
+    mv: np.ndarray,
+    mctrl: np.ndarray,
+    sq: np.ndarray,
+    sv: np.ndarray,
+    sctrl: np.ndarray,
+    sqfrc: np.ndarray,
+    fwd_rel: np.ndarray,
+    fwd_occ: np.ndarray,
+    bwd_rel: np.ndarray,
+    bwd_occ: np.ndarray,
+    fwd_hist: np.ndarray,
+    bwd_hist: np.ndarray,
+    P: np.ndarray,
+    S: np.ndarray,
+    data: np.ndarray,
+    w0: int,
+    d0: int,
+) -> int:
+    # fwd_rel, fwd_occ, bwd_rel, bwd_occ hold the window of ticks from w0 on; data the block of
+    # ticks from d0 on; the histories are rings (a power of two deep) indexed by seq.
+    fmask = fwd_hist.shape[0] - 1
+    bmask = bwd_hist.shape[0] - 1
+    for n in range(n0, n1):
+        x_m = mq[0]
+        v_m = mv[0]
+        x_s = sq[0]
+        v_s = sv[0]
+        f_env = S[SLAVE + S_CONTACT]
+        # master
+        fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
+        frx = forward_released(P, S, n - w0, n & fmask, fmask, fwd_rel, fwd_hist, x_m, v_m)
+        # slave
+        fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
+        brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
+        # operator, plants, the row
+        finish_tick(
+            n, models, mq, mv, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
+            fm, m_desired, fs, s_desired, frx, brx, fwd_occ[n - w0], bwd_occ[n - w0],
+        )  # fmt: skip
+    return n1
+
+
+@jit  # type: ignore[misc]
+def bare_steps(models: np.ndarray, steps: int) -> None:
+    """`steps` mj_steps of the master model then the slave's, nothing else: the floor under a tick
+    (`bench speed`)."""
+    for _ in range(steps):
+        mj_step(models[0], models[1])
+        mj_step(models[2], models[3])

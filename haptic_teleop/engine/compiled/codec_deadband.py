@@ -1,0 +1,215 @@
+"""The deadband (seed 001) and prediction codecs inside the compiled loops (numba): the encoder's
+trigger and the decoder's hold or extrapolation, `CodecChannel.step`'s order for these kinds; the
+per-sample formulas are core/deadband.py's and core/prediction.py's, compiled from their one
+definition.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from haptic_teleop.core import deadband as db
+from haptic_teleop.core import prediction as pr
+from haptic_teleop.engine.compiled import codec_layout as L
+from haptic_teleop.engine.compiled.codec_link import inline, jit, link_send, packet_send
+
+deadband_p = jit(db.deadband_p)
+
+
+outside = jit(db.outside)
+
+
+extrapolated = jit(db.extrapolated)
+
+
+extrapolate1 = jit(pr.extrapolate1)
+
+
+@inline  # type: ignore[misc]
+def deadband_receive(C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int) -> None:
+    # DeadbandDecoder.receive; the payload: ring row j from column 2 on.
+    dim = int(C[L.C_DIM])
+    if S[L.S_HAS_LAST] != 0.0 and seq <= S[L.S_LAST_SEQ]:
+        S[L.S_STALE] += 1.0
+        return
+    S[L.S_RECEIVED] += 1.0
+    S[L.S_HAS_OLD] = S[L.S_HAS_LAST]
+    S[L.S_OLD_SEQ] = S[L.S_LAST_SEQ]
+    for i in range(dim):
+        S[L.S_OLD0 + i] = S[L.S_LAST0 + i]
+        S[L.S_LAST0 + i] = ring[j, 2 + i]
+    S[L.S_HAS_LAST] = 1.0
+    S[L.S_LAST_SEQ] = seq
+    if C[L.C_EXTRAP] != 0.0:
+        if C[L.C_SENDS_RATE] != 0.0:
+            dt_tick = C[L.C_PERIOD_NS] / 1e9
+            for i in range(dim):
+                S[L.S_RATE0 + i] = ring[j, 2 + dim + i] * dt_tick
+            S[L.S_HAS_RATE] = 1.0
+        elif S[L.S_HAS_OLD] != 0.0:
+            span = int(S[L.S_LAST_SEQ]) - int(S[L.S_OLD_SEQ])
+            for i in range(dim):
+                S[L.S_RATE0 + i] = (S[L.S_LAST0 + i] - S[L.S_OLD0 + i]) / span
+            S[L.S_HAS_RATE] = 1.0
+
+
+@inline  # type: ignore[misc]
+def deadband_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # DeadbandDecoder.sample: hold, or extrapolate at most the cap, then hold.
+    if S[L.S_HAS_LAST] == 0.0:
+        return False
+    dim = int(C[L.C_DIM])
+    seq = int(S[L.S_LAST_SEQ])
+    if S[L.S_HAS_RATE] == 0.0 or n <= seq:
+        for i in range(dim):
+            out[i] = S[L.S_LAST0 + i]
+        return True
+    ahead = float(n - seq)
+    if ahead > C[L.C_MAX_AHEAD]:
+        ahead = C[L.C_MAX_AHEAD]
+    else:
+        S[L.S_EXTRAPOLATED] += 1.0
+    for i in range(dim):
+        out[i] = extrapolated(S[L.S_LAST0 + i], S[L.S_RATE0 + i], ahead)
+    return True
+
+
+@inline  # type: ignore[misc]
+def prediction_receive(C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int) -> None:
+    # PredictionDecoder.receive -> Reconstructor.add(fresh=True). A constant delay keeps the order
+    # and nothing is duplicated, so every arrival is the newest: the history needs only the
+    # newest two samples (the older one kept while within `keep_ticks`, as `add` forgets).
+    dim = int(C[L.C_DIM])
+    S[L.S_RECEIVED] += 1.0
+    S[L.S_HAS_OLD] = S[L.S_HAS_LAST]
+    S[L.S_OLD_SEQ] = S[L.S_LAST_SEQ]
+    for i in range(dim):
+        S[L.S_OLD0 + i] = S[L.S_LAST0 + i]
+        S[L.S_LAST0 + i] = ring[j, 2 + i]
+    S[L.S_HAS_LAST] = 1.0
+    S[L.S_LAST_SEQ] = seq
+    if S[L.S_HAS_OLD] != 0.0 and S[L.S_OLD_SEQ] < seq - C[L.C_KEEP]:
+        S[L.S_HAS_OLD] = 0.0
+    S[L.S_PENDING] = 1.0
+
+
+@inline  # type: ignore[misc]
+def prediction_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # Reconstructor.sample: the playout slot (a fresh arrival sets it, each tick advances it),
+    # the sample at the slot or the prediction from the newest two (the slot is never behind the
+    # newest sample: every arrival is fresh).
+    if S[L.S_PENDING] != 0.0:
+        S[L.S_SLOT] = S[L.S_LAST_SEQ]
+        S[L.S_SLOT_N] = n
+        S[L.S_PENDING] = 0.0
+        S[L.S_HAS_SLOT] = 1.0
+    elif S[L.S_HAS_SLOT] != 0.0:
+        S[L.S_SLOT] = S[L.S_SLOT] + (n - S[L.S_SLOT_N])
+        S[L.S_SLOT_N] = n
+    else:
+        return False
+    dim = int(C[L.C_DIM])
+    target = int(S[L.S_SLOT])
+    last_seq = int(S[L.S_LAST_SEQ])
+    if target == last_seq:
+        for i in range(dim):
+            out[i] = S[L.S_LAST0 + i]
+        return True
+    S[L.S_PREDICTED] += 1.0
+    if C[L.C_EXTRAP] == 0.0 or S[L.S_HAS_OLD] == 0.0:
+        for i in range(dim):
+            out[i] = S[L.S_LAST0 + i]
+        return True
+    ahead = min(target - last_seq, int(C[L.C_MAX_TICKS]))
+    span = last_seq - int(S[L.S_OLD_SEQ])
+    for i in range(dim):
+        out[i] = extrapolate1(S[L.S_OLD0 + i], S[L.S_LAST0 + i], ahead, span)
+    return True
+
+
+@inline  # type: ignore[misc]
+def deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
+    # GroupedDeadbandEncoder.send's test (a sample was sent before): a trigger value outside its
+    # deadband around the last sent (1-value groups; the arm loop's: arm_codec_kernel.py).
+    p = C[L.C_P0]
+    if C[L.C_GAIN] > 0.0:
+        p = deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], abs(smp[int(C[L.C_VEL])]))
+    for i in range(int(C[L.C_DIM])):
+        if C[L.C_TRIG0 + i] != 0.0:
+            last = S[L.S_SENT0 + i]
+            if outside(abs(last - smp[i]), abs(last), p, C[L.C_MIN]):
+                return True
+    return False
+
+
+@inline  # type: ignore[misc]
+def deadband_prediction_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with deadband or prediction (decoders that keep the newest two samples):
+    # encode, send, deliver, decode. Returns (the `received` column's seq or -1, whether `out`
+    # holds the tick's remote sample). The arm loop compiles it with its layout (`relaid`).
+    dim = int(C[L.C_DIM])
+    deadband = C[L.C_KIND] == L.DEADBAND
+    if deadband:  # GroupedDeadbandEncoder.send
+        sends_rate = C[L.C_SENDS_RATE] != 0.0
+        if sends_rate:
+            if S[L.S_HAS_PREV] == 0.0 or now <= S[L.S_PREV_NS]:
+                for i in range(dim):
+                    rate[i] = 0.0
+            else:
+                dt = (now - int(S[L.S_PREV_NS])) * 1e-9
+                for i in range(dim):
+                    rate[i] = (smp[i] - S[L.S_PREV0 + i]) / dt
+        for i in range(dim):
+            S[L.S_PREV0 + i] = smp[i]
+        S[L.S_HAS_PREV] = 1.0
+        S[L.S_PREV_NS] = now
+        S[L.S_OFFERED] += 1.0
+        send = True
+        if S[L.S_HAS_SENT] != 0.0:
+            send = deadband_triggered(C, S, smp)
+            if not send:
+                S[L.S_FILTERED] += 1.0
+        if send:
+            for i in range(dim):
+                S[L.S_SENT0 + i] = smp[i]
+            S[L.S_HAS_SENT] = 1.0
+            S[L.S_SENT] += 1.0
+            link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate, True, True, W)
+    else:  # PredictionEncoder.send
+        S[L.S_OFFERED] += 1.0
+        packet_send(C, S, U, B, ring, rec, n, now, smp, rate)
+    # Link.deliver, Decoder.receive
+    # (`link_next` and `newest` written out: through them the deadband's stage measured 1 ns a
+    # tick, 4 to 6 %, slower in `bench codec`; the other kinds' ticks are not)
+    rx = -1
+    depth = ring.shape[0]
+    while S[L.S_COUNT] > 0.0:
+        head = int(S[L.S_HEAD])
+        if ring[head, 1] > now:
+            break
+        S[L.S_HEAD] = (head + 1) & (depth - 1)
+        S[L.S_COUNT] -= 1.0
+        seq = int(ring[head, 0])
+        if deadband:
+            deadband_receive(C, S, seq, ring, head)
+        else:
+            prediction_receive(C, S, seq, ring, head)
+        if seq > S[L.S_NEWEST]:
+            S[L.S_NEWEST] = seq
+            rx = seq
+    if deadband:
+        return rx, deadband_sample(C, S, n, out)
+    return rx, prediction_sample(C, S, n, out)

@@ -1,0 +1,238 @@
+"""FEC inside the compiled loops (numba): the decoder's history of samples (`Reconstructor` over any
+seqs), repetition and parity recovery, the tick; the parity sums are core/fec.py's
+`rounded_sum` (the value `math.fsum` gives in the Python classes).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from haptic_teleop.core import fec
+from haptic_teleop.engine.compiled import codec_layout as L
+from haptic_teleop.engine.compiled.codec_deadband import extrapolate1
+from haptic_teleop.engine.compiled.codec_link import inline, link_next, newest, packet_send, part_jit
+
+rounded_sum = part_jit(fec.rounded_sum)
+
+
+@inline  # type: ignore[misc]
+def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
+    # Reconstructor.has: held and not yet forgotten (within keep_ticks of the newest held).
+    if seq < 0 or S[L.S_HAS_HELD] == 0.0 or seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
+        return False
+    return X[seq & (X.shape[0] - 1), L.X_HELD] == seq
+
+
+@inline  # type: ignore[misc]
+def rec_take(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int, fresh: bool) -> bool:
+    # Reconstructor.add of `seq` but its value (`rec_add`; ARQ's plan moves the value later);
+    # False if held already or too old to keep. Not `fresh`: a recovered sample, counted.
+    if rec_held(C, S, X, seq):
+        return False
+    if S[L.S_HAS_HELD] != 0.0 and seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
+        if not fresh:
+            S[L.S_LATE] += 1.0
+        return False
+    if not fresh:  # a recovered sample (FecDecoder._add, ArqDecoder's retransmission), maybe late
+        S[L.S_RECOVERED] += 1.0
+        if S[L.S_HAS_PLAYED] != 0.0 and seq <= S[L.S_LAST_PLAYED]:
+            S[L.S_LATE] += 1.0
+            S[L.S_RECOVERED_LATE] += 1.0
+    X[seq & (X.shape[0] - 1), L.X_HELD] = seq
+    if S[L.S_HAS_HELD] == 0.0 or seq > S[L.S_MAXHELD]:
+        S[L.S_MAXHELD] = seq
+        S[L.S_HAS_HELD] = 1.0
+    if fresh and (S[L.S_HAS_FRESH] == 0.0 or seq > S[L.S_NEWEST_FRESH]):
+        S[L.S_NEWEST_FRESH] = seq
+        S[L.S_HAS_FRESH] = 1.0
+        S[L.S_PENDING] = 1.0
+    return True
+
+
+@inline  # type: ignore[misc]
+def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int, fresh: bool) -> bool:
+    # Reconstructor.add of the value in W[W_VALUE:] (`rec_take`, then the value).
+    if not rec_take(C, S, X, seq, fresh):
+        return False
+    j = seq & (X.shape[0] - 1)
+    for i in range(int(C[L.C_DIM])):
+        X[j, L.X_VALUE + i] = W[L.W_VALUE + i]
+    return True
+
+
+@inline  # type: ignore[misc]
+def rec_choose(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int) -> tuple[int, int, int, int]:
+    # Reconstructor.sample but its values (`rec_sample`; ARQ's plan keeps the choice): the
+    # playout slot, then the held seq to give (the sample at the slot, wait_ticks behind, or the
+    # newest held before it; -1: none) and, for a prediction from the newest two held at or
+    # before the target, the one before it (-1: hold), the ticks ahead and the span.
+    if S[L.S_PENDING] != 0.0:
+        S[L.S_SLOT] = S[L.S_NEWEST_FRESH]
+        S[L.S_SLOT_N] = n
+        S[L.S_PENDING] = 0.0
+        S[L.S_HAS_SLOT] = 1.0
+    elif S[L.S_HAS_SLOT] != 0.0:
+        S[L.S_SLOT] = S[L.S_SLOT] + (n - S[L.S_SLOT_N])
+        S[L.S_SLOT_N] = n
+    elif S[L.S_HAS_HELD] != 0.0:
+        S[L.S_SLOT] = S[L.S_MAXHELD]
+        S[L.S_SLOT_N] = n
+        S[L.S_HAS_SLOT] = 1.0
+    else:
+        return -1, -1, 0, 0
+    target = int(S[L.S_SLOT]) - int(C[L.C_WAIT])
+    if S[L.S_HAS_PLAYED] == 0.0 or target > S[L.S_LAST_PLAYED]:
+        S[L.S_LAST_PLAYED] = target
+        S[L.S_HAS_PLAYED] = 1.0
+    mask = X.shape[0] - 1
+    newest = int(S[L.S_MAXHELD])
+    lo = max(0, newest - int(C[L.C_KEEP]))
+    last = min(target, newest)
+    while last >= lo and X[last & mask, L.X_HELD] != last:
+        last -= 1
+    if last < lo:
+        return -1, -1, 0, 0  # everything held is newer than the target
+    if last == target:
+        return last, -1, 0, 0
+    S[L.S_PREDICTED] += 1.0
+    if C[L.C_EXTRAP] == 0.0:
+        return last, -1, 0, 0
+    prev = last - 1
+    while prev >= lo and X[prev & mask, L.X_HELD] != prev:
+        prev -= 1
+    if prev < lo:
+        return last, -1, 0, 0
+    return last, prev, min(target - last, int(C[L.C_MAX_TICKS])), last - prev
+
+
+@inline  # type: ignore[misc]
+def rec_give(C: np.ndarray, X: np.ndarray, last: int, prev: int, ahead: int, span: int, out: np.ndarray) -> bool:
+    # The values of `rec_choose`'s choice into `out` (False: nothing to give).
+    if last < 0:
+        return False
+    mask = X.shape[0] - 1
+    j = last & mask
+    if prev < 0:
+        for i in range(int(C[L.C_DIM])):
+            out[i] = X[j, L.X_VALUE + i]
+        return True
+    k = prev & mask
+    for i in range(int(C[L.C_DIM])):
+        out[i] = extrapolate1(X[k, L.X_VALUE + i], X[j, L.X_VALUE + i], ahead, span)
+    return True
+
+
+@inline  # type: ignore[misc]
+def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndarray) -> bool:
+    # Reconstructor.sample: the choice (`rec_choose`) and its values.
+    last, prev, ahead, span = rec_choose(C, S, X, n)
+    return rec_give(C, X, last, prev, ahead, span, out)
+
+
+@inline  # type: ignore[misc]
+def sum_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, p: int) -> bool:
+    # `p in FecDecoder._sums` after its front was dropped (what reaches past the history).
+    if p < S[L.S_MAXHELD] - C[L.C_KEEP] + C[L.C_K]:
+        return False
+    return X[p & (X.shape[0] - 1), L.X_SUM_SEQ] == p
+
+
+@inline  # type: ignore[misc]
+def fec_receive(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, n: int) -> None:
+    # FecDecoder.receive of packet n. A constant delay keeps the stream in order, so the payload
+    # is the sender's samples of ticks n, n-1, ..., n-k (repetition) or x(n) and the sum of
+    # x(n-k) .. x(n-1) (parity): read here from the sender's rows of X (as many as the packets
+    # in flight and k need), the same floats the packet carries.
+    dim = int(C[L.C_DIM])
+    mask = X.shape[0] - 1
+    k = int(C[L.C_K])
+    S[L.S_RECEIVED] += 1.0
+    jn = n & mask
+    for i in range(dim):
+        W[L.W_VALUE + i] = X[jn, L.X_SENT + i]
+    if not rec_add(C, S, X, W, n, True):
+        S[L.S_DUPLICATES] += 1.0
+        if C[L.C_PARITY] != 0.0 and sum_held(C, S, X, n):
+            return
+    if C[L.C_PARITY] == 0.0:
+        for q in range(1, k + 1):
+            m = n - q
+            if m >= 0:
+                jm = m & mask
+                for i in range(dim):
+                    W[L.W_VALUE + i] = X[jm, L.X_SENT + i]
+                rec_add(C, S, X, W, m, False)
+        return
+    # the carrier's parity sum is the encoder's math.fsum of x(n-k) .. x(n-1): computed when a
+    # window is solved, from the sender's rows (they reach back far enough: CodecNet)
+    X[jn, L.X_SUM_SEQ] = n
+    # FecDecoder._parity_recover: solve each window with one unknown (a LIFO worklist)
+    oldest = int(S[L.S_MAXHELD]) - int(C[L.C_KEEP])
+    W[L.W_STACK] = n
+    top = 1
+    while top > 0:
+        top -= 1
+        p = int(W[L.W_STACK + top])
+        if not sum_held(C, S, X, p):
+            continue
+        missing = 0
+        m = -1
+        for q in range(max(0, p - k), p):
+            if not rec_held(C, S, X, q):
+                missing += 1
+                m = q
+                if missing > 1:
+                    break
+        if missing != 1 or m < oldest:
+            continue
+        for i in range(dim):
+            c = 0
+            for q in range(max(0, p - k), p):
+                W[L.W_TERMS + c] = X[q & mask, L.X_SENT + i]
+                c += 1
+            W[L.W_TERMS] = rounded_sum(W, L.W_TERMS, c, W)  # S(p), as the encoder's math.fsum
+            c = 1
+            for q in range(max(0, p - k), p):
+                if q != m:
+                    W[L.W_TERMS + c] = -X[q & mask, L.X_VALUE + i]
+                    c += 1
+            W[L.W_VALUE + i] = rounded_sum(W, L.W_TERMS, c, W)
+        if rec_add(C, S, X, W, m, False):
+            for q in range(m + 1, m + k + 1):
+                if sum_held(C, S, X, q):
+                    W[L.W_STACK + top] = q
+                    top += 1
+
+
+@part_jit  # type: ignore[misc]
+def fec_tick(
+    C: np.ndarray,
+    S: np.ndarray,
+    U: np.ndarray,
+    B: np.ndarray,
+    ring: np.ndarray,
+    rec: np.ndarray,
+    X: np.ndarray,
+    W: np.ndarray,
+    n: int,
+    now: int,
+    smp: np.ndarray,
+    rate: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, bool]:
+    # CodecChannel.step with FecEncoder / FecDecoder.
+    dim = int(C[L.C_DIM])
+    j = n & (X.shape[0] - 1)
+    for i in range(dim):
+        X[j, L.X_SENT + i] = smp[i]
+    S[L.S_OFFERED] += 1.0
+    packet_send(C, S, U, B, ring, rec, n, now, smp, rate)
+    rx = -1
+    while True:
+        head = link_next(S, ring, now)
+        if head < 0:
+            break
+        seq = int(ring[head, 0])
+        fec_receive(C, S, X, W, seq)
+        rx = newest(S, seq, rx)
+    return rx, rec_sample(C, S, X, n, out)
