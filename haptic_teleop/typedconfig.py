@@ -5,7 +5,10 @@ A config class is a frozen dataclass whose fields carry optional metadata:
     stiffness_n_per_m: float = field(default=1e4, metadata={"min": 0.0, "help": "wall spring"})
 
 Recognised metadata: "min", "max" (inclusive), "gt", "lt" (exclusive), "choices" (sequence),
-"help" (one line, shown in errors and docs). Field types may be bool, int, float, str, a nested
+"help" (one line, shown in errors and docs), and for a section whose class depends on another key
+of the same section, "by" (that key's name) with "classes" (a function of that key's value, the
+section's data, its key path and the source, returning the config class to build, or raising
+ConfigError). Field types may be bool, int, float, str, a nested
 config dataclass, `X | None` (absent when the key is missing or null), and `tuple[float, ...]`
 / `tuple[str, ...]`. Cross-field contradictions are raised as ValueError from `__post_init__`;
 they are reported with the path of that section.
@@ -164,7 +167,13 @@ def build(cls: type[T], data: Any, where: str = "", source: str = "<config>") ->
                 # A section given in part keeps its field's own defaults for the rest (the slave
                 # controller's default differs from ControllerConfig's: E0 0.5 J, limit 40 N).
                 value = _merged(base, value)
-            kwargs[name] = convert(hints[name], value, path, source, f.metadata)
+            chooser = f.metadata.get("classes")
+            if chooser is not None and value is not None:  # the class depends on a sibling key
+                by = f.metadata["by"]
+                key = kwargs[by] if by in kwargs else fields[by].default
+                kwargs[name] = build(chooser(key, value, path, source), value, path, source)
+            else:
+                kwargs[name] = convert(hints[name], value, path, source, f.metadata)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             if dataclasses.is_dataclass(hints[name]):
                 kwargs[name] = build(hints[name], {}, path, source)
@@ -186,7 +195,15 @@ def describe(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
         path = f"{prefix}.{f.name}" if prefix else f.name
         tp = hints[f.name]
         inner = [a for a in get_args(tp) if a is not type(None)] if get_origin(tp) in (Union, types.UnionType) else [tp]
-        if inner and dataclasses.is_dataclass(inner[0]):
+        variants = f.metadata.get("variants")
+        if variants is not None:  # a section whose class depends on a sibling key: every class's keys
+            known: set[str] = set()
+            for variant in variants():
+                for row in describe(variant, path):
+                    if row[0] not in known:
+                        known.add(row[0])
+                        rows.append(row)
+        elif inner and dataclasses.is_dataclass(inner[0]):
             rows.extend(describe(typing.cast(type, inner[0]), path))
         else:
             default = f.default if f.default is not dataclasses.MISSING else ""

@@ -133,10 +133,12 @@ def test_backend_registry_names_the_classes_and_refuses_unknown_names():
     from haptic_teleop.plants.base import BACKENDS, backend_class
     from haptic_teleop.plants.mujoco_plant import MujocoDevice, MujocoWallRobot
 
-    assert set(BACKENDS) == {"mujoco"}
+    assert list(BACKENDS) == ["mujoco", "dynamixel", "ur"]
     assert backend_class("mujoco", "master") is MujocoDevice
     assert backend_class("mujoco", "slave") is MujocoWallRobot
-    with pytest.raises(ValueError, match=r"unknown plant backend 'ur_rtde'; allowed: mujoco"):
+    with pytest.raises(ValueError, match=r"unknown plant backend 'ur_rtde'; allowed: mujoco, dynamixel, ur"):
         backend_class("ur_rtde", "slave")
+    with pytest.raises(ValueError, match=r"plant backend 'ur' has no one-axis plants; allowed: mujoco"):
+        backend_class("ur", "slave")
     with pytest.raises(ValueError, match=r"unknown plant role 'operator'; allowed: master, slave"):
         backend_class("mujoco", "operator")

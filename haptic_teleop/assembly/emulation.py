@@ -40,7 +40,7 @@ TIME_MODES = ("lockstep", "realtime")
 
 
 def dynamixel_sides(config: Scene) -> tuple[str, ...]:
-    """The sides of a scene that are on Dynamixel servos."""
+    """The sides of a scene that are on Dynamixel servos (the backend `--emulate` serves)."""
     return tuple(side for side in ("master", "slave") if getattr(config, side).backend == "dynamixel")
 
 

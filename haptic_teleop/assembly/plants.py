@@ -7,17 +7,16 @@ from __future__ import annotations
 
 import math
 import typing
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from haptic_teleop.errors import PlantError
-from haptic_teleop.plants.base import Plant, backend_class
-from haptic_teleop.scene.schema import HardwareConfig, PlantEffectsConfig, Scene
+from haptic_teleop.plants.base import Plant, backend, backend_class
+from haptic_teleop.scene.schema import PlantEffectsConfig, Scene
 from haptic_teleop.scene.sides import arm_settings, side_period_s, sim_settings, wall_spec
 
 if TYPE_CHECKING:
     from haptic_teleop.plants.arm import MujocoArm
-    from haptic_teleop.plants.hardware import JointDriver
     from haptic_teleop.plants.hardware_arm import HardwareArm
 
 
@@ -80,9 +79,11 @@ def build_arm(config: Scene, role: str) -> MujocoArm | HardwareArm:
 
 
 def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
-    """A real arm (docs/hardware.md): the side's driver (not started: the plant starts it at its
-    first read) and the kinematics of the same MJCF. `config` is validated (scene/load.py): the
-    hardware section names one servo per joint and the damping EBA may assume."""
+    """A real arm (docs/hardware.md): the side's driver, made by its backend from its hardware
+    section (plants/base.py; not started: the plant starts it at its first read), and the
+    kinematics of the same MJCF. `config` is validated (scene/load.py): the hardware section names
+    the device, the side its start pose and the damping EBA may assume."""
+    from haptic_teleop.plants.hardware import ArmDriver
     from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.plants.kinematics import ArmKinematics
 
@@ -91,100 +92,25 @@ def build_hardware_arm(config: Scene, role: str) -> HardwareArm:
     if hw is None or cfg.damping_nm_s_per_rad is None or cfg.start_q_rad is None:
         raise PlantError(f"{role}.backend {cfg.backend}: needs {role}.hardware, damping_nm_s_per_rad, start_q_rad")
     kin = ArmKinematics(cfg.model, cfg.joints, "handle" if role == "master" else "tool")
-    gravity = cfg.gravity_compensation is not False
-    wrench = None
-    where = hw.port
-    if cfg.backend == "dynamixel":
-        limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
-        driver: JointDriver = dynamixel_driver(hw, kin.joints, limit)
-    elif cfg.backend == "ur":
-        from haptic_teleop.plants.ur.driver import URTaskDriver, URTorqueDriver
-
-        assert hw.host is not None
-        where = hw.host
-        # The UR controller compensates gravity itself in every mode, so the plant adds none; its
-        # contact is the controller's TCP wrench (the e-Series' F/T sensor).
-        gravity = False
-        if hw.control_mode == "torque":
-            ur = URTorqueDriver(hw.host)
-            driver = ur
-            wrench = lambda: ur.ur.state().tcp_wrench  # noqa: E731
-        else:  # force_mode, admittance: the bounded torque becomes a tool wrench (docs/ur.md)
-            lin, rot = hw.admittance_mass_kg, hw.admittance_inertia_kg_m2
-            dl, dr = hw.admittance_damping_n_s_per_m, hw.admittance_damping_nm_s_per_rad
-            task = URTaskDriver(
-                hw.host,
-                str(hw.control_mode),
-                lambda: kin.jacobian(rotational=True),
-                side_period_s(config, role),
-                force_mode_damping=hw.force_mode_damping,
-                speed_limits=hw.force_mode_speed_limits,
-                admittance_mass=(lin, lin, lin, rot, rot, rot),
-                admittance_damping=(dl, dl, dl, dr, dr, dr),
-            )
-            driver = task
-            wrench = task.tcp_wrench  # the TCP wrench of the tick's one read
-    else:
-        raise PlantError(f"{role}.backend {cfg.backend!r}: no driver for it here")
+    arm = backend(cfg.backend).make_arm_driver(hw, kin, cfg.torque_limit_nm, side_period_s(config, role))
+    assert isinstance(arm, ArmDriver)
     return HardwareArm(
-        driver,
+        arm.driver,
         kin,
         cfg.damping_nm_s_per_rad,
         cfg.start_q_rad,
         side_period_s(config, role),
         role,
         torque_limit_nm=cfg.torque_limit_nm,
-        gravity_compensation=gravity,
+        gravity_compensation=cfg.gravity_compensation is not False and not arm.gravity_by_device,
         wall=wall_spec(config) if role == "slave" else None,
         start_tolerance_rad=hw.start_tolerance_rad,
         ramp_in_s=hw.ramp_in_s,
-        source=f"{role} ({cfg.backend} on {where})",
-        wrench_source=wrench,
+        source=f"{role} ({cfg.backend} on {arm.where})",
+        wrench_source=arm.wrench,
         lockstep_clock=hw.device_clock == "lockstep",
         max_hold_s=hw.max_hold_s,
     )
-
-
-def dynamixel_driver(
-    hw: HardwareConfig, joints: tuple[str, ...], torque_limit_nm: Sequence[float] | None
-) -> JointDriver:
-    """The Dynamixel chain of a side's hardware section (plants/dynamixel/driver.py). Each servo's
-    Current Limit(38) is set to the joint's torque limit (`torque_limit_nm`, the scene's or the
-    model's ctrlrange), so the servo itself clips where the plant and the energy bound do."""
-    from haptic_teleop.plants.dynamixel import tables
-    from haptic_teleop.plants.dynamixel.chain import DynamixelChainConfig, DynamixelJoint
-    from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
-
-    n = len(joints)
-    assert hw.ids is not None and hw.models is not None and hw.port is not None
-    signs = hw.signs if hw.signs is not None else (1,) * n
-    offsets = hw.zero_offsets_rad if hw.zero_offsets_rad is not None else (0.0,) * n
-    kts = hw.torque_constants_nm_per_a
-    chain = []
-    for k, name in enumerate(joints):
-        model = tables.model(hw.models[k])
-        kt = kts[k] if kts is not None else model.torque_constant_nm_per_a
-        top_a = model.current_limit_max * tables.CURRENT_UNIT_A
-        limit_a = top_a if torque_limit_nm is None else min(top_a, torque_limit_nm[k] / kt)
-        chain.append(
-            DynamixelJoint(
-                name=name,
-                id=hw.ids[k],
-                model=hw.models[k],
-                sign=signs[k],
-                zero_offset_rad=offsets[k],
-                torque_constant_nm_per_a=kt,
-                current_limit_a=limit_a,
-            )
-        )
-    config = DynamixelChainConfig(
-        port=hw.port,
-        joints=tuple(chain),
-        baud_bps=hw.baud_bps,
-        bus_watchdog_s=hw.bus_watchdog_s,
-        read_timeout_s=hw.read_timeout_s,
-    )
-    return DynamixelDriver(config)
 
 
 def _with_effects(plant: Any, config: Scene, side: str, effects: PlantEffectsConfig) -> Plant:

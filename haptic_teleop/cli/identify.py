@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from haptic_teleop import interrupt
 from haptic_teleop.core.friction import Z_DEFAULT, Excitation
 from haptic_teleop.errors import HapticTeleopError, InputError
+from haptic_teleop.plants.base import BACKENDS, backend
 
 if TYPE_CHECKING:
     import numpy as np
@@ -49,25 +50,28 @@ def joint_driver_for(
 
     `backend: mujoco`: the simulated arm (plants/sim_driver.py) on the side's model, joints, start
     pose, torque limits and damping, with the model's dry friction, its velocity reported with
-    white noise (seeded). `backend: dynamixel`: the side's servos through `plants.dynamixel_driver`
-    (the run's driver), returned with None (the truth is unknown).
+    white noise (seeded). A real backend that `identify` can excite (plants/base.py): the side's
+    device through its backend's driver (the run's), returned with None (the truth is unknown).
     """
     cfg = getattr(config, side)
-    backend = cfg.backend
-    if backend == "dynamixel":
-        # The side's servos, as the run would drive them (plants.dynamixel_driver: ids, models,
-        # signs, offsets, Current Limit at the joint's torque limit); their friction is unknown.
-        from haptic_teleop.assembly.plants import dynamixel_driver
+    b = backend(cfg.backend)
+    if not b.identify:
+        allowed = ", ".join(name for name, x in BACKENDS.items() if x.identify)
+        raise InputError(
+            f"identify on {side}.backend {cfg.backend!r} is not available; allowed: {allowed} (the excitation adds "
+            "gravity compensation, which this backend's controller does itself)"
+        )
+    if b.real:
+        # The side's device as the run would drive it (its backend's driver: for servos their ids,
+        # models, signs, offsets, Current Limit at the joint's torque limit); its friction is unknown.
+        from haptic_teleop.plants.hardware import ArmDriver
         from haptic_teleop.plants.kinematics import ArmKinematics
+        from haptic_teleop.scene.sides import side_period_s
 
         kin = ArmKinematics(cfg.model, cfg.joints, POINT_SITES[side])
-        limit = cfg.torque_limit_nm if cfg.torque_limit_nm is not None else tuple(kin.torque_limit_nm())
-        return dynamixel_driver(cfg.hardware, kin.joints, limit), None
-    if backend != "mujoco":
-        raise InputError(
-            f"identify on {side}.backend {backend!r} is not available; allowed: mujoco, dynamixel (a UR arm in "
-            "direct torque mode has its gravity compensated by the controller, which the excitation also adds)"
-        )
+        arm = b.make_arm_driver(cfg.hardware, kin, cfg.torque_limit_nm, side_period_s(config, side))
+        assert isinstance(arm, ArmDriver)
+        return arm.driver, None
     import numpy as np
 
     from haptic_teleop.plants.sim_driver import MujocoJointDriver

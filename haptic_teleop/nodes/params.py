@@ -129,6 +129,19 @@ def scene_param_specs(path: str) -> list[ParamSpec]:
                 continue
             if name.count(".") >= 3 and name.split(".")[-3] == _CLIENTS and f.name == "name":
                 continue  # an element's name is its key (nve.clients.<name>)
+            variants = f.metadata.get("variants")
+            if variants is not None:  # a section read by its backend's class: every class's keys, once
+                before = len(out)
+                for variant in variants():
+                    walk(variant, name)
+                known: set[str] = set()
+                unique = []
+                for spec in out[before:]:
+                    if spec.name not in known:
+                        known.add(spec.name)
+                        unique.append(spec)
+                out[before:] = unique
+                continue
             if dataclasses.is_dataclass(tp):
                 walk(tp, name)
                 continue

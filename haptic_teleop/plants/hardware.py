@@ -13,7 +13,8 @@ Every SDK is imported inside the driver's module, so this file imports without a
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Protocol
 
@@ -86,3 +87,68 @@ class JointDriver(Protocol):
         ...
 
     def stop(self) -> None: ...
+
+
+# --------------------------------------------------------------------------------------------
+# A side's `hardware` section: what every real backend's config class has in common. Each backend
+# keeps its own class beside its driver (plants/dynamixel/config.py, plants/ur/config.py), named
+# in the registry (plants/base.py); `<side>.backend` picks which one reads the section.
+
+DEVICE_CLOCKS = ("real", "lockstep")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """What a side's hardware section gets wrong for its scene: the key (from the side: `hardware.port`,
+    `joints`), the value and what is allowed; the scene loader names the file and side."""
+
+    key: str
+    value: object
+    allowed: str
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The start-up checks and the clock every real side has (docs/hardware.md); a backend's
+    config class adds its device's keys."""
+
+    device_clock: str = field(
+        default="real",
+        metadata={
+            "choices": DEVICE_CLOCKS,
+            "help": "real: a tick's motion took the wall time between reads (the ledger is stretched for late "
+            "ticks); lockstep: the device advances one period per command (the bus emulator, --emulate)",
+        },
+    )
+    max_hold_s: float | None = field(
+        default=None,
+        metadata={
+            "gt": 0.0,
+            "max": 1.0,
+            "help": "the longest hold of a torque the energy bound budgets on a real clock (default: 3 "
+            "periods; a lockstep device: one); a longer hold stops the side (docs/eba.md)",
+        },
+    )
+    start_tolerance_rad: float = field(
+        default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}
+    )
+    ramp_in_s: float = field(
+        default=0.5, metadata={"min": 0.0, "max": 60.0, "help": "torque ramps from zero over this time at start"}
+    )
+
+    def problem(self, role: str, joints: tuple[str, ...], emulate: bool) -> Problem | None:
+        """What this section gets wrong for a side `role` ("master" or "slave") on this backend with
+        these joints, or None. `emulate`: the device's address is filled in later (`--emulate`)."""
+        return None
+
+
+@dataclass(frozen=True)
+class ArmDriver:
+    """A real side's driver as the arm plant takes it: the `JointDriver`, whether the device's own
+    controller compensates gravity (then the plant adds none), where the contact wrench comes from
+    (None: the contact estimate from the joint torques), and where the device is (for messages)."""
+
+    driver: JointDriver
+    gravity_by_device: bool
+    wrench: Callable[[], np.ndarray] | None
+    where: str

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from haptic_teleop.errors import ConfigError
+from haptic_teleop.plants.base import backend
 from haptic_teleop.scene.overrides import Override, apply_overrides, blame_override, parse_override
 from haptic_teleop.scene.schema import NVE_SECTIONS, LoadedScene, Scene
 from haptic_teleop.scene.traces import read_operator_trace, resolve_scene_traces, resolve_trace_paths
@@ -40,15 +41,17 @@ ARM_WALL_STEP_LIMIT = 1.0  # omega * h of an arm's wall contact (docs/arms.md: 1
 def _check_hardware(
     source: str, side: str, cfg: Any, joints: Sequence[str], emulate: bool, identify: bool = False
 ) -> None:
-    """A side's `backend` and `hardware` section agree (docs/hardware.md): a real device names its
-    bus and servos, one per joint, where it stands at start and the joint damping EBA may assume
-    (it cannot be read from a simulator). A simulated side may carry a hardware section (a bundled
-    scene's, for `--set <side>.backend=dynamixel`): checked the same, unused. `emulate`: the ports
-    are filled in later (`haptic-teleop run --emulate` starts an emulator per device)."""
+    """A side's `backend` and `hardware` section agree (docs/hardware.md): a real device names where
+    it is and what it is (its backend's config class says, `problem`), where it stands at start and
+    the joint damping EBA may assume (it cannot be read from a simulator), and its SDK is
+    installed. A simulated side may carry a hardware section (a bundled scene's, for `--set
+    <side>.backend=dynamixel`): checked the same by the backend whose keys it uses, its address
+    aside, unused. `emulate`: the addresses are filled in later (`haptic-teleop run --emulate`
+    starts an emulator per device)."""
+    b = backend(cfg.backend)
     hw = cfg.hardware
-    real = cfg.backend != "mujoco"
-    if real:
-        _check_sdk(source, side, cfg.backend)
+    if b.real:
+        _check_sdk(source, side, cfg.backend, b.sdk)
         if cfg.damping_nm_s_per_rad is None and not identify:
             raise ConfigError(
                 source,
@@ -66,108 +69,31 @@ def _check_hardware(
                 "the measured pose with it)",
             )
         if hw is None:
-            raise ConfigError(
-                source,
-                f"{side}.hardware",
-                None,
-                f"required for backend {cfg.backend}: port, ids, models (docs/hardware.md)",
-            )
+            keys = ", ".join(f.name for f in dataclasses.fields(b.config_class()))
+            allowed = f"required for backend {cfg.backend}: its keys {keys} (docs/hardware.md)"
+            raise ConfigError(source, f"{side}.hardware", None, allowed)
     if hw is None:
         return
-    dxl_keys = [k for k in ("port", "ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a")
-                if getattr(hw, k) is not None]  # fmt: skip
-    if cfg.backend == "ur":
-        _check_ur(source, side, cfg, joints, dxl_keys)
-        return
-    if cfg.backend == "mujoco" and not dxl_keys:
-        return  # a section for another backend (e.g. a UR host) kept for --set <side>.backend
-    if real and hw.port is None and not emulate:
-        raise ConfigError(
-            source,
-            f"{side}.hardware.port",
-            None,
-            "required: the serial port of the bus (e.g. /dev/ttyUSB0), or run with --emulate",
-        )
-    for key in ("ids", "models"):
-        if getattr(hw, key) is None:
-            raise ConfigError(source, f"{side}.hardware.{key}", None, f"required: one per joint ({', '.join(joints)})")
-    for key in ("ids", "models", "signs", "zero_offsets_rad", "torque_constants_nm_per_a"):
-        v = getattr(hw, key)
-        if v is not None and len(v) != len(joints):
-            raise ConfigError(
-                source,
-                f"{side}.hardware.{key}",
-                list(v),
-                f"allowed: {len(joints)} values, one per joint ({', '.join(joints)})",
-            )
-    known = dynamixel_models()
-    if known is not None:
-        for i, name in enumerate(hw.models):
-            if name not in known:
-                raise ConfigError(
-                    source, f"{side}.hardware.models[{i}]", name, f"allowed: one of {', '.join(sorted(known))}"
-                )
+    problem = hw.problem(side, tuple(joints), emulate or not b.real)
+    if problem is not None:
+        raise ConfigError(source, f"{side}.{problem.key}", problem.value, problem.allowed)
 
 
-# backend -> the SDK modules its driver imports (the SDK itself is not imported here)
-_BACKEND_SDKS = {"dynamixel": ("dynamixel_sdk",), "ur": ("rtde_receive", "rtde_control")}
-
-
-def _check_sdk(source: str, side: str, backend: str) -> None:
+def _check_sdk(source: str, side: str, name: str, modules: Sequence[str]) -> None:
     """A hardware backend whose SDK is not installed is refused before anything runs."""
     import importlib.util
 
     from haptic_teleop.plants.hardware import SDKS
 
-    for module in _BACKEND_SDKS.get(backend, ()):
+    for module in modules:
         if importlib.util.find_spec(module) is None:
             raise ConfigError(
                 source,
                 f"{side}.backend",
-                backend,
-                f"backend {backend} needs the Python module {module!r}, which is not installed: "
+                name,
+                f"backend {name} needs the Python module {module!r}, which is not installed: "
                 f"pip install '{SDKS[module]}' (or install haptic_teleop with its 'hardware' extra)",
             )
-
-
-def _check_ur(source: str, side: str, cfg: Any, joints: Sequence[str], dxl_keys: list[str]) -> None:
-    """A side on a Universal Robots arm: its host, the control mode the engine can run, the UR
-    driver's joints."""
-    hw = cfg.hardware
-    if dxl_keys:
-        raise ConfigError(
-            source,
-            f"{side}.hardware.{dxl_keys[0]}",
-            getattr(hw, dxl_keys[0]),
-            f"a Dynamixel key, and {side}.backend is ur; allowed for backend ur: host, control_mode, "
-            "force_mode_damping, force_mode_speed_limits, admittance_*, start_tolerance_rad, ramp_in_s, "
-            "device_clock, max_hold_s",
-        )
-    if hw.host is None:
-        raise ConfigError(source, f"{side}.hardware.host", None, "required for backend ur: the controller's address")
-    if hw.control_mode is None:
-        raise ConfigError(
-            source,
-            f"{side}.hardware.control_mode",
-            None,
-            "required for backend ur; allowed: force_mode (UR's force control), admittance (speedL through "
-            "core/admittance.py), torque (direct torque, PolyScope 5.23 / 10.10 or later; docs/ur.md)",
-        )
-    if side == "master" and hw.control_mode != "torque":
-        raise ConfigError(
-            source,
-            f"{side}.hardware.control_mode",
-            hw.control_mode,
-            "allowed for a UR master: torque (force_mode and admittance render the slave's task force on a tool)",
-        )
-    try:
-        from haptic_teleop.plants.ur.driver import JOINTS
-    except ImportError:
-        return
-    if tuple(joints) != JOINTS:
-        raise ConfigError(
-            source, f"{side}.joints", list(joints), f"backend ur drives the UR's joints in order: {', '.join(JOINTS)}"
-        )
 
 
 def side_period_ticks(config: Scene, side: str, source: str = "scene") -> int:
@@ -186,15 +112,6 @@ def side_period_ticks(config: Scene, side: str, source: str = "scene") -> int:
             f"allowed: a whole multiple of scene.period_s ({t:g} s), e.g. {t:g} or {2 * t:g}",
         )
     return int(k)
-
-
-def dynamixel_models() -> tuple[str, ...] | None:
-    """The servo models the Dynamixel backend has a control table for (None: no backend here)."""
-    try:
-        from haptic_teleop.plants.dynamixel import tables
-    except ImportError:
-        return None
-    return tuple(tables.MODELS)
 
 
 def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify: bool = False) -> None:

@@ -14,6 +14,10 @@ from typing import Any
 
 import yaml
 
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.plants.base import BACKENDS as PLANT_BACKENDS
+from haptic_teleop.plants.base import hardware_classes
+from haptic_teleop.plants.hardware import HardwareConfig
 from haptic_teleop.scene.direction import ChannelDirectionConfig
 from haptic_teleop.scene.nve_schema import NveConfig
 
@@ -186,117 +190,42 @@ def _check_saturation(side: str, effects: PlantEffectsConfig, plant_limit_n: flo
         )
 
 
-DYNAMIXEL_BAUDS_BPS = (9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000)
-HARDWARE_BACKENDS = ("dynamixel", "ur")  # a side on one of these needs its `hardware` section
-UR_CONTROL_MODES = ("force_mode", "admittance", "torque")
-BACKENDS = ("mujoco", *HARDWARE_BACKENDS)
+BACKENDS = tuple(PLANT_BACKENDS)  # plants/base.py: the registry (mujoco, dynamixel, ur)
 
 
-@dataclass(frozen=True)
-class HardwareConfig:
-    """A side's real device (docs/hardware.md): for `backend: dynamixel` the bus (port, baud) and
-    per joint the servo's id, model, sign and zero offset; for `backend: ur` the controller's
-    address and the control mode; the start-up checks for both."""
+def hardware_variants() -> tuple[type, ...]:
+    """Every real backend's hardware section class (plants/base.py's registry, in its order)."""
+    return tuple(hardware_classes().values())
 
-    port: str | None = field(default=None, metadata={"help": "dynamixel: the serial port, e.g. /dev/ttyUSB0"})
-    baud_bps: int = field(
-        default=1000000, metadata={"choices": DYNAMIXEL_BAUDS_BPS, "help": "dynamixel: the bus's baud rate"}
-    )
-    ids: tuple[int, ...] | None = field(
-        default=None, metadata={"min": 0, "max": 252, "help": "dynamixel: the servo id of each joint, in joint order"}
-    )
-    models: tuple[str, ...] | None = field(
-        default=None, metadata={"help": "dynamixel: each joint's servo model, e.g. XM430-W350, XM540-W270"}
-    )
-    signs: tuple[int, ...] | None = field(
-        default=None,
-        metadata={"min": -1, "max": 1, "help": "dynamixel: +1 or -1 per joint (servo direction vs joint)"},
-    )
-    zero_offsets_rad: tuple[float, ...] | None = field(
-        default=None,
-        metadata={"min": -6.3, "max": 6.3, "help": "dynamixel: servo angle at the joint's zero, per joint"},
-    )
-    torque_constants_nm_per_a: tuple[float, ...] | None = field(
-        default=None, metadata={"gt": 0.0, "max": 100.0, "help": "dynamixel: identified N m/A (default: datasheet)"}
-    )
-    bus_watchdog_s: float = field(
-        default=0.1,
-        metadata={"min": 0.02, "max": 2.54, "help": "dynamixel: servos stop when the host is silent this long"},
-    )
-    read_timeout_s: float | None = field(
-        default=None,
-        metadata={"gt": 0.0, "max": 10.0, "help": "dynamixel: how long a read waits for replies (default: the SDK's)"},
-    )
-    host: str | None = field(default=None, metadata={"help": "ur: the robot controller's address"})
-    control_mode: str | None = field(
-        default=None,
-        metadata={
-            "choices": UR_CONTROL_MODES,
-            "help": "ur: how the side's command reaches the robot (docs/hardware.md)",
-        },
-    )
-    force_mode_damping: float = field(
-        default=0.025,
-        metadata={
-            "min": 0.0,
-            "max": 1.0,
-            "help": "ur force_mode: URScript force_mode_set_damping (0 none .. 1 full; ur_rtde's default 0.025)",
-        },
-    )
-    force_mode_speed_limits: tuple[float, ...] = field(
-        default=(0.1, 0.1, 0.1, 0.5, 0.5, 0.5),
-        metadata={
-            "gt": 0.0,
-            "max": 10.0,
-            "help": "ur force_mode: the largest TCP speed along each compliant axis (m/s x3, rad/s x3)",
-        },
-    )
-    admittance_mass_kg: float = field(
-        default=2.0, metadata={"gt": 0.0, "max": 1000.0, "help": "ur admittance: the virtual mass per axis"}
-    )
-    admittance_damping_n_s_per_m: float = field(
-        default=400.0,
-        metadata={"gt": 0.0, "max": 1e6, "help": "ur admittance: the virtual damping (passive for > 0; > K T / 2)"},
-    )
-    admittance_inertia_kg_m2: float = field(
-        default=0.05, metadata={"gt": 0.0, "max": 100.0, "help": "ur admittance: the virtual inertia per axis"}
-    )
-    admittance_damping_nm_s_per_rad: float = field(
-        default=5.0, metadata={"gt": 0.0, "max": 1e5, "help": "ur admittance: the virtual rotational damping"}
-    )
-    device_clock: str = field(
-        default="real",
-        metadata={
-            "choices": ("real", "lockstep"),
-            "help": "real: a tick's motion took the wall time between reads (the ledger is stretched for late "
-            "ticks); lockstep: the device advances one period per command (the bus emulator, --emulate)",
-        },
-    )
-    max_hold_s: float | None = field(
-        default=None,
-        metadata={
-            "gt": 0.0,
-            "max": 1.0,
-            "help": "the longest hold of a torque the energy bound budgets on a real clock (default: 3 "
-            "periods; a lockstep device: one); a longer hold stops the side (docs/eba.md)",
-        },
-    )
-    start_tolerance_rad: float = field(
-        default=0.05, metadata={"gt": 0.0, "max": 3.2, "help": "start pose check: farther from start_q_rad is refused"}
-    )
-    ramp_in_s: float = field(
-        default=0.5, metadata={"min": 0.0, "max": 60.0, "help": "torque ramps from zero over this time at start"}
-    )
 
-    def __post_init__(self) -> None:
-        if len(self.force_mode_speed_limits) != 6:
-            raise ValueError(
-                f"force_mode_speed_limits needs 6 values (m/s x3, rad/s x3), got {list(self.force_mode_speed_limits)}"
+def hardware_section(backend: str, data: Any, where: str, source: str) -> type:
+    """The config class that reads a side's `hardware` section: its backend's (plants/base.py), or
+    for a simulated side, whose section waits for `--set <side>.backend=...`, the real backend
+    whose keys it uses (checked the same, unused)."""
+    classes = hardware_classes()
+    keys = set(data) if isinstance(data, Mapping) else set()
+
+    def own(cls: type) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    if backend in classes:
+        cls = classes[backend]
+        stray = sorted(keys - set(own(cls)))
+        if stray:
+            others = [name for name, c in classes.items() if name != backend and stray[0] in own(c)]
+            why = f"a key of backend {others[0]}, and" if others else "unknown key; "
+            raise ConfigError(
+                source,
+                f"{where}.{stray[0]}",
+                data[stray[0]],
+                f"{why} the side's backend is {backend}; allowed for backend {backend}: {', '.join(own(cls))}",
             )
-        if self.signs is not None and any(s not in (-1, 1) for s in self.signs):
-            raise ValueError(f"signs must each be +1 or -1, got {list(self.signs)}")
-        if self.ids is not None and len(set(self.ids)) != len(self.ids):
-            raise ValueError(f"ids must be distinct (one servo per joint), got {list(self.ids)}")
+        return cls
+    for cls in classes.values():
+        if keys <= set(own(cls)):
+            return cls
+    allowed = "; ".join(f"for backend {name}: {', '.join(own(c))}" for name, c in classes.items())
+    raise ConfigError(source, where, dict(data), f"keys of no one backend's hardware section; allowed {allowed}")
 
 
 @dataclass(frozen=True)
@@ -330,7 +259,13 @@ class MasterConfig:
         metadata={"gt": 0.0, "max": 1e9, "help": "arms: each motor's torque slew limit, inside the energy bound"},
     )
     hardware: HardwareConfig | None = field(
-        default=None, metadata={"help": "backend dynamixel or ur: the device (docs/hardware.md)"}
+        default=None,
+        metadata={
+            "help": "a real backend's device (docs/hardware.md); its keys are the backend's",
+            "by": "backend",
+            "classes": hardware_section,
+            "variants": hardware_variants,
+        },
     )
     period_s: float | None = field(
         default=None,
@@ -429,7 +364,13 @@ class SlaveConfig:
         metadata={"gt": 0.0, "max": 1e9, "help": "arms: each motor's torque slew limit, inside the energy bound"},
     )
     hardware: HardwareConfig | None = field(
-        default=None, metadata={"help": "backend dynamixel or ur: the device (docs/hardware.md)"}
+        default=None,
+        metadata={
+            "help": "a real backend's device (docs/hardware.md); its keys are the backend's",
+            "by": "backend",
+            "classes": hardware_section,
+            "variants": hardware_variants,
+        },
     )
     period_s: float | None = field(
         default=None,
