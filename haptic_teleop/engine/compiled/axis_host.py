@@ -148,7 +148,7 @@ def compiled_reason(parts: AxisParts) -> str | None:
     """Why the scene's parts cannot run in the compiled loop, or None if it can."""
     codecs = parts.codecs
     if codecs != (None, None):
-        from haptic_teleop.parts.compiled.codec_host import codec_reason
+        from haptic_teleop.engine.compiled.codec_host import codec_reason
 
         for ch in codecs:
             why = None if ch is None else codec_reason(ch)
