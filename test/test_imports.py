@@ -142,8 +142,8 @@ def test_the_graph_sees_function_level_and_type_only_imports():
     # cli imports the launch command inside a function only; the outputs module at module level.
     assert "haptic_teleop.cli.launch" in graph["haptic_teleop.cli.main"]
     assert "haptic_teleop.analysis.outputs" in graph["haptic_teleop.cli.main"]
-    # arm_loop names ArmParts for the type checker only
-    assert "haptic_teleop.assembly.parts" in graph["haptic_teleop.engine.arm_loop"]
+    # the stages name ArmParts for the type checker only
+    assert "haptic_teleop.assembly.parts" in graph["haptic_teleop.assembly.stages"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 

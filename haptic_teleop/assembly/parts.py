@@ -335,7 +335,7 @@ class ArmParts:
     operator_origin_m: np.ndarray  # the intended point at rest (task frame): the start handle
     operator_direction: np.ndarray  # unit, task frame
     schema: TickSchema
-    maps: Any = None  # the tick's mapping functions (arm_loop builds them)
+    maps: Any = None  # the tick's mapping functions (side.side_ticks builds them)
 
 
 def arm_remote_limits(config: Scene, points: list[np.ndarray]) -> RemoteLimits:

@@ -1,7 +1,7 @@
 """One side of an arm scene's tick, in Python, and what both sides share: the per-side arithmetic
 (`SideTick`: law, saturation, motor room, bound), the workspace mapping's maps (`Maps`), the
 operator's hand (`operator_hand`) and the wire sizes of the arm packets. The engine's Python arm
-loop (engine/arm_loop.py) and the live arm nodes (nodes/arm_side.py, operator_source) run these
+loop (engine/loop.py) and the live arm nodes (nodes/arm_side.py, operator_source) run these
 same objects; compiled_side.py is the same side compiled (docs/arms.md, "The tick").
 """
 

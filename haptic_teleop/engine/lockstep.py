@@ -15,7 +15,6 @@ hold grows with the run's length (docs/performance.md, "Memory").
 
 from __future__ import annotations
 
-import struct
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -32,12 +31,21 @@ from haptic_teleop.assembly.parts import (
     build_operator,
     remote_limits,
 )
-from haptic_teleop.core.link import Link, Packet
-from haptic_teleop.core.operator import imposed_force1
+from haptic_teleop.assembly.stages import (
+    ArmOperator,
+    ArmRow,
+    ArmSideStage,
+    AxisOperator,
+    AxisRow,
+    AxisSide,
+    channel_stage,
+)
+from haptic_teleop.core.link import Link
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine.compiled import axis_host
 from haptic_teleop.engine.compiled.driver import CHUNK_TICKS, run_windows
-from haptic_teleop.engine.output import NO_PACKETS, Collector, Output, RunSink, Settled, loop_guard
+from haptic_teleop.engine.loop import LoopState, Stages, run_ticks
+from haptic_teleop.engine.output import NO_PACKETS, Collector, Output, RunSink, loop_guard
 from haptic_teleop.errors import InputError
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.streams import BLOCK_TICKS
@@ -91,7 +99,7 @@ class Engine:
         self.period_ns = round(c.scene.period_s * 1e9)
         self.ticks = int(round(c.scene.duration_s / c.scene.period_s))
         self.schema: TickSchema = ONE_DOF
-        self.pacer: Any = None  # arm_loop.Pacer when a side is a real device
+        self.pacer: Any = None  # pacer.Pacer when a side is a real device
         self.hardware_master = self.hardware_slave = False
         if c.is_arm:
             self._init_arm(loop)
@@ -147,9 +155,9 @@ class Engine:
             )
 
     def _init_arm(self, loop: str) -> None:
-        """An arm scene's parts (assembly.build_arm_parts); it runs in the Python loop (arm_loop.py)."""
+        """An arm scene's parts (assembly.build_arm_parts)."""
         from haptic_teleop.assembly.parts import build_arm_parts
-        from haptic_teleop.engine.arm_loop import Pacer
+        from haptic_teleop.engine.pacer import Pacer
         from haptic_teleop.plants.hardware_arm import HardwareArm
 
         self.arm = parts = build_arm_parts(self.scene.config)
@@ -158,7 +166,7 @@ class Engine:
         except BaseException:
             self.close_plants()
             raise
-        # A real device on a side: the loop keeps to the wall clock (arm_loop.Pacer).
+        # A real device on a side: the loop keeps to the wall clock (pacer.Pacer).
         self.hardware_master = isinstance(parts.master.plant, HardwareArm)
         self.hardware_slave = isinstance(parts.slave.plant, HardwareArm)
         self.pacer = Pacer(self.period_s) if self.hardware_master or self.hardware_slave else None
@@ -255,7 +263,7 @@ class Engine:
 
         The ticks' columns go to `sink.append` in blocks of BLOCK_TICKS rows (the last one
         shorter); each packet's record goes to `sink.append_packets` once its fate is final (see
-        `axis_host.settled_records`), at the end of each block, and the rest at the end. Memory
+        `stages.settled_records`), at the end of each block, and the rest at the end. Memory
         does not grow with the run's length. Without a sink the run is kept whole in memory
         (`Collector`; for tests and short runs) and returned in `RunResult.data` and the logs;
         with one, those are empty. If the loop raises, `self.ticks_done` says how many ticks
@@ -265,246 +273,62 @@ class Engine:
         out = sink if sink is not None else collector
         assert out is not None
         with loop_guard(self.request_stop, handle_sigint):
-            if self.loop_kind == "compiled" and self.schema is ONE_DOF:
+            if self.loop_kind != "compiled":
+                result = self._python_loop(progress, out)
+            elif self.schema is ONE_DOF:
                 result = self._compiled_loop(progress, out)
             else:
-                result = self._loop(progress, out)
+                result = self._compiled_arm_loop(progress, out)
         if collector is not None:
             result.data = self.data = collector.data()
             result.forward_log = collector.packets("forward")
             result.backward_log = collector.packets("backward")
         return result
 
-    def _loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        if self.schema is not ONE_DOF:
-            return self._arm_loop(progress, sink)
-        if self.codecs != (None, None):
-            return self._codec_loop(progress, sink)
-        n_ticks = self.ticks
-        period_ns = self.period_ns
-        period_s = self.period_s
-        self.ticks_done = 0
-        # Local bindings: attribute lookups are a measurable part of a 10 us tick (docs/performance.md).
-        master, slave = self.master, self.slave
-        m_read, s_read = master.read, slave.read
-        m_step, s_step = master.step, slave.step
-        s_contact = slave.contact_force
-        mc, sc = self.master_ctrl, self.slave_ctrl
-        m_control, s_control = mc.step1, sc.step1  # one axis: the controllers' scalar path
-        # The controllers update these lists in place every tick.
-        m_desired, s_desired = mc.force_desired, sc.force_desired
-        m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
-        # The reservoirs account with the force the plants really applied (docs/eba.md).
-        m_applied, s_applied = mc.bound.applied1, sc.bound.applied1
-        hand = self.operator.hand_force_and_intended
-        drive = self._drive()
-        fwd, bwd = self.forward, self.backward
-        fwd_send, bwd_send = fwd.send, bwd.send
-        fwd_deliver, bwd_deliver = fwd.deliver, bwd.deliver
-        fbuf, bbuf = self.forward_buffer, self.backward_buffer
-        fpush, frelease = fbuf.push, fbuf.release
-        bpush, brelease = bbuf.push, bbuf.release
-        m_set_remote, s_set_remote = mc.set_remote, sc.set_remote
-        fwd_size, bwd_size = self._sizes
-        output = Output(
-            sink,
-            lambda sent, final: axis_host.settled_records(fwd, fbuf, sent, final),
-            lambda sent, final: axis_host.settled_records(bwd, bbuf, sent, final),
-        )
-        block = output.block
-        # A tick's row goes straight into the block's memory: one C call, no tuple, no numpy
-        # scalar conversions (a third of what `block[i] = (...)` costs).
-        pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
-        row_bytes = 8 * len(COLUMNS)
-        base = 0  # tick of the block's first row
-        t0 = time.perf_counter()
-        done = 0
-        try:
-            for n in range(n_ticks):
-                now_ns = n * period_ns
-                xm, vm = m_read()
-                xs, vs = s_read()
-                x_m = xm[0]
-                v_m = vm[0]
-                x_s = xs[0]
-                v_s = vs[0]
-                f_env = s_contact()[0]
-                # master
-                fm = m_control(x_m, v_m)
-                fwd_send(Packet(n, now_ns, (x_m, v_m), fwd_size))
-                for p in fwd_deliver(now_ns):
-                    fpush(p, now_ns)
-                rel = frelease(now_ns)
-                if rel is not None:
-                    s_set_remote(rel.payload)
-                    frx = rel.seq
-                else:
-                    frx = -1
-                # slave
-                fs = s_control(x_s, v_s)
-                bwd_send(Packet(n, now_ns, (f_env, x_s, v_s), bwd_size))
-                for p in bwd_deliver(now_ns):
-                    bpush(p, now_ns)
-                rel = brelease(now_ns)
-                if rel is not None:
-                    m_set_remote(rel.payload)
-                    brx = rel.seq
-                else:
-                    brx = -1
-                # operator and plants
-                fh, xd, vd = hand(n * period_s, xm, vm)
-                fm_applied = m_step([fm], fh)[0]
-                if drive is not None:  # an imposed trajectory: the handle is put on it
-                    fh = drive(n + 1, v_m, fm_applied)
-                fs_applied = s_step([fs])[0]
-                m_applied(fm_applied)
-                s_applied(fs_applied)
-                pack_row(
-                    block, (n - base) * row_bytes,
-                    xd, vd, fh[0],
-                    x_m, v_m, fm_applied, m_desired[0], m_energy[0],
-                    x_s, v_s, fs_applied, s_desired[0], s_energy[0], f_env,
-                    frx, brx, fbuf.occupancy, bbuf.occupancy,
-                )  # fmt: skip
-                done = n + 1
-                if done % 100 == 0:
-                    self.ticks_done = done
-                    if progress is not None:
-                        progress(done)
-                    if done - base == BLOCK_TICKS:
-                        output.block_done(done)
-                        base = done
-                if self._stop:
-                    break
-        except BaseException:
-            self.ticks_done = done  # the failing tick did not finish: keep the ticks before it
-            self.master.close()
-            self.slave.close()
-            output.end_after_error(done)
-            raise
-        self.ticks_done = n = done
-        output.end(done)
-        wall = time.perf_counter() - t0
-        self.master.close()
-        self.slave.close()
-        return self._streamed(n, wall)
-
-    def _codec_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        """`_loop` with the codec stage on the directions that name one (assembly/channel.py):
-        the same tick in the same order; a codec direction's remote sample is its decoder's for
-        this tick, its `received` column the newest arrival's seq, its buffer occupancy 0."""
-        n_ticks, period_ns, period_s = self.ticks, self.period_ns, self.period_s
-        self.ticks_done = 0
-        master, slave = self.master, self.slave
-        mc, sc = self.master_ctrl, self.slave_ctrl
-        m_desired, s_desired = mc.force_desired, sc.force_desired
-        m_energy, s_energy = mc.bound.energy_j, sc.bound.energy_j
-        hand = self.operator.hand_force_and_intended
-        drive = self._drive()
+    def _stages(self) -> Stages:
+        """The stages of this scene's tick (assembly/stages.py): both sides, the operator, each
+        direction's channel (its codec's, or its link and playout buffer), the row."""
         fcodec, bcodec = self.codecs
-        fwd, bwd = self.forward, self.backward
-        fbuf, bbuf = self.forward_buffer, self.backward_buffer
-        fwd_size, bwd_size = self._sizes
+        fwd = channel_stage(fcodec, self.forward, self.forward_buffer, self._sizes[0], self.period_ns)
+        bwd = channel_stage(bcodec, self.backward, self.backward_buffer, self._sizes[1], self.period_ns)
+        if self.schema is ONE_DOF:
+            m = AxisSide(self.master, self.master_ctrl, True)
+            s = AxisSide(self.slave, self.slave_ctrl, False)
+            return Stages(AxisOperator(self.operator, m, self.period_s), m, s, fwd, bwd, AxisRow(self.schema))
+        parts = self.arm
+        mt, st = self.arm_ticks
+        km, ks = self.side_every
+        # a real master's operator is a real hand: nothing is commanded at the handle
+        m_arm = ArmSideStage(parts.master, mt, parts.maps, True, km, self.hardware_master, not self.hardware_master)
+        s_arm = ArmSideStage(parts.slave, st, parts.maps, False, ks, self.hardware_slave, False)
+        return Stages(ArmOperator(parts, self.period_s), m_arm, s_arm, fwd, bwd, ArmRow(self.schema, parts.maps))
 
-        def plain(link: Link, buf: PlayoutBuffer, size: int) -> Callable[[int, int, tuple[float, ...]], Any]:
-            def step(n: int, now_ns: int, sample: tuple[float, ...]) -> tuple[tuple[float, ...] | None, int]:
-                link.send(Packet(n, now_ns, sample, size))
-                for p in link.deliver(now_ns):
-                    buf.push(p, now_ns)
-                rel = buf.release(now_ns)
-                return (None, -1) if rel is None else (rel.payload, rel.seq)
-
-            return step
-
-        f_step = fcodec.step if fcodec is not None else plain(fwd, fbuf, fwd_size)
-        b_step = bcodec.step if bcodec is not None else plain(bwd, bbuf, bwd_size)
-
-        settled = self._settled
-        output = Output(sink, settled(fcodec, fwd, fbuf), settled(bcodec, bwd, bbuf))
-        block = output.block
-        pack_row = struct.Struct(f"<{len(COLUMNS)}d").pack_into
-        row_bytes = 8 * len(COLUMNS)
-        base = 0
+    def _python_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        """The tick in the interpreter (engine/loop.py), for every scene the compiled loops do not
+        run (or `--loop python`): the same rows and packet records as they give, bit for bit."""
+        self.ticks_done = 0
+        stages = self._stages()
+        output = Output(sink, stages.forward.settled, stages.backward.settled, self.schema.width)
+        state = LoopState()
         t0 = time.perf_counter()
-        done = 0
         try:
-            for n in range(n_ticks):
-                now_ns = n * period_ns
-                xm, vm = master.read()
-                xs, vs = slave.read()
-                x_m, v_m, x_s, v_s = xm[0], vm[0], xs[0], vs[0]
-                f_env = slave.contact_force()[0]
-                fm = mc.step1(x_m, v_m)
-                remote, frx = f_step(n, now_ns, (x_m, v_m))
-                if remote is not None:
-                    sc.set_remote(remote)
-                fs = sc.step1(x_s, v_s)
-                remote, brx = b_step(n, now_ns, (f_env, x_s, v_s))
-                if remote is not None:
-                    mc.set_remote(remote)
-                fh, xd, vd = hand(n * period_s, xm, vm)
-                fm_applied = master.step([fm], fh)[0]
-                if drive is not None:
-                    fh = drive(n + 1, v_m, fm_applied)
-                fs_applied = slave.step([fs])[0]
-                mc.bound.applied1(fm_applied)
-                sc.bound.applied1(fs_applied)
-                pack_row(
-                    block, (n - base) * row_bytes,
-                    xd, vd, fh[0],
-                    x_m, v_m, fm_applied, m_desired[0], m_energy[0],
-                    x_s, v_s, fs_applied, s_desired[0], s_energy[0], f_env,
-                    frx, brx,
-                    fbuf.occupancy if fcodec is None else 0.0, bbuf.occupancy if bcodec is None else 0.0,
-                )  # fmt: skip
-                done = n + 1
-                if done % 100 == 0:
-                    self.ticks_done = done
-                    if progress is not None:
-                        progress(done)
-                    if done - base == BLOCK_TICKS:
-                        output.block_done(done)
-                        base = done
-                if self._stop:
-                    break
+            done = run_ticks(
+                stages, self.ticks, self.period_ns, output, progress, lambda: self._stop, state, self.pacer
+            )
         except BaseException:
-            self.ticks_done = done
-            self.master.close()
-            self.slave.close()
-            output.end_after_error(done)
+            self.ticks_done = state.ticks_done  # the failing tick did not finish: keep the ticks before it
+            self.close_plants()
+            output.end_after_error(self.ticks_done)
             raise
         self.ticks_done = done
+        if self.schema is not ONE_DOF:  # ticks a motor's room scaled the torque down
+            self.joint_limit_ticks = {
+                "master": stages.master.tick.limited_ticks,
+                "slave": stages.slave.tick.limited_ticks,
+            }
+        self.close_plants()  # torque off first, then the rest of the bag
         output.end(done)
-        wall = time.perf_counter() - t0
-        self.master.close()
-        self.slave.close()
-        return self._streamed(done, wall)
-
-    def _drive(self) -> Callable[[int, float, float], list[float]] | None:
-        """With operator.profile imposed (core/operator.py): after the master's step, put its
-        handle on the trajectory at tick n + 1 and return the force the position source applied
-        (`imposed_force1`, the op_force_n column); None for a hand."""
-        op = self.operator
-        if not op.imposed:
-            return None
-        intended, set_state = op.intended, self.master.set_state  # type: ignore[attr-defined]
-        period_s = self.period_s
-        mass = self.master.inertia_kg()  # type: ignore[attr-defined]
-        damping = self.master.joint_damping()[0]
-
-        def drive(n1: int, v: float, applied: float) -> list[float]:
-            x1, v1 = intended(n1 * period_s)
-            set_state(x1, v1)
-            return [imposed_force1(mass, damping, period_s, v, v1, applied)]
-
-        return drive
-
-    def _settled(self, codec: Any, link: Link, buf: PlayoutBuffer) -> Settled:
-        """A direction's packet records whose fate is final: its codec's, or its link and buffer's."""
-        if codec is not None:
-            period_ns = self.period_ns
-            return lambda sent, final: codec.settled(sent, final, period_ns)
-        return lambda sent, final: axis_host.settled_records(link, buf, sent, final)
+        return self._streamed(done, time.perf_counter() - t0)
 
     def codec_facts(self) -> dict[str, Any]:
         """The run facts of the codec stage (`codec_<direction>`, and the plain packet's message
@@ -530,34 +354,22 @@ class Engine:
             schema=self.schema,
         )
 
-    def _arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
-        from haptic_teleop.engine.arm_loop import run_arm_loop
+    def _compiled_arm_loop(self, progress: Callable[[int], None] | None, sink: RunSink) -> RunResult:
+        """The compiled arm loop (arm_host.CompiledArm): a codec direction runs in the kernel
+        (arm_codec_nets), the other on its schedule."""
         from haptic_teleop.engine.compiled import arm_host
 
         self.ticks_done = 0
-        compiled = self.loop_kind == "compiled"
-        if compiled:  # a codec direction runs in the kernel (arm_codec_nets), the other on its schedule
-            nets = arm_host.arm_codec_nets(self.codecs, self.period_ns)
-            (fwd, bwd), window = self._compiled_network(nets)
-            output = Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled, self.schema.width)
-        else:
-            fcodec, bcodec = self.codecs
-            output = Output(
-                sink,
-                self._settled(fcodec, self.forward, self.forward_buffer),
-                self._settled(bcodec, self.backward, self.backward_buffer),
-                self.schema.width,
-            )
+        nets = arm_host.arm_codec_nets(self.codecs, self.period_ns)
+        (fwd, bwd), window = self._compiled_network(nets)
+        output = Output(sink, (nets[0] or fwd).settled, (nets[1] or bwd).settled, self.schema.width)
         t0 = time.perf_counter()
         done = 0
         try:
-            if compiled:
-                try:
-                    done = self._compiled_arm.run(self, progress, output, fwd, bwd, window, nets)
-                finally:
-                    self._compiled_arm.store(self)
-            else:
-                done = run_arm_loop(self, self.arm, progress, output)
+            try:
+                done = self._compiled_arm.run(self, progress, output, fwd, bwd, window, nets)
+            finally:
+                self._compiled_arm.store(self)
         except BaseException:
             done = self.ticks_done
             self.close_plants()

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.assembly.nve import DOWN, UP, NveParts, build_nve_parts
+from haptic_teleop.assembly.stages import settled_records
 from haptic_teleop.core.link import Packet
-from haptic_teleop.engine.compiled.axis_host import settled_records
 from haptic_teleop.engine.lockstep import RunResult
 from haptic_teleop.engine.output import Collector, Output, RunSink, Tee, loop_guard
 from haptic_teleop.engine.run import RunTiming

@@ -22,7 +22,7 @@ class RunTiming:
     record_wall_s: float  # loop start to bag closed
     interrupted: bool
     loop: str = "python"  # which loop ran: "compiled" or "python" (Engine.loop_kind)
-    pacing: dict[str, float | int] | None = None  # a real device's run: arm_loop.Pacer.facts()
+    pacing: dict[str, float | int] | None = None  # a real device's run: pacer.Pacer.facts()
 
     @property
     def realtime_factor(self) -> float:

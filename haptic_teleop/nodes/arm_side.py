@@ -58,7 +58,7 @@ class ArmEbaSide:
         # A side with its own period (<side>.period_s = `every` scene periods: docs/arms.md, "A side's
         # own period") runs the node's loop at that period; its bound, watchdog and ledger restart
         # count in it, and a simulated arm is stepped `every` scene periods per tick with the torque
-        # held, as the engine's loop does (engine/arm_loop.py).
+        # held, as the engine's loop does (engine/loop.py).
         self.every = side_period_ticks(config, role, f"parameters of node {node.get_name()}")
         # The engine's compiled tick of this side (numba), else the Python SideTick (same results).
         fallback = mt if role == "master" else st

@@ -1,7 +1,7 @@
 """A real arm as the engine's arm plant: a `JointDriver` (the device) and an `ArmKinematics` of the
 same MJCF model (docs/hardware.md, "The hardware arm plant").
 
-`HardwareArm` has the interface the arm tick uses on `MujocoArm` (engine/arm_loop.py,
+`HardwareArm` has the interface the arm tick uses on `MujocoArm` (engine/loop.py,
 nodes/arm_side.py): `read()`, `point()`, `jacobian()`, `orientation()`, `angular_velocity()`,
 `gravity_torque()`, `torque_room()`, `step()`, `contact_wrench()`, `joint_damping()`, `close()`.
 Per tick:

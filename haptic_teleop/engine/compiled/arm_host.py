@@ -1,4 +1,4 @@
-"""The compiled loop for arm scenes: the same tick as the Python arm loop (`arm_loop.py`), in numba.
+"""The compiled loop for arm scenes: the same tick as the Python arm loop (engine/loop.py), in numba.
 
 The tick (docs/performance.md, "Arm scenes") calls MuJoCo from compiled code on the plants' own
 `MjModel`/`MjData`: `mj_step1` (positions, velocities, kinematics, gravity torques, collisions),
@@ -190,7 +190,7 @@ def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
 
 class CompiledArm:
     """An arm scene's compiled loop: the kernel's arrays, built from (and sharing state with) the
-    scene's Python objects; `run` ticks it like `arm_loop.run_arm_loop`. With `codec` the loop is
+    scene's Python objects; `run` ticks it like `engine/loop.py`. With `codec` the loop is
     engine/compiled/arm_codec_kernel.py's (the codec stage in the kernel; `run` takes the directions'
     `arm_codec_nets`)."""
 

@@ -1,6 +1,6 @@
 """The compiled tick loop for arm scenes (numba), imported only by `haptic_teleop.engine.compiled.arm_host`.
 
-The tick is `arm_loop.run_arm_loop`'s, in the same order, composed of each side's compiled stage
+The tick is `engine/loop.py`'s, in the same order, composed of each side's compiled stage
 (assembly/side_kernel.py: `point`, `side_torque`, `guarded`, `plant_step`, inlined) and the
 operator's profile (core/operator.py, compiled from its one definition). Importing this module
 needs numba and links MuJoCo's C functions (plants/mujoco_native.py). numba caches the compiled
@@ -293,7 +293,7 @@ def run_ticks(
     w0: int,
     d0: int,
 ) -> int:
-    """Ticks [n0, n1) of an arm scene (arm_loop.run_arm_loop's order). fwd_rel, fwd_occ, bwd_rel,
+    """Ticks [n0, n1) of an arm scene (engine/loop.py's order). fwd_rel, fwd_occ, bwd_rel,
     bwd_occ hold the window of ticks from w0 on; data the block of ticks from d0 on; the
     histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
     # Every array the ticks use is a borrowed view (no reference counting in the loop); the

@@ -42,7 +42,6 @@ extrapolating buffers either.
 
 from __future__ import annotations
 
-import bisect
 import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -50,6 +49,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from haptic_teleop import compiling
+from haptic_teleop.assembly.stages import settled_records
 from haptic_teleop.core.eba_state import AxisBoundState
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
@@ -192,30 +192,6 @@ def _vectorized(link: Link, buf: PlayoutBuffer) -> bool:
 
 def _seq(p: Packet) -> int:
     return p.seq
-
-
-def settled_records(link: Link, buf: PlayoutBuffer, sent: int, final: bool) -> np.ndarray | None:
-    """Records (bag rows) of the packets at the head of `link.log` whose fate is final, taken
-    out of the log; None if there are none. `sent`: the packets of ticks before it were sent.
-
-    A packet's record is final once the packet is neither in flight nor held by the buffer (lost,
-    played, skipped, late or a duplicate): every packet older than the oldest one still in the
-    link or the buffer. The log is in send order, so those are a prefix of it. `final` (the run
-    ended): every packet of the ticks before `sent`, in flight or not."""
-    mark = sent
-    if not final:
-        for s in (link.oldest_in_flight_seq(), buf.oldest_held_seq()):
-            if s is not None and s < mark:
-                mark = s
-    log = link.log
-    k = bisect.bisect_left(log, mark, key=_seq)
-    if k == 0:
-        return None
-    from haptic_teleop.record.layouts import packet_rows as _packet_rows
-
-    rows = _packet_rows(log[:k])
-    del log[:k]
-    return rows
 
 
 class TickedSchedule:
