@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 
 from haptic_teleop.core.link import Link
-from haptic_teleop.core.netconfig import build_link
 from haptic_teleop.core.nve import (
     Coupling,
     Fujimoto04,
@@ -29,7 +28,7 @@ from haptic_teleop.core.playout_seed import TransparencyBuffer
 from haptic_teleop.scene.direction import DirectionConfig
 from haptic_teleop.scene.nve_schema import NveClientConfig, NveConfig
 from haptic_teleop.scene.schema import Scene
-from haptic_teleop.scene.traces import link_traces, read_operator_trace
+from haptic_teleop.scene.traces import build_scene_link, read_operator_trace
 
 UP, DOWN = "up", "down"
 
@@ -114,7 +113,7 @@ def build_hip(nve: NveConfig, c: NveClientConfig) -> Hip:
 
 def build_direction(d: DirectionConfig, seed: int, stream: str, period_ns: int) -> tuple[Link, PlayoutBuffer]:
     """One direction's link (its random streams named `stream`) and the buffer at its end."""
-    link = build_link(d.effects, seed, stream, traces=link_traces(d.effects))
+    link = build_scene_link(d.effects, seed, stream)
     buf = build_buffer(d.buffer, period_ns)
     if isinstance(buf, TransparencyBuffer) and d.buffer.force_slope_n_per_s is None:
         raise ValueError(f"{stream}: buffer policy 'transparency' needs force_slope_n_per_s in an NVE scene")

@@ -27,8 +27,10 @@ from haptic_teleop.core.playout_seed import NetworkAdaptiveBuffer, TransparencyB
 from haptic_teleop.core.transparency import ContactStart
 from haptic_teleop.scene.contact import contact_start_of, transparency_budget_of
 from haptic_teleop.scene.schema import ControllerConfig, OperatorConfig, SaturationConfig, Scene
-from haptic_teleop.scene.traces import build_scene_link as build_link  # the link with its trace files' rows
-from haptic_teleop.scene.traces import read_operator_trace
+from haptic_teleop.scene.traces import (
+    build_scene_link,  # the link with its trace files' rows
+    read_operator_trace,
+)
 
 if TYPE_CHECKING:
     import numpy as np
@@ -192,17 +194,14 @@ def build_network(c: Scene, period_ns: int) -> tuple[Link, Link, PlayoutBuffer, 
     """Fresh links and playout buffers for both directions, as the scene names them."""
     op = c.operator
     seed = c.scene.seed
-    forward = build_link(c.network.forward.effects, seed, "forward")
-    backward = build_link(c.network.backward.effects, seed, "backward")
+    forward = build_scene_link(c.network.forward.effects, seed, "forward")
+    backward = build_scene_link(c.network.backward.effects, seed, "backward")
     forward_buffer = build_buffer(c.network.forward.buffer, period_ns)
     backward_buffer = build_buffer(c.network.backward.buffer, period_ns)
     # The transparency-driven buffers need the contact force slope (docs/eba.md): the bounded
-    # coupling stiffness min(c1, 2b/T) times the operator's speed, unless the scene gives it.
-    speed = (
-        abs(op.speed_m_per_s)
-        if op.profile in ("push", "imposed")
-        else 2 * 3.141592653589793 * op.frequency_hz * op.amplitude_m
-    )
+    # coupling stiffness min(c1, 2b/T) times the operator's speed (`operator_reach`), unless the
+    # scene gives it.
+    speed = operator_reach(op, None)[1]
     for buf, bcfg, ctrl, b in (
         (backward_buffer, c.network.backward.buffer, c.controllers.master, c.master.damping_n_s_per_m),
         (forward_buffer, c.network.forward.buffer, c.controllers.slave, c.slave.damping_n_s_per_m),

@@ -24,7 +24,7 @@ class RemoteLimits:
 
     A remote sample with a value that is not finite or beyond its limit is rejected by the
     receiving controller (docs/eba.md, "Bad values in packets"). The engine derives the limits
-    from the scene (`haptic_teleop.engine.lockstep.remote_limits`).
+    from the scene (`haptic_teleop.assembly.parts.remote_limits`).
     """
 
     position_m: float  # workspace bound on |x|
