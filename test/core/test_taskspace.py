@@ -263,7 +263,7 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
     """Every per-tick array function compiles with numba as it is (`kernels`), and gives what the
     interpreted function gives on the same inputs (n = 1, 3, 6)."""
     numba = pytest.importorskip("numba")
-    from haptic_teleop.core import eba
+    from haptic_teleop.core import eba_coupled
     from haptic_teleop.core import taskspace as ts
 
     k = ts.kernels(numba.njit(cache=False))
@@ -298,7 +298,7 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
             ("orientation_coupling", (np.zeros(3), w3, v3, rot, _rodrigues((0, 1, 0), 0.4) @ rot, x3), 0),
         ]
         for name, args, out_index in calls:
-            fn = getattr(ts, name, None) or getattr(eba, name)
+            fn = getattr(ts, name, None) or getattr(eba_coupled, name)
             py_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
             nb_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
             r_py = fn(*py_args)
