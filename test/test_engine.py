@@ -45,7 +45,7 @@ def test_stop_request_leaves_a_complete_bag(tmp_path):
     scene = load_scene(DEFAULT, overrides=SHORT)
     bag = tmp_path / "bag"
     engine = Engine(scene, loop="python")  # wraps the Python loop; the compiled one: test_compiled_loop.py
-    original = engine._loop
+    original = engine._python_loop
 
     def stop_midway(progress, sink):
         def progress_and_stop(n):
@@ -54,7 +54,7 @@ def test_stop_request_leaves_a_complete_bag(tmp_path):
 
         return original(progress_and_stop, sink)
 
-    engine._loop = stop_midway  # type: ignore[method-assign]
+    engine._python_loop = stop_midway  # type: ignore[method-assign]
     from haptic_teleop.engine.lockstep import COLUMNS
     from haptic_teleop.record.recorder import RunRecorder
 

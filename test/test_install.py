@@ -111,7 +111,7 @@ def test_sdist_and_wheel_carry_scenes_models_and_ros_files(built):
     data = "haptic_teleop-0.1.0.data/data/share/haptic_teleop"
     want = {f"haptic_teleop/config/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
     want |= {f"{data}/config/scenes/{s}" for s in SCENES} | {f"{data}/models/{m}" for m in MODELS}
-    want |= {f"config/sweeps/{s}" for s in SWEEPS} | {f"{data}/config/sweeps/{s}" for s in SWEEPS}
+    want |= {f"haptic_teleop/config/sweeps/{s}" for s in SWEEPS} | {f"{data}/config/sweeps/{s}" for s in SWEEPS}
     assert want <= names, f"missing from the wheel: {sorted(want - names)}"
 
 

@@ -72,7 +72,6 @@ def test_engine_passes_the_transparency_analysis_and_the_link_minimum():
     """The engine gives the buffer the allowable delay and loss time the transparency analysis
     predicts for the scene's E (analysis.transparency's contact model, built independently of the
     assembly's) and the link's minimum delay; the link never delivers below that minimum."""
-    import yaml
 
     from haptic_teleop.analysis.transparency import contact_model
     from haptic_teleop.core.link import DELIVERED
@@ -81,7 +80,7 @@ def test_engine_passes_the_transparency_analysis_and_the_link_minimum():
 
     scene = load_scene(find_scene("seed_contact_playout"), overrides=["scene.duration_s=1.0", *_NO_REORDER])
     c = scene.config
-    model = contact_model(yaml.safe_load(scene.to_yaml()), {}, c.operator.speed_m_per_s)
+    model = contact_model(scene.config, {}, c.operator.speed_m_per_s)
     e = c.analysis.allowed_force_error_n
     d_a = allowable_delay(model, e)
     l_a = allowable_loss_time(model, e, transparent_loss_time(model, 0.0, model.master_start_force_n))

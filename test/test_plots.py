@@ -357,27 +357,27 @@ def _same_plot_data(a, b, path="data"):
 
 def test_streamed_plot_data_is_the_whole_array_reduction(run):
     """What `run` draws (streamed from the bag) is what the whole signals reduce to."""
-    from haptic_teleop.analysis import plotdata
+    from haptic_teleop.analysis import bag_plotdata, plotdata
 
     out, sig = run
     ref = plotdata.from_signals(sig)
-    _same_plot_data(ref, plotdata._from_bag(out / "bag"))
+    _same_plot_data(ref, bag_plotdata._from_bag(out / "bag"))
     # as `run` calls it: the lag from summary.json
     lag_s = summarize_bag(out / "bag")["force_alignment_lag_s"]
-    _same_plot_data(ref, plotdata._from_bag(out / "bag", lag_s))
+    _same_plot_data(ref, bag_plotdata._from_bag(out / "bag", lag_s))
 
 
 def test_streamed_plot_data_of_a_decimated_run(tmp_path):
     """A run long enough that every series is decimated (> 2 x 2400 ticks) and the scatter and
     event lanes are thinned (> 20000 packets, releases)."""
-    from haptic_teleop.analysis import plotdata
+    from haptic_teleop.analysis import bag_plotdata, plotdata
 
     out = tmp_path / "long"
     assert main(["run", "jitter", "--set", "scene.duration_s=21", "--out", str(out), "--quiet", "--no-plots"]) == 0
     sig = load_signals(out / "bag")
     ref = plotdata.from_signals(sig)
     assert ref.contact[0].size < sig.t_s.size and ref.network["forward"].groups[0][2] > 20_000
-    _same_plot_data(ref, plotdata._from_bag(out / "bag"))
+    _same_plot_data(ref, bag_plotdata._from_bag(out / "bag"))
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -424,7 +424,7 @@ def test_plot_data_memory_does_not_grow_with_the_run(tmp_path):
 
 def test_streamed_plot_data_in_tiny_blocks(run, monkeypatch):
     """The bag read in blocks of a few rows: state carried across every block boundary."""
-    from haptic_teleop.analysis import plotdata
+    from haptic_teleop.analysis import bag_plotdata, plotdata
     from haptic_teleop.record.reader import BagReader, TopicData
 
     rng = np.random.default_rng(5)
@@ -447,4 +447,4 @@ def test_streamed_plot_data_in_tiny_blocks(run, monkeypatch):
     monkeypatch.setattr(BagReader, "blocks", small_blocks)
     monkeypatch.setattr(BagReader, "packet_blocks", small_packets)
     out, sig = run
-    _same_plot_data(plotdata.from_signals(sig), plotdata._from_bag(out / "bag"))
+    _same_plot_data(plotdata.from_signals(sig), bag_plotdata._from_bag(out / "bag"))

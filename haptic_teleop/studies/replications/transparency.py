@@ -113,12 +113,11 @@ def _delay(d: float) -> tuple[str, ...]:
 
 def _model(scene: Any) -> Any:
     """The analysis' contact model of a scene (the master's damping: the scene's, as the plant has it)."""
-    import yaml
 
     from haptic_teleop.analysis.transparency import contact_model
 
     run_info = {"master_joint_damping": [scene.config.master.damping_n_s_per_m]}
-    return contact_model(yaml.safe_load(scene.to_yaml()), run_info, scene.config.operator.speed_m_per_s)
+    return contact_model(scene.config, run_info, scene.config.operator.speed_m_per_s)
 
 
 def _ramp(scene: Any) -> tuple[int, int]:
