@@ -320,9 +320,9 @@ def test_codec_nets_are_made_ready_a_thousand_ticks_ahead(monkeypatch):
     """The nets' random numbers and record rows are topped up once per READY_TICKS, not once per
     chunk of CHUNK_TICKS, and enough for every packet ARQ may send in them (four a tick here: its
     timeout under the round trip, with losses): the run is still the Python loop's."""
-    from haptic_teleop.engine.compiled import codec_host, driver
+    from haptic_teleop.engine.compiled import codec_host, windows
 
-    assert driver.READY_TICKS == 10 * driver.CHUNK_TICKS
+    assert windows.READY_TICKS == 10 * windows.CHUNK_TICKS
     asked = []
     ready = codec_host.CodecNet.ready
 

@@ -168,7 +168,7 @@ def test_the_layer_table_is_read_and_catches_an_upward_import():
     graph = import_graph()
     graph["haptic_teleop.core.eba"].add("haptic_teleop.scene.schema")  # core reaching up
     graph["haptic_teleop.nodes.arm_side"].add("haptic_teleop.engine.lockstep")  # nodes into the engine
-    graph["haptic_teleop.engine.compiled.driver"].add("haptic_teleop.engine.lockstep")  # compiled above itself
+    graph["haptic_teleop.engine.compiled.windows"].add("haptic_teleop.engine.lockstep")  # compiled above itself
     bad = layer_violations(graph, table)
     assert len(bad) == 3, bad
     mods = _modules()

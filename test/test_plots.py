@@ -24,9 +24,9 @@ from haptic_teleop.analysis.plots import FIGURES, energy_figure, energy_margins,
 from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.analysis.timeline import buffer_exits, buffer_occupancy, loss_causes, skip_times
 from haptic_teleop.cli.main import main
+from haptic_teleop.studies.batch.aggregate import aggregate
 from haptic_teleop.studies.batch.figure import key_label, metric_unit, sweep_figure, wrap_key
 from haptic_teleop.studies.batch.plan import Param
-from haptic_teleop.studies.batch.tables import aggregate
 
 SCENE = [
     "--set", "scene.duration_s=1.0",

@@ -20,6 +20,15 @@ from typing import Any
 
 from haptic_teleop import interrupt
 from haptic_teleop.errors import ConfigError
+from haptic_teleop.studies.batch.aggregate import (
+    DEFAULT_METRICS,
+    MAX_PLOT_COMBOS,
+    aggregate,
+    check_metrics,
+    default_metrics,
+    write_markdown,
+    write_plot,
+)
 from haptic_teleop.studies.batch.plan import (
     Point,
     Spec,
@@ -31,15 +40,6 @@ from haptic_teleop.studies.batch.plan import (
     resolve,
     spec_from_flags,
     split_values,
-)
-from haptic_teleop.studies.batch.tables import (
-    DEFAULT_METRICS,
-    MAX_PLOT_COMBOS,
-    aggregate,
-    check_metrics,
-    default_metrics,
-    write_markdown,
-    write_plot,
 )
 
 

@@ -43,7 +43,7 @@ from haptic_teleop.assembly.stages import (
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.engine.compiled import axis_host
-from haptic_teleop.engine.compiled.driver import CHUNK_TICKS, run_windows
+from haptic_teleop.engine.compiled.windows import CHUNK_TICKS, run_windows
 from haptic_teleop.engine.loop import LoopState, Stages, run_ticks
 from haptic_teleop.engine.output import NO_PACKETS, Collector, Output, RunSink, loop_guard
 from haptic_teleop.errors import InputError

@@ -250,7 +250,7 @@ class CompiledArm:
         on the directions' `settled`); returns the ticks done. `nets`: each direction's
         `arm_codec_nets` (with a codec, that direction's schedule, fwd or bwd, is None)."""
         from haptic_teleop.engine.compiled import axis_host
-        from haptic_teleop.engine.compiled.driver import run_windows
+        from haptic_teleop.engine.compiled.windows import run_windows
 
         self.take()
         block = output.block

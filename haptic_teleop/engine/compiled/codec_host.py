@@ -21,7 +21,7 @@ The random numbers are the effect's own: drawn here in blocks from the effect's 
 the numbers `UniformSource` hands out one at a time in the Python loop (`rng.random(n)` continues
 one stream whatever the block sizes; Gilbert-Elliott takes two per packet, the transition then
 the loss). The kernel never runs out: before the kernel runs the next ticks (up to
-`driver.READY_TICKS` of them) `CodecNet.ready` tops the numbers up to what their
+`windows.READY_TICKS` of them) `CodecNet.ready` tops the numbers up to what their
 packets may take and makes room for their records.
 
 This module is the Python side (the layouts of the kernel's per-direction arrays are in

@@ -110,7 +110,7 @@ ACK_RING_BITS, ACK_RING_COUNT, ACK_RING_OLD = 2, 3, 4
 # span), and how many seqs the decoder took in the plan's ticks up to this one; then those seqs,
 # in the order taken (at most the packets that arrive in a tick, 1 + nu over a constant delay, a
 # tick).
-PLAN_TICKS = 100  # (driver.CHUNK_TICKS: a chunk's ticks planned at once)
+PLAN_TICKS = 100  # (windows.CHUNK_TICKS: a chunk's ticks planned at once)
 P_RX, P_LAST, P_PREV, P_AHEAD, P_SPAN, P_TAKEN, P_WIDTH = range(7)
 # HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
 # decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).

@@ -48,8 +48,8 @@ DRILL_PLOTS = ("forces.png", "positions.png", "paths.png", "network.png")
 
 def choose_metrics(requested: str | None, available: Sequence[str], runs: Sequence[Run]) -> tuple[list[str], str]:
     """The metrics of sections 3 and 4 and a sentence saying where they came from."""
+    from haptic_teleop.studies.batch.aggregate import DEFAULT_METRICS
     from haptic_teleop.studies.batch.plan import split_values
-    from haptic_teleop.studies.batch.tables import DEFAULT_METRICS
 
     if requested:
         chosen = [m.strip() for m in split_values(requested) if m.strip()]
