@@ -62,8 +62,14 @@ def test_a_sides_hardware_section_is_read_by_its_backends_class(overrides, cls):
 @pytest.mark.parametrize(
     ("overrides", "words"),
     [
-        (["slave.backend=ur"], "slave.hardware.baud_bps = 4000000: a key of backend dynamixel, and the side's backend"),
-        (["slave.backend=dynamixel", "slave.hardware.host=robot"], "a key of backend ur, and the side's backend is"),
+        (
+            ["slave.backend=ur"],
+            "slave.hardware.baud_bps = 4000000: a key of backend dynamixel, and slave.backend is ur",
+        ),
+        (
+            ["slave.backend=dynamixel", "slave.hardware.host=robot"],
+            "a key of backend ur, and slave.backend is dynamixel",
+        ),
         (["slave.hardware.nonsense=1"], "keys of no one backend's hardware section"),
         (["slave.backend=dynamixel"], "slave.hardware.port = None: required: the serial port"),
         (["slave.backend=kuka"], "slave.backend = 'kuka': allowed: one of mujoco, dynamixel, ur"),

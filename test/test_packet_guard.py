@@ -138,14 +138,14 @@ def test_without_the_guard_nan_propagates():
 
 def test_rejections_reach_the_bag_and_the_summary(tmp_path, monkeypatch):
     made = {}
-    real_build_link = assembly_module.build_link
+    real_build_link = assembly_module.build_scene_link
 
     def corrupting_build_link(cfg, seed, direction, **kw):
         link = real_build_link(cfg, seed, direction, **kw)
         made[direction] = _Corruptor(link, every=37 if direction == "forward" else 29, offset=0)
         return link
 
-    monkeypatch.setattr(assembly_module, "build_link", corrupting_build_link)  # reaches the Python loop
+    monkeypatch.setattr(assembly_module, "build_scene_link", corrupting_build_link)  # reaches the Python loop
     engine, _ = record_run(SCENE, tmp_path / "bag", parallel=False, handle_sigint=False, loop="python", keep=True)
     summary, _ = analyze_bag(tmp_path / "bag")
     d = engine.data[: engine.ticks_done]

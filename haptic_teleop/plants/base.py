@@ -12,6 +12,8 @@ import importlib
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from haptic_teleop.plants.hardware import HardwareConfig
+
 
 class Plant(Protocol):
     """A device with `axes` linear axes, stepped one control period at a time.
@@ -73,10 +75,10 @@ class Backend:
         """A real device (it has a hardware section), not a simulation."""
         return self.config is not None
 
-    def config_class(self) -> type:
+    def config_class(self) -> type[HardwareConfig]:
         """Its hardware section's config class."""
         assert self.config is not None
-        cls: type = _attribute(self.config)
+        cls: type[HardwareConfig] = _attribute(self.config)
         return cls
 
     def make_arm_driver(self, hw: object, kin: object, torque_limit_nm: object, period_s: float) -> object:
@@ -137,6 +139,6 @@ def backend_class(name: str, role: str) -> type:
     return cls
 
 
-def hardware_classes() -> dict[str, type]:
+def hardware_classes() -> dict[str, type[HardwareConfig]]:
     """backend name -> its hardware section's config class, for every real backend."""
     return {name: b.config_class() for name, b in BACKENDS.items() if b.real}

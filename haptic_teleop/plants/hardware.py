@@ -16,7 +16,7 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 
@@ -110,7 +110,9 @@ class Problem:
 @dataclass(frozen=True)
 class HardwareConfig:
     """The start-up checks and the clock every real side has (docs/hardware.md); a backend's
-    config class adds its device's keys."""
+    config class adds its device's keys, and names those a real side cannot do without."""
+
+    required: ClassVar[tuple[str, ...]] = ()
 
     device_clock: str = field(
         default="real",

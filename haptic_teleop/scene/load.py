@@ -69,9 +69,10 @@ def _check_hardware(
                 "the measured pose with it)",
             )
         if hw is None:
-            keys = ", ".join(f.name for f in dataclasses.fields(b.config_class()))
-            allowed = f"required for backend {cfg.backend}: its keys {keys} (docs/hardware.md)"
-            raise ConfigError(source, f"{side}.hardware", None, allowed)
+            keys = ", ".join(b.config_class().required)
+            raise ConfigError(
+                source, f"{side}.hardware", None, f"required for backend {cfg.backend}: {keys} (docs/hardware.md)"
+            )
     if hw is None:
         return
     problem = hw.problem(side, tuple(joints), emulate or not b.real)

@@ -213,12 +213,13 @@ def hardware_section(backend: str, data: Any, where: str, source: str) -> type:
         stray = sorted(keys - set(own(cls)))
         if stray:
             others = [name for name, c in classes.items() if name != backend and stray[0] in own(c)]
-            why = f"a key of backend {others[0]}, and" if others else "unknown key; "
+            side = where.rpartition(".")[0]
+            why = f"a key of backend {others[0]}, and" if others else "unknown key, and"
             raise ConfigError(
                 source,
                 f"{where}.{stray[0]}",
                 data[stray[0]],
-                f"{why} the side's backend is {backend}; allowed for backend {backend}: {', '.join(own(cls))}",
+                f"{why} {side}.backend is {backend}; allowed for backend {backend}: {', '.join(own(cls))}",
             )
         return cls
     for cls in classes.values():

@@ -342,7 +342,7 @@ def test_a_ur_side_needs_a_control_mode_and_a_ur_master_only_direct_torque() -> 
     assert exc.value.key_path == "slave.hardware.control_mode"
     for mode in ("force_mode", "admittance", "torque"):  # every mode runs a slave
         load_scene(find_scene("touch_ur5e_wall"), [*base, f"slave.hardware.control_mode={mode}"])
-    with pytest.raises(ConfigError, match="a Dynamixel key") as exc:
+    with pytest.raises(ConfigError, match=r"a key of backend dynamixel, and slave\.backend is ur") as exc:
         load_scene(
             find_scene("touch_ur5e_wall"), [*base, "slave.hardware.control_mode=torque", "slave.hardware.ids=[1]"]
         )

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from haptic_teleop.plants.dynamixel import tables
 from haptic_teleop.plants.hardware import ArmDriver, HardwareConfig, JointDriver, Problem
@@ -18,6 +18,8 @@ BAUDS_BPS = (9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000)
 class DynamixelConfig(HardwareConfig):
     """A side on Dynamixel servos (docs/hardware.md): the bus (port, baud), per joint the servo's id,
     model, sign and zero offset; the start-up checks and the clock of every real side."""
+
+    required: ClassVar[tuple[str, ...]] = ("port", "ids", "models")
 
     port: str | None = field(default=None, metadata={"help": "the serial port, e.g. /dev/ttyUSB0"})
     baud_bps: int = field(default=1000000, metadata={"choices": BAUDS_BPS, "help": "the bus's baud rate"})

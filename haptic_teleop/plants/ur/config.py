@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from haptic_teleop.plants.hardware import ArmDriver, HardwareConfig, Problem
 from haptic_teleop.plants.ur.driver import JOINTS
@@ -19,6 +19,8 @@ class URConfig(HardwareConfig):
     """A side on a Universal Robots arm (docs/hardware.md, docs/ur.md): where its controller is, the
     control mode, and the settings of force mode and of the admittance; the start-up checks and the
     clock of every real side."""
+
+    required: ClassVar[tuple[str, ...]] = ("host", "control_mode")
 
     host: str | None = field(default=None, metadata={"help": "the robot controller's address"})
     control_mode: str | None = field(
