@@ -5,7 +5,8 @@ has the same `step`) and the row of the run's tick schema (`AxisRow`, `ArmRow`).
 
 The engine's Python loop (engine/loop.py) runs them in the one order every loop has:
 
-    both sides sense -> master control -> forward channel -> slave control -> backward channel
+    master tick (sense, control, its sample) -> forward channel -> the slave takes what it
+    releases -> slave tick -> backward channel -> the master takes what it releases
     -> the operator's hand -> both sides actuate -> the operator finishes -> the row
 
 Each stage holds its part of the tick's state and calls the core objects the assembly built (the
@@ -73,6 +74,7 @@ class PlainChannel:
         self.link, self.buffer, self.size_bytes = link, buffer, size_bytes
         self._send, self._deliver = link.send, link.deliver
         self._push, self._release = buffer.push, buffer.release
+        self.occupancy: float = buffer.occupancy  # the buffer's after this tick's release
 
     def step(self, n: int, now_ns: int, sample: Payload) -> tuple[Payload | None, int]:
         """Send tick n's sample, deliver, release: (the released payload or None, its seq or -1)."""
@@ -81,11 +83,8 @@ class PlainChannel:
         for p in self._deliver(now_ns):
             push(p, now_ns)
         rel = self._release(now_ns)
+        self.occupancy = self.buffer.occupancy
         return (None, -1) if rel is None else (rel.payload, rel.seq)
-
-    @property
-    def occupancy(self) -> float:
-        return self.buffer.occupancy
 
     def settled(self, sent: int, final: bool) -> np.ndarray | None:
         return settled_records(self.link, self.buffer, sent, final)
@@ -127,18 +126,17 @@ class AxisSide:
         self.vs: list[float] = [0.0]
         self.x = self.v = self.f_env = self.force = self.applied = 0.0
 
-    def sense(self, n: int) -> None:
-        self.xs, self.vs = self._read()
-        self.x, self.v = self.xs[0], self.vs[0]
-        if not self.master:
-            self.f_env = self._contact()[0]
-
-    def control(self, n: int) -> None:
-        self.force = self._control(self.x, self.v)
-
-    def sample(self) -> Payload:
-        """The packet's payload: the master's (x, v), the slave's (f_env, x, v)."""
-        return (self.x, self.v) if self.master else (self.f_env, self.x, self.v)
+    def tick(self, n: int) -> Payload:
+        """Sense (the plant's state at t_n; the slave's wall force over the last period), control
+        (the law on the newest remote sample, saturation, the bound), and the sample to send:
+        the master's (x, v), the slave's (f_env, x, v)."""
+        self.xs, self.vs = xs, vs = self._read()
+        self.x, self.v = x, v = xs[0], vs[0]
+        self.force = self._control(x, v)
+        if self.master:
+            return (x, v)
+        self.f_env = f = self._contact()[0]
+        return (f, x, v)
 
     def take(self, payload: Payload) -> None:
         self._set_remote(payload)
@@ -169,6 +167,8 @@ class AxisOperator:
                 return imposed_force1(mass, damping, period_s, v, v1, applied)
 
             self._drive = drive
+        else:
+            self.finish = None  # type: ignore[assignment]  # nothing after the step: the loop skips it
 
     def hand(self, n: int, master: AxisSide) -> list[float]:
         fh, self.xd, self.vd = self._hand(n * self.period_s, master.xs, master.vs)
@@ -177,8 +177,7 @@ class AxisOperator:
 
     def finish(self, n: int, master: AxisSide) -> None:
         """After the master's step: an imposed trajectory puts the handle on it at tick n + 1."""
-        if self._drive is not None:
-            self.force = self._drive(n + 1, master.v, master.applied)
+        self.force = self._drive(n + 1, master.v, master.applied)
 
 
 class AxisRow:
@@ -214,7 +213,7 @@ class ArmSideStage:
     arm's ledger credits the damping over the time the tick's motion really took."""
 
     def __init__(self, side: ArmSide, tick: Any, maps: Any, master: bool, every: int, real: bool, hand: bool) -> None:
-        self.side, self.tick, self.maps, self.master = side, tick, maps, master
+        self.side, self.side_tick, self.maps, self.master = side, tick, maps, master
         self.plant: Any = side.plant  # a MujocoArm, or a HardwareArm (its read_interval_s)
         self.guard = side.guard
         self.every, self.real, self.hand_on = every, real, hand
@@ -233,13 +232,16 @@ class ArmSideStage:
         self.f_env: Any = None
         self.t_env: Any = None
 
-    def sense(self, n: int) -> None:
+    def tick(self, n: int) -> Payload:
+        """On a due tick: sense (joints, the point, the master's point mapped into the task frame,
+        the slave's contact wrench) and control (the side tick on the newest remote sample); then
+        the sample to send: the master's handle x, v, the slave's tool x, v and contact force."""
         self.due = due = n % self.every == 0
         plant = self.plant
         if due:
             self.q, self.qd = plant.read()
             if self.real:  # the motion since the last read took its own time (Pacer: late ticks)
-                self.tick.bound.stretch(plant.read_interval_s)
+                self.side_tick.bound.stretch(plant.read_interval_s)
             x, v = plant.point()
             if self.master:
                 self.hand_x, self.hand_v = x, v
@@ -247,15 +249,9 @@ class ArmSideStage:
             else:
                 self.x, self.v = x, v
                 self.f_env, self.t_env = plant.contact_wrench()
+            self.tau = self.side_tick.torque(self.x, self.v, self.remote)
         elif self.master and not self.real:  # the operator's hand meets the simulated handle where it is now
             self.hand_x, self.hand_v = plant.point()
-
-    def control(self, n: int) -> None:
-        if self.due:
-            self.tau = self.tick.torque(self.x, self.v, self.remote)
-
-    def sample(self) -> Payload:
-        """The packet's payload: the master's handle x, v; the slave's tool x, v and contact force."""
         if self.master:
             return (*self.x.tolist(), *self.v.tolist())
         return (*self.x.tolist(), *self.v.tolist(), *self.f_env.tolist())
@@ -268,7 +264,7 @@ class ArmSideStage:
         hand = hand if self.hand_on else None
         if self.due:
             self.applied = self.plant.step(self.tau, hand)
-            self.tick.bound.held[:] = self.applied  # the ledger: the torques the plant applied
+            self.side_tick.bound.held[:] = self.applied  # the ledger: the torques the plant applied
         elif not self.real:
             self.plant.step(self.tau, hand)
 
@@ -276,6 +272,8 @@ class ArmSideStage:
 class ArmOperator:
     """The operator of an arm scene: a 3-D hand toward the intended point, in the device's frame
     (side.operator_hand); a real master's operator is a real hand, nothing is commanded."""
+
+    finish = None  # a hand, not a position source: nothing after the step
 
     def __init__(self, parts: ArmParts, period_s: float) -> None:
         from haptic_teleop.assembly.side import operator_hand
@@ -288,9 +286,6 @@ class ArmOperator:
     def hand(self, n: int, master: ArmSideStage) -> Any:
         self.xd, self.vd, self.force = self._hand(self.parts, n * self.period_s, master.hand_x, master.hand_v)
         return self.force
-
-    def finish(self, n: int, master: ArmSideStage) -> None:
-        """Nothing after the step (a hand, not a position source)."""
 
 
 class ArmRow:
@@ -308,7 +303,7 @@ class ArmRow:
     ) -> None:  # fmt: skip
         row = block[i]
         c = iter(self.c)
-        mt, st = m.tick, s.tick
+        mt, st = m.side_tick, s.side_tick
         row[next(c)] = op.xd
         row[next(c)] = op.vd
         row[next(c)] = self.maps.force_to_task(op.force) if m.hand_on else np.nan

@@ -117,6 +117,7 @@ class Engine:
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
         self._stop = False
+        self._state: LoopState | None = None  # the Python loop's, while it runs
         self.compiled_reason = axis_host.compiled_reason(self.parts) if loop != "python" else "loop 'python' asked for"
         if loop == "compiled" and self.compiled_reason is not None:
             raise InputError(
@@ -212,6 +213,7 @@ class Engine:
         # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
         self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
         self._stop = False
+        self._state: LoopState | None = None  # the Python loop's, while it runs
         from haptic_teleop.engine.compiled import arm_host
 
         codec = self.codecs != (None, None)
@@ -247,6 +249,8 @@ class Engine:
     def request_stop(self) -> None:
         """Stop at the end of the current tick (Ctrl-C)."""
         self._stop = True
+        if self._state is not None:  # the Python loop reads its state's flag
+            self._state.stop = True
 
     @property
     def stop_requested(self) -> bool:
@@ -309,12 +313,11 @@ class Engine:
         self.ticks_done = 0
         stages = self._stages()
         output = Output(sink, stages.forward.settled, stages.backward.settled, self.schema.width)
-        state = LoopState()
+        self._state = state = LoopState()
+        state.stop = self._stop
         t0 = time.perf_counter()
         try:
-            done = run_ticks(
-                stages, self.ticks, self.period_ns, output, progress, lambda: self._stop, state, self.pacer
-            )
+            done = run_ticks(stages, self.ticks, self.period_ns, output, progress, state, self.pacer)
         except BaseException:
             self.ticks_done = state.ticks_done  # the failing tick did not finish: keep the ticks before it
             self.close_plants()
@@ -323,8 +326,8 @@ class Engine:
         self.ticks_done = done
         if self.schema is not ONE_DOF:  # ticks a motor's room scaled the torque down
             self.joint_limit_ticks = {
-                "master": stages.master.tick.limited_ticks,
-                "slave": stages.slave.tick.limited_ticks,
+                "master": stages.master.side_tick.limited_ticks,
+                "slave": stages.slave.side_tick.limited_ticks,
             }
         self.close_plants()  # torque off first, then the rest of the bag
         output.end(done)

@@ -3,12 +3,12 @@ codec, over the stages of assembly/stages.py (docs/architecture.md, "One tick").
 
 Per tick n (period T, scene time n T):
 
-  1. both sides sense (plant state at t_n; the slave's wall force over the last period);
-  2. the master's control law and energy bound on the newest backward sample it took;
-  3. the forward channel: the master's sample sent, the slave takes what is released (or decoded);
-  4. the slave's control law and bound;
-  5. the backward channel: the slave's sample sent, the master takes what is released;
-  6. the operator's hand from the master's state, both sides actuate (the plants step one period
+  1. the master's tick: its plant's state at t_n, its control law and energy bound on the newest
+     backward sample it took, its sample;
+  2. the forward channel: the master's sample sent, the slave takes what is released (or decoded);
+  3. the slave's tick (its state, the wall force over the last period, its law and bound);
+  4. the backward channel: the slave's sample sent, the master takes what is released;
+  5. the operator's hand from the master's state, both sides actuate (the plants step one period
      with the forces held; the ledgers book what was applied), the operator finishes (an imposed
      trajectory), and the tick's row goes into the block.
 
@@ -39,10 +39,12 @@ class Stages:
 
 
 class LoopState:
-    """What the loop tells the engine as it goes: the ticks done (a failing tick leaves the ticks
-    before it), read by the engine when the loop ends or raises."""
+    """What the loop and the engine tell each other as it goes: the ticks done (a failing tick
+    leaves the ticks before it), read by the engine when the loop ends or raises; `stop`, set by a
+    stop request (Ctrl-C), read after every tick."""
 
     ticks_done = 0
+    stop = False
 
 
 def run_ticks(
@@ -51,18 +53,17 @@ def run_ticks(
     period_ns: int,
     output: Output,
     progress: Callable[[int], None] | None,
-    stop_requested: Callable[[], bool],
     state: LoopState,
     pace: Any = None,
 ) -> int:
-    """Ticks from 0 until `n_ticks` or a stop request; returns the ticks done (also in `state`)."""
+    """Ticks from 0 until `n_ticks` or a stop request (`state.stop`); returns the ticks done (also
+    in `state`)."""
     op, master, slave = stages.operator, stages.master, stages.slave
     fwd, bwd, row = stages.forward, stages.backward, stages.row
-    m_sense, s_sense, m_control, s_control = master.sense, slave.sense, master.control, slave.control
-    m_sample, s_sample, m_take, s_take = master.sample, slave.sample, master.take, slave.take
+    m_tick, s_tick, m_take, s_take = master.tick, slave.tick, master.take, slave.take
     m_actuate, s_actuate = master.actuate, slave.actuate
     f_step, b_step = fwd.step, bwd.step
-    hand, finish, write = op.hand, op.finish, row.write
+    hand, finish, write = op.hand, op.finish, row.write  # finish: None when the operator has nothing to do
     block = output.block
     rows = block.shape[0]
     base = 0  # tick of the block's first row
@@ -71,20 +72,17 @@ def run_ticks(
         now_ns = n * period_ns
         if pace is not None:
             pace.wait(n)
-        m_sense(n)
-        s_sense(n)
-        m_control(n)
-        payload, frx = f_step(n, now_ns, m_sample())
+        payload, frx = f_step(n, now_ns, m_tick(n))
         if payload is not None:
             s_take(payload)
-        s_control(n)
-        payload, brx = b_step(n, now_ns, s_sample())
+        payload, brx = b_step(n, now_ns, s_tick(n))
         if payload is not None:
             m_take(payload)
         h = hand(n, master)
         m_actuate(n, h)
         s_actuate(n, None)
-        finish(n, master)
+        if finish is not None:
+            finish(n, master)
         write(block, n - base, op, master, slave, frx, brx, fwd.occupancy, bwd.occupancy)
         done = state.ticks_done = n + 1
         if done % 100 == 0:
@@ -93,6 +91,6 @@ def run_ticks(
             if done - base == rows:
                 output.block_done(done)
                 base = done
-        if stop_requested():
+        if state.stop:
             break
     return done

@@ -32,8 +32,8 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float,
     import mujoco
 
     from haptic_teleop.engine.compiled import axis_host
-    from haptic_teleop.plants import mujoco_native
     from haptic_teleop.engine.lockstep import Engine
+    from haptic_teleop.plants import mujoco_native
     from haptic_teleop.scene.load import load_scene
 
     engine = Engine(load_scene(scene_path), loop="python")
