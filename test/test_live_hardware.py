@@ -47,6 +47,10 @@ ADDR_TORQUE_ENABLE = 64  # X-series control table (ROBOTIS e-Manual)
 ADDR_BUS_WATCHDOG = 98
 SCENE_TIME_0 = r"operator_source\]: scene time 0 at stamp"  # the operator's, not the relays' (announced ahead)
 
+# A margin a hair below zero is the rounding of products of near-zero velocities and forces (a live
+# arm at rest: -1e-33 J seen), not energy created.
+ROUNDING_J = 1e-12
+
 
 def _scene(name: str = SCENE, side: str = "slave"):
     from haptic_teleop.scene.load import find_scene, load_scene
@@ -165,7 +169,7 @@ def test_live_session_on_the_emulated_bus_is_passive_on_both_ports(session):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_joints"] == list(JOINTS) and summary["ticks"] > 0
     for side in ("master", "slave"):
-        assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
+        assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
     margins = _margins_from_bag(out / "bag")
     print("live margins (slave on servos):", margins)  # for the record (-s)
     assert margins["master"] >= -1e-9 and margins["slave"] >= -1e-9, margins
@@ -266,7 +270,7 @@ def test_live_session_with_a_dynamixel_leader_arm_as_master(tmp_path):
     assert np.all(np.isfinite(q))
     summary = json.loads((out / "summary.json").read_text())
     for side in ("master", "slave"):
-        assert summary[f"{side}_energy_margin_simulator_min_j"] >= 0.0, (side, summary)
+        assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
     margins = _margins_from_bag(out / "bag", name, real="master")
     print("live margins (leader on servos):", margins)  # for the record (-s)
     assert margins["master"] >= -1e-9 and margins["slave"] >= -1e-9, margins

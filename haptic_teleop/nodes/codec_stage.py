@@ -39,7 +39,6 @@ _FIELDS = ("position", "velocity", "effort")
 _NAME = re.compile(r"c(\d{3})(?:_\d{3}|\d{2})\Z")
 _HLI_NAME = re.compile(r"h(\d{3})_\d{3}\Z")
 COUNTERS_EVERY_S = 0.5
-FINAL_ACK_S = 2.0  # at close, the last counters' wait for the recorder's acknowledgement
 SNAPSHOT_TICKS = 5000  # counter snapshots kept while scene time 0 is not known yet
 
 
@@ -262,13 +261,16 @@ class WindowCounters:
         return {k: v - base.get(k, 0) for k, v in cur.items() if isinstance(v, (int, float))}
 
     def publish(self, final: bool = False) -> None:
-        """`final` (at close): wait until the recorder acknowledged it (at most FINAL_ACK_S), so the
-        last counters are not lost with this node's writer."""
-        self._pub.publish(self._string(data=json.dumps(self.window(), sort_keys=True)))
+        """`final` (at close): wait until the recorder acknowledged it (at most
+        messages.FINAL_ACK_S), so the last counters are not lost with this node's writer."""
+        counters = self.window()
+        if final:  # the recorder waits for this one at close (nodes/recorder.py)
+            counters["final"] = 1
+        self._pub.publish(self._string(data=json.dumps(counters, sort_keys=True)))
         if final:
-            from rclpy.duration import Duration
+            from haptic_teleop.nodes.messages import wait_acknowledged
 
-            self._pub.wait_for_all_acked(Duration(nanoseconds=round(FINAL_ACK_S * 1e9)))
+            wait_acknowledged(self._pub)
 
 
 def _pair(cfg: Any, direction: str, period_ns: int, arm: bool) -> tuple[Any, Any]:

@@ -178,3 +178,19 @@ def take_latest(sub: Any) -> Any:
         if nxt is None:
             return r[0]
         r = nxt
+
+
+# At close, the longest wait for a reliable publisher's last messages to be acknowledged by its
+# readers (the recorder). A reliable message lost on its first send is sent again only while its
+# writer lives: a node that exits at once loses it (on a busy machine a relay published 49 batches
+# of packet records and the recorder got none). Twice per node at most, within the launcher's
+# STOP_TIMEOUT_S.
+FINAL_ACK_S = 4.0
+
+
+def wait_acknowledged(pub: Any, timeout_s: float = FINAL_ACK_S) -> bool:
+    """Wait until every matched reader of `pub` acknowledged what it published (at most
+    `timeout_s`); whether they did."""
+    from rclpy.duration import Duration
+
+    return bool(pub.wait_for_all_acked(Duration(nanoseconds=round(timeout_s * 1e9))))

@@ -395,8 +395,12 @@ class NetworkRelay(LiveNode):
         }
 
     def close(self) -> None:
+        from haptic_teleop.nodes.messages import wait_acknowledged
+
         super().close()
         self.publish_packets()
+        if self._packets_pub is not None:  # the recorder has every batch before this writer goes
+            wait_acknowledged(self._packets_pub)
 
 
 def main() -> None:

@@ -4,7 +4,8 @@ the scene's intended trajectory, pressing on the master device.
 It reads the device state on /master/joint_states and publishes /operator/joint_states each tick
 (position, velocity: intended; effort: the hand force on the device), which master_eba applies.
 Its scene time starts once the node graph is up (the master is publishing, the topics it waits
-for have publishers, enough subscribers listen) plus a settling delay, so the whole push is seen
+for have publishers, the slave's loop is running: its state has been heard, enough subscribers
+listen) plus a settling delay, so the whole push is seen
 by every node and recorded; nothing is published before. After scene.duration_s it exits 0,
 which ends a launched run.
 """
@@ -28,12 +29,13 @@ from haptic_teleop.nodes.topics import (
     OPERATOR_JOINT,
     OPERATOR_STATE,
     SCENE_START_TOPIC,
+    SLAVE_STATE,
     latched_qos,
     received_topic,
     stream_qos,
 )
 
-DEFAULT_WAIT_FOR = ("/slave/joint_states", received_topic("forward"), received_topic("backward"))
+DEFAULT_WAIT_FOR = (SLAVE_STATE, received_topic("forward"), received_topic("backward"))
 _NAMES = ("start.wait_for_publishers", "start.min_subscribers", "start.delay_s", "start.timeout_s", "stop_at_end")
 
 
@@ -73,6 +75,13 @@ class OperatorSource(LiveNode):
         period_ns = round(cfg.scene.period_s * 1e9)
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
         self._master: tuple[list[float], list[float]] | None = None
+        # A publisher is there as soon as its node declares it, which may be seconds before that
+        # node's loop runs (a busy machine building the slave's plant and codec): the slave is up
+        # once a sample of its state came.
+        self._slave_heard = SLAVE_STATE not in self.wait_for
+        self._slave_sub = None
+        if not self._slave_heard:
+            self._slave_sub = self.create_polled_subscription(JointState, SLAVE_STATE, stream_qos(), raw=True)
         self.arm: Any = None
         # Scene time 0 is a tick of every side: with its own period (<side>.period_s, k scene periods)
         # a side's loop ticks on stamps k * period, so the start is a multiple of every side's k (their
@@ -142,7 +151,9 @@ class OperatorSource(LiveNode):
         self.out.publish(stamp_ns, (*xd_t, *vd_t, *self.arm.maps.force_to_task(f_dev).tolist()))
 
     def _graph_ready(self) -> bool:
-        if self._master is None:
+        if not self._slave_heard and self._slave_sub is not None:
+            self._slave_heard = take_latest(self._slave_sub) is not None
+        if self._master is None or not self._slave_heard:
             return False
         if self.count_subscribers(OPERATOR_STATE) < self.min_subscribers:
             return False
@@ -170,7 +181,8 @@ class OperatorSource(LiveNode):
             elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
                 raise RuntimeError(
                     f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
-                    f"(waiting for /master/joint_states, publishers of {self.wait_for}, "
+                    f"(waiting for /master/joint_states, a sample of {SLAVE_STATE} if listed, publishers of "
+                    f"{self.wait_for}, "
                     f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
                 )
             return

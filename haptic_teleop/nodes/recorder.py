@@ -178,6 +178,7 @@ MARGIN_S = 0.1
 # recording back: its ticks are written holding its last value.
 STALL_S = 2.0
 HOLD_S = 10.0  # a packet record the sync buffer has not decided after this long is written as is
+FINAL_COUNTERS_S = 3.0  # at close, the longest wait for the codec nodes' last counters
 FLUSH_EVERY_S = 0.5  # what was appended is on disk as complete chunks at least this often
 
 
@@ -569,14 +570,30 @@ class Recorder(LiveNode):
         from haptic_teleop.nodes.codec_stage import codec_run_facts
 
         got: dict[str, dict[str, dict[str, Any]]] = {"encoder": {}, "decoder": {}}
-        for (d, side), sub in self._codec_subs.items():
-            msgs = take_all(sub)
-            if msgs:
-                try:
-                    got[side][d] = json.loads(msgs[-1].data)
-                except ValueError:
-                    self.get_logger().warning(f"unreadable codec counters of the {d} {side}")
-        return codec_run_facts(self.cfg, got["encoder"], got["decoder"])
+        final: dict[tuple[str, str], bool] = {}
+        # The codec nodes publish their last counters as they close, which may be after this node
+        # was told to stop: wait for each (marked final) a little, then take what came.
+        end = time.monotonic() + FINAL_COUNTERS_S
+        while True:
+            for (d, side), sub in self._codec_subs.items():
+                for m in take_all(sub):
+                    try:
+                        counters = json.loads(m.data)
+                    except ValueError:
+                        self.get_logger().warning(f"unreadable codec counters of the {d} {side}")
+                        continue
+                    final[(d, side)] = bool(counters.pop("final", False))
+                    got[side][d] = counters
+            if all(final.get(k, False) for k in self._codec_subs) or time.monotonic() >= end:
+                break
+            time.sleep(0.02)
+        facts = codec_run_facts(self.cfg, got["encoder"], got["decoder"])
+        for d, side in self._codec_subs:
+            f = facts.get(f"codec_{d}")
+            if f is not None and got[side].get(d) and not final.get((d, side), False):
+                # the counters of a node still running at close (or whose last message was lost)
+                f["counters_not_final"] = ",".join(filter(None, (f.get("counters_not_final"), side)))
+        return facts
 
     def finish(self) -> Path:
         """Write what is left and close the bag; returns its directory."""

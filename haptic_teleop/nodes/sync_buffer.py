@@ -178,8 +178,11 @@ class SyncBuffer(LiveNode):
         self._fates_pub.publish(msg)
 
     def close(self) -> None:
+        from haptic_teleop.nodes.messages import wait_acknowledged
+
         super().close()
         self.publish_fates()
+        wait_acknowledged(self._fates_pub)  # the recorder has every batch before this writer goes
         if getattr(self, "codec", None) is not None:
             self.codec.close()
 
