@@ -89,6 +89,14 @@ class Launch:
         return {m.group(1): int(m.group(2)) for m in re.finditer(r"\[launcher\] (\w+) exited (-?\d+)", self.text)}
 
     def loop_table(self) -> str:
-        """The launcher's table of each node's loop over the run (reported by tests, not asserted)."""
+        """The launcher's table of each node's loop over the run."""
         i = self.text.find("loops (whole run):")
         return self.text[i : i + 1200] if i >= 0 else "(no loop table)"
+
+    def loop_row(self, node: str) -> tuple[int, int, int]:
+        """`node`'s row of the loop table: (ticks run, late ticks, skipped ticks). Counts, not rates:
+        a test may use them to allow for what a busy machine's loops skipped."""
+        table = self.loop_table()
+        m = re.search(rf"^\s+{node}\s+(\d+)\s+[\d.]+\s+(\d+)\s+(\d+)", table, re.MULTILINE)
+        assert m, table
+        return int(m.group(1)), int(m.group(2)), int(m.group(3))

@@ -137,16 +137,6 @@ def _records_came(rows: np.ndarray, facts: dict) -> bool:
     return bool(came)
 
 
-def _skipped_ticks(launch: Launch, node: str) -> int:
-    """The ticks `node`'s loop skipped over the run (the launcher's loop table)."""
-    import re
-
-    table = launch.loop_table()
-    m = re.search(rf"^\s+{node}\s+\d+\s+[\d.]+\s+\d+\s+(\d+)", table, re.MULTILINE)
-    assert m, table
-    return int(m.group(1))
-
-
 def _clean_exit(run: dict, nodes: tuple[str, ...], code: int = 0) -> None:
     launch = run["launch"]
     assert run["code"] == code, launch.text[-4000:]
@@ -241,7 +231,7 @@ def test_live_arq_retransmits_over_a_lossy_link_and_the_ack_relay_carries_the_ac
     # Interrupted: the counters run to each node's stop, the bag to the last tick every stream reached
     # (a stream far behind is held at its last value: counted as filled); the encoder gets every
     # tick the master's loop ran (a loop far behind skips ticks: counted).
-    skipped = _skipped_ticks(arq_run["launch"], "master_eba")
+    skipped = arq_run["launch"].loop_row("master_eba")[2]
     held = arq_run["info"]["samples_filled"]["/master/joint_states"]
     assert f["encoder_samples"] + skipped + held >= 0.9 * s["ticks"], (f, s["ticks"], skipped, held)
     assert f["encoder_retransmitted"] > 0.05 * f["encoder_samples"], f
