@@ -3,9 +3,9 @@ the scene's intended trajectory, pressing on the master device.
 
 It reads the device state on /master/joint_states and publishes /operator/joint_states each tick
 (position, velocity: intended; effort: the hand force on the device), which master_eba applies.
-Its scene time starts once the node graph is up (the master is publishing, the topics it waits
-for have publishers, the slave's loop is running: its state has been heard, enough subscribers
-listen) plus a settling delay, so the whole push is seen
+Its scene time starts once the node graph is up (the master is publishing, the slave's loop runs:
+a sample of its state came, the topics it waits for have publishers, enough subscribers listen)
+plus a settling delay, so the whole push is seen
 by every node and recorded; nothing is published before. After scene.duration_s it exits 0,
 which ends a launched run.
 """
