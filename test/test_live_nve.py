@@ -143,8 +143,10 @@ def test_client_measures_the_round_trip_of_the_links_plus_a_few_ticks(push_run):
     rtt = rows[:, 1]
     measured = rtt[~np.isnan(rtt)]
     assert measured.size > MIN_SEEN
-    print(f"measured R: min {measured.min():.4f} median {np.median(measured):.4f} "
-          f"p99 {np.percentile(measured, 99):.4f} max {measured.max():.4f} s")
+    print(
+        f"measured R: min {measured.min():.4f} median {np.median(measured):.4f} "
+        f"p99 {np.percentile(measured, 99):.4f} max {measured.max():.4f} s"
+    )
     assert np.percentile(measured, 10) >= R_FLOOR_S, measured.min()
     # How far above the links' delay R reads is the machine's scheduling (median 0.110-0.132 s, p99
     # up to 0.239 s seen on a busy 2-core machine): real time asserts no physics, so it is printed,
