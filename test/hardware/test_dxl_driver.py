@@ -287,6 +287,22 @@ def test_a_host_stall_longer_than_the_watchdog_is_one_clear_error(emulator):
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
 
 
+def test_a_lockstep_emulator_keeps_the_watchdog_on_its_own_time(emulator):
+    """In lockstep the servos' time advances with the host's writes only: a host (or an emulator
+    process) starved of the CPU for longer than the watchdog trips nothing; the same stall on a
+    real-time bus trips it (the test above)."""
+    bus = emulator(lockstep=True)
+    drv = DynamixelDriver(chain(bus.port, bus_watchdog_s=0.3))
+    drv.start()
+    drv.write(np.array([0.2, 0.2, 0.1]))
+    time.sleep(1.0)  # wall time only
+    for _ in range(3):
+        assert drv.read().stale == 0
+        drv.write(np.array([0.2, 0.2, 0.1]))
+    drv.stop()
+    assert bus.counters()["watchdog_trips"] == 0
+
+
 # ---------------------------------------------------------------- faults
 
 
@@ -372,7 +388,80 @@ def test_n_bad_replies_in_a_row_are_one_error_and_torque_off(emulator, kind, why
         why = "incorrect status packet"  # the packet ends short where the silent servo's part belongs
     assert msg.startswith(f"{who}: 3 reads in a row failed")
     assert why in msg and "1000000 bps" in msg and "every servo answers a ping" in msg
+    # each fault named as what it is (a fast packet cut short where the silent servo's part belongs
+    # is a corrupt packet)
+    named = {"drop_replies": "go missing", "corrupt_crc": "come corrupted", "slow_replies": "come late"}[kind]
+    if fast and kind == "drop_replies":
+        named = "come corrupted"
+    assert f"the replies {named}" in msg, msg
     time.sleep(0.3)
+    assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
+
+
+@pytest.mark.parametrize(
+    ("kind", "cause"),
+    [("watchdog_trip", "its Bus Watchdog(98) tripped"), ("torque_off", "its Torque Enable(64) is 0")],
+)
+@pytest.mark.parametrize("fast", [False, True], ids=["sync-read", "fast-sync-read"])
+def test_a_servo_that_stops_applying_its_goal_current_stops_the_driver_naming_it_and_why(emulator, kind, cause, fast):
+    """What the driver would record as applied must be what the servo applies: a servo whose Bus
+    Watchdog trips (a starved bus under load) or whose torque another program turns off reports
+    Present Current 0 against its Goal Current; within `applied_mismatch_reads` reads the driver
+    reads back why, turns the torque off and raises one line naming the servo and the cause."""
+    bus = emulator()
+    drv = DynamixelDriver(chain(bus.port, fast_sync_read=fast, applied_mismatch_reads=5))
+    drv.start()
+    tau = np.array([0.3, 0.3, 0.3])
+    for _ in range(3):
+        drv.write(tau)
+        assert drv.read().stale == 0  # a healthy servo applies what it was told: no error
+    bus.inject(servo_id=2, kind=kind)
+    reads = 0
+    with pytest.raises(HardwareError) as e:
+        for _ in range(50):
+            drv.write(tau)
+            drv.read()
+            reads += 1
+    assert reads == 4  # the 5th read after the fault raises
+    msg = str(e.value)
+    assert msg.startswith(f"servo 2 (shoulder) on {bus.port} is not applying the commanded torque: Present Current 0")
+    assert cause in msg and msg.endswith("torque is off") and "\n" not in msg
+    time.sleep(0.2)
+    assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
+
+
+def test_a_servo_off_its_goal_current_for_fewer_reads_than_allowed_is_no_fault(emulator):
+    bus = emulator()
+    drv = DynamixelDriver(chain(bus.port, applied_mismatch_reads=5))
+    drv.start()
+    drv.write(np.array([0.3, 0.3, 0.3]))
+    drv.read()
+    bus.inject(servo_id=2, kind="torque_off")
+    for _ in range(4):
+        drv.write(np.array([0.3, 0.3, 0.3]))
+        drv.read()
+    drv.write(np.zeros(3))  # Goal Current 0: Present Current 0 applies it
+    for _ in range(10):
+        drv.write(np.zeros(3))
+        assert drv.read().stale == 0
+    drv.stop()
+
+
+@pytest.mark.parametrize("at", [1, 2, 3, 4, 5, 6])
+def test_a_late_reply_at_start_is_never_taken_as_another_requests_answer(emulator, at):
+    """One reply 50 ms late during start-up (the SDK's packet timeout is shorter): the PING or
+    READ it answers is tried again, and the late reply, when it comes, is skipped or dropped as
+    late; it is never read as Firmware Version or Hardware Error Status (where a PING reply's
+    bytes once read as an invented overheating, encoder and overload fault)."""
+    bus = emulator(
+        faults=[{"servo_id": 1, "kind": "slow_replies", "at_transaction": at, "count": 1, "extra_delay_s": 0.05}]
+    )
+    drv = DynamixelDriver(chain(bus.port))
+    sample = drv.start()
+    assert sample.stale == 0 and drv.fast_sync_read_used
+    assert bus.counters()["slowed_replies"] == 1
+    drv.stop()
+    time.sleep(0.2)
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
 
 

@@ -97,9 +97,9 @@ class Server:
             if self.stop:
                 break
             now = self.now()
-            if realtime:
+            if realtime:  # (in lockstep the watchdog runs on the emulator's time: Bus.handle checks it)
                 self.bus.advance_to(now)
-            self.bus.check_watchdogs(now)
+                self.bus.check_watchdogs(now)
             for fd in ready:
                 if fd == self.master_fd:
                     self._line(now)

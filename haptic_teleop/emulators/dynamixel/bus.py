@@ -136,6 +136,13 @@ class Bus:
             s.slow_extra_s = f.extra_delay_s
         elif f.kind == "vanish":
             s.vanished = True
+        elif f.kind == "watchdog_trip":
+            s.set("bus_watchdog", -1)
+            s.watchdog_trips += 1
+            self.counters["watchdog_trips"] += 1
+            self._note(f"servo {s.id}: bus watchdog tripped (injected)")
+        elif f.kind == "torque_off":
+            s.set("torque_enable", 0)
         self._stale = True
 
     def _due_faults(self) -> None:
@@ -173,7 +180,11 @@ class Bus:
         c["bytes_in"] += pkt.wire_bytes
         c["wire_time_s"] += t.wire_time_s(pkt.wire_bytes, self.baud_bps)
         self._due_faults()
-        self.check_watchdogs(end_s)
+        # The Bus Watchdog runs on the servos' time: the bus clock in real time, the emulator's own
+        # in lockstep (which advances only with the host's writes), so a starved emulator process
+        # never trips a watchdog that a servo paced by its host would not.
+        heard_s = self.physics.time_s if self.cfg.time.mode == "lockstep" else end_s
+        self.check_watchdogs(heard_s)
         if pkt.instruction in _READS:
             self._refresh()
         out = _Schedule(self, end_s)
@@ -183,14 +194,14 @@ class Bus:
         if inst == I.PING:
             targets = sorted((s for s in self.servos if s.listening), key=lambda s: s.id)
             for s in targets if pid == t.BROADCAST_ID else [x for x in [self.servo(pid)] if x]:
-                s.heard(end_s)
+                s.heard(heard_s)
                 params = s.get("model_number").to_bytes(2, "little") + bytes((s.get("firmware_version"),))
                 out.status(s, 0, params)
         elif inst in (I.READ, I.WRITE, I.REBOOT) or inst not in _MULTI:
             targets = [s for s in self.servos if s.listening] if pid == t.BROADCAST_ID else []
             one = self.servo(pid)
             for s in targets or ([one] if one else []):
-                s.heard(end_s)
+                s.heard(heard_s)
                 wrote_goal_current |= self._single(s, inst, prm, out, broadcast=pid == t.BROADCAST_ID)
         elif inst in (I.SYNC_READ, I.FAST_SYNC_READ):
             if len(prm) >= 4:
@@ -198,7 +209,7 @@ class Bus:
                 servos = [self.servo(i) for i in prm[4:]]
                 for s in servos:
                     if s is not None:
-                        s.heard(end_s)
+                        s.heard(heard_s)
                 if inst == I.SYNC_READ:
                     for s in servos:
                         if s is not None and s.status_return_level >= 1:
@@ -214,14 +225,14 @@ class Bus:
                 for k in range(4, len(prm) - length, length + 1):
                     s = self.servo(prm[k])
                     if s is not None:
-                        s.heard(end_s)
+                        s.heard(heard_s)
                         s.write(addr, bytes(prm[k + 1 : k + 1 + length]))
                         wrote_goal_current |= _touches_goal_current(addr, length)
         elif inst == I.BULK_READ:
             for k in range(0, len(prm) - 4, 5):
                 s = self.servo(prm[k])
                 if s is not None and s.status_return_level >= 1:
-                    s.heard(end_s)
+                    s.heard(heard_s)
                     err, data = s.read(_u16(prm, k + 1), _u16(prm, k + 3))
                     out.status(s, err, data if not err else b"")
                 else:
@@ -232,7 +243,7 @@ class Bus:
                 addr, length = _u16(prm, k + 1), _u16(prm, k + 3)
                 s = self.servo(prm[k])
                 if s is not None:
-                    s.heard(end_s)
+                    s.heard(heard_s)
                     s.write(addr, bytes(prm[k + 5 : k + 5 + length]))
                     wrote_goal_current |= _touches_goal_current(addr, length)
                 k += 5 + length

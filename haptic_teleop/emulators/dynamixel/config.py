@@ -19,7 +19,9 @@ from haptic_teleop.typedconfig import build
 
 SOURCE = "bus config"
 
-FAULT_KINDS = ("hardware_error", "drop_replies", "corrupt_crc", "slow_replies", "vanish")
+FAULT_KINDS = ("hardware_error", "drop_replies", "corrupt_crc", "slow_replies", "vanish", "watchdog_trip", "torque_off")
+"""watchdog_trip: the servo's Bus Watchdog trips now (-1), as when its instructions came too far
+apart; torque_off: its Torque Enable(64) goes to 0, as another program on the bus would set it."""
 
 
 @dataclass(frozen=True)

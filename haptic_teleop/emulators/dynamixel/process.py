@@ -75,8 +75,7 @@ class DynamixelBus:
         return answer
 
     def inject(self, **fault: Any) -> None:
-        """A fault now: servo_id, kind (hardware_error, drop_replies, corrupt_crc, slow_replies,
-        vanish) and its bits/count/extra_delay_s."""
+        """A fault now: servo_id, kind (config.FAULT_KINDS) and its bits/count/extra_delay_s."""
         self.command(cmd="fault", **fault)
 
     def counters(self) -> dict[str, Any]:

@@ -100,6 +100,10 @@ class DynamixelChainConfig:
     the status packets (None: the SDK's own, about 34 ms plus the wire time).
     `max_consecutive_comm_errors`: reads in a row that may fail (timeout, corrupt packet) before
     the driver stops with an error; a single failed read returns the last good sample marked stale.
+    `applied_tolerance_units` and `applied_mismatch_reads`: a servo whose Present Current stays
+    further than `applied_tolerance_units` plus a fifth of the Goal Current from the Goal Current
+    the driver wrote, for `applied_mismatch_reads` fresh reads in a row, is not applying what it
+    is told (a tripped Bus Watchdog, torque off, a hardware error): the driver finds which and stops.
     """
 
     port: str
@@ -112,6 +116,8 @@ class DynamixelChainConfig:
     sysfs_root: str = "/sys/bus/usb-serial/devices"
     read_timeout_s: float | None = None
     max_consecutive_comm_errors: int = 3
+    applied_tolerance_units: int = 10
+    applied_mismatch_reads: int = 20
 
     def __post_init__(self) -> None:
         if not self.port:
@@ -140,6 +146,12 @@ class DynamixelChainConfig:
             raise ConfigError(SOURCE, "read_timeout_s", self.read_timeout_s, "allowed: > 0 and <= 10 s, or None")
         if self.max_consecutive_comm_errors < 1:
             raise ConfigError(SOURCE, "max_consecutive_comm_errors", self.max_consecutive_comm_errors, "allowed: >= 1")
+        if not 0 <= self.applied_tolerance_units <= 2000:
+            raise ConfigError(
+                SOURCE, "applied_tolerance_units", self.applied_tolerance_units, "allowed: 0..2000 units of 2.69 mA"
+            )
+        if self.applied_mismatch_reads < 1:
+            raise ConfigError(SOURCE, "applied_mismatch_reads", self.applied_mismatch_reads, "allowed: >= 1")
 
     @property
     def bus_watchdog_units(self) -> int:

@@ -61,6 +61,18 @@ SETTLE_S = 0.3
 """After reads failed, how long the driver lets late replies pass before it pings a silent servo
 again to tell a vanished servo from a slow or noisy line."""
 
+LATE_S = 0.1
+"""Before a start-up transaction is tried again, how long the driver lets the unanswered request's
+reply (if it is only late) arrive, to drop it with everything else on the line: the next request's
+answer is then its own."""
+
+APPLIED_REL = 0.2
+"""A servo applies what it was told when its Present Current is within `applied_tolerance_units`
+plus this fraction of the Goal Current (a current loop settles within a tick, with sensor noise
+of a few units; the e-Manual gives no figure: docs/dynamixel_driver.md, "Applied, not commanded")."""
+
+_NO_ERROR = 0x7F  # a status's error number bits (bit 7 is the Alert bit)
+
 _warned_not_usb: set[str] = set()
 
 
@@ -92,6 +104,13 @@ class DynamixelDriver:
         self.stale = 0  # reads in a row that failed (0: the last sample is fresh)
         self.stale_reads = 0  # failed reads since start
         self.reads = 0
+        self.late_replies = 0  # status packets that answered an earlier request, skipped
+        self.late_bytes = 0  # bytes on the line before a request (late replies), dropped
+        self.corrupt_replies = 0
+        self._run_late = 0  # late_replies when the current run of failed reads began
+        self._run_corrupt = 0
+        self._goal_units = np.zeros(len(js), dtype=np.int64)  # the Goal Current last written
+        self._mismatch = np.zeros(len(js), dtype=np.int64)  # fresh reads in a row not applying it
         self._last_fail = ""
         self._last_fail_index: int | None = None
         self._sample: DynamixelSample | None = None
@@ -133,11 +152,12 @@ class DynamixelDriver:
         self._open_port()
         atexit.register(self.stop)
         self._check_latency_timer()
-        ph = self._ph
         firmware: list[int] = []
         for k, joint in enumerate(cfg.joints):
-            for _ in range(START_TRIES):
-                number, result, _ = ph.ping(self._port, joint.id)
+            for attempt in range(START_TRIES):
+                if attempt:
+                    self._settle()
+                number, result, _ = self._ping(k)
                 if result == sdk.COMM_SUCCESS:
                     break
             if result != sdk.COMM_SUCCESS:
@@ -266,26 +286,99 @@ class DynamixelDriver:
         text = T.STATUS_ERROR_TEXT.get(T.StatusError(error & 0x7F)) if error & 0x7F <= 7 else None
         return self._fail(f"{self._servo(k)} refused to {what}: {text or f'status error 0x{error:02x}'}")
 
-    def _read(self, k: int, address: int, size: int, what: str) -> int:
+    # ------------------------------------------------------------------ one request, one answer
+
+    def _status(self, k: int, params: int) -> tuple[list[int], int, int]:
+        """The status packet of servo k answering the request just put on the bus, with `params`
+        parameter bytes: (parameters, result, error byte). A status of another servo, or of this
+        servo with another length, answers an earlier request that came late: it is counted
+        (`late_replies`) and skipped, never taken as this request's answer (the SDK's own receive
+        matches the id only). The request's packet timeout bounds the wait."""
         ph, port, sdk = self._ph, self._port, self._sdk
-        for _ in range(START_TRIES):
-            data, result, error = ph.readTxRx(port, self._ids[k], address, size)
+        want = self._ids[k]
+        while True:
+            rx, result = ph.rxPacket(port, False)
+            if result != sdk.COMM_SUCCESS:
+                if result == sdk.COMM_RX_CORRUPT:
+                    self.corrupt_replies += 1
+                return [], result, 0
+            length = rx[T.STATUS_LENGTH] | rx[T.STATUS_LENGTH + 1] << 8
+            error = rx[T.STATUS_ERROR]
+            if rx[T.STATUS_ID] == want and (length == params + 4 or (length == 4 and error & _NO_ERROR)):
+                return list(rx[T.STATUS_PARAMS : T.STATUS_PARAMS + params]), result, error
+            self.late_replies += 1
+
+    def _drop_input(self) -> None:
+        """Drop what is on the line (late replies), counted in `late_bytes`."""
+        port = self._port
+        with contextlib.suppress(AttributeError, OSError, ValueError):
+            self.late_bytes += int(port.ser.in_waiting)
+        port.clearPort()
+
+    def _settle(self) -> None:
+        """After a request went unanswered: let its reply arrive if it is only late, then drop it."""
+        time.sleep(LATE_S)
+        self._drop_input()
+
+    def _ping(self, k: int) -> tuple[int, int, int]:
+        """PING servo k: (model number, result, error byte), its own answer only (`_status`)."""
+        ph, port, sdk = self._ph, self._port, self._sdk
+        tx = [0] * 10  # the instruction packet's bytes, as the SDK's ping builds them (header added by txPacket)
+        tx[T.STATUS_ID] = self._ids[k]
+        tx[T.STATUS_LENGTH] = 3
+        tx[T.STATUS_LENGTH + 2] = int(T.Instruction.PING)
+        port.is_using = False
+        result = ph.txPacket(port, tx)
+        if result != sdk.COMM_SUCCESS:
+            return 0, result, 0
+        port.setPacketTimeout(T.PING_STATUS_PARAMS + 11)
+        data, result, error = self._status(k, T.PING_STATUS_PARAMS)
+        if result != sdk.COMM_SUCCESS or len(data) < 2:
+            return 0, result, error
+        return data[0] | data[1] << 8, result, error
+
+    def _try_read(self, k: int, address: int, size: int) -> tuple[list[int], int, int]:
+        """A READ of servo k, tried START_TRIES times (late replies let pass between): (data,
+        result, error byte) of the last try."""
+        ph, port, sdk = self._ph, self._port, self._sdk
+        data: list[int] = []
+        result, error = sdk.COMM_TX_FAIL, 0
+        for attempt in range(START_TRIES):
+            if attempt:
+                self._settle()
+            port.is_using = False
+            result = ph.readTx(port, self._ids[k], address, size)
+            data, error = [], 0
+            if result == sdk.COMM_SUCCESS:
+                data, result, error = self._status(k, size)
             if result == sdk.COMM_SUCCESS:
                 break
+        return data, result, error
+
+    def _read(self, k: int, address: int, size: int, what: str) -> int:
+        sdk = self._sdk
+        data, result, error = self._try_read(k, address, size)
         if result != sdk.COMM_SUCCESS:
             raise self._fail(
                 f"{self._servo(k)} did not answer to {what} ({self._result_text(result)}) at "
                 f"{self.config.baud_bps} bps: check its power and cable"
             )
-        if error & 0x7F:
+        if error & _NO_ERROR:
             raise self._status_fault(k, error, what)
         return T.int_from_bytes(bytes(data[:size]), False)
 
     def _write(self, k: int, address: int, size: int, value: int, what: str) -> None:
         ph, port, sdk = self._ph, self._port, self._sdk
         data = list(T.int_to_bytes(value, size, value < 0))
-        for _ in range(START_TRIES):
-            result, error = ph.writeTxRx(port, self._ids[k], address, size, data)
+        for attempt in range(START_TRIES):
+            if attempt:
+                self._settle()
+            port.is_using = False
+            result = ph.writeTxOnly(port, self._ids[k], address, size, data)
+            error = 0
+            if result == sdk.COMM_SUCCESS:
+                port.setPacketTimeout(11)  # a status without parameters, as the SDK's writeTxRx waits
+                _, result, error = self._status(k, 0)
             if result == sdk.COMM_SUCCESS:
                 break
         if result != sdk.COMM_SUCCESS:
@@ -306,8 +399,11 @@ class DynamixelDriver:
     def _hardware_fault(self, k: int) -> HardwareError:
         """The Alert bit came back: read which hardware error (70), torque off, the error."""
         self._port.is_using = False
-        data, result, _ = self._ph.readTxRx(self._port, self._ids[k], T.ADDR_HARDWARE_ERROR_STATUS, 1)
-        if result != self._sdk.COMM_SUCCESS:
+        result = self._ph.readTx(self._port, self._ids[k], T.ADDR_HARDWARE_ERROR_STATUS, 1)
+        data: list[int] = []
+        if result == self._sdk.COMM_SUCCESS:
+            data, result, _ = self._status(k, 1)
+        if result != self._sdk.COMM_SUCCESS or not data:
             return self._fail(
                 f"{self._servo(k)} signals a hardware error (Alert bit) but its Hardware Error Status(70) could "
                 f"not be read ({self._result_text(result)}): power-cycle the chain and read it with Dynamixel Wizard"
@@ -323,6 +419,8 @@ class DynamixelDriver:
         now = time.monotonic()
         if self._last_comm_s and now - self._last_comm_s > self.config.bus_watchdog_units * T.BUS_WATCHDOG_UNIT_S:
             self._check_watchdog(now - self._last_comm_s)
+        if self.stale == 0:  # a run of failed reads may begin: what went wrong in it is counted from here
+            self._run_late, self._run_corrupt = self.late_replies + self.late_bytes, self.corrupt_replies
         blocks = self._sync_read_fast() if self.fast_sync_read_used else self._sync_read()
         self._last_comm_s = time.monotonic()
         if blocks is None:
@@ -344,6 +442,7 @@ class DynamixelDriver:
         ticks = raw + self._wrap
         vel = state[:, 1]
         cur = state[:, 0]
+        self._check_applied(cur)
         sign = self._sign
         sample = DynamixelSample(
             q_rad=sign * (ticks * T.POSITION_UNIT_RAD - self._offset),
@@ -353,6 +452,52 @@ class DynamixelDriver:
         )
         self._sample = sample
         return sample
+
+    def _check_applied(self, present_units: np.ndarray) -> None:
+        """Each servo's Present Current against the Goal Current last written: a servo that stays
+        off it for `applied_mismatch_reads` fresh reads is not applying what it is told, and what
+        the host would record as applied is not: find why, torque off, one error naming it."""
+        cfg = self.config
+        goal = self._goal_units
+        off = np.abs(present_units - goal) > cfg.applied_tolerance_units + APPLIED_REL * np.abs(goal)
+        self._mismatch = np.where(off, self._mismatch + 1, 0)
+        worst = int(np.argmax(self._mismatch))
+        if self._mismatch[worst] >= cfg.applied_mismatch_reads:
+            raise self._applied_fault(worst, int(present_units[worst]), int(goal[worst]))
+
+    def _applied_fault(self, k: int, present: int, goal: int) -> HardwareError:
+        """Why servo k does not apply its Goal Current: its Bus Watchdog, Torque Enable, Hardware
+        Error Status and Operating Mode, read back; the error to raise (torque off first)."""
+        n = int(self._mismatch[k])
+        seen = (
+            f"{self._servo(k)} is not applying the commanded torque: Present Current {present} units against "
+            f"Goal Current {goal} units for {n} reads in a row"
+        )
+        self._port.is_using = False
+        watchdog = self._read(k, T.ADDR_BUS_WATCHDOG, 1, "read Bus Watchdog(98)")
+        if watchdog == 0xFF:  # -1: tripped
+            why = (
+                f"its Bus Watchdog(98) tripped (no instruction reached it within "
+                f"{self.config.bus_watchdog_units * 20} ms: a busy or stalled host), so it ignores Goal Current; "
+                f"keep the loop reading and writing every "
+                f"tick, give it a core of its own, or raise bus_watchdog_s"
+            )
+        elif self._read(k, T.ADDR_TORQUE_ENABLE, 1, "read Torque Enable(64)") == 0:
+            why = (
+                "its Torque Enable(64) is 0: something turned its torque off (another program on the bus, "
+                "a reboot, a power dip); find it before starting again"
+            )
+        elif status := self._read(k, T.ADDR_HARDWARE_ERROR_STATUS, 1, "read Hardware Error Status(70)"):
+            return self._fail(f"{seen}: {self._hardware_error_text(k, status)}")
+        elif (mode := self._read(k, T.ADDR_OPERATING_MODE, 1, "read Operating Mode(11)")) != T.OPERATING_MODE_CURRENT:
+            why = f"its Operating Mode(11) is {mode}, not current control (0): another program changed it"
+        else:
+            why = (
+                "it answers and reports no fault: the motor cannot draw that current (supply voltage too low "
+                "for the speed, a PWM Limit(36) below 885, a mechanical block); check the supply and the load, "
+                "or raise applied_tolerance_units if the current loop is noisier than that"
+            )
+        return self._fail(f"{seen}: {why}; torque is off")
 
     def _not_running(self, what: str) -> HardwareError:
         state = "stopped (torque off)" if self._stopped else "not started"
@@ -366,7 +511,9 @@ class DynamixelDriver:
             self._last_fail_index = index
 
     def _send_read(self, send: Callable[[], int], what: str, reply_bytes: int) -> None:
-        """Put a read instruction on the bus and wait until its `reply_bytes` can have arrived."""
+        """Put a read instruction on the bus (what is on the line before it, late replies, counted
+        and dropped) and wait until its `reply_bytes` can have arrived."""
+        self._drop_input()
         result = send()
         if result != self._sdk.COMM_SUCCESS:
             raise self._fail(
@@ -378,11 +525,11 @@ class DynamixelDriver:
         self._wait_for_bytes(reply_bytes)
 
     def _sync_read(self) -> list[bytes] | None:
-        sdk, ph, port = self._sdk, self._ph, self._port
+        sdk = self._sdk
         self._send_read(self._gsr.txPacket, "sync read", (11 + READ_BLOCK) * len(self._ids))
         blocks: list[bytes] = []
-        for k, i in enumerate(self._ids):
-            data, result, error = ph.readRx(port, i, READ_BLOCK)
+        for k in range(len(self._ids)):
+            data, result, error = self._status(k, READ_BLOCK)
             if result != sdk.COMM_SUCCESS:
                 self._miss(k, self._result_text(result))
                 return None
@@ -392,7 +539,20 @@ class DynamixelDriver:
                 self._miss(k, f"status error 0x{error:02x}")
                 return None
             blocks.append(bytes(data))
-        return blocks
+        return None if self._more_came() else blocks
+
+    def _more_came(self) -> bool:
+        """Bytes on the line after every reply was taken: a late reply came in this read's window,
+        so one of the replies taken may be it (same servo, same length) and not this read's own
+        answer. The read is not used (stale); the next request drops those bytes."""
+        try:
+            extra = int(self._port.ser.in_waiting)
+        except (AttributeError, OSError, ValueError):
+            return False
+        if extra:
+            self.late_replies += 1
+            self._miss(None, f"{extra} bytes came after the replies (a late reply)")
+        return extra > 0
 
     def _sync_read_fast(self) -> list[bytes] | None:
         sdk, ph, port = self._sdk, self._ph, self._port
@@ -400,6 +560,7 @@ class DynamixelDriver:
         self._send_read(self._gsr.fastSyncReadTxPacket, "fast sync read", 8 + FAST_PART * n)
         data, result, _ = ph.fastSyncReadRx(port, T.BROADCAST_ID, FAST_PART * n)
         if result != sdk.COMM_SUCCESS:
+            self.corrupt_replies += result == sdk.COMM_RX_CORRUPT
             self._miss(None, self._result_text(result))
             return None
         if len(data) < FAST_PART * n:
@@ -420,7 +581,7 @@ class DynamixelDriver:
             blocks.append(bytes(part[2 : 2 + READ_BLOCK]))
         if alert is not None:
             raise self._hardware_fault(alert)
-        return blocks
+        return None if self._more_came() else blocks
 
     def _wait_for_bytes(self, n_bytes: int) -> None:
         """Sleep in select() until the replies' bytes are in the input buffer, or the read's
@@ -451,13 +612,19 @@ class DynamixelDriver:
         cfg, sdk = self.config, self._sdk
         n_bad = self.stale
         self._port.is_using = False
+        with contextlib.suppress(Exception):  # Goal Current 0 at once: the diagnosis takes a while
+            for i in self._ids:
+                self._gsw_current.changeParam(i, [0, 0])
+            self._gsw_current.txPacket()
+            self._port.is_using = False
+        self._settle()  # replies that are only late arrive now, and count as late
         silent = list(range(len(self._ids)))
         for settle_s in (0.0, SETTLE_S):  # a second round after late replies have left the line
             time.sleep(settle_s)
             still = []
+            self._drop_input()
             for k in silent:
-                self._port.is_using = False
-                _, result, _ = self._ph.ping(self._port, self._ids[k])
+                _, result, _ = self._ping(k)
                 if result != sdk.COMM_SUCCESS:
                     still.append(k)
             silent = still
@@ -476,21 +643,36 @@ class DynamixelDriver:
                 f"it and the connectors along the chain; torque is off"
             )
         who = f"{self._servo(self._last_fail_index)}" if self._last_fail_index is not None else cfg.port
+        late = self.late_replies + self.late_bytes - self._run_late
+        corrupt = self.corrupt_replies - self._run_corrupt
+        if late and not corrupt:
+            why = (
+                "the replies come late (answers to earlier requests arrived after their read gave up): a busy host "
+                "or adapter; check the USB latency timer, Return Delay Time(9), give the loop a core of its own, or "
+                "raise read_timeout_s"
+            )
+        elif corrupt:
+            why = (
+                f"the replies come corrupted ({corrupt} with a bad CRC or cut short): check the cable and its "
+                f"length, the supply (noise), the connectors, or lower the baud rate"
+            )
+        else:
+            why = (
+                "the replies go missing: check the cable and its length, the supply (noise), Return Delay "
+                "Time(9), the USB latency timer, or lower the baud rate"
+            )
         return self._fail(
             f"{who}: {n_bad} reads in a row failed ({self._last_fail}) at {cfg.baud_bps} bps although every servo "
-            f"answers a ping: the replies come late or corrupted; check the cable and its length, the supply "
-            f"(noise), Return Delay Time(9), the USB latency timer, or lower the baud rate; torque is off"
+            f"answers a ping: {why}; torque is off"
         )
 
     def _check_watchdog(self, gap_s: float) -> None:
         """The host was silent longer than the Bus Watchdog: did it trip?"""
         self._port.is_using = False
-        for k, i in enumerate(self._ids):
-            for _ in range(START_TRIES):
-                data, result, _ = self._ph.readTxRx(self._port, i, T.ADDR_BUS_WATCHDOG, 1)
-                if result == self._sdk.COMM_SUCCESS:
-                    break
-            if result == self._sdk.COMM_SUCCESS and T.int_from_bytes(bytes(data[:1]), True) == -1:
+        for k in range(len(self._ids)):
+            data, result, _ = self._try_read(k, T.ADDR_BUS_WATCHDOG, 1)
+            # 0xFF (-1): tripped; a servo that does not answer is left to the reads to name
+            if result == self._sdk.COMM_SUCCESS and data[:1] == [0xFF]:
                 raise self._fail(
                     f"{self._servo(k)}: its Bus Watchdog(98) tripped (the host sent nothing for "
                     f"{gap_s * 1000:.0f} ms, the watchdog is {self.config.bus_watchdog_units * 20} ms) and it "
@@ -521,6 +703,7 @@ class DynamixelDriver:
                 f"was the adapter unplugged?"
             )
         self._last_comm_s = time.monotonic()
+        self._goal_units = units_arr.astype(np.int64)
         applied: np.ndarray = self._sign * units_arr * self._nm_per_unit
         return applied
 

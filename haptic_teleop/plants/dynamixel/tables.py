@@ -85,6 +85,16 @@ class StatusError(IntEnum):
     ACCESS = 0x07
 
 
+# A status packet's bytes (Protocol 2.0, e-Manual "Status Packet"): header FF FF FD, reserved 00,
+# id, length (2 bytes: instruction + error + parameters + CRC), instruction 0x55, error, then the
+# parameters and the CRC. A status of N parameter bytes has length N + 4.
+STATUS_ID = 4
+STATUS_LENGTH = 5
+STATUS_ERROR = 8
+STATUS_PARAMS = 9
+PING_STATUS_PARAMS = 3
+"""A PING's status parameters: Model Number (2 bytes) and Firmware Version (1 byte)."""
+
 ALERT_BIT = 0x80
 """Bit 7 of a status packet's error field: the device has a hardware error (read Hardware Error
 Status(70) for which); set in every status packet until the error is cleared by REBOOT."""
