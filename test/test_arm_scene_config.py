@@ -87,3 +87,33 @@ def test_arm_scene_yaml_round_trips(tmp_path: Path) -> None:
     again = load_scene(p)
     assert again.config == s.config
     assert math.isclose(sum(c * c for c in again.config.slave.wall.normal or ()), 1.0)
+
+
+@pytest.mark.parametrize(
+    ("role", "limits", "joint"),
+    [
+        ("slave", "[5, 5, 5, 0.5, 0.5, 0.5]", "shoulder_lift"),  # gravity needs 20.3 N m there
+        ("slave", "[150, 150, 5, 28, 28, 28]", "elbow"),
+    ],
+)
+def test_a_torque_limit_below_the_gravity_torque_at_the_start_is_refused(role: str, limits: str, joint: str) -> None:
+    """A side that cannot hold its arm against gravity at its start pose would drop it (a UR5e with
+    5 N m limits fell into the table at 142 N): refused before anything moves, naming the key, the
+    joint and both torques."""
+    from haptic_teleop.assembly.parts import build_arm_parts
+
+    with pytest.raises(ConfigError) as e:
+        build_arm_parts(_load(f"{role}.torque_limit_nm={limits}").config, compiled=False)
+    msg = str(e.value)
+    assert f"{role}.torque_limit_nm" in msg and f"joint {joint} needs" in msg and "N m" in msg
+    assert "\n" not in msg
+
+
+def test_torque_limits_that_hold_the_arm_are_accepted() -> None:
+    from haptic_teleop.assembly.parts import build_arm_parts
+
+    parts = build_arm_parts(_load("slave.torque_limit_nm=[150, 150, 150, 28, 28, 28]").config, compiled=False)
+    assert parts is not None
+    # without gravity compensation the motors hold nothing of gravity: nothing to check
+    build_arm_parts(_load("slave.torque_limit_nm=[5, 5, 5, 0.5, 0.5, 0.5]", "slave.gravity_compensation=false").config,
+                    compiled=False)  # fmt: skip

@@ -384,6 +384,32 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
         side.kernels["joint_limited"](np.zeros(n), tau, lo, hi, True)
 
 
+def check_gravity_hold(config: Scene, role: str, plant: MujocoArm | HardwareArm) -> None:
+    """A side whose motors compensate gravity must be able to hold the arm at its start pose:
+    a joint whose torque limit is below the gravity torque there would let the arm fall (the
+    bound then limits only the port torque beyond what the motors cannot give: a UR5e with 5 N m
+    limits fell into the table at 142 N). Refused before anything moves, one line naming the
+    side's key, the joint and both torques. Called with the plant at its start pose."""
+    import numpy as np
+
+    g = np.asarray(plant.gravity_torque(), dtype=float)  # zero when the side does not compensate
+    lo, hi = np.asarray(plant.torque_lo, dtype=float), np.asarray(plant.torque_hi, dtype=float)
+    short = np.flatnonzero((g > hi + 1e-9) | (g < lo - 1e-9))
+    if short.size:
+        from haptic_teleop.errors import ConfigError
+
+        k = int(short[0])
+        limit = float(hi[k] if g[k] > 0 else -lo[k])
+        raise ConfigError(
+            f"scene {config.scene.name}",
+            f"{role}.torque_limit_nm",
+            [round(float(x), 4) for x in hi],
+            f"joint {plant.joints[k]} needs {abs(float(g[k])):.2f} N m to hold the arm against gravity at "
+            f"{role}.start_q_rad, above its limit {limit:.2f} N m: raise that joint's limit, or start where "
+            f"gravity needs less",
+        )
+
+
 def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     """Both sides of an arm scene: plants, mapping, task-space laws, pooled joint bounds, guards,
     operator (docs/arms.md). `compiled`: the laws and bounds call numba-compiled kernels
@@ -400,6 +426,8 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     # A hardware side's plant starts its driver at its first read, not here (plants/hardware_arm.py).
     master = build_arm(config, "master")
     slave = build_arm(config, "slave")
+    for role, plant in (("master", master), ("slave", slave)):
+        check_gravity_hold(config, role, plant)
     kernels = arm_kernels() if compiled else None
     xm0 = master.point()[0]
     xs0 = slave.point()[0]

@@ -75,6 +75,10 @@ def test_watchdog_rounds_up_to_20_ms_units_and_current_limit_in_amperes():
     j = DynamixelJoint("e", 3, "XM430-W350", current_limit_a=1.7216)
     assert j.current_limit_units == 640  # 1.7216 A / 2.69 mA
     assert DynamixelJoint("e", 3, "XM430-W350").current_limit_units == 1193  # the model's maximum
+    # a limit between two units rounds down (toward safety): 1.7229 A is 640.5 units
+    assert DynamixelJoint("e", 3, "XM430-W350", current_limit_a=1.7229).current_limit_units == 640
+    assert DynamixelJoint("e", 3, "XM430-W350", current_limit_a=1.7242).current_limit_units == 640  # 640.97
+    assert DynamixelJoint("e", 3, "XM430-W350", current_limit_a=0.001).current_limit_units == 1  # never 0
     d = DynamixelDriver(DynamixelChainConfig("/dev/ttyUSB0", (j,)))
     assert d.torque_limit_nm[0] == pytest.approx(640 * 2.69e-3 * 1.783)
 

@@ -85,7 +85,9 @@ class DynamixelJoint:
         if self.current_limit is not None:
             return self.current_limit
         if self.current_limit_a is not None:
-            return max(1, min(self.servo_model.current_limit_max, round(self.current_limit_a / T.CURRENT_UNIT_A)))
+            # whole units at or below the limit asked for (toward safety: never above it), at least 1
+            units = math.floor(self.current_limit_a / T.CURRENT_UNIT_A + 1e-9)
+            return max(1, min(self.servo_model.current_limit_max, units))
         return self.servo_model.current_limit_max
 
 
