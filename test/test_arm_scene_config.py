@@ -94,6 +94,7 @@ def test_arm_scene_yaml_round_trips(tmp_path: Path) -> None:
     [
         ("slave", "[5, 5, 5, 0.5, 0.5, 0.5]", "shoulder_lift"),  # gravity needs 20.3 N m there
         ("slave", "[150, 150, 5, 28, 28, 28]", "elbow"),
+        ("slave", "[30, 30, 30, 1, 1, 1]", "wrist_1"),  # was the hard case ur5e_motor_below_gravity
     ],
 )
 def test_a_torque_limit_below_the_gravity_torque_at_the_start_is_refused(role: str, limits: str, joint: str) -> None:
