@@ -75,7 +75,7 @@ def _start_emulator(name: str = SCENE, side: str = "slave", hand_delay_s: float 
 
 def _registers(port: str, address: int, tries: int = 50, name: str = SCENE, side: str = "slave") -> list[int]:
     """One byte of every servo's control table, read through the SDK (a dropped reply is retried)."""
-    from haptic_teleop.plants.dynamixel.driver import read_byte_each
+    from haptic_teleop.plants.dynamixel.registers import read_byte_each
 
     hw = getattr(_scene(name, side), side).hardware
     return read_byte_each(port, hw.ids, address, hw.baud_bps, tries)

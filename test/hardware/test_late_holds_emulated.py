@@ -24,7 +24,7 @@ import pytest
 
 from haptic_teleop.assembly.emulation import bus_config
 from haptic_teleop.emulators.dynamixel.process import start_bus
-from haptic_teleop.plants.dynamixel.driver import read_byte_each
+from haptic_teleop.plants.dynamixel.registers import read_byte_each
 from haptic_teleop.plants.dynamixel.tables import ADDR_TORQUE_ENABLE
 from haptic_teleop.scene.load import find_scene, load_scene
 

@@ -33,7 +33,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -784,32 +784,6 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
             d.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-
-
-def read_byte_each(port_name: str, ids: Sequence[int], address: int, baud_bps: int, tries: int = 50) -> list[int]:
-    """One byte of each servo's control table (e.g. Torque Enable(64), Bus Watchdog(98)), read
-    through the SDK on a port no driver holds, a dropped reply retried up to `tries` times: how a
-    check after a run (and the tests) see what the servos really hold."""
-    sdk: Any = import_sdk("dynamixel_sdk")
-    port = sdk.PortHandler(port_name)
-    if not (port.openPort() and port.setBaudRate(baud_bps)):
-        raise HardwareError(f"{port_name}: cannot open the port at {baud_bps} bps")
-    packet = sdk.PacketHandler(2.0)
-    values: list[int] = []
-    try:
-        for servo in ids:
-            for _ in range(tries):
-                value, result, _ = packet.read1ByteTxRx(port, servo, address)
-                if result == sdk.COMM_SUCCESS:
-                    values.append(int(value))
-                    break
-            else:
-                raise HardwareError(
-                    f"servo {servo} on {port_name} did not answer a READ of address {address} in {tries} tries"
-                )
-    finally:
-        port.closePort()
-    return values
 
 
 def _is_a_joint_driver(driver: DynamixelDriver) -> JointDriver:
