@@ -116,8 +116,10 @@ class DynamixelBus:
         self.stop()
 
 
-def start_bus(config: BusConfig, timeout_s: float = 30.0, control: bool = True) -> DynamixelBus:
-    """Start an emulator for `config` and wait for its port; EmulatorError naming why not."""
+def start_bus(config: BusConfig, timeout_s: float = 90.0, control: bool = True) -> DynamixelBus:
+    """Start an emulator for `config` and wait for its port; EmulatorError naming why not. The wait
+    is long: a MuJoCo-physics emulator imports MuJoCo and loads its model, which on a busy 2-core
+    machine (a test run beside a fresh clone's compiling) once took more than 30 s."""
     tmpdir = tempfile.mkdtemp(prefix="dxl-emu-")
     control_path = config.control_socket
     if control and control_path is None:
