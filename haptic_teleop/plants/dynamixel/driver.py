@@ -66,6 +66,11 @@ LATE_S = 0.1
 reply (if it is only late) arrive, to drop it with everything else on the line: the next request's
 answer is then its own."""
 
+START_TIMEOUT_S = 0.1
+"""How long a start-up (or diagnosis) transaction waits for its reply: longer than the SDK's own
+(about 34 ms), which a busy host's emulator missed three times in a row in one CI run; it only
+costs time when a servo does not answer."""
+
 APPLIED_REL = 0.2
 """A servo applies what it was told when its Present Current is within `applied_tolerance_units`
 plus this fraction of the Goal Current (a current loop settles within a tick, with sensor noise
@@ -331,7 +336,7 @@ class DynamixelDriver:
         result = ph.txPacket(port, tx)
         if result != sdk.COMM_SUCCESS:
             return 0, result, 0
-        port.setPacketTimeout(T.PING_STATUS_PARAMS + 11)
+        port.setPacketTimeoutMillis(START_TIMEOUT_S * 1000.0)
         data, result, error = self._status(k, T.PING_STATUS_PARAMS)
         if result != sdk.COMM_SUCCESS or len(data) < 2:
             return 0, result, error
@@ -350,6 +355,7 @@ class DynamixelDriver:
             result = ph.readTx(port, self._ids[k], address, size)
             data, error = [], 0
             if result == sdk.COMM_SUCCESS:
+                port.setPacketTimeoutMillis(START_TIMEOUT_S * 1000.0)
                 data, result, error = self._status(k, size)
             if result == sdk.COMM_SUCCESS:
                 break
@@ -377,7 +383,7 @@ class DynamixelDriver:
             result = ph.writeTxOnly(port, self._ids[k], address, size, data)
             error = 0
             if result == sdk.COMM_SUCCESS:
-                port.setPacketTimeout(11)  # a status without parameters, as the SDK's writeTxRx waits
+                port.setPacketTimeoutMillis(START_TIMEOUT_S * 1000.0)
                 _, result, error = self._status(k, 0)
             if result == sdk.COMM_SUCCESS:
                 break
