@@ -449,12 +449,12 @@ def test_a_servo_off_its_goal_current_for_fewer_reads_than_allowed_is_no_fault(e
 
 @pytest.mark.parametrize("at", [1, 2, 3, 4, 5, 6])
 def test_a_late_reply_at_start_is_never_taken_as_another_requests_answer(emulator, at):
-    """One reply 50 ms late during start-up (the SDK's packet timeout is shorter): the PING or
+    """One reply 150 ms late during start-up (the driver's start-up timeout is 0.1 s): the PING or
     READ it answers is tried again, and the late reply, when it comes, is skipped or dropped as
     late; it is never read as Firmware Version or Hardware Error Status (where a PING reply's
     bytes once read as an invented overheating, encoder and overload fault)."""
     bus = emulator(
-        faults=[{"servo_id": 1, "kind": "slow_replies", "at_transaction": at, "count": 1, "extra_delay_s": 0.05}]
+        faults=[{"servo_id": 1, "kind": "slow_replies", "at_transaction": at, "count": 1, "extra_delay_s": 0.15}]
     )
     drv = DynamixelDriver(chain(bus.port))
     sample = drv.start()
