@@ -463,6 +463,14 @@ def test_a_node_dying_in_native_code_prints_its_stack_and_the_launcher_says_what
     assert "Native crashes at start" in launch.text
 
 
+def _recorder_story(out: Path, launch: Launch, rows: int, seen_ns: int) -> str:
+    """What a short bag's recorder said about itself: its counts and the launcher's loop table."""
+    facts = json.loads((out / "live_run.json").read_text()) if (out / "live_run.json").is_file() else {}
+    keys = ("ticks", "samples_filled", "samples_after_written", "messages_received")
+    told = {k: facts.get(k) for k in keys}
+    return f"{rows} rows, {seen_ns * 1e-9:.3f} s seen before the kill; {told}\n{launch.text[-3000:]}"
+
+
 def _read_killed_bag(bag: Path) -> np.ndarray:
     """The tick stamps (ns from scene time 0) of /operator/joint_states in a bag whose recorder was
     killed, rebuilt with `haptic-teleop bag recover`."""
@@ -513,7 +521,8 @@ def test_sigkill_of_one_process_leaves_a_readable_bag_and_the_others_exit_cleanl
         with BagReader(bag) as reader:
             stamps = np.asarray(reader.read("/operator/joint_states").stamp_ns, dtype=np.int64)
         assert json.loads((out / "summary.json").read_text())["ticks"] == stamps.size  # summary written
-        assert stamps.size * period >= seen - stamp0  # it ran past what this test saw before the kill
+        # It ran past what this test saw before the kill.
+        assert stamps.size * period >= seen - stamp0, _recorder_story(out, launch, stamps.size, seen - stamp0)
     assert np.array_equal(stamps, np.arange(stamps.size, dtype=np.int64) * period), "not a prefix of the ticks"
     assert "Traceback" not in launch.text
 

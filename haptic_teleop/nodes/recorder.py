@@ -298,7 +298,11 @@ class Recorder(LiveNode):
                         )
         topics = list(self._subs)
         self._poll_groups = [topics[i::POLL_GROUPS] for i in range(POLL_GROUPS)]
-        self._decode_every = max(1, round(DECODE_EVERY_S / (cfg.scene.period_s * TAKE_EVERY)))
+        # A decoding round starts at the first tick at or past each DECODE_EVERY_S of stamps (not
+        # on tick indices: a loop that skips ticks under load could step over those forever).
+        self._decode_period_ns = round(DECODE_EVERY_S * 1e9)
+        self._next_decode_ns = 0
+        self._poll_turn = 0
         self._to_decode: list[str] = []
         self.setup_loop(self.grid_ns * TAKE_EVERY)
         self.get_logger().info(f"recording to {self.bag_dir}")
@@ -330,9 +334,11 @@ class Recorder(LiveNode):
         return getattr(importlib.import_module(f"{pkg}.msg"), cls)
 
     def tick(self, index: int, stamp_ns: int) -> None:
-        self._take(self._poll_groups[index % POLL_GROUPS])
-        if index % self._decode_every == 0 and not self._to_decode:
+        self._take(self._poll_groups[self._poll_turn])  # in turn, whatever ticks the loop skipped
+        self._poll_turn = (self._poll_turn + 1) % POLL_GROUPS
+        if stamp_ns >= self._next_decode_ns and not self._to_decode:
             self._to_decode = list(self._queues)
+            self._next_decode_ns = stamp_ns + self._decode_period_ns
         if self._to_decode:
             self._drain_topic(self._to_decode.pop())
             if not self._to_decode:  # a round is complete: write what every stream has passed
