@@ -61,7 +61,7 @@ setup(
         (f"share/{PACKAGE}/config/sweeps", sorted(glob(f"config/{SWEEPS}"))),
     ],
     python_requires=">=3.10",
-    # Lower bounds: the oldest releases this package was tested with (README, "Install"). numpy 1.25:
+    # Lower bounds: the oldest releases this package was tested with (docs/install.md, "Install"). numpy 1.25:
     # Generator.spawn; mujoco 3.3.6: mjtDisableBit.mjDSBL_ISLAND; numba 0.60: numpy 2 support.
     # mujoco, rosbags and numba have no usable rosdep key: a ROS 2 workspace installs them with pip.
     install_requires=[
@@ -110,7 +110,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "haptic-teleop = haptic_teleop.cli.main:main",
+            "haptic-teleop = haptic_teleop.cli.entry:main",
             *(f"{name} = {module}:main" for name, module in NODES.items()),
         ],
     },

@@ -2,6 +2,6 @@
 
 import sys
 
-from haptic_teleop.cli.main import main
+from haptic_teleop.cli.entry import main
 
 sys.exit(main())

@@ -25,6 +25,12 @@ import argparse
 from haptic_teleop.studies.replications.args import OneLineParser
 
 
+def _help(text: str) -> str:
+    """A description as a subcommand's one-line help: argparse %-formats help strings (not
+    descriptions), so a literal '%' ("a 20 % lossy link") is doubled."""
+    return text.replace("%", "%%")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli/main.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
@@ -40,29 +46,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.__class__ = OneLineParser
     sub = p.add_subparsers(dest="experiment", required=True, metavar="NAME", parser_class=OneLineParser)
-    a = sub.add_parser("nve-analysis", help=nve.ANALYSIS_HELP, description=nve.ANALYSIS_HELP)
+    a = sub.add_parser("nve-analysis", help=_help(nve.ANALYSIS_HELP), description=nve.ANALYSIS_HELP)
     nve.add_analysis_arguments(a)
     a.set_defaults(func=nve.main_analysis)
     c = sub.add_parser(
-        "nve-compensation", help=nve_compensation.COMPENSATION_HELP, description=nve_compensation.COMPENSATION_HELP
+        "nve-compensation",
+        help=_help(nve_compensation.COMPENSATION_HELP),
+        description=nve_compensation.COMPENSATION_HELP,
     )
     nve_compensation.add_compensation_arguments(c)
     c.set_defaults(func=nve_compensation.main_compensation)
-    f = sub.add_parser("hli-filtering", help=codec.FILTERING_HELP, description=codec.FILTERING_HELP)
+    f = sub.add_parser("hli-filtering", help=_help(codec.FILTERING_HELP), description=codec.FILTERING_HELP)
     codec.add_filtering_arguments(f)
     f.set_defaults(func=codec.main_filtering)
-    e = sub.add_parser("error-control", help=codec.ERROR_CONTROL_HELP, description=codec.ERROR_CONTROL_HELP)
+    e = sub.add_parser("error-control", help=_help(codec.ERROR_CONTROL_HELP), description=codec.ERROR_CONTROL_HELP)
     codec.add_error_control_arguments(e)
     e.set_defaults(func=codec.main_error_control)
-    d = sub.add_parser("deadband", help=deadband.HELP, description=deadband.HELP)
+    d = sub.add_parser("deadband", help=_help(deadband.HELP), description=deadband.HELP)
     deadband.add_arguments(d)
     d.set_defaults(func=deadband.main)
-    dl = sub.add_parser("deadband-loop", help=deadband_loop.HELP, description=deadband_loop.HELP)
+    dl = sub.add_parser("deadband-loop", help=_help(deadband_loop.HELP), description=deadband_loop.HELP)
     deadband_loop.add_arguments(dl)
     dl.set_defaults(func=deadband_loop.main)
-    tr = sub.add_parser("transparency", help=transparency.HELP, description=transparency.HELP)
+    tr = sub.add_parser("transparency", help=_help(transparency.HELP), description=transparency.HELP)
     transparency.add_arguments(tr)
     tr.set_defaults(func=transparency.main)
-    pl = sub.add_parser("playout", help=playout.HELP, description=playout.HELP)
+    pl = sub.add_parser("playout", help=_help(playout.HELP), description=playout.HELP)
     playout.add_arguments(pl)
     pl.set_defaults(func=playout.main)

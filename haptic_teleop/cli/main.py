@@ -206,9 +206,11 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 
 def package_version() -> str:
     """The installed distribution's version, or the package's own when not installed."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
+    # Imported before the try: a signal inside this import must not leave the except clause's
+    # name unbound (an UnboundLocalError traceback in place of the interrupt).
+    from importlib.metadata import PackageNotFoundError, version
 
+    try:
         return version("haptic_teleop")
     except PackageNotFoundError:
         from haptic_teleop import __version__
@@ -256,8 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--emulate",
         action="store_const",
         const="lockstep",
-        help="start a Dynamixel bus emulator for each side on servos (backend dynamixel) and run against it, "
-        "in lockstep time: the same scene and seed give the same bag (docs/hardware.md)",
+        help="start an emulator for each side on hardware and run against it through the unmodified SDK: a "
+        "Dynamixel bus per side on servos (backend dynamixel; lockstep time: the same scene and seed give the "
+        "same bag), the UR emulator for a UR slave (backend ur; real time) (docs/hardware.md)",
     )
     r.add_argument(
         "--compression",
@@ -363,12 +366,19 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    # First: Ctrl-C and SIGTERM take one path from here on, imports included (interrupt.py).
+    """The command line, for callers that imported this module (tests, scripts). The console script
+    enters through `cli.entry.main`, which installs the signal handler before this module's
+    imports and also ends quietly on a closed stdout."""
     restore = interrupt.install()
     try:
         return _main(argv)
     finally:
         restore()
+
+
+def run_installed(argv: list[str] | None) -> int:
+    """The command, with interrupt.install() already in place (cli.entry)."""
+    return _main(argv)
 
 
 def _main(argv: list[str] | None) -> int:
