@@ -13,6 +13,7 @@ import contextlib
 import signal
 import sys
 from collections.abc import Callable, Iterator
+from typing import Any
 
 _PR_SET_PDEATHSIG = 1
 
@@ -80,3 +81,38 @@ def deadline(seconds: float, on_expiry: Callable[[], None]) -> Iterator[None]:
         yield
     finally:
         timer.cancel()
+
+
+@contextlib.contextmanager
+def signals_held(sigs: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
+    """Hold the Python handlers of `sigs` for the body: a signal that comes inside is recorded and
+    handed to the handler that was in place once the body has ended (the default action sent
+    again). For a write that must not be cut in half: a KeyboardInterrupt raised in the middle of a
+    message to the bag writer leaves the pipe out of step, and the close that follows would wait
+    for a reply that never comes. Main thread only (where Python runs handlers); elsewhere, and for
+    ignored signals, it holds nothing."""
+    import os
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    previous: dict[int, Any] = {}
+    for sig in sigs:
+        handler = signal.getsignal(sig)
+        if handler in (signal.SIG_IGN, None):
+            continue
+        previous[sig] = handler
+        signal.signal(sig, lambda signum, frame: got.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in got:
+            handler = previous[sig]
+            if callable(handler):
+                handler(sig, None)
+            else:  # SIG_DFL: the default action, now
+                os.kill(os.getpid(), sig)

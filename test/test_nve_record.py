@@ -444,10 +444,11 @@ def _start_child(bag: Path, parallel: bool) -> subprocess.Popen[str]:
     proc = subprocess.Popen(
         [sys.executable, "-c", code],
         stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,  # its own process group: a terminal's Ctrl-C reaches the group
-        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+        # SIGABRT prints every thread's stack (a child that does not end: test_ctrl_c_closes_the_nve_bag)
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "PYTHONFAULTHANDLER": "1"},
     )
     assert proc.stdout is not None
     line = proc.stdout.readline()  # a safety net: the child exits (EOF) if anything goes wrong
@@ -531,7 +532,11 @@ def test_ctrl_c_closes_the_nve_bag(tmp_path: Path) -> None:
     writers = _children(proc.pid)
     os.killpg(proc.pid, signal.SIGINT)
     try:
-        proc.wait(timeout=60)
+        proc.wait(timeout=60)  # a generous bound, not a timing
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)  # its stacks on stderr
+        err = proc.communicate(timeout=30)[1]
+        pytest.fail(f"the recording did not end within 60 s of Ctrl-C; its stacks:\n{err[-6000:]}")
     finally:
         if proc.poll() is None:
             proc.kill()

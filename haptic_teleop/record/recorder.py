@@ -25,7 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from haptic_teleop.errors import BagError
-from haptic_teleop.lifetime import die_with_parent
+from haptic_teleop.lifetime import die_with_parent, signals_held
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
 from haptic_teleop.record.layouts import PACKET_BATCH, packet_batch_head, packet_rows
 from haptic_teleop.record.mcap import BagSink
@@ -257,10 +257,11 @@ class RunRecorder:
                 _write_rows(self._sink, self._streams, part)
             elif self._ring is not None:
                 self._wait_for_slot()
-                k = part.shape[0]
-                self._ring[self._slot, :k] = part
-                self._send(("slot", (self._slot, k)))
-                self._slot = (self._slot + 1) % RING_SLOTS
+                with signals_held():  # the slot filled, named to the writer and passed, or none of it
+                    k = part.shape[0]
+                    self._ring[self._slot, :k] = part
+                    self._send(("slot", (self._slot, k)))
+                    self._slot = (self._slot + 1) % RING_SLOTS
             else:
                 self._send(("rows", np.array(part)))
 
@@ -354,7 +355,8 @@ class RunRecorder:
 
     def _send(self, message: tuple[str, Any]) -> None:
         try:
-            self._conn.send(message)
+            with signals_held():  # a message cut in half by Ctrl-C would leave the pipe out of step
+                self._conn.send(message)
         except OSError:
             self._fail(self._pending_error() or "the bag writer process ended")
 

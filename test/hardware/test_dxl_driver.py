@@ -226,6 +226,7 @@ else:
 
 def run_child(port, mode):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])}
+    env["PYTHONFAULTHANDLER"] = "1"  # SIGABRT prints every thread's stack (`_end`: a child that hangs)
     proc = subprocess.Popen(
         [sys.executable, "-c", CHILD, port, mode],
         stdout=subprocess.PIPE,
@@ -240,6 +241,17 @@ def run_child(port, mode):
     return proc
 
 
+def _end(proc: subprocess.Popen, timeout_s: float = 60.0) -> str:
+    """The child's stderr once it has ended; one that has not ended `timeout_s` after the signal
+    (a generous bound, not a timing) is made to print its stacks and fails the test with them."""
+    try:
+        return proc.communicate(timeout=timeout_s)[1]
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        err = proc.communicate(timeout=30)[1]
+        pytest.fail(f"the child did not end within {timeout_s:.0f} s of the signal; its stacks:\n{err[-6000:]}")
+
+
 @pytest.mark.parametrize("mode", ["guarded", "cli"], ids=["with-driver", "cli-handlers"])
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator, sig, mode):
@@ -249,7 +261,7 @@ def test_a_signal_to_a_process_running_the_driver_ends_with_torque_off(emulator,
     proc = run_child(bus.port, mode)
     assert bus.state()["torque_nm"][0] != 0.0  # the loop is driving the servos
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=30)
+    err = _end(proc)
     assert proc.returncode == {signal.SIGTERM: 143, signal.SIGINT: 130}[sig], err
     assert registers(bus.port, T.ADDR_TORQUE_ENABLE, 1) == [0, 0, 0]
     assert bus.state()["torque_nm"] == [0.0, 0.0, 0.0]
