@@ -1,6 +1,6 @@
-"""`haptic-teleop run SCENE --emulate`: a Dynamixel bus emulator for each side of a scene that is on
-real servos, so the hardware path runs with no hardware (docs/hardware.md, "Trying it without
-hardware").
+"""`haptic-teleop run SCENE --emulate`: an emulator for each side of a scene that is on real hardware
+(Dynamixel servos or a Universal Robots arm), so the hardware path runs with no hardware, through
+the unmodified SDKs (docs/hardware.md, "Trying it without hardware").
 
 For each side with `backend: dynamixel` one emulator process is started
 (`emulators/dynamixel/process.start_bus`) on a pseudo-terminal, built from the scene:
@@ -20,13 +20,24 @@ For each side with `backend: dynamixel` one emulator process is started
   Current write, so the same scene and seed give the same bag) or "realtime" (the arm follows the
   wall clock, as real servos do).
 
-`emulated(...)` starts them, yields the `--set <side>.hardware.port=PTY` overrides that point the
-drivers at them, and stops them on the way out, whatever happens.
+A side with `backend: ur` gets the UR emulator (`emulators/ur/process.start_ur`: RTDE, dashboard
+and script ports on the loopback, as ur_rtde connects to them) with the side's model, start pose
+and the scene's wall; in `control_mode: torque` it reports PolyScope 5.26 (direct_torque is in
+ur_rtde's control script from 5.26 on). Its physics runs on the wall clock (the UR controller's 500
+Hz), so such a run is real time, not lockstep: the same seed gives a bag of the same scene, not the
+same bag. It has no operator's hand: it stands in for a slave. Its true joint damping is the
+model's (ur5e.xml's dof_damping), so the scene must assume no more (touch_ur5e_wall does).
+Its ports are fixed, so one UR side at a time.
+
+`emulated(...)` starts them, yields the `--set` overrides that point the drivers at them
+(`<side>.hardware.port=PTY` for servos, `<side>.hardware.host=127.0.0.1` for the UR), and stops
+them on the way out, whatever happens.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Iterator
 from typing import Any
@@ -39,9 +50,45 @@ from haptic_teleop.scene.schema import Scene
 TIME_MODES = ("lockstep", "realtime")
 
 
+EMULATED_BACKENDS = ("dynamixel", "ur")
+# PolyScope version the UR emulator reports for a side in control_mode torque: ur_rtde's control
+# script calls direct_torque() from 5.26 on.
+UR_TORQUE_VERSION = (5.0, 26.0, 0.0, 0.0)
+
+
 def dynamixel_sides(config: Scene) -> tuple[str, ...]:
-    """The sides of a scene that are on Dynamixel servos (the backend `--emulate` serves)."""
+    """The sides of a scene that are on Dynamixel servos."""
     return tuple(side for side in ("master", "slave") if getattr(config, side).backend == "dynamixel")
+
+
+def emulated_sides(config: Scene) -> tuple[str, ...]:
+    """The sides of a scene on a backend `--emulate` serves (EMULATED_BACKENDS)."""
+    return tuple(side for side in ("master", "slave") if getattr(config, side).backend in EMULATED_BACKENDS)
+
+
+def ur_config(config: Scene, role: str, source: str = "--emulate") -> Any:
+    """The UR emulator's `URConfig` for the UR side of a validated scene (module docstring)."""
+    from haptic_teleop.emulators.ur.config import URConfig, WallConfig
+
+    cfg = getattr(config, role)
+    if role != "slave":
+        raise ConfigError(
+            source,
+            f"{role}.backend",
+            cfg.backend,
+            "the UR emulator stands in for a slave (it has no operator's hand); allowed: slave.backend=ur",
+        )
+    if cfg.start_q_rad is None:
+        raise ConfigError(source, f"{role}.start_q_rad", None, "required for an emulated side")
+    w = config.slave.wall
+    wall = None
+    if w.point_m is not None and w.normal is not None:
+        wall = WallConfig(tuple(w.point_m), tuple(w.normal), w.stiffness_n_per_m, w.damping_n_s_per_m)
+    hw = cfg.hardware
+    ur = URConfig(model=cfg.model, start_q_rad=tuple(cfg.start_q_rad), wall=wall)
+    if hw is not None and hw.control_mode == "torque":
+        ur = dataclasses.replace(ur, controller_version=UR_TORQUE_VERSION)
+    return ur
 
 
 def bus_config(config: Scene, role: str, time_mode: str = "lockstep", source: str = "--emulate") -> Any:
@@ -140,24 +187,36 @@ def bus_config(config: Scene, role: str, time_mode: str = "lockstep", source: st
 
 @contextlib.contextmanager
 def emulated(config: Scene, time_mode: str = "lockstep") -> Iterator[list[str]]:
-    """Start an emulator for each Dynamixel side of `config`; yields the `--set` overrides that
-    point each side's driver at its emulator; stops them all on the way out."""
-    from haptic_teleop.emulators.dynamixel.process import start_bus
-
-    sides = dynamixel_sides(config)
+    """Start an emulator for each side of `config` on Dynamixel servos or a UR arm; yields the
+    `--set` overrides that point each side's driver at its emulator; stops them all on the way out.
+    `time_mode` is the servos' (a UR emulator always runs on the wall clock)."""
+    sides = emulated_sides(config)
     if not sides:
         raise ConfigError(
             "--emulate",
             "master.backend, slave.backend",
             "mujoco",
-            "no side is on Dynamixel servos; allowed: a scene with --set slave.backend=dynamixel "
-            "or --set master.backend=dynamixel",
+            "no side is on hardware --emulate serves; allowed: a scene with --set slave.backend=dynamixel, "
+            "--set master.backend=dynamixel or --set slave.backend=ur",
         )
-    configs = [bus_config(config, side, time_mode) for side in sides]
+    ur_sides = [s for s in sides if getattr(config, s).backend == "ur"]
+    if len(ur_sides) > 1:
+        raise ConfigError("--emulate", "master.backend", "ur", "one UR side at a time (its emulator's ports are fixed)")
+    # Every configuration is checked before the first emulator starts.
+    configs = {s: ur_config(config, s) if s in ur_sides else bus_config(config, s, time_mode) for s in sides}
     with contextlib.ExitStack() as stack:
         overrides = []
-        for side, bus_cfg in zip(sides, configs, strict=True):
-            bus = start_bus(bus_cfg)
+        for side, cfg in configs.items():
+            if side in ur_sides:
+                from haptic_teleop.emulators.ur.process import start_ur
+
+                ur = start_ur(cfg)
+                stack.callback(ur.stop)
+                overrides += [f"{side}.hardware.host={ur.host}", f"{side}.hardware.device_clock=real"]
+                continue
+            from haptic_teleop.emulators.dynamixel.process import start_bus
+
+            bus = start_bus(cfg)
             stack.callback(bus.stop)
             overrides += [
                 f"{side}.hardware.port={bus.port}",

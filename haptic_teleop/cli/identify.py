@@ -205,13 +205,22 @@ def write_plot(path: Path, result: IdentifyResult, truth: Truth | None, joints: 
 
 
 def scene_with_damping(
-    loaded: LoadedScene, path: str, overrides: list[str], seed: int | None, side: str, damping: list[float]
+    loaded: LoadedScene,
+    path: str,
+    overrides: list[str],
+    seed: int | None,
+    side: str,
+    damping: list[float],
+    emulate: bool = False,
 ) -> str:
-    """The resolved scene text with `<side>.damping_nm_s_per_rad` set (loaded again: validated)."""
+    """The resolved scene text with `<side>.damping_nm_s_per_rad` set (loaded again: validated;
+    `emulate`: a device's address may be missing, as the emulator's is not written)."""
     from haptic_teleop.scene.load import load_scene
 
     values = ", ".join(repr(float(b)) for b in damping)
-    scene = load_scene(path, overrides=[*overrides, f"{side}.damping_nm_s_per_rad=[{values}]"], seed=seed)
+    scene = load_scene(
+        path, overrides=[*overrides, f"{side}.damping_nm_s_per_rad=[{values}]"], seed=seed, emulate=emulate
+    )
     return scene.to_yaml()
 
 
@@ -231,6 +240,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="FILE.png", help="friction torque against velocity per joint, with the fit")
     p.add_argument("--seed", type=int, help="override scene.seed (a simulated plant's sensor noise)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
+    p.add_argument(
+        "--emulate",
+        action="store_true",
+        help="identify an emulated arm: an emulator for each side on hardware, from the scene, driven through the "
+        "unmodified SDK (as run --emulate; docs/identify.md)",
+    )
     p.add_argument(
         "--z", type=float, default=Z_DEFAULT, help=f"confidence bound width in standard errors (default {Z_DEFAULT:g})"
     )
@@ -270,7 +285,21 @@ def main(args: argparse.Namespace) -> int:
     exc = _excitation(args)
     overrides = list(args.set or ())
     path = str(find_scene(args.scene))
-    loaded = load_scene(path, overrides=overrides, seed=args.seed, identify=True)
+    if not args.emulate:
+        return _identify(
+            args, exc, path, overrides, load_scene(path, overrides=overrides, seed=args.seed, identify=True)
+        )
+    # --emulate: an emulator per side on hardware, from the scene (assembly/emulation.py), stopped
+    # on every way out; the scene --write writes names the user's overrides, not the emulator's port.
+    from haptic_teleop.assembly.emulation import emulated
+
+    first = load_scene(path, overrides=overrides, seed=args.seed, identify=True, emulate=True)
+    with emulated(first.config) as ports:
+        loaded = load_scene(path, overrides=overrides + ports, seed=args.seed, identify=True)
+        return _identify(args, exc, path, overrides, loaded)
+
+
+def _identify(args: argparse.Namespace, exc: Excitation, path: str, overrides: list[str], loaded: LoadedScene) -> int:
     config = loaded.config
     if not config.is_arm:
         raise InputError(
@@ -367,7 +396,7 @@ def main(args: argparse.Namespace) -> int:
                     "faster --speeds, or set a value by hand"
                 )
             damping[joints.index(name)] = f.safe_damping_nm_s_per_rad
-        text = scene_with_damping(loaded, path, overrides, args.seed, side, damping)
+        text = scene_with_damping(loaded, path, overrides, args.seed, side, damping, emulate=bool(args.emulate))
         from haptic_teleop.analysis.outputs import write_atomic
 
         write_atomic(Path(args.write), text)

@@ -262,8 +262,44 @@ def test_run_emulate_starts_the_emulator_from_the_scene(tmp_path: Path) -> None:
 def test_run_emulate_without_a_side_on_servos_is_a_usage_error(tmp_path: Path) -> None:
     proc = run_cli("touch_dynamixel_wall", "--emulate", "--out", str(tmp_path / "run"), "--quiet")
     assert proc.returncode == 2
-    assert "no side is on Dynamixel servos" in proc.stderr and "Traceback" not in proc.stderr
+    assert "no side is on hardware --emulate serves" in proc.stderr and "Traceback" not in proc.stderr
+    assert "slave.backend=ur" in proc.stderr  # what is allowed names both backends
     assert not (tmp_path / "run").exists()
+
+
+def test_run_emulate_serves_a_ur_slave_from_the_bundled_scene(tmp_path: Path) -> None:
+    """`run touch_ur5e_wall --set slave.backend=ur --emulate`, the README's UR line: the UR emulator
+    is started from the scene (its model, start pose, wall), the unmodified ur_rtde drives it in the
+    scene's control mode, the run ends 0 and reports a real-time run; the emulator is gone after."""
+    from haptic_teleop.emulators.ur.process import LOCK_PATH
+
+    out = tmp_path / "run"
+    proc = run_cli(
+        "touch_ur5e_wall", "--set", "slave.backend=ur", "--set", "scene.duration_s=1.0", "--emulate",
+        "--out", str(out), "--quiet", "--no-plots",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["realtime"] is True  # the UR emulator runs on the wall clock
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["ticks"] == 1000
+    scene = (out / "scene.yaml").read_text()
+    assert "backend: ur" in scene and "host: 127.0.0.1" in scene  # the resolved scene names the emulator
+    import fcntl
+
+    with open(LOCK_PATH, "a") as lock:  # released: no emulator left running
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def test_the_ur_emulator_stands_in_for_a_slave_only() -> None:
+    from haptic_teleop.assembly.emulation import ur_config
+    from haptic_teleop.errors import ConfigError
+
+    config = load_scene(find_scene("touch_ur5e_wall")).config
+    assert ur_config(config, "slave").start_q_rad == tuple(config.slave.start_q_rad or ())
+    with pytest.raises(ConfigError, match="stands in for a slave") as exc:
+        ur_config(config, "master")
+    assert exc.value.key_path == "master.backend"
 
 
 @pytest.mark.parametrize("stop_at", [None, 200], ids=["last_tick", "stop_request"])
@@ -338,7 +374,7 @@ def test_a_ur_side_needs_a_control_mode_and_a_ur_master_only_direct_torque() -> 
 
     base = ["slave.backend=ur", "slave.hardware.host=127.0.0.1", "slave.damping_nm_s_per_rad=[3, 3, 3, 0.5, 0.5, 0.5]"]
     with pytest.raises(ConfigError, match="required for backend ur; allowed: force_mode") as exc:
-        load_scene(find_scene("touch_ur5e_wall"), base)
+        load_scene(find_scene("touch_ur5e_wall"), [*base, "slave.hardware.control_mode=null"])
     assert exc.value.key_path == "slave.hardware.control_mode"
     for mode in ("force_mode", "admittance", "torque"):  # every mode runs a slave
         load_scene(find_scene("touch_ur5e_wall"), [*base, f"slave.hardware.control_mode={mode}"])

@@ -67,3 +67,29 @@ def test_identifies_the_emulators_true_friction() -> None:
         assert f.viscous_nm_s_per_rad == pytest.approx(TRUE_B[k], rel=0.10), ji.joint
         assert f.coulomb_nm == pytest.approx(TRUE_C[k], rel=0.10), ji.joint
         assert 0.0 < f.safe_damping_nm_s_per_rad < TRUE_B[k], ji.joint
+
+
+def test_identify_emulate_identifies_the_scenes_emulated_arm_and_writes_a_scene_without_the_port(tmp_path) -> None:
+    """`haptic-teleop identify SCENE --side slave --set slave.backend=dynamixel --emulate`: the
+    command starts the scene's emulator (its true viscous friction is the damping the scene assumes,
+    assembly/emulation.py), excites the joint through the unmodified SDK and writes a scene whose
+    safe damping is positive and below that truth; the written scene names no emulator port."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    out = tmp_path / "identified.yaml"
+    r = subprocess.run(
+        [sys.executable, "-m", "haptic_teleop.cli", "identify", "touch_dynamixel_wall", "--side", "slave",
+         "--set", "slave.backend=dynamixel", "--emulate", "--joint", "elbow", "--speeds", "0.3,0.6,1.0",
+         "--repeats", "1", "--quiet", "--write", str(out)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    written = yaml.safe_load(out.read_text())
+    truth = 0.04  # touch_dynamixel_wall's slave.damping_nm_s_per_rad for the elbow: the emulator's friction
+    elbow = written["slave"]["damping_nm_s_per_rad"][2]
+    print(f"elbow: safe damping {elbow:.4f} N m s/rad, the emulator's {truth}")
+    assert 0.0 < elbow < truth
+    assert "/dev/pts" not in out.read_text() and written["slave"]["hardware"]["port"] is None

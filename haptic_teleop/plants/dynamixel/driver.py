@@ -258,7 +258,8 @@ class DynamixelDriver:
         names = (os.path.basename(cfg.port), os.path.basename(os.path.realpath(cfg.port)))
         usb = next((n for n in names if re.fullmatch(r"ttyUSB\d+", n)), None)
         if usb is None:
-            if cfg.port not in _warned_not_usb:
+            pty = os.path.realpath(cfg.port).startswith("/dev/pts/")  # an emulator's bus: nothing to say
+            if cfg.port not in _warned_not_usb and not pty:
                 _warned_not_usb.add(cfg.port)
                 print(
                     f"haptic-teleop: {cfg.port} is not a USB serial adapter (ttyUSBn): "
