@@ -99,9 +99,14 @@ OFFERED_QOS = {
     **{packets_topic(d): [_BATCH] for d in DIRECTIONS},
 }
 MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams that define the grid's end
-# Per-tick topics of a tick schema the recorder does not take as state: the packets' samples
-# (/<dir>/sent: the relays' records carry them; /<dir>/received: the release ticks, RECEIVED).
-_NOT_STATE = ("/forward/sent", "/backward/sent", "/forward/received", "/backward/received")
+# Per-tick topics of a tick schema the recorder does not take as state: the released samples
+# (/<dir>/received: the release ticks, RECEIVED).
+_NOT_STATE = ("/forward/received", "/backward/received")
+# The sent samples (/<dir>/sent) fill only the columns no state topic before them fills: an arm's
+# handle and tool velocities, which no other live topic carries (the engine's bag has them in its
+# /<dir>/sent rows). With a codec on the direction /<dir>/sent carries only the encoder's packets,
+# not a sample per tick: it is not taken as state then.
+_SENT = ("/forward/sent", "/backward/sent")
 
 
 class TopicPlan:
@@ -118,15 +123,20 @@ class TopicPlan:
         directions: tuple[str, ...],
         main: tuple[str, ...],
         first: str,
+        values: dict[str, tuple[int, ...]] | None = None,
     ) -> None:
         self.specs, self.columns, self.received = specs, columns, received
+        # Per state topic taking part of its message: the positions (in the layout's value order)
+        # of the values that fill `columns`; a topic not named takes every value.
+        self.values = values or {}
         self.directions, self.main, self.first = directions, main, first
         self.packets = {packets_topic(d): d for d in directions}
         self.playout = {playout_topic(d): d for d in directions}
 
 
-def topic_plan(schema: Any) -> TopicPlan:
-    """The recorder's topics for a run with this schema (a TickSchema, or an NveSchema)."""
+def topic_plan(schema: Any, plain: tuple[str, ...] = DIRECTIONS) -> TopicPlan:
+    """The recorder's topics for a run with this schema (a TickSchema, or an NveSchema); `plain`:
+    the directions without a codec (their /<dir>/sent carries a sample per tick)."""
     from haptic_teleop.record.nve_columns import NveSchema
 
     if isinstance(schema, NveSchema):
@@ -141,15 +151,31 @@ def topic_plan(schema: Any) -> TopicPlan:
     from haptic_teleop.record.layouts import topic_specs
 
     received = {t: schema.col[name] for t, name in RECEIVED.items()}
-    return TopicPlan(topic_specs(schema), state_columns(schema), received, DIRECTIONS, MAIN, OPERATOR_STATE)
+    columns, values = state_columns(schema, plain)
+    return TopicPlan(topic_specs(schema), columns, received, DIRECTIONS, MAIN, OPERATOR_STATE, values)
 
 
-def state_columns(schema: Any) -> dict[str, tuple[int, ...]]:
+def state_columns(
+    schema: Any, plain: tuple[str, ...] = DIRECTIONS
+) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
     """Topic -> the tick row's columns its values fill, in the message's value order, for every
-    per-tick state topic of `schema` (record.layouts.topic_specs: the bag's own layouts)."""
+    per-tick state topic of `schema` (record.layouts.topic_specs: the bag's own layouts); and, for
+    the /<dir>/sent topics of the `plain` directions, which fill only the columns no other state
+    topic fills (_SENT), the positions of those values in their message."""
     from haptic_teleop.record.layouts import topic_specs
 
-    return {t: spec.columns for t, spec in topic_specs(schema).items() if t not in _NOT_STATE}
+    specs = topic_specs(schema)
+    columns = {t: spec.columns for t, spec in specs.items() if t not in _NOT_STATE and t not in _SENT}
+    filled = {c for cols in columns.values() for c in cols}
+    values: dict[str, tuple[int, ...]] = {}
+    for t in _SENT:
+        if t.split("/")[1] not in plain:
+            continue
+        keep = tuple(k for k, c in enumerate(specs[t].columns) if c not in filled)
+        if keep:
+            columns[t] = tuple(specs[t].columns[k] for k in keep)
+            values[t] = keep
+    return columns, values
 
 
 _STAMP = struct.Struct("<iI")
@@ -245,7 +271,8 @@ class Recorder(LiveNode):
             max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
         )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
-        self.plan = plan = topic_plan(self.schema)
+        plain = tuple(d for d in DIRECTIONS if cfg.is_nve or getattr(cfg.network, d).codec is None)
+        self.plan = plan = topic_plan(self.schema, plain)
         self._specs = plan.specs
         self._columns = plan.columns
         # A side with its own period (<side>.period_s = k scene periods) publishes every k-th scene
@@ -389,6 +416,9 @@ class Recorder(LiveNode):
             self._pending[topic].add(recv // period, (stamps // period).reshape(-1, 1).astype(np.float64))
         else:
             vals, stamps = self._decode_fixed(topic, raws)
+            keep = plan.values.get(topic)
+            if keep is not None:
+                vals = vals[:, list(keep)]
             self._pending[topic].add((stamps if stamps is not None else recv) // period, vals)
 
     def _decode_fixed(self, topic: str, raws: list[bytes]) -> tuple[np.ndarray, np.ndarray | None]:
@@ -666,6 +696,7 @@ def side_every(cfg: Any, topic: str) -> int:
     """How many scene ticks apart `topic`'s samples come: its side's own period over the scene's
     (<side>.period_s, arm scenes) for /master/* and /slave/*, else 1."""
     role = topic.split("/")[1] if topic.count("/") >= 2 else ""
+    role = {"forward": "master", "backward": "slave"}.get(role, role)  # /<dir>/sent: its sender's
     if not cfg.is_arm or role not in ("master", "slave"):
         return 1
     from haptic_teleop.scene.load import side_period_ticks
