@@ -350,7 +350,8 @@ def test_relay_of_a_down_link_runs_the_nve_link_and_forwards_the_sample_unchange
         assert relay.link.sent == 1 and relay.link.in_flight == 1
         p = relay.link.log[0]
         assert tuple(p.payload) == (0.3, 0.7, 0.001)  # x_o, v_o, echo_s
-        assert p.arrival_time_ns == 100_000 + 2_000_000  # scene time (from the first sample) + the delay
+        # Sent at its stamp, scene time 0 (from the first sample; it came within a period of it), + the delay.
+        assert p.send_time_ns == 0 and p.arrival_time_ns == 2_000_000
         assert [e.name for e in relay.link.effects] == ["delay"]
     finally:
         relay.destroy_node()

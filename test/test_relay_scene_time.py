@@ -118,7 +118,9 @@ def test_link_runs_in_scene_time_from_the_scene_start_topic(context):
     seq = rows[:, 0].astype(np.int64) - START_NS // P_NS
     assert seq.tolist() == list(range(8))  # nothing before scene time 0
     send = rows[:, 1]
-    assert np.allclose(send, (seq * P_NS + PHASE_NS) * 1e-9, rtol=0, atol=1e-12)  # scene seconds
+    # Sent at its stamp (scene seconds): it came within a period of it, the relay's scheduling aside.
+    assert np.allclose(send, seq * P_NS * 1e-9, rtol=0, atol=1e-12)
+    assert relay.late_to_relay == 0
     inside = (send >= BLACKOUT[0]) & (send < BLACKOUT[1])
     assert seq[inside].tolist() == [3, 4]
     assert np.all(rows[inside, 3] == LOST_NETWORK) and np.all(rows[~inside, 3] == DELIVERED)
@@ -141,7 +143,29 @@ def test_first_sample_mode_starts_scene_time_at_the_first_sample(context):
         relay.destroy_node()
     lost = rows[rows[:, 3] == LOST_NETWORK, 0].astype(np.int64) - START_NS // P_NS
     assert lost.tolist() == [13, 14] and rows.shape[0] == 8
-    assert rows[0, 1] == pytest.approx(PHASE_NS * 1e-9, abs=1e-12)
+    assert rows[0, 1] == 0.0  # the first sample: sent at its stamp, scene time 0
+
+
+def test_a_sample_that_reaches_the_relay_a_period_late_is_sent_at_its_arrival_and_counted(context):
+    """Deliveries on the stamp grid: a sample due at stamp + delay is handed on at that tick whatever
+    the scheduling below one period; one that came a period or more after its stamp (the machine
+    too slow) is sent at its arrival, and counted apart from the network's effects."""
+    from haptic_teleop.nodes.cdr import JointStateCodec
+
+    relay = _relay(context, scene_start="first_sample", **{"network.forward.effects.blackout.starts_s": [1.0],
+                   "network.forward.effects.blackout.ends_s": [1.1]})  # fmt: skip
+    try:
+        codec = JointStateCodec("master_x", ("position", "velocity"))
+        for tick, late_ns in ((0, 0), (1, P_NS - 1), (2, P_NS), (3, 3 * P_NS + 7)):
+            stamp = START_NS + tick * P_NS
+            relay._on_sent(codec.encode(stamp, (0.0, 0.0)), stamp + late_ns)
+        assert relay.late_to_relay == 2
+        rows = _records(context, relay)
+    finally:
+        relay.destroy_node()
+    send_ns = np.round(rows[:, 1] * 1e9).astype(np.int64)
+    assert send_ns.tolist() == [0, P_NS, 2 * P_NS + P_NS, 3 * P_NS + 3 * P_NS + 7]
+    assert np.allclose(rows[:, 2] - rows[:, 1], DELAY_S, rtol=0, atol=1e-12)  # the link's own delay on top
 
 
 def test_bad_scene_start_mode_is_a_parameter_error(context):

@@ -8,10 +8,15 @@ at the scene start, exactly as in `haptic-teleop run`. Parameter `scene_start`: 
 default) waits for that message; `first_sample` takes the first sample's stamp instead, for a
 node set without an operator source (the hardware variant).
 
-Each sample arriving on /<direction>/sent goes through `Link.send` at once (time: its arrival
-here in scene time, integer ns; seq: its stamp / period), and everything the link says has
-arrived is published on /<direction>/delivered: right away from the callback (so a link with no
-delay adds only the relay's own cost), and otherwise from a 1 kHz loop on the absolute tick grid.
+Each sample arriving on /<direction>/sent goes through `Link.send` at once (seq: its stamp /
+period; time: its stamp in scene time, integer ns, as the engine's link sends a sample at its
+tick, so a sample of stamp s on a link of delay d is due at s + d whatever the scheduling between
+its sender and here; a sample that reaches the relay a period or more after its stamp is sent at
+its arrival instead and counted as late by scheduling, `late_to_relay`, apart from the network's
+own effects; a codec's packets, whose retransmissions share a seq, are sent at their arrival), and
+everything the link says has arrived is published on /<direction>/delivered: right away from the
+callback (so a link with no delay adds only the relay's own cost), and otherwise from a 1 kHz loop
+on the absolute tick grid.
 Both run in the loop thread, which waits for input and for its next deadline at once (no executor
 in the path). The delivered message is the very message that was sent (stamp and values unchanged).
 
@@ -236,6 +241,7 @@ class NetworkRelay(LiveNode):
         self._newest = 0
         self.delivered = 0
         self.malformed = 0
+        self.late_to_relay = 0  # samples that came a period or more after their stamp: sent at arrival
         # Forwards the sent bytes; rebuilds a message whose original is no longer kept.
         self._rebuild = JointStateOut(
             self, out_topic, w.names, w.fields, stream_qos(READER_DEPTH) if self.codec_wire is not None else None
@@ -276,17 +282,29 @@ class NetworkRelay(LiveNode):
         start = self.scene_start_ns
         if start is None:
             start = self._learn_start(seq)
+        sent = self._send_time(seq, now)
         if start is None or seq * self.period_ns < start:  # before scene time 0, or not known yet
-            self.settling.send(Packet(seq, now, payload, size))
+            self.settling.send(Packet(seq, sent, payload, size))
             out = self.settling.deliver(now)
             if out:
                 self._publish(out, scene=False)
             return
-        t = now - start
-        self.link.send(Packet(seq, t, payload, size))
-        out = self.link.deliver(t)
+        self.link.send(Packet(seq, sent - start, payload, size))
+        out = self.link.deliver(now - start)
         if out:
             self._publish(out)
+
+    def _send_time(self, seq: int, now: int) -> int:
+        """When the sample of tick `seq`, here at `now` (node clock), was sent: its stamp, on the
+        tick grid, if it came within a period of it; else its arrival, counted in `late_to_relay`
+        (module docstring). A codec's packets: their arrival."""
+        if self.codec_wire is not None:
+            return now
+        stamp = seq * self.period_ns
+        if now - stamp < self.period_ns:
+            return stamp
+        self.late_to_relay += 1
+        return now
 
     def _learn_start(self, seq: int | None = None) -> int | None:
         """Scene time 0 on the node clock, if it can be known now (`seq`: the sample in hand)."""
@@ -392,6 +410,7 @@ class NetworkRelay(LiveNode):
             "scene_started": int(self.scene_start_ns is not None),
             "settling_sent": self.settling.sent,
             "settled_in_scene": self.settled,
+            "late_to_relay": self.late_to_relay,
         }
 
     def close(self) -> None:

@@ -115,7 +115,9 @@ class SyncBuffer(LiveNode):
         if self.codec is not None:
             self._codec_tick(index, stamp_ns)
             return
-        now = self.now_ns()
+        # The tick's grid stamp, not the clock's reading when this (maybe late) tick runs: the
+        # engine's buffer takes arrivals and releases at its tick's time, and so does this one.
+        now = stamp_ns
         period, read, push = self.period_ns, self._read, self.buffer.push
         buf = self.buffer
         for raw in take_all(self._sub):
