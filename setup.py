@@ -88,6 +88,7 @@ setup(
         "standalone": STANDALONE,
         "hardware": HARDWARE,
         "sweep": SWEEP,
+        "docs": ["mkdocs>=1.6,<2"],  # the docs site: mkdocs build --strict (docs/development.md)
         "test": [
             *HARDWARE,  # the backends are tested against emulators through the real SDKs
             *SWEEP,  # sweeps on a local Dask cluster, the Parquet table (test/test_sweep_scale.py)

@@ -341,7 +341,7 @@ def test_live_bag_is_readable_and_analyze_works(default_run):
 
 def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_path):
     """The same scene in the deterministic engine and live: force-tracking metrics within the
-    tolerance documented in the README (live timing is not lockstep: samples can be taken one
+    tolerance documented in docs/live.md (live timing is not lockstep: samples can be taken one
     tick apart and the operator's hand reaches the master over DDS)."""
     from haptic_teleop.analysis.metrics import analyze_bag
     from haptic_teleop.engine.run import record_run
@@ -362,7 +362,7 @@ def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_pat
     )
 
 
-# Documented in README "Live mode": relative tolerance on the peak wall force, absolute (N) on
+# Documented in docs/live.md: relative tolerance on the peak wall force, absolute (N) on
 # the aligned RMS force error.
 CROSS_MODE_TOLERANCE = {"contact_force_max_n": 0.10, "force_rms_error_n": 0.25}
 

@@ -1,4 +1,4 @@
-"""Transparency and passivity metrics computed from a bag alone (keys documented in README.md)."""
+"""Transparency and passivity metrics computed from a bag alone (keys documented in docs/outputs.md, "Metrics")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Task-space metrics of an n-DoF run (a bag whose tick schema has 2 or 3 task axes), from the bag alone.
 
-The keys of a 1-DoF summary keep their names with vector meanings (README.md, "Metrics"):
+The keys of a 1-DoF summary keep their names with vector meanings (docs/outputs.md, "Metrics"):
 `force_rms_error_n` is the RMS over ticks of the norm |F_m(t) - F_c(t - L)| of the force rendered
 at the master handle against the slave's contact force (both in the task frame), the peak its
 largest norm, `position_rms_error_m` the RMS norm of x_s(t) - x_m(t - L_f), the maxima norms.

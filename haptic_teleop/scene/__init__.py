@@ -1,2 +1,3 @@
 """Scenes: YAML -> validated, frozen config (`schema`), `--set` overrides (`overrides`), reading,
-checking against the models and finding bundled scenes (`load`). README.md "Scenes" says where every key is declared."""
+checking against the models and finding bundled scenes (`load`). docs/scenes.md "Scenes" says where
+every key is declared."""

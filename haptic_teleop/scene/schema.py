@@ -1,7 +1,7 @@
 """The scene schema: every key of a scene, its unit, default and range, as frozen dataclasses.
 
 A scene names the effects it wants; absent effects are not built. Nothing runs until the whole
-scene is valid (README.md, "Scenes").
+scene is valid (docs/scenes.md, "Scenes").
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ MODE_TITLES = {
     "composed": "composed: one process, one shared loop thread (launch --single-process)",
     "processes": "one process per node (launch)",
 }
-RECOMMENDED = "composed"  # what README and docs/live.md recommend on a machine this small
+RECOMMENDED = "composed"  # what docs/live.md recommends on a machine this small
 
 
 def _probe_classes() -> tuple[type, type]:
