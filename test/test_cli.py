@@ -312,6 +312,34 @@ def test_analyze_a_bag_that_does_not_exist_exits_2(tmp_path, capsys):
     assert not (tmp_path / "nope").exists()
 
 
+def test_analyze_never_writes_over_a_runs_summary_without_force(tmp_path, capsys, small_bag):
+    """`analyze RUN/bag` would write RUN/summary.json, the run's own: refused (exit 2, one line naming
+    --out and --force) and left as it was; --force writes it again, the same."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(small_bag.parent, run)
+    before = (run / "summary.json").read_bytes()
+    code, err = _main_err(capsys, ["analyze", str(run / "bag"), "--no-plots"])
+    line = _one_line(err)
+    assert code == 2 and "--force" in line and "--out" in line and "summary.json exists" in line
+    assert (run / "summary.json").read_bytes() == before
+    (run / "summary.json").write_text("{}")
+    assert main(["analyze", str(run / "bag"), "--no-plots", "--force", "--quiet"]) == 0
+    assert json.loads((run / "summary.json").read_text()) == json.loads(before)
+
+
+def test_a_serial_port_that_does_not_exist_is_refused_before_anything_is_written(tmp_path, capsys):
+    """A wrong port is found before the engine is built: one line naming the key and the port,
+    exit 2, and --out is not made."""
+    out = tmp_path / "run"
+    code, err = _main_err(capsys, ["run", "touch_dynamixel_wall", "--set", "slave.backend=dynamixel",
+                                   "--set", "slave.hardware.port=/dev/ttyUSB_not_here", "--out", str(out)])  # fmt: skip
+    line = _one_line(err)
+    assert code == 2 and "slave.hardware.port" in line and "/dev/ttyUSB_not_here" in line and "does not exist" in line
+    assert not out.exists()
+
+
 # --- what users reach for --------------------------------------------------------------------------
 
 

@@ -80,6 +80,7 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
     from haptic_teleop.engine.run import record_run
 
+    check_devices(scene)
     check_out_dir(out)
     if not args.quiet and not scene.config.is_nve:
         from haptic_teleop.assembly.channel import arq_round_trip_notes
@@ -174,6 +175,24 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
     return EXIT_INTERRUPTED if timing.interrupted else EXIT_OK
 
 
+def check_devices(scene: Any) -> None:
+    """Every hardware side's device is there (its serial port exists), before anything is written
+    or built: a wrong port is one line and exit 2 at once, not after the engine's build, and
+    leaves no output folder behind."""
+    from haptic_teleop.plants.base import backend
+
+    config = scene.config
+    if not config.is_arm:
+        return
+    for side in ("master", "slave"):
+        cfg = getattr(config, side)
+        if cfg.hardware is None or not backend(cfg.backend).real:
+            continue
+        problem = cfg.hardware.absent()
+        if problem is not None:
+            raise ConfigError(scene.source, f"{side}.{problem.key}", problem.value, problem.allowed)
+
+
 def cmd_analyze(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.summary_table import format_summary
 
@@ -187,6 +206,11 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     else:
         out = bag
     check_out_dir(out, empty=False)
+    if (out / "summary.json").exists() and not args.force:
+        raise InputError(
+            f"{out / 'summary.json'} exists (the run's own analysis); allowed: --out NEW_DIR, or --force to write "
+            "the summary and plots over it"
+        )
     with interrupt.finishing():
         summary = write_outputs(bag, out, plots=not args.no_plots)
     _say(args, format_summary(summary))
@@ -279,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("bag", help="rosbag2 directory")
     a.add_argument("--out", help="where summary.json and plots/ go (default: next to the bag)")
     a.add_argument("--no-plots", action="store_true")
+    a.add_argument("--force", action="store_true", help="write over a summary.json (and plots) already in --out")
     a.add_argument("--quiet", action="store_true", help="print nothing but errors")
     a.set_defaults(func=cmd_analyze)
 

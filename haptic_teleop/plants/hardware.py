@@ -143,6 +143,11 @@ class HardwareConfig:
         these joints, or None. `emulate`: the device's address is filled in later (`--emulate`)."""
         return None
 
+    def absent(self) -> Problem | None:
+        """The device is not there at all (a serial port that does not exist), or None: checked
+        before a run writes anything, so a wrong address costs neither time nor an output folder."""
+        return None
+
 
 @dataclass(frozen=True)
 class ArmDriver:
