@@ -158,6 +158,21 @@ def load(module: str) -> Any:
     return importlib.import_module(module)
 
 
+# Called with the kernel's module name when a compiled loop is about to be compiled rather than
+# loaded from numba's cache (the command line prints what is being compiled, why and how long).
+compile_notice: Callable[[str], None] | None = None
+
+
+def is_cached(dispatcher: Any) -> bool:
+    """Whether numba's on-disk cache holds machine code of `dispatcher` for its current source (its
+    index file, stamped with the source's). Reads numba's private cache object (setup.py bounds
+    numba below 0.69); True when that cannot be told, so a notice is never given by mistake."""
+    try:
+        return bool(dispatcher._cache._cache_file._load_index())
+    except Exception:  # noqa: BLE001 (numba's private API moved, or an unreadable index: cannot tell)
+        return True
+
+
 @contextlib.contextmanager
 def first_compile(dispatcher: Any) -> Iterator[None]:
     """Around a compiled loop's first call in this process: an inter-process lock per kernel, so
@@ -178,6 +193,8 @@ def first_compile(dispatcher: Any) -> Iterator[None]:
         return
     with fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
+        if compile_notice is not None and not is_cached(dispatcher):  # (another process may have just built it)
+            compile_notice(name)
         try:
             yield
         finally:

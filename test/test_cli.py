@@ -493,26 +493,30 @@ def test_bench_arguments_are_checked_before_anything_runs(capsys, argv):
     assert "allowed:" in err and "> 0" in err and "Traceback" not in err
 
 
-def test_a_slow_engine_build_is_explained_not_silent():
-    """The first run on a machine spends about a minute compiling before the first tick: the
-    notice comes while the body still runs, and never for a body that ends before the delay."""
-    import threading
+def test_a_compile_is_announced_only_when_numba_really_compiles(tmp_path, monkeypatch):
+    """`first_compile` tells `compiling.compile_notice` which kernel it is about to compile when
+    numba's cache has none for its source, and says nothing when it loads the cache; the command
+    line's text names the kernel, why, about how long and `haptic-teleop compile`."""
+    import importlib
+    import sys as _sys
 
-    from haptic_teleop.cli.main import SLOW_START_NOTICE, slow_notice
+    from haptic_teleop import compiling
+    from haptic_teleop.cli.main import compile_notice
 
-    written: list[str] = []
-    seen = threading.Event()
-
-    def write(text: str) -> None:
-        written.append(text)
-        seen.set()
-
-    with slow_notice(0.01, write):
-        assert seen.wait(60.0)  # the body waits for the notice: no timing race
-    assert written == [SLOW_START_NOTICE]
-    assert "numba" in written[0] and "cache" in written[0]
-
-    quiet: list[str] = []
-    with slow_notice(3600.0, quiet.append):
-        pass
-    assert quiet == []
+    (tmp_path / "tiny_kernel.py").write_text(
+        "from numba import njit\n\n@njit(cache=True)\ndef add(a, b):\n    return a + b\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    said: list[str] = []
+    monkeypatch.setattr(compiling, "compile_notice", said.append)
+    mod = importlib.import_module("tiny_kernel")
+    with compiling.first_compile(mod.add):
+        assert mod.add(1, 2) == 3
+    assert said == ["tiny_kernel"]  # cold: compiled, and said so
+    del _sys.modules["tiny_kernel"]
+    mod = importlib.import_module("tiny_kernel")  # a new process's view: a fresh dispatcher
+    with compiling.first_compile(mod.add):
+        assert mod.add(1, 2) == 3
+    assert said == ["tiny_kernel"]  # warm: loaded from the cache, nothing said
+    text = compile_notice("haptic_teleop.engine.compiled.axis_kernel")
+    assert "axis_kernel" in text and "numba" in text and "cache" in text and "haptic-teleop compile" in text

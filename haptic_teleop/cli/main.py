@@ -6,7 +6,6 @@ import argparse
 import contextlib
 import json
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,6 @@ from haptic_teleop.analysis.outputs import (
     write_outputs,
 )
 from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, InputError, PlantError
-from haptic_teleop.lifetime import deadline
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -34,18 +32,15 @@ def _say(args: argparse.Namespace, text: str) -> None:
         print(text)
 
 
-SLOW_START_S = 3.0  # building the engine longer than this: say why (numba compiling the tick loop)
-SLOW_START_NOTICE = (
-    "haptic-teleop: still building the engine: the first run on a machine compiles the tick loop "
-    "with numba (about a minute on 2 cores); later runs load it from numba's cache"
-)
-
-
-def slow_notice(after_s: float, write: Callable[[str], None], text: str = SLOW_START_NOTICE) -> Any:
-    """A context in which `write(text)` is called once if the body is still running `after_s`
-    seconds after it started: a long silent pause looks like a hang, and the first run on a
-    machine spends about a minute in numba compiling the tick loop before the first tick."""
-    return deadline(after_s, lambda: write(text))
+def compile_notice(module: str) -> str:
+    """What `run` says when a tick loop is compiled rather than loaded from numba's cache: which,
+    why, about how long, and how to build them all ahead."""
+    kernel = module.rsplit(".", 1)[-1]
+    return (
+        f"haptic-teleop: compiling the tick loop {kernel} with numba, once for this kind of scene on this "
+        f"machine (seconds to about two minutes on 2 cores; later runs load it from numba's cache); "
+        f"`haptic-teleop compile` builds every loop ahead"
+    )
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -134,12 +129,18 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
                 stack.enter_context(interrupt.on_stop(engine.request_stop))  # Ctrl-C, SIGTERM: stop
                 interrupt.pause_for_test("engine")
 
-            def notice(text: str) -> None:
-                print(text, file=sys.stderr, flush=True)
-
             starting = contextlib.ExitStack()
-            if not args.quiet:
-                starting.enter_context(slow_notice(SLOW_START_S, notice))
+            if not args.quiet:  # said when a loop is really compiled (its first tick), not when loaded
+                from haptic_teleop import compiling
+
+                def notice(module: str) -> None:
+                    if bar is not None:
+                        bar.write(compile_notice(module), file=sys.stderr)  # above the bar, not on its line
+                    else:
+                        print(compile_notice(module), file=sys.stderr, flush=True)
+
+                compiling.compile_notice = notice
+                stack.callback(setattr, compiling, "compile_notice", None)
             try:
                 with starting:
                     if scene.config.is_nve:

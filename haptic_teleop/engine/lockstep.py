@@ -138,22 +138,23 @@ class Engine:
 
                 idle = no_codec(self.period_ns)
                 extra = (*idle, *idle, np.zeros((3, 3)), *no_history(), *no_history())
-            self._kernel(
-                0,
-                0,
-                *head,
-                rel,
-                occ,
-                rel,
-                occ,
-                np.zeros((1, 2)),
-                np.zeros((1, 3)),
-                *tail,
-                np.zeros((1, len(COLUMNS))),
-                0,
-                0,
-                *extra,
-            )
+            with compiling.first_compile(self._kernel):  # once among processes; said when it compiles
+                self._kernel(
+                    0,
+                    0,
+                    *head,
+                    rel,
+                    occ,
+                    rel,
+                    occ,
+                    np.zeros((1, 2)),
+                    np.zeros((1, 3)),
+                    *tail,
+                    np.zeros((1, len(COLUMNS))),
+                    0,
+                    0,
+                    *extra,
+                )
 
     def _init_arm(self, loop: str) -> None:
         """An arm scene's parts (assembly.build_arm_parts)."""
