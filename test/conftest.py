@@ -29,7 +29,16 @@ def pytest_sessionstart(session):
     the core the tests leave idle, instead of inside the first tests that need them: on a fresh
     clone that is about two minutes of numba compiling. A test that reaches a kernel first compiles
     it itself and the background process waits for it and loads it (compiling.first_compile),
-    so nothing is compiled twice. HAPTIC_TELEOP_TEST_COMPILE=0 turns it off."""
+    so nothing is compiled twice. HAPTIC_TELEOP_TEST_COMPILE=0 turns it off.
+
+    First of all, SIGINT gets its default back if the session inherited it ignored: a suite started
+    in the background of a non-interactive shell (`bash .ci/run &`, nohup) runs with SIGINT ignored,
+    every child inherits that, and the tests that send Ctrl-C to a command would see it do nothing
+    (seen: four such failures in a run started that way, none when started in the foreground)."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     remove_stale()
     if os.environ.get("HAPTIC_TELEOP_TEST_COMPILE", "1") == "0":
         return
