@@ -56,11 +56,6 @@ EMULATED_BACKENDS = ("dynamixel", "ur")
 UR_TORQUE_VERSION = (5.0, 26.0, 0.0, 0.0)
 
 
-def dynamixel_sides(config: Scene) -> tuple[str, ...]:
-    """The sides of a scene that are on Dynamixel servos."""
-    return tuple(side for side in ("master", "slave") if getattr(config, side).backend == "dynamixel")
-
-
 def emulated_sides(config: Scene) -> tuple[str, ...]:
     """The sides of a scene on a backend `--emulate` serves (EMULATED_BACKENDS)."""
     return tuple(side for side in ("master", "slave") if getattr(config, side).backend in EMULATED_BACKENDS)

@@ -397,17 +397,13 @@ def main(argv: list[str] | None = None) -> int:
     imports and also ends quietly on a closed stdout."""
     restore = interrupt.install()
     try:
-        return _main(argv)
+        return run_installed(argv)
     finally:
         restore()
 
 
 def run_installed(argv: list[str] | None) -> int:
-    """The command, with interrupt.install() already in place (cli.entry)."""
-    return _main(argv)
-
-
-def _main(argv: list[str] | None) -> int:
+    """The command, with interrupt.install() already in place (`main` here, or cli.entry)."""
     command = None
     try:
         interrupt.pause_for_test("startup")

@@ -72,20 +72,16 @@ class DynamixelConfig(HardwareConfig):
         return None
 
     def absent(self) -> Problem | None:
-        return _port_absent(self.port)
+        import os
 
-
-def _port_absent(port: str | None) -> Problem | None:
-    import os
-
-    if port is None or os.path.exists(port):
-        return None
-    return Problem(
-        "hardware.port",
-        port,
-        "does not exist: is the USB adapter (U2D2) plugged in? `ls /dev/ttyUSB* /dev/serial/by-id/` lists the "
-        "serial ports; allowed: one of them, or --emulate",
-    )
+        if self.port is None or os.path.exists(self.port):
+            return None
+        return Problem(
+            "hardware.port",
+            self.port,
+            "does not exist: is the USB adapter (U2D2) plugged in? `ls /dev/ttyUSB* /dev/serial/by-id/` lists the "
+            "serial ports; allowed: one of them, or --emulate",
+        )
 
 
 def joint_driver(hw: DynamixelConfig, joints: tuple[str, ...], torque_limit_nm: Sequence[float] | None) -> JointDriver:
