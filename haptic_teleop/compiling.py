@@ -201,15 +201,18 @@ def first_compile(dispatcher: Any) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-_compiled: dict[Callable[..., Any], Any] = {}
+_compiled: dict[tuple[Callable[..., Any], bool], Any] = {}
 
 
-def compile_tree(f: Callable[..., Any]) -> Any:
+def compile_tree(f: Callable[..., Any], inline: bool = False) -> Any:
     """`f` compiled by numba (`njit(cache=True, nogil=True)`) from its own definition, with every
     plain function of this package it calls (by global name) compiled the same way: numba cannot
     call uncompiled functions, and the core modules must not import numba, so the calls are bound
-    to the compiled callees here. Each function is compiled once per process."""
-    done = _compiled.get(f)
+    to the compiled callees here. `inline`: `f` itself is inlined into its compiled callers
+    (numba's `inline="always"`, as the kernels' tick parts; its callees are not). Each function is
+    compiled once per process (and way)."""
+    key = (f, inline)
+    done = _compiled.get(key)
     if done is not None:
         return done
     import numba
@@ -223,6 +226,9 @@ def compile_tree(f: Callable[..., Any]) -> Any:
     fn = types.FunctionType(code, glob, f.__name__, f.__defaults__, f.__closure__)  # type: ignore[attr-defined]
     fn.__qualname__ = f.__qualname__
     fn.__module__ = f.__module__
-    done = numba.njit(cache=True, nogil=True)(fn)
-    _compiled[f] = done
+    if inline:
+        done = numba.njit(cache=True, nogil=True, inline="always")(fn)
+    else:
+        done = numba.njit(cache=True, nogil=True)(fn)
+    _compiled[key] = done
     return done

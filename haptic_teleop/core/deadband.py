@@ -32,6 +32,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core.link import Packet
 
 KIND = "deadband"  # the scene's `codec: {kind: deadband, ...}`
@@ -266,9 +267,74 @@ class DeadbandEncoder:
         """No return path: nothing to do."""
 
 
+def decoder_receive(
+    C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int, last0: int, old0: int, rate0: int
+) -> None:
+    """The decoder takes packet `seq`, its payload in `ring[j, 2:]` (the sample, then its rate if
+    the payload carries one): a packet not newer than the last one taken is counted stale and
+    dropped; otherwise it becomes the last sample (the one before it the old one) and, when the
+    decoder extrapolates, the rate per tick is the rate sent (times the period) or the slope of the
+    last two samples. C and S: codec_layout's places (C_DIM, C_EXTRAP, C_SENDS_RATE,
+    C_PERIOD_NS; S_HAS_LAST, S_LAST_SEQ, S_HAS_OLD, S_OLD_SEQ, S_HAS_RATE, S_RECEIVED, S_STALE);
+    the vectors of `C_DIM` values from `last0`, `old0`, `rate0` in S (their places differ between
+    layouts). One definition: `DeadbandDecoder` calls it, the compiled loops inline it."""
+    dim = int(C[L.C_DIM])
+    if S[L.S_HAS_LAST] != 0.0 and seq <= S[L.S_LAST_SEQ]:
+        S[L.S_STALE] += 1.0
+        return
+    S[L.S_RECEIVED] += 1.0
+    S[L.S_HAS_OLD] = S[L.S_HAS_LAST]
+    S[L.S_OLD_SEQ] = S[L.S_LAST_SEQ]
+    for i in range(dim):
+        S[old0 + i] = S[last0 + i]
+        S[last0 + i] = ring[j, 2 + i]
+    S[L.S_HAS_LAST] = 1.0
+    S[L.S_LAST_SEQ] = seq
+    if C[L.C_EXTRAP] != 0.0:
+        if C[L.C_SENDS_RATE] != 0.0:
+            dt_tick = C[L.C_PERIOD_NS] / 1e9
+            for i in range(dim):
+                S[rate0 + i] = ring[j, 2 + dim + i] * dt_tick
+            S[L.S_HAS_RATE] = 1.0
+        elif S[L.S_HAS_OLD] != 0.0:
+            span = int(S[L.S_LAST_SEQ]) - int(S[L.S_OLD_SEQ])
+            for i in range(dim):
+                S[rate0 + i] = (S[last0 + i] - S[old0 + i]) / span
+            S[L.S_HAS_RATE] = 1.0
+
+
+def decoder_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray, last0: int, rate0: int) -> bool:
+    """The decoder's sample at tick `n` into `out` (False before the first packet): the last sample
+    held, or (with a rate, after its seq) extrapolated n - seq ticks ahead, at most C_MAX_AHEAD
+    (past it: the value reached there, held; each tick within it counted `extrapolated`). Places
+    as `decoder_receive`'s."""
+    if S[L.S_HAS_LAST] == 0.0:
+        return False
+    dim = int(C[L.C_DIM])
+    seq = int(S[L.S_LAST_SEQ])
+    if S[L.S_HAS_RATE] == 0.0 or n <= seq:
+        for i in range(dim):
+            out[i] = S[last0 + i]
+        return True
+    ahead = float(n - seq)
+    if ahead > C[L.C_MAX_AHEAD]:
+        ahead = C[L.C_MAX_AHEAD]
+    else:
+        S[L.S_EXTRAPOLATED] += 1.0
+    for i in range(dim):
+        out[i] = extrapolated(S[last0 + i], S[rate0 + i], ahead)
+    return True
+
+
+# The decoder's counters and where S keeps them.
+DECODER_COUNTERS = {"received": L.S_RECEIVED, "stale": L.S_STALE, "extrapolated": L.S_EXTRAPOLATED}
+
+
 class DeadbandDecoder:
     """Receiver side: hold or extrapolate the newest received sample (by seq; older and
-    duplicate arrivals are counted `stale` and ignored)."""
+    duplicate arrivals are counted `stale` and ignored). Its state is a codec_layout state
+    vector `S` (its samples after the scalars), its constants `C`: `decoder_receive` and
+    `decoder_sample` act on them, as they do in the compiled loops."""
 
     kind = KIND
 
@@ -280,47 +346,51 @@ class DeadbandDecoder:
         self.cfg = cfg
         self.dim = dim
         self.period_ns = period_ns
-        self.counters: dict[str, int] = {"received": 0, "stale": 0, "extrapolated": 0}
         cap = cfg.max_extrapolation_s
-        self._max_ahead_ticks = math.inf if cap is None else cap * _NS_PER_S / period_ns
-        self._last: tuple[int, tuple[float, ...]] | None = None  # (seq, sample)
-        self._prev: tuple[int, tuple[float, ...]] | None = None
-        self._rate: tuple[float, ...] | None = None  # unit per tick
+        self.C = np.zeros(L.C_SIZE_X)
+        self.C[L.C_DIM] = dim
+        self.C[L.C_PERIOD_NS] = period_ns
+        self.C[L.C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
+        self.C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
+        self.C[L.C_MAX_AHEAD] = math.inf if cap is None else cap * _NS_PER_S / period_ns
+        # the last, old and rate vectors after the scalars
+        self.last0, self.old0, self.rate0 = L.S_SIZE_X, L.S_SIZE_X + dim, L.S_SIZE_X + 2 * dim
+        self.S = np.zeros(L.S_SIZE_X + 3 * dim)
+        self._out = np.zeros(dim)
+
+    @property
+    def max_ahead_ticks(self) -> float:
+        """The extrapolation's cap in ticks (inf: none)."""
+        return float(self.C[L.C_MAX_AHEAD])
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """received, stale, extrapolated."""
+        return {name: int(self.S[k]) for name, k in DECODER_COUNTERS.items()}
+
+    def load(self, S: np.ndarray, last0: int, old0: int, rate0: int) -> None:
+        """Take the state of a decoder kept elsewhere (a compiled loop's state vector `S`, its
+        vectors from `last0`, `old0`, `rate0`)."""
+        d = self.dim
+        self.S[: L.S_SIZE_X] = S[: L.S_SIZE_X]
+        self.S[self.last0 : self.last0 + d] = S[last0 : last0 + d]
+        self.S[self.old0 : self.old0 + d] = S[old0 : old0 + d]
+        self.S[self.rate0 : self.rate0 + d] = S[rate0 : rate0 + d]
 
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
-        d = self.dim
-        want = d * self.cfg.floats_per_axis
+        want = self.dim * self.cfg.floats_per_axis
         if len(packet.payload) != want:
             raise ValueError(f"deadband codec: payload has {len(packet.payload)} values, expected {want}")
-        if self._last is not None and packet.seq <= self._last[0]:
-            self.counters["stale"] += 1
-            return []
-        self.counters["received"] += 1
-        sample = tuple(packet.payload[:d])
-        self._prev, self._last = self._last, (packet.seq, sample)
-        if self.cfg.reconstruction == "extrapolate":
-            dt_tick = self.period_ns / _NS_PER_S
-            if self.cfg.sends_rate:
-                self._rate = tuple(x * dt_tick for x in packet.payload[d:])
-            elif self._prev is not None:
-                (s0, a), (s1, b) = self._prev, self._last
-                self._rate = tuple((y - x) / (s1 - s0) for x, y in zip(a, b, strict=True))
+        ring = np.empty((1, 2 + want))
+        ring[0, 2:] = packet.payload
+        decoder_receive(self.C, self.S, packet.seq, ring, 0, self.last0, self.old0, self.rate0)
         return []
 
     def sample(self, n: int, now_ns: int) -> tuple[float, ...] | None:
-        last = self._last
-        if last is None:
+        out = self._out
+        if not decoder_sample(self.C, self.S, n, out, self.last0, self.rate0):
             return None
-        seq, x = last
-        rate = self._rate
-        if rate is None or n <= seq:
-            return x
-        ahead = float(n - seq)
-        if ahead > self._max_ahead_ticks:
-            ahead = self._max_ahead_ticks  # past the cap: hold the value reached there
-        else:
-            self.counters["extrapolated"] += 1
-        return tuple(extrapolated(xi, ri, ahead) for xi, ri in zip(x, rate, strict=True))
+        return tuple(out.tolist())
 
 
 class DeadbandCodec(NamedTuple):

@@ -222,8 +222,8 @@ class Engine:
             self.compiled_reason = "loop 'python' asked for"
         else:
             # A codec the arm kernel runs (deadband, prediction) on a link it runs (codec_host.codec_reason).
+            from haptic_teleop.core.codec_layout import ARM_COMPILED_KINDS
             from haptic_teleop.engine.compiled.codec_host import codec_reason
-            from haptic_teleop.engine.compiled.codec_layout import ARM_COMPILED_KINDS
 
             reasons = (codec_reason(ch, ARM_COMPILED_KINDS) for ch in self.codecs if ch is not None)
             self.compiled_reason = next((r for r in reasons if r is not None), None)

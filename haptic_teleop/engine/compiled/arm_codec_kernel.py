@@ -24,8 +24,8 @@ from typing import Any
 import numba
 import numpy as np
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.engine.compiled import codec_arq, codec_deadband, codec_fec, codec_hli, codec_link
-from haptic_teleop.engine.compiled import codec_layout as L
 from haptic_teleop.engine.compiled.arm_kernel import (
     V_QDM,
     V_QDS,

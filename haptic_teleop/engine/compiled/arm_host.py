@@ -164,8 +164,7 @@ def model_addresses(parts: ArmParts) -> np.ndarray:
 def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
     """The kernel's codec arrays of each direction that has a codec (None for the others), in the
     arm layout (`ArmCodecNet`)."""
-    from haptic_teleop.engine.compiled.codec_host import CodecNet
-    from haptic_teleop.engine.compiled.codec_layout import (
+    from haptic_teleop.core.codec_layout import (
         ARM_C_SIZE,
         ARM_C_TRIG0,
         ARM_DIM,
@@ -173,6 +172,7 @@ def arm_codec_nets(codecs: tuple[Any, Any], period_ns: int) -> list[Any]:
         ARM_RING_WIDTH,
         ARM_S_SIZE,
     )
+    from haptic_teleop.engine.compiled.codec_host import CodecNet
 
     class ArmCodecNet(CodecNet):
         """`CodecNet` with codec_layout's ARM_* layout (up to 9 values a sample, and their rate)."""

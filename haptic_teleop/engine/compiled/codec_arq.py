@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from haptic_teleop.engine.compiled import codec_layout as L
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.engine.compiled.codec_fec import rec_choose, rec_give, rec_take
 from haptic_teleop.engine.compiled.codec_link import (
     DELIVERED,

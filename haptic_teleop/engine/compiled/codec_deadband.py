@@ -1,16 +1,17 @@
 """The deadband (seed 001) and prediction codecs inside the compiled loops (numba): the encoder's
-trigger and the decoder's hold or extrapolation, `CodecChannel.step`'s order for these kinds; the
-per-sample formulas are core/deadband.py's and core/prediction.py's, compiled from their one
-definition.
+trigger and `CodecChannel.step`'s order for these kinds; the deadband's decoder (receive, hold or
+extrapolate) and the per-sample formulas are core/deadband.py's and core/prediction.py's,
+compiled from their one definition.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from haptic_teleop.compiling import compile_tree
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core import deadband as db
 from haptic_teleop.core import prediction as pr
-from haptic_teleop.engine.compiled import codec_layout as L
 from haptic_teleop.engine.compiled.codec_link import inline, jit, link_send, packet_send
 
 deadband_p = jit(db.deadband_p)
@@ -19,59 +20,15 @@ deadband_p = jit(db.deadband_p)
 outside = jit(db.outside)
 
 
-extrapolated = jit(db.extrapolated)
-
-
 extrapolate1 = jit(pr.extrapolate1)
 
 
-@inline  # type: ignore[misc]
-def deadband_receive(C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int) -> None:
-    # DeadbandDecoder.receive; the payload: ring row j from column 2 on.
-    dim = int(C[L.C_DIM])
-    if S[L.S_HAS_LAST] != 0.0 and seq <= S[L.S_LAST_SEQ]:
-        S[L.S_STALE] += 1.0
-        return
-    S[L.S_RECEIVED] += 1.0
-    S[L.S_HAS_OLD] = S[L.S_HAS_LAST]
-    S[L.S_OLD_SEQ] = S[L.S_LAST_SEQ]
-    for i in range(dim):
-        S[L.S_OLD0 + i] = S[L.S_LAST0 + i]
-        S[L.S_LAST0 + i] = ring[j, 2 + i]
-    S[L.S_HAS_LAST] = 1.0
-    S[L.S_LAST_SEQ] = seq
-    if C[L.C_EXTRAP] != 0.0:
-        if C[L.C_SENDS_RATE] != 0.0:
-            dt_tick = C[L.C_PERIOD_NS] / 1e9
-            for i in range(dim):
-                S[L.S_RATE0 + i] = ring[j, 2 + dim + i] * dt_tick
-            S[L.S_HAS_RATE] = 1.0
-        elif S[L.S_HAS_OLD] != 0.0:
-            span = int(S[L.S_LAST_SEQ]) - int(S[L.S_OLD_SEQ])
-            for i in range(dim):
-                S[L.S_RATE0 + i] = (S[L.S_LAST0 + i] - S[L.S_OLD0 + i]) / span
-            S[L.S_HAS_RATE] = 1.0
+# DeadbandDecoder's receive and sample, one definition (core/deadband.py): the places of its
+# vectors are passed (a relaid arm tick passes the arm layout's).
+decoder_receive = compile_tree(db.decoder_receive, inline=True)
 
 
-@inline  # type: ignore[misc]
-def deadband_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> bool:
-    # DeadbandDecoder.sample: hold, or extrapolate at most the cap, then hold.
-    if S[L.S_HAS_LAST] == 0.0:
-        return False
-    dim = int(C[L.C_DIM])
-    seq = int(S[L.S_LAST_SEQ])
-    if S[L.S_HAS_RATE] == 0.0 or n <= seq:
-        for i in range(dim):
-            out[i] = S[L.S_LAST0 + i]
-        return True
-    ahead = float(n - seq)
-    if ahead > C[L.C_MAX_AHEAD]:
-        ahead = C[L.C_MAX_AHEAD]
-    else:
-        S[L.S_EXTRAPOLATED] += 1.0
-    for i in range(dim):
-        out[i] = extrapolated(S[L.S_LAST0 + i], S[L.S_RATE0 + i], ahead)
-    return True
+decoder_sample = compile_tree(db.decoder_sample, inline=True)
 
 
 @inline  # type: ignore[misc]
@@ -204,12 +161,12 @@ def deadband_prediction_tick(
         S[L.S_COUNT] -= 1.0
         seq = int(ring[head, 0])
         if deadband:
-            deadband_receive(C, S, seq, ring, head)
+            decoder_receive(C, S, seq, ring, head, L.S_LAST0, L.S_OLD0, L.S_RATE0)
         else:
             prediction_receive(C, S, seq, ring, head)
         if seq > S[L.S_NEWEST]:
             S[L.S_NEWEST] = seq
             rx = seq
     if deadband:
-        return rx, deadband_sample(C, S, n, out)
+        return rx, decoder_sample(C, S, n, out, L.S_LAST0, L.S_RATE0)
     return rx, prediction_sample(C, S, n, out)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core import fec
-from haptic_teleop.engine.compiled import codec_layout as L
 from haptic_teleop.engine.compiled.codec_deadband import extrapolate1
 from haptic_teleop.engine.compiled.codec_link import inline, link_next, newest, packet_send, part_jit
 

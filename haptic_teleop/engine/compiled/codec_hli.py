@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core import hli_codec
-from haptic_teleop.engine.compiled import codec_layout as L
 from haptic_teleop.engine.compiled.codec_link import inline, jit, link_next, link_send, newest, part_jit
 
 linear1 = jit(hli_codec.linear1)

@@ -35,6 +35,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from haptic_teleop.assembly.channel import CodecChannel, GroupedDeadbandEncoder
+from haptic_teleop.core import codec_layout as L
+from haptic_teleop.core.deadband import DECODER_COUNTERS
 from haptic_teleop.core.delay import ConstantDelay, Delay
 from haptic_teleop.core.fec import payload_floats
 from haptic_teleop.core.hli import HLI1, HLI2
@@ -42,7 +44,6 @@ from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, FourStateLoss, GilbertElliottLoss, TraceLoss
 from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, jitter_table
-from haptic_teleop.engine.compiled import codec_layout as L
 
 _BLOCK = 4096  # random numbers drawn per refill
 ARQ_MAX_SPAN_S = 2.0  # how long ARQ may keep a sample pending in the compiled loop (array sizes)
@@ -249,7 +250,7 @@ class LinkArrays:
 STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
     "deadband": (
         {"offered": L.S_OFFERED, "sent": L.S_SENT, "filtered": L.S_FILTERED},
-        {"received": L.S_RECEIVED, "stale": L.S_STALE, "extrapolated": L.S_EXTRAPOLATED},
+        DECODER_COUNTERS,
     ),
     "prediction": ({"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES}, {"received": L.S_RECEIVED}),
     "hli": (
@@ -336,7 +337,7 @@ class CodecNet(LinkArrays):
             )
             C[L.C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
             C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
-            C[L.C_MAX_AHEAD] = dec._max_ahead_ticks
+            C[L.C_MAX_AHEAD] = dec.max_ahead_ticks
             C[L.C_VEL] = enc.velocity.start
             for g in enc.triggers:
                 for i in range(g.start, g.stop):
@@ -501,7 +502,10 @@ class CodecNet(LinkArrays):
             S[L.S_ACKS_STALE] -= len(on_way) - taken
             self.ack.ring[:, 0] = -1.0  # (counted back once)
         enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
-        dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
+        if ch.kind == "deadband":  # the decoder's whole state: its own layout's (core/deadband.py)
+            dec.load(S, self._at("S_LAST0"), self._at("S_OLD0"), self._at("S_RATE0"))
+        else:
+            dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
             dec.counters["duplicates"] = 0
             dec.rec.predicted = int(S[L.S_PREDICTED])

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from haptic_teleop.engine.compiled import codec_layout as L
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.engine.compiled.axis_kernel import (
     MASTER,
     S_CONTACT,

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core import loss
-from haptic_teleop.engine.compiled import codec_layout as L
 
 jit = numba.njit(cache=True, nogil=True)
 

@@ -1,6 +1,9 @@
-"""Layouts of the compiled codec stage's per-direction arrays (C: constants, S: state) and its
-codes, shared by the Python side (engine/compiled/codec_host.py) and the kernel (engine/compiled/codec_kernel.py);
-imports nothing, so neither imports the other (docs/codec.md, "Compiled")."""
+"""The state layouts of the codecs and their links: one direction's constants (C) and state (S)
+as float64 vectors, its sample history (X), scratch (W) and in-flight ring, and the codes kept in
+them. core's array functions (`deadband.decoder_receive`, ...) read and write these places, the
+Python objects that hold such state (`deadband.DeadbandDecoder`) and the compiled loops
+(engine/compiled/codec_*.py, their host codec_host.py) both hand them the same arrays; the module
+imports nothing (docs/codec.md, "Compiled")."""
 
 # Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
 NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0
