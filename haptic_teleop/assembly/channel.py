@@ -30,7 +30,10 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.arq import build_arq
-from haptic_teleop.core.deadband import DeadbandConfig, DeadbandDecoder, effective_deadband, vector_norm, violates
+from haptic_teleop.core.deadband import (
+    DeadbandDecoder,
+    GroupedDeadbandEncoder,
+)
 from haptic_teleop.core.fec import build_fec
 from haptic_teleop.core.hli_codec import build_hli_codec, joint_state_bytes
 from haptic_teleop.core.link import Link, Packet
@@ -60,55 +63,6 @@ def message_bytes(floats: int) -> int:
         raise ValueError(f"a codec packet carries at least one value, got {floats}")
     names = -(-floats // 3)
     return joint_state_bytes(-(-floats // names), names)
-
-
-class GroupedDeadbandEncoder:
-    """Seed 001's deadband on the quantities of a sample (core/deadband.py's rule on each of
-    them): the whole sample is sent when any trigger quantity leaves its sphere
-    |v_i - v_c| > max(p |v_i|, min_threshold) around its value in the last sent sample; p(v)
-    of the velocity-adaptive option from the sample's velocity. Payload: the sample, then (with
-    `extrapolate` from `sent_rate`) its backward-difference rate, as `DeadbandEncoder`'s, so
-    `DeadbandDecoder` rebuilds it. Counters: offered, sent, filtered."""
-
-    kind = "deadband"
-
-    def __init__(
-        self, cfg: DeadbandConfig, dim: int, size_bytes: int, triggers: tuple[slice, ...], velocity: slice
-    ) -> None:
-        self.cfg, self.dim, self.size_bytes = cfg, dim, size_bytes
-        self.triggers, self.velocity = triggers, velocity
-        self.counters: dict[str, int] = {"offered": 0, "sent": 0, "filtered": 0}
-        self._last_sent: tuple[float, ...] | None = None
-        self._prev: tuple[float, ...] | None = None
-        self._prev_ns = 0
-
-    def send(self, n: int, now_ns: int, sample: tuple[float, ...]) -> list[Packet]:
-        cfg = self.cfg
-        rate: tuple[float, ...] = ()
-        if cfg.sends_rate:
-            prev = self._prev
-            if prev is None or now_ns <= self._prev_ns:
-                rate = (0.0,) * self.dim
-            else:
-                dt = (now_ns - self._prev_ns) * 1e-9
-                rate = tuple((c - q) / dt for c, q in zip(sample, prev, strict=True))
-        self._prev, self._prev_ns = sample, now_ns
-        c = self.counters
-        c["offered"] += 1
-        last = self._last_sent
-        if last is not None:
-            p = cfg.deadband
-            if cfg.adaptive_gain > 0.0:
-                p = effective_deadband(cfg, vector_norm(sample[self.velocity]))
-            if not any(violates(last[g], sample[g], p, cfg.min_threshold) for g in self.triggers):
-                c["filtered"] += 1
-                return []
-        self._last_sent = sample
-        c["sent"] += 1
-        return [Packet(n, now_ns, sample + rate, self.size_bytes)]
-
-    def feedback(self, packet: Packet, now_ns: int) -> None:
-        """No return path."""
 
 
 def _seq_send(p: Packet) -> int:

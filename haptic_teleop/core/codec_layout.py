@@ -19,6 +19,7 @@ LOSS_NONE, LOSS_BERNOULLI, LOSS_GILBERT, LOSS_FOUR_STATE, LOSS_TRACE = 0.0, 1.0,
     C_TRIG0, C_TRIG1, C_TRIG2, C_KEEP, C_MAX_TICKS,
 ) = range(23)  # fmt: skip
 C_SIZE_ALL = 24
+TRIGGER_GROUP = 1  # the deadband's trigger groups: a value each (an arm's: a quantity's 3 task axes)
 # S: one direction's state.
 (
     S_HAS_SENT, S_SENT0, S_SENT1, S_SENT2, S_HAS_PREV, S_PREV0, S_PREV1, S_PREV2, S_PREV_NS,
@@ -140,6 +141,8 @@ ARM_X_SUM_SEQ = 1 + ARM_DIM
 ARM_X_SENT = 2 + 2 * ARM_DIM
 ARM_H_PREV, ARM_H_COPY, ARM_H_CLASS = ARM_DIM, 2 * ARM_DIM, 3 * ARM_DIM
 ARM_LAYOUT = {
+    "C_TRIG0": ARM_C_TRIG0,
+    "TRIGGER_GROUP": ARM_AXES,
     "S_SENT0": ARM_S_SENT0,
     "S_PREV0": ARM_S_PREV0,
     "S_LAST0": ARM_S_LAST0,

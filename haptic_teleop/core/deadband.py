@@ -326,6 +326,142 @@ def decoder_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray, last0:
     return True
 
 
+def triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray, sent0: int, trig0: int, group: int) -> bool:
+    """The grouped deadband's test (a sample was sent before): whether any trigger group of `smp`
+    (`group` values from each i with C[trig0 + i] set) left its sphere |v_i - v_c| > max(p |v_i|,
+    min_threshold) around its value in the last sent sample (S from `sent0`); p(|v|) of the
+    velocity-adaptive option from the group at C_VEL. Norms and distances of a group as
+    `vector_norm`: |x| for one value, else the squares summed in order."""
+    p = C[L.C_P0]
+    if C[L.C_GAIN] > 0.0:
+        vel = int(C[L.C_VEL])
+        if group == 1:
+            speed = abs(smp[vel])
+        else:
+            s2 = 0.0
+            for i in range(vel, vel + group):
+                s2 += smp[i] * smp[i]
+            speed = math.sqrt(s2)
+        p = deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], speed)
+    for g in range(0, int(C[L.C_DIM]), group):
+        if C[trig0 + g] == 0.0:
+            continue
+        if group == 1:
+            last = S[sent0 + g]
+            distance, norm_last = abs(last - smp[g]), abs(last)
+        else:
+            d2 = 0.0
+            l2 = 0.0
+            for i in range(g, g + group):
+                last = S[sent0 + i]
+                d = last - smp[i]
+                d2 += d * d
+                l2 += last * last
+            distance, norm_last = math.sqrt(d2), math.sqrt(l2)
+        if outside(distance, norm_last, p, C[L.C_MIN]):
+            return True
+    return False
+
+
+def encoder_send(
+    C: np.ndarray, S: np.ndarray, smp: np.ndarray, rate: np.ndarray, now: int, sent0: int, prev0: int, trig0: int,
+    group: int,
+) -> bool:  # fmt: skip
+    """The grouped deadband encoder offered `smp` at `now` (ns): with a sent rate (C_SENDS_RATE),
+    its backward difference over the sample offered before into `rate` (zeros for the first or an
+    equal time); counted offered, then sent (the last sent sample becomes `smp`: True) or
+    filtered (False) by `triggered`. The previous sample (from `prev0`) and the last sent (from
+    `sent0`) in S; places of its other state: codec_layout's (S_HAS_PREV, S_PREV_NS, S_HAS_SENT,
+    S_OFFERED, S_SENT, S_FILTERED). One definition: `GroupedDeadbandEncoder` calls it, the
+    compiled loops inline it."""
+    dim = int(C[L.C_DIM])
+    if C[L.C_SENDS_RATE] != 0.0:
+        if S[L.S_HAS_PREV] == 0.0 or now <= S[L.S_PREV_NS]:
+            for i in range(dim):
+                rate[i] = 0.0
+        else:
+            dt = (now - int(S[L.S_PREV_NS])) * 1e-9
+            for i in range(dim):
+                rate[i] = (smp[i] - S[prev0 + i]) / dt
+    for i in range(dim):
+        S[prev0 + i] = smp[i]
+    S[L.S_HAS_PREV] = 1.0
+    S[L.S_PREV_NS] = now
+    S[L.S_OFFERED] += 1.0
+    if S[L.S_HAS_SENT] != 0.0 and not triggered(C, S, smp, sent0, trig0, group):
+        S[L.S_FILTERED] += 1.0
+        return False
+    for i in range(dim):
+        S[sent0 + i] = smp[i]
+    S[L.S_HAS_SENT] = 1.0
+    S[L.S_SENT] += 1.0
+    return True
+
+
+# The encoder's counters and where S keeps them.
+ENCODER_COUNTERS = {"offered": L.S_OFFERED, "sent": L.S_SENT, "filtered": L.S_FILTERED}
+
+
+class GroupedDeadbandEncoder:
+    """Seed 001's deadband on the quantities of a sample (the rule above on each of them): the
+    whole sample is sent when any trigger quantity leaves its sphere |v_i - v_c| > max(p |v_i|,
+    min_threshold) around its value in the last sent sample; p(v) of the velocity-adaptive option
+    from the sample's velocity. `triggers`: the quantities' slices, each `group` values (the
+    velocity's `velocity` too). Payload: the sample, then (with `extrapolate` from `sent_rate`) its
+    backward-difference rate, so `DeadbandDecoder` rebuilds it. Its state is a codec_layout state
+    vector `S` (the previous and last sent samples after the scalars), its constants `C`:
+    `encoder_send` acts on them, as it does in the compiled loops. Counters: offered, sent,
+    filtered."""
+
+    kind = KIND
+
+    def __init__(
+        self, cfg: DeadbandConfig, dim: int, size_bytes: int, triggers: tuple[slice, ...], velocity: slice
+    ) -> None:
+        group = velocity.stop - velocity.start
+        if group < 1 or dim % group or any(t.stop - t.start != group or t.start % group for t in triggers):
+            raise ValueError(f"deadband codec: trigger groups must be {group}-value groups of the {dim} values")
+        self.cfg, self.dim, self.size_bytes = cfg, dim, size_bytes
+        self.triggers, self.velocity, self.group = triggers, velocity, group
+        self.C = np.zeros(L.C_SIZE_X + dim)
+        self.C[L.C_DIM] = dim
+        self.C[L.C_SIZE] = size_bytes
+        self.C[L.C_P0], self.C[L.C_MIN] = cfg.deadband, cfg.min_threshold
+        self.C[L.C_GAIN], self.C[L.C_PMAX] = cfg.adaptive_gain, cfg.max_deadband
+        self.C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
+        self.C[L.C_VEL] = velocity.start
+        self.trig0 = L.C_SIZE_X  # the trigger flags after the constants
+        for t in triggers:
+            self.C[self.trig0 + t.start : self.trig0 + t.stop] = 1.0
+        self.sent0, self.prev0 = L.S_SIZE_X, L.S_SIZE_X + dim
+        self.S = np.zeros(L.S_SIZE_X + 2 * dim)
+        self._rate = np.zeros(dim)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """offered, sent, filtered."""
+        return {name: int(self.S[k]) for name, k in ENCODER_COUNTERS.items()}
+
+    def load(self, S: np.ndarray, sent0: int, prev0: int) -> None:
+        """Take the state of an encoder kept elsewhere (a compiled loop's state vector `S`, its
+        vectors from `sent0` and `prev0`)."""
+        d = self.dim
+        self.S[: L.S_SIZE_X] = S[: L.S_SIZE_X]
+        self.S[self.sent0 : self.sent0 + d] = S[sent0 : sent0 + d]
+        self.S[self.prev0 : self.prev0 + d] = S[prev0 : prev0 + d]
+
+    def send(self, n: int, now_ns: int, sample: tuple[float, ...]) -> list[Packet]:
+        smp = np.asarray(sample, dtype=float)
+        rate = self._rate
+        if not encoder_send(self.C, self.S, smp, rate, now_ns, self.sent0, self.prev0, self.trig0, self.group):
+            return []
+        payload = sample + tuple(rate.tolist()) if self.cfg.sends_rate else sample
+        return [Packet(n, now_ns, payload, self.size_bytes)]
+
+    def feedback(self, packet: Packet, now_ns: int) -> None:
+        """No return path."""
+
+
 # The decoder's counters and where S keeps them.
 DECODER_COUNTERS = {"received": L.S_RECEIVED, "stale": L.S_STALE, "extrapolated": L.S_EXTRAPOLATED}
 

@@ -17,10 +17,12 @@ from haptic_teleop.core.deadband import (
     DeadbandConfig,
     DeadbandDecoder,
     DeadbandEncoder,
+    GroupedDeadbandEncoder,
     build_deadband,
     effective_deadband,
     reduction_on,
     synthetic_contact_signal,
+    violates,
 )
 from haptic_teleop.core.link import Packet
 from haptic_teleop.errors import ConfigError
@@ -346,3 +348,59 @@ def test_config_builds_from_scene_data() -> None:
         typedconfig.build(DeadbandConfig, {"deadband": 0.3, "adaptive_gain": 1.0, "max_deadband": 0.1})
     keys = {row[0] for row in typedconfig.describe(DeadbandConfig)}
     assert keys == {f"{k}" for k in DeadbandConfig.__dataclass_fields__}
+
+
+# ------------------------------------------------------------------------------------------
+# The grouped encoder (the engine's and the nodes'): one definition over state arrays
+
+
+def _grouped(cfg: DeadbandConfig, group: int) -> GroupedDeadbandEncoder:
+    # two quantities of `group` values: x (rides along) and v (the trigger and the velocity)
+    v = slice(group, 2 * group)
+    return GroupedDeadbandEncoder(cfg, 2 * group, 0, (v,), v)
+
+
+@pytest.mark.parametrize("group", [1, 3])
+def test_grouped_encoder_sends_when_its_trigger_group_leaves_the_sphere(group: int) -> None:
+    enc = _grouped(DeadbandConfig(deadband=0.1), group)
+    x0, v0 = (1.0,) * group, (2.0,) * group
+    assert len(enc.send(0, 0, x0 + v0)) == 1  # the first sample always goes
+    assert enc.send(1, T, (5.0,) * group + v0) == []  # x is no trigger
+    inside = tuple(2.0 * 1.09 for _ in range(group))  # |dv| = 0.09 |v| < p |v|
+    assert enc.send(2, 2 * T, x0 + inside) == []
+    outside_ = (2.0 * 1.11,) + (2.0,) * (group - 1)  # |dv| = 0.22: past p |v| = 0.2 for one value, not 0.35 for three
+    sent = enc.send(3, 3 * T, x0 + outside_)
+    assert len(sent) == (1 if 0.22 > 0.1 * 2.0 * math.sqrt(group) else 0)
+    assert enc.counters == {"offered": 4, "sent": 1 + len(sent), "filtered": 3 - len(sent)}
+
+
+def test_grouped_encoder_sends_the_backward_difference_rate() -> None:
+    cfg = DeadbandConfig(deadband=0.0, reconstruction="extrapolate", extrapolate_from="sent_rate")
+    enc = _grouped(cfg, 1)
+    assert enc.send(0, 0, (1.0, 2.0))[0].payload == (1.0, 2.0, 0.0, 0.0)
+    assert enc.send(1, 2 * T, (1.5, 2.0 + 1e-6))[0].payload == pytest.approx((1.5, 2.0 + 1e-6, 250.0, 5e-4))
+
+
+@given(st.lists(st.floats(-5.0, 5.0), min_size=6, max_size=6), st.lists(st.floats(-5.0, 5.0), min_size=6, max_size=6))
+@settings(max_examples=200, deadline=None)
+def test_grouped_trigger_is_violates_on_each_group(a: list[float], b: list[float]) -> None:
+    cfg = DeadbandConfig(deadband=0.1, min_threshold=0.01)
+    for group in (1, 3):
+        enc = GroupedDeadbandEncoder(cfg, 6, 0, tuple(slice(g, g + group) for g in range(0, 6, group)), slice(0, group))
+        enc.send(0, 0, tuple(a))
+        expect = any(violates(a[g : g + group], b[g : g + group], 0.1, 0.01) for g in range(0, 6, group))
+        assert (len(enc.send(1, T, tuple(b))) == 1) is expect
+
+
+def test_grouped_encoder_refuses_groups_of_other_sizes() -> None:
+    with pytest.raises(ValueError, match="3-value groups"):
+        GroupedDeadbandEncoder(DeadbandConfig(), 6, 0, (slice(0, 2),), slice(3, 6))
+
+
+def test_the_compiled_loops_run_cores_deadband_definition() -> None:
+    # the kernels compose core's functions: no copy of the encoder's or decoder's steps
+    from haptic_teleop.core import deadband as db
+    from haptic_teleop.engine.compiled import codec_deadband as k
+
+    for name in ("encoder_send", "decoder_receive", "decoder_sample"):
+        assert getattr(k, name).py_func.__code__ is getattr(db, name).__code__, name

@@ -10,14 +10,13 @@ kernel's ticks (engine/compiled/codec_kernel.py: `deadband_prediction_tick` and 
 `fec_tick`, `hli_tick` and ARQ's plan, `arq_block`, compiled once each) with their encoders,
 links, decoders and helpers,
 compiled from their one definition with the arm layout's places (`relaid`: codec_layout's
-ARM_LAYOUT, the vectors of S, X's, the ring's, W's and HLI's columns for 9 values) and the
-grouped deadband's test on 3-value groups (`arm_deadband_triggered`). The decoded sample goes
+ARM_LAYOUT, the vectors of S, X's, the ring's, W's and HLI's columns for 9 values, and the
+deadband's 3-value trigger groups). The decoded sample goes
 through the receiving side's guard every tick the decoder gives one, as in the Python arm loop.
 """
 
 from __future__ import annotations
 
-import math
 import types as pytypes
 from typing import Any
 
@@ -91,35 +90,10 @@ def relaid(f: Any, places: dict[str, Any], _done: dict[Any, Any] | None = None) 
     return out
 
 
-@inline  # type: ignore[misc]
-def arm_deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
-    # codec_deadband.deadband_triggered on 3-value groups (GroupedDeadbandEncoder: the distance and
-    # the norm of a group summed in order as core/deadband.vector_norm; p(|v|) likewise).
-    p = C[L.C_P0]
-    if C[L.C_GAIN] > 0.0:
-        vel = int(C[L.C_VEL])
-        s2 = 0.0
-        for i in range(vel, vel + L.ARM_AXES):
-            s2 += smp[i] * smp[i]
-        p = codec_deadband.deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], math.sqrt(s2))
-    for g in range(0, int(C[L.C_DIM]), L.ARM_AXES):
-        if C[L.ARM_C_TRIG0 + g] != 0.0:  # violates(last[g], sample[g], p, min_threshold)
-            d2 = 0.0
-            l2 = 0.0
-            for i in range(g, g + L.ARM_AXES):
-                last = S[L.ARM_S_SENT0 + i]
-                d = last - smp[i]
-                d2 += d * d
-                l2 += last * last
-            if codec_deadband.outside(math.sqrt(d2), math.sqrt(l2), p, C[L.C_MIN]):
-                return True
-    return False
-
-
 # CodecChannel.step of an arm scene's direction: codec_kernel's ticks with the arm layout's places
-# and the group trigger (one relaying: the helpers they share are compiled once).
+# (one relaying: the helpers they share are compiled once).
 _relaid: dict[Any, Any] = {}
-_ARM = {**ARM_PLACES, "deadband_triggered": arm_deadband_triggered}
+_ARM = ARM_PLACES
 arm_codec_tick = relaid(codec_deadband.deadband_prediction_tick, _ARM, _relaid)
 arm_fec_tick = relaid(codec_fec.fec_tick, _ARM, _relaid)
 arm_arq_tick = relaid(codec_arq.arq_tick, _ARM, _relaid)

@@ -1,7 +1,7 @@
-"""The deadband (seed 001) and prediction codecs inside the compiled loops (numba): the encoder's
-trigger and `CodecChannel.step`'s order for these kinds; the deadband's decoder (receive, hold or
-extrapolate) and the per-sample formulas are core/deadband.py's and core/prediction.py's,
-compiled from their one definition.
+"""The deadband (seed 001) and prediction codecs inside the compiled loops (numba):
+`CodecChannel.step`'s order for these kinds; the deadband's encoder (rate, trigger) and decoder
+(receive, hold or extrapolate) and the per-sample formulas are core/deadband.py's and
+core/prediction.py's, compiled from their one definition.
 """
 
 from __future__ import annotations
@@ -14,17 +14,15 @@ from haptic_teleop.core import deadband as db
 from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine.compiled.codec_link import inline, jit, link_send, packet_send
 
-deadband_p = jit(db.deadband_p)
-
-
-outside = jit(db.outside)
-
-
 extrapolate1 = jit(pr.extrapolate1)
 
 
-# DeadbandDecoder's receive and sample, one definition (core/deadband.py): the places of its
-# vectors are passed (a relaid arm tick passes the arm layout's).
+# GroupedDeadbandEncoder's send and DeadbandDecoder's receive and sample, one definition
+# (core/deadband.py): the places of their vectors are passed (a relaid arm tick passes the arm
+# layout's, and its 3-value trigger groups).
+encoder_send = compile_tree(db.encoder_send, inline=True)
+
+
 decoder_receive = compile_tree(db.decoder_receive, inline=True)
 
 
@@ -85,21 +83,6 @@ def prediction_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray) -> 
 
 
 @inline  # type: ignore[misc]
-def deadband_triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray) -> bool:
-    # GroupedDeadbandEncoder.send's test (a sample was sent before): a trigger value outside its
-    # deadband around the last sent (1-value groups; the arm loop's: arm_codec_kernel.py).
-    p = C[L.C_P0]
-    if C[L.C_GAIN] > 0.0:
-        p = deadband_p(C[L.C_P0], C[L.C_GAIN], C[L.C_PMAX], abs(smp[int(C[L.C_VEL])]))
-    for i in range(int(C[L.C_DIM])):
-        if C[L.C_TRIG0 + i] != 0.0:
-            last = S[L.S_SENT0 + i]
-            if outside(abs(last - smp[i]), abs(last), p, C[L.C_MIN]):
-                return True
-    return False
-
-
-@inline  # type: ignore[misc]
 def deadband_prediction_tick(
     C: np.ndarray,
     S: np.ndarray,
@@ -117,34 +100,10 @@ def deadband_prediction_tick(
     # CodecChannel.step with deadband or prediction (decoders that keep the newest two samples):
     # encode, send, deliver, decode. Returns (the `received` column's seq or -1, whether `out`
     # holds the tick's remote sample). The arm loop compiles it with its layout (`relaid`).
-    dim = int(C[L.C_DIM])
     deadband = C[L.C_KIND] == L.DEADBAND
     if deadband:  # GroupedDeadbandEncoder.send
-        sends_rate = C[L.C_SENDS_RATE] != 0.0
-        if sends_rate:
-            if S[L.S_HAS_PREV] == 0.0 or now <= S[L.S_PREV_NS]:
-                for i in range(dim):
-                    rate[i] = 0.0
-            else:
-                dt = (now - int(S[L.S_PREV_NS])) * 1e-9
-                for i in range(dim):
-                    rate[i] = (smp[i] - S[L.S_PREV0 + i]) / dt
-        for i in range(dim):
-            S[L.S_PREV0 + i] = smp[i]
-        S[L.S_HAS_PREV] = 1.0
-        S[L.S_PREV_NS] = now
-        S[L.S_OFFERED] += 1.0
-        send = True
-        if S[L.S_HAS_SENT] != 0.0:
-            send = deadband_triggered(C, S, smp)
-            if not send:
-                S[L.S_FILTERED] += 1.0
-        if send:
-            for i in range(dim):
-                S[L.S_SENT0 + i] = smp[i]
-            S[L.S_HAS_SENT] = 1.0
-            S[L.S_SENT] += 1.0
-            link_send(C, S, U, B, ring, rec, n, now, smp, rate, sends_rate, True, True, W)
+        if encoder_send(C, S, smp, rate, now, L.S_SENT0, L.S_PREV0, L.C_TRIG0, L.TRIGGER_GROUP):
+            link_send(C, S, U, B, ring, rec, n, now, smp, rate, C[L.C_SENDS_RATE] != 0.0, True, True, W)
     else:  # PredictionEncoder.send
         S[L.S_OFFERED] += 1.0
         packet_send(C, S, U, B, ring, rec, n, now, smp, rate)

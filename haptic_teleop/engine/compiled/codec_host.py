@@ -34,9 +34,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from haptic_teleop.assembly.channel import CodecChannel, GroupedDeadbandEncoder
+from haptic_teleop.assembly.channel import CodecChannel
 from haptic_teleop.core import codec_layout as L
-from haptic_teleop.core.deadband import DECODER_COUNTERS
+from haptic_teleop.core.deadband import DECODER_COUNTERS, ENCODER_COUNTERS, DeadbandDecoder, GroupedDeadbandEncoder
 from haptic_teleop.core.delay import ConstantDelay, Delay
 from haptic_teleop.core.fec import payload_floats
 from haptic_teleop.core.hli import HLI1, HLI2
@@ -249,7 +249,7 @@ class LinkArrays:
 # (`CodecNet.store` writes them back).
 STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
     "deadband": (
-        {"offered": L.S_OFFERED, "sent": L.S_SENT, "filtered": L.S_FILTERED},
+        ENCODER_COUNTERS,
         DECODER_COUNTERS,
     ),
     "prediction": ({"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES}, {"received": L.S_RECEIVED}),
@@ -324,24 +324,13 @@ class CodecNet(LinkArrays):
         C[L.C_DIM] = ch.dim
         C[L.C_PERIOD_NS] = period_ns
         enc, dec = ch.encoder, ch.decoder
-        if ch.kind == "deadband":
-            assert type(enc) is GroupedDeadbandEncoder
-            cfg = enc.cfg
+        if ch.kind == "deadband":  # the constants the encoder and the decoder hold (core/deadband.py)
+            assert type(enc) is GroupedDeadbandEncoder and type(dec) is DeadbandDecoder
             C[L.C_KIND] = L.DEADBAND
-            C[L.C_SIZE] = enc.size_bytes
-            C[L.C_P0], C[L.C_MIN], C[L.C_GAIN], C[L.C_PMAX] = (
-                cfg.deadband,
-                cfg.min_threshold,
-                cfg.adaptive_gain,
-                cfg.max_deadband,
-            )
-            C[L.C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
-            C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
-            C[L.C_MAX_AHEAD] = dec.max_ahead_ticks
-            C[L.C_VEL] = enc.velocity.start
-            for g in enc.triggers:
-                for i in range(g.start, g.stop):
-                    C[self._trig0 + i] = 1.0
+            for k in (L.C_SIZE, L.C_P0, L.C_MIN, L.C_GAIN, L.C_PMAX, L.C_SENDS_RATE, L.C_VEL):
+                C[k] = enc.C[k]
+            C[L.C_EXTRAP], C[L.C_MAX_AHEAD] = dec.C[L.C_EXTRAP], dec.C[L.C_MAX_AHEAD]
+            C[self._trig0 : self._trig0 + ch.dim] = enc.C[enc.trig0 : enc.trig0 + ch.dim]
         elif ch.kind == "hli":
             C[L.C_KIND] = L.HLI
             C[L.C_HN], C[L.C_HLINEAR], C[L.C_HWARMUP] = enc.n_hli1, 1.0 if enc._linear else 0.0, enc._warmup
@@ -501,10 +490,11 @@ class CodecNet(LinkArrays):
             S[L.S_ACKED] -= taken
             S[L.S_ACKS_STALE] -= len(on_way) - taken
             self.ack.ring[:, 0] = -1.0  # (counted back once)
-        enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
-        if ch.kind == "deadband":  # the decoder's whole state: its own layout's (core/deadband.py)
+        if ch.kind == "deadband":  # the encoder's and decoder's whole state (core/deadband.py)
+            enc.load(S, self._at("S_SENT0"), self._at("S_PREV0"))
             dec.load(S, self._at("S_LAST0"), self._at("S_OLD0"), self._at("S_RATE0"))
         else:
+            enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
             dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
             dec.counters["duplicates"] = 0
