@@ -45,7 +45,7 @@ def pytest_sessionstart(session):
     log = open(os.path.join(tempfile.gettempdir(), f"haptic-teleop-test-compile-{os.getuid()}.log"), "w")
     _COMPILE.append(
         subprocess.Popen(
-            [sys.executable, "-m", "haptic_teleop.cli", "compile", "--only", "arm,codec,arm_codec,axis"],
+            [sys.executable, "-m", "haptic_teleop.cli", "compile", "--only", "arm,side,codec,arm_codec,axis"],
             stdin=subprocess.DEVNULL,
             stdout=log,
             stderr=subprocess.STDOUT,

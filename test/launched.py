@@ -36,8 +36,8 @@ def wait_for_bag_messages(bag: Path, timeout_s: float) -> None:
 class Launch:
     """`haptic-teleop launch ...` as a child process; its output lines are collected as they come."""
 
-    def __init__(self, *args: str, cwd: Path) -> None:
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+    def __init__(self, *args: str, cwd: Path, env: dict[str, str] | None = None) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
         self.proc = subprocess.Popen(
             [*CLI, "launch", *args],
             cwd=cwd,

@@ -18,6 +18,7 @@ from haptic_teleop.core.eba_coupled import CoupledBoundState
 
 if TYPE_CHECKING:
     from haptic_teleop.assembly.parts import ArmParts, ArmSide
+    from haptic_teleop.scene.schema import Scene
 
 
 @functools.cache
@@ -293,3 +294,26 @@ def side_tick(side: ArmSide, parts: ArmParts, master: bool, fallback: Any) -> tu
     if reason is not None:
         return fallback, reason
     return CompiledSideTick(side, parts, master), None
+
+
+def warm(config: Scene) -> str | None:
+    """Compile the side tick the live arm nodes run (or load it from numba's cache) in this
+    process, before the nodes start: cold, it takes tens of seconds, which a node compiling it at
+    start-up would spend while the others wait for it (past `start.timeout_s` on a fresh install).
+    Only for an arm scene whose sides are both simulated (nothing else is opened). None once
+    built, else why it was not."""
+    if not config.is_arm or config.master.backend != "mujoco" or config.slave.backend != "mujoco":
+        return "not an arm scene with both sides simulated"
+    why = side_unusable()
+    if why is not None:
+        return why
+    from haptic_teleop.assembly.parts import build_arm_parts
+
+    parts = build_arm_parts(config)
+    k = side_kernel()
+    with compiling.first_compile(k.side_tick):
+        for master in (True, False):
+            side = parts.master if master else parts.slave
+            if compiled_reason_side(side) is None:
+                CompiledSideTick(side, parts, master)
+    return None

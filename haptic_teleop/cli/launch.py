@@ -36,10 +36,28 @@ def launch_main(args: Any) -> int:
     except ValueError as exc:
         raise HapticTeleopError(str(exc)) from None
     params_dir = Path(args.params_dir) if args.params_dir else Path(tempfile.mkdtemp(prefix="haptic_teleop_params_"))
+    warm_side_tick(scene)
     # From here on a first signal stops the nodes (their own handlers while they run) and still
     # lets the bag, summary and plots be written (the CLI's handler once they have stopped).
     with interrupt.finishing():
         return _launch_and_report(args, scene, plan, params_dir, record, rate)
+
+
+def warm_side_tick(scene: Any) -> None:
+    """An arm scene's compiled side tick built (or loaded) here, before its nodes start, saying so
+    when numba really compiles it: a node compiling it cold would keep the others waiting past
+    their start timeout (assembly/compiled_side.warm)."""
+    from haptic_teleop import compiling
+    from haptic_teleop.assembly import compiled_side
+    from haptic_teleop.cli.main import compile_notice
+
+    if not scene.config.is_arm:
+        return
+    compiling.compile_notice = lambda module: print(compile_notice(module), file=sys.stderr, flush=True)
+    try:
+        compiled_side.warm(scene.config)
+    finally:
+        compiling.compile_notice = None
 
 
 def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, record: Path | None, rate: Any) -> int:

@@ -268,7 +268,7 @@ class DeadbandEncoder:
 
 
 def decoder_receive(
-    C: np.ndarray, S: np.ndarray, seq: int, ring: np.ndarray, j: int, last0: int, old0: int, rate0: int
+    C: np.ndarray, S: np.ndarray, seq: int, ring: Any, j: int, last0: int, old0: int, rate0: int
 ) -> None:
     """The decoder takes packet `seq`, its payload in `ring[j, 2:]` (the sample, then its rate if
     the payload carries one): a packet not newer than the last one taken is counted stale and
@@ -326,7 +326,7 @@ def decoder_sample(C: np.ndarray, S: np.ndarray, n: int, out: np.ndarray, last0:
     return True
 
 
-def triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray, sent0: int, trig0: int, group: int) -> bool:
+def triggered(C: np.ndarray, S: np.ndarray, smp: Any, sent0: int, trig0: int, group: int) -> bool:
     """The grouped deadband's test (a sample was sent before): whether any trigger group of `smp`
     (`group` values from each i with C[trig0 + i] set) left its sphere |v_i - v_c| > max(p |v_i|,
     min_threshold) around its value in the last sent sample (S from `sent0`); p(|v|) of the
@@ -364,7 +364,7 @@ def triggered(C: np.ndarray, S: np.ndarray, smp: np.ndarray, sent0: int, trig0: 
 
 
 def encoder_send(
-    C: np.ndarray, S: np.ndarray, smp: np.ndarray, rate: np.ndarray, now: int, sent0: int, prev0: int, trig0: int,
+    C: np.ndarray, S: np.ndarray, smp: Any, rate: np.ndarray, now: int, sent0: int, prev0: int, trig0: int,
     group: int,
 ) -> bool:  # fmt: skip
     """The grouped deadband encoder offered `smp` at `now` (ns): with a sent rate (C_SENDS_RATE),
@@ -409,7 +409,7 @@ class GroupedDeadbandEncoder:
     from the sample's velocity. `triggers`: the quantities' slices, each `group` values (the
     velocity's `velocity` too). Payload: the sample, then (with `extrapolate` from `sent_rate`) its
     backward-difference rate, so `DeadbandDecoder` rebuilds it. Its state is a codec_layout state
-    vector `S` (the previous and last sent samples after the scalars), its constants `C`:
+    vector `S` (the previous and last sent samples after the scalars; a list), its constants `C`:
     `encoder_send` acts on them, as it does in the compiled loops. Counters: offered, sent,
     filtered."""
 
@@ -423,19 +423,22 @@ class GroupedDeadbandEncoder:
             raise ValueError(f"deadband codec: trigger groups must be {group}-value groups of the {dim} values")
         self.cfg, self.dim, self.size_bytes = cfg, dim, size_bytes
         self.triggers, self.velocity, self.group = triggers, velocity, group
-        self.C = np.zeros(L.C_SIZE_X + dim)
-        self.C[L.C_DIM] = dim
-        self.C[L.C_SIZE] = size_bytes
-        self.C[L.C_P0], self.C[L.C_MIN] = cfg.deadband, cfg.min_threshold
-        self.C[L.C_GAIN], self.C[L.C_PMAX] = cfg.adaptive_gain, cfg.max_deadband
-        self.C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
-        self.C[L.C_VEL] = velocity.start
+        # C and S as Python lists: the functions do the same float64 arithmetic on them as on the
+        # compiled loops' arrays, and a list is a few times faster to index from Python
+        C = [0.0] * (L.C_SIZE_X + dim)
+        C[L.C_DIM] = dim
+        C[L.C_SIZE] = size_bytes
+        C[L.C_P0], C[L.C_MIN] = cfg.deadband, cfg.min_threshold
+        C[L.C_GAIN], C[L.C_PMAX] = cfg.adaptive_gain, cfg.max_deadband
+        C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
+        C[L.C_VEL] = velocity.start
         self.trig0 = L.C_SIZE_X  # the trigger flags after the constants
         for t in triggers:
-            self.C[self.trig0 + t.start : self.trig0 + t.stop] = 1.0
+            C[self.trig0 + t.start : self.trig0 + t.stop] = [1.0] * group
+        self.C: Any = C
         self.sent0, self.prev0 = L.S_SIZE_X, L.S_SIZE_X + dim
-        self.S = np.zeros(L.S_SIZE_X + 2 * dim)
-        self._rate = np.zeros(dim)
+        self.S: Any = [0.0] * (L.S_SIZE_X + 2 * dim)
+        self._rate: Any = [0.0] * dim
 
     @property
     def counters(self) -> dict[str, int]:
@@ -446,20 +449,31 @@ class GroupedDeadbandEncoder:
         """Take the state of an encoder kept elsewhere (a compiled loop's state vector `S`, its
         vectors from `sent0` and `prev0`)."""
         d = self.dim
-        self.S[: L.S_SIZE_X] = S[: L.S_SIZE_X]
-        self.S[self.sent0 : self.sent0 + d] = S[sent0 : sent0 + d]
-        self.S[self.prev0 : self.prev0 + d] = S[prev0 : prev0 + d]
+        self.S[: L.S_SIZE_X] = S[: L.S_SIZE_X].tolist()
+        self.S[self.sent0 : self.sent0 + d] = S[sent0 : sent0 + d].tolist()
+        self.S[self.prev0 : self.prev0 + d] = S[prev0 : prev0 + d].tolist()
 
     def send(self, n: int, now_ns: int, sample: tuple[float, ...]) -> list[Packet]:
-        smp = np.asarray(sample, dtype=float)
         rate = self._rate
-        if not encoder_send(self.C, self.S, smp, rate, now_ns, self.sent0, self.prev0, self.trig0, self.group):
+        if not encoder_send(self.C, self.S, sample, rate, now_ns, self.sent0, self.prev0, self.trig0, self.group):
             return []
-        payload = sample + tuple(rate.tolist()) if self.cfg.sends_rate else sample
+        payload = sample + tuple(rate) if self.cfg.sends_rate else sample
         return [Packet(n, now_ns, payload, self.size_bytes)]
 
     def feedback(self, packet: Packet, now_ns: int) -> None:
         """No return path."""
+
+
+class _Row:
+    """A packet's payload as row 0 of an in-flight ring (`ring[0, 2 + i]`), for the Python decoder."""
+
+    __slots__ = ("payload",)
+
+    def __init__(self, payload: Sequence[float]) -> None:
+        self.payload = payload
+
+    def __getitem__(self, at: tuple[int, int]) -> float:
+        return float(self.payload[at[1] - 2])
 
 
 # The decoder's counters and where S keeps them.
@@ -469,7 +483,7 @@ DECODER_COUNTERS = {"received": L.S_RECEIVED, "stale": L.S_STALE, "extrapolated"
 class DeadbandDecoder:
     """Receiver side: hold or extrapolate the newest received sample (by seq; older and
     duplicate arrivals are counted `stale` and ignored). Its state is a codec_layout state
-    vector `S` (its samples after the scalars), its constants `C`: `decoder_receive` and
+    vector `S` (its samples after the scalars; a list), its constants `C`: `decoder_receive` and
     `decoder_sample` act on them, as they do in the compiled loops."""
 
     kind = KIND
@@ -483,16 +497,17 @@ class DeadbandDecoder:
         self.dim = dim
         self.period_ns = period_ns
         cap = cfg.max_extrapolation_s
-        self.C = np.zeros(L.C_SIZE_X)
-        self.C[L.C_DIM] = dim
-        self.C[L.C_PERIOD_NS] = period_ns
-        self.C[L.C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
-        self.C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
-        self.C[L.C_MAX_AHEAD] = math.inf if cap is None else cap * _NS_PER_S / period_ns
+        C = [0.0] * L.C_SIZE_X  # lists: as the encoder's
+        C[L.C_DIM] = dim
+        C[L.C_PERIOD_NS] = period_ns
+        C[L.C_EXTRAP] = 1.0 if cfg.reconstruction == "extrapolate" else 0.0
+        C[L.C_SENDS_RATE] = 1.0 if cfg.sends_rate else 0.0
+        C[L.C_MAX_AHEAD] = math.inf if cap is None else cap * _NS_PER_S / period_ns
+        self.C: Any = C
         # the last, old and rate vectors after the scalars
         self.last0, self.old0, self.rate0 = L.S_SIZE_X, L.S_SIZE_X + dim, L.S_SIZE_X + 2 * dim
-        self.S = np.zeros(L.S_SIZE_X + 3 * dim)
-        self._out = np.zeros(dim)
+        self.S: Any = [0.0] * (L.S_SIZE_X + 3 * dim)
+        self._out: Any = [0.0] * dim
 
     @property
     def max_ahead_ticks(self) -> float:
@@ -508,17 +523,16 @@ class DeadbandDecoder:
         """Take the state of a decoder kept elsewhere (a compiled loop's state vector `S`, its
         vectors from `last0`, `old0`, `rate0`)."""
         d = self.dim
-        self.S[: L.S_SIZE_X] = S[: L.S_SIZE_X]
-        self.S[self.last0 : self.last0 + d] = S[last0 : last0 + d]
-        self.S[self.old0 : self.old0 + d] = S[old0 : old0 + d]
-        self.S[self.rate0 : self.rate0 + d] = S[rate0 : rate0 + d]
+        self.S[: L.S_SIZE_X] = S[: L.S_SIZE_X].tolist()
+        self.S[self.last0 : self.last0 + d] = S[last0 : last0 + d].tolist()
+        self.S[self.old0 : self.old0 + d] = S[old0 : old0 + d].tolist()
+        self.S[self.rate0 : self.rate0 + d] = S[rate0 : rate0 + d].tolist()
 
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
         want = self.dim * self.cfg.floats_per_axis
         if len(packet.payload) != want:
             raise ValueError(f"deadband codec: payload has {len(packet.payload)} values, expected {want}")
-        ring = np.empty((1, 2 + want))
-        ring[0, 2:] = packet.payload
+        ring = _Row(packet.payload)
         decoder_receive(self.C, self.S, packet.seq, ring, 0, self.last0, self.old0, self.rate0)
         return []
 
@@ -526,7 +540,7 @@ class DeadbandDecoder:
         out = self._out
         if not decoder_sample(self.C, self.S, n, out, self.last0, self.rate0):
             return None
-        return tuple(out.tolist())
+        return tuple(out)
 
 
 class DeadbandCodec(NamedTuple):

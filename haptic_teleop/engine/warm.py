@@ -2,10 +2,11 @@
 
 Each compiled loop is compiled on the first run on a machine that needs it and loaded from
 numba's cache afterwards (docs/performance.md, "Compile cost"): the 1-DoF loop (`axis`), the 1-DoF
-loop with the codec stage (`codec`), the arm loop (`arm`) and the arm loop with the codec stage
-(`arm_codec`). This runs a few ticks of a bundled scene through each, so that a first real run, a
-benchmark, a sweep or a test session does not pay it. A kernel that another process is compiling
-at the same time is waited for and then loaded (`compiling.first_compile`).
+loop with the codec stage (`codec`), the arm loop (`arm`), the arm loop with the codec stage
+(`arm_codec`) and the side tick the live arm nodes run (`side`). This runs a few ticks of a
+bundled scene through each, so that a first real run, a launch, a benchmark, a sweep or a test
+session does not pay it. A kernel that another process is compiling at the same time is waited
+for and then loaded (`compiling.first_compile`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ KERNELS: dict[str, tuple[str, tuple[str, ...]]] = {
     "codec": ("wall_contact", ("network.forward.codec={kind: prediction}",)),
     "arm": ("touch_ur5e_wall", ()),
     "arm_codec": ("touch_ur5e_wall", ("network.forward.codec={kind: deadband, deadband: 0.1}",)),
+    "side": ("touch_ur5e_wall", ()),  # the live arm nodes' side tick (assembly/compiled_side.warm)
 }
 
 
@@ -44,6 +46,13 @@ def warm_one(name: str) -> float:
     scene_name, overrides = KERNELS[name]
     t0 = time.perf_counter()
     scene = load_scene(find_scene(scene_name), overrides=["scene.duration_s=0.005", *overrides])
+    if name == "side":
+        from haptic_teleop.assembly.compiled_side import warm as warm_side
+
+        why = warm_side(scene.config)
+        if why is not None:
+            raise RuntimeError(why)
+        return time.perf_counter() - t0
     try:
         engine = Engine(scene, loop="compiled")
     except ConfigError as exc:  # no numba here, or the kernel cannot load: `--loop compiled` says why
