@@ -208,9 +208,9 @@ def compile_tree(f: Callable[..., Any], inline: bool = False) -> Any:
     """`f` compiled by numba (`njit(cache=True, nogil=True)`) from its own definition, with every
     plain function of this package it calls (by global name) compiled the same way: numba cannot
     call uncompiled functions, and the core modules must not import numba, so the calls are bound
-    to the compiled callees here. `inline`: `f` itself is inlined into its compiled callers
-    (numba's `inline="always"`, as the kernels' tick parts; its callees are not). Each function is
-    compiled once per process (and way)."""
+    to the compiled callees here. `inline`: `f` and the callees compiled with it are inlined
+    into their compiled callers (numba's `inline="always"`, as the kernels' tick parts). Each
+    function is compiled once per process (and way)."""
     key = (f, inline)
     done = _compiled.get(key)
     if done is not None:
@@ -221,7 +221,7 @@ def compile_tree(f: Callable[..., Any], inline: bool = False) -> Any:
     for name in f.__code__.co_names:  # type: ignore[attr-defined]
         g = glob.get(name)
         if isinstance(g, types.FunctionType) and g.__module__.startswith(PACKAGE + "."):
-            glob[name] = compile_tree(g)
+            glob[name] = compile_tree(g, inline)
     code = f.__code__  # type: ignore[attr-defined]
     fn = types.FunctionType(code, glob, f.__name__, f.__defaults__, f.__closure__)  # type: ignore[attr-defined]
     fn.__qualname__ = f.__qualname__

@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from bisect import bisect_right, insort
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core.link import Packet
 
 Sample = tuple[float, ...]
@@ -85,12 +85,124 @@ def extrapolate(
     return tuple(extrapolate1(a, b, ahead, span) for a, b in zip(prev, last, strict=True))
 
 
+# The reconstruction over a sample history as functions over codec_layout arrays: the one
+# definition the Python `Reconstructor` calls and the compiled loops inline (FEC, ARQ). C: C_DIM,
+# C_KEEP (how far behind the newest held sample the history reaches), C_WAIT, C_EXTRAP,
+# C_MAX_TICKS; S: the history's scalars (S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH,
+# S_PENDING, S_HAS_SLOT, S_SLOT, S_SLOT_N, S_HAS_PLAYED, S_LAST_PLAYED, S_PREDICTED, S_LATE,
+# S_RECOVERED, S_RECOVERED_LATE); X: a row per seq modulo its (power-of-two) length, more rows than
+# C_KEEP: the seq held there (X_HELD) and its values from X_VALUE.
+
+
+def rec_held(C: Any, S: Any, X: Any, seq: int) -> bool:
+    """Whether `seq` is held (and not yet forgotten: within C_KEEP of the newest held)."""
+    if seq < 0 or S[L.S_HAS_HELD] == 0.0 or seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
+        return False
+    return X[seq & (X.shape[0] - 1), L.X_HELD] == seq  # type: ignore[no-any-return]
+
+
+def rec_take(C: Any, S: Any, X: Any, seq: int, fresh: bool) -> bool:
+    """Take `seq` into the history (its values are the caller's to write into its X row); False
+    if held already or too old to keep. Not `fresh` (an FEC recovery, an ARQ retransmission):
+    counted recovered, and late (and recovered late) if its slot was already played."""
+    if rec_held(C, S, X, seq):
+        return False
+    if S[L.S_HAS_HELD] != 0.0 and seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
+        if not fresh:
+            S[L.S_LATE] += 1.0
+        return False
+    if not fresh:
+        S[L.S_RECOVERED] += 1.0
+        if S[L.S_HAS_PLAYED] != 0.0 and seq <= S[L.S_LAST_PLAYED]:
+            S[L.S_LATE] += 1.0
+            S[L.S_RECOVERED_LATE] += 1.0
+    X[seq & (X.shape[0] - 1), L.X_HELD] = seq
+    if S[L.S_HAS_HELD] == 0.0 or seq > S[L.S_MAXHELD]:
+        S[L.S_MAXHELD] = seq
+        S[L.S_HAS_HELD] = 1.0
+    if fresh and (S[L.S_HAS_FRESH] == 0.0 or seq > S[L.S_NEWEST_FRESH]):
+        S[L.S_NEWEST_FRESH] = seq
+        S[L.S_HAS_FRESH] = 1.0
+        S[L.S_PENDING] = 1.0
+    return True
+
+
+def rec_choose(C: Any, S: Any, X: Any, n: int) -> tuple[int, int, int, int]:
+    """What tick `n` plays, its values aside (`rec_give`): the playout slot (a fresh arrival sets
+    it, each tick advances it; only recoveries so far: the newest held), then the held seq to give
+    (the sample at the slot, C_WAIT behind, or the newest held before it; -1: none) and, for a
+    prediction from the newest two held at or before the target, the one before it (-1: hold),
+    the ticks ahead and the span."""
+    if S[L.S_PENDING] != 0.0:
+        S[L.S_SLOT] = S[L.S_NEWEST_FRESH]
+        S[L.S_SLOT_N] = n
+        S[L.S_PENDING] = 0.0
+        S[L.S_HAS_SLOT] = 1.0
+    elif S[L.S_HAS_SLOT] != 0.0:
+        S[L.S_SLOT] = S[L.S_SLOT] + (n - S[L.S_SLOT_N])
+        S[L.S_SLOT_N] = n
+    elif S[L.S_HAS_HELD] != 0.0:
+        S[L.S_SLOT] = S[L.S_MAXHELD]
+        S[L.S_SLOT_N] = n
+        S[L.S_HAS_SLOT] = 1.0
+    else:
+        return -1, -1, 0, 0
+    target = int(S[L.S_SLOT]) - int(C[L.C_WAIT])
+    if S[L.S_HAS_PLAYED] == 0.0 or target > S[L.S_LAST_PLAYED]:
+        S[L.S_LAST_PLAYED] = target
+        S[L.S_HAS_PLAYED] = 1.0
+    mask = X.shape[0] - 1
+    newest = int(S[L.S_MAXHELD])
+    lo = max(0, newest - int(C[L.C_KEEP]))
+    last = min(target, newest)
+    while last >= lo and X[last & mask, L.X_HELD] != last:
+        last -= 1
+    if last < lo:
+        return -1, -1, 0, 0  # everything held is newer than the target
+    if last == target:
+        return last, -1, 0, 0
+    S[L.S_PREDICTED] += 1.0
+    if C[L.C_EXTRAP] == 0.0:
+        return last, -1, 0, 0
+    prev = last - 1
+    while prev >= lo and X[prev & mask, L.X_HELD] != prev:
+        prev -= 1
+    if prev < lo:
+        return last, -1, 0, 0
+    return last, prev, min(target - last, int(C[L.C_MAX_TICKS])), last - prev
+
+
+def rec_give(C: Any, X: Any, last: int, prev: int, ahead: int, span: int, out: Any) -> bool:
+    """The values of `rec_choose`'s choice into `out` (False: nothing to give): the sample held, or
+    its extrapolation from the one before it (`extrapolate1`)."""
+    if last < 0:
+        return False
+    mask = X.shape[0] - 1
+    j = last & mask
+    if prev < 0:
+        for i in range(int(C[L.C_DIM])):
+            out[i] = X[j, L.X_VALUE + i]
+        return True
+    k = prev & mask
+    for i in range(int(C[L.C_DIM])):
+        out[i] = extrapolate1(X[k, L.X_VALUE + i], X[j, L.X_VALUE + i], ahead, span)
+    return True
+
+
+def rec_sample(C: Any, S: Any, X: Any, n: int, out: Any) -> bool:
+    """What tick `n` plays into `out` (`rec_choose`, `rec_give`); False before anything usable."""
+    last, prev, ahead, span = rec_choose(C, S, X, n)
+    return rec_give(C, X, last, prev, ahead, span, out)
+
+
 class Reconstructor:
     """The receiver's sample history and what it plays each tick (see the module docstring).
 
     `add` a sample with its seq (fresh: an original transmission); `sample(n)` the value for
     tick n. Counts samples that arrived in time for their slot and those that came too late to
-    be played (`late`; kept for the record and the extrapolation base).
+    be played (`late`; kept for the record and the extrapolation base). Its state is codec_layout
+    arrays (C and S as lists, X a float64 array made at the first sample, when its width is
+    known) that `rec_take` and `rec_sample` act on, as in the compiled loops.
     """
 
     def __init__(self, gap: str = "extrapolate", max_extrapolation_ticks: int = 50, wait_ticks: int = 0) -> None:
@@ -104,21 +216,34 @@ class Reconstructor:
         self.max_extrapolation_ticks = max_extrapolation_ticks
         self.wait_ticks = wait_ticks
         self._keep = _HISTORY_TICKS + wait_ticks + max_extrapolation_ticks
-        self._seqs: list[int] = []  # sorted
-        self._values: dict[int, Sample] = {}
-        self._newest_fresh: int | None = None
-        self._slot: int | None = None  # sender tick the last sample() call stood for
-        self._slot_n = 0
-        self._fresh_pending = False
-        self.last_played_seq: int | None = None  # target of the last sample() call
-        self.late = 0  # non-fresh samples added after their slot was played
-        self.predicted = 0  # ticks played from a prediction (or a hold past the history)
+        C = [0.0] * L.C_SIZE_X
+        C[L.C_KEEP], C[L.C_WAIT] = self._keep, wait_ticks
+        C[L.C_EXTRAP], C[L.C_MAX_TICKS] = (1.0 if self.extrapolates else 0.0), max_extrapolation_ticks
+        self.C: Any = C
+        self.S: Any = [0.0] * L.S_SIZE_X
+        self.X: Any = None
+        self._out: Any = None
+
+    def _history(self, dim: int) -> Any:
+        import numpy as np
+
+        rows = 4
+        while rows <= self._keep + 1:
+            rows *= 2
+        X = np.full((rows, L.X_VALUE + dim), -1.0)
+        self.C[L.C_DIM] = dim
+        self._out = [0.0] * dim
+        self.X = X
+        return X
 
     def has(self, seq: int) -> bool:
-        return seq in self._values
+        return self.X is not None and rec_held(self.C, self.S, self.X, seq)
 
     def get(self, seq: int) -> Sample | None:
-        return self._values.get(seq)
+        if not self.has(seq):
+            return None
+        j = seq & (self.X.shape[0] - 1)
+        return tuple(self.X[j, L.X_VALUE :].tolist())
 
     @property
     def keep_ticks(self) -> int:
@@ -127,62 +252,45 @@ class Reconstructor:
 
     @property
     def newest_seq(self) -> int | None:
-        return self._seqs[-1] if self._seqs else None
+        return int(self.S[L.S_MAXHELD]) if self.S[L.S_HAS_HELD] != 0.0 else None
+
+    @property
+    def last_played_seq(self) -> int | None:
+        """The target of the last `sample` call."""
+        return int(self.S[L.S_LAST_PLAYED]) if self.S[L.S_HAS_PLAYED] != 0.0 else None
+
+    @property
+    def late(self) -> int:
+        """Non-fresh samples added after their slot was played (or too old to keep)."""
+        return int(self.S[L.S_LATE])
+
+    @property
+    def predicted(self) -> int:
+        """Ticks played from a prediction (or a hold past the history)."""
+        return int(self.S[L.S_PREDICTED])
+
+    def load_counts(self, predicted: int, late: int) -> None:
+        """Take the counts of a history kept elsewhere (a compiled loop's)."""
+        self.S[L.S_PREDICTED], self.S[L.S_LATE] = float(predicted), float(late)
 
     def add(self, seq: int, value: Sample, fresh: bool) -> bool:
         """Add a sample; False if its seq is already held (a duplicate) or too old to keep."""
-        if seq in self._values:
+        X = self.X if self.X is not None else self._history(len(value))
+        if len(value) != X.shape[1] - L.X_VALUE:
+            raise ValueError(f"reconstruction: a sample of {len(value)} values, the history holds {X.shape[1] - 1}")
+        if not rec_take(self.C, self.S, X, seq, fresh):
             return False
-        newest = self._seqs[-1] if self._seqs else None
-        if newest is not None and seq < newest - self._keep:
-            if not fresh:
-                self.late += 1
-            return False
-        if not fresh and self.last_played_seq is not None and seq <= self.last_played_seq:
-            self.late += 1
-        self._values[seq] = value
-        insort(self._seqs, seq)
-        if fresh and (self._newest_fresh is None or seq > self._newest_fresh):
-            self._newest_fresh = seq
-            self._fresh_pending = True
-        # Forget what is too old to matter.
-        cut = self._seqs[-1] - self._keep
-        drop = 0
-        while self._seqs[drop] < cut:
-            del self._values[self._seqs[drop]]
-            drop += 1
-        if drop:
-            del self._seqs[:drop]
+        X[seq & (X.shape[0] - 1), L.X_VALUE :] = value
         return True
 
     def sample(self, n: int) -> Sample | None:
         """The value to use at receiver tick n (None before anything usable arrived)."""
-        if self._fresh_pending:
-            assert self._newest_fresh is not None
-            self._slot, self._slot_n = self._newest_fresh, n
-            self._fresh_pending = False
-        elif self._slot is not None:
-            self._slot, self._slot_n = self._slot + (n - self._slot_n), n
-        elif self._seqs:  # only non-fresh samples so far: start from the newest
-            self._slot, self._slot_n = self._seqs[-1], n
-        else:
+        if self.X is None:
             return None
-        target = self._slot - self.wait_ticks
-        if self.last_played_seq is None or target > self.last_played_seq:
-            self.last_played_seq = target
-        value = self._values.get(target)
-        if value is not None:
-            return value
-        i = bisect_right(self._seqs, target)
-        if i == 0:
-            return None  # everything held is newer than the target (start-up with wait_ticks)
-        self.predicted += 1
-        last_seq = self._seqs[i - 1]
-        last = self._values[last_seq]
-        if not self.extrapolates or i == 1:
-            return last
-        prev_seq = self._seqs[i - 2]
-        return extrapolate(prev_seq, self._values[prev_seq], last_seq, last, target, self.max_extrapolation_ticks)
+        out = self._out
+        if not rec_sample(self.C, self.S, self.X, n, out):
+            return None
+        return tuple(out)
 
 
 @dataclass(frozen=True)

@@ -117,3 +117,17 @@ def test_bad_config_names_the_field() -> None:
         PredictionConfig(gap="guess")
     with pytest.raises(ValueError, match="max_extrapolation_s"):
         PredictionConfig(max_extrapolation_s=-1.0)
+
+
+def test_the_compiled_loops_run_cores_reconstruction() -> None:
+    # prediction's, FEC's and ARQ's kernels compose core's reconstruction: no copy of its steps
+    from haptic_teleop.core import prediction as pr
+    from haptic_teleop.engine.compiled import codec_arq, codec_deadband, codec_fec
+
+    for mod, names in (
+        (codec_fec, ("rec_held", "rec_take", "rec_choose", "rec_give", "rec_sample")),
+        (codec_deadband, ("rec_take", "rec_sample")),
+        (codec_arq, ("rec_take", "rec_choose", "rec_give")),
+    ):
+        for name in names:
+            assert getattr(mod, name).py_func.__code__ is getattr(pr, name).__code__, (mod.__name__, name)

@@ -120,7 +120,7 @@ def delivered(
         elif kind == L.HLI:
             rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
         else:
-            rx, got = arm_codec_tick(C, S, U, B, ring, rec, W, n, now, smp, rate, dec)
+            rx, got = arm_codec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
         if got:
             guarded(side, dec)
         return rx, 0.0

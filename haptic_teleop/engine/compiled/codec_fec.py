@@ -1,5 +1,6 @@
-"""FEC inside the compiled loops (numba): the decoder's history of samples (`Reconstructor` over any
-seqs), repetition and parity recovery, the tick; the parity sums are core/fec.py's
+"""FEC inside the compiled loops (numba): repetition and parity recovery and the tick over the
+decoder's history of samples, whose reconstruction is core/prediction.py's (`rec_take`,
+`rec_sample`, ...: `Reconstructor`'s own functions); the parity sums are core/fec.py's
 `rounded_sum` (the value `math.fsum` gives in the Python classes).
 """
 
@@ -7,46 +8,30 @@ from __future__ import annotations
 
 import numpy as np
 
+from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core import fec
-from haptic_teleop.engine.compiled.codec_deadband import extrapolate1
+from haptic_teleop.core import prediction as pr
 from haptic_teleop.engine.compiled.codec_link import inline, link_next, newest, packet_send, part_jit
 
 rounded_sum = part_jit(fec.rounded_sum)
 
 
-@inline  # type: ignore[misc]
-def rec_held(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int) -> bool:
-    # Reconstructor.has: held and not yet forgotten (within keep_ticks of the newest held).
-    if seq < 0 or S[L.S_HAS_HELD] == 0.0 or seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
-        return False
-    return X[seq & (X.shape[0] - 1), L.X_HELD] == seq
+# The reconstruction over the sample history, one definition (core/prediction.py: `Reconstructor`
+# calls the same functions): inlined here, and by the ARQ tick.
+rec_held = compile_tree(pr.rec_held, inline=True)
 
 
-@inline  # type: ignore[misc]
-def rec_take(C: np.ndarray, S: np.ndarray, X: np.ndarray, seq: int, fresh: bool) -> bool:
-    # Reconstructor.add of `seq` but its value (`rec_add`; ARQ's plan moves the value later);
-    # False if held already or too old to keep. Not `fresh`: a recovered sample, counted.
-    if rec_held(C, S, X, seq):
-        return False
-    if S[L.S_HAS_HELD] != 0.0 and seq < S[L.S_MAXHELD] - C[L.C_KEEP]:
-        if not fresh:
-            S[L.S_LATE] += 1.0
-        return False
-    if not fresh:  # a recovered sample (FecDecoder._add, ArqDecoder's retransmission), maybe late
-        S[L.S_RECOVERED] += 1.0
-        if S[L.S_HAS_PLAYED] != 0.0 and seq <= S[L.S_LAST_PLAYED]:
-            S[L.S_LATE] += 1.0
-            S[L.S_RECOVERED_LATE] += 1.0
-    X[seq & (X.shape[0] - 1), L.X_HELD] = seq
-    if S[L.S_HAS_HELD] == 0.0 or seq > S[L.S_MAXHELD]:
-        S[L.S_MAXHELD] = seq
-        S[L.S_HAS_HELD] = 1.0
-    if fresh and (S[L.S_HAS_FRESH] == 0.0 or seq > S[L.S_NEWEST_FRESH]):
-        S[L.S_NEWEST_FRESH] = seq
-        S[L.S_HAS_FRESH] = 1.0
-        S[L.S_PENDING] = 1.0
-    return True
+rec_take = compile_tree(pr.rec_take, inline=True)
+
+
+rec_choose = compile_tree(pr.rec_choose, inline=True)
+
+
+rec_give = compile_tree(pr.rec_give, inline=True)
+
+
+rec_sample = compile_tree(pr.rec_sample, inline=True)
 
 
 @inline  # type: ignore[misc]
@@ -58,75 +43,6 @@ def rec_add(C: np.ndarray, S: np.ndarray, X: np.ndarray, W: np.ndarray, seq: int
     for i in range(int(C[L.C_DIM])):
         X[j, L.X_VALUE + i] = W[L.W_VALUE + i]
     return True
-
-
-@inline  # type: ignore[misc]
-def rec_choose(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int) -> tuple[int, int, int, int]:
-    # Reconstructor.sample but its values (`rec_sample`; ARQ's plan keeps the choice): the
-    # playout slot, then the held seq to give (the sample at the slot, wait_ticks behind, or the
-    # newest held before it; -1: none) and, for a prediction from the newest two held at or
-    # before the target, the one before it (-1: hold), the ticks ahead and the span.
-    if S[L.S_PENDING] != 0.0:
-        S[L.S_SLOT] = S[L.S_NEWEST_FRESH]
-        S[L.S_SLOT_N] = n
-        S[L.S_PENDING] = 0.0
-        S[L.S_HAS_SLOT] = 1.0
-    elif S[L.S_HAS_SLOT] != 0.0:
-        S[L.S_SLOT] = S[L.S_SLOT] + (n - S[L.S_SLOT_N])
-        S[L.S_SLOT_N] = n
-    elif S[L.S_HAS_HELD] != 0.0:
-        S[L.S_SLOT] = S[L.S_MAXHELD]
-        S[L.S_SLOT_N] = n
-        S[L.S_HAS_SLOT] = 1.0
-    else:
-        return -1, -1, 0, 0
-    target = int(S[L.S_SLOT]) - int(C[L.C_WAIT])
-    if S[L.S_HAS_PLAYED] == 0.0 or target > S[L.S_LAST_PLAYED]:
-        S[L.S_LAST_PLAYED] = target
-        S[L.S_HAS_PLAYED] = 1.0
-    mask = X.shape[0] - 1
-    newest = int(S[L.S_MAXHELD])
-    lo = max(0, newest - int(C[L.C_KEEP]))
-    last = min(target, newest)
-    while last >= lo and X[last & mask, L.X_HELD] != last:
-        last -= 1
-    if last < lo:
-        return -1, -1, 0, 0  # everything held is newer than the target
-    if last == target:
-        return last, -1, 0, 0
-    S[L.S_PREDICTED] += 1.0
-    if C[L.C_EXTRAP] == 0.0:
-        return last, -1, 0, 0
-    prev = last - 1
-    while prev >= lo and X[prev & mask, L.X_HELD] != prev:
-        prev -= 1
-    if prev < lo:
-        return last, -1, 0, 0
-    return last, prev, min(target - last, int(C[L.C_MAX_TICKS])), last - prev
-
-
-@inline  # type: ignore[misc]
-def rec_give(C: np.ndarray, X: np.ndarray, last: int, prev: int, ahead: int, span: int, out: np.ndarray) -> bool:
-    # The values of `rec_choose`'s choice into `out` (False: nothing to give).
-    if last < 0:
-        return False
-    mask = X.shape[0] - 1
-    j = last & mask
-    if prev < 0:
-        for i in range(int(C[L.C_DIM])):
-            out[i] = X[j, L.X_VALUE + i]
-        return True
-    k = prev & mask
-    for i in range(int(C[L.C_DIM])):
-        out[i] = extrapolate1(X[k, L.X_VALUE + i], X[j, L.X_VALUE + i], ahead, span)
-    return True
-
-
-@inline  # type: ignore[misc]
-def rec_sample(C: np.ndarray, S: np.ndarray, X: np.ndarray, n: int, out: np.ndarray) -> bool:
-    # Reconstructor.sample: the choice (`rec_choose`) and its values.
-    last, prev, ahead, span = rec_choose(C, S, X, n)
-    return rec_give(C, X, last, prev, ahead, span, out)
 
 
 @inline  # type: ignore[misc]

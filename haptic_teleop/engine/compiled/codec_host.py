@@ -252,7 +252,10 @@ STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
         ENCODER_COUNTERS,
         DECODER_COUNTERS,
     ),
-    "prediction": ({"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES}, {"received": L.S_RECEIVED}),
+    "prediction": (
+        {"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES},
+        {"received": L.S_RECEIVED, "duplicates": L.S_DUPLICATES},
+    ),
     "hli": (
         {
             "samples": L.S_OFFERED,
@@ -413,6 +416,11 @@ class CodecNet(LinkArrays):
                 self.W[k] = 1.0 if k in enc._may_filter else 0.0
             self.W[N + 1 : 2 * N + 2] = enc._fixed_after
             S[L.S_ESINCE] = N + 1
+        if ch.kind == "prediction":  # the decoder's held samples (core/prediction.py's Reconstructor)
+            rows = 4
+            while rows < C[L.C_KEEP] + 2:
+                rows *= 2
+            self.X = np.full((rows, self._at("X_WIDTH")), -1.0)
         if ch.kind in ("fec", "arq"):
             rows = 4
             # (parity: a window is solved up to keep_ticks after its packet arrived)
@@ -497,12 +505,11 @@ class CodecNet(LinkArrays):
             enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
             dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
-            dec.counters["duplicates"] = 0
-            dec.rec.predicted = int(S[L.S_PREDICTED])
+            dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
         elif ch.kind == "hli":
             enc.last_class = int(S[L.S_LAST_CLASS])
         elif ch.kind in ("arq", "fec"):  # (fec's recovered_log, for a reader of the decoder alone, stays empty)
-            dec.rec.predicted, dec.rec.late = int(S[L.S_PREDICTED]), int(S[L.S_LATE])
+            dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
         if ch.kind == "arq":
             ch.ack_packets, ch.ack_bytes = int(S[L.S_ACK_PACKETS]), int(S[L.S_ACK_BYTES])
             assert self.ack is not None

@@ -69,7 +69,7 @@ def codec_tick(
         return arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, out)
     if C[L.C_KIND] == L.FEC:
         return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
-    return deadband_prediction_tick(C, S, U, B, ring, rec, W, n, now, smp, rate, out)
+    return deadband_prediction_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
 
 
 @loop_jit  # type: ignore[misc]
