@@ -201,6 +201,17 @@ def first_compile(dispatcher: Any) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def compile_message(module: str) -> str:
+    """What the command line says when a tick loop is compiled rather than loaded from numba's
+    cache: which, why, about how long, and how to build them all ahead (`run`, `launch`)."""
+    kernel = module.rsplit(".", 1)[-1]
+    return (
+        f"haptic-teleop: compiling the tick loop {kernel} with numba, once for this kind of scene on this "
+        f"machine (seconds to about two minutes on 2 cores; later runs load it from numba's cache); "
+        f"`haptic-teleop compile` builds every loop ahead"
+    )
+
+
 _compiled: dict[tuple[Callable[..., Any], bool], Any] = {}
 
 

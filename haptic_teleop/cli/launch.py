@@ -49,11 +49,10 @@ def warm_side_tick(scene: Any) -> None:
     their start timeout (assembly/compiled_side.warm)."""
     from haptic_teleop import compiling
     from haptic_teleop.assembly import compiled_side
-    from haptic_teleop.cli.main import compile_notice
 
     if not scene.config.is_arm:
         return
-    compiling.compile_notice = lambda module: print(compile_notice(module), file=sys.stderr, flush=True)
+    compiling.compile_notice = lambda module: print(compiling.compile_message(module), file=sys.stderr, flush=True)
     try:
         compiled_side.warm(scene.config)
     finally:

@@ -33,14 +33,11 @@ def _say(args: argparse.Namespace, text: str) -> None:
 
 
 def compile_notice(module: str) -> str:
-    """What `run` says when a tick loop is compiled rather than loaded from numba's cache: which,
-    why, about how long, and how to build them all ahead."""
-    kernel = module.rsplit(".", 1)[-1]
-    return (
-        f"haptic-teleop: compiling the tick loop {kernel} with numba, once for this kind of scene on this "
-        f"machine (seconds to about two minutes on 2 cores; later runs load it from numba's cache); "
-        f"`haptic-teleop compile` builds every loop ahead"
-    )
+    """What `run` says when a tick loop is compiled rather than loaded from numba's cache
+    (`compiling.compile_message`)."""
+    from haptic_teleop import compiling
+
+    return compiling.compile_message(module)
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -171,6 +171,18 @@ class SinusoidDelay:
         return self._mid - self._amp * math.cos(self._w * (t_ns + self._phase_ns))
 
 
+def delayed_ns(t_ns: int, delay_ns: float) -> int:
+    """A packet's arrival after a delay of `delay_ns` from `t_ns`: rounded to the ns, none if not
+    positive. One definition: `Delay` and the compiled links (engine/compiled/codec_link.py)."""
+    return t_ns + int(delay_ns + 0.5) if delay_ns > 0.0 else t_ns
+
+
+def in_order_ns(arrival_ns: int, last_ns: int) -> int:
+    """An arrival kept in order: no earlier than the one delivered before it (netem with a pfifo
+    child or `rate`). One definition: `Delay` and the compiled links."""
+    return arrival_ns if arrival_ns >= last_ns else last_ns
+
+
 class Delay:
     """Delay with jitter, a time-varying part, optional ordering and netem-style reordering.
 
@@ -263,10 +275,8 @@ class Delay:
                 if packet.fate == DELIVERED:
                     self.reordered += 1
                 return None
-        arrival = t + int(d + 0.5) if d > 0.0 else t
+        arrival = delayed_ns(t, d)
         if self._keep_order and packet.fate == DELIVERED:
-            if arrival < self._last_arrival:  # noqa: PLR1730 (an if is cheaper than max() per packet)
-                arrival = self._last_arrival
-            self._last_arrival = arrival
+            arrival = self._last_arrival = in_order_ns(arrival, self._last_arrival)
         packet.arrival_time_ns = arrival
         return None

@@ -13,6 +13,7 @@ import zlib
 from collections.abc import Callable
 from functools import cache
 from statistics import NormalDist
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +62,20 @@ class UniformSource:
         return rest
 
 
+def netem_next(fresh: float, rho: float, last: float) -> float:
+    """netem's correlated random number from a fresh uniform and the last one it gave:
+    (1 - rho) fresh + rho last. One definition: `NetemCorrelatedUniform` and the compiled links
+    (engine/compiled/codec_link.py: jitter, Bernoulli loss)."""
+    return (1.0 - rho) * fresh + rho * last
+
+
+def unit_jitter(u: float, table: Any, n: int) -> float:
+    """A unit jitter value from a uniform u in [0, 1): 2 u - 1 without a table (n = 0: netem's
+    uniform), else the table's cell int(u n) (`jitter_table`). One definition: `jitter_quantile`
+    and the compiled links."""
+    return 2.0 * u - 1.0 if n == 0 else table[int(u * n)]  # type: ignore[no-any-return]
+
+
 class NetemCorrelatedUniform:
     """netem's correlated random: u_n = (1 - rho) v_n + rho u_(n-1), v_n fresh uniform.
 
@@ -75,7 +90,7 @@ class NetemCorrelatedUniform:
         self._last = self._fresh()  # netem seeds `last` with a fresh random number
 
     def next(self) -> float:
-        u = (1.0 - self._rho) * self._fresh() + self._rho * self._last
+        u = netem_next(self._fresh(), self._rho, self._last)
         self._last = u
         return u
 
@@ -154,12 +169,8 @@ def jitter_table(distribution: str) -> tuple[float, ...]:
 
 def jitter_quantile(distribution: str) -> Callable[[float], float]:
     """Map a uniform u in [0, 1) to a unit jitter value of `distribution`."""
-    if distribution == "uniform":
-        return lambda u: 2.0 * u - 1.0  # netem without a table: uniform on [-jitter, +jitter)
+    if distribution == "uniform":  # netem without a table: uniform on [-jitter, +jitter)
+        return lambda u: unit_jitter(u, (), 0)
     table = jitter_table(distribution)
     n = len(table)
-
-    def lookup(u: float) -> float:
-        return table[int(u * n)]
-
-    return lookup
+    return lambda u: unit_jitter(u, table, n)

@@ -10,8 +10,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import codec_layout as L
-from haptic_teleop.core import loss
+from haptic_teleop.core import delay, loss, uniform
 
 jit = numba.njit(cache=True, nogil=True)
 
@@ -28,6 +29,20 @@ gilbert_step = jit(loss.gilbert_step)
 
 
 four_state_step = jit(loss.four_state_step)
+
+
+# netem's correlated numbers, the jitter's value and the arrival's rounding and order, one
+# definition (core/uniform.py, core/delay.py: `Delay.apply`, `NetemCorrelatedUniform`)
+netem_next = compile_tree(uniform.netem_next, inline=True)
+
+
+unit_jitter = compile_tree(uniform.unit_jitter, inline=True)
+
+
+delayed_ns = compile_tree(delay.delayed_ns, inline=True)
+
+
+in_order_ns = compile_tree(delay.in_order_ns, inline=True)
 
 
 DELIVERED = 0.0
@@ -63,7 +78,7 @@ def loss_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> tuple[bool
         x = U[u]
         rho = C[L.C_LRHO]
         if rho != 0.0:
-            x = (1.0 - rho) * x + rho * S[L.S_LLAST]
+            x = netem_next(x, rho, S[L.S_LLAST])
             S[L.S_LLAST] = x
         return x < C[L.C_LP], u + 1
     if kind == L.LOSS_GILBERT:
@@ -123,16 +138,14 @@ def jitter_arrival(C: np.ndarray, S: np.ndarray, W: np.ndarray, now: int, fate: 
     S[L.S_JU] += 1.0
     rho = C[L.C_JRHO]
     if rho != 0.0:  # NetemCorrelatedUniform.next
-        u = (1.0 - rho) * u + rho * S[L.S_JLAST]
+        u = netem_next(u, rho, S[L.S_JLAST])
         S[L.S_JLAST] = u
-    q = 2.0 * u - 1.0 if n == 0 else W[int(u * n)]
     d = C[L.C_JBASE_NS]
-    d += C[L.C_JSIGMA_NS] * q
+    d += C[L.C_JSIGMA_NS] * unit_jitter(u, W, n)
     t = now + int(C[L.C_DELAY_NS])  # (a constant delay before it: none that build_link makes)
-    arrival = t + int(d + 0.5) if d > 0.0 else t
+    arrival = delayed_ns(t, d)
     if C[L.C_JKEEP] != 0.0 and fate == DELIVERED:
-        if arrival < S[L.S_LAST_ARRIVAL]:
-            arrival = int(S[L.S_LAST_ARRIVAL])
+        arrival = in_order_ns(arrival, int(S[L.S_LAST_ARRIVAL]))
         S[L.S_LAST_ARRIVAL] = arrival
     return arrival
 
