@@ -72,3 +72,39 @@ def test_sigkill_of_the_launcher_stops_every_node_and_the_bag_is_closed(tmp_path
     assert (out / "bag" / "metadata.yaml").is_file()
     with BagReader(out / "bag") as reader:
         assert reader.read("/operator/joint_states").stamp_ns.size > 0
+
+
+def test_a_node_that_does_not_stop_prints_its_stacks_before_it_is_killed(tmp_path, monkeypatch):
+    """A node that ignores SIGINT past the stop timeout: the launcher sends SIGABRT first, so the
+    node's fault handler prints where every thread is into the launcher's output, then kills it."""
+    import io
+    import threading
+
+    from haptic_teleop.live import launcher as L
+
+    monkeypatch.setattr(L, "ABORT_WAIT_S", 20.0)
+    hang = (
+        "import signal, sys, time\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        "def stuck_here():\n"
+        "    while True:\n"
+        "        time.sleep(0.05)\n"
+        "print('up', flush=True)\n"
+        "stuck_here()\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", hang], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            env={**os.environ, "PYTHONFAULTHANDLER": "1"})  # fmt: skip
+    out = io.StringIO()
+    launcher = L.Launcher([], tmp_path, out=out)
+    spec = L.NodeSpec(name="hung", executable="operator_source", params={})
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == b"up"
+    pump = threading.Thread(target=launcher._pump, args=("hung", proc.stdout), daemon=True)
+    pump.start()
+    child = L.Child(spec, proc, pump)
+    launcher._stop_group([child], 0.5)
+    pump.join(10)
+    text = out.getvalue()
+    assert child.returncode == -signal.SIGABRT, text
+    assert "did not stop within" in text and "its stacks follow" in text
+    assert "stuck_here" in text  # the hung thread's Python stack, from its fault handler

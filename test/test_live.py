@@ -455,8 +455,8 @@ def test_a_node_dying_in_native_code_prints_its_stack_and_the_launcher_says_what
     os.kill(pid, signal.SIGSEGV)
     assert launch.finish(60) == 1, launch.text[-4000:]
     codes = launch.exit_codes()
-    assert codes.pop("forward_relay") == -signal.SIGSEGV
-    assert all(c == 0 for c in codes.values()), codes
+    assert codes.pop("forward_relay") == -signal.SIGSEGV, launch.text[-4000:]
+    assert all(c == 0 for c in codes.values()), (codes, launch.text[-6000:])
     relay_lines = [line for line in launch.lines if line.startswith("[forward_relay] ")]
     assert any("Fatal Python error: Segmentation fault" in line for line in relay_lines), launch.text[-4000:]
     assert any("most recent call first" in line for line in relay_lines)

@@ -46,6 +46,7 @@ MASTER_SIDE = (
 SLAVE_SIDE = ("slave_eba", "backward_relay", "forward_buffer", "forward_ack_relay")
 STOP_TIMEOUT_S = 10.0
 RECORDER_STOP_TIMEOUT_S = 60.0
+ABORT_WAIT_S = 5.0  # a node that did not stop: its stacks printed on SIGABRT within this, then SIGKILL
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal that stopped the launch
@@ -526,9 +527,16 @@ class Launcher:
             try:
                 c.proc.wait(max(0.0, end - time.monotonic()))
             except subprocess.TimeoutExpired:
-                self.log(f"{c.spec.name} did not stop within {timeout_s:.0f} s; killing it")
-                c.proc.kill()
-                c.proc.wait()
+                # SIGABRT first: the node's fault handler (PYTHONFAULTHANDLER) prints every thread's
+                # stack into its log, so a hang says where it hangs; then it is killed
+                self.log(f"{c.spec.name} did not stop within {timeout_s:.0f} s; its stacks follow, then it is killed")
+                with contextlib.suppress(ProcessLookupError):
+                    c.proc.send_signal(signal.SIGABRT)
+                try:
+                    c.proc.wait(ABORT_WAIT_S)
+                except subprocess.TimeoutExpired:
+                    c.proc.kill()
+                    c.proc.wait()
             c.returncode = c.proc.returncode
 
     def stop(self) -> None:
