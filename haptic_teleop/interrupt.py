@@ -24,10 +24,12 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from types import FrameType
+from typing import Any
 
 EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 TEST_PAUSE_ENV = "HAPTIC_TELEOP_TEST_PAUSE"
@@ -78,11 +80,27 @@ def _handler(signum: int, frame: FrameType | None) -> None:
     raise Interrupted(signum)
 
 
+def _unraisable_hook(previous: Callable[[Any], object]) -> Callable[[Any], object]:
+    """`sys.unraisablehook` that keeps quiet about an `Interrupted` raised where Python ignores
+    exceptions (a finalizer, a weakref callback such as importlib's module locks): the signal is
+    recorded already, and the command stops at its next check (`on_stop` calls a callback at
+    once for a signal that came before it). Anything else goes to the hook before it."""
+
+    def hook(args: Any) -> object:
+        if isinstance(args.exc_value, Interrupted):
+            return None
+        return previous(args)
+
+    return hook
+
+
 def install() -> Callable[[], None]:
     """Handle SIGINT and SIGTERM alike from now on (the first thing `main` does); returns a
     function that puts the previous handlers back (for `main` called in a process that has its own)."""
     _state.__init__()  # type: ignore[misc]
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable_hook(previous_hook)
     for sig in previous:
         signal.signal(sig, _handler)
     _state.installed = True
@@ -90,6 +108,7 @@ def install() -> Callable[[], None]:
     def restore() -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        sys.unraisablehook = previous_hook
         _state.installed = False
 
     return restore
