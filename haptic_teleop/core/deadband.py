@@ -510,11 +510,6 @@ class DeadbandDecoder:
         self._out: Any = [0.0] * dim
 
     @property
-    def max_ahead_ticks(self) -> float:
-        """The extrapolation's cap in ticks (inf: none)."""
-        return float(self.C[L.C_MAX_AHEAD])
-
-    @property
     def counters(self) -> dict[str, int]:
         """received, stale, extrapolated."""
         return {name: int(self.S[k]) for name, k in DECODER_COUNTERS.items()}

@@ -73,18 +73,6 @@ def extrapolate1(a: float, b: float, ahead: int, span: int) -> float:
     return b + (b - a) * (ahead / span)
 
 
-def extrapolate(
-    prev_seq: int, prev: Sample, last_seq: int, last: Sample, target_seq: int, max_ahead_ticks: int
-) -> Sample:
-    """Linear extrapolation of two samples (at ticks prev_seq < last_seq) to tick `target_seq`,
-    at most `max_ahead_ticks` past `last_seq` (beyond that, the value reached there: a hold)."""
-    if not prev_seq < last_seq:
-        raise ValueError(f"prev_seq ({prev_seq}) must be before last_seq ({last_seq})")
-    ahead = min(target_seq - last_seq, max_ahead_ticks)
-    span = last_seq - prev_seq
-    return tuple(extrapolate1(a, b, ahead, span) for a, b in zip(prev, last, strict=True))
-
-
 # The reconstruction over a sample history as functions over codec_layout arrays: the one
 # definition the Python `Reconstructor` calls and the compiled loops inline (FEC, ARQ). C: C_DIM,
 # C_KEEP (how far behind the newest held sample the history reaches), C_WAIT, C_EXTRAP,

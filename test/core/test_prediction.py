@@ -11,7 +11,6 @@ from haptic_teleop.core.prediction import (
     PredictionConfig,
     Reconstructor,
     build_prediction,
-    extrapolate,
     float64_multiarray_size,
 )
 
@@ -71,13 +70,6 @@ def test_extrapolation_stops_at_its_limit_then_holds() -> None:
     for n in range(15, 30):
         assert played[n] == ramp(14)  # 5 ticks past the last sample (9), then held
     assert played[30] == ramp(30)
-
-
-def test_extrapolate_function() -> None:
-    assert extrapolate(2, (1.0,), 4, (2.0,), 8, 100) == (4.0,)
-    assert extrapolate(2, (1.0,), 4, (2.0,), 8, 2) == (3.0,)
-    with pytest.raises(ValueError, match="before"):
-        extrapolate(4, (1.0,), 4, (2.0,), 8, 2)
 
 
 def test_late_sample_improves_the_base_but_never_moves_playback_back() -> None:

@@ -36,7 +36,7 @@ import numpy as np
 
 from haptic_teleop.assembly.channel import CodecChannel
 from haptic_teleop.core import codec_layout as L
-from haptic_teleop.core.deadband import DECODER_COUNTERS, ENCODER_COUNTERS, DeadbandDecoder, GroupedDeadbandEncoder
+from haptic_teleop.core.deadband import DeadbandDecoder, GroupedDeadbandEncoder
 from haptic_teleop.core.delay import ConstantDelay, Delay
 from haptic_teleop.core.fec import payload_floats
 from haptic_teleop.core.hli import HLI1, HLI2
@@ -246,12 +246,8 @@ class LinkArrays:
 
 
 # The encoder's and the decoder's counters of each compiled kind: where the kernel keeps them in S
-# (`CodecNet.store` writes them back).
+# (`CodecNet.store` writes them back; the deadband's objects take their whole state instead).
 STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
-    "deadband": (
-        ENCODER_COUNTERS,
-        DECODER_COUNTERS,
-    ),
     "prediction": (
         {"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES},
         {"received": L.S_RECEIVED, "duplicates": L.S_DUPLICATES},
@@ -488,7 +484,6 @@ class CodecNet(LinkArrays):
         codec's counters; the link's and its effects' counts and the Gilbert state follow too)."""
         S, ch = self.S, self.ch
         enc, dec = ch.encoder, ch.decoder
-        enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
         if ch.kind == "arq" and self.C[L.C_ACK_EVERY] <= 1.0:
             # the kernel counted each ACK as it was sent: those still on their way are not the
             # encoder's yet (taken at a tick the run did not reach)
@@ -502,6 +497,7 @@ class CodecNet(LinkArrays):
             enc.load(S, self._at("S_SENT0"), self._at("S_PREV0"))
             dec.load(S, self._at("S_LAST0"), self._at("S_OLD0"), self._at("S_RATE0"))
         else:
+            enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
             enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
             dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
