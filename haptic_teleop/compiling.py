@@ -29,7 +29,7 @@ import importlib.util
 import os
 import tempfile
 import types
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -212,17 +212,20 @@ def compile_message(module: str) -> str:
     )
 
 
-_compiled: dict[tuple[Callable[..., Any], bool], Any] = {}
+_compiled: dict[tuple[Any, ...], Any] = {}
 
 
-def compile_tree(f: Callable[..., Any], inline: bool = False) -> Any:
+def compile_tree(f: Callable[..., Any], inline: bool = False, bound: Mapping[str, Any] | None = None) -> Any:
     """`f` compiled by numba (`njit(cache=True, nogil=True)`) from its own definition, with every
     plain function of this package it calls (by global name) compiled the same way: numba cannot
     call uncompiled functions, and the core modules must not import numba, so the calls are bound
     to the compiled callees here. `inline`: `f` and the callees compiled with it are inlined
-    into their compiled callers (numba's `inline="always"`, as the kernels' tick parts). Each
-    function is compiled once per process (and way)."""
-    key = (f, inline)
+    into their compiled callers (numba's `inline="always"`, as the kernels' tick parts).
+    `bound`: callees, by global name, bound to the compiled functions given instead (one compiled
+    once and called, where inlining it at every call would cost compile time; numba's cache
+    tells a function's compilations apart by signature only, so a function compiled with two
+    bindings must be inlined in both). Each function is compiled once per process (and way)."""
+    key = (f, inline, tuple(sorted((name, id(g)) for name, g in bound.items())) if bound else ())
     done = _compiled.get(key)
     if done is not None:
         return done
@@ -231,8 +234,10 @@ def compile_tree(f: Callable[..., Any], inline: bool = False) -> Any:
     glob = dict(f.__globals__)  # type: ignore[attr-defined]
     for name in f.__code__.co_names:  # type: ignore[attr-defined]
         g = glob.get(name)
-        if isinstance(g, types.FunctionType) and g.__module__.startswith(PACKAGE + "."):
-            glob[name] = compile_tree(g, inline)
+        if bound is not None and name in bound:
+            glob[name] = bound[name]
+        elif isinstance(g, types.FunctionType) and g.__module__.startswith(PACKAGE + "."):
+            glob[name] = compile_tree(g, inline, bound)
     code = f.__code__  # type: ignore[attr-defined]
     fn = types.FunctionType(code, glob, f.__name__, f.__defaults__, f.__closure__)  # type: ignore[attr-defined]
     fn.__qualname__ = f.__qualname__

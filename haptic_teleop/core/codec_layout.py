@@ -63,7 +63,10 @@ C_LRHO = 52  # netem's correlation of a Bernoulli loss's uniform numbers (0: non
 # in S_BAD; a trace's pattern in U (0/1, a packet each) and whether it repeats (C_LP), S_U the
 # packets so far
 C_LP14 = 53
-C_SIZE_X = 54  # C's length with these
+# FEC: where its packet's payload and the log of the samples a packet recovered start in W
+# (`core.fec.fec_receive`)
+C_WPAY, C_WLOG = 54, 55
+C_SIZE_X = 56  # C's length with these
 (
     S_HAS_HELD, S_MAXHELD, S_HAS_FRESH, S_NEWEST_FRESH, S_HAS_PLAYED, S_LAST_PLAYED, S_LATE,
     S_RECOVERED, S_RECOVERED_LATE, S_DUPLICATES,
@@ -91,7 +94,9 @@ S_JU, S_JU_END, S_LAST_ARRIVAL = 122, 123, 124
 S_JLAST = 125  # netem's last correlated uniform number
 S_PLAN_N0, S_PLAN_END = 126, 127  # ARQ: the ticks its plan in W covers (from, to)
 S_LLAST = 128  # netem's last correlated uniform number of a Bernoulli loss
-S_SIZE_X = 129  # S's length with these
+# FEC's sender: whether it sent, its first and its last seq (`core.fec.fec_sent`)
+S_FHAS, S_FFIRST, S_FLAST = 129, 130, 131
+S_SIZE_X = 132  # S's length with these
 # X: a codec's sample history, a row per seq modulo its (power-of-two) length: the decoder's held
 # sample (seq, values), a parity sum received (seq, values) or ARQ's pending sample (seq,
 # retransmissions, last sent, the tick its first ACK to arrive is taken: X_NO_ACK while none is
@@ -101,7 +106,8 @@ X_PEND, X_TRIES, X_LAST_NS, X_ACK_AT = 4, 5, 6, 7
 X_NO_ACK = 1e18
 # ARQ's data packets in flight: the ring's attempt and send tick columns
 RING_ATTEMPT, RING_SENT = 6, 7
-# W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist.
+# W: a codec's scratch: partial sums, a value, the terms of a sum, the recovery worklist (FEC:
+# then a packet's payload from C_WPAY, the samples it recovered from C_WLOG: their count, seqs).
 W_VALUE, W_TERMS, W_STACK = 200, 204, 280  # the partial sums from 0
 # ARQ's cumulative ACKs: the seqs below the window (C_ACK_CAP of them at most), then the ACK's
 # message size by that count (0 .. C_ACK_CAP); the ACK link's ring: seq (the newest), arrival,

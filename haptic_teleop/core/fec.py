@@ -30,11 +30,10 @@ to 2k - 1). docs/codec_baselines.md has the layouts, sizes and costs.
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core.link import Packet
 from haptic_teleop.core.prediction import (
     GAP_MODES,
@@ -43,6 +42,8 @@ from haptic_teleop.core.prediction import (
     SizeOf,
     check_fields,
     float64_multiarray_size,
+    rec_held,
+    rec_take,
     ticks,
 )
 
@@ -86,7 +87,7 @@ def payload_floats(scheme: str, k: int, dim: int) -> int:
 
 def rounded_sum(xs: Any, start: int, count: int, partials: Any) -> float:
     """The sum of the finite floats xs[start:start + count] rounded once, the value `math.fsum` gives (the
-    compiled loop's parity sums, engine/compiled/codec_kernel.py; the Python classes call `math.fsum`).
+    parity sums of `fec_payload` and `fec_receive`).
     Shewchuk's exact partials (non-overlapping, kept in `partials` from index 0, room for `count`; it may be
     `xs` itself when the two regions do not meet), then
     the top partials added with the half-way case rounded as one rounding would."""
@@ -129,8 +130,165 @@ def rounded_sum(xs: Any, start: int, count: int, partials: Any) -> float:
     return float(hi)
 
 
+# The FEC steps as functions over codec_layout arrays: the one definition `FecEncoder` and
+# `FecDecoder` call and the compiled loops inline (engine/compiled/codec_fec.py). C: C_DIM, C_K,
+# C_PARITY, C_WPAY, C_WLOG and the reconstruction's (core/prediction.py); S: the sender's S_FHAS,
+# S_FFIRST, S_FLAST and the reconstruction's; X: a row per seq modulo its (power-of-two) length:
+# the decoder's held sample (X_HELD, X_VALUE), a parity sum received (its seq at `xsum`, its
+# values after it), the sender's sample of that tick (from `xsent`); W: scratch (partial sums
+# from 0, a recovered value at W_VALUE, a sum's terms from `wterms`, the recovery worklist at
+# W_STACK), the packet's payload from C_WPAY, the samples a packet recovered from C_WLOG (their
+# count, then their seqs). The places that differ between layouts are passed.
+
+
+def fec_sent(C: Any, S: Any, X: Any, n: int, smp: Any, xsent: int) -> None:
+    """The sender's sample of tick `n` into its row of X. The first seq starts the stream; ticks
+    a sender skipped since its last one (a live sender's overrun) hold that last sample (at most
+    k of them: a payload reaches k back)."""
+    mask = X.shape[0] - 1
+    dim = int(C[L.C_DIM])
+    if S[L.S_FHAS] == 0.0:
+        S[L.S_FHAS] = 1.0
+        S[L.S_FFIRST] = n
+        S[L.S_FLAST] = n
+    elif n > S[L.S_FLAST]:
+        last = int(S[L.S_FLAST])
+        jl = last & mask
+        for m in range(max(last + 1, n - int(C[L.C_K])), n):
+            jm = m & mask
+            for i in range(dim):
+                X[jm, xsent + i] = X[jl, xsent + i]
+        S[L.S_FLAST] = n
+    j = n & mask
+    for i in range(dim):
+        X[j, xsent + i] = smp[i]
+
+
+def fec_payload(C: Any, S: Any, X: Any, W: Any, n: int, xsent: int, wterms: int) -> int:
+    """Packet n's payload into W from C_WPAY (returns its length), from the sender's rows of X:
+    x(n), then x(n-1) .. x(n-k) (repetition; before the stream's first seq, its first sample) or
+    the sums of x(n-k) .. x(n-1) per value (parity: each rounded once, as `math.fsum`; the window
+    clipped at the first seq)."""
+    mask = X.shape[0] - 1
+    dim, k, at = int(C[L.C_DIM]), int(C[L.C_K]), int(C[L.C_WPAY])
+    first = int(S[L.S_FFIRST])
+    j = n & mask
+    for i in range(dim):
+        W[at + i] = X[j, xsent + i]
+    if C[L.C_PARITY] == 0.0:
+        for q in range(1, k + 1):
+            jm = max(first, n - q) & mask
+            for i in range(dim):
+                W[at + q * dim + i] = X[jm, xsent + i]
+        return (1 + k) * dim
+    for i in range(dim):
+        c = 0
+        for q in range(max(first, n - k), n):
+            W[wterms + c] = X[q & mask, xsent + i]
+            c += 1
+        W[at + dim + i] = rounded_sum(W, wterms, c, W)
+    return 2 * dim
+
+
+def fec_add(C: Any, S: Any, X: Any, W: Any, seq: int, at: int, fresh: bool) -> bool:
+    """The reconstruction's `rec_take` of `seq` with its values from W[at:]; a recovery (not
+    `fresh`) is logged from C_WLOG."""
+    if not rec_take(C, S, X, seq, fresh):
+        return False
+    j = seq & (X.shape[0] - 1)
+    for i in range(int(C[L.C_DIM])):
+        X[j, L.X_VALUE + i] = W[at + i]
+    if not fresh:
+        log = int(C[L.C_WLOG])
+        c = int(W[log])
+        W[log + 1 + c] = seq
+        W[log] = c + 1
+    return True
+
+
+def sum_held(C: Any, S: Any, X: Any, p: int, xsum: int) -> bool:
+    """Whether packet p's parity sum is held (and still of use: its window within the history)."""
+    if p < S[L.S_MAXHELD] - C[L.C_KEEP] + C[L.C_K]:
+        return False
+    return X[p & (X.shape[0] - 1), xsum] == p  # type: ignore[no-any-return]
+
+
+def fec_receive(C: Any, S: Any, X: Any, W: Any, n: int, xsum: int, wterms: int) -> None:
+    """Packet n with its payload in W from C_WPAY (`fec_payload`'s layout): its sample is
+    held; then repetition adds x(n-1) .. x(n-k), parity keeps its sum and solves every window with
+    exactly one unknown that the packet may have completed (its own, those covering its sample,
+    and, for each sample recovered, those covering it: a LIFO worklist, cost O(k) per window
+    looked at). A packet whose sample was held already (a copy, or an original its recovery beat)
+    is a duplicate; its redundancy is still used unless its sum is held too."""
+    mask = X.shape[0] - 1
+    dim, k, at = int(C[L.C_DIM]), int(C[L.C_K]), int(C[L.C_WPAY])
+    W[int(C[L.C_WLOG])] = 0.0
+    S[L.S_RECEIVED] += 1.0
+    if not fec_add(C, S, X, W, n, at, True):
+        S[L.S_DUPLICATES] += 1.0
+        if C[L.C_PARITY] != 0.0 and sum_held(C, S, X, n, xsum):
+            return
+    if C[L.C_PARITY] == 0.0:
+        for q in range(1, k + 1):
+            if n - q >= 0:
+                fec_add(C, S, X, W, n - q, at + q * dim, False)
+        return
+    if n >= S[L.S_MAXHELD] - C[L.C_KEEP] + C[L.C_K]:  # (a sum reaching past the history is of no use)
+        jn = n & mask
+        X[jn, xsum] = n
+        for i in range(dim):
+            X[jn, xsum + 1 + i] = W[at + dim + i]
+    oldest = int(S[L.S_MAXHELD]) - int(C[L.C_KEEP])
+    W[L.W_STACK] = n
+    top = 1
+    for q in range(n + 1, n + k + 1):
+        if sum_held(C, S, X, q, xsum):
+            W[L.W_STACK + top] = q
+            top += 1
+    while top > 0:
+        top -= 1
+        p = int(W[L.W_STACK + top])
+        if not sum_held(C, S, X, p, xsum):
+            continue
+        missing = 0
+        m = -1
+        for q in range(max(0, p - k), p):
+            if not rec_held(C, S, X, q):
+                missing += 1
+                m = q
+                if missing > 1:
+                    break
+        if missing != 1 or m < oldest:
+            continue
+        jp = p & mask
+        for i in range(dim):  # x(m) = S(p) - the window's other samples, rounded once
+            W[wterms] = X[jp, xsum + 1 + i]
+            c = 1
+            for q in range(max(0, p - k), p):
+                if q != m:
+                    W[wterms + c] = -X[q & mask, L.X_VALUE + i]
+                    c += 1
+            W[L.W_VALUE + i] = rounded_sum(W, wterms, c, W)
+        if fec_add(C, S, X, W, m, L.W_VALUE, False):
+            for q in range(m + 1, m + k + 1):
+                if sum_held(C, S, X, q, xsum):
+                    W[L.W_STACK + top] = q
+                    top += 1
+
+
+def fec_scratch(k: int, keep: int, dim: int, wterms: int) -> tuple[int, int, int]:
+    """A decoder's W: where the payload (C_WPAY) and the recovery log (C_WLOG) start and its length
+    (the worklist at W_STACK holds the packet, k sums after it and k for each recovery)."""
+    if wterms + k + 1 > L.W_STACK:
+        raise ValueError(f"fec: a sample of {dim} values with k={k} does not fit the scratch's layout")
+    wpay = L.W_STACK + 1 + k + k * (keep + 1)
+    wlog = wpay + (1 + k) * dim
+    return wpay, wlog, wlog + 1 + keep + k + 1
+
+
 class FecEncoder:
-    """One packet per sample with the redundancy of its scheme (module docstring)."""
+    """One packet per sample with the redundancy of its scheme (module docstring): `fec_sent` and
+    `fec_payload` over its own arrays (the sender's samples from column 0 of X)."""
 
     def __init__(self, scheme: str, k: int, size_of: SizeOf = float64_multiarray_size) -> None:
         if scheme not in SCHEMES:
@@ -139,25 +297,34 @@ class FecEncoder:
             raise ValueError(f"k must be >= 1, got {k}")
         self.scheme, self.k = scheme, k
         self._size_of = size_of
-        self._recent: deque[Sample] = deque(maxlen=k)  # x(n-k) .. x(n-1), newest last
         self._dim: int | None = None
+        C = [0.0] * L.C_SIZE_X
+        C[L.C_K], C[L.C_PARITY] = k, 1.0 if scheme == "parity" else 0.0
+        # W: partial sums from 0 (k at most), a sum's terms from k, the payload from 2 k
+        C[L.C_WPAY] = 2 * k
+        self.C: Any = C
+        self.S: Any = [0.0] * L.S_SIZE_X
+        self.X: Any = None
+        self.W: Any = None
         self.counters: dict[str, int] = {"samples": 0, "sent": 0, "bytes": 0}
 
     def send(self, n: int, now_ns: int, sample: Sample) -> list[Packet]:
         x = tuple(float(v) for v in sample)
         if self._dim is None:
+            import numpy as np
+
             self._dim = len(x)
+            self.C[L.C_DIM] = len(x)
+            rows = 4
+            while rows < self.k + 2:
+                rows *= 2
+            self.X = np.zeros((rows, len(x)))
+            self.W = [0.0] * (2 * self.k + (1 + self.k) * len(x))
         elif len(x) != self._dim:
             raise ValueError(f"sample has {len(x)} values, the stream started with {self._dim}")
-        recent = self._recent
-        if self.scheme == "repetition":
-            older = list(reversed(recent))  # x(n-1), x(n-2), ...
-            older += [older[-1] if older else x] * (self.k - len(older))
-            payload = x + tuple(v for s in older for v in s)
-        else:
-            sums = tuple(math.fsum(s[i] for s in recent) for i in range(len(x)))
-            payload = x + sums
-        recent.append(x)
+        fec_sent(self.C, self.S, self.X, n, x, 0)
+        at = 2 * self.k
+        payload = tuple(self.W[at : at + fec_payload(self.C, self.S, self.X, self.W, n, 0, self.k)])
         size = self._size_of(len(payload))
         c = self.counters
         c["samples"] += 1
@@ -170,7 +337,9 @@ class FecEncoder:
 
 
 class FecDecoder:
-    """Recovers what the received packets allow, predicts the rest (module docstring).
+    """Recovers what the received packets allow, predicts the rest (module docstring):
+    `fec_receive` over its reconstruction's arrays (`rec`'s C, S and X, whose rows hold a parity
+    sum after the sample) and its scratch.
 
     Counters: `received` packets, `duplicates` (the sample was held already: a copy, or an original
     its recovery beat; its redundancy is still used), `recovered` samples first obtained from
@@ -194,76 +363,50 @@ class FecDecoder:
             raise ValueError(f"k must be >= 1, got {k}")
         self.scheme, self.k = scheme, k
         self.rec = Reconstructor(gap, max_extrapolation_ticks, wait_ticks)
-        self._sums: dict[int, Sample] = {}  # parity: seq of a received packet -> its S
+        C = self.rec.C
+        C[L.C_K], C[L.C_PARITY] = k, 1.0 if scheme == "parity" else 0.0
+        self._dim: int | None = None
+        self.W: Any = None
         self.recovered_log: list[Packet] = []
-        self.counters: dict[str, int] = {"received": 0, "duplicates": 0, "recovered": 0, "recovered_late": 0}
+
+    @property
+    def counters(self) -> dict[str, int]:
+        S = self.rec.S
+        return {
+            "received": int(S[L.S_RECEIVED]),
+            "duplicates": int(S[L.S_DUPLICATES]),
+            "recovered": int(S[L.S_RECOVERED]),
+            "recovered_late": int(S[L.S_RECOVERED_LATE]),
+        }
+
+    def load(self, S: Any) -> None:
+        """Take the scalar state of a decoder run elsewhere (a compiled loop's S)."""
+        self.rec.S[: L.S_SIZE_X] = [float(v) for v in S[: L.S_SIZE_X]]
 
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
-        c = self.counters
-        c["received"] += 1
         p = packet.payload
         groups = 1 + self.k if self.scheme == "repetition" else 2
         if len(p) % groups or not p:
             raise ValueError(f"fec {self.scheme} k={self.k}: a payload of {len(p)} floats is not {groups} equal groups")
         d = len(p) // groups
-        n = packet.seq
-        if not self._add(n, tuple(p[:d]), packet, fresh=True):
-            # Held already: a duplicate, or an original its recovery beat (jitter). Its redundancy
-            # may still be news (parity: its sum completes windows), so it is used all the same.
-            c["duplicates"] += 1
-            if n in self._sums:
-                return []
-        if self.scheme == "repetition":
-            for j in range(1, self.k + 1):
-                m = n - j
-                if m >= 0:
-                    self._add(m, tuple(p[j * d : (j + 1) * d]), packet, fresh=False)
-        else:
-            self._sums[n] = tuple(p[d:])
-            self._parity_recover(packet)
+        rec, C = self.rec, self.rec.C
+        if self._dim is None:
+            self._dim = d
+            rec.history(d, 1 + d)  # the sample, then a parity sum's seq and values
+            C[L.C_WPAY], C[L.C_WLOG], size = fec_scratch(self.k, rec.keep_ticks, d, L.W_VALUE + d)
+            self.W = [0.0] * size
+        elif d != self._dim:
+            raise ValueError(f"fec: a packet of {d}-value samples, the stream carries {self._dim}")
+        W, at = self.W, int(C[L.C_WPAY])
+        W[at : at + len(p)] = p
+        fec_receive(C, rec.S, rec.X, W, packet.seq, L.X_VALUE + d, L.W_VALUE + d)
+        log = int(C[L.C_WLOG])
+        for i in range(int(W[log])):
+            seq = int(W[log + 1 + i])
+            value = rec.get(seq)
+            assert value is not None
+            self.recovered_log.append(Packet(seq, packet.send_time_ns, value, 0))
         return []
-
-    def _add(self, seq: int, value: Sample, carrier: Packet, fresh: bool) -> bool:
-        late_before = self.rec.late
-        if not self.rec.add(seq, value, fresh):
-            return False
-        if not fresh:
-            c = self.counters
-            c["recovered"] += 1
-            if self.rec.late > late_before:
-                c["recovered_late"] += 1
-            self.recovered_log.append(Packet(seq, carrier.send_time_ns, value, 0))
-        return True
-
-    def _parity_recover(self, carrier: Packet) -> None:
-        """Solve every window with exactly one unknown that the carrier's arrival may have
-        completed: the carrier's own, those covering its sample, and, for each sample recovered,
-        those covering it (a worklist: cost O(k) per window looked at, not per sum held)."""
-        rec, k, sums = self.rec, self.k, self._sums
-        newest = rec.newest_seq
-        assert newest is not None
-        oldest = newest - rec.keep_ticks
-        while sums:  # sums arrive nearly in seq order: drop from the front what reaches past the history
-            first = next(iter(sums))
-            if first - k >= oldest:
-                break
-            del sums[first]
-        n = carrier.seq
-        work = [n, *(p for p in range(n + 1, n + k + 1) if p in sums)]
-        while work:
-            p = work.pop()
-            total = sums.get(p)
-            if total is None:
-                continue
-            window = range(max(0, p - k), p)
-            missing = [m for m in window if not rec.has(m)]
-            if len(missing) != 1 or missing[0] < oldest:
-                continue
-            m = missing[0]
-            others = [o for j in window if j != m and (o := rec.get(j)) is not None]
-            value = tuple(math.fsum([total[i], *(-o[i] for o in others)]) for i in range(len(total)))
-            if self._add(m, value, carrier, fresh=False):
-                work.extend(q for q in range(m + 1, m + k + 1) if q in sums)
 
     def sample(self, n: int, now_ns: int) -> Sample | None:
         return self.rec.sample(n)

@@ -212,13 +212,15 @@ class Reconstructor:
         self.X: Any = None
         self._out: Any = None
 
-    def _history(self, dim: int) -> Any:
+    def history(self, dim: int, extra: int = 0) -> Any:
+        """Make X for samples of `dim` values, with `extra` columns after them (a codec's own,
+        FEC's parity sums), at the first sample."""
         import numpy as np
 
         rows = 4
         while rows <= self._keep + 1:
             rows *= 2
-        X = np.full((rows, L.X_VALUE + dim), -1.0)
+        X = np.full((rows, L.X_VALUE + dim + extra), -1.0)
         self.C[L.C_DIM] = dim
         self._out = [0.0] * dim
         self.X = X
@@ -231,7 +233,7 @@ class Reconstructor:
         if not self.has(seq):
             return None
         j = seq & (self.X.shape[0] - 1)
-        return tuple(self.X[j, L.X_VALUE :].tolist())
+        return tuple(self.X[j, L.X_VALUE : L.X_VALUE + int(self.C[L.C_DIM])].tolist())
 
     @property
     def keep_ticks(self) -> int:
@@ -263,12 +265,13 @@ class Reconstructor:
 
     def add(self, seq: int, value: Sample, fresh: bool) -> bool:
         """Add a sample; False if its seq is already held (a duplicate) or too old to keep."""
-        X = self.X if self.X is not None else self._history(len(value))
-        if len(value) != X.shape[1] - L.X_VALUE:
-            raise ValueError(f"reconstruction: a sample of {len(value)} values, the history holds {X.shape[1] - 1}")
+        X = self.X if self.X is not None else self.history(len(value))
+        dim = int(self.C[L.C_DIM])
+        if len(value) != dim:
+            raise ValueError(f"reconstruction: a sample of {len(value)} values, the history holds {dim}")
         if not rec_take(self.C, self.S, X, seq, fresh):
             return False
-        X[seq & (X.shape[0] - 1), L.X_VALUE :] = value
+        X[seq & (X.shape[0] - 1), L.X_VALUE : L.X_VALUE + dim] = value
         return True
 
     def sample(self, n: int) -> Sample | None:

@@ -179,3 +179,37 @@ def test_parity_recovers_exactly_what_its_rule_says_under_gilbert_loss(jitter_s:
     # (With jitter a delayed original can be beaten by its recovery: recovered, not lost.)
     assert {m for m in recovered if not got[m]} == expected
     assert all(v == x[m] for m, v in recovered.items())
+
+
+@pytest.mark.parametrize("scheme", ["repetition", "parity"])
+def test_a_stream_starting_late_or_skipping_ticks_carries_what_the_sender_had(scheme: str) -> None:
+    """A live sender's seqs are its tick stamps: the stream starts at any seq (redundancy before it
+    is its first sample, a parity window is clipped there) and an overrun skips ticks (each skipped
+    tick holds the sample sent before it)."""
+    k, n0 = 3, 1000
+    enc, _ = build_fec(FecConfig(scheme=scheme, k=k), PERIOD_NS)
+    x = signal(10, dim=2)
+    sent = [0, 1, 2, 5, 6, 7]  # ticks n0 + 3 and n0 + 4 skipped
+    had = {n0 + s: x[s] for s in sent} | {n0 + 3: x[2], n0 + 4: x[2]}  # the sender's sample at each tick
+    for s in sent:
+        n = n0 + s
+        (p,) = enc.send(n, n * PERIOD_NS, x[s])
+        assert p.payload[:2] == x[s]
+        older = [had[max(n0, n - j)] for j in range(1, k + 1)]
+        if scheme == "repetition":
+            assert p.payload[2:] == tuple(v for o in older for v in o)
+        else:
+            window = [had[m] for m in range(max(n0, n - k), n)]
+            assert p.payload[2:] == tuple(sum(o[i] for o in window) for i in range(2))
+
+
+def test_the_compiled_loops_compose_cores_fec() -> None:
+    # the FEC kernel's encoder and decoder steps are core/fec.py's functions, compiled: no copy
+    from haptic_teleop.core import fec
+    from haptic_teleop.engine.compiled import codec_fec
+
+    for name in ("fec_sent", "fec_payload", "fec_receive"):
+        assert getattr(codec_fec, name).py_func.__code__ is getattr(fec, name).__code__, name
+    # and the tick calls them
+    names = codec_fec.fec_tick.py_func.__code__.co_names
+    assert {"fec_sent", "fec_payload", "fec_receive", "rec_sample"} <= set(names)

@@ -117,7 +117,7 @@ def test_the_compiled_loops_run_cores_reconstruction() -> None:
     from haptic_teleop.engine.compiled import codec_arq, codec_deadband, codec_fec
 
     for mod, names in (
-        (codec_fec, ("rec_held", "rec_take", "rec_choose", "rec_give", "rec_sample")),
+        (codec_fec, ("rec_take", "rec_choose", "rec_give", "rec_sample")),
         (codec_deadband, ("rec_take", "rec_sample")),
         (codec_arq, ("rec_take", "rec_choose", "rec_give")),
     ):

@@ -38,7 +38,7 @@ from haptic_teleop.assembly.channel import CodecChannel
 from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core.deadband import DeadbandDecoder, GroupedDeadbandEncoder
 from haptic_teleop.core.delay import ConstantDelay, Delay
-from haptic_teleop.core.fec import payload_floats
+from haptic_teleop.core.fec import fec_scratch, payload_floats
 from haptic_teleop.core.hli import HLI1, HLI2
 from haptic_teleop.core.hli_codec import hli_message_bytes
 from haptic_teleop.core.link import Link
@@ -290,15 +290,7 @@ STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
             "recovered_late": L.S_RECOVERED_LATE,
         },
     ),
-    "fec": (
-        {"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES},
-        {
-            "received": L.S_RECEIVED,
-            "duplicates": L.S_DUPLICATES,
-            "recovered": L.S_RECOVERED,
-            "recovered_late": L.S_RECOVERED_LATE,
-        },
-    ),
+    "fec": ({"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES}, {}),  # (the decoder: `load`)
 }
 
 
@@ -419,8 +411,8 @@ class CodecNet(LinkArrays):
             self.X = np.full((rows, self._at("X_WIDTH")), -1.0)
         if ch.kind in ("fec", "arq"):
             rows = 4
-            # (parity: a window is solved up to keep_ticks after its packet arrived)
-            sender = C[L.C_DELAY_NS] // period_ns + C[L.C_K] + 3 + (C[L.C_KEEP] if C[L.C_PARITY] else 0)
+            # (FEC: a packet's payload is made from them when it arrives)
+            sender = C[L.C_DELAY_NS] // period_ns + C[L.C_K] + 3
             # (ARQ: a sample's last copy arrives up to the delay after its span; its value is read
             # from the sender's column of its row then)
             arq_values = self.span + C[L.C_DELAY_NS] // period_ns + 2 if ch.kind == "arq" else 0
@@ -429,7 +421,12 @@ class CodecNet(LinkArrays):
             self.X = np.zeros((rows, self._at("X_WIDTH")))
             self.X[:, self._at("X_HELD")] = -1.0
             self.X[:, self._at("X_SUM_SEQ")] = -1.0  # (ARQ: X_PEND)
-            self.W = np.zeros(self._at("W_STACK") + 1 + int(C[L.C_K]) * (int(C[L.C_KEEP]) + 1))
+            if ch.kind == "fec":  # the worklist, the payload, the recovery log (core/fec.py)
+                k, keep = int(C[L.C_K]), int(C[L.C_KEEP])
+                C[L.C_WPAY], C[L.C_WLOG], size = fec_scratch(k, keep, ch.dim, self._at("W_TERMS"))
+                self.W = np.zeros(size)
+            else:
+                self.W = np.zeros(self._at("W_STACK") + 1)
             cap = int(C[L.C_ACK_CAP])
             if cap:  # ARQ's cumulative ACKs: the seqs below the window, the ACK's size by their count
                 w_old = self._at("W_OLD")
@@ -499,12 +496,15 @@ class CodecNet(LinkArrays):
         else:
             enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
             enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
-            dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
+            if ch.kind == "fec":  # its counters and its history's scalars, from S (core/fec.py)
+                dec.load(S)  # (its recovered_log, for a reader of the decoder alone, stays empty)
+            else:
+                dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
             dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
         elif ch.kind == "hli":
             enc.last_class = int(S[L.S_LAST_CLASS])
-        elif ch.kind in ("arq", "fec"):  # (fec's recovered_log, for a reader of the decoder alone, stays empty)
+        elif ch.kind == "arq":
             dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
         if ch.kind == "arq":
             ch.ack_packets, ch.ack_bytes = int(S[L.S_ACK_PACKETS]), int(S[L.S_ACK_BYTES])
