@@ -11,7 +11,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from haptic_teleop.core.eba import EnergyBound, coupling1, saturated1, within2, within3
+from haptic_teleop.core.eba import EnergyBound, command1, coupling1, saturated1, within2, within3
 from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.eba_two_condition import TwoConditionBound
 
@@ -213,16 +213,17 @@ class TeleopController:
         return applied
 
     def step1(self, x: float, v: float) -> float:
-        """`step` for one axis on floats (same arithmetic, same order): returns the force to apply."""
+        """`step` for one axis on floats (same arithmetic, same order): `command1`, then the bound's
+        `step1` (`bound1` for the reservoir law); returns the force to apply."""
         r = self._remote
         if r is None:
-            f = 0.0
+            desired, f = command1(False, False, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, self._limit)
         elif self._force_law:
-            f = self._gain * r[0]
+            desired, f = command1(True, True, self._gain, 0.0, 0.0, r[0], 0.0, x, v, self._limit)
         else:
             off = self._off
-            f = coupling1(self._c1, self._c2, r[off], r[off + 1], x, v)
-        self.force_desired[0] = f
-        f = self.bound.step1(x, saturated1(f, self._limit))
+            desired, f = command1(True, False, 0.0, self._c1, self._c2, r[off], r[off + 1], x, v, self._limit)
+        self.force_desired[0] = desired
+        f = self.bound.step1(x, f)
         self.force_applied[0] = f
         return f

@@ -113,6 +113,41 @@ def within3(a: float, b: float, c: float, limit_a: float, limit_b: float, limit_
     return abs(a) <= limit_a and abs(b) <= limit_b and abs(c) <= limit_c
 
 
+def command1(
+    has_remote: bool, force_law: bool, gain: float, c1: float, c2: float, ra: float, rb: float, x: float, v: float,
+    limit: float,
+) -> tuple[float, float]:  # fmt: skip
+    """One axis's law before its bound: 0 before a remote sample; force reflection `gain` ra (ra
+    the remote force); or the coupling towards the remote position ra and velocity rb. Returns
+    (desired, desired clamped to +-limit)."""
+    if not has_remote:
+        f = 0.0
+    elif force_law:
+        f = gain * ra
+    else:
+        f = coupling1(c1, c2, ra, rb, x, v)
+    return f, saturated1(f, limit)
+
+
+def bound1(
+    energy: float, gain: float, held: float, last: float, has_last: bool, x: float, force: float, enabled: bool,
+    limited: bool, bound_gain: float, force_limit: float, step: float,
+) -> tuple[float, float]:  # fmt: skip
+    """One tick of a one-axis bound: the reservoir's update for the motion since the last tick
+    (`last`, none at the first), then `force` bounded (with the actuator's clip and slew limits
+    when `limited`; unchanged when not `enabled`). Returns (energy, the force to hold); the caller
+    keeps x as the next `last` and the force (or the one applied) as the next `held`."""
+    if has_last:
+        energy = reservoir1(energy, gain, held, x - last)
+    if not enabled:
+        f = force
+    elif limited:
+        f = actuator_bounded1(force, ramp_limit1(energy, bound_gain, force_limit, step), held, step)
+    else:
+        f = bounded1(force, energy, bound_gain)
+    return energy, f
+
+
 class EnergyBound:
     """One side's reservoirs and force bound; `step` is called once per tick, then `applied`
     (or `applied1`) with the force the actuator really applied over the period, which is the force
@@ -158,21 +193,14 @@ class EnergyBound:
         self._force_limit, self._step_limit = params.actuator_limits()
 
     def step1(self, x: float, force_desired: float) -> float:
-        """`step` for a one-axis bound, on floats: the same arithmetic in the same order."""
+        """`step` for a one-axis bound, on floats (`bound1`): the same arithmetic in the same order."""
         energy = self.energy_j
-        if self._has_last1:
-            energy[0] = reservoir1(energy[0], self._gain1, self._held1, x - self._last1)
-        else:
-            self._has_last1 = True
+        energy[0], f = bound1(
+            energy[0], self._gain1, self._held1, self._last1, self._has_last1, x, force_desired,
+            self._enabled, self._limited, self._bound_gain1, self._force_limit, self._step_limit,
+        )  # fmt: skip
+        self._has_last1 = True
         self._last1 = x
-        if not self._enabled:
-            f = force_desired
-        elif self._limited:
-            step = self._step_limit
-            limit = ramp_limit1(energy[0], self._bound_gain1, self._force_limit, step)
-            f = actuator_bounded1(force_desired, limit, self._held1, step)
-        else:
-            f = bounded1(force_desired, energy[0], self._bound_gain1)
         self._held1 = f
         return f
 

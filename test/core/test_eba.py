@@ -177,3 +177,18 @@ def test_step1_and_step_share_state():
         fb = b.step1(x, 0.1)
         assert fa == fb
         assert a.bound.energy_j == b.bound.energy_j
+
+
+def test_the_compiled_loop_composes_cores_law_and_bound() -> None:
+    # the 1-DoF kernel's control is core's command1 and bound1, compiled: no copy of their steps
+    from haptic_teleop.core import eba
+    from haptic_teleop.engine.compiled import axis_kernel
+
+    for name in ("command1", "bound1"):
+        assert getattr(axis_kernel, name).py_func.__code__ is getattr(eba, name).__code__, name
+    assert {"command1", "bound1"} <= set(axis_kernel.control.py_func.__code__.co_names)
+    # and so do the Python objects
+    from haptic_teleop.core import controller
+
+    assert "command1" in controller.TeleopController.step1.__code__.co_names
+    assert "bound1" in eba.EnergyBound.step1.__code__.co_names

@@ -2,10 +2,9 @@
 
 A tick of the Python loop costs 20 to 50 us on this project's 2-vCPU machine, of which MuJoCo is
 5 to 9 us; the rest is the interpreter (docs/performance.md). This module runs the same tick in
-machine code: the one-axis formulas of `core` (`eba.reservoir1`, `bounded1`, `actuator_bounded1`,
-`saturated1`,
-`coupling1`, `within2/3`, `operator.push1`, `sinusoid1`, `hand1`, `imposed_force1`,
-`plants.actuator_limited1`)
+machine code: the one-axis law and bound of `core` (`eba.command1`, `bound1`: what
+`TeleopController.step1` and `EnergyBound.step1` call), `within2/3`, `operator.push1`,
+`sinusoid1`, `hand1`, `imposed_force1`, `plants.actuator_limited1`
 are compiled by numba from their single definition, and MuJoCo's `mj_step` is called straight
 from the compiled code on the same `MjModel`/`MjData` the plants own.
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import eba
 from haptic_teleop.core import operator as op
 from haptic_teleop.engine.compiled.layout import (
@@ -89,12 +90,10 @@ inline = numba.njit(cache=True, nogil=True, inline="always")
 # views and arguments of its parts would otherwise be counted in and out with atomic operations
 # every tick (docs/performance.md).
 loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
-reservoir1 = jit(eba.reservoir1)
-bounded1 = jit(eba.bounded1)
-ramp_limit1 = jit(eba.ramp_limit1)
-actuator_bounded1 = jit(eba.actuator_bounded1)
-saturated1 = jit(eba.saturated1)
-coupling1 = jit(eba.coupling1)
+# One axis's law and its bound, one definition (core/eba.py: TeleopController.step1 and
+# EnergyBound.step1 call the same functions)
+command1 = compile_tree(eba.command1)
+bound1 = compile_tree(eba.bound1)
 within2 = jit(eba.within2)
 within3 = jit(eba.within3)
 push1 = jit(op.push1)
@@ -106,32 +105,24 @@ actuator_limited1 = jit(mujoco_plant.actuator_limited1)
 
 @jit  # type: ignore[misc]
 def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master: bool) -> tuple[float, float]:
-    # TeleopController.step1 then EnergyBound.step1: returns (applied, desired).
-    if S[side + S_HAS_REMOTE] == 0.0:
-        f = 0.0
-    elif P[side + P_FORCE_LAW] != 0.0:
-        f = P[side + P_GAIN] * S[side + S_R0]
-    elif master:  # the master's remote sample is (f_env, x, v)
-        f = coupling1(P[side + P_C1], P[side + P_C2], S[side + S_R1], S[side + S_R2], x, v)
-    else:  # the slave's is (x, v)
-        f = coupling1(P[side + P_C1], P[side + P_C2], S[side + S_R0], S[side + S_R1], x, v)
-    desired = f
-    f = saturated1(f, P[side + P_LIMIT])
-    if S[side + S_HAS_LAST] != 0.0:
-        S[side + S_ENERGY] = reservoir1(
-            S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], x - S[side + S_LAST]
-        )
-    else:
-        S[side + S_HAS_LAST] = 1.0
+    # TeleopController.step1 then EnergyBound.step1 (core/eba.py's `command1`, `bound1`): returns
+    # (applied, desired). The master's remote sample is (f_env, x, v), the slave's (x, v).
+    has_remote = S[side + S_HAS_REMOTE] != 0.0
+    force_law = P[side + P_FORCE_LAW] != 0.0
+    ra, rb = S[side + S_R0], S[side + S_R1]
+    if master and not force_law:
+        ra, rb = S[side + S_R1], S[side + S_R2]
+    desired, f = command1(
+        has_remote, force_law, P[side + P_GAIN], P[side + P_C1], P[side + P_C2], ra, rb, x, v, P[side + P_LIMIT]
+    )
+    limited = P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf  # EnergyBoundParams.limited
+    S[side + S_ENERGY], f = bound1(
+        S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], S[side + S_LAST], S[side + S_HAS_LAST] != 0.0,
+        x, f, P[side + P_EBA_ON] != 0.0, limited, P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT],
+        P[side + P_SLEW_STEP],
+    )  # fmt: skip
+    S[side + S_HAS_LAST] = 1.0
     S[side + S_LAST] = x
-    if P[side + P_EBA_ON] == 0.0:
-        pass
-    elif P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf:  # EnergyBoundParams.limited
-        step = P[side + P_SLEW_STEP]
-        limit = ramp_limit1(S[side + S_ENERGY], P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT], step)
-        f = actuator_bounded1(f, limit, S[side + S_HELD], step)
-    else:
-        f = bounded1(f, S[side + S_ENERGY], P[side + P_BOUND_GAIN])
     S[side + S_HELD] = f
     return f, desired
 
