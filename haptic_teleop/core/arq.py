@@ -43,7 +43,9 @@ k = 1 names it: its lost ACK costs one more retransmission, whose duplicate is A
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
+from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core.link import Packet
 from haptic_teleop.core.prediction import (
     GAP_MODES,
@@ -192,6 +194,75 @@ def cumulative_seqs(payload: tuple[float, ...]) -> list[int]:
     return out
 
 
+# The receiver's cumulative ACKs as functions over codec_layout arrays: the one definition
+# `ArqDecoder` calls and the compiled loops inline (engine/compiled/codec_arq.py). C: C_ACK_EVERY
+# (k), C_ACK_CAP (room for the seqs below the window); S: S_AK_NEWEST (the newest seq received,
+# -1 none), S_AK_BITS and S_AK_NEW (bit i: seq newest - i received, ever and since the last ACK;
+# 53 bits, exact in a float64), S_AK_DUE, S_AK_LAST_N (the tick of the last ACK; far in the past
+# before the first), S_AK_OLD (how many seqs below the window the next ACK names, in W from
+# `wold`).
+ACK_WIDTH = ACK_WINDOW + 1  # the newest seq and the window below it
+
+
+def ack_old(C: Any, S: Any, W: Any, seq: int, wold: int) -> None:
+    """A seq below the window joins the list the next ACK names (while there is room)."""
+    cnt = int(S[L.S_AK_OLD])
+    if cnt < C[L.C_ACK_CAP]:
+        W[wold + cnt] = seq
+        S[L.S_AK_OLD] = cnt + 1
+
+
+def ack_mark(C: Any, S: Any, W: Any, seq: int, wold: int) -> None:
+    """A data packet of `seq` received: into the window's bitmaps; a seq of the since-last-ACK map
+    pushed out of the window by a newer one, or a seq received below the window (once), onto the
+    list the next ACK names."""
+    S[L.S_AK_DUE] = 1.0
+    newest = int(S[L.S_AK_NEWEST])
+    if seq > newest:
+        shift = seq - newest
+        new = int(S[L.S_AK_NEW])
+        if shift >= ACK_WIDTH:
+            out, off, bits, new = new, 0, 0, 0
+        else:
+            off = ACK_WIDTH - shift
+            keep = (1 << off) - 1
+            out = new >> off
+            bits = (int(S[L.S_AK_BITS]) & keep) << shift
+            new = (new & keep) << shift
+        i = 0
+        while out != 0:  # bit i of `out`: seq newest - off - i
+            if out & 1:
+                ack_old(C, S, W, newest - i - off, wold)
+            out >>= 1
+            i += 1
+        S[L.S_AK_BITS] = float(bits | 1)
+        S[L.S_AK_NEW] = float(new | 1)
+        S[L.S_AK_NEWEST] = seq
+    elif newest - seq < ACK_WIDTH:
+        b = 1 << (newest - seq)
+        S[L.S_AK_BITS] = float(int(S[L.S_AK_BITS]) | b)
+        S[L.S_AK_NEW] = float(int(S[L.S_AK_NEW]) | b)
+    else:
+        for q in range(int(S[L.S_AK_OLD])):
+            if W[wold + q] == seq:
+                return
+        ack_old(C, S, W, seq, wold)
+
+
+def ack_due(C: Any, S: Any, n: int) -> int:
+    """The cumulative ACK of tick n: -1 if none is due (nothing received since the last one, or it
+    is less than k ticks old); else the number of seqs below the window it names (in W from
+    `wold`; its N and B are S_AK_NEWEST and S_AK_BITS / 2), and the next ACK starts here."""
+    if S[L.S_AK_DUE] == 0.0 or n - S[L.S_AK_LAST_N] < C[L.C_ACK_EVERY]:
+        return -1
+    cnt = int(S[L.S_AK_OLD])
+    S[L.S_AK_OLD] = 0.0
+    S[L.S_AK_NEW] = 0.0
+    S[L.S_AK_DUE] = 0.0
+    S[L.S_AK_LAST_N] = n
+    return cnt
+
+
 class ArqDecoder:
     """Receiver side: ACKs every data packet, plays the newest, predicts over gaps.
 
@@ -215,86 +286,60 @@ class ArqDecoder:
         self._ack_size = size_of(1)
         self._size_of = size_of
         self.ack_every_ticks = ack_every_ticks
-        # cumulative ACKs: the newest seq received, bit i of `_bits` = seq newest - i received
-        # (i = 0 .. ACK_WINDOW), the seqs below the window received since the last ACK, whether
-        # anything arrived since then, the tick of the last ACK
-        self._newest = -1
-        self._bits = 0
-        self._new = 0
-        self._old: list[int] = []
-        self._due = False
-        self._last_ack_n: int | None = None
+        # cumulative ACKs: the state `ack_mark` and `ack_due` act on (the receiver's reconstruction's
+        # C and S, the seqs below the window in W: a list that grows, the Python list's room)
+        C, S = self.rec.C, self.rec.S
+        C[L.C_ACK_EVERY] = ack_every_ticks
+        S[L.S_AK_NEWEST], S[L.S_AK_LAST_N] = -1.0, -1e18
+        self.W: Any = []
         self.recovered_log: list[Packet] = []
-        self.counters: dict[str, int] = {
-            "received": 0,
-            "duplicates": 0,
-            "acks_sent": 0,
-            "recovered": 0,
-            "recovered_late": 0,
+
+    @property
+    def counters(self) -> dict[str, int]:
+        S = self.rec.S
+        return {
+            "received": int(S[L.S_RECEIVED]),
+            "duplicates": int(S[L.S_DUPLICATES]),
+            "acks_sent": int(S[L.S_ACKS_SENT]),
+            "recovered": int(S[L.S_RECOVERED]),
+            "recovered_late": int(S[L.S_RECOVERED_LATE]),
         }
 
+    def load(self, S: Any) -> None:
+        """Take the scalar state of a decoder run elsewhere (a compiled loop's S)."""
+        self.rec.S[: L.S_SIZE_X] = [float(v) for v in S[: L.S_SIZE_X]]
+
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
-        c = self.counters
-        c["received"] += 1
+        S = self.rec.S
         p = packet.payload
         if len(p) < 2:
             raise ValueError(f"arq: a data payload needs the sample and the attempt number, got {len(p)} floats")
+        S[L.S_RECEIVED] += 1.0
         value, attempt = tuple(p[:-1]), int(p[-1])
-        late_before = self.rec.late
         if not self.rec.add(packet.seq, value, fresh=attempt == 0):
-            c["duplicates"] += 1
-        elif attempt > 0:
-            c["recovered"] += 1
-            if self.rec.late > late_before:
-                c["recovered_late"] += 1
+            S[L.S_DUPLICATES] += 1.0
+        elif attempt > 0:  # (counted recovered, and late, by the reconstruction)
             self.recovered_log.append(Packet(packet.seq, packet.send_time_ns, value, 0))
         if self.ack_every_ticks > 1:
-            self._mark(packet.seq)
+            W, C = self.W, self.rec.C
+            room = int(S[L.S_AK_OLD]) + ACK_WIDTH + 1  # (a mark names at most ACK_WIDTH more)
+            if len(W) < room:
+                W.extend([0.0] * (2 * room - len(W)))
+            C[L.C_ACK_CAP] = len(W)
+            ack_mark(C, S, W, packet.seq, 0)
             return []
-        c["acks_sent"] += 1
+        S[L.S_ACKS_SENT] += 1.0
         return [Packet(packet.seq, now_ns, (float(packet.seq),), self._ack_size)]
-
-    def _mark(self, seq: int) -> None:
-        # `_bits` / `_new`: bit i = seq newest - i received (ever / since the last ACK); a seq of
-        # `_new` pushed out of the window by a newer one joins `_old` (named in the next ACK)
-        self._due = True
-        newest = self._newest
-        width = ACK_WINDOW + 1
-        if seq > newest:
-            shift = seq - newest
-            new = self._new
-            if shift >= width:
-                out, self._bits, new = new, 0, 0
-            else:
-                keep = (1 << (width - shift)) - 1
-                out = new >> (width - shift)
-                self._bits, new = (self._bits & keep) << shift, (new & keep) << shift
-            i = 0
-            while out:  # bit i of `out`: seq newest - (width - shift) - i, or newest - i (shift >= width)
-                if out & 1:
-                    self._old.append(newest - i - (width - shift if shift < width else 0))
-                out >>= 1
-                i += 1
-            self._bits |= 1
-            self._new = new | 1
-            self._newest = seq
-        elif newest - seq <= ACK_WINDOW:
-            self._bits |= 1 << (newest - seq)
-            self._new |= 1 << (newest - seq)
-        elif seq not in self._old:
-            self._old.append(seq)
 
     def acks(self, n: int, now_ns: int) -> list[Packet]:
         """After tick n's deliveries: the cumulative ACK due (k > 1; module docstring), if any."""
-        if not self._due or (self._last_ack_n is not None and n - self._last_ack_n < self.ack_every_ticks):
+        S = self.rec.S
+        cnt = ack_due(self.rec.C, S, n)
+        if cnt < 0:
             return []
-        newest = self._newest
-        payload = (float(newest), float(self._bits >> 1), *(float(r) for r in self._old))
-        self._old.clear()
-        self._new = 0
-        self._due = False
-        self._last_ack_n = n
-        self.counters["acks_sent"] += 1
+        newest = int(S[L.S_AK_NEWEST])
+        payload = (float(newest), float(int(S[L.S_AK_BITS]) >> 1), *(float(r) for r in self.W[:cnt]))
+        S[L.S_ACKS_SENT] += 1.0
         return [Packet(newest, now_ns, payload, self._size_of(len(payload)))]
 
     def sample(self, n: int, now_ns: int) -> Sample | None:

@@ -266,3 +266,16 @@ def test_ack_every_ticks_bounds() -> None:
         ArqConfig(ack_every_ticks=0)
     with pytest.raises(ValueError, match="ack_every_ticks"):
         ArqConfig(ack_every_ticks=ACK_WINDOW // 2 + 1)
+
+
+def test_the_compiled_loops_compose_cores_cumulative_acks() -> None:
+    # the ARQ kernel's receiver ACK state is core/arq.py's ack_mark and ack_due, compiled: no copy
+    from haptic_teleop.core import arq
+    from haptic_teleop.engine.compiled import codec_arq
+
+    for name in ("ack_mark", "ack_due"):
+        assert getattr(codec_arq, name).py_func.__code__ is getattr(arq, name).__code__, name
+    assert "ack_mark" in codec_arq.arq_block.py_func.__code__.co_names
+    assert "ack_due" in codec_arq.arq_cumulative_ack.py_func.__code__.co_names
+    assert "ack_mark" in arq.ArqDecoder.receive.__code__.co_names
+    assert "ack_due" in arq.ArqDecoder.acks.__code__.co_names

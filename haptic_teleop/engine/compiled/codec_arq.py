@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from haptic_teleop.compiling import compile_tree
+from haptic_teleop.core import arq
 from haptic_teleop.core import codec_layout as L
 from haptic_teleop.engine.compiled.codec_fec import rec_choose, rec_give, rec_take
 from haptic_teleop.engine.compiled.codec_link import (
@@ -19,53 +21,15 @@ from haptic_teleop.engine.compiled.codec_link import (
     part_jit,
 )
 
-ACK_WIDTH = 53  # core/arq.ACK_WINDOW + 1: the newest seq and the window below it
+ACK_WIDTH = arq.ACK_WIDTH
 
 
-@inline  # type: ignore[misc]
-def ack_old(C: np.ndarray, S: np.ndarray, W: np.ndarray, seq: int) -> None:
-    # ArqDecoder: a seq below the window joins the list the next ACK names
-    cnt = int(S[L.S_AK_OLD])
-    if cnt < C[L.C_ACK_CAP]:
-        W[L.W_OLD + cnt] = seq
-        S[L.S_AK_OLD] = cnt + 1
+# The receiver's cumulative ACKs, one definition (core/arq.py: `ArqDecoder` calls the same
+# functions); the seqs below the window in W from W_OLD.
+ack_mark = compile_tree(arq.ack_mark, inline=True)
 
 
-@inline  # type: ignore[misc]
-def ack_mark(C: np.ndarray, S: np.ndarray, W: np.ndarray, seq: int) -> None:
-    # ArqDecoder._mark: the window's bitmaps (as int64: 53 bits), a seq of the since-last-ACK map
-    # pushed out of the window onto the list, a seq received below the window onto it once
-    S[L.S_AK_DUE] = 1.0
-    newest = int(S[L.S_AK_NEWEST])
-    if seq > newest:
-        shift = seq - newest
-        new = int(S[L.S_AK_NEW])
-        if shift >= ACK_WIDTH:
-            out, off, bits, new = new, 0, 0, 0
-        else:
-            off = ACK_WIDTH - shift
-            keep = (1 << off) - 1
-            out = new >> off
-            bits = (int(S[L.S_AK_BITS]) & keep) << shift
-            new = (new & keep) << shift
-        i = 0
-        while out != 0:
-            if out & 1:
-                ack_old(C, S, W, newest - i - off)
-            out >>= 1
-            i += 1
-        S[L.S_AK_BITS] = float(bits | 1)
-        S[L.S_AK_NEW] = float(new | 1)
-        S[L.S_AK_NEWEST] = seq
-    elif newest - seq < ACK_WIDTH:
-        b = 1 << (newest - seq)
-        S[L.S_AK_BITS] = float(int(S[L.S_AK_BITS]) | b)
-        S[L.S_AK_NEW] = float(int(S[L.S_AK_NEW]) | b)
-    else:
-        for q in range(int(S[L.S_AK_OLD])):
-            if W[L.W_OLD + q] == seq:
-                return
-        ack_old(C, S, W, seq)
+ack_due = compile_tree(arq.ack_due, inline=True)
 
 
 @inline  # type: ignore[misc]
@@ -123,9 +87,9 @@ def arq_cumulative_ack(
 ) -> None:  # fmt: skip
     # ArqDecoder.acks: the cumulative ACK of tick n (k > 1), at most one every k ticks, into the
     # ACK link (its records not kept, no payload: the ring's columns carry the ACK)
-    if S[L.S_AK_DUE] == 0.0 or n - S[L.S_AK_LAST_N] < C[L.C_ACK_EVERY]:
+    cnt = ack_due(C, S, n)
+    if cnt < 0:
         return
-    cnt = int(S[L.S_AK_OLD])
     cap = int(C[L.C_ACK_CAP])
     size = W[L.W_OLD + cap + 1 + cnt]
     S[L.S_ACKS_SENT] += 1.0
@@ -140,10 +104,6 @@ def arq_cumulative_ack(
         aring[j, L.ACK_RING_COUNT] = cnt
         for q in range(cnt):
             aring[j, L.ACK_RING_OLD + q] = W[L.W_OLD + q]
-    S[L.S_AK_OLD] = 0.0
-    S[L.S_AK_NEW] = 0.0
-    S[L.S_AK_DUE] = 0.0
-    S[L.S_AK_LAST_N] = n
 
 
 @part_jit  # type: ignore[misc]
@@ -299,7 +259,7 @@ def arq_block(
                 newest_rx = seq
                 rx = seq
             if cumulative:
-                ack_mark(C, S, W, seq)
+                ack_mark(C, S, W, seq, L.W_OLD)
                 continue
             # The ACK of `seq` into the ACK link (its fate: blackout, loss) and, when it gets
             # through, what ArqEncoder.feedback makes of it at tick t = n + D: it takes the

@@ -282,13 +282,7 @@ STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
             "gave_up": L.S_GAVE_UP,
             "bytes": L.S_BYTES,
         },
-        {
-            "received": L.S_RECEIVED,
-            "duplicates": L.S_DUPLICATES,
-            "acks_sent": L.S_ACKS_SENT,
-            "recovered": L.S_RECOVERED,
-            "recovered_late": L.S_RECOVERED_LATE,
-        },
+        {},  # (the decoder: `load`)
     ),
     "fec": ({"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES}, {}),  # (the decoder: `load`)
 }
@@ -496,7 +490,7 @@ class CodecNet(LinkArrays):
         else:
             enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
             enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
-            if ch.kind == "fec":  # its counters and its history's scalars, from S (core/fec.py)
+            if ch.kind in ("fec", "arq"):  # its counters and its history's scalars, from S
                 dec.load(S)  # (its recovered_log, for a reader of the decoder alone, stays empty)
             else:
                 dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
@@ -504,8 +498,6 @@ class CodecNet(LinkArrays):
             dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
         elif ch.kind == "hli":
             enc.last_class = int(S[L.S_LAST_CLASS])
-        elif ch.kind == "arq":
-            dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
         if ch.kind == "arq":
             ch.ack_packets, ch.ack_bytes = int(S[L.S_ACK_PACKETS]), int(S[L.S_ACK_BYTES])
             assert self.ack is not None
