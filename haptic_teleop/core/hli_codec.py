@@ -230,20 +230,16 @@ def hli_send(
     # sample re-anchors it with the true slope
     j = n & (X.shape[0] - 1)
     pv = L.H_PAY + dim + 2
+    first = S[L.S_EPREVH] == 0.0
+    anchor = send or not has_pred
     for i in range(dim):
-        X[j, pv + i] = smp[i] if S[L.S_EPREVH] == 0.0 else S[eprev + i]
+        prev = smp[i] if first else S[eprev + i]
+        X[j, pv + i] = prev
         S[eprev + i] = smp[i]
+        S[et2 + i] = prev if anchor else S[et1 + i]
+        S[et1 + i] = smp[i] if anchor else pred[i]
     S[L.S_EPREVH] = 1.0
-    if send or not has_pred:
-        for i in range(dim):
-            S[et2 + i] = X[j, pv + i]
-            S[et1 + i] = smp[i]
-        S[L.S_ET2H] = 1.0
-    else:
-        for i in range(dim):
-            S[et2 + i] = S[et1 + i]
-            S[et1 + i] = pred[i]
-        S[L.S_ET2H] = S[L.S_ET1H]
+    S[L.S_ET2H] = 1.0 if anchor else S[L.S_ET1H]
     S[L.S_ET1H] = 1.0
     if not send:
         return False
@@ -463,7 +459,7 @@ class HliDecoder:
         self._track = (L.S_SIZE_X, L.S_SIZE_X + dim)
         self.X: Any = self._rows(16)
         self._lo: int | None = None  # the oldest seq or rebuilt tick taken while nothing was played
-        self._hi = 0  # the newest seq taken
+        self._hi = 0  # the newest seq or rebuilt tick taken
         self._packet: Any = np.zeros((1, 3 * dim + 2))
         self._out = [0.0] * dim
 
@@ -486,9 +482,9 @@ class HliDecoder:
         by its link's delay): doubled, its tags moved, when `seq` would wrap onto one of them."""
         S, X = self.S, self.X
         if self._lo is None:
-            self._lo, self._hi = min(seq, key), seq
+            self._lo, self._hi = min(seq, key), max(seq, key)
         else:
-            self._lo, self._hi = min(self._lo, seq, key), max(self._hi, seq)
+            self._lo, self._hi = min(self._lo, seq, key), max(self._hi, seq, key)
         lo = int(S[L.S_CUR]) + 1 if S[L.S_CURH] else self._lo
         rows = len(X)
         while rows <= self._hi - lo:
