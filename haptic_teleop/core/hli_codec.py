@@ -157,6 +157,19 @@ def linear1(a: float, b: float) -> float:
     return 2.0 * a - b
 
 
+# The same prediction and distance over tuples (core/event_codec.py's objects)
+def _pred(t1: tuple[float, ...] | None, t2: tuple[float, ...] | None, linear: bool) -> tuple[float, ...] | None:
+    if t1 is None:
+        return None
+    if not linear or t2 is None:
+        return t1
+    return tuple(linear1(a, b) for a, b in zip(t1, t2, strict=True))
+
+
+def _norm(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    return math.sqrt(sum((x - y) * (x - y) for x, y in zip(a, b, strict=True)))
+
+
 # The encoder's and the decoder's steps over codec_layout arrays (one definition: `HliEncoder` and
 # `HliDecoder` call them over their own arrays, the compiled loop's tick over its direction's,
 # engine/compiled/codec_hli.py). C: C_DIM and the C_H* constants; S: the S_E* (encoder) and S_D*,
