@@ -122,9 +122,11 @@ ACK_RING_BITS, ACK_RING_COUNT, ACK_RING_OLD = 2, 3, 4
 # tick).
 PLAN_TICKS = 100  # (windows.CHUNK_TICKS: a chunk's ticks planned at once)
 P_RX, P_LAST, P_PREV, P_AHEAD, P_SPAN, P_TAKEN, P_WIDTH = range(7)
-# HLI's X: the sender's packet of a tick (sample, previous sample, HLI2 copy, class, offset), the
-# decoder's received mark and rebuilt sample (a tag: the seq it holds, H_NONE when none).
-H_SMP, H_PREV, H_COPY, H_CLASS, H_OFF, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 3, 6, 9, 10, 11, 12, 13, 16
+# HLI's X: the packet of a tick (its payload from H_PAY in the wire's order: x..., class, offset,
+# previous x...[, copy of the HLI2 sample...], 3 dim + 2 values at most: the sender's, which the
+# compiled loop's receiver reads, or the one the Python decoder received), the decoder's received
+# mark and rebuilt sample (a tag: the seq it holds, H_NONE when none; core/hli_codec.py).
+H_PAY, H_RTAG, H_BTAG, H_BX, H_WIDTH = 0, 11, 12, 13, 16
 H_NONE = -1e18
 
 # An arm scene's codec directions (engine/compiled/arm_codec_kernel.py): the scalars above at the same
@@ -145,7 +147,7 @@ ARM_RING_WIDTH = 2 + 2 * ARM_DIM  # seq, arrival_ns, a 9-value sample and its ra
 ARM_RING_ATTEMPT, ARM_RING_SENT = 2 + ARM_DIM, 3 + ARM_DIM  # its attempt and send tick there)
 ARM_X_SUM_SEQ = 1 + ARM_DIM
 ARM_X_SENT = 2 + 2 * ARM_DIM
-ARM_H_PREV, ARM_H_COPY, ARM_H_CLASS = ARM_DIM, 2 * ARM_DIM, 3 * ARM_DIM
+ARM_H_RTAG = 3 * ARM_DIM + 2  # (after the payload)
 ARM_LAYOUT = {
     "C_TRIG0": ARM_C_TRIG0,
     "TRIGGER_GROUP": ARM_AXES,
@@ -175,12 +177,8 @@ ARM_LAYOUT = {
     # W: a value of 9, then the terms of a sum (at most 65: k <= 64) before W_STACK
     "W_TERMS": W_VALUE + ARM_DIM,
     # HLI's X
-    "H_PREV": ARM_H_PREV,
-    "H_COPY": ARM_H_COPY,
-    "H_CLASS": ARM_H_CLASS,
-    "H_OFF": ARM_H_CLASS + 1,
-    "H_RTAG": ARM_H_CLASS + 2,
-    "H_BTAG": ARM_H_CLASS + 3,
-    "H_BX": ARM_H_CLASS + 4,
-    "H_WIDTH": ARM_H_CLASS + 4 + ARM_DIM,
+    "H_RTAG": ARM_H_RTAG,
+    "H_BTAG": ARM_H_RTAG + 1,
+    "H_BX": ARM_H_RTAG + 2,
+    "H_WIDTH": ARM_H_RTAG + 2 + ARM_DIM,
 }

@@ -321,3 +321,38 @@ def test_every_hli2_event_with_one_delivered_packet_is_played_exactly(filtering:
     assert len(events) - len(covered) <= 3 and len(rebuilt) > 50
     assert [s for s in covered if played[s + n] != signal[s]] == []
     assert dec.counters["rebuilt"] == len(rebuilt)
+
+
+def test_the_compiled_loops_compose_cores_hli() -> None:
+    # the HLI kernel's encoder and decoder steps are core/hli_codec.py's functions, compiled: no copy
+    from haptic_teleop.core import hli_codec
+    from haptic_teleop.engine.compiled import codec_hli
+
+    for name in ("hli_send", "hli_receive", "hli_sample"):
+        assert getattr(codec_hli, name).py_func.__code__ is getattr(hli_codec, name).__code__, name
+    # and the tick calls them (and nothing else of its own but the link's)
+    names = set(codec_hli.hli_tick.py_func.__code__.co_names)
+    assert {"hli_send", "hli_receive", "hli_sample", "link_send", "link_next"} <= names
+
+
+def test_a_late_packet_and_a_wide_spread_of_seqs_keep_the_dict_semantics() -> None:
+    """The decoder's history is a ring that grows: packets received far apart before the first
+    sample, and a late one, are handled as a dict of seqs would."""
+    cfg = HliConfig(p=0.2, r=0.8)
+    enc, dec = build_hli_codec(cfg, PERIOD_NS, 2)
+    n = enc.n_hli1
+    sig = [(1e-3 * k * k, -2e-3 * k) for k in range(400)]
+    pk = {p.seq: p for p in run(enc, sig)}
+    assert len(pk) > 300
+    seqs = sorted(pk)
+    # the first 250 packets arrive at once (a history many times the ring's first 16 rows)
+    for s in seqs[:250]:
+        dec.receive(pk[s], 0)
+    t0 = seqs[249] + 1  # lag 1: the first sample plays up to seqs[249] - n, then a tick each
+    played = [dec.sample(t, 0) for t in range(t0, t0 + n + 1)]
+    assert played[-1] == sig[seqs[249]]
+    assert all(type(v) is float for v in played[-1])
+    assert len(dec.X) >= 256
+    dec.receive(pk[seqs[10]], 0)  # late: its tick was played
+    assert dec.counters["late"] == 1 and dec.counters["received"] == 251
+    assert dec.counters["played_received"] == 250

@@ -39,8 +39,7 @@ from haptic_teleop.core import codec_layout as L
 from haptic_teleop.core.deadband import DeadbandDecoder, GroupedDeadbandEncoder
 from haptic_teleop.core.delay import ConstantDelay, Delay
 from haptic_teleop.core.fec import fec_scratch, payload_floats
-from haptic_teleop.core.hli import HLI1, HLI2
-from haptic_teleop.core.hli_codec import hli_message_bytes
+from haptic_teleop.core.hli_codec import HliDecoder, HliEncoder
 from haptic_teleop.core.link import Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, FourStateLoss, GilbertElliottLoss, TraceLoss
 from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, jitter_table
@@ -246,31 +245,11 @@ class LinkArrays:
 
 
 # The encoder's and the decoder's counters of each compiled kind: where the kernel keeps them in S
-# (`CodecNet.store` writes them back; the deadband's objects take their whole state instead).
+# (`CodecNet.store` writes them back; the deadband's and HLI's objects take their state instead).
 STORED_COUNTERS: dict[str, tuple[dict[str, int], dict[str, int]]] = {
     "prediction": (
         {"samples": L.S_OFFERED, "sent": L.S_SENT, "bytes": L.S_BYTES},
         {"received": L.S_RECEIVED, "duplicates": L.S_DUPLICATES},
-    ),
-    "hli": (
-        {
-            "samples": L.S_OFFERED,
-            "sent": L.S_SENT,
-            "hli0": L.S_HLI0,
-            "hli1": L.S_HLI1,
-            "hli2": L.S_HLI2,
-            "filtered_hli0": L.S_FILT0,
-            "filtered_hli1": L.S_FILT1,
-            "wire_bits": L.S_WIRE_BITS,
-            "over_budget": L.S_OVER,
-        },
-        {
-            "received": L.S_RECEIVED,
-            "rebuilt": L.S_REBUILT,
-            "predicted": L.S_DPREDICTED,
-            "played_received": L.S_PLAYED,
-            "late": L.S_DLATE,
-        },
     ),
     "arq": (
         {
@@ -316,13 +295,12 @@ class CodecNet(LinkArrays):
                 C[k] = enc.C[k]
             C[L.C_EXTRAP], C[L.C_MAX_AHEAD] = dec.C[L.C_EXTRAP], dec.C[L.C_MAX_AHEAD]
             C[self._trig0 : self._trig0 + ch.dim] = enc.C[enc.trig0 : enc.trig0 + ch.dim]
-        elif ch.kind == "hli":
+        elif ch.kind == "hli":  # the constants the encoder and the decoder hold (core/hli_codec.py)
+            assert type(enc) is HliEncoder and type(dec) is HliDecoder
             C[L.C_KIND] = L.HLI
-            C[L.C_HN], C[L.C_HLINEAR], C[L.C_HWARMUP] = enc.n_hli1, 1.0 if enc._linear else 0.0, enc._warmup
-            C[L.C_HTHRESH], C[L.C_HWIN], C[L.C_HBUDGET] = enc.cfg.threshold_m, enc._window_ticks, enc._budget_bits
-            C[L.C_HBITS1], C[L.C_HBITS2] = enc._packet_bits(HLI1), enc._packet_bits(HLI2)
-            C[L.C_HSIZE1], C[L.C_HSIZE2] = hli_message_bytes(ch.dim, HLI1), hli_message_bytes(ch.dim, HLI2)
-            C[L.C_HDELAY] = dec.delay_ticks
+            for k in range(L.C_HN, L.C_HDELAY):  # N_HLI1 .. the sizes by class
+                C[k] = enc.C[k]
+            C[L.C_HDELAY] = dec.C[L.C_HDELAY]
         else:
             fec, arq = ch.kind == "fec", ch.kind == "arq"
             C[L.C_KIND] = L.FEC if fec else L.ARQ if arq else L.PREDICTION
@@ -393,11 +371,8 @@ class CodecNet(LinkArrays):
             self.X = np.zeros((rows, self._at("H_WIDTH")))
             self.X[:, self._at("H_RTAG")] = L.H_NONE
             self.X[:, self._at("H_BTAG")] = L.H_NONE
-            self.W = np.zeros(2 * N + 2 + 2 * (int(C[L.C_HWIN]) + 1))
-            for k in range(1, N + 1):
-                self.W[k] = 1.0 if k in enc._may_filter else 0.0
-            self.W[N + 1 : 2 * N + 2] = enc._fixed_after
-            S[L.S_ESINCE] = N + 1
+            self.W = np.array(enc.W, dtype=np.float64)  # the pattern and the empty rate window
+            S[L.S_ESINCE] = enc.S[L.S_ESINCE]
         if ch.kind == "prediction":  # the decoder's held samples (core/prediction.py's Reconstructor)
             rows = 4
             while rows < C[L.C_KEEP] + 2:
@@ -487,6 +462,9 @@ class CodecNet(LinkArrays):
         if ch.kind == "deadband":  # the encoder's and decoder's whole state (core/deadband.py)
             enc.load(S, self._at("S_SENT0"), self._at("S_PREV0"))
             dec.load(S, self._at("S_LAST0"), self._at("S_OLD0"), self._at("S_RATE0"))
+        elif ch.kind == "hli":  # their counters and scalars, from S (core/hli_codec.py)
+            enc.load(S)
+            dec.load(S)
         else:
             enc_counts, dec_counts = STORED_COUNTERS[ch.kind]
             enc.counters.update({name: int(S[k]) for name, k in enc_counts.items()})
@@ -496,8 +474,6 @@ class CodecNet(LinkArrays):
                 dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
             dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
-        elif ch.kind == "hli":
-            enc.last_class = int(S[L.S_LAST_CLASS])
         if ch.kind == "arq":
             ch.ack_packets, ch.ack_bytes = int(S[L.S_ACK_PACKETS]), int(S[L.S_ACK_BYTES])
             assert self.ack is not None
