@@ -187,8 +187,8 @@ def hli_send(
 ) -> bool:
     """`HliEncoder.send` of tick n's sample `smp` (`pred`: scratch for the mirrored track's
     prediction): the rate window, the class, the filtering of a follower, the track. Returns whether
-    a packet goes out; its payload is then in n's row of X from H_PAY (the previous sample there
-    whatever the decision) and its message size in C_SIZE."""
+    a packet goes out; its payload is then in n's row of X from H_PAY and its message size in
+    C_SIZE."""
     dim = int(C[L.C_DIM])
     N = int(C[L.C_HN])
     S[L.S_OFFERED] += 1.0
@@ -247,7 +247,8 @@ def hli_send(
     anchor = send or not has_pred
     for i in range(dim):
         prev = smp[i] if first else S[eprev + i]
-        X[j, pv + i] = prev
+        if send:
+            X[j, pv + i] = prev
         S[eprev + i] = smp[i]
         S[et2 + i] = prev if anchor else S[et1 + i]
         S[et1 + i] = smp[i] if anchor else pred[i]
