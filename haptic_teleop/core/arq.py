@@ -263,6 +263,16 @@ def ack_due(C: Any, S: Any, n: int) -> int:
     return cnt
 
 
+# The decoder's counters and where its reconstruction's S keeps them.
+DECODER_COUNTERS = {
+    "received": L.S_RECEIVED,
+    "duplicates": L.S_DUPLICATES,
+    "acks_sent": L.S_ACKS_SENT,
+    "recovered": L.S_RECOVERED,
+    "recovered_late": L.S_RECOVERED_LATE,
+}
+
+
 class ArqDecoder:
     """Receiver side: ACKs every data packet, plays the newest, predicts over gaps.
 
@@ -296,18 +306,11 @@ class ArqDecoder:
 
     @property
     def counters(self) -> dict[str, int]:
-        S = self.rec.S
-        return {
-            "received": int(S[L.S_RECEIVED]),
-            "duplicates": int(S[L.S_DUPLICATES]),
-            "acks_sent": int(S[L.S_ACKS_SENT]),
-            "recovered": int(S[L.S_RECOVERED]),
-            "recovered_late": int(S[L.S_RECOVERED_LATE]),
-        }
+        return self.rec.counts(DECODER_COUNTERS)
 
     def load(self, S: Any) -> None:
         """Take the scalar state of a decoder run elsewhere (a compiled loop's S)."""
-        self.rec.S[: L.S_SIZE_X] = [float(v) for v in S[: L.S_SIZE_X]]
+        self.rec.load(S)
 
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
         S = self.rec.S

@@ -336,6 +336,15 @@ class FecEncoder:
         """No return path."""
 
 
+# The decoder's counters and where its reconstruction's S keeps them.
+DECODER_COUNTERS = {
+    "received": L.S_RECEIVED,
+    "duplicates": L.S_DUPLICATES,
+    "recovered": L.S_RECOVERED,
+    "recovered_late": L.S_RECOVERED_LATE,
+}
+
+
 class FecDecoder:
     """Recovers what the received packets allow, predicts the rest (module docstring):
     `fec_receive` over its reconstruction's arrays (`rec`'s C, S and X, whose rows hold a parity
@@ -371,17 +380,11 @@ class FecDecoder:
 
     @property
     def counters(self) -> dict[str, int]:
-        S = self.rec.S
-        return {
-            "received": int(S[L.S_RECEIVED]),
-            "duplicates": int(S[L.S_DUPLICATES]),
-            "recovered": int(S[L.S_RECOVERED]),
-            "recovered_late": int(S[L.S_RECOVERED_LATE]),
-        }
+        return self.rec.counts(DECODER_COUNTERS)
 
     def load(self, S: Any) -> None:
         """Take the scalar state of a decoder run elsewhere (a compiled loop's S)."""
-        self.rec.S[: L.S_SIZE_X] = [float(v) for v in S[: L.S_SIZE_X]]
+        self.rec.load(S)
 
     def receive(self, packet: Packet, now_ns: int) -> list[Packet]:
         p = packet.payload

@@ -259,9 +259,15 @@ class Reconstructor:
         """Ticks played from a prediction (or a hold past the history)."""
         return int(self.S[L.S_PREDICTED])
 
-    def load_counts(self, predicted: int, late: int) -> None:
-        """Take the counts of a history kept elsewhere (a compiled loop's)."""
-        self.S[L.S_PREDICTED], self.S[L.S_LATE] = float(predicted), float(late)
+    def load(self, S: Any) -> None:
+        """Take the scalar state of a history kept elsewhere (a compiled loop's S): its counts,
+        and those of the decoder around it (`counts`)."""
+        self.S[: L.S_SIZE_X] = [float(v) for v in S[: L.S_SIZE_X]]
+
+    def counts(self, places: Mapping[str, int]) -> dict[str, int]:
+        """The counters the decoder around it keeps in S, by name (`places`: name -> place)."""
+        S = self.S
+        return {name: int(S[k]) for name, k in places.items()}
 
     def add(self, seq: int, value: Sample, fresh: bool) -> bool:
         """Add a sample; False if its seq is already held (a duplicate) or too old to keep."""

@@ -473,7 +473,7 @@ class CodecNet(LinkArrays):
             else:
                 dec.counters.update({name: int(S[k]) for name, k in dec_counts.items()})
         if ch.kind == "prediction":
-            dec.rec.load_counts(int(S[L.S_PREDICTED]), int(S[L.S_LATE]))
+            dec.rec.load(S)
         if ch.kind == "arq":
             ch.ack_packets, ch.ack_bytes = int(S[L.S_ACK_PACKETS]), int(S[L.S_ACK_BYTES])
             assert self.ack is not None
