@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from launched import Launch
 
+from haptic_teleop.nodes.rtloop import DEFAULT_MAX_CATCH_UP
+
 rclpy = pytest.importorskip("rclpy")
 
 PERIOD_NS = 1_000_000
@@ -24,12 +26,13 @@ DURATION_S = 3.0
 K_H = 0.5  # nve_push: client_stiffness_n_per_m
 PUSH_START_S = 0.5  # nve_push: operator.start_s
 # A client tick run late (catch-up after a stall) takes samples its buffer released after the
-# tick's deadline, so R reads short by as much as the tick was late: how late is the machine's
-# scheduling, unbounded in real time (docs/live.md, "NVE scenes live"). Most ticks run on time:
-# R's 10th percentile is never below the links' delay less a few ticks.
-CATCH_UP_S = 0.005
-# R is a whole number of ticks, as a float in s: 0.1 - 0.005 reads 0.09499999999999997. Compare
-# with a nanosecond of slack, so R exactly at the bound passes (seen once on a loaded machine).
+# tick's deadline, so R reads short by as much as the tick was late. No node runs a tick before its
+# deadline, the relays release a sample no earlier than its stamp plus the link's delay, and a tick
+# runs at most `max_catch_up_periods` + 1 periods after its deadline (nodes.rtloop.next_tick): so R
+# > the links' delay - (max_catch_up_periods + 1) periods, whatever the machine's load
+# (docs/live.md, "NVE scenes live"). R is a whole number of ticks, as a float in s (0.1 - 0.011
+# reads 0.08899999999999997): compare with a nanosecond of slack.
+CATCH_UP_S = (DEFAULT_MAX_CATCH_UP + 1) * PERIOD_NS * 1e-9
 R_FLOOR_S = 2 * DELAY_S - CATCH_UP_S - 1e-9
 # This test's own subscriber is best effort (as the nodes' streams are): on a busy 2-core machine it
 # saw 1,000 of the 3,000 samples of a topic, and 262-283 in a CI run beside another test run. The
@@ -148,7 +151,7 @@ def test_client_measures_the_round_trip_of_the_links_plus_a_few_ticks(push_run):
         f"measured R: min {measured.min():.4f} median {np.median(measured):.4f} "
         f"p99 {np.percentile(measured, 99):.4f} max {measured.max():.4f} s"
     )
-    assert np.percentile(measured, 10) >= R_FLOOR_S, measured.min()
+    assert measured.min() >= R_FLOOR_S, measured.min()
     # How far above the links' delay R reads is the machine's scheduling (median 0.110-0.132 s, p99
     # up to 0.239 s seen on a busy 2-core machine): real time asserts no physics, so it is printed,
     # and the lockstep engine's R is asserted in test_nve_engine. What the client reports must be
@@ -191,12 +194,15 @@ def test_force_is_the_clients_spring_toward_the_object_it_received(push_run):
     print(f"ticks on k_h: {np.mean(coupling[:, 0] == K_H):.3f}")
     assert K_H in springs
     got = ~before
-    if springs == {K_H}:
-        assert np.allclose(f[got], K_H * (xh[got] - xo[got]), rtol=1e-12, atol=1e-15)
-    else:  # a stall made R pass the allowable delay at some ticks: each force used one of the springs
-        k = f[got] / (xh[got] - xo[got])
-        k = k[np.abs(xh[got] - xo[got]) > 1e-9]
-        assert all(any(math.isclose(x, y, rel_tol=1e-9) for y in springs) for x in k.tolist())
+    # Each force used one of the schedule's springs: k_h, or (a stall made R pass the allowable delay)
+    # the spring at that R, a whole number of ticks. This best-effort subscriber may miss the few
+    # coupling messages of a spring a stall used, so the table is the schedule's at every R to 5 s.
+    period_s = PERIOD_NS * 1e-9
+    table = np.array(sorted(springs | {schedule.spring_n_per_m(n * period_s) for n in range(int(5.0 / period_s))}))
+    dx = xh[got] - xo[got]
+    k = f[got][np.abs(dx) > 1e-9] / dx[np.abs(dx) > 1e-9]
+    near = table[np.clip(np.searchsorted(table, k), 1, table.size - 1) - np.array([[1], [0]])]
+    assert np.all(np.min(np.abs(near - k), axis=0) <= 1e-9 * np.abs(k)), k
     assert np.all(f[t < PUSH_START_S] == 0.0)  # the HIP rests until the push: no force
     assert np.any(f[t > PUSH_START_S] > 0.0)  # the push reached the client's spring
     # every object position the client used is one the server sent and the client's buffer released
@@ -291,7 +297,7 @@ def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tm
         assert r.size > 100, name
         print(f"{name}: measured R median {np.median(r):.4f} s")
         print(f"{name}: measured R min {r.min():.4f} s")
-        assert np.percentile(r, 10) >= rtt - CATCH_UP_S - 1e-9, name  # its own links' delays
+        assert r.min() >= rtt - CATCH_UP_S - 1e-9, name  # its own links' delays
         medians[name] = float(np.median(r))
     assert medians["near"] < medians["far"]  # each client measured its own links
     obj = data["/nve/object/joint_states"]
@@ -436,7 +442,7 @@ def test_live_bag_holds_what_the_nodes_published(push_run):
         assert len(held) <= most_filled, (topic, held[:10], info["samples_filled"])
     assert n_seen > MIN_SEEN
     rtt = rows[:, s.index("client.rtt_s")]
-    assert np.nanpercentile(rtt, 10) >= R_FLOOR_S and np.isnan(rtt[0])
+    assert np.nanmin(rtt) >= R_FLOOR_S and np.isnan(rtt[0])
     # release ticks: a sample released at tick k was sent at least the link's delay before it
     for link in ("up", "down"):
         seq = rows[:, s.index(f"client.{link}_rx_seq")]
