@@ -2,8 +2,8 @@
 codec runs compiled (`arm_host.codec_kernel`), so codec-less arm runs never compile or
 load it (docs/codec.md, "Compiled", "Arm scenes").
 
-The tick is `arm_kernel.run_ticks`'s, from the same inlined parts (`sense`, `side_torque`,
-`forward_sample`, `backward_sample`, `released`, `guarded`, `finish_tick`); a direction with a
+The tick is the driver's (engine/compiled/driver.py) composed of `arm_kernel`'s sides (`ARM_SIDES`)
+and the channels below; a direction with a
 codec replaces its schedule lookup by `CodecChannel.step` for an arm scene's sample
 (assembly.channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the 1-DoF codec
 kernel's ticks (engine/compiled/codec_kernel.py: `deadband_prediction_tick` and `arq_tick` inlined,
@@ -24,27 +24,17 @@ import numba
 import numpy as np
 
 from haptic_teleop.core import codec_layout as L
-from haptic_teleop.engine.compiled import codec_arq, codec_deadband, codec_fec, codec_hli, codec_link
+from haptic_teleop.engine.compiled import codec_arq, codec_deadband, codec_fec, codec_hli, codec_link, driver
 from haptic_teleop.engine.compiled.arm_kernel import (
-    V_QDM,
-    V_QDS,
-    V_QM,
-    V_QS,
-    V_TAU_M,
-    V_TAU_S,
-    V_VM,
-    V_VS,
-    V_XM,
-    V_XS,
+    ARM_SIDES,
+    arm_schedule_backward,
+    arm_schedule_forward,
+    arm_schedule_open,
     backward_sample,
     borrowed,
-    finish_tick,
     forward_sample,
     guarded,
-    released,
-    run_start,
-    sense,
-    side_torque,
+    tick_own,
 )
 
 jit = numba.njit(cache=True, nogil=True)
@@ -100,42 +90,71 @@ arm_arq_tick = relaid(codec_arq.arq_tick, _ARM, _relaid)
 arm_hli_tick = relaid(codec_hli.hli_tick, _ARM, _relaid)
 
 
-@inline  # type: ignore[misc]
-def delivered(
-    codec: bool, side: Any, n: int, n1: int, now: int, w0: int, rel: np.ndarray, occ: np.ndarray, hist: np.ndarray,
-    mask: int, net: Any, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray,
-) -> tuple[int, float]:  # fmt: skip
-    """A direction's network at tick n after its sample was written (`smp` with a codec, else the
-    sender's ring): the codec's tick (`net`: C, S, U, B, ring, rec, and X, W, A: the sample
-    history, scratch and ACK link) with the decoded sample through the receiving `side`'s guard,
-    or the schedule's release. Returns the row's `received` seq (-1: none) and buffer occupancy
-    (0 with a codec)."""
-    if codec:
-        C, S, U, B, ring, rec, X, W, A = net
-        kind = C[L.C_KIND]
-        if kind == L.FEC:
-            rx, got = arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
-        elif kind == L.ARQ:
-            rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, dec)
-        elif kind == L.HLI:
-            rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
-        else:
-            rx, got = arm_codec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
-        if got:
-            guarded(side, dec)
-        return rx, 0.0
-    return released(side, rel[n - w0], hist, mask), occ[n - w0]
+# The channels of the compiled tick (engine/compiled/driver.py) for an arm scene with a codec: a
+# direction is its codec's arrays (C, S, U, B, ring, rec, X, W, A) as `borrowed` views, whether it
+# has a codec (else it runs on its schedule: `arm_kernel.arm_schedule_forward`), `now`'s period,
+# the scratch rows of the sample, its rate and the decoder's output, and the schedule's direction.
 
 
 @inline  # type: ignore[misc]
-def borrowed_net(
-    C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, ring: np.ndarray, rec: np.ndarray, X: np.ndarray,
-    W: np.ndarray, A: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-) -> Any:  # fmt: skip
-    """A direction's codec arrays as `delivered` takes them (`net`), each a `borrowed` view."""
+def arm_codec_open(net: Any) -> Any:
+    codec, scratch, sched = net
+    C, S, U, B, ring, rec, X, W, A = codec
     a = (borrowed(A[0]), borrowed(A[1]), borrowed(A[2]), borrowed(A[3]), borrowed(A[4]), borrowed(A[5]))
     arrays = (borrowed(C), borrowed(S), borrowed(U), borrowed(B), borrowed(ring), borrowed(rec))
-    return (*arrays, borrowed(X), borrowed(W), a)
+    return (
+        (*arrays, borrowed(X), borrowed(W), a), C[L.C_KIND] != L.NO_CODEC, int(C[L.C_PERIOD_NS]),
+        borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2]), arm_schedule_open(sched),
+    )  # fmt: skip
+
+
+@inline  # type: ignore[misc]
+def codec_delivered(
+    side: Any, net: Any, n: int, n1: int, now: int, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray
+) -> int:
+    """CodecChannel.step of a direction whose sample is in `smp`: the codec's tick with the decoded
+    sample through the receiving `side`'s guard. Returns the row's `received` seq (-1: none)."""
+    C, S, U, B, ring, rec, X, W, A = net
+    kind = C[L.C_KIND]
+    if kind == L.FEC:
+        rx, got = arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+    elif kind == L.ARQ:
+        rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, dec)
+    elif kind == L.HLI:
+        rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+    else:
+        rx, got = arm_codec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+    if got:
+        guarded(side, dec)
+    return rx
+
+
+@inline  # type: ignore[misc]
+def arm_codec_forward(run: Any, f: Any, t: int, n: int, n1: int) -> tuple[int, float]:
+    net, has_codec, period_ns, smp, rate, dec, sched = f
+    if not has_codec:
+        return arm_schedule_forward(run, sched, t, n, n1)
+    forward_sample(smp, run[8])
+    return codec_delivered(run[1], net, n, n1, n * period_ns, smp, rate, dec), 0.0
+
+
+@inline  # type: ignore[misc]
+def arm_codec_backward(run: Any, b: Any, t: int, n: int, n1: int) -> tuple[int, float]:
+    net, has_codec, period_ns, smp, rate, dec, sched = b
+    if not has_codec:
+        return arm_schedule_backward(run, sched, t, n, n1)
+    backward_sample(smp, run[8])
+    return codec_delivered(run[0], net, n, n1, n * period_ns, smp, rate, dec), 0.0
+
+
+# The arm sides with these channels
+drive_arm_codec = driver.compose(
+    **ARM_SIDES,
+    open_forward=arm_codec_open,
+    open_backward=arm_codec_open,
+    forward=arm_codec_forward,
+    backward=arm_codec_backward,
+)
 
 
 @jit  # type: ignore[misc]
@@ -180,31 +199,12 @@ def run_ticks_codec(
     """`arm_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
     others read their window of the schedule as there). fC ... frec, bC ... brec: each
     direction's codec arrays (codec_host.CodecNet.args, the arm layout); scratch: 3 rows of
-    9 (the sample, its rate, the decoder's output); fX, fW, fA, bX, bW, bA: each direction's
-    sample history, scratch and ACK link (CodecNet.history)."""
-    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
-        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
-    )
-    fnet = borrowed_net(fC, fS, fU, fB, fring, frec, fX, fW, fA)
-    bnet = borrowed_net(bC, bS, bU, bB, bring, brec, bX, bW, bA)
-    smp, rate, dec = borrowed(scratch[0]), borrowed(scratch[1]), borrowed(scratch[2])
-    fcodec = fC[L.C_KIND] != L.NO_CODEC
-    bcodec = bC[L.C_KIND] != L.NO_CODEC
-    period_ns = int(fC[L.C_PERIOD_NS])
-    fmask = fwd_hist.shape[0] - 1
-    bmask = bwd_hist.shape[0] - 1
-    for n in range(n0, n1):
-        now = n * period_ns
-        sense(ms, ss, mw, sw, v, c)  # 1. both arms
-        side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
-        # 3. forward packet (the codec's, or the schedule's release)
-        forward_sample(smp if fcodec else fwd_hist[n & fmask], v)
-        frx, focc = delivered(fcodec, ss, n, n1, now, w0, fwd_rel, fwd_occ, fwd_hist, fmask, fnet, smp, rate, dec)
-        side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
-        # 5. backward packet
-        backward_sample(smp if bcodec else bwd_hist[n & bmask], v)
-        brx, bocc = delivered(bcodec, ms, n, n1, now, w0, bwd_rel, bwd_occ, bwd_hist, bmask, bnet, smp, rate, dec)
-        # 6. operator, plants, the row
-        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
+    9 (the sample, its rate, the decoder's output), shared by the directions; fX, fW, fA, bX, bW,
+    bA: each direction's sample history, scratch and ACK link (CodecNet.history)."""
+    own = tick_own(ms_own, ss_own)
+    world = (ms_own, ss_own, mw_own, sw_own, ov, cols, data, d0, own)
+    fnet = ((fC, fS, fU, fB, fring, frec, fX, fW, fA), scratch, (fwd_rel, fwd_occ, fwd_hist, w0))
+    bnet = ((bC, bS, bU, bB, bring, brec, bX, bW, bA), scratch, (bwd_rel, bwd_occ, bwd_hist, w0))
+    done = drive_arm_codec(n0, n1, world, fnet, bnet)
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views
-    return n1
+    return done  # type: ignore[no-any-return]

@@ -50,6 +50,7 @@ from haptic_teleop.assembly.side_kernel import (
 )
 from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import operator as op
+from haptic_teleop.engine.compiled import driver
 from haptic_teleop.plants.mujoco_native import borrowed, mj_step, mj_step1, mj_step2
 
 jit = numba.njit(cache=True, nogil=True)
@@ -251,26 +252,105 @@ def finish_tick(
     row[cols[C_BOCC]] = bocc
 
 
+# The stages of the compiled tick (engine/compiled/driver.py) for two arms. `world` is the sides'
+# tuples (side_kernel.side_tuple), their work tuples, the operator, the row's columns, the block
+# (from tick d0 on) and `own` (V_SIZE rows, each side's joint count and 3 wide: the tick's
+# vectors, which the entry point allocates and keeps alive); `run` is every array of it as a
+# `borrowed` view (no reference counting in the loop), with the tick's vectors and the run's
+# constants. The tick's values live in those vectors: the stages hand on nothing (0).
+
+
 @inline  # type: ignore[misc]
-def run_start(
-    ms_own: Any, ss_own: Any, mw_own: Any, sw_own: Any, ov: np.ndarray, cols: np.ndarray, fwd_rel: np.ndarray,
-    fwd_occ: np.ndarray, bwd_rel: np.ndarray, bwd_occ: np.ndarray, fwd_hist: np.ndarray, bwd_hist: np.ndarray,
-    data: np.ndarray,
-) -> Any:  # fmt: skip
-    """The start of a run of ticks (`run_ticks`, arm_codec_kernel.run_ticks_codec): its arguments
-    as `borrowed` views (no reference counting in the loop; the caller's arguments own them), in
-    the order given, then the tick's vectors (`own`, which the caller keeps alive past every use
-    of its views, and `tick_vectors`) and the `run_constants`."""
+def arm_begin(world: Any) -> Any:
+    ms_own, ss_own, mw_own, sw_own, ov, cols, data, d0, own = world
     ms, ss = detach(ms_own), detach(ss_own)
-    nm, ns = ms[T_I][I_N], ss[T_I][I_N]
-    own = np.zeros((V_SIZE, max(nm, ns, 3)))  # the tick's vectors, one row each
     ovb = borrowed(ov)
+    v = tick_vectors(own, ms[T_I][I_N], ss[T_I][I_N])
     return (
-        ms, ss, detach_work(mw_own), detach_work(sw_own), ovb, borrowed(cols),
-        borrowed(fwd_rel), borrowed(fwd_occ), borrowed(bwd_rel), borrowed(bwd_occ),
-        borrowed(fwd_hist), borrowed(bwd_hist), borrowed(data),
-        own, tick_vectors(own, nm, ns), run_constants(ms, ss, ovb),
-    )  # fmt: skip
+        ms,
+        ss,
+        detach_work(mw_own),
+        detach_work(sw_own),
+        ovb,
+        borrowed(cols),
+        borrowed(data),
+        d0,
+        v,
+        run_constants(ms, ss, ovb),
+    )
+
+
+@inline  # type: ignore[misc]
+def arm_schedule_open(net: Any) -> Any:
+    # a direction on its schedule: its window of releases and occupancies (from tick w0 on) and the
+    # sender's ring of payloads (a power of two deep, indexed by seq), as `borrowed` views
+    rel, occ, hist, w0 = net
+    return borrowed(rel), borrowed(occ), borrowed(hist), hist.shape[0] - 1, w0
+
+
+@inline  # type: ignore[misc]
+def arm_sense(run: Any, n: int) -> int:
+    sense(run[0], run[1], run[2], run[3], run[8], run[9])  # both arms
+    return 0
+
+
+@inline  # type: ignore[misc]
+def arm_master(run: Any, t: int) -> int:
+    v = run[8]
+    side_torque(run[0], v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], run[2])
+    return t
+
+
+@inline  # type: ignore[misc]
+def arm_slave(run: Any, t: int) -> int:
+    v = run[8]
+    side_torque(run[1], v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], run[3])
+    return t
+
+
+@inline  # type: ignore[misc]
+def arm_schedule_forward(run: Any, f: Any, t: int, n: int, n1: int) -> tuple[int, float]:
+    rel, occ, hist, mask, w0 = f
+    forward_sample(hist[n & mask], run[8])
+    return released(run[1], rel[n - w0], hist, mask), occ[n - w0]
+
+
+@inline  # type: ignore[misc]
+def arm_schedule_backward(run: Any, b: Any, t: int, n: int, n1: int) -> tuple[int, float]:
+    rel, occ, hist, mask, w0 = b
+    backward_sample(hist[n & mask], run[8])
+    return released(run[0], rel[n - w0], hist, mask), occ[n - w0]
+
+
+@inline  # type: ignore[misc]
+def arm_finish(run: Any, t: int, n: int, frx: float, brx: float, focc: float, bocc: float) -> None:
+    ms, ss, mw, sw, ov, cols, data, d0, v, c = run
+    finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, focc, bocc)
+
+
+@inline  # type: ignore[misc]
+def arm_end(run: Any) -> None:
+    pass
+
+
+ARM_SIDES = {
+    "begin": arm_begin, "sense": arm_sense, "master": arm_master, "slave": arm_slave,
+    "finish": arm_finish, "end": arm_end,
+}  # fmt: skip
+# The tick on the schedule both ways (arm_codec_kernel composes the same sides with its channels)
+drive_arm = driver.compose(
+    **ARM_SIDES,
+    open_forward=arm_schedule_open,
+    open_backward=arm_schedule_open,
+    forward=arm_schedule_forward,
+    backward=arm_schedule_backward,
+)
+
+
+@inline  # type: ignore[misc]
+def tick_own(ms_own: Any, ss_own: Any) -> np.ndarray:
+    """The tick's vectors' own array (`arm_begin`), which the entry point keeps alive."""
+    return np.zeros((V_SIZE, max(ms_own[T_I][I_N], ss_own[T_I][I_N], 3)))
 
 
 @jit  # type: ignore[misc]
@@ -293,28 +373,14 @@ def run_ticks(
     w0: int,
     d0: int,
 ) -> int:
-    """Ticks [n0, n1) of an arm scene (engine/loop.py's order). fwd_rel, fwd_occ, bwd_rel,
-    bwd_occ hold the window of ticks from w0 on; data the block of ticks from d0 on; the
-    histories are rings (a power of two deep) of the packets' payloads, indexed by seq."""
-    # Every array the ticks use is a borrowed view (no reference counting in the loop); the
-    # arguments and the locals below own them until the function returns.
-    ms, ss, mw, sw, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data, own, v, c = run_start(
-        ms_own, ss_own, mw_own, sw_own, ov, cols, fwd_rel, fwd_occ, bwd_rel, bwd_occ, fwd_hist, bwd_hist, data
-    )
-    fmask = fwd_hist.shape[0] - 1
-    bmask = bwd_hist.shape[0] - 1
-    for n in range(n0, n1):
-        sense(ms, ss, mw, sw, v, c)  # 1. both arms
-        side_torque(ms, v[V_QM], v[V_QDM], v[V_XM], v[V_VM], v[V_TAU_M], mw)  # 2. master
-        forward_sample(fwd_hist[n & fmask], v)  # 3. forward packet
-        frx = released(ss, fwd_rel[n - w0], fwd_hist, fmask)
-        side_torque(ss, v[V_QS], v[V_QDS], v[V_XS], v[V_VS], v[V_TAU_S], sw)  # 4. slave
-        backward_sample(bwd_hist[n & bmask], v)  # 5. backward packet
-        brx = released(ms, bwd_rel[n - w0], bwd_hist, bmask)
-        # 6. operator, plants, the row
-        finish_tick(n, ms, ss, mw, sw, ov, cols, v, c, data[n - d0], frx, brx, fwd_occ[n - w0], bwd_occ[n - w0])
+    """Ticks [n0, n1) of an arm scene, the composed tick. fwd_rel, fwd_occ, bwd_rel, bwd_occ hold
+    the window of ticks from w0 on; data the block of ticks from d0 on; the histories are rings (a
+    power of two deep) of the packets' payloads, indexed by seq."""
+    own = tick_own(ms_own, ss_own)
+    world = (ms_own, ss_own, mw_own, sw_own, ov, cols, data, d0, own)
+    done = drive_arm(n0, n1, world, (fwd_rel, fwd_occ, fwd_hist, w0), (bwd_rel, bwd_occ, bwd_hist, w0))
     own[0, 0] = 0.0  # `own` lives until here, past every use of its views
-    return n1
+    return done  # type: ignore[no-any-return]
 
 
 @jit  # type: ignore[misc]

@@ -7,12 +7,15 @@ definition; this module holds only the tick's order, which is `Engine._loop`'s, 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 
 from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import eba
 from haptic_teleop.core import operator as op
+from haptic_teleop.engine.compiled import driver
 from haptic_teleop.engine.compiled.layout import (
     MASTER,
     OP,
@@ -262,6 +265,84 @@ def backward_released(
     return rx
 
 
+# The stages of the compiled tick (engine/compiled/driver.py) for one axis: `run` is the plants'
+# and controllers' arrays, the tick's values a tuple (x_m, v_m, x_s, v_s, f_env, then each side's
+# applied and desired force as its law runs); a direction on its schedule is (rel, occ, hist,
+# mask, w0).
+
+
+@inline  # type: ignore[misc]
+def axis_begin(world: Any) -> Any:
+    return world
+
+
+@inline  # type: ignore[misc]
+def schedule_open(net: Any) -> Any:
+    # a direction on its schedule: its window of releases and occupancies (from tick w0 on) and
+    # the sender's ring of payloads (a power of two deep, indexed by seq)
+    rel, occ, hist, w0 = net
+    return rel, occ, hist, hist.shape[0] - 1, w0
+
+
+@inline  # type: ignore[misc]
+def axis_sense(run: Any, n: int) -> Any:
+    mq, mv, sq, sv, S = run[1], run[2], run[4], run[5], run[9]
+    return mq[0], mv[0], sq[0], sv[0], S[SLAVE + S_CONTACT]
+
+
+@inline  # type: ignore[misc]
+def axis_master(run: Any, t: Any) -> Any:
+    fm, m_desired = control(run[8], run[9], MASTER, t[0], t[1], True)
+    return t[0], t[1], t[2], t[3], t[4], fm, m_desired
+
+
+@inline  # type: ignore[misc]
+def axis_slave(run: Any, t: Any) -> Any:
+    fs, s_desired = control(run[8], run[9], SLAVE, t[2], t[3], False)
+    return t[0], t[1], t[2], t[3], t[4], t[5], t[6], fs, s_desired
+
+
+@inline  # type: ignore[misc]
+def schedule_forward(run: Any, f: Any, t: Any, n: int, n1: int) -> tuple[int, float]:
+    rel, occ, hist, mask, w0 = f
+    return forward_released(run[8], run[9], n - w0, n & mask, mask, rel, hist, t[0], t[1]), occ[n - w0]
+
+
+@inline  # type: ignore[misc]
+def schedule_backward(run: Any, b: Any, t: Any, n: int, n1: int) -> tuple[int, float]:
+    rel, occ, hist, mask, w0 = b
+    return backward_released(run[8], run[9], n - w0, n & mask, mask, rel, hist, t[4], t[2], t[3]), occ[n - w0]
+
+
+@inline  # type: ignore[misc]
+def axis_finish(run: Any, t: Any, n: int, frx: float, brx: float, focc: float, bocc: float) -> None:
+    models, mq, mv, mctrl, _sq, _sv, sctrl, sqfrc, P, S, data, d0 = run
+    x_m, v_m, x_s, v_s, f_env, fm, m_desired, fs, s_desired = t
+    finish_tick(
+        n, models, mq, mv, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
+        fm, m_desired, fs, s_desired, frx, brx, focc, bocc,
+    )  # fmt: skip
+
+
+@inline  # type: ignore[misc]
+def axis_end(run: Any) -> None:
+    pass
+
+
+AXIS_SIDES = {
+    "begin": axis_begin, "sense": axis_sense, "master": axis_master, "slave": axis_slave,
+    "finish": axis_finish, "end": axis_end,
+}  # fmt: skip
+# The tick on the schedule both ways (the codec kernel composes the same sides with its channels)
+drive_axis = driver.compose(
+    **AXIS_SIDES,
+    open_forward=schedule_open,
+    open_backward=schedule_open,
+    forward=schedule_forward,
+    backward=schedule_backward,
+)
+
+
 @loop_jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
@@ -286,28 +367,11 @@ def run_ticks(
     w0: int,
     d0: int,
 ) -> int:
-    # fwd_rel, fwd_occ, bwd_rel, bwd_occ hold the window of ticks from w0 on; data the block of
-    # ticks from d0 on; the histories are rings (a power of two deep) indexed by seq.
-    fmask = fwd_hist.shape[0] - 1
-    bmask = bwd_hist.shape[0] - 1
-    for n in range(n0, n1):
-        x_m = mq[0]
-        v_m = mv[0]
-        x_s = sq[0]
-        v_s = sv[0]
-        f_env = S[SLAVE + S_CONTACT]
-        # master
-        fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
-        frx = forward_released(P, S, n - w0, n & fmask, fmask, fwd_rel, fwd_hist, x_m, v_m)
-        # slave
-        fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
-        brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
-        # operator, plants, the row
-        finish_tick(
-            n, models, mq, mv, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
-            fm, m_desired, fs, s_desired, frx, brx, fwd_occ[n - w0], bwd_occ[n - w0],
-        )  # fmt: skip
-    return n1
+    # The composed tick over ticks [n0, n1): fwd_rel, fwd_occ, bwd_rel, bwd_occ hold the window of
+    # ticks from w0 on; data the block of ticks from d0 on; the histories are rings (a power of two
+    # deep) indexed by seq.
+    run = (models, mq, mv, mctrl, sq, sv, sctrl, sqfrc, P, S, data, d0)
+    return drive_axis(n0, n1, run, (fwd_rel, fwd_occ, fwd_hist, w0), (bwd_rel, bwd_occ, bwd_hist, w0))  # type: ignore[no-any-return]
 
 
 @jit  # type: ignore[misc]

@@ -16,20 +16,20 @@ core/prediction.py, core/loss.py, core/hli_codec.py; the parity sums (`math.fsum
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 
 from haptic_teleop.core import codec_layout as L
+from haptic_teleop.engine.compiled import driver
 from haptic_teleop.engine.compiled.axis_kernel import (
-    MASTER,
-    S_CONTACT,
-    SLAVE,
+    AXIS_SIDES,
     accept2,
     accept3,
-    backward_released,
-    control,
-    finish_tick,
-    forward_released,
+    schedule_backward,
+    schedule_forward,
+    schedule_open,
 )
 from haptic_teleop.engine.compiled.codec_arq import arq_tick
 from haptic_teleop.engine.compiled.codec_deadband import deadband_prediction_tick
@@ -70,6 +70,60 @@ def codec_tick(
     if C[L.C_KIND] == L.FEC:
         return fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
     return deadband_prediction_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, out)
+
+
+# The channels of the compiled tick (engine/compiled/driver.py) with a codec: a direction is its
+# codec's arrays (C, S, U, B, ring, rec, X, W, A), whether it has a codec (else it runs on its
+# schedule: `axis_kernel.schedule_forward`), `now`'s period, the scratch rows of the sample, its
+# rate and the decoder's output, and the schedule's direction.
+
+
+@inline  # type: ignore[misc]
+def codec_open(net: Any) -> Any:
+    codec, scratch, sched = net
+    C = codec[0]
+    return (
+        codec, C[L.C_KIND] != L.NO_CODEC, int(C[L.C_PERIOD_NS]), scratch[0], scratch[1], scratch[2],
+        schedule_open(sched),
+    )  # fmt: skip
+
+
+@inline  # type: ignore[misc]
+def codec_forward(run: Any, f: Any, t: Any, n: int, n1: int) -> tuple[int, float]:
+    # CodecChannel.step of the forward direction: the master's (x, v) in, the slave's remote
+    # sample out through its guard.
+    codec, has_codec, period_ns, smp, rate, out, sched = f
+    if not has_codec:
+        return schedule_forward(run, sched, t, n, n1)
+    C, S, U, B, ring, rec, X, W, A = codec
+    smp[0] = t[0]
+    smp[1] = t[1]
+    rx, got = codec_tick(C, S, U, B, ring, rec, X, W, A, n, n1, n * period_ns, smp, rate, out)
+    if got:
+        accept2(run[8], run[9], out[0], out[1])
+    return rx, 0.0
+
+
+@inline  # type: ignore[misc]
+def codec_backward(run: Any, b: Any, t: Any, n: int, n1: int) -> tuple[int, float]:
+    # The backward direction: the slave's (f_env, x, v) in, the master's remote sample out.
+    codec, has_codec, period_ns, smp, rate, out, sched = b
+    if not has_codec:
+        return schedule_backward(run, sched, t, n, n1)
+    C, S, U, B, ring, rec, X, W, A = codec
+    smp[0] = t[4]
+    smp[1] = t[2]
+    smp[2] = t[3]
+    rx, got = codec_tick(C, S, U, B, ring, rec, X, W, A, n, n1, n * period_ns, smp, rate, out)
+    if got:
+        accept3(run[8], run[9], out[0], out[1], out[2])
+    return rx, 0.0
+
+
+# The one-axis sides with these channels
+drive_axis_codec = driver.compose(
+    **AXIS_SIDES, open_forward=codec_open, open_backward=codec_open, forward=codec_forward, backward=codec_backward
+)
 
 
 @loop_jit  # type: ignore[misc]
@@ -116,52 +170,11 @@ def run_ticks_codec(
     bA: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 ) -> int:
     # `axis_kernel.run_ticks` with a codec on the directions whose C_KIND is not NO_CODEC (the
-    # others read their window of the schedule as there).
-    fmask = fwd_hist.shape[0] - 1
-    bmask = bwd_hist.shape[0] - 1
-    fcodec = fC[L.C_KIND] != L.NO_CODEC
-    bcodec = bC[L.C_KIND] != L.NO_CODEC
-    period_ns = int(fC[L.C_PERIOD_NS])
-    smp = scratch[0]  # the sample, its rate, the decoder's output (3 values each)
-    rate = scratch[1]
-    out = scratch[2]
-    for n in range(n0, n1):
-        now = n * period_ns
-        x_m = mq[0]
-        v_m = mv[0]
-        x_s = sq[0]
-        v_s = sv[0]
-        f_env = S[SLAVE + S_CONTACT]
-        # master
-        fm, m_desired = control(P, S, MASTER, x_m, v_m, True)
-        if fcodec:
-            smp[0] = x_m
-            smp[1] = v_m
-            frx, got = codec_tick(fC, fS, fU, fB, fring, frec, fX, fW, fA, n, n1, now, smp, rate, out)
-            if got:
-                accept2(P, S, out[0], out[1])
-            focc = 0.0
-        else:
-            frx = forward_released(P, S, n - w0, n & fmask, fmask, fwd_rel, fwd_hist, x_m, v_m)
-            focc = fwd_occ[n - w0]
-        # slave
-        fs, s_desired = control(P, S, SLAVE, x_s, v_s, False)
-        if bcodec:
-            smp[0] = f_env
-            smp[1] = x_s
-            smp[2] = v_s
-            brx, got = codec_tick(bC, bS, bU, bB, bring, brec, bX, bW, bA, n, n1, now, smp, rate, out)
-            if got:
-                accept3(P, S, out[0], out[1], out[2])
-            bocc = 0.0
-        else:
-            brx = backward_released(P, S, n - w0, n & bmask, bmask, bwd_rel, bwd_hist, f_env, x_s, v_s)
-            bocc = bwd_occ[n - w0]
-        finish_tick(
-            n, models, mq, mv, mctrl, sctrl, sqfrc, P, S, data[n - d0], x_m, v_m, x_s, v_s, f_env,
-            fm, m_desired, fs, s_desired, frx, brx, focc, bocc,
-        )  # fmt: skip
-    return n1
+    # others read their window of the schedule as there). The directions share the scratch rows.
+    run = (models, mq, mv, mctrl, sq, sv, sctrl, sqfrc, P, S, data, d0)
+    fnet = ((fC, fS, fU, fB, fring, frec, fX, fW, fA), scratch, (fwd_rel, fwd_occ, fwd_hist, w0))
+    bnet = ((bC, bS, bU, bB, bring, brec, bX, bW, bA), scratch, (bwd_rel, bwd_occ, bwd_hist, w0))
+    return drive_axis_codec(n0, n1, run, fnet, bnet)  # type: ignore[no-any-return]
 
 
 @loop_jit  # type: ignore[misc]
