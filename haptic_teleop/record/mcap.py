@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.crc import COMBINE_FROM, combine
 from haptic_teleop.record.layouts import typestore
 from haptic_teleop.record.metadata import DEFAULT_QOS, bag_info, metadata_text, qos_yaml, write_metadata
 from haptic_teleop.record.streams import Records, Stream, stream_records
@@ -254,8 +255,14 @@ class BagSink:
         body_len = 8 + 8 + 8 + 4 + len(comp) + 8 + stored
         head = struct.pack("<BQQQQI", OP_CHUNK, body_len, self._chunk_start_ns, self._chunk_end_ns, size, crc)
         self._write(head + comp + struct.pack("<Q", stored))
-        for part in parts:
-            self._write(part)
+        if self.compression or size < COMBINE_FROM:
+            for part in parts:
+                self._write(part)
+        else:  # the records as stored: the data section's CRC continues with the chunk's (record/crc.py)
+            for part in parts:
+                self.file.write(part)
+            self.crc = combine(self.crc, crc, size)
+            self.pos += size
         chunk_end = self.pos
         offsets: list[tuple[int, int]] = []
         for cid, pieces in self._index.items():
