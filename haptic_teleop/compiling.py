@@ -180,12 +180,18 @@ def first_compile(dispatcher: Any) -> Iterator[None]:
     `haptic-teleop compile`) compile a kernel once: the first one compiles and writes numba's
     cache, the others wait for it and then load the cache. Nothing is held once the kernel is
     compiled or loaded in this process (numba lists its signatures), nor where no lock file can be
-    opened (the call then compiles as it would without the lock)."""
+    opened (the call then compiles as it would without the lock). The lock is per kernel and per
+    cache: the kernel's source file and NUMBA_CACHE_DIR name it, so another checkout or install
+    compiling its own copy never holds up this one (seen: a run in one clone waited minutes for a
+    test session's compile in another)."""
     if getattr(dispatcher, "signatures", None):
         yield
         return
-    name = getattr(getattr(dispatcher, "py_func", None), "__module__", "haptic_teleop.kernel")
-    path = os.path.join(tempfile.gettempdir(), f"haptic_teleop-{os.getuid()}-{name}.compile.lock")
+    py = getattr(dispatcher, "py_func", None)
+    name = getattr(py, "__module__", "haptic_teleop.kernel")
+    where = f"{getattr(getattr(py, '__code__', None), 'co_filename', '')}\0{os.environ.get('NUMBA_CACHE_DIR', '')}"
+    key = hashlib.sha256(where.encode()).hexdigest()[:16]
+    path = os.path.join(tempfile.gettempdir(), f"haptic_teleop-{os.getuid()}-{name}-{key}.compile.lock")
     try:
         fh = open(path, "a")  # noqa: SIM115 - held across the yield
     except OSError:
