@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from launched import Launch, wait_for_bag_messages
+from sent_velocities import check_sent_velocities
 
 pytest.importorskip("rclpy")
 
@@ -106,25 +107,7 @@ def test_live_arm_bag_records_the_sent_velocities_of_handle_and_tool(single):
     the rate of change of the position recorded beside it (the same node's tick), over 25 ms."""
     code, launch, out = single
     assert code == 0, launch.text[-4000:]
-    from haptic_teleop.record.reader import BagReader
-
-    with BagReader(out / "bag") as r:
-        sent = r.read("/forward/sent")
-        fwd, bwd = sent.values, r.read("/backward/sent").values
-    period = float(np.median(np.diff(np.asarray(sent.stamp_ns)))) * 1e-9
-    info = json.loads((out / "live_run.json").read_text())
-    assert {"/forward/sent", "/backward/sent"} <= set(info["samples_filled"])
-    for name, rows in (("handle", fwd), ("tool", bwd)):
-        x, v = rows[:, 0:3], rows[:, 3:6]
-        assert np.abs(v).max() > 1e-3, f"{name} velocity all zero"
-        axis = int(np.argmax(np.ptp(x, axis=0)))  # the axis it moved along most
-        # Over 25 ms windows: a sample lost on its way to the recorder holds the previous row, which
-        # puts a step into a tick-by-tick difference (counted in samples_filled).
-        box = np.ones(25) / 25
-        rate = np.convolve(np.gradient(x[:, axis], period), box, mode="valid")
-        corr = np.corrcoef(rate, np.convolve(v[:, axis], box, mode="valid"))[0, 1]
-        print(f"{name}: peak speed {np.abs(v[:, axis]).max():.4f} m/s, correlation with dx/dt {corr:.3f}")
-        assert corr > 0.7, (name, corr)  # 0.88-0.95 seen; zero, another axis or a sign flip: <= 0
+    check_sent_velocities(out, {"forward": "/forward/sent", "backward": "/backward/sent"})
 
 
 def test_live_arm_bag_analyses_with_the_engine_bags_keys_and_reaches_the_wall(single, engine_summary):

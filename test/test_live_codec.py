@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from launched import CLI, Launch
+from sent_velocities import check_sent_velocities
 
 DURATION_S = 3.0
 TICKS = 3000
@@ -85,7 +86,7 @@ def _live(
         launch.proc.send_signal(signal.SIGINT)
     code = launch.finish(180)
     res = _result(out, one_axis=scene == "wall_contact") if (out / "summary.json").is_file() else {}
-    return {"code": code, "launch": launch, **res}
+    return {"code": code, "launch": launch, "out": out, **res}
 
 
 @pytest.fixture(scope="module")
@@ -311,6 +312,15 @@ def test_live_arm_deadband_sends_the_engines_arm_messages_and_reduces_as_the_eng
     assert eng["summary"]["contact_force_max_n"] > 1.0
     if _bag_holds(live, "/slave/contact_wrench"):
         assert live["summary"]["contact_force_max_n"] > 0.5 * eng["summary"]["contact_force_max_n"]
+
+
+def test_live_arm_codec_bag_records_the_sent_velocities(arm_runs):
+    """With a codec on both directions /<dir>/sent carries the encoder's packets, not a sample per
+    tick: the arm sides publish their tick's sample on /<dir>/sample, and the bag's sent rows get
+    the handle's and the tool's velocities from it (they were 0.0 on every row before)."""
+    live = arm_runs["live"]
+    assert live["code"] == 0, live["launch"].text[-4000:]
+    check_sent_velocities(live["out"], {"forward": "/forward/sample", "backward": "/backward/sample"})
 
 
 def test_codec_wire_message_is_the_engines_size_and_round_trips():

@@ -30,7 +30,9 @@ from haptic_teleop.nodes.topics import (
     latched_qos,
     payload_fields,
     received_topic,
+    sample_topic,
     scene_start_ns,
+    sent_topic,
     stream_qos,
     wire_names,
 )
@@ -90,6 +92,8 @@ class ArmEbaSide:
         self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
         specs = topic_specs(self.schema)
         self.out = {t: SpecOut(node, s) for t, s in specs.items() if t in side_topics(role, self.schema)}
+        self.node = node
+        self._sample_out: SpecOut | None = None
         # Scene time 0 (announced by the operator source ahead of time, latched): the bound's ledger
         # restarts there with min(reservoir, initial energy), so energy the side took in while the
         # graph settled is not spent inside the recorded run, whose analysis starts each side at
@@ -183,6 +187,17 @@ class ArmEbaSide:
 
     def publish(self, topic: str, stamp_ns: int | None, values: Any) -> None:
         self.out[topic].publish(stamp_ns, values)
+
+    def publish_sample(self, direction: str, stamp_ns: int, values: Any) -> None:
+        """The tick's sample on /<direction>/sample (a codec sends it as packets on /<direction>/sent):
+        the recorder's source of the columns only /<direction>/sent fills (the velocities)."""
+        out = self._sample_out
+        if out is None:
+            import dataclasses
+
+            spec = self.out[sent_topic(direction)].spec
+            out = self._sample_out = SpecOut(self.node, dataclasses.replace(spec, name=sample_topic(direction)))
+        out.publish(stamp_ns, values)
 
     def publish_internals(self, stamp_ns: int) -> None:
         """The task force the applied torques realise, the desired one and the reservoir."""

@@ -161,6 +161,7 @@ class MasterEba(LiveNode):
         tau = arm.torque(x, v, stamp_ns)
         if self.codec is not None:
             self.codec.send(stamp_ns, (*x.tolist(), *v.tolist()))
+            arm.publish_sample("forward", stamp_ns, (*x.tolist(), *v.tolist()))
         else:
             arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
         hand = take_latest(self._hand_sub)

@@ -84,6 +84,7 @@ class SpecOut:
         pkg, _, cls = spec.layout.msgtype.split("/")
         msg_type = getattr(importlib.import_module(f"{pkg}.msg"), cls)
         self.topic = spec.name
+        self.spec = spec
         self.width = spec.layout.nfloats
         self._encode = FixedCodec(spec.layout).encode
         self._pub = node.create_publisher(msg_type, spec.name, qos if qos is not None else stream_qos())

@@ -41,6 +41,7 @@ with `codec_plain_bytes`, as the engine writes them (engine/lockstep.py, `codec_
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import struct
@@ -70,7 +71,9 @@ from haptic_teleop.nodes.topics import (
     playout_topic,
     received_topic,
     reliable_qos,
+    sample_topic,
     scene_start_ns,
+    sent_topic,
     stream_qos,
 )
 
@@ -105,7 +108,8 @@ _NOT_STATE = ("/forward/received", "/backward/received")
 # The sent samples (/<dir>/sent) fill only the columns no state topic before them fills: an arm's
 # handle and tool velocities, which no other live topic carries (the engine's bag has them in its
 # /<dir>/sent rows). With a codec on the direction /<dir>/sent carries only the encoder's packets,
-# not a sample per tick: it is not taken as state then.
+# not a sample per tick: the sending arm side then publishes its sample on /<dir>/sample
+# (nodes/topics.sample_topic), which the recorder takes in its place.
 _SENT = ("/forward/sent", "/backward/sent")
 
 
@@ -152,7 +156,11 @@ def topic_plan(schema: Any, plain: tuple[str, ...] = DIRECTIONS) -> TopicPlan:
 
     received = {t: schema.col[name] for t, name in RECEIVED.items()}
     columns, values = state_columns(schema, plain)
-    return TopicPlan(topic_specs(schema), columns, received, DIRECTIONS, MAIN, OPERATOR_STATE, values)
+    specs = topic_specs(schema)
+    for d in DIRECTIONS:  # a codec's direction: its sender's samples come on /<dir>/sample, in /<dir>/sent's layout
+        if sample_topic(d) in columns:
+            specs[sample_topic(d)] = dataclasses.replace(specs[sent_topic(d)], name=sample_topic(d))
+    return TopicPlan(specs, columns, received, DIRECTIONS, MAIN, OPERATOR_STATE, values)
 
 
 def state_columns(
@@ -160,8 +168,9 @@ def state_columns(
 ) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
     """Topic -> the tick row's columns its values fill, in the message's value order, for every
     per-tick state topic of `schema` (record.layouts.topic_specs: the bag's own layouts); and, for
-    the /<dir>/sent topics of the `plain` directions, which fill only the columns no other state
-    topic fills (_SENT), the positions of those values in their message."""
+    the /<dir>/sent topics of the `plain` directions (/<dir>/sample of the others: the same
+    layout), which fill only the columns no other state topic fills (_SENT), the positions of
+    those values in their message."""
     from haptic_teleop.record.layouts import topic_specs
 
     specs = topic_specs(schema)
@@ -169,12 +178,12 @@ def state_columns(
     filled = {c for cols in columns.values() for c in cols}
     values: dict[str, tuple[int, ...]] = {}
     for t in _SENT:
-        if t.split("/")[1] not in plain:
-            continue
+        d = t.split("/")[1]
+        source = t if d in plain else sample_topic(d)
         keep = tuple(k for k, c in enumerate(specs[t].columns) if c not in filled)
         if keep:
-            columns[t] = tuple(specs[t].columns[k] for k in keep)
-            values[t] = keep
+            columns[source] = tuple(specs[t].columns[k] for k in keep)
+            values[source] = keep
     return columns, values
 
 

@@ -77,6 +77,7 @@ class SlaveEba(LiveNode):
         tau = arm.torque(x, v, stamp_ns)
         if self.codec is not None:
             self.codec.send(stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+            arm.publish_sample("backward", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
         else:
             arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
         applied = arm.step(tau)

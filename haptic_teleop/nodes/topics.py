@@ -39,6 +39,12 @@ def sent_topic(direction: str) -> str:
     return f"/{direction}/sent"
 
 
+def sample_topic(direction: str) -> str:
+    """Sending side -> recorder, an arm scene's direction with a codec only: the sample of every tick
+    in the bag's /<direction>/sent layout (/<direction>/sent carries the encoder's packets then)."""
+    return f"/{direction}/sample"
+
+
 def delivered_topic(direction: str) -> str:
     """Relay -> sync buffer: what the network delivered, in arrival order."""
     return f"/{direction}/delivered"
