@@ -72,6 +72,19 @@ def _holder(name: str, source_file: str) -> subprocess.Popen:
     )  # fmt: skip
 
 
+def _first_call(name: str) -> tuple[threading.Event, threading.Thread]:
+    """Kernel `name`'s first call in this process, in a thread: the event is set once it got in."""
+    entered = threading.Event()
+
+    def first_call() -> None:
+        with first_compile(_dispatcher(name, [])):
+            entered.set()
+
+    waiter = threading.Thread(target=first_call, daemon=True)
+    waiter.start()
+    return entered, waiter
+
+
 def test_a_kernel_being_compiled_by_another_process_is_waited_for():
     """Another process holds the kernel's compile lock (as a process compiling it does): the first
     call here waits until it lets go; a kernel already loaded in this process does not wait."""
@@ -80,14 +93,7 @@ def test_a_kernel_being_compiled_by_another_process_is_waited_for():
     try:
         assert holder.stdout is not None and holder.stdin is not None
         assert holder.stdout.readline().strip() == "held"
-        entered = threading.Event()
-
-        def first_call() -> None:
-            with first_compile(_dispatcher(name, [])):
-                entered.set()
-
-        waiter = threading.Thread(target=first_call, daemon=True)
-        waiter.start()
+        entered, waiter = _first_call(name)
         with first_compile(_dispatcher(name, ["(float64,)"])):  # compiled here already: no wait
             pass
         assert not entered.wait(1.0)  # still held by the other process
@@ -108,14 +114,7 @@ def test_the_same_kernel_of_another_checkout_is_not_waited_for():
     try:
         assert holder.stdout is not None and holder.stdin is not None
         assert holder.stdout.readline().strip() == "held"
-        entered = threading.Event()
-
-        def first_call() -> None:
-            with first_compile(_dispatcher(name, [])):
-                entered.set()
-
-        waiter = threading.Thread(target=first_call, daemon=True)
-        waiter.start()
+        entered, waiter = _first_call(name)
         assert entered.wait(30.0)  # a safety net only: nothing holds this checkout's lock
         waiter.join(30.0)
     finally:
