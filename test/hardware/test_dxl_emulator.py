@@ -3,7 +3,8 @@
 The emulator runs in lockstep time (physics advances a fixed step per Goal Current write) where a
 test checks motion, so the expected numbers come from the physics, not from the clock. No test
 asserts a wall-clock duration; waits are safety nets or "the host goes quiet" by far more than
-the configured time.
+the configured time. A rule of the servo alone (switching Operating Mode) is also checked on a
+real `Servo`, without a process.
 """
 
 import json
@@ -15,6 +16,7 @@ import sys
 import textwrap
 import time
 
+import numpy as np
 import pytest
 from dynamixel_sdk import (
     COMM_RX_CORRUPT,
@@ -26,9 +28,12 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from haptic_teleop.emulators.dynamixel.config import BusConfig
+from haptic_teleop.emulators.dynamixel.config import BusConfig, ServoConfig
 from haptic_teleop.emulators.dynamixel.process import start_bus
+from haptic_teleop.emulators.dynamixel.servo import Servo
 from haptic_teleop.plants.dynamixel import tables as t
+from haptic_teleop.plants.dynamixel.chain import DynamixelChainConfig, DynamixelJoint
+from haptic_teleop.plants.dynamixel.driver import DynamixelDriver
 
 BAUD = 1_000_000
 FAST = {"return_delay_time": 0, "operating_mode": 0}
@@ -381,6 +386,100 @@ def test_bus_watchdog_stops_a_servo_when_the_host_goes_quiet(sdk):
         assert ph.write2ByteTxRx(port, 1, t.ADDR_GOAL_CURRENT, 10) == (COMM_SUCCESS, 0)
         assert ph.read2ByteTxRx(port, 1, t.ADDR_PRESENT_CURRENT)[0] == 10
         assert bus.counters()["watchdog_trips"] == 1
+
+
+# ---------------------------------------------------------------- switching Operating Mode(11)
+# e-Manual, XM430-W350 page, "Operating Mode(11)": "Switching Operating Mode will reset ... Profile
+# Velocity(112), Profile Acceleration(108) : Reset to '0'; Goal PWM(100), Goal Current(102) : Reset
+# to PWM Limit(36), Current Limit(38) respectively".
+
+
+def write_field(servo, name, value):
+    """A host's WRITE of one field, by name, through the servo's rules; its error number."""
+    f = servo.model.field(name)
+    return servo.write(f.address, f.encode(value))
+
+
+def test_switching_operating_mode_resets_goal_pwm_goal_current_and_the_profile():
+    servo = Servo(ServoConfig(id=1, model="XM430-W350", joint="j"), BAUD)  # factory: position mode (3)
+    before = {
+        "pwm_limit": 500,
+        "current_limit": 600,
+        "goal_pwm": -100,
+        "goal_current": -50,
+        "goal_velocity": 30,
+        "profile_acceleration": 10,
+        "profile_velocity": 20,
+        "goal_position": 1000,
+    }
+    for name, value in before.items():
+        assert write_field(servo, name, value) == 0, name
+    assert write_field(servo, "operating_mode", t.OPERATING_MODE_CURRENT) == 0
+    after = {name: servo.get(name) for name in before}
+    # the limits, Goal Velocity and Goal Position are not in the e-Manual's list: kept
+    assert after == {**before, "goal_pwm": 500, "goal_current": 600, "profile_acceleration": 0, "profile_velocity": 0}
+    # the same mode again is no switch
+    assert write_field(servo, "goal_current", 5) == 0
+    assert write_field(servo, "operating_mode", t.OPERATING_MODE_CURRENT) == 0
+    assert servo.get("goal_current") == 5
+    # a refused write switches nothing: a packet from Operating Mode(11) through Goal Current(102)
+    # (it covers the gap 14..19), and the mode written with the torque on (EEPROM)
+    packet = bytes([t.OPERATING_MODE_POSITION]) + bytes(servo.table[12 : t.ADDR_GOAL_CURRENT + 2])
+    assert servo.write(t.ADDR_OPERATING_MODE, packet) == t.StatusError.ACCESS
+    assert write_field(servo, "torque_enable", 1) == 0
+    assert write_field(servo, "operating_mode", t.OPERATING_MODE_POSITION) == t.StatusError.ACCESS
+    assert servo.get("operating_mode") == t.OPERATING_MODE_CURRENT and servo.get("goal_current") == 5
+
+
+def test_torque_on_after_a_mode_switch_without_a_new_goal_current_applies_the_current_limit():
+    careless = Servo(ServoConfig(id=1, model="XM540-W270", joint="j"), BAUD)
+    careful = Servo(ServoConfig(id=2, model="XM540-W270", joint="j"), BAUD)
+    for servo in (careless, careful):
+        assert write_field(servo, "current_limit", 1500) == 0
+        assert write_field(servo, "operating_mode", t.OPERATING_MODE_CURRENT) == 0
+    assert write_field(careful, "goal_current", 0) == 0
+    for servo in (careless, careful):
+        assert write_field(servo, "torque_enable", 1) == 0
+    assert careless.applied_current_units() == 1500  # full current: the whole Current Limit
+    assert careful.applied_current_units() == 0
+
+
+def test_over_the_wire_a_mode_switch_then_torque_on_drives_the_current_limit(sdk):
+    cfg = inertia_cfg(
+        [{"id": 1, "model": "XM430-W350", "joint": "j", "registers": {"return_delay_time": 0}}],
+        [{"name": "j", "inertia_kg_m2": 0.01, "viscous_nm_s_per_rad": 0.1}],
+    )
+    with start_bus(cfg) as bus:
+        port, ph = sdk(bus)
+        assert ph.read1ByteTxRx(port, 1, t.ADDR_OPERATING_MODE) == (t.OPERATING_MODE_POSITION, COMM_SUCCESS, 0)
+        assert ph.write1ByteTxRx(port, 1, t.ADDR_OPERATING_MODE, t.OPERATING_MODE_CURRENT) == (COMM_SUCCESS, 0)
+        assert ph.write1ByteTxRx(port, 1, t.ADDR_TORQUE_ENABLE, 1) == (COMM_SUCCESS, 0)
+        assert ph.read2ByteTxRx(port, 1, t.ADDR_GOAL_CURRENT) == (1193, COMM_SUCCESS, 0)
+        assert ph.read2ByteTxRx(port, 1, t.ADDR_PRESENT_CURRENT) == (1193, COMM_SUCCESS, 0)
+        torque_nm = bus.state()["torque_nm"][0]
+    assert torque_nm == pytest.approx(1193 * t.CURRENT_UNIT_A * t.XM430_W350.torque_constant_nm_per_a)
+
+
+def test_the_driver_start_up_turns_the_torque_on_at_goal_current_0_after_its_mode_switch(sdk):
+    # factory EEPROM (position mode): the driver's Operating Mode(11) write is a switch
+    cfg = inertia_cfg(
+        [{"id": i, "model": "XM430-W350", "joint": f"j{i}"} for i in (1, 2)],
+        [{"name": f"j{i}", "inertia_kg_m2": 0.01, "viscous_nm_s_per_rad": 0.1} for i in (1, 2)],
+    )
+    joints = tuple(DynamixelJoint(f"j{i}", i, "XM430-W350", current_limit=400) for i in (1, 2))
+    with start_bus(cfg) as bus:
+        # A loaded machine that leaves the emulator unscheduled for a few reads must not end the start.
+        chain = DynamixelChainConfig(bus.port, joints, bus_watchdog_s=1.0, read_timeout_s=0.05,
+                                     max_consecutive_comm_errors=20)  # fmt: skip
+        with DynamixelDriver(chain) as drv:
+            first = drv.start()  # returns with the torque on
+            torque_nm = bus.state()["torque_nm"]
+        port, ph = sdk(bus)  # the driver closed the port
+        goal_pwm = [s16(ph.read2ByteTxRx(port, i, t.ADDR_GOAL_PWM)[0]) for i in (1, 2)]
+    np.testing.assert_array_equal(first.tau_nm, [0.0, 0.0])  # Present Current 0 at torque on
+    assert torque_nm == [0.0, 0.0]
+    # Goal PWM, which the driver never writes, holds what the switch left: PWM Limit(36)
+    assert goal_pwm == [885, 885]
 
 
 def test_status_return_level_zero_answers_only_ping(sdk):

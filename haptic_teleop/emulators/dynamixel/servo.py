@@ -10,6 +10,15 @@ Rules (e-Manual, the servo's control table and Protocol 2.0 "Error"):
   error; a value outside the field's range with the data range error. A refused write changes
   nothing (all fields of one packet, or none).
 - Goal Current(102) is within +-Current Limit(38); the motor never draws more than the limit.
+- Operating Mode(11): a write that switches it (to a value other than the present one) resets
+  Goal PWM(100) to PWM Limit(36), Goal Current(102) to Current Limit(38), and Profile
+  Acceleration(108) and Profile Velocity(112) to 0 (XM430-W350 page, "Operating Mode(11)", the
+  NOTE "Switching Operating Mode will reset ..."). A host that then turns the torque on without
+  writing Goal Current gets full current. Writing the present mode again is no switch. A packet
+  that switches the mode cannot carry a limit or a reset field: from 11 it covers the gap 14..19
+  and is refused. Were it accepted, the packet's value would stand, as the field lies after 11 and
+  a write applies in address order. The gains, which the NOTE resets "properly to the selected
+  Operating Mode" without giving values, are not reset.
 - Hardware Error Status(70): a bit also set in Shutdown(63) turns the torque off; while any bit
   is set every status packet carries the Alert bit (0x80). Only REBOOT clears it.
 - Bus Watchdog(98) = 1..127 with the torque on: no instruction for this servo within value x
@@ -28,6 +37,13 @@ from haptic_teleop.emulators.dynamixel.config import ServoConfig
 from haptic_teleop.plants.dynamixel import tables as t
 
 GOAL_FIELDS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
+MODE_SWITCH_RESETS = (
+    ("goal_pwm", "pwm_limit"),
+    ("goal_current", "current_limit"),
+    ("profile_acceleration", None),
+    ("profile_velocity", None),
+)
+"""What switching Operating Mode(11) resets: (field, the limit it goes to; None: to 0)."""
 INT32 = 2**31 - 1
 
 
@@ -160,7 +176,12 @@ class Servo:
                     f"only current control (Operating Mode(11) = {t.OPERATING_MODE_CURRENT})"
                 )
                 return t.StatusError.RESULT_FAIL
+        switched = "operating_mode" in values and values["operating_mode"] != self.get("operating_mode")
         self.table[address:end] = data
+        if switched:  # after the checks: a refused write switches nothing, so resets nothing
+            for name, limit in MODE_SWITCH_RESETS:
+                if name not in values:
+                    self.set(name, self.get(limit) if limit else 0)
         if "torque_enable" in values and values["torque_enable"] == 1:
             self.watchdog_timer_restart = True
         return t.StatusError.NONE
