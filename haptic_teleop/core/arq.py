@@ -102,6 +102,28 @@ SEED_000_EXPERIMENT = (
 )
 
 
+# The sender's rules as plain functions: the one definition `ArqEncoder` calls and the compiled
+# loops' plan inlines (engine/compiled/codec_arq.py).
+WAIT, GIVE_UP, RETRANSMIT = 0, 1, 2
+
+
+def retry_verdict(tries: float, last_ns: float, now_ns: float, timeout_ns: float, max_retransmissions: float) -> int:
+    """A pending sample at `now_ns`, retransmitted `tries` times so far, last sent at `last_ns`:
+    WAIT while that transmission is less than mu old, then GIVE_UP after nu retransmissions, else
+    RETRANSMIT (one more try, sent now)."""
+    if now_ns - last_ns < timeout_ns:
+        return WAIT
+    if tries >= max_retransmissions:
+        return GIVE_UP
+    return RETRANSMIT
+
+
+def named_mask(bits: int) -> int:
+    """A cumulative ACK (N, B, ...) as one mask: bit i names seq N - i (N itself; bit i of B names
+    N - 1 - i)."""
+    return (bits << 1) | 1
+
+
 class ArqEncoder:
     """Sender side: new samples, retransmissions after `timeout_ns`, at most `max_retransmissions`.
 
@@ -147,9 +169,10 @@ class ArqEncoder:
         out = [self._packet(n, now_ns, x, 0)]
         pending = self._pending
         for seq, (value, tries, last_ns) in list(pending.items()):
-            if now_ns - last_ns < self.timeout_ns:
+            verdict = retry_verdict(tries, last_ns, now_ns, self.timeout_ns, self.max_retransmissions)
+            if verdict == WAIT:
                 continue
-            if tries >= self.max_retransmissions:
+            if verdict == GIVE_UP:
                 del pending[seq]
                 c["gave_up"] += 1
                 continue
@@ -182,13 +205,13 @@ class ArqEncoder:
 
 def cumulative_seqs(payload: tuple[float, ...]) -> list[int]:
     """The seqs a cumulative ACK (N, B, r...) names: N, N - 1 - i for each bit i of B, the r."""
-    newest, bits = int(payload[0]), int(payload[1])
-    out = [newest]
+    newest, mask = int(payload[0]), named_mask(int(payload[1]))
+    out = []
     i = 0
-    while bits:
-        if bits & 1:
-            out.append(newest - 1 - i)
-        bits >>= 1
+    while mask:
+        if mask & 1:
+            out.append(newest - i)
+        mask >>= 1
         i += 1
     out.extend(int(r) for r in payload[2:])
     return out

@@ -183,6 +183,26 @@ def in_order_ns(arrival_ns: int, last_ns: int) -> int:
     return arrival_ns if arrival_ns >= last_ns else last_ns
 
 
+def delay_value_ns(base_ns: float, extra_ns: float, sigma_ns: float, unit: float) -> float:
+    """A packet's delay: the base, the time-varying part at its time, and the jitter, `sigma_ns`
+    times the distribution's value `unit` of its number (docs/network.md). Not yet clamped:
+    `delayed_ns` takes a delay that is not positive as none. One definition: `Delay` and the
+    compiled links."""
+    return base_ns + extra_ns + sigma_ns * unit
+
+
+def arrival_ns(t_ns: int, delay_ns: float, keep_order: bool, delivered: bool, last_ns: int) -> tuple[int, int]:
+    """A packet reaching the delay at `t_ns` and held `delay_ns`: its arrival (`delayed_ns`), with
+    `keep_order` no earlier than the last delivered packet's (`in_order_ns`; a lost packet moves
+    nothing); and the last delivered packet's arrival after it. One definition: `Delay` and the
+    compiled links."""
+    arrival = delayed_ns(t_ns, delay_ns)
+    if keep_order and delivered:
+        arrival = in_order_ns(arrival, last_ns)
+        return arrival, arrival
+    return arrival, last_ns
+
+
 class Delay:
     """Delay with jitter, a time-varying part, optional ordering and netem-style reordering.
 
@@ -254,11 +274,11 @@ class Delay:
     def apply(self, packet: Packet) -> Packet | None:
         t = packet.arrival_time_ns
         copy = packet.duplicate
-        d = self._base_ns
-        if self._profile is not None:
-            d += self._profile(t)
+        extra = self._profile(t) if self._profile is not None else 0.0
+        unit = 0.0
         if self._ju is not None:
-            d += self._sigma_ns * self._quantile(self._copy_draw() if copy else self._ju())
+            unit = self._quantile(self._copy_draw() if copy else self._ju())
+        d = delay_value_ns(self._base_ns, extra, self._sigma_ns, unit)
         if self._ru is not None:
             if copy:
                 skip = self._copy_draw() < self._reorder_p
@@ -275,8 +295,7 @@ class Delay:
                 if packet.fate == DELIVERED:
                     self.reordered += 1
                 return None
-        arrival = delayed_ns(t, d)
-        if self._keep_order and packet.fate == DELIVERED:
-            arrival = self._last_arrival = in_order_ns(arrival, self._last_arrival)
-        packet.arrival_time_ns = arrival
+        packet.arrival_time_ns, self._last_arrival = arrival_ns(
+            t, d, self._keep_order, packet.fate == DELIVERED, self._last_arrival
+        )
         return None

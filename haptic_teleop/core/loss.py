@@ -7,13 +7,47 @@ rules in `core/link.py`); the formulas are in docs/network.md.
 
 from __future__ import annotations
 
-import bisect
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from haptic_teleop.core.link import DELIVERED, LOST_CORRUPT, LOST_NETWORK, Packet
 from haptic_teleop.core.uniform import UniformSource, uniform_source
+
+# The loss rules as plain functions: the one definition the effects below call and the compiled
+# links inline (engine/compiled/codec_link.py). Fates are integer codes, DELIVERED 0.
+
+
+def first_fate(fate: int, lost: bool, code: int) -> int:
+    """A packet's fate after an effect's verdict: the first effect that loses it names the fate
+    (every effect still draws its numbers for it, see core/link.py)."""
+    return code if lost and fate == DELIVERED else fate
+
+
+def blackout_at(windows: np.ndarray, i: int, t_ns: int) -> tuple[int, bool]:
+    """Blackout windows (rows [start, end) ns, sorted, not overlapping) at time `t_ns`, searched
+    from row `i` (the answer for an earlier time, or 0): the number of windows that start by
+    `t_ns`, and whether `t_ns` is inside the last of them."""
+    n = windows.shape[0]
+    while i < n and windows[i, 0] <= t_ns:
+        i += 1
+    return i, i > 0 and t_ns < windows[i - 1, 1]
+
+
+def bernoulli_lost(u: float, p: float) -> bool:
+    """Bernoulli loss (netem `loss random p`): the packet whose uniform number is `u` is lost."""
+    return u < p
+
+
+def trace_lost(pattern: Sequence[float] | np.ndarray, n: int, repeat: bool) -> bool:
+    """A replayed loss pattern (nonzero: lost) on the n-th packet (from 0): past its end the
+    pattern starts again if `repeat`, else every packet passes."""
+    m = len(pattern)
+    if n >= m:
+        if not repeat:
+            return False
+        n %= m
+    return bool(pattern[n] != 0)
 
 
 class Blackout:
@@ -28,16 +62,16 @@ class Blackout:
                 raise ValueError(f"blackout window must end after it starts, got [{a}, {b}) ns")
             if nxt is not None and nxt[0] < b:
                 raise ValueError(f"blackout windows overlap: [{a}, {b}) and [{nxt[0]}, {nxt[1]}) ns")
-        self._starts = [a for a, _ in ws]
-        self._ends = [b for _, b in ws]
+        self.windows = np.array(ws, dtype=np.int64).reshape(-1, 2)
+        self._i = 0  # `blackout_at`'s row for the last packet's time
+        self._t = -(1 << 62)
         self.dropped = 0
 
     vectorized = True
 
     def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
         """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
-        starts = np.asarray(self._starts, dtype=np.int64)
-        ends = np.asarray(self._ends, dtype=np.int64)
+        starts, ends = self.windows[:, 0], self.windows[:, 1]
         i = np.searchsorted(starts, send_ns, side="right") - 1
         hit = (i >= 0) & (send_ns < ends[np.maximum(i, 0)]) & (fate == DELIVERED)
         fate[hit] = LOST_NETWORK
@@ -45,9 +79,11 @@ class Blackout:
 
     def apply(self, packet: Packet) -> Packet | None:
         t = packet.send_time_ns
-        i = bisect.bisect_right(self._starts, t) - 1
-        if i >= 0 and t < self._ends[i] and packet.fate == DELIVERED:
-            packet.fate = LOST_NETWORK
+        self._i, hit = blackout_at(self.windows, self._i if t >= self._t else 0, t)
+        self._t = t
+        fate = first_fate(packet.fate, hit, LOST_NETWORK)
+        if fate != packet.fate:
+            packet.fate = fate
             self.dropped += 1
         return None
 
@@ -85,8 +121,9 @@ class BernoulliLoss:
         self.dropped += int(hit.sum())
 
     def apply(self, packet: Packet) -> Packet | None:
-        if self._u() < self.probability and packet.fate == DELIVERED:
-            packet.fate = LOST_NETWORK
+        fate = first_fate(packet.fate, bernoulli_lost(self._u(), self.probability), LOST_NETWORK)
+        if fate != packet.fate:
+            packet.fate = fate
             self.dropped += 1
         return None
 
@@ -127,16 +164,15 @@ class GilbertElliottLoss:
         u = self._u
         move = u()
         self.bad, lost = gilbert_step(self.bad, move, u(), self.p, self.r, self.loss_bad, self.loss_good)
-        if lost and packet.fate == DELIVERED:
-            packet.fate = LOST_NETWORK
+        fate = first_fate(packet.fate, lost, LOST_NETWORK)
+        if fate != packet.fate:
+            packet.fate = fate
             self.dropped += 1
         return None
 
 
-def four_state_step(s: int, u: float, p13: float, p31: float, p32: float, p23: float, p14: float) -> int:
-    """One packet of netem's 4-state chain from its uniform `u`: the state after it (the packet is
-    lost in 3 and 4). One definition for `FourStateLoss` and the compiled loop
-    (engine/compiled/codec_kernel.py)."""
+def four_state_next(s: int, u: float, p13: float, p31: float, p32: float, p23: float, p14: float) -> int:
+    """netem's 4-state chain's move from state `s` on the uniform `u`."""
     if s == 1:
         if u < p14:
             return 4
@@ -152,6 +188,14 @@ def four_state_step(s: int, u: float, p13: float, p31: float, p32: float, p23: f
             return 1
         return 3
     return 1
+
+
+def four_state_step(s: int, u: float, p13: float, p31: float, p32: float, p23: float, p14: float) -> tuple[int, bool]:
+    """One packet of netem's 4-state chain from its uniform `u`: (the state after it, whether the
+    packet is lost: in 3 and 4). One definition for `FourStateLoss` and the compiled links
+    (engine/compiled/codec_link.py)."""
+    state = four_state_next(s, u, p13, p31, p32, p23, p14)
+    return state, state >= 3
 
 
 class FourStateLoss:
@@ -176,9 +220,10 @@ class FourStateLoss:
         self.dropped = 0
 
     def apply(self, packet: Packet) -> Packet | None:
-        s = self.state = four_state_step(self.state, self._u(), self.p13, self.p31, self.p32, self.p23, self.p14)
-        if s >= 3 and packet.fate == DELIVERED:
-            packet.fate = LOST_NETWORK
+        self.state, lost = four_state_step(self.state, self._u(), self.p13, self.p31, self.p32, self.p23, self.p14)
+        fate = first_fate(packet.fate, lost, LOST_NETWORK)
+        if fate != packet.fate:
+            packet.fate = fate
             self.dropped += 1
         return None
 
@@ -199,13 +244,9 @@ class TraceLoss:
     def apply(self, packet: Packet) -> Packet | None:
         n = self._n
         self._n = n + 1
-        pat = self._pattern
-        if n >= len(pat):
-            if not self._repeat:
-                return None
-            n %= len(pat)
-        if pat[n] and packet.fate == DELIVERED:
-            packet.fate = LOST_NETWORK
+        fate = first_fate(packet.fate, trace_lost(self._pattern, n, self._repeat), LOST_NETWORK)
+        if fate != packet.fate:
+            packet.fate = fate
             self.dropped += 1
         return None
 
@@ -240,8 +281,9 @@ class Corrupt:
             u = self._copy_u()
         else:
             u = self._u()
-        if u < self.probability and packet.fate == DELIVERED:
-            packet.fate = LOST_CORRUPT
+        fate = first_fate(packet.fate, bernoulli_lost(u, self.probability), LOST_CORRUPT)
+        if fate != packet.fate:
+            packet.fate = fate
             if not packet.duplicate:
                 self.dropped += 1
         return None

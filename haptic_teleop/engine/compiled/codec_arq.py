@@ -32,6 +32,14 @@ ack_mark = compile_tree(arq.ack_mark, inline=True)
 ack_due = compile_tree(arq.ack_due, inline=True)
 
 
+# the sender's timeout rule and its reading of a cumulative ACK, one definition (core/arq.py:
+# `ArqEncoder.send`, `cumulative_seqs`)
+retry_verdict = compile_tree(arq.retry_verdict, inline=True)
+
+
+named_mask = compile_tree(arq.named_mask, inline=True)
+
+
 @inline  # type: ignore[misc]
 def ack_one(S: np.ndarray, X: np.ndarray, seq: int) -> float:
     # ArqEncoder.feedback of one seq a cumulative ACK names: 1 if it was pending
@@ -55,7 +63,7 @@ def arq_feedback(S: np.ndarray, X: np.ndarray, aS: np.ndarray, aring: np.ndarray
         if head < 0:
             break
         seq = int(aring[head, 0])
-        full = (int(aring[head, L.ACK_RING_BITS]) << 1) | 1  # bit i: seq - i
+        full = named_mask(int(aring[head, L.ACK_RING_BITS]))  # bit i: seq - i
         todo = full
         shift = seq - int(S[L.S_FB_N])
         if shift >= 0:
@@ -222,11 +230,12 @@ def arq_block(
                 c = n - jj * m_ticks
                 if c >= lo:
                     k = c & mask
-                    if X[k, L.X_PEND] == c and X[k, L.X_ACK_AT] > n and now - X[k, L.X_LAST_NS] >= timeout:
-                        if X[k, L.X_TRIES] >= nu:
+                    if X[k, L.X_PEND] == c and X[k, L.X_ACK_AT] > n:
+                        verdict = retry_verdict(X[k, L.X_TRIES], X[k, L.X_LAST_NS], now, timeout, nu)
+                        if verdict == arq.GIVE_UP:
                             X[k, L.X_PEND] = -1.0
                             gave_up += 1
-                        else:
+                        elif verdict == arq.RETRANSMIT:
                             X[k, L.X_TRIES] += 1.0
                             X[k, L.X_LAST_NS] = now
                             retransmitted += 1

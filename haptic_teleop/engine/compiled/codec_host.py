@@ -156,7 +156,7 @@ class LinkArrays:
                 jitter_ns = int(e._base_ns + e._sigma_ns * top + 1.0)
             elif type(e) is Blackout:
                 self._blackout = e
-                windows = list(zip(e._starts, e._ends, strict=True))
+                windows = [(int(a), int(b)) for a, b in e.windows]
             elif type(e) is BernoulliLoss:
                 self._loss = e
                 C[L.C_LOSS], C[L.C_LP] = L.LOSS_BERNOULLI, e.probability

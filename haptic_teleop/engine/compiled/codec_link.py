@@ -28,21 +28,34 @@ part_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 gilbert_step = jit(loss.gilbert_step)
 
 
-four_state_step = jit(loss.four_state_step)
+four_state_step = compile_tree(loss.four_state_step)
 
 
-# netem's correlated numbers, the jitter's value and the arrival's rounding and order, one
-# definition (core/uniform.py, core/delay.py: `Delay.apply`, `NetemCorrelatedUniform`)
+# the verdicts' order and the blackout, Bernoulli and trace rules, one definition (core/loss.py)
+first_fate = compile_tree(loss.first_fate, inline=True)
+
+
+blackout_at = compile_tree(loss.blackout_at, inline=True)
+
+
+bernoulli_lost = compile_tree(loss.bernoulli_lost, inline=True)
+
+
+trace_lost = compile_tree(loss.trace_lost, inline=True)
+
+
+# netem's correlated numbers, the jitter's value, the delay and the arrival's rounding and order,
+# one definition (core/uniform.py, core/delay.py: `Delay.apply`, `NetemCorrelatedUniform`)
 netem_next = compile_tree(uniform.netem_next, inline=True)
 
 
 unit_jitter = compile_tree(uniform.unit_jitter, inline=True)
 
 
-delayed_ns = compile_tree(delay.delayed_ns, inline=True)
+delay_value_ns = compile_tree(delay.delay_value_ns, inline=True)
 
 
-in_order_ns = compile_tree(delay.in_order_ns, inline=True)
+arrival_ns = compile_tree(delay.arrival_ns, inline=True)
 
 
 DELIVERED = 0.0
@@ -56,15 +69,12 @@ def chain_or_trace_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> 
     # `loss_fate` of the 4-state chain and of a trace (U its pattern, u the packets so far):
     # compiled once, not inlined into every link (cold compile time).
     if C[L.C_LOSS] == L.LOSS_FOUR_STATE:
-        state = four_state_step(int(S[L.S_BAD]), U[u], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD], C[L.C_LP14])
+        state, lost = four_state_step(
+            int(S[L.S_BAD]), U[u], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD], C[L.C_LP14]
+        )
         S[L.S_BAD] = state
-        return state >= 3, u + 1
-    n = u
-    if n >= U.shape[0]:
-        if C[L.C_LP] == 0.0:  # (not repeated: the packets after it all pass)
-            return False, u + 1
-        n %= U.shape[0]
-    return U[n] != 0.0, u + 1
+        return lost, u + 1
+    return trace_lost(U, u, C[L.C_LP] != 0.0), u + 1  # (C_LP: repeated)
 
 
 @inline  # type: ignore[misc]
@@ -80,7 +90,7 @@ def loss_fate(C: np.ndarray, S: np.ndarray, U: np.ndarray, u: int) -> tuple[bool
         if rho != 0.0:
             x = netem_next(x, rho, S[L.S_LLAST])
             S[L.S_LLAST] = x
-        return x < C[L.C_LP], u + 1
+        return bernoulli_lost(x, C[L.C_LP]), u + 1
     if kind == L.LOSS_GILBERT:
         bad, lost = gilbert_step(S[L.S_BAD] != 0.0, U[u], U[u + 1], C[L.C_LP], C[L.C_LR], C[L.C_LBAD], C[L.C_LGOOD])
         S[L.S_BAD] = 1.0 if bad else 0.0
@@ -94,18 +104,13 @@ def fate_of(C: np.ndarray, S: np.ndarray, U: np.ndarray, B: np.ndarray, now: int
     # fate), the link's counts and its next random number kept by the caller: 0 delivered,
     # 1 lost in a blackout, 2 lost by the loss model; and the next random number.
     fate = 0
-    nb = B.shape[0]
-    if nb > 0:
-        i = int(S[L.S_BLACKOUT_I])
-        while i < nb and B[i, 0] <= now:
-            i += 1
+    if B.shape[0] > 0:
+        i, hit = blackout_at(B, int(S[L.S_BLACKOUT_I]), now)
         S[L.S_BLACKOUT_I] = i
-        if i > 0 and now < B[i - 1, 1]:
-            fate = 1
+        fate = first_fate(fate, hit, 1)
     if C[L.C_LOSS] != L.LOSS_NONE:
         lost, u = loss_fate(C, S, U, u)
-        if lost and fate == 0:
-            fate = 2
+        fate = first_fate(fate, lost, 2)
     return fate, u
 
 
@@ -140,13 +145,10 @@ def jitter_arrival(C: np.ndarray, S: np.ndarray, W: np.ndarray, now: int, fate: 
     if rho != 0.0:  # NetemCorrelatedUniform.next
         u = netem_next(u, rho, S[L.S_JLAST])
         S[L.S_JLAST] = u
-    d = C[L.C_JBASE_NS]
-    d += C[L.C_JSIGMA_NS] * unit_jitter(u, W, n)
+    d = delay_value_ns(C[L.C_JBASE_NS], 0.0, C[L.C_JSIGMA_NS], unit_jitter(u, W, n))
     t = now + int(C[L.C_DELAY_NS])  # (a constant delay before it: none that build_link makes)
-    arrival = delayed_ns(t, d)
-    if C[L.C_JKEEP] != 0.0 and fate == DELIVERED:
-        arrival = in_order_ns(arrival, int(S[L.S_LAST_ARRIVAL]))
-        S[L.S_LAST_ARRIVAL] = arrival
+    arrival, last = arrival_ns(t, d, C[L.C_JKEEP] != 0.0, fate == DELIVERED, int(S[L.S_LAST_ARRIVAL]))
+    S[L.S_LAST_ARRIVAL] = last
     return arrival
 
 
