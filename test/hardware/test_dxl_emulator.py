@@ -555,3 +555,17 @@ def test_the_emulator_dies_with_its_parent(tmp_path):
         time.sleep(0.05)
     os.kill(pid, signal.SIGKILL)
     pytest.fail(f"the emulator {pid} outlived its killed parent")
+
+
+def test_the_emulator_runs_at_the_priority_of_hardware_where_permitted():
+    # a servo never waits for the host's scheduler: the emulator asks for HARDWARE_NICE (root or
+    # CAP_SYS_NICE); elsewhere it keeps the niceness it was started with
+    from haptic_teleop.lifetime import HARDWARE_NICE
+
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    with start_bus(one_servo()) as bus:
+        nice = os.getpriority(os.PRIO_PROCESS, bus.pid)
+    # permitted here? (asked in a child, so this process keeps its own niceness)
+    probe = [sys.executable, "-c", f"import os; os.setpriority(os.PRIO_PROCESS, 0, {HARDWARE_NICE})"]
+    permitted = subprocess.run(probe, capture_output=True).returncode == 0
+    assert nice == (min(HARDWARE_NICE, mine) if permitted else mine)

@@ -72,13 +72,14 @@ def _true_margin(engine: Any, scene: Any) -> tuple[float, float]:
 
 
 def test_stalls_within_max_hold_keep_the_leader_port_passive(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The loop stalls 25 ms before every 150th tick; max_hold_s 60 ms (the bound budgets it): the
+    """The loop stalls 25 ms before every 150th tick; max_hold_s 250 ms (the bound budgets it; ten
+    times the stall, so a busy machine's own scheduling delays on top stay within it): the
     master's true margin over the real intervals stays >= 0, the run ends normally, torque off."""
     from haptic_teleop.engine.run import record_run
 
     monkeypatch.setenv("HAPTIC_TELEOP_TEST_STALL", "150:0.025")
     with _bus() as bus:
-        scene = load_scene(find_scene(SCENE), _sets(bus.port, 0.06, 2.0))
+        scene = load_scene(find_scene(SCENE), _sets(bus.port, 0.25, 2.0))
 
         def on_engine(engine: Any) -> None:
             engine.master.read_times_s = []  # the driver's read times, for the real intervals

@@ -31,7 +31,7 @@ from haptic_teleop.emulators.dynamixel import protocol as p
 from haptic_teleop.emulators.dynamixel.bus import Bus, Reply
 from haptic_teleop.emulators.dynamixel.config import BusConfig, FaultConfig
 from haptic_teleop.errors import ConfigError, HapticTeleopError
-from haptic_teleop.lifetime import die_with_parent
+from haptic_teleop.lifetime import as_hardware, die_with_parent
 from haptic_teleop.plants.dynamixel import tables as t
 from haptic_teleop.typedconfig import build
 
@@ -234,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--die-with-stdin", action="store_true", help="also stop when stdin is closed")
     args = ap.parse_args(argv)
     die_with_parent(signal.SIGTERM)
+    as_hardware()  # a servo never waits for the host's scheduler (lifetime.HARDWARE_NICE)
     try:
         if args.config == "-":
             text, source = sys.stdin.read(), "stdin"
