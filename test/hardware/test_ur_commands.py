@@ -10,9 +10,9 @@ import pytest
 
 from haptic_teleop.core.admittance import Admittance, AdmittanceParams, delayed_wall_damping_margin, step_response
 from haptic_teleop.core.spatial import matrix_to_rotvec, orientation_error, rotvec_to_matrix
-from haptic_teleop.emulators.ur import rtde_wire as w
 from haptic_teleop.emulators.ur.script import ControlScript, Registers, ScriptError, parse_script
 from haptic_teleop.errors import InputError
+from haptic_teleop.plants.ur import rtde_wire as w
 from haptic_teleop.plants.ur.commands import clip_twist, direct_torque_supported, force_mode_args
 from haptic_teleop.plants.ur.driver import parse_polyscope_version
 

@@ -1,8 +1,10 @@
 """The UR driver through the unmodified ur_rtde against the emulator (docs/ur.md): forceMode,
-servoL, speedL, the stops, the watchdog, lost connections, protective stops, direct torque.
+servoL, speedL, the stops, the watchdog, lost connections, protective, emergency and safeguard
+stops, direct torque and the check that the joints apply it.
 
 Durations are the controller's (its RTDE timestamps), never the host's clock; host time appears
-only as generous safety nets."""
+only as generous safety nets. The emulator runs in real time on a shared machine, so the fault
+tests assert what the driver concludes and says, never the physics of the run."""
 
 from __future__ import annotations
 
@@ -49,6 +51,17 @@ def poll_state(d: URDriver) -> None:
     raise AssertionError("safety net: the driver never reported the fault")
 
 
+def state_since(d: URDriver, controller_t_s: float) -> URState:
+    """The first state the controller sent at or after controller_t_s: the receive interface's stream
+    is not the control interface's, and on a busy machine it can still hold packages from before a
+    command the control interface has seen done."""
+    host0 = time.monotonic()
+    while (s := d.state()).timestamp_s < controller_t_s - 1e-9:
+        assert time.monotonic() - host0 < SAFETY_NET_S, "safety net: the emulator stopped advancing"
+        time.sleep(0.002)
+    return s
+
+
 def wait_for(ur: URProcess, pred: Callable[[dict], bool]) -> dict:
     host0 = time.monotonic()
     while True:
@@ -74,7 +87,7 @@ def test_force_mode_pushes_the_tool_into_the_wall_and_the_tcp_force_reads_the_co
         assert abs(s.tcp_pose[0] - (-0.4919)) < 2e-3 and abs(s.tcp_pose[1] - (-0.1333)) < 2e-3
         before = truth["contact_force_n"][2]
         d.zero_ft_sensor()  # the contact now reads as zero: the sensor's offset is the contact then
-        s = d.state()
+        s = state_since(d, ur.state()["t_s"])
         assert abs(s.tcp_wrench[2]) < 0.5
         # UR's force mode regulates the sensor's reading: with the contact zeroed it presses harder
         # until the reading is the commanded 10 N again, 10 N above the offset
@@ -138,18 +151,36 @@ def test_the_rtde_watchdog_stops_the_program_and_the_driver_reports_it():
         # the host goes quiet: no command reaches the controller
         st = wait_for(ur, lambda st: not st["program_running"])
         assert "watchdog" in st["stop_reason"]
-        with pytest.raises(HardwareError, match=r"control script .* stopped"):
-            poll_state(d)  # the driver sees it within a few packages
+        # the driver sees it within a few packages and names the watchdog: the host was silent longer than it
+        with pytest.raises(HardwareError, match=r"control script .* was stopped by its RTDE watchdog: no command for"):
+            poll_state(d)
         assert ur.state()["mode"] == "hold"
 
 
-def test_a_lost_connection_ends_the_session_with_a_clear_error():
+def test_a_program_stopped_from_outside_the_session_is_not_blamed_on_the_watchdog():
+    # no watchdog: the host's own pace cannot stop the program here, whatever the machine's load
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=0.0) as d:
+        d.start()
+        run_for(d, 0.1, lambda s: d.kick())
+        ur.inject("stop_program", reason="stopped on the pendant")
+        with pytest.raises(HardwareError, match=r"control script .* was stopped from outside the session .* log"):
+            run_for(d, 30.0, lambda s: d.kick())  # the host keeps sending
+        st = ur.state()
+        assert not st["program_running"] and st["mode"] == "hold"
+
+
+@pytest.mark.parametrize("how", ["drop_connections", "kill"])
+def test_a_lost_connection_ends_the_session_with_a_clear_error(how):
     with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
         d.start()
         run_for(d, 0.1, lambda s: d.kick())
-        ur.inject("drop_connections")  # the controller vanishes and refuses new connections
-        with pytest.raises(HardwareError, match="lost the connection"):
+        if how == "kill":
+            ur.proc.kill()  # the controller is gone: every socket closes
+        else:
+            ur.inject("drop_connections")  # the controller vanishes and refuses new connections
+        with pytest.raises(HardwareError, match=r"lost the connection .* Check the controller and the cable") as exc:
             poll_state(d)
+        assert "\n" not in str(exc.value)
         d.stop()  # again: idempotent, quiet
 
 
@@ -173,10 +204,29 @@ def test_a_protective_stop_mid_session_raises_after_stopping():
     ):
         d.start()
         # push 40 N into the table: the controller's force limit (20 N) trips a protective stop
-        with pytest.raises(HardwareError, match="protective stop: clear it on the teach pendant"):
+        with pytest.raises(HardwareError, match="protective stop: clear it on the teach pendant once its cause"):
             run_for(d, 5.0, lambda s: d.force_mode([0, 0, -40.0, 0, 0, 0]))
         st = ur.state()
         assert st["safety_mode"] == 3 and not st["program_running"] and st["mode"] == "hold"
+
+
+@pytest.mark.parametrize(
+    ("mode", "message"),
+    [
+        (7, r"was emergency-stopped: release the emergency stop, power the arm on and release the brakes"),
+        (5, r"stopped in safety mode SAFEGUARD_STOP: a safeguard stop input opened .* clear it and reset it"),
+    ],
+)
+def test_an_emergency_or_safeguard_stop_mid_session_is_named_with_what_to_do(mode, message):
+    with start_ur() as ur, URDriver(ur.host, watchdog_hz=WATCHDOG_HZ) as d:
+        d.start()
+        run_for(d, 0.1, lambda s: d.kick())
+        ur.inject("safety_stop", mode=mode, reason="injected")
+        with pytest.raises(HardwareError, match=message):
+            run_for(d, 30.0, lambda s: d.kick())
+        st = ur.state()
+        assert st["safety_mode"] == mode and not st["program_running"] and st["mode"] == "hold"
+        assert st["robot_mode"] == (3 if mode == 7 else 7)  # an emergency stop removes the arm's power
 
 
 @pytest.mark.parametrize(
@@ -227,6 +277,43 @@ def test_direct_torque_joint_driver_turns_the_wrist():
             assert ur.state()["mode"] == "torque"
             clipped = j.write(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 500.0]))
             assert clipped[5] == pytest.approx(28.0)  # the wrist's rated torque
+        finally:
+            j.stop()
+        st = ur.state()
+        assert not st["program_running"] and st["mode"] == "hold"
+
+
+@pytest.mark.parametrize(
+    ("fault", "joint", "tau", "message"),
+    [
+        # the joint's drive silently applies nothing: only the reading shows it
+        ("no_torque", 5, 1.0, r"joint wrist_3 .* is not applying the commanded torque: it reports [+-]0\.00 N m "
+         r"\(actual_current_as_torque\) against \+1\.00 N m commanded for 25 reads in a row: its joint mode is "
+         r"RUNNING and no stop is reported"),
+        # its brake holds the elbow, motor off: the reading is the gravity the motor no longer carries
+        ("brake", 2, 0.0, r"joint elbow .* is not applying the commanded torque: it reports [+-]\d+\.\d\d N m .* "
+         r"against \+0\.00 N m commanded for 25 reads in a row: its joint mode is IDLE \(255\): .* brake"),
+    ],
+)  # fmt: skip
+def test_a_joint_that_does_not_apply_its_torque_stops_the_session_naming_it(fault, joint, tau, message):
+    with start_ur(URConfig(controller_version=(5.0, 26.0, 0.0, 0.0))) as ur:
+        j = URTorqueDriver(ur.host, watchdog_hz=WATCHDOG_HZ)
+        try:
+            j.start()
+            for _ in range(50):  # a healthy joint applies its command: no fault
+                j.read()
+                j.write(np.zeros(6))
+                time.sleep(0.002)
+            ur.inject("joint_fault", joint=joint, kind=fault)
+            command = np.zeros(6)
+            command[joint] = tau
+            host0 = time.monotonic()
+            with pytest.raises(HardwareError, match=message) as exc:
+                while time.monotonic() - host0 < SAFETY_NET_S:
+                    j.read()
+                    j.write(command)
+                    time.sleep(0.002)
+            assert "\n" not in str(exc.value) and str(exc.value).endswith("the robot was stopped")
         finally:
             j.stop()
         st = ur.state()

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from haptic_teleop.core.spatial import rotvec_to_matrix
-from haptic_teleop.emulators.ur import rtde_wire as w
 from haptic_teleop.emulators.ur.config import URConfig
 from haptic_teleop.emulators.ur.process import start_ur
+from haptic_teleop.errors import PlantError
+from haptic_teleop.plants.ur import rtde_wire as w
 
 rtde_receive = pytest.importorskip("rtde_receive")
 
@@ -128,6 +129,59 @@ def test_rtde_protocol_from_a_raw_socket():
             b.close()
 
 
+def _subscribe(host: str, names: str) -> tuple[socket.socket, bytes]:
+    """A raw RTDE client with one output recipe at 500 Hz: the socket and the setup's answer."""
+    s = _raw_client(host)
+    s.sendall(w.frame(w.SETUP_OUTPUTS, struct.pack(">d", 500.0) + names.encode()))
+    kind, body = _package(s)
+    assert kind == w.SETUP_OUTPUTS
+    return s, body
+
+
+def _next_values(s: socket.socket, recipe: w.Recipe) -> dict:
+    while True:
+        kind, body = _package(s)
+        if kind == w.DATA_PACKAGE:
+            return recipe.unpack(body[1:])
+
+
+def test_the_applied_joint_torque_is_what_the_motors_did_and_a_joint_fault_shows_in_it():
+    names = ("target_moment", "actual_current_as_torque", "joint_mode")
+    # PolyScope 5.23 brought actual_current_as_torque: an older controller does not know it
+    with start_ur(URConfig(controller_version=(5.0, 22.0, 0.0, 0.0))) as ur:
+        s, body = _subscribe(ur.host, ",".join(names))
+        s.close()
+        assert body == b"\x00VECTOR6D,NOT_FOUND,VECTOR6INT32"
+    with start_ur(URConfig(controller_version=(5.0, 26.0, 0.0, 0.0))) as ur:
+        s, body = _subscribe(ur.host, ",".join(names))
+        try:
+            recipe = w.Recipe(body[0], names, tuple(body[1:].decode().split(",")))
+            s.sendall(w.frame(w.START))
+            assert _package(s) == (w.START, b"\x01")
+            v = _next_values(s, recipe)
+            # healthy: each joint's motors apply the controller's target (the hold loop's torque), to the bit
+            assert v["actual_current_as_torque"] == v["target_moment"] and v["joint_mode"] == (253,) * 6
+            ur.inject("joint_fault", joint=2, kind="brake")
+            for _ in range(500):  # a second of packages at most
+                if (v := _next_values(s, recipe))["joint_mode"][2] == 255:
+                    break
+            # the braked elbow's motor is off: it applies minus the gravity torque it carried; the others still apply
+            # their target
+            applied, target = v["actual_current_as_torque"], v["target_moment"]
+            assert abs(applied[2] - target[2]) > 1.0
+            assert [a == t for a, t in zip(applied, target, strict=True)] == [True, True, False, True, True, True]
+            assert v["joint_mode"] == (253, 253, 255, 253, 253, 253)
+            assert ur.state()["joint_faults"] == {"2": "brake"}
+            ur.inject("joint_fault", joint=2, kind=None)
+            assert ur.state()["joint_faults"] == {}
+            with pytest.raises(PlantError, match=r"joint_fault needs joint 0\.\.5"):
+                ur.inject("joint_fault", joint=6, kind="brake")
+            with pytest.raises(PlantError, match="unknown command 'no_such_fault'"):
+                ur.inject("no_such_fault")
+        finally:
+            s.close()
+
+
 def _dash(host: str, *cmds: str) -> list[str]:
     with socket.create_connection((host, 29999), timeout=30.0) as s:
         f = s.makefile("rb")
@@ -217,3 +271,20 @@ def test_the_emulator_ends_when_its_parent_dies(tmp_path):
         finally:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(child, signal.SIGKILL)
+
+
+def test_the_emulator_runs_at_the_priority_of_hardware_where_permitted():
+    # a controller never waits for the host's scheduler: HARDWARE_NICE where permitted (root or
+    # CAP_SYS_NICE), else the niceness it was started with
+    import os
+    import subprocess
+    import sys
+
+    from haptic_teleop.lifetime import HARDWARE_NICE
+
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    with start_ur() as ur:
+        nice = os.getpriority(os.PRIO_PROCESS, ur.proc.pid)
+    probe = [sys.executable, "-c", f"import os; os.setpriority(os.PRIO_PROCESS, 0, {HARDWARE_NICE})"]
+    permitted = subprocess.run(probe, capture_output=True).returncode == 0
+    assert nice == (min(HARDWARE_NICE, mine) if permitted else mine)

@@ -8,7 +8,7 @@ import signal
 import sys
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.lifetime import die_with_parent
+from haptic_teleop.lifetime import as_hardware, die_with_parent
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -16,6 +16,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", help="JSON file with the emulator's settings (docs/ur.md)")
     args = parser.parse_args(argv)
     die_with_parent(signal.SIGTERM)
+    as_hardware()  # a controller never waits for the host's scheduler (lifetime.HARDWARE_NICE)
     from haptic_teleop.emulators.ur.config import URConfig
 
     try:

@@ -2,7 +2,7 @@
 
     with start_ur(URConfig(...)) as ur:
         ... rtde_receive.RTDEReceiveInterface(ur.host, 500.0) ...
-        ur.state()["q_rad"]; ur.inject("protective_stop")
+        ur.state()["q_rad"]; ur.inject("protective_stop"); ur.inject("joint_fault", joint=5, kind="brake")
 
 ur_rtde 1.6.5 connects to fixed ports (RTDE 30004, dashboard 29999, scripts 30003), so only one
 emulator on those ports can run on a host at a time: `start_ur` holds an exclusive file lock
@@ -44,8 +44,8 @@ class URProcess:
         self._file: IO[bytes] | None = None
 
     def request(self, cmd: str, **args: Any) -> dict[str, Any]:
-        """One request on the emulator's test channel (state, protective_stop, stop_program, freeze,
-        drop_connections)."""
+        """One request on the emulator's test channel (state, protective_stop, safety_stop, stop_program,
+        joint_fault, freeze, drop_connections)."""
         if self._sock is None:
             self._sock = socket.create_connection((self.host, self.ports["control"]), timeout=30.0)
             self._file = self._sock.makefile("rb")
@@ -58,7 +58,11 @@ class URProcess:
         return self.request("state")
 
     def inject(self, fault: str, **args: Any) -> None:
-        self.request(fault, **args)
+        """An injected fault (docs/ur.md, "The emulator"); one the emulator does not know is an error here,
+        not a test that waits in vain for its effect."""
+        reply = self.request(fault, **args)
+        if "error" in reply:
+            raise PlantError(f"the UR emulator refused the fault {fault!r}: {reply['error']}")
 
     def stop(self) -> None:
         """End the emulator (SIGTERM, then SIGKILL after 10 s) and release the port lock; idempotent."""

@@ -11,6 +11,12 @@ wrench as J^T w in the compliant axes of the task frame with damping there, a st
 spring on the pose held at entry in the others), "torque" (direct torque: the joint torques as
 given, beyond gravity). Gravity is compensated by the model (gravcomp through the motors) in every
 mode, as the real controller does.
+
+Joint faults (`joint_fault`, injected through the test channel): "no_torque", a joint whose motor
+applies nothing (neither the command nor gravity compensation) while the controller still reports
+it running; "brake", a joint held by its brake, its motor off, reported IDLE. The mode's torque
+stays the controller's target (`tau_target`); `tau_applied` is what MuJoCo's motors did, which
+RTDE reports as `actual_current_as_torque` (docs/ur.md, "Applied, not commanded").
 """
 
 from __future__ import annotations
@@ -74,6 +80,9 @@ class SimulatedUR:
         self.force_v = np.zeros(6)  # the force mode's admittance velocity (task frame)
         self.force_damping_value = 0.025  # ur_rtde's control script sets this at its start
         self.tau_applied = np.zeros(self.n)
+        self.tau_target = np.zeros(self.n)  # the mode's torque beyond gravity, before any joint fault
+        self.joint_faults: dict[int, str] = {}  # joint index -> "no_torque" or "brake"
+        self._braked_q: dict[int, float] = {}
         self.ft_offset = np.zeros(6)
         self._mass = np.zeros((self.arm.model.nv, self.arm.model.nv))
         # Energy flows of the plant since start (J), per controller period: the motors' work beyond
@@ -159,6 +168,22 @@ class SimulatedUR:
         self.mode = "torque"
         self.tau_direct = np.array(tau, dtype=float)
 
+    def set_joint_fault(self, joint: int, kind: str | None) -> None:
+        """A joint stops applying its command ("no_torque": the motor applies nothing, the joint is
+        free; "brake": the motor is off and the brake holds the joint where it is), or recovers (None)."""
+        if kind is None:
+            self.joint_faults.pop(joint, None)
+            self._braked_q.pop(joint, None)
+            return
+        self.joint_faults[joint] = kind
+        if kind == "brake":
+            q, _ = self.arm.read()
+            self._braked_q[joint] = float(q[joint])
+
+    def joint_modes(self) -> list[int]:
+        """RTDE joint_mode per joint: 253 RUNNING, 255 IDLE for a braked joint [RTDE guide]."""
+        return [255 if self.joint_faults.get(k) == "brake" else 253 for k in range(self.n)]
+
     # ---------------------------------------------------------------- the loop
     def _mass_matrix(self) -> np.ndarray:
         self._mj.mj_fullM(self.arm.model, self.arm.data, self._mass)
@@ -222,10 +247,20 @@ class SimulatedUR:
             tau = self._joint_pd(self.q_ref, qd_des, HOLD_OMEGA_RAD_PER_S)
         else:  # torque
             tau = self.tau_direct.copy()
+        self.tau_target = np.array(tau, dtype=float)
+        if self.joint_faults:
+            g = self.arm.gravity_torque()
+            for k in self.joint_faults:
+                tau[k] = -g[k]  # the motor applies nothing: not the command, not the gravity compensation
         q0 = np.array(self.arm.read()[0])
         x0, _ = self.arm.point()
         x0 = np.array(x0)
         self.tau_applied = self.arm.step(tau)
+        if self._braked_q:
+            adr = self.arm.constants()
+            for k, qk in self._braked_q.items():  # the brake holds the joint: no motion in the period
+                self.arm.data.qpos[adr.qpos_adr[k]] = qk
+                self.arm.data.qvel[adr.dof_adr[k]] = 0.0
         q1, _ = self.arm.read()
         x1, _ = self.arm.point()
         dq = np.asarray(q1) - q0

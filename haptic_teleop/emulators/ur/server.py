@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.emulators.ur import rtde_wire as w
 from haptic_teleop.emulators.ur.config import URConfig
 from haptic_teleop.emulators.ur.robot import SimulatedUR
 from haptic_teleop.emulators.ur.script import ControlScript, Registers, ScriptError, parse_script
 from haptic_teleop.plants.arm import WallSpec
+from haptic_teleop.plants.ur import rtde_wire as w
 
 # UR codes (RTDE guide, "robot_mode", "safety_mode", "safety_status_bits", "runtime_state",
 # "robot_status_bits"; docs/ur.md)
@@ -45,6 +45,10 @@ _ZERO: dict[str, Any] = {
     "VECTOR3D": (0.0,) * 3, "VECTOR6D": (0.0,) * 6, "VECTOR6INT32": (0,) * 6, "VECTOR6UINT32": (0,) * 6,
 }  # fmt: skip
 ROBOT_RUNNING = 7
+# RTDE joint_mode codes [RTDE guide]: a joint's mode follows the robot's unless a joint fault sets its own.
+JOINT_RUNNING, JOINT_IDLE, JOINT_BACKDRIVE, JOINT_POWER_OFF = 253, 255, 238, 239
+APPLIED_TORQUE_OUTPUT = "actual_current_as_torque"  # PolyScope 5.23 / 10.11 on [RTDE guide; docs/ur.md]
+JOINT_FAULTS = ("no_torque", "brake")
 
 
 @dataclass
@@ -123,14 +127,19 @@ class Controller:
         v: dict[str, Any] = {name: _ZERO[t] for name, t in w.OUTPUT_TYPES.items()}  # unmodelled values read 0
         tau = r.joint_torques()
         q_t = r.q_hold if r.mode == "hold" else r.q_ref
+        if self.robot_mode == ROBOT_RUNNING:
+            joint_mode = tuple(r.joint_modes())
+        else:
+            joint_mode = ({5: JOINT_IDLE, 6: JOINT_BACKDRIVE}.get(self.robot_mode, JOINT_POWER_OFF),) * 6
         v.update(
             timestamp=self.t_s,
             actual_q=tuple(q), actual_qd=tuple(qd), target_q=tuple(q_t), target_qd=z6,
             actual_TCP_pose=tuple(pose), actual_TCP_speed=tuple(speed), actual_TCP_force=tuple(force),
             target_TCP_pose=tuple(pose), target_TCP_speed=tuple(speed), ft_raw_wrench=tuple(force),
-            target_moment=tuple(tau), actual_current_as_torque=tuple(tau), joint_control_output=tuple(tau),
+            # the controller's target beyond gravity, and what the motors applied (they differ under a joint fault)
+            target_moment=tuple(r.tau_target), actual_current_as_torque=tuple(tau), joint_control_output=tuple(tau),
             robot_mode=self.robot_mode, safety_mode=self.safety_mode, safety_status=self.safety_mode,
-            joint_mode=(253 if self.robot_mode == ROBOT_RUNNING else 236,) * 6,
+            joint_mode=joint_mode,
             runtime_state=RUNTIME_PLAYING if self.program_running else RUNTIME_STOPPED,
             robot_status_bits=self.robot_status_bits(), safety_status_bits=self.safety_status_bits(),
             speed_scaling=1.0, target_speed_fraction=self.speed_slider,
@@ -180,6 +189,17 @@ class Controller:
             self.safety_mode = 3
             self.stop_program(f"protective stop: {reason}")
             self.message(f"C153A0 protective stop: {reason}", w.ERROR_MESSAGE)
+
+    def safety_stop(self, mode: int, reason: str) -> None:
+        """Another safety stop than a protective one: the safety mode (5 safeguard stop, 6 / 7 system
+        / robot emergency stop, 8 violation, 9 fault ...), the program stopped, the arm holding; an
+        emergency stop also removes the arm's power (robot mode POWER_OFF), as its stop category 1 does."""
+        with self.lock:
+            self.safety_mode = mode
+            self.stop_program(f"{SAFETY_MODE_NAMES.get(mode, str(mode))}: {reason}")
+            if mode in (6, 7):
+                self.robot_mode = 3
+            self.message(f"{SAFETY_MODE_NAMES.get(mode, str(mode))}: {reason}", w.ERROR_MESSAGE)
 
     def unlock_protective_stop(self) -> bool:
         with self.lock:
@@ -384,6 +404,10 @@ class Server:
                 (freq,) = struct.unpack(">d", body[:8])
                 names = [n for n in body[8:].decode().split(",") if n]  # ur_rtde ends the list with a comma
                 types = w.resolve_names(names, w.OUTPUT_TYPES)
+                if not self._has_applied_torque_output():
+                    types = [
+                        w.NOT_FOUND if n == APPLIED_TORQUE_OUTPUT else t for n, t in zip(names, types, strict=True)
+                    ]
                 bad = not (0.0 < freq <= self.cfg.frequency_hz) or w.NOT_FOUND in types
                 with ctl.lock:
                     c.started = False
@@ -432,6 +456,10 @@ class Server:
                         ctl.input_stamp[n] = ctl.t_s
             elif kind == w.TEXT_MESSAGE:
                 pass
+
+    def _has_applied_torque_output(self) -> bool:
+        v = self.cfg.version
+        return (v[0], v[1]) >= ((10, 11) if v[0] >= 10 else (5, 23))
 
     def _set_input(self, name: str, value: object) -> None:
         regs = self.ctl.regs
@@ -580,9 +608,23 @@ class Server:
                     "force_mode_damping": None if s is None else s.force_mode_damping,
                     "motor_work_j": r.motor_work_j, "dissipated_j": r.dissipated_j, "env_work_j": r.env_work_j,
                     "max_net_motor_work_j": r.max_net_motor_work_j, "max_env_work_j": r.max_env_work_j,
+                    "tau_target_nm": list(map(float, r.tau_target)),
+                    "joint_faults": {str(k): v for k, v in r.joint_faults.items()},
                 }  # fmt: skip
             if cmd == "protective_stop":
                 ctl.protective_stop(str(req.get("reason", "injected")))
+                return {"ok": True}
+            if cmd == "safety_stop":
+                mode = req.get("mode", 7)
+                if not isinstance(mode, int) or not 4 <= mode <= 13:
+                    return {"error": "safety_stop needs a safety mode 4..13 (protective_stop for 3)"}
+                ctl.safety_stop(mode, str(req.get("reason", "injected")))
+                return {"ok": True}
+            if cmd == "joint_fault":
+                joint, kind = req.get("joint"), req.get("kind", "no_torque")
+                if not isinstance(joint, int) or not 0 <= joint < ctl.robot.n or kind not in (*JOINT_FAULTS, None):
+                    return {"error": f"joint_fault needs joint 0..{ctl.robot.n - 1} and kind in {JOINT_FAULTS} or null"}
+                ctl.robot.set_joint_fault(joint, kind)
                 return {"ok": True}
             if cmd == "stop_program":
                 ctl.stop_program(str(req.get("reason", "injected")))

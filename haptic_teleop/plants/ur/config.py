@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from haptic_teleop.plants.hardware import ArmDriver, HardwareConfig, Problem
-from haptic_teleop.plants.ur.driver import JOINTS
+from haptic_teleop.plants.ur.driver import APPLIED_MISMATCH_READS, APPLIED_TOLERANCE_NM, JOINTS
 
 CONTROL_MODES = ("force_mode", "admittance", "torque")
 
@@ -56,11 +56,34 @@ class URConfig(HardwareConfig):
     admittance_damping_nm_s_per_rad: float = field(
         default=5.0, metadata={"gt": 0.0, "max": 1e5, "help": "admittance: the virtual rotational damping"}
     )
+    applied_tolerance_nm: tuple[float, ...] = field(
+        default=APPLIED_TOLERANCE_NM,
+        metadata={
+            "min": 0.0,
+            "max": 150.0,
+            "help": "torque: per joint, how far the torque the joint reports it applies (RTDE "
+            "actual_current_as_torque) may be from the command, plus a fifth of the command (default 2 % of the "
+            "rated torque; docs/ur.md, 'Applied, not commanded')",
+        },
+    )
+    applied_mismatch_reads: int = field(
+        default=APPLIED_MISMATCH_READS,
+        metadata={
+            "min": 1,
+            "max": 5000,
+            "help": "torque: fresh reads in a row a joint may be off its command before the side stops (default "
+            "25, 50 ms at the controller's 500 Hz)",
+        },
+    )
 
     def __post_init__(self) -> None:
         if len(self.force_mode_speed_limits) != 6:
             raise ValueError(
                 f"force_mode_speed_limits needs 6 values (m/s x3, rad/s x3), got {list(self.force_mode_speed_limits)}"
+            )
+        if len(self.applied_tolerance_nm) != 6:
+            raise ValueError(
+                f"applied_tolerance_nm needs 6 values (N m, one per joint), got {list(self.applied_tolerance_nm)}"
             )
 
     def problem(self, role: str, joints: tuple[str, ...], emulate: bool) -> Problem | None:
@@ -94,7 +117,9 @@ def arm_driver(hw: URConfig, kin: Any, torque_limit_nm: Sequence[float] | None, 
 
     assert hw.host is not None
     if hw.control_mode == "torque":
-        ur = URTorqueDriver(hw.host)
+        ur = URTorqueDriver(
+            hw.host, applied_tolerance_nm=hw.applied_tolerance_nm, applied_mismatch_reads=hw.applied_mismatch_reads
+        )
         return ArmDriver(ur, True, lambda: ur.ur.state().tcp_wrench, hw.host)
     lin, rot = hw.admittance_mass_kg, hw.admittance_inertia_kg_m2
     dl, dr = hw.admittance_damping_n_s_per_m, hw.admittance_damping_nm_s_per_rad

@@ -5,10 +5,12 @@ speed and wrench, robot and safety status, at the controller's 500 Hz) and, with
 commands it through `rtde_control.RTDEControlInterface`, which uploads ur_rtde's control script:
 `force_mode` (the robot's own force control), `servo_l`/`speed_l` (position/velocity streaming, for
 an admittance: core/admittance.py) or `torque` (direct joint torques, where the controller has
-them). Every call checks the session: a protective stop, an emergency stop, a lost connection or
-a control script that stopped ends it (`stop()`, then `HardwareError` naming what happened and
-what to do). `stop()` is idempotent and never raises. `URTorqueDriver` is the `JointDriver`
-(plants/hardware.py) of the direct-torque mode.
+them). Every call checks the session: a protective stop, an emergency stop, another safety stop, a
+lost connection or a control script that stopped ends it (`stop()`, then `HardwareError` naming
+what happened and what to do), and in direct torque every fresh read compares the torque each
+joint reports it applies (RTDE `actual_current_as_torque`) with the torque commanded (docs/ur.md,
+"Applied, not commanded"). `stop()` is idempotent and never raises. `URTorqueDriver` is the
+`JointDriver` (plants/hardware.py) of the direct-torque mode.
 
 ur_rtde is imported inside functions only: this module imports without it.
 """
@@ -20,6 +22,7 @@ import math
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -28,6 +31,7 @@ import numpy as np
 
 from haptic_teleop.plants.hardware import HardwareError, JointSample, import_sdk
 from haptic_teleop.plants.ur.commands import clip_twist, direct_torque_supported, force_mode_args
+from haptic_teleop.plants.ur.rtde_outputs import RTDEOutputError, RTDEOutputReader
 
 JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
 UR5E_TORQUE_LIMIT_NM = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)  # UR5e rated joint torques (ur5e.xml ctrlrange)
@@ -41,6 +45,40 @@ SAFETY_MODE = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5
 SAFETY_BIT_PROTECTIVE = 1 << 2
 SAFETY_BITS_EMERGENCY = (1 << 5) | (1 << 6) | (1 << 7)
 RUNNING = 7
+# What to do after each safety stop but the protective and emergency ones (their own messages below).
+SAFETY_STOP_WHAT_TO_DO = {
+    5: "a safeguard stop input opened (a door, a light curtain, a safety mat): clear it and reset it",
+    8: "a safety limit was violated (a joint position or speed, the TCP, the power): read the log on the teach "
+    "pendant, move the arm back within the limits",
+    9: "a safety system fault: read the log on the teach pendant, then restart the controller",
+    12: "the automatic mode safeguard stop input opened: clear it and reset it",
+    13: "the three-position enabling device was released or pressed through: hold it in the middle position",
+}
+# RTDE joint_mode [RTDE guide, "joint_mode"; docs/ur.md]: name and, for a joint not running, what to do.
+JOINT_RUNNING = 253
+JOINT_MODE = {
+    235: ("RESET", "the joint is resetting: wait for it, then power on"),
+    236: ("SHUTTING_DOWN", "the joint is shutting down: power the arm on again"),
+    237: ("PART_D_CALIBRATION", "the joint is calibrating: wait for it, then start again"),
+    238: ("BACKDRIVE", "the arm is in backdrive mode: leave it on the teach pendant and release the brakes"),
+    239: ("POWER_OFF", "the joint is not powered: power the arm on and release the brakes"),
+    240: ("READY_FOR_POWER_OFF", "the joint is being powered off: power the arm on again"),
+    245: ("NOT_RESPONDING", "the joint does not answer the controller: read the log, power-cycle the arm"),
+    246: ("MOTOR_INITIALISATION", "the joint's motor is starting: wait for it, then start again"),
+    247: ("BOOTING", "the joint is booting: wait for it, then start again"),
+    248: ("PART_D_CALIBRATION_ERROR", "the joint's calibration failed: read the log on the teach pendant"),
+    249: ("BOOTLOADER", "the joint is in its bootloader (a firmware update): let it finish"),
+    250: ("CALIBRATION", "the joint is calibrating: wait for it, then start again"),
+    251: ("VIOLATION", "the joint violated a safety limit: read the log on the teach pendant"),
+    252: ("FAULT", "a joint fault: read the log on the teach pendant, then power-cycle the arm"),
+    253: ("RUNNING", ""),
+    255: ("IDLE", "the joint is not under control and its brake holds it: release the brakes on the teach pendant "
+          "once the log says why they engaged"),
+}  # fmt: skip
+APPLIED_OUTPUT = "actual_current_as_torque"  # N m per joint, gravity excluded; PolyScope 5.23 / 10.11 on
+APPLIED_REL = 0.2  # a fifth of the command on top of the absolute tolerance (the Dynamixel driver's rule)
+APPLIED_TOLERANCE_NM = tuple(0.02 * t for t in UR5E_TORQUE_LIMIT_NM)  # 2 % of the rated torque (docs/ur.md)
+APPLIED_MISMATCH_READS = 25  # 50 ms of fresh reads at the controller's 500 Hz
 
 
 @dataclass(frozen=True)
@@ -101,7 +139,10 @@ class URDriver:
     script and command the arm (False: read only); `watchdog_hz`: the RTDE input watchdog the
     script arms (the controller stops the program when no command arrives for 1/watchdog_hz s;
     0 = none); `stale_s`: a read whose controller timestamp has not moved for this long (host
-    time) is a lost connection."""
+    time) is a lost connection; `applied_tolerance_nm` (per joint, or one for all) and
+    `applied_mismatch_reads`: in direct torque, a joint whose reported torque stays further than the
+    tolerance plus a fifth of the command from the last two commands for that many fresh reads in a
+    row is not applying what it is told (docs/ur.md, "Applied, not commanded")."""
 
     def __init__(
         self,
@@ -113,6 +154,8 @@ class URDriver:
         max_force_n: float = 100.0,
         max_speed_m_per_s: float = 0.25,
         max_angular_rad_per_s: float = 1.0,
+        applied_tolerance_nm: Sequence[float] | float = APPLIED_TOLERANCE_NM,
+        applied_mismatch_reads: int = APPLIED_MISMATCH_READS,
     ) -> None:
         self.host = host
         self.control = control
@@ -122,7 +165,7 @@ class URDriver:
         self.max_force_n = max_force_n
         self.max_speed_m_per_s = max_speed_m_per_s
         self.max_angular_rad_per_s = max_angular_rad_per_s
-        self.joints = JOINTS
+        self.joints: tuple[str, ...] = JOINTS
         self.torque_limit_nm = np.array(UR5E_TORQUE_LIMIT_NM)
         self.version: tuple[int, int, int, int] | None = None
         self._r: Any = None
@@ -132,6 +175,15 @@ class URDriver:
         self._last_ts = -1.0
         self._last_change = 0.0
         self._connection_lost = False
+        self._last_sent_s = 0.0  # host time of the last command the controller accepted (the watchdog's input)
+        self.applied_tolerance_nm = np.broadcast_to(np.asarray(applied_tolerance_nm, dtype=float), (6,)).copy()
+        self.applied_mismatch_reads = int(applied_mismatch_reads)
+        self._applied: RTDEOutputReader | None = None
+        self._applied_seq = 0
+        # The reading of a read reflects the previous write, or the one before when the read comes
+        # within a controller period of it: both are kept.
+        self._commanded: deque[np.ndarray] = deque(maxlen=2)
+        self._mismatch = np.zeros(6, dtype=int)
 
     # ------------------------------------------------------------------ start and checks
     def start(self) -> URState:
@@ -143,6 +195,8 @@ class URDriver:
 
         self._stopped = False
         self._connection_lost = False
+        self._commanded.clear()
+        self._mismatch[:] = 0
         atexit.register(self.stop)
         try:
             self._r = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz)
@@ -219,6 +273,7 @@ class URDriver:
         if self.watchdog_hz > 0.0 and not self._c.setWatchdog(self.watchdog_hz):
             self.stop()
             raise HardwareError(f"the controller at {self.host} refused the RTDE watchdog ({self.watchdog_hz} Hz)")
+        self._last_sent_s = time.monotonic()
 
     # ------------------------------------------------------------------ reading
     def _read(self) -> URState:
@@ -242,7 +297,12 @@ class URDriver:
         if self._r is None or self._stopped:
             raise HardwareError(f"the UR driver for {self.host} is not running (start() it first)")
         if not self._r.isConnected():
-            self._fail(f"lost the connection to the robot at {self.host} (RTDE closed)", lost=True)
+            self._fail(
+                f"lost the connection to the robot at {self.host}: the controller closed RTDE (it was switched off, "
+                "restarted or unplugged, or the network dropped); the controller's RTDE watchdog stops the arm. Check "
+                "the controller and the cable, then start a new process (ur_rtde reconnects by itself)",
+                lost=True,
+            )
         s = self._read()
         now = time.monotonic()
         if s.timestamp_s != self._last_ts:
@@ -250,17 +310,34 @@ class URDriver:
         elif now - self._last_change > self.stale_s:
             self._fail(
                 f"lost the connection to the robot at {self.host}: no new RTDE data for "
-                f"{now - self._last_change:.2f} s (cable, network or controller)",
+                f"{now - self._last_change:.2f} s (the cable, the network or a stalled controller); the controller's "
+                "RTDE watchdog stops the arm. Check the controller and the cable, then start a new process",
                 lost=True,
             )
         self._check_safety(s)
         if self._c is not None and not self._c.isProgramRunning():
             self._diagnose()
-            self._fail(
-                f"the control script on {self.host} stopped (RTDE watchdog, a stop on the pendant or the dashboard, "
-                "or an error in the script); the session was stopped"
-            )
+            self._fail(self._program_stopped_text(now))
+        if self._applied is not None and "torque" in self._modes:
+            self._check_applied()
         return s
+
+    def _program_stopped_text(self, now_s: float) -> str:
+        """Why the control script ended, no safety stop being the cause: the RTDE watchdog when no
+        command reached the controller for longer than its period (the host stalled or stopped
+        sending), else a stop from outside the session."""
+        quiet_s = now_s - self._last_sent_s
+        if self.watchdog_hz > 0.0 and quiet_s > 1.0 / self.watchdog_hz:
+            return (
+                f"the control script on {self.host} was stopped by its RTDE watchdog: no command for {quiet_s:.2f} s, "
+                f"over the watchdog's {1.0 / self.watchdog_hz:.2f} s (the host stalled or stopped sending); give the "
+                "loop a core of its own and keep other load off the machine, then start again; the robot was stopped"
+            )
+        return (
+            f"the control script on {self.host} was stopped from outside the session (the teach pendant, the "
+            "dashboard server, another program sent to the robot) or ended with a script error: read the log on the "
+            "teach pendant, then start again; the robot was stopped"
+        )
 
     def _diagnose(self) -> None:
         """The program ended or a command was refused: find out whether a safety stop is why. The
@@ -274,19 +351,87 @@ class URDriver:
         except OSError:
             return
         if "PROTECTIVE_STOP" in answer:
-            self._fail(
-                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
-            )
+            self._fail(self._protective_text())
         if "EMERGENCY_STOP" in answer:
-            self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
+            self._fail(self._emergency_text())
+        status = answer.rsplit(":", 1)[-1].strip()  # "Safetystatus: SAFEGUARD_STOP"
+        for mode in SAFETY_STOP_WHAT_TO_DO:
+            if status == SAFETY_MODE[mode]:
+                self._fail(self._safety_stop_text(mode))
+
+    def _protective_text(self) -> str:
+        return (
+            f"robot at {self.host} is in protective stop: clear it on the teach pendant once its cause is removed "
+            "(a collision, a force or joint torque over the safety limits, the program's request), or with the "
+            "dashboard's 'unlock protective stop'; the session was stopped"
+        )
+
+    def _emergency_text(self) -> str:
+        return (
+            f"robot at {self.host} was emergency-stopped: release the emergency stop, power the arm on and release "
+            "the brakes on the teach pendant, then start again; the session was stopped"
+        )
+
+    def _safety_stop_text(self, mode: int) -> str:
+        return (
+            f"robot at {self.host} stopped in safety mode {SAFETY_MODE.get(mode, mode)}: "
+            f"{SAFETY_STOP_WHAT_TO_DO[mode]}, then start again; the session was stopped"
+        )
 
     def _check_safety(self, s: URState) -> None:
         if s.safety_mode == 3 or s.safety_status_bits & SAFETY_BIT_PROTECTIVE:
+            self._fail(self._protective_text())
+        if s.safety_status_bits & SAFETY_BITS_EMERGENCY or s.safety_mode in (6, 7):
+            self._fail(self._emergency_text())
+        if s.safety_mode in SAFETY_STOP_WHAT_TO_DO:
+            self._fail(self._safety_stop_text(s.safety_mode))
+
+    def _check_applied(self) -> None:
+        """The torque each joint reports it applies against the last two commands: a joint off both
+        by more than its tolerance plus a fifth of the command for `applied_mismatch_reads` fresh
+        reads in a row is not applying what the session records as applied: find why, stop, one
+        error naming it (docs/ur.md, "Applied, not commanded")."""
+        assert self._applied is not None
+        if self._applied.closed_reason is not None:
             self._fail(
-                f"robot at {self.host} is in protective stop: clear it on the teach pendant (the session was stopped)"
+                f"lost the connection to the robot at {self.host}: its RTDE stream of {APPLIED_OUTPUT} ended "
+                f"({self._applied.closed_reason}); check the controller and the cable, then start a new process",
+                lost=True,
             )
-        if s.safety_status_bits & SAFETY_BITS_EMERGENCY:
-            self._fail(f"robot at {self.host} was emergency-stopped (the session was stopped)")
+        package = self._applied.latest()
+        if package is None or package.seq == self._applied_seq or not self._commanded:
+            return  # nothing fresh: a read between two controller packages repeats the last one
+        self._applied_seq = package.seq
+        reported = np.asarray(package.values[APPLIED_OUTPUT], dtype=float)
+        commanded = np.array(self._commanded)
+        err = np.min(np.abs(commanded - reported), axis=0)
+        off = err > self.applied_tolerance_nm + APPLIED_REL * np.abs(commanded[-1])
+        self._mismatch = np.where(off, self._mismatch + 1, 0)
+        k = int(np.argmax(self._mismatch))
+        if self._mismatch[k] >= self.applied_mismatch_reads:
+            self._fail(self._applied_text(k, float(reported[k]), float(commanded[-1][k])))
+
+    def _applied_text(self, k: int, reported_nm: float, commanded_nm: float) -> str:
+        """Why joint k does not apply its command, from its RTDE joint mode."""
+        seen = (
+            f"joint {JOINTS[k]} of the robot at {self.host} is not applying the commanded torque: it reports "
+            f"{reported_nm:+.2f} N m ({APPLIED_OUTPUT}) against {commanded_nm:+.2f} N m commanded for "
+            f"{int(self._mismatch[k])} reads in a row"
+        )
+        try:
+            mode = int(self._r.getJointMode()[k])
+        except (RuntimeError, IndexError, TypeError, AttributeError):
+            mode = -1
+        name, what = JOINT_MODE.get(mode, (str(mode), "read the log on the teach pendant"))
+        if mode == JOINT_RUNNING:
+            why = (
+                "its joint mode is RUNNING and no stop is reported, so the command did not reach the joint or the "
+                "joint cannot produce it (another program or URCap commanding the arm, a joint drive fault): read the "
+                "log on the teach pendant; raise hardware.applied_tolerance_nm if this robot's readings are noisier"
+            )
+        else:
+            why = f"its joint mode is {name} ({mode}): {what}"
+        return f"{seen}: {why}; the robot was stopped"
 
     def _fail(self, message: str, lost: bool = False) -> None:
         self._connection_lost = self._connection_lost or lost
@@ -304,6 +449,7 @@ class URDriver:
             self.state()  # names the fault if there is one
             self._diagnose()
             self._fail(f"the controller at {self.host} refused {what}")
+        self._last_sent_s = time.monotonic()
 
     def force_mode(
         self,
@@ -359,9 +505,30 @@ class URDriver:
             )
         tau = np.clip(np.asarray(tau_nm, dtype=float), -self.torque_limit_nm, self.torque_limit_nm)
         tau = np.where(np.isfinite(tau), tau, 0.0)
+        if self._applied is None:
+            self._open_applied()
         self._modes.add("torque")
         self._sent(c.directTorque(list(map(float, tau)), [0.0] * 6, [0.0] * 6), "directTorque")
+        self._commanded.append(tau.copy())
         return tau
+
+    def _open_applied(self) -> None:
+        """The RTDE stream of the torque each joint applies (ur_rtde 1.6.5's Python receive interface
+        has no getter for it: plants/ur/rtde_outputs.py)."""
+        reader = RTDEOutputReader(self.host, (APPLIED_OUTPUT,), self.frequency_hz, RTDE_PORT)
+        try:
+            reader.start()
+        except RTDEOutputError as exc:
+            self._fail(
+                f"{exc} at {self.host}: it reports no applied joint torque, so direct torque cannot be checked; "
+                "PolyScope 5.23 / 10.11 or later has it: update PolyScope or use force_mode"
+            )
+        except OSError as exc:
+            self._fail(
+                f"cannot read {APPLIED_OUTPUT} from the robot at {self.host}:{RTDE_PORT} ({exc}); check the "
+                "controller and the network, then start again"
+            )
+        self._applied, self._applied_seq = reader, 0
 
     def servo_stop(self, deceleration: float = 10.0) -> None:
         """End servoL streaming; the arm decelerates and holds."""
@@ -407,6 +574,9 @@ class URDriver:
         atexit.unregister(self.stop)
         c, r = self._c, self._r
         self._c = self._r = None
+        applied, self._applied = self._applied, None
+        if applied is not None:
+            applied.close()
         if c is not None:
             if not self._connection_lost:
                 if "torque" in self._modes:
@@ -431,11 +601,25 @@ class URDriver:
 
 
 class URTorqueDriver:
-    """The JointDriver (plants/hardware.py) of a UR arm in direct torque mode."""
+    """The JointDriver (plants/hardware.py) of a UR arm in direct torque mode. Every `read()` checks
+    that the joints apply the torque the last `write()`s sent (`applied_tolerance_nm`,
+    `applied_mismatch_reads`: URDriver)."""
 
-    def __init__(self, host: str = "127.0.0.1", watchdog_hz: float = 10.0) -> None:
-        self.ur = URDriver(host, control=True, watchdog_hz=watchdog_hz)
-        self.joints = JOINTS
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        watchdog_hz: float = 10.0,
+        applied_tolerance_nm: Sequence[float] | float = APPLIED_TOLERANCE_NM,
+        applied_mismatch_reads: int = APPLIED_MISMATCH_READS,
+    ) -> None:
+        self.ur = URDriver(
+            host,
+            control=True,
+            watchdog_hz=watchdog_hz,
+            applied_tolerance_nm=applied_tolerance_nm,
+            applied_mismatch_reads=applied_mismatch_reads,
+        )
+        self.joints: tuple[str, ...] = JOINTS
         self.torque_limit_nm = np.array(UR5E_TORQUE_LIMIT_NM)
         self._tau = np.zeros(6)
 
@@ -512,7 +696,7 @@ class URTaskDriver:
             raise HardwareError(f"UR task-space mode {mode!r}: allowed {', '.join(self.MODES)}")
         self.mode = mode
         self.ur = URDriver(host, control=True, watchdog_hz=watchdog_hz, max_force_n=max_force_n)
-        self.joints = JOINTS
+        self.joints: tuple[str, ...] = JOINTS
         self.torque_limit_nm = np.array(UR5E_TORQUE_LIMIT_NM)
         self._jacobian = jacobian
         self.force_mode_damping = float(force_mode_damping)

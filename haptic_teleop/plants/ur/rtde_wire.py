@@ -1,6 +1,8 @@
 """RTDE wire format, protocol version 2 (docs/ur.md, "RTDE"; Universal Robots, "Real-Time Data
-Exchange (RTDE) Guide"): package framing, the variable table the emulator serves, and the
-packing of data packages. Pure: no sockets, no clock.
+Exchange (RTDE) Guide"): package framing, the variable table a controller serves, and the
+packing of data packages. Pure: no sockets, no clock. Both sides of the wire use it: the UR
+emulator (emulators/ur/server.py) and the driver's own output reader (plants/ur/rtde_outputs.py);
+it lives with the driver because plants may not import emulators (docs/architecture.md, "Layers").
 
 Every package: uint16 size (header included, big-endian), uint8 type, payload. Types:
 'V' REQUEST_PROTOCOL_VERSION (u16 version -> u8 accepted), 'v' GET_URCONTROL_VERSION
