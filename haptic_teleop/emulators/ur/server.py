@@ -375,21 +375,10 @@ class Server:
                     c.sock.shutdown(socket.SHUT_RDWR)
 
     # ------------------------------------------------------------------ RTDE
-    @staticmethod
-    def _read_exact(sock: socket.socket, n: int) -> bytes:
-        buf = b""
-        while len(buf) < n:
-            chunk = sock.recv(n - len(buf))
-            if not chunk:
-                raise ConnectionError("closed")
-            buf += chunk
-        return buf
-
     def _rtde(self, c: Client) -> None:
         ctl = self.ctl
         while not self._stop.is_set() and c.alive:
-            size, kind = w.HEADER.unpack(self._read_exact(c.sock, 3))
-            body = self._read_exact(c.sock, size - 3) if size > 3 else b""
+            kind, body = w.read_package(c.sock)
             if ctl.frozen:
                 continue  # the network is down: nothing arrives
             if kind == w.REQUEST_PROTOCOL_VERSION:

@@ -58,24 +58,10 @@ class RTDEOutputReader:
         self._thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ the handshake
-    @staticmethod
-    def _read_exact(sock: socket.socket, n: int) -> bytes:
-        buf = b""
-        while len(buf) < n:
-            chunk = sock.recv(n - len(buf))
-            if not chunk:
-                raise ConnectionError("the controller closed the RTDE connection")
-            buf += chunk
-        return buf
-
-    def _package(self, sock: socket.socket) -> tuple[int, bytes]:
-        size, kind = w.HEADER.unpack(self._read_exact(sock, w.HEADER.size))
-        return kind, self._read_exact(sock, size - w.HEADER.size) if size > w.HEADER.size else b""
-
     def _answer(self, sock: socket.socket, kind: int) -> bytes:
         """The body of the controller's answer of `kind` (text messages in between are skipped)."""
         while True:
-            got, body = self._package(sock)
+            got, body = w.read_package(sock)
             if got == kind:
                 return body
 

@@ -1,8 +1,9 @@
 """RTDE wire format, protocol version 2 (docs/ur.md, "RTDE"; Universal Robots, "Real-Time Data
 Exchange (RTDE) Guide"): package framing, the variable table a controller serves, and the
-packing of data packages. Pure: no sockets, no clock. Both sides of the wire use it: the UR
-emulator (emulators/ur/server.py) and the driver's own output reader (plants/ur/rtde_outputs.py);
-it lives with the driver because plants may not import emulators (docs/architecture.md, "Layers").
+packing of data packages. No sockets of its own (`read_package` reads from the caller's), no
+clock. Both sides of the wire use it: the UR emulator (emulators/ur/server.py) and the driver's
+own output reader (plants/ur/rtde_outputs.py); it lives with the driver because plants may not
+import emulators (docs/architecture.md, "Layers").
 
 Every package: uint16 size (header included, big-endian), uint8 type, payload. Types:
 'V' REQUEST_PROTOCOL_VERSION (u16 version -> u8 accepted), 'v' GET_URCONTROL_VERSION
@@ -18,6 +19,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 REQUEST_PROTOCOL_VERSION = ord("V")
 GET_URCONTROL_VERSION = ord("v")
@@ -160,6 +162,27 @@ INPUT_TYPES: Mapping[str, str] = _inputs()
 def frame(kind: int, payload: bytes = b"") -> bytes:
     """One package: header (size incl. header, type) and payload."""
     return HEADER.pack(HEADER.size + len(payload), kind) + payload
+
+
+class Receiver(Protocol):
+    def recv(self, n: int, /) -> bytes: ...
+
+
+def read_exact(sock: Receiver, n: int) -> bytes:
+    """`n` bytes from a stream socket; ConnectionError when the peer closes it first."""
+    buf = b""
+    while len(buf) < n:
+        chunk = sock.recv(n - len(buf))
+        if not chunk:
+            raise ConnectionError("the peer closed the RTDE connection")
+        buf += chunk
+    return buf
+
+
+def read_package(sock: Receiver) -> tuple[int, bytes]:
+    """The next package from a stream socket: (type, payload)."""
+    size, kind = HEADER.unpack(read_exact(sock, HEADER.size))
+    return kind, read_exact(sock, size - HEADER.size) if size > HEADER.size else b""
 
 
 def text_message(message: str, source: str = "emulator", level: int = INFO_MESSAGE) -> bytes:
