@@ -123,3 +123,31 @@ def test_a_signal_at_any_moment_of_start_up_exits_130_without_a_traceback(tmp_pa
     print(outcomes)
     assert not failures, "\n".join(failures)
     assert outcomes["130"] >= MOMENTS_S.size // 2  # most moments are in this package's own code
+
+
+SIGNAL_DURING_IMPORT = """
+import os, signal as _s, sys
+class _Finder:
+    # When the console script's entry module imports `signal`: a SIGINT at that very moment.
+    def find_spec(self, name, path=None, target=None):
+        if name == "signal" and "haptic_teleop.cli.entry" in sys.modules:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), _s.SIGINT)
+        return None
+del sys.modules["signal"]  # as in a console script's process, where nothing imported it yet
+sys.meta_path.insert(0, _Finder())
+"""
+
+
+def test_a_signal_while_the_entry_module_imports_is_noted_and_exits_130(tmp_path):
+    """The moment CI once hit by chance, made certain: SIGINT while the console script's entry
+    module is importing its first module. The early handler is already in place there (it needs
+    no import): exit 130 and one line, no traceback."""
+    script = Path(sys.executable).parent / "haptic-teleop"
+    if not script.is_file():
+        pytest.skip("no console script beside this interpreter")
+    (tmp_path / "sitecustomize.py").write_text(SIGNAL_DURING_IMPORT)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([str(script), "scenes"], capture_output=True, text=True, timeout=120, env=env)
+    assert r.returncode == 130, r.stderr
+    assert "Traceback" not in r.stderr and "interrupted" in r.stderr, r.stderr

@@ -14,14 +14,16 @@ or in its own start-up (site import, tens of milliseconds) "Fatal Python error: 
 
 from __future__ import annotations
 
-import os
-import signal
-import sys
-
 # The console script's first import of this package is this module: from here until main()
 # installs the handler, a signal is only noted (and acted on by main at once). Only when the
 # process is the console script (its argv[0]), so a program that imports this module keeps its own
-# signal handling.
+# signal handling. The early handler is set through the interpreter's built-in `_signal` (no import
+# to run: `os` and `sys` are loaded before any script, and `signal` itself builds enums for tens of
+# microseconds, long enough for a Ctrl-C to land inside it with a traceback, seen in CI).
+import _signal  # type: ignore[import-not-found]  # built in; typeshed has no stub
+import os
+import sys
+
 _EARLY: list[int] = []
 
 
@@ -30,9 +32,11 @@ def _note(signum: int, frame: object) -> None:
 
 
 if os.path.basename(sys.argv[0] if sys.argv else "") == "haptic-teleop":
-    for _sig, _default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
-        if signal.getsignal(_sig) is _default:
-            signal.signal(_sig, _note)
+    for _sig, _default in ((_signal.SIGINT, _signal.default_int_handler), (_signal.SIGTERM, _signal.SIG_DFL)):
+        if _signal.getsignal(_sig) == _default:
+            _signal.signal(_sig, _note)
+
+import signal  # noqa: E402 (after the early handler)
 
 from haptic_teleop import interrupt  # noqa: E402 (after the early handler: standard library only)
 
