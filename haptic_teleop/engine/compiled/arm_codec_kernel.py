@@ -6,8 +6,9 @@ The tick is the driver's (engine/compiled/driver.py) composed of `arm_kernel`'s 
 and the channels below; a direction with a
 codec replaces its schedule lookup by `CodecChannel.step` for an arm scene's sample
 (assembly.channel.LAYOUT_ARM: forward x, v; backward x, v, f; 3 task axes each): the 1-DoF codec
-kernel's ticks (engine/compiled/codec_kernel.py: `deadband_prediction_tick` and `arq_tick` inlined,
-`fec_tick`, `hli_tick` and ARQ's plan, `arq_block`, compiled once each) with their encoders,
+kernel's ticks (engine/compiled/codec_kernel.py: `deadband_prediction_tick` and `arq_tick` inlined
+into `arm_codec_step`, which both directions call; `fec_tick`, `hli_tick` and ARQ's plan,
+`arq_block`, compiled once each) with their encoders,
 links, decoders and helpers,
 compiled from their one definition with the arm layout's places (`relaid`: codec_layout's
 ARM_LAYOUT, the vectors of S, X's, the ring's, W's and HLI's columns for 9 values, and the
@@ -39,6 +40,7 @@ from haptic_teleop.engine.compiled.arm_kernel import (
 
 jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")
+part_jit = codec_link.part_jit  # compiled once, without reference counting
 
 # The places of the arm layout that differ from the 1-DoF layout's (by codec_layout name).
 ARM_PLACES: dict[str, Any] = dict(L.ARM_LAYOUT)
@@ -108,22 +110,31 @@ def arm_codec_open(net: Any) -> Any:
     )  # fmt: skip
 
 
+@part_jit  # type: ignore[misc]
+def arm_codec_step(
+    net: Any, n: int, n1: int, now: int, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray
+) -> tuple[int, bool]:
+    """CodecChannel.step of a direction whose sample is in `smp`, whatever its kind: the row's
+    `received` seq (-1: none) and whether the decoder gave a sample (in `dec`). Compiled once and
+    called by both directions (inlined into each, it would be compiled twice: compile time)."""
+    C, S, U, B, ring, rec, X, W, A = net
+    kind = C[L.C_KIND]
+    if kind == L.FEC:
+        return arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)  # type: ignore[no-any-return]
+    if kind == L.ARQ:
+        return arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, dec)  # type: ignore[no-any-return]
+    if kind == L.HLI:
+        return arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)  # type: ignore[no-any-return]
+    return arm_codec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)  # type: ignore[no-any-return]
+
+
 @inline  # type: ignore[misc]
 def codec_delivered(
     side: Any, net: Any, n: int, n1: int, now: int, smp: np.ndarray, rate: np.ndarray, dec: np.ndarray
 ) -> int:
-    """CodecChannel.step of a direction whose sample is in `smp`: the codec's tick with the decoded
-    sample through the receiving `side`'s guard. Returns the row's `received` seq (-1: none)."""
-    C, S, U, B, ring, rec, X, W, A = net
-    kind = C[L.C_KIND]
-    if kind == L.FEC:
-        rx, got = arm_fec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
-    elif kind == L.ARQ:
-        rx, got = arm_arq_tick(C, S, U, B, ring, rec, X, W, A, n, n1, smp, dec)
-    elif kind == L.HLI:
-        rx, got = arm_hli_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
-    else:
-        rx, got = arm_codec_tick(C, S, U, B, ring, rec, X, W, n, now, smp, rate, dec)
+    """CodecChannel.step of a direction (`arm_codec_step`) with the decoded sample through the
+    receiving `side`'s guard. Returns the row's `received` seq (-1: none)."""
+    rx, got = arm_codec_step(net, n, n1, now, smp, rate, dec)
     if got:
         guarded(side, dec)
     return rx

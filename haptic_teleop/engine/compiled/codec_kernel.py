@@ -6,7 +6,10 @@ The tick is `axis_kernel.run_ticks`'s (the same helpers: `control`, `forward_rel
 `backward_released`, `accept2`, `accept3`, `finish_tick`); a direction with a codec replaces
 its schedule lookup by `codec_tick`, which is
 `CodecChannel.step` line for line: encoder, link (blackout, loss, constant delay; a deadband's
-jitter), deliveries, decoder; it dispatches on the kind: deadband and prediction inlined (`deadband_prediction_tick`),
+jitter), deliveries, decoder. `codec_tick` is compiled once and called by both directions (inlined
+into each, numba would copy its IR at every level: cold compile 230 s against about 90;
+docs/architecture.md, "Inlined or called"); it dispatches on the kind: deadband and prediction
+inlined into it (`deadband_prediction_tick`),
 FEC and HLI compiled once each (`fec_tick`, `hli_tick`), ARQ (with its ACK link) planned ahead
 a chunk at a time by `arq_block`, compiled once, and its samples moved by `arq_tick`. The
 per-sample formulas are compiled from their one definition in core/deadband.py,
@@ -35,7 +38,7 @@ from haptic_teleop.engine.compiled.codec_arq import arq_tick
 from haptic_teleop.engine.compiled.codec_deadband import deadband_prediction_tick
 from haptic_teleop.engine.compiled.codec_fec import fec_tick
 from haptic_teleop.engine.compiled.codec_hli import hli_tick
-from haptic_teleop.engine.compiled.codec_link import inline
+from haptic_teleop.engine.compiled.codec_link import inline, part_jit
 
 # The loop itself without numba's reference counting (NRT): it allocates nothing, and every
 # array handed to an inlined part would otherwise be counted in and out with atomic operations,
@@ -43,7 +46,7 @@ from haptic_teleop.engine.compiled.codec_link import inline
 loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 
 
-@inline  # type: ignore[misc]
+@part_jit  # type: ignore[misc]
 def codec_tick(
     C: np.ndarray,
     S: np.ndarray,
