@@ -161,6 +161,11 @@ def test_live_session_with_the_slave_on_the_emulated_bus_ends_with_torque_off_an
         assert r.schema.slave_joints == JOINTS
         facts = json.loads(r.string("/haptic_teleop/run_info"))
         q = r.read("/slave/joint_states").values
+        # the slave node publishes the port torque the servos reported (docs/hardware.md, "Applied,
+        # not commanded"), the recorder records it; the simulated master has no such topic
+        assert r.schema.slave_measured and not r.has("/master/measured_effort")
+        measured = r.read("/slave/measured_effort").values
+    assert measured.shape == (q.shape[0], 3) and np.all(np.isfinite(measured)) and np.any(measured != 0.0)
     assert facts["slave_backend"] == "dynamixel" and facts["master_backend"] == "mujoco"
     assert facts["slave_joint_damping"] == list(_scene().slave.damping_nm_s_per_rad)  # what EBA assumes
     assert np.all(np.isfinite(q)) and np.ptp(q[:, :3], axis=0).max() > 1e-3  # the emulated arm moved
@@ -171,6 +176,7 @@ def test_live_session_on_the_emulated_bus_is_passive_on_both_ports(session):
     assert code == 0, launch.text[-4000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_joints"] == list(JOINTS) and summary["ticks"] > 0
+    assert summary["slave_energy_torque_topic"] == "/slave/measured_effort"
     for side in ("master", "slave"):
         assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
     margins = _margins_from_bag(out / "bag")

@@ -424,7 +424,7 @@ def task_from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> Task
 
     from haptic_teleop.analysis.metrics import penetration, read_run_info, wall_plane
     from haptic_teleop.analysis.stream import _aligned_blocks, _tick_count, _tick_rows
-    from haptic_teleop.analysis.taskmetrics import TASK_TOPICS, _Ports, _side_energy, _split_joints
+    from haptic_teleop.analysis.taskmetrics import TASK_TOPICS, _Ports, _side_energy, measured_topics, side_joints
     from haptic_teleop.record.reader import BagReader
 
     with BagReader(bag) as r:
@@ -452,9 +452,10 @@ def task_from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> Task
         pooled_env = {side: Envelope(n) for side in sides}
         for side, joints in sides.items():
             damping, e0[side] = _side_energy(sc, run_info, side, len(joints))
-            ports[side] = _Ports(damping, T)
+            ports[side] = _Ports(damping, T, schema.measured(side))  # a hardware side: its measured effort
         seen = 0
-        for hx, tx, rf, _af, cw, mj, sj in _aligned_blocks([_tick_rows(r, t) for t in TASK_TOPICS]):
+        topics = (*TASK_TOPICS, *measured_topics(schema))
+        for hx, tx, rf, _af, cw, mj, sj, *measured in _aligned_blocks([_tick_rows(r, t) for t in topics]):
             take = min(hx.shape[0], n - seen)
             if take <= 0:
                 break
@@ -466,9 +467,9 @@ def task_from_bag(bag: str | Path, alignment_lag_s: float | None = None) -> Task
                 rendered[k].add(t, rf[:take, k])
                 contact[k].add(t, cw[:take, k])
             depth.add(t, penetration(tx[:take, :a], plane) * 1e3)
-            for side, rows in (("master", mj), ("slave", sj)):
-                q, tau = _split_joints(rows[:take], len(sides[side]))
-                cum = ports[side].absorbed(q, tau)
+            port_rows = dict(zip(sides, side_joints(schema, mj[:take], sj[:take], measured), strict=True))
+            for side in sides:
+                cum = ports[side].absorbed(*port_rows[side])
                 for j, env in enumerate(joint_env[side]):
                     env.add(t, cum[:, j])
                 pooled_env[side].add(t, e0[side] + np.sum(cum, axis=1))

@@ -685,10 +685,11 @@ def stream_task_summary(
 ) -> dict[str, Any]:
     """summary.json of an n-DoF bag chunk by chunk (the keys and values of
     `taskmetrics.compute_task_summary`)."""
-    from haptic_teleop.analysis.taskmetrics import TASK_TOPICS, TaskAccumulator, _split_joints
+    from haptic_teleop.analysis.taskmetrics import TASK_TOPICS, TaskAccumulator, measured_topics, side_joints
 
     schema = r.schema
-    for topic in TASK_TOPICS:
+    topics = (*TASK_TOPICS, *measured_topics(schema))  # a hardware side's measured effort: its energy's torque
+    for topic in topics:
         if not r.has(topic):
             r._messages(topic)  # raises the reader's missing-topic error
     T = float(sc["scene"]["period_s"])
@@ -697,9 +698,8 @@ def stream_task_summary(
     counts = {k: nets.pop(k) for k in [k for k in nets if k.startswith("packets_")]}
     acc = TaskAccumulator(schema, sc, run_info, T, np_.forward_lag, np_.backward_lag, np_.net_lag)
     a = schema.task_axes
-    nm, ns = len(schema.master_joints), len(schema.slave_joints)
     seen = 0
-    for hx, tx, rf, af, cw, mj, sj in _aligned_blocks([_tick_rows(r, t) for t in TASK_TOPICS]):
+    for hx, tx, rf, af, cw, mj, sj, *measured in _aligned_blocks([_tick_rows(r, t) for t in topics]):
         take = min(hx.shape[0], n - seen)
         seen += take
         acc.add(
@@ -709,8 +709,7 @@ def stream_task_summary(
             af[:take, :a],
             cw[:take, :a],
             cw[:take, a : 2 * a],
-            _split_joints(mj[:take], nm),
-            _split_joints(sj[:take], ns),
+            *side_joints(schema, mj[:take], sj[:take], measured),
         )
         if seen >= n:
             break

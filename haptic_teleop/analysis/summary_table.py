@@ -61,6 +61,14 @@ def format_summary(summary: dict[str, Any]) -> str:
         v = summary[key]
         text = "n/a" if isinstance(v, float) and math.isnan(v) else fmt.format(v)
         lines.append(f"  {label:<{width}}  {text}")
+    for side in ("master", "slave"):  # a hardware side's ledger: the torque its device reported
+        topic = summary.get(f"{side}_energy_torque_topic")
+        if isinstance(topic, str) and topic.endswith("/measured_effort"):
+            what = "the torque the device reported"
+            unmeasured = summary.get(f"{side}_unmeasured_torque_reads")
+            if unmeasured:  # reads without a report: the command stood in (docs/hardware.md)
+                what += f"; {unmeasured} reads without a report hold the command"
+            lines.append(f"  {f'{side} energy booked on':<{width}}  {topic} ({what})")
     for side in ("master", "slave"):
         v = summary.get(f"{side}_energy_margin_min_j")
         if isinstance(v, float) and v < 0:

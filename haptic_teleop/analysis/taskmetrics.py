@@ -8,6 +8,13 @@ Added: the same errors per axis (`force_rms_error_x_n`, ...), the wall penetrati
 energy of every port (joint) with the damping the simulator has (run facts `<side>_joint_damping`;
 without it, no damping credit: a lower, conservative margin).
 
+The torque each port's energy books: the joint_states effort (the torque the simulated plant
+applied; on hardware the torque commanded), held over the motion from its row to the next, or,
+for a side whose bag has `/<side>/measured_effort` (a side on hardware: docs/hardware.md,
+"Applied, not commanded"), the port torque the device reported, whose row n + 1 holds the torque
+of the hold that ended at read n + 1: the motion q[n] -> q[n+1] is booked with it. The summary
+names the topic it booked per side (`<side>_energy_torque_topic`).
+
 Penetration: the wall is the plane through `wall_point_m` with unit normal `wall_normal` pointing
 out of the wall into free space (run facts; for a 1-DoF run the wall at slave.wall.position_m with
 normal -x). The tool is `(p - x) . n` deep in it where that is positive.
@@ -30,7 +37,7 @@ import numpy as np
 from haptic_teleop.analysis.energy import energy_margins
 from haptic_teleop.analysis.metrics import direction_stats, penetration, read_run_info, simulator_damping, wall_plane
 from haptic_teleop.errors import BagError
-from haptic_teleop.record.columns import TickSchema
+from haptic_teleop.record.columns import TickSchema, measured_topic
 from haptic_teleop.record.reader import BagReader
 
 # topic -> what the task pass takes from it
@@ -38,6 +45,34 @@ HANDLE, TOOL = "/master/handle_pose", "/slave/tool_pose"
 RENDERED, APPLIED, CONTACT = "/master/rendered_wrench", "/slave/applied_wrench", "/slave/contact_wrench"
 JOINTS = {"master": "/master/joint_states", "slave": "/slave/joint_states"}
 TASK_TOPICS = (HANDLE, TOOL, RENDERED, APPLIED, CONTACT, JOINTS["master"], JOINTS["slave"])
+SIDES = ("master", "slave")
+
+
+def measured_topics(schema: TickSchema) -> tuple[str, ...]:
+    """The /<side>/measured_effort topics of the sides that have one (on hardware), master first:
+    read after TASK_TOPICS, their port torques replace the joint_states effort in the energy."""
+    return tuple(measured_topic(side) for side in SIDES if schema.measured(side))
+
+
+def energy_torque_topic(schema: TickSchema, side: str) -> str:
+    """The topic whose effort a side's port energy books (the summary's `<side>_energy_torque_topic`)."""
+    return measured_topic(side) if schema.measured(side) else JOINTS[side]
+
+
+def side_joints(
+    schema: TickSchema, master_rows: np.ndarray, slave_rows: np.ndarray, measured: list[np.ndarray]
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Each side's (q, tau) for the energy from its joint_states rows (position, velocity, effort)
+    and, in `measured_topics` order, the measured effort rows of the sides that have them (then
+    tau is the measured port torque: `_Ports` pairs row n + 1's with the motion q[n] -> q[n+1])."""
+    extra = iter(measured)
+    out = []
+    for side, rows in zip(SIDES, (master_rows, slave_rows), strict=True):
+        q, tau = _split_joints(rows, len(schema.joints(side)))
+        if schema.measured(side):
+            tau = next(extra)[: rows.shape[0]]
+        out.append((q, tau))
+    return out[0], out[1]
 
 
 def _side_energy(sc: dict[str, Any], run_info: dict[str, Any], side: str, joints: int) -> tuple[np.ndarray, float]:
@@ -71,7 +106,7 @@ class TaskSignals:
     contact_n: np.ndarray  # contact force at the tool
     contact_torque_nm: np.ndarray
     master_q: np.ndarray  # (N, master joints)
-    master_tau_nm: np.ndarray
+    master_tau_nm: np.ndarray  # the torque the energy books: joint_states effort, or the measured effort (schema)
     slave_q: np.ndarray
     slave_tau_nm: np.ndarray
     forward_delays_s: np.ndarray
@@ -96,7 +131,7 @@ def load_task_signals(bag: str | Path) -> TaskSignals:
         scene = yaml.safe_load(r.string("/haptic_teleop/scene"))
         run_info = read_run_info(r)
         period = float(scene["scene"]["period_s"])
-        data = {t: r.read(t) for t in TASK_TOPICS}
+        data = {t: r.read(t) for t in (*TASK_TOPICS, *measured_topics(schema))}
         n = min(len(d.log_ns) for d in data.values())
         if n < 2:
             raise BagError(f"{bag}: fewer than two ticks recorded; nothing to analyse")
@@ -105,8 +140,10 @@ def load_task_signals(bag: str | Path) -> TaskSignals:
         fpk = r.packets("/forward/packets") if r.has("/forward/packets") else np.zeros((0, 6))
         bpk = r.packets("/backward/packets") if r.has("/backward/packets") else np.zeros((0, 6))
     a = schema.task_axes
-    mq, mtau = _split_joints(data[JOINTS["master"]].values[:n], len(schema.master_joints))
-    sq, stau = _split_joints(data[JOINTS["slave"]].values[:n], len(schema.slave_joints))
+    measured = [data[t].values[:n] for t in measured_topics(schema)]
+    (mq, mtau), (sq, stau) = side_joints(
+        schema, data[JOINTS["master"]].values[:n], data[JOINTS["slave"]].values[:n], measured
+    )
     period_ns = round(period * 1e9)
     fdel = (fr.log_ns - fr.stamp_ns) * 1e-9 if fr.stamp_ns is not None else np.zeros(0)
     bdel = (br.log_ns - br.stamp_ns) * 1e-9 if br.stamp_ns is not None else np.zeros(0)
@@ -204,7 +241,9 @@ def compute_task_summary(sig: TaskSignals) -> dict[str, Any]:
     energies = {}
     for side, q, tau in (("master", sig.master_q, sig.master_tau_nm), ("slave", sig.slave_q, sig.slave_tau_nm)):
         damping, e0 = _side_energy(sc, sig.run_info, side, q.shape[1])
-        em = energy_margins(q, tau, damping, side_period_s(sc, side), e0)
+        # a measured effort: row n + 1's torque was held over q[n] -> q[n+1]
+        held = np.concatenate([tau[1:], tau[-1:]]) if schema.measured(side) else tau
+        em = energy_margins(q, held, damping, side_period_s(sc, side), e0)
         energies[side] = (float(np.min(em.pooled_margin_j - e0)), np.min(em.absorbed_j, axis=0), e0)
     return acc.summary(sig.run_info, int(sig.t_s.size), duration, counts, nets, lat_f, lat_b, energies)
 
@@ -269,11 +308,14 @@ class _VecErr:
 
 class _Ports:
     """The energy the ports (joints) of one side absorbed since tick 0, per port and pooled:
-    analysis.energy.energy_margins' sums, carried between blocks."""
+    analysis.energy.energy_margins' sums, carried between blocks. `measured`: the torques are a
+    hardware side's measured effort, row n + 1's held over the motion q[n] -> q[n+1] (else row
+    n's, the torque commanded or applied at tick n)."""
 
-    def __init__(self, damping: np.ndarray, period_s: float) -> None:
+    def __init__(self, damping: np.ndarray, period_s: float, measured: bool = False) -> None:
         self.d = damping
         self.T = period_s
+        self.measured = measured
         k = damping.size
         self.total = np.zeros(k)
         self.low = np.zeros(k)  # tick 0 absorbed nothing
@@ -290,7 +332,7 @@ class _Ports:
             return np.zeros((0, self.d.size))
         self.prev = (q[-1:], tau[-1:])
         dq = np.diff(q, axis=0)
-        step = (self.d / self.T) * dq * dq - tau[:-1] * dq
+        step = (self.d / self.T) * dq * dq - (tau[1:] if self.measured else tau[:-1]) * dq
         cum = np.cumsum(np.concatenate([self.total[None, :], step]), axis=0)
         cum = cum if first else cum[1:]  # tick 0 absorbed nothing; later blocks start after the carry
         if cum.shape[0]:
@@ -328,7 +370,7 @@ class TaskAccumulator:
         self.ports = {}
         for side, joints in (("master", schema.master_joints), ("slave", schema.slave_joints)):
             damping, _ = _side_energy(sc, run_info, side, len(joints))
-            self.ports[side] = _Ports(damping, side_period_s(sc, side))
+            self.ports[side] = _Ports(damping, side_period_s(sc, side), schema.measured(side))
 
     def add(
         self,
@@ -415,6 +457,10 @@ class TaskAccumulator:
             d_sim = simulator_damping(run_info, side)
             out[f"{side}_energy_margin_simulator_min_j"] = float(e0 + pooled_low) if d_sim is not None else math.nan
             out[f"{side}_joint_damping_simulator"] = d_sim
+            out[f"{side}_energy_torque_topic"] = energy_torque_topic(schema, side)
+            unmeasured = run_info.get(f"{side}_unmeasured_torque_reads")
+            if unmeasured is not None:  # a hardware side's reads whose measured effort is the command (flagged)
+                out[f"{side}_unmeasured_torque_reads"] = int(unmeasured)
         out["all_finite"] = self.finite
         out["rejected_samples_forward"] = int(run_info.get("rejected_samples_forward", 0))
         out["rejected_samples_backward"] = int(run_info.get("rejected_samples_backward", 0))

@@ -410,6 +410,16 @@ def check_gravity_hold(config: Scene, role: str, plant: MujocoArm | HardwareArm)
         )
 
 
+def arm_schema(master: MujocoArm | HardwareArm, slave: MujocoArm | HardwareArm) -> TickSchema:
+    """The tick schema of an arm scene with these plants: their joints, 3 task axes, and the
+    measured torque columns of each side on a real device (record/columns.py; docs/hardware.md,
+    "Applied, not commanded"). A simulated side adds nothing: its bag keeps its bytes."""
+    from haptic_teleop.plants.hardware_arm import HardwareArm
+    from haptic_teleop.record.columns import TickSchema
+
+    return TickSchema(master.joints, slave.joints, 3, isinstance(master, HardwareArm), isinstance(slave, HardwareArm))
+
+
 def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     """Both sides of an arm scene: plants, mapping, task-space laws, pooled joint bounds, guards,
     operator (docs/arms.md). `compiled`: the laws and bounds call numba-compiled kernels
@@ -420,7 +430,6 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     from haptic_teleop.core.controller import SampleGuard
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
     from haptic_teleop.core.taskspace import TaskCouplingParams, TaskSpaceLaw, WorkspaceMapping, rotation_from_rpy
-    from haptic_teleop.record.columns import TickSchema
     from haptic_teleop.scene.sides import side_period_s
 
     # A hardware side's plant starts its driver at its first read, not here (plants/hardware_arm.py).
@@ -495,5 +504,5 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
         operator=build_operator(op, None),
         operator_origin_m=handle0,
         operator_direction=direction,
-        schema=TickSchema(master.joints, slave.joints, 3),
+        schema=arm_schema(master, slave),
     )

@@ -210,7 +210,9 @@ class ArmSideStage:
     workspace maps and the guard on the remote samples. A side with its own period (`every` scene
     ticks) reads, controls and writes every `every`-th tick and holds its command in between: a
     simulated arm is stepped with the held torque every scene tick, a real one is left alone. A real
-    arm's ledger credits the damping over the time the tick's motion really took."""
+    arm's ledger credits the damping over the time the tick's motion really took, and books the
+    port torque the device reported for the hold that just ended (`measured`: its
+    `port_torque_nm`), not the command (docs/hardware.md, "Applied, not commanded")."""
 
     def __init__(self, side: ArmSide, tick: Any, maps: Any, master: bool, every: int, real: bool, hand: bool) -> None:
         self.side, self.side_tick, self.maps, self.master = side, tick, maps, master
@@ -225,6 +227,7 @@ class ArmSideStage:
         self.qd: Any = None
         self.tau: Any = None
         self.applied: Any = None
+        self.measured: Any = None  # a real arm's reported port torque over the hold that ended at the read
         self.x: Any = None
         self.v: Any = None
         self.hand_x: Any = None
@@ -240,8 +243,13 @@ class ArmSideStage:
         plant = self.plant
         if due:
             self.q, self.qd = plant.read()
-            if self.real:  # the motion since the last read took its own time (Pacer: late ticks)
-                self.side_tick.bound.stretch(plant.read_interval_s)
+            if self.real:
+                bound = self.side_tick.bound
+                bound.stretch(plant.read_interval_s)  # the motion since the last read took its own time
+                # The hold that ended at this read: the ledger books the torque the device reported
+                # over it, not the one commanded (set in `actuate`), before the bound books the motion.
+                self.measured = plant.port_torque_nm
+                bound.held[:] = self.measured
             x, v = plant.point()
             if self.master:
                 self.hand_x, self.hand_v = x, v
@@ -264,7 +272,8 @@ class ArmSideStage:
         hand = hand if self.hand_on else None
         if self.due:
             self.applied = self.plant.step(self.tau, hand)
-            self.side_tick.bound.held[:] = self.applied  # the ledger: the torques the plant applied
+            # the ledger: the torques the plant applied (a real arm's: replaced by its report at the next read)
+            self.side_tick.bound.held[:] = self.applied
         elif not self.real:
             self.plant.step(self.tau, hand)
 
@@ -296,6 +305,9 @@ class ArmRow:
         g = schema.group
         self.c = [g(name) for name in ARM_GROUPS]
         self.maps = maps
+        # a real side's measured port torque (only in its schema: simulated rows are unchanged)
+        self.cm = g("m_tau_measured_nm") if schema.master_measured else None
+        self.cs = g("s_tau_measured_nm") if schema.slave_measured else None
 
     def write(
         self, block: np.ndarray, i: int, op: ArmOperator, m: ArmSideStage, s: ArmSideStage,
@@ -322,6 +334,10 @@ class ArmRow:
         row[next(c)] = brx
         row[next(c)] = focc
         row[next(c)] = bocc
+        if self.cm is not None:
+            row[self.cm] = m.measured
+        if self.cs is not None:
+            row[self.cs] = s.measured
 
 
 # The arm row's groups, in the order ArmRow writes them.

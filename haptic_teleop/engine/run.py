@@ -115,6 +115,10 @@ def record_run(
             # A real device's side: its damping above is the scene's assumption (docs/hardware.md).
             info["master_backend"] = c.master.backend
             info["slave_backend"] = c.slave.backend
+            for side, plant in (("master", engine.master), ("slave", engine.slave)):
+                if hasattr(plant, "unmeasured_reads"):  # a real device: its measured effort's reads that
+                    # carried no report, the command standing in (docs/hardware.md, "Applied, not commanded")
+                    info[f"{side}_unmeasured_torque_reads"] = plant.unmeasured_reads
         if collector is not None:
             engine.data = collector.data()
         rec.close(info)

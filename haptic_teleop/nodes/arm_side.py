@@ -36,6 +36,7 @@ from haptic_teleop.nodes.topics import (
     stream_qos,
     wire_names,
 )
+from haptic_teleop.record.columns import measured_topic
 
 
 class ArmEbaSide:
@@ -103,6 +104,7 @@ class ArmEbaSide:
         self.restart_ns: int | None = None
         self.restarted_j: float | None = None  # the energy the ledger discarded at scene time 0
         self.remote: tuple[float, ...] | None = None
+        self.measured: np.ndarray | None = None  # a real arm's reported port torque of the last hold
         self._last_write_s: float | None = None
         self.long_holds = 0  # a real arm's writes held longer than two periods (wall time)
         self.max_hold_s = 0.0
@@ -151,6 +153,10 @@ class ArmEbaSide:
             # over that time (CoupledEnergyBound.stretch), as the engine's loop does. The plant's
             # guard stops the side when a hold exceeds the bound's budget (docs/eba.md).
             self.tick.bound.stretch(self.plant.read_interval_s)
+            # The ledger books the port torque the device reported over the hold that just ended,
+            # not the command (docs/hardware.md, "Applied, not commanded"), as the engine's loop does.
+            self.measured = self.plant.port_torque_nm
+            self.tick.bound.held[:] = self.measured
         x, v = self.plant.point()
         return q, qd, x, v
 
@@ -182,8 +188,15 @@ class ArmEbaSide:
             self.long_holds += 1
 
     def applied(self, torque: np.ndarray) -> None:
-        """The ledger takes the torques the plant applied (as the engine's loop)."""
+        """The ledger takes the torques the plant applied (as the engine's loop; a real arm's are
+        replaced by the torque it reports at the next read, `read_point`)."""
         self.tick.bound.held[:] = torque
+
+    def publish_measured(self, stamp_ns: int) -> None:
+        """A real arm's /<side>/measured_effort: the port torque it reported at this tick's read
+        (the hold that ended there); nothing on a simulated arm (its schema has no such topic)."""
+        if self.measured is not None:
+            self.out[measured_topic(self.role)].publish(stamp_ns, self.measured)
 
     def publish(self, topic: str, stamp_ns: int | None, values: Any) -> None:
         self.out[topic].publish(stamp_ns, values)
@@ -270,12 +283,15 @@ HARDWARE_SCHEDULING = (
 
 
 def side_topics(role: str, schema: Any) -> tuple[str, ...]:
-    """The per-tick topics one side's node publishes (record.columns.tick_topics)."""
+    """The per-tick topics one side's node publishes (record.columns.tick_topics); a side on
+    hardware also its /<side>/measured_effort."""
+    measured = (measured_topic(role),) if schema.measured(role) else ()
     if role == "master":
         return (
             "/master/joint_states", "/master/handle_pose", "/master/rendered_wrench", "/master/eba", "/forward/sent",
+            *measured,
         )  # fmt: skip
     return (
         "/slave/joint_states", "/slave/tool_pose", "/slave/applied_wrench", "/slave/contact_wrench", "/slave/eba",
-        "/backward/sent",
+        "/backward/sent", *measured,
     )  # fmt: skip

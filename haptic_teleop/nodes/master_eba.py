@@ -171,6 +171,7 @@ class MasterEba(LiveNode):
         arm.applied(applied)
         arm.publish("/master/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
         arm.publish("/master/handle_pose", stamp_ns, x)
+        arm.publish_measured(stamp_ns)
         arm.publish_internals(stamp_ns)
 
     def tick(self, index: int, stamp_ns: int) -> None:

@@ -677,7 +677,7 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
     arm scene the joint names and the damping each joint has in the simulator (the compiled
     MjModel's dof_damping, which the analysis' true energy margin uses) from the scene's models,
     and the wall's point and normal (the analysis' penetration). A one-axis scene: ONE_DOF."""
-    from haptic_teleop.record.columns import ONE_DOF, TickSchema
+    from haptic_teleop.record.columns import ONE_DOF
 
     if cfg.is_nve:  # an NVE run: its record schema (the run facts' nve_schema is the recorder's own)
         from haptic_teleop.record.nve_columns import NveSchema
@@ -685,6 +685,7 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
         return NveSchema(tuple(c.name for c in cfg.nve.clients), cfg.nve.axes), {}
     if not cfg.is_arm:
         return ONE_DOF, {}
+    from haptic_teleop.assembly.parts import arm_schema
     from haptic_teleop.assembly.plants import build_arm
 
     # A real arm's plant (built, its driver never started here): the damping the scene lets EBA
@@ -698,7 +699,7 @@ def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
         "master_backend": cfg.master.backend,
         "slave_backend": cfg.slave.backend,
     }
-    return TickSchema(master.joints, slave.joints, 3), facts
+    return arm_schema(master, slave), facts  # a hardware side's measured effort among its columns
 
 
 def side_every(cfg: Any, topic: str) -> int:

@@ -85,6 +85,7 @@ class SlaveEba(LiveNode):
         arm.publish("/slave/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))
         arm.publish("/slave/contact_wrench", stamp_ns, (*f_env.tolist(), *t_env.tolist()))
         arm.publish("/slave/tool_pose", stamp_ns, x)
+        arm.publish_measured(stamp_ns)
         arm.publish_internals(stamp_ns)
 
     def tick(self, index: int, stamp_ns: int) -> None:

@@ -58,12 +58,19 @@ def import_sdk(module: str) -> ModuleType:
 class JointSample:
     """One read of the chain: joint positions (rad), velocities (rad/s) and the torque the motors
     report (N m, from their current), in the driver's joint order, and the host's monotonic time
-    (s) at which the read completed."""
+    (s) at which the read completed.
+
+    `measured`: `tau_nm` is what the device reports its motors apply (a Dynamixel's Present
+    Current, a UR's `actual_current_as_torque`). False where the device gives no such report (a UR
+    commanded in task space, a UR read before its first report arrived): `tau_nm` is then the
+    torque last commanded, kept so the sample is complete, and the flag says so (docs/hardware.md,
+    "Applied, not commanded")."""
 
     q_rad: np.ndarray
     qd_rad_per_s: np.ndarray
     tau_nm: np.ndarray
     t_s: float
+    measured: bool = True
 
 
 class JointDriver(Protocol):
@@ -83,7 +90,8 @@ class JointDriver(Protocol):
 
     def write(self, tau_nm: np.ndarray) -> np.ndarray:
         """Command these joint torques until the next write; returns them as the device will apply
-        them (after its quantisation and clip), which is what an energy ledger must book."""
+        them if it obeys (after its quantisation and clip): the command. What the motors did apply
+        over the hold is the next read's `tau_nm` (when `measured`), which the ledger books."""
         ...
 
     def stop(self) -> None: ...

@@ -18,7 +18,16 @@ Per tick:
 - `step(tau)` takes the port torque (beyond gravity compensation), keeps each joint's total within
   the motor's limit (as `MujocoArm` does: compensation spends the motor's real torque), adds the
   gravity torque and writes the total through the driver (one sync write). It returns the port
-  torque the device says it applies (after its quantisation and clip): the ledger books that.
+  torque commanded (after the device's quantisation and clip): the joint_states effort.
+
+Applied, not commanded (docs/hardware.md): each read also gives `port_torque_nm`, the port torque
+the motors really applied over the hold that ended at this read, as the device reports it (the
+sample's `tau_nm`, the motors' torque) minus the gravity compensation written with the command
+that hold answered (zero before the first write). The engine records it (`/<side>/measured_effort`)
+and sets the energy bound's `held` from it before the bound books the hold's motion. Where the
+device gives no report (`JointSample.measured` False: a UR in task space, a read before a UR's
+first report) it is the port torque last commanded, `torque_measured` is False for that tick and
+`unmeasured_reads` counts it (the run facts carry the count).
 
 The driver starts at the first `read()` (not when the plant is built): the engine builds both
 sides, warms up its kernels and opens the bag before the first tick, longer than a servo's bus
@@ -164,7 +173,11 @@ class HardwareArm:
         self._q = self._start_q.copy()
         self._qd = np.zeros(self.n)
         self._tau_measured = np.zeros(self.n)
-        self._applied = np.zeros(self.n)
+        self._applied = np.zeros(self.n)  # the port torque last commanded (written - g)
+        self._g_written = np.zeros(self.n)  # the gravity compensation written with it (0 before a write)
+        self._port = np.zeros(self.n)  # the port torque of the hold that ended at the last read
+        self.torque_measured = True  # `port_torque_nm` is the device's report (False: the command)
+        self.unmeasured_reads = 0  # reads whose sample carried no report (the command stood in)
         self._sample_t_s = -math.inf
         self.kinematics.set_q(self._q)
         self.stale_ticks = 0  # ticks whose read failed (the driver repeated its last good sample)
@@ -197,6 +210,14 @@ class HardwareArm:
         self._q = q.copy()
         self._qd = np.asarray(s.qd_rad_per_s, dtype=float).copy()
         self._tau_measured = np.asarray(s.tau_nm, dtype=float).copy()
+        # The port torque of the hold that ended at this read: the report minus the compensation
+        # written with the command it answers; without a report, that command (flagged).
+        self.torque_measured = bool(getattr(s, "measured", True))
+        if self.torque_measured:
+            self._port = self._tau_measured - self._g_written
+        else:
+            self._port = self._applied.copy()
+            self.unmeasured_reads += 1
         if not self._lockstep and math.isfinite(self._sample_t_s):
             h = float(s.t_s - self._sample_t_s)
             self.read_interval_s = h
@@ -262,6 +283,14 @@ class HardwareArm:
         """The motors' torque this tick as the device reports it (from its current), gravity included."""
         return self._tau_measured.copy()
 
+    @property
+    def port_torque_nm(self) -> np.ndarray:
+        """The port torque (beyond gravity compensation, N m per joint) the motors applied over the
+        hold that ended at this tick's read: the device's report minus the gravity compensation
+        written with the command that hold answered; the command where the device reports none
+        (`torque_measured` False). What the bag's measured effort holds and the ledger books."""
+        return self._port.copy()
+
     # ---------------------------------------------------------------------------------- step
 
     def step(self, torque_nm: Sequence[float] | np.ndarray, hand_force_n: Sequence[float] | None = None) -> np.ndarray:
@@ -281,6 +310,7 @@ class HardwareArm:
         written = np.asarray(self.driver.write(tau + g), dtype=float)
         applied: np.ndarray = written - g
         self._applied = applied
+        self._g_written = np.asarray(g, dtype=float).copy()
         self._ticks += 1
         self._fresh = False
         return applied

@@ -9,6 +9,13 @@ the shared task frame: the slave's world frame) or per joint `j` of a side:
     slave:    s_q[j], s_qd[j], s_tau_nm[j], s_x_m[a], s_v_m_per_s[a], s_force_n[a],
               s_force_desired_n[a], s_energy_j, s_contact_n[a], s_contact_torque_nm[a]
     network:  fwd_rx_seq, bwd_rx_seq, fwd_occupancy, bwd_occupancy
+    measured: m_tau_measured_nm[j], s_tau_measured_nm[j]   (a side on hardware only)
+
+The `measured` groups exist only for a side whose plant is a real device (`master_measured`,
+`slave_measured`): the port torque its motors reported they applied over the hold that ended at
+the tick's read (docs/hardware.md, "Applied, not commanded"), beside `m_tau_nm`/`s_tau_nm`, the
+torque commanded. They come after every other group, so a schema without them (every simulated
+scene) has the columns, topics and bag bytes it always had.
 
 A column is named `group[axis]` or `group[joint]` (`s_x_m[z]`, `m_q[yaw]`); a group of one column
 is named as the group. The 1-axis schema (`ONE_DOF`: one slide joint per side moving along the
@@ -66,6 +73,11 @@ _GROUPS: tuple[tuple[str, Kind], ...] = (
     ("bwd_occupancy", "one"),
 )
 GROUPS = tuple(g for g, _ in _GROUPS)
+# A hardware side's measured port torque (TickSchema.master_measured / slave_measured), after the rest.
+MEASURED_GROUPS: dict[str, tuple[str, Kind]] = {
+    "master": ("m_tau_measured_nm", "master_joint"),
+    "slave": ("s_tau_measured_nm", "slave_joint"),
+}
 
 # In the 1-axis schema a slide joint's columns are the axis's; the contact has no torque.
 _ONE_AXIS_ALIASES = {
@@ -126,11 +138,15 @@ class ColumnLookup:
 @dataclass(frozen=True)
 class TickSchema(ColumnLookup):
     """The columns of one tick's row for a master with `master_joints`, a slave with
-    `slave_joints` and a task space of `task_axes` Cartesian axes (1: the 1-DoF slide; 3: x, y, z)."""
+    `slave_joints` and a task space of `task_axes` Cartesian axes (1: the 1-DoF slide; 3: x, y, z).
+    `master_measured`, `slave_measured`: that side is a real device, whose row also holds the port
+    torque it reported (`m_tau_measured_nm`, `s_tau_measured_nm`; not in a 1-axis schema)."""
 
     master_joints: tuple[str, ...]
     slave_joints: tuple[str, ...]
     task_axes: int
+    master_measured: bool = False
+    slave_measured: bool = False
     columns: tuple[str, ...] = field(init=False, repr=False, compare=False)
     col: dict[str, int] = field(init=False, repr=False, compare=False)
     _slices: dict[str, slice] = field(init=False, repr=False, compare=False)
@@ -153,10 +169,17 @@ class TickSchema(ColumnLookup):
                 "a 1-axis task has one slide joint per side; got "
                 f"{len(self.master_joints)} master and {len(self.slave_joints)} slave joints"
             )
+        for side in ("master", "slave"):
+            flag = getattr(self, f"{side}_measured")
+            if type(flag) is not bool:
+                raise SchemaError(f"{side}_measured must be true or false; got {flag!r}")
+        if self.single_axis and (self.master_measured or self.slave_measured):
+            raise SchemaError("a 1-axis task has no measured torque columns (its sides are simulated)")
         columns: list[str] = []
         slices: dict[str, slice] = {}
         one = self.single_axis
-        for group, kind in _GROUPS:
+        groups = _GROUPS + tuple(MEASURED_GROUPS[s] for s in ("master", "slave") if self.measured(s))
+        for group, kind in groups:
             if one and group in _ONE_AXIS_ALIASES:
                 continue
             if one and group in _ONE_AXIS_EMPTY:
@@ -193,7 +216,15 @@ class TickSchema(ColumnLookup):
         return AXES[: self.task_axes]
 
     def _groups_allowed(self) -> str:
-        return ", ".join(GROUPS)
+        return ", ".join((*GROUPS, *(MEASURED_GROUPS[s][0] for s in ("master", "slave") if self.measured(s))))
+
+    def measured(self, side: str) -> bool:
+        """Whether `side` ("master" or "slave") records the port torque its device reported."""
+        if side == "master":
+            return self.master_measured
+        if side == "slave":
+            return self.slave_measured
+        raise SchemaError(f"side must be 'master' or 'slave'; got {side!r}")
 
     def joints(self, side: str) -> tuple[str, ...]:
         if side == "master":
@@ -205,18 +236,28 @@ class TickSchema(ColumnLookup):
     # -- what the bag records of it
     def facts(self) -> dict[str, Any]:
         """The schema as plain data (JSON/YAML): `from_facts` rebuilds it."""
-        return {
+        out: dict[str, Any] = {
             "master_joints": list(self.master_joints),
             "slave_joints": list(self.slave_joints),
             "task_axes": self.task_axes,
         }
+        for side in ("master", "slave"):  # only when set: a simulated run's facts keep their bytes
+            if self.measured(side):
+                out[f"{side}_measured"] = True
+        return out
 
     @classmethod
     def from_facts(cls, facts: Any) -> TickSchema:
         if not isinstance(facts, dict):
             raise SchemaError(f"a tick schema is a mapping of master_joints, slave_joints, task_axes; got {facts!r}")
         try:
-            return cls(tuple(facts["master_joints"]), tuple(facts["slave_joints"]), facts["task_axes"])
+            return cls(
+                tuple(facts["master_joints"]),
+                tuple(facts["slave_joints"]),
+                facts["task_axes"],
+                facts.get("master_measured", False),
+                facts.get("slave_measured", False),
+            )
         except KeyError as exc:
             raise SchemaError(f"tick schema: no {exc} key") from None
         except TypeError as exc:
@@ -300,9 +341,15 @@ def packet_topic(schema: TickSchema, topic: str) -> TopicColumns:
     return TopicColumns(topic, JOINT_STATE, "", backward_names(schema), pairs)
 
 
+def measured_topic(side: str) -> str:
+    """/master/measured_effort or /slave/measured_effort: a hardware side's reported port torque."""
+    return f"/{side}/measured_effort"
+
+
 def tick_topics(schema: TickSchema) -> tuple[TopicColumns, ...]:
     """Every per-tick topic of the schema, in the order its messages follow one another in a tick
-    (`eba` ones only with recording.eba_internals), then /forward/received and /backward/received
+    (a hardware side's /<side>/measured_effort right after its joint states; `eba` ones only with
+    recording.eba_internals), then /forward/received and /backward/received
     (the samples a playout buffer released that tick: the columns of the tick they were sent)."""
     pve = ("position", "velocity", "effort")
     operator = TopicColumns(
@@ -326,6 +373,18 @@ def tick_topics(schema: TickSchema) -> tuple[TopicColumns, ...]:
         schema.slave_joints,
         tuple(zip(pve, ("s_q", "s_qd", "s_tau_nm"), strict=True)),
     )
+    # A hardware side's measured port torque (only then: simulated bags keep their topics), its
+    # joint names and `effort` alone.
+    measured = {
+        side: (
+            TopicColumns(
+                measured_topic(side), JOINT_STATE, "", schema.joints(side), (("effort", MEASURED_GROUPS[side][0]),)
+            ),
+        )
+        if schema.measured(side)
+        else ()
+        for side in ("master", "slave")
+    }
     if schema.single_axis:
         contact = TopicColumns("/slave/contact_wrench", WRENCH, "wall", (), (("force", "s_contact_n"),))
         task: tuple[TopicColumns, ...] = ()
@@ -342,7 +401,9 @@ def tick_topics(schema: TickSchema) -> tuple[TopicColumns, ...]:
     return (
         operator,
         master,
+        *measured["master"],
         slave,
+        *measured["slave"],
         contact,
         *task,
         _eba("master", schema),

@@ -10,7 +10,15 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
-from haptic_teleop.record.columns import JOINT_STATE, MULTIARRAY, ONE_DOF, POSE, SchemaError, TickSchema
+from haptic_teleop.record.columns import (
+    JOINT_STATE,
+    MULTIARRAY,
+    ONE_DOF,
+    POSE,
+    SchemaError,
+    TickSchema,
+    measured_topic,
+)
 from haptic_teleop.record.layouts import PACKET_FIELDS, STRING, TopicSpec, nve_topic_specs, topic_specs, typestore
 from haptic_teleop.record.nve_columns import TWIST, NveSchema, nve_schema_from_topics
 
@@ -282,8 +290,9 @@ class BagReader:
     @property
     def schema(self) -> TickSchema:
         """The run's tick schema (joint names, task axes), read from the bag itself: the joint
-        names of the first /master/joint_states and /slave/joint_states messages and the axes of
-        /operator/joint_states; without those messages, the run facts' `tick_schema`; else the
+        names of the first /master/joint_states and /slave/joint_states messages, the axes of
+        /operator/joint_states and which sides have a /<side>/measured_effort topic (a hardware
+        side's); without those messages, the run facts' `tick_schema`; else the
         1-DoF schema. A BagError for an NVE run's bag (its schema is `nve_schema`)."""
         cached: TickSchema | None = self.__dict__.get("_schema")
         if cached is not None:
@@ -312,8 +321,10 @@ class BagReader:
         if any(m is None for m in msgs):
             return None
         op, m, s = (tuple(str(n) for n in msg.name) for msg in msgs)
+        # a side on hardware records its measured port torque (/<side>/measured_effort)
+        measured = (measured_topic("master") in self.topics, measured_topic("slave") in self.topics)
         try:
-            return TickSchema(m, s, len(op))
+            return TickSchema(m, s, len(op), *measured)
         except SchemaError as exc:
             raise BagError(f"{self.path}: the joint states name no usable tick schema ({exc})") from None
 

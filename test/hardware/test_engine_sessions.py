@@ -366,6 +366,15 @@ def test_a_session_with_the_slave_on_the_ur_emulator_in_direct_torque_mode(tmp_p
         assert summary[f"{s}_energy_margin_simulator_min_j"] >= 0.0, (s, summary)
     assert summary["slave_joint_damping_simulator"] == [3.0, 3.0, 3.0, 0.5, 0.5, 0.5]
     assert summary["penetration_max_m"] > 0.0 and summary["contact_force_max_n"] > 5.0
+    # the torque the joints reported (actual_current_as_torque) is recorded beside the command and booked
+    assert summary["slave_energy_torque_topic"] == "/slave/measured_effort"
+    from haptic_teleop.record.reader import BagReader
+
+    with BagReader(out / "bag") as r:
+        measured = r.read("/slave/measured_effort").values
+        unmeasured = json.loads(r.string("/haptic_teleop/run_info"))["slave_unmeasured_torque_reads"]
+    assert measured.shape[0] == summary["ticks"] and np.any(measured != 0.0)
+    assert unmeasured <= 10  # the start's reads before the first report arrived, if any: a few at most
     assert json.loads((out / "timing.json").read_text())["realtime"] is True
 
 

@@ -320,6 +320,39 @@ def test_a_joint_that_does_not_apply_its_torque_stops_the_session_naming_it(faul
         assert not st["program_running"] and st["mode"] == "hold"
 
 
+def test_the_torque_driver_reads_back_what_the_joints_apply_not_the_command():
+    """URTorqueDriver.read().tau_nm is the controller's actual_current_as_torque: the command while
+    the joint applies it, what the joint really applies once a fault makes the two differ (the
+    applied check is held off here so the session goes on). Only what the driver reports is
+    asserted: the emulator runs in real time."""
+    command = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.5])
+
+    def poll(j: URTorqueDriver, done: Callable[[np.ndarray], bool]) -> np.ndarray:
+        host0 = time.monotonic()
+        while True:
+            s = j.read()
+            j.write(command)
+            if s.measured and done(s.tau_nm):
+                return s.tau_nm
+            assert time.monotonic() - host0 < SAFETY_NET_S, f"safety net: the driver reports {s}"
+            time.sleep(0.002)
+
+    with start_ur(URConfig(controller_version=(5.0, 26.0, 0.0, 0.0))) as ur:
+        j = URTorqueDriver(ur.host, watchdog_hz=WATCHDOG_HZ, applied_mismatch_reads=10**9)
+        try:
+            first = j.start()  # before the applied stream's first package: the command (zero), flagged
+            assert first.measured or not first.tau_nm.any()
+            healthy = poll(j, lambda tau: abs(tau[5] - 0.5) < 1e-6)
+            assert healthy[5] == pytest.approx(0.5, abs=1e-6)
+            ur.inject("joint_fault", joint=5, kind="no_torque")
+            faulted = poll(j, lambda tau: abs(tau[5] - 0.5) > 0.4)
+            assert j.write(command)[5] == 0.5  # still commanded
+            applied = ur.state()["tau_nm"][5]  # what the emulated joint applies, as the controller reports it
+            assert faulted[5] == pytest.approx(applied, abs=0.05)
+        finally:
+            j.stop()
+
+
 def test_a_second_control_session_is_refused_and_a_read_only_one_uploads_nothing():
     # no watchdog on the first session: it sends nothing while the others start
     with start_ur() as ur, URDriver(ur.host, watchdog_hz=0.0) as a:

@@ -119,9 +119,14 @@ def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_a
     with BagReader(out / "bag") as r:
         topics = [t for t in r.specs() if r.has(t) and "slave" in t and "joint" in t]
         q = r.read(topics[0]).values
+        measured = r.read("/slave/measured_effort").values
     assert q.shape[0] >= 1900
     m = q.shape[0] // 2 * 2
     assert np.array_equal(q[0:m:2], q[1:m:2])  # tick 2k+1 repeats the side's tick 2k
+    # A task-space mode has no joint torque report (docs/hardware.md, "Applied, not commanded"): its
+    # measured effort is the torque booked at the side's tick before (J^T w as sent), every read flagged.
+    assert np.array_equal(measured[2:m:2], q[0 : m - 2 : 2, 12:18])
+    assert summary["slave_unmeasured_torque_reads"] >= m // 2
 
 
 def test_a_protective_stop_mid_session_in_force_mode_ends_the_run_with_one_line_and_the_robot_stopped(

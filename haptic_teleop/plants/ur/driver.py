@@ -411,6 +411,17 @@ class URDriver:
         if self._mismatch[k] >= self.applied_mismatch_reads:
             self._fail(self._applied_text(k, float(reported[k]), float(commanded[-1][k])))
 
+    def applied_torque_nm(self) -> np.ndarray | None:
+        """The torque each joint last reported it applies beyond gravity compensation (N m, RTDE
+        `actual_current_as_torque`, the newest package of the stream `_check_applied` reads), or
+        None: no direct torque session yet (the stream opens with the first `torque()`), or no
+        package arrived yet."""
+        reader = self._applied
+        package = None if reader is None else reader.latest()
+        if package is None:
+            return None
+        return np.asarray(package.values[APPLIED_OUTPUT], dtype=float).copy()
+
     def _applied_text(self, k: int, reported_nm: float, commanded_nm: float) -> str:
         """Why joint k does not apply its command, from its RTDE joint mode."""
         seen = (
@@ -603,7 +614,13 @@ class URDriver:
 class URTorqueDriver:
     """The JointDriver (plants/hardware.py) of a UR arm in direct torque mode. Every `read()` checks
     that the joints apply the torque the last `write()`s sent (`applied_tolerance_nm`,
-    `applied_mismatch_reads`: URDriver)."""
+    `applied_mismatch_reads`: URDriver), and its sample's `tau_nm` is the torque the joints report
+    they apply (`actual_current_as_torque`, beyond gravity compensation, which the controller does),
+    not the command: what the bag's measured effort and the ledger book (docs/ur.md, "Applied, not
+    commanded"). The controller must have that output (PolyScope 5.23 / 10.11 on): without it the
+    driver refuses direct torque at the first `torque()`. A sample taken before the first report
+    arrived (the one `start()` returns, a read in the first controller period) carries the torque
+    last commanded with `measured` False."""
 
     def __init__(
         self,
@@ -624,7 +641,10 @@ class URTorqueDriver:
         self._tau = np.zeros(6)
 
     def _sample(self, s: URState) -> JointSample:
-        return JointSample(q_rad=s.q_rad, qd_rad_per_s=s.qd_rad_per_s, tau_nm=self._tau.copy(), t_s=s.t_host_s)
+        reported = self.ur.applied_torque_nm()
+        if reported is None:  # no report yet: the command, flagged
+            return JointSample(s.q_rad, s.qd_rad_per_s, self._tau.copy(), s.t_host_s, measured=False)
+        return JointSample(q_rad=s.q_rad, qd_rad_per_s=s.qd_rad_per_s, tau_nm=reported, t_s=s.t_host_s)
 
     def start(self) -> JointSample:
         first = self.ur.start()
@@ -670,7 +690,9 @@ class URTaskDriver:
 
     `write` returns J^T w as sent (w clipped at the driver's force and torque limits): the torque the
     ledger books. `read()`'s time is the controller's timestamp (the time the motion took on the
-    robot's own clock); its torque is the torque last booked (ur_rtde 1.6.5 reads no joint torque).
+    robot's own clock); its torque is the torque last booked, flagged `measured` False: the robot's
+    own force control (or speed loop) makes the joint torques, which are not the port torque
+    J^T w the session commands, so no reading stands in for it (docs/ur.md, "Applied, not commanded").
     """
 
     MODES = ("force_mode", "admittance")
@@ -711,7 +733,7 @@ class URTaskDriver:
 
     def _sample(self, s: URState) -> JointSample:
         self.last = s
-        return JointSample(q_rad=s.q_rad, qd_rad_per_s=s.qd_rad_per_s, tau_nm=self._tau.copy(), t_s=s.timestamp_s)
+        return JointSample(s.q_rad, s.qd_rad_per_s, self._tau.copy(), s.timestamp_s, measured=False)
 
     def tcp_wrench(self) -> np.ndarray:
         """The environment's wrench on the tool at the last read (the controller's TCP force)."""
