@@ -189,3 +189,14 @@ def test_a_codec_scene_plans_the_same_processes_in_the_launch_file_and_the_launc
     assert "forward_ack_relay" in {s.name for s in slave}
     plain = node_plan(load_scene(find_scene("wall_contact")))
     assert all("carries" not in s.params and "_ack_" not in s.name for s in plain)
+
+
+def test_nve_launch_file_declares_record_and_its_plan_records(tmp_path):
+    """`record:=DIR` is one of nve_launch.py's declared arguments (`ros2 launch -s` lists it) and
+    its plan then ends with the recorder, as `haptic-teleop launch nve_push --record DIR`'s."""
+    defaults = {name: default for name, default, _ in NVE_ARGUMENTS}
+    assert "record" in defaults and defaults["record"] == ""
+    pairs = plan_from_arguments({**defaults, "record": str(tmp_path / "rec")}, "plant", tmp_path / "params")
+    assert [s for s, _ in pairs] == node_plan(load_scene(find_scene("nve_push")), record_dir=tmp_path / "rec")
+    assert pairs[-1][0].executable == "recorder"
+    assert plan_from_arguments(defaults, "plant", tmp_path / "p2")[-1][0].executable != "recorder"

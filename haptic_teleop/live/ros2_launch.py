@@ -41,9 +41,10 @@ DEVICE_ARGUMENTS = (
 )
 
 
-# An NVE scene's launch file (nve_launch.py) takes these: no recording, device or side yet.
+# An NVE scene's launch file (nve_launch.py) takes these: no device or side yet.
 NVE_ARGUMENTS = (
     ("scene", "nve_push", "an NVE scene: YAML path, or a bundled scene name (nve_push, nve_two_clients)"),
+    ("record", "", "directory for the bag (DIR/bag); empty: no recording"),
     ("seed", "", "override scene.seed"),
     ("duration", "", "override scene.duration_s (seconds)"),
     ("sim_time", "false", "true: the nodes follow /clock (a clock_source publishes it)"),
