@@ -8,7 +8,7 @@ relay and a sync buffer per direction of each client's link pair), for a full RO
 The node set, names and parameters come from `haptic_teleop.live.launcher.node_plan`, the same plan
 `haptic-teleop launch nve_push` starts (docs/live.md, "NVE scenes live"). With `record:=DIR` a
 recorder writes DIR/bag. The run ends when the server finishes (after scene.duration_s); the first
-node that exits non-zero shuts the launch down.
+node that exits non-zero stops every node and the launch exits 1, naming it.
 Where the package runs without ROS 2's launch (the PyPI wheels), use `haptic-teleop launch SCENE`.
 """
 

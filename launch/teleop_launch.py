@@ -6,7 +6,8 @@
 The node set, names and parameters come from `haptic_teleop.live.launcher.node_plan`, the same plan
 `haptic-teleop launch` starts, so both paths run the very same processes from the same scene file
 (arguments and rules: `haptic_teleop.live.ros2_launch`). The run ends when the operator source
-finishes (after scene.duration_s); the first node that exits non-zero shuts the launch down.
+finishes (after scene.duration_s): exit 0; a node that exits non-zero stops every node and the
+launch exits 1, naming it.
 Where the package runs without ROS 2's launch (the PyPI wheels), use `haptic-teleop launch SCENE`.
 """
 

@@ -200,3 +200,39 @@ def test_nve_launch_file_declares_record_and_its_plan_records(tmp_path):
     assert [s for s, _ in pairs] == node_plan(load_scene(find_scene("nve_push")), record_dir=tmp_path / "rec")
     assert pairs[-1][0].executable == "recorder"
     assert plan_from_arguments(defaults, "plant", tmp_path / "p2")[-1][0].executable != "recorder"
+
+
+def test_a_node_failure_fails_the_launch_and_a_finished_scene_ends_it_cleanly():
+    """The launch files' exit rule (ros2_launch.exit_verdict, which their exit handler follows:
+    "failed" raises NodeFailed, whose exception makes ROS 2's launch stop every node and return 1):
+    a finishing node's exit 0 ends the scene; any node's non-zero exit fails the launch, a node the
+    launch's own shutdown killed (SIGINT, SIGTERM) does not, a non-zero exit during shutdown does."""
+    from haptic_teleop.live.ros2_launch import FINISHING_NODES, exit_verdict
+
+    assert exit_verdict("operator_source", 0, False) == "finished"
+    assert exit_verdict("nve_server", 0, False) == "finished"
+    assert set(FINISHING_NODES) == {"operator_source", "nve_server"}
+    for name in ("operator_source", "recorder", "slave_eba", "forward_relay"):
+        assert exit_verdict(name, 1, False) == "failed"
+        assert exit_verdict(name, 1, True) == "failed"  # the recorder failing to close its bag, say
+        assert exit_verdict(name, -9, True) == "failed"
+        assert exit_verdict(name, -2, False) == "failed"  # killed by someone else's SIGINT mid-run
+        assert exit_verdict(name, -2, True) is None  # stopped by the launch itself
+        assert exit_verdict(name, -15, True) is None
+    assert exit_verdict("recorder", 0, False) is None and exit_verdict("slave_eba", 0, True) is None
+    src = (ROOT / "haptic_teleop" / "live/ros2_launch.py").read_text()
+    handler = src[src.index("def on_exit") :]
+    assert "exit_verdict(" in handler and "raise NodeFailed(" in handler
+
+
+def test_the_parameter_folder_is_removed_when_the_launch_process_exits(tmp_path):
+    """The launch files' and `haptic-teleop launch`'s parameter folder (launcher.temporary_params_dir)."""
+    import subprocess
+    import sys
+
+    code = "from haptic_teleop.live.launcher import temporary_params_dir; p = temporary_params_dir(); "
+    code += "(p / 'x.yaml').write_text('a: 1'); print(p)"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    folder = Path(r.stdout.strip())
+    assert folder.name.startswith("haptic_teleop_params_") and not folder.exists()

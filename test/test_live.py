@@ -189,9 +189,10 @@ def default_run(tmp_path_factory, watcher):
     (docs/live.md, "CPU per node"); composed it needs 0.75 and keeps its rate. The tests below
     with signals and a killed slave run one process per node."""
     out = tmp_path_factory.mktemp("live") / "run"
+    temp = tmp_path_factory.mktemp("tmpdir")  # the launcher's temporary folders go here
     watcher.reset()
     launch = Launch("wall_contact", "--duration", "5", "--record", str(out), "--no-plots", "--single-process",
-                    cwd=out.parent)  # fmt: skip
+                    cwd=out.parent, env={"TMPDIR": str(temp)})  # fmt: skip
     stamp0 = int(launch.wait_for(r"scene time 0 at stamp (\d+) ns", 60).group(1))
     scene_yaml = watcher.late_scene(30)  # subscribed after the recorder published it
     code = launch.finish(120)
@@ -206,6 +207,7 @@ def default_run(tmp_path_factory, watcher):
         "samples": {side: watcher.samples(f"/{side}/joint_states") for side in ("master", "slave")},
         "diagnostics": watcher.diagnostics(),
         "scene_yaml": scene_yaml,
+        "temp": temp,
     }
 
 
@@ -213,6 +215,7 @@ def test_default_scene_runs_live_and_ends_cleanly(default_run):
     launch = default_run["launch"]
     assert default_run["code"] == 0, launch.text[-4000:]
     assert "scene duration reached (5000 ticks)" in launch.text
+    assert not list(default_run["temp"].glob("haptic_teleop_params_*"))  # its parameter files removed
     assert "bag written" in launch.text
     assert "Traceback" not in launch.text
     assert "[launcher] started" not in launch.text  # composed: no child process per node

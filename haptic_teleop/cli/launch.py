@@ -6,11 +6,17 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
-from haptic_teleop.live.launcher import EXIT_FAILURE, SIDES, Launcher, node_plan, run_single_process
+from haptic_teleop.live.launcher import (
+    EXIT_FAILURE,
+    SIDES,
+    Launcher,
+    node_plan,
+    run_single_process,
+    temporary_params_dir,
+)
 
 
 def launch_main(args: Any) -> int:
@@ -35,7 +41,7 @@ def launch_main(args: Any) -> int:
         plan = node_plan(scene, record_dir=record, side=args.side, sim_time_rate=rate)
     except ValueError as exc:
         raise HapticTeleopError(str(exc)) from None
-    params_dir = Path(args.params_dir) if args.params_dir else Path(tempfile.mkdtemp(prefix="haptic_teleop_params_"))
+    params_dir = Path(args.params_dir) if args.params_dir else temporary_params_dir()
     warm_side_tick(scene)
     # From here on a first signal stops the nodes (their own handlers while they run) and still
     # lets the bag, summary and plots be written (the CLI's handler once they have stopped).

@@ -15,14 +15,17 @@ launcher exits 1.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import dataclasses
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -347,6 +350,17 @@ def params_yaml(spec: NodeSpec) -> str:
     lines = [f"{spec.name}:", "  ros__parameters:"]
     _emit(spec.params, 2, lines)
     return "\n".join(lines) + "\n"
+
+
+PARAMS_PREFIX = "haptic_teleop_params_"
+
+
+def temporary_params_dir() -> Path:
+    """A temporary folder for the nodes' parameter files, removed when this process exits (the
+    nodes read their file when they start; a launch killed by SIGKILL leaves it behind)."""
+    path = tempfile.mkdtemp(prefix=PARAMS_PREFIX)
+    atexit.register(shutil.rmtree, path, True)
+    return Path(path)
 
 
 def write_params_files(plan: Sequence[NodeSpec], directory: str | Path) -> dict[str, Path]:

@@ -8,13 +8,13 @@ its tests) works without them.
 
 from __future__ import annotations
 
-import tempfile
+import signal
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from haptic_teleop.errors import ConfigError
-from haptic_teleop.live.launcher import DEVICES, SIDES, NodeSpec, node_plan, write_params_files
+from haptic_teleop.live.launcher import DEVICES, SIDES, NodeSpec, node_plan, temporary_params_dir, write_params_files
 from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES
 
 # Launch arguments (name, default, description): every launch file takes these...
@@ -140,11 +140,34 @@ def plan_from_arguments(values: Mapping[str, str], device: str, params_dir: str 
     return [(spec, files[spec.name]) for spec in plan]
 
 
+class NodeFailed(RuntimeError):
+    """A node of the launch exited non-zero: raised from its exit handler, so that ROS 2's launch
+    stops every node and `ros2 launch` exits 1 (launch returns 1 for an exception in an event
+    handler; a Shutdown event alone ends the launch with 0)."""
+
+
+# Exit codes of a node stopped by the launch's own shutdown (SIGINT, then SIGTERM): not a failure.
+STOPPED_BY_SHUTDOWN = (-signal.SIGINT, -signal.SIGTERM)
+
+
+def exit_verdict(name: str, code: int, shutting_down: bool) -> str | None:
+    """What a node's exit means for the launch: "finished" (a finishing node's exit 0: the scene is
+    over, stop the others), "failed" (any non-zero exit, except a node the launch itself is
+    stopping, killed by its SIGINT or SIGTERM), or None (nothing to do)."""
+    if name in FINISHING_NODES and code == 0:
+        return "finished"
+    if code != 0 and not (shutting_down and code in STOPPED_BY_SHUTDOWN):
+        return "failed"
+    return None
+
+
 def launch_actions(context: Any, device: str = "plant") -> list[Any]:
     """OpaqueFunction body of the launch files: Node actions plus the shutdown rules.
 
-    The run ends when the operator source (an NVE scene: the server) exits (scene over); any node
-    exiting non-zero shuts the launch down too (the others then reach their safe state on their watchdogs).
+    The run ends when the operator source (an NVE scene: the server) exits 0 (scene over): the
+    launch stops the others and exits 0. A node exiting non-zero raises `NodeFailed` naming it:
+    the launch stops every node (the others reach their safe state on their own watchdogs) and
+    `ros2 launch` exits 1 (`exit_verdict`).
     """
     from launch.actions import EmitEvent, LogInfo, RegisterEventHandler, SetEnvironmentVariable
     from launch.event_handlers import OnProcessExit
@@ -152,11 +175,11 @@ def launch_actions(context: Any, device: str = "plant") -> list[Any]:
     from launch_ros.actions import Node
 
     values = dict(context.launch_configurations)
-    params_dir = tempfile.mkdtemp(prefix="haptic_teleop_params_")
+    folder = temporary_params_dir()
     actions: list[Any] = []
     if "ROS_AUTOMATIC_DISCOVERY_RANGE" not in context.environment:
         actions.append(SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"))
-    for spec, params_file in plan_from_arguments(values, device, params_dir):
+    for spec, params_file in plan_from_arguments(values, device, folder):
         node = Node(
             package="haptic_teleop",
             executable=spec.executable,
@@ -170,13 +193,11 @@ def launch_actions(context: Any, device: str = "plant") -> list[Any]:
 
         def on_exit(event: Any, ctx: Any, name: str = spec.name) -> list[Any]:
             code = event.returncode
-            if name in FINISHING_NODES and code == 0:
+            verdict = exit_verdict(name, code, bool(getattr(ctx, "is_shutdown", False)))
+            if verdict == "finished":
                 return [LogInfo(msg="scene finished; stopping every node"), EmitEvent(event=Shutdown(reason="done"))]
-            if code != 0:
-                return [
-                    LogInfo(msg=f"{name} exited with code {code}; stopping every node"),
-                    EmitEvent(event=Shutdown(reason=f"{name} failed")),
-                ]
+            if verdict == "failed":
+                raise NodeFailed(f"{name} exited with code {code}; stopping every node (the launch exits 1)")
             return []
 
         actions.append(RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit)))
