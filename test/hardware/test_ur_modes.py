@@ -158,6 +158,38 @@ def test_a_protective_stop_mid_session_in_force_mode_ends_the_run_with_one_line_
     assert (out / "summary.json").exists()
 
 
+@pytest.mark.parametrize("mode", ["force_mode", "admittance"])
+def test_a_braked_joint_mid_session_in_a_task_space_mode_stops_the_run_naming_it(mode: str, tmp_path: Path) -> None:
+    """A task-space mode has no joint torque to set against its command, so its applied check is
+    the joints' modes: a joint whose brake holds it (RTDE joint_mode IDLE) follows no command, and
+    the session stops with one line naming the joint, the robot stopped, the bag and summary kept."""
+    from haptic_teleop.emulators.ur.process import start_ur
+
+    out = tmp_path / "run"
+    with start_ur(_ur_config()) as ur:
+
+        def inject() -> None:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 60.0:  # once the session's control script runs
+                if ur.state()["program_running"]:
+                    time.sleep(0.5)
+                    ur.inject("joint_fault", joint=2, kind="brake")
+                    return
+                time.sleep(0.05)
+
+        th = threading.Thread(target=inject, daemon=True)
+        th.start()
+        proc = _run(mode, out)
+        th.join(5.0)
+        st = ur.state()
+    assert proc.returncode == 1, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("haptic-teleop:")]
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "joint elbow" in lines[0] and "IDLE (255)" in lines[0] and "release the brakes" in lines[0], lines[0]
+    assert st["program_running"] is False
+    assert (out / "summary.json").exists()
+
+
 def test_a_side_period_ticks_the_side_every_kth_scene_tick_with_its_own_bound_period() -> None:
     from haptic_teleop.engine.lockstep import Engine
 

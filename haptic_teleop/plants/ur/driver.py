@@ -422,6 +422,23 @@ class URDriver:
             return None
         return np.asarray(package.values[APPLIED_OUTPUT], dtype=float).copy()
 
+    def check_joints_running(self) -> None:
+        """Every joint's RTDE joint mode: a joint not RUNNING (its brake holding it, not powered, a
+        fault) follows no command, so the session stops naming it and what to do. The task-space
+        modes' applied check: they have no joint-torque reading to set against the command
+        (docs/ur.md, "Applied, not commanded")."""
+        try:
+            modes = [int(m) for m in self._r.getJointMode()]
+        except (RuntimeError, TypeError, ValueError, AttributeError):
+            return  # no state package yet: the next read looks again
+        for k, mode in enumerate(modes[: len(JOINTS)]):
+            if mode != JOINT_RUNNING:
+                name, what = JOINT_MODE.get(mode, (str(mode), "read the log on the teach pendant"))
+                self._fail(
+                    f"joint {JOINTS[k]} of the robot at {self.host} is not under control: its joint mode is "
+                    f"{name} ({mode}): {what}; the robot was stopped"
+                )
+
     def _applied_text(self, k: int, reported_nm: float, commanded_nm: float) -> str:
         """Why joint k does not apply its command, from its RTDE joint mode."""
         seen = (
@@ -755,7 +772,9 @@ class URTaskDriver:
         return self._sample(self.ur.state())
 
     def read(self) -> JointSample:
-        return self._sample(self.ur.state())
+        s = self.ur.state()
+        self.ur.check_joints_running()  # no joint torque to compare in task space: every joint under control
+        return self._sample(s)
 
     def _clip(self, w: np.ndarray) -> np.ndarray:
         w = np.where(np.isfinite(w), w, 0.0)
