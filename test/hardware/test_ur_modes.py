@@ -129,12 +129,11 @@ def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_a
     assert summary["slave_unmeasured_torque_reads"] >= m // 2
 
 
-def test_a_protective_stop_mid_session_in_force_mode_ends_the_run_with_one_line_and_the_robot_stopped(
-    tmp_path: Path,
-) -> None:
+def _session_with_fault(mode: str, out: Path, fault: str, **args: Any) -> tuple[Any, dict[str, Any]]:
+    """A session in `mode` on the UR emulator with `fault` injected 0.5 s after its control script
+    starts; the command's result and the emulator's state after it."""
     from haptic_teleop.emulators.ur.process import start_ur
 
-    out = tmp_path / "run"
     with start_ur(_ur_config()) as ur:
 
         def inject() -> None:
@@ -142,15 +141,22 @@ def test_a_protective_stop_mid_session_in_force_mode_ends_the_run_with_one_line_
             while time.monotonic() - t0 < 60.0:  # once the session's control script runs
                 if ur.state()["program_running"]:
                     time.sleep(0.5)
-                    ur.inject("protective_stop", reason="test")
+                    ur.inject(fault, **args)
                     return
                 time.sleep(0.05)
 
         th = threading.Thread(target=inject, daemon=True)
         th.start()
-        proc = _run("force_mode", out)
+        proc = _run(mode, out)
         th.join(5.0)
-        st = ur.state()
+        return proc, ur.state()
+
+
+def test_a_protective_stop_mid_session_in_force_mode_ends_the_run_with_one_line_and_the_robot_stopped(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "run"
+    proc, st = _session_with_fault("force_mode", out, "protective_stop", reason="test")
     assert proc.returncode == 1, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("haptic-teleop:")]
     assert len(lines) == 1 and "protective stop" in lines[0] and "Traceback" not in proc.stderr, proc.stderr
@@ -163,25 +169,8 @@ def test_a_braked_joint_mid_session_in_a_task_space_mode_stops_the_run_naming_it
     """A task-space mode has no joint torque to set against its command, so its applied check is
     the joints' modes: a joint whose brake holds it (RTDE joint_mode IDLE) follows no command, and
     the session stops with one line naming the joint, the robot stopped, the bag and summary kept."""
-    from haptic_teleop.emulators.ur.process import start_ur
-
     out = tmp_path / "run"
-    with start_ur(_ur_config()) as ur:
-
-        def inject() -> None:
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 60.0:  # once the session's control script runs
-                if ur.state()["program_running"]:
-                    time.sleep(0.5)
-                    ur.inject("joint_fault", joint=2, kind="brake")
-                    return
-                time.sleep(0.05)
-
-        th = threading.Thread(target=inject, daemon=True)
-        th.start()
-        proc = _run(mode, out)
-        th.join(5.0)
-        st = ur.state()
+    proc, st = _session_with_fault(mode, out, "joint_fault", joint=2, kind="brake")
     assert proc.returncode == 1, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("haptic-teleop:")]
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
