@@ -113,6 +113,8 @@ setup(
         "console_scripts": [
             "haptic-teleop = haptic_teleop.cli.entry:main",
             *(f"{name} = {module}:main" for name, module in NODES.items()),
+            # every node of a plan in one process: the launch files' `single_process:=true`
+            "composed = haptic_teleop.live.composed:main",
         ],
     },
 )

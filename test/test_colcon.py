@@ -33,7 +33,7 @@ def install(tmp_path_factory):
 
 def test_install_tree_has_executables_launch_config_models(install):
     lib = install / "lib" / "haptic_teleop"
-    for name in [*EXECUTABLES, "haptic-teleop"]:
+    for name in [*EXECUTABLES, "haptic-teleop", "composed"]:
         exe = lib / name
         assert exe.is_file() and os.access(exe, os.X_OK), f"missing executable {exe}"
     share = install / "share" / "haptic_teleop"

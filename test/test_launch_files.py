@@ -5,6 +5,9 @@ they consume (their arguments) and `ros2_launch.plan_from_arguments`, which they
 checked against the plan `haptic-teleop launch` starts.
 """
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -34,7 +37,8 @@ def test_every_launch_argument_is_read_by_the_plan():
     src = (ROOT / "haptic_teleop" / "live/ros2_launch.py").read_text()
     body = src[src.index("def plan_from_arguments") :]
     for name, _, _ in ARGUMENTS + DEVICE_ARGUMENTS + NVE_ARGUMENTS:
-        assert f'arg("{name}")' in body, f"launch argument {name} is declared but not read"
+        read = (f'arg("{name}")', f'switch_argument(values, "{name}")')
+        assert any(r in body for r in read), f"launch argument {name} is declared but not read"
 
 
 def test_nve_launch_file_plan_is_the_launcher_plan(tmp_path):
@@ -101,11 +105,9 @@ def test_hardware_variant_has_no_simulated_operator_and_uses_the_driver_topics(t
     assert "operator_source" not in names and "master_eba" in names
     master = next(s for s, _ in pairs if s.name == "master_eba")
     assert master.params["device"] == {"source": "topic", "state_topic": "/dev/js", "command_topic": "/dev/cmd"}
-    # No operator source publishes the scene start: the relays' links start at their first sample.
+    # No operator source: master_eba publishes the scene start, which the relays wait for as usual.
     relays = [s for s, _ in pairs if s.executable == "network_relay"]
-    assert len(relays) == 2 and all(s.params["scene_start"] == "first_sample" for s in relays)
-    plant = plan_from_arguments({"scene": "wall_contact"}, "plant", tmp_path / "plant")
-    assert not any("scene_start" in s.params for s, _ in plant if s.executable == "network_relay")
+    assert len(relays) == 2 and not any("scene_start" in s.params for s in relays)
 
 
 def test_hardware_variant_takes_the_force_command_qos_from_launch_arguments(tmp_path):
@@ -211,7 +213,7 @@ def test_a_node_failure_fails_the_launch_and_a_finished_scene_ends_it_cleanly():
 
     assert exit_verdict("operator_source", 0, False) == "finished"
     assert exit_verdict("nve_server", 0, False) == "finished"
-    assert set(FINISHING_NODES) == {"operator_source", "nve_server"}
+    assert set(FINISHING_NODES) == {"operator_source", "nve_server", "composed"}
     for name in ("operator_source", "recorder", "slave_eba", "forward_relay"):
         assert exit_verdict(name, 1, False) == "failed"
         assert exit_verdict(name, 1, True) == "failed"  # the recorder failing to close its bag, say
@@ -236,3 +238,278 @@ def test_the_parameter_folder_is_removed_when_the_launch_process_exits(tmp_path)
     assert r.returncode == 0, r.stderr
     folder = Path(r.stdout.strip())
     assert folder.name.startswith("haptic_teleop_params_") and not folder.exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# single_process:=true: the whole plan composed in one process (live/composed.py).
+
+
+def _launch_file_variant(path: Path) -> dict[str, str]:
+    """The keyword arguments a launch file passes to `launch_description` (read, not run)."""
+    import ast
+
+    call = next(
+        n
+        for n in ast.walk(ast.parse(path.read_text()))
+        if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "launch_description"
+    )
+    return {k.arg: ast.literal_eval(k.value) for k in call.keywords if k.arg}
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_every_launch_file_declares_single_process_false_by_default(path):
+    """`ros2 launch -s` lists it: it is in the table `launch_description` declares for that file."""
+    from haptic_teleop.live.ros2_launch import argument_table
+
+    table = {name: (default, text) for name, default, text in argument_table(**_launch_file_variant(path))}
+    assert "single_process" in table, sorted(table)
+    default, text = table["single_process"]
+    assert default == "false" and "one process" in text
+
+
+@pytest.mark.parametrize("value", ["yes", "1", "composed", "truee"])
+def test_a_bad_single_process_value_is_one_config_error_line_before_anything_is_written(tmp_path, value):
+    from haptic_teleop.live.ros2_launch import launch_processes
+
+    with pytest.raises(ConfigError) as exc:
+        launch_processes({"scene": "wall_contact", "single_process": value}, "plant", tmp_path / "params")
+    text = str(exc.value)
+    assert "\\n" not in text and "single_process" in text and "allowed: true or false" in text, text
+    assert not (tmp_path / "params").exists()  # no parameter file, no plan file
+
+
+@pytest.mark.parametrize(
+    ("device", "args"),
+    [
+        ("plant", {"scene": "wall_contact", "duration": "2.5", "sim_time": "true"}),
+        ("topic", {"scene": "touch_dynamixel_wall", "set": "slave.backend=dynamixel;slave.hardware.port=/dev/ttyUSB7"}),
+        ("plant", {"scene": "nve_two_clients", "seed": "3"}),
+    ],
+    ids=["teleop", "hardware", "nve"],
+)
+def test_single_process_starts_one_composed_process_with_every_nodes_parameter_file(tmp_path, device, args):
+    """With `single_process:=true` the launch starts one process: the `composed` console script,
+    given the plan file written next to the parameter files of every node of the plan (the same
+    files, byte for byte, as one process per node gets), and no node name, parameter file or
+    remapping as ROS arguments (they would apply to every node in it)."""
+    from haptic_teleop.live.composed import read_plan
+    from haptic_teleop.live.launcher import write_params_files
+    from haptic_teleop.live.ros2_launch import COMPOSED, launch_processes
+
+    record = {"record": str(tmp_path / "rec")}
+    per_node = launch_processes({**args, **record}, device, tmp_path / "nodes")
+    plan = [s for s, _ in plan_from_arguments({**args, **record}, device, tmp_path / "plan")]
+    assert [p.node_name for p in per_node] == [s.name for s in plan] and len(per_node) > 1
+    for p, spec in zip(per_node, plan, strict=True):
+        assert p.command() == [spec.executable, "--ros-args", "-r", f"__node:={spec.name}", "--params-file",
+                               str(tmp_path / "nodes" / f"{spec.name}.yaml")]  # fmt: skip
+
+    folder = tmp_path / "composed"
+    (process,) = launch_processes({**args, **record, "single_process": "True "}, device, folder)
+    assert process.label == process.executable == COMPOSED
+    plan_file = folder / "composed_plan.json"
+    assert process.command() == [COMPOSED, str(plan_file), "--ros-args"]
+    assert process.node_name is None and process.params_file is None and process.remaps == ()
+    # every node of the plan, the recorder included (JSON gives lists for tuples: the same YAML)
+    assert [(s.name, s.executable, params_yaml(s), s.remaps) for s in read_plan(plan_file)] == [
+        (s.name, s.executable, params_yaml(s), s.remaps) for s in plan
+    ]
+    files = {p.stem: p.read_text() for p in folder.glob("*.yaml")}
+    assert files == {p.node_name: Path(str(p.params_file)).read_text() for p in per_node}
+    # what the composed process gives its nodes (run_single_process: write_params_files in the
+    # plan file's folder) are those very files
+    rewritten = write_params_files(read_plan(plan_file), tmp_path / "rewritten")
+    assert {name: path.read_text() for name, path in rewritten.items()} == files
+    assert process.sigterm_timeout_s is not None and process.sigterm_timeout_s > 5.0  # the bag gets closed
+
+
+def test_the_composed_executable_is_a_console_script_of_the_package():
+    """`ros2 run haptic_teleop composed PLAN` and launch_ros's Node find it in lib/haptic_teleop."""
+    from haptic_teleop.live.ros2_launch import COMPOSED
+
+    setup = (ROOT / "setup.py").read_text()
+    assert f'"{COMPOSED} = haptic_teleop.live.composed:main"' in setup
+    assert COMPOSED not in EXECUTABLES  # not a node: `haptic-teleop launch` never starts it as one
+
+
+def test_single_process_refuses_a_plan_with_remappings(tmp_path, monkeypatch):
+    """run_single_process gives each node its parameter file only: a plan that remaps topics is
+    refused in one line (launch argument) and by the composed process itself, not run unremapped."""
+    import dataclasses
+
+    from haptic_teleop.live import ros2_launch
+    from haptic_teleop.live.composed import main, write_plan
+
+    real = ros2_launch.plan_from_arguments
+
+    def remapped(values, device, folder, warm=False):
+        pairs = real(values, device, folder, warm)
+        return [(dataclasses.replace(pairs[0][0], remaps=(("/a", "/b"),)), pairs[0][1]), *pairs[1:]]
+
+    monkeypatch.setattr(ros2_launch, "plan_from_arguments", remapped)
+    with pytest.raises(ConfigError, match="single_process") as exc:
+        ros2_launch.launch_processes({"scene": "wall_contact", "single_process": "true"}, "plant", tmp_path)
+    assert "operator_source" in str(exc.value)
+    assert ros2_launch.launch_processes({"scene": "wall_contact"}, "plant", tmp_path)[0].remaps == (("/a", "/b"),)
+    plan = [s for s, _ in remapped({"scene": "wall_contact"}, "plant", tmp_path)]
+    assert main([str(write_plan(plan, tmp_path / "p")), "--ros-args"]) == 2
+
+
+def test_the_composed_process_refuses_a_missing_or_bad_plan_file(tmp_path, capsys):
+    from haptic_teleop.live.composed import main
+
+    assert main([str(tmp_path / "none.json")]) == 2
+    (tmp_path / "bad.json").write_text('{"format": 1, "nodes": [{"name": "x"}]}')
+    assert main([str(tmp_path / "bad.json"), "--ros-args", "-r", "__ns:=/x"]) == 2
+    err = capsys.readouterr().err
+    assert "none.json" in err and "node 0 needs name, executable, params" in err
+
+
+def test_the_exit_of_the_composed_process_finishes_fails_or_is_the_launchs_own_stop():
+    """The composed process exits 0 when its scene is over (the launch ends, 0), non-zero on a
+    failure (NodeFailed: the launch exits 1) and 130 / 143 when the launch's own shutdown stopped it
+    with SIGINT / SIGTERM (-2 / -15 before its nodes took the signals over): not a failure then."""
+    from haptic_teleop.live.ros2_launch import COMPOSED, STOPPED_BY_SHUTDOWN, exit_verdict
+
+    assert exit_verdict(COMPOSED, 0, False) == "finished"
+    for code in (1, 2, -9, -11):
+        assert exit_verdict(COMPOSED, code, False) == "failed"
+        assert exit_verdict(COMPOSED, code, True) == "failed"
+    for code in (130, 143, -2, -15):
+        assert code in STOPPED_BY_SHUTDOWN
+        assert exit_verdict(COMPOSED, code, True) is None
+        assert exit_verdict(COMPOSED, code, False) == "failed"  # someone else's signal mid-run
+
+
+class _Composed:
+    """`python -m haptic_teleop.live.composed PLAN --ros-args` as launch_ros starts the console
+    script, on the files `plan_from_arguments` wrote; its output lines collected as they come."""
+
+    def __init__(self, args: dict[str, str], folder: Path) -> None:
+        import os
+        import subprocess
+        import sys
+        import threading
+
+        from haptic_teleop.live.ros2_launch import launch_processes
+
+        (process,) = launch_processes({**args, "single_process": "true"}, "plant", folder)
+        cmd = process.command()
+        assert cmd[0] == "composed"
+        # this module's own ROS domain (conftest.py), DDS on this host
+        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "haptic_teleop.live.composed", *cmd[1:]],
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip("\\n"))
+
+    @property
+    def text(self) -> str:
+        return "\\n".join(self.lines[-60:])
+
+    def wait_for(self, text: str, timeout_s: float) -> None:
+        import time
+
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and self.proc.poll() is None:
+            if any(text in line for line in list(self.lines)):
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"no line with {text!r}:\\n{self.text}")
+
+    def finish(self, timeout_s: float) -> int:
+        import subprocess
+
+        try:
+            code = self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise AssertionError(f"still running after {timeout_s} s:\\n{self.text}") from None
+        self._reader.join(5)
+        return code
+
+
+def test_the_composed_process_runs_the_launch_plan_to_the_end_and_writes_the_bag(tmp_path):
+    """wall_contact for 1.5 s of scene, composed from the launch files' plan: exit 0 (the launch
+    ends, 0) and the recorder's bag closed and readable."""
+    from haptic_teleop.live.ros2_launch import COMPOSED, exit_verdict
+    from haptic_teleop.record.reader import BagReader
+
+    out = tmp_path / "rec"
+    run = _Composed({"scene": "wall_contact", "duration": "1.5", "record": str(out)}, tmp_path / "params")
+    code = run.finish(300)
+    assert code == 0, run.text
+    assert exit_verdict(COMPOSED, code, False) == "finished"
+    assert "loops (whole run):" in run.text and "Traceback" not in run.text
+    assert (out / "bag" / "metadata.yaml").is_file()
+    with BagReader(out / "bag") as bag:
+        master = bag.read("/master/joint_states")
+        slave = bag.read("/slave/joint_states")
+    assert len(master.stamp_ns) > 0 and len(slave.stamp_ns) > 0
+
+
+def test_sigint_to_the_composed_process_stops_it_as_the_launchs_shutdown_expects(tmp_path):
+    """SIGINT mid-scene (what `ros2 launch` sends on shutdown): the nodes stop, the recorder closes
+    its bag last, and the exit code is one `exit_verdict` takes for the launch's own stop."""
+    import signal
+
+    from launched import wait_for_bag_messages
+
+    from haptic_teleop.live.ros2_launch import COMPOSED, STOPPED_BY_SHUTDOWN, exit_verdict
+
+    out = tmp_path / "rec"
+    run = _Composed({"scene": "wall_contact", "duration": "120", "record": str(out)}, tmp_path / "params")
+    run.wait_for("[operator_source]: scene time 0 at stamp", 240)
+    wait_for_bag_messages(out / "bag", 120)
+    run.proc.send_signal(signal.SIGINT)
+    code = run.finish(180)
+    assert code == 128 + signal.SIGINT, run.text  # 130
+    assert code in STOPPED_BY_SHUTDOWN and exit_verdict(COMPOSED, code, True) is None
+    assert exit_verdict(COMPOSED, code, False) == "failed"  # not the launch's: a failure
+    assert (out / "bag" / "metadata.yaml").is_file(), run.text
+    assert "Traceback" not in run.text
+
+
+# The compiled side tick, built in the launch's own process before any node starts (issue: a
+# fresh install's first arm launch timed out while a node compiled it).
+_WARM_PROBE = """
+import sys
+
+from haptic_teleop.assembly import compiled_side
+from haptic_teleop.live.ros2_launch import launch_processes
+
+values = dict(scene=sys.argv[1], set=sys.argv[2])
+launch_processes(values, "topic", sys.argv[3], warm=sys.argv[4] == "warm")
+print("signatures", len(compiled_side.side_kernel().side_tick.signatures))
+"""
+
+
+def test_the_launch_builds_an_arm_scenes_side_tick_before_any_node_starts(tmp_path):
+    """`launch_processes` (what the launch files run) builds the simulated side's compiled tick in
+    the launch's own process (compiles it, saying so, on an empty numba cache: `warm_saying`, as
+    test_live_arm's first-launch test sees for `haptic-teleop launch`; else loads it), so that no
+    node compiles it within its start timeout; here with a real arm on the slave (its port is never
+    opened: /dev/ttyUSB7 does not exist here), the simulated master's tick. Without the warm step
+    nothing is built there."""
+    env = dict(os.environ)
+    scene, overrides = "touch_dynamixel_wall", "slave.backend=dynamixel;slave.hardware.port=/dev/ttyUSB7"
+    runs = {}
+    for mode in ("cold", "warm"):
+        cmd = [sys.executable, "-c", _WARM_PROBE, scene, overrides, str(tmp_path / mode), mode]
+        runs[mode] = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
+        assert runs[mode].returncode == 0, runs[mode].stderr[-3000:]
+    assert "signatures 0" in runs["cold"].stdout, runs["cold"].stdout
+    assert "signatures 1" in runs["warm"].stdout, runs["warm"].stdout

@@ -9,6 +9,7 @@ compiled one where it can run, else the Python one and why.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -300,15 +301,25 @@ def warm(config: Scene) -> str | None:
     """Compile the side tick the live arm nodes run (or load it from numba's cache) in this
     process, before the nodes start: cold, it takes tens of seconds, which a node compiling it at
     start-up would spend while the others wait for it (past `start.timeout_s` on a fresh install).
-    Only for an arm scene whose sides are both simulated (nothing else is opened). None once
-    built, else why it was not."""
-    if not config.is_arm or config.master.backend != "mujoco" or config.slave.backend != "mujoco":
-        return "not an arm scene with both sides simulated"
+    A scene with a real arm on one side: its simulated side's node runs the compiled tick, whose
+    types are those of any MuJoCo arm, so it is built from the scene with that side simulated too
+    (the real arm's driver is never made, nothing is opened). None once built, else why it was not."""
+    if not config.is_arm:
+        return "not an arm scene"
+    roles = ("master", "slave")
+    simulated = [r for r in roles if getattr(config, r).backend == "mujoco"]
+    if not simulated:
+        return "no simulated side (a real arm's side runs the Python tick)"
     why = side_unusable()
     if why is not None:
         return why
+    import dataclasses
+
     from haptic_teleop.assembly.parts import build_arm_parts
 
+    if len(simulated) < len(roles):
+        twins = {r: dataclasses.replace(getattr(config, r), backend="mujoco") for r in roles if r not in simulated}
+        config = dataclasses.replace(config, **twins)
     parts = build_arm_parts(config)
     k = side_kernel()
     with compiling.first_compile(k.side_tick):
@@ -317,3 +328,14 @@ def warm(config: Scene) -> str | None:
             if compiled_reason_side(side) is None:
                 CompiledSideTick(side, parts, master)
     return None
+
+
+def warm_saying(config: Scene, say: Callable[[str], None]) -> str | None:
+    """`warm`, telling `say` when numba really compiles (not when it loads its cache): which
+    loop, why and about how long (`compiling.compile_message`). `haptic-teleop launch` and the
+    ROS 2 launch files call it before any node starts."""
+    compiling.compile_notice = lambda module: say(compiling.compile_message(module))
+    try:
+        return warm(config)
+    finally:
+        compiling.compile_notice = None

@@ -53,16 +53,9 @@ def warm_side_tick(scene: Any) -> None:
     """An arm scene's compiled side tick built (or loaded) here, before its nodes start, saying so
     when numba really compiles it: a node compiling it cold would keep the others waiting past
     their start timeout (assembly/compiled_side.warm)."""
-    from haptic_teleop import compiling
     from haptic_teleop.assembly import compiled_side
 
-    if not scene.config.is_arm:
-        return
-    compiling.compile_notice = lambda module: print(compiling.compile_message(module), file=sys.stderr, flush=True)
-    try:
-        compiled_side.warm(scene.config)
-    finally:
-        compiling.compile_notice = None
+    compiled_side.warm_saying(scene.config, lambda text: print(text, file=sys.stderr, flush=True))
 
 
 def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, record: Path | None, rate: Any) -> int:

@@ -34,11 +34,18 @@ from pathlib import Path
 from typing import IO, Any
 
 from haptic_teleop.lifetime import LAUNCHER_PID_ENV
-from haptic_teleop.nodes import EXECUTABLES, LOOP_FIGURES_MARK, SCENE_SECTIONS, WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
+from haptic_teleop.nodes import (
+    DEVICE_SOURCES,
+    EXECUTABLES,
+    LOOP_FIGURES_MARK,
+    SCENE_SECTIONS,
+    WATCHDOG_FADE_S,
+    WATCHDOG_TIMEOUT_S,
+)
 from haptic_teleop.scene.schema import LoadedScene
 
 SIDES = ("all", "master", "slave")
-DEVICES = ("plant", "topic")
+DEVICES = DEVICE_SOURCES
 # Which side of a two-host setup each node belongs to: relays sit on the sending side, sync
 # buffers on the receiving side.
 # An ack relay (ARQ) sits on the side that sends the acknowledgements: the receiving side's.
@@ -218,30 +225,26 @@ def node_plan(
         master["device"].update(command_reliability=str(command_qos[0]), command_depth=int(command_qos[1]))
     plan.append(NodeSpec("master_eba", "master_eba", master))
     plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
-    # Without an operator source nothing publishes the scene start: the relays' links start at the
-    # first sample (network_relay, `scene_start`).
-    relay_start = {} if device == "plant" else {"scene_start": "first_sample"}
+    # Without an operator source master_eba publishes the scene start (its device's first sample):
+    # the relays and the recorder take it from there as they do the operator source's.
     # An arm scene's payloads carry one value per task axis and field (docs/live.md, "Arm scenes").
     axes = {"task_axes": 3} if scene.config.is_arm else {}
     reverse = {"forward": "backward", "backward": "forward"}
     for d in ("forward", "backward"):
         carries = {"carries": "codec"} if codecs[d] is not None else {}
-        relay = {"direction": d, **carries, **relay_start, **axes, **scene_params(scene, "network_relay", d)}
+        relay = {"direction": d, **carries, **axes, **scene_params(scene, "network_relay", d)}
         plan.append(NodeSpec(f"{d}_relay", "network_relay", relay))
         buffer = {"direction": d, **axes, **scene_params(scene, "sync_buffer", d)}
         plan.append(NodeSpec(f"{d}_buffer", "sync_buffer", buffer))
         if codecs[d] == "arq":  # its acknowledgements, over the reverse direction's effects
             effects = scene_params(scene, "network_relay", reverse[d])
-            ack = {"direction": d, "carries": "ack", **relay_start, **axes, **effects}
+            ack = {"direction": d, "carries": "ack", **axes, **effects}
             plan.append(NodeSpec(f"{d}_ack_relay", "network_relay", ack))
     if record_dir is not None:
-        plan.append(
-            NodeSpec(
-                "recorder",
-                "recorder",
-                {**scene_params(scene, "recorder"), "output_dir": str(Path(record_dir).resolve())},
-            )
-        )
+        recorder = {**scene_params(scene, "recorder"), "output_dir": str(Path(record_dir).resolve())}
+        if device == "topic":  # no operator source: no /operator/joint_states (nodes/recorder.py)
+            recorder["device"] = {"source": device}
+        plan.append(NodeSpec("recorder", "recorder", recorder))
     if sim_time_rate is not None:
         plan = [dataclasses.replace(s, params={**s.params, "use_sim_time": True}) for s in plan]
         clock = {"scene": {"period_s": scene.config.scene.period_s}, "rate": float(sim_time_rate)}

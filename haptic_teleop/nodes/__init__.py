@@ -88,6 +88,9 @@ WATCHDOG_FADE_S = 0.05
 # network_relay `scene_start`: where its link's scene time 0 comes from (the operator source's
 # /haptic_teleop/scene_start, or the first sample's stamp when there is no operator source).
 RELAY_SCENE_STARTS = ("topic", "first_sample")
+# master_eba's `device.source` (and the recorder's): the scene's simulated device, or a driver's
+# topics (a device session: no operator source; master_eba publishes scene time 0).
+DEVICE_SOURCES = ("plant", "topic")
 
 # QoS of the hardware variant's force command (master_eba `device.command_reliability`, `device.command_depth`).
 RELIABILITIES = ("reliable", "best_effort")

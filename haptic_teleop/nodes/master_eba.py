@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES, SCENE_SECTIONS
+from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, DEVICE_SOURCES, RELIABILITIES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
@@ -30,13 +30,13 @@ from haptic_teleop.nodes.topics import (
     MASTER_STATE,
     OPERATOR_JOINT,
     OPERATOR_STATE,
+    SCENE_START_TOPIC,
     WIRE_FIELDS,
+    latched_qos,
     reliable_qos,
     sent_topic,
     stream_qos,
 )
-
-DEVICE_SOURCES = ("plant", "topic")
 
 
 class MasterEba(LiveNode):
@@ -102,6 +102,12 @@ class MasterEba(LiveNode):
             self._device_sub = self.create_polled_subscription(JointState, state_topic, stream_qos(), raw=True)
             self._read_device = JointStateReader(("position", "velocity"))  # a driver's layout: deserialized
             self.command_out = WrenchOut(self, command_topic, MASTER_JOINT, self.command_qos)
+            # No operator source publishes scene time 0 in a device session: this node does, at the
+            # tick of the device's first sample, for the relays' links and the recorder's grid.
+            from std_msgs.msg import Header
+
+            self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
+            self._started = False
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
         self.codec: Any = None
         if cfg.network.forward.codec is not None:  # the forward encoder (nodes/codec_stage.py)
@@ -189,6 +195,9 @@ class MasterEba(LiveNode):
                 self._device = self._read_device(dev)[1]
             if self._device is None:
                 return  # no device yet: nothing to control
+            if not self._started:
+                self._started = True
+                self._publish_start(stamp_ns)
             x, v = [self._device[0]], [self._device[1]]
         f = self.side.step(x, v, stamp_ns)
         if self.codec is not None:
@@ -204,6 +213,16 @@ class MasterEba(LiveNode):
             applied = f
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))
         self.side.publish_internals()
+
+    def _publish_start(self, stamp_ns: int) -> None:
+        """Scene time 0 at `stamp_ns` on /haptic_teleop/scene_start (latched), as the operator source
+        publishes it in a session with one (`topics.scene_start_ns` reads it)."""
+        from std_msgs.msg import Header
+
+        h = Header(frame_id="scene_time_0")
+        h.stamp.sec, h.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        self._start_pub.publish(h)
+        self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns: the device's first sample")
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         return self.side.diagnostic_values()

@@ -8,7 +8,8 @@ stamp / period; the EBA arrays, which have no header, by the time they were publ
 
 After each decoding round the ticks every stream has passed (less a margin of MARGIN_S = 0.1 s for
 samples still on their way) are appended to the bag (`RunRecorder.append`), with the grid from the
-operator's first sample (scene time 0), the same layout the engine writes, so `haptic-teleop
+operator's first sample (scene time 0; a device session, `device.source: topic`, has no operator
+source: the master's first sample, see below), the same layout the engine writes, so `haptic-teleop
 analyze` and every metric work on live bags unchanged; a sample lost between a node and the
 recorder holds the previous value (counted in run_info). At least once a second what was appended
 is flushed as complete chunks, so a kill of any process, the recorder's own included, loses at
@@ -22,6 +23,13 @@ clock's tick, less the scene start's here) and the sync buffers' decisions
 tick is HOLD_S = 10 s old), with a late decision applied to its first delivered copy: fate 4,
 LOST_LATE, as the engine's buffer marks it. On close (SIGINT/SIGTERM/end of the scene) the rest is
 written, up to the last tick every stream reached (at most scene.duration_s), and the bag closed.
+
+A device session (parameter `device.source: topic`, the hardware variant of the node set: master_eba
+reads a device driver's topics, no operator source, docs/live.md "Recording a device session"):
+/operator/joint_states is not subscribed, scene time 0 is the one master_eba publishes (its device's
+first sample; the relays take it too, so the packet records' times are the bag's), the operator's
+columns are NaN, and the session is recorded until it is stopped (no cap at scene.duration_s;
+`interrupted` stays false: such a session ends by being stopped).
 
 The resolved scene goes out once on /haptic_teleop/scene (std_msgs/String, reliable, transient
 local: a subscriber that starts later still gets it).
@@ -52,10 +60,11 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.link import DELIVERED, LOST_LATE
-from haptic_teleop.nodes import SCENE_SECTIONS
+from haptic_teleop.nodes import DEVICE_SOURCES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.messages import take_all, take_all_published_ns
 from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.recorder_grid import _on_grid, mark_late
 from haptic_teleop.nodes.topics import (
     DIRECTIONS,
     MASTER_EBA,
@@ -116,8 +125,9 @@ _SENT = ("/forward/sent", "/backward/sent")
 class TopicPlan:
     """What a recorder takes, per run kind: its per-tick state topics (layouts, row columns), the
     sync buffers' released-sample topics (-> the row column of the release tick), the packet and
-    playout topics (-> their direction), the streams that set the grid's end, and the stream whose
-    first sample is scene time 0 when no start message came."""
+    playout topics (-> their direction), the streams that set the grid's end, the stream whose
+    first sample is scene time 0 when no start message came, and the row columns no topic fills
+    that are NaN (`unknown`: nothing is known of them) rather than 0."""
 
     def __init__(
         self,
@@ -128,8 +138,9 @@ class TopicPlan:
         main: tuple[str, ...],
         first: str,
         values: dict[str, tuple[int, ...]] | None = None,
+        unknown: tuple[int, ...] = (),
     ) -> None:
-        self.specs, self.columns, self.received = specs, columns, received
+        self.specs, self.columns, self.received, self.unknown = specs, columns, received, unknown
         # Per state topic taking part of its message: the positions (in the layout's value order)
         # of the values that fill `columns`; a topic not named takes every value.
         self.values = values or {}
@@ -138,9 +149,11 @@ class TopicPlan:
         self.playout = {playout_topic(d): d for d in directions}
 
 
-def topic_plan(schema: Any, plain: tuple[str, ...] = DIRECTIONS) -> TopicPlan:
+def topic_plan(schema: Any, plain: tuple[str, ...] = DIRECTIONS, operator: bool = True) -> TopicPlan:
     """The recorder's topics for a run with this schema (a TickSchema, or an NveSchema); `plain`:
-    the directions without a codec (their /<dir>/sent carries a sample per tick)."""
+    the directions without a codec (their /<dir>/sent carries a sample per tick); `operator`: False
+    for a device session (no operator source): no /operator/joint_states, its columns NaN, scene
+    time 0 the master's first sample."""
     from haptic_teleop.record.nve_columns import NveSchema
 
     if isinstance(schema, NveSchema):
@@ -160,6 +173,10 @@ def topic_plan(schema: Any, plain: tuple[str, ...] = DIRECTIONS) -> TopicPlan:
     for d in DIRECTIONS:  # a codec's direction: its sender's samples come on /<dir>/sample, in /<dir>/sent's layout
         if sample_topic(d) in columns:
             specs[sample_topic(d)] = dataclasses.replace(specs[sent_topic(d)], name=sample_topic(d))
+    if not operator:
+        unknown = columns.pop(OPERATOR_STATE)
+        main = tuple(t for t in MAIN if t != OPERATOR_STATE)
+        return TopicPlan(specs, columns, received, DIRECTIONS, main, MASTER_STATE, values, unknown)
     return TopicPlan(specs, columns, received, DIRECTIONS, MAIN, OPERATOR_STATE, values)
 
 
@@ -264,7 +281,7 @@ class Recorder(LiveNode):
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.scene.schema import LoadedScene
 
-        self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir",))
+        self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir", "device.source"))
         self.schema, self.run_facts = _schema_and_facts(self.cfg)
         out = str(declare_value(self, "output_dir", "", "the bag goes to OUTPUT_DIR/bag (required)"))
         where = f"parameters of node {self.get_name()}"
@@ -273,15 +290,24 @@ class Recorder(LiveNode):
         self.bag_dir = Path(out) / "bag"
         if self.bag_dir.exists():
             raise ConfigError(where, "output_dir", out, "allowed: a directory without bag/ in it")
+        source = declare_value(
+            self, "device.source", "plant", "master_eba's device: plant (an operator source publishes "
+            "/operator/joint_states) or topic (a driver's topics, no operator source: scene time 0 is the "
+            "master's first sample, the operator's columns NaN, recorded until stopped)", choices=DEVICE_SOURCES,
+        )  # fmt: skip
         cfg = self.cfg
+        if source != "plant" and (cfg.is_nve or cfg.is_arm):
+            raise ConfigError(where, "device.source", source, "an arm or NVE scene has an operator; allowed: plant")
+        self.operator = source == "plant"
         self.grid_ns = round(cfg.scene.period_s * 1e9)  # the scene's tick grid
-        self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s)
+        # A device session lasts until it is stopped: no cap (None), and never "interrupted".
+        self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s) if self.operator else None
         self.margin_ticks, self.stall_ticks, self.hold_ticks = (
             max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
         )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
         plain = tuple(d for d in DIRECTIONS if cfg.is_nve or getattr(cfg.network, d).codec is None)
-        self.plan = plan = topic_plan(self.schema, plain)
+        self.plan = plan = topic_plan(self.schema, plain, self.operator)
         self._specs = plan.specs
         self._columns = plan.columns
         # A side with its own period (<side>.period_s = k scene periods) publishes every k-th scene
@@ -308,7 +334,7 @@ class Recorder(LiveNode):
                 msg_type, qos = self._ros_type(self._specs[topic].layout.msgtype), stream_qos(RECORDER_DEPTH)
             self._subs[topic] = self.create_polled_subscription(msg_type, topic, qos, raw=True)
         self.received_count = {t: 0 for t in self._queues}
-        self.start_tick: int | None = None  # absolute tick of scene time 0: the operator's first sample
+        self.start_tick: int | None = None  # absolute tick of scene time 0: plan.first's first sample
         self.written = 0  # absolute tick up to which (exclusive) the bag holds the grid
         self.packets_written = {d: 0 for d in plan.directions}
         self.late_marked = {d: 0 for d in plan.directions}
@@ -320,6 +346,7 @@ class Recorder(LiveNode):
         self._scene_pub.publish(String(data=self.scene_yaml))
         from std_msgs.msg import Header
 
+        # Scene time 0: the operator source's, or in a device session master_eba's (its device's first sample).
         self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
         # The codec stage's counters (nodes/codec_stage.py), latched: taken at close.
         self._codec_subs: dict[tuple[str, str], Any] = {}
@@ -501,7 +528,7 @@ class Recorder(LiveNode):
             lead = self._pending[self.plan.first]
             first = lead.first()
             told = take_all(self._start_sub)
-            if told:  # the operator's scene time 0, even if its first samples did not get here
+            if told:  # the scene's time 0, even if its first samples did not get here
                 first = scene_start_ns(told[-1], self.grid_ns) // self.grid_ns
             elif first is None or (not closing and lead.newest - first < self.stall_ticks):
                 return  # wait for it a little (an operator of another version may not send it)
@@ -513,7 +540,8 @@ class Recorder(LiveNode):
             end = min(n for n in newest) + 1 if min(newest) >= 0 else self.written
         else:
             end = max(min(newest) + 1 - self.margin_ticks, max(newest) + 1 - self.stall_ticks)
-        end = min(end, self.start_tick + self.duration_ticks)
+        if self.duration_ticks is not None:
+            end = min(end, self.start_tick + self.duration_ticks)
         if end > self.written:
             self._write_ticks(self.written, end)
         self._write_packets(closing)
@@ -525,6 +553,8 @@ class Recorder(LiveNode):
     def _write_ticks(self, a: int, b: int) -> None:
         n = b - a
         data = np.zeros((n, self.schema.width))
+        # No operator source (a device session): nothing is known of the hand, NaN rather than 0.
+        data[:, list(self.plan.unknown)] = np.nan
         for topic, cols in self._columns.items():
             pend = self._pending[topic]
             idx, vals = pend.take(a, b, first=a == self.start_tick)
@@ -651,7 +681,7 @@ class Recorder(LiveNode):
             self.exit_code = 1
         # The last samples of a run are still in flight when the operator ends it: a bag a few
         # ticks short of the duration is complete.
-        interrupted = ticks < self.duration_ticks - END_TOLERANCE_TICKS
+        interrupted = self.duration_ticks is not None and ticks < self.duration_ticks - END_TOLERANCE_TICKS
         info = {
             "mode": "live",
             "realtime_factor": 1.0,
@@ -712,52 +742,6 @@ def side_every(cfg: Any, topic: str) -> int:
     from haptic_teleop.scene.load import side_period_ticks
 
     return side_period_ticks(cfg, role)
-
-
-def mark_late(rows: np.ndarray, late: set[int], f: dict[str, int]) -> int:
-    """In place: for each seq in `late`, its first delivered copy in `rows` (packet records, the
-    earliest arrival) gets fate LOST_LATE, as the engine's buffer marks the copy it received first.
-    Returns how many records were marked."""
-    if not late or rows.size == 0:
-        return 0
-    seq = rows[:, f["seq"]].astype(np.int64)
-    cand = np.flatnonzero(
-        (rows[:, f["fate"]] == DELIVERED) & np.fromiter((s in late for s in seq.tolist()), dtype=bool, count=seq.size)
-    )
-    if cand.size == 0:
-        return 0
-    order = np.lexsort((rows[cand, f["arrival_time_s"]], seq[cand]))
-    c = cand[order]
-    first = np.ones(c.size, dtype=bool)
-    first[1:] = seq[c[1:]] != seq[c[:-1]]
-    rows[c[first], f["fate"]] = LOST_LATE
-    return int(np.count_nonzero(first))
-
-
-def _on_grid(
-    idx: np.ndarray, vals: np.ndarray, n: int, carry: np.ndarray | None
-) -> tuple[np.ndarray, int, np.ndarray | None]:
-    """Samples at tick indices -> an (n, k) grid; a tick with no sample holds the previous value
-    (`carry`, the last value of the previous block; before any sample at all, the first one).
-    Returns the grid, how many ticks were filled, and the carry for the next block."""
-    k = vals.shape[1]
-    ok = (idx >= 0) & (idx < n)
-    have = np.zeros(n, dtype=bool)
-    grid = np.zeros((n, k))
-    if np.any(ok):
-        grid[idx[ok]] = vals[ok]
-        have[idx[ok]] = True
-    if not have.any():
-        if carry is not None:
-            grid[:] = carry
-        return grid, n, carry
-    pos = np.where(have, np.arange(n), -1)
-    pos = np.maximum.accumulate(pos)
-    head = pos < 0
-    grid = grid[np.maximum(pos, 0)]
-    if np.any(head):
-        grid[head] = carry if carry is not None else grid[int(np.argmax(have))]
-    return grid, int(n - np.count_nonzero(have)), grid[-1].copy()
 
 
 def main() -> None:
