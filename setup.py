@@ -112,7 +112,8 @@ setup(
     entry_points={
         "console_scripts": [
             "haptic-teleop = haptic_teleop.cli.entry:main",
-            *(f"{name} = {module}:main" for name, module in NODES.items()),
+            # through nodes/entry.py: a signal that lands while a node is still importing is noted
+            *(f"{name} = {PACKAGE}.nodes.entry:{name}" for name in NODES),
             # every node of a plan in one process: the launch files' `single_process:=true`
             "composed = haptic_teleop.live.composed:main",
         ],

@@ -379,7 +379,9 @@ def write_params_files(plan: Sequence[NodeSpec], directory: str | Path) -> dict[
 
 
 def node_command(spec: NodeSpec, params_file: Path, python: str = sys.executable) -> list[str]:
-    cmd = [python, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}", "--params-file", str(params_file)]
+    # Through nodes/entry.py: a signal that lands while the node is still importing is noted (exit 0).
+    cmd = [python, "-m", "haptic_teleop.nodes.entry", spec.executable, "--ros-args", "-r", f"__node:={spec.name}"]
+    cmd += ["--params-file", str(params_file)]
     for a, b in spec.remaps:
         cmd += ["-r", f"{a}:={b}"]
     return cmd

@@ -371,6 +371,12 @@ def run_nodes(
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    from haptic_teleop.nodes.entry import EARLY
+
+    if EARLY:  # stopped while it was still starting (nodes/entry.py): nothing was built
+        name = signal.Signals(EARLY[0]).name
+        print(f"{', '.join(_names(factories, node_args))}: {name} before start; exiting", file=sys.stderr, flush=True)
+        return 0
     rclpy.init(args=list(args) if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[LiveNode] = []
     kwargs_list = list(node_args) if node_args is not None else [{} for _ in factories]
@@ -475,6 +481,12 @@ def run_nodes(
             n.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def _names(factories: Sequence[Callable[..., LiveNode]], node_args: Sequence[dict[str, Any]] | None) -> list[str]:
+    """The names the nodes would have (their `node_name`, else their class's default)."""
+    args = list(node_args) if node_args is not None else [{} for _ in factories]
+    return [kw.get("node_name", getattr(f, "default_name", "node")) for f, kw in zip(factories, args, strict=True)]
 
 
 def node_main(factory: Callable[..., LiveNode]) -> None:
