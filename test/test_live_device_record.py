@@ -1,7 +1,8 @@
 """A recorded device session live: the hardware variant of the node set (`node_plan(..., device="topic")`,
 what teleop_hardware_launch.py starts) with a recorder, driven by a fake haptic device driver in this
 process (its own rclpy context: sensor_msgs/JointState out, geometry_msgs/WrenchStamped force commands
-in), every node its own process through the project's launcher, stopped with SIGINT as Ctrl-C stops it.
+in), every node its own process through the project's launcher (`haptic-teleop launch --device
+topic`), stopped with SIGINT as Ctrl-C stops it.
 
 There is no operator source: the recorder takes the master's first sample as scene time 0, leaves the
 operator's columns NaN and records until it is stopped, past the scene's duration (docs/live.md,
@@ -38,18 +39,9 @@ SPAN_S = 2.5  # the session: until the driver got commands stamped over this muc
 NODES = {"master_eba", "slave_eba", "forward_relay", "backward_relay", "forward_buffer", "backward_buffer",
          "recorder"}  # fmt: skip
 
-# The launch, as `haptic-teleop launch` runs its launcher (cli/launch.py), in a process of its own:
-# SIGINT to it is Ctrl-C, forwarded to the nodes (the recorder last).
-LAUNCH = """
-import sys
-from haptic_teleop.live.launcher import Launcher, node_plan
-from haptic_teleop.scene.load import find_scene, load_scene
-
-record, params, state, command, duration = sys.argv[1:]
-scene = load_scene(find_scene("wall_contact"), overrides=[f"scene.duration_s={duration}"])
-plan = node_plan(scene, record_dir=record, device="topic", device_topics=(state, command))
-sys.exit(Launcher(plan, params, timeout_s=900).run().exit_code)
-"""
+# The launch: `haptic-teleop launch --device topic` (the hardware variant through the project's
+# launcher), in a process of its own: SIGINT to it is Ctrl-C, forwarded to the nodes (the recorder
+# last); with --record it then analyses the bag as `run` does.
 
 
 class Launch:
@@ -57,9 +49,11 @@ class Launch:
 
     def __init__(self, tmp: Path) -> None:
         self.record = tmp / "run"
-        args = [str(self.record), str(tmp / "params"), STATE_TOPIC, COMMAND_TOPIC, str(DURATION_S)]
+        args = ["launch", "wall_contact", "--duration", str(DURATION_S), "--device", "topic",
+                "--state-topic", STATE_TOPIC, "--command-topic", COMMAND_TOPIC, "--record", str(self.record),
+                "--params-dir", str(tmp / "params"), "--no-plots"]  # fmt: skip
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", LAUNCH, *args],
+            [*CLI, *args],
             cwd=tmp,
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
             stdout=subprocess.PIPE,
@@ -180,6 +174,9 @@ def test_every_node_stops_cleanly_on_sigint(session):
     assert "Traceback" not in launch.text
     assert "nothing to record" not in launch.text
     assert "bag written" in launch.text
+    # ... and the launch command analysed it: the run's own summary
+    summary = json.loads((session["out"] / "summary.json").read_text())
+    assert summary["interrupted"] is False and summary["all_finite"] is True
 
 
 def test_the_bag_reads_and_holds_the_device_session(session):

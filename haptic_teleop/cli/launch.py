@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from haptic_teleop.live.launcher import (
+    DEVICES,
     EXIT_FAILURE,
     SIDES,
     Launcher,
@@ -17,6 +18,7 @@ from haptic_teleop.live.launcher import (
     run_single_process,
     temporary_params_dir,
 )
+from haptic_teleop.nodes import DEVICE_TOPICS
 
 
 def launch_main(args: Any) -> int:
@@ -38,7 +40,10 @@ def launch_main(args: Any) -> int:
             raise InputError(f"--record {record}: {problem}")
     rate = args.sim_time_rate
     try:
-        plan = node_plan(scene, record_dir=record, side=args.side, sim_time_rate=rate)
+        topics = (args.state_topic, args.command_topic) if args.device == "topic" else None
+        plan = node_plan(
+            scene, record_dir=record, side=args.side, device=args.device, sim_time_rate=rate, device_topics=topics
+        )
     except ValueError as exc:
         raise HapticTeleopError(str(exc)) from None
     params_dir = Path(args.params_dir) if args.params_dir else temporary_params_dir()
@@ -64,7 +69,10 @@ def _launch_and_report(args: Any, scene: Any, plan: Any, params_dir: Path, recor
         code = run_single_process(plan, params_dir)
     else:
         # Discovery, the operator's settling delay and the scene itself; then give up.
-        timeout = scene.config.scene.duration_s / (rate or 1.0) + 60.0 if args.side != "slave" else None
+        # (a device session, like the slave host's side, runs until it is stopped)
+        timeout = scene.config.scene.duration_s / (rate or 1.0) + 60.0
+        if args.side == "slave" or args.device == "topic":
+            timeout = None
         result = Launcher(plan, params_dir, timeout_s=timeout).run()
         code = result.exit_code
     bag = record / "bag" if record is not None else None
@@ -126,6 +134,21 @@ def add_arguments(p: Any) -> None:
         "machine with few cores: docs/live.md)",
     )
     p.add_argument("--side", choices=SIDES, default="all", help="two hosts: the nodes of one side only")
+    p.add_argument(
+        "--device",
+        choices=DEVICES,
+        default="plant",
+        help="topic: the master on a real haptic device driver's topics, no simulated operator, until Ctrl-C "
+        "(the hardware variant, as teleop_hardware_launch.py; docs/live.md)",
+    )
+    p.add_argument(
+        "--state-topic", default=DEVICE_TOPICS[0], help="--device topic: the driver's sensor_msgs/JointState"
+    )
+    p.add_argument(
+        "--command-topic",
+        default=DEVICE_TOPICS[1],
+        help="--device topic: the force command to the driver (WrenchStamped)",
+    )
     p.add_argument("--seed", type=int, help="override scene.seed")
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")
     p.add_argument("--params-dir", help="where the parameter files go (default: a temporary directory)")

@@ -29,7 +29,7 @@ from haptic_teleop.live.launcher import (
     temporary_params_dir,
     write_params_files,
 )
-from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, RELIABILITIES
+from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, DEVICE_TOPICS, RELIABILITIES
 
 # Every launch file's `single_process`: the plan composed in one process (`launch_processes`).
 SINGLE_PROCESS = (
@@ -50,8 +50,8 @@ ARGUMENTS = (
 )
 # ... and the hardware variant (device "topic") these too.
 DEVICE_ARGUMENTS = (
-    ("state_topic", "/haptic_device/joint_states", "the device driver's sensor_msgs/JointState"),
-    ("command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"),
+    ("state_topic", DEVICE_TOPICS[0], "the device driver's sensor_msgs/JointState"),
+    ("command_topic", DEVICE_TOPICS[1], "force command to the driver (WrenchStamped)"),
     ("command_reliability", "reliable", "QoS of the force command: reliable | best_effort"),
     ("command_depth", "10", "QoS history depth of the force command"),
     (

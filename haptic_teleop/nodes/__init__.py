@@ -91,6 +91,8 @@ RELAY_SCENE_STARTS = ("topic", "first_sample")
 # master_eba's `device.source` (and the recorder's): the scene's simulated device, or a driver's
 # topics (a device session: no operator source; master_eba publishes scene time 0).
 DEVICE_SOURCES = ("plant", "topic")
+# A driver's topics, by default: its sensor_msgs/JointState, and the force command to it (WrenchStamped).
+DEVICE_TOPICS = ("/haptic_device/joint_states", "/haptic_device/force_command")
 
 # QoS of the hardware variant's force command (master_eba `device.command_reliability`, `device.command_depth`).
 RELIABILITIES = ("reliable", "best_effort")

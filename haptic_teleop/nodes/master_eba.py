@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, DEVICE_SOURCES, RELIABILITIES, SCENE_SECTIONS
+from haptic_teleop.nodes import DEFAULT_COMMAND_DEPTH, DEVICE_SOURCES, DEVICE_TOPICS, RELIABILITIES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
@@ -66,9 +66,9 @@ class MasterEba(LiveNode):
             "plant: the scene's simulated device; topic: a driver's topics",
             choices=DEVICE_SOURCES,
         )
-        state_topic = declare_value(self, "device.state_topic", "/haptic_device/joint_states", "driver's JointState")
+        state_topic = declare_value(self, "device.state_topic", DEVICE_TOPICS[0], "driver's JointState")
         command_topic = declare_value(
-            self, "device.command_topic", "/haptic_device/force_command", "force command to the driver (WrenchStamped)"
+            self, "device.command_topic", DEVICE_TOPICS[1], "force command to the driver (WrenchStamped)"
         )
         reliability = declare_value(
             self,
