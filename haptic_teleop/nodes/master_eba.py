@@ -56,6 +56,7 @@ class MasterEba(LiveNode):
             "device.command_topic",
             "device.command_reliability",
             "device.command_depth",
+            "device.min_subscribers",
         )
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
@@ -108,6 +109,13 @@ class MasterEba(LiveNode):
 
             self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
             self._started = False
+            # ... once this many subscribe to /master/joint_states (the recorder, when there is
+            # one): a recorder that missed the first samples would have nothing to hold before them.
+            self._min_subscribers = int(
+                declare_value(
+                    self, "device.min_subscribers", 0, f"scene time 0 waits for this many on {MASTER_STATE}", 0, 100
+                )
+            )
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
         self.codec: Any = None
         if cfg.network.forward.codec is not None:  # the forward encoder (nodes/codec_stage.py)
@@ -195,7 +203,7 @@ class MasterEba(LiveNode):
                 self._device = self._read_device(dev)[1]
             if self._device is None:
                 return  # no device yet: nothing to control
-            if not self._started:
+            if not self._started and self.count_subscribers(MASTER_STATE) >= self._min_subscribers:
                 self._started = True
                 self._publish_start(stamp_ns)
             x, v = [self._device[0]], [self._device[1]]
