@@ -1,5 +1,6 @@
-"""`haptic-teleop launch ...` as a child process for the live tests (test_live.py, test_live_arm.py,
-test_live_hardware.py): its output lines collected as they come, waits on them, exit codes."""
+"""`haptic-teleop launch ...` (or any command: `Child`) as a child process for the live tests
+(test_live.py, test_live_arm.py, test_live_hardware.py, test_live_device_record.py,
+test_launch_files.py): its output lines collected as they come, waits on them, exit codes."""
 
 from __future__ import annotations
 
@@ -33,15 +34,16 @@ def wait_for_bag_messages(bag: Path, timeout_s: float) -> None:
     raise AssertionError(f"no recorded messages in {bag} within {timeout_s} s")
 
 
-class Launch:
-    """`haptic-teleop launch ...` as a child process; its output lines are collected as they come."""
+class Child:
+    """A command as a child process (stdin closed); its output lines are collected as they come."""
 
-    def __init__(self, *args: str, cwd: Path, env: dict[str, str] | None = None) -> None:
+    def __init__(self, cmd: list[str], cwd: Path | None = None, env: dict[str, str] | None = None) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
         self.proc = subprocess.Popen(
-            [*CLI, "launch", *args],
+            cmd,
             cwd=cwd,
             env=env,
+            stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
@@ -72,18 +74,25 @@ class Launch:
             time.sleep(0.05)
         raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; output:\n{self.text[-4000:]}")
 
-    def pid_of(self, node: str) -> int:
-        return int(self.wait_for(rf"started {node} \(\w+\) pid (\d+)", 30).group(1))
-
     def finish(self, timeout_s: float) -> int:
         try:
             code = self.proc.wait(timeout_s)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-            raise AssertionError(f"launcher still running after {timeout_s} s:\n{self.text[-4000:]}") from None
+            raise AssertionError(f"still running after {timeout_s} s:\n{self.text[-4000:]}") from None
         self._reader.join(5)
         return code
+
+
+class Launch(Child):
+    """`haptic-teleop launch ...` as a child process: its launcher's lines, exit codes, loop table."""
+
+    def __init__(self, *args: str, cwd: Path, env: dict[str, str] | None = None) -> None:
+        super().__init__([*CLI, "launch", *args], cwd=cwd, env=env)
+
+    def pid_of(self, node: str) -> int:
+        return int(self.wait_for(rf"started {node} \(\w+\) pid (\d+)", 30).group(1))
 
     def exit_codes(self) -> dict[str, int]:
         return {m.group(1): int(m.group(2)) for m in re.finditer(r"\[launcher\] (\w+) exited (-?\d+)", self.text)}

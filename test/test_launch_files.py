@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from launched import Child, wait_for_bag_messages
 
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.live.launcher import format_double, node_plan, params_yaml
@@ -381,65 +382,16 @@ def test_the_exit_of_the_composed_process_finishes_fails_or_is_the_launchs_own_s
         assert exit_verdict(COMPOSED, code, False) == "failed"  # someone else's signal mid-run
 
 
-class _Composed:
+def _composed(args: dict[str, str], folder: Path) -> Child:
     """`python -m haptic_teleop.live.composed PLAN --ros-args` as launch_ros starts the console
-    script, on the files `plan_from_arguments` wrote; its output lines collected as they come."""
+    script, on the files `plan_from_arguments` wrote (this module's ROS domain, DDS on this host)."""
+    from haptic_teleop.live.ros2_launch import launch_processes
 
-    def __init__(self, args: dict[str, str], folder: Path) -> None:
-        import os
-        import subprocess
-        import sys
-        import threading
-
-        from haptic_teleop.live.ros2_launch import launch_processes
-
-        (process,) = launch_processes({**args, "single_process": "true"}, "plant", folder)
-        cmd = process.command()
-        assert cmd[0] == "composed"
-        # this module's own ROS domain (conftest.py), DDS on this host
-        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "haptic_teleop.live.composed", *cmd[1:]],
-            env=env,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\\n"))
-
-    @property
-    def text(self) -> str:
-        return "\\n".join(self.lines[-60:])
-
-    def wait_for(self, text: str, timeout_s: float) -> None:
-        import time
-
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end and self.proc.poll() is None:
-            if any(text in line for line in list(self.lines)):
-                return
-            time.sleep(0.05)
-        raise AssertionError(f"no line with {text!r}:\\n{self.text}")
-
-    def finish(self, timeout_s: float) -> int:
-        import subprocess
-
-        try:
-            code = self.proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"still running after {timeout_s} s:\\n{self.text}") from None
-        self._reader.join(5)
-        return code
+    (process,) = launch_processes({**args, "single_process": "true"}, "plant", folder)
+    cmd = process.command()
+    assert cmd[0] == "composed"
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    return Child([sys.executable, "-m", "haptic_teleop.live.composed", *cmd[1:]], env=env)
 
 
 def test_the_composed_process_runs_the_launch_plan_to_the_end_and_writes_the_bag(tmp_path):
@@ -449,7 +401,7 @@ def test_the_composed_process_runs_the_launch_plan_to_the_end_and_writes_the_bag
     from haptic_teleop.record.reader import BagReader
 
     out = tmp_path / "rec"
-    run = _Composed({"scene": "wall_contact", "duration": "1.5", "record": str(out)}, tmp_path / "params")
+    run = _composed({"scene": "wall_contact", "duration": "1.5", "record": str(out)}, tmp_path / "params")
     code = run.finish(300)
     assert code == 0, run.text
     assert exit_verdict(COMPOSED, code, False) == "finished"
@@ -466,13 +418,11 @@ def test_sigint_to_the_composed_process_stops_it_as_the_launchs_shutdown_expects
     its bag last, and the exit code is one `exit_verdict` takes for the launch's own stop."""
     import signal
 
-    from launched import wait_for_bag_messages
-
     from haptic_teleop.live.ros2_launch import COMPOSED, STOPPED_BY_SHUTDOWN, exit_verdict
 
     out = tmp_path / "rec"
-    run = _Composed({"scene": "wall_contact", "duration": "120", "record": str(out)}, tmp_path / "params")
-    run.wait_for("[operator_source]: scene time 0 at stamp", 240)
+    run = _composed({"scene": "wall_contact", "duration": "120", "record": str(out)}, tmp_path / "params")
+    run.wait_for(r"\[operator_source\]: scene time 0 at stamp", 240)
     wait_for_bag_messages(out / "bag", 120)
     run.proc.send_signal(signal.SIGINT)
     code = run.finish(180)

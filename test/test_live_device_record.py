@@ -14,21 +14,18 @@ until the driver has received commands stamped over SPAN_S of the master's clock
 from __future__ import annotations
 
 import json
-import os
-import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from launched import CLI, Launch
 
 rclpy = pytest.importorskip("rclpy")
 
-CLI = [sys.executable, "-m", "haptic_teleop.cli"]
 STATE_TOPIC = "/device_record_test/joint_states"
 COMMAND_TOPIC = "/device_record_test/force_command"
 # The driver's trajectory: held at START_M until the master answers, then a slow ramp in steps of
@@ -44,47 +41,10 @@ NODES = {"master_eba", "slave_eba", "forward_relay", "backward_relay", "forward_
 # last); with --record it then analyses the bag as `run` does.
 
 
-class Launch:
-    """The launcher process; its output lines collected as they come."""
-
-    def __init__(self, tmp: Path) -> None:
-        self.record = tmp / "run"
-        args = ["launch", "wall_contact", "--duration", str(DURATION_S), "--device", "topic",
-                "--state-topic", STATE_TOPIC, "--command-topic", COMMAND_TOPIC, "--record", str(self.record),
-                "--params-dir", str(tmp / "params"), "--no-plots"]  # fmt: skip
-        self.proc = subprocess.Popen(
-            [*CLI, *args],
-            cwd=tmp,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    @property
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    def finish(self, timeout_s: float) -> int:
-        try:
-            code = self.proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"launcher still running after {timeout_s} s:\n{self.text[-4000:]}") from None
-        self._reader.join(5)
-        return code
-
-    def exit_codes(self) -> dict[str, int]:
-        return {m.group(1): int(m.group(2)) for m in re.finditer(r"\[launcher\] (\w+) exited (-?\d+)", self.text)}
+def _launch(tmp: Path) -> Launch:
+    return Launch("wall_contact", "--duration", str(DURATION_S), "--device", "topic", "--state-topic", STATE_TOPIC,
+                  "--command-topic", COMMAND_TOPIC, "--record", str(tmp / "run"), "--params-dir", str(tmp / "params"),
+                  "--no-plots", cwd=tmp)  # fmt: skip
 
 
 def _drive(launch: Launch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -157,12 +117,12 @@ def _drive(launch: Launch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("device_session")
-    launch = Launch(tmp)
+    launch = _launch(tmp)
     try:
         published, stamps, forces = _drive(launch)
     finally:
         code = launch.finish(240)  # _drive sent SIGINT, whatever happened
-    return {"code": code, "launch": launch, "out": launch.record, "published": published,
+    return {"code": code, "launch": launch, "out": tmp / "run", "published": published,
             "command_stamps": stamps, "command_forces": forces}  # fmt: skip
 
 

@@ -34,6 +34,7 @@ from haptic_teleop.nodes.topics import (
     WIRE_FIELDS,
     latched_qos,
     reliable_qos,
+    scene_start_header,
     sent_topic,
     stream_qos,
 )
@@ -225,11 +226,7 @@ class MasterEba(LiveNode):
     def _publish_start(self, stamp_ns: int) -> None:
         """Scene time 0 at `stamp_ns` on /haptic_teleop/scene_start (latched), as the operator source
         publishes it in a session with one (`topics.scene_start_ns` reads it)."""
-        from std_msgs.msg import Header
-
-        h = Header(frame_id="scene_time_0")
-        h.stamp.sec, h.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        self._start_pub.publish(h)
+        self._start_pub.publish(scene_start_header(stamp_ns))
         self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns: the device's first sample")
 
     def diagnostic_values(self) -> dict[str, float | int | str]:

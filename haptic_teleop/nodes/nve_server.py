@@ -30,6 +30,7 @@ from haptic_teleop.nodes.topics import (
     SCENE_START_TOPIC,
     latched_qos,
     received_topic,
+    scene_start_header,
     sent_topic,
     stream_qos,
 )
@@ -160,11 +161,7 @@ class NveServer(LiveNode):
         self.object_out.publish(stamp_ns, (*xo, *vo, *server.coupling_force_n.tolist()))
 
     def _publish_start(self, stamp_ns: int) -> None:
-        from std_msgs.msg import Header
-
-        h = Header(frame_id="scene_time_0")
-        h.stamp.sec, h.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        self._start_pub.publish(h)
+        self._start_pub.publish(scene_start_header(stamp_ns))
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         out: dict[str, float | int | str] = {"started": int(self.started)}

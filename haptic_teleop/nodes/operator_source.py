@@ -32,6 +32,7 @@ from haptic_teleop.nodes.topics import (
     SLAVE_STATE,
     latched_qos,
     received_topic,
+    scene_start_header,
     stream_qos,
 )
 
@@ -204,11 +205,7 @@ class OperatorSource(LiveNode):
         self.out.publish(stamp_ns, (xd, vd, fh[0]))
 
     def _publish_start(self, stamp_ns: int) -> None:
-        from std_msgs.msg import Header
-
-        h = Header(frame_id="scene_time_0")
-        h.stamp.sec, h.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        self._start_pub.publish(h)
+        self._start_pub.publish(scene_start_header(stamp_ns))
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         return {"started": int(self.started)}

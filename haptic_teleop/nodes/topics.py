@@ -73,6 +73,16 @@ SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAM
 SCENE_START_TOPIC = "/haptic_teleop/scene_start"
 
 
+def scene_start_header(stamp_ns: int) -> Any:
+    """The SCENE_START_TOPIC message for scene time 0 at `stamp_ns` (node clock): what the operator
+    source, the NVE server and, in a device session, master_eba publish (`scene_start_ns` reads it)."""
+    from std_msgs.msg import Header  # type: ignore[import-untyped]  # no stubs
+
+    h = Header(frame_id="scene_time_0")
+    h.stamp.sec, h.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    return h
+
+
 def scene_start_ns(header: Any, period_ns: int) -> int:
     """Scene time 0 on the node clock, from a SCENE_START_TOPIC message: its stamp, on the tick
     grid (a whole number of periods). The one definition the relays (their links run in scene
