@@ -75,3 +75,14 @@ def _own_ros_domain():
     os.environ["ROS_DOMAIN_ID"] = str(1 + (_SESSION + next(_MODULES)) % 100)
     yield
     os.environ["ROS_DOMAIN_ID"] = str(_SESSION)
+
+
+@pytest.fixture
+def context():
+    """An rclpy context of its own, shut down after the test: for tests that build nodes in this
+    process and call their handlers directly."""
+    rclpy = pytest.importorskip("rclpy")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)

@@ -321,14 +321,6 @@ def test_wire_layouts_carry_the_engines_payloads():
     assert direction_problem("c1/sideways") is not None and direction_problem("forward") is None
 
 
-@pytest.fixture
-def context():
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
 def _node(context, cls, params):
     from rclpy.parameter import Parameter
 
@@ -346,7 +338,8 @@ def test_relay_of_a_down_link_runs_the_nve_link_and_forwards_the_sample_unchange
     from haptic_teleop.nodes.network_relay import NetworkRelay
 
     params = {"direction": "c1/down", "scene.period_s": 0.001, "nve.client_names": ["c1"],
-              "nve.clients.c1.down.effects.delay.delay_s": 0.002, "scene_start": "first_sample"}  # fmt: skip
+              "nve.clients.c1.down.effects.delay.delay_s": 0.002, "scene_start": "first_sample",
+              "lookahead_s": 0.0}  # fmt: skip  # held in the link until its delivery, not handed on ahead
     relay = _node(context, NetworkRelay, params)
     try:
         raw = JointStateCodec(("object_x", "hip_echo_s"), ("position", "velocity")).encode(
@@ -456,7 +449,13 @@ def test_live_bag_holds_what_the_nodes_published(push_run):
         assert pk.shape[0] > MIN_SEEN and np.array_equal(pk[:, 0], np.sort(pk[:, 0]))
         assert pk.shape[0] == info["packets_written"][f"client/{link}"]
         ok = (pk[:, 3] == DELIVERED) | (pk[:, 3] == LOST_LATE)
-        assert np.all(ok) and np.allclose(pk[:, 2] - pk[:, 1], DELAY_S, atol=1e-9)  # scene seconds
+        assert np.all(ok)
+        # Delays as delivered (scene seconds): the link's, but for the packets the buffer took a
+        # tick or more late (this machine, counted apart), which carry the tick they were taken at.
+        delay = pk[:, 2] - pk[:, 1]
+        on_time = np.isclose(delay, DELAY_S, rtol=0, atol=1e-9)
+        assert np.all(delay[~on_time] > DELAY_S)
+        assert np.count_nonzero(~on_time) == info["packets_late_by_scheduling"][f"client/{link}"]
 
 
 def test_recorded_live_run_ends_with_its_summary_from_the_bag(push_run):

@@ -172,6 +172,19 @@ def load_signals(bag: str | Path) -> Signals:
     )
 
 
+def run_counts(run_info: dict[str, Any]) -> dict[str, int]:
+    """The summary's counts from a bag's run facts: remote samples the receiving controller
+    rejected (NaN, Inf, beyond the scene's limits: docs/eba.md; 0 for bags written without them),
+    and in a live bag the packets the sync buffers took a tick or more after the network delivered
+    them (late by scheduling: the machine, not the network; their records carry the time taken, so
+    the delays are as delivered: nodes/recorder.py; 0 in an engine's bag)."""
+    late = run_info.get("packets_late_by_scheduling")
+    late = late if isinstance(late, dict) else {}  # an engine's bag: none (lockstep)
+    out = {f"rejected_samples_{d}": int(run_info.get(f"rejected_samples_{d}", 0)) for d in ("forward", "backward")}
+    out.update({f"packets_late_by_scheduling_{d}": int(late.get(d, 0)) for d in ("forward", "backward")})
+    return out
+
+
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else math.nan
 
@@ -351,10 +364,7 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         "slave_initial_energy_j": se0,
         **true_margins,
         "all_finite": finite,
-        # Remote samples the receiving controller rejected (NaN, Inf, beyond the scene's limits:
-        # docs/eba.md); from the run facts, 0 for bags written without them.
-        "rejected_samples_forward": int(sig.run_info.get("rejected_samples_forward", 0)),
-        "rejected_samples_backward": int(sig.run_info.get("rejected_samples_backward", 0)),
+        **run_counts(sig.run_info),
     }
     return summary
 

@@ -37,6 +37,7 @@ from haptic_teleop.analysis.metrics import (
     initial_energy,
     penetration,
     read_run_info,
+    run_counts,
     simulator_damping,
     wall_plane,
 )
@@ -675,8 +676,7 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         "slave_energy_margin_simulator_min_j": float(se0 + s_true.low) if s_true is not None else math.nan,
         "slave_joint_damping_simulator": s_sim,
         "all_finite": finite,
-        "rejected_samples_forward": int(run_info.get("rejected_samples_forward", 0)),
-        "rejected_samples_backward": int(run_info.get("rejected_samples_backward", 0)),
+        **run_counts(run_info),
     }
 
 

@@ -17,9 +17,11 @@ ROWS = (
     ("packets_sent_forward", "packets sent forward", "{}"),
     ("packets_lost_forward", "packets lost forward", "{}"),
     ("packets_late_forward", "packets late forward", "{}"),
+    ("packets_late_by_scheduling_forward", "  of the forward packets, taken late by this machine", "{}"),
     ("packets_sent_backward", "packets sent backward", "{}"),
     ("packets_lost_backward", "packets lost backward", "{}"),
     ("packets_late_backward", "packets late backward", "{}"),
+    ("packets_late_by_scheduling_backward", "  of the backward packets, taken late by this machine", "{}"),
     ("loss_rate_forward", "loss rate forward", "{:.4f}"),
     ("loss_rate_backward", "loss rate backward", "{:.4f}"),
     ("delay_forward_p50_s", "network delay forward p50 (s)", "{:.4f}"),
@@ -43,6 +45,8 @@ ROWS = (
     ("master_energy_margin_min_j", "master energy margin min (J)", "{:.4g}"),
     ("slave_energy_margin_min_j", "slave energy margin min (J)", "{:.4g}"),
 )
+# Lines printed only when the count is not 0 (a live run's packets taken late by the machine).
+SHOWN_IF_ANY = ("packets_late_by_scheduling_forward", "packets_late_by_scheduling_backward")
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -56,7 +60,7 @@ def format_summary(summary: dict[str, Any]) -> str:
     ]
     width = max(len(label) for _, label, _ in ROWS)
     for key, label, fmt in ROWS:
-        if key not in summary:
+        if key not in summary or (key in SHOWN_IF_ANY and not summary[key]):
             continue
         v = summary[key]
         text = "n/a" if isinstance(v, float) and math.isnan(v) else fmt.format(v)

@@ -35,7 +35,14 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.analysis.energy import energy_margins
-from haptic_teleop.analysis.metrics import direction_stats, penetration, read_run_info, simulator_damping, wall_plane
+from haptic_teleop.analysis.metrics import (
+    direction_stats,
+    penetration,
+    read_run_info,
+    run_counts,
+    simulator_damping,
+    wall_plane,
+)
 from haptic_teleop.errors import BagError
 from haptic_teleop.record.columns import TickSchema, measured_topic
 from haptic_teleop.record.reader import BagReader
@@ -462,6 +469,5 @@ class TaskAccumulator:
             if unmeasured is not None:  # a hardware side's reads whose measured effort is the command (flagged)
                 out[f"{side}_unmeasured_torque_reads"] = int(unmeasured)
         out["all_finite"] = self.finite
-        out["rejected_samples_forward"] = int(run_info.get("rejected_samples_forward", 0))
-        out["rejected_samples_backward"] = int(run_info.get("rejected_samples_backward", 0))
+        out.update(run_counts(run_info))
         return out

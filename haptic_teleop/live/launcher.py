@@ -587,7 +587,8 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
     """The loops of the node set over their whole life, one row per node (`-`: no figures, e.g. a
     node that was killed or has no loop): ticks run, loop rate (ticks per second of wall time),
     late ticks (run a period or more after their deadline), skipped ticks (overruns); and what a
-    relay lost and a sync buffer skipped as late (packets)."""
+    relay lost and a sync buffer skipped as late, and those that came after their due tick (this
+    machine's lateness, not the network's: docs/live.md, "Deliveries on the stamp grid") (packets)."""
     head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks", "packets")
     rows = [head]
     for name in names:
@@ -599,8 +600,12 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
         notes = []
         if "delivered" in f:
             notes.append(f"{f['delivered']} delivered, {f.get('lost', 0)} lost")
+            if int(f.get("late_to_relay", 0)):
+                notes.append(f"{f['late_to_relay']} came after their due tick")
         if "released" in f:
             notes.append(f"{f['released']} released, {f.get('late', 0)} late")
+            if int(f.get("late_by_scheduling", 0)):
+                notes.append(f"{f['late_by_scheduling']} late by scheduling")
         rows.append((name, str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), "; ".join(notes)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
     lines = ["loops (whole run):"]

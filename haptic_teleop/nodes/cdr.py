@@ -36,12 +36,12 @@ class JointStateCodec:
     names: an arm's joints, a task's axes) with `fields` filled, values field by field, one per
     name within a field (record.layouts.make_joint_state)."""
 
-    def __init__(self, joint: str | Sequence[str], fields: Sequence[str]) -> None:
+    def __init__(self, joint: str | Sequence[str], fields: Sequence[str], frame: str = "") -> None:
         from haptic_teleop.record.layouts import JOINT_STATE, FixedLayout, make_joint_state
 
         names = (joint,) if isinstance(joint, str) else tuple(joint)
         self.names = names
-        layout = FixedLayout(JOINT_STATE, make_joint_state(list(names), fields), len(fields) * len(names))
+        layout = FixedLayout(JOINT_STATE, make_joint_state(list(names), fields, frame), len(fields) * len(names))
         self.joint = joint
         self.fields = tuple(fields)
         self.size = layout.size
@@ -164,6 +164,41 @@ def multiarray_codec(labels: Sequence[str]) -> FixedCodec:
     from haptic_teleop.record.layouts import MULTIARRAY, FixedLayout, make_multiarray
 
     return FixedCodec(FixedLayout(MULTIARRAY, make_multiarray(labels), len(labels)))
+
+
+# The due tag of a relayed sample (nodes/network_relay.py hands samples on ahead of the time the
+# network delivers them; nodes/sync_buffer.py holds each until then): header.frame_id
+# "due_ns=<19 digits>", the node clock's time of delivery. A message with an empty frame_id (the
+# teleop topics' layouts) gets it spliced in: the frame's 1-byte string (length, NUL, 3 bytes of
+# padding: offsets 12 to 19) becomes the 27-byte tag (length, 26 characters, NUL, 1 byte of
+# padding: 12 to 43), so everything after it moves by 24 bytes, a multiple of 8, and every later
+# field keeps its CDR alignment. Untagging restores the original bytes exactly.
+DUE_PREFIX = b"due_ns="
+DUE_DIGITS = 19
+_EMPTY_FRAME = struct.pack("<I", 1) + b"\0\0\0\0"  # length 1, NUL, padding
+_DUE_LEN = struct.pack("<I", len(DUE_PREFIX) + DUE_DIGITS + 1)
+_DUE_AT = 16 + len(DUE_PREFIX)  # the digits
+_DUE_END = _DUE_AT + DUE_DIGITS  # the NUL; then one byte of padding
+_SHIFT = 24
+
+
+def tag_due(raw: bytes, due_ns: int) -> bytes | None:
+    """`raw` (a serialized message whose header.frame_id is empty) with frame_id the due tag of
+    `due_ns` (>= 0), or None if its frame_id is not empty (the caller re-encodes it then)."""
+    if raw[12:20] != _EMPTY_FRAME:
+        return None
+    return b"".join((raw[:12], _DUE_LEN, DUE_PREFIX, b"%019d" % due_ns, b"\0\0", raw[20:]))
+
+
+def untag_due(raw: bytes) -> tuple[bytes, int | None]:
+    """(the message without its due tag, the due time in ns) for a tagged message; (`raw`,
+    None) for any other (a sample that did not come through a relay)."""
+    if raw[12:16] != _DUE_LEN or raw[16:_DUE_AT] != DUE_PREFIX:
+        return raw, None
+    digits = raw[_DUE_AT:_DUE_END]
+    if not digits.isdigit():
+        return raw, None
+    return raw[:12] + _EMPTY_FRAME + raw[20 + _SHIFT :], int(digits)
 
 
 class JointStateReader:

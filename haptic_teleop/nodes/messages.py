@@ -49,6 +49,10 @@ class JointStateOut:
     def publish(self, stamp_ns: int, values: Sequence[float]) -> None:
         self._send(self._encode(stamp_ns, values))
 
+    def encode(self, stamp_ns: int, values: Sequence[float]) -> bytes:
+        """The bytes `publish` would send."""
+        return self._encode(stamp_ns, values)
+
     def publish_raw(self, raw: bytes) -> None:
         """Bytes of a JointState as they came (a relay forwarding a message unchanged)."""
         self._send(raw)

@@ -11,14 +11,24 @@ node set without an operator source (the hardware variant).
 Each sample arriving on /<direction>/sent goes through `Link.send` at once (seq: its stamp /
 period; time: its stamp in scene time, integer ns, as the engine's link sends a sample at its
 tick, so a sample of stamp s on a link of delay d is due at s + d whatever the scheduling between
-its sender and here; a sample that reaches the relay a period or more after its stamp is sent at
-its arrival instead and counted as late by scheduling, `late_to_relay`, apart from the network's
-own effects; a codec's packets, whose retransmissions share a seq, are sent at their arrival), and
-everything the link says has arrived is published on /<direction>/delivered: right away from the
-callback (so a link with no delay adds only the relay's own cost), and otherwise from a 1 kHz loop
-on the absolute tick grid.
+its sender and here; one that reaches the relay after the tick it is due at, the machine too slow,
+is handed on at once and counted as late by scheduling, `late_to_relay`, apart from the
+network's own effects, its packet record keeping the network's times; a codec's packets, whose
+retransmissions share a seq, are sent at their arrival), and
+everything the link says will have arrived within `lookahead_s` (parameter, default
+LOOKAHEAD_S = 20 ms) is published on /<direction>/delivered: right away from the callback (so a
+link with no delay adds only the relay's own cost), and otherwise from a 1 kHz loop on the
+absolute tick grid. A sample handed on ahead of its delivery carries the time the network
+delivers it, its due time on the node clock, in header.frame_id ("due_ns=<ns>", nodes/cdr.py
+`tag_due`), and the sync buffer holds it until then (nodes/sync_buffer.py): so the hop from relay
+to buffer, a DDS message between two loops, has lookahead_s of room for the machine's scheduling
+rather than the quarter period between their phases, and a sample is pushed into the buffer at
+its due tick, as in the engine (docs/live.md, "Deliveries on the stamp grid"). lookahead_s 0
+hands each sample on at its delivery, untagged; a codec's packets and acknowledgements are always
+handed on so (their decoder takes each packet as it comes).
 Both run in the loop thread, which waits for input and for its next deadline at once (no executor
-in the path). The delivered message is the very message that was sent (stamp and values unchanged).
+in the path). The delivered message is the very message that was sent (stamp and values
+unchanged; the due tag in its frame_id, which was empty, is the only addition).
 
 Before scene time 0 (the graph settling for the operator's `start.delay_s`; the engine has no
 such phase) samples go through a second link, the settling link: the scene's effects without
@@ -53,12 +63,12 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
-from haptic_teleop.core.link import Packet
+from haptic_teleop.core.link import DELIVERED, Packet
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.nodes import NVE_SCENE_SECTIONS, RELAY_SCENE_STARTS, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
-from haptic_teleop.nodes.cdr import JointStateReader
+from haptic_teleop.nodes.cdr import JointStateReader, tag_due
 from haptic_teleop.nodes.messages import JointStateOut, take_all
 from haptic_teleop.nodes.params import declare_scene, declare_value
 from haptic_teleop.nodes.topics import (
@@ -78,6 +88,9 @@ from haptic_teleop.nodes.wire import direction_problem, nve_direction, wire_of
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
 # beyond it) is rebuilt from the packet's payload instead.
 _KEEP_TICKS = 30_000
+# How far ahead of its delivery a sample is handed on (parameter lookahead_s), tagged with its due
+# time: room for the relay-to-buffer hop's scheduling jitter.
+LOOKAHEAD_S = 0.02
 # Records of the settling link kept while the scene start is not known, to find those of scene time
 # >= 0 among them once it is: the newest ones, so a second's worth is plenty.
 _EARLY_KEPT = 1000
@@ -179,9 +192,8 @@ class NetworkRelay(LiveNode):
             )
         )  # fmt: skip
         ack = self.carries == "ack"
-        d, cfg = declare_direction_scene(
-            self, "network_relay", ("scene_start", TASK_AXES_PARAM, "carries"), "reverse" if ack else None
-        )
+        own = ("scene_start", TASK_AXES_PARAM, "carries", "lookahead_s")
+        d, cfg = declare_direction_scene(self, "network_relay", own, "reverse" if ack else None)
         self.direction = d
         axes = declare_task_axes(self)
         self.start_mode = str(
@@ -190,6 +202,14 @@ class NetworkRelay(LiveNode):
                 f"scene time 0 of the link: topic (the stamp on {SCENE_START_TOPIC}) or first_sample "
                 "(the first sample's stamp; for a node set without an operator source)",
                 choices=RELAY_SCENE_STARTS,
+            )
+        )  # fmt: skip
+        lookahead = float(
+            declare_value(
+                self, "lookahead_s", LOOKAHEAD_S,
+                "hand samples on this long before the network delivers them, tagged with their due time "
+                "(the sync buffer holds them until then); 0: at their delivery, untagged",
+                0.0, 1.0,
             )
         )  # fmt: skip
         self.scene_start_ns: int | None = None  # node clock of scene time 0, once known
@@ -241,7 +261,7 @@ class NetworkRelay(LiveNode):
         self._newest = 0
         self.delivered = 0
         self.malformed = 0
-        self.late_to_relay = 0  # samples that came a period or more after their stamp: sent at arrival
+        self.late_to_relay = 0  # samples that came after the tick they were due at
         # Forwards the sent bytes; rebuilds a message whose original is no longer kept.
         self._rebuild = JointStateOut(
             self, out_topic, w.names, w.fields, stream_qos(READER_DEPTH) if self.codec_wire is not None else None
@@ -253,6 +273,8 @@ class NetworkRelay(LiveNode):
         self.add_event_subscription(JointState, in_topic, stream_qos(READER_DEPTH), self._on_sent, raw=True)
         # Packet fates go out ten times a second: small batches, no long tick.
         self._batch_ticks = max(1, round(0.1e9 / period_ns))
+        # Codec packets and acknowledgements go on at their delivery: their decoder takes them as they come.
+        self.lookahead_ns = round(lookahead * 1e9) if self.codec_wire is None else 0
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"{d} ({self.carries}): {in_topic} -> {out_topic}, effects: {[e.name for e in self.link.effects]}"
@@ -282,29 +304,31 @@ class NetworkRelay(LiveNode):
         start = self.scene_start_ns
         if start is None:
             start = self._learn_start(seq)
-        sent = self._send_time(seq, now)
+        sent = now if self.codec_wire is not None else seq * self.period_ns
+        ahead = now + self.lookahead_ns
         if start is None or seq * self.period_ns < start:  # before scene time 0, or not known yet
-            self.settling.send(Packet(seq, sent, payload, size))
-            out = self.settling.deliver(now)
+            p = Packet(seq, sent, payload, size)
+            self.settling.send(p)
+            self._count_late(p, 0, now)
+            out = self.settling.deliver(ahead)
             if out:
-                self._publish(out, scene=False)
+                self._publish(out, 0, scene=False)
             return
-        self.link.send(Packet(seq, sent - start, payload, size))
-        out = self.link.deliver(now - start)
+        p = Packet(seq, sent - start, payload, size)
+        self.link.send(p)
+        self._count_late(p, start, now)
+        out = self.link.deliver(ahead - start)
         if out:
-            self._publish(out)
+            self._publish(out, start)
 
-    def _send_time(self, seq: int, now: int) -> int:
-        """When the sample of tick `seq`, here at `now` (node clock), was sent: its stamp, on the
-        tick grid, if it came within a period of it; else its arrival, counted in `late_to_relay`
-        (module docstring). A codec's packets: their arrival."""
-        if self.codec_wire is not None:
-            return now
-        stamp = seq * self.period_ns
-        if now - stamp < self.period_ns:
-            return stamp
-        self.late_to_relay += 1
-        return now
+    def _count_late(self, p: Packet, offset_ns: int, now: int) -> None:
+        """Count `p` (just sent) in `late_to_relay` if the tick it is due at (the first at or after
+        its arrival, `offset_ns` the node clock's time of the link's time 0) is before the tick of
+        `now`: the relay got it too late to hand it on in time."""
+        if self.codec_wire is None and p.fate == DELIVERED:
+            period = self.period_ns
+            if -(-(p.arrival_time_ns + offset_ns) // period) < now // period:
+                self.late_to_relay += 1
 
     def _learn_start(self, seq: int | None = None) -> int | None:
         """Scene time 0 on the node clock, if it can be known now (`seq`: the sample in hand)."""
@@ -344,18 +368,27 @@ class NetworkRelay(LiveNode):
                 self.settled += not p.duplicate
         log.clear()
 
-    def _publish(self, packets: list[Any], scene: bool = True) -> None:
+    def _publish(self, packets: list[Any], offset_ns: int, scene: bool = True) -> None:
+        """Hand `packets` on (`offset_ns`: the node clock's time of the link's time 0, for their due
+        tags)."""
         msgs = self._msgs
         wire = self.codec_wire
+        period = self.period_ns
+        tag = self.lookahead_ns > 0
         for p in packets:
             if wire is not None:
-                self._rebuild.publish_raw(wire.encode(p.seq * self.period_ns, p.payload))
+                self._rebuild.publish_raw(wire.encode(p.seq * period, p.payload))
                 continue
             m = msgs.get(p.seq)
-            if m is not None:
-                self._rebuild.publish_raw(m)
-            else:
-                self._rebuild.publish(p.seq * self.period_ns, self.wire.values(p.payload))
+            if m is None:
+                m = self._rebuild.encode(p.seq * period, self.wire.values(p.payload))
+            if tag:
+                due = p.arrival_time_ns + offset_ns
+                tagged = tag_due(m, due)
+                if tagged is None:  # the sender's frame_id was not empty: the payload re-encoded
+                    tagged = tag_due(self._rebuild.encode(p.seq * period, self.wire.values(p.payload)), due)
+                m = tagged
+            self._rebuild.publish_raw(m)
         if scene:
             self.delivered += len(packets)
 
@@ -363,14 +396,15 @@ class NetworkRelay(LiveNode):
         start = self.scene_start_ns
         if start is None:
             start = self._learn_start()
+        ahead = self.now_ns() + self.lookahead_ns
         if self.settling.in_flight:  # before scene time 0, and still in flight after it
-            out = self.settling.deliver(self.now_ns())
+            out = self.settling.deliver(ahead)
             if out:
-                self._publish(out, scene=False)
+                self._publish(out, 0, scene=False)
         if start is not None and self.link.in_flight:
-            out = self.link.deliver(self.now_ns() - start)
+            out = self.link.deliver(ahead - start)
             if out:
-                self._publish(out)
+                self._publish(out, start)
         if index % self._batch_ticks == 0:
             self.publish_packets()
 

@@ -18,10 +18,17 @@ recorder was killed). Memory stays bounded: only ticks not yet written are kept,
 that stops (its node died) is held at its last value once the others are STALL_S = 2 s ahead.
 
 Packet records come from the relays (/<dir>/packets: times in scene time already, seq the node
-clock's tick, less the scene start's here) and the sync buffers' decisions
-(/<dir>/playout: played or late); a record is written once the buffer has decided it (or its
-tick is HOLD_S = 10 s old), with a late decision applied to its first delivered copy: fate 4,
-LOST_LATE, as the engine's buffer marks it. On close (SIGINT/SIGTERM/end of the scene) the rest is
+clock's tick, less the scene start's here) and the sync buffers' rows (/<dir>/playout,
+nodes/sync_buffer.py): their decisions (played or late); a record is written once the buffer has
+decided it (or its tick is HOLD_S = 10 s old), with a late decision applied to its first delivered
+copy: fate 4, LOST_LATE, as the engine's buffer marks it, and, if the buffer took the packet a
+tick or more after the network delivered it (late by scheduling), the tick it took it at as its
+arrival (`as_delivered`; counted in run_info's `packets_late_by_scheduling`); a decision on a
+packet taken after the recording's end is not applied (the engine's run ends before it). The
+release column of each direction (`fwd_rx_seq`, ...) comes from the same rows: the buffer's own
+tick of each release, one per tick, so no release is lost or moved however late the message that
+carried it was published or taken; a tick is written once its buffers' rows say they have passed
+it (or, a buffer that stopped, HOLD_S later). On close (SIGINT/SIGTERM/end of the scene) the rest is
 written, up to the last tick every stream reached (at most scene.duration_s), and the bag closed.
 
 A device session (parameter `device.source: topic`, the hardware variant of the node set: master_eba
@@ -36,9 +43,10 @@ local: a subscriber that starts later still gets it).
 
 An NVE scene (docs/live.md, "NVE scenes live") is recorded the same way with its own topic plan
 (`topic_plan`): the NVE bag's per-tick topics (record/nve_columns.py, `nve_topic_specs`) as
-state, the release ticks of each client's up and down sync buffers (`<c>.up_rx_seq`,
-`<c>.down_rx_seq`), the packets and buffer decisions of every `<client>/up|down` direction; the
-grid's end is set by the object and the clients' HIP streams, scene time 0 by the server's start.
+state, the releases of each client's up and down sync buffers (`<c>.up_rx_seq`,
+`<c>.down_rx_seq`, from their /playout rows as teleoperation's), the packets and buffer
+decisions of every `<client>/up|down` direction; the grid's end is set by the object and the
+clients' HIP streams, scene time 0 by the server's start.
 
 A direction with a codec (docs/live.md, "Codecs live"): its packet records are the encoder's packets
 (the relay carries nothing else), decided "played" by the decoder as they arrive; the codec's
@@ -52,7 +60,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import struct
 import time
 from pathlib import Path
 from typing import Any
@@ -64,7 +71,7 @@ from haptic_teleop.nodes import DEVICE_SOURCES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.messages import take_all, take_all_published_ns
 from haptic_teleop.nodes.params import declare_scene, declare_value
-from haptic_teleop.nodes.recorder_grid import _on_grid, mark_late
+from haptic_teleop.nodes.recorder_grid import _on_grid, as_delivered, mark_late
 from haptic_teleop.nodes.topics import (
     DIRECTIONS,
     MASTER_EBA,
@@ -112,7 +119,7 @@ OFFERED_QOS = {
 }
 MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams that define the grid's end
 # Per-tick topics of a tick schema the recorder does not take as state: the released samples
-# (/<dir>/received: the release ticks, RECEIVED).
+# (/<dir>/received: the release column RECEIVED, filled from the buffers' /<dir>/playout rows).
 _NOT_STATE = ("/forward/received", "/backward/received")
 # The sent samples (/<dir>/sent) fill only the columns no state topic before them fills: an arm's
 # handle and tool velocities, which no other live topic carries (the engine's bag has them in its
@@ -124,7 +131,8 @@ _SENT = ("/forward/sent", "/backward/sent")
 
 class TopicPlan:
     """What a recorder takes, per run kind: its per-tick state topics (layouts, row columns), the
-    sync buffers' released-sample topics (-> the row column of the release tick), the packet and
+    sync buffers' released-sample topics (-> the row column of the releases, filled from the
+    buffers' /playout rows; the topics themselves are not taken), the packet and
     playout topics (-> their direction), the streams that set the grid's end, the stream whose
     first sample is scene time 0 when no start message came, and the row columns no topic fills
     that are NaN (`unknown`: nothing is known of them) rather than 0."""
@@ -204,13 +212,6 @@ def state_columns(
     return columns, values
 
 
-_STAMP = struct.Struct("<iI")
-
-
-def _stamp_ns(sec_nsec: tuple[int, int]) -> int:
-    return sec_nsec[0] * 1_000_000_000 + sec_nsec[1]
-
-
 TAKE_EVERY = 4  # scene ticks per recorder tick
 # Each recorder tick takes one of POLL_GROUPS groups of topics in turn (every topic every
 # POLL_GROUPS * TAKE_EVERY = 16 ticks) and decodes at most one topic's queue: its work is spread
@@ -275,7 +276,6 @@ class Recorder(LiveNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray, String
 
         from haptic_teleop.errors import ConfigError
@@ -320,16 +320,17 @@ class Recorder(LiveNode):
         self._queues: dict[str, tuple[list[int], list[bytes]]] = {}
         self._subs: dict[str, Any] = {}
         self._pending: dict[str, _Pending] = {t: _Pending(len(c)) for t, c in self._columns.items()}
-        for topic in plan.received:
-            self._pending[topic] = _Pending(1)  # index: the sample's tick; value: its release tick
+        for topic in plan.received:  # filled from the buffers' release rows (/<dir>/playout)
+            self._pending[topic] = _Pending(1)  # index: the release tick; value: the sample's tick
+        self._released_in = {d: received_topic(d) for d in plan.directions}
         self._packets: dict[str, list[np.ndarray]] = {d: [] for d in plan.directions}
         self._decided: dict[str, dict[int, int]] = {d: {} for d in plan.directions}  # seq -> the buffer's fate
-        for topic in list(self._columns) + list(plan.received) + list(plan.packets) + list(plan.playout):
+        self._arrived: dict[str, dict[int, int]] = {d: {} for d in plan.directions}  # seq -> the tick it took it at
+        self.late_by_scheduling = {d: 0 for d in plan.directions}  # records moved to when the buffer took them
+        for topic in list(self._columns) + list(plan.packets) + list(plan.playout):
             self._queues[topic] = ([], [])
             if topic in plan.packets or topic in plan.playout:
                 msg_type, qos = Float64MultiArray, reliable_qos(100)
-            elif topic in plan.received:
-                msg_type, qos = JointState, stream_qos(RECORDER_DEPTH)
             else:
                 msg_type, qos = self._ros_type(self._specs[topic].layout.msgtype), stream_qos(RECORDER_DEPTH)
             self._subs[topic] = self.create_polled_subscription(msg_type, topic, qos, raw=True)
@@ -420,8 +421,8 @@ class Recorder(LiveNode):
                     times.extend([now] * len(raws))
                     q.extend(raws)
             return
-        # The publisher's write time: for /<dir>/received that is the buffer's release time,
-        # for the EBA arrays (no header) the tick that produced them; not when this loop took them.
+        # The publisher's write time: for the EBA arrays (no header) the tick that produced them;
+        # not when this loop took them.
         for topic in topics if topics is not None else list(subs):
             times, q = queues[topic]
             take_all_published_ns(subs[topic], times, q)
@@ -446,10 +447,6 @@ class Recorder(LiveNode):
             self._decode_packets(plan.packets[topic], raws)
         elif topic in plan.playout:
             self._decode_playout(plan.playout[topic], raws)
-        elif topic in plan.received:
-            stamps = np.fromiter((_stamp_ns(_STAMP.unpack_from(r, 4)) for r in raws), dtype=np.int64, count=n)
-            # Indexed by release tick (the column's row); the value is the sample's own tick.
-            self._pending[topic].add(recv // period, (stamps // period).reshape(-1, 1).astype(np.float64))
         else:
             vals, stamps = self._decode_fixed(topic, raws)
             keep = plan.values.get(topic)
@@ -512,13 +509,33 @@ class Recorder(LiveNode):
             self._packets[direction].append(np.column_stack(cols))
 
     def _decode_playout(self, direction: str, raws: list[bytes]) -> None:
+        """The sync buffer's rows (nodes/sync_buffer.py): decisions by seq; releases into the
+        release column's pending samples (index: the buffer's tick; value: the sample's tick); the
+        batch's last row (seq -1) says every release up to its tick has come."""
         from rclpy.serialization import deserialize_message
         from std_msgs.msg import Float64MultiArray
 
         decided = self._decided[direction]
+        arrived = self._arrived[direction]
+        released = self._pending[self._released_in[direction]]
         for r in raws:
-            rows = np.asarray(deserialize_message(r, Float64MultiArray).data, dtype=np.float64).reshape(-1, 2)
-            decided.update(zip(rows[:, 0].astype(np.int64).tolist(), rows[:, 1].astype(np.int64).tolist(), strict=True))
+            m = deserialize_message(r, Float64MultiArray)
+            labels = m.layout.dim[1].label.split(",") if len(m.layout.dim) > 1 else ["seq", "fate"]
+            rows = np.asarray(m.data, dtype=np.float64).reshape(-1, len(labels))
+            seq = rows[:, labels.index("seq")].astype(np.int64)
+            fate = rows[:, labels.index("fate")].astype(np.int64)
+            tick = rows[:, labels.index("tick")].astype(np.int64) if "tick" in labels else np.full(seq.size, -1)
+            ok = (seq >= 0) & (fate >= 0)
+            decided.update(zip(seq[ok].tolist(), fate[ok].tolist(), strict=True))
+            if "arrived" in labels:
+                took = rows[:, labels.index("arrived")].astype(np.int64)
+                ok &= took >= 0
+                arrived.update(zip(seq[ok].tolist(), took[ok].tolist(), strict=True))
+            rel = (seq >= 0) & (tick >= 0)
+            released.add(tick[rel], seq[rel].reshape(-1, 1).astype(np.float64))
+            mark = seq < 0
+            if np.any(mark):
+                released.newest = max(released.newest, int(tick[mark].max()))
 
     # -- writing as the run goes
     def _advance(self, closing: bool) -> None:
@@ -540,6 +557,13 @@ class Recorder(LiveNode):
             end = min(n for n in newest) + 1 if min(newest) >= 0 else self.written
         else:
             end = max(min(newest) + 1 - self.margin_ticks, max(newest) + 1 - self.stall_ticks)
+            # The buffers' releases come in reliable batches: a tick is written once its releases
+            # are in too, or once the main streams are HOLD_S past it (a buffer that stopped). Not
+            # STALL_S: a reliable stream that lost a message on a busy machine delivers nothing
+            # until DDS repairs it, seconds later (3.5 s seen with one process per node here).
+            released = [self._pending[t].newest for t in self.plan.received]
+            if released:
+                end = min(end, max(min(released) + 1, max(newest) + 1 - self.hold_ticks))
         if self.duration_ticks is not None:
             end = min(end, self.start_tick + self.duration_ticks)
         if end > self.written:
@@ -591,6 +615,9 @@ class Recorder(LiveNode):
             return
         f = {name: i for i, name in enumerate(PACKET_FIELDS)}
         start, written = self.start_tick, self.written
+        # The recording's last tick (exclusive), where known: the scene's duration, or (a device
+        # session, closing) the last tick written.
+        end = start + self.duration_ticks if self.duration_ticks is not None else (written if closing else None)
         for d in self.plan.directions:
             if not self._packets[d]:
                 continue
@@ -605,10 +632,15 @@ class Recorder(LiveNode):
             out = rows[ready & ~before]
             self._packets[d] = [rows[keep]] if np.any(keep) else []
             if out.size:
-                late = {s for s, fate in decided.items() if fate == LOST_LATE}
+                # A decision on a packet the buffer took after the recording's end is not applied:
+                # the engine's run ends before it takes that packet, whose record stays as sent.
+                arrived = self._arrived[d]
+                last = end if end is not None else 1 << 62
+                late = {s for s, fate in decided.items() if fate == LOST_LATE and arrived.get(s, -1) < last}
                 self.late_marked[d] += mark_late(out, late, f)
                 out = out.copy()
                 out[:, f["seq"]] -= start  # the relays' times are in scene time already (network_relay)
+                self.late_by_scheduling[d] += as_delivered(out, arrived, start, last, self.grid_ns, f)
                 order = np.argsort(out[:, f["seq"]], kind="stable")
                 self.rec.append_packets(d, np.ascontiguousarray(out[order]))
                 self.packets_written[d] += out.shape[0]
@@ -616,6 +648,10 @@ class Recorder(LiveNode):
             if len(decided) > self.hold_ticks:
                 for s in [s for s in decided if s < horizon]:
                     del decided[s]
+            arrived = self._arrived[d]
+            if len(arrived) > self.hold_ticks:
+                for s in [s for s in arrived if s < horizon]:
+                    del arrived[s]
 
     # -- closing
     def close(self) -> None:
@@ -693,6 +729,7 @@ class Recorder(LiveNode):
             "messages_received": dict(self.received_count),
             "packets_written": dict(self.packets_written),
             "packets_late": dict(self.late_marked),
+            "packets_late_by_scheduling": dict(self.late_by_scheduling),
             "written_at_unix_s": round(time.time(), 3),
             **self.run_facts,
             **self._codec_facts(),

@@ -56,9 +56,11 @@ def _header(ts: Any, sec: int, nsec: int, frame: str = "") -> Any:
     return ts.types["std_msgs/msg/Header"](stamp=_stamp(ts, sec, nsec), frame_id=frame)
 
 
-def make_joint_state(joints: str | Sequence[str], fields: Sequence[str]) -> Callable[[Sequence[float], int, int], Any]:
+def make_joint_state(
+    joints: str | Sequence[str], fields: Sequence[str], frame: str = ""
+) -> Callable[[Sequence[float], int, int], Any]:
     """Message builder: values field by field (a subset of position, velocity, effort, in that
-    order), one per joint within a field."""
+    order), one per joint within a field; header.frame_id `frame`."""
     ts = typestore()
     cls = ts.types[JOINT_STATE]
     names = [joints] if isinstance(joints, str) else list(joints)
@@ -68,7 +70,7 @@ def make_joint_state(joints: str | Sequence[str], fields: Sequence[str]) -> Call
         arrays = {f: np.array(values[i * n : (i + 1) * n], dtype=np.float64) for i, f in enumerate(fields)}
         empty = np.array([], dtype=np.float64)
         return cls(
-            header=_header(ts, sec, nsec),
+            header=_header(ts, sec, nsec, frame),
             name=list(names),
             position=arrays.get("position", empty),
             velocity=arrays.get("velocity", empty),
