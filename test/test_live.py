@@ -768,6 +768,49 @@ def test_shared_loop_catches_up_every_member_and_counts_skips_per_member():
         assert all(a == "fast" for a, b in pairs if b == "slow")
 
 
+def test_simulated_shared_loop_waits_for_the_clock_and_runs_every_pass_in_phase_order():
+    """Composed nodes on simulated time share one loop on their ROS clock: nothing runs before the
+    first /clock (time 0), and a clock that jumps 50 periods ahead (a loop behind /clock) gets every
+    pass run, none skipped, each member in phase order, so relays and buffers stay in step with
+    the sides whatever /clock does (docs/live.md, "Deliveries on the stamp grid")."""
+    from haptic_teleop.nodes.rtloop import SharedLoop
+
+    t = [0]  # no /clock yet
+    group = SharedLoop(now_ns=lambda: t[0], simulated=True)
+    order: list[tuple[str, int]] = []
+    done = threading.Event()
+
+    def ticker(name: str):
+        def tick(k: int, stamp_ns: int) -> None:
+            order.append((name, k))
+            if name == "buffer" and len(order) == 2 * 4:
+                t[0] += 50 * P_NS  # /clock jumps ahead
+            if len(order) >= 2 * 50:
+                done.set()
+
+        return tick
+
+    buffer = group.add("buffer", P_NS, 0.5, ticker("buffer"), None, None, 10)
+    relay = group.add("relay", P_NS, 0.25, ticker("relay"), None, None, 10)
+    group.start()
+    time.sleep(0.05)
+    assert order == []  # waits for the first /clock
+    t[0] = 1000 * P_NS + 1  # the loop's first deadline: 1001 periods
+    time.sleep(0.05)
+    assert order == []  # not due yet
+    t[0] = 1005 * P_NS  # passes 1001 to 1005 due; at the 4th, /clock jumps to 1055
+    assert done.wait(30)
+    group.stop()
+    ks = [k for name, k in order if name == "relay"]
+    assert ks == list(range(ks[0], ks[0] + len(ks)))  # every pass, none skipped
+    # relay before buffer in every pass
+    assert all(
+        order[i] == ("relay", k) and order[i + 1] == ("buffer", k) for i, k in zip(range(0, len(order) - 1, 2), ks)
+    )
+    assert ks[-1] - ks[0] >= 49  # the 50 periods /clock jumped, all run
+    assert relay.stats.overruns == 0 and buffer.stats.overruns == 0
+
+
 def test_loop_stats_reports_give_exact_figures_between_two_reports():
     """What `bench live` computes from two diagnostics reports: ticks run per second of wall time,
     late ticks and lateness percentiles of exactly the ticks in between."""

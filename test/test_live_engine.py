@@ -32,6 +32,8 @@ DURATION = "1.5"
 CASES = {
     # The default scene: constant 50 ms each way, no loss, playout `none`.
     "constant_delay": ("wall_contact", []),
+    # An arm scene (Touch master, UR5e slave), constant 50 ms each way: the arms' tick streams.
+    "arm_constant_delay": ("touch_ur5e_wall", []),
     # 10 ms normal jitter (reordering: late packets), Gilbert-Elliott loss forward, playout `none`.
     "jitter_and_loss": (
         "jitter",

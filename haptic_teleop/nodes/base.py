@@ -43,6 +43,9 @@ from haptic_teleop.nodes.topics import DIAGNOSTICS, ensure_local_discovery, reli
 
 
 _SHARED_LOOP: SharedLoop | None = None  # set by run_nodes(shared_loop=True) while nodes are built
+# Its counterpart for the nodes on simulated time (use_sim_time): made by the first such node, on
+# that node's ROS clock (every node of the process follows the same /clock).
+_SIM_LOOP: SharedLoop | None = None
 
 
 def _ignore(msg: Any) -> None:
@@ -163,7 +166,12 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
             )
         )
         group = _SHARED_LOOP
-        if group is not None and not self.simulated_time:
+        if group is not None and self.simulated_time:
+            global _SIM_LOOP  # noqa: PLW0603 - one per composed process, made by its first simulated node
+            if _SIM_LOOP is None:
+                _SIM_LOOP = SharedLoop(now_ns=self._clock_fn(), simulated=True)
+            group = _SIM_LOOP
+        if group is not None:
             self.loop = group.add(
                 self.get_name(), period_ns, self.loop_phase, self.tick,
                 self._drain_events if self._event_subs else None, self._loop_failed, catch_up, self._idle,
@@ -380,14 +388,14 @@ def run_nodes(
     rclpy.init(args=list(args) if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[LiveNode] = []
     kwargs_list = list(node_args) if node_args is not None else [{} for _ in factories]
-    global _SHARED_LOOP  # noqa: PLW0603 - read by LiveNode.setup_loop while the nodes are built
+    global _SHARED_LOOP, _SIM_LOOP  # noqa: PLW0603 - read by LiveNode.setup_loop while the nodes are built
     group = SharedLoop(realtime_priority=DEFAULT_REALTIME_PRIORITY) if shared_loop else None
-    _SHARED_LOOP = group
+    _SHARED_LOOP, _SIM_LOOP = group, None
     try:
         for factory, kw in zip(factories, kwargs_list, strict=True):
             nodes.append(factory(stop_event=stop, **kw))
     except _bad_parameter_errors() as exc:
-        _SHARED_LOOP = None
+        _SHARED_LOOP = _SIM_LOOP = None
         who = kwargs_list[len(nodes)].get("node_name", getattr(factories[len(nodes)], "default_name", "node"))
         line, failed = _construction_failure(who, exc)
         print(line, file=sys.stderr, flush=True)
@@ -396,7 +404,8 @@ def run_nodes(
             n.destroy_node()
         rclpy.try_shutdown()
         return failed
-    _SHARED_LOOP = None
+    sim_group = _SIM_LOOP
+    _SHARED_LOOP = _SIM_LOOP = None
     executor = MultiThreadedExecutor(num_threads=max(2, len(nodes))) if multithreaded else SingleThreadedExecutor()
     for n in nodes:
         executor.add_node(n)
@@ -438,8 +447,9 @@ def run_nodes(
         except Exception as exc:  # noqa: BLE001 - report, keep closing the others
             print(f"{n.get_name()}: error while closing: {exc}", file=sys.stderr, flush=True)
             code = max(code, 1)
-    if group is not None:
-        group.stop()
+    for g in (group, sim_group):
+        if g is not None:
+            g.stop()
     code = max([code] + [n.exit_code for n in nodes])
     for n in nodes:
         fig = n.loop_figures()

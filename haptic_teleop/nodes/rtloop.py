@@ -358,14 +358,23 @@ class SharedLoop:
     A pass that starts late still runs, up to the members' smallest `max_catch_up` whole periods
     late (next_tick); further behind, the missed deadlines are skipped for every node and counted
     as its overruns. Members look like LoopThreads to their nodes (stats, start, stop, running,
-    realtime).
+    realtime). `simulated`: the deadlines are on `now_ns`, a node's ROS clock following /clock
+    (use_sim_time): the loop waits for the first /clock, looks again every 0.2 ms of wall time, and
+    runs every pass however far behind (none skipped), at normal priority, as a simulated
+    LoopThread does; the nodes of a process then stay in step with one another whatever /clock
+    does.
     """
 
     def __init__(
-        self, base_period_ns: int = 1_000_000, realtime_priority: int = 0, now_ns: Callable[[], int] | None = None
+        self,
+        base_period_ns: int = 1_000_000,
+        realtime_priority: int = 0,
+        now_ns: Callable[[], int] | None = None,
+        simulated: bool = False,
     ) -> None:
         self.base_period_ns = base_period_ns
-        self._now = now_ns or time.time_ns  # the wall clock (another only in tests)
+        self._now = now_ns or time.time_ns  # the wall clock, or a node's ROS clock (simulated)
+        self._simulated = simulated
         self.realtime_priority = realtime_priority
         self.realtime = False
         self.members: list[SharedLoop.Member] = []
@@ -430,12 +439,15 @@ class SharedLoop:
             self._thread.join(timeout_s)
 
     def _run(self) -> None:
-        self.realtime = _enter_realtime(self.realtime_priority, None)
+        simulated = self._simulated
+        self.realtime = _enter_realtime(0 if simulated else self.realtime_priority, None)
         base = self.base_period_ns
-        bound = min((m.max_catch_up for m in self.members), default=DEFAULT_MAX_CATCH_UP)
+        bound = None if simulated else min((m.max_catch_up for m in self.members), default=DEFAULT_MAX_CATCH_UP)
         now = self._now
-        k = now() // base + 1
         stop = self._stop
+        while simulated and now() <= 0 and not stop.is_set():  # no /clock yet
+            time.sleep(0.001)
+        k = now() // base + 1
         lock = self._lock
         members = self.members
         rr = 0  # whose background work is looked at first after the next pass
@@ -443,7 +455,8 @@ class SharedLoop:
             deadline = k * base
             t = now()
             while t < deadline and not stop.is_set():
-                time.sleep((deadline - t) * 1e-9)
+                # Simulated time moves only with /clock: look again every 0.2 ms of wall time.
+                time.sleep(2e-4 if simulated else (deadline - t) * 1e-9)
                 t = now()
             k_run, skipped = next_tick(k, t, base, 0, bound)
             if skipped:
@@ -459,7 +472,7 @@ class SharedLoop:
                         self._tick(m, deadline)
             k += 1
             if k % 4 == 0:  # background work looked at every few passes: it is due once a second
-                rr = self._idle_in_turn(k * base - now() >= IDLE_SHARE * base, rr)
+                rr = self._idle_in_turn(simulated or k * base - now() >= IDLE_SHARE * base, rr)
 
     def _idle_in_turn(self, room: bool, rr: int) -> int:
         """After a pass: at most one member's background work (its due diagnostics), members in
@@ -476,8 +489,8 @@ class SharedLoop:
 
     def _tick(self, m: SharedLoop.Member, deadline: int) -> None:
         st = m.stats
-        t0 = self._now()
-        st.record(t0, deadline)
+        st.record(self._now(), deadline)
+        t0 = time.perf_counter_ns()
         try:
             if m.drain is not None:
                 m.drain()
@@ -489,4 +502,4 @@ class SharedLoop:
             else:
                 raise
         finally:
-            st.busy_ns += self._now() - t0
+            st.busy_ns += time.perf_counter_ns() - t0
