@@ -26,9 +26,10 @@ tick or more after the network delivered it (late by scheduling), the tick it to
 arrival (`as_delivered`; counted in run_info's `packets_late_by_scheduling`); a decision on a
 packet taken after the recording's end is not applied (the engine's run ends before it). The
 release column of each direction (`fwd_rx_seq`, ...) comes from the same rows: the buffer's own
-tick of each release, one per tick, so no release is lost or moved however late the message that
-carried it was published or taken; a tick is written once its buffers' rows say they have passed
-it (or, a buffer that stopped, HOLD_S later). On close (SIGINT/SIGTERM/end of the scene) the rest is
+tick of each release, one per tick, so no release is moved or overwritten however late its
+message was taken; a tick is written once its buffers' rows say they have passed it, or
+RELEASES_WAIT_S (0.5 s) later (a release whose row comes later still is counted, not written).
+On close (SIGINT/SIGTERM/end of the scene) the rest is
 written, up to the last tick every stream reached (at most scene.duration_s), and the bag closed.
 
 A device session (parameter `device.source: topic`, the hardware variant of the node set: master_eba
@@ -231,6 +232,7 @@ MARGIN_S = 0.1
 # recording back: its ticks are written holding its last value.
 STALL_S = 2.0
 HOLD_S = 10.0  # a packet record the sync buffer has not decided after this long is written as is
+RELEASES_WAIT_S = 0.5  # ticks wait at most this long (behind the main streams) for their releases
 FINAL_COUNTERS_S = 3.0  # at close, the longest wait for the codec nodes' last counters
 FLUSH_EVERY_S = 0.5  # what was appended is on disk as complete chunks at least this often
 
@@ -302,8 +304,8 @@ class Recorder(LiveNode):
         self.grid_ns = round(cfg.scene.period_s * 1e9)  # the scene's tick grid
         # A device session lasts until it is stopped: no cap (None), and never "interrupted".
         self.duration_ticks = round(cfg.scene.duration_s / cfg.scene.period_s) if self.operator else None
-        self.margin_ticks, self.stall_ticks, self.hold_ticks = (
-            max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S)
+        self.margin_ticks, self.stall_ticks, self.hold_ticks, self.release_wait_ticks = (
+            max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S, RELEASES_WAIT_S)
         )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
         plain = tuple(d for d in DIRECTIONS if cfg.is_nve or getattr(cfg.network, d).codec is None)
@@ -557,13 +559,15 @@ class Recorder(LiveNode):
             end = min(n for n in newest) + 1 if min(newest) >= 0 else self.written
         else:
             end = max(min(newest) + 1 - self.margin_ticks, max(newest) + 1 - self.stall_ticks)
-            # The buffers' releases come in reliable batches: a tick is written once its releases
-            # are in too, or once the main streams are HOLD_S past it (a buffer that stopped). Not
-            # STALL_S: a reliable stream that lost a message on a busy machine delivers nothing
-            # until DDS repairs it, seconds later (3.5 s seen with one process per node here).
+            # The buffers' releases come in reliable batches ten times a second: a tick is written
+            # once its releases are in too, or once the main streams are RELEASES_WAIT_S past it.
+            # No longer: a reliable stream that lost a message on a busy machine delivers nothing
+            # until DDS repairs it, seconds later (3.5 s seen with one process per node here), and a
+            # recorder killed meanwhile would lose what it held; releases that come after their
+            # tick was written are counted (`samples_after_written` of /<dir>/received).
             released = [self._pending[t].newest for t in self.plan.received]
             if released:
-                end = min(end, max(min(released) + 1, max(newest) + 1 - self.hold_ticks))
+                end = min(end, max(min(released) + 1, max(newest) + 1 - self.release_wait_ticks))
         if self.duration_ticks is not None:
             end = min(end, self.start_tick + self.duration_ticks)
         if end > self.written:
