@@ -219,8 +219,9 @@ class SyncBuffer(LiveNode):
                 del pending[seq]
 
     def publish_fates(self) -> None:
-        """The decisions and releases since the last batch, rows [seq, fate, tick], and the row
-        saying every release up to the last tick run is in (module docstring)."""
+        """The decisions and releases since the last batch, rows [seq, fate, tick, arrived]
+        (PLAYOUT_FIELDS), and the row saying every release up to the last tick run is in (module
+        docstring)."""
         from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
         if self._tick < 0:
