@@ -24,7 +24,7 @@ import heapq
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -36,6 +36,15 @@ LOST_NETWORK = 1
 LOST_QUEUE = 2
 LOST_CORRUPT = 3
 LOST_LATE = 4  # set by the playout buffer: arrived, but too late to be played
+
+
+def taken_tick(arrival_ns: Any, period_ns: int) -> Any:
+    """The tick at which a receiver on the tick grid takes a packet that arrives at `arrival_ns`:
+    the first at or after it (`Link.deliver` at each tick's time does exactly this). Ints or
+    numpy integer arrays."""
+    return -(-arrival_ns // period_ns)
+
+
 FATE_NAMES = {
     DELIVERED: "delivered",
     LOST_NETWORK: "network",

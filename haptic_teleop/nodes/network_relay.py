@@ -63,7 +63,7 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
-from haptic_teleop.core.link import DELIVERED, Packet
+from haptic_teleop.core.link import DELIVERED, Packet, taken_tick
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.nodes import NVE_SCENE_SECTIONS, RELAY_SCENE_STARTS, SCENE_SECTIONS
@@ -327,7 +327,7 @@ class NetworkRelay(LiveNode):
         `now`: the relay got it too late to hand it on in time."""
         if self.codec_wire is None and p.fate == DELIVERED:
             period = self.period_ns
-            if -(-(p.arrival_time_ns + offset_ns) // period) < now // period:
+            if taken_tick(p.arrival_time_ns + offset_ns, period) < now // period:
                 self.late_to_relay += 1
 
     def _learn_start(self, seq: int | None = None) -> int | None:

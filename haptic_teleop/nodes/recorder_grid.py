@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from haptic_teleop.core.link import DELIVERED, LOST_LATE
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, taken_tick
 
 __all__ = ["_on_grid", "as_delivered", "mark_late"]
 
@@ -53,7 +53,7 @@ def as_delivered(
     if c.size == 0:
         return 0
     a_ns = np.round(rows[c, f["arrival_time_s"]] * 1e9).astype(np.int64)
-    due = -(-a_ns // period_ns)  # the tick the engine's buffer takes it at
+    due = taken_tick(a_ns, period_ns)  # the tick the engine's buffer takes it at
     took = np.array([arrived[s + start] - start for s in seq[c].tolist()], dtype=np.int64)
     late = (took > due) & (took < end - start)
     rows[c[late], f["arrival_time_s"]] = took[late] * period_ns * 1e-9

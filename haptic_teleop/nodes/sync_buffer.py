@@ -46,7 +46,7 @@ import array
 import heapq
 from typing import Any
 
-from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet, taken_tick
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.cdr import JointStateReader, untag_due
 from haptic_teleop.nodes.messages import JointStateOut, take_all
@@ -150,7 +150,7 @@ class SyncBuffer(LiveNode):
             raw, due = untag_due(tagged)
             if due is None:
                 due = now
-            elif -(-due // period) * period < now:  # its due tick has passed: late by scheduling
+            elif taken_tick(due, period) * period < now:  # its due tick has passed: late by scheduling
                 self.late_by_scheduling += 1
                 due = now
             self._arrivals += 1
@@ -158,7 +158,7 @@ class SyncBuffer(LiveNode):
         out = []
         while held and held[0][0] <= now:
             due, _, raw = heapq.heappop(held)
-            if -(-due // period) * period < now:  # held past its tick: this loop skipped that tick
+            if taken_tick(due, period) * period < now:  # held past its tick: this loop skipped that tick
                 self.late_by_scheduling += 1
             out.append(raw)
         return out
