@@ -4,11 +4,12 @@ process (its own rclpy context: sensor_msgs/JointState out, geometry_msgs/Wrench
 in), every node its own process through the project's launcher (`haptic-teleop launch --device
 topic`), stopped with SIGINT as Ctrl-C stops it.
 
-There is no operator source: the recorder takes the master's first sample as scene time 0, leaves the
-operator's columns NaN and records until it is stopped, past the scene's duration (docs/live.md,
-"Recording a device session"); `haptic-teleop analyze` works on the bag. DDS stays on this host, in
-this module's own ROS domain (conftest). Nothing here depends on wall-clock rates: the session lasts
-until the driver has received commands stamped over SPAN_S of the master's clock.
+There is no operator source: the recorder takes the tick master_eba announces (1 s after its device
+answered) as scene time 0, leaves the operator's columns NaN and records until it is stopped, past
+the scene's duration (docs/live.md, "Recording a device session"); `haptic-teleop analyze` works
+on the bag. DDS stays on this host, in this module's own ROS domain (conftest). Nothing here
+depends on wall-clock rates: the session lasts until the driver has received commands stamped over
+SPAN_S of the master's clock.
 """
 
 from __future__ import annotations
@@ -140,7 +141,7 @@ def test_every_node_stops_cleanly_on_sigint(session):
 
 
 def test_the_bag_reads_and_holds_the_device_session(session):
-    """Scene time 0 is the master's first sample; the master's positions are the driver's ramp, the
+    """Scene time 0 is a tick of the master's; the master's positions are the driver's ramp, the
     operator's columns NaN, and the bag goes past the scene's duration (recorded until stopped)."""
     from haptic_teleop.record.reader import BagReader
 

@@ -227,7 +227,7 @@ def node_plan(
         master["device"].update(command_reliability=str(command_qos[0]), command_depth=int(command_qos[1]))
     plan.append(NodeSpec("master_eba", "master_eba", master))
     plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
-    # Without an operator source master_eba publishes the scene start (its device's first sample):
+    # Without an operator source master_eba publishes the scene start (device.start_delay_s after its device answered):
     # the relays and the recorder take it from there as they do the operator source's.
     # An arm scene's payloads carry one value per task axis and field (docs/live.md, "Arm scenes").
     axes = {"task_axes": 3} if scene.config.is_arm else {}

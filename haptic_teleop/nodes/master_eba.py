@@ -58,6 +58,7 @@ class MasterEba(LiveNode):
             "device.command_reliability",
             "device.command_depth",
             "device.min_subscribers",
+            "device.start_delay_s",
         )
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
@@ -104,8 +105,8 @@ class MasterEba(LiveNode):
             self._device_sub = self.create_polled_subscription(JointState, state_topic, stream_qos(), raw=True)
             self._read_device = JointStateReader(("position", "velocity"))  # a driver's layout: deserialized
             self.command_out = WrenchOut(self, command_topic, MASTER_JOINT, self.command_qos)
-            # No operator source publishes scene time 0 in a device session: this node does, at the
-            # tick of the device's first sample, for the relays' links and the recorder's grid.
+            # No operator source publishes scene time 0 in a device session: this node does, at a
+            # tick after the device's first sample, for the relays' links and the recorder's grid.
             from std_msgs.msg import Header
 
             self._start_pub = self.create_publisher(Header, SCENE_START_TOPIC, latched_qos())
@@ -117,6 +118,15 @@ class MasterEba(LiveNode):
                     self, "device.min_subscribers", 0, f"scene time 0 waits for this many on {MASTER_STATE}", 0, 100
                 )
             )
+            # ... and then comes device.start_delay_s later, announced at once (latched), as the operator
+            # source's: a subscriber the graph already lists may not take samples yet (its side of
+            # discovery still running: a recorder under load missed the first 0.45 s of every stream).
+            self._start_delay_ns = round(
+                declare_value(
+                    self, "device.start_delay_s", 1.0, "settling time after those subscribe, before scene time 0",
+                    0.0, 60.0,
+                ) * 1e9
+            )  # fmt: skip
         self.state_out = JointStateOut(self, MASTER_STATE, MASTER_JOINT, JOINT_ORDER)
         self.codec: Any = None
         if cfg.network.forward.codec is not None:  # the forward encoder (nodes/codec_stage.py)
@@ -206,7 +216,7 @@ class MasterEba(LiveNode):
                 return  # no device yet: nothing to control
             if not self._started and self.count_subscribers(MASTER_STATE) >= self._min_subscribers:
                 self._started = True
-                self._publish_start(stamp_ns)
+                self._publish_start(stamp_ns + -(-self._start_delay_ns // self.period_ns) * self.period_ns)
             x, v = [self._device[0]], [self._device[1]]
         f = self.side.step(x, v, stamp_ns)
         if self.codec is not None:
@@ -224,10 +234,10 @@ class MasterEba(LiveNode):
         self.side.publish_internals()
 
     def _publish_start(self, stamp_ns: int) -> None:
-        """Scene time 0 at `stamp_ns` on /haptic_teleop/scene_start (latched), as the operator source
-        publishes it in a session with one (`topics.scene_start_ns` reads it)."""
+        """Scene time 0 at `stamp_ns` (a tick to come) on /haptic_teleop/scene_start (latched), as the
+        operator source publishes it in a session with one (`topics.scene_start_ns` reads it)."""
         self._start_pub.publish(scene_start_header(stamp_ns))
-        self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns: the device's first sample")
+        self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns: device.start_delay_s after its device answered")
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         return self.side.diagnostic_values()

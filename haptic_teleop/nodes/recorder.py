@@ -9,7 +9,7 @@ stamp / period; the EBA arrays, which have no header, by the time they were publ
 After each decoding round the ticks every stream has passed (less a margin of MARGIN_S = 0.1 s for
 samples still on their way) are appended to the bag (`RunRecorder.append`), with the grid from the
 operator's first sample (scene time 0; a device session, `device.source: topic`, has no operator
-source: the master's first sample, see below), the same layout the engine writes, so `haptic-teleop
+source: a tick master_eba announces, see below), the same layout the engine writes, so `haptic-teleop
 analyze` and every metric work on live bags unchanged; a sample lost between a node and the
 recorder holds the previous value (counted in run_info). At least once a second what was appended
 is flushed as complete chunks, so a kill of any process, the recorder's own included, loses at
@@ -162,7 +162,7 @@ def topic_plan(schema: Any, plain: tuple[str, ...] = DIRECTIONS, operator: bool 
     """The recorder's topics for a run with this schema (a TickSchema, or an NveSchema); `plain`:
     the directions without a codec (their /<dir>/sent carries a sample per tick); `operator`: False
     for a device session (no operator source): no /operator/joint_states, its columns NaN, scene
-    time 0 the master's first sample."""
+    time 0 the tick master_eba announces."""
     from haptic_teleop.record.nve_columns import NveSchema
 
     if isinstance(schema, NveSchema):
@@ -295,7 +295,7 @@ class Recorder(LiveNode):
         source = declare_value(
             self, "device.source", "plant", "master_eba's device: plant (an operator source publishes "
             "/operator/joint_states) or topic (a driver's topics, no operator source: scene time 0 is the "
-            "master's first sample, the operator's columns NaN, recorded until stopped)", choices=DEVICE_SOURCES,
+            "tick master_eba announces, the operator's columns NaN, recorded until stopped)", choices=DEVICE_SOURCES,
         )  # fmt: skip
         cfg = self.cfg
         if source != "plant" and (cfg.is_nve or cfg.is_arm):
@@ -349,7 +349,7 @@ class Recorder(LiveNode):
         self._scene_pub.publish(String(data=self.scene_yaml))
         from std_msgs.msg import Header
 
-        # Scene time 0: the operator source's, or in a device session master_eba's (its device's first sample).
+        # Scene time 0: the operator source's, or in a device session master_eba's (after its device answered).
         self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
         # The codec stage's counters (nodes/codec_stage.py), latched: taken at close.
         self._codec_subs: dict[tuple[str, str], Any] = {}
