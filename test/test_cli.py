@@ -340,6 +340,42 @@ def test_a_serial_port_that_does_not_exist_is_refused_before_anything_is_written
     assert not out.exists()
 
 
+def test_a_port_that_is_no_serial_port_is_refused_before_anything_is_written(tmp_path, capsys):
+    """A port that exists but does not open as a serial port (/dev/null) is found before the engine
+    is built too: the driver's own reason in one line, exit 2, no --out."""
+    pytest.importorskip("dynamixel_sdk")
+    out = tmp_path / "run"
+    code, err = _main_err(capsys, ["run", "touch_dynamixel_wall", "--set", "slave.backend=dynamixel",
+                                   "--set", "slave.hardware.port=/dev/null", "--out", str(out)])  # fmt: skip
+    line = _one_line(err)
+    assert code == 2 and "slave.hardware.port" in line and "/dev/null" in line and "cannot be opened" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("out_exists", [False, True], ids=["new_out", "empty_out"])
+def test_a_start_that_fails_leaves_out_as_it_was(tmp_path, capsys, out_exists):
+    """A port that opens but where no servo answers (a pseudo-terminal nobody serves) fails at the
+    start, after the engine was built: one line, exit 1, and --out as it was before (absent, or
+    empty), so the same command runs again once the servos answer."""
+    pytest.importorskip("dynamixel_sdk")
+    import os
+
+    master_fd, slave_fd = os.openpty()
+    try:
+        out = tmp_path / "run"
+        if out_exists:
+            out.mkdir()
+        code, err = _main_err(capsys, ["run", "touch_dynamixel_wall", "--set", "slave.backend=dynamixel",
+                                       "--set", f"slave.hardware.port={os.ttyname(slave_fd)}", "--no-plots",
+                                       "--quiet", "--out", str(out)])  # fmt: skip
+    finally:
+        os.close(master_fd)
+        os.close(slave_fd)
+    line = _one_line(err)
+    assert code == 1 and "answer" in line, err
+    assert out.exists() == out_exists and (not out_exists or not any(out.iterdir()))
+
+
 # --- what users reach for --------------------------------------------------------------------------
 
 

@@ -63,17 +63,53 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_scene(args: argparse.Namespace, scene: Any) -> int:
-    from haptic_teleop.analysis.summary_table import format_summary
-
     resolved = scene.to_yaml()
     if args.dry_run:
         sys.stdout.write(resolved)
         return EXIT_OK
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
+    check_devices(scene)
+    existed = out.is_dir()
+    check_out_dir(out)
+    try:
+        return _record(args, scene, resolved, out)
+    except Exception:
+        # A start that failed (no tick recorded: a device that did not answer, an engine that could
+        # not be built) leaves --out as it was, so the same command runs again as it is.
+        if _ticks_recorded(out / "bag") == 0:
+            _remove_outputs(out, existed)
+        raise
+
+
+def _ticks_recorded(bag_dir: Path) -> int:
+    """How many ticks the bag in `bag_dir` holds (0: none, or no readable bag)."""
+    from haptic_teleop.record.reader import BagReader
+
+    try:
+        with BagReader(bag_dir) as reader:
+            return len(reader.read("/master/joint_states").log_ns)
+    except Exception:  # noqa: BLE001 - absent, empty or unreadable: nothing recorded
+        return 0
+
+
+def _remove_outputs(out: Path, existed: bool) -> None:
+    """Empty `out` again (it was empty), or remove it (it was not there)."""
+    import shutil
+
+    if not existed:
+        shutil.rmtree(out, ignore_errors=True)
+        return
+    for child in out.iterdir():
+        if child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+
+
+def _record(args: argparse.Namespace, scene: Any, resolved: str, out: Path) -> int:
+    from haptic_teleop.analysis.summary_table import format_summary
     from haptic_teleop.engine.run import record_run
 
-    check_devices(scene)
-    check_out_dir(out)
     if not args.quiet and not scene.config.is_nve:
         from haptic_teleop.assembly.channel import arq_round_trip_notes
 
@@ -174,9 +210,9 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
 
 
 def check_devices(scene: Any) -> None:
-    """Every hardware side's device is there (its serial port exists), before anything is written
-    or built: a wrong port is one line and exit 2 at once, not after the engine's build, and
-    leaves no output folder behind."""
+    """Every hardware side's device is there (its serial port exists and opens), before anything is
+    written or built: a wrong port is one line and exit 2 at once, not after the engine's build,
+    and leaves no output folder behind."""
     from haptic_teleop.plants.base import backend
 
     config = scene.config
@@ -187,6 +223,8 @@ def check_devices(scene: Any) -> None:
         if cfg.hardware is None or not backend(cfg.backend).real:
             continue
         problem = cfg.hardware.absent()
+        if problem is None and hasattr(cfg.hardware, "unopenable"):
+            problem = cfg.hardware.unopenable()
         if problem is not None:
             raise ConfigError(scene.source, f"{side}.{problem.key}", problem.value, problem.allowed)
 

@@ -83,6 +83,21 @@ class DynamixelConfig(HardwareConfig):
             "serial ports; allowed: one of them, or --emulate",
         )
 
+    def unopenable(self) -> Problem | None:
+        """The port exists but the SDK cannot open it at `baud_bps` (not a serial port, taken, no
+        permission): said before a run builds anything (the driver's own message, `probe_port`)."""
+        from haptic_teleop.plants.dynamixel.driver import probe_port
+        from haptic_teleop.plants.hardware import HardwareError
+
+        if self.port is None:
+            return None
+        try:
+            probe_port(self.port, self.baud_bps)
+        except HardwareError as exc:
+            reason = str(exc).removeprefix(f"{self.port}").lstrip(": ")
+            return Problem("hardware.port", self.port, f"{reason}; or --emulate")
+        return None
+
 
 def joint_driver(hw: DynamixelConfig, joints: tuple[str, ...], torque_limit_nm: Sequence[float] | None) -> JointDriver:
     """The Dynamixel chain of a side's hardware section (plants/dynamixel/driver.py). Each servo's

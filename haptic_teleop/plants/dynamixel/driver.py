@@ -225,33 +225,8 @@ class DynamixelDriver:
         raise AssertionError("unreachable: read() raises after max_consecutive_comm_errors failures")
 
     def _open_port(self) -> None:
-        sdk, cfg = self._sdk, self.config
-        where = f"{cfg.port}"
-        self._port = sdk.PortHandler(cfg.port)
-        self._ph = sdk.PacketHandler(2.0)
-        try:
-            self._port.openPort()
-            ok = self._port.setBaudRate(cfg.baud_bps)
-        except OSError as exc:
-            code = exc.errno
-            if code is None and exc.args and isinstance(exc.args[0], int):
-                code = exc.args[0]
-            if code == errno.ENOENT or not os.path.exists(cfg.port):
-                raise HardwareError(
-                    f"{where} does not exist: is the USB adapter (U2D2) plugged in? `ls /dev/ttyUSB* "
-                    f"/dev/serial/by-id/` lists the serial ports; set the chain's port to one of them"
-                ) from None
-            if code in (errno.EACCES, errno.EPERM):
-                raise HardwareError(
-                    f"{where}: permission denied: add yourself to the dialout group (`sudo usermod -aG dialout "
-                    f"$USER`, then log out and in) or install the udev rule of docs/dynamixel_driver.md"
-                ) from None
-            raise HardwareError(
-                f"{where} cannot be opened ({exc}): close any other program using it (Dynamixel Wizard, "
-                f"another haptic-teleop), or unplug and replug the adapter"
-            ) from None
-        if not ok:
-            raise self._fail(f"{where}: the SDK refused {cfg.baud_bps} bps; allowed: {SDK_BAUD_RATES_BPS}")
+        self._ph = self._sdk.PacketHandler(2.0)
+        self._port = open_port(self._sdk, self.config.port, self.config.baud_bps)
 
     def _check_latency_timer(self) -> None:
         cfg = self.config
@@ -796,3 +771,41 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
 def _is_a_joint_driver(driver: DynamixelDriver) -> JointDriver:
     """For the type checker: DynamixelDriver satisfies the JointDriver protocol."""
     return driver
+
+
+def open_port(sdk: Any, port: str, baud_bps: int) -> Any:
+    """The SDK's PortHandler on `port`, open at `baud_bps`; a port that does not exist, may not be opened or is no
+    serial port is a HardwareError saying what to do (`probe_port` runs it before a run builds
+    anything)."""
+    handler = sdk.PortHandler(port)
+    try:
+        handler.openPort()
+        ok = handler.setBaudRate(baud_bps)
+    except OSError as exc:
+        code = exc.errno
+        if code is None and exc.args and isinstance(exc.args[0], int):
+            code = exc.args[0]
+        if code == errno.ENOENT or not os.path.exists(port):
+            raise HardwareError(
+                f"{port} does not exist: is the USB adapter (U2D2) plugged in? `ls /dev/ttyUSB* "
+                f"/dev/serial/by-id/` lists the serial ports; set the chain's port to one of them"
+            ) from None
+        if code in (errno.EACCES, errno.EPERM):
+            raise HardwareError(
+                f"{port}: permission denied: add yourself to the dialout group (`sudo usermod -aG dialout "
+                f"$USER`, then log out and in) or install the udev rule of docs/dynamixel_driver.md"
+            ) from None
+        raise HardwareError(
+            f"{port} cannot be opened ({exc}): is it the adapter's serial port? Close any other program using "
+            f"it (Dynamixel Wizard, another haptic-teleop), or unplug and replug the adapter"
+        ) from None
+    if not ok:
+        handler.closePort()
+        raise HardwareError(f"{port}: the SDK refused {baud_bps} bps; allowed: {SDK_BAUD_RATES_BPS}")
+    return handler
+
+
+def probe_port(port: str, baud_bps: int) -> None:
+    """Open and close `port` as the driver will (`open_port`): raises its HardwareError, or the
+    SDK's MissingSDKError, at once, before a run builds its engine or writes an output."""
+    open_port(import_sdk("dynamixel_sdk"), port, baud_bps).closePort()
