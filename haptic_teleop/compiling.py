@@ -161,6 +161,8 @@ def load(module: str) -> Any:
 # Called with the kernel's module name when a compiled loop is about to be compiled rather than
 # loaded from numba's cache (the command line prints what is being compiled, why and how long).
 compile_notice: Callable[[str], None] | None = None
+# ... and when another process is compiling it right now (this one waits, then loads the cache).
+wait_notice: Callable[[str], None] | None = None
 
 
 def is_cached(dispatcher: Any) -> bool:
@@ -171,6 +173,15 @@ def is_cached(dispatcher: Any) -> bool:
         return bool(dispatcher._cache._cache_file._load_index())
     except Exception:  # noqa: BLE001 (numba's private API moved, or an unreadable index: cannot tell)
         return True
+
+
+def lock_path(dispatcher: Any) -> str:
+    """The file `first_compile` locks for `dispatcher`: per kernel module, source file and cache."""
+    py = getattr(dispatcher, "py_func", None)
+    name = getattr(py, "__module__", "haptic_teleop.kernel")
+    where = f"{getattr(getattr(py, '__code__', None), 'co_filename', '')}\0{os.environ.get('NUMBA_CACHE_DIR', '')}"
+    key = hashlib.sha256(where.encode()).hexdigest()[:16]
+    return os.path.join(tempfile.gettempdir(), f"haptic_teleop-{os.getuid()}-{name}-{key}.compile.lock")
 
 
 @contextlib.contextmanager
@@ -187,18 +198,20 @@ def first_compile(dispatcher: Any) -> Iterator[None]:
     if getattr(dispatcher, "signatures", None):
         yield
         return
-    py = getattr(dispatcher, "py_func", None)
-    name = getattr(py, "__module__", "haptic_teleop.kernel")
-    where = f"{getattr(getattr(py, '__code__', None), 'co_filename', '')}\0{os.environ.get('NUMBA_CACHE_DIR', '')}"
-    key = hashlib.sha256(where.encode()).hexdigest()[:16]
-    path = os.path.join(tempfile.gettempdir(), f"haptic_teleop-{os.getuid()}-{name}-{key}.compile.lock")
+    name = getattr(getattr(dispatcher, "py_func", None), "__module__", "haptic_teleop.kernel")
+    path = lock_path(dispatcher)
     try:
         fh = open(path, "a")  # noqa: SIM115 - held across the yield
     except OSError:
         yield
         return
     with fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # another process holds it: say so, then wait
+            if wait_notice is not None:
+                wait_notice(name)
+            fcntl.flock(fh, fcntl.LOCK_EX)
         if compile_notice is not None and not is_cached(dispatcher):  # (another process may have just built it)
             compile_notice(name)
         try:
@@ -215,6 +228,15 @@ def compile_message(module: str) -> str:
         f"haptic-teleop: compiling the tick loop {kernel} with numba, once for this kind of scene on this "
         f"machine (seconds to about two minutes on 2 cores; later runs load it from numba's cache); "
         f"`haptic-teleop compile` builds every loop ahead"
+    )
+
+
+def wait_message(module: str) -> str:
+    """What the command line says while another process compiles the tick loop this run needs."""
+    kernel = module.rsplit(".", 1)[-1]
+    return (
+        f"haptic-teleop: waiting for another haptic-teleop process that is compiling the tick loop {kernel} "
+        f"(a run, a sweep's worker or `haptic-teleop compile`); this run then loads it from numba's cache"
     )
 
 

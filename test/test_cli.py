@@ -556,3 +556,39 @@ def test_a_compile_is_announced_only_when_numba_really_compiles(tmp_path, monkey
     assert said == ["tiny_kernel"]  # warm: loaded from the cache, nothing said
     text = compile_notice("haptic_teleop.engine.compiled.axis_kernel")
     assert "axis_kernel" in text and "numba" in text and "cache" in text and "haptic-teleop compile" in text
+
+
+def test_a_run_waiting_for_another_process_compiling_says_so(tmp_path, monkeypatch):
+    """While another process holds a kernel's compile lock, `first_compile` tells
+    `compiling.wait_notice` before it waits (here the holder lets go when told), so a run does not
+    wait silently; the command line's text names the kernel and what it waits for."""
+    import fcntl
+    import importlib
+
+    from haptic_teleop import compiling
+
+    (tmp_path / "tiny_kernel_b.py").write_text(
+        "from numba import njit\n\n@njit(cache=True)\ndef one():\n    return 1\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("tiny_kernel_b")
+    holder = open(compiling.lock_path(mod.one), "a")
+    fcntl.flock(holder, fcntl.LOCK_EX)
+    said: list[str] = []
+
+    def told(name: str) -> None:
+        said.append(name)
+        fcntl.flock(holder, fcntl.LOCK_UN)  # the other process finished
+
+    monkeypatch.setattr(compiling, "wait_notice", told)
+    try:
+        with compiling.first_compile(mod.one):
+            assert mod.one() == 1
+    finally:
+        holder.close()
+    assert said == ["tiny_kernel_b"]
+    with compiling.first_compile(mod.one):  # nobody holds it (and it is compiled): nothing said
+        pass
+    assert said == ["tiny_kernel_b"]
+    text = compiling.wait_message("haptic_teleop.engine.compiled.axis_kernel")
+    assert "axis_kernel" in text and "waiting" in text and "cache" in text

@@ -172,8 +172,12 @@ def _record(args: argparse.Namespace, scene: Any, resolved: str, out: Path) -> i
                     else:
                         print(compile_notice(module), file=sys.stderr, flush=True)
 
-                compiling.compile_notice = notice
+                def waiting(module: str) -> None:
+                    print(compiling.wait_message(module), file=sys.stderr, flush=True)
+
+                compiling.compile_notice, compiling.wait_notice = notice, waiting
                 stack.callback(setattr, compiling, "compile_notice", None)
+                stack.callback(setattr, compiling, "wait_notice", None)
             try:
                 with starting:
                     if scene.config.is_nve:

@@ -75,6 +75,13 @@ def test_a_bad_hardware_key_is_one_error_naming_key_value_and_what_is_allowed(
     assert "--set" in exc.value.source or exc.value.source.endswith("touch_dynamixel_wall.yaml")
 
 
+def test_a_ur_side_without_its_host_names_the_key_and_the_emulator() -> None:
+    with pytest.raises(ConfigError) as exc:
+        _load("slave.backend=ur", name="touch_ur5e_wall")
+    assert exc.value.key_path == "slave.hardware.host", str(exc.value)
+    assert "or run with --emulate" in str(exc.value)
+
+
 def test_a_real_device_in_a_one_axis_scene_is_refused() -> None:
     with pytest.raises(ConfigError, match=r"slave\.backend = 'dynamixel': a real device drives an arm"):
         _load("slave.backend=dynamixel", name="wall_contact")

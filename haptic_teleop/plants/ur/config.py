@@ -89,7 +89,11 @@ class URConfig(HardwareConfig):
     def problem(self, role: str, joints: tuple[str, ...], emulate: bool) -> Problem | None:
         """The controller's address, a control mode the side can run, the UR's joints in order."""
         if self.host is None and not emulate:
-            return Problem("hardware.host", None, "required for backend ur: the controller's address")
+            return Problem(
+                "hardware.host",
+                None,
+                "required for backend ur: the controller's address (e.g. 192.168.1.10), or run with --emulate",
+            )
         if self.control_mode is None:
             return Problem(
                 "hardware.control_mode",
