@@ -223,7 +223,19 @@ def test_plots_draw_paths_wall_forces_and_ports(bag, tmp_path):
     # paths: the tool's line from its start to its end, in mm; the wall's trace in the front view
     # (x-z) lies in the plane
     fig = task_path_figure(data)
-    front = next(ax for ax in fig.axes if ax.get_title() == "front (x-z)")
+    front = next(ax for ax in fig.axes if ax.get_title().startswith("front (x-z)"))
+    # each projection is zoomed to what moved in it (equal scales, at least 1 mm across), with both
+    # paths whole in view
+    for name in ("top (x-y)", "front (x-z)", "side (y-z)"):
+        ax = next(a for a in fig.axes if a.get_title().startswith(name))
+        paths = [ln for ln in ax.get_lines() if ln.get_label() in ("master handle", "slave tool")]
+        assert len(paths) == 2
+        xs = np.concatenate([ln.get_xdata() for ln in paths])
+        ys = np.concatenate([ln.get_ydata() for ln in paths])
+        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        assert x0 <= xs.min() and xs.max() <= x1 and y0 <= ys.min() and ys.max() <= y1
+        assert x1 - x0 == pytest.approx(y1 - y0)
+        assert x1 - x0 <= max(1.1 * max(np.ptp(xs), np.ptp(ys)), 1.0) + 1e-9
     lines = {ln.get_label(): ln for ln in front.get_lines()}
     tool_line = lines["slave tool"]
     ends = np.array([[tool_line.get_xdata()[k], tool_line.get_ydata()[k]] for k in (0, -1)])

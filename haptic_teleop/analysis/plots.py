@@ -341,22 +341,47 @@ def _wall_trace(
     return None
 
 
+PATH_STYLES: tuple[
+    tuple[str, str, dict[str, Any], str], ...
+] = (  # the handle wide and pale under the tool's thin line: where they coincide, both show
+    ("master handle", HANDLE_COLOR, {"lw": 3.2, "alpha": 0.45, "solid_capstyle": "round"}, "s"),
+    ("slave tool", TOOL_COLOR, {"lw": 1.1}, "o"),
+)
+
+
+def _box(points: np.ndarray, axes: tuple[int, ...], floor_m: float = 5e-4) -> tuple[np.ndarray, np.ndarray]:
+    """A box with equal sides over `axes` around `points` (m): the largest of their spans plus 10 %,
+    at least 2 `floor_m`; the other axes as in the points."""
+    lo, hi = points.min(axis=0).copy(), points.max(axis=0).copy()
+    mid = (lo + hi) / 2
+    half = max(0.55 * float(np.max((hi - lo)[list(axes)])), floor_m)
+    for a in axes:
+        lo[a], hi[a] = mid[a] - half, mid[a] + half
+    return lo, hi
+
+
 def task_path_figure(d: TaskPlotData) -> Figure:
     """The handle's and the tool's paths in the task frame (mm): a 3-D view and the three
     orthogonal projections, with the wall plane (a patch in 3-D, its trace through the tool's
-    point nearest the wall in each projection: where it meets the wall)."""
+    point nearest the wall in each projection: where it meets the wall).
+
+    The 3-D view is a cube around both paths and the wall's nearest point; each projection is
+    zoomed to what moved in it (equal scales on its two axes, at least 1 mm across), so a path that
+    moved 1 mm sideways and 30 mm down shows both. The handle is drawn wide and pale under the
+    tool's thin line, so both show where they coincide."""
     fig = Figure(figsize=(12, 10))
     h, tl = d.handle_path_m, d.tool_path_m
     both = np.concatenate([h, tl]) if h.size or tl.size else np.zeros((1, 3))
-    # one cube around both paths: equal scales in every view
-    mid = (both.min(axis=0) + both.max(axis=0)) / 2
-    half = 0.55 * float(np.max(both.max(axis=0) - both.min(axis=0))) + 1e-3
-    lo, hi = mid - half, mid + half
+    near = tl[int(np.argmin(np.abs((tl - d.wall[0]) @ d.wall[1])))] if d.wall is not None and tl.shape[0] else None
+    if near is not None and d.wall is not None:  # the wall's point nearest the tool's nearest: in view
+        p, n = d.wall
+        both = np.concatenate([both, [near - ((near - p) @ n) * n]])
+    lo, hi = _box(both, (0, 1, 2), 1e-3)
     ax3 = fig.add_subplot(2, 2, 1, projection="3d")
-    for path, label, color in ((h, "master handle", HANDLE_COLOR), (tl, "slave tool", TOOL_COLOR)):
+    for path, (label, color, style, marker) in zip((h, tl), PATH_STYLES, strict=True):
         if path.shape[0]:
-            ax3.plot(*(path * 1e3).T, color=color, lw=1.2, label=label)
-            ax3.scatter(*(path[:1] * 1e3).T, color=color, marker="o", s=20)
+            ax3.plot(*(path * 1e3).T, color=color, label=label, **style)
+            ax3.scatter(*(path[:1] * 1e3).T, color=color, marker=marker, s=20)
     patch = _wall_patch(d, lo, hi)
     if patch is not None:
         from mpl_toolkits.mplot3d.art3d import Poly3DCollection
@@ -369,25 +394,26 @@ def task_path_figure(d: TaskPlotData) -> Figure:
     ax3.set_ylim(lo[1] * 1e3, hi[1] * 1e3)
     ax3.set_zlim(lo[2] * 1e3, hi[2] * 1e3)
     ax3.legend(loc="upper left", fontsize=8)
-    ax3.set_title("3-D (circles: start)")
-    near = tl[int(np.argmin(np.abs((tl - d.wall[0]) @ d.wall[1])))] if d.wall is not None and tl.shape[0] else lo
+    ax3.set_title("3-D (markers: start)")
+    level = near if near is not None else lo
     for pos, (i, j, k, title) in zip(
         (2, 3, 4), ((0, 1, 2, "top (x-y)"), (0, 2, 1, "front (x-z)"), (1, 2, 0, "side (y-z)")), strict=True
     ):
         ax = fig.add_subplot(2, 2, pos)
-        for path, label, color in ((h, "master handle", HANDLE_COLOR), (tl, "slave tool", TOOL_COLOR)):
+        vlo, vhi = _box(both, (i, j))
+        for path, (label, color, style, marker) in zip((h, tl), PATH_STYLES, strict=True):
             if path.shape[0]:
-                ax.plot(path[:, i] * 1e3, path[:, j] * 1e3, color=color, lw=1.2, label=label)
-                ax.plot(path[0, i] * 1e3, path[0, j] * 1e3, "o", color=color, ms=4)
-        trace = _wall_trace(d, i, j, k, float(near[k]), lo, hi)
+                ax.plot(path[:, i] * 1e3, path[:, j] * 1e3, color=color, label=label, **style)
+                ax.plot(path[0, i] * 1e3, path[0, j] * 1e3, marker, color=color, ms=5)
+        trace = _wall_trace(d, i, j, k, float(level[k]), vlo, vhi)
         if trace is not None:
             ax.plot(trace[0] * 1e3, trace[1] * 1e3, color=WALL_COLOR, lw=1.5, label="wall (cut at the contact)")
-        ax.set_xlim(lo[i] * 1e3, hi[i] * 1e3)
-        ax.set_ylim(lo[j] * 1e3, hi[j] * 1e3)
+        ax.set_xlim(vlo[i] * 1e3, vhi[i] * 1e3)
+        ax.set_ylim(vlo[j] * 1e3, vhi[j] * 1e3)
         ax.set_aspect("equal", adjustable="box")
         ax.set_xlabel(f"{d.axes[i]} (mm)")
         ax.set_ylabel(f"{d.axes[j]} (mm)")
-        ax.set_title(title)
+        ax.set_title(f"{title}: {2e3 * (vhi[i] - vlo[i]) / 2:.3g} mm across")
         ax.grid(alpha=0.3)
         if pos == 2:
             ax.legend(loc="best", fontsize=8)
