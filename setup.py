@@ -93,6 +93,7 @@ setup(
             *HARDWARE,  # the backends are tested against emulators through the real SDKs
             *SWEEP,  # sweeps on a local Dask cluster, the Parquet table (test/test_sweep_scale.py)
             "pytest>=8.0",
+            "mkdocs>=1.6,<2",  # test/test_docs_site.py builds the docs site and checks every page, link and image
             "hypothesis>=6.100",
             "ruff>=0.17,<0.18",
             "mypy>=1.10,<3",

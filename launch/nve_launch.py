@@ -6,7 +6,7 @@ relay and a sync buffer per direction of each client's link pair), for a full RO
         [sim_time:=false] [record:=DIR] [single_process:=false]
 
 The node set, names and parameters come from `haptic_teleop.live.launcher.node_plan`, the same plan
-`haptic-teleop launch nve_push` starts (docs/live.md, "NVE scenes live"). With `record:=DIR` a
+`haptic-teleop launch nve_push` starts (docs/live_nve.md, "NVE scenes live"). With `record:=DIR` a
 recorder writes DIR/bag. The run ends when the server finishes (after scene.duration_s); the first
 node that exits non-zero stops every node and the launch exits 1, naming it. `single_process:=true`:
 every node composed in one process with one shared loop thread (as teleop_launch.py's).

@@ -4,7 +4,7 @@ Fast DDS (the `ros-kilted-*` wheels' RMW) keeps each participant's shared-memory
 segments in /dev/shm: `fastdds_<name>`, its lock files `fastdds_<name>_el` (and `_sl`), and a
 port's named semaphore `sem.fastdds_<name>_mutex`. A process killed with SIGKILL leaves them
 behind. A later participant of the same ROS domain that reopens a stale port can crash at start
-or write into a port no reader drains (docs/live.md, "Native crashes at start"). The tests kill
+or write into a port no reader drains (docs/live_launch.md, "Native crashes at start"). The tests kill
 nodes on purpose and this machine keeps /dev/shm between sessions, so a session starts by removing
 the groups of files that are stale, and only those:
 - the owner of a live segment or port holds an flock on its lock file (checked here: a lock we

@@ -1,5 +1,5 @@
 """A per-joint torque slew limit on an arm side (`<side>.slew_nm_per_s`): inside the pooled energy
-bound's accounting (core/eba.py, the slew-aware bound; docs/eba.md "Slew limit"), the same in the
+bound's accounting (core/eba.py, the slew-aware bound; docs/eba_many_joints.md "Slew limit"), the same in the
 compiled and the Python arm loop, and checked against the joints like every per-joint list."""
 
 from __future__ import annotations

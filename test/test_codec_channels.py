@@ -1,4 +1,4 @@
-"""The codec stage in teleoperation's channels (docs/codec.md, "In the channels"): scene keys,
+"""The codec stage in teleoperation's channels (docs/codec_channels.md): scene keys,
 the engine's wiring, the bag's packet records and the wire accounting in summary.json.
 
 Run: `.venv/bin/python -m pytest -q -p no:cacheprovider test/test_codec_channels.py`.
@@ -273,7 +273,7 @@ def test_compiled_loop_is_refused_and_auto_runs_python(capsys: pytest.CaptureFix
 
 
 def test_launch_runs_the_live_codecs_and_refuses_the_others() -> None:
-    """The live nodes run every codec (docs/live.md, "Codecs live"); a codec on an arm scene whose
+    """The live nodes run every codec (docs/live_network.md, "Codecs live"); a codec on an arm scene whose
     side has its own period is refused with one line."""
     from haptic_teleop.live.launcher import node_plan
 

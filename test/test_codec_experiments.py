@@ -79,7 +79,7 @@ EC_CLI = [sys.executable, "-m", "haptic_teleop.cli", "experiment", "error-contro
 
 def test_error_control_runs_and_shows_what_each_error_control_does(tmp_path: Path) -> None:
     """`experiment error-control` on a short run: each row's rate and error ordering follow from what
-    its error control does (docs/codec.md, "Seed 000's experiment")."""
+    its error control does (docs/codec_error_control.md, "Seed 000's experiment")."""
     out = tmp_path / "e"
     r = subprocess.run(
         [*EC_CLI, "--out", str(out), "--duration-s", "6", "--quiet"], capture_output=True, text=True, timeout=300

@@ -1,6 +1,6 @@
 """`controllers.<side>.eba.law` in a scene: checked, run by the Python loop (the compiled loops
 refuse it with one line), and the contact force slope each law gives in the seed's setting
-(docs/eba.md, "The published two-condition law")."""
+(docs/eba_two_condition.md, "The published two-condition law")."""
 
 from __future__ import annotations
 

@@ -59,7 +59,7 @@ VARYING_DELAY = _both(
     "delay", "{delay_s: 0.0, jitter_s: 0.005, sinusoid: {min_delay_s: 0.02, max_delay_s: 0.5, period_s: 1.0}}"
 )
 # Gilbert-Elliott with loss 2 % in the good state, 98 % in the bad one, p = r = 5 %: the stationary
-# loss rate (p (1-h) + r (1-k)) / (p + r) is exactly 50 %, in bursts (docs/network.md).
+# loss rate (p (1-h) + r (1-k)) / (p + r) is exactly 50 %, in bursts (docs/network_effects.md).
 GE_P, GE_R, GE_LOSS_BAD, GE_LOSS_GOOD = 0.05, 0.05, 0.98, 0.02
 GE_LOSS = _both(
     "loss",
@@ -67,7 +67,7 @@ GE_LOSS = _both(
 )
 REORDER = _both("reorder", "{probability: 0.3}")
 BLACKOUT = _both("blackout", "{starts_s: [1.0], ends_s: [1.5]}")
-# Actuator limits downstream of the bound (docs/eba.md, "Actuator limits inside the bound").
+# Actuator limits downstream of the bound (docs/eba_actuator_limits.md, "Actuator limits inside the bound").
 # Slew: the issue's command (stiffness 5000 N/m, 200 N/s on both actuators). Clip: the operator
 # moving in and out of the wall (2 cm, 2 Hz) against a strongly damped coupling (c2 = 200 N s/m),
 # whose commanded force is far above the actuators' clips (2 N master, 5 N slave) while braking;
@@ -301,7 +301,7 @@ def _check_varying_delay(run: Run) -> None:
 
 
 def _check_bursty_loss(run: Run) -> None:
-    # Two-state chain: rate q = 1/2; the loss count's variance per packet (docs/network.md)
+    # Two-state chain: rate q = 1/2; the loss count's variance per packet (docs/network_effects.md)
     # sigma^2 = q (1-q) + 2 pi_G pi_B (l_B - l_G)^2 lambda / (1 - lambda), lambda = 1 - p - r.
     p, r, lb, lg = GE_P, GE_R, GE_LOSS_BAD, GE_LOSS_GOOD
     pi_b = p / (p + r)
@@ -444,7 +444,7 @@ def test_eba_holds_in_hard_case(case: Case, runs: Callable[..., Run]) -> None:
     CHECKS[case.name](run)
 
 
-# The published two-condition law on both sides (docs/eba.md, "The published two-condition law").
+# The published two-condition law on both sides (docs/eba_two_condition.md, "The published two-condition law").
 # It does not model a slew limit, so the scene refuses it with one (test/test_eba_law_scene.py).
 TWO_CONDITION = ("controllers.master.eba.law=two_condition", "controllers.slave.eba.law=two_condition")
 

@@ -6,7 +6,7 @@ Each case is a short run of `touch_dynamixel_wall`, `touch_ur5e_wall` or `touch_
 to a real bag and judged from the bag's plant signals (`summarize_bag`: each side's energy margin
 from the recorded joint positions and applied torques with the compiled model's dof_damping, the
 penetration, the contact force, finiteness). Cases, predicates and measured numbers:
-docs/robustness.md ("Arm scenes"). No per-joint slew limit: the arm schema refuses
+docs/robustness_arms.md ("Arm scenes"). No per-joint slew limit: the arm schema refuses
 `<side>.effects` (docs/arms.md), so the slew case is one-axis only; the clip is the motors' torque
 limit (`<side>.torque_limit_nm`, the MJCF's ctrlrange).
 """
@@ -235,7 +235,7 @@ def _within_motor_limits(run: Run, side: str) -> None:
 @pytest.mark.parametrize("name", [c.name for c in CASES])
 def test_unprotected_variant(runs: Callable[[str, bool], Run], name: str) -> None:
     """EBA off on both sides: the cases that should fail go below FAIL_J on some side (finite: the
-    failure is energy, not a crash); the others are run and stay finite (docs/robustness.md says
+    failure is energy, not a crash); the others are run and stay finite (docs/robustness_arms.md says
     why they do not fail)."""
     case = CASE[name]
     run = runs(name, False)

@@ -60,7 +60,7 @@ class Case:
     name: str
     codec: str
     check: Callable[[dict[str, Any], dict[str, Any]], None]  # (summary with codec keys, run facts)
-    loop: str = "auto"  # `--loop auto` runs every codec compiled (docs/codec.md, "Compiled")
+    loop: str = "auto"  # `--loop auto` runs every codec compiled (docs/codec_compiled.md)
 
 
 def _deadband(s: dict[str, Any], info: dict[str, Any]) -> None:

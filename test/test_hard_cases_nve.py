@@ -4,7 +4,7 @@ the server passive at every step by the energy balance of the recorded object an
 (analysis/nve_energy.py), the object's energy bounded by what the HIPs put in, and the force the
 client feeds back bounded by its spring times the largest HIP-object distance it saw. Where the
 simplest explicit integrator would blow up (omega T >> 2), the same signals show it would.
-docs/robustness.md, "NVE scenes", has the cases and the numbers."""
+docs/robustness_nve.md, "NVE scenes", has the cases and the numbers."""
 
 from __future__ import annotations
 

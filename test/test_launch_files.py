@@ -171,7 +171,7 @@ def test_hardware_variant_runs_an_arm_scene_on_its_backends_with_set_overrides(t
 
 
 def test_a_codec_scene_plans_the_same_processes_in_the_launch_file_and_the_launcher(tmp_path):
-    """ARQ on the forward direction (docs/live.md, "Codecs live"): the codec direction's relay
+    """ARQ on the forward direction (docs/live_network.md, "Codecs live"): the codec direction's relay
     carries codec packets, an ack relay over the backward effects is added (only for ARQ), on the
     slave's side of a two-host setup; the launch file's plan is the launcher's."""
     sets = ["network.forward.codec.kind=arq", "network.backward.codec.kind=deadband"]

@@ -186,7 +186,7 @@ def default_run(tmp_path_factory, watcher):
 
     Composed in one process (`--single-process`, one shared loop thread): with one process per
     node the set needs about 1.8 of this VM's 2 vCPUs and the loops reach 81 to 92 % of 1 kHz
-    (docs/live.md, "CPU per node"); composed it needs 0.75 and keeps its rate. The tests below
+    (docs/live_measured.md, "CPU per node"); composed it needs 0.75 and keeps its rate. The tests below
     with signals and a killed slave run one process per node."""
     out = tmp_path_factory.mktemp("live") / "run"
     temp = tmp_path_factory.mktemp("tmpdir")  # the launcher's temporary folders go here
@@ -311,7 +311,7 @@ def test_buffer_skips_count_as_late_packets_as_the_engine_counts_them(default_ru
 
 
 def test_every_played_packet_is_in_the_bag_at_the_tick_its_buffer_took_it(default_run):
-    """The bag is what happened (docs/live.md, "Deliveries on the stamp grid"): with playout
+    """The bag is what happened (docs/live_network.md, "Deliveries on the stamp grid"): with playout
     `none` a buffer plays a packet at the tick it takes it, and the bag's release column and packet
     records come from the same buffer rows, so every packet recorded as played is released in the
     bag at the tick its record says it arrived (as delivered: a packet taken late carries the tick
@@ -377,7 +377,7 @@ def test_live_bag_is_readable_and_analyze_works(default_run):
 
 def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_path):
     """The same scene in the deterministic engine and live: force-tracking metrics within the
-    tolerance documented in docs/live.md (live timing is not lockstep: samples can be taken one
+    tolerance documented in docs/live_measured.md (live timing is not lockstep: samples can be taken one
     tick apart and the operator's hand reaches the master over DDS)."""
     from haptic_teleop.analysis.metrics import analyze_bag
     from haptic_teleop.engine.run import record_run
@@ -398,7 +398,7 @@ def test_cross_mode_live_and_engine_agree_on_force_tracking(default_run, tmp_pat
     )
 
 
-# Documented in docs/live.md: relative tolerance on the peak wall force, absolute (N) on
+# Documented in docs/live_measured.md: relative tolerance on the peak wall force, absolute (N) on
 # the aligned RMS force error.
 CROSS_MODE_TOLERANCE = {"contact_force_max_n": 0.10, "force_rms_error_n": 0.25}
 
@@ -593,7 +593,7 @@ def test_simulated_time_follows_clock(tmp_path):
                     "--sim-time-rate", "0.5", cwd=tmp_path)  # fmt: skip
     launch.finish(180)
     codes = launch.exit_codes()
-    # Known open bug (docs/live.md, "Simulated time"): once in a clean-clone CI run, slave_eba
+    # Known open bug (docs/live_launch.md, "Simulated time"): once in a clean-clone CI run, slave_eba
     # started late, fell behind /clock, and did not stop within 10 s of SIGINT, so the launcher
     # killed it and exited 1; not reproduced in the runs since. Until it is found, this test holds
     # what it is about, the time base, and that the clock and the recorder end cleanly.
@@ -603,7 +603,7 @@ def test_simulated_time_follows_clock(tmp_path):
     summary, _ = analyze_bag(out / "bag")
     # Nodes that fall behind /clock catch up rather than skip ticks, but the run ends when the
     # operator's 2 simulated seconds are over: a node still behind then leaves the bag short (seen
-    # from 89 to 1982 ticks here, docs/live.md "Simulated time"). What must hold is the time base.
+    # from 89 to 1982 ticks here, docs/live_launch.md "Simulated time"). What must hold is the time base.
     assert summary["ticks"] >= 2
     assert summary["all_finite"] is True
     info = json.loads((out / "live_run.json").read_text())
@@ -772,7 +772,7 @@ def test_simulated_shared_loop_waits_for_the_clock_and_runs_every_pass_in_phase_
     """Composed nodes on simulated time share one loop on their ROS clock: nothing runs before the
     first /clock (time 0), and a clock that jumps 50 periods ahead (a loop behind /clock) gets every
     pass run, none skipped, each member in phase order, so relays and buffers stay in step with
-    the sides whatever /clock does (docs/live.md, "Deliveries on the stamp grid")."""
+    the sides whatever /clock does (docs/live_network.md, "Deliveries on the stamp grid")."""
     from haptic_teleop.nodes.rtloop import SharedLoop
 
     t = [0]  # no /clock yet

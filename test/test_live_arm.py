@@ -118,7 +118,7 @@ def test_live_arm_bag_analyses_with_the_engine_bags_keys_and_reaches_the_wall(si
     assert set(summary) == set(engine_summary) - {"engine_loop"}
     assert summary["slave_joints"] == list(UR5E)
     # The push reaches the wall live as in the engine (same wall, same operator): the peak wall
-    # force within 10 % (the one-axis cross-mode tolerance, docs/live.md), the arm pushing down.
+    # force within 10 % (the one-axis cross-mode tolerance, docs/live_measured.md), the arm pushing down.
     peak, want = summary["contact_force_max_n"], engine_summary["contact_force_max_n"]
     assert want > 1.0 and abs(peak - want) <= 0.1 * want, (peak, want)
     assert summary["contact_force_max_z_n"] == peak  # the table's normal is +z

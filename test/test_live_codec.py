@@ -1,4 +1,4 @@
-"""The codec stage live (docs/live.md, "Codecs live"): real node processes over real DDS, each
+"""The codec stage live (docs/live_network.md, "Codecs live"): real node processes over real DDS, each
 compared with `haptic-teleop run` of the same scene and seed where that is meaningful.
 
 Two launches of 3 s of scene time (one process per node): a deadband on both directions of the
@@ -130,7 +130,7 @@ def _reduction(facts: dict) -> float:
 def _records_came(rows: np.ndarray, facts: dict) -> bool:
     """Whether the bag holds most of a direction's packet records (at least half of the packets its
     encoder sent). On a busy 2-core machine a recorder sometimes gets none of one relay's batches
-    (docs/live.md, "Packet records on a busy machine"); the bag says so (its packet records fewer
+    (docs/live_network.md, "Packet records on a busy machine"); the bag says so (its packet records fewer
     than the encoder's count in the run facts), and the checks on the records are made where they
     came."""
     came = rows.shape[0] >= 0.5 * facts["encoder_sent"]

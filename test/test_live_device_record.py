@@ -6,7 +6,7 @@ topic`), stopped with SIGINT as Ctrl-C stops it.
 
 There is no operator source: the recorder takes the tick master_eba announces (1 s after its device
 answered) as scene time 0, leaves the operator's columns NaN and records until it is stopped, past
-the scene's duration (docs/live.md, "Recording a device session"); `haptic-teleop analyze` works
+the scene's duration (docs/live_recording.md, "Recording a device session"); `haptic-teleop analyze` works
 on the bag. DDS stays on this host, in this module's own ROS domain (conftest). Nothing here
 depends on wall-clock rates: the session lasts until the driver has received commands stamped over
 SPAN_S of the master's clock.

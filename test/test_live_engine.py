@@ -1,6 +1,6 @@
 """Live equals the engine: the same scene and seed run by `haptic-teleop run` and live, composed
 (`launch --single-process`), give bags whose network streams are the same, stream by stream
-(docs/live.md, "Live against the engine").
+(docs/live_network.md, "Live against the engine").
 
 Live runs in simulated time here (`--sim-time-rate`: every node follows /clock, so a busy machine
 makes the run slower, not different): physics and data paths are asserted in simulated time only.

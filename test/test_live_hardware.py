@@ -36,7 +36,7 @@ pytest.importorskip("dynamixel_sdk")
 CLI = [sys.executable, "-m", "haptic_teleop.cli"]
 SCENE = "touch_dynamixel_wall"
 # The energy bound budgets holds of up to max_hold_s on a real clock, and a longer hold stops the side
-# (docs/eba.md, "Late ticks on a real clock"). On this shared machine the live node's holds reach tens of
+# (docs/eba_many_joints.md, "Late ticks on a real clock"). On this shared machine the live node's holds reach tens of
 # ms: 0.1 s is the servos' own Bus Watchdog (a longer silence stops them anyway).
 MAX_HOLD = "0.1"
 HARDWARE = ("--set", "slave.backend=dynamixel", "--set", f"slave.hardware.max_hold_s={MAX_HOLD}")
@@ -161,7 +161,7 @@ def test_live_session_with_the_slave_on_the_emulated_bus_ends_with_torque_off_an
         assert r.schema.slave_joints == JOINTS
         facts = json.loads(r.string("/haptic_teleop/run_info"))
         q = r.read("/slave/joint_states").values
-        # the slave node publishes the port torque the servos reported (docs/hardware.md, "Applied,
+        # the slave node publishes the port torque the servos reported (docs/hardware_plant.md, "Applied,
         # not commanded"), the recorder records it; the simulated master has no such topic
         assert r.schema.slave_measured and not r.has("/master/measured_effort")
         measured = r.read("/slave/measured_effort").values

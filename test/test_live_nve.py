@@ -30,7 +30,7 @@ PUSH_START_S = 0.5  # nve_push: operator.start_s
 # deadline, the relays release a sample no earlier than its stamp plus the link's delay, and a tick
 # runs at most `max_catch_up_periods` + 1 periods after its deadline (nodes.rtloop.next_tick): so R
 # > the links' delay - (max_catch_up_periods + 1) periods, whatever the machine's load
-# (docs/live.md, "NVE scenes live"). R is a whole number of ticks, as a float in s (0.1 - 0.011
+# (docs/live_nve.md, "NVE scenes live"). R is a whole number of ticks, as a float in s (0.1 - 0.011
 # reads 0.08899999999999997): compare with a nanosecond of slack.
 CATCH_UP_S = (DEFAULT_MAX_CATCH_UP + 1) * PERIOD_NS * 1e-9
 R_FLOOR_S = 2 * DELAY_S - CATCH_UP_S - 1e-9
@@ -305,7 +305,7 @@ def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tm
 
 
 def test_wire_layouts_carry_the_engines_payloads():
-    """The NVE wire (docs/live.md, "NVE scenes live"): up = (x.., v..) as position, velocity; down = position
+    """The NVE wire (docs/live_nve.md, "NVE scenes live"): up = (x.., v..) as position, velocity; down = position
     (x_o.., echo_s), velocity (v_o.., 0), both ways; teleoperation's wires as before."""
     from haptic_teleop.nodes.wire import direction_problem, wire_of
 

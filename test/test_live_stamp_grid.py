@@ -1,4 +1,4 @@
-"""Deliveries on the stamp grid (docs/live.md, "Deliveries on the stamp grid"): the relay hands a
+"""Deliveries on the stamp grid (docs/live_network.md, "Deliveries on the stamp grid"): the relay hands a
 sample on ahead of its delivery with its due time in header.frame_id, the sync buffer pushes it at
 its due tick and says what it released at which of its own ticks, and the recorder keys the bag
 by those ticks; a sample that comes too late for its tick is counted as late by scheduling.

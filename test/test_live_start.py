@@ -1,4 +1,4 @@
-"""When scene time starts live (docs/live.md, "Network effects run in scene time"): the operator
+"""When scene time starts live (docs/live_network.md, "Network effects run in scene time"): the operator
 source announces scene time 0 only once the slave's loop runs, shown by a sample of its state, not
 as soon as a publisher of /slave/joint_states exists (a node declares its publisher seconds before
 its loop runs when a busy machine is still building its plant and codec).

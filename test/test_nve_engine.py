@@ -46,7 +46,7 @@ def _delays(one_way_s: float, k: int = 0) -> list[str]:
 
 
 def test_delay_adds_kh_v_r_and_shifts_the_undelayed_force_by_r() -> None:
-    """While pushing at v, the model gives F_R(t) = k_h v R + F_0(t - R) exactly (docs/nve.md):
+    """While pushing at v, the model gives F_R(t) = k_h v R + F_0(t - R) exactly (docs/nve_scenes.md):
     the delayed run against the undelayed one, tick by tick."""
     _, d0 = _run("nve_push", NONE, *_delays(0.0))
     e3, d3 = _run("nve_push", NONE, *_delays(0.15))

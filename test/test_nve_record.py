@@ -26,7 +26,7 @@ from haptic_teleop.record.streams import BLOCK_TICKS
 PERIOD_NS = 1_000_000
 SCENE = "scene: {name: nve}\n"
 
-# The groups docs/recording.md ("NVE runs") lists, written down here, not taken from the code.
+# The groups docs/recording_nve.md ("Schema and columns") lists, written down here, not taken from the code.
 SERVER = ("obj_x_m", "obj_v_m_per_s", "obj_force_n")
 CLIENT_AXIS = ("hip_x_m", "hip_v_m_per_s", "obj_x_m", "obj_v_m_per_s", "force_n")
 CLIENT_ONE = ("spring_n_per_m", "rtt_s", "up_rx_seq", "down_rx_seq", "up_occupancy", "down_occupancy")

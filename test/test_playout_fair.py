@@ -1,5 +1,5 @@
 """Seed 000's network-adaptive buffering (`network_adaptive`) and the fair playout experiment
-(docs/playout.md, "The haptic-synchronization claim, tested fairly")."""
+(docs/playout_claim.md, "The haptic-synchronization claim, tested fairly")."""
 
 import csv
 import math

@@ -100,7 +100,7 @@ def _policy_summary(
 
 
 def test_varying_delay_transparency_buffer_plays_as_early_as_play_on_arrival(tmp_path):
-    """docs/network.md, "Playout policies on a varying delay": with the position law a hold costs only
+    """docs/network_playout.md, "Playout policies on a varying delay": with the position law a hold costs only
     while it lasts, so the transparency buffer (horizon one period) must buffer next to nothing and
     feel the same force as `none`; with the seed's 1 s horizon it buffers tens of ms and feels worse.
     """
@@ -126,7 +126,7 @@ def _force_law_policies(tmp_path: Path, overrides: tuple[str, ...] = ()) -> tupl
 
 
 def test_varying_delay_force_reflection_buffering_does_not_pay(tmp_path):
-    """docs/network.md, "Force reflection": with the master's force law, too, a hold costs the felt
+    """docs/network_playout.md, "Force reflection": with the master's force law, too, a hold costs the felt
     force only while it lasts, and play-on-arrival plays the youngest sample at every tick. So the
     transparency buffer with a one-period horizon ties `none`, and the seed's 1 s horizon, which
     buffers about 23 ms, feels a larger force error, unaligned and at the common network lag.

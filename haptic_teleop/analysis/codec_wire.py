@@ -1,4 +1,4 @@
-"""Wire accounting of the codec stage, per direction, from a bag (docs/codec.md, "In the channels").
+"""Wire accounting of the codec stage, per direction, from a bag (docs/codec_channels.md, "Summary keys").
 
 Data packets are the bag's packet records of the direction (`/<direction>/packets`: every packet
 the encoder sent, retransmissions included, the network's duplicate copies left out); ARQ's

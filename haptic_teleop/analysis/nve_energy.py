@@ -1,4 +1,5 @@
-"""The server's energy balance in an NVE run, from the recorded signals (docs/nve.md, "Energy").
+"""The server's energy balance in an NVE run, from the recorded signals (docs/nve_scenes.md, "The
+server's energy balance").
 
 Over tick n the server holds each client's received HIP (h_i, g_i: position and velocity, the
 sample its buffer released last) and the object moves exactly under

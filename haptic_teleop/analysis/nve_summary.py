@@ -1,4 +1,4 @@
-"""An NVE run's summary and plots, from its bag only (docs/nve.md, "Reading a run").
+"""An NVE run's summary and plots, from its bag only (docs/nve_scenes.md, "what a run writes").
 
 Per client: the round trip it measured, the force it fed back, the spring its schedule set, what
 its links lost, and the transparency analysis at the round trip it measured (the distorted mass

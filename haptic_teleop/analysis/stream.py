@@ -478,7 +478,7 @@ def summarize_bag(bag: str | Path) -> dict[str, Any]:
         summary = _whole(bag)
     from haptic_teleop.analysis.codec_wire import codec_wire_summary
 
-    # the codec stage's wire accounting, only when the scene names a codec (docs/codec.md)
+    # the codec stage's wire accounting, only when the scene names a codec (docs/codec_channels.md)
     summary.update(codec_wire_summary(bag, int(summary.get("ticks", 0))))
     from haptic_teleop.analysis.transparency import transparency_summary
 

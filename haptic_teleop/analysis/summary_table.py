@@ -70,7 +70,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         if isinstance(topic, str) and topic.endswith("/measured_effort"):
             what = "the torque the device reported"
             unmeasured = summary.get(f"{side}_unmeasured_torque_reads")
-            if unmeasured:  # reads without a report: the command stood in (docs/hardware.md)
+            if unmeasured:  # reads without a report: the command stood in (docs/hardware_plant.md)
                 what += f"; {unmeasured} reads without a report hold the command"
             lines.append(f"  {f'{side} energy booked on':<{width}}  {topic} ({what})")
     for side in ("master", "slave"):

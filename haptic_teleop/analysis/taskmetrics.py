@@ -10,7 +10,7 @@ without it, no damping credit: a lower, conservative margin).
 
 The torque each port's energy books: the joint_states effort (the torque the simulated plant
 applied; on hardware the torque commanded), held over the motion from its row to the next, or,
-for a side whose bag has `/<side>/measured_effort` (a side on hardware: docs/hardware.md,
+for a side whose bag has `/<side>/measured_effort` (a side on hardware: docs/hardware_plant.md,
 "Applied, not commanded"), the port torque the device reported, whose row n + 1 holds the torque
 of the hold that ended at read n + 1: the motion q[n] -> q[n+1] is booked with it. The summary
 names the topic it booked per side (`<side>_energy_torque_topic`).

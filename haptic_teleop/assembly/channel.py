@@ -1,4 +1,4 @@
-"""The codec stage in a teleoperation channel's direction (docs/codec.md, "In the channels").
+"""The codec stage in a teleoperation channel's direction (docs/codec_channels.md).
 
 Per direction whose scene names `codec: {kind: ...}`, each tick:
 
@@ -200,7 +200,7 @@ def arq_round_trip_notes(c: Scene) -> list[str]:
     """One line for each ARQ direction whose timeout is under its round trip (the constant delays
     of its link and of its ACKs' link, the reverse direction's; jitter and time-varying parts
     aside): the sender then sends every sample again before its ACK can come back, loss or not,
-    ARQ working as repetition (docs/codec.md, "Cost")."""
+    ARQ working as repetition (docs/codec_cost.md)."""
     out = []
     period = c.scene.period_s
     for name in ("forward", "backward"):

@@ -1,6 +1,6 @@
 """`haptic-teleop run SCENE --emulate`: an emulator for each side of a scene that is on real hardware
 (Dynamixel servos or a Universal Robots arm), so the hardware path runs with no hardware, through
-the unmodified SDKs (docs/hardware.md, "Trying it without hardware").
+the unmodified SDKs (docs/hardware_emulate.md, "Trying it without hardware").
 
 For each side with `backend: dynamixel` one emulator process is started
 (`emulators/dynamixel/process.start_bus`) on a pseudo-terminal, built from the scene:

@@ -109,7 +109,7 @@ def build_controller(
     saturation: SaturationConfig | None = None,
 ) -> TeleopController:
     """One side's controller. `saturation`: the side's actuator effect (clip and slew limit), which
-    the energy bound then models (docs/eba.md, "Actuator limits inside the bound"). The plant's own
+    the energy bound then models (docs/eba_actuator_limits.md, "Actuator limits inside the bound"). The plant's own
     clip (`<side>.force_limit_n`) is never reached: the scene keeps the controller's saturation
     within it."""
     params = ControllerParams(
@@ -412,7 +412,7 @@ def check_gravity_hold(config: Scene, role: str, plant: MujocoArm | HardwareArm)
 
 def arm_schema(master: MujocoArm | HardwareArm, slave: MujocoArm | HardwareArm) -> TickSchema:
     """The tick schema of an arm scene with these plants: their joints, 3 task axes, and the
-    measured torque columns of each side on a real device (record/columns.py; docs/hardware.md,
+    measured torque columns of each side on a real device (record/columns.py; docs/hardware_plant.md,
     "Applied, not commanded"). A simulated side adds nothing: its bag keeps its bytes."""
     from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.record.columns import TickSchema

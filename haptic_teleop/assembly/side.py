@@ -46,7 +46,7 @@ def wire_payload_bytes(names: int, fields: int) -> int:
 def arm_message_bytes(floats: int) -> int:
     """Wire message of an arm scene's codec packet carrying `floats` values: the JointState of one
     name per task axis (more names when the payload needs them, three values a name), so the
-    plain payloads (6 forward, 9 backward) have the plain arm packet's size (docs/codec.md)."""
+    plain payloads (6 forward, 9 backward) have the plain arm packet's size (docs/codec_channels.md)."""
     names = max(3, -(-floats // 3))
     return wire_payload_bytes(names, -(-floats // names))
 
@@ -156,7 +156,7 @@ class _Maps:
 
 
 # The per-side tick and the maps by their public names: the live nodes (master_eba, slave_eba,
-# operator_source) run the very same arithmetic per tick as this loop (docs/live.md, "Arm scenes").
+# operator_source) run the very same arithmetic per tick as this loop (docs/live_arms.md, "Arm scenes").
 SideTick = _SideTick
 Maps = _Maps
 

@@ -212,7 +212,7 @@ class ArmSideStage:
     simulated arm is stepped with the held torque every scene tick, a real one is left alone. A real
     arm's ledger credits the damping over the time the tick's motion really took, and books the
     port torque the device reported for the hold that just ended (`measured`: its
-    `port_torque_nm`), not the command (docs/hardware.md, "Applied, not commanded")."""
+    `port_torque_nm`), not the command (docs/hardware_plant.md, "Applied, not commanded")."""
 
     def __init__(self, side: ArmSide, tick: Any, maps: Any, master: bool, every: int, real: bool, hand: bool) -> None:
         self.side, self.side_tick, self.maps, self.master = side, tick, maps, master

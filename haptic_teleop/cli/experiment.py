@@ -4,16 +4,16 @@
 - `nve-analysis`, `nve-compensation`: seed 000's two NVE experiments (studies/replications/nve.py,
   docs/nve_experiments.md).
 - `deadband`: seed 001's deadband rate and distortion on a 3-DoF contact-rich scene
-  (studies/replications/deadband.py, docs/codec.md).
+  (studies/replications/deadband.py, docs/codec_deadband_experiments.md).
 - `deadband-loop`: the same deadband in the loop: the scene run through the engine with the deadband
   in the channel per p and direction, against the uncoded run (studies/replications/deadband_loop.py,
-  docs/codec.md).
+  docs/codec_deadband_experiments.md).
 - `hli-filtering`: seed 000's simulation of priority-based against deadband filtering
-  (studies/replications/codec.py, docs/codec.md).
+  (studies/replications/codec.py, docs/codec_error_control.md).
 - `error-control`: seed 000's experiment, prediction-based filtering with FEC or ARQ over its
-  events against priority-based filtering (studies/replications/codec.py, docs/codec.md).
+  events against priority-based filtering (studies/replications/codec.py, docs/codec_error_control.md).
 - `playout`: seed 000's haptic-synchronization claim, its network-adaptive buffering against the
-  existing schemes on paired seeds (studies/replications/playout.py, docs/playout.md).
+  existing schemes on paired seeds (studies/replications/playout.py, docs/playout_claim.md).
 - `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent
   loss time, predicted against measured (studies/replications/transparency.py, docs/transparency.md).
 """

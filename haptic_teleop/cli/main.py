@@ -350,11 +350,14 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("scenes", help="list the bundled scenes, one line each: name and description")
     sc.set_defaults(func=cmd_scenes)
 
+    from haptic_teleop.engine.warm import KERNELS
+
     co = sub.add_parser(
         "compile",
-        help="build the compiled tick loops into numba's cache now (else each compiles on its first run: 10-60 s)",
+        help="build the compiled tick loops into numba's cache now (else each compiles on its first run: seconds "
+        "to about two minutes each on 2 cores)",
     )
-    co.add_argument("--only", metavar="K1,K2", help="kernels to build (default all: axis,codec,arm,arm_codec)")
+    co.add_argument("--only", metavar="K1,K2", help=f"kernels to build (default all: {','.join(KERNELS)})")
     co.add_argument("--done-dir", help="touch NAME.done (NAME.failed) in this directory as each kernel is ready")
     co.set_defaults(func=cmd_compile)
 

@@ -3,7 +3,7 @@ as float64 vectors, its sample history (X), scratch (W) and in-flight ring, and 
 them. core's array functions (`deadband.decoder_receive`, ...) read and write these places, the
 Python objects that hold such state (`deadband.DeadbandDecoder`) and the compiled loops
 (engine/compiled/codec_*.py, their host codec_host.py) both hand them the same arrays; the module
-imports nothing (docs/codec.md, "Compiled")."""
+imports nothing (docs/codec_compiled.md)."""
 
 # Codec kinds the kernel runs (C_KIND; 0: the direction has no codec and runs on its schedule).
 NO_CODEC, DEADBAND, PREDICTION = 0.0, 1.0, 2.0

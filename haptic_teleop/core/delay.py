@@ -1,5 +1,5 @@
 """Effects that move a packet's arrival: the token bucket's queue, constant, time-varying and
-jittered delays, with netem's ordering and reordering (docs/network.md)."""
+jittered delays, with netem's ordering and reordering (docs/network_effects.md)."""
 
 from __future__ import annotations
 
@@ -185,7 +185,7 @@ def in_order_ns(arrival_ns: int, last_ns: int) -> int:
 
 def delay_value_ns(base_ns: float, extra_ns: float, sigma_ns: float, unit: float) -> float:
     """A packet's delay: the base, the time-varying part at its time, and the jitter, `sigma_ns`
-    times the distribution's value `unit` of its number (docs/network.md). Not yet clamped:
+    times the distribution's value `unit` of its number (docs/network_effects.md). Not yet clamped:
     `delayed_ns` takes a delay that is not positive as none. One definition: `Delay` and the
     compiled links."""
     return base_ns + extra_ns + sigma_ns * unit

@@ -45,7 +45,7 @@ def bounded1(force: float, energy: float, bound_gain: float) -> float:
 
 def ramp_limit1(energy: float, bound_gain: float, force_limit: float, step: float) -> float:
     """The largest |F| the actuator may hold: at most `force_limit` (its clip), and one whose ramp
-    down to 0 the reservoir `energy` still pays for (docs/eba.md, "Actuator limits inside the bound").
+    down to 0 the reservoir `energy` still pays for (docs/eba_actuator_limits.md, "Actuator limits inside the bound").
 
     The actuator can lower |F| by at most `step` = S T per period, so after holding F it holds at
     best |F| - step, |F| - 2 step, ... down to 0, and each of those periods can cost T F_k^2 / (4 b).

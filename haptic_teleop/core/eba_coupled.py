@@ -1,5 +1,5 @@
 """The energy bound of an arm: the joints are the ports, pooled into one reservoir per side, the
-torque vector scaled by one factor (docs/eba.md, "Many joints"); its actuator limits (motor room,
+torque vector scaled by one factor (docs/eba_many_joints.md, "Many joints"); its actuator limits (motor room,
 slew) inside the bound.
 """
 
@@ -16,7 +16,7 @@ import numpy.typing as npt
 from haptic_teleop.core.eba import actuator_bounded1, bounded1, ramp_limit1, reservoir1
 
 # --------------------------------------------------------------------------------------------
-# Many joints: the joints are the ports, pooled into one reservoir per side (docs/eba.md, "Many
+# Many joints: the joints are the ports, pooled into one reservoir per side (docs/eba_many_joints.md, "Many
 # joints"). With D = diag(d_i) the joints' physical damping, dq = q(n) - q(n-1), tau(n-1) the
 # torque applied over it:
 #
@@ -28,7 +28,7 @@ from haptic_teleop.core.eba import actuator_bounded1, bounded1, ramp_limit1, res
 # `CoupledEnergyBound` keeps the state for the Python loop and calls them.
 
 LIMIT_MODES = ("scale", "clip")
-# A real arm's default `max_hold_s`, in periods (docs/eba.md, "Late ticks on a real clock").
+# A real arm's default `max_hold_s`, in periods (docs/eba_many_joints.md, "Late ticks on a real clock").
 DEFAULT_MAX_HOLD_PERIODS = 3
 _SLEW_SEARCH_STEPS = 50  # bisection steps for the slew-aware bound (2^-50: below float resolution)
 
@@ -198,7 +198,7 @@ def late_hold_excess_j(
 ) -> float:
     """The most energy a torque held `hold_s` can take beyond the `max_hold_s` the bound budgeted
     (bound_gain_i = 4 d_i / max_hold_s): ((hold_s - max_hold_s) / 4) held.T D^-1 held, 0 when
-    hold_s <= max_hold_s. The reservoir after such a hold is at least minus this (docs/eba.md,
+    hold_s <= max_hold_s. The reservoir after such a hold is at least minus this (docs/eba_many_joints.md,
     "Late ticks on a real clock"): over a hold h the ledger's change is dq.T D dq / h - tau.T dq,
     whose minimum over dq is -(h/4) tau.T D^-1 tau, and the bound kept (max_hold_s/4) tau.T D^-1 tau <= E."""
     if not hold_s > max_hold_s:  # also NaN
@@ -229,7 +229,7 @@ class CoupledEnergyBoundParams:
     direction) or "clip" (per joint, like the motor). slew_nm_per_s: how fast each motor's torque
     can change (empty: instantly); with it the bound keeps the reserve the descent needs.
     joint_names: for messages. max_hold_s: the longest time a torque may be held before the next
-    tick replaces it (a real arm's late ticks; docs/eba.md, "Late ticks on a real clock"): the bound
+    tick replaces it (a real arm's late ticks; docs/eba_many_joints.md, "Late ticks on a real clock"): the bound
     budgets that hold, (max_hold_s / 4) tau.T D^-1 tau <= E, instead of one period; None: one period
     (a simulated or lockstep arm, whose torque is held exactly T: the same bits as before).
     """
@@ -481,7 +481,7 @@ class CoupledEnergyBound:
         """Start the ledger afresh from `energy_j`, as a new bound: the next `step` takes its q as
         the first (no update for the period before it). With `energy_j` <= the reservoir this only
         discards energy; the live nodes restart at scene time 0 with min(reservoir, initial
-        energy), so the ledger from there is the one the bag's analysis recomputes (docs/live.md)."""
+        energy), so the ledger from there is the one the bag's analysis recomputes (docs/live_arms.md)."""
         self.energy_j = float(energy_j)
         self._has_last = False
 

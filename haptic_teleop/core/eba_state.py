@@ -33,14 +33,14 @@ class EnergyBoundParams:
     damping_n_s_per_m: tuple[float, ...]
     initial_energy_j: float = 0.0
     enabled: bool = True
-    # The actuator's limits downstream of the bound (docs/eba.md, "Actuator limits inside the
+    # The actuator's limits downstream of the bound (docs/eba_actuator_limits.md, "Actuator limits inside the
     # bound"): it clips |F| to force_limit_n and changes F by at most slew_rate_n_per_s * T per
     # period. None: no such limit (the bound is then the plain one, bit for bit).
     force_limit_n: float | None = None
     slew_rate_n_per_s: float | None = None
     # Which bound: "reservoir" (one pooled reservoir per axis, `EnergyBound`) or "two_condition"
     # (the ZOH and controller energy conditions, `core.eba_two_condition.TwoConditionBound`);
-    # docs/eba.md, "The published two-condition law".
+    # docs/eba_two_condition.md, "The published two-condition law".
     law: str = "reservoir"
 
     def __post_init__(self) -> None:

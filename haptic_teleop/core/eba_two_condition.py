@@ -1,6 +1,6 @@
 """The two-condition energy bound (the EBA as published: a ZOH energy condition and a controller
 energy condition), beside `core.eba.EnergyBound` (one pooled reservoir). Derivations, the reserve
-the controller condition needs to hold for every motion, and how the two laws compare: docs/eba.md,
+the controller condition needs to hold for every motion, and how the two laws compare: docs/eba_two_condition.md,
 "The published two-condition law".
 
 Per axis, with b the physical damping, T the period, dx = x(n) - x(n-1), f = F(n-1) the force the
@@ -19,9 +19,9 @@ and the law keeps, at every tick,
 The first charges the ZOH's energy to what the damper certainly dissipated over the same step; the
 second keeps the controller's ledger non-negative with a reserve for the next step's worst case
 (without it the two conditions can have no common solution on the next step, and the port then
-delivers more than E0: docs/eba.md). Both are bounds on F alone, so the allowed set is an interval
+delivers more than E0: docs/eba_two_condition.md). Both are bounds on F alone, so the allowed set is an interval
 (`two_condition_interval1`); the law returns its point nearest the desired force. The interval is
-never empty: F = f - (2b/T) dx meets both (docs/eba.md has the proof). The actuator's clip
+never empty: F = f - (2b/T) dx meets both (docs/eba_two_condition.md has the proof). The actuator's clip
 (`force_limit_n`) is a third interval; it always meets the other two. A slew limit is not modelled:
 `EnergyBoundParams` refuses it for this law.
 
@@ -44,7 +44,7 @@ def two_condition_interval1(
     energy: E_c(n-1); gain: b / T; bound_gain: 4 b / T; held: the force applied over dx;
     force_limit: the actuator's clip (inf: none). reserve=False drops the controller condition's
     reserve (E_c(n) >= 0 only, the conditions as they are usually stated): the interval the tests
-    compare, not one the law uses (it is not passive for every motion, docs/eba.md)."""
+    compare, not one the law uses (it is not passive for every motion, docs/eba_two_condition.md)."""
     a = gain * dx  # (b/T) dx
     lo = -force_limit
     hi = force_limit
@@ -112,7 +112,7 @@ def contact_force_slope_n_per_s(
 ) -> float:
     """The predicted rate at which the bounded force grows when the device is pushed at a constant
     speed into a coupling spring c1 whose far end does not move (the seed's premise: the slave held
-    by the wall), in N/s, >= 0 (docs/eba.md, "Force slope in contact").
+    by the wall), in N/s, >= 0 (docs/eba_two_condition.md, "Force slope in contact").
 
     two_condition: min(c1, 2b/T) |v| from the first tick of contact: the ZOH condition caps the
     stiffness at gamma_max = 2b/T whatever the stored energy. reservoir: c1 |v| while the pooled

@@ -1,5 +1,5 @@
 """Prediction-based filtering with an error control layer behind it: seed 000's error-control
-experiment (docs/codec.md, "Seed 000's experiment"; interface: the codec stage).
+experiment (docs/codec_error_control.md, "Seed 000's experiment"; interface: the codec stage).
 
 Seed 000 (slide 42, Kanbara04, Clarke08): the sender transmits a sample (an *event*) only when the
 receiver's prediction would miss it by at least a threshold; such filtering "makes the haptic

@@ -3,10 +3,10 @@
 Times are integer nanoseconds so that arrival-versus-tick comparisons are exact and a run is
 reproducible bit for bit. A `Link` applies its effects in order when a packet is sent (as netem
 does: every impairment is decided at enqueue time) and then holds delivered packets in a
-time-ordered queue until `deliver(now_ns)` releases those that have arrived. The order, the models
-and their formulas are in docs/network.md; the effects are in `core/loss.py` and `core/delay.py`,
-their config and `build_link`, which builds only the effects a scene names in `CANONICAL_ORDER`,
-in `core/netconfig.py`.
+time-ordered queue until `deliver(now_ns)` releases those that have arrived. The order is in
+docs/network.md, the models and their formulas in docs/network_effects.md; the effects are in
+`core/loss.py` and `core/delay.py`, their config and `build_link`, which builds only the effects
+a scene names in `CANONICAL_ORDER`, in `core/netconfig.py`.
 
 Rules that keep runs comparable across scenes (common random numbers):
 - every random decision of an effect is drawn once per original packet sent, whether or not an

@@ -2,7 +2,7 @@
 4-state), a replayed loss pattern, and corruption (the receiver discards the packet).
 
 Each marks a packet's fate and draws its random numbers per original packet, lost or not (the
-rules in `core/link.py`); the formulas are in docs/network.md.
+rules in `core/link.py`); the formulas are in docs/network_effects.md.
 """
 
 from __future__ import annotations

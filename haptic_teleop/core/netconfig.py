@@ -188,7 +188,7 @@ class LossConfig:
 
     def expected_loss_rate(self) -> float:
         """Long-run fraction of packets lost (NaN for a trace; for correlated bernoulli exact only
-        with the gaussian_copula correlation model). See docs/network.md for the derivations."""
+        with the gaussian_copula correlation model). See docs/network_effects.md for the derivations."""
         m = self.model
         if m == "bernoulli":
             assert self.probability is not None

@@ -1,4 +1,4 @@
-"""Seed 000's playout buffers (docs/playout.md): transparency-driven buffering (`TransparencyBuffer`:
+"""Seed 000's playout buffers (docs/playout_seed.md): transparency-driven buffering (`TransparencyBuffer`:
 hold a sample as long as the force error it costs stays within the allowed distortion) and the
 network-adaptive buffer (`NetworkAdaptiveBuffer`: the allowable delay and loss time of the scene's
 transparency analysis against the link's measured delay). Built by core/playout_config.py.
@@ -19,7 +19,7 @@ class TransparencyBuffer(ScheduledBuffer):
     s * D and every hold (the due sample missing) lowers it by s * the hold time. With b the
     buffering above the window's minimum relative delay, d0 the smallest one-way delay, x the
     relative delays above the window minimum and H the contact horizon, the expected force error
-    at the end of a contact is (derivation in docs/playout.md)
+    at the end of a contact is (derivation in docs/playout_seed.md)
 
         e(b) = s * (d0 + b + H * P(x > b))
 
@@ -133,7 +133,7 @@ class TransparencyBuffer(ScheduledBuffer):
 
 class NetworkAdaptiveBuffer(ScheduledBuffer):
     """Policy `network_adaptive`: seed 000's network-adaptive buffering time control, read as the
-    seed states it (docs/playout.md, "The haptic-synchronization claim, tested fairly").
+    seed states it (docs/playout_claim.md, "The haptic-synchronization claim, tested fairly").
 
     From the transparency analysis of the scene (core/transparency.py) it takes the allowable
     delay D_a (the largest one-way delay whose force drop stays within the required distortion E)

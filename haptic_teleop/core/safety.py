@@ -3,7 +3,7 @@
 Pure: no I/O, no wall clock; the caller passes the time (s, the driver's monotonic read time) and
 the measured joint positions. The guards sit *before* the side's energy bound
 (`core/eba.py`, `CoupledEnergyBound`), which keeps the torque and slew (step) clamps inside its
-own accounting (docs/eba.md, "Motor limits", "Slew limit"). Per tick the arm plant calls
+own accounting (docs/eba_many_joints.md, "Motor limits", "Slew limit"). Per tick the arm plant calls
 
     tau_safe, fault = guard.step(t_s, q, tau, stale)
 
@@ -12,12 +12,12 @@ factor in [0, 1], so |tau_safe_i| <= |tau_i| for every joint, on every tick.
 
 Why this keeps the port passive: the bound is passive for *any* sequence of desired torques. Its
 reservoir books the torque the motors really applied (`CoupledEnergyBound.applied`) against the
-measured motion and never lets the reservoir go below 0 (docs/eba.md, "Many joints"); the guards
+measured motion and never lets the reservoir go below 0 (docs/eba_many_joints.md, "Many joints"); the guards
 change only what the bound is asked for, never what the ledger books, so they cannot break that
 argument. They add safety, not passivity: they lower a torque that is still inside the bound
 (scaling a torque down before the bound can only lower what the port applies: the bound's
 lambda <= 1 acts on a smaller vector, and with a slew limit the fastest descent stays admissible
-whatever the target, docs/eba.md, "Slew limit").
+whatever the target, docs/eba_many_joints.md, "Slew limit").
 
 - Start-up: `check_start_pose` refuses to start, with each joint's distance (rad and deg) and
   the fix, when the measured pose is farther than the tolerance from the pose the scene expects;
@@ -35,7 +35,7 @@ whatever the target, docs/eba.md, "Slew limit").
   (`CoupledEnergyBoundParams.max_hold_s`); a nonzero torque held longer may have delivered up to
   `CoupledEnergyBound.hold_excess_j` beyond the reservoir, which no later torque can take back:
   the tick that sees it is a fault (torque off, the run ends), so the excess is at most that one
-  hold's (docs/eba.md, "Late ticks on a real clock").
+  hold's (docs/eba_many_joints.md, "Late ticks on a real clock").
 
 A fault latches: from then on `step` returns zero torque and the same fault; the caller stops the
 side cleanly (torque off) with `fault.message`.
@@ -94,7 +94,7 @@ class SafetyParams:
     last fresh read that makes a fault. stale_fade_s: the watchdog's fade (0: zero torque at the
     first stale read and full torque at the first fresh one). max_hold_s: the longest hold of a
     nonzero torque the side's energy bound budgets (`CoupledEnergyBoundParams.max_hold_s`; inf: no
-    check); a longer one is a fault (docs/eba.md, "Late ticks on a real clock").
+    check); a longer one is a fault (docs/eba_many_joints.md, "Late ticks on a real clock").
     """
 
     joint_names: tuple[str, ...]
@@ -379,7 +379,7 @@ class SafetyGuard:
 
     def _hold(self, t_s: float, hold_s: float, excess_j: float) -> SafetyFault | None:
         """A nonzero torque held longer than the bound budgets: the port may have delivered up to
-        `excess_j` beyond its reservoir, and only stopping caps it there (docs/eba.md, "Late ticks
+        `excess_j` beyond its reservoir, and only stopping caps it there (docs/eba_many_joints.md, "Late ticks
         on a real clock"). A zero torque held any time delivers nothing: no fault."""
         p = self.params
         if not (hold_s > p.max_hold_s and excess_j > HOLD_EXCESS_TOLERANCE_J):

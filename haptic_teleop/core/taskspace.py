@@ -1,6 +1,6 @@
 """Teleoperation in task space: the workspace mapping, the coupling laws on vectors, joint torques.
 
-Conventions (docs/eba.md, "Many joints"): the task frame is the slave's world frame, 3-D
+Conventions (docs/eba_many_joints.md, "Many joints"): the task frame is the slave's world frame, 3-D
 Cartesian, metres. The master's handle point lives in the master device's base frame and
 `WorkspaceMapping` maps it over; forces come back the other way. The coupling law gives a task
 force (and, for a 6-DoF slave, a moment from the orientation coupling); `jacobian_transpose`
@@ -38,7 +38,7 @@ ORIENTATIONS = ("free", "hold")
 # Damping factor of the pseudo-inverse in the null-space projector (metres: the Jacobian's position
 # rows are m/rad). Directions whose task gain (singular value of J) is well above it count as task
 # directions and are not damped; directions well below it count as self-motion and are. A damped
-# projector is continuous through singularities, where the undamped one jumps (docs/eba.md).
+# projector is continuous through singularities, where the undamped one jumps (docs/eba_many_joints.md).
 PINV_DAMPING_M = 0.01
 
 _ROTATION_TOL = 1e-9

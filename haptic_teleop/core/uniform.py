@@ -3,7 +3,7 @@ drawn in blocks (optionally correlated), and the jitter quantile tables of netem
 
 Each effect draws from its own `numpy.random.Generator`, derived from the scene seed, the
 direction and the effect's name (`effect_rng`), so adding one effect never changes another's
-draws (docs/network.md, "Correlation" and "Jitter").
+draws (docs/network_effects.md, "Correlation" and "Jitter").
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ class NetemCorrelatedUniform:
     """netem's correlated random: u_n = (1 - rho) v_n + rho u_(n-1), v_n fresh uniform.
 
     The mean stays 1/2 but the variance shrinks to (1 - rho) / (1 + rho) of a uniform's, so the
-    marginal is no longer uniform (docs/network.md, "Correlation")."""
+    marginal is no longer uniform (docs/network_effects.md, "Correlation")."""
 
     __slots__ = ("_fresh", "_last", "_rho")
 
@@ -136,7 +136,7 @@ def uniform_source(rng: np.random.Generator, correlation: float = 0.0, model: st
 
 
 # --------------------------------------------------------------------------------------------
-# Jitter distributions: quantile tables of netem's shapes (docs/network.md, "Jitter").
+# Jitter distributions: quantile tables of netem's shapes (docs/network_effects.md, "Jitter").
 
 
 def _pareto_quantile(q: float) -> float:

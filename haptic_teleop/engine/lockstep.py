@@ -10,7 +10,7 @@ One tick (period T; docs/architecture.md, "One tick"), in this order:
   6. operator hand force from the master state; both plants step one period with the forces held.
 Output streams: each tick's row goes into one block of BLOCK_TICKS rows handed to a sink (the
 recorder) when full; each packet's record is handed over once its fate is final. Nothing the loops
-hold grows with the run's length (docs/performance.md, "Memory").
+hold grows with the run's length (docs/performance_memory.md, "Memory").
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ class Engine:
         self.initial_energy = parts.initial_energy
         self.forward, self.backward = parts.forward, parts.backward
         self.forward_buffer, self.backward_buffer = parts.forward_buffer, parts.backward_buffer
-        # The codec stage of the directions that name one (docs/codec.md, "In the channels").
+        # The codec stage of the directions that name one (docs/codec_channels.md).
         self.codecs = parts.codecs
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
@@ -198,7 +198,7 @@ class Engine:
         self.master_ctrl, self.slave_ctrl = parts.master, parts.slave
         self.forward, self.backward, self.forward_buffer, self.backward_buffer = self._network()
 
-        # The codec stage (docs/codec.md, "In the channels"): a codec payload's message is the
+        # The codec stage (docs/codec_channels.md, "Wire sizes"): a codec payload's message is the
         # JointState of one name per task axis (more names when the payload needs them).
         from haptic_teleop.assembly.side import arm_message_bytes
 

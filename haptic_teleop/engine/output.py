@@ -27,7 +27,7 @@ def loop_guard(request_stop: Callable[[], None], handle_sigint: bool) -> Iterato
     """Around a run's loop: SIGINT (if asked) requests a stop at the next tick boundary, and the
     cycle collector is paused. The tick allocates packets, lists and tuples but makes no reference
     cycles, so the collector only rescans the packet logs (it was about 3 % of a tick,
-    docs/performance.md). Both are put back as they were."""
+    docs/performance_python_loop.md). Both are put back as they were."""
     previous = None
     if handle_sigint:
 

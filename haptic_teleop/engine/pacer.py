@@ -1,6 +1,6 @@
 """Wall-clock pacing for a run with a real device on a side: each tick starts at its deadline (the
 engine's loop, engine/loop.py, waits on it); late ticks and overruns counted for timing.json,
-never in the bag (docs/hardware.md)."""
+never in the bag (docs/hardware_plant.md)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ class Pacer:
     def wait(self, n: int) -> None:
         every, stall_s = self._stall
         if every and n >= 2 and n % every == 0:
-            time.sleep(stall_s)  # tests: a stalled host, the torque held on (docs/eba.md, "Late ticks")
+            time.sleep(stall_s)  # tests: a stalled host, the torque held on (docs/eba_many_joints.md, "Late ticks")
         now = time.perf_counter()
         if n >= 2 and now - self._last > self.period_s:
             self.overrun_ticks += 1

@@ -117,7 +117,7 @@ def record_run(
             info["slave_backend"] = c.slave.backend
             for side, plant in (("master", engine.master), ("slave", engine.slave)):
                 if hasattr(plant, "unmeasured_reads"):  # a real device: its measured effort's reads that
-                    # carried no report, the command standing in (docs/hardware.md, "Applied, not commanded")
+                    # carried no report, the command standing in (docs/hardware_plant.md, "Applied, not commanded")
                     info[f"{side}_unmeasured_torque_reads"] = plant.unmeasured_reads
         if collector is not None:
             engine.data = collector.data()
@@ -128,7 +128,7 @@ def record_run(
         for side, plant in (("master", engine.master), ("slave", engine.slave)):
             if hasattr(plant, "stale_ticks"):
                 pacing[f"{side}_stale_reads"] = plant.stale_ticks
-            if hasattr(plant, "hold_budget_s"):  # its holds between reads (docs/eba.md, "Late ticks ...")
+            if hasattr(plant, "hold_budget_s"):  # its holds between reads (docs/eba_many_joints.md, "Late ticks ...")
                 pacing[f"{side}_long_holds"] = plant.long_holds
                 pacing[f"{side}_over_budget_holds"] = plant.over_budget_holds
                 pacing[f"{side}_longest_hold_s"] = plant.longest_hold_s

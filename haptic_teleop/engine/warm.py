@@ -1,7 +1,7 @@
 """`haptic-teleop compile`: build the compiled tick loops into numba's on-disk cache ahead of use.
 
 Each compiled loop is compiled on the first run on a machine that needs it and loaded from
-numba's cache afterwards (docs/performance.md, "Compile cost"): the 1-DoF loop (`axis`), the 1-DoF
+numba's cache afterwards (docs/performance.md, "Compile once"): the 1-DoF loop (`axis`), the 1-DoF
 loop with the codec stage (`codec`), the arm loop (`arm`), the arm loop with the codec stage
 (`arm_codec`) and the side tick the live arm nodes run (`side`). This runs a few ticks of a
 bundled scene through each, so that a first real run, a launch, a benchmark, a sweep or a test

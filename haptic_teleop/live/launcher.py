@@ -61,10 +61,10 @@ EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal that stopped the launch
 # A node killed by SIGSEGV/SIGBUS at start is most often Fast DDS reopening a shared-memory port
-# segment that a killed process of the same ROS domain left in /dev/shm (docs/live.md).
+# segment that a killed process of the same ROS domain left in /dev/shm (docs/live_launch.md).
 SHM_HINT = (
     "a node crashed in native code; if it was at start after a process of this ROS domain was killed, "
-    "stale Fast DDS segments are the usual cause: see 'Native crashes at start' in docs/live.md"
+    "stale Fast DDS segments are the usual cause: see 'Native crashes at start' in docs/live_launch.md"
 )
 
 
@@ -174,7 +174,7 @@ def node_plan(
         return nve_plan(scene, record_dir, side, device, sim_time_rate)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
-    # The codec stage live (docs/live.md, "Codecs live"): what the nodes do not run is refused here,
+    # The codec stage live (docs/live_network.md, "Codecs live"): what the nodes do not run is refused here,
     # one line, before anything starts.
     from haptic_teleop.nodes.codec_stage import check_live_codec
 
@@ -229,7 +229,7 @@ def node_plan(
     plan.append(NodeSpec("slave_eba", "slave_eba", _merge(scene_params(scene, "slave_eba"), watchdog)))
     # Without an operator source master_eba publishes the scene start (device.start_delay_s after its device answered):
     # the relays and the recorder take it from there as they do the operator source's.
-    # An arm scene's payloads carry one value per task axis and field (docs/live.md, "Arm scenes").
+    # An arm scene's payloads carry one value per task axis and field (docs/live_arms.md, "Arm scenes").
     axes = {"task_axes": 3} if scene.config.is_arm else {}
     reverse = {"forward": "backward", "backward": "forward"}
     for d in ("forward", "backward"):
@@ -269,7 +269,7 @@ def nve_plan(
     device: str = "plant",
     sim_time_rate: float | None = None,
 ) -> list[NodeSpec]:
-    """The node set of an NVE scene (docs/live.md, "NVE scenes live"): the server, one node per
+    """The node set of an NVE scene (docs/live_nve.md, "NVE scenes live"): the server, one node per
     client, and per client a relay and a sync buffer for each direction of its link pair
     (`<client>/up`, `<client>/down`), in pipeline order."""
     from haptic_teleop.errors import ConfigError
@@ -588,7 +588,7 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
     node that was killed or has no loop): ticks run, loop rate (ticks per second of wall time),
     late ticks (run a period or more after their deadline), skipped ticks (overruns); and what a
     relay lost and a sync buffer skipped as late, and those that came after their due tick (this
-    machine's lateness, not the network's: docs/live.md, "Deliveries on the stamp grid") (packets)."""
+    machine's lateness, not the network's: docs/live_network.md, "Deliveries on the stamp grid") (packets)."""
     head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks", "packets")
     rows = [head]
     for name in names:

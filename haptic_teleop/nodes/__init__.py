@@ -64,7 +64,7 @@ SCENE_SECTIONS = {
     "operator_source": ("scene", "operator", "master", "slave", "simulation", "controllers", "mapping"),
     "recorder": ("",),
     "clock_source": ("scene",),
-    # An NVE scene (docs/live.md, "NVE scenes live"): the server and each client read the whole
+    # An NVE scene (docs/live_nve.md, "NVE scenes live"): the server and each client read the whole
     # nve section (the same build_nve_parts as the engine).
     "nve_server": ("scene", "nve"),
     "nve_client": ("scene", "nve"),

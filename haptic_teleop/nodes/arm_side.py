@@ -1,4 +1,4 @@
-"""What master_eba and slave_eba run for an arm scene (docs/live.md, "Arm scenes").
+"""What master_eba and slave_eba run for an arm scene (docs/live_arms.md, "Arm scenes").
 
 The node hosts its side's MuJoCo arm in-process (the master device; the slave arm as a ros2_control
 hardware interface would) and runs the engine's per-side tick on it: with numba, the side's part of
@@ -78,7 +78,7 @@ class ArmEbaSide:
         # A real arm (plants/hardware_arm.py): its driver starts at the first tick's read, the tick reads
         # and writes it once, the safety guards act on the desired torque before the bound (SideTick),
         # a guard's fault or a device's HardwareError ends the node (exit 1, one line), and `close` on
-        # every way out turns its torque off (docs/live.md, "A real arm on a side").
+        # every way out turns its torque off (docs/live_arms.md, "A real arm on a side").
         self.hardware = isinstance(self.plant, _hardware_arm())
         self.maps = parts.maps
         self.schema = parts.schema
@@ -151,10 +151,10 @@ class ArmEbaSide:
             # A real arm lives in wall time: the motion since the last read took this long (the
             # driver's read times; one period on a lockstep clock), and the ledger credits its damping
             # over that time (CoupledEnergyBound.stretch), as the engine's loop does. The plant's
-            # guard stops the side when a hold exceeds the bound's budget (docs/eba.md).
+            # guard stops the side when a hold exceeds the bound's budget (docs/eba_many_joints.md).
             self.tick.bound.stretch(self.plant.read_interval_s)
             # The ledger books the port torque the device reported over the hold that just ended,
-            # not the command (docs/hardware.md, "Applied, not commanded"), as the engine's loop does.
+            # not the command (docs/hardware_plant.md, "Applied, not commanded"), as the engine's loop does.
             self.measured = self.plant.port_torque_nm
             self.tick.bound.held[:] = self.measured
         x, v = self.plant.point()
@@ -176,7 +176,7 @@ class ArmEbaSide:
 
     def _hold(self) -> None:
         """A real arm holds each write until the next one, in wall time: count the holds longer than
-        two periods (the energy bound budgets max_hold_s; docs/live.md, "Late ticks on a real arm")."""
+        two periods (the energy bound budgets max_hold_s; docs/live_arms.md, "Late ticks on a real arm")."""
         now = time.monotonic()
         last = self._last_write_s
         self._last_write_s = now
@@ -259,7 +259,7 @@ class ArmEbaSide:
             f"{self.role} arm: {self.long_holds} torque holds longer than two periods (the longest "
             f"{self.max_hold_s * 1e3:.1f} ms, the period {self.period_s * 1e3:g} ms): the energy bound budgets one "
             f"hold of {self.plant.hold_budget_s * 1e3:g} ms ({self.role}.hardware.max_hold_s; a longer one stops the "
-            "side: docs/eba.md, 'Late ticks on a real clock')"
+            "side: docs/eba_many_joints.md, 'Late ticks on a real clock')"
         )
 
     def close(self, log: Any = None) -> None:

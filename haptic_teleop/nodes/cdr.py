@@ -1,7 +1,7 @@
 """One-joint sensor_msgs/JointState as CDR bytes, written and read without rclpy's message objects.
 
 rclpy turns each message into a Python object and back: here that costs about 16 us to publish
-and 50 us to take one JointState, several times the rest of a node's 1 kHz tick (docs/live.md,
+and 50 us to take one JointState, several times the rest of a node's 1 kHz tick (docs/live_measured.md,
 "CPU per node"). The teleop topics have fixed layouts (bag.FixedLayout: one joint, a known subset
 of position/velocity/effort), so a node patches the stamp and values into a serialized template
 and publishes the bytes, and reads values at fixed offsets from raw bytes. A message of any other

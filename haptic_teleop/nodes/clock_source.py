@@ -2,7 +2,7 @@
 
 Simulated time advances by one scene period per tick, and ticks run on the wall clock at
 `rate` times real time: rate 0.5 gives every node twice the wall time per period, which is how a
-loaded or slow machine still runs the live node set without missed deadlines (docs/live.md).
+loaded or slow machine still runs the live node set without missed deadlines (docs/live_launch.md, "Simulated time").
 Time starts at `start_s` (not 0: a ROS clock at 0 means "no time yet").
 """
 

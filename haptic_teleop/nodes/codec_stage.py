@@ -1,4 +1,4 @@
-"""The codec stage live (docs/live.md, "Codecs live"; docs/codec.md, "Live"): a direction's encoder
+"""The codec stage live (docs/live_network.md, "Codecs live"; docs/codec_live.md): a direction's encoder
 in the sending node, its decoder in the receiving side's buffer node, the relay between them
 carrying the encoder's packets, and (ARQ) an ack relay carrying the decoder's acknowledgements
 back over the reverse direction's effects.

@@ -77,7 +77,7 @@ class EbaSide:
 
     def applied(self, force: Sequence[float]) -> None:
         """The force the plant applied over the period that follows `step`: the reservoir
-        accounts with it (docs/eba.md, "Actuator limits inside the bound")."""
+        accounts with it (docs/eba_actuator_limits.md, "Actuator limits inside the bound")."""
         self.ctrl.bound.applied(force)
 
     def publish_internals(self) -> None:

@@ -23,7 +23,7 @@ def raw_publish_fn(pub: Any) -> Callable[[bytes], None]:
 
     `Publisher.publish` wraps each call in a context manager on the handle (which defers the
     handle's destruction while in use) and a type check: three calls through pybind11 where one
-    does, about half the cost of a publish in these loops (measured with callgrind, docs/live.md).
+    does, about half the cost of a publish in these loops (measured with callgrind, docs/live_measured.md).
     Safe as the nodes use it: only a node's loop publishes this way, and run_nodes destroys a node
     only once its loop has stopped."""
     return typing.cast(Callable[[bytes], None], pub.handle.publish_raw)

@@ -23,7 +23,7 @@ delivers it, its due time on the node clock, in header.frame_id ("due_ns=<ns>", 
 `tag_due`), and the sync buffer holds it until then (nodes/sync_buffer.py): so the hop from relay
 to buffer, a DDS message between two loops, has lookahead_s of room for the machine's scheduling
 rather than the quarter period between their phases, and a sample is pushed into the buffer at
-its due tick, as in the engine (docs/live.md, "Deliveries on the stamp grid"). lookahead_s 0
+its due tick, as in the engine (docs/live_network.md, "Deliveries on the stamp grid"). lookahead_s 0
 hands each sample on at its delivery, untagged; a codec's packets and acknowledgements are always
 handed on so (their decoder takes each packet as it comes).
 Both run in the loop thread, which waits for input and for its next deadline at once (no executor
@@ -47,7 +47,7 @@ The fate of every packet of scene time >= 0 goes out in batches on /<direction>/
 period (the node clock's tick, which the sync buffers' decisions name too; the recorder
 subtracts the scene start's), send and arrival times in scene seconds (the link's own).
 
-Parameter `carries` (docs/live.md, "Codecs live"): `samples` (the default) relays the direction's
+Parameter `carries` (docs/live_network.md, "Codecs live"): `samples` (the default) relays the direction's
 plain samples; `codec` its codec's packets (nodes/codec_stage.py's wire message: each packet
 relayed as its own message, retransmissions of one seq included, size the engine's
 `message_bytes`); `ack` the acknowledgements of the direction's codec (ARQ): from

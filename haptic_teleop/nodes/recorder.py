@@ -33,7 +33,7 @@ On close (SIGINT/SIGTERM/end of the scene) the rest is
 written, up to the last tick every stream reached (at most scene.duration_s), and the bag closed.
 
 A device session (parameter `device.source: topic`, the hardware variant of the node set: master_eba
-reads a device driver's topics, no operator source, docs/live.md "Recording a device session"):
+reads a device driver's topics, no operator source, docs/live_recording.md "Recording a device session"):
 /operator/joint_states is not subscribed, scene time 0 is the one master_eba publishes (its device's
 first sample; the relays take it too, so the packet records' times are the bag's), the operator's
 columns are NaN, and the session is recorded until it is stopped (no cap at scene.duration_s;
@@ -42,14 +42,14 @@ columns are NaN, and the session is recorded until it is stopped (no cap at scen
 The resolved scene goes out once on /haptic_teleop/scene (std_msgs/String, reliable, transient
 local: a subscriber that starts later still gets it).
 
-An NVE scene (docs/live.md, "NVE scenes live") is recorded the same way with its own topic plan
+An NVE scene (docs/live_nve.md, "NVE scenes live") is recorded the same way with its own topic plan
 (`topic_plan`): the NVE bag's per-tick topics (record/nve_columns.py, `nve_topic_specs`) as
 state, the releases of each client's up and down sync buffers (`<c>.up_rx_seq`,
 `<c>.down_rx_seq`, from their /playout rows as teleoperation's), the packets and buffer
 decisions of every `<client>/up|down` direction; the grid's end is set by the object and the
 clients' HIP streams, scene time 0 by the server's start.
 
-A direction with a codec (docs/live.md, "Codecs live"): its packet records are the encoder's packets
+A direction with a codec (docs/live_network.md, "Codecs live"): its packet records are the encoder's packets
 (the relay carries nothing else), decided "played" by the decoder as they arrive; the codec's
 counters come from the encoder's and the decoder's nodes (/<direction>/codec/encoder, /decoder:
 std_msgs/String, JSON, latched, over the scene's window) and go into the run facts `codec_<direction>`

@@ -351,7 +351,7 @@ class SharedLoop:
     """One thread ticking every node of a process in pipeline order (`--single-process`).
 
     Each 1 kHz node with its own thread costs a sleep and a wake-up per period, and on a small VM
-    a wake-up is tens of microseconds of CPU (docs/live.md, "CPU per node"). Composed in one
+    a wake-up is tens of microseconds of CPU (docs/live_measured.md, "CPU per node"). Composed in one
     process, the nodes share one thread instead: at each deadline k * base period it drains every
     node's event subscriptions and runs its tick, in order of loop phase (producers, relays,
     buffers, as the engine orders a tick), each node at its own period (a multiple of the base).

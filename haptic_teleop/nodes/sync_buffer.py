@@ -31,7 +31,7 @@ the summary are then as delivered), and fills the bag's release column (`fwd_rx_
 keyed by the buffer's own tick: one release per tick, none lost however late the message that
 carried it was taken.
 
-A direction whose scene names a codec (`network.<direction>.codec`; docs/live.md, "Codecs live")
+A direction whose scene names a codec (`network.<direction>.codec`; docs/live_network.md, "Codecs live")
 runs its decoder here instead of the playout buffer (the scene has `buffer.policy: none`): every
 packet delivered goes to the decoder at once (nodes/codec_stage.py's CodecReceiver), its decision
 "played" (fate 0) to /<direction>/playout, and each tick the decoder's sample for the tick goes out

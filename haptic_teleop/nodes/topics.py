@@ -165,9 +165,9 @@ def reliable_qos(depth: int = 100) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------
-# NVE scenes (docs/live.md, "NVE scenes live"). A client's link pair is the directions
+# NVE scenes (docs/live_nve.md, "NVE scenes live"). A client's link pair is the directions
 # "<client>/up" and "<client>/down": /<client>/up/sent, /delivered, /received, /packets, /playout
-# as teleoperation's. The per-tick topics are the NVE bag's (docs/recording.md, "NVE runs").
+# as teleoperation's. The per-tick topics are the NVE bag's (docs/recording_nve.md, "Per-tick topics").
 
 NVE_OBJECT_STATE = "/nve/object/joint_states"  # JointState object_x..: position, velocity, effort (net coupling force)
 

@@ -1,6 +1,6 @@
 """What a link direction's samples look like on the wire (sensor_msgs/JointState), for the relay and
 the sync buffer of any direction: teleoperation's `forward` and `backward` (topics.py) and an NVE
-scene's `<client>/up` and `<client>/down` (docs/live.md, "NVE scenes live").
+scene's `<client>/up` and `<client>/down` (docs/live_nve.md, "NVE scenes live").
 
 NVE layouts (a = the scene's axes):
   up   (client -> server): names <client>_hip_x[, _y, _z]; position x[a], velocity v[a]

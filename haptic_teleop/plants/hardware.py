@@ -63,7 +63,7 @@ class JointSample:
     `measured`: `tau_nm` is what the device reports its motors apply (a Dynamixel's Present
     Current, a UR's `actual_current_as_torque`). False where the device gives no such report (a UR
     commanded in task space, a UR read before its first report arrived): `tau_nm` is then the
-    torque last commanded, kept so the sample is complete, and the flag says so (docs/hardware.md,
+    torque last commanded, kept so the sample is complete, and the flag says so (docs/hardware_plant.md,
     "Applied, not commanded")."""
 
     q_rad: np.ndarray

@@ -1,5 +1,5 @@
 """A real arm as the engine's arm plant: a `JointDriver` (the device) and an `ArmKinematics` of the
-same MJCF model (docs/hardware.md, "The hardware arm plant").
+same MJCF model (docs/hardware_plant.md, "The hardware arm plant").
 
 `HardwareArm` has the interface the arm tick uses on `MujocoArm` (engine/loop.py,
 nodes/arm_side.py): `read()`, `point()`, `jacobian()`, `orientation()`, `angular_velocity()`,
@@ -20,7 +20,7 @@ Per tick:
   gravity torque and writes the total through the driver (one sync write). It returns the port
   torque commanded (after the device's quantisation and clip): the joint_states effort.
 
-Applied, not commanded (docs/hardware.md): each read also gives `port_torque_nm`, the port torque
+Applied, not commanded (docs/hardware_plant.md): each read also gives `port_torque_nm`, the port torque
 the motors really applied over the hold that ended at this read, as the device reports it (the
 sample's `tau_nm`, the motors' torque) minus the gravity compensation written with the command
 that hold answered (zero before the first write). The engine records it (`/<side>/measured_effort`)
@@ -92,7 +92,7 @@ class HardwareArm:
     time the motion between two reads took, is one period; else the driver's read times give it.
     max_hold_s: the longest hold the side's energy bound budgets on a real clock (`hold_budget_s`;
     None: DEFAULT_MAX_HOLD_PERIODS periods; a lockstep clock: one period, whatever it says); a longer hold of a nonzero
-    torque is the safety guard's "hold" fault (docs/eba.md, "Late ticks on a real clock").
+    torque is the safety guard's "hold" fault (docs/eba_many_joints.md, "Late ticks on a real clock").
     """
 
     def __init__(

@@ -86,7 +86,7 @@ def load_f64(typingctx: Any, addr: Any) -> Any:
 @intrinsic
 def borrowed(typingctx: Any, arr: Any) -> Any:
     """`arr` without its reference count (a view with no owner): passing it around costs no
-    atomic increments and decrements, which were about a sixth of a tick (docs/performance.md).
+    atomic increments and decrements, which were about a sixth of a tick (docs/performance_arms.md).
     The caller keeps the owner alive for as long as the view is used."""
 
     def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:

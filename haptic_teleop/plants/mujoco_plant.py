@@ -70,7 +70,7 @@ def _load(path: Path, sim: SimSettings):  # type: ignore[no-untyped-def]
 
 
 def _skip_unused_stages(model) -> None:  # type: ignore[no-untyped-def]
-    """Turn off MuJoCo stages that cannot change anything in this model (docs/performance.md).
+    """Turn off MuJoCo stages that cannot change anything in this model (docs/performance_python_loop.md).
 
     - collision detection, when no geom can collide (no contact pair, every contype and
       conaffinity 0): it finds nothing, at about 1000 instructions a step. Constraints (joint

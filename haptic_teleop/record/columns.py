@@ -13,7 +13,7 @@ the shared task frame: the slave's world frame) or per joint `j` of a side:
 
 The `measured` groups exist only for a side whose plant is a real device (`master_measured`,
 `slave_measured`): the port torque its motors reported they applied over the hold that ended at
-the tick's read (docs/hardware.md, "Applied, not commanded"), beside `m_tau_nm`/`s_tau_nm`, the
+the tick's read (docs/hardware_plant.md, "Applied, not commanded"), beside `m_tau_nm`/`s_tau_nm`, the
 torque commanded. They come after every other group, so a schema without them (every simulated
 scene) has the columns, topics and bag bytes it always had.
 

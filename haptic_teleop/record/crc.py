@@ -3,7 +3,7 @@
 The MCAP writer checksums every record twice: into its chunk's CRC (the records, uncompressed)
 and into the data section's (every byte of the file's data section). With chunks stored
 uncompressed the data section's CRC over a chunk's records is `combine`d from the chunk's CRC and
-their length instead of being computed again over the same bytes (docs/recording.md, "Checksums").
+their length instead of being computed again over the same bytes (docs/recording.md, "CRCs").
 
 The math (CRC-32 is reflected, polynomial P = 0xEDB88320 with x^0 as the top bit): for byte
 strings A and B, crc(A + B) = crc(A) * x^(8 |B|) mod P xor crc(B), where the pre- and

@@ -1,6 +1,6 @@
 """The per-tick record schema of an NVE run (a consistency server and its clients) and its bag topics.
 
-An NVE run records one float64 row per tick (docs/recording.md, "NVE runs"). Its columns, per
+An NVE run records one float64 row per tick (docs/recording_nve.md, "Schema and columns"). Its columns, per
 axis `a` (x, y, z; a 1-axis run names a group alone, without `[x]`):
 
     server:        obj_x_m[a], obj_v_m_per_s[a], obj_force_n[a]

@@ -111,7 +111,7 @@ class CodecConfig:
 @dataclass(frozen=True)
 class ChannelDirectionConfig(DirectionConfig):
     """A teleoperation channel's direction: `DirectionConfig` and the optional codec stage
-    (absent: no codec, the channel as before; docs/codec.md, "In the channels")."""
+    (absent: no codec, the channel as before; docs/codec_channels.md)."""
 
     codec: CodecConfig | None = None
 

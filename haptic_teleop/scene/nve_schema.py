@@ -3,7 +3,7 @@
 A scene with an `nve` section is an NVE scene: a consistency server integrates one virtual object
 and each client, over its own link pair (`up`: client -> server, `down`: server -> client, the
 same effects and playout buffers as teleoperation), feels a spring-damper toward the object it
-last received. Its HIP is driven by an operator profile. docs/nve.md has the model and the keys.
+last received. Its HIP is driven by an operator profile. docs/nve.md has the model, docs/nve_scenes.md the keys.
 """
 
 from __future__ import annotations

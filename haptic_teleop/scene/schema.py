@@ -600,7 +600,7 @@ class Scene:
                 )
         # A wall too stiff for the MuJoCo step makes energy in the plant (below the controllers,
         # where EBA cannot see it). Measured limit: omega * h <= sqrt(2), omega = sqrt(K (1 - d) / m)
-        # (docs/robustness.md, "A wall too stiff for the step").
+        # (docs/robustness.md, "The naive integrator").
         h = self.scene.period_s / self.simulation.substeps
         omega = math.sqrt(self.slave.wall.stiffness_n_per_m * (1.0 - self.slave.contact_impedance) / self.slave.mass_kg)
         if omega * h > WALL_STEP_LIMIT and not self.is_arm:  # an arm's wall: _check_arm_scene, with the model

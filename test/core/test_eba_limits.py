@@ -1,4 +1,4 @@
-"""EBA behind a limited actuator (docs/eba.md, "Actuator limits inside the bound"): the reservoir
+"""EBA behind a limited actuator (docs/eba_actuator_limits.md, "Actuator limits inside the bound"): the reservoir
 accounts with the applied force, and the bound that models a clip and a slew limit keeps the port
 passive for any motion; the plain bound behind a slew limit does not."""
 

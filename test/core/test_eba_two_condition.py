@@ -1,4 +1,4 @@
-"""The two-condition energy bound (docs/eba.md, "The published two-condition law"): a passive port
+"""The two-condition energy bound (docs/eba_two_condition.md, "The published two-condition law"): a passive port
 for any motion and any desired force, judged from the port's signals (positions, applied forces,
 the damping); how its allowed forces compare with the reservoir law's; the contact force slope."""
 
@@ -89,7 +89,7 @@ def _reservoir_energy(xs: np.ndarray, fs: np.ndarray, damping: float, e0: float)
 @settings(max_examples=40, deadline=None)
 @given(steps=st.lists(tick, min_size=2, max_size=60), damping=st.floats(0.05, 20.0), e0=st.floats(0.0, 0.5))
 def test_two_condition_forces_are_within_the_reservoir_bound_of_the_same_history(steps, damping, e0):
-    """docs/eba.md: after any history, every force the two-condition law allows is one the
+    """docs/eba_two_condition.md: after any history, every force the two-condition law allows is one the
     reservoir law allows after the same history (the reservoir is the controller energy plus the
     ZOH steps' unused damping credit, and the reservoir's bound is the largest passive one)."""
     p = EnergyBoundParams(period_s=T, damping_n_s_per_m=(damping,), initial_energy_j=e0, law="two_condition")
@@ -112,7 +112,7 @@ def test_two_condition_forces_are_within_the_reservoir_bound_of_the_same_history
         assert T * f * f / (4.0 * damping) <= energy + 1e-11
 
 
-# The state of the counterexamples (docs/eba.md): b = 1 N s/m, T = 1 ms, E0 = 2 mJ; at tick 0 both
+# The state of the counterexamples (docs/eba_two_condition.md): b = 1 N s/m, T = 1 ms, E0 = 2 mJ; at tick 0 both
 # laws hold f = 2 N; the device then moves dx = 0.5 mm along that force.
 B, E0, F0, DX = 1.0, 2e-3, 2.0, 5e-4
 

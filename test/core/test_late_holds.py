@@ -1,4 +1,4 @@
-"""Late ticks on a real clock: the pooled bound budgets the longest hold `max_hold_s` (docs/eba.md,
+"""Late ticks on a real clock: the pooled bound budgets the longest hold `max_hold_s` (docs/eba_many_joints.md,
 "Late ticks on a real clock"), and the safety guard stops a side whose torque was held longer.
 
 Judged from the signals a plant gives: the joint positions at each read, the torques applied between

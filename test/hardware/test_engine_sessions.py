@@ -1,5 +1,5 @@
 """Whole teleoperation sessions (the engine, `haptic-teleop run` as a subprocess) with one side on
-the Dynamixel bus emulator, spoken to by the unmodified dynamixel_sdk (docs/hardware.md).
+the Dynamixel bus emulator, spoken to by the unmodified dynamixel_sdk (docs/hardware_emulate.md).
 
 The test starts the emulator (its own process, a pseudo-terminal) from the scene
 (`haptic_teleop.assembly.emulation.bus_config`: the same ids, models, signs and offsets, the arm's MJCF, true
@@ -355,7 +355,7 @@ def test_a_session_with_the_slave_on_the_ur_emulator_in_direct_torque_mode(tmp_p
             "slave.hardware.host=127.0.0.1",
             "slave.hardware.control_mode=torque",
             "slave.damping_nm_s_per_rad=[3.0, 3.0, 3.0, 0.5, 0.5, 0.5]",  # ur5e.xml's dof_damping
-            "slave.hardware.max_hold_s=0.1",  # this machine's holds reach tens of ms (docs/eba.md, "Late ticks")
+            "slave.hardware.max_hold_s=0.1",  # this machine's holds: tens of ms (docs/eba_many_joints.md, "Late ticks")
         ]
         out = tmp_path / "run"
         proc = run_cli("touch_ur5e_wall", *[a for s in sets for a in ("--set", s)], "--out", str(out), "--quiet")
@@ -403,7 +403,7 @@ def test_a_real_clock_stretches_the_ledger_over_the_time_each_tick_took(emulator
     for clock in ("lockstep", "real"):
         bus = emulator(*SLAVE[:2], [])
         sets = ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}", f"slave.hardware.device_clock={clock}"]
-        sets.append("slave.hardware.max_hold_s=0.1")  # this machine's holds: tens of ms (docs/eba.md)
+        sets.append("slave.hardware.max_hold_s=0.1")  # this machine's holds: tens of ms (docs/eba_many_joints.md)
         scene = load_scene(find_scene(SLAVE[0]), [*sets, "scene.duration_s=1.0"])
         engine, _ = record_run(scene, tmp_path / clock, parallel=False, handle_sigint=False, keep=True)
         assert engine.slave.read_interval_s >= (0.0 if clock == "real" else 0.001)

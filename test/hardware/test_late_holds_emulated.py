@@ -1,5 +1,5 @@
-"""Late ticks against the Dynamixel bus emulator on its realtime clock (docs/eba.md, "Late ticks on a
-real clock"): the leader arm of `dxl_leader_wall` as the master, its servos emulated in their own
+"""Late ticks against the Dynamixel bus emulator on its realtime clock (docs/eba_many_joints.md, "Late
+ticks on a real clock"): the leader arm of `dxl_leader_wall` as the master, its servos emulated in their own
 process and spoken to by the unmodified dynamixel_sdk, while the engine's paced loop stalls
 deliberately (HAPTIC_TELEOP_TEST_STALL: the loop sleeps before some ticks, the servos hold their
 current meanwhile, as a real host that stalls).

@@ -1,4 +1,4 @@
-"""Applied, not commanded (docs/hardware.md): a side on hardware records the port torque its device
+"""Applied, not commanded (docs/hardware_plant.md): a side on hardware records the port torque its device
 reported (/<side>/measured_effort, `s_tau_measured_nm`) beside the torque commanded
 (/<side>/joint_states effort), its energy ledger books the reported one, and the analysis does too;
 a simulated side records nothing new.

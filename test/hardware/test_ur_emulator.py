@@ -1,5 +1,5 @@
 """The UR emulator through the unmodified ur_rtde receive interface, and its RTDE and dashboard
-protocol seen from raw sockets (docs/ur.md). One emulator at a time: ur_rtde's ports are fixed."""
+protocol seen from raw sockets (docs/ur_emulator.md). One emulator at a time: ur_rtde's ports are fixed."""
 
 from __future__ import annotations
 

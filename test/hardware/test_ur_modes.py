@@ -1,4 +1,4 @@
-"""UR sides in force_mode and admittance (docs/ur.md, "Control modes in a session") and a side's own
+"""UR sides in force_mode and admittance (docs/ur_control_modes.md, "Control modes in a session") and a side's own
 period (docs/arms.md, "A side's own period"): whole sessions through the real command line against
 the UR emulator (unmodified ur_rtde), checked on the bag and on the emulated plant's own signals."""
 
@@ -21,7 +21,7 @@ from haptic_teleop.scene.load import find_scene, load_scene
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT_S = 240.0  # a safety net only
 # What EBA may credit in a task-space mode: at most the robot's own admittance damping seen at the
-# joints, J^T D J >= lambda_min I (docs/ur.md: 7.1 N m s/rad in force mode, 2.2 in the admittance at
+# joints, J^T D J >= lambda_min I (docs/ur_control_modes.md: 7.1 N m s/rad in force mode, 2.2 in the admittance at
 # the start pose, with the defaults), so 2.0 on every joint but the wrists' 0.5.
 DAMPING = "slave.damping_nm_s_per_rad=[2.0, 2.0, 2.0, 0.5, 0.5, 0.5]"
 
@@ -45,7 +45,7 @@ def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
         f"slave.hardware.control_mode={mode}",
         DAMPING,
         "slave.period_s=0.002",  # the e-Series' 500 Hz; the haptic side at the scene's 1 kHz
-        "slave.hardware.max_hold_s=0.1",  # this machine's holds reach tens of ms (docs/eba.md, "Late ticks")
+        "slave.hardware.max_hold_s=0.1",  # this machine's holds: tens of ms (docs/eba_many_joints.md, "Late ticks")
         "scene.duration_s=2.5",
         *extra,
     ]
@@ -123,7 +123,7 @@ def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_a
     assert q.shape[0] >= 1900
     m = q.shape[0] // 2 * 2
     assert np.array_equal(q[0:m:2], q[1:m:2])  # tick 2k+1 repeats the side's tick 2k
-    # A task-space mode has no joint torque report (docs/hardware.md, "Applied, not commanded"): its
+    # A task-space mode has no joint torque report (docs/hardware_plant.md, "Applied, not commanded"): its
     # measured effort is the torque booked at the side's tick before (J^T w as sent), every read flagged.
     assert np.array_equal(measured[2:m:2], q[0 : m - 2 : 2, 12:18])
     assert summary["slave_unmeasured_torque_reads"] >= m // 2
@@ -231,7 +231,7 @@ def test_sigterm_mid_session_in_the_admittance_mode_stops_the_robot_and_keeps_th
         "slave.hardware.control_mode=admittance",
         DAMPING,
         "slave.period_s=0.002",
-        "slave.hardware.max_hold_s=0.1",  # this machine's holds: tens of ms (docs/eba.md)
+        "slave.hardware.max_hold_s=0.1",  # this machine's holds: tens of ms (docs/eba_many_joints.md)
     ]
     with start_ur(_ur_config()) as ur:
         proc = subprocess.Popen(

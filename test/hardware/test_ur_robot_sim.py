@@ -1,4 +1,4 @@
-"""The emulated UR5e's controller loops in simulated time (docs/ur.md, "The simulated robot"):
+"""The emulated UR5e's controller loops in simulated time (docs/ur_emulator.md, "What it emulates"):
 `SimulatedUR` stepped one controller cycle (2 ms) at a time, no sockets and no clock, so what its
 physics does is asserted as it is, whatever the machine's load. The same commands over RTDE, through
 the unmodified ur_rtde, are in test_ur_driver.py, which asserts there what the driver reads, sends

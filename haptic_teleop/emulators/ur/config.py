@@ -1,5 +1,5 @@
 """The UR emulator's configuration: frozen dataclasses built from plain data (JSON) with errors
-that name the key, the value and what is allowed (docs/ur.md, "Emulator configuration")."""
+that name the key, the value and what is allowed (docs/ur_emulator.md, "Emulator configuration")."""
 
 from __future__ import annotations
 

@@ -58,7 +58,7 @@ class URProcess:
         return self.request("state")
 
     def inject(self, fault: str, **args: Any) -> None:
-        """An injected fault (docs/ur.md, "The emulator"); one the emulator does not know is an error here,
+        """An injected fault (docs/ur_emulator.md, "The emulator"); one the emulator does not know is an error here,
         not a test that waits in vain for its effect."""
         reply = self.request(fault, **args)
         if "error" in reply:

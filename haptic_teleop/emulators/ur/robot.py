@@ -1,5 +1,5 @@
 """The emulated UR5e: the project's MuJoCo arm (plants/arm.py) driven by simple stand-ins for the
-robot controller's own loops (docs/ur.md, "The simulated robot"). One `cycle()` is one controller
+robot controller's own loops (docs/ur_emulator.md, "What it emulates"). One `cycle()` is one controller
 period (2 ms at 500 Hz), split into `substeps` MuJoCo steps.
 
 Modes: "hold" (joint PD on the held joint positions: the robot at rest, a program stopped, a

@@ -1,4 +1,4 @@
-"""The emulated ur_rtde control script (docs/ur.md, "The register handshake").
+"""The emulated ur_rtde control script (docs/ur_protocols.md, "How RTDEControlInterface runs the arm").
 
 ur_rtde 1.6.5 uploads a URScript program ("def rtde_control(): ... end") that talks to its client
 through RTDE registers, offset by `reg_offset_int`/`reg_offset_float` (0, or 24 with the upper

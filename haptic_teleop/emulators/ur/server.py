@@ -1,4 +1,4 @@
-"""The emulator's sockets and its 500 Hz controller loop (docs/ur.md, "The emulator").
+"""The emulator's sockets and its 500 Hz controller loop (docs/ur_emulator.md, "The emulator").
 
 Threads: one controller loop (absolute deadlines at the configured frequency: read the inputs,
 run the emulated script, step the robot, check the safety limits, send a data package to every
@@ -27,7 +27,7 @@ from haptic_teleop.plants.arm import WallSpec
 from haptic_teleop.plants.ur import rtde_wire as w
 
 # UR codes (RTDE guide, "robot_mode", "safety_mode", "safety_status_bits", "runtime_state",
-# "robot_status_bits"; docs/ur.md)
+# "robot_status_bits"; docs/ur_protocols.md)
 ROBOT_MODE_NAMES = {
     -1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
     4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE",

@@ -1,6 +1,6 @@
 """The compiled arm loop with the codec stage (numba), imported only when an arm scene with a
 codec runs compiled (`arm_host.codec_kernel`), so codec-less arm runs never compile or
-load it (docs/codec.md, "Compiled", "Arm scenes").
+load it (docs/codec_compiled_arm.md).
 
 The tick is the driver's (engine/compiled/driver.py) composed of `arm_kernel`'s sides (`ARM_SIDES`)
 and the channels below; a direction with a

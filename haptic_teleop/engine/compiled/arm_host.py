@@ -1,6 +1,6 @@
 """The compiled loop for arm scenes: the same tick as the Python arm loop (engine/loop.py), in numba.
 
-The tick (docs/performance.md, "Arm scenes") calls MuJoCo from compiled code on the plants' own
+The tick (docs/performance_arms.md, "Arm scenes") calls MuJoCo from compiled code on the plants' own
 `MjModel`/`MjData`: `mj_step1` (positions, velocities, kinematics, gravity torques, collisions),
 `mj_jacSite` (the handle's or tool's Jacobian), `mj_step2` (actuation, constraints, integration;
 the split step gives the bits of `mj_step` for the Euler and implicit integrators), and

@@ -1,4 +1,4 @@
-"""The codec stage in the compiled 1-DoF loop (docs/codec.md, "Compiled").
+"""The codec stage in the compiled 1-DoF loop (docs/codec_compiled.md).
 
 With a deadband the packets a direction sends depend on the samples, so its network cannot be
 decided ahead of the loop as `axis_host.schedule` does. A codec direction whose link effects

@@ -7,7 +7,7 @@ are made ready READY_TICKS ahead, and the kernel's codec arguments are built aga
 kernel runs CHUNK_TICKS at a time, so progress, full blocks of rows and a stop are seen between
 chunks. (Readying the nets and building the arguments every chunk was about 3 us of Python a
 chunk, and the loop after it ran slower on cold caches: 1 to 6 points of a codec run's real-time
-factor, docs/codec.md "Cost".)
+factor, docs/codec_cost.md.)
 """
 
 from __future__ import annotations

@@ -86,7 +86,7 @@ class DynamixelConfig(HardwareConfig):
     def unopenable(self) -> Problem | None:
         """The port exists but the SDK cannot open it at `baud_bps` (not a serial port, taken, no
         permission): said before a run builds anything (the driver's own message, `probe_port`)."""
-        from haptic_teleop.plants.dynamixel.driver import probe_port
+        from haptic_teleop.plants.dynamixel.port import probe_port
         from haptic_teleop.plants.hardware import HardwareError
 
         if self.port is None:

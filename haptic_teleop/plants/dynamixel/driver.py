@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import errno
 import os
 import re
 import select
@@ -46,9 +45,9 @@ from haptic_teleop.plants.dynamixel import tables as T
 from haptic_teleop.plants.dynamixel.chain import (
     FAST_PART,
     READ_BLOCK,
-    SDK_BAUD_RATES_BPS,
     DynamixelChainConfig,
 )
+from haptic_teleop.plants.dynamixel.port import open_port
 from haptic_teleop.plants.hardware import HardwareError, JointDriver, JointSample, import_sdk
 
 _STATE = struct.Struct("<hii")  # Present Current (int16), Present Velocity (int32), Present Position (int32)
@@ -771,41 +770,3 @@ def torque_off_on_exit(*drivers: DynamixelDriver) -> Iterator[None]:
 def _is_a_joint_driver(driver: DynamixelDriver) -> JointDriver:
     """For the type checker: DynamixelDriver satisfies the JointDriver protocol."""
     return driver
-
-
-def open_port(sdk: Any, port: str, baud_bps: int) -> Any:
-    """The SDK's PortHandler on `port`, open at `baud_bps`; a port that does not exist, may not be opened or is no
-    serial port is a HardwareError saying what to do (`probe_port` runs it before a run builds
-    anything)."""
-    handler = sdk.PortHandler(port)
-    try:
-        handler.openPort()
-        ok = handler.setBaudRate(baud_bps)
-    except OSError as exc:
-        code = exc.errno
-        if code is None and exc.args and isinstance(exc.args[0], int):
-            code = exc.args[0]
-        if code == errno.ENOENT or not os.path.exists(port):
-            raise HardwareError(
-                f"{port} does not exist: is the USB adapter (U2D2) plugged in? `ls /dev/ttyUSB* "
-                f"/dev/serial/by-id/` lists the serial ports; set the chain's port to one of them"
-            ) from None
-        if code in (errno.EACCES, errno.EPERM):
-            raise HardwareError(
-                f"{port}: permission denied: add yourself to the dialout group (`sudo usermod -aG dialout "
-                f"$USER`, then log out and in) or install the udev rule of docs/dynamixel_driver.md"
-            ) from None
-        raise HardwareError(
-            f"{port} cannot be opened ({exc}): is it the adapter's serial port? Close any other program using "
-            f"it (Dynamixel Wizard, another haptic-teleop), or unplug and replug the adapter"
-        ) from None
-    if not ok:
-        handler.closePort()
-        raise HardwareError(f"{port}: the SDK refused {baud_bps} bps; allowed: {SDK_BAUD_RATES_BPS}")
-    return handler
-
-
-def probe_port(port: str, baud_bps: int) -> None:
-    """Open and close `port` as the driver will (`open_port`): raises its HardwareError, or the
-    SDK's MissingSDKError, at once, before a run builds its engine or writes an output."""
-    open_port(import_sdk("dynamixel_sdk"), port, baud_bps).closePort()

@@ -1,7 +1,7 @@
 """Dynamixel X-series facts as data: control tables, units, register codes, protocol codes.
 
 Every number here is from ROBOTIS' e-Manual (the servo pages of the XM430-W350 and XM540-W270,
-the Protocol 2.0 page); docs/dynamixel.md "Facts and sources" lists each with its section. Nothing
+the Protocol 2.0 page); docs/dynamixel_facts.md lists each with its section. Nothing
 here imports an SDK: the host driver and the bus emulator read the same tables.
 
 Conventions
@@ -113,7 +113,7 @@ STATUS_ERROR_TEXT = {
 
 FAST_SYNC_READ_MIN_FIRMWARE = 45
 """X-series firmware from which FAST SYNC READ (0x8A) is answered (e-Manual, Protocol 2.0, Fast
-Sync Read: "X series firmware v45 or above"; see docs/dynamixel.md for how this was checked)."""
+Sync Read: "X series firmware v45 or above"; see docs/dynamixel_facts.md for how this was checked)."""
 
 BUS_WATCHDOG_MIN_FIRMWARE = 38
 """Bus Watchdog(98) and Drive Mode(10) exist from firmware v38 (e-Manual, XM430-W350, Bus Watchdog)."""

@@ -1,5 +1,5 @@
 """A UR controller's status codes as RTDE reports them, with what each means for a session and
-what to do: robot mode, safety mode and its status bits, the joints' modes (docs/ur.md, "Status
+what to do: robot mode, safety mode and its status bits, the joints' modes (docs/ur_protocols.md, "Status
 codes"; Universal Robots' RTDE guide and dashboard server documentation)."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ SAFETY_STOP_WHAT_TO_DO = {
     12: "the automatic mode safeguard stop input opened: clear it and reset it",
     13: "the three-position enabling device was released or pressed through: hold it in the middle position",
 }
-# RTDE joint_mode [RTDE guide, "joint_mode"; docs/ur.md]: name and, for a joint not running, what to do.
+# RTDE joint_mode [RTDE guide, "joint_mode"; docs/ur_protocols.md]: name and, for a joint not running, what to do.
 JOINT_RUNNING = 253
 JOINT_MODE = {
     235: ("RESET", "the joint is resetting: wait for it, then power on"),

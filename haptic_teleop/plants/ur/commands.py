@@ -2,7 +2,7 @@
 
 forceMode(task_frame, selection_vector, wrench, type, limits) in ur_rtde 1.6.5 goes to the
 control script as: input_int_register_1 = type, input_int_register_2..7 = selection,
-input_double_register_0..5 = task frame, 6..11 = wrench, 12..17 = limits (docs/ur.md).
+input_double_register_0..5 = task frame, 6..11 = wrench, 12..17 = limits (docs/ur_protocols.md).
 """
 
 from __future__ import annotations

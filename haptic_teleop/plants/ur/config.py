@@ -116,7 +116,7 @@ def arm_driver(hw: URConfig, kin: Any, torque_limit_nm: Sequence[float] | None, 
     """The robot as the arm plant drives it. The UR controller compensates gravity itself in every
     mode, so the plant adds none; its contact is the controller's TCP wrench (the e-Series' F/T
     sensor). Direct torque mode is a `JointDriver` as it is; force mode and the admittance turn the
-    bounded torque into a tool wrench (docs/ur.md)."""
+    bounded torque into a tool wrench (docs/ur_control_modes.md)."""
     from haptic_teleop.plants.ur.driver import URTaskDriver, URTorqueDriver
 
     assert hw.host is not None

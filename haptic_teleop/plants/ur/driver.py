@@ -665,7 +665,7 @@ def wrench_from_torque(jac6: np.ndarray, tau_nm: np.ndarray) -> np.ndarray:
 
 
 class URTaskDriver:
-    """The JointDriver (plants/hardware.py) of a UR arm commanded in task space (docs/ur.md, "Control
+    """The JointDriver (plants/hardware.py) of a UR arm commanded in task space (docs/ur_control_modes.md, "Control
     modes in a session"): `write(tau)` turns the side's bounded joint torques into the tool wrench
     w = (J^T)^-1 tau (`jacobian`: the 6 x 6 Jacobian of the tool site at this tick's measured q,
     which the hardware arm has set) and sends

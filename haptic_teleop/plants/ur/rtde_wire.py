@@ -1,4 +1,4 @@
-"""RTDE wire format, protocol version 2 (docs/ur.md, "RTDE"; Universal Robots, "Real-Time Data
+"""RTDE wire format, protocol version 2 (docs/ur_protocols.md, "RTDE"; Universal Robots, "Real-Time Data
 Exchange (RTDE) Guide"): package framing, the variable table a controller serves, and the
 packing of data packages. No sockets of its own (`read_package` reads from the caller's), no
 clock. Both sides of the wire use it: the UR emulator (emulators/ur/server.py) and the driver's

@@ -1,4 +1,4 @@
-"""`haptic-teleop bench codec`: what each codec of the codec stage costs per sample (docs/codec.md).
+"""`haptic-teleop bench codec`: what each codec of the codec stage costs per sample (docs/codec_cost.md).
 
 Each case drives one stream the way a channel does at 1 kHz, with nothing lost in between: per
 tick the encoder's `send`, every packet straight into the decoder's `receive` (an ARQ
@@ -111,7 +111,7 @@ LOSSES = {
 }
 
 
-# Seed 000's error-control experiment's network (docs/codec.md, experiment c): 5 ms each way, a
+# Seed 000's error-control experiment's network (docs/codec_error_control.md): 5 ms each way, a
 # round trip of 10 ms, under its ARQ's timeout of 25 ms, so ARQ retransmits only what was lost (on
 # the scene's own 50 ms each way, mu = 25 ms sends every sample 4 times). A name with this before
 # its loss suffix runs with this delay on both links, its reference the codec-less run with it.

@@ -1,4 +1,4 @@
-"""`haptic-teleop bench recording`: what CRCs and chunk compression cost (docs/recording.md).
+"""`haptic-teleop bench recording`: what CRCs and chunk compression cost (docs/recording_costs.md).
 
 Runs the scene once, then writes its bag in process (`write_run`) and reads every topic back
 (`BagReader`), round after round, the variants alternating: without CRCs (the CRC fields 0, as a

@@ -1,4 +1,4 @@
-"""Seed 000's transmission control simulation as a command (docs/codec.md, "Seed 000's
+"""Seed 000's transmission control simulation as a command (docs/codec_error_control.md, "Seed 000's
 simulation").
 
 Both follow seed 000's set-up (slides 49 to 51): the haptic device is fixed at 0 and a virtual

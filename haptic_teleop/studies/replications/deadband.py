@@ -1,5 +1,5 @@
 """Seed 001's perceptual deadband on a 3-DoF contact-rich scene: packet-rate reduction and
-distortion against the deadband parameter p (docs/codec.md, "Deadband rate and distortion").
+distortion against the deadband parameter p (docs/codec_deadband_experiments.md, "Deadband rate and distortion").
 
 The scene (default: the Touch master and UR5e slave of `touch_ur5e_wall` with the table 1 cm below
 the tool's start and the operator tapping it with a 1 Hz sinusoid of 3 cm around the start: contact
@@ -9,9 +9,9 @@ recorded; the two streams seed 001 codes are read back from the bag: the master 
 the deadband (core/deadband.py: send when |v_i - v_c| > p |v_i|, v_i the last sent vector; the
 receiver holds) at every p of seed 001's list, over a lossless channel: the rate and the
 distortion the coding alone causes, on the recorded signals (open loop: the channel is not yet in
-the engine, docs/codec.md). Distortion: RMS and peak of the reconstruction error's norm, and
+the engine, docs/codec_deadband_experiments.md). Distortion: RMS and peak of the reconstruction error's norm, and
 relative to the just-noticeable difference: |e| / (JND |v|) with a Weber fraction JND (default
-0.1 for force and velocity, an assumption: docs/codec.md).
+0.1 for force and velocity, an assumption: docs/codec_deadband_experiments.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Seed 001's perceptual deadband in the loop: the tapping scene of `experiment deadband` run through
 the engine with the deadband in the channel, on the forward direction, the backward one or both, at
-every p of seed 001's list (docs/codec.md, "Deadband rate and distortion", "In the loop").
+every p of seed 001's list (docs/codec_deadband_experiments.md, "In the loop").
 
 Each case is a whole run of the scene (same seed) with `network.<d>.codec: {kind: deadband,
 deadband: p}` (assembly/channel.py: forward triggers on the handle's velocity, backward on the

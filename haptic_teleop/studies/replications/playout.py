@@ -1,5 +1,5 @@
 """`haptic-teleop experiment playout`: seed 000's haptic-synchronization claim, tested fairly
-(docs/playout.md, "The haptic-synchronization claim, tested fairly").
+(docs/playout_claim.md, "The haptic-synchronization claim, tested fairly").
 
 Seed 000 says its network-adaptive buffering (the buffering time from the transparency analysis:
 allowable delay and loss time, with the minimum network delay) gives less force feedback error than
