@@ -204,6 +204,14 @@ def test_energy_reservoir_is_drawn_distinctly_and_both_ranges_are_in_view(run):
         assert (mark.get_xdata()[0], mark.get_ydata()[0]) == (sig.t_s[i], margins[side][i])
         (diff,) = dax.get_lines()
         np.testing.assert_array_equal(diff.get_ydata(), res - margins[side])
+        # the check holds (round-off): said in words, on a +-1 nJ axis where the line is flat
+        (said,) = dax.texts
+        assert said.get_text().startswith("equal to round-off")
+        assert dax.get_ylim() == pytest.approx((-1e-9, 1e-9))
+    # a ledger that disagrees with the plant is said to
+    broken = dataclasses.replace(sig, slave_reservoir_j=sig.slave_reservoir_j + 1e-3)
+    (said,) = energy_figure(broken).axes[3].texts
+    assert said.get_text().startswith("NOT equal: up to 0.001 J apart")
 
 
 def test_long_runs_are_decimated_to_the_plot_width(run):

@@ -16,13 +16,14 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator, ScalarFormatter
+from matplotlib.ticker import FuncFormatter, MaxNLocator, ScalarFormatter
 
 from haptic_teleop.analysis.metrics import Signals, initial_energy, port_energy
 from haptic_teleop.analysis.plotdata import PlotData, Series, TaskPlotData, from_signals
 from haptic_teleop.core.link import CANONICAL_ORDER
 
 DPI = 100
+ROUNDOFF_J = 1e-9  # the energy check passes when reservoir and margin differ by less, per joule of range
 
 # One colour per loss cause and event, the same in every run.
 CAUSE_COLORS = {
@@ -120,7 +121,9 @@ def energy_figure(data: Data) -> Figure:
 
     The reservoir the controller keeps and the margin computed from the plant's signals agree to
     rounding in a run without faults, so on one axis one hides the other: the reservoir is a wide
-    translucent band under the margin's thin line, and the bottom panel shows reservoir - margin.
+    translucent band under the margin's thin line, and the bottom panel checks reservoir - margin:
+    within ROUNDOFF_J per joule of range it says "equal to round-off" on a +-1 nJ axis (a flat line,
+    not round-off noise magnified to fill the panel), else "NOT equal" and by how much.
     The y-limits follow each side's own range (no forced zero), with a dotted zero line when zero
     is in view, and the margin's minimum is marked and labelled.
     """
@@ -153,8 +156,18 @@ def energy_figure(data: Data) -> Figure:
         if e.diff is not None:
             _plot(dax, e.diff, color="tab:orange", lw=0.9)
             dax.set_ylabel("reservoir - margin (J)", fontsize=9)
-            dax.set_title(f"controller reservoir - plant margin: at most {e.gap_j:.3g} J apart", loc="right",
-                          fontsize=9)  # fmt: skip
+            scale = max(1.0, abs(ymin), abs(ymax))
+            if e.gap_j <= ROUNDOFF_J * scale:  # the check holds: a flat line on a +-1 nJ axis, said in words
+                dax.set_ylim(-ROUNDOFF_J * scale, ROUNDOFF_J * scale)
+                dax.set_yticks([-ROUNDOFF_J * scale, 0.0, ROUNDOFF_J * scale])
+                dax.yaxis.set_major_formatter(FuncFormatter(lambda y, _: f"{y * 1e9:+.3g} nJ" if y else "0"))
+                apart = f"at most {e.gap_j:.2g} J apart" if e.gap_j else "to the last bit"
+                verdict, color = f"equal to round-off: {apart}", "tab:green"
+            else:
+                verdict, color = f"NOT equal: up to {e.gap_j:.3g} J apart", "tab:red"
+            dax.set_title("check: the controller's reservoir - the margin from plant signals", fontsize=9)
+            dax.text(0.98, 0.9, verdict, ha="right", va="top", color=color, fontsize=9, transform=dax.transAxes,
+                     bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
         else:
             dax.text(0.5, 0.5, "no controller reservoir in the bag", ha="center", va="center", transform=dax.transAxes)
         dax.grid(alpha=0.3)
