@@ -119,3 +119,25 @@ def test_bad_nve_input_is_one_line_and_exit_2(tmp_path: Path, setting: str) -> N
     lines = [x for x in r.stderr.strip().splitlines() if x]
     assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_a_constant_round_trip_is_drawn_flat_with_plain_labels():
+    """The round-trip panel of a run whose measured round trip never changes: a flat line in a
+    +-10 % range and plain tick labels, not "1e-10+3.01e2" over round-off magnified to fill the axis;
+    a changing signal keeps matplotlib's own limits."""
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from haptic_teleop.analysis.nve_summary import _readable_y
+
+    ax = Figure().subplots()
+    ax.plot(np.arange(5), 301.0 + np.array([0.0, 1e-13, 0.0, -1e-13, 0.0]))
+    _readable_y(ax)
+    assert ax.get_ylim() == pytest.approx((270.9, 331.1))
+    ax.figure.canvas.draw()
+    assert ax.yaxis.get_major_formatter().get_offset() == ""
+    moving = Figure().subplots()
+    moving.plot(np.arange(5), [0.0, 1.0, 2.0, 3.0, 4.0])
+    before = moving.get_ylim()
+    _readable_y(moving)
+    assert moving.get_ylim() == before

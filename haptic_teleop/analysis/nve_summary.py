@@ -370,10 +370,25 @@ def write_nve_plots(bag_dir: Path, out_dir: Path) -> list[Path]:
     a1.set(ylabel="measured round trip (ms)", title="NVE: what each client measured and set")
     a2.set(xlabel="time (s)", ylabel="spring k_h (N/m)")
     for x in (a1, a2):
+        _readable_y(x)
         x.grid(alpha=0.3)
         x.legend(fontsize=8)
     paths.append(_save(fig, out_dir / PLOT_FILES[2]))
     return paths
+
+
+def _readable_y(ax: Any) -> None:
+    """Plain tick labels (no "1e-10+3.01e2" offset), and a signal that stays constant drawn as a
+    flat line in a +-10 % range around it rather than its round-off magnified to fill the axis."""
+    ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+    values = [np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()]
+    finite = np.concatenate([v[np.isfinite(v)] for v in values]) if values else np.zeros(0)
+    if finite.size == 0:
+        return
+    lo, hi = float(finite.min()), float(finite.max())
+    if hi - lo <= 1e-9 * max(1.0, abs(hi)):
+        half = 0.1 * abs(hi) if hi else 1.0
+        ax.set_ylim(lo - half, hi + half)
 
 
 def _save(fig: Any, path: Path) -> Path:
