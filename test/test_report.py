@@ -327,3 +327,22 @@ def test_every_plot_is_drawn_in_a_browser(sweep_report, tmp_path):
     broken.write_text(text[:start] + "iVBORw0KGgo" + text[text.index('"', start) :])
     page = _drawn(broken, tmp_path / "profile")
     assert [a.get("data-drawn") for a in page.images()] == ["no"] + ["yes"] * (len(images) - 1)
+
+
+def test_the_report_takes_the_metrics_the_sweep_file_lists(sweep_dir, tmp_path, capsys):
+    """A sweep writes the metrics it was asked for (the sweep file's `metrics:`, --metrics, or its
+    defaults) to sweep.json beside its table, and a report on the sweep takes those, in their order,
+    unless --metrics says otherwise."""
+    import json
+    import shutil
+
+    meta = json.loads((sweep_dir / "sweep.json").read_text())
+    assert meta["metrics"] and all(isinstance(m, str) for m in meta["metrics"])
+    mine = tmp_path / "sweep"
+    shutil.copytree(sweep_dir, mine)
+    chosen = ["packets_sent_backward", "contact_force_max_n"]
+    (mine / "sweep.json").write_text(json.dumps({"metrics": chosen}))
+    _, md = _report([str(mine), "--max-runs", "0"], tmp_path / "r1", capsys)
+    assert "Metrics shown: `packets_sent_backward`, `contact_force_max_n`: the metrics the sweep file lists" in md
+    _, md = _report([str(mine), "--max-runs", "0", "--metrics", "force_rms_error_n"], tmp_path / "r2", capsys)
+    assert "the metrics given by --metrics" in md and "the metrics the sweep file lists" not in md

@@ -204,6 +204,10 @@ def _finish(
     if not store.records:
         return 130 if interrupt.received() is not None else 1
     written = store.write_tables([p.run_hash for p in points])
+    # What `haptic-teleop report` reads beside the table: the metrics this sweep was asked for.
+    from haptic_teleop.studies.batch.store import write_meta
+
+    write_meta(out, metrics)
     rows = [
         {"run": p.run_hash, "combo": p.combo, "seed": p.seed, "summary": store.records[p.run_hash]["summary"]}
         for p in finished

@@ -24,6 +24,7 @@ from typing import Any
 from haptic_teleop.errors import InputError
 
 LEDGER = "points.jsonl"
+META = "sweep.json"  # beside the tables: the metrics the sweep was asked for (`haptic-teleop report` reads it)
 PARQUET = "sweep.parquet"
 CSV = "sweep.csv"
 FIXED = ("seed", "run_hash")
@@ -227,3 +228,20 @@ def _replace(path: Path, write: Any) -> None:
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+
+
+def write_meta(out: Path, metrics: Sequence[str]) -> None:
+    """`out`/sweep.json: {"metrics": [...]}, the metrics of the sweep file's `metrics:` (or
+    --metrics, or the defaults), in their order, for a report on the sweep's table."""
+    _replace(out / META, lambda tmp: tmp.write_text(json.dumps({"metrics": list(metrics)}, indent=2) + "\n"))
+
+
+def read_meta(table: Path) -> list[str]:
+    """The metrics a sweep's sweep.json beside `table` names ([] when there is none, or it is not
+    such a file: the report then chooses as it would without it)."""
+    try:
+        data = json.loads((table.parent / META).read_text())
+    except (OSError, ValueError):
+        return []
+    metrics = data.get("metrics") if isinstance(data, dict) else None
+    return [m for m in metrics if isinstance(m, str)] if isinstance(metrics, list) else []

@@ -46,8 +46,12 @@ FALLBACK_METRICS = 6
 DRILL_PLOTS = ("forces.png", "positions.png", "paths.png", "network.png")
 
 
-def choose_metrics(requested: str | None, available: Sequence[str], runs: Sequence[Run]) -> tuple[list[str], str]:
-    """The metrics of sections 3 and 4 and a sentence saying where they came from."""
+def choose_metrics(
+    requested: str | None, available: Sequence[str], runs: Sequence[Run], sweep_metrics: Sequence[str] = ()
+) -> tuple[list[str], str]:
+    """The metrics of sections 3 and 4 and a sentence saying where they came from: `--metrics`,
+    else the sweep file's own (`sweep_metrics`, from sweep.json beside a sweep's table), else the
+    sweeps' defaults, else the first that vary."""
     from haptic_teleop.studies.batch.aggregate import DEFAULT_METRICS
     from haptic_teleop.studies.batch.plan import split_values
 
@@ -57,6 +61,9 @@ def choose_metrics(requested: str | None, available: Sequence[str], runs: Sequen
             if m not in available:
                 raise InputError(f"--metrics {m}: not a metric of the inputs; allowed: {', '.join(available)}")
         return list(dict.fromkeys(chosen)), "the metrics given by --metrics"
+    chosen = [m for m in sweep_metrics if m in available]
+    if chosen:
+        return chosen, "the metrics the sweep file lists (`--metrics` chooses others)"
     chosen = [m for m in DEFAULT_METRICS if m in available]
     if chosen:
         return chosen, "the sweep's default metrics (`--metrics` chooses others)"
@@ -473,7 +480,7 @@ def build(inputs: Inputs, args: argparse.Namespace) -> Document:
     available = metric_names(runs)
     if not available:
         raise InputError(f"{', '.join(map(str, args.inputs))}: no metric in the inputs; allowed: runs with a summary")
-    metrics, why = choose_metrics(args.metrics, available, runs)
+    metrics, why = choose_metrics(args.metrics, available, runs, inputs.sweep_metrics)
     keys = swept_keys(runs)
     baselines = category_baselines(keys, args.baseline)
     sections = [overview(inputs, keys, metrics, why)]

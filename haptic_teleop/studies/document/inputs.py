@@ -65,6 +65,7 @@ class Inputs:
     runs: list[Run]
     sources: list[str]  # one line per input: what it was read as
     notes: list[str] = field(default_factory=list)
+    sweep_metrics: list[str] = field(default_factory=list)  # the sweeps' own metrics (sweep.json), in order
 
 
 # ------------------------------------------------------------------------------------------------
@@ -411,11 +412,20 @@ def read_inputs(paths: Sequence[str | Path]) -> Inputs:
     """Every path's runs, in the order given; InputError (exit 2) names the first bad one."""
     import yaml
 
+    from haptic_teleop.studies.batch.store import read_meta
+
     runs: list[Run] = []
     sources: list[str] = []
+    sweep_metrics: list[str] = []
     for p in paths:
+        path = Path(p)
+        table = _table_in(path) if path.is_dir() and not _is_run_dir(path) and not _is_bag_dir(path) else None
+        if table is None and path.is_file() and path.suffix.lower() in TABLE_SUFFIXES:
+            table = path
+        if table is not None:
+            sweep_metrics.extend(m for m in read_meta(table) if m not in sweep_metrics)
         try:
-            got, what = read_path(Path(p))
+            got, what = read_path(path)
         except HapticTeleopError:
             raise
         except (OSError, ValueError, yaml.YAMLError) as exc:
@@ -428,7 +438,7 @@ def read_inputs(paths: Sequence[str | Path]) -> Inputs:
             if labels.count(r.label) > 1:
                 r.label = f"{Path(r.source).name}:{r.label}"
     _finish(runs)
-    return Inputs(runs, sources)
+    return Inputs(runs, sources, sweep_metrics=sweep_metrics)
 
 
 def _finish(runs: list[Run]) -> None:
