@@ -463,3 +463,23 @@ def test_the_launch_builds_an_arm_scenes_side_tick_before_any_node_starts(tmp_pa
         assert runs[mode].returncode == 0, runs[mode].stderr[-3000:]
     assert "signatures 0" in runs["cold"].stdout, runs["cold"].stdout
     assert "signatures 1" in runs["warm"].stdout, runs["warm"].stdout
+
+
+def test_the_loop_table_says_what_its_packet_counts_are_beside_the_summary():
+    """The launcher's loop table counts a relay's and a buffer's packets over each node's whole life
+    (before scene time 0 too), the summary from scene time 0 on: the table says so under its rows
+    when it shows packet counts, and not otherwise."""
+    from haptic_teleop.live.launcher import LOOP_TABLE_LEGEND, format_loop_table
+
+    loop = {"loop_rate_hz": 1000.0, "ticks": 5000, "late_ticks": 0, "skipped_ticks": 0}
+    figures = {
+        "master_eba": dict(loop),
+        "forward_relay": {**loop, "delivered": 4990, "lost": 0},
+        "forward_buffer": {**loop, "released": 4980, "late": 3},
+    }
+    table = format_loop_table(list(figures), figures)
+    assert table.startswith("loops (whole run):") and table.endswith(LOOP_TABLE_LEGEND)
+    assert "4990 delivered, 0 lost" in table and "4980 released, 3 late" in table
+    assert "scene time 0" in LOOP_TABLE_LEGEND and "summary" in LOOP_TABLE_LEGEND
+    bare = format_loop_table(["master_eba"], {"master_eba": loop})
+    assert LOOP_TABLE_LEGEND not in bare

@@ -615,7 +615,18 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
             for i, (c, w) in enumerate(zip(r, widths, strict=True))
         ]
         lines.append("  " + "  ".join(cells).rstrip())
+    if any("delivered" in f or "released" in f for f in figures.values()):
+        lines.append(LOOP_TABLE_LEGEND)
     return "\n".join(lines)
+
+
+# What the loop table's packet counts are, beside the summary's (docs/live_measured.md).
+LOOP_TABLE_LEGEND = (
+    "  (packets: a relay's delivered and lost are its scene link's, from scene time 0 on; a buffer's\n"
+    "   released (samples it released, one a tick at most) and late (packets it skipped as late) count from\n"
+    "   its start, the settling before scene time 0 too; the summary counts packets sent from scene time 0\n"
+    "   to the recording's end)"
+)
 
 
 # ---------------------------------------------------------------------------------------------
