@@ -24,6 +24,9 @@ STANDALONE = [
     "ros-kilted-sensor-msgs>=5.5",
     "ros-kilted-rosgraph-msgs>=2.3",
     "ros-kilted-diagnostic-msgs>=5.5",
+    # `run --foxglove`, `launch --foxglove`: the live view's WebSocket server (record/foxglove_view.py;
+    # Context, Channel(schema=dict), start_server(context=...), WebSocketServer.port as in 0.30)
+    "foxglove-sdk>=0.30,<0.31",
 ]
 
 # The hardware backends' SDKs (haptic_teleop/plants/dynamixel, haptic_teleop/plants/ur), imported
@@ -94,6 +97,7 @@ setup(
             *SWEEP,  # sweeps on a local Dask cluster, the Parquet table (test/test_sweep_scale.py)
             "pytest>=8.0",
             "mkdocs>=1.6,<2",  # test/test_docs_site.py builds the docs site and checks every page, link and image
+            "websockets>=13",  # test/foxglove_client.py: the Foxglove WebSocket protocol's client side (sync API)
             "hypothesis>=6.100",
             "ruff>=0.17,<0.18",
             "mypy>=1.10,<3",

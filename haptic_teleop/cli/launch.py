@@ -4,11 +4,13 @@ analysed afterwards as `run` analyses its own (summary.json, plots, the summary 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from pathlib import Path
 from typing import Any
 
+from haptic_teleop.cli import tcp_port
 from haptic_teleop.live.launcher import (
     DEVICES,
     EXIT_FAILURE,
@@ -46,6 +48,14 @@ def launch_main(args: Any) -> int:
         )
     except ValueError as exc:
         raise HapticTeleopError(str(exc)) from None
+    if args.foxglove is not None:  # the recorder serves the live view of what it records
+        if record is None or not any(s.name == "recorder" for s in plan):
+            raise InputError("--foxglove shows what the recorder records; allowed: with --record DIR")
+        plan = [
+            dataclasses.replace(s, params={**s.params, "view": {"foxglove_port": args.foxglove}})
+            if s.name == "recorder" else s
+            for s in plan
+        ]  # fmt: skip
     params_dir = Path(args.params_dir) if args.params_dir else temporary_params_dir()
     warm_side_tick(scene)
     # From here on a first signal stops the nodes (their own handlers while they run) and still
@@ -153,6 +163,15 @@ def add_arguments(p: Any) -> None:
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override any scene key (repeatable)")
     p.add_argument("--params-dir", help="where the parameter files go (default: a temporary directory)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots of the recorded run")
+    p.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=tcp_port,
+        const=8765,
+        metavar="PORT",
+        help="the recorder serves a live view to Foxglove on ws://127.0.0.1:PORT (default 8765); needs --record "
+        "(docs/foxglove.md)",
+    )
     p.add_argument(
         "--sim-time-rate",
         type=float,

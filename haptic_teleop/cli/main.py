@@ -18,6 +18,7 @@ from haptic_teleop.analysis.outputs import (
     write_atomic,
     write_outputs,
 )
+from haptic_teleop.cli import tcp_port
 from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, InputError, PlantError
 
 EXIT_OK = 0
@@ -68,6 +69,8 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
         sys.stdout.write(resolved)
         return EXIT_OK
     out = Path(args.out) if args.out else default_out(scene.config.scene.name)
+    if getattr(args, "foxglove", None) is not None and scene.config.is_nve:
+        raise InputError("--foxglove: a live view of NVE scenes is not built yet; allowed: a teleoperation scene")
     check_devices(scene)
     existed = out.is_dir()
     check_out_dir(out)
@@ -188,8 +191,9 @@ def _record(args: argparse.Namespace, scene: Any, resolved: str, out: Path) -> i
                         )
                     else:
                         _, timing = record_run(
-                            scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False, on_engine=on_engine
-                        )
+                            scene, bag_dir, progress=progress, loop=args.loop, handle_sigint=False,
+                            on_engine=on_engine, make_view=_view_maker(args),
+                        )  # fmt: skip
             except BagError as exc:
                 raise HapticTeleopError(str(exc)) from None  # writing failed: not an input error (exit 1)
             except PlantError:
@@ -211,6 +215,25 @@ def _record(args: argparse.Namespace, scene: Any, resolved: str, out: Path) -> i
         + ("" if args.no_plots else f"\nplots:   {out / 'plots'}"),
     )
     return EXIT_INTERRUPTED if timing.interrupted else EXIT_OK
+
+
+def _view_maker(args: argparse.Namespace) -> Any:
+    """`--foxglove PORT`: how record_run makes the live view (record/foxglove_view.py), which says
+    where it serves; None without the flag."""
+    port = getattr(args, "foxglove", None)
+    if port is None:
+        return None
+
+    def make(columns: Any, period_ns: int) -> Any:
+        from haptic_teleop.record.foxglove_view import FoxgloveView
+
+        view = FoxgloveView(columns, period_ns, port=port)
+        if not getattr(args, "quiet", False):
+            print(f"haptic-teleop: Foxglove live view on ws://127.0.0.1:{view.port} (Foxglove: Open connection)",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        return view
+
+    return make
 
 
 def check_devices(scene: Any) -> None:
@@ -336,6 +359,15 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("auto", "compiled", "python"),
         default="auto",
         help="tick loop: compiled (numba) or python; both give the same bag (auto: compiled if the scene allows)",
+    )
+    r.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=tcp_port,
+        const=8765,
+        metavar="PORT",
+        help="serve a live view of the run to Foxglove on ws://127.0.0.1:PORT (default 8765) as it is recorded "
+        "(docs/foxglove.md)",
     )
     r.set_defaults(func=cmd_run)
 

@@ -4,9 +4,10 @@ process while the loop runs), with its wall-clock facts (`RunTiming`, kept besid
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from haptic_teleop.engine.lockstep import Engine, RunResult
 from haptic_teleop.engine.output import Collector, RunSink, Tee
@@ -51,6 +52,7 @@ def record_run(
     loop: str = "auto",
     on_engine: Callable[[Engine], None] | None = None,
     keep: bool = False,
+    make_view: Callable[[Sequence[str], int], Any] | None = None,
 ) -> tuple[Engine, RunTiming]:
     """Run a scene and record it: the bag is written by a second process while the loop runs.
 
@@ -58,19 +60,23 @@ def record_run(
     with the run's length. `keep=True` also keeps the whole run in `engine.data` (tests). Whatever
     ends the run (last tick, Ctrl-C, an exception in a tick) the bag is closed with every tick
     that finished, and is readable. `on_engine(engine)` is called once the engine is built, before
-    the bag is opened (the command line registers its stop request there).
+    the bag is opened (the command line registers its stop request there). `make_view(columns,
+    period_ns)`: a live view the recording feeds as it goes (`run --foxglove`:
+    record/foxglove_view.py), closed with the bag.
     """
     from haptic_teleop.engine.reference import reference_facts
     from haptic_teleop.record.recorder import RunRecorder
 
     engine = Engine(scene, loop=loop)
     c = scene.config
+    view = None
     try:
         if on_engine is not None:
             on_engine(engine)
         # The undisturbed reference run the analysis compares with, if the scene asks for one: it
         # goes into this run's bag (engine/reference.py), so the analysis never simulates.
         reference = reference_facts(scene)
+        view = make_view(engine.schema.columns, engine.period_ns) if make_view is not None else None
         rec = RunRecorder(
             bag_dir,
             scene.to_yaml(),
@@ -81,9 +87,12 @@ def record_run(
             parallel=parallel,
             compression=c.recording.compression,
             schema=engine.schema,
+            view=view,
         )
     except BaseException:
         engine.close_plants()  # a real device's torque off: no tick will run
+        if view is not None:
+            view.close()
         raise
     collector = Collector(engine.schema.width) if keep else None
     sink: RunSink = rec if collector is None else Tee(rec, collector)
@@ -121,7 +130,7 @@ def record_run(
                     info[f"{side}_unmeasured_torque_reads"] = plant.unmeasured_reads
         if collector is not None:
             engine.data = collector.data()
-        rec.close(info)
+        rec.close(info)  # and the view
     wall = time.perf_counter() - t0
     pacing = engine.pacer.facts() if engine.pacer is not None else None
     if pacing is not None:  # a real device's reads that failed (the driver repeated its last sample)

@@ -93,6 +93,7 @@ from haptic_teleop.nodes.topics import (
     sent_topic,
     stream_qos,
 )
+from haptic_teleop.record.foxglove_view import VIEW_PORT, serve_view
 
 # Topic -> engine columns it fills (in the topic layout's value order): a one-axis scene's. An arm
 # scene's come from its tick schema (`state_columns`).
@@ -283,8 +284,13 @@ class Recorder(LiveNode):
         from haptic_teleop.errors import ConfigError
         from haptic_teleop.scene.schema import LoadedScene
 
-        self.cfg = declare_scene(self, SCENE_SECTIONS["recorder"], ("output_dir", "device.source"))
+        self.cfg = declare_scene(
+            self, SCENE_SECTIONS["recorder"], ("output_dir", "device.source", "view.foxglove_port")
+        )
         self.schema, self.run_facts = _schema_and_facts(self.cfg)
+        port = int(declare_value(self, VIEW_PORT, -1, "live view for Foxglove on it (-1: none)", -1, 65535))
+        period_ns, say = round(self.cfg.scene.period_s * 1e9), self.get_logger().info
+        self._view = serve_view(self.schema.columns, period_ns, port, say) if port >= 0 else None
         out = str(declare_value(self, "output_dir", "", "the bag goes to OUTPUT_DIR/bag (required)"))
         where = f"parameters of node {self.get_name()}"
         if not out:
@@ -383,6 +389,7 @@ class Recorder(LiveNode):
             return RunRecorder(
                 self.bag_dir, self.scene_yaml, self.grid_ns, rec.eba_internals, rec.packets, self.schema.width,
                 parallel=False, compression=getattr(rec, "compression", "none"), qos=OFFERED_QOS, schema=self.schema,
+                view=self._view,
             )  # fmt: skip
         except OSError as exc:
             raise ConfigError(

@@ -164,8 +164,13 @@ class RunRecorder:
         compression: str = "none",
         qos: dict[str, list[dict[str, Any]]] | None = None,
         schema: TickSchema | NveSchema = ONE_DOF,
+        view: Any = None,
     ) -> None:
+        """`view`: also hand every appended block of rows and packet records to it (`rows(rows)`,
+        `packets(direction, rows)`; record/foxglove_view.py) as it is appended, and close it with the
+        bag."""
         self.bag_dir = Path(bag_dir)
+        self._view = view
         if n_columns != schema.width:
             kind = "NVE" if isinstance(schema, NveSchema) else "tick"
             raise BagError(f"n_columns {n_columns} is not the {kind} schema's width {schema.width}")
@@ -251,6 +256,8 @@ class RunRecorder:
                 f"tick rows must be a float64 array of shape (ticks, {self.n_columns}); got {rows.dtype} {rows.shape}"
             )
         self._check_open()
+        if self._view is not None:
+            self._view.rows(rows)
         for a in range(0, rows.shape[0], BLOCK_TICKS):
             part = rows[a : a + BLOCK_TICKS]
             if self._sink is not None:
@@ -273,6 +280,8 @@ class RunRecorder:
         self._streams.packet_topic(direction)  # BagError naming the allowed directions
         rows = packet_rows(rows)
         self._check_open()
+        if self._view is not None:
+            self._view.packets(direction, rows)
         if self._sink is not None:
             _write_packets(self._sink, self._streams, direction, rows)
         else:
@@ -294,6 +303,8 @@ class RunRecorder:
         if self._closed:
             return self.bag_dir
         self._closed = True
+        if self._view is not None:  # the live view ends with the recording
+            self._view.close()
         if self._sink is not None:
             try:
                 self._sink.write(self._streams.final(run_info))
