@@ -13,7 +13,7 @@ NODES = runpy.run_path(str(Path(__file__).parent / PACKAGE / "nodes" / "__init__
 
 # The bundled scenes and sweeps live once, in the top-level config/ folder; wheels carry them as the
 # data package haptic_teleop.config (haptic_teleop/config/ once installed), found by resources.py.
-SCENES, SWEEPS = "scenes/*.yaml", "sweeps/*.yaml"  # inside config/
+SCENES, SWEEPS, LAYOUTS = "scenes/*.yaml", "sweeps/*.yaml", "foxglove/*.json"  # inside config/
 MODELS = "models/*.xml"  # inside the package folder
 
 STANDALONE = [
@@ -53,7 +53,7 @@ setup(
     # The models live inside the package; config/ becomes the package's config/ folder in a wheel,
     # so every install (wheel, sdist, editable, colcon) finds them (haptic_teleop/resources.py) ...
     package_dir={f"{PACKAGE}.config": "config"},
-    package_data={PACKAGE: ["py.typed", MODELS], f"{PACKAGE}.config": [SCENES, SWEEPS]},
+    package_data={PACKAGE: ["py.typed", MODELS], f"{PACKAGE}.config": [SCENES, SWEEPS, LAYOUTS]},
     # ... and a ROS 2 install also has them where ROS 2 tools look: share/haptic_teleop/...
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
@@ -62,6 +62,7 @@ setup(
         (f"share/{PACKAGE}/config/scenes", sorted(glob(f"config/{SCENES}"))),
         (f"share/{PACKAGE}/models", sorted(glob(f"{PACKAGE}/{MODELS}"))),
         (f"share/{PACKAGE}/config/sweeps", sorted(glob(f"config/{SWEEPS}"))),
+        (f"share/{PACKAGE}/config/foxglove", sorted(glob(f"config/{LAYOUTS}"))),
     ],
     python_requires=">=3.10",
     # Lower bounds: the oldest releases this package was tested with (docs/install.md, "Install"). numpy 1.25:

@@ -27,6 +27,7 @@ FOLDERS = {
     "scenes": ("config/scenes", "config/scenes"),
     "models": ("models", "models"),
     "sweeps": ("config/sweeps", "config/sweeps"),
+    "foxglove": ("config/foxglove", "config/foxglove"),
 }
 MODELS_ENV = "HAPTIC_TELEOP_MODELS"
 
@@ -59,6 +60,11 @@ def _folder(kind: str) -> Path:
     if installed.is_dir() or not inside.startswith("config/"):
         return installed
     return PACKAGE_DIR.parent / inside  # a source tree (editable install): the top-level config/
+
+
+def foxglove_dir() -> Path:
+    """The folder of the Foxglove layouts (record/foxglove_layouts.py: bag_one_axis.json, ...)."""
+    return _folder("foxglove")
 
 
 def scenes_dir() -> Path:

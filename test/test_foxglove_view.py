@@ -149,3 +149,67 @@ def test_launch_foxglove_serves_the_recorder_s_grid_live(tmp_path):
     assert master and all(isinstance(m["m_x_m"], float) for _, m in master)
     assert [t for t, _ in master] == sorted(t for t, _ in master)
     assert (tmp_path / "run" / "bag" / "metadata.yaml").exists()
+
+
+def _paths(layout: dict) -> list[str]:
+    out: list[str] = []
+
+    def walk(node: object) -> None:
+        if isinstance(node, dict):
+            if node.get("panelType") == "Plot":
+                out.extend(p["value"] for p in node["config"]["paths"])
+            for v in node.values():
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+
+    walk(layout)
+    return out
+
+
+def _field(msg: object, path: str) -> object:
+    """`msg` followed along a Foxglove message path's fields ("wrench.force.x", "position[0]")."""
+    for part in path.split("."):
+        name, _, index = part.partition("[")
+        msg = getattr(msg, name)
+        if index:
+            msg = msg[int(index.rstrip("]"))]
+    return msg
+
+
+def test_the_shipped_layouts_are_the_built_ones_and_name_what_the_bags_and_the_view_have(tmp_path):
+    """config/foxglove/*.json are what record/foxglove_layouts.py builds with the SDK (regenerate them
+    with `python -m haptic_teleop.record.foxglove_layouts config/foxglove`); every plotted path of a
+    bag layout is a topic of a real bag of that kind with that field in its first message (read with
+    rosbags), and every path of the live layout a channel and column of the view."""
+    import json
+
+    from haptic_teleop.record.foxglove_layouts import layouts
+    from haptic_teleop.resources import foxglove_dir
+
+    built = layouts()
+    assert {p.name: p.read_text() for p in foxglove_dir().glob("*.json")} == built
+    from rosbags.highlevel import AnyReader
+
+    from haptic_teleop.engine.run import record_run
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    for name, scene in (("bag_one_axis.json", "wall_contact"), ("bag_arm.json", "touch_ur5e_wall")):
+        bag = tmp_path / scene
+        record_run(load_scene(find_scene(scene), ["scene.duration_s=0.3"]), bag, parallel=False,
+                   handle_sigint=False)  # fmt: skip
+        paths = _paths(json.loads(built[name]))
+        assert paths
+        with AnyReader([bag]) as reader:
+            for path in paths:
+                topic, _, field = path.partition(".")
+                conns = [c for c in reader.connections if c.topic == topic]
+                assert conns, f"{name}: {topic} is not in a {scene} bag"
+                _, _, raw = next(reader.messages(connections=conns), (None, None, None))
+                assert raw is not None, f"{name}: no message on {topic} in 0.3 s of {scene}"
+                value = _field(reader.deserialize(raw, conns[0].msgtype), field)
+                assert isinstance(value, float), (path, value)
+    for path in _paths(json.loads(built["live.json"])):
+        channel, _, column = path.partition(".")
+        assert channel in GROUPS and column in ONE_DOF.columns and column.startswith(channel.rsplit("/", 1)[1])

@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted(p.name for p in (ROOT / "config" / "scenes").glob("*.yaml"))
 MODELS = sorted(p.name for p in (ROOT / "haptic_teleop" / "models").glob("*.xml"))
 SWEEPS = sorted(p.name for p in (ROOT / "config" / "sweeps").glob("*.yaml"))
+LAYOUTS = sorted(p.name for p in (ROOT / "config" / "foxglove").glob("*.json"))
 SKIP_DIRS = {".git", ".venv", "build", "install", "log", "runs", "__pycache__", ".pytest_cache", ".mypy_cache",
              ".ruff_cache", ".hypothesis"}  # fmt: skip
 
@@ -99,11 +100,11 @@ def venv(built, tmp_path_factory):
 
 def test_sdist_and_wheel_carry_scenes_models_and_ros_files(built):
     sdist, wheel = built
-    assert SCENES and MODELS and SWEEPS
+    assert SCENES and MODELS and SWEEPS and LAYOUTS
     with tarfile.open(sdist) as tf:
         names = {n.split("/", 1)[1] for n in tf.getnames() if "/" in n}
     want = {f"config/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
-    want |= {f"config/sweeps/{s}" for s in SWEEPS}
+    want |= {f"config/sweeps/{s}" for s in SWEEPS} | {f"config/foxglove/{s}" for s in LAYOUTS}
     want |= {"package.xml", "setup.cfg", "resource/haptic_teleop", "launch/teleop_launch.py"}
     assert want <= names, f"missing from the sdist: {sorted(want - names)}"
     with zipfile.ZipFile(wheel) as zf:
@@ -112,6 +113,7 @@ def test_sdist_and_wheel_carry_scenes_models_and_ros_files(built):
     want = {f"haptic_teleop/config/scenes/{s}" for s in SCENES} | {f"haptic_teleop/models/{m}" for m in MODELS}
     want |= {f"{data}/config/scenes/{s}" for s in SCENES} | {f"{data}/models/{m}" for m in MODELS}
     want |= {f"haptic_teleop/config/sweeps/{s}" for s in SWEEPS} | {f"{data}/config/sweeps/{s}" for s in SWEEPS}
+    want |= {f"haptic_teleop/config/foxglove/{s}" for s in LAYOUTS} | {f"{data}/config/foxglove/{s}" for s in LAYOUTS}
     assert want <= names, f"missing from the wheel: {sorted(want - names)}"
 
 
