@@ -175,8 +175,10 @@ def test_sweep_csv_report_is_one_self_contained_file_with_its_markdown_twin(swee
     expected = TOP if pairs else TOP - {"predicted-against-measured"}
     assert _sections(page) & TOP == expected
     # swept keys read from the sweep's column naming: the key paths, seed, run_hash
-    assert page.row(DELAY, "number", "0.01, 0.1")
-    assert page.row(POLICY, "category", "none, adaptive")
+    # (tables name them by their shortest distinct ending, the overview's legend by the whole path)
+    assert page.row("delay_s", DELAY, "number", "0.01, 0.1")
+    assert page.row("policy", POLICY, "category", "none, adaptive")
+    assert page.rows[[r[:1] for r in page.rows].index(["run"])][1:3] == ["delay_s", "policy"]
     # drill-down capped at one run (the table's first, named by its hash): forces, positions, network
     rows = _rows(sweep_dir / "sweep.csv")
     first = rows[0]["run_hash"][:12]
@@ -201,7 +203,7 @@ def test_synthetic_table_predictions_and_pairs_by_seed(sweep_dir, tmp_path, caps
     _markdown_twin(md, tmp_path / "out", page)
     assert _sections(page) & TOP == TOP - {"per-run-drill-down"}  # --max-runs 0
     # keys swept together are one key
-    assert page.row(f"{DELAY}+network.forward.effects.delay.delay_s", "number", "0, 0.2")
+    assert page.row("delay_s", f"{DELAY}+network.forward.effects.delay.delay_s", "number", "0, 0.2")
     # predicted against measured: one pair; measured - predicted = 0.05 in every run
     slope = page.row("force_slope (N/s)", "12")
     assert slope[1:3] == ["12", "2.1"] and slope[4:7] == ["0.05", "0.05", "0.05"]
@@ -346,3 +348,17 @@ def test_the_report_takes_the_metrics_the_sweep_file_lists(sweep_dir, tmp_path, 
     assert "Metrics shown: `packets_sent_backward`, `contact_force_max_n`: the metrics the sweep file lists" in md
     _, md = _report([str(mine), "--max-runs", "0", "--metrics", "force_rms_error_n"], tmp_path / "r2", capsys)
     assert "the metrics given by --metrics" in md and "the metrics the sweep file lists" not in md
+
+
+def test_short_names_are_the_shortest_distinct_endings():
+    from haptic_teleop.studies.document.compose import short_names
+
+    names = ["network.forward.effects.delay.delay_s", "network.backward.effects.delay.delay_s",
+             "network.backward.buffer.policy", "seed_like", "a.b"]  # fmt: skip
+    assert short_names(names) == {
+        "network.forward.effects.delay.delay_s": "forward.effects.delay.delay_s",
+        "network.backward.effects.delay.delay_s": "backward.effects.delay.delay_s",
+        "network.backward.buffer.policy": "policy",
+        "seed_like": "seed_like",
+        "a.b": "b",
+    }

@@ -95,20 +95,38 @@ def category_baselines(keys: Sequence[Key], requested: str | None) -> dict[str, 
 # sections
 
 
+def short_names(names: Sequence[str]) -> dict[str, str]:
+    """Each dotted key path's shortest ending (whole dotted parts) that no other of `names` ends in:
+    the column headers of wide tables, with the full paths in the swept keys' legend
+    ("network.backward.effects.delay.delay_s" -> "delay_s" beside "network.backward.buffer.policy"
+    -> "policy"; two "delay_s" keys keep as many parts as they need to differ)."""
+    parts = {n: n.split(".") for n in names}
+    out = {}
+    for n, p in parts.items():
+        for k in range(1, len(p) + 1):
+            end = ".".join(p[-k:])
+            if not any(o != n and (o == end or o.endswith("." + end)) for o in names):
+                break
+        out[n] = end
+    return out
+
+
+def _values(values: Sequence[Any]) -> str:
+    return ", ".join(fmt_value(v) for v in values)
+
+
 def overview(inputs: Inputs, keys: Sequence[Key], metrics: Sequence[str], why: str) -> Section:
     runs = inputs.runs
     s = Section("overview", "Overview")
     s.blocks.append(Para(f"{len(runs)} runs from {len(inputs.sources)} input(s):"))
     s.blocks.append(Table(("input", "read as"), tuple(tuple(_split_source(x)) for x in inputs.sources)))
+    short = short_names([k.name for k in keys])
     if keys:
         s.blocks.append(
             Table(
-                ("swept key", "kind", "values"),
-                tuple(
-                    (k.name, "number" if k.numeric else "category", ", ".join(fmt_value(v) for v in k.values))
-                    for k in keys
-                ),
-                caption="Scene keys whose value differs between the runs",
+                ("column", "swept key", "kind", "values"),
+                tuple((short[k.name], k.name, "number" if k.numeric else "category", _values(k.values)) for k in keys),
+                caption="Scene keys whose value differs between the runs (the tables name each by its column)",
             )
         )
         if any(k.paths == ("scene.name",) for k in keys):
@@ -124,7 +142,7 @@ def overview(inputs: Inputs, keys: Sequence[Key], metrics: Sequence[str], why: s
     if seeds:
         s.blocks.append(Para(f"Seeds: {', '.join(map(str, seeds))}."))
     s.blocks.append(Para(f"Metrics shown: {', '.join(f'`{m}`' for m in metrics)}: {why}."))
-    header = ("run", *(k.name for k in keys), "seed", *(label_of(m) for m in metrics))
+    header = ("run", *(short[k.name] for k in keys), "seed", *(label_of(m) for m in metrics))
     rows = [
         (
             r.label,
@@ -264,7 +282,10 @@ def parameter_section(runs: Sequence[Run], keys: Sequence[Key], metrics: Sequenc
     if len(groups) > MAX_TABLE_ROWS:
         cap += f" (the first {MAX_TABLE_ROWS} of {len(groups)} combinations)"
     table = Section("metrics-per-combination", "Per combination")
-    table.blocks.append(Table((*(k.name for k in keys), "runs", *(label_of(m) for m in metrics)), tuple(rows), cap))
+    short = short_names([k.name for k in keys])
+    table.blocks.append(
+        Table((*(short[k.name] for k in keys), "runs", *(label_of(m) for m in metrics)), tuple(rows), cap)
+    )
     s.subsections.append(table)
     return s
 
