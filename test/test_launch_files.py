@@ -109,6 +109,10 @@ def test_hardware_variant_has_no_simulated_operator_and_uses_the_driver_topics(t
     # No operator source: master_eba publishes the scene start, which the relays wait for as usual.
     relays = [s for s, _ in pairs if s.executable == "network_relay"]
     assert len(relays) == 2 and not any("scene_start" in s.params for s in relays)
+    # Recorded: scene time 0 waits for the recorder to take every stream of its grid
+    recorded = plan_from_arguments({**args, "record": str(tmp_path / "run")}, "topic", tmp_path / "rec")
+    master = next(s for s, _ in recorded if s.name == "master_eba")
+    assert master.params["device"]["wait_for_recorder"] is True and master.params["device"]["min_subscribers"] == 1
 
 
 def test_hardware_variant_takes_the_force_command_qos_from_launch_arguments(tmp_path):

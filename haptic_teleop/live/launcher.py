@@ -219,8 +219,8 @@ def node_plan(
         )
     master = _merge(scene_params(scene, "master_eba"), watchdog)
     master["device"] = {"source": device}
-    if device == "topic" and record_dir is not None:  # scene time 0 once the recorder listens to the master
-        master["device"]["min_subscribers"] = 1
+    if device == "topic" and record_dir is not None:  # scene time 0 once the recorder takes every stream
+        master["device"].update(min_subscribers=1, wait_for_recorder=True)
     if device_topics is not None:
         master["device"].update(state_topic=device_topics[0], command_topic=device_topics[1])
     if command_qos is not None:

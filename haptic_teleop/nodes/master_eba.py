@@ -30,6 +30,7 @@ from haptic_teleop.nodes.topics import (
     MASTER_STATE,
     OPERATOR_JOINT,
     OPERATOR_STATE,
+    RECORDER_LISTENING_TOPIC,
     SCENE_START_TOPIC,
     WIRE_FIELDS,
     latched_qos,
@@ -59,6 +60,7 @@ class MasterEba(LiveNode):
             "device.command_depth",
             "device.min_subscribers",
             "device.start_delay_s",
+            "device.wait_for_recorder",
         )
         cfg = declare_scene(self, SCENE_SECTIONS["master_eba"], names)
         period_ns = round(cfg.scene.period_s * 1e9)
@@ -118,9 +120,16 @@ class MasterEba(LiveNode):
                     self, "device.min_subscribers", 0, f"scene time 0 waits for this many on {MASTER_STATE}", 0, 100
                 )
             )
-            # ... and then comes device.start_delay_s later, announced at once (latched), as the operator
-            # source's: a subscriber the graph already lists may not take samples yet (its side of
-            # discovery still running: a recorder under load missed the first 0.45 s of every stream).
+            # ... and, with `device.wait_for_recorder` (set when recording), once the recorder says it
+            # takes every stream of its grid (a subscriber the graph lists may take nothing yet: a
+            # recorder on a busy machine missed the first 0.35 to 0.45 s of every stream, even 1 s on);
+            self._wait_for_recorder = bool(
+                declare_value(self, "device.wait_for_recorder", False, "scene time 0 waits for the recorder")
+            )
+            self._listening_sub = self.create_polled_subscription(Header, RECORDER_LISTENING_TOPIC, latched_qos())
+            self._recorder_heard = False
+            # then it comes device.start_delay_s later, announced at once (latched), as the operator
+            # source's (the relays and buffers settle on the link meanwhile).
             self._start_delay_ns = round(
                 declare_value(
                     self, "device.start_delay_s", 1.0, "settling time after those subscribe, before scene time 0",
@@ -214,7 +223,11 @@ class MasterEba(LiveNode):
                 self._device = self._read_device(dev)[1]
             if self._device is None:
                 return  # no device yet: nothing to control
-            if not self._started and self.count_subscribers(MASTER_STATE) >= self._min_subscribers:
+            if (
+                not self._started
+                and self._recorder_ready()
+                and self.count_subscribers(MASTER_STATE) >= self._min_subscribers
+            ):
                 self._started = True
                 self._publish_start(stamp_ns + -(-self._start_delay_ns // self.period_ns) * self.period_ns)
             x, v = [self._device[0]], [self._device[1]]
@@ -232,6 +245,14 @@ class MasterEba(LiveNode):
             applied = f
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))
         self.side.publish_internals()
+
+    def _subscribed(self) -> bool:
+        return self.count_subscribers(MASTER_STATE) >= self._min_subscribers
+
+    def _recorder_ready(self) -> bool:
+        if self._wait_for_recorder and not self._recorder_heard:
+            self._recorder_heard = take_latest(self._listening_sub) is not None
+        return self._recorder_heard or not self._wait_for_recorder
 
     def _publish_start(self, stamp_ns: int) -> None:
         """Scene time 0 at `stamp_ns` (a tick to come) on /haptic_teleop/scene_start (latched), as the

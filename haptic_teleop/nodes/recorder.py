@@ -72,12 +72,14 @@ from haptic_teleop.nodes import DEVICE_SOURCES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.messages import take_all, take_all_published_ns
 from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.recorder_facts import schema_and_facts, side_every
 from haptic_teleop.nodes.recorder_grid import _on_grid, as_delivered, mark_late
 from haptic_teleop.nodes.topics import (
     DIRECTIONS,
     MASTER_EBA,
     MASTER_STATE,
     OPERATOR_STATE,
+    RECORDER_LISTENING_TOPIC,
     SCENE_START_TOPIC,
     SCENE_TOPIC,
     SLAVE_CONTACT,
@@ -89,6 +91,7 @@ from haptic_teleop.nodes.topics import (
     received_topic,
     reliable_qos,
     sample_topic,
+    scene_start_header,
     scene_start_ns,
     sent_topic,
     stream_qos,
@@ -287,7 +290,7 @@ class Recorder(LiveNode):
         self.cfg = declare_scene(
             self, SCENE_SECTIONS["recorder"], ("output_dir", "device.source", "view.foxglove_port")
         )
-        self.schema, self.run_facts = _schema_and_facts(self.cfg)
+        self.schema, self.run_facts = schema_and_facts(self.cfg)
         port = int(declare_value(self, VIEW_PORT, -1, "live view for Foxglove on it (-1: none)", -1, 65535))
         period_ns, say = round(self.cfg.scene.period_s * 1e9), self.get_logger().info
         self._view = serve_view(self.schema.columns, period_ns, port, say) if port >= 0 else None
@@ -355,6 +358,8 @@ class Recorder(LiveNode):
         self._scene_pub.publish(String(data=self.scene_yaml))
         from std_msgs.msg import Header
 
+        self._listening_pub = self.create_publisher(Header, RECORDER_LISTENING_TOPIC, latched_qos())
+        self._listening = False
         # Scene time 0: the operator source's, or in a device session master_eba's (after its device answered).
         self._start_sub = self.create_polled_subscription(Header, SCENE_START_TOPIC, latched_qos())
         # The codec stage's counters (nodes/codec_stage.py), latched: taken at close.
@@ -408,6 +413,9 @@ class Recorder(LiveNode):
 
     def tick(self, index: int, stamp_ns: int) -> None:
         self._take(self._poll_groups[self._poll_turn])  # in turn, whatever ticks the loop skipped
+        if not self._listening and all(self._queues[t][1] or self.received_count[t] for t in self.plan.main):
+            self._listening = True  # every stream of the grid is coming in (a device session waits for it)
+            self._listening_pub.publish(scene_start_header(stamp_ns))
         self._poll_turn = (self._poll_turn + 1) % POLL_GROUPS
         if stamp_ns >= self._next_decode_ns and not self._to_decode:
             self._to_decode = list(self._queues)
@@ -748,48 +756,6 @@ class Recorder(LiveNode):
         path = Path(self.rec.close(info))
         (self.bag_dir.parent / "live_run.json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
         return path
-
-
-def _schema_and_facts(cfg: Any) -> tuple[Any, dict[str, Any]]:
-    """The run's tick schema and the run facts the engine writes for it (engine.record_run): for an
-    arm scene the joint names and the damping each joint has in the simulator (the compiled
-    MjModel's dof_damping, which the analysis' true energy margin uses) from the scene's models,
-    and the wall's point and normal (the analysis' penetration). A one-axis scene: ONE_DOF."""
-    from haptic_teleop.record.columns import ONE_DOF
-
-    if cfg.is_nve:  # an NVE run: its record schema (the run facts' nve_schema is the recorder's own)
-        from haptic_teleop.record.nve_columns import NveSchema
-
-        return NveSchema(tuple(c.name for c in cfg.nve.clients), cfg.nve.axes), {}
-    if not cfg.is_arm:
-        return ONE_DOF, {}
-    from haptic_teleop.assembly.parts import arm_schema
-    from haptic_teleop.assembly.plants import build_arm
-
-    # A real arm's plant (built, its driver never started here): the damping the scene lets EBA
-    # assume, as the engine records it for a hardware side (docs/hardware.md).
-    master, slave = build_arm(cfg, "master"), build_arm(cfg, "slave")
-    facts = {
-        "master_joint_damping": master.joint_damping(),
-        "slave_joint_damping": slave.joint_damping(),
-        "wall_point_m": list(cfg.slave.wall.point_m or ()),
-        "wall_normal": list(cfg.slave.wall.normal or ()),
-        "master_backend": cfg.master.backend,
-        "slave_backend": cfg.slave.backend,
-    }
-    return arm_schema(master, slave), facts  # a hardware side's measured effort among its columns
-
-
-def side_every(cfg: Any, topic: str) -> int:
-    """How many scene ticks apart `topic`'s samples come: its side's own period over the scene's
-    (<side>.period_s, arm scenes) for /master/* and /slave/*, else 1."""
-    role = topic.split("/")[1] if topic.count("/") >= 2 else ""
-    role = {"forward": "master", "backward": "slave"}.get(role, role)  # /<dir>/sent: its sender's
-    if not cfg.is_arm or role not in ("master", "slave"):
-        return 1
-    from haptic_teleop.scene.load import side_period_ticks
-
-    return side_period_ticks(cfg, role)
 
 
 def main() -> None:

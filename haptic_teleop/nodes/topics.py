@@ -71,6 +71,9 @@ SCENE_TOPIC = "/haptic_teleop/scene"  # the resolved scene (std_msgs/String, YAM
 # The operator source's scene time 0 (std_msgs/Header, stamp = the tick it started at), latched: the
 # recorder's grid starts there even if the operator's first samples did not reach it.
 SCENE_START_TOPIC = "/haptic_teleop/scene_start"
+# The recorder, once it has taken a sample of every stream that defines its grid (latched,
+# std_msgs/Header): a device session's master starts scene time only then (nodes/master_eba.py).
+RECORDER_LISTENING_TOPIC = "/haptic_teleop/recorder_listening"
 
 
 def scene_start_header(stamp_ns: int) -> Any:
