@@ -24,6 +24,7 @@ class FoxgloveClient:
         self.channels: dict[str, dict[str, Any]] = {}  # topic -> its advertisement
         self.server_info: dict[str, Any] = {}
         self._subs: dict[int, str] = {}  # subscription id -> topic
+        self._data: list[tuple[str, int, Any]] = []  # message data read, not yet returned
 
     def _handle_text(self, text: str) -> None:
         msg = json.loads(text)
@@ -33,16 +34,25 @@ class FoxgloveClient:
             for ch in msg["channels"]:
                 self.channels[ch["topic"]] = ch
 
-    def wait_for_channels(self, topics: set[str], timeout_s: float = 30.0) -> None:
-        """Read the server's text frames until every one of `topics` is advertised."""
+    def _read_until(self, done: Any, timeout_s: float, what: Any) -> None:
+        """Read frames (advertisements; message data, kept in order) until `done()`; TimeoutError
+        saying `what()` after `timeout_s`."""
         end = time.monotonic() + timeout_s
-        while not topics <= set(self.channels):
+        while not done():
             left = end - time.monotonic()
             if left <= 0:
-                raise TimeoutError(f"advertised {sorted(self.channels)}, not all of {sorted(topics)}")
+                raise TimeoutError(what())
             frame = self.ws.recv(timeout=left)
             if isinstance(frame, str):
                 self._handle_text(frame)
+            elif frame[0] == MESSAGE_DATA:
+                sub_id, log_ns = struct.unpack_from("<IQ", frame, 1)
+                self._data.append((self._subs[sub_id], log_ns, json.loads(frame[13:])))
+
+    def wait_for_channels(self, topics: set[str], timeout_s: float = 30.0) -> None:
+        """Read the server's frames until every one of `topics` is advertised."""
+        self._read_until(lambda: topics <= set(self.channels), timeout_s,
+                         lambda: f"advertised {sorted(self.channels)}, not all of {sorted(topics)}")  # fmt: skip
 
     def subscribe(self, topics: list[str]) -> None:
         subs = []
@@ -54,20 +64,8 @@ class FoxgloveClient:
 
     def messages(self, count: int, timeout_s: float = 30.0) -> list[tuple[str, int, Any]]:
         """The next `count` message-data frames: (topic, log time ns, the JSON message)."""
-        got: list[tuple[str, int, Any]] = []
-        end = time.monotonic() + timeout_s
-        while len(got) < count:
-            left = end - time.monotonic()
-            if left <= 0:
-                raise TimeoutError(f"{len(got)} of {count} messages")
-            frame = self.ws.recv(timeout=left)
-            if isinstance(frame, str):
-                self._handle_text(frame)
-                continue
-            if frame[0] != MESSAGE_DATA:
-                continue
-            sub_id, log_ns = struct.unpack_from("<IQ", frame, 1)
-            got.append((self._subs[sub_id], log_ns, json.loads(frame[13:])))
+        self._read_until(lambda: len(self._data) >= count, timeout_s, lambda: f"{len(self._data)} of {count} messages")
+        got, self._data = self._data[:count], self._data[count:]
         return got
 
     def close(self) -> None:

@@ -19,6 +19,7 @@ pytest.importorskip("websockets")
 
 from foxglove_client import FoxgloveClient
 
+from haptic_teleop.core.link import FATE_NAMES
 from haptic_teleop.record.columns import ONE_DOF
 from haptic_teleop.record.foxglove_view import FoxgloveView, column_groups
 from haptic_teleop.record.layouts import PACKET_FIELDS
@@ -34,7 +35,7 @@ def test_columns_group_by_their_prefix():
 
 
 def test_a_subscriber_gets_the_newest_row_of_each_group_and_the_packet_counts():
-    view = FoxgloveView(ONE_DOF.columns, 1_000_000, port=0, rate_hz=1e9)  # every block goes out
+    view = FoxgloveView(ONE_DOF.columns, 1_000_000, FATE_NAMES, port=0, rate_hz=1e9)  # every block goes out
     client = FoxgloveClient(f"ws://127.0.0.1:{view.port}")
     try:
         client.wait_for_channels(GROUPS)
@@ -61,11 +62,12 @@ def test_a_subscriber_gets_the_newest_row_of_each_group_and_the_packet_counts():
     assert m2["m_force_n"] is None and set(m1) == {"t_s", *(c for c in ONE_DOF.columns if c.startswith("m_"))}
     assert [m["fwd_occupancy"] for _, m in by["/view/fwd"]] == [rows[k, ONE_DOF.col["fwd_occupancy"]] for k in (1, 2)]
     ((_, counts),) = by["/view/packets"]
-    assert counts["forward"] == {"sent": 4, "delivered": 2, "lost": 1, "late": 1}
+    assert counts["forward"] == {"sent": 4, "delivered": 2, "network": 1, "queue_overflow": 0, "corruption": 0,
+                                 "late": 1}  # fmt: skip
 
 
 def test_rows_faster_than_the_rate_send_only_the_newest():
-    view = FoxgloveView(ONE_DOF.columns, 1_000_000, port=0, rate_hz=0.001)  # one message in 1000 s
+    view = FoxgloveView(ONE_DOF.columns, 1_000_000, FATE_NAMES, port=0, rate_hz=0.001)  # one message in 1000 s
     client = FoxgloveClient(f"ws://127.0.0.1:{view.port}")
     try:
         client.wait_for_channels(GROUPS)

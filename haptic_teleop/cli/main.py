@@ -85,12 +85,14 @@ def _run_scene(args: argparse.Namespace, scene: Any) -> int:
 
 
 def _ticks_recorded(bag_dir: Path) -> int:
-    """How many ticks the bag in `bag_dir` holds (0: none, or no readable bag)."""
+    """How many ticks the bag in `bag_dir` holds, from its chunk indexes (a teleoperation run's
+    master rows, an NVE run's object rows; 0: none, or no readable bag)."""
     from haptic_teleop.record.reader import BagReader
 
     try:
         with BagReader(bag_dir) as reader:
-            return len(reader.read("/master/joint_states").log_ns)
+            topic = next((t for t in ("/master/joint_states", "/nve/object/joint_states") if reader.has(t)), None)
+            return sum(block.size for block in reader.log_blocks(topic)) if topic is not None else 0
     except Exception:  # noqa: BLE001 - absent, empty or unreadable: nothing recorded
         return 0
 
@@ -225,13 +227,14 @@ def _view_maker(args: argparse.Namespace) -> Any:
         return None
 
     def make(columns: Any, period_ns: int) -> Any:
-        from haptic_teleop.record.foxglove_view import FoxgloveView
+        from haptic_teleop.core.link import FATE_NAMES
+        from haptic_teleop.record.foxglove_view import serve_view
 
-        view = FoxgloveView(columns, period_ns, port=port)
-        if not getattr(args, "quiet", False):
-            print(f"haptic-teleop: Foxglove live view on ws://127.0.0.1:{view.port} (Foxglove: Open connection)",
-                  file=sys.stderr, flush=True)  # fmt: skip
-        return view
+        def say(text: str) -> None:
+            if not getattr(args, "quiet", False):
+                print(f"haptic-teleop: {text}", file=sys.stderr, flush=True)
+
+        return serve_view(columns, period_ns, FATE_NAMES, port, say)
 
     return make
 

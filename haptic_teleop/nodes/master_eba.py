@@ -223,11 +223,7 @@ class MasterEba(LiveNode):
                 self._device = self._read_device(dev)[1]
             if self._device is None:
                 return  # no device yet: nothing to control
-            if (
-                not self._started
-                and self._recorder_ready()
-                and self.count_subscribers(MASTER_STATE) >= self._min_subscribers
-            ):
+            if not self._started and self._recorder_ready() and self._subscribed():
                 self._started = True
                 self._publish_start(stamp_ns + -(-self._start_delay_ns // self.period_ns) * self.period_ns)
             x, v = [self._device[0]], [self._device[1]]
@@ -258,7 +254,9 @@ class MasterEba(LiveNode):
         """Scene time 0 at `stamp_ns` (a tick to come) on /haptic_teleop/scene_start (latched), as the
         operator source publishes it in a session with one (`topics.scene_start_ns` reads it)."""
         self._start_pub.publish(scene_start_header(stamp_ns))
-        self.get_logger().info(f"scene time 0 at stamp {stamp_ns} ns: device.start_delay_s after its device answered")
+        self.get_logger().info(
+            f"scene time 0 at stamp {stamp_ns} ns: device.start_delay_s after the start condition held"
+        )
 
     def diagnostic_values(self) -> dict[str, float | int | str]:
         return self.side.diagnostic_values()

@@ -67,7 +67,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.core.link import DELIVERED, LOST_LATE
+from haptic_teleop.core.link import DELIVERED, FATE_NAMES, LOST_LATE
 from haptic_teleop.nodes import DEVICE_SOURCES, SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.messages import take_all, take_all_published_ns
@@ -293,7 +293,7 @@ class Recorder(LiveNode):
         self.schema, self.run_facts = schema_and_facts(self.cfg)
         port = int(declare_value(self, VIEW_PORT, -1, "live view for Foxglove on it (-1: none)", -1, 65535))
         period_ns, say = round(self.cfg.scene.period_s * 1e9), self.get_logger().info
-        self._view = serve_view(self.schema.columns, period_ns, port, say) if port >= 0 else None
+        self._view = serve_view(self.schema.columns, period_ns, FATE_NAMES, port, say) if port >= 0 else None
         out = str(declare_value(self, "output_dir", "", "the bag goes to OUTPUT_DIR/bag (required)"))
         where = f"parameters of node {self.get_name()}"
         if not out:

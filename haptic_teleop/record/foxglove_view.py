@@ -5,7 +5,7 @@ One JSON channel per group of the row's columns, named by the columns' prefix: `
 operator), `/view/m` (master: position, velocity, force, the EBA reservoir), `/view/s` (slave, and
 the wall force), `/view/fwd` and `/view/bwd` (each direction's released sample and buffer
 occupancy), for an arm or NVE scene the groups its schema has; and `/view/packets`: per direction the
-packets recorded so far by fate (sent, delivered, lost, late). Each message is
+packets recorded so far, `sent` and by fate (the names the caller passes: core.link.FATE_NAMES). Each message is
 `{"t_s": scene time, <column>: value, ...}`, logged at its scene time.
 
 At most `rate_hz` rows a second of wall time go out (the newest row at that moment): a compiled
@@ -17,7 +17,7 @@ the encoding of the rows sent, nothing more (the server drops what a client cann
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -28,9 +28,6 @@ DEFAULT_PORT = 8765  # Foxglove's default connection (ws://localhost:8765)
 VIEW_PORT = "view.foxglove_port"  # the recorder node's parameter (launch --foxglove)
 DEFAULT_RATE_HZ = 50.0
 PREFIX = "/view"
-# A packet record's fate (core/link.py: delivered; lost to the network, the queue or corruption;
-# late, skipped by the playout buffer), grouped for the view.
-FATES = {0: "delivered", 1: "lost", 2: "lost", 3: "lost", 4: "late"}
 
 
 def column_groups(columns: Sequence[str]) -> dict[str, list[int]]:
@@ -48,6 +45,7 @@ class FoxgloveView:
         self,
         columns: Sequence[str],
         period_ns: int,
+        fate_names: Mapping[int, str],
         port: int = DEFAULT_PORT,
         host: str = "127.0.0.1",
         rate_hz: float = DEFAULT_RATE_HZ,
@@ -61,6 +59,7 @@ class FoxgloveView:
                 "pip install 'foxglove-sdk>=0.30' (or install haptic_teleop with its 'standalone' extra)"
             ) from None
         self.columns = tuple(columns)
+        self.fate_names = dict(fate_names)
         self.period_ns = period_ns
         self.min_gap_s = 1.0 / rate_hz
         self._last = -float("inf")
@@ -105,12 +104,12 @@ class FoxgloveView:
         the running count by fate goes out."""
         from haptic_teleop.record.layouts import PACKET_FIELDS
 
-        count = self._counts.setdefault(direction, {"sent": 0, "delivered": 0, "lost": 0, "late": 0})
+        count = self._counts.setdefault(direction, {"sent": 0, **dict.fromkeys(self.fate_names.values(), 0)})
         rows = np.asarray(rows, dtype=float).reshape(-1, len(PACKET_FIELDS))
         fate = rows[:, PACKET_FIELDS.index("fate")].astype(int)
         count["sent"] += rows.shape[0]
-        for code, what in FATES.items():
-            count[what] += int(np.count_nonzero(fate == code))
+        for code, name in self.fate_names.items():
+            count[name] += int(np.count_nonzero(fate == code))
         log_ns = max(self._tick - 1, 0) * self.period_ns
         self.packet_channel.log({"t_s": log_ns * 1e-9, **self._counts}, log_time=log_ns)
 
@@ -126,8 +125,10 @@ def _schema(names: Sequence[str]) -> dict[str, Any]:
     return {"type": "object", "properties": {n: {"type": ["number", "null"]} for n in names}}
 
 
-def serve_view(columns: Sequence[str], period_ns: int, port: int, say: Any) -> FoxgloveView:
+def serve_view(
+    columns: Sequence[str], period_ns: int, fate_names: Mapping[int, str], port: int, say: Any
+) -> FoxgloveView:
     """A FoxgloveView on `port` (0: any free one), and `say` where it serves."""
-    view = FoxgloveView(columns, period_ns, port=port)
+    view = FoxgloveView(columns, period_ns, fate_names, port=port)
     say(f"Foxglove live view on ws://127.0.0.1:{view.port} (Foxglove: Open connection)")
     return view
