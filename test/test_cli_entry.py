@@ -125,6 +125,41 @@ def test_a_signal_at_any_moment_of_start_up_exits_130_without_a_traceback(tmp_pa
     assert outcomes["130"] >= MOMENTS_S.size // 2  # most moments are in this package's own code
 
 
+def _imports_at_module_level(path: Path) -> list[str]:
+    import ast
+
+    tree = ast.parse(path.read_text())
+    return [
+        ast.unparse(node)
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.Import, ast.ImportFrom))
+        and not (isinstance(node, ast.ImportFrom) and node.module == "__future__")
+    ]
+
+
+def test_the_packages_run_before_an_entry_module_import_nothing():
+    """A console script's `from haptic_teleop.X.entry import main` first runs haptic_teleop's and
+    haptic_teleop.X's __init__, before the entry module's early signal handler exists: a signal
+    while they import something is a traceback out of this package (CI hit it once, in
+    cli/__init__'s `import argparse`). So they import nothing, for every entry module of every
+    console script this distribution installs."""
+    from importlib import metadata
+
+    import haptic_teleop
+
+    root = Path(haptic_teleop.__file__).parent
+    modules = {ep.value.split(":")[0] for ep in metadata.entry_points(group="console_scripts")}
+    entries = sorted(m for m in modules if m.startswith("haptic_teleop.") and m.endswith(".entry"))
+    assert "haptic_teleop.cli.entry" in entries and "haptic_teleop.nodes.entry" in entries, entries
+    found = {}
+    for module in entries:
+        parts = module.split(".")[1:-1]
+        for depth in range(len(parts) + 1):
+            init = root.joinpath(*parts[:depth], "__init__.py")
+            found[str(init.relative_to(root.parent))] = _imports_at_module_level(init)
+    assert not any(found.values()), found
+
+
 SIGNAL_DURING_IMPORT = """
 import os, signal as _s, sys
 class _Finder:

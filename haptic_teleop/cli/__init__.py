@@ -2,15 +2,5 @@
 `compile`, `launch`, `emulate`; one module per larger command: `sweep.py`, `report.py`,
 `experiment.py`, `bench.py`, `identify.py`). The top layer: it may import any other."""
 
-import argparse
-
-
-def tcp_port(text: str) -> int:
-    """An argparse type: a TCP port, 0 to 65535 (0: any free port)."""
-    try:
-        port = int(text)
-    except ValueError:
-        port = -1
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r}: allowed: a TCP port, 0 to 65535 (0: any free port)")
-    return port
+# Nothing is imported here: this runs before entry.py installs the console script's signal handler
+# (test_cli_entry checks it).

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from haptic_teleop.cli import tcp_port
+from haptic_teleop.cli.arg_types import tcp_port
 from haptic_teleop.live.launcher import (
     DEVICES,
     EXIT_FAILURE,

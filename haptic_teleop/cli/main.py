@@ -18,7 +18,7 @@ from haptic_teleop.analysis.outputs import (
     write_atomic,
     write_outputs,
 )
-from haptic_teleop.cli import tcp_port
+from haptic_teleop.cli.arg_types import tcp_port
 from haptic_teleop.errors import BagError, ConfigError, HapticTeleopError, InputError, PlantError
 
 EXIT_OK = 0
