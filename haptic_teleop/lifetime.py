@@ -9,13 +9,17 @@ for the nodes, on a thread that watches the parent id (`follow_launcher`).
 
 from __future__ import annotations
 
+import _signal  # type: ignore[import-not-found]  # built in; typeshed has no stub
 import contextlib
+import os
 import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
 _PR_SET_PDEATHSIG = 1
+_MAIN = threading.main_thread()
 
 
 def die_with_parent(sig: int = signal.SIGTERM) -> None:
@@ -103,33 +107,43 @@ def deadline(seconds: float, on_expiry: Callable[[], None]) -> Iterator[None]:
         timer.cancel()
 
 
-@contextlib.contextmanager
-def signals_held(sigs: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
+class signals_held:
     """Hold the Python handlers of `sigs` for the body: a signal that comes inside is recorded and
     handed to the handler that was in place once the body has ended (the default action sent
     again). For a write that must not be cut in half: a KeyboardInterrupt raised in the middle of a
     message to the bag writer leaves the pipe out of step, and the close that follows would wait
     for a reply that never comes. Main thread only (where Python runs handlers); elsewhere, and for
-    ignored signals, it holds nothing."""
-    import os
-    import threading
+    ignored signals, it holds nothing.
 
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    got: list[int] = []
-    previous: dict[int, Any] = {}
-    for sig in sigs:
-        handler = signal.getsignal(sig)
-        if handler in (signal.SIG_IGN, None):
-            continue
-        previous[sig] = handler
-        signal.signal(sig, lambda signum, frame: got.append(signum))
-    try:
-        yield
-    finally:
+    The recorder enters it a few times per block of ticks, so it swaps the handlers through the
+    interpreter's built-in `_signal` (the `signal` module's wrappers build enums on every call:
+    about 40 us an entry and exit against 5 us; docs/recording_costs.md, "The loop's side")."""
+
+    __slots__ = ("_got", "_previous", "_sigs")
+
+    def __init__(self, sigs: tuple[int, ...] = (int(signal.SIGINT), int(signal.SIGTERM))) -> None:
+        self._sigs = sigs
+        self._previous: dict[int, Any] = {}
+        self._got: list[int] = []
+
+    def _note(self, signum: int, frame: Any) -> None:
+        self._got.append(signum)
+
+    def __enter__(self) -> None:
+        if threading.current_thread() is not _MAIN:
+            return
+        for sig in self._sigs:
+            handler = _signal.getsignal(sig)
+            if handler == _signal.SIG_IGN or handler is None:
+                continue
+            self._previous[sig] = handler
+            _signal.signal(sig, self._note)
+
+    def __exit__(self, *exc: object) -> None:
+        previous, self._previous = self._previous, {}
         for sig, handler in previous.items():
-            signal.signal(sig, handler)
+            _signal.signal(sig, handler)
+        got, self._got = self._got, []
         for sig in got:
             handler = previous[sig]
             if callable(handler):

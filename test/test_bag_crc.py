@@ -62,3 +62,33 @@ def test_a_bags_data_section_crc_is_one_pass_over_its_bytes(tmp_path, monkeypatc
     # the data section: from the file's start through the byte before DataEnd (op 0x0F, length 4, crc)
     end = data.rindex(b"\x0f\x04\x00\x00\x00\x00\x00\x00\x00" + ends[0].data_section_crc.to_bytes(4, "little"))
     assert zlib.crc32(data[:end]) == ends[0].data_section_crc
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.binary(max_size=5000), start=st.integers(0, 2**32 - 1), cut=st.integers(0, 5000))
+def test_the_recorders_crc32_is_zlibs(data, start, cut):
+    """record/crc.py's `crc32` (ISA-L's when installed) gives zlib's values: from any start value,
+    over bytes and over a numpy array's memory (what the writer hands it)."""
+    assert crc.crc32(data, start) == zlib.crc32(data, start)
+    view = np.frombuffer(data, dtype=np.uint8)[cut:].data
+    assert crc.crc32(view, start) == zlib.crc32(bytes(view), start)
+
+
+def test_a_bag_is_the_same_bytes_with_zlibs_crc32(tmp_path, monkeypatch):
+    """The same calls with the standard library's CRC-32 in the writer give the same file: the fast
+    implementation changes the speed only."""
+    from haptic_teleop.engine.lockstep import COLUMNS
+    from haptic_teleop.record import mcap
+    from haptic_teleop.record.recorder import RunRecorder
+
+    rows = np.random.default_rng(3).normal(size=(3000, len(COLUMNS)))
+
+    def record(bag):
+        rec = RunRecorder(bag, "scene: {}\n", 1_000_000, True, True, len(COLUMNS), parallel=False)
+        rec.append(rows)
+        return (rec.close({"ticks": 3000}) / "bag.mcap").read_bytes()
+
+    fast = record(tmp_path / "a" / "bag")
+    monkeypatch.setattr(mcap, "crc32", zlib.crc32)
+    assert record(tmp_path / "b" / "bag") == fast
+    assert crc.CRC_IMPLEMENTATION == "isal"  # the test extra installs it: the fast path is the one compared

@@ -6,7 +6,7 @@ records; at close a Metadata record "rosbag2" (the bag's metadata, as rosbag2's 
 writes it), Data End with the CRC-32 of the data section, the summary section (Schemas, Channels,
 Statistics, Chunk Indexes, Metadata Index, then Summary Offsets), the Footer with the CRC-32 of
 the summary, and the closing magic. Every chunk carries the CRC-32 of its records (before
-compression). CRC-32 is zlib.crc32, as the specification defines it.
+compression). CRC-32 is zlib's, as the specification defines it (record/crc.py: ISA-L's when installed).
 
 Schemas and channels hold what rosbag2 writes: schema name the message type, encoding "ros2msg",
 data the message definition (rosbags' typestore); channel message encoding "cdr" and metadata
@@ -20,7 +20,6 @@ written, so memory does not grow with the bag.
 from __future__ import annotations
 
 import struct
-import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -30,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
-from haptic_teleop.record.crc import COMBINE_FROM, combine
+from haptic_teleop.record.crc import COMBINE_FROM, combine, crc32
 from haptic_teleop.record.layouts import typestore
 from haptic_teleop.record.metadata import DEFAULT_QOS, bag_info, metadata_text, qos_yaml, write_metadata
 from haptic_teleop.record.streams import Records, Stream, stream_records
@@ -185,7 +184,7 @@ class BagSink:
 
     def _write(self, data: bytes | memoryview) -> None:
         self.file.write(data)
-        self.crc = zlib.crc32(data, self.crc)
+        self.crc = crc32(data, self.crc)
         self.pos += len(data)
 
     def _new_chunk(self) -> None:
@@ -242,7 +241,7 @@ class BagSink:
         size = self._pending
         crc = 0
         for part in self._parts:
-            crc = zlib.crc32(part.data, crc)
+            crc = crc32(part.data, crc)
         if self.compression:
             data: Any = self._compress(b"".join(p.tobytes() for p in self._parts))
             parts: list[Any] = [data]
@@ -351,7 +350,7 @@ def summary_bytes(
     for r in offsets:
         out += r
     out += struct.pack("<BQQQ", OP_FOOTER, 20, summary_start, offset_start)
-    out += struct.pack("<I", zlib.crc32(out))
+    out += struct.pack("<I", crc32(out))
     return bytes(out) + MAGIC
 
 

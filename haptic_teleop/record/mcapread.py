@@ -10,7 +10,6 @@ problem is a `BagError` with one line naming the file, what is wrong and what ca
 from __future__ import annotations
 
 import struct
-import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import BinaryIO
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.crc import crc32
 from haptic_teleop.record.mcap import (
     MAGIC,
     OP_CHANNEL,
@@ -158,7 +158,7 @@ def chunk_records(body: bytes | memoryview, where: str, check: bool = True) -> t
         raise BagError(f"{where} is damaged: its {comp} data do not decompress ({exc})") from None
     if len(raw) != size:
         raise BagError(f"{where} is damaged: {len(raw)} bytes of records where its header says {size}")
-    if check and crc and zlib.crc32(raw) != crc:
+    if check and crc and crc32(raw) != crc:
         raise BagError(f"{where} is damaged (CRC mismatch)")
     return t0, t1, raw
 
@@ -245,7 +245,7 @@ class McapFile:
             raise self._err("has a damaged footer (its summary offsets point outside the file)")
         f.seek(summary_start)
         summary = f.read(footer_at - summary_start)
-        if crc and zlib.crc32(tail[: 1 + 8 + 16], zlib.crc32(summary)) != crc:
+        if crc and crc32(tail[: 1 + 8 + 16], crc32(summary)) != crc:
             raise self._err("has a damaged summary section (CRC mismatch)")
         pos = 0
         view = memoryview(summary)
@@ -460,7 +460,7 @@ def scan(path: Path) -> Scan:
         if len(body) < n:
             raise BagError(f"{path}: not a usable MCAP file (its header record is cut)")
         out.header = MAGIC + head + body
-        crc = zlib.crc32(out.header)
+        crc = crc32(out.header)
         pos = out.data_end = 8 + 9 + n
         last: ScannedChunk | None = None
         while True:
@@ -480,7 +480,7 @@ def scan(path: Path) -> Scan:
                 out.data_crc = struct.unpack_from("<I", body)[0] if n >= 4 else 0
                 out.data_crc_found = crc
                 break
-            crc = zlib.crc32(body, zlib.crc32(head, crc))
+            crc = crc32(body, crc32(head, crc))
             if op == OP_SCHEMA:
                 out.schemas[struct.unpack_from("<H", body)[0]] = head + body
                 out.data_end = rec_end

@@ -10,7 +10,6 @@ them with a storage preset).
 from __future__ import annotations
 
 import copy
-import os
 import re
 from functools import lru_cache
 from pathlib import Path
@@ -267,13 +266,14 @@ def metadata_text(info: dict[str, Any]) -> tuple[str, str]:
 
 
 def write_metadata(bag_dir: Path, whole: str) -> None:
-    """metadata.yaml, written whole or not at all (a temporary file renamed into place)."""
+    """metadata.yaml, written whole or not at all (a temporary file renamed into place): a process
+    killed at any moment leaves the old state or the whole file. Not fsynced, as the MCAP file is
+    not: both survive the end of any process in the page cache, and an fsync cost about 1 ms of
+    every run's close (docs/recording_costs.md)."""
     path = Path(bag_dir) / "metadata.yaml"
     tmp = path.with_suffix(".yaml.tmp")
     with open(tmp, "w", encoding="utf8") as f:
         f.write(whole)
-        f.flush()
-        os.fsync(f.fileno())
     tmp.replace(path)
 
 

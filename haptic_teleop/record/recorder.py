@@ -27,13 +27,18 @@ import numpy as np
 from haptic_teleop.errors import BagError
 from haptic_teleop.lifetime import die_with_parent, signals_held
 from haptic_teleop.record.columns import ONE_DOF, TickSchema
-from haptic_teleop.record.layouts import PACKET_BATCH, packet_batch_head, packet_rows
+from haptic_teleop.record.layouts import PACKET_BATCH, PACKET_FIELDS, packet_batch_head, packet_rows
 from haptic_teleop.record.mcap import BagSink
 from haptic_teleop.record.nve_columns import NveSchema
 from haptic_teleop.record.streams import BLOCK_TICKS, NveStreams, RunStreams, make_streams
 
 COMPRESSIONS = ("none", "zstd", "lz4")
 RING_SLOTS = 4  # blocks of BLOCK_TICKS rows the parent may be ahead of the writer
+# Packet records go through a ring of their own (two directions a block): a pickled array on the
+# pipe filled the socket's buffer while the writer encoded a block, and the loop waited, 270 us a
+# call (docs/recording_costs.md, "The loop's side"). A larger hand-over goes on the pipe.
+PACKET_SLOTS = 2 * RING_SLOTS
+PACKET_SLOT_ROWS = 2 * BLOCK_TICKS
 _WAIT_S = 0.5  # the writer checks on its parent at least this often while it waits
 
 
@@ -60,11 +65,14 @@ def _writer_process(
     ring: np.ndarray | None,
     free: Any,
     sink: BagSink | None = None,
+    packet_ring: np.ndarray | None = None,
+    packet_free: Any = None,
 ) -> None:
     """Child process: write what arrives; close the bag however the parent ends.
 
-    Messages: ("slot", (i, k)) k tick rows in ring slot i; ("rows", rows); ("packets", (direction,
-    rows)); ("flush", None), answered ("flushed", None); ("close", run_info), answered ("done",
+    Messages: ("slot", (i, k)) k tick rows in ring slot i; ("rows", rows); ("packet_slot", (i,
+    direction, k)) k packet records in packet ring slot i; ("packets", (direction, rows));
+    ("flush", None), answered ("flushed", None); ("close", run_info), answered ("done",
     None). Any failure is answered ("error", text) after the bag is closed. With fork, the parent
     opens the bag (`sink`) and the child inherits it."""
     if parent_end is not None:
@@ -99,6 +107,13 @@ def _writer_process(
                     _write_rows(sink, streams, ring[i, :k])
                 finally:
                     free.release()
+            elif kind == "packet_slot":
+                assert packet_ring is not None
+                i, direction, k = payload
+                try:
+                    _write_packets(sink, streams, direction, packet_ring[i, :k])
+                finally:
+                    packet_free.release()
             elif kind == "rows":
                 _write_rows(sink, streams, payload)
             elif kind == "packets":
@@ -193,6 +208,9 @@ class RunRecorder:
         self._ring: np.ndarray | None = None
         self._free: Any = None
         self._slot = 0
+        self._packet_ring: np.ndarray | None = None
+        self._packet_free: Any = None
+        self._packet_slot = 0
         self._sent = 0  # ticks handed over through `block`
         self._closed = False
         self._error: str | None = None
@@ -217,6 +235,10 @@ class RunRecorder:
             buf = mmap.mmap(-1, RING_SLOTS * BLOCK_TICKS * n_columns * 8)
             self._ring = np.frombuffer(buf, dtype=np.float64).reshape(RING_SLOTS, BLOCK_TICKS, n_columns)
             self._free = ctx.Semaphore(RING_SLOTS)
+            width = len(PACKET_FIELDS)
+            pbuf = mmap.mmap(-1, PACKET_SLOTS * PACKET_SLOT_ROWS * width * 8)
+            self._packet_ring = np.frombuffer(pbuf, dtype=np.float64).reshape(PACKET_SLOTS, PACKET_SLOT_ROWS, width)
+            self._packet_free = ctx.Semaphore(PACKET_SLOTS)
         parent, child = ctx.Pipe()
         self._proc = ctx.Process(
             target=_writer_process,
@@ -231,6 +253,8 @@ class RunRecorder:
                 self._ring,
                 self._free,
                 opened,
+                self._packet_ring,
+                self._packet_free,
             ),
             daemon=True,
             name="bag-writer",
@@ -263,7 +287,7 @@ class RunRecorder:
             if self._sink is not None:
                 _write_rows(self._sink, self._streams, part)
             elif self._ring is not None:
-                self._wait_for_slot()
+                self._wait_for_slot(self._free)
                 with signals_held():  # the slot filled, named to the writer and passed, or none of it
                     k = part.shape[0]
                     self._ring[self._slot, :k] = part
@@ -284,6 +308,13 @@ class RunRecorder:
             self._view.packets(direction, rows)
         if self._sink is not None:
             _write_packets(self._sink, self._streams, direction, rows)
+        elif self._packet_ring is not None and rows.shape[0] <= PACKET_SLOT_ROWS:
+            self._wait_for_slot(self._packet_free)
+            with signals_held():  # the slot filled, named to the writer and passed, or none of it
+                k = rows.shape[0]
+                self._packet_ring[self._packet_slot, :k] = rows
+                self._send(("packet_slot", (self._packet_slot, direction, k)))
+                self._packet_slot = (self._packet_slot + 1) % PACKET_SLOTS
         else:
             self._send(("packets", (direction, np.array(rows))))
 
@@ -315,7 +346,10 @@ class RunRecorder:
             with contextlib.suppress(BagError):
                 self._send(("close", run_info))
         kind, msg = ("error", self._error) if self._error is not None else self._recv()
-        self._proc.join(timeout=60)
+        # "done" comes after the bag is complete: the writer only has to exit, which took 2 to 6 ms
+        # of the run's wall time when waited for here. multiprocessing reaps it at the next start
+        # of a process or at this one's exit.
+        self._proc.join(timeout=0 if kind == "done" else 60)
         if kind == "error":
             raise BagError(f"{self.bag_dir}: writing the bag failed: {msg}")
         return self.bag_dir
@@ -389,8 +423,8 @@ class RunRecorder:
                     return str(msg)
         return None
 
-    def _wait_for_slot(self) -> None:
-        while not self._free.acquire(timeout=_WAIT_S):
+    def _wait_for_slot(self, free: Any) -> None:
+        while not free.acquire(timeout=_WAIT_S):
             if not self._proc.is_alive():
                 self._fail(self._pending_error() or f"the bag writer process ended (exit code {self._proc.exitcode})")
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import os
 import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.errors import BagError
+from haptic_teleop.record.crc import crc32
 from haptic_teleop.record.mcap import (
     OP_DATA_END,
     OP_MESSAGE,
@@ -125,7 +125,7 @@ def _check(mcap: Path, s: Scan) -> list[str]:
             rest = f.read()
         summary, footer = rest[: -8 - 29], rest[-8 - 29 :]
         crc = struct.unpack_from("<I", footer, 25)[0]
-        if crc and zlib.crc32(footer[:25], zlib.crc32(summary)) != crc:
+        if crc and crc32(footer[:25], crc32(summary)) != crc:
             problems.append("the summary section's CRC does not match")
     return problems
 
@@ -237,7 +237,7 @@ def recover(bag_path: Path) -> Recovered:
             def put(data: bytes) -> None:
                 nonlocal pos, crc
                 out.write(data)
-                crc = zlib.crc32(data, crc)
+                crc = crc32(data, crc)
                 pos += len(data)
 
             put(s.header)

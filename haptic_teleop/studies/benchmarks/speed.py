@@ -4,7 +4,8 @@ Prints, for the compiled loop (when the scene allows it) and the Python loop, th
 (simulated s / wall s) of a scene with bag recording (the writer in a second process; and all
 pinned to one CPU, writer in the loop's process), the loop alone, the wall time per tick against
 a bare `mujoco.mj_step` of the same two models (called from Python, and from compiled code), and
-where a Python-loop tick's time goes. The breakdown replays the
+where a Python-loop tick's time goes, and what recording costs the loop per tick and per run
+(recording_cost.py: paired rounds against the loop with its rows discarded). The breakdown replays the
 recorded run through each stage on its own (fresh objects, the same inputs), so the stages can be
 timed without instrumenting the loop; what the stages do not explain is the loop's own glue.
 Every figure is a median over `--repeat` runs: on a shared machine single timings are noise.
@@ -23,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.studies.benchmarks import add_scene_argument, positive
+from haptic_teleop.studies.benchmarks import add_scene_argument, positive, recording_cost
 
 
 def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float, float | None]:
@@ -374,6 +375,8 @@ def arm_speed(scene: Any, repeat: int) -> None:
         print(f"  wall time per tick, loop + recording     {f['per_tick_recorded_us']:8.2f} us")
         print(f"  wall time per tick, loop alone           {f['tick_us']:8.2f} us")
     if probe.loop_kind == "compiled":
+        for line in recording_cost.report(recording_cost.measure(scene, repeat), run.duration_s):
+            print(line)
         c = arm_costs_us(scene, repeat)
         lo, hi = c["ratio_range"]
         print("compiled tick against MuJoCo alone, in the same runs (state copied from the loop every 100 ticks):")
@@ -418,6 +421,8 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
         )
     if "compiled" in figures and compiled_bare is not None:
         print(f"compiled tick / bare compiled mj_step      {figures['compiled']['tick_us'] / compiled_bare:8.2f} x")
+    for line in recording_cost.report(recording_cost.measure(scene, repeat, loops[0]), run.duration_s):
+        print(line)
     print(f"Python tick / bare mj_step from Python     {figures['python']['tick_us'] / bare:8.2f} x")
     if breakdown and scene.config.is_arm:
         print("(no per-stage breakdown for arm scenes: the stages replay the one-axis tick; docs/arms.md)")
