@@ -5,8 +5,9 @@ block of columns, every batch of packet records, at the same points of the run),
 rejection counts and the controllers' final state. The cases cover what the compiled
 loop takes: both laws, EBA on and off, the operator profiles (hands and the imposed trajectory;
 free and in-contact starts), saturating controllers, substeps, gravity, zero
-delay, the vectorized network (constant delay, uncorrelated loss, blackouts, policy `none`) and
-the network ticked through the Python objects (bursty loss, jitter with reordering, every
+delay, the vectorized network (constant delay, uncorrelated and bursty loss, blackouts, policy
+`none`) and
+the network ticked through the Python objects (jitter with reordering, every
 scheduled buffer policy).
 """
 
@@ -194,7 +195,8 @@ def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, re
 
 
 def test_vectorized_network_only_where_it_is_exact():
-    """The default network is decided in numpy, window by window; bursty (Markov) loss is ticked."""
+    """The default network is decided in numpy, window by window, and bursty (Markov) loss too (its
+    chain run compiled over the window); jitter with an adaptive buffer is ticked."""
     e = Engine(_scene("wall_contact", [f"{FWD}.effects.loss.probability=0.3"]))
     s = axis_host.schedule(e.forward, e.forward_buffer, e.period_ns, 72)
     assert s.vectorized
@@ -203,7 +205,9 @@ def test_vectorized_network_only_where_it_is_exact():
     assert np.count_nonzero(released >= 0) == np.count_nonzero(rows[:50, 3] == 0)  # 50 ms delay
     assert np.array_equal(released[50:], np.where(rows[:50, 3] == 0, np.arange(50), -1))
     b = Engine(_scene("bursty_loss", []))
-    assert not axis_host.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
+    assert axis_host.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
+    j = Engine(_scene("jitter", []))
+    assert not axis_host.schedule(j.forward, j.forward_buffer, j.period_ns, 72).vectorized
 
 
 def test_settled_records_wait_for_packets_in_flight():

@@ -118,7 +118,7 @@ class ConstantDelay:
 
     vectorized = True
 
-    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: object = None) -> None:
         """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
         arrival_ns += self.delay_ns
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -213,7 +213,7 @@ class Link:
         and every effect has an `apply_all` whose decisions do not depend on the packets before)."""
         return not self._one_by_one and all(getattr(e, "vectorized", False) for e in self.effects)
 
-    def schedule_all(self, send_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def schedule_all(self, send_ns: np.ndarray, runs: Mapping[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Fates and arrival times of original packets sent at `send_ns`, decided all at once.
 
         The same decisions, from the same random numbers, as `send` on each packet in turn
@@ -222,6 +222,9 @@ class Link:
         windows of any size with the same result. Only for a link whose effects are all
         `vectorized` and that no packet went through `send` on (see the property); the packets
         are not queued or logged. Updates `sent` and `lost`. Returns (arrival_ns, fate) arrays.
+        `runs`: a Markov loss chain's run over the window (core/loss.py `gilbert_run`,
+        `four_state_run`) by name, compiled (engine/compiled/link_runs.py); the plain functions
+        without it.
         """
         if not self.vectorized:
             raise ValueError(
@@ -231,7 +234,7 @@ class Link:
         arrival = send_ns.copy()
         fate = np.full(len(send_ns), DELIVERED, dtype=np.int64)
         for e in self.effects:
-            e.apply_all(send_ns, arrival, fate)  # type: ignore[attr-defined]
+            e.apply_all(send_ns, arrival, fate, runs)  # type: ignore[attr-defined]
         self.sent += len(send_ns)
         self.lost += int(np.count_nonzero(fate != DELIVERED))
         return arrival, fate

@@ -7,7 +7,8 @@ rules in `core/link.py`); the formulas are in docs/network_effects.md.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +70,9 @@ class Blackout:
 
     vectorized = True
 
-    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+    def apply_all(
+        self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Runs | None = None
+    ) -> None:
         """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
         starts, ends = self.windows[:, 0], self.windows[:, 1]
         i = np.searchsorted(starts, send_ns, side="right") - 1
@@ -109,7 +112,9 @@ class BernoulliLoss:
         # Uncorrelated draws are plain uniforms: a whole run's can be drawn in one call.
         self.vectorized = correlation == 0.0
 
-    def apply_all(self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray) -> None:
+    def apply_all(
+        self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Runs | None = None
+    ) -> None:
         """`apply` on every original packet of a run at once, before any `apply` (`Link.schedule_all`).
 
         `rng.random(n)` gives the numbers `UniformSource` hands out one at a time (it draws the
@@ -140,6 +145,23 @@ def gilbert_step(
     return move < p, u < loss_good
 
 
+def gilbert_run(
+    bad: bool, draws: np.ndarray, p: float, r: float, loss_bad: float, loss_good: float, lost: np.ndarray
+) -> bool:
+    """`gilbert_step` on packets in turn (packet i's two uniforms are draws[2 i] and draws[2 i + 1]):
+    lost[i] set for each; returns the state after the last. One definition for
+    `GilbertElliottLoss.apply_all` and, compiled, the compiled loop's network schedule
+    (engine/compiled/link_runs.py)."""
+    for i in range(lost.shape[0]):
+        bad, lost[i] = gilbert_step(bad, draws[2 * i], draws[2 * i + 1], p, r, loss_bad, loss_good)
+    return bad
+
+
+# A chain's run over a window (`gilbert_run`, `four_state_run`): the plain functions above, or the
+# same functions compiled (`Link.schedule_all(kernels=...)`: engine/compiled/link_runs.py).
+Runs = Mapping[str, Callable[..., Any]]
+
+
 class GilbertElliottLoss:
     """2-state Markov loss (netem `loss gemodel p r 1-h 1-k`).
 
@@ -156,9 +178,25 @@ class GilbertElliottLoss:
                 raise ValueError(f"{key} must be in [0, 1], got {v}")
         self.p, self.r = p, r
         self.loss_bad, self.loss_good = one_minus_h, one_minus_k
+        self._rng = rng
         self._u = UniformSource(rng).next
         self.bad = False
         self.dropped = 0
+
+    vectorized = True
+
+    def apply_all(
+        self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Runs | None = None
+    ) -> None:
+        """`apply` on every original packet of a window at once, before any `apply`
+        (`Link.schedule_all`): the same two draws a packet (`rng.random(2 n)` is the stream
+        `UniformSource` hands out), the chain run by `gilbert_run` (or `runs["gilbert_run"]`)."""
+        run = gilbert_run if runs is None else runs.get("gilbert_run", gilbert_run)
+        lost = np.zeros(len(send_ns), dtype=np.bool_)
+        self.bad = bool(
+            run(self.bad, self._rng.random(2 * len(send_ns)), self.p, self.r, self.loss_bad, self.loss_good, lost)
+        )
+        _mark_lost(fate, lost, self)
 
     def apply(self, packet: Packet) -> Packet | None:
         u = self._u
@@ -198,6 +236,24 @@ def four_state_step(s: int, u: float, p13: float, p31: float, p32: float, p23: f
     return state, state >= 3
 
 
+def four_state_run(
+    s: int, draws: np.ndarray, p13: float, p31: float, p32: float, p23: float, p14: float, lost: np.ndarray
+) -> int:
+    """`four_state_step` on packets in turn (packet i's uniform is draws[i]): lost[i] set for each;
+    returns the state after the last. One definition for `FourStateLoss.apply_all` and, compiled,
+    the compiled loop's network schedule."""
+    for i in range(lost.shape[0]):
+        s, lost[i] = four_state_step(s, draws[i], p13, p31, p32, p23, p14)
+    return s
+
+
+def _mark_lost(fate: np.ndarray, lost: np.ndarray, effect: Any) -> None:
+    """An effect's verdicts on a window (`apply_all`): the first effect that loses a packet names its fate."""
+    hit = lost & (fate == DELIVERED)
+    fate[hit] = LOST_NETWORK
+    effect.dropped += int(hit.sum())
+
+
 class FourStateLoss:
     """netem's 4-state Markov loss (`loss state p13 p31 p32 p23 p14`, the GI model).
 
@@ -215,9 +271,24 @@ class FourStateLoss:
         if p13 + p14 > 1.0 or p31 + p32 > 1.0:
             raise ValueError("need p13 + p14 <= 1 and p31 + p32 <= 1")
         self.p13, self.p31, self.p32, self.p23, self.p14 = p13, p31, p32, p23, p14
+        self._rng = rng
         self._u = UniformSource(rng).next
         self.state = 1
         self.dropped = 0
+
+    vectorized = True
+
+    def apply_all(
+        self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Runs | None = None
+    ) -> None:
+        """`apply` on every original packet of a window at once, before any `apply`
+        (`Link.schedule_all`): one draw a packet, the chain run by `four_state_run` (or
+        `runs["four_state_run"]`)."""
+        run = four_state_run if runs is None else runs.get("four_state_run", four_state_run)
+        lost = np.zeros(len(send_ns), dtype=np.bool_)
+        draws = self._rng.random(len(send_ns))
+        self.state = int(run(self.state, draws, self.p13, self.p31, self.p32, self.p23, self.p14, lost))
+        _mark_lost(fate, lost, self)
 
     def apply(self, packet: Packet) -> Packet | None:
         self.state, lost = four_state_step(self.state, self._u(), self.p13, self.p31, self.p32, self.p23, self.p14)

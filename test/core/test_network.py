@@ -776,16 +776,32 @@ def test_direct_construction_checks_parameters():
         Delay(0.01, jitter_s=0.01, rng=np.random.default_rng(0), correlation=1.0)
 
 
+# A loss model's effect config from a probability p (bursty at every p: the chains' states matter).
+MARKOV = {
+    "bernoulli": lambda p: {"probability": p},
+    "gilbert_elliott": lambda p: {
+        "model": "gilbert_elliott",
+        "p": p,
+        "r": 0.25,
+        "one_minus_h": 0.7,
+        "one_minus_k": p / 10,
+    },
+    "four_state": lambda p: {"model": "four_state", "p13": p * 0.8, "p31": 0.3, "p32": 0.2, "p23": 0.1, "p14": p / 5},
+}
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     seed=st.integers(0, 2**31),
     p=st.sampled_from([0.0, 0.01, 0.3, 1.0]),
     delay_ms=st.sampled_from([0.0, 0.4, 1.0, 50.0, 123.4]),
     blackout=st.booleans(),
+    model=st.sampled_from(["bernoulli", "gilbert_elliott", "four_state"]),
 )
-def test_vectorized_schedule_equals_send(seed, p, delay_ms, blackout):
-    """`Link.schedule_all` decides what `send` decides, packet by packet, from the same draws."""
-    effects: dict = {"delay": {"delay_s": delay_ms / 1000}, "loss": {"probability": p}}
+def test_vectorized_schedule_equals_send(seed, p, delay_ms, blackout, model):
+    """`Link.schedule_all` decides what `send` decides, packet by packet, from the same draws
+    (the Markov chains too: their runs over a window, `gilbert_run` and `four_state_run`)."""
+    effects: dict = {"delay": {"delay_s": delay_ms / 1000}, "loss": MARKOV[model](p)}
     if blackout:
         effects["blackout"] = {"starts_s": [0.5, 2.0], "ends_s": [0.7, 2.001]}
     n = 5000  # more than one block of draws
@@ -807,10 +823,10 @@ def test_vectorized_schedule_equals_send(seed, p, delay_ms, blackout):
 
 def test_schedule_all_refuses_what_it_cannot_decide_at_once():
     correlated = make_link({"loss": {"probability": 0.1, "correlation": 0.5}})
-    markov = make_link({"loss": {"model": "gilbert_elliott", "p": 0.01, "r": 0.2}})
     jitter = make_link({"delay": {"delay_s": 0.01, "jitter_s": 0.002}})
     used = run({"delay": {"delay_s": 0.01}}, 3)
-    for link in (correlated, markov, jitter, used):
+    markov_used = run({"loss": MARKOV["gilbert_elliott"](0.1)}, 3)
+    for link in (correlated, jitter, used, markov_used):
         assert not link.vectorized
         with pytest.raises(ValueError, match="cannot decide a run at once"):
             link.schedule_all(np.arange(3, dtype=np.int64))

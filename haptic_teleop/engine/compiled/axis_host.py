@@ -16,7 +16,8 @@ each tick (or none) and the buffer's occupancy; the packets' records are handed 
 fates become final. It is computed either
 - vectorized (`VectorizedSchedule`, `Link.schedule_all` on each window: the random streams go
   on where the last window left them), when every effect has a vectorized form and the buffer
-  plays on arrival and holds: constant delay, uncorrelated loss, blackouts, policy `none`; or
+  plays on arrival and holds: constant delay, uncorrelated loss, blackouts, Gilbert-Elliott and
+  4-state loss (their chains run compiled over the window: link_runs.py), policy `none`; or
 - by the very `Link` and `PlayoutBuffer` objects the Python loop uses, ticked in the same order
   with empty payloads (`TickedSchedule`: any other effect chain or policy).
 The loop then looks the released sample up in the sender's history, a ring of the last ticks'
@@ -238,6 +239,7 @@ class VectorizedSchedule:
 
     def __init__(self, link: Link, period_ns: int, size_bytes: int) -> None:
         self.link, self.period_ns, self.size_bytes = link, period_ns, size_bytes
+        self.runs = link_runs()
         # Delivered packets whose records are not handed over yet: arrival tick and seq, both
         # ascending (the check in `window`).
         self._tick = np.zeros(0, dtype=np.int64)
@@ -249,7 +251,7 @@ class VectorizedSchedule:
         """As `TickedSchedule.window`."""
         period = self.period_ns
         send = np.arange(n0, n1, dtype=np.int64) * period
-        arrival, fate = self.link.schedule_all(send)
+        arrival, fate = self.link.schedule_all(send, self.runs)
         got = np.flatnonzero(fate == DELIVERED)
         tick_of = -(-arrival[got] // period)
         if len(tick_of) and (
@@ -282,6 +284,16 @@ class VectorizedSchedule:
         self._rows = [rows[k:]]
         self._first = mark
         return rows[:k]
+
+
+def link_runs() -> dict[str, Any] | None:
+    """The Markov loss chains' runs compiled (engine/compiled/link_runs.py), or None without numba
+    (`Link.schedule_all` then runs core/loss.py's plain functions: the same decisions, slower)."""
+    try:
+        from haptic_teleop.engine.compiled import link_runs as lr
+    except ImportError:
+        return None
+    return lr.RUNS
 
 
 def schedule(link: Link, buf: PlayoutBuffer, period_ns: int, size_bytes: int) -> TickedSchedule | VectorizedSchedule:

@@ -30,7 +30,7 @@ import numpy as np
 STEADY = (0.2, 0.95)  # the part of a run whose ticks are timed for "per tick"
 
 
-class _Discard:
+class Discard:
     """A run sink that drops what it is given: the loop alone, with the same calls as recording."""
 
     def append(self, rows: np.ndarray) -> None:
@@ -75,7 +75,7 @@ def measure(scene: Any, rounds: int, loop: str = "auto") -> RecordingCost:
     for _ in range(rounds):
         marks = _Marks()
         engine = Engine(scene, loop=loop)
-        alone = engine.run(handle_sigint=False, sink=_Discard(), progress=marks)
+        alone = engine.run(handle_sigint=False, sink=Discard(), progress=marks)
         a_tick = marks.steady_s_per_tick(alone.ticks)
         a_rest = alone.loop_wall_s - a_tick * alone.ticks
         marks = _Marks()

@@ -1,0 +1,65 @@
+"""The Markov loss chains' runs compiled (engine/compiled/link_runs.py) decide what core/loss.py's
+plain functions decide, from the same draws (the compiled loop's vectorized schedule uses them)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from haptic_teleop.core import loss
+
+link_runs = pytest.importorskip("haptic_teleop.engine.compiled.link_runs")
+
+probability = st.floats(0.0, 1.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(0, 3000), bad=st.booleans(), p=probability, r=probability)
+def test_compiled_gilbert_run_is_the_plain_one(seed, n, bad, p, r):
+    draws = np.random.default_rng(seed).random(2 * n)
+    plain, compiled = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+    end_plain = loss.gilbert_run(bad, draws, p, r, 0.7, 0.01, plain)
+    end_compiled = link_runs.RUNS["gilbert_run"](bad, draws, p, r, 0.7, 0.01, compiled)
+    assert bool(end_compiled) == end_plain
+    assert np.array_equal(plain, compiled)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(0, 3000), state=st.sampled_from([1, 2, 3, 4]), p=probability)
+def test_compiled_four_state_run_is_the_plain_one(seed, n, state, p):
+    draws = np.random.default_rng(seed).random(n)
+    args = (p * 0.5, 0.3, 0.2, 0.1, p * 0.4)
+    plain, compiled = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+    end_plain = loss.four_state_run(state, draws, *args, plain)
+    end_compiled = link_runs.RUNS["four_state_run"](state, draws, *args, compiled)
+    assert int(end_compiled) == end_plain
+    assert np.array_equal(plain, compiled)
+
+
+def test_a_gilbert_elliott_link_is_decided_in_windows_with_the_compiled_run():
+    """The schedule's path: `Link.schedule_all` with the compiled runs, window by window, equals
+    `send` packet by packet (bursty_loss's chain)."""
+    from haptic_teleop.core.link import Packet
+    from haptic_teleop.core.loss import GilbertElliottLoss
+
+    def link():
+        from haptic_teleop.core.delay import ConstantDelay
+        from haptic_teleop.core.link import Link
+
+        ge = GilbertElliottLoss(0.01, 0.25, 0.7, 0.001, np.random.default_rng(5))
+        return Link([ConstantDelay(0.02), ge])
+
+    n = 20_000
+    one = link()
+    for i in range(n):
+        one.send(Packet(i, i * 1_000_000, (), 64))
+    windowed = link()
+    assert windowed.vectorized
+    fates = [
+        windowed.schedule_all(np.arange(a, b, dtype=np.int64) * 1_000_000, link_runs.RUNS)[1]
+        for a, b in ((0, 1), (1, 10_000), (10_000, n))
+    ]
+    assert np.concatenate(fates).tolist() == [p.fate for p in one.log]
+    assert windowed.lost == one.lost > 0
