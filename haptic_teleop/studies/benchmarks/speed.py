@@ -290,21 +290,28 @@ def _loop_figures(scene: Any, loop: str, repeat: int) -> dict[str, float]:
     }
 
 
-def _arm_cost_run(scene: Any, every: int) -> tuple[float, float, float]:
-    """One run of `arm_costs_us`: (loop, bare, MuJoCo calls), us per tick."""
+def _cost_run(scene: Any, every: int) -> tuple[float, float, float]:
+    """One run of `tick_costs_us`: (loop, bare, the tick's MuJoCo calls or NaN), us per tick."""
     import mujoco
 
-    from haptic_teleop.assembly import compiled_side
-    from haptic_teleop.engine.compiled.arm_kernel import bare_steps, mujoco_steps
     from haptic_teleop.engine.lockstep import Engine
 
     e = Engine(scene, loop="compiled")
-    parts = e.arm
-    mp, sp = parts.master.plant, parts.slave.plant
+    arm = scene.config.is_arm
+    if arm:
+        from haptic_teleop.assembly import compiled_side
+        from haptic_teleop.engine.compiled.arm_kernel import bare_steps, mujoco_steps
+
+        mp, sp = e.arm.master.plant, e.arm.slave.plant
+    else:
+        from haptic_teleop.engine.compiled.axis_kernel import bare_steps
+
+        mp, sp = e.master, e.slave
     md, sd = mujoco.MjData(mp.model), mujoco.MjData(sp.model)
     models = np.array([mp.model._address, md._address, sp.model._address, sd._address], dtype=np.int64)
-    ms = compiled_side.side_tuple(parts.master, parts, True, md)
-    ss = compiled_side.side_tuple(parts.slave, parts, False, sd)
+    if arm:
+        ms = compiled_side.side_tuple(e.arm.master, e.arm, True, md)
+        ss = compiled_side.side_tuple(e.arm.slave, e.arm, False, sd)
     spent = {"bare": 0.0, "calls": 0.0, "loop": 0.0, "loop_ticks": 0, "samples": 0}
     steady = (0.2 * e.ticks, 0.95 * e.ticks)  # the loop's ticks timed: not its start or end
     last = [0, 0.0]  # the tick and the time the last callback returned
@@ -322,34 +329,37 @@ def _arm_cost_run(scene: Any, every: int) -> tuple[float, float, float]:
         t1 = time.perf_counter()
         bare_steps(models, every)
         t2 = time.perf_counter()
-        copy()
-        t3 = time.perf_counter()
-        mujoco_steps(ms, ss, every)
-        t4 = time.perf_counter()
         spent["bare"] += t2 - t1
-        spent["calls"] += t4 - t3
+        if arm:
+            copy()
+            t3 = time.perf_counter()
+            mujoco_steps(ms, ss, every)
+            spent["calls"] += time.perf_counter() - t3
         spent["samples"] += every
         last[0], last[1] = n, time.perf_counter()
 
-    mujoco_steps(ms, ss, 0)  # both compiled (or loaded) before the timing
-    bare_steps(models, 0)
+    bare_steps(models, 0)  # compiled (or loaded) before the timing
+    if arm:
+        mujoco_steps(ms, ss, 0)
+    # (the compiled loop turns MuJoCo's timers off around its chunks and its progress calls: the
+    # bare steps run as the loop's do)
     e.run(handle_sigint=False, progress=progress, sink=recording_cost.Discard())
     return (
         spent["loop"] / max(1, spent["loop_ticks"]) * 1e6,
         spent["bare"] / spent["samples"] * 1e6,
-        spent["calls"] / spent["samples"] * 1e6,
+        spent["calls"] / spent["samples"] * 1e6 if arm else float("nan"),
     )
 
 
-def arm_costs_us(scene: Any, repeat: int, every: int = 100) -> dict[str, Any]:
-    """An arm scene's compiled tick against MuJoCo alone, in the same run (us per tick, medians of
-    `repeat` runs without recording): the loop, timed between its progress calls from 20 % to 95 %
-    of the run (its steady state: not the run's start, which builds its arrays, or its end); and,
-    every `every` ticks (the loop's progress calls), on a copy of both plants' MjData as the loop
-    has them (in contact when the loop is, the controls it holds), `every` bare `mj_step`s of
-    both models and `every` steps of the tick's own MuJoCo calls (mj_step1, mj_jacSite,
+def tick_costs_us(scene: Any, repeat: int, every: int = 100) -> dict[str, Any]:
+    """The compiled tick against MuJoCo alone, in the same run (us per tick, medians of `repeat`
+    runs without recording): the loop, timed between its progress calls from 20 % to 95 % of the
+    run (its steady state: not the run's start, which builds its arrays, or its end); and, every
+    `every` ticks (the loop's progress calls), on a copy of both plants' MjData as the loop has
+    them (in contact when the loop is, the controls it holds), `every` bare `mj_step`s of both
+    models and, for arms, `every` steps of the tick's own MuJoCo calls (mj_step1, mj_jacSite,
     mj_step2), all from compiled code with MuJoCo's timers off (as in the loop)."""
-    runs = [_arm_cost_run(scene, every) for _ in range(repeat)]
+    runs = [_cost_run(scene, every) for _ in range(repeat)]
     ratios = [loop / bare for loop, bare, _ in runs]
     return {
         "tick_us": statistics.median(r[0] for r in runs),
@@ -358,6 +368,17 @@ def arm_costs_us(scene: Any, repeat: int, every: int = 100) -> dict[str, Any]:
         "ratio": statistics.median(ratios),
         "ratio_range": (min(ratios), max(ratios)),
     }
+
+
+def print_tick_costs(c: dict[str, Any], arm: bool) -> None:
+    lo, hi = c["ratio_range"]
+    print("compiled tick against MuJoCo alone, in the same runs (state copied from the loop every 100 ticks):")
+    print(f"  compiled tick (steady state, no bag)     {c['tick_us']:8.2f} us")
+    if arm:
+        print(f"  its MuJoCo calls (step1, jacSite, step2) {c['calls_us']:8.2f} us")
+    print(f"  bare mj_step, master + slave, compiled   {c['bare_us']:8.2f} us  (timers off)")
+    ratio = c["ratio"]
+    print(f"  compiled tick / bare mj_step             {ratio:8.2f} x  (runs {lo:.2f} to {hi:.2f}; target <= 1.3)")
 
 
 def arm_speed(scene: Any, repeat: int) -> None:
@@ -383,14 +404,7 @@ def arm_speed(scene: Any, repeat: int) -> None:
     if probe.loop_kind == "compiled":
         for line in recording_cost.report(recording_cost.measure(scene, repeat), run.duration_s):
             print(line)
-        c = arm_costs_us(scene, repeat)
-        lo, hi = c["ratio_range"]
-        print("compiled tick against MuJoCo alone, in the same runs (state copied from the loop every 100 ticks):")
-        print(f"  compiled tick (steady state, no bag)     {c['tick_us']:8.2f} us")
-        print(f"  its MuJoCo calls (step1, jacSite, step2) {c['calls_us']:8.2f} us")
-        print(f"  bare mj_step, master + slave, compiled   {c['bare_us']:8.2f} us  (timers off)")
-        ratio = c["ratio"]
-        print(f"  compiled tick / bare mj_step             {ratio:8.2f} x  (runs {lo:.2f} to {hi:.2f}; target <= 1.3)")
+        print_tick_costs(tick_costs_us(scene, repeat), True)
 
 
 def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
@@ -425,8 +439,8 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
         print(
             f"bare mj_step, master + slave, compiled     {compiled_bare:8.2f} us  (timers off, in contact every step)"
         )
-    if "compiled" in figures and compiled_bare is not None:
-        print(f"compiled tick / bare compiled mj_step      {figures['compiled']['tick_us'] / compiled_bare:8.2f} x")
+    if "compiled" in figures:
+        print_tick_costs(tick_costs_us(scene, repeat), False)
     for line in recording_cost.report(recording_cost.measure(scene, repeat, loops[0]), run.duration_s):
         print(line)
     print(f"Python tick / bare mj_step from Python     {figures['python']['tick_us'] / bare:8.2f} x")
