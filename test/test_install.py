@@ -190,7 +190,7 @@ def test_readme_ros2_pip_command_has_the_bounds_of_setup_py():
     assert len(lines) == 1, lines
     specs = re.findall(r"'([^']+)'", lines[0])
     by_name = {re.split(r"[<>=!~\[; ]", s, maxsplit=1)[0].lower(): s for s in specs}
-    assert set(by_name) == {"mujoco", "rosbags", "numba", "lz4", "backports.zstd", "ruamel.yaml"}, specs
+    assert set(by_name) == {"mujoco", "rosbags", "numba", "lz4", "backports.zstd", "ruamel.yaml", "isal"}, specs
     for name, spec in by_name.items():
         assert spec.replace(" ", "") == requires[name].replace(" ", ""), f"README {spec!r}, setup.py {requires[name]!r}"
     # everything else in install_requires has a rosdep key declared in package.xml
