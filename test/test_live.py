@@ -245,9 +245,7 @@ def test_default_scene_runs_live_and_ends_cleanly(default_run):
     assert not list(default_run["temp"].glob("haptic_teleop_params_*"))  # its parameter files removed
     assert "bag written" in launch.text
     assert "Traceback" not in launch.text
-    # composed: no child process per node, only the recorder beside the composed nodes
-    started = re.findall(r"\[launcher\] started (\S+) \((\S+)\)", launch.text)
-    assert started == [("recorder", "recorder")], started
+    assert "[launcher] started" not in launch.text  # composed: no child process per node
 
 
 @pytest.mark.parametrize("side", ["master", "slave"])

@@ -635,27 +635,17 @@ LOOP_TABLE_LEGEND = (
 
 def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path, out: IO[str] | None = None) -> int:
     """Every node of the plan in this process: one executor, one shared loop thread ticking every
-    node in pipeline order (nodes.rtloop.SharedLoop); but the recorder, if the plan has one, in a
-    process of its own beside it (`Launcher`), stopped once the others have stopped (it writes the
-    bag). Prints the loop table at the end; a SIGINT/SIGTERM that stopped the nodes gives exit
-    130/143.
-
-    The recorder runs apart because the composed loop uses about 0.8 of a CPU on an arm scene and
-    the recorder's takes and its bag writer tipped it over: 90 to 99.7 % of the samples released
-    in time with it in the process, against 99.4 to 100 % without it (docs/live_measured.md); the
-    second CPU was mostly idle. Apart, it also closes its bag by itself if this process is killed."""
+    node in pipeline order (nodes.rtloop.SharedLoop); the recorder is closed last. Prints the loop
+    table at the end; a SIGINT/SIGTERM that stopped the nodes gives exit 130/143."""
     import importlib
 
     from haptic_teleop.nodes.base import run_nodes
 
     files = write_params_files(plan, params_dir)
-    composed = [s for s in plan if s.executable != "recorder"]
-    apart = [s for s in plan if s.executable == "recorder"] if composed else []
-    if not apart:
-        composed = list(plan)
+    ordered = sorted(plan, key=lambda s: s.executable == "recorder")
     factories = []
     node_args = []
-    for spec in composed:
+    for spec in ordered:
         module = importlib.import_module(spec.module)
         cls = next(
             v
@@ -672,22 +662,9 @@ def run_single_process(plan: Sequence[NodeSpec], params_dir: str | Path, out: IO
         )
     figures: list[dict[str, Any]] = []
     signals: list[int] = []
-    beside = Launcher(apart, params_dir, out=out) if apart else None
-    if beside is not None:
-        beside.start()
-    try:
-        code = run_nodes(factories, node_args, args=[], shared_loop=True, figures_out=figures, signals_out=signals)
-    finally:
-        if beside is not None:  # after every composed node has stopped: the bag holds all they sent
-            beside.stop()
-    by_node = {f["node"]: f for f in figures}
-    if beside is not None:
-        by_node.update(beside.figures)
-        failed = {c.spec.name: c.returncode for c in beside.children if c.returncode != 0}
-        if failed and code == 0:
-            code = EXIT_FAILURE
+    code = run_nodes(factories, node_args, args=[], shared_loop=True, figures_out=figures, signals_out=signals)
     stream = out or sys.stdout
-    stream.write(format_loop_table([s.name for s in plan], by_node) + "\n")
+    stream.write(format_loop_table([s.name for s in plan], {f["node"]: f for f in figures}) + "\n")
     stream.flush()
     if code == 0 and signals:
         code = EXIT_SIGNAL.get(signal.Signals(signals[0]), EXIT_FAILURE)
