@@ -117,7 +117,7 @@ class signals_held:
 
     The recorder enters it a few times per block of ticks, so it swaps the handlers through the
     interpreter's built-in `_signal` (the `signal` module's wrappers build enums on every call:
-    about 40 us an entry and exit against 5 us; docs/recording_costs.md, "The loop's side")."""
+    about 40 us an entry and exit against 5 us; docs/recording_costs.md, "In the loop")."""
 
     __slots__ = ("_got", "_previous", "_sigs")
 

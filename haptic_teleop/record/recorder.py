@@ -37,7 +37,7 @@ COMPRESSIONS = ("none", "zstd", "lz4")
 RING_SLOTS = 4  # blocks of BLOCK_TICKS rows the parent may be ahead of the writer
 # Packet records go through a ring of their own (two directions a block): a pickled array on the
 # pipe filled the socket's buffer while the writer encoded a block, and the loop waited, 270 us a
-# call (docs/recording_costs.md, "The loop's side"). A larger hand-over goes on the pipe.
+# call (docs/recording_costs.md, "In the loop"). A larger hand-over goes on the pipe.
 PACKET_SLOTS = 2 * RING_SLOTS
 PACKET_SLOT_ROWS = 2 * BLOCK_TICKS
 _WAIT_S = 0.5  # the writer checks on its parent at least this often while it waits
