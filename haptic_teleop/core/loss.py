@@ -25,6 +25,14 @@ def first_fate(fate: int, lost: bool, code: int) -> int:
     return code if lost and fate == DELIVERED else fate
 
 
+def _mark_lost(fate: np.ndarray, lost: np.ndarray, effect: Any) -> None:
+    """`first_fate` over a window (`apply_all`): the packets an effect loses that no effect before
+    it lost take its fate, and count as its drops."""
+    hit = lost & (fate == DELIVERED)
+    fate[hit] = LOST_NETWORK
+    effect.dropped += int(hit.sum())
+
+
 def blackout_at(windows: np.ndarray, i: int, t_ns: int) -> tuple[int, bool]:
     """Blackout windows (rows [start, end) ns, sorted, not overlapping) at time `t_ns`, searched
     from row `i` (the answer for an earlier time, or 0): the number of windows that start by
@@ -76,9 +84,7 @@ class Blackout:
         """`apply` on every original packet of a run at once (see `Link.schedule_all`)."""
         starts, ends = self.windows[:, 0], self.windows[:, 1]
         i = np.searchsorted(starts, send_ns, side="right") - 1
-        hit = (i >= 0) & (send_ns < ends[np.maximum(i, 0)]) & (fate == DELIVERED)
-        fate[hit] = LOST_NETWORK
-        self.dropped += int(hit.sum())
+        _mark_lost(fate, (i >= 0) & (send_ns < ends[np.maximum(i, 0)]), self)
 
     def apply(self, packet: Packet) -> Packet | None:
         t = packet.send_time_ns
@@ -121,9 +127,7 @@ class BernoulliLoss:
         same stream in blocks), so the same packets are lost."""
         if not self.vectorized:
             raise ValueError("correlated loss draws depend on the previous draw; it has no vectorized form")
-        hit = (self._rng.random(len(send_ns)) < self.probability) & (fate == DELIVERED)
-        fate[hit] = LOST_NETWORK
-        self.dropped += int(hit.sum())
+        _mark_lost(fate, self._rng.random(len(send_ns)) < self.probability, self)  # bernoulli_lost, per packet
 
     def apply(self, packet: Packet) -> Packet | None:
         fate = first_fate(packet.fate, bernoulli_lost(self._u(), self.probability), LOST_NETWORK)
@@ -158,7 +162,7 @@ def gilbert_run(
 
 
 # A chain's run over a window (`gilbert_run`, `four_state_run`): the plain functions above, or the
-# same functions compiled (`Link.schedule_all(kernels=...)`: engine/compiled/link_runs.py).
+# same functions compiled (`Link.schedule_all(send, runs)`: engine/compiled/link_runs.py).
 Runs = Mapping[str, Callable[..., Any]]
 
 
@@ -245,13 +249,6 @@ def four_state_run(
     for i in range(lost.shape[0]):
         s, lost[i] = four_state_step(s, draws[i], p13, p31, p32, p23, p14)
     return s
-
-
-def _mark_lost(fate: np.ndarray, lost: np.ndarray, effect: Any) -> None:
-    """An effect's verdicts on a window (`apply_all`): the first effect that loses a packet names its fate."""
-    hit = lost & (fate == DELIVERED)
-    fate[hit] = LOST_NETWORK
-    effect.dropped += int(hit.sum())
 
 
 class FourStateLoss:

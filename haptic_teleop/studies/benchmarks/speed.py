@@ -27,14 +27,13 @@ import numpy as np
 from haptic_teleop.studies.benchmarks import add_scene_argument, positive, recording_cost
 
 
-def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float, float | None]:
-    """Time per bare `mujoco.mj_step` of the scene's master and slave models (us): each called
-    from Python, and both called from compiled code (None without the compiled loop)."""
+def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float]:
+    """Time per bare `mujoco.mj_step` of the scene's master and slave models called from Python
+    (us), each pushed into its wall so contact is part of the cost. (From compiled code the bare
+    step is paired with the tick in the same run, `tick_costs_us`.)"""
     import mujoco
 
-    from haptic_teleop.engine.compiled import axis_host
     from haptic_teleop.engine.lockstep import Engine
-    from haptic_teleop.plants import mujoco_native
     from haptic_teleop.scene.load import load_scene
 
     engine = Engine(load_scene(scene_path), loop="python")
@@ -49,17 +48,7 @@ def bare_mj_step_us(scene_path: Path, steps: int = 20000) -> tuple[float, float,
         for _ in range(steps):
             step(m, d)
         out.append((time.perf_counter() - t0) / steps * 1e6)
-    compiled = None
-    if axis_host.kernel() is not None and axis_host.compiled_reason(engine.parts) is None:
-        from haptic_teleop.engine.compiled import axis_kernel
-
-        models = axis_host.model_addresses(engine.parts)
-        with mujoco_native.mujoco_timers_off():  # as in the compiled loop
-            axis_kernel.bare_steps(models, 10)
-            t0 = time.perf_counter()
-            axis_kernel.bare_steps(models, steps)
-            compiled = (time.perf_counter() - t0) / steps * 1e6
-    return out[0], out[1], compiled
+    return out[0], out[1]
 
 
 def _one_core() -> Callable[[], None] | None:
@@ -419,7 +408,7 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
     probe = Engine(scene)
     loops = ["compiled", "python"] if probe.loop_kind == "compiled" else ["python"]
     figures = {loop: _loop_figures(scene, loop, repeat) for loop in loops}
-    m_us, s_us, compiled_bare = bare_mj_step_us(path)
+    m_us, s_us = bare_mj_step_us(path)
     bare = m_us + s_us
     run = scene.config.scene
     one_core = "pinned to one CPU" if hasattr(__import__("os"), "sched_setaffinity") else "writer in the loop's process"
@@ -435,10 +424,6 @@ def speed(scene_name: str, repeat: int, breakdown: bool) -> int:
         print(f"  wall time per tick, loop + recording     {f['per_tick_recorded_us']:8.2f} us")
         print(f"  wall time per tick, loop alone           {f['tick_us']:8.2f} us")
     print(f"bare mj_step, master + slave, from Python  {bare:8.2f} us  ({m_us:.2f} + {s_us:.2f})")
-    if compiled_bare is not None:
-        print(
-            f"bare mj_step, master + slave, compiled     {compiled_bare:8.2f} us  (timers off, in contact every step)"
-        )
     if "compiled" in figures:
         print_tick_costs(tick_costs_us(scene, repeat), False)
     for line in recording_cost.report(recording_cost.measure(scene, repeat, loops[0]), run.duration_s):
