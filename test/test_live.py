@@ -318,10 +318,11 @@ def test_scene_topic_is_latched_for_a_late_subscriber(default_run):
 def test_buffer_skips_count_as_late_packets_as_the_engine_counts_them(default_run):
     """The engine marks a packet its playout buffer skipped with fate 4 (late) in the packet
     records, which packets_late_* and late_loss_* count. Live, the sync buffers report their
-    decisions and the recorder applies them: the bag's late records are exactly the packets of
-    the recorded window that the buffer decided late, as this test's own subscriber saw the
-    decisions (past the last decision it saw, the batch a buffer sends as it closes may not reach
-    it: there the bag may hold more), one record per late packet, each one that arrived.
+    decisions and the recorder applies them: every packet of the recorded window that this
+    test's own subscriber saw the buffer decide late is late in the bag (the bag may hold more:
+    the batch a buffer sends as it closes may not reach that subscriber, and a late packet is
+    decided after newer ones), never more than the buffer skipped, one record per late packet,
+    each one that arrived.
     (Lateness here is this machine's, so there may be none; test_live_engine's jitter case makes
     late packets by reordering and compares them with the engine's, record by record.)"""
     from haptic_teleop.record.reader import BagReader
@@ -339,10 +340,10 @@ def test_buffer_skips_count_as_late_packets_as_the_engine_counts_them(default_ru
         assert bag_late <= buffer_late, (d, bag_late, buffer_late)
         rows = packets[d]
         late = rows[rows[:, 3] == 4.0]
-        seen, upto = default_run["late_decisions"][d]
+        seen, _ = default_run["late_decisions"][d]
         decided = seen & {int(q) for q in rows[:, 0]}
         in_bag = {int(q) for q in late[:, 0]}
-        assert {q for q in in_bag if q <= upto} == decided, (d, len(decided), late.shape[0], upto)
+        assert decided <= in_bag, (d, sorted(decided - in_bag)[:10], late.shape[0])
         assert late.shape[0] == bag_late
         assert np.all(np.isfinite(late[:, 2])), "a late packet without an arrival time"
         assert np.unique(late[:, 0]).size == late.shape[0], "a packet counted late twice"
