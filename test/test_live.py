@@ -580,7 +580,7 @@ def test_sigkill_of_one_process_leaves_a_readable_bag_and_the_others_exit_cleanl
     assert code == 1, launch.text[-4000:]
     codes = launch.exit_codes()
     assert codes.pop(victim) == -signal.SIGKILL
-    assert codes and all(c == 0 for c in codes.values()), codes
+    assert codes and all(c == 0 for c in codes.values()), (dict(codes), launch.text[-4000:])
     bag = out / "bag"
     period = round(period_s * 1e9)
     if victim == "recorder":

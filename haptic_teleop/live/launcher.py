@@ -54,7 +54,11 @@ MASTER_SIDE = (
     "recorder",
 )  # fmt: skip
 SLAVE_SIDE = ("slave_eba", "backward_relay", "forward_buffer", "forward_ack_relay")
-STOP_TIMEOUT_S = 10.0
+# A node's stop may wait up to twice messages.FINAL_ACK_S (4 s) for a reader's acknowledgements, and
+# a dead recorder (SIGKILL) never acknowledges: its writers wait the whole time. With the
+# middleware's teardown on a busy machine that came close to 10 s (CI: a node aborted after the
+# recorder's kill), so a stop has 2 x 4 s plus 12 s for everything else.
+STOP_TIMEOUT_S = 20.0
 RECORDER_STOP_TIMEOUT_S = 60.0
 ABORT_WAIT_S = 5.0  # a node that did not stop: its stacks printed on SIGABRT within this, then SIGKILL
 EXIT_OK = 0

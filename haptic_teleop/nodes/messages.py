@@ -188,8 +188,8 @@ def take_latest(sub: Any) -> Any:
 # At close, the longest wait for a reliable publisher's last messages to be acknowledged by its
 # readers (the recorder). A reliable message lost on its first send is sent again only while its
 # writer lives: a node that exits at once loses it (on a busy machine a relay published 49 batches
-# of packet records and the recorder got none). Twice per node at most, within the launcher's
-# STOP_TIMEOUT_S.
+# of packet records and the recorder got none). Twice per node at most, well within the launcher's
+# STOP_TIMEOUT_S (a reader killed by SIGKILL never acknowledges: its writers wait all of it).
 FINAL_ACK_S = 4.0
 
 
