@@ -358,6 +358,9 @@ def compute_summary(sig: Signals) -> dict[str, Any]:
         **nets,
         "master_energy_margin_min_j": float(me0 + np.min(m_abs)),
         "slave_energy_margin_min_j": float(se0 + np.min(s_abs)),
+        # Both ports together (the two-port of controllers and channel): what TDPA keeps >= 0;
+        # EBA keeps each side's, hence this too (docs/stabilizers.md).
+        "two_port_energy_margin_min_j": float(me0 + se0 + np.min(m_abs + s_abs)),
         "master_port_energy_min_j": float(np.min(m_abs)),
         "slave_port_energy_min_j": float(np.min(s_abs)),
         "master_initial_energy_j": me0,

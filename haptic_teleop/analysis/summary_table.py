@@ -44,6 +44,7 @@ ROWS = (
     ("force_peak_error_vs_reference_n", "force peak error vs undisturbed run (N)", "{:.4f}"),
     ("master_energy_margin_min_j", "master energy margin min (J)", "{:.4g}"),
     ("slave_energy_margin_min_j", "slave energy margin min (J)", "{:.4g}"),
+    ("two_port_energy_margin_min_j", "two-port energy margin min (J)", "{:.4g}"),
 )
 # Lines printed only when the count is not 0 (a live run's packets taken late by the machine).
 SHOWN_IF_ANY = ("packets_late_by_scheduling_forward", "packets_late_by_scheduling_backward")

@@ -129,6 +129,7 @@ def build_controller(
         force_limit_n=saturation.force_limit_n if saturation is not None else None,
         slew_rate_n_per_s=saturation.slew_rate_n_per_s if saturation is not None else None,
         law=cfg.eba.law,
+        tdpa_controller=cfg.eba.tdpa_controller,
     )
     return TeleopController(params, bound)
 

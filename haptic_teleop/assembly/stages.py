@@ -122,6 +122,8 @@ class AxisSide:
         self._control, self._set_remote = ctrl.step1, ctrl.set_remote  # one axis: the scalar path
         self._applied = ctrl.bound.applied1  # the reservoir books the force the plant applied
         self.desired, self.energy = ctrl.force_desired, ctrl.bound.energy_j  # updated in place
+        # TDPA: the side's observed input energy rides on its samples (core/tdpa.py).
+        self.energy_in = ctrl.tdpa.energy_in_j if ctrl.tdpa is not None else None
         self.xs: list[float] = [0.0]
         self.vs: list[float] = [0.0]
         self.x = self.v = self.f_env = self.force = self.applied = 0.0
@@ -129,14 +131,15 @@ class AxisSide:
     def tick(self, n: int) -> Payload:
         """Sense (the plant's state at t_n; the slave's wall force over the last period), control
         (the law on the newest remote sample, saturation, the bound), and the sample to send:
-        the master's (x, v), the slave's (f_env, x, v)."""
+        the master's (x, v), the slave's (f_env, x, v); with TDPA, its input energy last."""
         self.xs, self.vs = xs, vs = self._read()
         self.x, self.v = x, v = xs[0], vs[0]
         self.force = self._control(x, v)
+        e = self.energy_in
         if self.master:
-            return (x, v)
+            return (x, v) if e is None else (x, v, e[0])
         self.f_env = f = self._contact()[0]
-        return (f, x, v)
+        return (f, x, v) if e is None else (f, x, v, e[0])
 
     def take(self, payload: Payload) -> None:
         self._set_remote(payload)

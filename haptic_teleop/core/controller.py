@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from haptic_teleop.core.eba import EnergyBound, command1, coupling1, saturated1, within2, within3
 from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.eba_two_condition import TwoConditionBound
+from haptic_teleop.core.tdpa import ENERGY_LIMIT_J, TdpaBound
 
 LAWS = ("position", "force")
 
@@ -105,6 +106,7 @@ class TeleopController:
       master -> slave: (x_1..x_n, v_1..v_n)
       slave -> master: (f_env_1..f_env_n, x_1..x_n, v_1..v_n), f_env the environment's force on
       the robot (negative when the robot pushes a wall at +x).
+    With law tdpa both carry the sender's observed input energy last (E_in_1..E_in_n, J).
     """
 
     __slots__ = (
@@ -121,13 +123,20 @@ class TeleopController:
         "force_applied",
         "force_desired",
         "guard",
+        "tdpa",
     )
 
     def __init__(self, params: ControllerParams, bound: EnergyBoundParams) -> None:
-        # The bound `bound.law` names; both have the same step/applied interface.
-        self.bound: EnergyBound | TwoConditionBound = (
-            EnergyBound(bound) if bound.law == "reservoir" else TwoConditionBound(bound)
-        )
+        # The bound `bound.law` names; all have the same step/applied interface.
+        self.bound: EnergyBound | TwoConditionBound | TdpaBound
+        if bound.law == "reservoir":
+            self.bound = EnergyBound(bound)
+        elif bound.law == "two_condition":
+            self.bound = TwoConditionBound(bound)
+        else:
+            self.bound = TdpaBound(bound, params.force_limit_n, bound.tdpa_controller)
+        # TDPA: every sample carries the sender's observed input energy, one value per axis, last.
+        self.tdpa: TdpaBound | None = self.bound if isinstance(self.bound, TdpaBound) else None
         self._n = bound.axes
         self._remote: tuple[float, ...] | None = None
         # The controller's own lists, overwritten in place every tick (copy them to keep a value).
@@ -140,6 +149,8 @@ class TeleopController:
         if lim is not None:
             kinds = (lim.force_n, lim.position_m, lim.velocity_m_per_s)
             per_kind = kinds if params.role == "master" else kinds[1:]
+            if self.tdpa is not None:
+                per_kind = (*per_kind, ENERGY_LIMIT_J)
             self.guard = SampleGuard([k for k in per_kind for _ in range(self._n)])
 
     @property
@@ -185,6 +196,8 @@ class TeleopController:
         if guard is not None and not guard.accept(payload):
             return
         self._remote = payload
+        if self.tdpa is not None:
+            self.tdpa.receive(payload[len(payload) - self._n :])
 
     def desired_force(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """The control law alone (no saturation, no bound)."""

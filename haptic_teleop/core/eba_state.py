@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 
 # The energy-bound laws a side can run (`controllers.<side>.eba.law`).
-EBA_LAWS = ("reservoir", "two_condition")
+EBA_LAWS = ("reservoir", "two_condition", "tdpa")
 
 
 @dataclass(frozen=True)
@@ -40,15 +40,17 @@ class EnergyBoundParams:
     slew_rate_n_per_s: float | None = None
     # Which bound: "reservoir" (one pooled reservoir per axis, `EnergyBound`) or "two_condition"
     # (the ZOH and controller energy conditions, `core.eba_two_condition.TwoConditionBound`);
-    # docs/eba_two_condition.md, "The published two-condition law".
+    # docs/eba_two_condition.md, "The published two-condition law"; or "tdpa" (core/tdpa.py).
     law: str = "reservoir"
+    # With law "tdpa": its passivity controller, "velocity" or "zoh" (core/tdpa.py).
+    tdpa_controller: str = "velocity"
 
     def __post_init__(self) -> None:
         if self.law not in EBA_LAWS:
             raise ValueError(f"law must be one of {', '.join(EBA_LAWS)}, got {self.law!r}")
-        if self.law == "two_condition" and self.slew_rate_n_per_s is not None:
+        if self.law in ("two_condition", "tdpa") and self.slew_rate_n_per_s is not None:
             raise ValueError(
-                "the two_condition law does not model an actuator slew limit; allowed with a slew limit: law reservoir"
+                f"the {self.law} law does not model an actuator slew limit; allowed with a slew limit: law reservoir"
             )
         for name in ("force_limit_n", "slew_rate_n_per_s"):
             v = getattr(self, name)

@@ -116,6 +116,12 @@ class Engine:
         self.codecs = parts.codecs
         # Wire sizes of the two packets (setup: the first call loads the message types).
         self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(3))
+        if self.master_ctrl.tdpa is not None:
+            # TDPA's samples carry the observed energy too: a JointState with a second name,
+            # "energy_in_j", whose position is the energy (docs/stabilizers.md, "On the wire").
+            from haptic_teleop.assembly.side import wire_payload_bytes
+
+            self._sizes = (wire_payload_bytes(2, 2), wire_payload_bytes(2, 3))
         self._stop = False
         self._state: LoopState | None = None  # the Python loop's, while it runs
         self.compiled_reason = axis_host.compiled_reason(self.parts) if loop != "python" else "loop 'python' asked for"

@@ -198,6 +198,13 @@ def node_plan(
         raise _ConfigError(
             scene.source, "slave.start", "in_contact", "runs in `haptic-teleop run` only; allowed live: free"
         )
+    if scene.config.controllers.master.eba.law == "tdpa":  # the live samples do not carry its energy yet
+        raise _ConfigError(
+            scene.source,
+            "controllers.master.eba.law",
+            "tdpa",
+            "runs in `haptic-teleop run` only; allowed live: reservoir, two_condition",
+        )
     if device != "plant" and scene.config.is_arm:
         from haptic_teleop.errors import ConfigError
 

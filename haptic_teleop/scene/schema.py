@@ -422,9 +422,17 @@ class EBAConfig:
     law: str = field(
         default="reservoir",
         metadata={
-            "choices": ("reservoir", "two_condition"),
+            "choices": ("reservoir", "two_condition", "tdpa"),
             "help": "reservoir: one pooled reservoir; two_condition: the ZOH and controller energy conditions "
-            "(docs/eba.md)",
+            "(docs/eba.md); tdpa: the time-domain passivity approach, on both sides (docs/stabilizers.md)",
+        },
+    )
+    tdpa_controller: str = field(
+        default="velocity",
+        metadata={
+            "choices": ("velocity", "zoh"),
+            "help": "law tdpa's passivity controller: velocity (the field's, a predicted hold) or zoh "
+            "(the hold's worst case with the device's damping; docs/stabilizers.md)",
         },
     )
 
@@ -580,9 +588,9 @@ class Scene:
             ("slave", self.controllers.slave, self.slave),
         ):
             sat = plant.effects.saturation
-            if ctrl.eba.law == "two_condition" and sat is not None and sat.slew_rate_n_per_s is not None:
+            if ctrl.eba.law in ("two_condition", "tdpa") and sat is not None and sat.slew_rate_n_per_s is not None:
                 raise ValueError(
-                    f"controllers.{side}.eba.law two_condition does not model {side}.effects.saturation."
+                    f"controllers.{side}.eba.law {ctrl.eba.law} does not model {side}.effects.saturation."
                     "slew_rate_n_per_s; allowed with a slew limit: law reservoir (docs/eba.md)"
                 )
             if ctrl.force_limit_n > plant.force_limit_n:
@@ -590,6 +598,7 @@ class Scene:
                     f"controllers.{side}.force_limit_n ({ctrl.force_limit_n}) exceeds {side}.force_limit_n "
                     f"({plant.force_limit_n}): the actuator would clip forces the energy bound accounted for"
                 )
+        self._check_tdpa()
         nyquist_hz = 0.5 / self.scene.period_s
         for side, effects in (("master", self.master.effects), ("slave", self.slave.effects)):
             filt = effects.force_filter
@@ -617,6 +626,33 @@ class Scene:
                 "slave.effects.friction.coulomb_n needs simulation.substeps: 1 (the wall force is told "
                 "apart from the joint friction force per MuJoCo step, docs/effects.md)"
             )
+
+    def _check_tdpa(self) -> None:
+        """TDPA (docs/stabilizers.md) observes the energy that crosses both ports: both sides run it,
+        each sending its input energy with its samples. Runs so far: one-axis scenes in the engine,
+        plain channels (no codec stage, which carries its own payloads)."""
+        laws = (self.controllers.master.eba.law, self.controllers.slave.eba.law)
+        if "tdpa" not in laws:
+            return
+        if laws != ("tdpa", "tdpa"):
+            raise ValueError(
+                f"controllers.<side>.eba.law: tdpa on one side only (master {laws[0]}, slave {laws[1]}); allowed: "
+                "tdpa on both sides (each side's passivity controller spends the energy the other side observed)"
+            )
+        if self.is_nve:
+            raise ValueError("controllers.<side>.eba.law tdpa: not for NVE scenes; allowed there: reservoir")
+        for name in ("forward", "backward"):
+            if getattr(self.network, name).codec is not None:
+                raise ValueError(
+                    f"network.{name}.codec with controllers.<side>.eba.law tdpa: the codecs do not carry the "
+                    "observed energy yet; allowed with tdpa: no codec (plain samples)"
+                )
+            buf = getattr(self.network, name).buffer
+            if buf.policy == "network_adaptive" and None in (buf.allowable_delay_s, buf.allowable_loss_time_s):
+                raise ValueError(
+                    f"network.{name}.buffer: policy network_adaptive takes its budget from the EBA transparency "
+                    "analysis, which does not model tdpa; allowed: set allowable_delay_s and allowable_loss_time_s"
+                )
 
     def _check_seed_premise(self) -> None:
         """The seed scenario's keys (docs/transparency.md): one axis; an in-contact start that can

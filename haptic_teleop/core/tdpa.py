@@ -1,0 +1,164 @@
+"""The Time-Domain Passivity Approach (TDPA) in its network-aware form for delayed teleoperation:
+a passivity observer (PO) and a passivity controller (PC) at each side's port, one per axis.
+
+Each side observes the energy that crosses its port over every hold of the force (zero-order
+hold, the force the actuator really applied over the period, `applied1`): `held * dx`, with dx the
+motion over the hold. Positive, the network gave the device energy (the side's output, E_out);
+negative, the device pushed energy into the network (its input, E_in). Each side sends its E_in
+with every sample; the other side may release, over its whole history, at most the E_in it has
+received (delayed, some packets lost: a cumulative figure is still a lower bound of what was put
+in). The PC dissipates only what the output would otherwise create. Derivation, the two
+controllers and why both sides sum to a passive two-port: docs/stabilizers.md.
+
+Two passivity controllers (`controllers.<side>.eba.tdpa_controller`):
+- "velocity": the field's impedance-type PC. The energy the next hold will release is predicted
+  from the motion of the last hold (f dx, the velocity estimate times T); when it exceeds the
+  budget W = E0 + E_in(remote) - E_out, the force is set to W / dx (f - alpha v with the usual
+  alpha), at most the controller's force limit. Exact only while the motion over the next hold
+  equals the last one's: a held force on an accelerating device releases more (docs/stabilizers.md).
+- "zoh": the budget also credits the device's own damping b over each hold, (b/T) dx^2 (the least
+  a damper dissipates over dx in T), and bounds the next hold's worst case: a force F held over
+  T can release at most F^2 T / (4 b) beyond what the damper takes, so |F| <= sqrt(4 b W / T).
+  This one holds for every motion of the device, whatever the sampling.
+
+Scalar functions of floats (the rule, written once, for the Python loop and any compiled loop);
+`TdpaBound` is the per-side object with the bound interface `TeleopController` uses.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from haptic_teleop.core.eba import bounded1, reservoir1
+from haptic_teleop.core.eba_state import EnergyBoundParams
+
+TDPA_CONTROLLERS = ("velocity", "zoh")
+# The largest cumulative port energy a packet may carry (J): beyond it a sample is a fault.
+ENERGY_LIMIT_J = 1e9
+
+
+def observe1(energy_in: float, energy_out: float, held: float, dx: float) -> tuple[float, float]:
+    """The passivity observer over one hold: the energy `held * dx` the held force put into the
+    device (E_out grows) or took from it (E_in grows by its magnitude)."""
+    w = held * dx
+    if w > 0.0:
+        return energy_in, energy_out + w
+    return energy_in - w, energy_out
+
+
+def velocity_pc1(force: float, budget: float, dx: float, cap: float) -> float:
+    """The impedance-type PC on a predicted hold: the next hold is predicted to release
+    `force * dx` (dx: the last hold's motion); beyond `budget` the force becomes budget / dx, the
+    force whose predicted release is the budget (a negative budget: a force that takes the debt
+    back), its magnitude at most `cap`. No motion, no prediction: the force passes."""
+    if dx == 0.0 or force * dx <= budget:
+        return force
+    f = budget / dx
+    if f > cap:
+        return cap
+    if f < -cap:
+        return -cap
+    return f
+
+
+def zoh_pc1(force: float, budget: float, bound_gain: float) -> float:
+    """The PC on the hold's worst case: |F| <= sqrt(bound_gain W), bound_gain = 4 b / T (none
+    when the budget is spent)."""
+    return bounded1(force, budget if budget > 0.0 else 0.0, bound_gain)
+
+
+class TdpaBound:
+    """One side's TDPA (the bound interface of `core.eba.EnergyBound`): `step1`/`step` observe the
+    last hold and control the next force, `applied1`/`applied` book the force the actuator really
+    applied, `receive` takes the remote side's cumulative input energy from a sample.
+
+    `energy_j` (recorded as the side's energy column) is the observer's budget W per axis:
+    E0 + E_in received - E_out (+ the damping credit with the "zoh" controller). `energy_in_j` is
+    what this side sends. Disabled (`eba.enabled: false`), the observer still runs and the force
+    passes unchanged: the unprotected variant, observed."""
+
+    __slots__ = (
+        "_bound_gain",
+        "_cap",
+        "_credit",
+        "_enabled",
+        "_gain",
+        "_has_last",
+        "_held",
+        "_last",
+        "_zoh",
+        "energy_in_j",
+        "energy_j",
+        "energy_out_j",
+        "params",
+        "remote_in_j",
+    )
+
+    def __init__(self, params: EnergyBoundParams, force_cap_n: float, controller: str = "velocity") -> None:
+        if controller not in TDPA_CONTROLLERS:
+            raise ValueError(f"tdpa controller must be one of {', '.join(TDPA_CONTROLLERS)}, got {controller!r}")
+        if not 0.0 < force_cap_n < math.inf:
+            raise ValueError(f"force_cap_n must be finite and > 0, got {force_cap_n}")
+        self.params = params
+        n = params.axes
+        self._zoh = controller == "zoh"
+        self._enabled = params.enabled
+        self._cap = force_cap_n if params.force_limit_n is None else min(force_cap_n, params.force_limit_n)
+        self._gain = list(params.reservoir_gains())
+        self._bound_gain = list(params.bound_gains())
+        self.energy_in_j = [0.0] * n
+        self.energy_out_j = [0.0] * n
+        self.remote_in_j = [0.0] * n
+        self._credit = [0.0] * n
+        self.energy_j = [params.initial_energy_j] * n
+        self._held = [0.0] * n
+        self._last = [0.0] * n
+        self._has_last = False
+
+    def receive(self, energy_in: Sequence[float]) -> None:
+        """The remote side's cumulative input energy, per axis, from the newest accepted sample. A
+        cumulative figure only grows: an older sample released later keeps the larger value."""
+        r = self.remote_in_j
+        for i in range(len(r)):
+            r[i] = max(r[i], energy_in[i])
+
+    def _axis(self, i: int, x: float, force: float) -> float:
+        if self._has_last:
+            dx = x - self._last[i]
+            self.energy_in_j[i], self.energy_out_j[i] = observe1(
+                self.energy_in_j[i], self.energy_out_j[i], self._held[i], dx
+            )
+            if self._zoh:
+                self._credit[i] = reservoir1(self._credit[i], self._gain[i], 0.0, dx)
+        else:
+            dx = 0.0
+        self._last[i] = x
+        w = self.params.initial_energy_j + self.remote_in_j[i] - self.energy_out_j[i] + self._credit[i]
+        self.energy_j[i] = w
+        if self._enabled:
+            force = zoh_pc1(force, w, self._bound_gain[i]) if self._zoh else velocity_pc1(force, w, dx, self._cap)
+        self._held[i] = force
+        return force
+
+    def step1(self, x: float, force_desired: float) -> float:
+        """One axis: observe the hold that ended at `x`, control the next force."""
+        f = self._axis(0, x, force_desired)
+        self._has_last = True
+        return f
+
+    def step(self, x: Sequence[float], force_desired: Sequence[float]) -> list[float]:
+        out = [self._axis(i, x[i], force_desired[i]) for i in range(len(self.energy_j))]
+        self._has_last = True
+        return out
+
+    def applied1(self, force: float) -> None:
+        """The force the actuator applied over the hold that follows the last `step1`."""
+        self._held[0] = force
+
+    def applied(self, force: Sequence[float]) -> None:
+        self._held[:] = list(force)
+
+    @property
+    def total_energy_j(self) -> float:
+        return sum(self.energy_j)
