@@ -206,3 +206,56 @@ def test_live_and_arm_runs_of_tdpa_exit_2_in_one_line(tmp_path: Path, command: s
     assert r.returncode == 2, r.stdout + r.stderr
     assert words in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------------------------
+# `haptic-teleop experiment stabilizers`.
+
+
+def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_from_them(tmp_path: Path) -> None:
+    import csv
+
+    from haptic_teleop.analysis.metrics import analyze_bag as analyze
+    from haptic_teleop.studies.replications import stabilizers as st
+
+    out = tmp_path / "st"
+    r = subprocess.run(
+        [str(Path(sys.executable).parent / "haptic-teleop"), "experiment", "stabilizers", "--quick", "--quiet",
+         "--laws", "reservoir,tdpa_zoh", "--out", str(out)],
+        capture_output=True, text=True, timeout=600, cwd=tmp_path,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    runs = list(csv.DictReader((out / "stabilizers_runs.csv").open()))
+    # quick: 1 seed, delays 0 and 100 ms, no loss and bursty loss: 4 runs per law
+    assert sorted((x["law"], float(x["delay_s"]), x["loss"]) for x in runs) == sorted(
+        (law, d, loss) for law in ("reservoir", "tdpa_zoh") for d in (0.0, 0.1) for loss in ("none", "bursty_30")
+    )
+    for x in runs:
+        bag = out / "bags" / x["law"] / f"delay_{float(x['delay_s']) * 1e3:g}ms-{x['loss']}" / "seed_1" / "bag"
+        summary, _ = analyze(bag)  # every run is a readable bag, and the table is what it holds
+        assert float(x["two_port_margin_min_j"]) == summary["two_port_energy_margin_min_j"] >= 0.0
+        assert float(x["force_rms_error_vs_wall_n"]) == summary["force_rms_error_n"]
+        if float(x["delay_s"]) == 0.0 and x["loss"] == "none":
+            assert float(x["force_rms_error_vs_reference_n"]) == 0.0  # the undisturbed run, again
+        else:
+            assert float(x["force_rms_error_vs_reference_n"]) > 0.0
+    assert (out / "stabilizers.png").stat().st_size > 10_000
+    assert "TDPA, ZOH-exact controller" in (out / "stabilizers.md").read_text()
+    assert len(list(csv.DictReader((out / "stabilizers.csv").open()))) == 8
+    assert st.felt_stiffness(np.linspace(0.0, 1e-3, 50), np.linspace(0.0, 2.0, 50), np.ones(50)) == pytest.approx(
+        2000.0
+    )
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [(["--laws", "wave"], "--laws wave: allowed"), (["--delays-ms", "-5"], "--delays-ms -5: allowed")],
+)
+def test_bad_experiment_arguments_exit_2_in_one_line(tmp_path: Path, args: list[str], words: str) -> None:
+    r = subprocess.run(
+        [str(Path(sys.executable).parent / "haptic-teleop"), "experiment", "stabilizers", *args,
+         "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+    )  # fmt: skip
+    assert r.returncode == 2 and words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "o").exists()

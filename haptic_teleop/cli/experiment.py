@@ -14,6 +14,8 @@
   events against priority-based filtering (studies/replications/codec.py, docs/codec_error_control.md).
 - `playout`: seed 000's haptic-synchronization claim, its network-adaptive buffering against the
   existing schemes on paired seeds (studies/replications/playout.py, docs/playout_claim.md).
+- `stabilizers`: EBA's laws and TDPA's controllers side by side over delay and loss, every run a
+  bag (studies/replications/stabilizers.py, docs/stabilizers.md).
 - `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent
   loss time, predicted against measured (studies/replications/transparency.py, docs/transparency.md).
 """
@@ -41,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         nve,
         nve_compensation,
         playout,
+        stabilizers,
         transparency,
     )
 
@@ -74,3 +77,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pl = sub.add_parser("playout", help=_help(playout.HELP), description=playout.HELP)
     playout.add_arguments(pl)
     pl.set_defaults(func=playout.main)
+    st = sub.add_parser("stabilizers", help=_help(stabilizers.HELP), description=stabilizers.HELP)
+    stabilizers.add_arguments(st)
+    st.set_defaults(func=stabilizers.main)
