@@ -1,9 +1,9 @@
-"""TDPA beside EBA (core/tdpa.py, docs/stabilizers.md): the observer and the two passivity
-controllers as rules, and the hard cases of test_hard_cases.py run with TDPA on both sides,
-recorded to real bags and judged from the plant signals: the two-port's energy margin (both
-ports, the damping the simulator really has) stays >= 0 with the "zoh" controller, falls far
-below with TDPA off, and with the field's "velocity" controller the zero-order hold's
-misprediction loses passivity in the cases that say so.
+"""TDPA and wave variables beside EBA (core/tdpa.py, core/wave.py, docs/stabilizers.md): the
+rules, and the hard cases of test_hard_cases.py run with each on both sides, recorded to real bags
+and judged from the plant signals: the two-port's energy margin (both ports, the damping the
+simulator really has) stays >= 0 with TDPA's "zoh" controller and with wave variables (filtered
+or not), falls far below with no stabilizer, and with TDPA's "velocity" controller the zero-order
+hold's misprediction loses passivity in the cases that say so.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from haptic_teleop.analysis.metrics import analyze_bag, port_energy, simulator_d
 from haptic_teleop.core.controller import ControllerParams, RemoteLimits, TeleopController
 from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.tdpa import TdpaBound, observe1, velocity_pc1, zoh_pc1
+from haptic_teleop.core.wave import consistent1, drift1, filter1, master_wave1, slave_wave1
 from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.scene.load import find_scene, load_scene
@@ -32,7 +33,14 @@ import test_hard_cases as hc
 
 TDPA = ("controllers.master.eba.law=tdpa", "controllers.slave.eba.law=tdpa")
 ZOH = (*TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh")
-VARIANTS = {"zoh": ZOH, "velocity": TDPA, "off": TDPA + hc.UNPROTECTED}
+WAVE = ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")
+WAVE_FILTERED = (
+    *WAVE,
+    "controllers.master.eba.wave_filter_hz=50",
+    "controllers.slave.eba.wave_filter_hz=50",
+    "controllers.slave.eba.wave_drift_gain_per_s=5",
+)
+VARIANTS = {"zoh": ZOH, "velocity": TDPA, "off": TDPA + hc.UNPROTECTED, "wave": WAVE, "wave_filtered": WAVE_FILTERED}
 # The hard cases TDPA can run: the slew-limit case is refused (the law does not model a slew limit).
 CASES = [c for c in hc.CASES if c.name != "actuator_slew_200_n_per_s"]
 # Where the field's controller loses passivity by more than 0.5 J (docs/stabilizers.md, "Measured").
@@ -115,6 +123,63 @@ def test_the_sides_send_their_observed_input_energy_with_every_sample() -> None:
     assert 0.0 <= m.remote_in_j[0] <= s.energy_in_j[0]
 
 
+# Magnitudes whose squares do not underflow (the identities hold in exact arithmetic).
+powers = st.floats(-1e2, 1e2, allow_nan=False).filter(lambda x: x == 0.0 or abs(x) > 1e-100)
+speeds = st.floats(-5.0, 5.0).filter(lambda x: x == 0.0 or abs(x) > 1e-100)
+
+
+@given(w=powers, v=speeds, b=st.floats(0.1, 1e3))
+def test_the_masters_port_sends_what_comes_back_plus_what_the_hand_put_in(w: float, v: float, b: float) -> None:
+    """(u^2 - w^2) / 2 is the power into the channel: minus the force on the handle times v."""
+    s = math.sqrt(2.0 * b)
+    f, u = master_wave1(w, v, s, b)
+    assert 0.5 * (u * u - w * w) == pytest.approx(-f * v, rel=1e-9, abs=1e-9 * (w * w + b * v * v + 1e-300))
+    assert consistent1(u, w, f * v) == pytest.approx(u, rel=1e-7, abs=1e-7 * (abs(u) + abs(w)))
+
+
+@given(u=powers, x=st.floats(-0.1, 0.1), v=speeds, dx=st.floats(-0.01, 0.01), b=st.floats(0.1, 1e3))
+def test_the_slaves_port_delivers_what_the_wave_brought_minus_what_it_sends_back(
+    u: float, x: float, v: float, dx: float, b: float
+) -> None:
+    s = math.sqrt(2.0 * b)
+    f, back, xd_dot = slave_wave1(u, x, v, x + dx, s, b, 4000.0, 40.0)
+    scale = u * u + f * f / b + 1e-300
+    assert 0.5 * (u * u - back * back) == pytest.approx(f * xd_dot, rel=1e-7, abs=1e-7 * scale)
+
+
+@given(sent=powers, got=powers, power=powers)
+def test_a_consistent_wave_never_carries_more_than_the_port_got(sent: float, got: float, power: float) -> None:
+    out = consistent1(sent, got, power)
+    assert abs(out) <= abs(sent)
+    assert 0.5 * out * out <= max(0.0, 0.5 * got * got - power) * (1.0 + 1e-12) + 1e-300
+
+
+@given(ws=st.lists(powers, min_size=1, max_size=200), a=st.floats(0.0, 0.999))
+def test_the_wave_filter_never_adds_wave_energy(ws: list[float], a: float) -> None:
+    state, out = 0.0, []
+    for w in ws:
+        state = filter1(state, w, a)
+        out.append(state)
+    assert sum(o * o for o in out) <= sum(w * w for w in ws) * (1.0 + 1e-9) + 1e-300
+
+
+@given(u=powers, c=powers)
+def test_drift_correction_never_grows_the_wave(u: float, c: float) -> None:
+    assert abs(drift1(u, c)) <= abs(u)
+
+
+def test_a_wave_sample_that_is_not_finite_is_rejected() -> None:
+    from haptic_teleop.core.wave import WaveParams
+
+    params = ControllerParams(role="master", remote_limits=RemoteLimits(1.0, 1.0, 10.0))
+    bound = EnergyBoundParams(period_s=1e-3, damping_n_s_per_m=(1.0,), law="wave")
+    ctrl = TeleopController(params, bound, WaveParams(20.0))
+    ctrl.set_remote((0.5, 0.01))
+    for bad in ((math.nan, 0.0), (1e9, 0.0), (0.5,)):
+        ctrl.set_remote(bad)
+    assert ctrl.rejected_samples == 3 and ctrl.remote == (0.5, 0.01)
+
+
 # --------------------------------------------------------------------------------------------
 # The hard cases, from bags.
 
@@ -162,6 +227,28 @@ def test_tdpa_with_the_zoh_controller_keeps_the_two_port_passive(margins: Any, c
     assert summary["two_port_energy_margin_min_j"] == pytest.approx(float(np.min(margin)), abs=max(eps, 1e-12))
 
 
+@pytest.mark.parametrize("variant", ["wave", "wave_filtered"])
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_wave_variables_keep_the_two_port_passive(margins: Any, case: hc.Case, variant: str) -> None:
+    margin, eps, summary = margins(case, variant)
+    assert summary["all_finite"]
+    assert float(np.min(margin)) >= -eps, (float(np.min(margin)), eps)
+
+
+def test_a_saturated_port_that_sent_its_unsaturated_wave_makes_energy(tmp_path: Path, monkeypatch: Any) -> None:
+    """The actuator clip case: the wave sent must be the one the applied force allows
+    (`consistent1`); the port's own wave, sent whatever the actuator applied, makes energy."""
+    import haptic_teleop.core.wave as wave
+
+    monkeypatch.setattr(wave, "consistent1", lambda sent, got, power: sent)
+    case = hc.CASE["actuator_clip"]
+    overrides = [*hc.GEOMETRY, f"scene.duration_s={case.duration_s}", *case.overrides, *WAVE]
+    bag = tmp_path / "bag"
+    record_run(load_scene(find_scene("wall_contact"), overrides=overrides), bag, parallel=False, handle_sigint=False)
+    margin, _ = two_port_margin_j(bag)
+    assert float(np.min(margin)) < -0.05
+
+
 @pytest.mark.parametrize("case", [c for c in CASES if c.unprotected_fails], ids=lambda c: c.name)
 def test_without_its_controller_the_two_port_makes_energy(margins: Any, case: hc.Case) -> None:
     margin, _, _ = margins(case, "off")
@@ -186,8 +273,11 @@ def test_the_fields_velocity_controller_loses_passivity_over_a_zero_order_hold(m
     ("overrides", "words"),
     [
         (("controllers.master.eba.law=tdpa",), "tdpa on one side only"),
-        ((*TDPA, "network.forward.codec.kind=deadband"), "the codecs do not carry the observed energy"),
+        ((*TDPA, "network.forward.codec.kind=deadband"), "the codecs do not carry its samples"),
         ((*TDPA, "slave.effects.saturation.slew_rate_n_per_s=200"), "does not model slave.effects.saturation"),
+        (("controllers.slave.eba.law=wave",), "wave on one side only"),
+        ((*WAVE, "controllers.slave.eba.wave_impedance_n_s_per_m=5"), "differs from the master's"),
+        ((*WAVE, "controllers.master.eba.wave_filter_hz=600"), "below the Nyquist"),
     ],
 )
 def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], words: str) -> None:
@@ -249,7 +339,7 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
 
 @pytest.mark.parametrize(
     ("args", "words"),
-    [(["--laws", "wave"], "--laws wave: allowed"), (["--delays-ms", "-5"], "--delays-ms -5: allowed")],
+    [(["--laws", "lqr"], "--laws lqr: allowed"), (["--delays-ms", "-5"], "--delays-ms -5: allowed")],
 )
 def test_bad_experiment_arguments_exit_2_in_one_line(tmp_path: Path, args: list[str], words: str) -> None:
     r = subprocess.run(

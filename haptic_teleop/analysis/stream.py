@@ -615,6 +615,7 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         if (m_sim is not None and m_true is None) or (s_sim is not None and s_true is None):
             raise NotStreamable("more than one joint per side")
         contact_max = master_max = -math.inf
+        two_port_low = 0.0
         depth = 0.0
         plane = wall_plane(sc, run_info, 1)
         finite = True
@@ -631,8 +632,9 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
             contact_max = _max_abs(contact_max, cf)
             master_max = _max_abs(master_max, mf)
             depth = max(depth, float(np.max(penetration(sx[:, None], plane)))) if take else depth
-            m_en.add(mx, mf)
-            s_en.add(sx, sf)
+            both = m_en.add(mx, mf) + s_en.add(sx, sf)  # the two ports, tick by tick
+            if both.size:
+                two_port_low = min(two_port_low, float(np.min(both)))
             for true_en, x, f in ((m_true, mx, mf), (s_true, sx, sf)):
                 if true_en is not None:
                     true_en.add(x, f)
@@ -667,6 +669,7 @@ def _summarize(bag: str | Path) -> dict[str, Any]:
         **nets,
         "master_energy_margin_min_j": float(me0 + m_en.low),
         "slave_energy_margin_min_j": float(se0 + s_en.low),
+        "two_port_energy_margin_min_j": float(me0 + se0 + two_port_low),
         "master_port_energy_min_j": m_en.low,
         "slave_port_energy_min_j": s_en.low,
         "master_initial_energy_j": me0,

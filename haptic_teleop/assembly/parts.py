@@ -131,7 +131,12 @@ def build_controller(
         law=cfg.eba.law,
         tdpa_controller=cfg.eba.tdpa_controller,
     )
-    return TeleopController(params, bound)
+    wave = None
+    if cfg.eba.law == "wave":
+        from haptic_teleop.core.wave import WaveParams
+
+        wave = WaveParams(cfg.eba.wave_impedance_n_s_per_m, cfg.eba.wave_filter_hz, cfg.eba.wave_drift_gain_per_s)
+    return TeleopController(params, bound, wave)
 
 
 def build_operator(

@@ -124,6 +124,7 @@ class AxisSide:
         self.desired, self.energy = ctrl.force_desired, ctrl.bound.energy_j  # updated in place
         # TDPA: the side's observed input energy rides on its samples (core/tdpa.py).
         self.energy_in = ctrl.tdpa.energy_in_j if ctrl.tdpa is not None else None
+        self.wave = ctrl.wave  # wave variables: the side sends its wave and position (core/wave.py)
         self.xs: list[float] = [0.0]
         self.vs: list[float] = [0.0]
         self.x = self.v = self.f_env = self.force = self.applied = 0.0
@@ -131,14 +132,19 @@ class AxisSide:
     def tick(self, n: int) -> Payload:
         """Sense (the plant's state at t_n; the slave's wall force over the last period), control
         (the law on the newest remote sample, saturation, the bound), and the sample to send:
-        the master's (x, v), the slave's (f_env, x, v); with TDPA, its input energy last."""
+        the master's (x, v), the slave's (f_env, x, v); with TDPA, its input energy last; with wave
+        variables, (its wave, x)."""
         self.xs, self.vs = xs, vs = self._read()
         self.x, self.v = x, v = xs[0], vs[0]
         self.force = self._control(x, v)
         e = self.energy_in
         if self.master:
+            if self.wave is not None:
+                return self.wave.out
             return (x, v) if e is None else (x, v, e[0])
         self.f_env = f = self._contact()[0]
+        if self.wave is not None:
+            return self.wave.out
         return (f, x, v) if e is None else (f, x, v, e[0])
 
     def take(self, payload: Payload) -> None:

@@ -15,6 +15,7 @@ from haptic_teleop.core.eba import EnergyBound, command1, coupling1, saturated1,
 from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.eba_two_condition import TwoConditionBound
 from haptic_teleop.core.tdpa import ENERGY_LIMIT_J, TdpaBound
+from haptic_teleop.core.wave import WaveParams, WaveSide
 
 LAWS = ("position", "force")
 
@@ -124,17 +125,27 @@ class TeleopController:
         "force_desired",
         "guard",
         "tdpa",
+        "wave",
     )
 
-    def __init__(self, params: ControllerParams, bound: EnergyBoundParams) -> None:
+    def __init__(self, params: ControllerParams, bound: EnergyBoundParams, wave: WaveParams | None = None) -> None:
         # The bound `bound.law` names; all have the same step/applied interface.
-        self.bound: EnergyBound | TwoConditionBound | TdpaBound
+        self.bound: EnergyBound | TwoConditionBound | TdpaBound | WaveSide
+        self.wave: WaveSide | None = None
         if bound.law == "reservoir":
             self.bound = EnergyBound(bound)
         elif bound.law == "two_condition":
             self.bound = TwoConditionBound(bound)
-        else:
+        elif bound.law == "tdpa":
             self.bound = TdpaBound(bound, params.force_limit_n, bound.tdpa_controller)
+        else:  # wave variables replace the coupling law and the bound (core/wave.py)
+            if wave is None or bound.axes != 1:
+                raise ValueError("law wave needs its WaveParams and one axis")
+            self.wave = WaveSide(
+                params.role == "master", wave, bound.period_s, params.stiffness_n_per_m,
+                params.damping_n_s_per_m, bound.initial_energy_j, bound,
+            )  # fmt: skip
+            self.bound = self.wave
         # TDPA: every sample carries the sender's observed input energy, one value per axis, last.
         self.tdpa: TdpaBound | None = self.bound if isinstance(self.bound, TdpaBound) else None
         self._n = bound.axes
@@ -151,6 +162,9 @@ class TeleopController:
             per_kind = kinds if params.role == "master" else kinds[1:]
             if self.tdpa is not None:
                 per_kind = (*per_kind, ENERGY_LIMIT_J)
+            if wave is not None and self.wave is not None:  # (wave, the sender's position)
+                sq = math.sqrt(2.0 * wave.impedance_n_s_per_m)
+                per_kind = (sq * lim.velocity_m_per_s + 2.0 * lim.force_n / sq, lim.position_m)
             self.guard = SampleGuard([k for k in per_kind for _ in range(self._n)])
 
     @property
@@ -198,6 +212,8 @@ class TeleopController:
         self._remote = payload
         if self.tdpa is not None:
             self.tdpa.receive(payload[len(payload) - self._n :])
+        elif self.wave is not None:
+            self.wave.receive(payload)
 
     def desired_force(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """The control law alone (no saturation, no bound)."""
@@ -228,6 +244,12 @@ class TeleopController:
     def step1(self, x: float, v: float) -> float:
         """`step` for one axis on floats (same arithmetic, same order): `command1`, then the bound's
         `step1` (`bound1` for the reservoir law); returns the force to apply."""
+        w = self.wave
+        if w is not None:  # the wave port's force, saturated (its sent wave knows it), held
+            desired, f = w.port1(x, v, self._limit)
+            self.force_desired[0] = desired
+            self.force_applied[0] = f
+            return f
         r = self._remote
         if r is None:
             desired, f = command1(False, False, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, self._limit)

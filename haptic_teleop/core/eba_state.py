@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 
 # The energy-bound laws a side can run (`controllers.<side>.eba.law`).
-EBA_LAWS = ("reservoir", "two_condition", "tdpa")
+EBA_LAWS = ("reservoir", "two_condition", "tdpa", "wave")
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,8 @@ class EnergyBoundParams:
     slew_rate_n_per_s: float | None = None
     # Which bound: "reservoir" (one pooled reservoir per axis, `EnergyBound`) or "two_condition"
     # (the ZOH and controller energy conditions, `core.eba_two_condition.TwoConditionBound`);
-    # docs/eba_two_condition.md, "The published two-condition law"; or "tdpa" (core/tdpa.py).
+    # docs/eba_two_condition.md, "The published two-condition law"; or "tdpa" (core/tdpa.py), or
+    # "wave" (wave variables, core/wave.py: they replace the coupling law as well).
     law: str = "reservoir"
     # With law "tdpa": its passivity controller, "velocity" or "zoh" (core/tdpa.py).
     tdpa_controller: str = "velocity"
@@ -48,7 +49,7 @@ class EnergyBoundParams:
     def __post_init__(self) -> None:
         if self.law not in EBA_LAWS:
             raise ValueError(f"law must be one of {', '.join(EBA_LAWS)}, got {self.law!r}")
-        if self.law in ("two_condition", "tdpa") and self.slew_rate_n_per_s is not None:
+        if self.law in ("two_condition", "tdpa", "wave") and self.slew_rate_n_per_s is not None:
             raise ValueError(
                 f"the {self.law} law does not model an actuator slew limit; allowed with a slew limit: law reservoir"
             )

@@ -122,6 +122,8 @@ class Engine:
             from haptic_teleop.assembly.side import wire_payload_bytes
 
             self._sizes = (wire_payload_bytes(2, 2), wire_payload_bytes(2, 3))
+        elif self.master_ctrl.wave is not None:  # (wave, position) both ways
+            self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(2))
         self._stop = False
         self._state: LoopState | None = None  # the Python loop's, while it runs
         self.compiled_reason = axis_host.compiled_reason(self.parts) if loop != "python" else "loop 'python' asked for"

@@ -198,11 +198,12 @@ def node_plan(
         raise _ConfigError(
             scene.source, "slave.start", "in_contact", "runs in `haptic-teleop run` only; allowed live: free"
         )
-    if scene.config.controllers.master.eba.law == "tdpa":  # the live samples do not carry its energy yet
+    law = scene.config.controllers.master.eba.law
+    if law in ("tdpa", "wave"):  # the live samples do not carry their energy or waves yet
         raise _ConfigError(
             scene.source,
             "controllers.master.eba.law",
-            "tdpa",
+            law,
             "runs in `haptic-teleop run` only; allowed live: reservoir, two_condition",
         )
     if device != "plant" and scene.config.is_arm:

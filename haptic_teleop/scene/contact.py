@@ -88,11 +88,11 @@ def transparency_applies(c: Scene) -> bool:
     premise (`operator.profile: imposed` or `slave.start: in_contact`) or by an `analysis:` section
     (a push from free space opts in). The analysis reads the run whole (its memory grows with the
     run, unlike the streaming summary), so the other scenes, long runs among them, are left alone.
-    Its predictions are of the EBA laws: not for TDPA scenes."""
+    Its predictions are of the EBA laws: not for TDPA or wave-variable scenes."""
     op = c.operator
     if c.is_nve or c.is_arm or op.profile not in ("push", "imposed") or not op.speed_m_per_s > 0.0:
         return False
-    if c.controllers.master.eba.law == "tdpa":  # the analysis models the EBA laws only
+    if c.controllers.master.eba.law in ("tdpa", "wave"):  # the analysis models the EBA laws only
         return False
     return op.profile == "imposed" or c.slave.in_contact or c.analysis is not None
 

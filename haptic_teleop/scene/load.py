@@ -213,8 +213,8 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                 source,
                 f"controllers.{side}.eba.law",
                 getattr(config.controllers, side).eba.law,
-                "allowed for arms: reservoir (the pooled joint bound; the two-condition law and tdpa are "
-                "one-axis only)",
+                "allowed for arms: reservoir (the pooled joint bound; the two-condition law, tdpa and wave "
+                "are one-axis only)",
             )
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.scene.sides import arm_settings

@@ -422,10 +422,22 @@ class EBAConfig:
     law: str = field(
         default="reservoir",
         metadata={
-            "choices": ("reservoir", "two_condition", "tdpa"),
+            "choices": ("reservoir", "two_condition", "tdpa", "wave"),
             "help": "reservoir: one pooled reservoir; two_condition: the ZOH and controller energy conditions "
-            "(docs/eba.md); tdpa: the time-domain passivity approach, on both sides (docs/stabilizers.md)",
+            "(docs/eba.md); tdpa: the time-domain passivity approach; wave: wave variables (both on both sides, "
+            "docs/stabilizers.md)",
         },
+    )
+    wave_impedance_n_s_per_m: float = field(
+        default=20.0,
+        metadata={"gt": 0.0, "max": 1e5, "help": "law wave: the wave impedance b (the same on both sides)"},
+    )
+    wave_filter_hz: float | None = field(
+        default=None, metadata={"gt": 0.0, "max": 1e5, "help": "law wave: low-pass cutoff on the received wave"}
+    )
+    wave_drift_gain_per_s: float = field(
+        default=0.0,
+        metadata={"min": 0.0, "max": 1e4, "help": "law wave (slave): the drift correction's rate; 0: none"},
     )
     tdpa_controller: str = field(
         default="velocity",
@@ -588,7 +600,8 @@ class Scene:
             ("slave", self.controllers.slave, self.slave),
         ):
             sat = plant.effects.saturation
-            if ctrl.eba.law in ("two_condition", "tdpa") and sat is not None and sat.slew_rate_n_per_s is not None:
+            slew = sat is not None and sat.slew_rate_n_per_s is not None
+            if ctrl.eba.law in ("two_condition", "tdpa", "wave") and slew:
                 raise ValueError(
                     f"controllers.{side}.eba.law {ctrl.eba.law} does not model {side}.effects.saturation."
                     "slew_rate_n_per_s; allowed with a slew limit: law reservoir (docs/eba.md)"
@@ -628,30 +641,45 @@ class Scene:
             )
 
     def _check_tdpa(self) -> None:
-        """TDPA (docs/stabilizers.md) observes the energy that crosses both ports: both sides run it,
-        each sending its input energy with its samples. Runs so far: one-axis scenes in the engine,
-        plain channels (no codec stage, which carries its own payloads)."""
+        """TDPA and wave variables (docs/stabilizers.md) stabilize the two-port: both sides run the
+        same one, each sending what the other needs (its observed energy, its wave). Runs so far:
+        one-axis scenes in the engine, plain channels (no codec stage, which carries its own
+        payloads)."""
         laws = (self.controllers.master.eba.law, self.controllers.slave.eba.law)
-        if "tdpa" not in laws:
+        law = next((x for x in laws if x in ("tdpa", "wave")), None)
+        if law is None:
             return
-        if laws != ("tdpa", "tdpa"):
+        if laws != (law, law):
             raise ValueError(
-                f"controllers.<side>.eba.law: tdpa on one side only (master {laws[0]}, slave {laws[1]}); allowed: "
-                "tdpa on both sides (each side's passivity controller spends the energy the other side observed)"
+                f"controllers.<side>.eba.law: {law} on one side only (master {laws[0]}, slave {laws[1]}); allowed: "
+                f"{law} on both sides (each side spends what the other side sends)"
             )
         if self.is_nve:
-            raise ValueError("controllers.<side>.eba.law tdpa: not for NVE scenes; allowed there: reservoir")
+            raise ValueError(f"controllers.<side>.eba.law {law}: not for NVE scenes; allowed there: reservoir")
         for name in ("forward", "backward"):
             if getattr(self.network, name).codec is not None:
                 raise ValueError(
-                    f"network.{name}.codec with controllers.<side>.eba.law tdpa: the codecs do not carry the "
-                    "observed energy yet; allowed with tdpa: no codec (plain samples)"
+                    f"network.{name}.codec with controllers.<side>.eba.law {law}: the codecs do not carry its "
+                    f"samples yet; allowed with {law}: no codec (plain samples)"
                 )
             buf = getattr(self.network, name).buffer
             if buf.policy == "network_adaptive" and None in (buf.allowable_delay_s, buf.allowable_loss_time_s):
                 raise ValueError(
                     f"network.{name}.buffer: policy network_adaptive takes its budget from the EBA transparency "
-                    "analysis, which does not model tdpa; allowed: set allowable_delay_s and allowable_loss_time_s"
+                    f"analysis, which does not model {law}; allowed: set allowable_delay_s and allowable_loss_time_s"
+                )
+        m, s = self.controllers.master.eba, self.controllers.slave.eba
+        if law == "wave" and m.wave_impedance_n_s_per_m != s.wave_impedance_n_s_per_m:
+            raise ValueError(
+                f"controllers.slave.eba.wave_impedance_n_s_per_m ({s.wave_impedance_n_s_per_m:g}) differs from the "
+                f"master's ({m.wave_impedance_n_s_per_m:g}); allowed: one wave impedance for the channel"
+            )
+        nyquist = 0.5 / self.scene.period_s
+        for side, e in (("master", m), ("slave", s)):
+            if law == "wave" and e.wave_filter_hz is not None and e.wave_filter_hz >= nyquist:
+                raise ValueError(
+                    f"controllers.{side}.eba.wave_filter_hz ({e.wave_filter_hz:g}) must be below the Nyquist "
+                    f"frequency 1 / (2 scene.period_s) = {nyquist:g} Hz"
                 )
 
     def _check_seed_premise(self) -> None:

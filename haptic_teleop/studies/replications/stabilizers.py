@@ -2,8 +2,9 @@
 loss (docs/stabilizers.md, "Side by side").
 
 Every law (`LAWS`: EBA's reservoir and two-condition laws, TDPA with its ZOH-exact and its velocity
-controller, all on both sides) runs the one-axis contact scene `wall_contact` (the wall 5 mm ahead,
-the operator pushing from 0.2 s toward 3 cm, as the hard cases) over every network of the grid:
+controller, wave variables plain and with a wave filter and drift correction, all on both sides)
+runs the one-axis contact scene `wall_contact` (the wall 5 mm ahead, the operator pushing from
+0.2 s toward 3 cm, as the hard cases) over every network of the grid:
 one-way delay in both directions x loss (none, Bernoulli, bursty Gilbert-Elliott), on paired seeds
 (seed k gives every law the same network draws). Each run is recorded to a bag and measured from
 that bag alone:
@@ -37,7 +38,8 @@ from haptic_teleop.studies.replications.args import number
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
 
 HELP = (
-    "the stabilizers side by side (EBA's two laws, TDPA with its ZOH-exact and velocity controllers) on the "
+    "the stabilizers side by side (EBA's two laws, TDPA with its ZOH-exact and velocity controllers, wave "
+    "variables) on the "
     "one-axis contact scene over delay and loss (Bernoulli, bursty), paired seeds, every run a bag: force error, "
     "drift, felt stiffness, two-port energy margin; CSV, table, plot"
 )
@@ -60,6 +62,17 @@ LAWS: dict[str, tuple[str, tuple[str, ...]]] = {
         (*_TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh"),
     ),
     "tdpa_velocity": ("TDPA, velocity controller", _TDPA),
+    "wave": ("wave variables, b 20 N s/m", ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")),
+    "wave_filtered": (
+        "wave variables, 50 Hz wave filter, drift 5/s",
+        (
+            "controllers.master.eba.law=wave",
+            "controllers.slave.eba.law=wave",
+            "controllers.master.eba.wave_filter_hz=50",
+            "controllers.slave.eba.wave_filter_hz=50",
+            "controllers.slave.eba.wave_drift_gain_per_s=5",
+        ),
+    ),
 }
 DIRS = ("forward", "backward")
 DELAYS_S = (0.0, 0.05, 0.1, 0.2, 0.5)
