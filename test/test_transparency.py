@@ -6,6 +6,7 @@ for scenes the analysis does not apply to), and bad values are one-line errors."
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 
@@ -223,3 +224,24 @@ def test_two_condition_law_gives_the_seeds_drop_and_the_reservoir_law_less():
     assert two == pytest.approx(force_drop(m, 0.05, 0.05, "two_condition", at_s=1.0).drop_n, rel=1e-6)
     assert res == pytest.approx(force_drop(m, 0.05, 0.05, "reservoir", at_s=1.0).drop_n, abs=2e-3)
     assert res < 0.5 * two
+
+
+def test_predictions_name_the_network_effects_they_do_not_model(tmp_path):
+    """A blackout on the backward link: the measured slope and drop include it, the predicted ones
+    are for the constant delay alone, and the summary says which effects they leave out."""
+    from haptic_teleop.analysis.transparency import transparency_summary, unmodelled_effects
+    from haptic_teleop.engine.run import record_run
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    blackout = "network.backward.effects.blackout={starts_s: [1.0], ends_s: [1.3]}"
+    jitter = "network.forward.effects.delay={delay_s: 0.05, jitter_s: 0.002}"
+    scene = load_scene(find_scene("seed_contact"), overrides=[blackout, jitter])
+    bag = tmp_path / "bag"
+    record_run(scene, bag, parallel=False, handle_sigint=False)
+    out = transparency_summary(bag)
+    assert out["transparency_unmodelled_effects"] == [
+        "network.forward.effects.delay (jitter_s)",
+        "network.backward.effects.blackout",
+    ]
+    plain = load_scene(find_scene("seed_contact"))
+    assert unmodelled_effects(dataclasses.asdict(plain.config)) == []

@@ -66,6 +66,9 @@ def format_summary(summary: dict[str, Any]) -> str:
         v = summary[key]
         text = "n/a" if isinstance(v, float) and math.isnan(v) else fmt.format(v)
         lines.append(f"  {label:<{width}}  {text}")
+    unmodelled = summary.get("transparency_unmodelled_effects")
+    if unmodelled:  # the predictions are for a constant delay; the measured values include these
+        lines.append(f"  {'predictions do not model':<{width}}  {', '.join(unmodelled)}")
     for side in ("master", "slave"):  # a hardware side's ledger: the torque its device reported
         topic = summary.get(f"{side}_energy_torque_topic")
         if isinstance(topic, str) and topic.endswith("/measured_effort"):
