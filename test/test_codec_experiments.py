@@ -113,6 +113,12 @@ def test_error_control_runs_and_shows_what_each_error_control_does(tmp_path: Pat
     # filtering (followers with copies of the event) the smallest RMS of all
     assert arq25[rms] < none[rms] and arq4[rms] < none[rms]
     assert prio[rms] < min(none[rms], arq25[rms], arq4[rms], fec_wait[rms])
+    # the table ends with the ranking by peak error (the seed's measure), smallest first
+    ranking = (out / "error_control.md").read_text().splitlines()[-1]
+    assert ranking.startswith("By peak force error (seed 000's measure)")
+    order = sorted(rows, key=lambda k: (rows[k][peak], rows[k][rms]))
+    positions = [ranking.index(f"{i}. {name} ") for i, name in enumerate(order, start=1)]
+    assert positions == sorted(positions)
 
 
 @pytest.mark.parametrize("argv", [["--fec-k", "0"], ["--fec-wait-s", "-1"], ["--loss", "2"], ["--fec-k", "x"]])

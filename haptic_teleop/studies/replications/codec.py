@@ -303,6 +303,15 @@ def _plot(results: list[Result], path: Path, title: str, window_s: float) -> Non
     finish_figure(fig, (a1, a2), path, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
+def peak_ranking(rows: list[list[Any]]) -> str:
+    """The schemes by peak force error, smallest first (seed 000 compares peaks), RMS beside."""
+    ip, ir = HEADER.index("peak force error [N]"), HEADER.index("RMS force error [N]")
+    ranked = sorted(rows, key=lambda r: (r[ip], r[ir]))
+    return "By peak force error (seed 000's measure), RMS beside: " + "; ".join(
+        f"{i}. {r[0]} {r[ip]:.3g} N ({r[ir]:.3g} N RMS)" for i, r in enumerate(ranked, start=1)
+    )
+
+
 def _finish(
     args: argparse.Namespace, results: list[Result], out: Path, name: str, title: str, present: bool = False
 ) -> int:
@@ -311,7 +320,7 @@ def _finish(
     rows = [_row(r, args, present=present) for r in results]
     header = HEADER + PRESENT_HEADER if present else HEADER
     write_csv(out / f"{name}.csv", header, rows)
-    table = markdown(header, rows)
+    table = markdown(header, rows) + "\n" + peak_ranking(rows) + "\n"
     (out / f"{name}.md").write_text(table)
     _plot(results, out / f"{name}.png", title, args.plot_window_s)
     if not args.quiet:
