@@ -93,3 +93,10 @@ def bundled_sweeps() -> list[str]:
 def bundled_scenes() -> list[str]:
     """Names of the bundled scenes, sorted (what `haptic-teleop run NAME` accepts)."""
     return sorted(p.stem for p in scenes_dir().glob("*.yaml"))
+
+
+def docs_dir() -> Path | None:
+    """The project's docs/ folder of a source tree (a clone, an editable install), or None: a
+    wheel or an ament install does not ship it (`haptic-teleop experiment all` compares with it)."""
+    docs = PACKAGE_DIR.parent / "docs"
+    return docs if (docs / "index.md").is_file() else None

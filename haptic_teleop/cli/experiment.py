@@ -16,6 +16,8 @@
   existing schemes on paired seeds (studies/replications/playout.py, docs/playout_claim.md).
 - `stabilizers`: EBA's laws and TDPA's controllers side by side over delay and loss, every run a
   bag (studies/replications/stabilizers.py, docs/stabilizers.md).
+- `all`: every experiment behind docs/ afresh, a manifest, and every documented number checked
+  (studies/replications/all_experiments.py, docs/experiments_all.md).
 - `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent
   loss time, predicted against measured (studies/replications/transparency.py, docs/transparency.md).
 """
@@ -37,6 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """`haptic-teleop experiment NAME ...` on `p` (made by cli/main.py's subparsers: it becomes a
     OneLineParser too, so an unknown NAME is one line as well)."""
     from haptic_teleop.studies.replications import (
+        all_experiments,
         codec,
         deadband,
         deadband_loop,
@@ -80,3 +83,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     st = sub.add_parser("stabilizers", help=_help(stabilizers.HELP), description=stabilizers.HELP)
     stabilizers.add_arguments(st)
     st.set_defaults(func=stabilizers.main)
+    al = sub.add_parser("all", help=_help(all_experiments.HELP), description=all_experiments.HELP)
+    all_experiments.add_arguments(al)
+    al.set_defaults(func=all_experiments.main)

@@ -15,7 +15,8 @@ that bag alone:
 - the stiffness felt in contact (least-squares slope of the master's force over its position while
   the slave touches the wall) against the wall's;
 - the two-port energy margin from the plant signals (both ports, the simulator's damping): passive
-  while >= 0.
+  while >= 0;
+- the peak wall force (a law whose slave pushes the wall less feels, and errs by, less force).
 
 Writes stabilizers_runs.csv (every run), stabilizers.csv (per law and network: mean and sample std
 over seeds), stabilizers.md and stabilizers.png; the bags under bags/ (`--discard-bags`: each is
@@ -90,6 +91,7 @@ METRICS = (
     "position_drift_m",
     "felt_stiffness_n_per_m",
     "two_port_margin_min_j",
+    "contact_force_max_n",
 )
 RUNS_HEADER = ["law", "delay_s", "loss", "seed", *METRICS]
 CONTACT_N = 0.1  # the slave touches the wall while its contact force exceeds this
@@ -123,6 +125,7 @@ def _measure(bag: Path) -> dict[str, Any]:
         "wall_rms_n": float(summary["force_rms_error_n"]),
         "margin_j": float(summary["two_port_energy_margin_min_j"]),
         "stiffness": felt_stiffness(sig.master_x_m, sig.master_force_n, sig.contact_n),
+        "contact_max_n": float(summary["contact_force_max_n"]),
     }
 
 
@@ -182,6 +185,7 @@ def run_grid(
                             m["offset_m"] - ref["offset_m"],
                             m["stiffness"],
                             m["margin_j"],
+                            m["contact_max_n"],
                         ]
                     )  # fmt: skip
                     if progress is not None:
@@ -215,12 +219,13 @@ TABLE_HEADER = (
 def markdown_table(table: Sequence[Sequence[Any]], wall_stiffness: float) -> str:
     head = [
         "law", "one-way delay (ms)", "loss", "force error vs undisturbed (N)", "force error vs wall (N)",
-        "drift (mm)", f"felt stiffness (N/m; wall {wall_stiffness:g})", "two-port margin min (J)", "passive",
+        "drift (mm)", f"felt stiffness (N/m; wall {wall_stiffness:g})", "two-port margin min (J)",
+        "peak wall force (N)", "passive",
     ]  # fmt: skip
     body = []
     for r in table:
         cells = []
-        for j, scale in ((0, 1.0), (1, 1.0), (2, 1e3), (3, 1.0), (4, 1.0)):
+        for j, scale in ((0, 1.0), (1, 1.0), (2, 1e3), (3, 1.0), (4, 1.0), (5, 1.0)):
             mean, std = r[4 + 2 * j], r[5 + 2 * j]
             if not math.isfinite(mean):
                 cells.append("n/a")
@@ -231,16 +236,17 @@ def markdown_table(table: Sequence[Sequence[Any]], wall_stiffness: float) -> str
 
 
 def plot(table: Sequence[Sequence[Any]], laws: Sequence[str], losses: Sequence[str], path: Path) -> None:
-    """Per loss: the force error against the undisturbed run and the two-port margin over the
-    delay, one line per law (mean over seeds, the std as a band)."""
+    """Per loss: the force error against the undisturbed run, the peak wall force and the two-port
+    margin over the delay, one line per law (mean over seeds, the std as a band)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, len(losses), figsize=(4.2 * len(losses), 7.5), squeeze=False)
+    fig, axes = plt.subplots(3, len(losses), figsize=(4.2 * len(losses), 10.5), squeeze=False)
     for li, loss in enumerate(losses):
-        for row, (j, label) in enumerate(((0, "force error vs undisturbed [N]"), (4, "two-port margin min [J]"))):
+        panels = ((0, "force error vs undisturbed [N]"), (5, "peak wall force [N]"), (4, "two-port margin min [J]"))
+        for row, (j, label) in enumerate(panels):
             ax = axes[row][li]
             for k, law in enumerate(laws):
                 rs = sorted((r for r in table if r[0] == law and r[2] == loss), key=lambda r: r[1])
