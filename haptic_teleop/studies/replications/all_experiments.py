@@ -157,7 +157,7 @@ JOBS: tuple[Job, ...] = (
             _c("deadband.csv", {"stream": "force", "p [%]": "5.0"}, "RMS error", 0.228, 0.0005, _DB),
             _c("deadband.csv", {"stream": "velocity", "p [%]": "20.0"}, "packets saved [%]", 91.5, 0.05, _DB),
         ),
-        scenes=("touch_ur5e_wall",), minutes=2.0,
+        scenes=("touch_ur5e_wall",), minutes=0.2,
     ),
     Job(
         "deadband-loop", "deadband-loop",
@@ -168,7 +168,7 @@ JOBS: tuple[Job, ...] = (
             _c("deadband_loop.csv", {"coded": "backward", "p [%]": "5.0"}, "master force RMS diff [N]", 1.30,
                0.005, _DB),
         ),
-        scenes=("touch_ur5e_wall",), minutes=2.0,
+        scenes=("touch_ur5e_wall",), minutes=1.8,
     ),
     Job(
         "stabilizers", "stabilizers", args=("--discard-bags",),
@@ -181,7 +181,7 @@ JOBS: tuple[Job, ...] = (
             _c("stabilizers.csv", {"law": "tdpa_velocity", "delay_s": "0.5", "loss": "none"},
                "two_port_margin_min_j_mean", -0.197, 0.0005, _ST),
         ),
-        scenes=("wall_contact",), seeds="1-2", minutes=3.0,
+        scenes=("wall_contact",), seeds="1-2", minutes=1.5,
     ),
 )  # fmt: skip
 
