@@ -26,14 +26,16 @@ DURATION_S = 3.0
 K_H = 0.5  # nve_push: client_stiffness_n_per_m
 PUSH_START_S = 0.5  # nve_push: operator.start_s
 # A client tick run late (catch-up after a stall) takes samples its buffer released after the
-# tick's deadline, so R reads short by as much as the tick was late. No node runs a tick before its
+# tick's deadline, so R reads short by as much as the tick was late; a server tick run late takes a
+# HIP sample released after its deadline and echoes it in a down sample stamped with that earlier
+# deadline, which the down relay may then release as much earlier. No node runs a tick before its
 # deadline, the relays release a sample no earlier than its stamp plus the link's delay, and a tick
 # runs at most `max_catch_up_periods` + 1 periods after its deadline (nodes.rtloop.next_tick): so R
-# > the links' delay - (max_catch_up_periods + 1) periods, whatever the machine's load
-# (docs/live_nve.md, "NVE scenes live"). R is a whole number of ticks, as a float in s (0.1 - 0.011
-# reads 0.08899999999999997): compare with a nanosecond of slack.
+# > the links' delay - 2 (max_catch_up_periods + 1) periods (the server's and the client's),
+# whatever the machine's load (docs/live_nve.md, "NVE scenes live"; a CI run read 0.079 s, both
+# late). R is a whole number of ticks, as a float in s: compare with a nanosecond of slack.
 CATCH_UP_S = (DEFAULT_MAX_CATCH_UP + 1) * PERIOD_NS * 1e-9
-R_FLOOR_S = 2 * DELAY_S - CATCH_UP_S - 1e-9
+R_FLOOR_S = 2 * DELAY_S - 2 * CATCH_UP_S - 1e-9
 # This test's own subscriber is best effort (as the nodes' streams are): on a busy 2-core machine it
 # saw 1,000 of the 3,000 samples of a topic, and 262-283 in a CI run beside another test run. The
 # checks on what it saw need a hundred.
@@ -297,7 +299,7 @@ def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tm
         assert r.size > 100, name
         print(f"{name}: measured R median {np.median(r):.4f} s")
         print(f"{name}: measured R min {r.min():.4f} s")
-        assert r.min() >= rtt - CATCH_UP_S - 1e-9, name  # its own links' delays
+        assert r.min() >= rtt - 2 * CATCH_UP_S - 1e-9, name  # its own links' delays; both ends may run late
         medians[name] = float(np.median(r))
     assert medians["near"] < medians["far"]  # each client measured its own links
     obj = data["/nve/object/joint_states"]
