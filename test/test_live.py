@@ -168,10 +168,9 @@ class Watcher:
                 out.setdefault(st.hardware_id, []).append({kv.key: kv.value for kv in st.values})
         return out
 
-    def late_decisions(self, direction: str) -> tuple[set[int], int]:
-        """The seqs the direction's sync buffer decided late (fate 4) on its playout topic, and the
-        highest seq of any decision seen (-1: none; the last batch, sent as the node closes, may
-        not reach this subscriber)."""
+    def late_decisions(self, direction: str) -> set[int]:
+        """The seqs the direction's sync buffer decided late (fate 4) on its playout topic (the last
+        batch, sent as the node closes, may not reach this subscriber)."""
         from rclpy.serialization import deserialize_message
         from std_msgs.msg import Float64MultiArray
 
@@ -180,16 +179,13 @@ class Watcher:
         with self.lock:
             items = list(self.raw[playout_topic(direction)])
         late: set[int] = set()
-        upto = -1
         for _, r in items:
             m = deserialize_message(r, Float64MultiArray)
             labels = m.layout.dim[1].label.split(",")
             rows = np.asarray(m.data, dtype=np.float64).reshape(-1, len(labels))
             seq, fate = rows[:, labels.index("seq")], rows[:, labels.index("fate")]
             late.update(int(q) for q in seq[(seq >= 0) & (fate == 4.0)])
-            if np.any(seq >= 0):
-                upto = max(upto, int(seq.max()))
-        return late, upto
+        return late
 
     def close(self) -> None:
         self._stop.set()
@@ -340,7 +336,7 @@ def test_buffer_skips_count_as_late_packets_as_the_engine_counts_them(default_ru
         assert bag_late <= buffer_late, (d, bag_late, buffer_late)
         rows = packets[d]
         late = rows[rows[:, 3] == 4.0]
-        seen, _ = default_run["late_decisions"][d]
+        seen = default_run["late_decisions"][d]
         decided = seen & {int(q) for q in rows[:, 0]}
         in_bag = {int(q) for q in late[:, 0]}
         assert decided <= in_bag, (d, sorted(decided - in_bag)[:10], late.shape[0])

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from haptic_teleop.core.eba import bounded1, reservoir1
+from haptic_teleop.core.eba import bounded1, reservoir1, saturated1
 from haptic_teleop.core.eba_state import EnergyBoundParams
 
 TDPA_CONTROLLERS = ("velocity", "zoh")
@@ -54,12 +54,7 @@ def velocity_pc1(force: float, budget: float, dx: float, cap: float) -> float:
     back), its magnitude at most `cap`. No motion, no prediction: the force passes."""
     if dx == 0.0 or force * dx <= budget:
         return force
-    f = budget / dx
-    if f > cap:
-        return cap
-    if f < -cap:
-        return -cap
-    return f
+    return saturated1(budget / dx, cap)
 
 
 def zoh_pc1(force: float, budget: float, bound_gain: float) -> float:

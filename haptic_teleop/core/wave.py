@@ -76,14 +76,7 @@ def consistent1(sent: float, got: float, power: float) -> float:
     used). Exactly `sent` while the applied force is the port's own; smaller when the actuator
     applied less (a saturation): the channel never carries more than the device really gave it."""
     room = got * got - 2.0 * power
-    if room <= 0.0:
-        return 0.0
-    cap = math.sqrt(room)
-    if sent > cap:
-        return cap
-    if sent < -cap:
-        return -cap
-    return sent
+    return saturated1(sent, math.sqrt(room)) if room > 0.0 else 0.0
 
 
 def filter1(state: float, w: float, a: float) -> float:
@@ -93,13 +86,7 @@ def filter1(state: float, w: float, a: float) -> float:
 
 def drift1(u: float, correction: float) -> float:
     """The incoming wave moved by `correction`, its magnitude at most the wave's own."""
-    m = abs(u)
-    out = u + correction
-    if out > m:
-        return m
-    if out < -m:
-        return -m
-    return out
+    return saturated1(u + correction, abs(u))
 
 
 class WaveSide:

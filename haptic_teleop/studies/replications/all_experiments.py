@@ -31,6 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from haptic_teleop.studies.replications.args import subset
+
 HELP = (
     "run every experiment behind docs/ afresh, gather its figures and tables, write a manifest (version, scene "
     "hashes, seeds) and check every documented number against the fresh runs; exit 1 if one moved"
@@ -67,7 +69,7 @@ def _c(csv_name: str, row: dict[str, str], column: str, documented: float, toler
     return Check(csv_name, row, column, documented, tolerance, page)
 
 
-_EC, _HLI = "codec_error_control.md", "codec_error_control.md"
+_EC = _HLI = "codec_error_control.md"  # both codec experiments' page
 _RMS, _PEAK = "RMS force error [N]", "peak force error [N]"
 _PRIO = {"scheme": "priority-based, 70 kbit/s"}
 _NVE = "nve_experiments.md"
@@ -278,10 +280,7 @@ def main(args: argparse.Namespace) -> int:
 
     jobs = list(JOBS)
     if args.only:
-        names = [n.strip() for n in args.only.split(",") if n.strip()]
-        known = [j.folder for j in JOBS]
-        if not names or any(n not in known for n in names):
-            raise InputError(f"--only {args.only}: allowed: a comma-separated subset of {', '.join(known)}")
+        names = subset(args.only, [j.folder for j in JOBS], "--only")
         jobs = [j for j in JOBS if j.folder in names]
     if args.list:
         for j in jobs:

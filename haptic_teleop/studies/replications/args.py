@@ -26,6 +26,17 @@ class OneLineParser(argparse.ArgumentParser):
         return ns, extras
 
 
+def subset(text: str, allowed: Sequence[str], flag: str) -> list[str]:
+    """An experiment's comma-separated choice among `allowed`; anything else is one line naming
+    the flag, what was given and what is allowed."""
+    from haptic_teleop.errors import InputError
+
+    names = [c.strip() for c in text.split(",") if c.strip()]
+    if not names or any(c not in allowed for c in names):
+        raise InputError(f"{flag} {text}: allowed: a comma-separated subset of {', '.join(allowed)}")
+    return names
+
+
 def number(
     low: float, high: float, low_open: bool = False, kind: type[int] | type[float] = float
 ) -> Callable[[str], float]:

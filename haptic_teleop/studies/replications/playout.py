@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.studies.replications.args import number
+from haptic_teleop.studies.replications.args import number, subset
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 HELP = (
@@ -341,20 +341,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
-def _subset(text: str, allowed: Sequence[str], flag: str) -> list[str]:
-    from haptic_teleop.errors import InputError
-
-    names = [c.strip() for c in text.split(",") if c.strip()]
-    if not names or any(c not in allowed for c in names):
-        raise InputError(f"{flag} {text}: allowed: a comma-separated subset of {', '.join(allowed)}")
-    return names
-
-
 def main(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
 
-    policies = _subset(args.policies, list(POLICIES), "--policies")
-    configs = _subset(args.configs, list(CONFIGS), "--configs")
+    policies = subset(args.policies, list(POLICIES), "--policies")
+    configs = subset(args.configs, list(CONFIGS), "--configs")
     if SEED_POLICY not in policies:
         policies.insert(0, SEED_POLICY)
     extra: tuple[str, ...] = tuple(args.set or ())

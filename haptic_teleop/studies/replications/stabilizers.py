@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_teleop.studies.replications.args import number
+from haptic_teleop.studies.replications.args import number, subset
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
 
 HELP = (
@@ -278,15 +278,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
-def _subset(text: str, allowed: Sequence[str], flag: str) -> list[str]:
-    from haptic_teleop.errors import InputError
-
-    names = [c.strip() for c in text.split(",") if c.strip()]
-    if not names or any(c not in allowed for c in names):
-        raise InputError(f"{flag} {text}: allowed: a comma-separated subset of {', '.join(allowed)}")
-    return names
-
-
 def _delays(text: str) -> list[float]:
     from haptic_teleop.errors import InputError
 
@@ -302,8 +293,8 @@ def _delays(text: str) -> list[float]:
 def main(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
 
-    laws = _subset(args.laws, list(LAWS), "--laws")
-    losses = _subset(args.losses, list(LOSSES), "--losses")
+    laws = subset(args.laws, list(LAWS), "--laws")
+    losses = subset(args.losses, list(LOSSES), "--losses")
     delays = _delays(args.delays_ms)
     seeds = int(args.seeds)
     duration = float(args.duration_s)
