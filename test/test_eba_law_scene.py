@@ -37,7 +37,8 @@ def test_a_slew_limit_and_arm_scenes_are_refused():
             find_scene("wall_contact"),
             overrides=["controllers.master.eba.law=two_condition", "master.effects.saturation.slew_rate_n_per_s=200"],
         )
-    with pytest.raises(ConfigError, match=r"controllers\.slave\.eba\.law.*allowed for arms: reservoir"):
+    allowed = r"allowed for arms: reservoir \(the pooled joint bound\), tdpa"
+    with pytest.raises(ConfigError, match=r"controllers\.slave\.eba\.law.*" + allowed):
         load_scene(find_scene("touch_ur5e_wall"), overrides=["controllers.slave.eba.law=two_condition"])
 
 

@@ -285,10 +285,18 @@ def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], w
         load_scene(find_scene("wall_contact"), overrides=list(overrides))
 
 
-@pytest.mark.parametrize(("command", "words"), [("launch", "allowed live: reservoir"), ("run", "allowed for arms")])
-def test_live_and_arm_runs_of_tdpa_exit_2_in_one_line(tmp_path: Path, command: str, words: str) -> None:
+@pytest.mark.parametrize(
+    ("command", "law", "words"),
+    [
+        ("launch", TDPA, "allowed live: reservoir"),
+        ("run", WAVE, "allowed for arms: reservoir (the pooled joint bound), tdpa"),
+    ],
+)
+def test_live_tdpa_and_arm_wave_runs_exit_2_in_one_line(
+    tmp_path: Path, command: str, law: tuple[str, ...], words: str
+) -> None:
     scene = "wall_contact" if command == "launch" else "touch_ur5e_wall"
-    sets = [a for o in TDPA for a in ("--set", o)]
+    sets = [a for o in law for a in ("--set", o)]
     r = subprocess.run(
         [str(Path(sys.executable).parent / "haptic-teleop"), command, scene, *sets],
         capture_output=True, text=True, timeout=120, cwd=tmp_path,
@@ -306,19 +314,24 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
     import csv
 
     from haptic_teleop.analysis.metrics import analyze_bag as analyze
-    from haptic_teleop.studies.replications import stabilizers as st
+    from haptic_teleop.analysis.stream import summarize_bag
+    from haptic_teleop.analysis.taskmetrics import load_task_signals
+    from haptic_teleop.studies.replications import stabilizer_runs as st
 
     out = tmp_path / "st"
     r = subprocess.run(
         [str(Path(sys.executable).parent / "haptic-teleop"), "experiment", "stabilizers", "--quick", "--quiet",
-         "--laws", "reservoir,tdpa_zoh", "--out", str(out)],
+         "--laws", "reservoir,tdpa_zoh,wave", "--no-z-width", "--out", str(out)],
         capture_output=True, text=True, timeout=600, cwd=tmp_path,
     )  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     runs = list(csv.DictReader((out / "stabilizers_runs.csv").open()))
     # quick: 1 seed, delays 0 and 100 ms, no loss and bursty loss: 4 runs per law
     assert sorted((x["law"], float(x["delay_s"]), x["loss"]) for x in runs) == sorted(
-        (law, d, loss) for law in ("reservoir", "tdpa_zoh") for d in (0.0, 0.1) for loss in ("none", "bursty_30")
+        (law, d, loss)
+        for law in ("reservoir", "tdpa_zoh", "wave")
+        for d in (0.0, 0.1)
+        for loss in ("none", "bursty_30")
     )
     for x in runs:
         bag = out / "bags" / x["law"] / f"delay_{float(x['delay_s']) * 1e3:g}ms-{x['loss']}" / "seed_1" / "bag"
@@ -331,7 +344,26 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
             assert float(x["force_rms_error_vs_reference_n"]) > 0.0
     assert (out / "stabilizers.png").stat().st_size > 10_000
     assert "TDPA, ZOH-exact controller" in (out / "stabilizers.md").read_text()
-    assert len(list(csv.DictReader((out / "stabilizers.csv").open()))) == 8
+    assert len(list(csv.DictReader((out / "stabilizers.csv").open()))) == 12
+    # The arm scene: the laws it runs (wave variables are one-axis only), every run a bag.
+    arm = list(csv.DictReader((out / "stabilizers_arm_runs.csv").open()))
+    assert sorted((x["law"], float(x["delay_s"]), x["loss"]) for x in arm) == sorted(
+        (law, d, loss) for law in ("reservoir", "tdpa_zoh") for d in (0.0, 0.1) for loss in ("none", "bursty_30")
+    )
+    for x in arm:
+        bag = out / "arm_bags" / x["law"] / f"delay_{float(x['delay_s']) * 1e3:g}ms-{x['loss']}" / "seed_1" / "bag"
+        summary = summarize_bag(bag)
+        assert summary["task_axes"] == 3 and summary["scene"] == st.ARM_SCENE
+        assert float(x["two_port_margin_min_j"]) == summary["two_port_energy_margin_min_j"] >= 0.0
+        assert float(x["force_rms_error_vs_wall_n"]) == summary["force_rms_error_n"]
+        sig = load_task_signals(bag)
+        ref = load_task_signals(out / "arm_bags" / x["law"] / "undisturbed" / "bag")
+        error = np.sqrt(np.mean(np.sum((sig.master_force_n - ref.master_force_n) ** 2, axis=1)))
+        assert float(x["force_rms_error_vs_reference_n"]) == pytest.approx(error, rel=1e-9, abs=1e-12)
+        drift = np.linalg.norm((sig.master_x_m[-1] - sig.slave_x_m[-1]) - (ref.master_x_m[-1] - ref.slave_x_m[-1]))
+        assert float(x["position_drift_m"]) == pytest.approx(drift, rel=1e-9, abs=1e-15)
+    assert (out / "stabilizers_arm.png").stat().st_size > 10_000
+    assert not (out / "zwidth_runs.csv").exists()  # --no-z-width
     assert st.felt_stiffness(np.linspace(0.0, 1e-3, 50), np.linspace(0.0, 2.0, 50), np.ones(50)) == pytest.approx(
         2000.0
     )
@@ -339,7 +371,18 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
 
 @pytest.mark.parametrize(
     ("args", "words"),
-    [(["--laws", "lqr"], "--laws lqr: allowed"), (["--delays-ms", "-5"], "--delays-ms -5: allowed")],
+    [
+        (["--laws", "lqr"], "--laws lqr: allowed"),
+        (["--delays-ms", "-5"], "--delays-ms -5: allowed"),
+        # The Z-width sweep's options (zwidth.py).
+        (["--z-width-stiffness", "-5"], "--z-width-stiffness -5: allowed: comma-separated numbers from 1 to 1e+07 N/m"),
+        (["--z-width-stiffness", "1000,stiff"], "--z-width-stiffness 1000,stiff: allowed: comma-separated numbers"),
+        (["--z-width-stiffness", ""], "--z-width-stiffness : allowed: comma-separated numbers"),
+        (["--z-width-damping", "1e6"], "--z-width-damping 1e6: allowed: comma-separated numbers from 0 to 100000 N s"),
+        (["--z-width-delays-ms", "-1"], "--z-width-delays-ms -1: allowed: comma-separated numbers from 0 to 2000"),
+        # In range for the option, too stiff for the simulator's step: the scene says so.
+        (["--z-width-stiffness", "1e7"], "--z-width-stiffness 1e+07 with --z-width-damping 0: the scene refuses"),
+    ],
 )
 def test_bad_experiment_arguments_exit_2_in_one_line(tmp_path: Path, args: list[str], words: str) -> None:
     r = subprocess.run(
@@ -348,4 +391,5 @@ def test_bad_experiment_arguments_exit_2_in_one_line(tmp_path: Path, args: list[
         capture_output=True, text=True, timeout=120, cwd=tmp_path,
     )  # fmt: skip
     assert r.returncode == 2 and words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "Traceback" not in r.stderr
     assert not (tmp_path / "o").exists()

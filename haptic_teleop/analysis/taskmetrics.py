@@ -349,8 +349,10 @@ class _Ports:
             self.pooled_low = min(self.pooled_low, float(np.min(pooled)))
         return cum
 
-    def add(self, q: np.ndarray, tau: np.ndarray) -> None:
-        self.absorbed(q, tau)
+    def pooled(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The next rows' pooled absorbed energy since tick 0 (the sum over the ports), per row."""
+        cum = self.absorbed(q, tau)
+        return cum[:, 0] if cum.shape[1] == 1 else np.sum(cum, axis=1)
 
 
 class TaskAccumulator:
@@ -375,6 +377,7 @@ class TaskAccumulator:
         self.contact_axis_max = np.zeros(a)
         self.finite = True
         self.ports = {}
+        self.two_port_low = 0.0  # tick 0: both ports absorbed nothing
         for side, joints in (("master", schema.master_joints), ("slave", schema.slave_joints)):
             damping, _ = _side_energy(sc, run_info, side, len(joints))
             self.ports[side] = _Ports(damping, side_period_s(sc, side), schema.measured(side))
@@ -401,8 +404,9 @@ class TaskAccumulator:
         self.torque_max = max(self.torque_max, float(np.max(np.linalg.norm(ct, axis=1))))
         self.contact_axis_max = np.maximum(self.contact_axis_max, np.max(np.abs(cf), axis=0))
         self.depth = max(self.depth, float(np.max(penetration(sx, self.plane))))
-        self.ports["master"].add(*master)
-        self.ports["slave"].add(*slave)
+        both = self.ports["master"].pooled(*master) + self.ports["slave"].pooled(*slave)
+        if both.size:  # the two-port of controllers and channel (docs/stabilizers.md, "Arms")
+            self.two_port_low = min(self.two_port_low, float(np.min(both)))
         arrays = (mx, sx, mf, sf, cf, ct, *master, *slave)
         self.finite = self.finite and all(bool(np.all(np.isfinite(x))) for x in arrays)
 
@@ -468,6 +472,10 @@ class TaskAccumulator:
             unmeasured = run_info.get(f"{side}_unmeasured_torque_reads")
             if unmeasured is not None:  # a hardware side's reads whose measured effort is the command (flagged)
                 out[f"{side}_unmeasured_torque_reads"] = int(unmeasured)
+        # Both sides' ports together: what TDPA keeps >= 0; EBA keeps each side's, hence this too.
+        e0s = sum(_side_energy(sc, run_info, side, len(j))[1] for side, j in
+                  (("master", schema.master_joints), ("slave", schema.slave_joints)))  # fmt: skip
+        out["two_port_energy_margin_min_j"] = float(e0s + self.two_port_low)
         out["all_finite"] = self.finite
         out.update(run_counts(run_info))
         return out

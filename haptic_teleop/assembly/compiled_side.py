@@ -174,12 +174,15 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
 
 def compiled_reason_side(side: ArmSide) -> str | None:
     """Why one side's tick cannot run compiled (`CompiledSideTick`), or None if it can."""
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
     from haptic_teleop.plants.arm import MujocoArm
 
     if type(side.plant) is not MujocoArm:
         return "plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
     if side.law.params.law != "position":
         return f"task law {side.law.params.law!r} (compiled: position)"
+    if type(side.bound) is not CoupledEnergyBound:
+        return "stabilizer tdpa (compiled: EBA's reservoir bound)"
     return side_unusable()
 
 

@@ -36,8 +36,9 @@ if TYPE_CHECKING:
     import numpy as np
 
     from haptic_teleop.core.controller import SampleGuard
-    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
     from haptic_teleop.core.taskspace import TaskSpaceLaw, WorkspaceMapping
+    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.record.columns import TickSchema
@@ -317,7 +318,7 @@ class ArmSide:
 
     plant: MujocoArm | HardwareArm
     law: TaskSpaceLaw
-    bound: CoupledEnergyBound
+    bound: CoupledEnergyBound | CoupledTdpaBound
     guard: SampleGuard
     force_limit_n: float
     rotational: bool  # the law needs the 6-row Jacobian (orientation held)
@@ -374,12 +375,19 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
     every kernel for these array types now, leaving the real objects untouched."""
     import numpy as np
 
-    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
     from haptic_teleop.core.taskspace import TaskSpaceLaw
 
     plant, n = side.plant, side.plant.n
     law = TaskSpaceLaw(side.law.params, n, side.kernels)
-    bound = CoupledEnergyBound(side.bound.params, side.kernels)
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+
+    b = side.bound
+    bound: CoupledEnergyBound | CoupledTdpaBound = (
+        CoupledTdpaBound(b.params, b.controller, side.kernels)
+        if isinstance(b, CoupledTdpaBound)
+        else CoupledEnergyBound(b.params, side.kernels)
+    )
     z3 = np.zeros(3)
     jac = plant.jacobian(rotational=side.rotational)
     tau = law.torque(jac, np.zeros(n), z3, z3, z3, z3, None, plant.orientation() if side.rotational else None)
@@ -388,6 +396,21 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
     if side.kernels is not None:
         lo, hi = plant.torque_room()
         side.kernels["joint_limited"](np.zeros(n), tau, lo, hi, True)
+
+
+def arm_bound(
+    params: CoupledEnergyBoundParams, config: Scene, role: str, kernels: Mapping[str, Callable[..., Any]] | None
+) -> CoupledEnergyBound | CoupledTdpaBound:
+    """The side's pooled joint stabilizer the scene names (`controllers.<side>.eba.law`): EBA's
+    reservoir bound, or TDPA with its controller (core/tdpa_coupled.py)."""
+    eba = getattr(config.controllers, role).eba
+    if eba.law == "tdpa":
+        from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+
+        return CoupledTdpaBound(params, eba.tdpa_controller, kernels)
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+
+    return CoupledEnergyBound(params, kernels)
 
 
 def check_gravity_hold(config: Scene, role: str, plant: MujocoArm | HardwareArm) -> None:
@@ -434,8 +457,9 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
 
     from haptic_teleop.assembly.plants import build_arm
     from haptic_teleop.core.controller import SampleGuard
-    from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBoundParams
     from haptic_teleop.core.taskspace import TaskCouplingParams, TaskSpaceLaw, WorkspaceMapping, rotation_from_rpy
+    from haptic_teleop.core.tdpa import ENERGY_LIMIT_J
     from haptic_teleop.scene.sides import side_period_s
 
     # A hardware side's plant starts its driver at its first read, not here (plants/hardware_arm.py).
@@ -479,7 +503,7 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
                 (cfg.null_space_damping_nm_s_per_rad,) * plant.n if cfg.null_space_damping_nm_s_per_rad else ()
             ),
         )
-        bound = CoupledEnergyBound(
+        bound = arm_bound(
             CoupledEnergyBoundParams(
                 period_s=side_period_s(config, role),  # the side's own period: its ledger's T
                 damping_nm_s_per_rad=tuple(plant.joint_damping()),
@@ -490,12 +514,16 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
                 # A real arm's torque may be held longer than a period (late ticks): the bound budgets it.
                 max_hold_s=getattr(plant, "hold_budget_s", None),
             ),
+            config,
+            role,
             kernels,
         )
-        # Remote payloads (task frame): master receives (x, v, f_contact), slave (x, v).
+        # Remote payloads (task frame): master receives (x, v, f_contact), slave (x, v); with
+        # TDPA, the sender's pooled input energy last (core/tdpa_coupled.py).
         kinds = (limits.position_m, limits.velocity_m_per_s, limits.force_n)
         per = kinds if role == "master" else kinds[:2]
-        guard = SampleGuard([k for k in per for _ in range(3)])
+        energy = (ENERGY_LIMIT_J,) if cfg.eba.law == "tdpa" else ()
+        guard = SampleGuard([*(k for k in per for _ in range(3)), *energy])
         out = ArmSide(plant, TaskSpaceLaw(params, plant.n, kernels), bound, guard, cfg.force_limit_n, hold, kernels)
         if kernels is not None:
             _warm_up(out, config)

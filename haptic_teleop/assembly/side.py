@@ -66,6 +66,11 @@ class _SideTick:
         self.limited = np.zeros(self.plant.n)
         self.force = np.zeros(3)  # the desired task force (before saturation)
         self.ratio = 0.0  # applied / desired torque (direction kept): scales the task force
+        # TDPA's velocity controller adds a damper along the joints' motion: the applied torque is
+        # then no scaled copy of the desired one, and its task force is solved for (`rendered`).
+        bound = side.bound
+        velocity = getattr(bound, "controller", None) == "velocity" and bound.params.enabled
+        self.task_force: np.ndarray | None = np.zeros(3) if velocity else None
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
         k = side.kernels
         self.joint_limited = k["joint_limited"] if k is not None else joint_limited
@@ -95,11 +100,22 @@ class _SideTick:
             self.limited_ticks += 1
         # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
         out = self.bound.step(q, self.limited if self.safe is None else self.safe(self.limited))
+        if self.task_force is not None:  # TDPA's velocity controller: not a scaled copy of tau
+            self.task_force[:] = np.linalg.lstsq(jac.T, out, rcond=None)[0][:3]
+            return out
         tt = dot(tau, tau)
         self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
         self.ratio *= sat
         return out
+
+    @property
+    def rendered(self) -> np.ndarray:
+        """The task force the applied torque renders: the desired task force times the ratio of
+        the applied to the desired torque (the bound scales the torque vector by one factor), or,
+        where a controller adds torque of its own (TDPA's velocity controller), the force whose
+        J^T is the applied torque (least squares, the task frame; docs/stabilizers.md, "Arms")."""
+        return self.ratio * self.force if self.task_force is None else self.task_force
 
 
 class _Maps:

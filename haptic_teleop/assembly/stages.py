@@ -24,6 +24,7 @@ import numpy as np
 from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.operator import imposed_force1
 from haptic_teleop.core.playout import PlayoutBuffer
+from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
 if TYPE_CHECKING:
     from haptic_teleop.assembly.parts import ArmParts, ArmSide
@@ -230,6 +231,7 @@ class ArmSideStage:
         self.every, self.real, self.hand_on = every, real, hand
         self.due = True
         self.remote: Payload | None = None  # the newest accepted remote sample
+        self.tdpa = isinstance(side.bound, CoupledTdpaBound)  # its energy rides on the samples
         # the tick's arrays (joints, the point in the task frame, the master's handle in the
         # device's frame for the hand, the slave's contact force and torque): set at the first sense
         self.q: Any = None
@@ -269,13 +271,17 @@ class ArmSideStage:
             self.tau = self.side_tick.torque(self.x, self.v, self.remote)
         elif self.master and not self.real:  # the operator's hand meets the simulated handle where it is now
             self.hand_x, self.hand_v = plant.point()
+        # TDPA: the side's pooled input energy rides last on its samples (core/tdpa_coupled.py).
+        e = (self.side_tick.bound.energy_in_j,) if self.tdpa else ()
         if self.master:
-            return (*self.x.tolist(), *self.v.tolist())
-        return (*self.x.tolist(), *self.v.tolist(), *self.f_env.tolist())
+            return (*self.x.tolist(), *self.v.tolist(), *e)
+        return (*self.x.tolist(), *self.v.tolist(), *self.f_env.tolist(), *e)
 
     def take(self, payload: Payload) -> None:
         if self.guard.accept(payload):
             self.remote = payload
+            if self.tdpa:
+                self.side_tick.bound.receive(payload[-1])
 
     def actuate(self, n: int, hand: Any) -> None:
         hand = hand if self.hand_on else None
@@ -334,7 +340,7 @@ class ArmRow:
             row[next(c)] = side.applied
             row[next(c)] = side.x
             row[next(c)] = side.v
-            row[next(c)] = tick.ratio * tick.force
+            row[next(c)] = tick.rendered
             row[next(c)] = tick.force
             row[next(c)] = tick.bound.energy_j
         row[next(c)] = s.f_env

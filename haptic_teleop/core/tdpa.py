@@ -41,7 +41,12 @@ ENERGY_LIMIT_J = 1e9
 def observe1(energy_in: float, energy_out: float, held: float, dx: float) -> tuple[float, float]:
     """The passivity observer over one hold: the energy `held * dx` the held force put into the
     device (E_out grows) or took from it (E_in grows by its magnitude)."""
-    w = held * dx
+    return book1(energy_in, energy_out, held * dx)
+
+
+def book1(energy_in: float, energy_out: float, w: float) -> tuple[float, float]:
+    """The observer's booking of the energy `w` the port gave the device over one hold (an arm's
+    joints pooled: the sum of tau_i dq_i): E_out grows by it, or E_in by its magnitude."""
     if w > 0.0:
         return energy_in, energy_out + w
     return energy_in - w, energy_out

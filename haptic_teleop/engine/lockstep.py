@@ -219,8 +219,10 @@ class Engine:
             size_of=arm_message_bytes,
             layout=LAYOUT_ARM,
         )
-        # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis.
-        self._sizes = (wire_payload_bytes(3, 2), wire_payload_bytes(3, 3))
+        # Forward: handle x, v; backward: tool x, v and contact force; one JointState name per axis
+        # (with TDPA one more, `energy_in_j`: the sender's pooled input energy, core/tdpa_coupled.py).
+        names = 4 if self.scene.config.controllers.master.eba.law == "tdpa" else 3
+        self._sizes = (wire_payload_bytes(names, 2), wire_payload_bytes(names, 3))
         self._stop = False
         self._state: LoopState | None = None  # the Python loop's, while it runs
         from haptic_teleop.engine.compiled import arm_host

@@ -99,6 +99,7 @@ def compiled_reason_arm(
 ) -> str | None:
     """Why the arm scene cannot run in the compiled loop, or None if it can. `period_s`: the
     scene's period (a side whose bound runs at another period ticks in the Python loop only)."""
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
 
@@ -112,6 +113,8 @@ def compiled_reason_arm(
             return f"{role}: plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
         if side.law.params.law != "position":
             return f"{role}: task law {side.law.params.law!r} (compiled: position)"
+        if type(side.bound) is not CoupledEnergyBound:
+            return f"{role}: stabilizer tdpa (compiled: EBA's reservoir bound)"
     profile = parts.operator.constants().profile
     if profile not in PROFILE_CODES:
         return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"

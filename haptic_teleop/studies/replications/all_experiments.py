@@ -73,7 +73,7 @@ _EC = _HLI = "codec_error_control.md"  # both codec experiments' page
 _RMS, _PEAK = "RMS force error [N]", "peak force error [N]"
 _PRIO = {"scheme": "priority-based, 70 kbit/s"}
 _NVE = "nve_experiments.md"
-_ST = "stabilizers.md"
+_ST = "stabilizers_compared.md"
 _DB = "codec_deadband_experiments.md"
 
 # Every experiment behind a docs table or figure, with the arguments the docs name, and the numbers
@@ -174,16 +174,28 @@ JOBS: tuple[Job, ...] = (
     ),
     Job(
         "stabilizers", "stabilizers", args=("--discard-bags",),
-        figures=(("stabilizers.png", "stabilizers.png"),),
+        figures=(
+            ("stabilizers.png", "stabilizers.png"),
+            ("stabilizers_arm.png", "stabilizers_arm.png"),
+            ("zwidth.png", "zwidth.png"),
+        ),
         checks=(
             _c("stabilizers.csv", {"law": "reservoir", "delay_s": "0.5", "loss": "none"},
                "force_rms_error_vs_wall_n_mean", 2.35, 0.005, _ST),
+            _c("stabilizers_arm.csv", {"law": "reservoir", "delay_s": "0.5", "loss": "none"},
+               "force_rms_error_vs_wall_n_mean", 13.6, 0.05, _ST),
+            _c("stabilizers_arm.csv", {"law": "tdpa_zoh", "delay_s": "0.5", "loss": "none"},
+               "force_rms_error_vs_wall_n_mean", 11.0, 0.05, _ST),
+            _c("zwidth_runs.csv", {"law": "wave", "delay_s": "0.1", "wall_stiffness_n_per_m": "100000.0",
+                                   "wall_damping_n_s_per_m": "0.0"}, "felt_static_stiffness_n_per_m", 142, 0.5, _ST),
+            _c("zwidth_runs.csv", {"law": "reservoir", "delay_s": "0.1", "wall_stiffness_n_per_m": "100000.0",
+                                   "wall_damping_n_s_per_m": "0.0"}, "felt_static_stiffness_n_per_m", 498, 0.5, _ST),
             _c("stabilizers.csv", {"law": "tdpa_zoh", "delay_s": "0.2", "loss": "none"},
                "force_rms_error_vs_wall_n_mean", 7.59, 0.005, _ST),
             _c("stabilizers.csv", {"law": "tdpa_velocity", "delay_s": "0.5", "loss": "none"},
                "two_port_margin_min_j_mean", -0.197, 0.0005, _ST),
         ),
-        scenes=("wall_contact",), seeds="1-2", minutes=1.5,
+        scenes=("wall_contact", "touch_ur5e_wall"), seeds="1-2", minutes=3.2,
     ),
 )  # fmt: skip
 

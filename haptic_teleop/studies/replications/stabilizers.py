@@ -20,7 +20,9 @@ that bag alone:
 
 Writes stabilizers_runs.csv (every run), stabilizers.csv (per law and network: mean and sample std
 over seeds), stabilizers.md and stabilizers.png; the bags under bags/ (`--discard-bags`: each is
-measured, then deleted).
+measured, then deleted). Then, unless --no-z-width, the Z-width sweep (zwidth.py: every law over
+wall stiffness x wall damping per delay) into the same directory: zwidth_runs.csv, zwidth.md,
+zwidth.png, its bags under zwidth_bags/.
 """
 
 from __future__ import annotations
@@ -36,6 +38,21 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number, subset
+from haptic_teleop.studies.replications.stabilizer_runs import (
+    ARM_LAWS,
+    ARM_SCENE,
+    BASE_SCENE,
+    GEOMETRY,
+    LAWS,
+    LOSSES,
+    drift_m,
+    measure,
+    measure_task,
+    network_overrides,
+    number_list,
+    record,
+    scene,
+)
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
 
 HELP = (
@@ -44,47 +61,8 @@ HELP = (
     "one-axis contact scene over delay and loss (Bernoulli, bursty), paired seeds, every run a bag: force error, "
     "drift, felt stiffness, two-port energy margin; CSV, table, plot"
 )
-BASE_SCENE = "wall_contact"
-GEOMETRY = (
-    "slave.wall.position_m=0.005",
-    "operator.start_s=0.2",
-    "operator.speed_m_per_s=0.05",
-    "operator.distance_m=0.03",
-)
-_TDPA = ("controllers.master.eba.law=tdpa", "controllers.slave.eba.law=tdpa")
-LAWS: dict[str, tuple[str, tuple[str, ...]]] = {
-    "reservoir": ("EBA, reservoir", ()),
-    "two_condition": (
-        "EBA, two conditions",
-        ("controllers.master.eba.law=two_condition", "controllers.slave.eba.law=two_condition"),
-    ),
-    "tdpa_zoh": (
-        "TDPA, ZOH-exact controller",
-        (*_TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh"),
-    ),
-    "tdpa_velocity": ("TDPA, velocity controller", _TDPA),
-    "wave": ("wave variables, b 20 N s/m", ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")),
-    "wave_filtered": (
-        "wave variables, 50 Hz wave filter, drift 5/s",
-        (
-            "controllers.master.eba.law=wave",
-            "controllers.slave.eba.law=wave",
-            "controllers.master.eba.wave_filter_hz=50",
-            "controllers.slave.eba.wave_filter_hz=50",
-            "controllers.slave.eba.wave_drift_gain_per_s=5",
-        ),
-    ),
-}
-DIRS = ("forward", "backward")
 DELAYS_S = (0.0, 0.05, 0.1, 0.2, 0.5)
-# name -> the loss effect's YAML (both directions); None: no loss.
-LOSSES: dict[str, str | None] = {
-    "none": None,
-    "bernoulli_10": "{model: bernoulli, probability: 0.1}",
-    "bernoulli_30": "{model: bernoulli, probability: 0.3}",
-    # Gilbert-Elliott, stationary loss 30 %: p = 0.03, r = 0.07, all lost in the bad state.
-    "bursty_30": "{model: gilbert_elliott, p: 0.03, r: 0.07, one_minus_h: 1.0, one_minus_k: 0.0}",
-}
+
 METRICS = (
     "force_rms_error_vs_reference_n",
     "force_rms_error_vs_wall_n",
@@ -93,61 +71,8 @@ METRICS = (
     "two_port_margin_min_j",
     "contact_force_max_n",
 )
+
 RUNS_HEADER = ["law", "delay_s", "loss", "seed", *METRICS]
-CONTACT_N = 0.1  # the slave touches the wall while its contact force exceeds this
-
-
-def _scene(overrides: Sequence[str]) -> Any:
-    from haptic_teleop.scene.load import find_scene, load_scene
-
-    return load_scene(find_scene(BASE_SCENE), overrides=list(overrides))
-
-
-def network_overrides(delay_s: float, loss: str) -> list[str]:
-    """The grid's network, both directions: no other effect than this delay and this loss."""
-    out = [f"network.{d}.effects={{}}" for d in DIRS]
-    if delay_s > 0.0:
-        out += [f"network.{d}.effects.delay={{delay_s: {delay_s}}}" for d in DIRS]
-    spec = LOSSES[loss]
-    if spec is not None:
-        out += [f"network.{d}.effects.loss={spec}" for d in DIRS]
-    return out
-
-
-def _measure(bag: Path) -> dict[str, Any]:
-    """What the comparison needs of one run, from its bag alone."""
-    from haptic_teleop.analysis.metrics import analyze_bag
-
-    summary, sig = analyze_bag(bag)
-    return {
-        "felt_n": np.asarray(sig.master_force_n, dtype=float),
-        "offset_m": float(sig.master_x_m[-1] - sig.slave_x_m[-1]),
-        "wall_rms_n": float(summary["force_rms_error_n"]),
-        "margin_j": float(summary["two_port_energy_margin_min_j"]),
-        "stiffness": felt_stiffness(sig.master_x_m, sig.master_force_n, sig.contact_n),
-        "contact_max_n": float(summary["contact_force_max_n"]),
-    }
-
-
-def felt_stiffness(x_m: np.ndarray, force_n: np.ndarray, contact_n: np.ndarray) -> float:
-    """Least-squares slope of the master's force magnitude over its position while the slave
-    touches the wall (N/m; NaN with fewer than 10 such ticks)."""
-    touching = np.abs(np.asarray(contact_n)) > CONTACT_N
-    if np.count_nonzero(touching) < 10:
-        return math.nan
-    x = np.asarray(x_m)[touching]
-    f = np.abs(np.asarray(force_n)[touching])
-    if np.ptp(x) <= 0.0:
-        return math.nan
-    return float(np.polyfit(x, f, 1)[0])
-
-
-def _record(overrides: Sequence[str], bag: Path) -> dict[str, Any]:
-    from haptic_teleop.engine.run import record_run
-
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    record_run(_scene(overrides), bag, parallel=False, handle_sigint=False)
-    return _measure(bag)
 
 
 def run_grid(
@@ -159,13 +84,16 @@ def run_grid(
     bags: Path,
     discard: bool,
     progress: Any = None,
+    arm: bool = False,
 ) -> list[list[Any]]:
-    """Every law over every network and seed: rows of RUNS_HEADER."""
+    """Every law over every network and seed on the one-axis scene (`arm`: the arm scene,
+    ARM_SCENE in its own geometry): rows of RUNS_HEADER."""
+    base_scene, geometry, measure_bag = (ARM_SCENE, (), measure_task) if arm else (BASE_SCENE, GEOMETRY, measure)
     rows: list[list[Any]] = []
     for law in laws:
-        base = (*GEOMETRY, *LAWS[law][1], *extra)
+        base = (*geometry, *LAWS[law][1], *extra)
         ref_bag = bags / law / "undisturbed" / "bag"
-        ref = _record((*base, *network_overrides(0.0, "none")), ref_bag)
+        ref = record((*base, *network_overrides(0.0, "none")), ref_bag, measure_bag, base_scene)
         if discard:
             shutil.rmtree(ref_bag.parent)
         if progress is not None:
@@ -174,15 +102,16 @@ def run_grid(
             for loss in losses:
                 for seed in seeds:
                     bag = bags / law / f"delay_{delay * 1e3:g}ms-{loss}" / f"seed_{seed}" / "bag"
-                    m = _record((*base, *network_overrides(delay, loss), f"scene.seed={seed}"), bag)
+                    overrides = (*base, *network_overrides(delay, loss), f"scene.seed={seed}")
+                    m = record(overrides, bag, measure_bag, base_scene)
                     if discard:
                         shutil.rmtree(bag.parent)
                     rows.append(
                         [
                             law, delay, loss, seed,
-                            rms(m["felt_n"] - ref["felt_n"]),
+                            force_error_n(m["felt_n"], ref["felt_n"]),
                             m["wall_rms_n"],
-                            m["offset_m"] - ref["offset_m"],
+                            drift_m(m["offset_m"], ref["offset_m"]),
                             m["stiffness"],
                             m["margin_j"],
                             m["contact_max_n"],
@@ -191,6 +120,12 @@ def run_grid(
                     if progress is not None:
                         progress.update(1)
     return rows
+
+
+def force_error_n(felt_n: np.ndarray, reference_n: np.ndarray) -> float:
+    """RMS over ticks of the felt force's difference from the undisturbed run's (its norm on an arm)."""
+    d = felt_n - reference_n
+    return rms(d if d.ndim == 1 else np.linalg.norm(d, axis=1))
 
 
 def summarize(rows: Sequence[Sequence[Any]]) -> list[list[Any]]:
@@ -273,25 +208,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--duration-s", type=number(0.5, 60.0), default=3.0, help="each run's length (s)")
     p.add_argument("--discard-bags", action="store_true", help="measure each bag, then delete it")
-    p.add_argument("--quick", action="store_true", help="1 seed, delays 0 and 100 ms, no loss and bursty, 1.5 s")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of the base scene")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="1 seed, delays 0 and 100 ms, no loss and bursty, 1.5 s; Z-width: walls 1000, 30000 N/m x 0, 10 N s/m "
+        "at 100 ms",
+    )
+    p.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a key of the one-axis scene (not the arm's)"
+    )
+    p.add_argument(
+        "--no-arm",
+        action="store_true",
+        help=f"skip the arm scene ({ARM_SCENE}: the laws of {', '.join(ARM_LAWS)} that --laws names)",
+    )
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    from haptic_teleop.studies.replications import zwidth
+
+    zwidth.add_arguments(p)
 
 
 def _delays(text: str) -> list[float]:
-    from haptic_teleop.errors import InputError
-
-    try:
-        ms = [float(c) for c in text.split(",") if c.strip()]
-    except ValueError:
-        ms = []
-    if not ms or any(not 0.0 <= d <= 2000.0 for d in ms):
-        raise InputError(f"--delays-ms {text}: allowed: comma-separated numbers from 0 to 2000")
-    return [d * 1e-3 for d in ms]
+    return [d * 1e-3 for d in number_list(text, "--delays-ms", 0.0, 2000.0)]
 
 
 def main(args: argparse.Namespace) -> int:
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
+    from haptic_teleop.studies.replications import zwidth
 
     laws = subset(args.laws, list(LAWS), "--laws")
     losses = subset(args.losses, list(LOSSES), "--losses")
@@ -302,25 +245,52 @@ def main(args: argparse.Namespace) -> int:
         seeds, duration, delays = 1, 1.5, [0.0, 0.1]
         losses = [x for x in losses if x in ("none", "bursty_30")] or losses[:1]
     extra = (f"scene.duration_s={duration}", *(args.set or ()))
+    # The arm scene: the laws it runs, its own geometry, only the run's length from the options.
+    arm_laws = [] if args.no_arm else [law for law in laws if law in ARM_LAWS]
+    arm_extra = (f"scene.duration_s={duration}",)
+    sweep = zwidth.grid(args)
     for law in laws:  # a bad --set fails here, before anything is written
-        _scene((*GEOMETRY, *LAWS[law][1], *extra, *network_overrides(delays[-1], losses[-1])))
+        scene((*GEOMETRY, *LAWS[law][1], *extra, *network_overrides(delays[-1], losses[-1])))
+    for law in arm_laws:
+        scene((*LAWS[law][1], *arm_extra, *network_overrides(delays[-1], losses[-1])), ARM_SCENE)
+    if sweep is not None:
+        zwidth.check_scenes(laws, sweep, extra)
     out = Path(args.out) if args.out else default_out("stabilizers")
     check_out_dir(out)
-    total = len(laws) * (1 + len(delays) * len(losses) * seeds)
+    per_law = 1 + len(delays) * len(losses) * seeds
+    total = (len(laws) + len(arm_laws)) * per_law + (zwidth.count(laws, sweep) if sweep else 0)
     from tqdm import tqdm
 
     with tqdm(total=total, unit="run", disable=args.quiet, desc="stabilizers") as bar:
         rows = run_grid(laws, delays, losses, range(1, seeds + 1), extra, out / "bags", args.discard_bags, bar)
+        arm_rows = run_grid(
+            arm_laws, delays, losses, range(1, seeds + 1), arm_extra, out / "arm_bags", args.discard_bags, bar, True
+        )
+        z_rows = zwidth.run_sweep(laws, *sweep, extra, out / "zwidth_bags", args.discard_bags, bar) if sweep else []
     if args.discard_bags:
         shutil.rmtree(out / "bags", ignore_errors=True)
-    table = summarize(rows)
-    wall = float(_scene((*GEOMETRY, *extra)).config.slave.wall.stiffness_n_per_m)
-    text = markdown_table(table, wall)
-    write_csv(out / "stabilizers_runs.csv", RUNS_HEADER, rows)
-    write_csv(out / "stabilizers.csv", TABLE_HEADER, table)
-    (out / "stabilizers.md").write_text(text)
-    plot(table, laws, losses, out / "stabilizers.png")
+        shutil.rmtree(out / "arm_bags", ignore_errors=True)
+    texts = [_write(rows, laws, losses, float(scene((*GEOMETRY, *extra)).config.slave.wall.stiffness_n_per_m), out,
+                    "stabilizers")]  # fmt: skip
+    if arm_laws:
+        wall = float(scene(arm_extra, ARM_SCENE).config.slave.wall.stiffness_n_per_m)
+        texts.append(_write(arm_rows, arm_laws, losses, wall, out, "stabilizers_arm"))
+    if sweep:
+        texts.append(zwidth.write(z_rows, laws, sweep, duration, out) + f"{out / 'zwidth.png'}\n")
     if not args.quiet:
-        sys.stdout.write(text)
-        sys.stdout.write(f"{out / 'stabilizers.png'}\n")
+        sys.stdout.write("\n".join(texts))
     return 0
+
+
+def _write(
+    rows: Sequence[Sequence[Any]], laws: Sequence[str], losses: Sequence[str], wall: float, out: Path, stem: str
+) -> str:
+    """One scene's grid: STEM_runs.csv, STEM.csv, STEM.md and STEM.png; returns the table and the
+    plot's path."""
+    table = summarize(rows)
+    text = markdown_table(table, wall)
+    write_csv(out / f"{stem}_runs.csv", RUNS_HEADER, rows)
+    write_csv(out / f"{stem}.csv", TABLE_HEADER, table)
+    (out / f"{stem}.md").write_text(text)
+    plot(table, laws, losses, out / f"{stem}.png")
+    return text + f"{out / f'{stem}.png'}\n"

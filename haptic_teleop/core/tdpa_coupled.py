@@ -1,0 +1,191 @@
+"""TDPA on an arm: the joints of a side are its port, pooled (docs/stabilizers.md, "Arms").
+
+The one-axis rules of core/tdpa.py on the joint vector: over each hold the observer books the
+energy the held torques gave the joints, w = sum_i tau_i dq_i (`book1`: E_out grows by w > 0, E_in
+by -w otherwise); the side sends its cumulative E_in with every sample (one value, last); its
+budget is W = E0 + E_in received - E_out, plus with the "zoh" controller the least the joints'
+damping dissipated over the holds, sum_i (d_i/T) dq_i^2 (the pooled reservoir's credit,
+`coupled_reservoir` with no torque).
+
+The controllers act on the limited torque vector:
+- "zoh": the pooled bound on the hold's worst case, (T/4) tau.T D^-1 tau <= W (`coupled_bounded`
+  with the budget for the reservoir: the vector scaled by one factor, as EBA's pooled bound):
+  passive for every joint motion over the hold.
+- "velocity": the field's impedance-type controller on the predicted release P = sum_i tau_i dq_i
+  (the last hold's motion): beyond the budget it adds a damper along that motion,
+  tau + beta dq with beta = (W - P) / |dq|^2 (the port's f - alpha v), so that the predicted
+  release is W; then the motors' room. One joint goes through `velocity_pc1`, the one-axis rule,
+  bit for bit.
+
+`CoupledTdpaBound` has the interface of `core.eba_coupled.CoupledEnergyBound` that the Python arm
+tick uses (`step`, `applied`, `held`, `energy_j`, `scale`, `stretch`, `hold_excess_j`); the
+compiled arm loop runs EBA's bound only and falls back to Python for it (docs/performance.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from haptic_teleop.core.eba_coupled import (
+    CoupledEnergyBoundParams,
+    coupled_bounded,
+    coupled_reservoir,
+    joint_limited,
+    late_hold_excess_j,
+)
+from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, velocity_pc1
+
+
+def joint_power(held: npt.NDArray[np.float64], dq: npt.NDArray[np.float64]) -> float:
+    """sum_i held_i dq_i, joint after joint: the energy the held torques gave the joints over dq."""
+    w = 0.0
+    for i in range(dq.shape[0]):
+        w += held[i] * dq[i]
+    return w
+
+
+def velocity_scaled(
+    out: npt.NDArray[np.float64],
+    tau: npt.NDArray[np.float64],
+    budget: float,
+    dq: npt.NDArray[np.float64],
+    low: npt.NDArray[np.float64],
+    high: npt.NDArray[np.float64],
+) -> float:
+    """The field's impedance-type controller on the joint vector: out = tau while the predicted
+    release P = tau . dq is within `budget` (or there is no motion to predict from); else the
+    controller adds a damper along the last hold's motion, out = tau + beta dq with
+    beta = (budget - P) / |dq|^2 < 0, whose predicted release is the budget; then brought within
+    [low, high] keeping its direction (a tiny motion: the room against it, never an overflow).
+    Returns beta (0: the torque passed). One joint: `velocity_pc1` (the same force, W / dx), then
+    the room."""
+    n = tau.shape[0]
+    if n == 1:
+        out[0] = min(max(velocity_pc1(tau[0], budget, dq[0], math.inf), low[0]), high[0])
+        return 0.0 if out[0] == tau[0] else -1.0
+    p = joint_power(tau, dq)
+    dd = joint_power(dq, dq)
+    if dd == 0.0 or p <= budget:
+        out[:] = tau
+        return 0.0
+    beta = (budget - p) / dd  # may overflow to -inf on a tiny motion: the room then decides
+    if math.isinf(beta):
+        room = math.inf  # the largest multiple of -dq the motors take
+        for i in range(n):
+            if dq[i] > 0.0:
+                room = min(room, -min(low[i], 0.0) / dq[i])
+            elif dq[i] < 0.0:
+                room = min(room, -max(high[i], 0.0) / dq[i])
+        for i in range(n):
+            out[i] = -room * dq[i]
+    else:
+        for i in range(n):
+            out[i] = tau[i] + beta * dq[i]
+    joint_limited(out, out.copy(), low, high, True)  # within the room; a room that excludes 0
+    return beta
+
+
+class CoupledTdpaBound:
+    """One side's pooled TDPA (module docstring): `step(q, tau)` observes the hold that ended at q
+    and controls the next torque; `applied`/`held` book what the motors really applied; `receive`
+    takes the remote side's cumulative input energy. `energy_j` is the budget W (recorded as the
+    side's energy column), `energy_in_j` what this side sends. Disabled (`eba.enabled: false`),
+    the observer runs and the limited torque passes."""
+
+    def __init__(
+        self,
+        params: CoupledEnergyBoundParams,
+        controller: str = "velocity",
+        kernels: Mapping[str, Callable[..., Any]] | None = None,
+    ) -> None:
+        if controller not in TDPA_CONTROLLERS:
+            raise ValueError(f"tdpa controller must be one of {', '.join(TDPA_CONTROLLERS)}, got {controller!r}")
+        if params.slew_nm_per_s:
+            raise ValueError("tdpa on an arm: no slew limit (the one-axis law refuses it too)")
+        self.params = params
+        self.controller = controller
+        n = params.joints
+        d = np.array(params.damping_nm_s_per_rad, dtype=float)
+        self._gain = d / params.period_s
+        self._bound_gain = 4.0 * d / params.hold_s
+        lim = np.array(params.torque_limit_nm or (math.inf,) * n, dtype=float)
+        self._high, self._low = lim, -lim
+        self._zoh = controller == "zoh"
+        self._zero = np.zeros(n)
+        self._limited = np.zeros(n)
+        self._out = np.zeros(n)
+        self._dq = np.zeros(n)
+        self._last_q = np.zeros(n)
+        self._has_last = False
+        self._stretch = 1.0
+        self.held = np.zeros(n)
+        self.energy_in_j = 0.0
+        self.energy_out_j = 0.0
+        self.remote_in_j = 0.0
+        self.credit_j = 0.0
+        self.energy_j = params.initial_energy_j
+        self.scale = 1.0  # "zoh": the factor on the torque vector (1: it passed)
+        self.beta = 0.0  # "velocity": the damper it added along the motion (0: none), N m s/rad per T
+        k = kernels or {}
+        self._f_limited = k.get("joint_limited", joint_limited)
+        self._f_bounded = k.get("coupled_bounded", coupled_bounded)
+        self._f_reservoir = k.get("coupled_reservoir", coupled_reservoir)
+
+    def receive(self, energy_in_j: float) -> None:
+        """The remote side's cumulative input energy from the newest accepted sample (only grows:
+        an older sample released later keeps the larger value)."""
+        self.remote_in_j = max(self.remote_in_j, energy_in_j)
+
+    def step(
+        self,
+        q: npt.NDArray[np.float64],
+        tau_desired: npt.NDArray[np.float64],
+        low: npt.NDArray[np.float64] | None = None,
+        high: npt.NDArray[np.float64] | None = None,
+    ) -> npt.NDArray[np.float64]:
+        dq = self._dq
+        if self._has_last:
+            np.subtract(q, self._last_q, out=dq)
+            self.energy_in_j, self.energy_out_j = book1(self.energy_in_j, self.energy_out_j, joint_power(self.held, dq))
+            if self._zoh:
+                gain = self._gain if self._stretch == 1.0 else self._gain / self._stretch
+                self.credit_j = self._f_reservoir(self.credit_j, gain, self._zero, dq)
+        else:
+            dq[:] = 0.0
+            self._has_last = True
+        self._stretch = 1.0
+        self._last_q[:] = q
+        w = self.params.initial_energy_j + self.remote_in_j - self.energy_out_j + self.credit_j
+        self.energy_j = w
+        lo = self._low if low is None else low
+        hi = self._high if high is None else high
+        self._f_limited(self._limited, tau_desired, lo, hi, True)
+        out = self._out
+        if not self.params.enabled:
+            out[:] = self._limited
+            self.scale = 1.0
+        elif self._zoh:
+            self.scale = self._f_bounded(out, self._limited, w if w > 0.0 else 0.0, self._bound_gain)
+        else:
+            self.beta = velocity_scaled(out, self._limited, w, dq, lo, hi)
+        self.held[:] = out
+        return out
+
+    def applied(self, tau: npt.NDArray[np.float64]) -> None:
+        """The torque the motors really applied over the hold after the last `step`."""
+        self.held[:] = tau
+
+    def stretch(self, elapsed_s: float) -> None:
+        """As `CoupledEnergyBound.stretch`: the next booked motion took `elapsed_s`; the damping
+        credit ("zoh") is d_i dq_i^2 / elapsed_s then."""
+        periods = elapsed_s / self.params.period_s
+        self._stretch = periods if periods > 1.0 and math.isfinite(periods) else 1.0
+
+    def hold_excess_j(self, elapsed_s: float) -> float:
+        """As `CoupledEnergyBound.hold_excess_j`, of the torque held now."""
+        return late_hold_excess_j(self.held, self._bound_gain, elapsed_s, self.params.hold_s)

@@ -1,0 +1,211 @@
+"""TDPA on the arm scenes (core/tdpa_coupled.py, docs/stabilizers.md, "Arms"): the pooled rules,
+and the arm hard cases of test_hard_cases_arm.py run with TDPA on both sides, recorded to real
+bags and judged from the plant signals: the two-port's energy margin (both sides' joints, the
+damping the simulator really has) stays >= 0 with the "zoh" controller in every case, falls below
+with the controller off where the unprotected arms fail, and the field's "velocity" controller
+makes energy over the zero-order hold in the cases that say so.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from haptic_teleop.analysis.energy import energy_margins
+from haptic_teleop.analysis.stream import summarize_bag
+from haptic_teleop.core.eba_coupled import CoupledEnergyBoundParams
+from haptic_teleop.core.tdpa import velocity_pc1
+from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound, joint_power, velocity_scaled
+from haptic_teleop.engine.lockstep import Engine
+from haptic_teleop.engine.run import record_run
+from haptic_teleop.errors import ConfigError
+from haptic_teleop.scene.load import find_scene, load_scene
+
+sys.path.insert(0, str(Path(__file__).parent))
+import test_hard_cases_arm as ha
+
+TDPA = ("controllers.master.eba.law=tdpa", "controllers.slave.eba.law=tdpa")
+ZOH = (*TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh")
+VARIANTS = {"zoh": ZOH, "velocity": TDPA, "off": ZOH + ha.UNPROTECTED}
+# Where the field's controller makes more than 0.5 J on the arms (docs/stabilizers.md, "Arms").
+VELOCITY_FAILS = ("dxl_operator_fast", "ur5e_stiff_wall")
+SIDES = ("master", "slave")
+
+torques = st.lists(st.floats(-50.0, 50.0, allow_nan=False), min_size=3, max_size=3)
+motions = st.lists(st.floats(-0.01, 0.01, allow_nan=False), min_size=3, max_size=3)
+
+
+def _params(damping: tuple[float, ...] = (0.5, 1.0, 2.0), e0: float = 0.0) -> CoupledEnergyBoundParams:
+    return CoupledEnergyBoundParams(period_s=0.001, damping_nm_s_per_rad=damping, initial_energy_j=e0)
+
+
+# --------------------------------------------------------------------------------------------
+# The rules.
+
+
+@settings(max_examples=200, deadline=None)
+@given(torques, motions, st.floats(0.0, 1.0))
+def test_the_zoh_controller_bounds_what_any_joint_motion_over_the_hold_releases(
+    tau: list[float], dq_probe: list[float], budget: float
+) -> None:
+    """Whatever the joints do over the next hold, the held torques release at most the budget
+    beyond what the joints' damping takes: sum tau_i dq_i - (d_i/T) dq_i^2 <= W."""
+    b = CoupledTdpaBound(_params(e0=budget), "zoh")
+    out = b.step(np.zeros(3), np.array(tau)).copy()
+    d = np.array(b.params.damping_nm_s_per_rad) / b.params.period_s
+    worst_dq = out / (2.0 * d)  # the motion that maximises the release
+    for dq in (worst_dq, np.array(dq_probe)):
+        release = joint_power(out, dq) - float(np.sum(d * dq * dq))
+        assert release <= budget * (1.0 + 1e-12) + 1e-15
+
+
+@settings(max_examples=200, deadline=None)
+@given(torques, motions, st.floats(-1.0, 1.0))
+def test_the_velocity_controller_adds_a_damper_whose_prediction_is_the_budget(
+    tau: list[float], dq: list[float], budget: float
+) -> None:
+    """Beyond the budget, tau + beta dq (beta < 0: a damper along the last motion) whose
+    predicted release is the budget; within it (or with no motion) the torque passes."""
+    out = np.zeros(3)
+    lim = np.full(3, 1e15)  # a room that never binds here
+    t, d = np.array(tau), np.array(dq)
+    p, dd = joint_power(t, d), joint_power(d, d)
+    assume(dd == 0.0 or dd > 1e-12)
+    beta = velocity_scaled(out, t, budget, d, -lim, lim)
+    if dd == 0.0 or p <= budget:
+        assert beta == 0.0 and np.array_equal(out, t)
+    else:
+        assert beta < 0.0
+        assert np.allclose(out, t + beta * d, rtol=1e-12, atol=1e-12)
+        assert joint_power(out, d) == pytest.approx(budget, rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize("dq", [2e-162, 1e-160, 1e-155])
+def test_a_tiny_motion_gives_the_room_against_it_not_an_overflow(dq: float) -> None:
+    """(W - P) / |dq|^2 overflows on a tiny motion: the torque is the motors' room against the
+    motion, finite, never NaN (0 times inf) on a joint that did not move. (A motion whose |dq|^2
+    underflows to 0, below 1e-162 rad, is no motion: the torque passes.)"""
+    out = np.zeros(3)
+    low, high = np.array([-5.0, -5.0, -5.0]), np.array([5.0, 5.0, 5.0])
+    velocity_scaled(out, np.array([0.0, 1.0, 0.0]), -1.0, np.array([0.0, dq, 0.0]), low, high)
+    assert np.array_equal(out, [0.0, -5.0, 0.0])
+
+
+@given(st.floats(-20.0, 20.0, allow_nan=False), st.floats(-0.01, 0.01, allow_nan=False), st.floats(-1.0, 1.0))
+def test_one_joint_runs_the_one_axis_velocity_rule_bit_for_bit(f: float, dx: float, budget: float) -> None:
+    out = np.zeros(1)
+    velocity_scaled(out, np.array([f]), budget, np.array([dx]), np.array([-30.0]), np.array([30.0]))
+    assert out[0] == min(max(velocity_pc1(f, budget, dx, np.inf), -30.0), 30.0)
+
+
+def test_the_observer_books_the_pooled_joint_power_and_the_budget_spends_what_the_remote_put_in() -> None:
+    b = CoupledTdpaBound(_params(e0=0.1), "velocity")
+    b.step(np.zeros(3), np.array([1.0, -2.0, 0.5]))
+    b.step(np.array([0.01, 0.01, 0.0]), np.zeros(3))  # held (1, -2, 0.5) over dq: w = 0.01 - 0.02 = -0.01
+    assert (b.energy_in_j, b.energy_out_j) == pytest.approx((0.01, 0.0))
+    b.applied(np.array([3.0, 0.0, 0.0]))
+    b.receive(0.2)
+    b.receive(0.05)  # an older sample released later: the larger cumulative value stays
+    b.step(np.array([0.02, 0.01, 0.0]), np.zeros(3))  # w = 3 * 0.01 = 0.03 out
+    assert b.energy_out_j == pytest.approx(0.03)
+    assert b.energy_j == pytest.approx(0.1 + 0.2 - 0.03)
+
+
+# --------------------------------------------------------------------------------------------
+# The scene: samples carry the energy, what cannot run is refused.
+
+
+def test_each_arm_sample_carries_the_senders_pooled_input_energy_last(tmp_path: Path, monkeypatch: Any) -> None:
+    from haptic_teleop.assembly.stages import ArmSideStage
+
+    sent: dict[bool, list[tuple[float, ...]]] = {True: [], False: []}
+    tick = ArmSideStage.tick
+
+    def spy(self: ArmSideStage, n: int) -> Any:
+        p = tick(self, n)
+        assert p[-1] == self.side_tick.bound.energy_in_j
+        sent[self.master].append(p)
+        return p
+
+    monkeypatch.setattr(ArmSideStage, "tick", spy)
+    scene = load_scene(find_scene("touch_ur5e_wall"), ["scene.duration_s=0.8", *ha.GEOMETRY, *ZOH])
+    record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False)
+    assert len(sent[True]) == len(sent[False]) == 800
+    assert {len(p) for p in sent[True]} == {7} and {len(p) for p in sent[False]} == {10}
+    assert max(p[-1] for p in sent[False]) > 0.0  # the wall pushed back: energy went in
+
+
+@pytest.mark.parametrize(
+    ("overrides", "key"),
+    [
+        (("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave"), "controllers.master.eba.law"),
+        (("slave.slew_nm_per_s=[100, 100, 100, 100, 100, 100]", *TDPA), "slave.slew_nm_per_s"),
+    ],
+)
+def test_what_tdpa_on_arms_cannot_run_is_refused_naming_the_key(overrides: tuple[str, ...], key: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        load_scene(find_scene("touch_ur5e_wall"), list(overrides))
+    assert key in str(err.value) and "allowed" in str(err.value)
+
+
+# --------------------------------------------------------------------------------------------
+# The arm hard cases, from bags.
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, str], tuple[dict[str, Any], Engine]]:
+    cache: dict[tuple[str, str], tuple[dict[str, Any], Engine]] = {}
+
+    def get(name: str, variant: str) -> tuple[dict[str, Any], Engine]:
+        if (name, variant) not in cache:
+            case = ha.CASE[name]
+            overrides = [f"scene.duration_s={case.duration_s}", *ha.GEOMETRY, *case.overrides, *VARIANTS[variant]]
+            bag = tmp_path_factory.mktemp(f"{name}_{variant}") / "bag"
+            engine, _ = record_run(
+                load_scene(find_scene(case.scene), overrides), bag, parallel=False, handle_sigint=False, keep=True
+            )
+            cache[(name, variant)] = (summarize_bag(bag), engine)
+        return cache[(name, variant)]
+
+    return get
+
+
+def _two_port_from_columns(engine: Engine) -> float:
+    """A second method: both sides' pooled ledgers from the engine's columns and the plants' damping."""
+    total = 0.0
+    for side, plant in zip(SIDES, (engine.master, engine.slave), strict=True):
+        e0 = getattr(engine.scene.config.controllers, side).eba.initial_energy_j
+        col = engine.schema.group
+        m = energy_margins(
+            engine.data[:, col(f"{side[0]}_q")], engine.data[:, col(f"{side[0]}_tau_nm")],
+            plant.joint_damping(), engine.period_s, e0,
+        )  # fmt: skip
+        total = total + m.pooled_margin_j
+    return float(np.min(total))
+
+
+@pytest.mark.parametrize("name", [c.name for c in ha.CASES])
+def test_tdpa_with_the_zoh_controller_keeps_the_arms_two_port_passive(runs: Any, name: str) -> None:
+    summary, engine = runs(name, "zoh")
+    assert summary["all_finite"]
+    assert summary["two_port_energy_margin_min_j"] >= -1e-9, summary["two_port_energy_margin_min_j"]
+    assert _two_port_from_columns(engine) == pytest.approx(summary["two_port_energy_margin_min_j"], abs=1e-9)
+
+
+@pytest.mark.parametrize("name", [c.name for c in ha.CASES if c.unprotected_fails])
+def test_without_its_controller_the_arms_two_port_makes_energy(runs: Any, name: str) -> None:
+    summary, _ = runs(name, "off")
+    assert summary["two_port_energy_margin_min_j"] < ha.FAIL_J
+
+
+@pytest.mark.parametrize("name", VELOCITY_FAILS)
+def test_the_fields_velocity_controller_makes_energy_on_the_arms(runs: Any, name: str) -> None:
+    summary, _ = runs(name, "velocity")
+    assert summary["two_port_energy_margin_min_j"] < -0.5
