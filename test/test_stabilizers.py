@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from haptic_teleop.analysis.metrics import analyze_bag, port_energy, simulator_damping
 from haptic_teleop.core.controller import ControllerParams, RemoteLimits, TeleopController
 from haptic_teleop.core.eba_state import EnergyBoundParams
-from haptic_teleop.core.tdpa import TdpaBound, observe1, velocity_pc1, zoh_pc1
+from haptic_teleop.core.tdpa import TdpaBound, observe1, reflected1, velocity_pc1, zoh_pc1
 from haptic_teleop.core.wave import consistent1, drift1, filter1, master_wave1, slave_wave1
 from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import ConfigError
@@ -40,7 +40,20 @@ WAVE_FILTERED = (
     "controllers.slave.eba.wave_filter_hz=50",
     "controllers.slave.eba.wave_drift_gain_per_s=5",
 )
-VARIANTS = {"zoh": ZOH, "velocity": TDPA, "off": TDPA + hc.UNPROTECTED, "wave": WAVE, "wave_filtered": WAVE_FILTERED}
+
+
+def _reflect(rho: float) -> tuple[str, ...]:
+    return tuple(f"controllers.{side}.eba.tdpa_reflection={rho}" for side in ("master", "slave"))
+
+
+VARIANTS = {
+    "zoh": ZOH,
+    "zoh_reflect": (*ZOH, *_reflect(0.5)),
+    "velocity": TDPA,
+    "off": TDPA + hc.UNPROTECTED,
+    "wave": WAVE,
+    "wave_filtered": WAVE_FILTERED,
+}
 # The hard cases TDPA can run: the slew-limit case is refused (the law does not model a slew limit).
 CASES = [c for c in hc.CASES if c.name != "actuator_slew_200_n_per_s"]
 # Where the field's controller loses passivity by more than 0.5 J (docs/stabilizers.md, "Measured").
@@ -121,6 +134,56 @@ def test_the_sides_send_their_observed_input_energy_with_every_sample() -> None:
     assert m is not None and s is not None
     assert 0.0 < s.remote_in_j[0] <= m.energy_in_j[0]
     assert 0.0 <= m.remote_in_j[0] <= s.energy_in_j[0]
+
+
+@given(
+    budget=st.floats(-10.0, 10.0, allow_nan=False),
+    e1=st.floats(0.0, 100.0),
+    de=st.floats(0.0, 100.0),
+    rho=st.floats(0.0, 1.0),
+)
+def test_a_reflecting_side_keeps_its_fraction_and_sends_the_rest_both_only_growing(
+    budget: float, e1: float, de: float, rho: float
+) -> None:
+    w1, sent1 = reflected1(budget, e1, rho)
+    w2, sent2 = reflected1(budget, e1 + de, rho)
+    assert sent1 >= 0.0 and w1 >= budget  # nothing negative is sent, nothing taken from the budget
+    assert (w1 - budget) + sent1 == pytest.approx(e1, rel=1e-12, abs=1e-12)  # counted once, on one side
+    assert sent2 >= sent1 and w2 >= w1  # a cumulative input only grows: so do both parts
+
+
+def test_a_reflecting_side_sends_what_it_does_not_keep() -> None:
+    scene = load_scene(
+        find_scene("wall_contact"),
+        overrides=[*hc.GEOMETRY, "scene.duration_s=1.0", *ZOH, *_reflect(0.25)],
+    )
+    from haptic_teleop.engine.lockstep import Engine
+
+    engine = Engine(scene)
+    engine.run()
+    m, s = engine.master_ctrl.tdpa, engine.slave_ctrl.tdpa
+    assert m is not None and s is not None and s.energy_in_j[0] > 0.0
+    for side in (m, s):
+        assert side.sent_j[0] == pytest.approx(0.75 * side.energy_in_j[0], rel=1e-12)
+    assert 0.0 < s.remote_in_j[0] <= m.sent_j[0]  # what arrived is what was sent, not the whole input
+
+
+def test_tdpa_zoh_keeping_all_its_input_is_ebas_reservoir_law() -> None:
+    """rho = 1 with the zoh controller: the budget is E0 + damping credit + E_in - E_out, EBA's
+    reservoir; forces and budgets agree to round-off (the sums are ordered differently) on the
+    500 ms case, where the bound has work to do."""
+    from haptic_teleop.engine.lockstep import Engine
+
+    runs = []
+    for law in ((), (*ZOH, *_reflect(1.0))):
+        overrides = [*hc.GEOMETRY, "scene.duration_s=2.0", *hc.CASE["delay_500ms_constant"].overrides, *law]
+        engine = Engine(load_scene(find_scene("wall_contact"), overrides=overrides))
+        engine.run()
+        col = engine.schema.group
+        runs.append(np.column_stack([engine.data[:, col(k)] for k in ("m_force_n", "s_force_n", "m_energy_j")]))
+    eba, tdpa = runs
+    assert np.min(eba[:, 2]) < 1e-3 < np.max(np.abs(eba[:, 0]))  # the master's bound was at its limit
+    assert np.max(np.abs(eba - tdpa)) < 1e-9
 
 
 # Magnitudes whose squares do not underflow (the identities hold in exact arithmetic).
@@ -218,9 +281,10 @@ def margins(tmp_path_factory: pytest.TempPathFactory) -> Any:
     return get
 
 
+@pytest.mark.parametrize("variant", ["zoh", "zoh_reflect"])
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
-def test_tdpa_with_the_zoh_controller_keeps_the_two_port_passive(margins: Any, case: hc.Case) -> None:
-    margin, eps, summary = margins(case, "zoh")
+def test_tdpa_with_the_zoh_controller_keeps_the_two_port_passive(margins: Any, case: hc.Case, variant: str) -> None:
+    margin, eps, summary = margins(case, variant)
     assert summary["all_finite"]
     assert float(np.min(margin)) >= -eps, (float(np.min(margin)), eps)
     # The two-port, not each side: TDPA lets a side release what the other side put in.

@@ -33,7 +33,8 @@ import test_hard_cases_arm as ha
 
 TDPA = ("controllers.master.eba.law=tdpa", "controllers.slave.eba.law=tdpa")
 ZOH = (*TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh")
-VARIANTS = {"zoh": ZOH, "velocity": TDPA, "off": ZOH + ha.UNPROTECTED}
+REFLECT = tuple(f"controllers.{side}.eba.tdpa_reflection=0.5" for side in ("master", "slave"))
+VARIANTS = {"zoh": ZOH, "zoh_reflect": (*ZOH, *REFLECT), "velocity": TDPA, "off": ZOH + ha.UNPROTECTED}
 # Where the field's controller makes more than 0.5 J on the arms (docs/stabilizers.md, "Arms").
 VELOCITY_FAILS = ("dxl_operator_fast", "ur5e_stiff_wall")
 SIDES = ("master", "slave")
@@ -130,7 +131,7 @@ def test_each_arm_sample_carries_the_senders_pooled_input_energy_last(tmp_path: 
 
     def spy(self: ArmSideStage, n: int) -> Any:
         p = tick(self, n)
-        assert p[-1] == self.side_tick.bound.energy_in_j
+        assert p[-1] == self.side_tick.bound.sent_j == self.side_tick.bound.energy_in_j  # nothing kept
         sent[self.master].append(p)
         return p
 
@@ -191,9 +192,10 @@ def _two_port_from_columns(engine: Engine) -> float:
     return float(np.min(total))
 
 
+@pytest.mark.parametrize("variant", ["zoh", "zoh_reflect"])
 @pytest.mark.parametrize("name", [c.name for c in ha.CASES])
-def test_tdpa_with_the_zoh_controller_keeps_the_arms_two_port_passive(runs: Any, name: str) -> None:
-    summary, engine = runs(name, "zoh")
+def test_tdpa_with_the_zoh_controller_keeps_the_arms_two_port_passive(runs: Any, name: str, variant: str) -> None:
+    summary, engine = runs(name, variant)
     assert summary["all_finite"]
     assert summary["two_port_energy_margin_min_j"] >= -1e-9, summary["two_port_energy_margin_min_j"]
     assert _two_port_from_columns(engine) == pytest.approx(summary["two_port_energy_margin_min_j"], abs=1e-9)

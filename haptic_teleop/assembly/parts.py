@@ -131,6 +131,7 @@ def build_controller(
         slew_rate_n_per_s=saturation.slew_rate_n_per_s if saturation is not None else None,
         law=cfg.eba.law,
         tdpa_controller=cfg.eba.tdpa_controller,
+        tdpa_reflection=cfg.eba.tdpa_reflection,
     )
     wave = None
     if cfg.eba.law == "wave":
@@ -384,7 +385,7 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
 
     b = side.bound
     bound: CoupledEnergyBound | CoupledTdpaBound = (
-        CoupledTdpaBound(b.params, b.controller, side.kernels)
+        CoupledTdpaBound(b.params, b.controller, side.kernels, b.reflection)
         if isinstance(b, CoupledTdpaBound)
         else CoupledEnergyBound(b.params, side.kernels)
     )
@@ -407,7 +408,7 @@ def arm_bound(
     if eba.law == "tdpa":
         from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
-        return CoupledTdpaBound(params, eba.tdpa_controller, kernels)
+        return CoupledTdpaBound(params, eba.tdpa_controller, kernels, eba.tdpa_reflection)
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
 
     return CoupledEnergyBound(params, kernels)

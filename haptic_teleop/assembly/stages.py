@@ -124,7 +124,7 @@ class AxisSide:
         self._applied = ctrl.bound.applied1  # the reservoir books the force the plant applied
         self.desired, self.energy = ctrl.force_desired, ctrl.bound.energy_j  # updated in place
         # TDPA: the side's observed input energy rides on its samples (core/tdpa.py).
-        self.energy_in = ctrl.tdpa.energy_in_j if ctrl.tdpa is not None else None
+        self.energy_in = ctrl.tdpa.sent_j if ctrl.tdpa is not None else None
         self.wave = ctrl.wave  # wave variables: the side sends its wave and position (core/wave.py)
         self.xs: list[float] = [0.0]
         self.vs: list[float] = [0.0]
@@ -272,7 +272,7 @@ class ArmSideStage:
         elif self.master and not self.real:  # the operator's hand meets the simulated handle where it is now
             self.hand_x, self.hand_v = plant.point()
         # TDPA: the side's pooled input energy rides last on its samples (core/tdpa_coupled.py).
-        e = (self.side_tick.bound.energy_in_j,) if self.tdpa else ()
+        e = (self.side_tick.bound.sent_j,) if self.tdpa else ()
         if self.master:
             return (*self.x.tolist(), *self.v.tolist(), *e)
         return (*self.x.tolist(), *self.v.tolist(), *self.f_env.tolist(), *e)

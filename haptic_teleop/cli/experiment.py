@@ -14,8 +14,9 @@
   events against priority-based filtering (studies/replications/codec.py, docs/codec_error_control.md).
 - `playout`: seed 000's haptic-synchronization claim, its network-adaptive buffering against the
   existing schemes on paired seeds (studies/replications/playout.py, docs/playout_claim.md).
-- `stabilizers`: EBA's laws and TDPA's controllers side by side over delay and loss, every run a
-  bag (studies/replications/stabilizers.py, docs/stabilizers.md).
+- `stabilizers`: EBA, TDPA and wave variables side by side over delay and loss on a one-axis and an
+  arm scene, and their Z-width, every run a bag (studies/replications/stabilizers.py, zwidth.py,
+  docs/stabilizers_compared.md).
 - `all`: every experiment behind docs/ afresh, a manifest, and every documented number checked
   (studies/replications/all_experiments.py, docs/experiments_all.md).
 - `transparency`: seed 000's EBA transparency analysis, force slope, drop over delay and transparent

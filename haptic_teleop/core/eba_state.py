@@ -43,8 +43,11 @@ class EnergyBoundParams:
     # docs/eba_two_condition.md, "The published two-condition law"; or "tdpa" (core/tdpa.py), or
     # "wave" (wave variables, core/wave.py: they replace the coupling law as well).
     law: str = "reservoir"
-    # With law "tdpa": its passivity controller, "velocity" or "zoh" (core/tdpa.py).
+    # With law "tdpa": its passivity controller, "velocity" or "zoh" (core/tdpa.py), and the
+    # fraction of its input energy the side keeps for its own output (energy reflection; 0: it
+    # sends all of it, the network-aware standard).
     tdpa_controller: str = "velocity"
+    tdpa_reflection: float = 0.0
 
     def __post_init__(self) -> None:
         if self.law not in EBA_LAWS:
@@ -53,6 +56,8 @@ class EnergyBoundParams:
             raise ValueError(
                 f"the {self.law} law does not model an actuator slew limit; allowed with a slew limit: law reservoir"
             )
+        if not 0.0 <= self.tdpa_reflection <= 1.0:
+            raise ValueError(f"tdpa_reflection must be in [0, 1], got {self.tdpa_reflection}")
         for name in ("force_limit_n", "slew_rate_n_per_s"):
             v = getattr(self, name)
             if v is not None and not 0.0 < v < math.inf:

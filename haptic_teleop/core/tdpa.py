@@ -62,6 +62,14 @@ def velocity_pc1(force: float, budget: float, dx: float, cap: float) -> float:
     return saturated1(budget / dx, cap)
 
 
+def reflected1(budget: float, energy_in: float, reflection: float) -> tuple[float, float]:
+    """Energy reflection: of the side's cumulative input `energy_in` it keeps the fraction
+    `reflection` for its own output (the budget grows by it) and sends the rest (returned second:
+    what its samples carry). Both parts only grow, and no energy is counted on both sides."""
+    kept = reflection * energy_in
+    return budget + kept, energy_in - kept
+
+
 def zoh_pc1(force: float, budget: float, bound_gain: float) -> float:
     """The PC on the hold's worst case: |F| <= sqrt(bound_gain W), bound_gain = 4 b / T (none
     when the budget is spent)."""
@@ -87,12 +95,14 @@ class TdpaBound:
         "_has_last",
         "_held",
         "_last",
+        "_reflect",
         "_zoh",
         "energy_in_j",
         "energy_j",
         "energy_out_j",
         "params",
         "remote_in_j",
+        "sent_j",
     )
 
     def __init__(self, params: EnergyBoundParams, force_cap_n: float, controller: str = "velocity") -> None:
@@ -108,6 +118,10 @@ class TdpaBound:
         self._gain = list(params.reservoir_gains())
         self._bound_gain = list(params.bound_gains())
         self.energy_in_j = [0.0] * n
+        # Energy reflection: the fraction of its input the side keeps for its own output; it
+        # sends the rest (`sent_j`, the value its samples carry; all of it with 0).
+        self._reflect = params.tdpa_reflection
+        self.sent_j = self.energy_in_j if self._reflect == 0.0 else [0.0] * n
         self.energy_out_j = [0.0] * n
         self.remote_in_j = [0.0] * n
         self._credit = [0.0] * n
@@ -135,6 +149,8 @@ class TdpaBound:
             dx = 0.0
         self._last[i] = x
         w = self.params.initial_energy_j + self.remote_in_j[i] - self.energy_out_j[i] + self._credit[i]
+        if self._reflect > 0.0:
+            w, self.sent_j[i] = reflected1(w, self.energy_in_j[i], self._reflect)
         self.energy_j[i] = w
         if self._enabled:
             force = zoh_pc1(force, w, self._bound_gain[i]) if self._zoh else velocity_pc1(force, w, dx, self._cap)

@@ -38,7 +38,7 @@ from haptic_teleop.core.eba_coupled import (
     joint_limited,
     late_hold_excess_j,
 )
-from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, velocity_pc1
+from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, reflected1, velocity_pc1
 
 
 def joint_power(held: npt.NDArray[np.float64], dq: npt.NDArray[np.float64]) -> float:
@@ -102,13 +102,17 @@ class CoupledTdpaBound:
         params: CoupledEnergyBoundParams,
         controller: str = "velocity",
         kernels: Mapping[str, Callable[..., Any]] | None = None,
+        reflection: float = 0.0,
     ) -> None:
         if controller not in TDPA_CONTROLLERS:
             raise ValueError(f"tdpa controller must be one of {', '.join(TDPA_CONTROLLERS)}, got {controller!r}")
         if params.slew_nm_per_s:
             raise ValueError("tdpa on an arm: no slew limit (the one-axis law refuses it too)")
+        if not 0.0 <= reflection <= 1.0:
+            raise ValueError(f"tdpa reflection must be in [0, 1], got {reflection}")
         self.params = params
         self.controller = controller
+        self.reflection = reflection  # the fraction of its input the side keeps (`reflected1`)
         n = params.joints
         d = np.array(params.damping_nm_s_per_rad, dtype=float)
         self._gain = d / params.period_s
@@ -125,6 +129,7 @@ class CoupledTdpaBound:
         self._stretch = 1.0
         self.held = np.zeros(n)
         self.energy_in_j = 0.0
+        self.sent_j = 0.0  # what its samples carry: its input, less what it keeps (`reflected1`)
         self.energy_out_j = 0.0
         self.remote_in_j = 0.0
         self.credit_j = 0.0
@@ -161,6 +166,10 @@ class CoupledTdpaBound:
         self._stretch = 1.0
         self._last_q[:] = q
         w = self.params.initial_energy_j + self.remote_in_j - self.energy_out_j + self.credit_j
+        if self.reflection > 0.0:
+            w, self.sent_j = reflected1(w, self.energy_in_j, self.reflection)
+        else:
+            self.sent_j = self.energy_in_j
         self.energy_j = w
         lo = self._low if low is None else low
         hi = self._high if high is None else high

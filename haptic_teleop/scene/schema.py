@@ -447,6 +447,15 @@ class EBAConfig:
             "(the hold's worst case with the device's damping; docs/stabilizers.md)",
         },
     )
+    tdpa_reflection: float = field(
+        default=0.0,
+        metadata={
+            "min": 0.0,
+            "max": 1.0,
+            "help": "law tdpa: the fraction of its observed input energy a side keeps for its own output "
+            "(energy reflection) instead of sending it; 0: the network-aware standard (docs/stabilizers.md)",
+        },
+    )
 
 
 @dataclass(frozen=True)

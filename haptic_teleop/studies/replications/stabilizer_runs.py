@@ -31,6 +31,16 @@ LAWS: dict[str, tuple[str, tuple[str, ...]]] = {
         "TDPA, ZOH-exact controller",
         (*_TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh"),
     ),
+    "tdpa_zoh_reflect": (
+        "TDPA, ZOH-exact, keeping half its input",
+        (
+            *_TDPA,
+            "controllers.master.eba.tdpa_controller=zoh",
+            "controllers.slave.eba.tdpa_controller=zoh",
+            "controllers.master.eba.tdpa_reflection=0.5",
+            "controllers.slave.eba.tdpa_reflection=0.5",
+        ),
+    ),
     "tdpa_velocity": ("TDPA, velocity controller", _TDPA),
     "wave": ("wave variables, b 20 N s/m", ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")),
     "wave_filtered": (
@@ -62,7 +72,7 @@ CONTACT_N = 0.1  # the slave touches the wall while its contact force exceeds th
 # compared here: the damper it adds along the joints' motion is no task force (through the Touch's
 # Jacobian it reads as 1e5 N), so its force columns would not be forces (docs/stabilizers_compared.md).
 ARM_SCENE = "touch_ur5e_wall"
-ARM_LAWS = ("reservoir", "tdpa_zoh")
+ARM_LAWS = ("reservoir", "tdpa_zoh", "tdpa_zoh_reflect")
 
 
 def scene(overrides: Sequence[str], base: str = BASE_SCENE) -> Any:

@@ -1,10 +1,11 @@
-"""`haptic-teleop experiment stabilizers`: the stabilizers side by side on one scene, over delay and
-loss (docs/stabilizers.md, "Side by side").
+"""`haptic-teleop experiment stabilizers`: the stabilizers side by side over delay and loss, on the
+one-axis and the arm scene (docs/stabilizers_compared.md).
 
-Every law (`LAWS`: EBA's reservoir and two-condition laws, TDPA with its ZOH-exact and its velocity
-controller, wave variables plain and with a wave filter and drift correction, all on both sides)
-runs the one-axis contact scene `wall_contact` (the wall 5 mm ahead, the operator pushing from
-0.2 s toward 3 cm, as the hard cases) over every network of the grid:
+Every law (`LAWS`: EBA's reservoir and two-condition laws, TDPA with its ZOH-exact controller,
+the same keeping half its input, and its velocity controller, wave variables plain and with a wave
+filter and drift correction, all on both sides) runs the one-axis contact scene `wall_contact` (the
+wall 5 mm ahead, the operator pushing from 0.2 s toward 3 cm, as the hard cases), and the laws arms
+run (`ARM_LAWS`) the arm scene `ARM_SCENE` in its own geometry, over every network of the grid:
 one-way delay in both directions x loss (none, Bernoulli, bursty Gilbert-Elliott), on paired seeds
 (seed k gives every law the same network draws). Each run is recorded to a bag and measured from
 that bag alone:
@@ -56,10 +57,10 @@ from haptic_teleop.studies.replications.stabilizer_runs import (
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
 
 HELP = (
-    "the stabilizers side by side (EBA's two laws, TDPA with its ZOH-exact and velocity controllers, wave "
-    "variables) on the "
-    "one-axis contact scene over delay and loss (Bernoulli, bursty), paired seeds, every run a bag: force error, "
-    "drift, felt stiffness, two-port energy margin; CSV, table, plot"
+    "the stabilizers side by side (EBA's two laws, TDPA with its ZOH-exact and velocity controllers and energy "
+    "reflection, wave variables) on a one-axis and an arm contact scene over delay and loss (Bernoulli, bursty), "
+    "paired seeds, and the Z-width over walls; every run a bag: force error, drift, felt stiffness, two-port "
+    "energy margin; CSV, tables, plots"
 )
 DELAYS_S = (0.0, 0.05, 0.1, 0.2, 0.5)
 
