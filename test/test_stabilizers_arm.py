@@ -211,3 +211,28 @@ def test_without_its_controller_the_arms_two_port_makes_energy(runs: Any, name: 
 def test_the_fields_velocity_controller_makes_energy_on_the_arms(runs: Any, name: str) -> None:
     summary, _ = runs(name, "velocity")
     assert summary["two_port_energy_margin_min_j"] < -0.5
+
+
+def test_the_velocity_controllers_felt_force_is_the_task_force_of_its_applied_torque() -> None:
+    """Its torque is no scaled copy of the desired one: the recorded felt force is the least-squares
+    task force F of the applied torque, J (J^T F - tau) = 0 (with EBA: ratio x desired)."""
+    from haptic_teleop.assembly.parts import build_arm_parts
+    from haptic_teleop.assembly.side import side_ticks
+
+    scene = load_scene(find_scene("touch_ur5e_wall"), [*TDPA, "controllers.master.eba.initial_energy_j=0.0"])
+    parts = build_arm_parts(scene.config)
+    tick, _ = side_ticks(parts)
+    plant = parts.master.plant
+    x, v = np.asarray(plant.point()[0]), np.zeros(3)
+    remote = (*(x + np.array([0.0, 0.0, -0.01])).tolist(), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    tick.torque(x, v, remote)  # the first step: no motion yet, the torque passes
+    tick.bound.applied(np.array(tick.bound.held))
+    plant.step(np.array(tick.bound.held), None)
+    x2 = np.asarray(parts.maps.to_task_x(plant.point()[0]))
+    out = tick.torque(x2, v, remote)  # the motion the held torque made: the controller acts (W = 0)
+    assert tick.bound.beta < 0.0
+    jac = plant.jacobian(rotational=False)
+    jac[:3] = tick.jac_scale @ jac[:3]
+    residual = jac.T @ tick.rendered - out
+    assert np.allclose(jac @ residual, 0.0, atol=1e-9 * (1.0 + np.abs(out).max()))
+    assert not np.allclose(tick.rendered, tick.ratio * tick.force)

@@ -14,6 +14,7 @@ import numpy as np
 
 from haptic_teleop.core.eba_coupled import joint_limited
 from haptic_teleop.core.taskspace import dot, matrix_times
+from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -69,7 +70,7 @@ class _SideTick:
         # TDPA's velocity controller adds a damper along the joints' motion: the applied torque is
         # then no scaled copy of the desired one, and its task force is solved for (`rendered`).
         bound = side.bound
-        velocity = getattr(bound, "controller", None) == "velocity" and bound.params.enabled
+        velocity = isinstance(bound, CoupledTdpaBound) and bound.controller == "velocity" and bound.params.enabled
         self.task_force: np.ndarray | None = np.zeros(3) if velocity else None
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
         k = side.kernels
