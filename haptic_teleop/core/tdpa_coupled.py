@@ -18,7 +18,8 @@ The controllers act on the limited torque vector:
   bit for bit.
 
 `CoupledTdpaBound` has the interface of `core.eba_coupled.CoupledEnergyBound` that the Python arm
-tick uses (`step`, `applied`, `held`, `energy_j`, `scale`, `stretch`, `hold_excess_j`); the
+tick uses on a simulated arm (`step`, `applied`, `held`, `energy_j`, `scale`; a real arm's late-tick
+`stretch` is not needed: TDPA is refused on real arms); the
 compiled arm loop runs EBA's bound only and falls back to Python for it (docs/performance.md).
 """
 
@@ -36,7 +37,6 @@ from haptic_teleop.core.eba_coupled import (
     coupled_bounded,
     coupled_reservoir,
     joint_limited,
-    late_hold_excess_j,
 )
 from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, reflected1, velocity_pc1
 
@@ -126,7 +126,6 @@ class CoupledTdpaBound:
         self._dq = np.zeros(n)
         self._last_q = np.zeros(n)
         self._has_last = False
-        self._stretch = 1.0
         self.held = np.zeros(n)
         self.energy_in_j = 0.0
         self.sent_j = 0.0  # what its samples carry: its input, less what it keeps (`reflected1`)
@@ -158,12 +157,10 @@ class CoupledTdpaBound:
             np.subtract(q, self._last_q, out=dq)
             self.energy_in_j, self.energy_out_j = book1(self.energy_in_j, self.energy_out_j, joint_power(self.held, dq))
             if self._zoh:
-                gain = self._gain if self._stretch == 1.0 else self._gain / self._stretch
-                self.credit_j = self._f_reservoir(self.credit_j, gain, self._zero, dq)
+                self.credit_j = self._f_reservoir(self.credit_j, self._gain, self._zero, dq)
         else:
             dq[:] = 0.0
             self._has_last = True
-        self._stretch = 1.0
         self._last_q[:] = q
         w = self.params.initial_energy_j + self.remote_in_j - self.energy_out_j + self.credit_j
         if self.reflection > 0.0:
@@ -188,13 +185,3 @@ class CoupledTdpaBound:
     def applied(self, tau: npt.NDArray[np.float64]) -> None:
         """The torque the motors really applied over the hold after the last `step`."""
         self.held[:] = tau
-
-    def stretch(self, elapsed_s: float) -> None:
-        """As `CoupledEnergyBound.stretch`: the next booked motion took `elapsed_s`; the damping
-        credit ("zoh") is d_i dq_i^2 / elapsed_s then."""
-        periods = elapsed_s / self.params.period_s
-        self._stretch = periods if periods > 1.0 and math.isfinite(periods) else 1.0
-
-    def hold_excess_j(self, elapsed_s: float) -> float:
-        """As `CoupledEnergyBound.hold_excess_j`, of the torque held now."""
-        return late_hold_excess_j(self.held, self._bound_gain, elapsed_s, self.params.hold_s)
