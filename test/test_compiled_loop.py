@@ -3,7 +3,8 @@
 Each case runs a scene in both loops and compares what each hands its sink, call by call (every
 block of columns, every batch of packet records, at the same points of the run), the guards'
 rejection counts and the controllers' final state. The cases cover what the compiled
-loop takes: both laws, EBA on and off, the operator profiles (hands and the imposed trajectory;
+loop takes: both laws, EBA on and off, TDPA (both controllers, reflection) and wave variables
+(filter, drift correction), the operator profiles (hands and the imposed trajectory;
 free and in-contact starts), saturating controllers, substeps, gravity, zero
 delay, the vectorized network (constant delay, uncorrelated and bursty loss, blackouts, policy
 `none`) and
@@ -23,6 +24,8 @@ from haptic_teleop.scene.load import find_scene, load_scene
 SHORT = "scene.duration_s=2.0"
 FWD = "network.forward"
 BWD = "network.backward"
+TDPA = ("controllers.master.eba.law=tdpa", "controllers.slave.eba.law=tdpa")
+WAVE = ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")
 
 CASES = {
     "default": ("wall_contact", []),
@@ -59,6 +62,33 @@ CASES = {
             f"{BWD}.effects.delay.jitter_s=0.004",
             f"{FWD}.buffer.policy=network_adaptive",
             f"{BWD}.buffer.policy=network_adaptive",
+        ],
+    ),
+    # The other stabilizers (core/tdpa.py, core/wave.py), with loss (vectorized) and jitter (ticked).
+    "tdpa_velocity_loss": ("wall_contact", [*TDPA, f"{FWD}.effects.loss.probability=0.2"]),
+    "tdpa_zoh_reflect_jitter": (
+        "wall_contact",
+        [
+            *TDPA,
+            *(
+                f"controllers.{s}.eba.{k}"
+                for s in ("master", "slave")
+                for k in ("tdpa_controller=zoh", "tdpa_reflection=0.5")
+            ),
+            f"{BWD}.effects.delay.jitter_s=0.004",
+            f"{BWD}.buffer.policy=fixed",
+        ],
+    ),
+    "wave_loss": ("wall_contact", [*WAVE, f"{BWD}.effects.loss.probability=0.2"]),
+    "wave_filtered_drift_jitter": (
+        "wall_contact",
+        [
+            *WAVE,
+            "controllers.master.eba.wave_filter_hz=50",
+            "controllers.slave.eba.wave_filter_hz=50",
+            "controllers.slave.eba.wave_drift_gain_per_s=5",
+            f"{FWD}.effects.delay.jitter_s=0.004",
+            f"{FWD}.effects.reorder.probability=0.1",
         ],
     ),
     # Delays longer than the compiled loop's first history ring (1024 ticks) and than a block:

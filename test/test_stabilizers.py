@@ -126,7 +126,7 @@ def test_the_sides_send_their_observed_input_energy_with_every_sample() -> None:
     from haptic_teleop.engine.lockstep import Engine
 
     engine = Engine(scene)
-    assert engine.loop_kind == "python"  # TDPA runs in the Python loop (docs/performance.md)
+    assert engine.loop_kind == "compiled"  # the kernel calls core.tdpa.tdpa1 (docs/performance.md)
     engine.run()
     # The slave's budget is the master's input energy it received: what the master observed up to
     # the forward delay before (the master's observer runs on the same plant signals).

@@ -11,7 +11,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from haptic_teleop.core.eba import EnergyBound, command1, coupling1, saturated1, within2, within3
+from haptic_teleop.core.eba import EnergyBound, command1, coupling1, saturated1, within1, within2, within3
 from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.eba_two_condition import TwoConditionBound
 from haptic_teleop.core.tdpa import ENERGY_LIMIT_J, TdpaBound
@@ -69,7 +69,7 @@ class SampleGuard:
                     return True
             else:
                 for i in range(n):
-                    if not abs(payload[i]) <= lim[i]:
+                    if not within1(payload[i], lim[i]):
                         break
                 else:
                     return True

@@ -103,6 +103,11 @@ def coupling1(c1: float, c2: float, remote_x: float, remote_v: float, x: float, 
     return c1 * (remote_x - x) + c2 * (remote_v - v)
 
 
+def within1(a: float, limit: float) -> bool:
+    """The value finite and within its limit (abs(v) <= limit is False for NaN and inf)."""
+    return abs(a) <= limit
+
+
 def within2(a: float, b: float, limit_a: float, limit_b: float) -> bool:
     """Both values finite and within their limits (abs(v) <= limit is False for NaN and inf)."""
     return abs(a) <= limit_a and abs(b) <= limit_b

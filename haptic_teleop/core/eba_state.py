@@ -17,12 +17,15 @@ class AxisBoundState:
     """What a one-axis `EnergyBound` carries from one tick to the next: the reservoir, the force
     held over the current period (the reservoir's F(n-1)), the position of the last step and
     whether there was one. `EnergyBound.axis_state`
-    and `set_axis_state` move it in and out (the compiled loop, engine/compiled/axis_host.py, carries it)."""
+    and `set_axis_state` move it in and out (the compiled loop, engine/compiled/axis_host.py, carries it).
+    `extra`: what a law carries beyond these (TDPA: `core.tdpa.TDPA_EXTRA`; wave variables:
+    `core.wave.WAVE_EXTRA`); empty for the EBA laws."""
 
     energy_j: float
     held_n: float
     last_x_m: float
     has_last: bool
+    extra: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -31,11 +31,13 @@ import math
 from collections.abc import Sequence
 
 from haptic_teleop.core.eba import bounded1, reservoir1, saturated1
-from haptic_teleop.core.eba_state import EnergyBoundParams
+from haptic_teleop.core.eba_state import AxisBoundState, EnergyBoundParams
 
 TDPA_CONTROLLERS = ("velocity", "zoh")
 # The largest cumulative port energy a packet may carry (J): beyond it a sample is a fault.
 ENERGY_LIMIT_J = 1e9
+# What a one-axis TdpaBound carries beyond `AxisBoundState`'s four values, in `extra`'s order.
+TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j")
 
 
 def observe1(energy_in: float, energy_out: float, held: float, dx: float) -> tuple[float, float]:
@@ -50,6 +52,12 @@ def book1(energy_in: float, energy_out: float, w: float) -> tuple[float, float]:
     if w > 0.0:
         return energy_in, energy_out + w
     return energy_in - w, energy_out
+
+
+def received1(remote_in: float, energy_in: float) -> float:
+    """The remote side's cumulative input energy after a sample carrying `energy_in`: a cumulative
+    figure only grows, so an older sample released later keeps the larger value."""
+    return energy_in if energy_in > remote_in else remote_in
 
 
 def velocity_pc1(force: float, budget: float, dx: float, cap: float) -> float:
@@ -76,6 +84,45 @@ def zoh_pc1(force: float, budget: float, bound_gain: float) -> float:
     return bounded1(force, budget if budget > 0.0 else 0.0, bound_gain)
 
 
+def tdpa1(
+    energy_in: float,
+    energy_out: float,
+    credit: float,
+    remote_in: float,
+    held: float,
+    last: float,
+    has_last: bool,
+    x: float,
+    force: float,
+    initial_energy: float,
+    gain: float,
+    bound_gain: float,
+    reflection: float,
+    zoh: bool,
+    enabled: bool,
+    cap: float,
+) -> tuple[float, float, float, float, float, float]:
+    """One axis of one side, one tick (the rule once: `TdpaBound` and the compiled loop run it):
+    observe the hold of `held` that ended at `x` (from `last`; none before the first tick), credit
+    the device's damping (`zoh`: gain = b/T), the budget W = E0 + E_in(remote) - E_out (+ credit),
+    the reflection split, the passivity controller on `force`. Returns (E_in, E_out, credit, W,
+    the energy the side's samples carry, the force to hold)."""
+    if has_last:
+        dx = x - last
+        energy_in, energy_out = observe1(energy_in, energy_out, held, dx)
+        if zoh:
+            credit = reservoir1(credit, gain, 0.0, dx)
+    else:
+        dx = 0.0
+    w = initial_energy + remote_in - energy_out + credit
+    sent = energy_in
+    if reflection > 0.0:
+        w, sent = reflected1(w, energy_in, reflection)
+    if enabled:
+        force = zoh_pc1(force, w, bound_gain) if zoh else velocity_pc1(force, w, dx, cap)
+    return energy_in, energy_out, credit, w, sent, force
+
+
 class TdpaBound:
     """One side's TDPA (the bound interface of `core.eba.EnergyBound`): `step1`/`step` observe the
     last hold and control the next force, `applied1`/`applied` book the force the actuator really
@@ -88,7 +135,6 @@ class TdpaBound:
 
     __slots__ = (
         "_bound_gain",
-        "_cap",
         "_credit",
         "_enabled",
         "_gain",
@@ -97,6 +143,7 @@ class TdpaBound:
         "_last",
         "_reflect",
         "_zoh",
+        "cap_n",
         "energy_in_j",
         "energy_j",
         "energy_out_j",
@@ -114,7 +161,7 @@ class TdpaBound:
         n = params.axes
         self._zoh = controller == "zoh"
         self._enabled = params.enabled
-        self._cap = force_cap_n if params.force_limit_n is None else min(force_cap_n, params.force_limit_n)
+        self.cap_n = force_cap_n if params.force_limit_n is None else min(force_cap_n, params.force_limit_n)
         self._gain = list(params.reservoir_gains())
         self._bound_gain = list(params.bound_gains())
         self.energy_in_j = [0.0] * n
@@ -135,25 +182,18 @@ class TdpaBound:
         cumulative figure only grows: an older sample released later keeps the larger value."""
         r = self.remote_in_j
         for i in range(len(r)):
-            r[i] = max(r[i], energy_in[i])
+            r[i] = received1(r[i], energy_in[i])
 
     def _axis(self, i: int, x: float, force: float) -> float:
-        if self._has_last:
-            dx = x - self._last[i]
-            self.energy_in_j[i], self.energy_out_j[i] = observe1(
-                self.energy_in_j[i], self.energy_out_j[i], self._held[i], dx
-            )
-            if self._zoh:
-                self._credit[i] = reservoir1(self._credit[i], self._gain[i], 0.0, dx)
-        else:
-            dx = 0.0
-        self._last[i] = x
-        w = self.params.initial_energy_j + self.remote_in_j[i] - self.energy_out_j[i] + self._credit[i]
+        self.energy_in_j[i], self.energy_out_j[i], self._credit[i], w, sent, force = tdpa1(
+            self.energy_in_j[i], self.energy_out_j[i], self._credit[i], self.remote_in_j[i], self._held[i],
+            self._last[i], self._has_last, x, force, self.params.initial_energy_j, self._gain[i],
+            self._bound_gain[i], self._reflect, self._zoh, self._enabled, self.cap_n,
+        )  # fmt: skip
         if self._reflect > 0.0:
-            w, self.sent_j[i] = reflected1(w, self.energy_in_j[i], self._reflect)
+            self.sent_j[i] = sent
+        self._last[i] = x
         self.energy_j[i] = w
-        if self._enabled:
-            force = zoh_pc1(force, w, self._bound_gain[i]) if self._zoh else velocity_pc1(force, w, dx, self._cap)
         self._held[i] = force
         return force
 
@@ -178,3 +218,26 @@ class TdpaBound:
     @property
     def total_energy_j(self) -> float:
         return sum(self.energy_j)
+
+    def axis_state(self) -> AxisBoundState:
+        """A one-axis bound's state (ValueError for more axes), as `EnergyBound.axis_state`: the
+        budget W, the held force, the last position, whether there was one, and `TDPA_EXTRA`."""
+        self._one_axis()
+        extra = (self.energy_in_j[0], self.energy_out_j[0], self.remote_in_j[0], self._credit[0], self.sent_j[0])
+        return AxisBoundState(self.energy_j[0], self._held[0], self._last[0], self._has_last, extra)
+
+    def set_axis_state(self, state: AxisBoundState) -> None:
+        """Restore what `axis_state` gave (the compiled loop's state); without `extra`, the
+        observer's energies stay as they are."""
+        self._one_axis()
+        self.energy_j[0], self._held[0], self._last[0], self._has_last = (
+            state.energy_j, state.held_n, state.last_x_m, state.has_last,
+        )  # fmt: skip
+        if state.extra:
+            e_in, e_out, self.remote_in_j[0], self._credit[0], sent = state.extra
+            self.energy_in_j[0], self.energy_out_j[0] = e_in, e_out
+            self.sent_j[0] = sent
+
+    def _one_axis(self) -> None:
+        if len(self.energy_j) != 1:
+            raise ValueError(f"the axis state is that of a one-axis bound; this one has {len(self.energy_j)} axes")

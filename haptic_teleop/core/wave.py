@@ -35,7 +35,11 @@ import math
 from dataclasses import dataclass
 
 from haptic_teleop.core.eba import saturated1
-from haptic_teleop.core.eba_state import EnergyBoundParams
+from haptic_teleop.core.eba_state import AxisBoundState, EnergyBoundParams
+
+# What a WaveSide carries beyond `AxisBoundState`'s four values (the ledger, the held force, the
+# last position, started), in `extra`'s order.
+WAVE_EXTRA = ("w_in", "fresh", "remote_x_m", "filtered_w", "reference_x_m")
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,58 @@ def drift1(u: float, correction: float) -> float:
     return saturated1(u + correction, abs(u))
 
 
+def wave1(
+    master: bool,
+    energy: float,
+    held: float,
+    last_x: float,
+    started: bool,
+    xd: float,
+    wf: float,
+    w_in: float,
+    fresh: bool,
+    remote_x: float,
+    x: float,
+    v: float,
+    limit: float,
+    t: float,
+    s: float,
+    b: float,
+    k: float,
+    c: float,
+    a: float,
+    drift_gain: float,
+) -> tuple[float, float, float, float, float, float]:
+    """One side's port, one tick (the rule once: `WaveSide.port1` and the compiled loop run it): the
+    ledger books the last hold of `held` (from `last_x` to `x`; the reference starts at `x`), the
+    received wave `w_in` is used if `fresh` (else 0), filtered (pole `a`), the master's or the
+    slave's port equations (the slave's drift correction toward `remote_x` at `drift_gain`), the
+    force saturated at `limit`, the wave sent kept consistent with the force applied. Returns (the
+    ledger, the slave's reference, the filter's state, the port's force, the force applied, the
+    wave to send)."""
+    if started:
+        energy -= held * (x - last_x)
+    else:
+        xd = x
+    w = w_in if fresh else 0.0
+    energy += 0.5 * w * w * t
+    wf = filter1(wf, w, a)
+    got = wf
+    if master:
+        f, sent = master_wave1(got, v, s, b)
+        fa = saturated1(f, limit)
+        sent = consistent1(sent, got, fa * v)
+    else:
+        if drift_gain > 0.0:
+            got = drift1(got, (b + c) / s * drift_gain * (remote_x - xd))
+        f, sent, xd_dot = slave_wave1(got, x, v, xd, s, b, k, c)
+        fa = saturated1(f, limit)
+        sent = consistent1(sent, got, fa * xd_dot)
+        xd += xd_dot * t
+    energy -= 0.5 * sent * sent * t
+    return energy, xd, wf, f, fa, sent
+
+
 class WaveSide:
     """One side's wave-variable port (one axis), with the bound interface the controller and the
     side stage use: `receive` a sample, `port1(x, v, limit)` the force, `out` the sample to send,
@@ -110,13 +166,13 @@ class WaveSide:
         self.master = master
         self.params = bound_params  # the side's EnergyBoundParams (law "wave"), as every bound has
         # The actuator's own clip below the controller's (`<side>.effects.saturation`), if any.
-        self._clip = math.inf if bound_params.force_limit_n is None else bound_params.force_limit_n
+        self.clip_n = math.inf if bound_params.force_limit_n is None else bound_params.force_limit_n
         self.wave = params
         self._b = params.impedance_n_s_per_m
-        self._s = math.sqrt(2.0 * self._b)
+        self.s = math.sqrt(2.0 * self._b)
         self._t = period_s
         self._k, self._c = stiffness_n_per_m, damping_n_s_per_m
-        self._a = 0.0 if params.filter_hz is None else math.exp(-2.0 * math.pi * params.filter_hz * period_s)
+        self.pole = 0.0 if params.filter_hz is None else math.exp(-2.0 * math.pi * params.filter_hz * period_s)
         self._lambda = params.drift_gain_per_s
         self._w_in = 0.0
         self._fresh = False
@@ -144,33 +200,15 @@ class WaveSide:
     def port1(self, x: float, v: float, limit: float = math.inf) -> tuple[float, float]:
         """One tick on the measured position and velocity: (the port's force, the force applied:
         saturated at `limit`); the sample to send is then `out`."""
-        t = self._t
-        limit = min(limit, self._clip)
-        e = self.energy_j
-        if self._started:
-            e[0] -= self._held * (x - self._last_x)
-        else:
-            self._xd = x
-            self._started = True
-        self._last_x = x
-        w = self._w_in if self._fresh else 0.0
+        e, self._xd, self._wf, f, fa, sent = wave1(
+            self.master, self.energy_j[0], self._held, self._last_x, self._started, self._xd, self._wf,
+            self._w_in, self._fresh, self._remote_x, x, v, min(limit, self.clip_n), self._t, self.s, self._b,
+            self._k, self._c, self.pole, self._lambda,
+        )  # fmt: skip
+        self.energy_j[0] = e
+        self._started = True
         self._fresh = False
-        e[0] += 0.5 * w * w * t
-        self._wf = filter1(self._wf, w, self._a)
-        if self.master:
-            got = self._wf
-            f, sent = master_wave1(got, v, self._s, self._b)
-            fa = saturated1(f, limit)
-            sent = consistent1(sent, got, fa * v)
-        else:
-            got = self._wf
-            if self._lambda > 0.0:
-                got = drift1(got, (self._b + self._c) / self._s * self._lambda * (self._remote_x - self._xd))
-            f, sent, xd_dot = slave_wave1(got, x, v, self._xd, self._s, self._b, self._k, self._c)
-            fa = saturated1(f, limit)
-            sent = consistent1(sent, got, fa * xd_dot)
-            self._xd += xd_dot * t
-        e[0] -= 0.5 * sent * sent * t
+        self._last_x = x
         self.out = (sent, x)
         self._held = fa
         return f, fa
@@ -181,3 +219,18 @@ class WaveSide:
     @property
     def total_energy_j(self) -> float:
         return self.energy_j[0]
+
+    def axis_state(self) -> AxisBoundState:
+        """The port's state, as `EnergyBound.axis_state` (the ledger, the held force, the last
+        position, started) with `WAVE_EXTRA`."""
+        extra = (self._w_in, 1.0 if self._fresh else 0.0, self._remote_x, self._wf, self._xd)
+        return AxisBoundState(self.energy_j[0], self._held, self._last_x, self._started, extra)
+
+    def set_axis_state(self, state: AxisBoundState) -> None:
+        """Restore what `axis_state` gave (the compiled loop's state)."""
+        self.energy_j[0], self._held, self._last_x, self._started = (
+            state.energy_j, state.held_n, state.last_x_m, state.has_last,
+        )  # fmt: skip
+        if state.extra:
+            self._w_in, fresh, self._remote_x, self._wf, self._xd = state.extra
+            self._fresh = fresh != 0.0

@@ -458,7 +458,15 @@ class Engine:
 
         try:
             done = run_windows(
-                self, call, (fwd, bwd), nets, axis_host.Rings((2, 3)), output, window, progress, np.zeros((3, 3))
+                self,
+                call,
+                (fwd, bwd),
+                nets,
+                axis_host.Rings(axis_host.ring_widths(self.parts)),
+                output,
+                window,
+                progress,
+                np.zeros((3, 3)),
             )
         except BaseException:
             axis_host.store_state(self.parts, S)

@@ -3,7 +3,8 @@
 A tick of the Python loop costs 20 to 50 us on this project's 2-vCPU machine, of which MuJoCo is
 5 to 9 us; the rest is the interpreter (docs/performance.md). This module runs the same tick in
 machine code: the one-axis law and bound of `core` (`eba.command1`, `bound1`: what
-`TeleopController.step1` and `EnergyBound.step1` call), `within2/3`, `operator.push1`,
+`TeleopController.step1` and `EnergyBound.step1` call; `tdpa.tdpa1` and `wave.wave1`, what
+`TdpaBound` and `WaveSide` call, for the two other stabilizers), `within1/2/3`, `operator.push1`,
 `sinusoid1`, `hand1`, `imposed_force1`, `plants.actuator_limited1`
 are compiled by numba from their single definition, and MuJoCo's `mj_step` is called straight
 from the compiled code on the same `MjModel`/`MjData` the plants own.
@@ -32,7 +33,8 @@ time alone; a direction without a codec keeps its schedule.
 
 Not compiled (the Python loop runs instead, `compiled_reason` says why): plant effects, hardware
 backends, operator traces, payload-changing effects (corruption), extrapolating buffers, the
-two-condition energy bound (`controllers.<side>.eba.law`), other
+two-condition energy bound (`controllers.<side>.eba.law`; reservoir, TDPA and wave variables
+are compiled), other
 codecs or codec links (`codec_host.codec_reason`), and machines without numba. Arm scenes
 (more than one axis) have their own compiled loop,
 `haptic_teleop/engine/compiled/arm_host.py`, which reuses this module's network schedule; it does not take arm
@@ -54,6 +56,10 @@ from haptic_teleop.core.eba_state import AxisBoundState
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
 from haptic_teleop.engine.compiled.layout import (
+    LAW_RESERVOIR,
+    LAW_TDPA_VELOCITY,
+    LAW_TDPA_ZOH,
+    LAW_WAVE,
     MASTER,
     OP,
     P_ACT_LIMIT,
@@ -62,19 +68,25 @@ from haptic_teleop.engine.compiled.layout import (
     P_BOUND_GAIN,
     P_C1,
     P_C2,
+    P_CAP,
     P_DAMP,
+    P_DRIFT,
+    P_E0,
     P_EBA_GAIN,
     P_EBA_ON,
     P_FORCE_LAW,
     P_GAIN,
     P_GUARD_ON,
     P_K,
+    P_LAW,
     P_LIM0,
+    P_LIM3,
     P_LIMIT,
     P_MASS,
     P_PERIOD_S,
     P_PLANT_LIMIT,
     P_PROFILE,
+    P_REFLECT,
     P_SIZE,
     P_SLEW_STEP,
     P_SPEED,
@@ -82,6 +94,9 @@ from haptic_teleop.engine.compiled.layout import (
     P_SUBSTEPS,
     P_T_END,
     P_W,
+    P_WAVE_A,
+    P_WAVE_B,
+    P_WAVE_S,
     P_X0,
     P_X_END,
     PROFILE_CODES,
@@ -92,13 +107,35 @@ from haptic_teleop.engine.compiled.layout import (
     S_HELD,
     S_LAST,
     S_R0,
+    S_R3,
     S_REJECTED,
     S_SIZE,
+    S_X0,
     SLAVE,
 )
 
 if TYPE_CHECKING:
     from haptic_teleop.assembly.parts import AxisParts
+
+
+# The stabilizers (`controllers.<side>.eba.law`) the compiled 1-DoF loop runs.
+COMPILED_LAWS = ("reservoir", "tdpa", "wave")
+
+
+def law_code(ctrl: Any) -> float:
+    """A side's stabilizer as the kernel's code (layout.LAW_*)."""
+    b = ctrl.bound
+    if b.params.law == "wave":
+        return LAW_WAVE
+    if b.params.law == "tdpa":
+        return LAW_TDPA_ZOH if b.params.tdpa_controller == "zoh" else LAW_TDPA_VELOCITY
+    return LAW_RESERVOIR
+
+
+def ring_widths(parts: AxisParts) -> tuple[int, int]:
+    """The values of one forward and one backward sample (the rings' widths): (x, v) and
+    (f_env, x, v); with TDPA the sender's energy after them."""
+    return (3, 4) if parts.master_ctrl.tdpa is not None else (2, 3)
 
 
 @functools.cache
@@ -164,8 +201,11 @@ def compiled_reason(parts: AxisParts) -> str | None:
         return "more than one axis"
     for side, ctrl in (("master", parts.master_ctrl), ("slave", parts.slave_ctrl)):
         law = ctrl.bound.params.law
-        if law != "reservoir":
-            return f"energy bound law {law} on the {side} side runs in the Python loop only (compiled laws: reservoir)"
+        if law not in COMPILED_LAWS:
+            return (
+                f"energy bound law {law} on the {side} side runs in the Python loop only (compiled laws: "
+                f"{', '.join(COMPILED_LAWS)})"
+            )
     profile = parts.operator.constants().profile
     if profile not in PROFILE_CODES:
         return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"
@@ -337,9 +377,21 @@ def parameters(parts: AxisParts, period_s: float) -> np.ndarray:
         if guard is not None:
             P[side + P_GUARD_ON] = 1.0
             for i, lim in enumerate(guard.limits):
-                P[side + P_LIM0 + i] = lim
+                P[side + (P_LIM0 + i if i < 3 else P_LIM3)] = lim
         P[side + P_PLANT_LIMIT] = plant.force_limit_n  # type: ignore[attr-defined]
         P[side + P_SUBSTEPS] = plant.substeps  # type: ignore[attr-defined]
+        P[side + P_LAW] = law_code(ctrl)
+        P[side + P_E0] = b.params.initial_energy_j
+        P[side + P_REFLECT] = b.params.tdpa_reflection
+        if ctrl.tdpa is not None:
+            P[side + P_CAP] = ctrl.tdpa.cap_n
+        if ctrl.wave is not None:
+            w = ctrl.wave.wave
+            P[side + P_CAP] = min(p.force_limit_n, ctrl.wave.clip_n)
+            P[side + P_WAVE_B] = w.impedance_n_s_per_m
+            P[side + P_WAVE_S] = ctrl.wave.s
+            P[side + P_WAVE_A] = ctrl.wave.pole
+            P[side + P_DRIFT] = w.drift_gain_per_s
     o = parts.operator
     oc = o.constants()
     P[OP + P_PROFILE] = PROFILE_CODES[oc.profile]
@@ -368,28 +420,34 @@ def initial_state(parts: AxisParts) -> np.ndarray:
         S[side + S_HELD] = b.held_n
         S[side + S_LAST] = b.last_x_m
         S[side + S_HAS_LAST] = 1.0 if b.has_last else 0.0
+        for i, value in enumerate(b.extra):
+            S[side + S_X0 + i] = value
         r = ctrl.remote
         if r is not None:
             S[side + S_HAS_REMOTE] = 1.0
             for i, value in enumerate(r):
-                S[side + S_R0 + i] = value
+                S[side + (S_R0 + i if i < 3 else S_R3)] = value
     S[SLAVE + S_CONTACT] = parts.slave.contact_force()[0]
     return S
 
 
 def store_state(parts: AxisParts, S: np.ndarray) -> None:
     """Write the compiled loop's state back into the parts' Python objects (energies, counts, remote)."""
-    for side, ctrl, n_remote in ((MASTER, parts.master_ctrl, 3), (SLAVE, parts.slave_ctrl, 2)):
+    widths = ring_widths(parts)
+    for side, ctrl, width in ((MASTER, parts.master_ctrl, widths[1]), (SLAVE, parts.slave_ctrl, widths[0])):
+        n_extra = len(ctrl.bound.axis_state().extra)
         ctrl.bound.set_axis_state(
             AxisBoundState(
                 energy_j=float(S[side + S_ENERGY]),
                 held_n=float(S[side + S_HELD]),
                 last_x_m=float(S[side + S_LAST]),
                 has_last=bool(S[side + S_HAS_LAST]),
+                extra=tuple(float(S[side + S_X0 + i]) for i in range(n_extra)),
             )
         )
+        n_remote = 2 if ctrl.wave is not None else width  # a wave sample: (the wave, the sender's position)
         if S[side + S_HAS_REMOTE]:
-            ctrl.remote = tuple(float(S[side + S_R0 + i]) for i in range(n_remote))
+            ctrl.remote = tuple(float(S[side + (S_R0 + i if i < 3 else S_R3)]) for i in range(n_remote))
         if ctrl.guard is not None:
             ctrl.guard.rejected = int(S[side + S_REJECTED])
     parts.slave.set_contact_force(float(S[SLAVE + S_CONTACT]))  # type: ignore[attr-defined]

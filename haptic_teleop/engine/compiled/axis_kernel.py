@@ -13,10 +13,13 @@ import numba
 import numpy as np
 
 from haptic_teleop.compiling import compile_tree
-from haptic_teleop.core import eba
+from haptic_teleop.core import eba, tdpa, wave
 from haptic_teleop.core import operator as op
 from haptic_teleop.engine.compiled import driver
 from haptic_teleop.engine.compiled.layout import (
+    LAW_RESERVOIR,
+    LAW_TDPA_ZOH,
+    LAW_WAVE,
     MASTER,
     OP,
     P_ACT_LIMIT,
@@ -25,27 +28,36 @@ from haptic_teleop.engine.compiled.layout import (
     P_BOUND_GAIN,
     P_C1,
     P_C2,
+    P_CAP,
     P_DAMP,
+    P_DRIFT,
+    P_E0,
     P_EBA_GAIN,
     P_EBA_ON,
     P_FORCE_LAW,
     P_GAIN,
     P_GUARD_ON,
     P_K,
+    P_LAW,
     P_LIM0,
     P_LIM1,
     P_LIM2,
+    P_LIM3,
     P_LIMIT,
     P_MASS,
     P_PERIOD_S,
     P_PLANT_LIMIT,
     P_PROFILE,
+    P_REFLECT,
     P_SLEW_STEP,
     P_SPEED,
     P_START,
     P_SUBSTEPS,
     P_T_END,
     P_W,
+    P_WAVE_A,
+    P_WAVE_B,
+    P_WAVE_S,
     P_X0,
     P_X_END,
     S_CONTACT,
@@ -54,10 +66,13 @@ from haptic_teleop.engine.compiled.layout import (
     S_HAS_REMOTE,
     S_HELD,
     S_LAST,
+    S_OUT,
     S_R0,
     S_R1,
     S_R2,
+    S_R3,
     S_REJECTED,
+    S_X0,
     SLAVE,
 )
 from haptic_teleop.plants import mujoco_plant
@@ -97,8 +112,14 @@ loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 # EnergyBound.step1 call the same functions)
 command1 = compile_tree(eba.command1)
 bound1 = compile_tree(eba.bound1)
+within1 = jit(eba.within1)
 within2 = jit(eba.within2)
 within3 = jit(eba.within3)
+# The other stabilizers, one definition each: TDPA's observer and controllers (core/tdpa.py, what
+# TdpaBound.step1 runs) and the wave port (core/wave.py, WaveSide.port1)
+tdpa1 = compile_tree(tdpa.tdpa1)
+received1 = jit(tdpa.received1)
+wave1 = compile_tree(wave.wave1)
 push1 = jit(op.push1)
 sinusoid1 = jit(op.sinusoid1)
 hand1 = jit(op.hand1)
@@ -108,22 +129,40 @@ actuator_limited1 = jit(mujoco_plant.actuator_limited1)
 
 @jit  # type: ignore[misc]
 def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master: bool) -> tuple[float, float]:
-    # TeleopController.step1 then EnergyBound.step1 (core/eba.py's `command1`, `bound1`): returns
-    # (applied, desired). The master's remote sample is (f_env, x, v), the slave's (x, v).
-    has_remote = S[side + S_HAS_REMOTE] != 0.0
-    force_law = P[side + P_FORCE_LAW] != 0.0
-    ra, rb = S[side + S_R0], S[side + S_R1]
-    if master and not force_law:
-        ra, rb = S[side + S_R1], S[side + S_R2]
-    desired, f = command1(
-        has_remote, force_law, P[side + P_GAIN], P[side + P_C1], P[side + P_C2], ra, rb, x, v, P[side + P_LIMIT]
-    )
-    limited = P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf  # EnergyBoundParams.limited
-    S[side + S_ENERGY], f = bound1(
-        S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], S[side + S_LAST], S[side + S_HAS_LAST] != 0.0,
-        x, f, P[side + P_EBA_ON] != 0.0, limited, P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT],
-        P[side + P_SLEW_STEP],
-    )  # fmt: skip
+    # TeleopController.step1 then the bound's step1 (core/eba.py's `command1`, `bound1`; TDPA's
+    # `tdpa1`; a wave port's `wave1`): returns (applied, desired). The master's remote sample is
+    # (f_env, x, v), the slave's (x, v) (with TDPA its energy after them; waves: (wave, x)).
+    law = P[side + P_LAW]
+    X = side + S_X0
+    if law == LAW_WAVE:
+        S[side + S_ENERGY], S[X + 4], S[X + 3], desired, f, S[side + S_OUT] = wave1(
+            master, S[side + S_ENERGY], S[side + S_HELD], S[side + S_LAST], S[side + S_HAS_LAST] != 0.0, S[X + 4],
+            S[X + 3], S[X], S[X + 1] != 0.0, S[X + 2], x, v, P[side + P_CAP], P[P_PERIOD_S], P[side + P_WAVE_S],
+            P[side + P_WAVE_B], P[side + P_C1], P[side + P_C2], P[side + P_WAVE_A], P[side + P_DRIFT],
+        )  # fmt: skip
+        S[X + 1] = 0.0  # each received wave is used once
+    else:
+        has_remote = S[side + S_HAS_REMOTE] != 0.0
+        force_law = P[side + P_FORCE_LAW] != 0.0
+        ra, rb = S[side + S_R0], S[side + S_R1]
+        if master and not force_law:
+            ra, rb = S[side + S_R1], S[side + S_R2]
+        desired, f = command1(
+            has_remote, force_law, P[side + P_GAIN], P[side + P_C1], P[side + P_C2], ra, rb, x, v, P[side + P_LIMIT]
+        )
+        if law == LAW_RESERVOIR:
+            limited = P[side + P_ACT_LIMIT] < np.inf or P[side + P_SLEW_STEP] < np.inf  # EnergyBoundParams.limited
+            S[side + S_ENERGY], f = bound1(
+                S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], S[side + S_LAST],
+                S[side + S_HAS_LAST] != 0.0, x, f, P[side + P_EBA_ON] != 0.0, limited, P[side + P_BOUND_GAIN],
+                P[side + P_ACT_LIMIT], P[side + P_SLEW_STEP],
+            )  # fmt: skip
+        else:  # TDPA_EXTRA: E_in, E_out, the remote's E_in, the damping credit, what the samples carry
+            S[X], S[X + 1], S[X + 3], S[side + S_ENERGY], S[X + 4], f = tdpa1(
+                S[X], S[X + 1], S[X + 3], S[X + 2], S[side + S_HELD], S[side + S_LAST], S[side + S_HAS_LAST] != 0.0,
+                x, f, P[side + P_E0], P[side + P_EBA_GAIN], P[side + P_BOUND_GAIN], P[side + P_REFLECT],
+                law == LAW_TDPA_ZOH, P[side + P_EBA_ON] != 0.0, P[side + P_CAP],
+            )  # fmt: skip
     S[side + S_HAS_LAST] = 1.0
     S[side + S_LAST] = x
     S[side + S_HELD] = f
@@ -151,6 +190,100 @@ def accept3(P: np.ndarray, S: np.ndarray, a: float, b: float, c: float) -> None:
         S[MASTER + S_R2] = c
     else:
         S[MASTER + S_REJECTED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def accept_energy(P: np.ndarray, S: np.ndarray, side: int, ok: bool, e: float) -> bool:
+    # A TDPA sample's energy `e` through the guard's last limit; accepted, the remote side's input
+    # energy grows to it (TeleopController.set_remote, TdpaBound.receive).
+    lim = P[side + P_LIM2] if side == SLAVE else P[side + P_LIM3]
+    if P[side + P_GUARD_ON] != 0.0 and not (ok and within1(e, lim)):
+        S[side + S_REJECTED] += 1.0
+        return False
+    S[side + S_HAS_REMOTE] = 1.0
+    S[side + S_X0 + 2] = received1(S[side + S_X0 + 2], e)
+    return True
+
+
+@inline  # type: ignore[misc]
+def accept_wave(P: np.ndarray, S: np.ndarray, side: int, u: float, x: float) -> None:
+    # A wave sample (the wave, the sender's position) through the guard (WaveSide.receive): fresh,
+    # used at the side's next tick.
+    if P[side + P_GUARD_ON] == 0.0 or within2(u, x, P[side + P_LIM0], P[side + P_LIM1]):
+        S[side + S_HAS_REMOTE] = 1.0
+        S[side + S_R0] = u
+        S[side + S_R1] = x
+        S[side + S_X0] = u
+        S[side + S_X0 + 1] = 1.0
+        S[side + S_X0 + 2] = x
+    else:
+        S[side + S_REJECTED] += 1.0
+
+
+@inline  # type: ignore[misc]
+def put_sample(
+    P: np.ndarray, S: np.ndarray, hist: np.ndarray, j: int, side: int, a: float, b: float, c: float, n: int, x: float
+) -> None:
+    # A side's sample into its sender's ring (AxisSide.tick): its n values (the master's (x, v),
+    # the slave's (f_env, x, v)); with TDPA its energy after them; a wave port's (wave, x).
+    law = P[side + P_LAW]
+    if law == LAW_WAVE:
+        hist[j, 0] = S[side + S_OUT]
+        hist[j, 1] = x
+        return
+    hist[j, 0] = a
+    hist[j, 1] = b
+    if n == 3:
+        hist[j, 2] = c
+    if law != LAW_RESERVOIR:
+        hist[j, n] = S[side + S_X0 + 4]
+
+
+@inline  # type: ignore[misc]
+def forward_sample(P: np.ndarray, S: np.ndarray, hist: np.ndarray, j: int, x_m: float, v_m: float) -> None:
+    put_sample(P, S, hist, j, MASTER, x_m, v_m, 0.0, 2, x_m)
+
+
+@inline  # type: ignore[misc]
+def forward_accept(P: np.ndarray, S: np.ndarray, h: np.ndarray) -> None:
+    # The slave takes a released forward sample (`forward_sample`'s layout).
+    law = P[SLAVE + P_LAW]
+    if law == LAW_RESERVOIR:
+        accept2(P, S, h[0], h[1])
+    elif law == LAW_WAVE:
+        accept_wave(P, S, SLAVE, h[0], h[1])
+    else:
+        ok = P[SLAVE + P_GUARD_ON] == 0.0 or within2(h[0], h[1], P[SLAVE + P_LIM0], P[SLAVE + P_LIM1])
+        if accept_energy(P, S, SLAVE, ok, h[2]):
+            S[SLAVE + S_R0] = h[0]
+            S[SLAVE + S_R1] = h[1]
+            S[SLAVE + S_R2] = h[2]
+
+
+@inline  # type: ignore[misc]
+def backward_sample(
+    P: np.ndarray, S: np.ndarray, hist: np.ndarray, j: int, f_env: float, x_s: float, v_s: float
+) -> None:
+    put_sample(P, S, hist, j, SLAVE, f_env, x_s, v_s, 3, x_s)
+
+
+@inline  # type: ignore[misc]
+def backward_accept(P: np.ndarray, S: np.ndarray, h: np.ndarray) -> None:
+    # The master takes a released backward sample (`backward_sample`'s layout).
+    law = P[MASTER + P_LAW]
+    if law == LAW_RESERVOIR:
+        accept3(P, S, h[0], h[1], h[2])
+    elif law == LAW_WAVE:
+        accept_wave(P, S, MASTER, h[0], h[1])
+    else:
+        ok = P[MASTER + P_GUARD_ON] == 0.0 or within3(
+            h[0], h[1], h[2], P[MASTER + P_LIM0], P[MASTER + P_LIM1], P[MASTER + P_LIM2]
+        )
+        if accept_energy(P, S, MASTER, ok, h[3]):
+            S[MASTER + S_R0] = h[0]
+            S[MASTER + S_R1] = h[1]
+            S[MASTER + S_R2] = h[2]
+            S[MASTER + S_R3] = h[3]
 
 
 @inline  # type: ignore[misc]
@@ -242,11 +375,10 @@ def forward_released(
 ) -> int:
     # The forward direction on its schedule: the master's sample into the sender's ring (row j),
     # the packet the window's row w releases (if any) to the slave. Returns its seq or -1.
-    hist[j, 0] = x_m
-    hist[j, 1] = v_m
+    forward_sample(P, S, hist, j, x_m, v_m)
     rx = rel[w]
     if rx >= 0:
-        accept2(P, S, hist[rx & mask, 0], hist[rx & mask, 1])
+        forward_accept(P, S, hist[rx & mask])
     return rx
 
 
@@ -256,12 +388,10 @@ def backward_released(
     f_env: float, x_s: float, v_s: float,
 ) -> int:  # fmt: skip
     # `forward_released` of the backward direction (the slave's contact force, x, v).
-    hist[j, 0] = f_env
-    hist[j, 1] = x_s
-    hist[j, 2] = v_s
+    backward_sample(P, S, hist, j, f_env, x_s, v_s)
     rx = rel[w]
     if rx >= 0:
-        accept3(P, S, hist[rx & mask, 0], hist[rx & mask, 1], hist[rx & mask, 2])
+        backward_accept(P, S, hist[rx & mask])
     return rx
 
 
