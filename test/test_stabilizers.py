@@ -352,14 +352,14 @@ def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], w
 @pytest.mark.parametrize(
     ("command", "law", "words"),
     [
-        ("launch", TDPA, "allowed live: reservoir"),
+        ("launch", TDPA, "allowed live on arms: reservoir"),
         ("run", WAVE, "allowed for arms: reservoir (the pooled joint bound), tdpa"),
     ],
 )
-def test_live_tdpa_and_arm_wave_runs_exit_2_in_one_line(
+def test_live_arm_tdpa_and_arm_wave_runs_exit_2_in_one_line(
     tmp_path: Path, command: str, law: tuple[str, ...], words: str
 ) -> None:
-    scene = "wall_contact" if command == "launch" else "touch_ur5e_wall"
+    scene = "touch_ur5e_wall"
     sets = [a for o in law for a in ("--set", o)]
     r = subprocess.run(
         [str(Path(sys.executable).parent / "haptic-teleop"), command, scene, *sets],

@@ -123,9 +123,7 @@ class AxisSide:
         self._control, self._set_remote = ctrl.step1, ctrl.set_remote  # one axis: the scalar path
         self._applied = ctrl.bound.applied1  # the reservoir books the force the plant applied
         self.desired, self.energy = ctrl.force_desired, ctrl.bound.energy_j  # updated in place
-        # TDPA: the side's observed input energy rides on its samples (core/tdpa.py).
-        self.energy_in = ctrl.tdpa.sent_j if ctrl.tdpa is not None else None
-        self.wave = ctrl.wave  # wave variables: the side sends its wave and position (core/wave.py)
+        self._sample = ctrl.sample1  # what it sends: (x, v) or (f_env, x, v), TDPA's energy, or its wave
         self.xs: list[float] = [0.0]
         self.vs: list[float] = [0.0]
         self.x = self.v = self.f_env = self.force = self.applied = 0.0
@@ -138,15 +136,10 @@ class AxisSide:
         self.xs, self.vs = xs, vs = self._read()
         self.x, self.v = x, v = xs[0], vs[0]
         self.force = self._control(x, v)
-        e = self.energy_in
         if self.master:
-            if self.wave is not None:
-                return self.wave.out
-            return (x, v) if e is None else (x, v, e[0])
+            return self._sample(x, v)
         self.f_env = f = self._contact()[0]
-        if self.wave is not None:
-            return self.wave.out
-        return (f, x, v) if e is None else (f, x, v, e[0])
+        return self._sample(x, v, f)
 
     def take(self, payload: Payload) -> None:
         self._set_remote(payload)

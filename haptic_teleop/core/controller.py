@@ -215,6 +215,18 @@ class TeleopController:
         elif self.wave is not None:
             self.wave.receive(payload)
 
+    def sample1(self, x: float, v: float, f_env: float = 0.0) -> tuple[float, ...]:
+        """The sample this side sends after its tick (one axis): the master's (x, v), the slave's
+        (f_env, x, v); with TDPA its observed input energy last (core/tdpa.py); a wave port's
+        (its wave, x) (core/wave.py). The engine's loops and the live nodes send this."""
+        w = self.wave
+        if w is not None:
+            return w.out
+        t = self.tdpa
+        if self._off:  # the master
+            return (x, v) if t is None else (x, v, t.sent_j[0])
+        return (f_env, x, v) if t is None else (f_env, x, v, t.sent_j[0])
+
     def desired_force(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
         """The control law alone (no saturation, no bound)."""
         n = self._n

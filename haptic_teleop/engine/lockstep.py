@@ -119,9 +119,7 @@ class Engine:
         if self.master_ctrl.tdpa is not None:
             # TDPA's samples carry the observed energy too: a JointState with a second name,
             # "energy_in_j", whose position is the energy (docs/stabilizers.md, "On the wire").
-            from haptic_teleop.assembly.side import wire_payload_bytes
-
-            self._sizes = (wire_payload_bytes(2, 2), wire_payload_bytes(2, 3))
+            self._sizes = (_wire_payload_bytes(2, energy=True), _wire_payload_bytes(3, energy=True))
         elif self.master_ctrl.wave is not None:  # (wave, position) both ways
             self._sizes = (_wire_payload_bytes(2), _wire_payload_bytes(2))
         self._stop = False
@@ -482,8 +480,9 @@ class Engine:
         return self._streamed(done, wall)
 
 
-def _wire_payload_bytes(floats: int) -> int:
-    """Serialized size (CDR) of the sensor_msgs/JointState that carries `floats` values of one axis."""
+def _wire_payload_bytes(floats: int, energy: bool = False) -> int:
+    """Serialized size (CDR) of the sensor_msgs/JointState that carries `floats` values of one axis
+    (`energy`: and TDPA's energy joint)."""
     from haptic_teleop.record.layouts import joint_state_size
 
-    return joint_state_size(floats)
+    return joint_state_size(floats, energy=energy)

@@ -199,12 +199,12 @@ def node_plan(
             scene.source, "slave.start", "in_contact", "runs in `haptic-teleop run` only; allowed live: free"
         )
     law = scene.config.controllers.master.eba.law
-    if law in ("tdpa", "wave"):  # the live samples do not carry their energy or waves yet
+    if law == "tdpa" and scene.config.is_arm:  # the live arm samples do not carry the pooled energy yet
         raise _ConfigError(
             scene.source,
             "controllers.master.eba.law",
             law,
-            "runs in `haptic-teleop run` only; allowed live: reservoir, two_condition",
+            "on an arm scene runs in `haptic-teleop run` only; allowed live on arms: reservoir",
         )
     if device != "plant" and scene.config.is_arm:
         from haptic_teleop.errors import ConfigError

@@ -53,10 +53,20 @@ SCENE_SECTIONS = {
         "network.backward.effects.loss",
     ),
     # A relay reads its direction's codec too: a packet's size on the wire is its codec's (HLI's
-    # own message, nodes/codec_stage.py), for the packet records and the links' rate limits.
-    "network_relay": ("scene", "network.{direction}.effects", "network.{direction}.codec"),
+    # own message, nodes/codec_stage.py), for the packet records and the links' rate limits. Both
+    # read the stabilizer of both sides (the scene checks they agree), which shapes a one-axis
+    # scene's samples (nodes/wire.py: TDPA's energy joint, a wave port's wave).
+    "network_relay": (
+        "scene",
+        "network.{direction}.effects",
+        "network.{direction}.codec",
+        "controllers.master.eba",
+        "controllers.slave.eba",
+    ),
     "sync_buffer": (
         "scene",
+        "controllers.master.eba",
+        "controllers.slave.eba",
         "network.{direction}.buffer",
         "network.{direction}.codec",
         "network.{direction}.effects.loss",

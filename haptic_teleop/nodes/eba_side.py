@@ -10,17 +10,10 @@ from haptic_teleop.core.watchdog import ForceFade, Watchdog
 from haptic_teleop.nodes import WATCHDOG_FADE_S, WATCHDOG_TIMEOUT_S
 from haptic_teleop.nodes.base import LiveNode
 from haptic_teleop.nodes.cdr import JointStateReader
-from haptic_teleop.nodes.messages import EbaOut, take_latest
+from haptic_teleop.nodes.messages import EbaOut, JointStateOut, take_latest
 from haptic_teleop.nodes.params import declare_value
-from haptic_teleop.nodes.topics import (
-    DIRECTION_JOINT,
-    MASTER_EBA,
-    PAYLOAD_FIELDS,
-    SLAVE_EBA,
-    WIRE_FIELDS,
-    received_topic,
-    stream_qos,
-)
+from haptic_teleop.nodes.topics import MASTER_EBA, SLAVE_EBA, received_topic, sent_topic, stream_qos
+from haptic_teleop.nodes.wire import scene_law, wire_of
 
 WATCHDOG_PARAMS = ("watchdog.timeout_s", "watchdog.fade_s")
 
@@ -60,9 +53,19 @@ class EbaSide:
         )
         self.ctrl = side_controller(config, role, trace)
         self.fade = ForceFade(self.ctrl)
-        remote = "backward" if role == "master" else "forward"
-        self._read = JointStateReader(PAYLOAD_FIELDS[remote], [(DIRECTION_JOINT[remote], WIRE_FIELDS[remote])])
+        remote, own = ("backward", "forward") if role == "master" else ("forward", "backward")
+        # The samples' layouts: the stabilizer's (TDPA's energy joint, a wave port's wave; nodes/wire.py).
+        law = scene_law(config)
+        self._remote_wire = rw = wire_of(remote, 1, law)
+        self._read = JointStateReader(rw.want, [(rw.names, rw.fields)], rw.width)
         self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
+        self._own_wire = ow = wire_of(own, 1, law)
+        # This side's samples, unless its direction has a codec (the node's CodecSender sends them).
+        self._sent = (
+            JointStateOut(node, sent_topic(own), ow.names, ow.fields)
+            if getattr(config.network, own).codec is None
+            else None
+        )
         self._eba_out = EbaOut(node, MASTER_EBA if role == "master" else SLAVE_EBA)
         self.remote_samples = 0
 
@@ -70,15 +73,21 @@ class EbaSide:
         remote = take_latest(self._sub)
         if remote is not None:
             self.remote_samples += 1
-            self.ctrl.set_remote(self._read(remote)[1])
+            self.ctrl.set_remote(self._remote_wire.payload(self._read(remote)[1]))
             self.watchdog.feed(stamp_ns)
         self.fade.set_gain(self.watchdog.update(stamp_ns))
         return self.ctrl.step(x, v)
 
+    def send(self, stamp_ns: int, x: float, v: float, f_env: float = 0.0) -> None:
+        """Publish the sample this side sends after `step` (`TeleopController.sample1`: the
+        master's (x, v), the slave's (f_env, x, v); TDPA's energy; a wave port's wave)."""
+        assert self._sent is not None, "a direction with a codec sends through its CodecSender"
+        self._sent.publish(stamp_ns, self._own_wire.values(self.ctrl.sample1(x, v, f_env)))
+
     def applied(self, force: Sequence[float]) -> None:
         """The force the plant applied over the period that follows `step`: the reservoir
         accounts with it (docs/eba_actuator_limits.md, "Actuator limits inside the bound")."""
-        self.ctrl.bound.applied(force)
+        self.ctrl.bound.applied1(force[0])
 
     def publish_internals(self) -> None:
         self._eba_out.publish(self.ctrl.bound.energy_j[0], self.ctrl.force_desired[0])

@@ -32,11 +32,9 @@ from haptic_teleop.nodes.topics import (
     OPERATOR_STATE,
     RECORDER_LISTENING_TOPIC,
     SCENE_START_TOPIC,
-    WIRE_FIELDS,
     latched_qos,
     reliable_qos,
     scene_start_header,
-    sent_topic,
     stream_qos,
 )
 
@@ -142,8 +140,6 @@ class MasterEba(LiveNode):
             from haptic_teleop.nodes.codec_stage import CodecSender
 
             self.codec = CodecSender(self, "forward", cfg)
-        else:
-            self.forward_out = JointStateOut(self, sent_topic("forward"), MASTER_JOINT, WIRE_FIELDS["forward"])
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"device {self.source}, period {cfg.scene.period_s * 1e3:g} ms, watchdog bound "
@@ -231,7 +227,7 @@ class MasterEba(LiveNode):
         if self.codec is not None:
             self.codec.send(stamp_ns, (x[0], v[0]))  # the codec's sample layout (x_m, v_m)
         else:
-            self.forward_out.publish(stamp_ns, (x[0], v[0]))
+            self.side.send(stamp_ns, x[0], v[0])
         if self.plant is not None:
             applied = self.plant.step(f, [self._hand_n])
             self.side.applied(applied)

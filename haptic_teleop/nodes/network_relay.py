@@ -83,7 +83,7 @@ from haptic_teleop.nodes.topics import (
     sent_topic,
     stream_qos,
 )
-from haptic_teleop.nodes.wire import direction_problem, nve_direction, wire_of
+from haptic_teleop.nodes.wire import direction_problem, nve_direction, scene_law, wire_of
 
 # Sent messages are kept for re-publication this long (in ticks); an older delivery (a delay
 # beyond it) is rebuilt from the packet's payload instead.
@@ -246,13 +246,13 @@ class NetworkRelay(LiveNode):
         self.settling = build_scene_link(settling_effects(effects), cfg.scene.seed, f"{stream}:settling")  # node clock
         in_topic = ack_sent_topic(d) if ack else sent_topic(d)
         out_topic = ack_delivered_topic(d) if ack else delivered_topic(d)
-        self.wire = w = wire_of(d, axes)
+        self.wire = w = wire_of(d, axes, scene_law(cfg, axes))
         self._fields = w.want
         self._read = JointStateReader(w.want, [(w.names, w.fields)], w.width)
-        self._remap = w.payload if nve_direction(d) is not None else None  # the read values are the payload
+        self._remap = w.payload if w.maps else None  # None: the read values are the payload
         floats = w.floats
-        if axes == 1 or nve_direction(d) is not None:  # the NVE engine's size: joint_state_size(floats, axes)
-            self._size = joint_state_size(floats, axes)
+        if axes == 1 or nve_direction(d) is not None:  # the engine's size: joint_state_size(floats, axes, energy)
+            self._size = joint_state_size(floats, axes, w.energy)
         else:  # the engine's wire size of an arm payload (side.wire_payload_bytes)
             from haptic_teleop.assembly.side import wire_payload_bytes
 

@@ -16,7 +16,7 @@ from haptic_teleop.nodes.base import LiveNode, node_main
 from haptic_teleop.nodes.eba_side import WATCHDOG_PARAMS, EbaSide
 from haptic_teleop.nodes.messages import JointStateOut, WrenchOut
 from haptic_teleop.nodes.params import declare_scene
-from haptic_teleop.nodes.topics import SLAVE_CONTACT, SLAVE_JOINT, SLAVE_STATE, WALL_FRAME, sent_topic
+from haptic_teleop.nodes.topics import SLAVE_CONTACT, SLAVE_JOINT, SLAVE_STATE, WALL_FRAME
 
 
 class SlaveEba(LiveNode):
@@ -59,10 +59,6 @@ class SlaveEba(LiveNode):
             from haptic_teleop.nodes.codec_stage import CodecSender
 
             self.codec = CodecSender(self, "backward", cfg)
-        else:
-            self.backward_out = JointStateOut(
-                self, sent_topic("backward"), SLAVE_JOINT, ("position", "velocity", "effort")
-            )
         self.setup_loop(period_ns)
         self.get_logger().info(
             f"plant {s.backend} ({s.model}), wall at {s.wall.position_m} m, watchdog bound "
@@ -96,11 +92,10 @@ class SlaveEba(LiveNode):
         x, v = plant.read()
         fenv = plant.contact_force()
         f = self.side.step(x, v, stamp_ns)
-        # JointState field order (position, velocity, effort) carries the payload (f_env, x, v).
         if self.codec is not None:
             self.codec.send(stamp_ns, (fenv[0], x[0], v[0]))  # the codec's sample layout (f_env, x_s, v_s)
         else:
-            self.backward_out.publish(stamp_ns, (x[0], v[0], fenv[0]))
+            self.side.send(stamp_ns, x[0], v[0], fenv[0])
         applied = plant.step(f)
         self.side.applied(applied)
         self.state_out.publish(stamp_ns, (x[0], v[0], applied[0]))

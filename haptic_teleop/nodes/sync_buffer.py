@@ -60,7 +60,7 @@ from haptic_teleop.nodes.topics import (
     reliable_qos,
     stream_qos,
 )
-from haptic_teleop.nodes.wire import nve_direction, wire_of
+from haptic_teleop.nodes.wire import nve_direction, scene_law, wire_of
 
 PLAYOUT_FIELDS = ("seq", "fate", "tick", "arrived")
 NO_FATE = -1  # a release row that decides no packet; tick -1: a row that is no release
@@ -86,17 +86,16 @@ class SyncBuffer(LiveNode):
             from haptic_teleop.assembly.parts import configure_network_adaptive
 
             configure_network_adaptive(self.buffer, cfg, d)  # network_adaptive: d0, D_a, L_a from the scene
-        self.wire = w = wire_of(d, axes)
+        self.wire = w = wire_of(d, axes, scene_law(cfg, axes))
         self._fields = w.want
         out_fields = w.fields
-        nve = nve_direction(d) is not None
         # payload -> JointState order (an arm payload is in the wire's order, one value per axis;
-        # an NVE payload is mapped by its wire, nodes/wire.py)
+        # an NVE or TDPA payload is mapped by its wire, nodes/wire.py)
         self._fields_order = (
             [self._fields.index(f) for f in out_fields] if axes == 1 else list(range(len(out_fields) * axes))
         )
-        self._to_wire = w.values if nve else None
-        self._remap = w.payload if nve else None
+        self._to_wire = w.values if w.maps else None
+        self._remap = w.payload if w.maps else None
         self.released = 0
         self.out = JointStateOut(self, received_topic(d), w.names, out_fields)
         self._read = JointStateReader(self._fields, [(w.names, out_fields)], w.width)

@@ -8,6 +8,15 @@ NVE layouts (a = the scene's axes):
        velocity (v_o[a]..., 0)
 header.stamp = the sender's tick. The core payload (what the `Link` and `PlayoutBuffer` carry) is
 the engine's: up (x[a]..., v[a]...), down (x_o[a]..., v_o[a]..., echo_s).
+
+A one-axis teleoperation scene's layouts depend on its stabilizer (`controllers.<side>.eba.law`,
+`TeleopController.sample1`, docs/stabilizers.md, "On the wire"):
+  reservoir, two_condition: forward master_x (position x, velocity v); backward slave_x
+       (position x, velocity v, effort f_env)
+  tdpa: the same and a second joint, energy_in_j, whose position is the sender's observed input
+       energy E_in (J; its velocity and effort 0): payloads (x, v, E_in) and (f_env, x, v, E_in)
+  wave: the sender's joint, position x, velocity the wave it sends (u or v, sqrt(W): not a
+       velocity; the engine's packet has the same size): payload (wave, x) both ways
 """
 
 from __future__ import annotations
@@ -15,8 +24,10 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from haptic_teleop.nodes.topics import DIRECTIONS, WIRE_FIELDS, payload_fields, wire_names
+from haptic_teleop.nodes.topics import DIRECTION_JOINT, DIRECTIONS, WIRE_FIELDS, payload_fields, wire_names
+from haptic_teleop.record.layouts import ENERGY_JOINT
 
 AXIS_LABELS = ("x", "y", "z")
 NVE_UP, NVE_DOWN = "up", "down"
@@ -56,9 +67,17 @@ class Wire:
     want: tuple[str, ...]  # the arrays read, in the order the reader returns them
     width: int  # values per array read
     floats: int  # the engine's floats per axis of this direction's packet (its wire size)
+    energy: bool = False  # TDPA: the second joint ENERGY_JOINT carries the sender's input energy
+
+    @property
+    def maps(self) -> bool:
+        """True when the values read are not the payload as they come (`payload`, `values` map them)."""
+        return self.energy or nve_direction(self.direction) is not None
 
     def payload(self, values: Sequence[float]) -> tuple[float, ...]:
         """Values as read (`want`, `width` each) -> the core payload."""
+        if self.energy:  # read per field (the joint's value, the energy joint's): E_in is position's second
+            return (*values[::2], values[2 * self.want.index("position") + 1])
         if not self._is_down():
             return tuple(values)
         a = self.axes
@@ -70,6 +89,11 @@ class Wire:
         if self._is_down():
             a = self.axes
             return [*payload[:a], payload[2 * a], *payload[a : 2 * a], 0.0]
+        if self.energy:
+            n = len(self.want)
+            by_field = dict(zip(self.want, payload[:n], strict=True))
+            e = payload[n]
+            return [v for f in self.fields for v in (by_field[f], e if f == "position" else 0.0)]
         if self.axes == 1 and self.direction in DIRECTIONS:
             by_field = dict(zip(self.want, payload, strict=True))
             return [by_field[f] for f in self.fields]
@@ -80,13 +104,27 @@ class Wire:
         return nd is not None and nd[1] == NVE_DOWN
 
 
-def wire_of(direction: str, axes: int = 1) -> Wire:
+WIRE_LAWS = ("reservoir", "two_condition", "tdpa", "wave")
+
+
+def wire_of(direction: str, axes: int = 1, law: str = "reservoir") -> Wire:
     """The wire layout of a direction (`axes`: values per field of the payload: the task axes of an
-    arm scene, the NVE scene's axes)."""
+    arm scene, the NVE scene's axes; `law`: a one-axis teleoperation scene's stabilizer, which
+    TDPA and wave variables change: module docstring)."""
     nd = nve_direction(direction)
+    if law not in WIRE_LAWS:
+        raise ValueError(f"law {law!r}: allowed: {', '.join(WIRE_LAWS)}")
+    if law in ("tdpa", "wave") and (nd is not None or axes != 1):
+        raise ValueError(f"law {law} on the wire: one-axis teleoperation directions only")
     if nd is None:
         if direction not in DIRECTIONS:
             raise ValueError(f"direction {direction!r}: {direction_problem(direction)}")
+        joint = DIRECTION_JOINT[direction]
+        if law == "tdpa":
+            fields = WIRE_FIELDS[direction]
+            return Wire(direction, 1, (joint, ENERGY_JOINT), fields, payload_fields(direction), 2, len(fields), True)
+        if law == "wave":  # read (velocity, position) = the payload (wave, x)
+            return Wire(direction, 1, joint, ("position", "velocity"), ("velocity", "position"), 1, 2)
         floats = 3 if direction == "backward" else 2
         return Wire(
             direction, axes, wire_names(direction, axes), WIRE_FIELDS[direction],
@@ -99,3 +137,12 @@ def wire_of(direction: str, axes: int = 1) -> Wire:
         )
     names = (*object_names(axes), ECHO_NAME)
     return Wire(direction, axes, names, ("position", "velocity"), ("position", "velocity"), axes + 1, 3)
+
+
+def scene_law(cfg: Any, axes: int = 1) -> str:
+    """The stabilizer that shapes a scene's wire (`wire_of`'s `law`): a one-axis teleoperation
+    scene's `controllers.master.eba.law` (both sides run the same); `reservoir` for others (an
+    arm's `axes`: 3)."""
+    if cfg.is_nve or cfg.is_arm or axes != 1:
+        return "reservoir"
+    return str(cfg.controllers.master.eba.law)

@@ -245,12 +245,17 @@ def nve_topic_specs(schema: NveSchema) -> dict[str, TopicSpec]:
     return out
 
 
-def joint_state_size(floats: int, axes: int = 1) -> int:
+# TDPA's samples carry the sender's observed input energy as a second joint of the sample's
+# JointState, whose position is the energy in J (docs/stabilizers.md, "On the wire").
+ENERGY_JOINT = "energy_in_j"
+
+
+def joint_state_size(floats: int, axes: int = 1, energy: bool = False) -> int:
     """CDR size in bytes of a packet's JointState: one name per task axis, `floats` of
-    position/velocity/effort per axis."""
+    position/velocity/effort per axis; `energy`: with TDPA's second joint (ENERGY_JOINT)."""
     fields = ("position", "velocity", "effort")[:floats]
-    names = [f"master_{a}" for a in AXES[:axes]]
-    return FixedLayout(JOINT_STATE, make_joint_state(names, fields), floats * axes).size
+    names = [f"master_{a}" for a in AXES[:axes]] + ([ENERGY_JOINT] if energy else [])
+    return FixedLayout(JOINT_STATE, make_joint_state(names, fields), floats * len(names)).size
 
 
 def packet_rows(log: Sequence[Any] | np.ndarray) -> np.ndarray:
