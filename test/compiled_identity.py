@@ -62,7 +62,8 @@ def assert_same_calls(compiled: list[tuple[str, np.ndarray]], python: list[tuple
 
 def assert_same_arm_sides(compiled: Any, python: Any) -> None:
     """Both arm loops left both sides in the same state: motor-limit and guard counts, the energy
-    bound's reservoir, held torques, last q and scale, the plants' MuJoCo state and wall wrench."""
+    bound's reservoir, held torques, last q and scale (with TDPA its ledger too), the plants' MuJoCo
+    state and wall wrench."""
     assert compiled.joint_limit_ticks == python.joint_limit_ticks
     for role in ("master", "slave"):
         a, b = getattr(compiled.arm, role), getattr(python.arm, role)
@@ -72,6 +73,7 @@ def assert_same_arm_sides(compiled: Any, python: Any) -> None:
         sa, sb = a.bound.state(), b.bound.state()
         assert np.array_equal(sa.last_q_rad, sb.last_q_rad)
         assert (sa.has_last, sa.scale) == (sb.has_last, sb.scale)
+        assert sa.extra == sb.extra  # TDPA's ledger (core/tdpa_coupled.TDPA_EXTRA); () for EBA
         assert np.array_equal(a.plant.data.qpos, b.plant.data.qpos)
         assert np.array_equal(a.plant.data.qvel, b.plant.data.qvel)
         assert np.array_equal(np.concatenate(a.plant.contact_wrench()), np.concatenate(b.plant.contact_wrench()))

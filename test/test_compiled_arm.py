@@ -37,6 +37,7 @@ HARD = (
     *(f"network.{d}.effects.loss={GE_10}" for d in ("forward", "backward")),
 )
 EBA_OFF = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")
+TDPA_ZOH = tuple(f"controllers.{s}.eba.{k}" for s in ("master", "slave") for k in ("law=tdpa", "tdpa_controller=zoh"))
 
 CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     # constant delay with uncorrelated loss: the vectorized schedule
@@ -54,6 +55,16 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "dynamixel_hard_eba_off": ("touch_dynamixel_wall", (*HARD, *EBA_OFF)),
     "ur5e_substeps": ("touch_ur5e_wall", ("simulation.substeps=2",)),
     "oblique": ("touch_ur5e_oblique_wall", ()),
+    # TDPA's pooled step with the zoh controller (core/tdpa_coupled.coupled_tdpa), each sample
+    # carrying its sender's energy, over delay and loss; and keeping half its input
+    "ur5e_tdpa_zoh": (
+        "touch_ur5e_wall",
+        (*TDPA_ZOH, f"{FWD}.effects.loss.probability=0.1", f"{BWD}.effects.delay.delay_s=0.05"),
+    ),
+    "dynamixel_tdpa_zoh_reflect_hard": (
+        "touch_dynamixel_wall",
+        (*HARD, *TDPA_ZOH, *(f"controllers.{s}.eba.tdpa_reflection=0.5" for s in ("master", "slave"))),
+    ),
     # the master's Jacobian mapped into the task frame by a rotation that is not the identity
     "rotated_scaled_mapping": (
         "touch_dynamixel_wall",

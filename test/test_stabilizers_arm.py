@@ -137,7 +137,9 @@ def test_each_arm_sample_carries_the_senders_pooled_input_energy_last(tmp_path: 
 
     monkeypatch.setattr(ArmSideStage, "tick", spy)
     scene = load_scene(find_scene("touch_ur5e_wall"), ["scene.duration_s=0.8", *ha.GEOMETRY, *ZOH])
-    record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False)
+    # the Python arm loop's stage (the compiled loop's samples: test_compiled_arm.py's TDPA cases,
+    # which give the same bag bit for bit)
+    record_run(scene, tmp_path / "bag", parallel=False, handle_sigint=False, loop="python")
     assert len(sent[True]) == len(sent[False]) == 800
     assert {len(p) for p in sent[True]} == {7} and {len(p) for p in sent[False]} == {10}
     assert max(p[-1] for p in sent[False]) > 0.0  # the wall pushed back: energy went in

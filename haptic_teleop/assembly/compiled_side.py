@@ -91,6 +91,7 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
     iv[k.I_HAND] = 1 if master else 0
     iv[k.I_JAC_SCALE] = 1 if master else 0
     iv[k.I_NV] = m.nv
+    iv[k.I_LAW] = law_code(bound)
     mp = parts.mapping
     F = np.zeros(k.F_SIZE)
     F[k.F_LIMIT] = side.force_limit_n
@@ -100,11 +101,14 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
     opp = parts.operator.params
     F[k.F_K_HAND] = opp.stiffness_n_per_m
     F[k.F_B_HAND] = opp.damping_n_s_per_m
+    F[k.F_E0] = bp.initial_energy_j
+    F[k.F_REFLECT] = getattr(bound, "reflection", 0.0)  # TDPA's kept fraction
     S = np.zeros(k.S_SIZE)
     S[k.S_ENERGY] = bs.energy_j
     S[k.S_HAS_LAST] = 1.0 if bs.has_last else 0.0
     S[k.S_REJECTED] = side.guard.rejected
     S[k.S_SCALE] = bs.scale
+    S[k.S_EXTRA : k.S_EXTRA + len(bs.extra)] = bs.extra
     r_hold = np.zeros((3, 3))
     if law.r_hold is not None:
         r_hold[:] = law.r_hold
@@ -156,6 +160,7 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
     held orientation, the plant's wall wrench); returns the ticks a motor's room scaled the torque down."""
     k = side_kernel()
     S = t[k.T_S]
+    extra = len(side.bound.state().extra)  # TDPA's state (core/tdpa_coupled.TDPA_EXTRA), or none
     side.bound.set_state(
         CoupledBoundState(
             energy_j=float(S[k.S_ENERGY]),
@@ -163,6 +168,7 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
             last_q_rad=t[k.T_LAST_Q],
             has_last=bool(S[k.S_HAS_LAST]),
             scale=float(S[k.S_SCALE]),
+            extra=tuple(float(e) for e in S[k.S_EXTRA : k.S_EXTRA + extra]),
         )
     )
     side.guard.rejected = int(S[k.S_REJECTED])
@@ -170,6 +176,16 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
         side.law.r_hold = np.array(t[k.T_RHOLD])
     side.plant.stepped_externally(t[k.T_WRENCH])  # type: ignore[attr-defined]  # mj_step1 is due
     return int(S[k.S_LIMITED])
+
+
+def law_code(bound: Any) -> int:
+    """side_kernel's I_LAW code of a side's bound: EBA's pooled bound, or TDPA's with its controller."""
+    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+
+    k = side_kernel()
+    if not isinstance(bound, CoupledTdpaBound):
+        return int(k.LAW_EBA)
+    return int(k.LAW_TDPA_ZOH if bound.controller == "zoh" else k.LAW_TDPA_VELOCITY)
 
 
 def compiled_reason_side(side: ArmSide) -> str | None:

@@ -366,9 +366,13 @@ def arm_kernels() -> Mapping[str, Callable[..., Any]] | None:
         import numba
     except Exception:  # noqa: BLE001 - no numba here: the interpreted functions run
         return None
+    from haptic_teleop.compiling import compile_tree
     from haptic_teleop.core.taskspace import kernels
+    from haptic_teleop.core.tdpa_coupled import coupled_tdpa
 
-    return kernels(numba.njit(cache=True, nogil=True))
+    # TDPA's pooled step, compiled from its one definition with its callees (the compiled arm
+    # loop's side_kernel.py calls the same compiled function: the same bits)
+    return {**kernels(numba.njit(cache=True, nogil=True)), "coupled_tdpa": compile_tree(coupled_tdpa)}
 
 
 def _warm_up(side: ArmSide, config: Scene) -> None:

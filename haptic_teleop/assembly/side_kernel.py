@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from haptic_teleop.compiling import compile_tree
-from haptic_teleop.core import eba_coupled, taskspace
+from haptic_teleop.core import eba_coupled, taskspace, tdpa, tdpa_coupled
 from haptic_teleop.plants.mujoco_native import (
     borrowed,
     load_f64,
@@ -53,6 +53,8 @@ coupled_reservoir = compile_tree(eba_coupled.coupled_reservoir)
 coupled_bounded = compile_tree(eba_coupled.coupled_bounded)
 slew_bounded = compile_tree(eba_coupled.slew_bounded)
 joint_limited = compile_tree(eba_coupled.joint_limited)
+coupled_tdpa = compile_tree(tdpa_coupled.coupled_tdpa)
+received1 = compile_tree(tdpa.received1)
 
 # The side tuple (compiled_side.side_tuple builds it; the kernel unpacks it in this order):
 #   I (int64 scalars, the I_* positions below), qadr, dadr, act (int64, per joint),
@@ -103,11 +105,17 @@ T_SIZE = 36
 I_MODEL, I_DATA, I_N, I_SITE, I_SUBSTEPS, I_GRAVITY, I_ROTATIONAL, I_NULL, I_ENABLED = 0, 1, 2, 3, 4, 5, 6, 7, 8
 I_KEEP_DIRECTION, I_SLEW, I_WALL, I_GEOM1, I_GEOM2, I_NCON, I_CONTACT, I_STRIDE = 9, 10, 11, 12, 13, 14, 15, 16
 I_POS, I_FRAME, I_G1, I_G2, I_EFC, I_HAND, I_JAC_SCALE, I_NV = 17, 18, 19, 20, 21, 22, 23, 24
-I_SIZE = 25
-F_LIMIT, F_MU, F_SCALE, F_FORCE_SCALE, F_K_HAND, F_B_HAND = 0, 1, 2, 3, 4, 5
-F_SIZE = 6
+# I_LAW: the side's stabilizer, LAW_EBA (the pooled reservoir bound) or TDPA's pooled step with its
+# controller (core/tdpa_coupled.py: `coupled_tdpa`); its energy rides last on the side's samples.
+I_LAW = 25
+I_SIZE = 26
+LAW_EBA, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH = 0, 1, 2
+F_LIMIT, F_MU, F_SCALE, F_FORCE_SCALE, F_K_HAND, F_B_HAND, F_E0, F_REFLECT = 0, 1, 2, 3, 4, 5, 6, 7
+F_SIZE = 8
 S_ENERGY, S_HAS_LAST, S_HAS_REMOTE, S_HAS_HOLD, S_RATIO, S_REJECTED, S_SCALE, S_LIMITED = 0, 1, 2, 3, 4, 5, 6, 7
-S_SIZE = 8
+# TDPA's state (core/tdpa_coupled.TDPA_EXTRA, in its order) from S_EXTRA on
+S_EXTRA = 8
+S_SIZE = 13
 
 
 @inline  # type: ignore[misc]
@@ -276,6 +284,21 @@ def side_torque(
         if limited[i] != tau[i]:
             S[S_LIMITED] += 1.0
             break
+    if iv[I_LAW] != LAW_EBA:  # CoupledTdpaBound.step: the bound's range, then `coupled_tdpa`
+        joint_limited(lo, limited, blow, bhigh, True)
+        for i in range(n):
+            tmp[i] = 0.0
+        X = S_EXTRA
+        S[X], S[X + 1], S[X + 3], S[S_ENERGY], S[X + 4], S[S_SCALE] = coupled_tdpa(
+            out, lo, q, last_q, held, dq, tmp, S[X], S[X + 1], S[X + 2], S[X + 3], S[S_HAS_LAST] != 0.0,
+            gain, bound_gain, F[F_E0], F[F_REFLECT], iv[I_LAW] == LAW_TDPA_ZOH, iv[I_ENABLED] != 0, blow, bhigh,
+        )  # fmt: skip
+        S[S_HAS_LAST] = 1.0
+        tt = dot(tau, tau)
+        ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
+        sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
+        S[S_RATIO] = ratio * sat
+        return
     # CoupledEnergyBound.step
     if S[S_HAS_LAST] != 0.0:
         for i in range(n):
@@ -329,6 +352,8 @@ def guarded(side: Any, sample: np.ndarray) -> None:
     for i in range(lim.shape[0]):
         remote[i] = sample[i]
     S[S_HAS_REMOTE] = 1.0
+    if side[T_I][I_LAW] != LAW_EBA:  # TDPA: the remote side's input energy, last (CoupledTdpaBound.receive)
+        S[S_EXTRA + 2] = received1(S[S_EXTRA + 2], sample[lim.shape[0] - 1])
 
 
 def work_arrays(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:

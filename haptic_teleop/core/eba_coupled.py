@@ -319,6 +319,7 @@ class CoupledBoundState:
     last_q_rad: npt.NDArray[np.float64]
     has_last: bool
     scale: float
+    extra: tuple[float, ...] = ()  # another law's state (TDPA's: core/tdpa_coupled.TDPA_EXTRA)
 
 
 class CoupledEnergyBound:

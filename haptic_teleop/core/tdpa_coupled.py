@@ -17,10 +17,11 @@ The controllers act on the limited torque vector:
   release is W; then the motors' room. One joint goes through `velocity_pc1`, the one-axis rule,
   bit for bit.
 
-`CoupledTdpaBound` has the interface of `core.eba_coupled.CoupledEnergyBound` that the Python arm
-tick uses on a simulated arm (`step`, `applied`, `held`, `energy_j`, `scale`; a real arm's late-tick
-`stretch` is not needed: TDPA is refused on real arms); the
-compiled arm loop runs EBA's bound only and falls back to Python for it (docs/performance.md).
+`coupled_tdpa` is one side's whole step over arrays and floats, composed of those rules;
+`CoupledTdpaBound` (the interface of `core.eba_coupled.CoupledEnergyBound` that the Python arm
+tick uses on a simulated arm: `step`, `applied`, `held`, `energy_j`, `scale`, `constants`,
+`state`/`set_state`; a real arm's late-tick `stretch` is not needed: TDPA is refused on real arms)
+calls it, and the compiled arm loop (assembly/side_kernel.py) compiles the same function.
 """
 
 from __future__ import annotations
@@ -33,12 +34,20 @@ import numpy as np
 import numpy.typing as npt
 
 from haptic_teleop.core.eba_coupled import (
+    CoupledBoundConstants,
+    CoupledBoundState,
     CoupledEnergyBoundParams,
     coupled_bounded,
     coupled_reservoir,
     joint_limited,
 )
-from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, reflected1, velocity_pc1
+from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, received1, reflected1, velocity_pc1
+
+# What a side's pooled TDPA carries beyond EBA's bound state (`CoupledBoundState.extra`, in this
+# order): its observed input and output energy, the remote side's input energy it received, the
+# damping credit (zoh), what its samples carry.
+TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j")
+Vec = npt.NDArray[np.float64]
 
 
 def joint_power(held: npt.NDArray[np.float64], dq: npt.NDArray[np.float64]) -> float:
@@ -90,6 +99,48 @@ def velocity_scaled(
     return beta
 
 
+def coupled_tdpa(
+    out: Vec, limited: Vec, q: Vec, last_q: Vec, held: Vec, dq: Vec, zero: Vec,
+    energy_in: float, energy_out: float, remote_in: float, credit: float, has_last: bool,
+    gain: Vec, bound_gain: Vec, initial_energy: float, reflection: float, zoh: bool, enabled: bool,
+    low: Vec, high: Vec,
+) -> tuple[float, float, float, float, float, float]:  # fmt: skip
+    """One side's pooled TDPA step (module docstring; `CoupledTdpaBound.step`): observe the hold
+    that ended at q (`held` over q - last_q: E_in, E_out; with "zoh" the damping credit), the
+    budget W = E0 + remote E_in - E_out (+ credit; a reflected part kept), then the controller on
+    `limited` (the torque already within [low, high]) into `out`, which becomes `held`. `zero`:
+    n zeros (the credit is the reservoir's with no torque). Returns (E_in, E_out, credit, W, what
+    the samples carry, the controller's factor: zoh's scale, velocity's beta, 1 when disabled)."""
+    n = q.shape[0]
+    if has_last:
+        for i in range(n):
+            dq[i] = q[i] - last_q[i]
+        energy_in, energy_out = book1(energy_in, energy_out, joint_power(held, dq))
+        if zoh:
+            credit = coupled_reservoir(credit, gain, zero, dq)
+    else:
+        for i in range(n):
+            dq[i] = 0.0
+    for i in range(n):
+        last_q[i] = q[i]
+    w = initial_energy + remote_in - energy_out + credit
+    if reflection > 0.0:
+        w, sent = reflected1(w, energy_in, reflection)
+    else:
+        sent = energy_in
+    if not enabled:
+        for i in range(n):
+            out[i] = limited[i]
+        factor = 1.0
+    elif zoh:
+        factor = coupled_bounded(out, limited, w if w > 0.0 else 0.0, bound_gain)
+    else:
+        factor = velocity_scaled(out, limited, w, dq, low, high)
+    for i in range(n):
+        held[i] = out[i]
+    return energy_in, energy_out, credit, w, sent, factor
+
+
 class CoupledTdpaBound:
     """One side's pooled TDPA (module docstring): `step(q, tau)` observes the hold that ended at q
     and controls the next torque; `applied`/`held` book what the motors really applied; `receive`
@@ -137,13 +188,36 @@ class CoupledTdpaBound:
         self.beta = 0.0  # "velocity": the damper it added along the motion (0: none), N m s/rad per T
         k = kernels or {}
         self._f_limited = k.get("joint_limited", joint_limited)
-        self._f_bounded = k.get("coupled_bounded", coupled_bounded)
-        self._f_reservoir = k.get("coupled_reservoir", coupled_reservoir)
+        self._f_step = k.get("coupled_tdpa", coupled_tdpa)
 
     def receive(self, energy_in_j: float) -> None:
         """The remote side's cumulative input energy from the newest accepted sample (only grows:
         an older sample released later keeps the larger value)."""
-        self.remote_in_j = max(self.remote_in_j, energy_in_j)
+        self.remote_in_j = received1(self.remote_in_j, energy_in_j)
+
+    def constants(self) -> CoupledBoundConstants:
+        """The per-joint constants the step uses (copies), as `CoupledEnergyBound.constants`."""
+        return CoupledBoundConstants(
+            self._gain.copy(), self._bound_gain.copy(), self._low.copy(), self._high.copy(), True, None
+        )
+
+    def state(self) -> CoupledBoundState:
+        """The state the next `step` goes on from (copies; `extra`: TDPA_EXTRA's values)."""
+        extra = (self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j)
+        scale = self.scale if self._zoh else self.beta
+        return CoupledBoundState(self.energy_j, self.held.copy(), self._last_q.copy(), self._has_last, scale, extra)
+
+    def set_state(self, state: CoupledBoundState) -> None:
+        """Restore the state (after a loop that ran this ledger elsewhere: the compiled arm loop)."""
+        self.energy_j = state.energy_j
+        self.held[:] = state.held_nm
+        self._last_q[:] = state.last_q_rad
+        self._has_last = state.has_last
+        if self._zoh:
+            self.scale = state.scale
+        else:
+            self.beta = state.scale
+        self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j = state.extra
 
     def step(
         self,
@@ -152,35 +226,23 @@ class CoupledTdpaBound:
         low: npt.NDArray[np.float64] | None = None,
         high: npt.NDArray[np.float64] | None = None,
     ) -> npt.NDArray[np.float64]:
-        dq = self._dq
-        if self._has_last:
-            np.subtract(q, self._last_q, out=dq)
-            self.energy_in_j, self.energy_out_j = book1(self.energy_in_j, self.energy_out_j, joint_power(self.held, dq))
-            if self._zoh:
-                self.credit_j = self._f_reservoir(self.credit_j, self._gain, self._zero, dq)
-        else:
-            dq[:] = 0.0
-            self._has_last = True
-        self._last_q[:] = q
-        w = self.params.initial_energy_j + self.remote_in_j - self.energy_out_j + self.credit_j
-        if self.reflection > 0.0:
-            w, self.sent_j = reflected1(w, self.energy_in_j, self.reflection)
-        else:
-            self.sent_j = self.energy_in_j
-        self.energy_j = w
         lo = self._low if low is None else low
         hi = self._high if high is None else high
         self._f_limited(self._limited, tau_desired, lo, hi, True)
-        out = self._out
+        e_in, e_out, credit, w, sent, factor = self._f_step(
+            self._out, self._limited, q, self._last_q, self.held, self._dq, self._zero, self.energy_in_j,
+            self.energy_out_j, self.remote_in_j, self.credit_j, self._has_last, self._gain, self._bound_gain,
+            self.params.initial_energy_j, self.reflection, self._zoh, self.params.enabled, lo, hi,
+        )  # fmt: skip
+        self._has_last = True
+        self.energy_in_j, self.energy_out_j, self.credit_j, self.energy_j, self.sent_j = e_in, e_out, credit, w, sent
         if not self.params.enabled:
-            out[:] = self._limited
             self.scale = 1.0
         elif self._zoh:
-            self.scale = self._f_bounded(out, self._limited, w if w > 0.0 else 0.0, self._bound_gain)
+            self.scale = factor
         else:
-            self.beta = velocity_scaled(out, self._limited, w, dq, lo, hi)
-        self.held[:] = out
-        return out
+            self.beta = factor
+        return self._out
 
     def applied(self, tau: npt.NDArray[np.float64]) -> None:
         """The torque the motors really applied over the hold after the last `step`."""

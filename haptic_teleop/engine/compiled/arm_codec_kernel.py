@@ -145,7 +145,7 @@ def arm_codec_forward(run: Any, f: Any, t: int, n: int, n1: int) -> tuple[int, f
     net, has_codec, period_ns, smp, rate, dec, sched = f
     if not has_codec:
         return arm_schedule_forward(run, sched, t, n, n1)
-    forward_sample(smp, run[8])
+    forward_sample(smp, run[8], run[0])
     return codec_delivered(run[1], net, n, n1, n * period_ns, smp, rate, dec), 0.0
 
 
@@ -154,7 +154,7 @@ def arm_codec_backward(run: Any, b: Any, t: int, n: int, n1: int) -> tuple[int, 
     net, has_codec, period_ns, smp, rate, dec, sched = b
     if not has_codec:
         return arm_schedule_backward(run, sched, t, n, n1)
-    backward_sample(smp, run[8])
+    backward_sample(smp, run[8], run[1])
     return codec_delivered(run[0], net, n, n1, n * period_ns, smp, rate, dec), 0.0
 
 

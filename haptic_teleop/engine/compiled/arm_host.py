@@ -8,8 +8,9 @@ the split step gives the bits of `mj_step` for the Euler and implicit integrator
 address and count are fields of mjData, whose offsets (and mjContact's) are laid out by C's rules
 from `mujoco.introspect`, MuJoCo's description of its headers, and checked against what the
 bindings read on a probe model before use (`contact_layout`). The
-task-space law, J^T F, the null-space damping, the pooled joint bound and the operator are the
-functions of `core` compiled from their one definition (`compiling.compile_tree`).
+task-space law, J^T F, the null-space damping, the pooled joint bound (EBA's, or TDPA's step with
+its zoh controller, `core.tdpa_coupled.coupled_tdpa`) and the operator are the functions of `core`
+compiled from their one definition (`compiling.compile_tree`).
 
 The network is the 1-DoF loop's: `axis_host.schedule` decides, window by window, which sequence
 number each buffer releases at each tick (nothing it decides depends on what packets carry); the
@@ -100,6 +101,7 @@ def compiled_reason_arm(
     """Why the arm scene cannot run in the compiled loop, or None if it can. `period_s`: the
     scene's period (a side whose bound runs at another period ticks in the Python loop only)."""
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
 
@@ -113,8 +115,13 @@ def compiled_reason_arm(
             return f"{role}: plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
         if side.law.params.law != "position":
             return f"{role}: task law {side.law.params.law!r} (compiled: position)"
-        if type(side.bound) is not CoupledEnergyBound:
-            return f"{role}: stabilizer tdpa (compiled: EBA's reservoir bound)"
+        bound = side.bound
+        if type(bound) is CoupledTdpaBound and bound.controller == "velocity":
+            # its damper along the motion makes a torque that is no scaled copy of the desired one:
+            # the row's rendered force is solved for by least squares (side.SideTick.rendered)
+            return f"{role}: TDPA's velocity controller (compiled: EBA's bound, TDPA's zoh controller)"
+        if type(bound) not in (CoupledEnergyBound, CoupledTdpaBound):
+            return f"{role}: stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA's zoh controller)"
     profile = parts.operator.constants().profile
     if profile not in PROFILE_CODES:
         return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"
@@ -252,6 +259,7 @@ class CompiledArm:
         """Ticks from 0 until the scene's end or a stop into `output` (the engine's output.Output built
         on the directions' `settled`); returns the ticks done. `nets`: each direction's
         `arm_codec_nets` (with a codec, that direction's schedule, fwd or bwd, is None)."""
+        from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
         from haptic_teleop.engine.compiled import axis_host
         from haptic_teleop.engine.compiled.windows import run_windows
 
@@ -266,5 +274,7 @@ class CompiledArm:
             w0, tail = network[-2:]
             run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, *network[:-2], block, w0, output.start, *tail)
 
-        rings = axis_host.Rings((6, 9))
+        # the payloads' widths: x, v forward; x, v, f backward; with TDPA the sender's energy last
+        extra = 1 if isinstance(self.parts.master.bound, CoupledTdpaBound) else 0
+        rings = axis_host.Rings((6 + extra, 9 + extra))
         return run_windows(engine, call, (fwd, bwd), nets, rings, output, window, progress, np.zeros((3, 9)))

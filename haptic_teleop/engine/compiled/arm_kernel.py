@@ -20,11 +20,14 @@ from haptic_teleop.assembly.side_kernel import (
     F_K_HAND,
     F_SCALE,
     I_DATA,
+    I_LAW,
     I_MODEL,
     I_N,
     I_NV,
     I_ROTATIONAL,
+    LAW_EBA,
     S_ENERGY,
+    S_EXTRA,
     S_RATIO,
     T_F,
     T_FORCE,
@@ -155,22 +158,28 @@ def sense(ms: Any, ss: Any, mw: Any, sw: Any, v: Any, c: Any) -> None:
 
 
 @inline  # type: ignore[misc]
-def forward_sample(out: np.ndarray, v: Any) -> None:
-    """The forward packet's payload: the master's x, v in the task frame."""
+def forward_sample(out: np.ndarray, v: Any, ms: Any) -> None:
+    """The forward packet's payload: the master's x, v in the task frame; with TDPA its pooled
+    input energy last (ArmSideStage.tick)."""
     x, vel = v[V_XM], v[V_VM]
     for k in range(3):
         out[k] = x[k]
         out[3 + k] = vel[k]
+    if ms[T_I][I_LAW] != LAW_EBA:
+        out[6] = ms[T_S][S_EXTRA + 4]
 
 
 @inline  # type: ignore[misc]
-def backward_sample(out: np.ndarray, v: Any) -> None:
-    """The backward packet's payload: the slave's x, v and the wall's force."""
+def backward_sample(out: np.ndarray, v: Any, ss: Any) -> None:
+    """The backward packet's payload: the slave's x, v and the wall's force; with TDPA its pooled
+    input energy last."""
     x, vel, f = v[V_XS], v[V_VS], v[V_F_ENV]
     for k in range(3):
         out[k] = x[k]
         out[3 + k] = vel[k]
         out[6 + k] = f[k]
+    if ss[T_I][I_LAW] != LAW_EBA:
+        out[9] = ss[T_S][S_EXTRA + 4]
 
 
 @inline  # type: ignore[misc]
@@ -311,14 +320,14 @@ def arm_slave(run: Any, t: int) -> int:
 @inline  # type: ignore[misc]
 def arm_schedule_forward(run: Any, f: Any, t: int, n: int, n1: int) -> tuple[int, float]:
     rel, occ, hist, mask, w0 = f
-    forward_sample(hist[n & mask], run[8])
+    forward_sample(hist[n & mask], run[8], run[0])
     return released(run[1], rel[n - w0], hist, mask), occ[n - w0]
 
 
 @inline  # type: ignore[misc]
 def arm_schedule_backward(run: Any, b: Any, t: int, n: int, n1: int) -> tuple[int, float]:
     rel, occ, hist, mask, w0 = b
-    backward_sample(hist[n & mask], run[8])
+    backward_sample(hist[n & mask], run[8], run[1])
     return released(run[0], rel[n - w0], hist, mask), occ[n - w0]
 
 
