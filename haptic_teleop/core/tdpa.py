@@ -190,8 +190,7 @@ class TdpaBound:
             self._last[i], self._has_last, x, force, self.params.initial_energy_j, self._gain[i],
             self._bound_gain[i], self._reflect, self._zoh, self._enabled, self.cap_n,
         )  # fmt: skip
-        if self._reflect > 0.0:
-            self.sent_j[i] = sent
+        self.sent_j[i] = sent  # (without reflection `sent_j` is `energy_in_j` itself: the same value)
         self._last[i] = x
         self.energy_j[i] = w
         self._held[i] = force

@@ -204,8 +204,8 @@ class CoupledTdpaBound:
     def state(self) -> CoupledBoundState:
         """The state the next `step` goes on from (copies; `extra`: TDPA_EXTRA's values)."""
         extra = (self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j)
-        scale = self.scale if self._zoh else self.beta
-        return CoupledBoundState(self.energy_j, self.held.copy(), self._last_q.copy(), self._has_last, scale, extra)
+        q = self._last_q.copy()
+        return CoupledBoundState(self.energy_j, self.held.copy(), q, self._has_last, self.scale, extra)
 
     def set_state(self, state: CoupledBoundState) -> None:
         """Restore the state (after a loop that ran this ledger elsewhere: the compiled arm loop)."""
@@ -213,10 +213,7 @@ class CoupledTdpaBound:
         self.held[:] = state.held_nm
         self._last_q[:] = state.last_q_rad
         self._has_last = state.has_last
-        if self._zoh:
-            self.scale = state.scale
-        else:
-            self.beta = state.scale
+        self.scale = state.scale  # (the velocity controller's beta is not carried: it runs in Python only)
         self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j = state.extra
 
     def step(
