@@ -3,12 +3,17 @@ on a short run, the ordering its numbers must show, and one-line argument errors
 
 from __future__ import annotations
 
+import argparse
 import csv
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from haptic_teleop.core.link import DELIVERED, LOST_LATE, Packet
+from haptic_teleop.studies.replications import codec
 
 CLI = [sys.executable, "-m", "haptic_teleop.cli", "experiment", "hli-filtering"]
 
@@ -127,3 +132,95 @@ def test_error_control_bad_arguments_are_one_line_exit_2(tmp_path: Path, argv: l
     assert r.returncode == 2
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def _args(**kw: object) -> argparse.Namespace:
+    """The experiments' defaults (their parsers), a short run."""
+    p = argparse.ArgumentParser()
+    codec.add_error_control_arguments(p)
+    args = p.parse_args(["--duration-s", "3"])
+    for k, v in kw.items():
+        setattr(args, k.replace("-", "_"), v)
+    return args
+
+
+def _fates(packets: list[Packet]) -> list[tuple[object, ...]]:
+    """Each packet as the bag's records keep it: the arrival time only of one that arrived."""
+    arrived = (DELIVERED, LOST_LATE)
+    return [
+        (
+            p.seq,
+            p.send_time_ns,
+            p.payload,
+            p.size_bytes,
+            p.fate,
+            p.duplicate,
+            p.arrival_time_ns if p.fate in arrived else None,
+        )
+        for p in packets
+    ]
+
+
+@pytest.mark.parametrize("scheme", ["arq", "hli"])
+def test_a_run_read_back_from_its_bag_is_the_run_and_gives_the_same_table_row(tmp_path: Path, scheme: str) -> None:
+    """write_bag then read_bag returns the run as simulated: the server's and the played object
+    every tick, every packet of both links with its fate and payload, the latency; so the table's
+    row computed from the bag is the in-memory one, bit for bit."""
+    from haptic_teleop.core.arq import SEED_000_EXPERIMENT
+    from haptic_teleop.studies.replications.codec_bags import read_bag, write_bag
+
+    args = _args()
+    if scheme == "arq":
+        arq = SEED_000_EXPERIMENT[0]
+        made = codec.event_codec(args, "arq", timeout_s=arq.timeout_s, max_retransmissions=arq.max_retransmissions)
+    else:
+        made = codec.hli(args)
+    (pair, extra) = made
+    ran = codec.simulate(scheme, pair, args, codec._delay_ticks(args) + extra)
+    assert ran.forward and (ran.reverse or scheme == "hli")
+    write_bag(tmp_path / "bag", ran, "error-control", {"duration_s": 3.0})
+    back, facts = read_bag(tmp_path / "bag")
+    assert facts["experiment"] == "error-control" and facts["arguments"] == {"duration_s": 3.0}
+    assert back.label == scheme and back.latency_ticks == ran.latency_ticks
+    np.testing.assert_array_equal(back.t_s, ran.t_s)
+    np.testing.assert_array_equal(back.object_m, ran.object_m)
+    np.testing.assert_array_equal(back.played_m, ran.played_m)
+    assert _fates(back.forward) == _fates(ran.forward) and _fates(back.reverse) == _fates(ran.reverse)
+    assert codec.row(back, present=True) == codec.row(ran, present=True)
+
+
+def test_the_bags_are_standard_rosbag2_that_an_independent_reader_opens(tmp_path: Path) -> None:
+    """rosbags (not this package's reader) opens a scheme's bag: standard message types, one
+    /server/object message per tick, /client/object's effort is k times the played penetration,
+    and the packet records count what the table says went on the wire."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    out = tmp_path / "e"
+    r = subprocess.run(
+        [*EC_CLI, "--out", str(out), "--duration-s", "3", "--fec-wait-s", "0", "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    with (out / "error_control.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    bags = sorted((out / "bags").iterdir())
+    assert [b.name[:2] for b in bags] == [f"{i:02d}" for i in range(1, len(rows) + 1)]
+    arq = next(b for b in bags if "arq_mu_25" in b.name)
+    row = next(x for x in rows if x["scheme"].startswith("+ ARQ (mu = 25"))
+    counts: dict[str, int] = {}
+    with AnyReader([arq], default_typestore=get_typestore(Stores.LATEST)) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert set(types.values()) <= {
+            "sensor_msgs/msg/JointState", "std_msgs/msg/String", "std_msgs/msg/Float64MultiArray"
+        }  # fmt: skip
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] = counts.get(conn.topic, 0) + (
+                len(msg.data) // 6 if conn.topic.endswith("/packets") else 1
+            )
+            if conn.topic == "/client/object":
+                assert msg.effort[0] == pytest.approx(100.0 * max(0.0, -msg.position[0]), abs=1e-12)
+    assert counts["/server/object"] == 3000
+    assert counts["/forward/packets"] == counts["/forward/sent"] == round(float(row["packets/s"]) * 3)
+    assert counts["/backward/packets"] == counts["/backward/sent"] > 0

@@ -250,6 +250,7 @@ def nve_topic_specs(schema: NveSchema) -> dict[str, TopicSpec]:
 ENERGY_JOINT = "energy_in_j"
 
 
+@lru_cache(maxsize=64)
 def joint_state_size(floats: int, axes: int = 1, energy: bool = False) -> int:
     """CDR size in bytes of a packet's JointState: one name per task axis, `floats` of
     position/velocity/effort per axis; `energy`: with TDPA's second joint (ENERGY_JOINT)."""

@@ -19,7 +19,15 @@ from haptic_teleop.record.columns import (
     TickSchema,
     measured_topic,
 )
-from haptic_teleop.record.layouts import PACKET_FIELDS, STRING, TopicSpec, nve_topic_specs, topic_specs, typestore
+from haptic_teleop.record.layouts import (
+    PACKET_FIELDS,
+    STRING,
+    FixedLayout,
+    TopicSpec,
+    nve_topic_specs,
+    topic_specs,
+    typestore,
+)
 from haptic_teleop.record.nve_columns import TWIST, NveSchema, nve_schema_from_topics
 
 
@@ -286,6 +294,32 @@ class BagReader:
 
     def has(self, topic: str) -> bool:
         return topic in self.topics
+
+    def messages(self, topic: str) -> list[tuple[int, bytes]]:
+        """Every message of `topic` as (log time [ns], CDR bytes), in log time order."""
+        return list(self._raw(topic))
+
+    def fixed(self, topic: str, layout: FixedLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Log times [ns], values (N, layout.nfloats) and stamps [ns] (None without a header) of a
+        topic whose every message has `layout`'s size (a BagError names the topic if one does not)."""
+        log, payloads = self._messages(topic)
+        if not isinstance(payloads, np.ndarray):
+            sizes = {len(p) for p in payloads}
+            if sizes - {layout.size}:
+                raise BagError(
+                    f"{self.path}: {topic}: messages of {sorted(sizes)} bytes; this reader takes {layout.size} "
+                    f"({layout.msgtype} with {layout.nfloats} values)"
+                )
+            payloads = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(len(log), layout.size)
+        elif payloads.size and payloads.shape[1] != layout.size:
+            raise BagError(
+                f"{self.path}: {topic}: messages of {payloads.shape[1]} bytes; this reader takes {layout.size} "
+                f"({layout.msgtype} with {layout.nfloats} values)"
+            )
+        if not len(log):
+            return log, np.zeros((0, layout.nfloats)), None
+        values, stamps = layout.decode(np.asarray(payloads))
+        return log, values, stamps
 
     @property
     def schema(self) -> TickSchema:

@@ -23,20 +23,17 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
+from haptic_teleop.studies.replications.codec_run import PERIOD_NS, PERIOD_S, Result, object_position_m
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
-
-PERIOD_NS = 1_000_000
-PERIOD_S = PERIOD_NS * 1e-9
-UDP_IP_HEADER_BYTES = 28  # IPv4 20 + UDP 8: a compact wire (the sample as float64s, no middleware)
 
 ERROR_CONTROL_HELP = (
     "seed 000's experiment: peak force error over a 20 % lossy link of prediction-based filtering alone, "
@@ -46,34 +43,6 @@ FILTERING_HELP = (
     "seed 000's simulation: priority-based (HLI) filtering under an allowed bandwidth against deadband "
     "filtering at 0.7 and 2.5 mm, over a 20 % lossy link: wire rate and force error; plot, CSV, table"
 )
-
-
-@dataclass
-class Result:
-    """One scheme's run: the played and true forces, what went on the wire, the decoder's latency."""
-
-    label: str
-    t_s: np.ndarray
-    force_n: np.ndarray  # from the reconstructed object (NaN before the first)
-    true_n: np.ndarray  # from the true object at the played tick
-    packets: int  # data packets the sender put on the wire
-    ros_bytes: int  # with each packet's message size and the IPv4 + UDP + RTPS headers
-    compact_bytes: int  # the payload as float64s plus IPv4 + UDP headers
-    reverse_packets: int  # acknowledgements (ARQ)
-    reverse_ros_bytes: int
-    latency_ticks: int
-    present_n: np.ndarray | None = None  # from the true object one link delay ago (the codec's own latency is error)
-
-
-def object_position_m(t_s: np.ndarray, period_s: float) -> np.ndarray:
-    """The object's surface: from 0 to -0.1 m and back, a raised cosine of `period_s`."""
-    return -0.05 * (1.0 - np.cos(2.0 * math.pi * t_s / period_s))
-
-
-def force_n(x_obj_m: np.ndarray, stiffness_n_per_m: float) -> np.ndarray:
-    """The device at 0 inside the object whose surface is at x_obj <= 0: F = k max(0, -x_obj)."""
-    out: np.ndarray = stiffness_n_per_m * np.maximum(0.0, -x_obj_m)
-    return out
 
 
 def _links(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -104,27 +73,19 @@ def simulate(
     progress: Callable[[int], None] | None = None,
 ) -> Result:
     """The object's stream through one codec over the lossy link, tick by tick."""
-    from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES
-
     enc, dec = codec
     link, back = _links(args)
     n_ticks = round(args.duration_s / PERIOD_S)
     t = np.arange(n_ticks) * PERIOD_S
     x = object_position_m(t, args.object_period_s)
     played = np.full(n_ticks, math.nan)
-    packets = ros = compact = rpackets = rros = 0
     for n in range(n_ticks):
         now = n * PERIOD_NS
         for p in enc.send(n, now, (float(x[n]),)):
             link.send(p)
-            packets += 1
-            ros += p.size_bytes + DEFAULT_OVERHEAD_BYTES
-            compact += 8 * len(p.payload) + UDP_IP_HEADER_BYTES
         for p in link.deliver(now):
             for ack in dec.receive(p, now):
                 back.send(ack)
-                rpackets += 1
-                rros += ack.size_bytes + DEFAULT_OVERHEAD_BYTES
         for a in back.deliver(now):
             enc.feedback(a, now)
         s = dec.sample(n, now)
@@ -132,26 +93,7 @@ def simulate(
             played[n] = s[0]
         if progress is not None and n % 1000 == 999:
             progress(1000)
-    lag = latency_ticks
-    true_x = np.full(n_ticks, math.nan)
-    true_x[lag:] = x[: n_ticks - lag]
-    d = min(_delay_ticks(args), lag)
-    present_x = np.full(n_ticks, math.nan)
-    present_x[d:] = x[: n_ticks - d]
-    k = args.stiffness_n_per_m
-    return Result(
-        label,
-        t,
-        force_n(played, k),
-        force_n(true_x, k),
-        packets,
-        ros,
-        compact,
-        rpackets,
-        rros,
-        lag,
-        force_n(present_x, k),
-    )
+    return Result(label, t, x, played, args.stiffness_n_per_m, latency_ticks, _delay_ticks(args), link.log, back.log)
 
 
 def _size_of(floats: int) -> int:
@@ -222,13 +164,13 @@ def event_codec(args: argparse.Namespace, error_control: str, **kw: Any) -> tupl
     return (enc, dec), dec.delay_ticks
 
 
-def _row(r: Result, args: argparse.Namespace, warmup_s: float = 1.0, present: bool = False) -> list[Any]:
+def row(r: Result, warmup_s: float = 1.0, present: bool = False) -> list[Any]:
+    """One line of the table (HEADER, and PRESENT_HEADER's two with `present`), from the run alone."""
     w = (r.t_s >= warmup_s) & np.isfinite(r.force_n) & np.isfinite(r.true_n)
     e = r.force_n[w] - r.true_n[w]
-    dur = args.duration_s
+    dur = r.t_s.size * PERIOD_S
     extra: list[Any] = []
     if present:
-        assert r.present_n is not None
         ep = r.force_n[w] - r.present_n[w]
         extra = [rms(ep), float(np.max(np.abs(ep))) if len(ep) else math.nan]
     return [
@@ -270,18 +212,29 @@ def _run_all(
         from tqdm import tqdm
 
         bar = tqdm(total=n_ticks * len(cases), unit="tick", unit_scale=True, desc=name, leave=False, file=sys.stderr)
+    from haptic_teleop.studies.replications.codec_bags import read_bag, slug, write_bag
+
+    plain = {k: v for k, v in sorted(vars(args).items()) if v is None or isinstance(v, (bool, int, float, str))}
     results = []
     try:
-        for label, make in cases:
+        for i, (label, make) in enumerate(cases, start=1):
             built = make(args)
             if isinstance(built, tuple) and len(built) == 2 and isinstance(built[1], int):
                 codec, extra = built
             else:
                 codec, extra = built, 0
-            results.append(simulate(label, codec, args, _delay_ticks(args) + extra, bar.update if bar else None))
+            ran = simulate(label, codec, args, _delay_ticks(args) + extra, bar.update if bar else None)
+            # the table is computed from the bag read back: every figure can be checked from data
+            bag = out / "bags" / slug(i, label)
+            write_bag(bag, ran, name, plain)
+            results.append(read_bag(bag)[0])
+            if args.discard_bags:
+                shutil.rmtree(bag)
     finally:
         if bar is not None:
             bar.close()
+    if args.discard_bags and (out / "bags").is_dir():
+        (out / "bags").rmdir()
     return results, out
 
 
@@ -317,7 +270,7 @@ def _finish(
 ) -> int:
     """CSV, markdown and plot; `present`: two more columns, the force error against the object one
     link delay ago (the codec's added latency counted as error)."""
-    rows = [_row(r, args, present=present) for r in results]
+    rows = [row(r, present=present) for r in results]
     header = HEADER + PRESENT_HEADER if present else HEADER
     write_csv(out / f"{name}.csv", header, rows)
     table = markdown(header, rows) + "\n" + peak_ranking(rows) + "\n"
@@ -359,6 +312,7 @@ def add_common_arguments(p: argparse.ArgumentParser, name: str) -> None:
     )
     p.add_argument("--filtering", choices=("sequential", "alternate"), default="sequential")
     p.add_argument("--plot-window-s", type=number(0.1, 3600.0), default=2.0, help="seconds shown in the plot")
+    p.add_argument("--discard-bags", action="store_true", help="read each scheme's bag for the table, then delete it")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
