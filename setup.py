@@ -99,6 +99,7 @@ setup(
             *HARDWARE,  # the backends are tested against emulators through the real SDKs
             *SWEEP,  # sweeps on a local Dask cluster, the Parquet table (test/test_sweep_scale.py)
             "pytest>=8.0",
+            "pytest-xdist>=3.5,<4",  # the suite on two workers, real-time tests on one (test/conftest.py)
             "mkdocs>=1.6,<2",  # test/test_docs_site.py builds the docs site and checks every page, link and image
             "websockets>=13",  # test/foxglove_client.py: the Foxglove WebSocket protocol's client side (sync API)
             "hypothesis>=6.100",

@@ -1,10 +1,14 @@
-"""Test environment: DDS stays on this host, each test module gets its own ROS domain."""
+"""Test environment: DDS stays on this host, each test module gets its own ROS domain, and the suite
+runs on two pytest-xdist workers with every real-time test on one of them (docs/development.md,
+"Tests")."""
 
 import itertools
 import os
 import subprocess
 import sys
 import tempfile
+import zlib
+from pathlib import Path
 
 import pytest
 from shm_clean import remove_stale
@@ -14,9 +18,63 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 _USER_DOMAIN = os.environ.get("ROS_DOMAIN_ID")
 # Domains 1 to 100: their DDS ports stay below Linux's ephemeral range (32768 and up), where a
 # participant's port could be taken by another socket (ROS 2's domain-ID guidance: 0 to 101).
-_SESSION = 1 + os.getpid() % 100
-_MODULES = itertools.count()
+# Under pytest-xdist the workers share one base (from the run's id) and worker w of W takes the
+# domains that are w modulo W, so two workers never share a domain (W dividing 100: -n 2 does).
+_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+_WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+_RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+_BASE = (zlib.crc32(_RUN_ID.encode()) if _RUN_ID else os.getpid()) % 100
+
+
+def _domain(k: int) -> int:
+    """The k-th ROS domain of this worker: 1 to 100, congruent to the worker's index modulo W."""
+    return 1 + (_BASE - _BASE % _WORKERS + k * _WORKERS + _WORKER) % 100
+
+
+_SESSION = _domain(0)
+_MODULES = itertools.count(1)
 os.environ.setdefault("ROS_DOMAIN_ID", str(_SESSION))
+
+# Modules whose tests run against a real-time clock: live ROS 2 launches (their loops ask for
+# SCHED_FIFO), the UR emulator's 1 kHz session (one at a time per host: its fixed ports), clocked
+# device emulators, signals timed against a running command. Under pytest-xdist they form one work
+# unit, run one after another on one worker, so no two of them compete for the two cores (a live
+# launch beside the UR emulator starved its 1 kHz loop once); the other worker runs the rest, a
+# module at a time (its module-scoped fixtures built once).
+REALTIME = {
+    "test_cli_entry.py",
+    "test_foxglove_view.py",
+    "test_launch_files.py",
+    "test_launch_lifetime.py",
+    "test_node_entry.py",
+    "test_two_hosts.py",
+    "test_engine_sessions.py",
+    "test_late_holds_emulated.py",
+    "test_ur_driver.py",
+    "test_ur_emulator.py",
+    "test_ur_modes.py",
+}
+
+
+def realtime(module: Path) -> bool:
+    return module.name in REALTIME or module.name.startswith("test_live")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """The work units under `-n N` (whatever `--dist` says): the REALTIME modules are one unit,
+    every other module a unit of its own. (pytest-xdist's own `loadgroup` does not group under
+    pytest 9.2: it renames `item._nodeid`, which pytest 9.2 no longer reads. The unit is chosen
+    by `_split_scope`, LoadScopeScheduling's hook for subclasses: pytest-xdist < 4 in setup.py.)
+    Units go out largest first (by tests): the real-time one, about half the suite's time."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class RealtimeApart(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return "realtime" if realtime(Path(module)) else module
+
+    return RealtimeApart(config, log)
 
 
 _COMPILE: list[subprocess.Popen] = []
@@ -39,6 +97,8 @@ def pytest_sessionstart(session):
 
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    if hasattr(session.config, "workerinput"):
+        return  # an xdist worker: the controller cleans up and compiles once for all of them
     remove_stale()
     if os.environ.get("HAPTIC_TELEOP_TEST_COMPILE", "1") == "0":
         return
@@ -72,7 +132,7 @@ def _own_ros_domain():
     if _USER_DOMAIN is not None:
         yield
         return
-    os.environ["ROS_DOMAIN_ID"] = str(1 + (_SESSION + next(_MODULES)) % 100)
+    os.environ["ROS_DOMAIN_ID"] = str(_domain(next(_MODULES)))
     yield
     os.environ["ROS_DOMAIN_ID"] = str(_SESSION)
 

@@ -20,7 +20,7 @@ RUN_COMMAND = (
 )
 TEST_COMMAND = (
     "python3 -m venv .venv && .venv/bin/pip install -e '.[standalone,test]' "
-    "&& .venv/bin/python -m pytest -q -p no:cacheprovider"
+    "&& .venv/bin/python -m pytest -q -p no:cacheprovider -n 2"
 )
 README_MAX_LINES = 200
 
