@@ -58,6 +58,34 @@ def test_the_schema_columns_hold_the_force_hip_and_object(tmp_path):
     assert d[:, engine.schema.index("obj_x_m")][-1] > 0.05  # the server's object moved
 
 
+def test_each_run_is_a_bag_and_the_trace_read_back_is_the_engines(tmp_path):
+    """The runner records each run to bags/NNN_<case> and reads the trace back from it: the same
+    columns, bit for bit, as the engine holds in memory for the same scene; index.csv names the
+    bag's case. With `discard` the bag is gone once read and no index is written."""
+    runner = Runner(("scene.duration_s=2.0",), 2000, 2, True, "test", tmp_path / "bags")
+    case = Case("delayed", "(1) delayed", delay_overrides(R), "R = 0.3 s")
+    with runner:
+        trace = runner.run(case)
+    engine = NveEngine(runner.scene(case.overrides))
+    engine.run(handle_sigint=False)
+    for group, got in (
+        ("hip_v_m_per_s", trace.hip_v_m_per_s),
+        ("force_n", trace.force_n),
+        ("spring_n_per_m", trace.spring_n_per_m),
+        ("rtt_s", trace.rtt_s),
+    ):
+        np.testing.assert_array_equal(got, engine.data[:, engine.schema.index(f"client.{group}")], err_msg=group)
+    assert (tmp_path / "bags" / "001_delayed" / "metadata.yaml").is_file()
+    assert _rows(tmp_path / "bags" / "index.csv") == [
+        {"bag": "001_delayed", "run": "(1) delayed", "settings": "R = 0.3 s", "overrides": " ".join(case.overrides)}
+    ]
+    gone = Runner(("scene.duration_s=2.0",), 2000, 1, True, "test", tmp_path / "gone", discard=True)
+    with gone:
+        again = gone.run(case)
+    np.testing.assert_array_equal(again.force_n, trace.force_n)
+    assert not any((tmp_path / "gone").iterdir())
+
+
 def test_analysis_runs_end_to_end_and_the_distorted_object_matches_the_delayed_force(tmp_path, capsys):
     """With a hand-like push (velocity ramp), no delay with (m_h, b_h) gives the delayed force within
     a small part of it, and no distortion at all (m_h = m, b_h = b: row (0)) is far worse."""

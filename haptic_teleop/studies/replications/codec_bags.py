@@ -128,7 +128,7 @@ def write_bag(bag: Path, r: Result, experiment: str, args: dict[str, Any]) -> No
         *_packet_streams("backward", r.reverse, end_ns),
         Stream("/client/object", JOINT_STATE, ticks[first:], rows=CLIENT.encode(client, ticks[first:])),
     ]
-    sink = BagSink(bag, TOPICS, qos={FACTS: LATCHED_QOS, "/client/object": STREAM_QOS})
+    sink = BagSink(bag, TOPICS, "zstd", qos={FACTS: LATCHED_QOS, "/client/object": STREAM_QOS})
     try:
         sink.write(streams)
     finally:

@@ -16,8 +16,8 @@ the table gives each one's error against (1). A sweep over Fujimoto04's alpha (t
 user finds by trial and error) goes in the plot beside the forces; `--rtt-sweep` adds each
 scheme's error against R (a second plot).
 
-Every run is the NVE engine in memory (engine/nve_loop.py), deterministic: the same arguments
-give the same numbers.
+Every run is the NVE engine (engine/nve_loop.py) recorded to a bag, and what the tables use is read
+back from the bags (`Runner`); deterministic: the same arguments give the same numbers.
 """
 
 from __future__ import annotations
@@ -25,7 +25,9 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import shutil
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,14 +74,22 @@ class Case:
 
 @dataclass
 class Runner:
-    """Runs the cases of one command against its base scene, with one progress bar over all ticks."""
+    """Runs the cases of one command against its base scene, with one progress bar over all ticks.
+
+    Each run is recorded to a bag, `bags/NNN_<case>` (NNN: the run's place in the command), and its
+    trace is read back from that bag, so every figure can be checked from data; `bags/index.csv`
+    names each bag's case and overrides. `discard`: each bag is deleted once read; `bags` None: a
+    temporary directory."""
 
     base: tuple[str, ...]
     ticks_per_run: int
     runs: int
     quiet: bool
     desc: str
+    bags: Path | None = None
+    discard: bool = False
     bar: Any = field(default=None, init=False)
+    index: list[list[str]] = field(default_factory=list, init=False)
 
     def __enter__(self) -> Runner:
         if not self.quiet:
@@ -99,6 +109,8 @@ class Runner:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.close()
+        if self.bags is not None and self.index and not self.discard:
+            write_csv(self.bags / "index.csv", ["bag", "run", "settings", "overrides"], self.index)
 
     def scene(self, overrides: Sequence[str]) -> Any:
         from haptic_teleop.scene.load import find_scene, load_scene
@@ -106,9 +118,9 @@ class Runner:
         return load_scene(find_scene(BASE_SCENE), overrides=[*self.base, *overrides])
 
     def run(self, case: Case) -> Trace:
-        from haptic_teleop.engine.nve_loop import NveEngine
+        from haptic_teleop.engine.nve_loop import record_nve_run
+        from haptic_teleop.record.reader import BagReader
 
-        engine = NveEngine(self.scene(case.overrides))
         last = [0]
 
         def progress(n: int) -> None:
@@ -116,23 +128,25 @@ class Runner:
                 self.bar.update(n - last[0])
             last[0] = n
 
-        engine.run(progress=progress, handle_sigint=False)
-        if self.bar is not None:
-            self.bar.update(engine.ticks - last[0])
-        data = engine.data
-        assert data is not None
+        with tempfile.TemporaryDirectory() as tmp:
+            bag = (self.bags if self.bags is not None else Path(tmp)) / f"{len(self.index) + 1:03d}_{case.key}"
+            engine, _ = record_nve_run(
+                self.scene(case.overrides), bag, progress=progress, parallel=False, handle_sigint=False
+            )
+            if self.bar is not None:
+                self.bar.update(engine.ticks - last[0])
+            with BagReader(bag) as reader:
+                rows = reader.read_nve()
+            if self.discard:
+                shutil.rmtree(bag)
+        self.index.append([bag.name, case.label, case.settings, " ".join(case.overrides)])
         name = engine.schema.clients[CLIENT]
-
-        def col(group: str) -> np.ndarray:
-            out: np.ndarray = data[:, engine.schema.index(f"{name}.{group}")].copy()
-            return out
-
         return Trace(
-            np.arange(len(data)) * engine.period_s,
-            col("hip_v_m_per_s"),
-            col("force_n"),
-            col("spring_n_per_m"),
-            col("rtt_s"),
+            np.arange(len(rows.values)) * engine.period_s,
+            rows.field(f"{name}.hip_v_m_per_s"),
+            rows.field(f"{name}.force_n"),
+            rows.field(f"{name}.spring_n_per_m"),
+            rows.field(f"{name}.rtt_s"),
         )
 
 
@@ -376,6 +390,7 @@ def add_common_arguments(p: argparse.ArgumentParser, name: str) -> None:
         "rises from 0 and falls back to 0 over this many seconds (raised cosines), like a hand's",
     )
     p.add_argument("--set", action="append", metavar="KEY.PATH=VALUE", help="override a key of the base scene nve_push")
+    p.add_argument("--discard-bags", action="store_true", help="read each run's bag for the tables, then delete it")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bar, no table)")
 
 
@@ -396,7 +411,8 @@ def prepare_runs(
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
     from haptic_teleop.errors import InputError
 
-    probe = Runner(tuple(args.set or ()), 0, 0, True, name)
+    # the runs' bags zstd-compressed (a fifth of the size, no measurable time here); --set may say otherwise
+    probe = Runner(("recording.compression=zstd", *(args.set or ())), 0, 0, True, name)
     scene = probe.scene(
         (f"scene.duration_s={args.duration_s!r}", _client(f"operator.speed_m_per_s={args.speed_m_per_s!r}"))
     )
@@ -418,7 +434,7 @@ def prepare_runs(
     check_out_dir(out)
     base = (*probe.base, *push_overrides(args, out, op.start_s, op.distance_m))
     ticks = int(round(args.duration_s / scene.config.scene.period_s))
-    return out, Runner(base, ticks, 0, args.quiet, name)
+    return out, Runner(base, ticks, 0, args.quiet, name, out / "bags", args.discard_bags)
 
 
 def main_analysis(args: argparse.Namespace) -> int:
