@@ -109,9 +109,10 @@ def test_constant_latency_baseline_is_above_the_network_delay():
     network (common random numbers) after its arrival: D above every delay, nothing late."""
     from haptic_teleop.engine.lockstep import Engine
     from haptic_teleop.studies.replications.playout import _buffer_overrides, _delays, _run, fixed_above_delay_s
+    from haptic_teleop.studies.replications.recorded import BagRuns
 
     short = ("scene.duration_s=1.5", "operator.duration_s=0.9", "scene.seed=2")
-    none, _ = _run((*short, *_buffer_overrides({"policy": "none"})))
+    none, _ = _run((*short, *_buffer_overrides({"policy": "none"})), BagRuns(), "none")
     delays = _delays(none.bwd_log)
     b = fixed_above_delay_s(delays, 0.001)
     engine = Engine(
@@ -132,7 +133,14 @@ def quick(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("playout") / "out"
     args = Namespace(
-        out=str(out), seeds=3, policies=",".join(playout.POLICIES), configs="binding", quick=True, set=None, quiet=True
+        out=str(out),
+        seeds=3,
+        policies=",".join(playout.POLICIES),
+        configs="binding",
+        quick=True,
+        set=None,
+        quiet=True,
+        discard_bags=False,
     )
     assert playout.main(args) == 0
     with (out / "playout_runs.csv").open() as fh:
@@ -164,6 +172,23 @@ def test_quick_experiment_writes_paired_tables(quick):
         assert float(paired[p][f"{key}_minus_seed_policy_mean"]) == pytest.approx(np.mean(diff))
     text = (out / "playout.md").read_text()
     assert "network-adaptive (seed 000)" in text and "worse on" in text
+
+
+def test_every_run_of_the_experiment_is_a_bag_in_the_index(quick):
+    """The quick experiment's runs (the undisturbed reference, then per seed: arrival run and
+    each other policy) are bags in run order, named in bags/index.csv, and each opens."""
+    from haptic_teleop.record.reader import BagReader
+    from haptic_teleop.studies.replications.playout import POLICIES
+
+    out, runs = quick
+    with (out / "bags" / "index.csv").open() as fh:
+        index = list(csv.DictReader(fh))
+    assert len(index) == 1 + len(runs)  # 'none' is the arrival run: one bag for both
+    assert index[0]["bag"] == "001_binding_undisturbed"
+    assert {r["bag"] for r in index} == {d.name for d in (out / "bags").iterdir() if d.is_dir()}
+    assert {f"binding_{p}_seed{s}" for p in POLICIES for s in (1, 2, 3)} == {r["bag"][4:] for r in index[1:]}
+    with BagReader(out / "bags" / index[-1]["bag"]) as reader:
+        assert reader.read_ticks().shape[0] == 1500
 
 
 def test_policies_that_should_differ_do(quick):

@@ -25,9 +25,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-import shutil
 import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
+from haptic_teleop.studies.replications.recorded import BagRuns
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 BASE_SCENE = "nve_push"
@@ -89,7 +88,10 @@ class Runner:
     bags: Path | None = None
     discard: bool = False
     bar: Any = field(default=None, init=False)
-    index: list[list[str]] = field(default_factory=list, init=False)
+    recorded: BagRuns = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.recorded = BagRuns(self.bags, self.discard)
 
     def __enter__(self) -> Runner:
         if not self.quiet:
@@ -109,8 +111,7 @@ class Runner:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.close()
-        if self.bags is not None and self.index and not self.discard:
-            write_csv(self.bags / "index.csv", ["bag", "run", "settings", "overrides"], self.index)
+        self.recorded.write_index()
 
     def scene(self, overrides: Sequence[str]) -> Any:
         from haptic_teleop.scene.load import find_scene, load_scene
@@ -128,8 +129,7 @@ class Runner:
                 self.bar.update(n - last[0])
             last[0] = n
 
-        with tempfile.TemporaryDirectory() as tmp:
-            bag = (self.bags if self.bags is not None else Path(tmp)) / f"{len(self.index) + 1:03d}_{case.key}"
+        with self.recorded.bag(case.key, case.label, case.settings, case.overrides) as bag:
             engine, _ = record_nve_run(
                 self.scene(case.overrides), bag, progress=progress, parallel=False, handle_sigint=False
             )
@@ -137,9 +137,6 @@ class Runner:
                 self.bar.update(engine.ticks - last[0])
             with BagReader(bag) as reader:
                 rows = reader.read_nve()
-            if self.discard:
-                shutil.rmtree(bag)
-        self.index.append([bag.name, case.label, case.settings, " ".join(case.overrides)])
         name = engine.schema.clients[CLIENT]
         return Trace(
             np.arange(len(rows.values)) * engine.period_s,

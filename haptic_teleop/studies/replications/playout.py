@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number, subset
+from haptic_teleop.studies.replications.recorded import BagRuns, record_ticks
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 HELP = (
@@ -91,7 +92,8 @@ def fixed_above_delay_s(delays_s: np.ndarray, period_s: float) -> float:
 def _scene(overrides: Sequence[str]) -> Any:
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    return load_scene(find_scene(BASE_SCENE), overrides=list(overrides))
+    # the runs' bags zstd-compressed (record_ticks); a --set may say otherwise
+    return load_scene(find_scene(BASE_SCENE), overrides=["recording.compression=zstd", *overrides])
 
 
 def _buffer_overrides(keys: dict[str, Any]) -> list[str]:
@@ -107,21 +109,20 @@ class Measured:
     bwd_log: np.ndarray
 
 
-def _run(overrides: Sequence[str]) -> tuple[Measured, Any]:
-    from haptic_teleop.engine.lockstep import COL, Engine
-
+def _run(overrides: Sequence[str], runs: BagRuns, key: str) -> tuple[Measured, Any]:
+    """One run recorded to its bag; what the tables use read back from the bag."""
     scene = _scene(overrides)
-    r = Engine(scene).run(handle_sigint=False)
-    d = r.data[: r.ticks]
+    with runs.bag(key, overrides=overrides) as bag:
+        t = record_ticks(scene, bag)
     m = scene.config.controllers.master
     gain = m.force_gain if m.law == "force" else 1.0  # what the law renders of the wall force
     return (
         Measured(
-            felt_n=np.abs(d[:, COL["m_force_n"]]),
-            wall_n=gain * np.abs(d[:, COL["s_contact_n"]]),
-            rx_seq=d[:, COL["bwd_rx_seq"]].astype(np.int64),
-            fwd_log=r.forward_log,
-            bwd_log=r.backward_log,
+            felt_n=np.abs(t.column("m_force_n")),
+            wall_n=gain * np.abs(t.column("s_contact_n")),
+            rx_seq=t.column("bwd_rx_seq").astype(np.int64),
+            fwd_log=t.forward_log,
+            bwd_log=t.backward_log,
         ),
         scene,
     )
@@ -180,18 +181,25 @@ PAIRED = METRICS[:4]
 
 
 def run_experiment(
-    policies: Sequence[str], seeds: Sequence[int], extra: Sequence[str]
+    policies: Sequence[str],
+    seeds: Sequence[int],
+    extra: Sequence[str],
+    runs: BagRuns | None = None,
+    config: str = "",
 ) -> tuple[list[list[Any]], dict[str, float]]:
     """Every policy on every seed of one configuration (`extra`: scene overrides): rows
-    [policy, seed, fixed buffering (s), *METRICS]; and the facts the seed policy runs on (D_a, L_a, d0)."""
+    [policy, seed, fixed buffering (s), *METRICS]; and the facts the seed policy runs on (D_a, L_a, d0).
+    Each run is recorded to a bag of `runs` (`<config>_<run>`) and measured from it."""
+    runs = runs if runs is not None else BagRuns()
+    pre = f"{config}_" if config else ""
     no_net = [f"network.{d}.effects={{}}" for d in DIRS] + _buffer_overrides({"policy": "none"})
-    ref, scene = _run((*extra, *no_net))
+    ref, scene = _run((*extra, *no_net), runs, f"{pre}undisturbed")
     period = scene.config.scene.period_s
     rows: list[list[Any]] = []
     facts: dict[str, float] = {}
     for seed in seeds:
         seed_ov = (*extra, f"scene.seed={seed}")
-        arrival_run, _ = _run((*seed_ov, *_buffer_overrides({"policy": "none"})))
+        arrival_run, _ = _run((*seed_ov, *_buffer_overrides({"policy": "none"})), runs, f"{pre}none_seed{seed}")
         fixed_s = max(
             fixed_above_delay_s(_delays(arrival_run.fwd_log), period),
             fixed_above_delay_s(_delays(arrival_run.bwd_log), period),
@@ -200,7 +208,11 @@ def run_experiment(
             keys = dict(POLICIES[name][1])
             if name == "fixed_above":
                 keys["buffering_time_s"] = repr(fixed_s)
-            m = arrival_run if name == "none" else _run((*seed_ov, *_buffer_overrides(keys)))[0]
+            m = (
+                arrival_run
+                if name == "none"
+                else _run((*seed_ov, *_buffer_overrides(keys)), runs, f"{pre}{name}_seed{seed}")[0]
+            )
             st = _stats(m, ref, period)
             rows.append([name, seed, fixed_s if name == "fixed_above" else math.nan, *(st[k] for k in METRICS)])
     from haptic_teleop.core.netconfig import min_one_way_delay_s
@@ -338,6 +350,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--configs", default=",".join(CONFIGS), help=f"which configurations ({', '.join(CONFIGS)})")
     p.add_argument("--quick", action="store_true", help="3 seeds, 1.5 s runs, the first configuration (for tests)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of the base scene")
+    p.add_argument("--discard-bags", action="store_true", help="measure each run's bag, then delete it")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -358,19 +371,21 @@ def main(args: argparse.Namespace) -> int:
         _scene((*CONFIGS[c][1], *extra))
     out = Path(args.out) if args.out else default_out("playout")
     check_out_dir(out)
+    runs = BagRuns(out / "bags", args.discard_bags)
     all_rows: list[list[Any]] = []
     all_table: list[list[Any]] = []
     all_paired: list[list[Any]] = []
     text = ""
     for c in configs:
         label, ov = CONFIGS[c]
-        rows, facts = run_experiment(policies, range(1, seeds + 1), (*ov, *extra))
+        rows, facts = run_experiment(policies, range(1, seeds + 1), (*ov, *extra), runs, c)
         table, paired = summary(rows, policies)
         all_rows += [[c, *r] for r in rows]
         all_table += [[c, *r] for r in table]
         all_paired += [[c, *r] for r in paired]
         text += f"### {label}\n\n" + markdown_tables(table, paired, seeds)
         text += "\n" + ", ".join(f"{k} = {v:.4g}" for k, v in facts.items()) + "\n\n"
+    runs.write_index()
     write_csv(out / "playout_runs.csv", ["configuration", *RUNS_HEADER], all_rows)
     write_csv(out / "playout.csv", ["configuration", *TABLE_HEADER], all_table)
     write_csv(out / "playout_paired.csv", ["configuration", *PAIRED_HEADER], all_paired)

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
+from haptic_teleop.studies.replications.recorded import BagRuns, record_ticks
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, write_csv
 
 HELP = (
@@ -84,24 +85,24 @@ class Run:
 def _scene(overrides: Sequence[str]) -> Any:
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    return load_scene(find_scene(BASE_SCENE), overrides=list(overrides))
+    # the runs' bags zstd-compressed (record_ticks); a --set may say otherwise
+    return load_scene(find_scene(BASE_SCENE), overrides=["recording.compression=zstd", *overrides])
 
 
-def _run(overrides: Sequence[str]) -> tuple[Run, Any]:
-    from haptic_teleop.engine.lockstep import COL, Engine
-
+def _run(overrides: Sequence[str], runs: BagRuns, key: str) -> tuple[Run, Any]:
+    """One run recorded to its bag; what the tables use read back from the bag."""
     scene = _scene(overrides)
-    r = Engine(scene).run(handle_sigint=False)
-    d = r.data[: r.ticks]
+    with runs.bag(key, overrides=overrides) as bag:
+        t = record_ticks(scene, bag)
     return (
         Run(
-            t_s=np.arange(r.ticks) * scene.config.scene.period_s,
-            felt_n=np.abs(d[:, COL["m_force_n"]]),
-            desired_n=np.abs(d[:, COL["m_force_desired_n"]]),
-            x_m=d[:, COL["m_x_m"]],
-            bwd_rx=d[:, COL["bwd_rx_seq"]],
-            energy_j=d[:, COL["m_energy_j"]],
-            contact_n=np.abs(d[:, COL["s_contact_n"]]),
+            t_s=np.arange(t.rows.shape[0]) * scene.config.scene.period_s,
+            felt_n=np.abs(t.column("m_force_n")),
+            desired_n=np.abs(t.column("m_force_desired_n")),
+            x_m=t.column("m_x_m"),
+            bwd_rx=t.column("bwd_rx_seq"),
+            energy_j=t.column("m_energy_j"),
+            contact_n=np.abs(t.column("s_contact_n")),
         ),
         scene,
     )
@@ -125,7 +126,9 @@ def _ramp(scene: Any) -> tuple[int, int]:
     return round(op.start_s / T), round((op.start_s + (op.duration_s or 0.0)) / T)
 
 
-def delay_table(configs: Sequence[str], delays_s: Sequence[float], extra: Sequence[str]) -> list[list[Any]]:
+def delay_table(
+    configs: Sequence[str], delays_s: Sequence[float], extra: Sequence[str], runs: BagRuns
+) -> list[list[Any]]:
     from haptic_teleop.core.transparency import force_drop, force_slope_between
 
     rows = []
@@ -133,7 +136,7 @@ def delay_table(configs: Sequence[str], delays_s: Sequence[float], extra: Sequen
         label, ov = CONFIGS[key]
         ref: Run | None = None
         for d in delays_s:
-            run, scene = _run((*BASE, *ov, *_delay(d), *extra))
+            run, scene = _run((*BASE, *ov, *_delay(d), *extra), runs, f"delay_{key}_{d * 1e3:g}ms")
             first, last = _ramp(scene)
             w0 = first + (last - first) // 2
             slope = float(np.polyfit(run.t_s[w0 : last + 1], run.felt_n[w0 : last + 1], 1)[0])
@@ -174,7 +177,9 @@ DELAY_HEADER = [
 ]
 
 
-def loss_table(configs: Sequence[str], bursts_s: Sequence[float], extra: Sequence[str]) -> list[list[Any]]:
+def loss_table(
+    configs: Sequence[str], bursts_s: Sequence[float], extra: Sequence[str], runs: BagRuns
+) -> list[list[Any]]:
     from haptic_teleop.analysis.transparency import longest_hold, rise_ticks
     from haptic_teleop.core.transparency import transparent_loss_time
 
@@ -185,7 +190,7 @@ def loss_table(configs: Sequence[str], bursts_s: Sequence[float], extra: Sequenc
             scene = _scene((*BASE, *ov, *extra))
             start = scene.config.operator.start_s + BURST_AT_S
             blackout = f"network.backward.effects.blackout={{starts_s: [{start!r}], ends_s: [{start + burst!r}]}}"
-            run, scene = _run((*BASE, *ov, blackout, *extra))
+            run, scene = _run((*BASE, *ov, blackout, *extra), runs, f"loss_{key}_{burst * 1e3:g}ms")
             first, last = _ramp(scene)
             T = scene.config.scene.period_s
             released = np.flatnonzero(run.bwd_rx >= 0) * T
@@ -215,9 +220,9 @@ LOSS_HEADER = [
 ]
 
 
-def free_start_table(delays_s: Sequence[float], after_s: float) -> list[list[Any]]:
-    """The issue's free start: wall_contact with a stiff hand, the bound binding (b_m 0.1) or not (1.0)."""
-    from haptic_teleop.engine.lockstep import COL, Engine
+def free_start_table(delays_s: Sequence[float], after_s: float, runs: BagRuns) -> list[list[Any]]:
+    """The issue's free start: wall_contact with a stiff hand, the bound binding (b_m 0.1) or not
+    (1.0); each run recorded to its bag and measured from it."""
     from haptic_teleop.scene.load import find_scene, load_scene
 
     rows = []
@@ -225,6 +230,7 @@ def free_start_table(delays_s: Sequence[float], after_s: float) -> list[list[Any
         ref_f = None
         for d in delays_s:
             ov = [
+                "recording.compression=zstd",
                 "scene.duration_s=4.0",
                 "operator.stiffness_n_per_m=100000",
                 "operator.damping_n_s_per_m=500",
@@ -232,15 +238,16 @@ def free_start_table(delays_s: Sequence[float], after_s: float) -> list[list[Any
                 *_delay(d),
             ]
             scene = load_scene(find_scene("wall_contact"), overrides=ov)
-            r = Engine(scene).run(handle_sigint=False)
-            data = r.data[: r.ticks]
+            with runs.bag(f"free_start_{b_m:g}_{d * 1e3:g}ms", overrides=ov) as bag:
+                t = record_ticks(scene, bag)
             T = scene.config.scene.period_s
-            contact = np.flatnonzero(np.abs(data[:, COL["s_contact_n"]]) > 0.0)
+            contact_n = t.column("s_contact_n")
+            contact = np.flatnonzero(np.abs(contact_n) > 0.0)
             if not contact.size:
                 continue
             c = int(contact[0])
-            k = min(c + round(after_s / T), r.ticks - 1)
-            felt = float(abs(data[k, COL["m_force_n"]]))
+            k = min(c + round(after_s / T), t.rows.shape[0] - 1)
+            felt = float(abs(t.column("m_force_n")[k]))
             if ref_f is None:
                 ref_f = felt
             rows.append(
@@ -248,11 +255,11 @@ def free_start_table(delays_s: Sequence[float], after_s: float) -> list[list[Any
                     b_m,
                     d * 1e3,
                     c * T,
-                    float(data[c, COL["m_energy_j"]]),
-                    float(data[c, COL["m_x_m"]] - data[c, COL["s_x_m"]]),
+                    float(t.column("m_energy_j")[c]),
+                    float(t.column("m_x_m")[c] - t.column("s_x_m")[c]),
                     felt,
                     felt - ref_f,
-                    float(abs(data[k, COL["s_contact_n"]])),
+                    float(abs(contact_n[k])),
                 ]
             )
     return rows
@@ -314,6 +321,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--after-s", type=number(0.01, 2.0), default=0.5, help="free start: the felt force this long after contact"
     )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of the base scene")
+    p.add_argument("--discard-bags", action="store_true", help="measure each run's bag, then delete it")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -331,9 +339,11 @@ def main(args: argparse.Namespace) -> int:
         _scene((*BASE, *ov, *extra))
     out = Path(args.out) if args.out else default_out("transparency")
     check_out_dir(out)
-    delay_rows = delay_table(configs, delays, extra)
-    loss_rows = loss_table(configs, [b / 1e3 for b in args.bursts_ms], extra)
-    free_rows = free_start_table(delays, args.after_s)
+    runs = BagRuns(out / "bags", args.discard_bags)
+    delay_rows = delay_table(configs, delays, extra, runs)
+    loss_rows = loss_table(configs, [b / 1e3 for b in args.bursts_ms], extra, runs)
+    free_rows = free_start_table(delays, args.after_s, runs)
+    runs.write_index()
     tables = []
     for name, header, rows in (
         ("transparency_delay", DELAY_HEADER, delay_rows),

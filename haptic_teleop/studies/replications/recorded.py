@@ -1,0 +1,79 @@
+"""Experiment runs as bags: each run recorded to `bags/NNN_<key>` and what the tables use read back
+from its bag, so every figure of an experiment can be checked from data.
+
+`BagRuns` names the bags in run order, keeps `bags/index.csv` (each bag's run, settings and scene
+overrides) and deletes each bag once read with `discard`; without a folder the bags go to a
+temporary directory. `record_ticks` runs a teleoperation scene into a bag and returns its tick rows
+and packet records as the bag holds them (`BagReader.read_ticks`, `packets`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from haptic_teleop.studies.replications.tables import write_csv
+
+INDEX_HEADER = ["bag", "run", "settings", "overrides"]
+
+
+@dataclass
+class BagRuns:
+    """Where an experiment's runs are recorded, and the index of them."""
+
+    bags: Path | None = None
+    discard: bool = False
+    index: list[list[str]] = field(default_factory=list, init=False)
+
+    @contextmanager
+    def bag(self, key: str, label: str = "", settings: str = "", overrides: Sequence[str] = ()) -> Iterator[Path]:
+        """The path of the next run's bag (`NNN_<key>`): record into it and read it inside the block."""
+        with tempfile.TemporaryDirectory() as tmp:
+            path = (self.bags if self.bags is not None else Path(tmp)) / f"{len(self.index) + 1:03d}_{key}"
+            yield path
+            if self.discard and path.exists():
+                shutil.rmtree(path)
+        self.index.append([path.name, label, settings, " ".join(overrides)])
+
+    def write_index(self) -> None:
+        """`bags/index.csv`, when the bags are kept."""
+        if self.bags is not None and self.index and not self.discard:
+            write_csv(self.bags / "index.csv", INDEX_HEADER, self.index)
+
+
+@dataclass(frozen=True)
+class Ticks:
+    """One recorded run as its bag holds it: the tick rows (`BagReader.read_ticks`) and the packet
+    records of both directions (record.layouts.PACKET_FIELDS rows, by seq)."""
+
+    rows: np.ndarray
+    schema: Any
+    forward_log: np.ndarray
+    backward_log: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        out: np.ndarray = self.rows[:, self.schema.index(name)]
+        return out
+
+
+def record_ticks(scene: Any, bag: Path) -> Ticks:
+    """Run the teleoperation `scene` recorded to `bag` (the engine's own loop choice) and read it back."""
+    from haptic_teleop.engine.run import record_run
+    from haptic_teleop.record.reader import BagReader
+
+    record_run(scene, bag, parallel=False, handle_sigint=False)
+    with BagReader(bag) as reader:
+        none = np.zeros((0, 6))
+        return Ticks(
+            reader.read_ticks(),
+            reader.schema,
+            reader.packets("/forward/packets") if reader.has("/forward/packets") else none,
+            reader.packets("/backward/packets") if reader.has("/backward/packets") else none,
+        )
