@@ -33,6 +33,11 @@ def loop_rows(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, float
     assert r.returncode == 0, r.stderr
     assert (out / "deadband_loop.png").stat().st_size > 10_000
     assert "| forward | 5 |" in (out / "deadband_loop.md").read_text()
+    # every run (the uncoded one, then each coded direction at each p) is a bag, named in the index
+    with (out / "bags" / "index.csv").open() as fh:
+        index = [row["bag"] for row in csv.DictReader(fh)]
+    assert index[:2] == ["001_uncoded", "002_forward_p0"] and len(index) == 1 + 3 * 3  # p sorted
+    assert all((out / "bags" / b / "metadata.yaml").is_file() for b in index)
     with (out / "deadband_loop.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     return {(row["coded"], float(row["p [%]"])): {k: _num(v) for k, v in row.items() if k != "coded"} for row in rows}
@@ -88,11 +93,11 @@ def test_run_case_codec_facts_and_reduction_match_run_summary(tmp_path: Path) ->
     from haptic_teleop.studies.replications.deadband_loop import codec_overrides, run_case, saved
 
     base = ["scene.duration_s=1", *TAPPING]
-    ref = run_case("touch_ur5e_wall", base, 3)
+    ref = run_case("touch_ur5e_wall", base, 3, str(tmp_path / "ref_bag"))
     assert ref["facts"] == {}
     assert math.isnan(saved(ref["facts"], "forward")) and math.isnan(saved(ref["facts"], "backward"))
     coded = codec_overrides("backward", 0.1)
-    run = run_case("touch_ur5e_wall", [*base, *coded], 3)
+    run = run_case("touch_ur5e_wall", [*base, *coded], 3, str(tmp_path / "coded_bag"))
     assert set(run["facts"]) == {"codec_backward", "codec_plain_bytes"}
     out = tmp_path / "run"
     sets = [a for s in [*base, *coded] for a in ("--set", s)]

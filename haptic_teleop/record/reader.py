@@ -511,9 +511,9 @@ class BagReader:
                 rows[np.ix_(got.log_ns // period, np.asarray(specs[topic].columns, dtype=np.int64))] = got.values
         for topic, column in RECEIVED_TOPICS:
             seq = np.full(ticks, -1.0)
-            got = data.get(topic)
-            if got is not None and got.stamp_ns is not None:
-                seq[got.log_ns // period] = got.stamp_ns // period
+            released = data.get(topic)
+            if released is not None and released.stamp_ns is not None:
+                seq[released.log_ns // period] = released.stamp_ns // period
             rows[:, schema.index(column)] = seq
         return rows
 

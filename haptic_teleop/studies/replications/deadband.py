@@ -19,13 +19,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
+from haptic_teleop.studies.replications.recorded import BagRuns
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, write_csv
 
 HELP = (
@@ -94,6 +94,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-tapping", action="store_true", help="keep the scene's own operator and table (default: 1 Hz tapping)"
     )
+    p.add_argument("--discard-bags", action="store_true", help="read the recorded run's bag, then delete it")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -103,15 +104,23 @@ def main(args: argparse.Namespace) -> int:
     from haptic_teleop.errors import InputError
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    overrides = [f"scene.duration_s={args.duration_s}", *(() if args.no_tapping else TAPPING), *(args.set or ())]
+    # the bag zstd-compressed; a --set may say otherwise
+    overrides = [
+        "recording.compression=zstd",
+        f"scene.duration_s={args.duration_s}",
+        *(() if args.no_tapping else TAPPING),
+        *(args.set or ()),
+    ]
     scene = load_scene(find_scene(args.scene), overrides=overrides)
     if not scene.config.is_arm:
         raise InputError(f"--scene {args.scene}: not an arm scene; allowed: a 3-DoF arm scene (touch_ur5e_wall, ...)")
     out = Path(args.out) if args.out else default_out("deadband")
     check_out_dir(out)
-    with tempfile.TemporaryDirectory() as tmp:
-        record_run(scene, Path(tmp) / "bag", handle_sigint=False, parallel=False)
-        vel, force = streams(Path(tmp) / "bag")
+    runs = BagRuns(out / "bags", args.discard_bags)
+    with runs.bag("recorded", "the recorded run", f"--scene {args.scene}", overrides) as bag:
+        record_run(scene, bag, handle_sigint=False, parallel=False)
+        vel, force = streams(bag)
+    runs.write_index()
     rows: list[list[Any]] = []
     results: dict[str, list[dict[str, float]]] = {"force": [], "velocity": []}
     bar: Any = None

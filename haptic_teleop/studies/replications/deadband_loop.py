@@ -30,6 +30,7 @@ import numpy as np
 
 from haptic_teleop.studies.replications.args import number
 from haptic_teleop.studies.replications.deadband import P_LIST, SEED_001, TAPPING, code
+from haptic_teleop.studies.replications.recorded import BagRuns
 from haptic_teleop.studies.replications.tables import markdown, write_csv
 
 HELP = (
@@ -128,6 +129,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-tapping", action="store_true", help="keep the scene's own operator and table (default: 1 Hz tapping)"
     )
+    p.add_argument("--discard-bags", action="store_true", help="read each run's bag, then delete it")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -139,23 +141,27 @@ def codec_overrides(case: str | None, p: float, reconstruction: str = "hold") ->
     return [f"network.{d}.codec={{kind: deadband, deadband: {p!r}, reconstruction: {reconstruction}}}" for d in dirs]
 
 
-def run_case(scene_name: str, overrides: Sequence[str], seed: int | None) -> dict[str, Any]:
-    """One run in the Python arm loop (the loop that runs an arm scene's codecs), kept in memory:
-    the columns the table compares and the codec counters."""
-    from haptic_teleop.engine.lockstep import Engine
+def run_case(scene_name: str, overrides: Sequence[str], seed: int | None, bag: str) -> dict[str, Any]:
+    """One run in the Python arm loop (the loop that runs an arm scene's codecs) recorded to `bag`;
+    the columns the table compares and the codec counters, read back from the bag."""
+    from haptic_teleop.analysis.metrics import read_run_info
+    from haptic_teleop.engine.run import record_run
+    from haptic_teleop.record.reader import BagReader
     from haptic_teleop.scene.load import find_scene, load_scene
 
     scene = load_scene(find_scene(scene_name), overrides=list(overrides), seed=seed)
-    engine = Engine(scene, loop="python")
-    result = engine.run(handle_sigint=False)
-    s = engine.schema
+    record_run(scene, Path(bag), parallel=False, handle_sigint=False, loop="python")
+    with BagReader(bag) as reader:
+        rows = reader.read_ticks()
+        s = reader.schema
+        info = read_run_info(reader)
     out: dict[str, Any] = {
-        g: np.array(result.data[:, s.group(g)])
+        g: np.array(rows[:, s.group(g)])
         for g in ("m_force_n", "m_force_desired_n", "m_v_m_per_s", "s_x_m", "s_contact_n")
     }
     for d, col in (("forward", "fwd_rx_seq"), ("backward", "bwd_rx_seq")):
-        out[f"held_{d}"] = held(result.data[:, s.col[col]])
-    out["facts"] = engine.codec_facts()
+        out[f"held_{d}"] = held(rows[:, s.col[col]])
+    out["facts"] = {k: v for k, v in info.items() if k.startswith("codec_")}
     return out
 
 
@@ -186,7 +192,7 @@ def coding_error(run: dict[str, Any], ref: dict[str, Any], d: str, jnd: float) -
     return float(np.sqrt(np.mean(e * e))), float(rel.mean()) if rel.size else math.nan
 
 
-def _job(job: tuple[str, Sequence[str], int | None]) -> dict[str, Any]:
+def _job(job: tuple[str, Sequence[str], int | None, str]) -> dict[str, Any]:
     return run_case(*job)
 
 
@@ -243,7 +249,13 @@ def main(args: argparse.Namespace) -> int:
     from haptic_teleop.errors import InputError
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    base = [f"scene.duration_s={args.duration_s}", *(() if args.no_tapping else TAPPING), *(args.set or ())]
+    # the runs' bags zstd-compressed; a --set may say otherwise
+    base = [
+        "recording.compression=zstd",
+        f"scene.duration_s={args.duration_s}",
+        *(() if args.no_tapping else TAPPING),
+        *(args.set or ()),
+    ]
     path = find_scene(args.scene)
     scene = load_scene(path, overrides=base, seed=args.seed)
     if not scene.config.is_arm:
@@ -253,10 +265,15 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out("deadband-loop")
     check_out_dir(out)
     cases: list[tuple[str, float]] = [(c, p) for c in args.coded for p in args.p]
-    jobs = [(args.scene, base, args.seed)] + [
-        (args.scene, [*base, *codec_overrides(c, p, args.reconstruction)], args.seed) for c, p in cases
-    ]
+    bags = BagRuns(out / "bags", args.discard_bags)
+    jobs = [(args.scene, base, args.seed, str(bags.reserve("uncoded", "uncoded", "reference", base)))]
+    for c, p in cases:
+        ov = [*base, *codec_overrides(c, p, args.reconstruction)]
+        jobs.append((args.scene, ov, args.seed, str(bags.reserve(f"{c}_p{p * 100:g}", c, f"p = {p:g}", ov))))
     results = _run_all(jobs, args.jobs, args.quiet)
+    for job in jobs:
+        bags.drop(Path(job[3]))
+    bags.write_index()
     ref, runs = results[0], results[1:]
     rows: list[list[Any]] = []
     table: dict[str, list[dict[str, float]]] = {c: [] for c in args.coded}
@@ -311,7 +328,9 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_all(jobs: Sequence[tuple[str, Sequence[str], int | None]], n_proc: int, quiet: bool) -> list[dict[str, Any]]:
+def _run_all(
+    jobs: Sequence[tuple[str, Sequence[str], int | None, str]], n_proc: int, quiet: bool
+) -> list[dict[str, Any]]:
     """Every run, in order; in `n_proc` spawned processes when more than one, with a progress bar."""
     bar: Any = None
     if not quiet:

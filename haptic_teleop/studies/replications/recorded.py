@@ -42,6 +42,20 @@ class BagRuns:
                 shutil.rmtree(path)
         self.index.append([path.name, label, settings, " ".join(overrides)])
 
+    def reserve(self, key: str, label: str = "", settings: str = "", overrides: Sequence[str] = ()) -> Path:
+        """The next run's bag path, for runs recorded elsewhere (worker processes): indexed now;
+        the caller records into it and, with `discard`, calls `drop` once it is read."""
+        if self.bags is None:
+            raise ValueError("reserve needs a bag folder")
+        path = self.bags / f"{len(self.index) + 1:03d}_{key}"
+        self.index.append([path.name, label, settings, " ".join(overrides)])
+        return path
+
+    def drop(self, path: Path) -> None:
+        """Delete a reserved bag once read, when the bags are discarded."""
+        if self.discard and path.exists():
+            shutil.rmtree(path)
+
     def write_index(self) -> None:
         """`bags/index.csv`, when the bags are kept."""
         if self.bags is not None and self.index and not self.discard:
