@@ -46,6 +46,8 @@ def test_two_jobs_run_write_their_manifest_and_figures_and_every_documented_numb
     assert set(manifest["jobs"]) == {"hli-filtering", "error-control"}
     for job in manifest["jobs"].values():
         assert job["exit_code"] == 0 and job["seconds"] > 0 and job["command"].startswith("haptic-teleop experiment")
+        assert job["command"].endswith("--discard-bags")  # each experiment measured its bags, then deleted them
+    assert not (out / "hli-filtering" / "bags").exists() and (out / "hli-filtering" / "hli_filtering.csv").is_file()
     assert manifest["version"]
     for name in ("codec_hli_filtering.png", "codec_error_control.png"):
         assert (out / "figures" / name).stat().st_size > 10_000
@@ -62,7 +64,7 @@ def test_a_documented_number_that_moved_fails_the_command_naming_it(
     job = next(j for j in ae.JOBS if j.folder == "error-control")
     wrong = dataclasses.replace(job.checks[0], documented=0.5)  # the page would say 0.5 N
     monkeypatch.setattr(ae, "JOBS", (dataclasses.replace(job, checks=(wrong,)),))
-    args = argparse.Namespace(out=str(tmp_path / "o"), only=None, list=False, docs=None, quiet=True)
+    args = argparse.Namespace(out=str(tmp_path / "o"), only=None, list=False, docs=None, quiet=True, keep_bags=False)
     assert ae.main(args) == 1
     err = capsys.readouterr().err
     assert "error-control: codec_error_control.md says RMS force error [N] = 0.5" in err

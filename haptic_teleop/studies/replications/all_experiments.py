@@ -173,7 +173,7 @@ JOBS: tuple[Job, ...] = (
         scenes=("touch_ur5e_wall",), minutes=1.8,
     ),
     Job(
-        "stabilizers", "stabilizers", args=("--discard-bags",),
+        "stabilizers", "stabilizers",
         figures=(
             ("stabilizers.png", "stabilizers.png"),
             ("stabilizers_arm.png", "stabilizers_arm.png"),
@@ -263,10 +263,10 @@ def scene_hashes(names: Sequence[str]) -> dict[str, str]:
     return {n: hashlib.sha256(Path(find_scene(n)).read_bytes()).hexdigest() for n in names}
 
 
-def run_job(job: Job, out: Path) -> tuple[float, int, str]:
+def run_job(job: Job, out: Path, keep_bags: bool = False) -> tuple[float, int, str]:
     """The experiment, as its command runs it: (seconds, exit code, the end of its stderr)."""
     cmd = [sys.executable, "-m", "haptic_teleop.cli", "experiment", job.name, "--out", str(out / job.folder)]
-    cmd += [*job.args, "--quiet"]
+    cmd += [*_args(job, keep_bags), "--quiet"]
     t0 = time.monotonic()
     r = subprocess.run(cmd, capture_output=True, text=True)
     return time.monotonic() - t0, r.returncode, r.stderr.strip()[-2000:]
@@ -277,11 +277,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", help="a comma-separated subset of the jobs (see --list)")
     p.add_argument("--list", action="store_true", help="print the jobs and their commands, run nothing")
     p.add_argument("--docs", help="also copy the regenerated figures and tables into this folder (e.g. docs)")
+    p.add_argument(
+        "--keep-bags",
+        action="store_true",
+        help="keep every run's bag (about 850 MB for all jobs; default: each experiment measures its bags, "
+        "then deletes them)",
+    )
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
-def _command(job: Job) -> str:
-    return " ".join(["haptic-teleop experiment", job.name, *job.args])
+def _args(job: Job, keep_bags: bool) -> tuple[str, ...]:
+    """The job's arguments: every experiment records its runs as bags; `--discard-bags` unless kept."""
+    return job.args if keep_bags else (*job.args, "--discard-bags")
+
+
+def _command(job: Job, keep_bags: bool = False) -> str:
+    return " ".join(["haptic-teleop experiment", job.name, *_args(job, keep_bags)])
 
 
 def main(args: argparse.Namespace) -> int:
@@ -296,7 +307,7 @@ def main(args: argparse.Namespace) -> int:
         jobs = [j for j in JOBS if j.folder in names]
     if args.list:
         for j in jobs:
-            sys.stdout.write(f"{j.folder:22s} {_command(j)}  (about {j.minutes:g} min)\n")
+            sys.stdout.write(f"{j.folder:22s} {_command(j, args.keep_bags)}  (about {j.minutes:g} min)\n")
         return 0
     docs_src = docs_dir()
     shipped_needed = [s for j in jobs for _, s in j.shipped]
@@ -330,10 +341,10 @@ def main(args: argparse.Namespace) -> int:
     ) as bar:
         for j in jobs:
             bar.set_postfix_str(j.folder)
-            seconds, code, err = run_job(j, out)
+            seconds, code, err = run_job(j, out, args.keep_bags)
             bar.update(j.minutes)
             manifest["jobs"][j.folder] = {
-                "command": _command(j),
+                "command": _command(j, args.keep_bags),
                 "seconds": round(seconds, 1),
                 "exit_code": code,
                 "scenes": scene_hashes(j.scenes),
