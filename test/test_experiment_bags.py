@@ -63,3 +63,21 @@ def test_bag_runs_name_index_and_discard(tmp_path: Path) -> None:
         record_ticks(scene, bag)
         assert bag.is_dir()
     assert not bag.exists() and temp.index[0][0] == "001_a"
+
+
+def test_a_run_stopped_by_ctrl_c_is_in_the_index_and_its_bag_is_readable(tmp_path: Path) -> None:
+    """A KeyboardInterrupt inside a run (after its bag closed) still leaves bags/index.csv naming
+    every bag written, the stopped run's too."""
+    from haptic_teleop.record.reader import BagReader
+
+    scene = load_scene(find_scene("wall_contact"), overrides=["scene.duration_s=0.2"])
+    runs = BagRuns(tmp_path / "bags")
+    with runs.bag("first") as bag:
+        record_ticks(scene, bag)
+    with pytest.raises(KeyboardInterrupt), runs.bag("stopped") as bag:
+        record_ticks(scene, bag)
+        raise KeyboardInterrupt
+    with (tmp_path / "bags" / "index.csv").open() as fh:
+        assert [r["bag"] for r in csv.DictReader(fh)] == ["001_first", "002_stopped"]
+    with BagReader(tmp_path / "bags" / "002_stopped") as reader:
+        assert reader.read_ticks().shape[0] == 200

@@ -94,6 +94,7 @@ def test_analysis_runs_end_to_end_and_the_distorted_object_matches_the_delayed_f
     assert code == 0
     printed = capsys.readouterr().out
     assert "| run | settings | rms_error_n |" in printed and "(2) no delay, m_h = 0.2732 kg" in printed
+    assert f"bags:  {out / 'bags'}" in printed and (out / "bags" / "index.csv").is_file()
     for name in ("nve_analysis.png", "nve_analysis.csv", "nve_analysis.md", "hip_trace.csv"):
         assert (out / name).stat().st_size > 100, name
     rows = _rows(out / "nve_analysis.csv")

@@ -33,6 +33,7 @@ import numpy as np
 
 from haptic_teleop.studies.replications.args import number
 from haptic_teleop.studies.replications.codec_run import PERIOD_NS, PERIOD_S, Result, object_position_m
+from haptic_teleop.studies.replications.recorded import bags_line
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
 
 ERROR_CONTROL_HELP = (
@@ -278,7 +279,7 @@ def _finish(
     _plot(results, out / f"{name}.png", title, args.plot_window_s)
     if not args.quiet:
         sys.stdout.write(table)
-        sys.stdout.write(f"\n{out / (name + '.png')}\n")
+        sys.stdout.write(f"\n{out / (name + '.png')}\n{bags_line(out, args.discard_bags)}\n")
     return 0
 
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
-from haptic_teleop.studies.replications.recorded import BagRuns
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, write_csv
 
 HELP = (
@@ -143,7 +143,7 @@ def main(args: argparse.Namespace) -> int:
     (out / "deadband.md").write_text(table)
     plot(results, out / "deadband.png", args.jnd)
     if not args.quiet:
-        sys.stdout.write(table + f"\n{out / 'deadband.png'}\n")
+        sys.stdout.write(table + f"\n{out / 'deadband.png'}\n{bags_line(out, args.discard_bags)}\n")
     return 0
 
 

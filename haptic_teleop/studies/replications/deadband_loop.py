@@ -30,7 +30,7 @@ import numpy as np
 
 from haptic_teleop.studies.replications.args import number
 from haptic_teleop.studies.replications.deadband import P_LIST, SEED_001, TAPPING, code
-from haptic_teleop.studies.replications.recorded import BagRuns
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
 from haptic_teleop.studies.replications.tables import markdown, write_csv
 
 HELP = (
@@ -324,7 +324,7 @@ def main(args: argparse.Namespace) -> int:
     (out / "deadband_loop.md").write_text(text)
     plot(args.p, table, open_loop, out / "deadband_loop.png", args.jnd)
     if not args.quiet:
-        sys.stdout.write(text + f"\n{out / 'deadband_loop.png'}\n")
+        sys.stdout.write(text + f"\n{out / 'deadband_loop.png'}\n{bags_line(out, args.discard_bags)}\n")
     return 0
 
 

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
-from haptic_teleop.studies.replications.recorded import BagRuns
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 BASE_SCENE = "nve_push"
@@ -482,6 +482,7 @@ def main_analysis(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(text)
         print(f"csv:   {out / 'nve_analysis.csv'}\ntable: {out / 'nve_analysis.md'}\nplot:  {out / 'nve_analysis.png'}")
+        print(bags_line(out, args.discard_bags))
     return 0
 
 

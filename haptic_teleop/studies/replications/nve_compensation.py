@@ -31,6 +31,7 @@ from haptic_teleop.studies.replications.nve import (
     push_window,
     shade_push,
 )
+from haptic_teleop.studies.replications.recorded import bags_line
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 COMPENSATION_HELP = (
@@ -250,6 +251,7 @@ def main_compensation(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(text)
         print("\n".join(files))
+        print(bags_line(out, args.discard_bags))
     return 0
 
 

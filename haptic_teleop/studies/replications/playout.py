@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number, subset
-from haptic_teleop.studies.replications.recorded import BagRuns, record_ticks
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, record_ticks
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 HELP = (
@@ -393,5 +393,5 @@ def main(args: argparse.Namespace) -> int:
     _plot(all_rows, configs, policies, out / "playout.png")
     if not args.quiet:
         sys.stdout.write(text)
-        sys.stdout.write(f"{out / 'playout.png'}\n")
+        sys.stdout.write(f"{out / 'playout.png'}\n{bags_line(out, args.discard_bags)}\n")
     return 0

@@ -2,7 +2,8 @@
 from its bag, so every figure of an experiment can be checked from data.
 
 `BagRuns` names the bags in run order, keeps `bags/index.csv` (each bag's run, settings and scene
-overrides) and deletes each bag once read with `discard`; without a folder the bags go to a
+overrides; rewritten after every run, so a Ctrl-C leaves it naming every bag written) and
+deletes each bag once read with `discard`; without a folder the bags go to a
 temporary directory. `record_ticks` runs a teleoperation scene into a bag and returns its tick rows
 and packet records as the bag holds them (`BagReader.read_ticks`, `packets`).
 """
@@ -24,6 +25,11 @@ from haptic_teleop.studies.replications.tables import write_csv
 INDEX_HEADER = ["bag", "run", "settings", "overrides"]
 
 
+def bags_line(out: Path, discard: bool) -> str:
+    """What an experiment prints last about its bags."""
+    return "bags:  measured, then deleted (--discard-bags)" if discard else f"bags:  {out / 'bags'}"
+
+
 @dataclass
 class BagRuns:
     """Where an experiment's runs are recorded, and the index of them."""
@@ -37,10 +43,14 @@ class BagRuns:
         """The path of the next run's bag (`NNN_<key>`): record into it and read it inside the block."""
         with tempfile.TemporaryDirectory() as tmp:
             path = (self.bags if self.bags is not None else Path(tmp)) / f"{len(self.index) + 1:03d}_{key}"
-            yield path
+            try:
+                yield path
+            finally:
+                # after every run, also one stopped by Ctrl-C (its bag is closed and readable)
+                self.index.append([path.name, label, settings, " ".join(overrides)])
+                self.write_index()
             if self.discard and path.exists():
                 shutil.rmtree(path)
-        self.index.append([path.name, label, settings, " ".join(overrides)])
 
     def reserve(self, key: str, label: str = "", settings: str = "", overrides: Sequence[str] = ()) -> Path:
         """The next run's bag path, for runs recorded elsewhere (worker processes): indexed now;

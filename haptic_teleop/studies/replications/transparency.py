@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
-from haptic_teleop.studies.replications.recorded import BagRuns, record_ticks
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, record_ticks
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, write_csv
 
 HELP = (
@@ -357,5 +357,5 @@ def main(args: argparse.Namespace) -> int:
     _plot(delay_rows, loss_rows, out / "transparency.png")
     if not args.quiet:
         sys.stdout.write("\n".join(tables))
-        sys.stdout.write(f"\n{out / 'transparency.png'}\n")
+        sys.stdout.write(f"\n{out / 'transparency.png'}\n{bags_line(out, args.discard_bags)}\n")
     return 0
