@@ -227,7 +227,7 @@ def _run_all(
             ran = simulate(label, codec, args, _delay_ticks(args) + extra, bar.update if bar else None)
             # the table is computed from the bag read back: every figure can be checked from data
             bag = out / "bags" / slug(i, label)
-            write_bag(bag, ran, name, plain)
+            write_bag(bag, ran, name, plain, "none" if args.discard_bags else "zstd")
             results.append(read_bag(bag)[0])
             if args.discard_bags:
                 shutil.rmtree(bag)

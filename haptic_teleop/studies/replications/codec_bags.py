@@ -102,7 +102,7 @@ def _packet_streams(direction: str, packets: list[Packet], end_ns: int) -> list[
     ]
 
 
-def write_bag(bag: Path, r: Result, experiment: str, args: dict[str, Any]) -> None:
+def write_bag(bag: Path, r: Result, experiment: str, args: dict[str, Any], compression: str = "zstd") -> None:
     """The run `r` as a rosbag2 directory `bag` (MCAP), closed when this returns."""
     from haptic_teleop.record.mcap import BagSink
     from haptic_teleop.record.streams import Stream
@@ -128,7 +128,7 @@ def write_bag(bag: Path, r: Result, experiment: str, args: dict[str, Any]) -> No
         *_packet_streams("backward", r.reverse, end_ns),
         Stream("/client/object", JOINT_STATE, ticks[first:], rows=CLIENT.encode(client, ticks[first:])),
     ]
-    sink = BagSink(bag, TOPICS, "zstd", qos={FACTS: LATCHED_QOS, "/client/object": STREAM_QOS})
+    sink = BagSink(bag, TOPICS, compression, qos={FACTS: LATCHED_QOS, "/client/object": STREAM_QOS})
     try:
         sink.write(streams)
     finally:

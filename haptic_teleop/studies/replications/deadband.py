@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
-from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, compression
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, write_csv
 
 HELP = (
@@ -106,7 +106,7 @@ def main(args: argparse.Namespace) -> int:
 
     # the bag zstd-compressed; a --set may say otherwise
     overrides = [
-        "recording.compression=zstd",
+        compression(args.discard_bags),
         f"scene.duration_s={args.duration_s}",
         *(() if args.no_tapping else TAPPING),
         *(args.set or ()),

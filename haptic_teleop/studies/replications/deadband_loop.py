@@ -30,7 +30,7 @@ import numpy as np
 
 from haptic_teleop.studies.replications.args import number
 from haptic_teleop.studies.replications.deadband import P_LIST, SEED_001, TAPPING, code
-from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, compression
 from haptic_teleop.studies.replications.tables import markdown, write_csv
 
 HELP = (
@@ -251,7 +251,7 @@ def main(args: argparse.Namespace) -> int:
 
     # the runs' bags zstd-compressed; a --set may say otherwise
     base = [
-        "recording.compression=zstd",
+        compression(args.discard_bags),
         f"scene.duration_s={args.duration_s}",
         *(() if args.no_tapping else TAPPING),
         *(args.set or ()),

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
-from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, compression
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 BASE_SCENE = "nve_push"
@@ -409,7 +409,7 @@ def prepare_runs(
     from haptic_teleop.errors import InputError
 
     # the runs' bags zstd-compressed (a fifth of the size, no measurable time here); --set may say otherwise
-    probe = Runner(("recording.compression=zstd", *(args.set or ())), 0, 0, True, name)
+    probe = Runner((compression(args.discard_bags), *(args.set or ())), 0, 0, True, name)
     scene = probe.scene(
         (f"scene.duration_s={args.duration_s!r}", _client(f"operator.speed_m_per_s={args.speed_m_per_s!r}"))
     )

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number, subset
-from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, record_ticks
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, compression, record_ticks
 from haptic_teleop.studies.replications.tables import markdown, rms, write_csv
 
 HELP = (
@@ -361,7 +361,7 @@ def main(args: argparse.Namespace) -> int:
     configs = subset(args.configs, list(CONFIGS), "--configs")
     if SEED_POLICY not in policies:
         policies.insert(0, SEED_POLICY)
-    extra: tuple[str, ...] = tuple(args.set or ())
+    extra: tuple[str, ...] = (compression(args.discard_bags), *(args.set or ()))
     seeds = int(args.seeds)
     if args.quick:
         extra = ("scene.duration_s=1.5", "operator.duration_s=0.9", *extra)

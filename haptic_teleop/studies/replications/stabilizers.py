@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number, subset
+from haptic_teleop.studies.replications.recorded import compression
 from haptic_teleop.studies.replications.stabilizer_runs import (
     ARM_LAWS,
     ARM_SCENE,
@@ -245,10 +246,11 @@ def main(args: argparse.Namespace) -> int:
     if args.quick:
         seeds, duration, delays = 1, 1.5, [0.0, 0.1]
         losses = [x for x in losses if x in ("none", "bursty_30")] or losses[:1]
-    extra = (f"scene.duration_s={duration}", *(args.set or ()))
+    plain = (compression(args.discard_bags),)
+    extra = (*plain, f"scene.duration_s={duration}", *(args.set or ()))
     # The arm scene: the laws it runs, its own geometry, only the run's length from the options.
     arm_laws = [] if args.no_arm else [law for law in laws if law in ARM_LAWS]
-    arm_extra = (f"scene.duration_s={duration}",)
+    arm_extra = (*plain, f"scene.duration_s={duration}")
     sweep = zwidth.grid(args)
     for law in laws:  # a bad --set fails here, before anything is written
         scene((*GEOMETRY, *LAWS[law][1], *extra, *network_overrides(delays[-1], losses[-1])))

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.args import number
-from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, record_ticks
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line, compression, record_ticks
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, write_csv
 
 HELP = (
@@ -230,7 +230,7 @@ def free_start_table(delays_s: Sequence[float], after_s: float, runs: BagRuns) -
         ref_f = None
         for d in delays_s:
             ov = [
-                "recording.compression=zstd",
+                compression(runs.discard),
                 "scene.duration_s=4.0",
                 "operator.stiffness_n_per_m=100000",
                 "operator.damping_n_s_per_m=500",
@@ -334,7 +334,7 @@ def main(args: argparse.Namespace) -> int:
     if bad or not configs:
         raise InputError(f"--configs {args.configs}: allowed: a comma-separated subset of {', '.join(CONFIGS)}")
     delays = sorted({d / 1e3 for d in args.delays_ms} | {0.0})
-    extra = tuple(args.set or ())
+    extra = (compression(args.discard_bags), *(args.set or ()))
     for _, ov in (CONFIGS[c] for c in configs):  # a bad --set fails here, before anything is written
         _scene((*BASE, *ov, *extra))
     out = Path(args.out) if args.out else default_out("transparency")
