@@ -280,7 +280,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--keep-bags",
         action="store_true",
-        help="keep every run's bag (about 850 MB for all jobs; default: each experiment measures its bags, "
+        help="keep every run's bag (about 1.6 GB for all jobs; default: each experiment measures its bags, "
         "then deletes them)",
     )
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
