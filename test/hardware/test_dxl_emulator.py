@@ -380,7 +380,7 @@ def test_bus_watchdog_stops_a_servo_when_the_host_goes_quiet(sdk):
         time.sleep(1.0)  # the host goes quiet for 10 x the watchdog time
         assert ph.read1ByteTxRx(port, 1, t.ADDR_BUS_WATCHDOG)[:2] == (0xFF, COMM_SUCCESS)  # -1
         assert ph.read2ByteTxRx(port, 1, t.ADDR_PRESENT_CURRENT)[0] == 0  # stopped
-        assert ph.read1ByteTxRx(port, 1, t.ADDR_TORQUE_ENABLE)[0] == 1  # torque stays on
+        assert ph.read1ByteTxRx(port, 1, t.ADDR_TORQUE_ENABLE)[:2] == (1, COMM_SUCCESS)  # torque stays on
         assert ph.write2ByteTxRx(port, 1, t.ADDR_GOAL_CURRENT, 10) == (COMM_SUCCESS, t.StatusError.DATA_RANGE)
         assert ph.write1ByteTxRx(port, 1, t.ADDR_BUS_WATCHDOG, 0) == (COMM_SUCCESS, 0)  # clears it
         assert ph.write2ByteTxRx(port, 1, t.ADDR_GOAL_CURRENT, 10) == (COMM_SUCCESS, 0)
