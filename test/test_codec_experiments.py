@@ -204,8 +204,10 @@ def test_the_bags_are_standard_rosbag2_that_an_independent_reader_opens(tmp_path
     assert r.returncode == 0, r.stderr
     with (out / "error_control.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    bags = sorted((out / "bags").iterdir())
-    assert [b.name[:2] for b in bags] == [f"{i:02d}" for i in range(1, len(rows) + 1)]
+    bags = sorted(d for d in (out / "bags").iterdir() if d.is_dir())
+    assert [b.name[:4] for b in bags] == [f"{i:03d}_" for i in range(1, len(rows) + 1)]
+    with (out / "bags" / "index.csv").open() as fh:
+        assert [r["run"] for r in csv.DictReader(fh)] == [r["scheme"] for r in rows]
     arq = next(b for b in bags if "arq_mu_25" in b.name)
     row = next(x for x in rows if x["scheme"].startswith("+ ARQ (mu = 25"))
     counts: dict[str, int] = {}

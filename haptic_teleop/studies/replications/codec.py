@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -33,7 +32,7 @@ import numpy as np
 
 from haptic_teleop.studies.replications.args import number
 from haptic_teleop.studies.replications.codec_run import PERIOD_NS, PERIOD_S, Result, object_position_m
-from haptic_teleop.studies.replications.recorded import bags_line
+from haptic_teleop.studies.replications.recorded import BagRuns, bags_line
 from haptic_teleop.studies.replications.tables import finish_figure, markdown, rms, write_csv
 
 ERROR_CONTROL_HELP = (
@@ -216,9 +215,10 @@ def _run_all(
     from haptic_teleop.studies.replications.codec_bags import read_bag, slug, write_bag
 
     plain = {k: v for k, v in sorted(vars(args).items()) if v is None or isinstance(v, (bool, int, float, str))}
+    runs = BagRuns(out / "bags", args.discard_bags)
     results = []
     try:
-        for i, (label, make) in enumerate(cases, start=1):
+        for label, make in cases:
             built = make(args)
             if isinstance(built, tuple) and len(built) == 2 and isinstance(built[1], int):
                 codec, extra = built
@@ -226,16 +226,12 @@ def _run_all(
                 codec, extra = built, 0
             ran = simulate(label, codec, args, _delay_ticks(args) + extra, bar.update if bar else None)
             # the table is computed from the bag read back: every figure can be checked from data
-            bag = out / "bags" / slug(i, label)
-            write_bag(bag, ran, name, plain, "none" if args.discard_bags else "zstd")
-            results.append(read_bag(bag)[0])
-            if args.discard_bags:
-                shutil.rmtree(bag)
+            with runs.bag(slug(label), label) as bag:
+                write_bag(bag, ran, name, plain, "none" if args.discard_bags else "zstd")
+                results.append(read_bag(bag)[0])
     finally:
         if bar is not None:
             bar.close()
-    if args.discard_bags and (out / "bags").is_dir():
-        (out / "bags").rmdir()
     return results, out
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -54,19 +55,15 @@ SERVER = FixedLayout(JOINT_STATE, make_joint_state(JOINT, ("position",)), 1)
 CLIENT = FixedLayout(JOINT_STATE, make_joint_state(JOINT, ("position", "effort")), 2)
 
 
-def slug(index: int, label: str) -> str:
-    """A bag's directory name: the scheme's place in the table and its label in lower-case words."""
-    return f"{index:02d}_" + (re.sub(r"[^a-z0-9]+", "_", label.lower()).strip("_") or "scheme")
+def slug(label: str) -> str:
+    """A scheme's label in lower-case words, for its bag's name."""
+    return re.sub(r"[^a-z0-9]+", "_", label.lower()).strip("_") or "scheme"
 
 
+@lru_cache(maxsize=16)
 def _payload_layout(n: int) -> FixedLayout:
     """A sent packet's JointState: n values as positions, joints `value_0` to `value_<n-1>`."""
-    if n not in _PAYLOADS:
-        _PAYLOADS[n] = FixedLayout(JOINT_STATE, make_joint_state([f"value_{i}" for i in range(n)], ("position",)), n)
-    return _PAYLOADS[n]
-
-
-_PAYLOADS: dict[int, FixedLayout] = {}
+    return FixedLayout(JOINT_STATE, make_joint_state([f"value_{i}" for i in range(n)], ("position",)), n)
 
 
 def _sent(packets: list[Packet]) -> list[bytes]:
@@ -145,8 +142,8 @@ def _packets(reader: Any, direction: str) -> list[Packet]:
         tuple(float(v) for v in ts.deserialize_cdr(raw, JOINT_STATE).position)
         for _, raw in reader.messages(f"/{direction}/sent")
     ]
-    batches = [ts.deserialize_cdr(raw, MULTIARRAY).data for _, raw in reader.messages(topic)]
-    rows = np.concatenate(batches).reshape(-1, len(PACKET_FIELDS)) if batches else np.zeros((0, len(PACKET_FIELDS)))
+    batches = list(reader.packet_blocks(topic))  # in the bag's order: the order sent
+    rows = np.concatenate(batches) if batches else np.zeros((0, len(PACKET_FIELDS)))
     if rows.shape[0] != len(payloads):
         raise BagError(f"{reader.path}: {len(rows)} packet records against {len(payloads)} {direction} messages")
     out = []

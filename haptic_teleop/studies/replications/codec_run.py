@@ -55,25 +55,34 @@ class Result:
 
     @property
     def packets(self) -> int:
-        return sum(1 for p in self.forward if not p.duplicate)
+        return len(_originals(self.forward))
 
     @property
     def ros_bytes(self) -> int:
-        """On the wire with each packet's message size and the IPv4 + UDP + RTPS headers."""
-        return sum(p.size_bytes + DEFAULT_OVERHEAD_BYTES for p in self.forward if not p.duplicate)
+        return _ros_bytes(self.forward)
 
     @property
     def compact_bytes(self) -> int:
         """The payloads as float64s plus IPv4 + UDP headers."""
-        return sum(8 * len(p.payload) + UDP_IP_HEADER_BYTES for p in self.forward if not p.duplicate)
+        return sum(8 * len(p.payload) + UDP_IP_HEADER_BYTES for p in _originals(self.forward))
 
     @property
     def reverse_packets(self) -> int:
-        return sum(1 for p in self.reverse if not p.duplicate)
+        return len(_originals(self.reverse))
 
     @property
     def reverse_ros_bytes(self) -> int:
-        return sum(p.size_bytes + DEFAULT_OVERHEAD_BYTES for p in self.reverse if not p.duplicate)
+        return _ros_bytes(self.reverse)
+
+
+def _originals(packets: list[Packet]) -> list[Packet]:
+    """The packets a sender put on the link (not a duplicating effect's copies)."""
+    return [p for p in packets if not p.duplicate]
+
+
+def _ros_bytes(packets: list[Packet]) -> int:
+    """On the wire with each packet's message size and the IPv4 + UDP + RTPS headers."""
+    return sum(p.size_bytes + DEFAULT_OVERHEAD_BYTES for p in _originals(packets))
 
 
 def object_position_m(t_s: np.ndarray, period_s: float) -> np.ndarray:

@@ -104,7 +104,7 @@ def main(args: argparse.Namespace) -> int:
     from haptic_teleop.errors import InputError
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    # the bag zstd-compressed; a --set may say otherwise
+    # the bag zstd-compressed when kept (recorded.compression); a --set may say otherwise
     overrides = [
         compression(args.discard_bags),
         f"scene.duration_s={args.duration_s}",
@@ -120,7 +120,6 @@ def main(args: argparse.Namespace) -> int:
     with runs.bag("recorded", "the recorded run", f"--scene {args.scene}", overrides) as bag:
         record_run(scene, bag, handle_sigint=False, parallel=False)
         vel, force = streams(bag)
-    runs.write_index()
     rows: list[list[Any]] = []
     results: dict[str, list[dict[str, float]]] = {"force": [], "velocity": []}
     bar: Any = None

@@ -249,7 +249,7 @@ def main(args: argparse.Namespace) -> int:
     from haptic_teleop.errors import InputError
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    # the runs' bags zstd-compressed; a --set may say otherwise
+    # the runs' bags zstd-compressed when kept (recorded.compression); a --set may say otherwise
     base = [
         compression(args.discard_bags),
         f"scene.duration_s={args.duration_s}",
@@ -273,7 +273,6 @@ def main(args: argparse.Namespace) -> int:
     results = _run_all(jobs, args.jobs, args.quiet)
     for job in jobs:
         bags.drop(Path(job[3]))
-    bags.write_index()
     ref, runs = results[0], results[1:]
     rows: list[list[Any]] = []
     table: dict[str, list[dict[str, float]]] = {c: [] for c in args.coded}

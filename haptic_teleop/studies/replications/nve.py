@@ -111,7 +111,6 @@ class Runner:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.close()
-        self.recorded.write_index()
 
     def scene(self, overrides: Sequence[str]) -> Any:
         from haptic_teleop.scene.load import find_scene, load_scene
@@ -408,7 +407,7 @@ def prepare_runs(
     from haptic_teleop.analysis.outputs import check_out_dir, default_out
     from haptic_teleop.errors import InputError
 
-    # the runs' bags zstd-compressed (a fifth of the size, no measurable time here); --set may say otherwise
+    # the runs' bags zstd-compressed when kept (recorded.compression); a --set may say otherwise
     probe = Runner((compression(args.discard_bags), *(args.set or ())), 0, 0, True, name)
     scene = probe.scene(
         (f"scene.duration_s={args.duration_s!r}", _client(f"operator.speed_m_per_s={args.speed_m_per_s!r}"))

@@ -92,8 +92,7 @@ def fixed_above_delay_s(delays_s: np.ndarray, period_s: float) -> float:
 def _scene(overrides: Sequence[str]) -> Any:
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    # the runs' bags zstd-compressed (record_ticks); a --set may say otherwise
-    return load_scene(find_scene(BASE_SCENE), overrides=["recording.compression=zstd", *overrides])
+    return load_scene(find_scene(BASE_SCENE), overrides=list(overrides))
 
 
 def _buffer_overrides(keys: dict[str, Any]) -> list[str]:
@@ -385,7 +384,6 @@ def main(args: argparse.Namespace) -> int:
         all_paired += [[c, *r] for r in paired]
         text += f"### {label}\n\n" + markdown_tables(table, paired, seeds)
         text += "\n" + ", ".join(f"{k} = {v:.4g}" for k, v in facts.items()) + "\n\n"
-    runs.write_index()
     write_csv(out / "playout_runs.csv", ["configuration", *RUNS_HEADER], all_rows)
     write_csv(out / "playout.csv", ["configuration", *TABLE_HEADER], all_table)
     write_csv(out / "playout_paired.csv", ["configuration", *PAIRED_HEADER], all_paired)

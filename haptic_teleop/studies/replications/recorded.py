@@ -46,35 +46,45 @@ class BagRuns:
 
     @contextmanager
     def bag(self, key: str, label: str = "", settings: str = "", overrides: Sequence[str] = ()) -> Iterator[Path]:
-        """The path of the next run's bag (`NNN_<key>`): record into it and read it inside the block."""
+        """The path of the next run's bag (`NNN_<key>`): record into it and read it inside the block;
+        indexed after it, also when a Ctrl-C stopped it (its bag is closed and readable)."""
         with tempfile.TemporaryDirectory() as tmp:
-            path = (self.bags if self.bags is not None else Path(tmp)) / f"{len(self.index) + 1:03d}_{key}"
+            path = self._next(key, Path(tmp))
             try:
                 yield path
             finally:
-                # after every run, also one stopped by Ctrl-C (its bag is closed and readable)
-                self.index.append([path.name, label, settings, " ".join(overrides)])
-                self.write_index()
-            if self.discard and path.exists():
-                shutil.rmtree(path)
+                self._add(path, label, settings, overrides)
+            self.drop(path)
 
     def reserve(self, key: str, label: str = "", settings: str = "", overrides: Sequence[str] = ()) -> Path:
-        """The next run's bag path, for runs recorded elsewhere (worker processes): indexed now;
-        the caller records into it and, with `discard`, calls `drop` once it is read."""
+        """The next run's bag path, for runs recorded elsewhere (worker processes), indexed now; the
+        caller records into it and calls `drop` once it is read."""
         if self.bags is None:
             raise ValueError("reserve needs a bag folder")
-        path = self.bags / f"{len(self.index) + 1:03d}_{key}"
-        self.index.append([path.name, label, settings, " ".join(overrides)])
+        path = self._next(key, self.bags)
+        self._add(path, label, settings, overrides)
         return path
 
     def drop(self, path: Path) -> None:
-        """Delete a reserved bag once read, when the bags are discarded."""
-        if self.discard and path.exists():
+        """With `discard`, delete a bag once read (and the bag folder once empty)."""
+        if not self.discard:
+            return
+        if path.exists():
             shutil.rmtree(path)
+        if path.parent.is_dir() and not any(path.parent.iterdir()):
+            path.parent.rmdir()
+
+    def _next(self, key: str, temporary: Path) -> Path:
+        return (self.bags if self.bags is not None else temporary) / f"{len(self.index) + 1:03d}_{key}"
+
+    def _add(self, path: Path, label: str, settings: str, overrides: Sequence[str]) -> None:
+        self.index.append([path.name, label, settings, " ".join(overrides)])
+        self.write_index()
 
     def write_index(self) -> None:
         """`bags/index.csv`, when the bags are kept."""
         if self.bags is not None and self.index and not self.discard:
+            self.bags.mkdir(parents=True, exist_ok=True)  # reserved paths come before their bags
             write_csv(self.bags / "index.csv", INDEX_HEADER, self.index)
 
 

@@ -76,11 +76,10 @@ ARM_LAWS = ("reservoir", "tdpa_zoh", "tdpa_zoh_reflect")
 
 
 def scene(overrides: Sequence[str], base: str = BASE_SCENE) -> Any:
-    """The scene `base` (the one-axis contact scene by default) with `overrides`; its bag
-    zstd-compressed (a fifth of the size; an override may say otherwise)."""
+    """The scene `base` (the one-axis contact scene by default) with `overrides`."""
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    return load_scene(find_scene(base), overrides=["recording.compression=zstd", *overrides])
+    return load_scene(find_scene(base), overrides=list(overrides))
 
 
 def network_overrides(delay_s: float, loss: str) -> list[str]:

@@ -85,8 +85,7 @@ class Run:
 def _scene(overrides: Sequence[str]) -> Any:
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    # the runs' bags zstd-compressed (record_ticks); a --set may say otherwise
-    return load_scene(find_scene(BASE_SCENE), overrides=["recording.compression=zstd", *overrides])
+    return load_scene(find_scene(BASE_SCENE), overrides=list(overrides))
 
 
 def _run(overrides: Sequence[str], runs: BagRuns, key: str) -> tuple[Run, Any]:
@@ -343,7 +342,6 @@ def main(args: argparse.Namespace) -> int:
     delay_rows = delay_table(configs, delays, extra, runs)
     loss_rows = loss_table(configs, [b / 1e3 for b in args.bursts_ms], extra, runs)
     free_rows = free_start_table(delays, args.after_s, runs)
-    runs.write_index()
     tables = []
     for name, header, rows in (
         ("transparency_delay", DELAY_HEADER, delay_rows),
