@@ -13,13 +13,14 @@ seed 000 under its allowable-delay cap, with a contact horizon) and `network_ada
 network-adaptive buffering as the seed describes it: the buffering time from the transparency
 analysis' allowable delay and loss time and the minimum network delay, no free horizon).
 
-The tick path is plain Python on ints: a heap of held packets, a ring of recently seen sequence
-numbers (duplicates), and per-policy estimators that cost O(1) or O(log window) per packet.
+The rules of `none`'s duplicates and of the scheduled policies (the held packets, late marking,
+the slewed playout delay, the `fixed` and `adaptive` estimators) are core/playout_rules.py's
+functions over arrays, which the compiled loops run too; `percentile`, `transparency` and
+`network_adaptive` set their target from Python (O(log window) per packet).
 """
 
 from __future__ import annotations
 
-import heapq
 import math
 from array import array
 from bisect import bisect_left, insort
@@ -27,7 +28,16 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Protocol
 
+from haptic_teleop.core import playout_rules as rules
 from haptic_teleop.core.link import LOST_LATE, Packet
+from haptic_teleop.core.playout_rules import (
+    adaptive_observe,
+    fixed_observe,
+    push_begin,
+    push_hold,
+    sched_release,
+    seen_before,
+)
 
 POLICIES = ("none", "fixed", "adaptive", "percentile", "transparency", "network_adaptive")
 
@@ -38,15 +48,9 @@ GAP_MODES = ("hold", "extrapolate")
 RAMJEE_SMOOTHING = 0.998002  # alpha of Ramjee et al. (1994), algorithm 1
 
 
-# Duplicate detection remembers the last _SEEN_SLOTS sequence numbers in a ring (32 s at 1 kHz):
+# Duplicate detection remembers the last SEEN_SLOTS sequence numbers in a ring (32 s at 1 kHz):
 # an arrival that repeats a sequence number older than that is counted late, not duplicate.
-_SEEN_SLOTS = 1 << 15
-
-
-_SEEN_MASK = _SEEN_SLOTS - 1
-
-
-_NO_SEQ = -(1 << 63)
+_NO_SEQ = rules.NO_SEQ
 
 
 # Transparency policy: a new decision (O(window)) every RETARGET_PACKETS arrivals, and at
@@ -69,11 +73,23 @@ class PlayoutBuffer(Protocol):
     """What the engine and the sync_buffer node use; every policy implements it."""
 
     name: str
-    late: int  # packets that arrived but were never played (fate LOST_LATE)
-    duplicates: int  # arrivals of a sequence number already received (ignored, not lost)
-    played: int  # received packets released
     extrapolated: int  # made-up packets released (gap: extrapolate)
-    last_buffering_ns: int  # release time - arrival time of the last released packet (-1: extrapolated)
+
+    @property
+    def late(self) -> int:
+        """Packets that arrived but were never played (fate LOST_LATE)."""
+
+    @property
+    def duplicates(self) -> int:
+        """Arrivals of a sequence number already received (ignored, not lost)."""
+
+    @property
+    def played(self) -> int:
+        """Received packets released."""
+
+    @property
+    def last_buffering_ns(self) -> int:
+        """Release time - arrival time of the last released packet (-1: made up)."""
 
     @property
     def occupancy(self) -> int: ...
@@ -94,9 +110,10 @@ def contact_force_slope(stiffness_n_per_m: float, speed_m_per_s: float) -> float
 
 
 class BufferBase:
-    """Accounting shared by every policy: duplicates, late marking, played / gap bookkeeping."""
+    """What every policy shares: the duplicates ring, the gap mode and extrapolation."""
 
     name = "base"
+    extrapolated: int
 
     def __init__(self, period_ns: int, gap: str, max_extrapolation_ns: int) -> None:
         if gap not in GAP_MODES:
@@ -108,13 +125,8 @@ class BufferBase:
         self.period_ns = period_ns
         self._extrapolate = gap == "extrapolate"
         self._max_extra_slots = max_extrapolation_ns // period_ns if period_ns > 0 else 0
-        self.late = 0
-        self.duplicates = 0
-        self.played = 0
         self.extrapolated = 0
-        self.last_buffering_ns = -1
-        self._seen = array("q", [_NO_SEQ]) * _SEEN_SLOTS
-        self._last_out_seq = _NO_SEQ  # seq of the last released packet, received or made up
+        self._seen = rules.new_seen()
         self._last_real: Packet | None = None
         self._prev_real: Packet | None = None
 
@@ -124,25 +136,14 @@ class BufferBase:
         releases then depends on the payloads it received, not only on sequence numbers."""
         return self._extrapolate
 
-    def _is_duplicate(self, seq: int) -> bool:
-        i = seq & _SEEN_MASK
-        if self._seen[i] == seq:
-            self.duplicates += 1
-            return True
-        self._seen[i] = seq
-        return False
-
-    def _mark_late(self, packet: Packet) -> None:
-        packet.fate = LOST_LATE
-        self.late += 1
-
-    def _play(self, packet: Packet, arrived_ns: int, now_ns: int) -> Packet:
-        self.played += 1
-        self.last_buffering_ns = now_ns - arrived_ns
-        self._last_out_seq = packet.seq
+    def _played(self, packet: Packet) -> Packet:
         self._prev_real = self._last_real
         self._last_real = packet
         return packet
+
+    def _made_up(self, slot: int) -> None:
+        """A made-up sample for `slot` was released (the policy's own bookkeeping)."""
+        raise NotImplementedError
 
     def _fill(self, slot: int, now_ns: int) -> Packet | None:
         """The linear extrapolation of the last two received samples to `slot`, or None (hold)."""
@@ -155,8 +156,7 @@ class BufferBase:
         k = ahead / (last.seq - prev.seq)
         payload = tuple(b + (b - a) * k for a, b in zip(prev.payload, last.payload, strict=True))
         self.extrapolated += 1
-        self.last_buffering_ns = -1
-        self._last_out_seq = slot
+        self._made_up(slot)
         return ExtrapolatedPacket(
             seq=slot,
             send_time_ns=last.send_time_ns + ahead * self.period_ns,
@@ -178,6 +178,11 @@ class PlayOnArrival(BufferBase):
 
     def __init__(self, period_ns: int = 0, gap: str = "hold", max_extrapolation_ns: int = 0) -> None:
         super().__init__(period_ns, gap, max_extrapolation_ns)
+        self.late = 0
+        self.duplicates = 0
+        self.played = 0
+        self.last_buffering_ns = -1
+        self._last_out_seq = _NO_SEQ  # seq of the last released packet, received or made up
         self._pending: Packet | None = None
         self._pending_arrived_ns = 0
         self._last_play_ns = 0
@@ -190,8 +195,17 @@ class PlayOnArrival(BufferBase):
         """The lowest sequence number the buffer holds (its fate may still change), or None."""
         return None if self._pending is None else self._pending.seq
 
+    def _mark_late(self, packet: Packet) -> None:
+        packet.fate = LOST_LATE
+        self.late += 1
+
+    def _made_up(self, slot: int) -> None:
+        self.last_buffering_ns = -1
+        self._last_out_seq = slot
+
     def push(self, packet: Packet, now_ns: int) -> None:
-        if self._is_duplicate(packet.seq):
+        if seen_before(self._seen, packet.seq):
+            self.duplicates += 1
             return
         pending = self._pending
         last = self._last_real
@@ -208,7 +222,10 @@ class PlayOnArrival(BufferBase):
         if p is not None:
             self._pending = None
             self._last_play_ns = now_ns
-            return self._play(p, self._pending_arrived_ns, now_ns)
+            self.played += 1
+            self.last_buffering_ns = now_ns - self._pending_arrived_ns
+            self._last_out_seq = p.seq
+            return self._played(p)
         last = self._last_real
         if self._extrapolate and last is not None:
             slot = last.seq + (now_ns - self._last_play_ns) // self.period_ns
@@ -229,7 +246,12 @@ class ScheduledBuffer(BufferBase):
     `max_slew_rate` seconds per second of receiver time: the played timeline (now - D) never runs
     backwards and advances by at most (1 + rate) periods per period, so a change of D stretches
     (holds) or skips at most one sample per `1 / rate` samples.
+
+    The rules are core/playout_rules.py's, over this buffer's arrays (the compiled loops run the
+    same functions); this class keeps the packets themselves and gives them their fates.
     """
+
+    policy = rules.POLICY_OTHER  # the estimator, when core/playout_rules.py has it
 
     def __init__(
         self,
@@ -247,80 +269,88 @@ class ScheduledBuffer(BufferBase):
         if hysteresis_ns < 0:
             raise ValueError(f"hysteresis_ns must be >= 0, got {hysteresis_ns}")
         super().__init__(period_ns, gap, max_extrapolation_ns)
-        self._slew = max_slew_rate
-        self._hysteresis_ns = hysteresis_ns
-        self._heap: list[tuple[int, int, Packet]] = []  # (seq, arrival now_ns, packet)
-        self._ref: int | None = None  # relative delay of the first packet
-        self._target_rel = 0  # the policy's target D, relative to _ref
-        self.playout_delay_ns: int | None = None  # D in use (receiver clock - send stamp)
-        self._started = False
-        self._moving = False
-        self._last_release_ns = 0
+        self.Q, self.E = rules.new_state(self.policy, hysteresis_ns, max_slew_rate)
+        self.R = rules.new_held()
+        self._late = array("q", bytes(8 * rules.SEEN_SLOTS))
+        self._held: dict[int, Packet] = {}
+
+    # Counters and state, read from the arrays.
+    @property
+    def late(self) -> int:
+        """Packets that arrived but were never played (fate LOST_LATE)."""
+        return int(self.Q[rules.Q_LATE])
+
+    @property
+    def duplicates(self) -> int:
+        return int(self.Q[rules.Q_DUPLICATES])
+
+    @property
+    def played(self) -> int:
+        return int(self.Q[rules.Q_PLAYED])
+
+    @property
+    def last_buffering_ns(self) -> int:
+        return int(self.Q[rules.Q_LAST_BUFFERING])
 
     @property
     def occupancy(self) -> int:
-        return len(self._heap)
+        return int(self.Q[rules.Q_COUNT])
+
+    @property
+    def playout_delay_ns(self) -> int | None:
+        """D in use (receiver clock - send stamp), None before the first packet is held."""
+        Q = self.Q
+        return int(Q[rules.Q_DELAY]) if Q[rules.Q_HAS_DELAY] else None
 
     def oldest_held_seq(self) -> int | None:
         """The lowest sequence number the buffer holds (its fate may still change), or None."""
-        return self._heap[0][0] if self._heap else None
+        Q = self.Q
+        return int(Q[rules.Q_MIN]) if Q[rules.Q_COUNT] else None
 
     @property
     def target_delay_ns(self) -> int | None:
         """The policy's current choice of D (receiver clock - send stamp, clock offset included)."""
-        return None if self._ref is None else self._ref + self._target_rel
+        Q = self.Q
+        return int(Q[rules.Q_REF] + Q[rules.Q_TARGET]) if Q[rules.Q_HAS_REF] else None
+
+    def _made_up(self, slot: int) -> None:
+        self.Q[rules.Q_LAST_BUFFERING] = -1
+        self.Q[rules.Q_LAST_OUT] = slot
 
     def _observe(self, rel_ns: int) -> None:
         """Update the estimator with one relative delay (relative to the first packet's)."""
         raise NotImplementedError
 
+    def _set_target(self, rel_ns: int) -> None:
+        """The policy's target D, relative to the first packet's relative delay."""
+        self.Q[rules.Q_TARGET] = rel_ns
+
     def push(self, packet: Packet, now_ns: int) -> None:
-        if self._is_duplicate(packet.seq):
+        Q, seq, send = self.Q, packet.seq, packet.send_time_ns
+        rel = push_begin(Q, self._seen, seq, send, now_ns)
+        if rel == _NO_SEQ:
             return
-        rel = now_ns - packet.send_time_ns
-        ref = self._ref
-        if ref is None:
-            ref = self._ref = rel
-        self._observe(rel - ref)
-        if packet.seq <= self._last_out_seq:
-            self._mark_late(packet)
-            return
-        heapq.heappush(self._heap, (packet.seq, now_ns, packet))
-        if not self._started:
-            self.playout_delay_ns = ref + self._target_rel
+        self._observe(rel)
+        if push_hold(Q, self.R, seq, send, now_ns) == rules.PUSH_LATE:
+            packet.fate = LOST_LATE
+        else:
+            self._held[seq] = packet
 
     def release(self, now_ns: int) -> Packet | None:
-        delay = self.playout_delay_ns
-        if delay is None:
-            return None
-        if self._started:
-            target = self._target_rel + (self._ref or 0)
-            if target == delay:
-                self._moving = False
-            elif self._moving or abs(target - delay) > self._hysteresis_ns:
-                step = int((now_ns - self._last_release_ns) * self._slew)
-                delay = min(target, delay + step) if target > delay else max(target, delay - step)
-                self._moving = delay != target
-                self.playout_delay_ns = delay
-        self._last_release_ns = now_ns
-        cutoff = now_ns - delay
-        heap = self._heap
-        best: tuple[int, int, Packet] | None = None
-        while heap and heap[0][2].send_time_ns <= cutoff:
-            entry = heapq.heappop(heap)
-            if entry[0] <= self._last_out_seq:
-                self._mark_late(entry[2])  # only if send stamps are not seq * period
-                continue
-            if best is not None:
-                self._mark_late(best[2])  # skipped: a newer sample is due too
-            best = entry
-        if best is not None:
-            self._started = True
-            return self._play(best[2], best[1], now_ns)
+        Q = self.Q
+        s = sched_release(Q, self.E, self.R, now_ns, self._late)
+        n_late = Q[rules.Q_NLATE]
+        if n_late:
+            held, late = self._held, self._late
+            for i in range(n_late):
+                held.pop(late[i]).fate = LOST_LATE
+        if s != _NO_SEQ:
+            return self._played(self._held.pop(s))
         last = self._last_real
-        if self._extrapolate and last is not None:
+        if self._extrapolate and last is not None and Q[rules.Q_HAS_DELAY]:
+            cutoff = now_ns - int(Q[rules.Q_DELAY])
             slot = last.seq + (cutoff - last.send_time_ns) // self.period_ns
-            if slot > self._last_out_seq:
+            if slot > Q[rules.Q_LAST_OUT]:
                 return self._fill(slot, now_ns)
         return None
 
@@ -335,20 +365,17 @@ class FixedBuffer(ScheduledBuffer):
     """
 
     name = "fixed"
+    policy = rules.POLICY_FIXED
 
     def __init__(self, period_ns: int, buffering_ns: int, gap: str = "hold", max_extrapolation_ns: int = 0) -> None:
         if buffering_ns < 0:
             raise ValueError(f"buffering_ns must be >= 0, got {buffering_ns}")
         super().__init__(period_ns, gap=gap, max_extrapolation_ns=max_extrapolation_ns)
         self.buffering_ns = buffering_ns
-        self._min_rel: int | None = None
+        self.Q[rules.Q_BUFFERING] = buffering_ns
 
     def _observe(self, rel_ns: int) -> None:
-        if self._started:
-            return
-        if self._min_rel is None or rel_ns < self._min_rel:
-            self._min_rel = rel_ns
-            self._target_rel = rel_ns + self.buffering_ns
+        fixed_observe(self.Q, rel_ns)
 
 
 class AdaptiveBuffer(ScheduledBuffer):
@@ -363,6 +390,7 @@ class AdaptiveBuffer(ScheduledBuffer):
     """
 
     name = "adaptive"
+    policy = rules.POLICY_ADAPTIVE
 
     def __init__(
         self,
@@ -386,35 +414,24 @@ class AdaptiveBuffer(ScheduledBuffer):
             max_slew_rate=max_slew_rate,
             hysteresis_ns=hysteresis_ns,
         )
-        self._a = smoothing
-        self._b = 1.0 - smoothing
-        self._beta = variation_factor
-        self._d = 0.0
-        self._v = 0.0
-        self._n = 0
+        E = self.E
+        E[rules.E_A] = smoothing
+        E[rules.E_B] = 1.0 - smoothing
+        E[rules.E_BETA] = variation_factor
 
     @property
     def delay_estimate_ns(self) -> float | None:
         """d_hat on the receiver's clock (clock offset included)."""
-        return None if self._ref is None else self._ref + self._d
+        Q = self.Q
+        return float(Q[rules.Q_REF] + self.E[rules.E_D]) if Q[rules.Q_HAS_REF] else None
 
     @property
     def variation_estimate_ns(self) -> float:
         """v_hat (a difference of delays: the clock offset cancels)."""
-        return self._v
+        return float(self.E[rules.E_V])
 
     def _observe(self, rel_ns: int) -> None:
-        if self._n == 0:
-            d = float(rel_ns)
-            v = 0.0
-        else:
-            a, b = self._a, self._b
-            d = a * self._d + b * rel_ns
-            v = a * self._v + b * abs(d - rel_ns)
-        self._n += 1
-        self._d = d
-        self._v = v
-        self._target_rel = round(d + self._beta * v)
+        adaptive_observe(self.Q, self.E, rel_ns)
 
 
 class Window:
@@ -476,4 +493,4 @@ class PercentileBuffer(ScheduledBuffer):
         srt = w.sorted
         n = len(srt)
         rank = math.ceil(self.quantile * n - 1e-9)  # 1-based nearest rank
-        self._target_rel = srt[min(n, max(1, rank)) - 1]
+        self._set_target(srt[min(n, max(1, rank)) - 1])

@@ -126,7 +126,7 @@ class TransparencyBuffer(ScheduledBuffer):
                 best_b, best_cost = b, cost
         self.buffering_ns = best_b
         self.expected_hold_ns = round(best_cost) - best_b
-        self._target_rel = lo + best_b
+        self._set_target(lo + best_b)
         s = self._slope
         self.expected_force_error_n = None if s is None else s * (self._d0 + best_cost) * 1e-9
 
@@ -216,4 +216,4 @@ class NetworkAdaptiveBuffer(ScheduledBuffer):
         else:
             self.requirement_met = True
         self.buffering_ns = need
-        self._target_rel = srt[0] + need
+        self._set_target(srt[0] + need)
