@@ -243,7 +243,9 @@ def wait_message(module: str) -> str:
 _compiled: dict[tuple[Any, ...], Any] = {}
 
 
-def compile_tree(f: Callable[..., Any], inline: bool = False, bound: Mapping[str, Any] | None = None) -> Any:
+def compile_tree(
+    f: Callable[..., Any], inline: bool = False, bound: Mapping[str, Any] | None = None, counted: bool = True
+) -> Any:
     """`f` compiled by numba (`njit(cache=True, nogil=True)`) from its own definition, with every
     plain function of this package it calls (by global name) compiled the same way: numba cannot
     call uncompiled functions, and the core modules must not import numba, so the calls are bound
@@ -252,8 +254,12 @@ def compile_tree(f: Callable[..., Any], inline: bool = False, bound: Mapping[str
     `bound`: callees, by global name, bound to the compiled functions given instead (one compiled
     once and called, where inlining it at every call would cost compile time; numba's cache
     tells a function's compilations apart by signature only, so a function compiled with two
-    bindings must be inlined in both). Each function is compiled once per process (and way)."""
-    key = (f, inline, tuple(sorted((name, id(g)) for name, g in bound.items())) if bound else ())
+    bindings must be inlined in both). `counted=False`: `f` is compiled without reference
+    counting (numba's private `_nrt=False`, as the tick kernels; it must not allocate), which
+    costs a loop that hands arrays to its callees a third of its time less (as with `bound`, a
+    function compiled both ways must be inlined in both). Each function is compiled once per
+    process (and way)."""
+    key = (f, inline, tuple(sorted((name, id(g)) for name, g in bound.items())) if bound else (), counted)
     done = _compiled.get(key)
     if done is not None:
         return done
@@ -265,14 +271,15 @@ def compile_tree(f: Callable[..., Any], inline: bool = False, bound: Mapping[str
         if bound is not None and name in bound:
             glob[name] = bound[name]
         elif isinstance(g, types.FunctionType) and g.__module__.startswith(PACKAGE + "."):
-            glob[name] = compile_tree(g, inline, bound)
+            glob[name] = compile_tree(g, inline, bound, counted)
     code = f.__code__  # type: ignore[attr-defined]
     fn = types.FunctionType(code, glob, f.__name__, f.__defaults__, f.__closure__)  # type: ignore[attr-defined]
     fn.__qualname__ = f.__qualname__
     fn.__module__ = f.__module__
+    opts: dict[str, Any] = {} if counted else {"_nrt": False}
     if inline:
-        done = numba.njit(cache=True, nogil=True, inline="always")(fn)
+        done = numba.njit(cache=True, nogil=True, inline="always", **opts)(fn)
     else:
-        done = numba.njit(cache=True, nogil=True)(fn)
+        done = numba.njit(cache=True, nogil=True, **opts)(fn)
     _compiled[key] = done
     return done

@@ -17,6 +17,7 @@ import pytest
 from compiled_identity import Calls, assert_same_calls
 
 from haptic_teleop.engine.compiled import axis_host
+from haptic_teleop.engine.compiled.buffer_schedule import BufferedSchedule
 from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.scene.load import find_scene, load_scene
@@ -157,10 +158,11 @@ def test_compiled_loop_equals_python_loop(case):
     assert kinds[0] == "rows" and {"forward", "backward"} & set(kinds[: kinds.index("rows", 1)])
 
 
-@pytest.mark.parametrize("case", ["default", "jitter_reorder"])
+@pytest.mark.parametrize("case", ["default", "jitter_reorder", "adaptive"])
 def test_stopped_compiled_run_leaves_the_python_loops_records(case):
     """Stopped at the same tick, both loops leave the same columns and packet records (a ticked
-    schedule is decided one chunk of the loop at a time, so it never runs ahead of a stop)."""
+    schedule is decided one chunk of the loop at a time, so it never runs ahead of a stop; a
+    buffered one is decided a window ahead and records what had happened by the stop)."""
     name, overrides = CASES[case]
     compiled, python = _both(_scene(name, overrides), stop_at=700)
     assert compiled[1].interrupted and compiled[1].ticks == 700
@@ -226,7 +228,8 @@ def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, re
 
 def test_vectorized_network_only_where_it_is_exact():
     """The default network is decided in numpy, window by window, and bursty (Markov) loss too (its
-    chain run compiled over the window); jitter with an adaptive buffer is ticked."""
+    chain run compiled over the window); jitter with an adaptive buffer too, its buffer's rules
+    compiled (buffer_schedule.py); a time-varying delay is ticked."""
     e = Engine(_scene("wall_contact", [f"{FWD}.effects.loss.probability=0.3"]))
     s = axis_host.schedule(e.forward, e.forward_buffer, e.period_ns, 72)
     assert s.vectorized
@@ -237,7 +240,9 @@ def test_vectorized_network_only_where_it_is_exact():
     b = Engine(_scene("bursty_loss", []))
     assert axis_host.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
     j = Engine(_scene("jitter", []))
-    assert not axis_host.schedule(j.forward, j.forward_buffer, j.period_ns, 72).vectorized
+    assert type(axis_host.schedule(j.forward, j.forward_buffer, j.period_ns, 72)) is BufferedSchedule
+    v = Engine(_scene("varying_delay", []))
+    assert not axis_host.schedule(v.forward, v.forward_buffer, v.period_ns, 72).vectorized
 
 
 def test_settled_records_wait_for_packets_in_flight():

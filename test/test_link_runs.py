@@ -1,4 +1,4 @@
-"""The Markov loss chains' runs compiled (engine/compiled/link_runs.py) decide what core/loss.py's
+"""The runs compiled (engine/compiled/link_runs.py) decide what core/loss.py's and core/delay.py's
 plain functions decide, from the same draws (the compiled loop's vectorized schedule uses them)."""
 
 from __future__ import annotations
@@ -35,6 +35,34 @@ def test_compiled_four_state_run_is_the_plain_one(seed, n, state, p):
     end_plain = loss.four_state_run(state, draws, *args, plain)
     end_compiled = link_runs.RUNS["four_state_run"](state, draws, *args, compiled)
     assert int(end_compiled) == end_plain
+    assert np.array_equal(plain, compiled)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    n=st.integers(0, 3000),
+    rho=st.sampled_from([0.0, 0.25, 0.9]),
+    distribution=st.sampled_from(["uniform", "normal", "pareto", "paretonormal", None]),
+    keep_order=st.booleans(),
+    base_ms=st.sampled_from([0.0, 0.5, 20.0]),
+)
+def test_compiled_delay_run_is_the_plain_one(seed, n, rho, distribution, keep_order, base_ms):
+    """The jittered delay's run (core/delay.py `delay_run`; None: no jitter, no numbers) compiled
+    gives the plain one's arrivals and end state, bit for bit."""
+    from haptic_teleop.core.delay import delay_run
+    from haptic_teleop.core.uniform import jitter_table
+
+    rng = np.random.default_rng(seed)
+    arrivals = np.cumsum(rng.integers(0, 3_000_000, n)).astype(np.int64)
+    delivered = rng.random(n) < 0.8
+    fresh = np.zeros(0) if distribution is None else rng.random(n)
+    table = np.array(() if distribution in ("uniform", None) else jitter_table(distribution), dtype=np.float64)
+    args = (rho, 0.5, table, len(table), base_ms * 1e6, 0.0 if distribution is None else 4e6, keep_order, -(1 << 62))
+    plain, compiled = arrivals.copy(), arrivals.copy()
+    end_plain = delay_run(plain, delivered, fresh, *args)
+    end_compiled = link_runs.RUNS["delay_run"](compiled, delivered, fresh, *args)
+    assert (float(end_compiled[0]), int(end_compiled[1])) == (float(end_plain[0]), int(end_plain[1]))
     assert np.array_equal(plain, compiled)
 
 

@@ -7,12 +7,22 @@ import bisect
 import itertools
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES, DELIVERED, LOST_QUEUE, Packet
-from haptic_teleop.core.uniform import DISTRIBUTIONS, UniformSource, jitter_quantile, uniform_source
+from haptic_teleop.core.uniform import (
+    DISTRIBUTIONS,
+    NetemCorrelatedUniform,
+    UniformSource,
+    jitter_quantile,
+    jitter_table,
+    netem_next,
+    uniform_source,
+    unit_jitter,
+)
 
 _NS_PER_S = 1_000_000_000
 
@@ -203,6 +213,41 @@ def arrival_ns(t_ns: int, delay_ns: float, keep_order: bool, delivered: bool, la
     return arrival, last_ns
 
 
+def delay_run(
+    arrivals: np.ndarray,
+    delivered: np.ndarray,
+    fresh: np.ndarray,
+    rho: float,
+    last_u: float,
+    table: np.ndarray,
+    n_table: int,
+    base_ns: float,
+    sigma_ns: float,
+    keep_order: bool,
+    last_arrival: int,
+) -> tuple[float, int]:
+    """`Delay.apply` without a time-varying part or reordering on a window's original packets in
+    turn: packet i reaches the delay at arrivals[i] (overwritten with its arrival), delivered[i]
+    as it stands then, its fresh uniform number fresh[i] (netem-correlated with the last one,
+    `last_u`, if rho > 0), its jitter `unit_jitter` of it (`table` of `n_table` values, 0: netem's
+    uniform). Without jitter `fresh` is empty and every unit 0. Returns the correlated stream's
+    last number and the last delivered arrival (`keep_order`). One definition for
+    `Delay.apply_all` and, compiled, the compiled loop's network schedule
+    (engine/compiled/link_runs.py)."""
+    jitter = fresh.shape[0] > 0
+    for i in range(arrivals.shape[0]):
+        unit = 0.0
+        if jitter:
+            u = fresh[i]
+            if rho > 0.0:
+                u = netem_next(u, rho, last_u)
+                last_u = u
+            unit = unit_jitter(u, table, n_table)
+        d = delay_value_ns(base_ns, 0.0, sigma_ns, unit)
+        arrivals[i], last_arrival = arrival_ns(arrivals[i], d, keep_order, delivered[i], last_arrival)
+    return last_u, last_arrival
+
+
 class Delay:
     """Delay with jitter, a time-varying part, optional ordering and netem-style reordering.
 
@@ -242,6 +287,8 @@ class Delay:
         self._sigma_ns = jitter_s * 1e9
         self.distribution = distribution
         self._quantile = jitter_quantile(distribution)
+        # the same values as `_quantile`'s table, for `delay_run` (empty: netem's uniform, 2 u - 1)
+        self._table = np.array(() if distribution == "uniform" else jitter_table(distribution), dtype=np.float64)
         self._profile = profile
         self._keep_order = keep_order
         self._last_arrival = -(1 << 62)
@@ -270,6 +317,40 @@ class Delay:
             assert self._copy_rng is not None  # only called when jitter or reorder draws
             self._copy_u = UniformSource(self._copy_rng).next
         return self._copy_u()
+
+    @property
+    def vectorized(self) -> bool:
+        """True if `apply_all` decides a window at once: no time-varying part, no reordering, and
+        the jitter (if any) uncorrelated or netem-correlated (not the Gaussian copula)."""
+        if self._profile is not None or self._ru is not None:
+            return False
+        return self._ju is None or type(getattr(self._ju, "__self__", None)) in (UniformSource, NetemCorrelatedUniform)
+
+    def apply_all(
+        self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Mapping[str, Any] | None = None
+    ) -> None:
+        """`apply` on every original packet of a window at once (`Link.schedule_all`): the same
+        numbers (`UniformSource.take`), the same arrivals, bit for bit, by `delay_run` (or
+        `runs["delay_run"]`, compiled). A packet reaches the delay at `arrival_ns` as the effects
+        before it left it, with the fate they gave it."""
+        if not self.vectorized:
+            raise ValueError("a time-varying, reordering or copula-correlated delay has no vectorized form")
+        n = len(arrival_ns)
+        src = None if self._ju is None else self._ju.__self__  # type: ignore[attr-defined]
+        netem = src if type(src) is NetemCorrelatedUniform else None
+        rho, last_u = 0.0, 0.0
+        if netem is not None:
+            rho, last_u = netem._rho, netem._last
+            src = netem._fresh.__self__  # type: ignore[attr-defined]
+        fresh = np.zeros(0) if src is None else src.take(n)
+        run = delay_run if runs is None else runs.get("delay_run", delay_run)
+        last_u, last = run(
+            arrival_ns, fate == DELIVERED, fresh, rho, last_u, self._table, len(self._table),
+            self._base_ns, self._sigma_ns, bool(self._keep_order), int(self._last_arrival),
+        )  # fmt: skip
+        if netem is not None:
+            netem._last = float(last_u)
+        self._last_arrival = int(last)
 
     def apply(self, packet: Packet) -> Packet | None:
         t = packet.arrival_time_ns

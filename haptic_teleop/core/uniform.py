@@ -44,7 +44,7 @@ class UniformSource:
 
     def __init__(self, rng: np.random.Generator) -> None:
         self._rng = rng
-        self._it = iter(()).__next__
+        self._it: Callable[[], float] = iter(()).__next__
 
     def next(self) -> float:
         try:
@@ -60,6 +60,17 @@ class UniformSource:
         rest: list[float] = list(iter(self._it, None))  # (the bound __next__ raises StopIteration at the end)
         self._it = iter(()).__next__
         return rest
+
+    def take(self, n: int) -> np.ndarray:
+        """The next `n` numbers, exactly as `n` calls of `next()` would give them: the rest of the
+        block drawn last, then from the Generator (`rng.random(k)` continues one stream whatever
+        the block sizes). A later `next()` goes on after them (a window's draws at once:
+        `Delay.apply_all`)."""
+        rest = self.take_rest()
+        if n <= len(rest):
+            self._it = iter(rest[n:]).__next__
+            return np.array(rest[:n], dtype=np.float64)
+        return np.concatenate((np.array(rest, dtype=np.float64), self._rng.random(n - len(rest))))
 
 
 def netem_next(fresh: float, rho: float, last: float) -> float:

@@ -2,7 +2,8 @@
 
 Each compiled loop is compiled on the first run on a machine that needs it and loaded from
 numba's cache afterwards (docs/performance.md, "Compile once"): the 1-DoF loop (`axis`, with the
-network schedule's Markov loss chains, engine/compiled/link_runs.py), the 1-DoF
+network schedule's Markov loss chains and jitter, engine/compiled/link_runs.py, and the playout
+buffers' rules, engine/compiled/buffer_schedule.py), the 1-DoF
 loop with the codec stage (`codec`), the arm loop (`arm`), the arm loop with the codec stage
 (`arm_codec`) and the side tick the live arm nodes run (`side`). This runs a few ticks of a
 bundled scene through each, so that a first real run, a launch, a benchmark, a sweep or a test
@@ -59,10 +60,11 @@ def warm_one(name: str) -> float:
     except ConfigError as exc:  # no numba here, or the kernel cannot load: `--loop compiled` says why
         raise RuntimeError(str(exc)) from exc
     engine.run(handle_sigint=False)
-    if name == "axis":  # the Markov loss chains the schedules of every compiled loop run (bursty_loss)
-        from haptic_teleop.engine.compiled import link_runs
+    if name == "axis":  # the link runs and the playout rules every compiled loop's schedules run
+        from haptic_teleop.engine.compiled import buffer_schedule, link_runs
 
         link_runs.warm()
+        buffer_schedule.warm()
     return time.perf_counter() - t0
 
 

@@ -52,8 +52,9 @@ import numpy as np
 
 from haptic_teleop import compiling
 from haptic_teleop.assembly.stages import settled_records
+from haptic_teleop.core.delay import Delay
 from haptic_teleop.core.eba_state import AxisBoundState
-from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, Packet
+from haptic_teleop.core.link import DELIVERED, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
 from haptic_teleop.engine.compiled.layout import (
     LAW_RESERVOIR,
@@ -113,6 +114,7 @@ from haptic_teleop.engine.compiled.layout import (
     S_X0,
     SLAVE,
 )
+from haptic_teleop.engine.compiled.records import packet_rows
 
 if TYPE_CHECKING:
     from haptic_teleop.assembly.parts import AxisParts
@@ -227,7 +229,13 @@ def compiled_reason(parts: AxisParts) -> str | None:
 
 
 def _vectorized(link: Link, buf: PlayoutBuffer) -> bool:
-    return link.vectorized and type(buf) is PlayOnArrival and not buf.extrapolates
+    # (a jittered delay may reorder packets or bring two in a tick: BufferedSchedule runs it)
+    return (
+        link.vectorized
+        and type(buf) is PlayOnArrival
+        and not buf.extrapolates
+        and not any(type(e) is Delay for e in link.effects)
+    )
 
 
 def _seq(p: Packet) -> int:
@@ -336,26 +344,16 @@ def link_runs() -> dict[str, Any] | None:
     return lr.RUNS
 
 
-def schedule(link: Link, buf: PlayoutBuffer, period_ns: int, size_bytes: int) -> TickedSchedule | VectorizedSchedule:
-    """The decisions of `link` and `buf`, one packet per tick, window by window (module docstring)."""
+def schedule(link: Link, buf: PlayoutBuffer, period_ns: int, size_bytes: int) -> Any:
+    """The decisions of `link` and `buf`, one packet per tick, window by window (module docstring):
+    a `VectorizedSchedule`, a `BufferedSchedule` or a `TickedSchedule`."""
     if _vectorized(link, buf):
         return VectorizedSchedule(link, period_ns, size_bytes)
+    from haptic_teleop.engine.compiled.buffer_schedule import BufferedSchedule, buffered
+
+    if buffered(link, buf):
+        return BufferedSchedule(link, buf, period_ns, size_bytes, link_runs())  # type: ignore[arg-type]
     return TickedSchedule(link, buf, period_ns, size_bytes)
-
-
-def packet_rows(
-    send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, size_bytes: int, first_seq: int = 0
-) -> np.ndarray:
-    """Bag records (record.layouts.PACKET_FIELDS) of original packets: the values `record.layouts.packet_rows` gives
-    for the same `Packet` objects (times in s; arrival NaN unless delivered or late)."""
-    rows = np.zeros((len(send_ns), 6))
-    rows[:, 0] = np.arange(first_seq, first_seq + len(send_ns))
-    rows[:, 1] = send_ns.astype(np.float64) * 1e-9
-    arrived = (fate == DELIVERED) | (fate == LOST_LATE)
-    rows[:, 2] = np.where(arrived, arrival_ns.astype(np.float64) * 1e-9, np.nan)
-    rows[:, 3] = fate
-    rows[:, 5] = size_bytes
-    return rows
 
 
 def parameters(parts: AxisParts, period_s: float) -> np.ndarray:

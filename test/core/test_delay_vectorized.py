@@ -1,0 +1,201 @@
+"""The jittered delay decided a window at once (`Delay.apply_all`, `Link.schedule_all`) gives what
+`Delay.apply` gives packet by packet, bit for bit, from the same random numbers: uncorrelated and
+netem-correlated jitter of each table shape, with and without `keep_order`, behind a loss and a
+constant delay, in windows of uneven sizes, with the plain run (`delay_run`) and the compiled one
+(engine/compiled/link_runs.py)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from haptic_teleop.core.delay import ConstantDelay, Delay, PiecewiseDelay
+from haptic_teleop.core.link import DELIVERED, Link, Packet
+from haptic_teleop.core.loss import BernoulliLoss
+from haptic_teleop.core.netconfig import NetworkEffectsConfig
+from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, effect_rng
+from haptic_teleop.scene.traces import build_scene_link
+from haptic_teleop.typedconfig import build
+
+MS = 1_000_000
+N = 6000  # more than a block of 4096 numbers
+CUTS = (0, 1, 8, 308, 1308, N)  # windows of 1, 7, 300, 1000 and the rest
+
+
+@pytest.fixture(params=["plain", "compiled"])
+def runs(request):
+    if request.param == "plain":
+        return None
+    return pytest.importorskip("haptic_teleop.engine.compiled.link_runs").RUNS
+
+
+def jitter_link(seed: int, distribution: str, correlation: float, keep_order: bool, jitter_s: float = 0.004) -> Link:
+    """A loss, a constant delay (moves the time a packet reaches the jitter), then the jitter: 2 ms
+    of delay against 4 ms of jitter, so packets overtake one another and some delays clamp at 0."""
+    return Link(
+        [
+            BernoulliLoss(0.2, effect_rng(seed, "forward", "loss")),
+            ConstantDelay(0.0015),
+            Delay(
+                0.002,
+                jitter_s=jitter_s,
+                distribution=distribution,
+                rng=effect_rng(seed, "forward", "delay") if jitter_s > 0.0 else None,
+                correlation=correlation,
+                keep_order=keep_order,
+            ),
+        ]
+    )
+
+
+def one_by_one(link: Link, send_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    for k, t in enumerate(send_ns.tolist()):
+        link.send(Packet(k, t, (), 64))
+    return (
+        np.array([p.arrival_time_ns for p in link.log], dtype=np.int64),
+        np.array([p.fate for p in link.log], dtype=np.int64),
+    )
+
+
+def in_windows(link: Link, send_ns: np.ndarray, runs) -> tuple[np.ndarray, np.ndarray]:
+    assert link.vectorized
+    parts = [link.schedule_all(send_ns[a:b], runs) for a, b in itertools.pairwise(CUTS)]
+    return np.concatenate([a for a, _ in parts]), np.concatenate([f for _, f in parts])
+
+
+def send_times(seed: int) -> np.ndarray:
+    # 1 ms apart with some uneven gaps (a pause, packets at the same time)
+    gaps = np.random.default_rng(seed).choice([0, MS, MS, MS, 7 * MS], size=N)
+    return np.cumsum(gaps).astype(np.int64)
+
+
+@pytest.mark.parametrize("keep_order", [False, True])
+@pytest.mark.parametrize("correlation", [0.0, 0.25])
+@pytest.mark.parametrize("distribution", ["normal", "uniform", "pareto"])
+def test_windows_equal_send_bit_for_bit(distribution, correlation, keep_order, runs):
+    seed = 11
+    send = send_times(seed)
+    ref = jitter_link(seed, distribution, correlation, keep_order)
+    arrival_ref, fate_ref = one_by_one(ref, send)
+    link = jitter_link(seed, distribution, correlation, keep_order)
+    arrival, fate = in_windows(link, send, runs)
+    assert np.array_equal(fate, fate_ref)
+    assert np.array_equal(arrival, arrival_ref)
+    assert (link.sent, link.lost) == (ref.sent, ref.lost) and 0 < link.lost < N
+    delivered = arrival[fate == DELIVERED]
+    in_order = bool(np.all(np.diff(delivered) >= 0))
+    assert in_order == keep_order  # the jitter reorders, unless kept in order
+    assert np.count_nonzero(arrival == send + int(0.0015 * 1e9)) > 0  # some delays clamped at 0
+    # The same state after: the correlated stream's last number, the last delivered arrival, and
+    # the next number drawn (`take` leaves the source where `next` calls would have).
+    d_ref, d = ref.effects[2], link.effects[2]
+    assert d._last_arrival == d_ref._last_arrival
+    for _ in range(5000):
+        assert d._ju() == d_ref._ju()
+
+
+@pytest.mark.parametrize("keep_order", [False, True])
+def test_a_delay_without_jitter_is_decided_in_windows(keep_order, runs):
+    send = send_times(3)
+    ref = jitter_link(3, "normal", 0.0, keep_order, jitter_s=0.0)
+    arrival_ref, fate_ref = one_by_one(ref, send)
+    link = jitter_link(3, "normal", 0.0, keep_order, jitter_s=0.0)
+    arrival, fate = in_windows(link, send, runs)
+    assert np.array_equal(fate, fate_ref) and np.array_equal(arrival, arrival_ref)
+    assert np.array_equal(arrival, send + 3_500_000)
+
+
+def test_take_gives_the_numbers_next_gives():
+    """`UniformSource.take` between `next` calls, inside a block, across blocks, and for none, hands
+    out the same stream as `next` alone; so does a NetemCorrelatedUniform's inner source after its
+    constructor drew its first number."""
+    ref, src = UniformSource(np.random.default_rng(4)), UniformSource(np.random.default_rng(4))
+    got: list[float] = []
+    for step in (3, 0, 5, 4000, 1, 10_000, 0, 2, 4096, 7):
+        got += src.take(step).tolist() if step != 2 else [src.next(), src.next()]
+        got.append(src.next())
+    assert got == [ref.next() for _ in range(len(got))]
+    a = NetemCorrelatedUniform(np.random.default_rng(9), 0.25)
+    b = NetemCorrelatedUniform(np.random.default_rng(9), 0.25)
+    fresh_a, fresh_b = a._fresh.__self__, b._fresh.__self__
+    assert fresh_a.take(5000).tolist() == [fresh_b.next() for _ in range(5000)]
+    assert a.next() == b.next()
+
+
+def test_what_apply_all_cannot_decide_is_not_vectorized():
+    """A time-varying delay, reordering and copula-correlated jitter: packet by packet only."""
+    rng = np.random.default_rng
+    cases = [
+        Delay(0.01, profile=PiecewiseDelay([0.0, 1.0], [0.0, 0.01])),
+        Delay(0.01, jitter_s=0.002, rng=rng(1), profile=PiecewiseDelay([0.0], [0.01])),
+        Delay(0.01, reorder_probability=0.1, reorder_rng=rng(2)),
+        Delay(0.01, jitter_s=0.002, rng=rng(3), reorder_probability=0.1, reorder_rng=rng(4)),
+        Delay(0.01, jitter_s=0.002, rng=rng(5), correlation=0.25, correlation_model="gaussian_copula"),
+    ]
+    for d in cases:
+        assert not d.vectorized
+        with pytest.raises(ValueError, match="no vectorized form"):
+            d.apply_all(np.zeros(3, dtype=np.int64), np.zeros(3, dtype=np.int64), np.zeros(3, dtype=np.int64))
+        link = Link([BernoulliLoss(0.1, rng(6)), d])
+        assert not link.vectorized
+        with pytest.raises(ValueError, match="cannot decide a run at once"):
+            link.schedule_all(np.arange(3, dtype=np.int64))
+    # what is: no jitter, uncorrelated, netem-correlated, and copula with no correlation (plain uniforms)
+    for d in (
+        Delay(0.01),
+        Delay(0.01, jitter_s=0.002, rng=rng(7), keep_order=True),
+        Delay(0.01, jitter_s=0.002, rng=rng(8), correlation=0.5),
+        Delay(0.01, jitter_s=0.002, rng=rng(9), correlation_model="gaussian_copula"),
+    ):
+        assert d.vectorized and Link([d]).vectorized
+
+
+def scene_link(effects: dict, seed: int) -> Link:
+    return build_scene_link(build(NetworkEffectsConfig, effects), seed, "forward")
+
+
+LOSS = {
+    "bernoulli": {"probability": 0.3},
+    "gilbert_elliott": {"model": "gilbert_elliott", "p": 0.05, "r": 0.25, "one_minus_h": 0.7, "one_minus_k": 0.01},
+}
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    delay_ms=st.sampled_from([0.0, 1.0, 50.0]),
+    jitter=st.sampled_from([("normal", 0.0), ("uniform", 0.25), ("pareto", 0.5), ("paretonormal", 0.25)]),
+    keep_order=st.booleans(),
+    loss=st.sampled_from(sorted(LOSS)),
+    blackout=st.booleans(),
+)
+def test_a_scene_link_with_jitter_is_decided_in_windows(seed, delay_ms, jitter, keep_order, loss, blackout):
+    """As the scene builds it (`build_link`: each effect's own stream), a link with jitter behind a
+    blackout and a loss model: `schedule_all` in windows decides what `send` decides."""
+    distribution, correlation = jitter
+    delay = {"delay_s": delay_ms / 1000, "jitter_s": 0.003, "distribution": distribution}
+    effects: dict = {"delay": {**delay, "correlation": correlation, "keep_order": keep_order}, "loss": LOSS[loss]}
+    if blackout:
+        effects["blackout"] = {"starts_s": [0.5, 2.0], "ends_s": [0.7, 2.001]}
+    send = np.arange(N, dtype=np.int64) * MS
+    arrival_ref, fate_ref = one_by_one(scene_link(effects, seed), send)
+    arrival, fate = in_windows(scene_link(effects, seed), send, None)
+    assert np.array_equal(fate, fate_ref) and np.array_equal(arrival, arrival_ref)
+
+
+def test_a_scene_link_with_a_ramp_reordering_or_copula_jitter_is_refused():
+    jitter = {"delay_s": 0.01, "jitter_s": 0.002}
+    for effects in (
+        {"delay": {"delay_s": 0.01, "schedule": {"times_s": [0.0, 1.0], "delays_s": [0.0, 0.01]}}},
+        {"delay": jitter, "reorder": {"probability": 0.1}},
+        {"delay": {**jitter, "correlation": 0.25}, "correlation_model": "gaussian_copula"},
+    ):
+        link = scene_link(effects, 1)
+        assert not link.vectorized
+        with pytest.raises(ValueError, match="cannot decide a run at once"):
+            link.schedule_all(np.arange(3, dtype=np.int64))
+    assert scene_link({"delay": {**jitter, "correlation": 0.25}}, 1).vectorized  # netem's model
