@@ -39,6 +39,36 @@ def test_compiled_four_state_run_is_the_plain_one(seed, n, state, p):
 
 
 @settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(0, 3000), rho=st.sampled_from([0.0, 0.25, 0.9]), p=probability)
+def test_compiled_bernoulli_run_is_the_plain_one(seed, n, rho, p):
+    """netem-correlated Bernoulli loss's run (rho 0: the fresh numbers as they are)."""
+    fresh = np.random.default_rng(seed).random(n)
+    plain, compiled = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+    end_plain = loss.bernoulli_run(fresh, rho, 0.5, p, plain)
+    end_compiled = link_runs.RUNS["bernoulli_run"](fresh, rho, 0.5, p, compiled)
+    assert float(end_compiled) == end_plain
+    assert np.array_equal(plain, compiled)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    n=st.integers(0, 3000),
+    length=st.integers(1, 4000),
+    n0=st.integers(0, 10_000),
+    repeat=st.booleans(),
+)
+def test_compiled_trace_run_is_the_plain_one(seed, n, length, n0, repeat):
+    """The replayed pattern's run, from any position, past the pattern's end or not."""
+    pattern = (np.random.default_rng(seed).random(length) < 0.3).astype(np.float64)
+    plain, compiled = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+    end_plain = loss.trace_run(pattern, n0, repeat, plain)
+    end_compiled = link_runs.RUNS["trace_run"](pattern, n0, repeat, compiled)
+    assert int(end_compiled) == end_plain == n0 + n
+    assert np.array_equal(plain, compiled)
+
+
+@settings(max_examples=60, deadline=None)
 @given(
     seed=st.integers(0, 2**31),
     n=st.integers(0, 3000),
@@ -46,10 +76,11 @@ def test_compiled_four_state_run_is_the_plain_one(seed, n, state, p):
     distribution=st.sampled_from(["uniform", "normal", "pareto", "paretonormal", None]),
     keep_order=st.booleans(),
     base_ms=st.sampled_from([0.0, 0.5, 20.0]),
+    reorder=st.sampled_from([None, (0.1, 1, 0.0, 0), (0.3, 3, 0.25, 1), (1.0, 5, 0.9, 4)]),
 )
-def test_compiled_delay_run_is_the_plain_one(seed, n, rho, distribution, keep_order, base_ms):
-    """The jittered delay's run (core/delay.py `delay_run`; None: no jitter, no numbers) compiled
-    gives the plain one's arrivals and end state, bit for bit."""
+def test_compiled_delay_run_is_the_plain_one(seed, n, rho, distribution, keep_order, base_ms, reorder):
+    """The jittered and reordering delay's run (core/delay.py `delay_run`; None: no jitter, or no
+    reordering: no numbers) compiled gives the plain one's arrivals and end state, bit for bit."""
     from haptic_teleop.core.delay import delay_run
     from haptic_teleop.core.uniform import jitter_table
 
@@ -59,11 +90,17 @@ def test_compiled_delay_run_is_the_plain_one(seed, n, rho, distribution, keep_or
     fresh = np.zeros(0) if distribution is None else rng.random(n)
     table = np.array(() if distribution in ("uniform", None) else jitter_table(distribution), dtype=np.float64)
     args = (rho, 0.5, table, len(table), base_ms * 1e6, 0.0 if distribution is None else 4e6, keep_order, -(1 << 62))
+    p, gap, r_rho, counter = reorder if reorder is not None else (0.0, 1, 0.0, 0)
+    r_fresh = np.zeros(0) if reorder is None else rng.random(n)
+    r_args = (r_fresh, r_rho, 0.5, p, gap, counter)
     plain, compiled = arrivals.copy(), arrivals.copy()
-    end_plain = delay_run(plain, delivered, fresh, *args)
-    end_compiled = link_runs.RUNS["delay_run"](compiled, delivered, fresh, *args)
-    assert (float(end_compiled[0]), int(end_compiled[1])) == (float(end_plain[0]), int(end_plain[1]))
+    end_plain = delay_run(plain, delivered, fresh, *args, *r_args)
+    end_compiled = link_runs.RUNS["delay_run"](compiled, delivered, fresh, *args, *r_args)
+    kinds = (float, int, float, int, int)
+    assert tuple(k(v) for k, v in zip(kinds, end_compiled, strict=True)) == end_plain
     assert np.array_equal(plain, compiled)
+    if reorder is not None and n > 100:
+        assert end_plain[4] > 0  # some delivered packets skipped the delay
 
 
 def test_a_gilbert_elliott_link_is_decided_in_windows_with_the_compiled_run():

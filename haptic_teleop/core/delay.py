@@ -213,6 +213,16 @@ def arrival_ns(t_ns: int, delay_ns: float, keep_order: bool, delivered: bool, la
     return arrival, last_ns
 
 
+def reorder_skip(counter: int, r: float, p: float, gap: int) -> tuple[int, bool]:
+    """netem's reorder decision for an original packet from its number `r` (`reorder p gap g`):
+    after at least gap - 1 packets kept since the last skip, the packet skips the delay with
+    probability p. `counter`: the packets kept since the last skip. Returns (the counter after
+    it, whether it skips). One definition: `Delay.apply` and `delay_run`."""
+    if counter < gap - 1 or r >= p:
+        return counter + 1, False
+    return 0, True
+
+
 def delay_run(
     arrivals: np.ndarray,
     delivered: np.ndarray,
@@ -225,16 +235,28 @@ def delay_run(
     sigma_ns: float,
     keep_order: bool,
     last_arrival: int,
-) -> tuple[float, int]:
-    """`Delay.apply` without a time-varying part or reordering on a window's original packets in
-    turn: packet i reaches the delay at arrivals[i] (overwritten with its arrival), delivered[i]
-    as it stands then, its fresh uniform number fresh[i] (netem-correlated with the last one,
-    `last_u`, if rho > 0), its jitter `unit_jitter` of it (`table` of `n_table` values, 0: netem's
-    uniform). Without jitter `fresh` is empty and every unit 0. Returns the correlated stream's
-    last number and the last delivered arrival (`keep_order`). One definition for
-    `Delay.apply_all` and, compiled, the compiled loop's network schedule
-    (engine/compiled/link_runs.py)."""
+    reorder_fresh: np.ndarray,
+    reorder_rho: float,
+    reorder_last: float,
+    reorder_p: float,
+    gap: int,
+    counter: int,
+) -> tuple[float, int, float, int, int]:
+    """`Delay.apply` without a time-varying part on a window's original packets in turn: packet i
+    reaches the delay at arrivals[i] (overwritten with its arrival), delivered[i] as it stands
+    then, its fresh uniform number fresh[i] (netem-correlated with the last one, `last_u`, if
+    rho > 0), its jitter `unit_jitter` of it (`table` of `n_table` values, 0: netem's uniform).
+    Without jitter `fresh` is empty and every unit 0. Then, with reordering, its reorder number
+    from reorder_fresh[i] (netem-correlated with `reorder_last` if reorder_rho > 0) and
+    `reorder_skip` (`counter`, `reorder_p`, `gap`): a packet that skips keeps the arrival it came
+    with (no delay, not held behind others, the last delivered arrival unchanged). Without
+    reordering `reorder_fresh` is empty. Returns the jitter stream's last number, the last
+    delivered arrival (`keep_order`), the reorder stream's last number, the counter, and how many
+    delivered packets skipped. One definition for `Delay.apply_all` and, compiled, the compiled
+    loop's network schedule (engine/compiled/link_runs.py)."""
     jitter = fresh.shape[0] > 0
+    reorder = reorder_fresh.shape[0] > 0
+    reordered = 0
     for i in range(arrivals.shape[0]):
         unit = 0.0
         if jitter:
@@ -244,8 +266,38 @@ def delay_run(
                 last_u = u
             unit = unit_jitter(u, table, n_table)
         d = delay_value_ns(base_ns, 0.0, sigma_ns, unit)
+        if reorder:
+            r = reorder_fresh[i]
+            if reorder_rho > 0.0:
+                r = netem_next(r, reorder_rho, reorder_last)
+                reorder_last = r
+            counter, skip = reorder_skip(counter, r, reorder_p, gap)
+            if skip:
+                if delivered[i]:
+                    reordered += 1
+                continue
         arrivals[i], last_arrival = arrival_ns(arrivals[i], d, keep_order, delivered[i], last_arrival)
-    return last_u, last_arrival
+    return last_u, last_arrival, reorder_last, counter, reordered
+
+
+def _window_numbers(draw: Callable[[], float] | None, n: int) -> tuple[np.ndarray, float, float, Any]:
+    """The next `n` numbers of an effect's stream (its draw function, None: no stream) as a run
+    takes them: the fresh uniforms (`UniformSource.take`), netem's correlation (0: none), its last
+    number, and the `NetemCorrelatedUniform` to write the last number back to (or None)."""
+    if draw is None:
+        return np.zeros(0), 0.0, 0.0, None
+    src = draw.__self__  # type: ignore[attr-defined]
+    if type(src) is NetemCorrelatedUniform:
+        return src._fresh.__self__.take(n), src._rho, src._last, src  # type: ignore[attr-defined]
+    return src.take(n), 0.0, 0.0, None
+
+
+def _generator(draw: Callable[[], float]) -> Any:
+    """The bit generator behind a plain or netem-correlated draw function (else None)."""
+    src = getattr(draw, "__self__", None)
+    if type(src) is NetemCorrelatedUniform:
+        src = src._fresh.__self__  # type: ignore[attr-defined]
+    return src._rng.bit_generator if type(src) is UniformSource else None
 
 
 class Delay:
@@ -320,37 +372,41 @@ class Delay:
 
     @property
     def vectorized(self) -> bool:
-        """True if `apply_all` decides a window at once: no time-varying part, no reordering, and
-        the jitter (if any) uncorrelated or netem-correlated (not the Gaussian copula)."""
-        if self._profile is not None or self._ru is not None:
+        """True if `apply_all` decides a window at once: no time-varying part, and the jitter and
+        the reordering (if any) uncorrelated or netem-correlated (not the Gaussian copula), each
+        on its own generator (else their blocks of numbers interleave packet by packet)."""
+        if self._profile is not None:
             return False
-        return self._ju is None or type(getattr(self._ju, "__self__", None)) in (UniformSource, NetemCorrelatedUniform)
+        draws = [d for d in (self._ju, self._ru) if d is not None]
+        gens = [_generator(d) for d in draws]
+        return None not in gens and len({id(g) for g in gens}) == len(gens)
 
     def apply_all(
         self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Mapping[str, Any] | None = None
     ) -> None:
         """`apply` on every original packet of a window at once (`Link.schedule_all`): the same
-        numbers (`UniformSource.take`), the same arrivals, bit for bit, by `delay_run` (or
-        `runs["delay_run"]`, compiled). A packet reaches the delay at `arrival_ns` as the effects
-        before it left it, with the fate they gave it."""
+        numbers (`UniformSource.take`: each packet's jitter number, then its reorder number), the
+        same arrivals and skips, bit for bit, by `delay_run` (or `runs["delay_run"]`, compiled). A
+        packet reaches the delay at `arrival_ns` as the effects before it left it, with the fate
+        they gave it."""
         if not self.vectorized:
-            raise ValueError("a time-varying, reordering or copula-correlated delay has no vectorized form")
+            raise ValueError("a time-varying or copula-correlated delay or reordering has no vectorized form")
         n = len(arrival_ns)
-        src = None if self._ju is None else self._ju.__self__  # type: ignore[attr-defined]
-        netem = src if type(src) is NetemCorrelatedUniform else None
-        rho, last_u = 0.0, 0.0
-        if netem is not None:
-            rho, last_u = netem._rho, netem._last
-            src = netem._fresh.__self__  # type: ignore[attr-defined]
-        fresh = np.zeros(0) if src is None else src.take(n)
+        fresh, rho, last_u, netem = _window_numbers(self._ju, n)
+        r_fresh, r_rho, r_last, r_netem = _window_numbers(self._ru, n)
         run = delay_run if runs is None else runs.get("delay_run", delay_run)
-        last_u, last = run(
+        last_u, last, r_last, counter, reordered = run(
             arrival_ns, fate == DELIVERED, fresh, rho, last_u, self._table, len(self._table),
             self._base_ns, self._sigma_ns, bool(self._keep_order), int(self._last_arrival),
+            r_fresh, r_rho, r_last, float(self._reorder_p), int(self._gap), int(self._counter),
         )  # fmt: skip
         if netem is not None:
             netem._last = float(last_u)
+        if r_netem is not None:
+            r_netem._last = float(r_last)
         self._last_arrival = int(last)
+        self._counter = int(counter)
+        self.reordered += int(reordered)
 
     def apply(self, packet: Packet) -> Packet | None:
         t = packet.arrival_time_ns
@@ -363,14 +419,8 @@ class Delay:
         if self._ru is not None:
             if copy:
                 skip = self._copy_draw() < self._reorder_p
-            else:
-                r = self._ru()  # drawn for every packet, see the module docstring
-                if self._counter < self._gap - 1 or r >= self._reorder_p:
-                    self._counter += 1
-                    skip = False
-                else:
-                    self._counter = 0
-                    skip = True
+            else:  # drawn for every original packet, lost or not (core/link.py)
+                self._counter, skip = reorder_skip(self._counter, self._ru(), self._reorder_p, self._gap)
             if skip:
                 # "Sent immediately": no delay and not held behind earlier packets.
                 if packet.fate == DELIVERED:

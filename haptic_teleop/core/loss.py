@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.link import DELIVERED, LOST_CORRUPT, LOST_NETWORK, Packet
-from haptic_teleop.core.uniform import UniformSource, uniform_source
+from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, netem_next, uniform_source
 
 # The loss rules as plain functions: the one definition the effects below call and the compiled
 # links inline (engine/compiled/codec_link.py). Fates are integer codes, DELIVERED 0.
@@ -48,6 +48,20 @@ def bernoulli_lost(u: float, p: float) -> bool:
     return u < p
 
 
+def bernoulli_run(fresh: np.ndarray, rho: float, last_u: float, p: float, lost: np.ndarray) -> float:
+    """`bernoulli_lost` on packets in turn: packet i's number is the fresh uniform fresh[i],
+    netem-correlated with the last one (`last_u`) if rho > 0 (`netem_next`); lost[i] set for each.
+    Returns the correlated stream's last number. One definition for `BernoulliLoss.apply_all` and,
+    compiled, the compiled loop's network schedule (engine/compiled/link_runs.py)."""
+    for i in range(lost.shape[0]):
+        u = fresh[i]
+        if rho > 0.0:
+            u = netem_next(u, rho, last_u)
+            last_u = u
+        lost[i] = bernoulli_lost(u, p)
+    return last_u
+
+
 def trace_lost(pattern: Sequence[float] | np.ndarray, n: int, repeat: bool) -> bool:
     """A replayed loss pattern (nonzero: lost) on the n-th packet (from 0): past its end the
     pattern starts again if `repeat`, else every packet passes."""
@@ -57,6 +71,15 @@ def trace_lost(pattern: Sequence[float] | np.ndarray, n: int, repeat: bool) -> b
             return False
         n %= m
     return bool(pattern[n] != 0)
+
+
+def trace_run(pattern: np.ndarray, n0: int, repeat: bool, lost: np.ndarray) -> int:
+    """`trace_lost` on packets in turn, the first being the n0-th of the stream: lost[i] set for
+    each; returns the count of packets after the last. One definition for `TraceLoss.apply_all`
+    and, compiled, the compiled loop's network schedule (engine/compiled/link_runs.py)."""
+    for i in range(lost.shape[0]):
+        lost[i] = trace_lost(pattern, n0 + i, repeat)
+    return n0 + len(lost)
 
 
 class Blackout:
@@ -115,19 +138,31 @@ class BernoulliLoss:
         self._rng = rng
         self._u = uniform_source(rng, correlation, correlation_model)
         self.dropped = 0
-        # Uncorrelated draws are plain uniforms: a whole run's can be drawn in one call.
-        self.vectorized = correlation == 0.0
+        # Uncorrelated draws are plain uniforms: a whole run's can be drawn in one call;
+        # netem-correlated ones are run over the window (`bernoulli_run`); not the copula's.
+        self.vectorized = type(getattr(self._u, "__self__", None)) in (UniformSource, NetemCorrelatedUniform)
 
     def apply_all(
         self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Runs | None = None
     ) -> None:
         """`apply` on every original packet of a run at once, before any `apply` (`Link.schedule_all`).
 
-        `rng.random(n)` gives the numbers `UniformSource` hands out one at a time (it draws the
-        same stream in blocks), so the same packets are lost."""
+        Uncorrelated: `rng.random(n)` gives the numbers `UniformSource` hands out one at a time
+        (it draws the same stream in blocks), so the same packets are lost. netem-correlated: the
+        next n fresh numbers of its inner source (`UniformSource.take`), correlated and compared
+        by `bernoulli_run` (or `runs["bernoulli_run"]`, compiled); its last number written back."""
         if not self.vectorized:
-            raise ValueError("correlated loss draws depend on the previous draw; it has no vectorized form")
-        _mark_lost(fate, self._rng.random(len(send_ns)) < self.probability, self)  # bernoulli_lost, per packet
+            raise ValueError("gaussian_copula-correlated loss draws have no vectorized form")
+        n = len(send_ns)
+        src = self._u.__self__  # type: ignore[attr-defined]
+        if type(src) is NetemCorrelatedUniform:
+            run = bernoulli_run if runs is None else runs.get("bernoulli_run", bernoulli_run)
+            lost = np.zeros(n, dtype=np.bool_)
+            fresh = src._fresh.__self__.take(n)  # type: ignore[attr-defined]
+            src._last = float(run(fresh, src._rho, src._last, self.probability, lost))
+            _mark_lost(fate, lost, self)
+            return
+        _mark_lost(fate, self._rng.random(n) < self.probability, self)  # bernoulli_lost, per packet
 
     def apply(self, packet: Packet) -> Packet | None:
         fate = first_fate(packet.fate, bernoulli_lost(self._u(), self.probability), LOST_NETWORK)
@@ -305,9 +340,22 @@ class TraceLoss:
         self._pattern = [bool(x) for x in pattern]
         if not self._pattern:
             raise ValueError("a loss trace needs at least one entry")
+        self._trace = np.array(self._pattern, dtype=np.float64)  # the same, for `trace_run`
         self._repeat = repeat
         self._n = 0
         self.dropped = 0
+
+    vectorized = True
+
+    def apply_all(
+        self, send_ns: np.ndarray, arrival_ns: np.ndarray, fate: np.ndarray, runs: Runs | None = None
+    ) -> None:
+        """`apply` on every original packet of a window at once (`Link.schedule_all`): the pattern
+        from the packets so far on, by `trace_run` (or `runs["trace_run"]`, compiled)."""
+        run = trace_run if runs is None else runs.get("trace_run", trace_run)
+        lost = np.zeros(len(send_ns), dtype=np.bool_)
+        self._n = int(run(self._trace, self._n, bool(self._repeat), lost))
+        _mark_lost(fate, lost, self)
 
     def apply(self, packet: Packet) -> Packet | None:
         n = self._n

@@ -33,10 +33,11 @@ from haptic_teleop.core.link import LOST_LATE, Packet
 from haptic_teleop.core.playout_rules import (
     adaptive_observe,
     fixed_observe,
+    none_push,
+    none_release,
     push_begin,
     push_hold,
     sched_release,
-    seen_before,
 )
 
 POLICIES = ("none", "fixed", "adaptive", "percentile", "transparency", "network_adaptive")
@@ -113,7 +114,11 @@ class BufferBase:
     """What every policy shares: the duplicates ring, the gap mode and extrapolation."""
 
     name = "base"
+    policy = rules.POLICY_OTHER  # the estimator, when core/playout_rules.py has it
     extrapolated: int
+    Q: list[int]  # the rules' integer state (core/playout_rules.py)
+    E: list[float]
+    R: array[int]
 
     def __init__(self, period_ns: int, gap: str, max_extrapolation_ns: int) -> None:
         if gap not in GAP_MODES:
@@ -142,8 +147,31 @@ class BufferBase:
         return packet
 
     def _made_up(self, slot: int) -> None:
-        """A made-up sample for `slot` was released (the policy's own bookkeeping)."""
-        raise NotImplementedError
+        """A made-up sample for `slot` was released."""
+        self.Q[rules.Q_LAST_BUFFERING] = -1
+        self.Q[rules.Q_LAST_OUT] = slot
+
+    # Counters and state, read from the arrays.
+    @property
+    def late(self) -> int:
+        """Packets that arrived but were never played (fate LOST_LATE)."""
+        return int(self.Q[rules.Q_LATE])
+
+    @property
+    def duplicates(self) -> int:
+        return int(self.Q[rules.Q_DUPLICATES])
+
+    @property
+    def played(self) -> int:
+        return int(self.Q[rules.Q_PLAYED])
+
+    @property
+    def last_buffering_ns(self) -> int:
+        return int(self.Q[rules.Q_LAST_BUFFERING])
+
+    @property
+    def occupancy(self) -> int:
+        return int(self.Q[rules.Q_COUNT])
 
     def _fill(self, slot: int, now_ns: int) -> Packet | None:
         """The linear extrapolation of the last two received samples to `slot`, or None (hold)."""
@@ -172,64 +200,47 @@ class PlayOnArrival(BufferBase):
     periods after the last received sample was played (dead reckoning between arrivals). There
     is no schedule here, so a made-up sample does not make a received one late: any arrival newer
     than the last received sample played is played, even if an extrapolation ran past its seq.
+
+    The rules are core/playout_rules.py's `none_push` and `none_release` (the compiled loops run
+    them too); this class keeps the pending packet and gives packets their fates.
     """
 
     name = "none"
+    policy = rules.POLICY_NONE
 
     def __init__(self, period_ns: int = 0, gap: str = "hold", max_extrapolation_ns: int = 0) -> None:
         super().__init__(period_ns, gap, max_extrapolation_ns)
-        self.late = 0
-        self.duplicates = 0
-        self.played = 0
-        self.last_buffering_ns = -1
-        self._last_out_seq = _NO_SEQ  # seq of the last released packet, received or made up
+        self.Q, self.E = rules.new_state(self.policy, 0, 1.0)
+        self.R = array("q")  # (no held ring: one pending packet)
+        self._late = array("q", [0])
         self._pending: Packet | None = None
-        self._pending_arrived_ns = 0
         self._last_play_ns = 0
-
-    @property
-    def occupancy(self) -> int:
-        return 0 if self._pending is None else 1
 
     def oldest_held_seq(self) -> int | None:
         """The lowest sequence number the buffer holds (its fate may still change), or None."""
         return None if self._pending is None else self._pending.seq
 
-    def _mark_late(self, packet: Packet) -> None:
-        packet.fate = LOST_LATE
-        self.late += 1
-
-    def _made_up(self, slot: int) -> None:
-        self.last_buffering_ns = -1
-        self._last_out_seq = slot
-
     def push(self, packet: Packet, now_ns: int) -> None:
-        if seen_before(self._seen, packet.seq):
-            self.duplicates += 1
-            return
-        pending = self._pending
-        last = self._last_real
-        if (last is not None and packet.seq <= last.seq) or (pending is not None and packet.seq < pending.seq):
-            self._mark_late(packet)
-            return
-        if pending is not None:
-            self._mark_late(pending)
-        self._pending = packet
-        self._pending_arrived_ns = now_ns
+        code = none_push(self.Q, self._seen, self._late, packet.seq, now_ns)
+        if code == rules.PUSH_LATE:
+            packet.fate = LOST_LATE
+        elif code == rules.PUSH_HELD:
+            if self.Q[rules.Q_NLATE]:
+                assert self._pending is not None  # the displaced one
+                self._pending.fate = LOST_LATE
+            self._pending = packet
 
     def release(self, now_ns: int) -> Packet | None:
         p = self._pending
         if p is not None:
+            none_release(self.Q, now_ns)
             self._pending = None
             self._last_play_ns = now_ns
-            self.played += 1
-            self.last_buffering_ns = now_ns - self._pending_arrived_ns
-            self._last_out_seq = p.seq
             return self._played(p)
         last = self._last_real
         if self._extrapolate and last is not None:
             slot = last.seq + (now_ns - self._last_play_ns) // self.period_ns
-            if slot > self._last_out_seq:
+            if slot > self.Q[rules.Q_LAST_OUT]:
                 return self._fill(slot, now_ns)
         return None
 
@@ -250,8 +261,6 @@ class ScheduledBuffer(BufferBase):
     The rules are core/playout_rules.py's, over this buffer's arrays (the compiled loops run the
     same functions); this class keeps the packets themselves and gives them their fates.
     """
-
-    policy = rules.POLICY_OTHER  # the estimator, when core/playout_rules.py has it
 
     def __init__(
         self,
@@ -274,28 +283,6 @@ class ScheduledBuffer(BufferBase):
         self._late = array("q", bytes(8 * rules.SEEN_SLOTS))
         self._held: dict[int, Packet] = {}
 
-    # Counters and state, read from the arrays.
-    @property
-    def late(self) -> int:
-        """Packets that arrived but were never played (fate LOST_LATE)."""
-        return int(self.Q[rules.Q_LATE])
-
-    @property
-    def duplicates(self) -> int:
-        return int(self.Q[rules.Q_DUPLICATES])
-
-    @property
-    def played(self) -> int:
-        return int(self.Q[rules.Q_PLAYED])
-
-    @property
-    def last_buffering_ns(self) -> int:
-        return int(self.Q[rules.Q_LAST_BUFFERING])
-
-    @property
-    def occupancy(self) -> int:
-        return int(self.Q[rules.Q_COUNT])
-
     @property
     def playout_delay_ns(self) -> int | None:
         """D in use (receiver clock - send stamp), None before the first packet is held."""
@@ -312,10 +299,6 @@ class ScheduledBuffer(BufferBase):
         """The policy's current choice of D (receiver clock - send stamp, clock offset included)."""
         Q = self.Q
         return int(Q[rules.Q_REF] + Q[rules.Q_TARGET]) if Q[rules.Q_HAS_REF] else None
-
-    def _made_up(self, slot: int) -> None:
-        self.Q[rules.Q_LAST_BUFFERING] = -1
-        self.Q[rules.Q_LAST_OUT] = slot
 
     def _observe(self, rel_ns: int) -> None:
         """Update the estimator with one relative delay (relative to the first packet's)."""

@@ -62,8 +62,11 @@ Q_N = 18  # adaptive: relative delays observed
 Q_HAS_MIN_REL = 19  # fixed: a minimum was seen
 Q_MIN_REL = 20  # fixed: the minimum relative delay before playout started
 Q_BUFFERING = 21  # fixed: the buffering time, ns
-Q_NLATE = 22  # late marks of the last release (in `late`)
-Q_SIZE = 23
+Q_NLATE = 22  # late marks of the last push or release (in `late`)
+Q_PENDING_PUSHED = 23  # none: when the pending packet was pushed
+Q_HAS_REAL = 24  # none: a received packet was played
+Q_LAST_REAL = 25  # none: its seq
+Q_SIZE = 26
 
 # E: floats
 E_SLEW = 0  # max slew rate, s/s
@@ -78,6 +81,7 @@ E_SIZE = 6
 POLICY_OTHER = 0
 POLICY_FIXED = 1
 POLICY_ADAPTIVE = 2
+POLICY_NONE = 3  # play on arrival: Q_COUNT (0 or 1) and Q_MIN are its pending packet
 
 # what a push did
 PUSH_HELD = 0
@@ -127,6 +131,44 @@ def seen_before(seen: Any, seq: int) -> bool:
         return True
     seen[i] = seq
     return False
+
+
+def none_push(Q: Any, seen: Any, late: Any, seq: int, now_ns: int) -> int:
+    """Policy `none`: an arrival older than the last received one played, or than the pending one,
+    is late (PUSH_LATE); else it becomes the pending one, and a pending one it displaces is late
+    (its seq in `late`, Q[Q_NLATE] = 1)."""
+    Q[Q_NLATE] = 0
+    if seen_before(seen, seq):
+        Q[Q_DUPLICATES] += 1
+        return PUSH_DUPLICATE
+    pending = Q[Q_COUNT] > 0
+    if (Q[Q_HAS_REAL] and seq <= Q[Q_LAST_REAL]) or (pending and seq < Q[Q_MIN]):
+        Q[Q_LATE] += 1
+        return PUSH_LATE
+    if pending:
+        late[0] = Q[Q_MIN]
+        Q[Q_NLATE] = 1
+        Q[Q_LATE] += 1
+    Q[Q_COUNT] = 1
+    Q[Q_MIN] = seq
+    Q[Q_MAX] = seq
+    Q[Q_PENDING_PUSHED] = now_ns
+    return PUSH_HELD
+
+
+def none_release(Q: Any, now_ns: int) -> int:
+    """Policy `none`: the pending packet (its seq), played at once, or NO_SEQ."""
+    Q[Q_NLATE] = 0
+    if Q[Q_COUNT] == 0:
+        return NO_SEQ
+    seq = Q[Q_MIN]
+    Q[Q_COUNT] = 0
+    Q[Q_PLAYED] += 1
+    Q[Q_LAST_BUFFERING] = now_ns - Q[Q_PENDING_PUSHED]
+    Q[Q_LAST_OUT] = seq
+    Q[Q_HAS_REAL] = 1
+    Q[Q_LAST_REAL] = seq
+    return seq  # type: ignore[no-any-return]
 
 
 def fixed_observe(Q: Any, rel_ns: int) -> None:
@@ -275,6 +317,22 @@ def sched_release(Q: Any, E: Any, R: Any, now_ns: int, late: Any) -> int:
     return best  # type: ignore[no-any-return]
 
 
+def window_push(Q: Any, E: Any, seen: Any, R: Any, late: Any, seq: int, send_ns: int, now_ns: int) -> int:
+    """An arrival at a buffer whose rules are all written here (`none`, `fixed`, `adaptive`): as
+    `none_push` or `sched_push` (late marks of other packets in `late`, Q[Q_NLATE] of them)."""
+    if Q[Q_POLICY] == POLICY_NONE:
+        return none_push(Q, seen, late, seq, now_ns)
+    Q[Q_NLATE] = 0
+    return sched_push(Q, E, seen, R, seq, send_ns, now_ns)
+
+
+def window_release(Q: Any, E: Any, R: Any, now_ns: int, late: Any) -> int:
+    """A release of such a buffer: as `none_release` or `sched_release`."""
+    if Q[Q_POLICY] == POLICY_NONE:
+        return none_release(Q, now_ns)
+    return sched_release(Q, E, R, now_ns, late)
+
+
 def buffer_window(
     Q: Any,
     E: Any,
@@ -298,19 +356,24 @@ def buffer_window(
     order the link delivers them, the tick they arrive in, ascending) are pushed, then the buffer
     releases. Writes the seq released at each tick (-1: none), the occupancy after it, the lowest
     seq held after it (a large number: none) and every late mark (its seq and tick, from the
-    start of `late_seq`). Returns (packets pushed, late marks)."""
+    start of `late_seq`). Returns (packets pushed, late marks). The policy is `none`, `fixed` or
+    `adaptive` (`window_push`)."""
     i = 0
     k = 0
     m = len(p_seq)
     for n in range(n0, n1):
         now = n * period_ns
         while i < m and p_tick[i] <= n:
-            if sched_push(Q, E, seen, R, p_seq[i], p_send[i], now) == PUSH_LATE:
+            if window_push(Q, E, seen, R, late, p_seq[i], p_send[i], now) == PUSH_LATE:
                 late_seq[k] = p_seq[i]
                 late_tick[k] = n
                 k += 1
+            for j in range(Q[Q_NLATE]):
+                late_seq[k] = late[j]
+                late_tick[k] = n
+                k += 1
             i += 1
-        s = sched_release(Q, E, R, now, late)
+        s = window_release(Q, E, R, now, late)
         for j in range(Q[Q_NLATE]):
             late_seq[k] = late[j]
             late_tick[k] = n

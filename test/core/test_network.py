@@ -822,9 +822,9 @@ def test_vectorized_schedule_equals_send(seed, p, delay_ms, blackout, model):
 
 
 def test_schedule_all_refuses_what_it_cannot_decide_at_once():
-    correlated = make_link({"loss": {"probability": 0.1, "correlation": 0.5}})
+    correlated = make_link({"loss": {"probability": 0.1, "correlation": 0.5}, "correlation_model": "gaussian_copula"})
     copula = {"delay": {"delay_s": 0.01, "jitter_s": 0.002, "correlation": 0.3}, "correlation_model": "gaussian_copula"}
-    jitter = make_link(copula)  # (uncorrelated and netem-correlated jitter are: test_delay_vectorized.py)
+    jitter = make_link(copula)  # (uncorrelated and netem-correlated draws are: test_*_vectorized.py)
     used = run({"delay": {"delay_s": 0.01}}, 3)
     markov_used = run({"loss": MARKOV["gilbert_elliott"](0.1)}, 3)
     for link in (correlated, jitter, used, markov_used):

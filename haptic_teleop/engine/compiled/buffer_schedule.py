@@ -1,6 +1,7 @@
 """One direction's network schedule when its link is decided in batches (`Link.schedule_all`:
-jitter, loss chains, blackouts, constant delay) and its playout buffer is a scheduled one whose
-rules are written over arrays (`fixed`, `adaptive`; core/playout_rules.py), without a codec.
+jitter, loss chains, blackouts, constant delay) and its playout buffer's rules are written over
+arrays (`none`, `fixed`, `adaptive`; core/playout_rules.py), without a codec. (A link that
+keeps its packets' order into a `none` buffer has the simpler `axis_host.VectorizedSchedule`.)
 
 Window by window: the link decides every packet's fate and arrival at once; the delivered ones
 wait in flight, in the order `Link.deliver` hands them over (arrival time, then send order);
@@ -25,7 +26,7 @@ import numpy as np
 from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import playout_rules as rules
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, taken_tick
-from haptic_teleop.core.playout import AdaptiveBuffer, FixedBuffer, PlayoutBuffer
+from haptic_teleop.core.playout import AdaptiveBuffer, FixedBuffer, PlayOnArrival, PlayoutBuffer
 from haptic_teleop.engine.compiled.records import packet_rows
 
 buffer_window = compile_tree(rules.buffer_window, inline=True, counted=False)
@@ -43,7 +44,7 @@ def warm() -> None:
 
 def buffered(link: Link, buf: PlayoutBuffer) -> bool:
     """Whether `BufferedSchedule` runs this direction."""
-    return link.vectorized and type(buf) in (FixedBuffer, AdaptiveBuffer) and not buf.extrapolates
+    return link.vectorized and type(buf) in (PlayOnArrival, FixedBuffer, AdaptiveBuffer) and not buf.extrapolates
 
 
 class BufferedSchedule:
