@@ -6,7 +6,6 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -27,6 +26,69 @@ from haptic_teleop.core.uniform import (
 _NS_PER_S = 1_000_000_000
 
 
+# TokenBucket's state (`token_step`), an int64 array: tokens (nano-bits), when they were counted,
+# whether the bucket is full, the last departure, the waiting ring's head and count, drops.
+TB_TOKENS, TB_T, TB_FULL, TB_LAST, TB_HEAD, TB_COUNT, TB_DROPPED = range(7)
+TB_SIZE = 7
+
+
+def token_step(S: Any, ring: Any, t_ns: int, need: int, depth: int, rate: int, limit: int) -> tuple[int, bool]:
+    """One packet reaching the token bucket at `t_ns`, needing `need` nano-bits (at most `depth`):
+    (its departure, whether the queue dropped it). `ring` holds the departures of the packets still
+    waiting (at least `limit` slots, `limit` at least 1 long). One definition: `TokenBucket.apply`
+    and `token_run` (compiled: the compiled loop's network schedule). Integer arithmetic, with the
+    refill capped before it is multiplied, so that no product leaves int64 (Python's ints never
+    overflow: the same values)."""
+    cap = len(ring)
+    head = S[TB_HEAD]
+    count = S[TB_COUNT]
+    while count > 0 and ring[head] <= t_ns:
+        head = head + 1 if head + 1 < cap else 0
+        count -= 1
+    last = S[TB_LAST]
+    start = t_ns if t_ns > last else last
+    if S[TB_FULL]:
+        tokens = depth
+    else:
+        have = S[TB_TOKENS]
+        dt = start - S[TB_T]
+        tokens = depth if dt >= (depth - have) // rate + 1 else min(depth, have + dt * rate)
+    if tokens >= need:
+        departure = start
+        tokens -= need
+    else:
+        wait = -((tokens - need) // rate)  # ceil((need - tokens) / rate)
+        departure = start + wait
+        tokens = min(depth, tokens + wait * rate) - need
+    if departure > t_ns:
+        if count >= limit:
+            S[TB_HEAD] = head
+            S[TB_COUNT] = count
+            S[TB_DROPPED] += 1
+            return t_ns, True
+        k = head + count
+        ring[k - cap if k >= cap else k] = departure
+        count += 1
+    S[TB_TOKENS] = tokens
+    S[TB_T] = departure
+    S[TB_FULL] = 0
+    S[TB_LAST] = departure
+    S[TB_HEAD] = head
+    S[TB_COUNT] = count
+    return departure, False
+
+
+def token_run(
+    S: Any, ring: Any, arrivals: Any, lost: Any, delivered: Any, need: int, depth: int, rate: int, limit: int
+) -> None:
+    """`token_step` on a window's original packets in turn (each needing `need`): packet i reaches
+    the bucket at arrivals[i] (overwritten with its departure) if delivered[i]; lost[i] set when the
+    queue drops it."""
+    for i in range(arrivals.shape[0]):
+        if delivered[i]:
+            arrivals[i], lost[i] = token_step(S, ring, arrivals[i], need, depth, rate, limit)
+
+
 class TokenBucket:
     """Rate limit: a FIFO queue served by a token bucket (tbf), with tail drop.
 
@@ -35,10 +97,13 @@ class TokenBucket:
     left and the bucket holds enough. A packet that would have to wait while
     `queue_limit_packets` packets are already waiting is dropped (LOST_QUEUE); with a limit of 0
     the bucket polices instead of shaping. The departure time follows from the queue state at
-    send time, so it is computed then. Integer arithmetic in nano-bits keeps it exact.
+    send time, so it is computed then. Integer arithmetic in nano-bits keeps it exact. The rule
+    is `token_step`'s, over an int64 state and a ring of the waiting packets' departures.
     """
 
     name = "rate_limit"
+    vectorized = True
+    sized = True  # `apply_all` takes the packets' size (`Link.schedule_all`)
 
     def __init__(
         self,
@@ -60,60 +125,68 @@ class TokenBucket:
         self.queue_limit_packets = queue_limit_packets
         self.overhead_bytes = overhead_bytes
         self._depth = burst_bytes * 8 * _NS_PER_S  # nano-bits
-        self._tokens = self._depth  # the bucket starts full
-        self._t_tokens = 0  # time _tokens refers to (unused while the bucket is full)
-        self._full = True
-        self._last_departure = -(1 << 62)
-        self._waiting: deque[int] = deque()  # departure times of packets still waiting
-        self.dropped = 0
+        # `token_step`'s state and ring as Python ints (a numpy scalar costs three times a list's
+        # item); `apply_all` hands numpy copies to the run
+        self._s = [0] * TB_SIZE
+        self._s[TB_FULL] = 1  # the bucket starts full
+        self._s[TB_LAST] = -(1 << 62)
+        self._r = [0] * max(1, queue_limit_packets)
+
+    @property
+    def dropped(self) -> int:
+        return int(self._s[TB_DROPPED])
 
     def transmit_time_ns(self, size_bytes: int) -> float:
         """Time one packet of `size_bytes` message bytes takes at the token rate."""
         return (size_bytes + self.overhead_bytes) * 8 * 1e9 / self.rate_bps
 
+    def _need(self, size_bytes: int) -> int:
+        need = (size_bytes + self.overhead_bytes) * 8 * _NS_PER_S
+        if need > self._depth:
+            raise ValueError(
+                f"rate_limit: a packet of {size_bytes} + {self.overhead_bytes} overhead bytes "
+                f"exceeds burst_bytes={self.burst_bytes}; it could never be sent"
+            )
+        return need
+
     def apply(self, packet: Packet) -> Packet | None:
         if packet.fate != DELIVERED:
             return None
-        t = packet.arrival_time_ns
-        waiting = self._waiting
-        while waiting and waiting[0] <= t:
-            waiting.popleft()
-        need = (packet.size_bytes + self.overhead_bytes) * 8 * _NS_PER_S
-        depth = self._depth
-        if need > depth:
-            raise ValueError(
-                f"rate_limit: a packet of {packet.size_bytes} + {self.overhead_bytes} overhead bytes "
-                f"exceeds burst_bytes={self.burst_bytes}; it could never be sent"
-            )
-        start = t if t > self._last_departure else self._last_departure
-        if self._full:
-            tokens = depth
+        departure, dropped = token_step(
+            self._s, self._r, packet.arrival_time_ns, self._need(packet.size_bytes), self._depth, self.rate_bps,
+            self.queue_limit_packets,
+        )  # fmt: skip
+        if dropped:
+            packet.fate = LOST_QUEUE
         else:
-            tokens = min(depth, self._tokens + (start - self._t_tokens) * self.rate_bps)
-        if tokens >= need:
-            departure = start
-            tokens -= need
-        else:
-            wait = -((tokens - need) // self.rate_bps)  # ceil((need - tokens) / rate)
-            departure = start + wait
-            tokens = min(depth, tokens + wait * self.rate_bps) - need
-        if departure > t:
-            if len(waiting) >= self.queue_limit_packets:
-                packet.fate = LOST_QUEUE
-                self.dropped += 1
-                return None
-            waiting.append(departure)
-        self._tokens = tokens
-        self._t_tokens = departure
-        self._full = False
-        self._last_departure = departure
-        packet.arrival_time_ns = departure
+            packet.arrival_time_ns = departure
         return None
+
+    def apply_all(
+        self,
+        send_ns: np.ndarray,
+        arrival_ns: np.ndarray,
+        fate: np.ndarray,
+        runs: Mapping[str, Any] | None = None,
+        size_bytes: int | None = None,
+    ) -> None:
+        """`apply` on every original packet of a window (all `size_bytes` long) at once
+        (`Link.schedule_all`), by `token_run` (or `runs["token_run"]`, compiled) on the same state."""
+        if size_bytes is None:
+            raise ValueError("a rate limit decides a window only for packets of a known size (schedule_all size_bytes)")
+        S = np.array(self._s, dtype=np.int64)
+        ring = np.array(self._r, dtype=np.int64)
+        lost = np.zeros(len(arrival_ns), dtype=np.bool_)
+        run = token_run if runs is None else runs.get("token_run", token_run)
+        run(S, ring, arrival_ns, lost, fate == DELIVERED, self._need(size_bytes), self._depth, self.rate_bps,
+            self.queue_limit_packets)  # fmt: skip
+        fate[lost] = LOST_QUEUE
+        self._s, self._r = S.tolist(), ring.tolist()
 
     @property
     def queue_length(self) -> int:
         """Packets waiting after the last send (before time moves on)."""
-        return len(self._waiting)
+        return int(self._s[TB_COUNT])
 
 
 class ConstantDelay:

@@ -213,7 +213,9 @@ class Link:
         and every effect has an `apply_all` whose decisions do not depend on the packets before)."""
         return not self._one_by_one and all(getattr(e, "vectorized", False) for e in self.effects)
 
-    def schedule_all(self, send_ns: np.ndarray, runs: Mapping[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def schedule_all(
+        self, send_ns: np.ndarray, runs: Mapping[str, Any] | None = None, size_bytes: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Fates and arrival times of original packets sent at `send_ns`, decided all at once.
 
         The same decisions, from the same random numbers, as `send` on each packet in turn
@@ -224,7 +226,8 @@ class Link:
         are not queued or logged. Updates `sent` and `lost`. Returns (arrival_ns, fate) arrays.
         `runs`: a Markov loss chain's run over the window (core/loss.py `gilbert_run`,
         `four_state_run`) by name, compiled (engine/compiled/link_runs.py); the plain functions
-        without it.
+        without it. `size_bytes`: the packets' size, for an effect whose decisions depend on it
+        (`sized`: a rate limit).
         """
         if not self.vectorized:
             raise ValueError(
@@ -234,7 +237,10 @@ class Link:
         arrival = send_ns.copy()
         fate = np.full(len(send_ns), DELIVERED, dtype=np.int64)
         for e in self.effects:
-            e.apply_all(send_ns, arrival, fate, runs)  # type: ignore[attr-defined]
+            if getattr(e, "sized", False):
+                e.apply_all(send_ns, arrival, fate, runs, size_bytes)  # type: ignore[attr-defined]
+            else:
+                e.apply_all(send_ns, arrival, fate, runs)  # type: ignore[attr-defined]
         self.sent += len(send_ns)
         self.lost += int(np.count_nonzero(fate != DELIVERED))
         return arrival, fate

@@ -52,7 +52,7 @@ import numpy as np
 
 from haptic_teleop import compiling
 from haptic_teleop.assembly.stages import settled_records
-from haptic_teleop.core.delay import Delay
+from haptic_teleop.core.delay import Delay, TokenBucket
 from haptic_teleop.core.eba_state import AxisBoundState
 from haptic_teleop.core.link import DELIVERED, Link, Packet
 from haptic_teleop.core.playout import PlayOnArrival, PlayoutBuffer
@@ -229,12 +229,13 @@ def compiled_reason(parts: AxisParts) -> str | None:
 
 
 def _vectorized(link: Link, buf: PlayoutBuffer) -> bool:
-    # (a jittered delay may reorder packets or bring two in a tick: BufferedSchedule runs it)
+    # (a jittered delay may reorder packets, and it or a rate limit's burst bring two in a tick:
+    # BufferedSchedule runs them)
     return (
         link.vectorized
         and type(buf) is PlayOnArrival
         and not buf.extrapolates
-        and not any(type(e) is Delay for e in link.effects)
+        and not any(type(e) in (Delay, TokenBucket) for e in link.effects)
     )
 
 
@@ -299,7 +300,7 @@ class VectorizedSchedule:
         """As `TickedSchedule.window`."""
         period = self.period_ns
         send = np.arange(n0, n1, dtype=np.int64) * period
-        arrival, fate = self.link.schedule_all(send, self.runs)
+        arrival, fate = self.link.schedule_all(send, self.runs, self.size_bytes)
         got = np.flatnonzero(fate == DELIVERED)
         tick_of = -(-arrival[got] // period)
         if len(tick_of) and (

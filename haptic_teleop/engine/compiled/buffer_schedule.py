@@ -76,7 +76,7 @@ class BufferedSchedule:
         tick (-1: none) and its occupancy after the release."""
         period = self.period_ns
         send = np.arange(n0, n1, dtype=np.int64) * period
-        arrival, fate = self.link.schedule_all(send, self.runs)
+        arrival, fate = self.link.schedule_all(send, self.runs, self.size_bytes)
         self._rows.append(packet_rows(send, arrival, fate, self.size_bytes, first_seq=n0))
         got = np.flatnonzero(fate == DELIVERED)
         seq = got + n0
