@@ -22,6 +22,7 @@ CASES = {
     "adaptive": ("jitter", []),
     "none_jitter_keep_order_off": ("jitter", [f"{FWD}.buffer.policy=none"]),
     "bandwidth_none": ("bandwidth", []),
+    "varying_delay_adaptive": ("varying_delay", [f"{FWD}.buffer.policy=adaptive"]),
     "adaptive_reorder_correlated_loss": (
         "jitter",
         [

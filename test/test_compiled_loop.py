@@ -54,6 +54,7 @@ CASES = {
     "fixed": ("jitter", [f"{FWD}.buffer.policy=fixed", f"{BWD}.buffer.policy=fixed"]),
     "adaptive": ("jitter", [f"{FWD}.buffer.policy=adaptive", f"{BWD}.buffer.policy=adaptive"]),
     "bandwidth": ("bandwidth", []),
+    "varying_delay_fixed": ("varying_delay", [f"{FWD}.buffer.policy=fixed", f"{BWD}.buffer.policy=fixed"]),
     "none_jitter": ("jitter", [f"{FWD}.buffer.policy=none", f"{BWD}.buffer.policy=none"]),
     "percentile": ("jitter", [f"{FWD}.buffer.policy=percentile", f"{BWD}.buffer.policy=percentile"]),
     "transparency": ("varying_delay", []),

@@ -94,8 +94,9 @@ def test_compiled_delay_run_is_the_plain_one(seed, n, rho, distribution, keep_or
     r_fresh = np.zeros(0) if reorder is None else rng.random(n)
     r_args = (r_fresh, r_rho, 0.5, p, gap, counter)
     plain, compiled = arrivals.copy(), arrivals.copy()
-    end_plain = delay_run(plain, delivered, fresh, *args, *r_args)
-    end_compiled = link_runs.RUNS["delay_run"](compiled, delivered, fresh, *args, *r_args)
+    extra = np.zeros(0) if seed % 2 else rng.random(n) * 2e7  # a time-varying part, or none
+    end_plain = delay_run(plain, delivered, fresh, *args, *r_args, extra)
+    end_compiled = link_runs.RUNS["delay_run"](compiled, delivered, fresh, *args, *r_args, extra)
     kinds = (float, int, float, int, int)
     assert tuple(k(v) for k, v in zip(kinds, end_compiled, strict=True)) == end_plain
     assert np.array_equal(plain, compiled)

@@ -3,7 +3,6 @@ jittered delays, with netem's ordering and reordering (docs/network_effects.md).
 
 from __future__ import annotations
 
-import bisect
 import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -228,14 +227,14 @@ class PiecewiseDelay:
         self._linear = interpolation == "linear"
 
     def __call__(self, t_ns: int) -> float:
-        ts, ds = self._t, self._d
-        i = bisect.bisect_right(ts, t_ns)
-        if i == 0:
-            return ds[0]
-        if i == len(ts) or not self._linear:
-            return ds[i - 1]
-        t0, t1 = ts[i - 1], ts[i]
-        return ds[i - 1] + (ds[i] - ds[i - 1]) * (t_ns - t0) / (t1 - t0)
+        return piecewise_at(self._t, self._d, self._linear, t_ns)
+
+    def profile_args(self) -> tuple[int, np.ndarray, np.ndarray, bool, float, float, float, float]:
+        """`profile_run`'s description of this profile."""
+        return (
+            PROFILE_PIECEWISE, np.array(self._t, dtype=np.int64), np.array(self._d, dtype=np.float64),
+            self._linear, 0.0, 0.0, 0.0, 0.0,
+        )  # fmt: skip
 
 
 class SinusoidDelay:
@@ -251,7 +250,54 @@ class SinusoidDelay:
         self._phase_ns = phase_s * 1e9
 
     def __call__(self, t_ns: int) -> float:
-        return self._mid - self._amp * math.cos(self._w * (t_ns + self._phase_ns))
+        return sinusoid_at(self._mid, self._amp, self._w, self._phase_ns, t_ns)
+
+    def profile_args(self) -> tuple[int, np.ndarray, np.ndarray, bool, float, float, float, float]:
+        """`profile_run`'s description of this profile."""
+        none_i, none_f = np.zeros(0, dtype=np.int64), np.zeros(0)
+        return PROFILE_SINUSOID, none_i, none_f, False, self._mid, self._amp, self._w, self._phase_ns
+
+
+def piecewise_at(ts: Any, ds: Any, linear: bool, t_ns: int) -> float:
+    """`PiecewiseDelay` at `t_ns` (points at times ts, ns, with delays ds, ns): held before the
+    first and after the last point, linear or a step in between (bisect_right's index)."""
+    lo, hi = 0, len(ts)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_ns < ts[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    i = lo
+    if i == 0:
+        return ds[0]  # type: ignore[no-any-return]
+    if i == len(ts) or not linear:
+        return ds[i - 1]  # type: ignore[no-any-return]
+    t0, t1 = ts[i - 1], ts[i]
+    return ds[i - 1] + (ds[i] - ds[i - 1]) * (t_ns - t0) / (t1 - t0)  # type: ignore[no-any-return]
+
+
+def sinusoid_at(mid: float, amp: float, w: float, phase_ns: float, t_ns: int) -> float:
+    """`SinusoidDelay` at `t_ns`: mid - amp cos(w (t + phase))."""
+    return mid - amp * math.cos(w * (t_ns + phase_ns))
+
+
+PROFILE_PIECEWISE = 1
+PROFILE_SINUSOID = 2
+
+
+def profile_run(
+    kind: int, ts: Any, ds: Any, linear: bool, mid: float, amp: float, w: float, phase_ns: float,
+    times: Any, out: Any,
+) -> None:  # fmt: skip
+    """A time-varying delay's extra delay at each of `times` into `out` (`piecewise_at` or
+    `sinusoid_at`, as `profile_args` describes the profile). One definition with the profiles'
+    `__call__`; compiled in engine/compiled/link_runs.py."""
+    for i in range(times.shape[0]):
+        if kind == PROFILE_PIECEWISE:
+            out[i] = piecewise_at(ts, ds, linear, times[i])
+        else:
+            out[i] = sinusoid_at(mid, amp, w, phase_ns, times[i])
 
 
 def delayed_ns(t_ns: int, delay_ns: float) -> int:
@@ -314,6 +360,7 @@ def delay_run(
     reorder_p: float,
     gap: int,
     counter: int,
+    extra: np.ndarray,
 ) -> tuple[float, int, float, int, int]:
     """`Delay.apply` without a time-varying part on a window's original packets in turn: packet i
     reaches the delay at arrivals[i] (overwritten with its arrival), delivered[i] as it stands
@@ -323,12 +370,14 @@ def delay_run(
     from reorder_fresh[i] (netem-correlated with `reorder_last` if reorder_rho > 0) and
     `reorder_skip` (`counter`, `reorder_p`, `gap`): a packet that skips keeps the arrival it came
     with (no delay, not held behind others, the last delivered arrival unchanged). Without
-    reordering `reorder_fresh` is empty. Returns the jitter stream's last number, the last
+    reordering `reorder_fresh` is empty. `extra`: a time-varying delay's part at each packet's time
+    (`profile_run`; empty: none). Returns the jitter stream's last number, the last
     delivered arrival (`keep_order`), the reorder stream's last number, the counter, and how many
     delivered packets skipped. One definition for `Delay.apply_all` and, compiled, the compiled
     loop's network schedule (engine/compiled/link_runs.py)."""
     jitter = fresh.shape[0] > 0
     reorder = reorder_fresh.shape[0] > 0
+    varying = extra.shape[0] > 0
     reordered = 0
     for i in range(arrivals.shape[0]):
         unit = 0.0
@@ -338,7 +387,7 @@ def delay_run(
                 u = netem_next(u, rho, last_u)
                 last_u = u
             unit = unit_jitter(u, table, n_table)
-        d = delay_value_ns(base_ns, 0.0, sigma_ns, unit)
+        d = delay_value_ns(base_ns, extra[i] if varying else 0.0, sigma_ns, unit)
         if reorder:
             r = reorder_fresh[i]
             if reorder_rho > 0.0:
@@ -445,10 +494,11 @@ class Delay:
 
     @property
     def vectorized(self) -> bool:
-        """True if `apply_all` decides a window at once: no time-varying part, and the jitter and
+        """True if `apply_all` decides a window at once: a time-varying part (if any) a schedule, a
+        trace or a sinusoid (`PiecewiseDelay`, `SinusoidDelay`), and the jitter and
         the reordering (if any) uncorrelated or netem-correlated (not the Gaussian copula), each
         on its own generator (else their blocks of numbers interleave packet by packet)."""
-        if self._profile is not None:
+        if self._profile is not None and type(self._profile) not in (PiecewiseDelay, SinusoidDelay):
             return False
         draws = [d for d in (self._ju, self._ru) if d is not None]
         gens = [_generator(d) for d in draws]
@@ -463,15 +513,24 @@ class Delay:
         packet reaches the delay at `arrival_ns` as the effects before it left it, with the fate
         they gave it."""
         if not self.vectorized:
-            raise ValueError("a time-varying or copula-correlated delay or reordering has no vectorized form")
+            raise ValueError(
+                "a time-varying delay given as a function, or copula-correlated jitter or reordering, "
+                "has no vectorized form"
+            )
         n = len(arrival_ns)
         fresh, rho, last_u, netem = _window_numbers(self._ju, n)
         r_fresh, r_rho, r_last, r_netem = _window_numbers(self._ru, n)
+        extra = np.zeros(0)
+        if self._profile is not None:
+            extra = np.empty(n)
+            at: Callable[..., None] = profile_run if runs is None else runs.get("profile_run", profile_run)
+            profile: PiecewiseDelay | SinusoidDelay = self._profile  # type: ignore[assignment]
+            at(*profile.profile_args(), arrival_ns, extra)
         run = delay_run if runs is None else runs.get("delay_run", delay_run)
         last_u, last, r_last, counter, reordered = run(
             arrival_ns, fate == DELIVERED, fresh, rho, last_u, self._table, len(self._table),
             self._base_ns, self._sigma_ns, bool(self._keep_order), int(self._last_arrival),
-            r_fresh, r_rho, r_last, float(self._reorder_p), int(self._gap), int(self._counter),
+            r_fresh, r_rho, r_last, float(self._reorder_p), int(self._gap), int(self._counter), extra,
         )  # fmt: skip
         if netem is not None:
             netem._last = float(last_u)

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.core.delay import ConstantDelay, Delay, PiecewiseDelay
+from haptic_teleop.core.delay import ConstantDelay, Delay, PiecewiseDelay, SinusoidDelay, profile_run
 from haptic_teleop.core.link import DELIVERED, Link, Packet
 from haptic_teleop.core.loss import BernoulliLoss
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
@@ -210,14 +210,13 @@ def test_a_skipped_packet_holds_nothing_behind_it(keep_order, runs):
 
 
 def test_what_apply_all_cannot_decide_is_not_vectorized():
-    """A time-varying delay, copula-correlated jitter or reordering, and jitter and reordering
-    drawn from one generator: packet by packet only."""
+    """A time-varying delay given as a plain function, copula-correlated jitter or reordering, and
+    jitter and reordering drawn from one generator: packet by packet only."""
     rng = np.random.default_rng
     shared = rng(10)
     cases = [
-        Delay(0.01, profile=PiecewiseDelay([0.0, 1.0], [0.0, 0.01])),
-        Delay(0.01, jitter_s=0.002, rng=rng(1), profile=PiecewiseDelay([0.0], [0.01])),
-        Delay(0.01, reorder_probability=0.1, reorder_rng=rng(2), profile=PiecewiseDelay([0.0], [0.01])),
+        Delay(0.01, profile=lambda t: 0.0),
+        Delay(0.01, jitter_s=0.002, rng=rng(1), profile=lambda t: 1e6),
         Delay(
             0.01, reorder_probability=0.1, reorder_correlation=0.25, reorder_rng=rng(4),
             correlation_model="gaussian_copula",
@@ -242,6 +241,8 @@ def test_what_apply_all_cannot_decide_is_not_vectorized():
         Delay(0.01, reorder_probability=0.1, reorder_rng=rng(11)),
         Delay(0.01, jitter_s=0.002, rng=rng(12), reorder_probability=0.1, reorder_correlation=0.5, reorder_rng=rng(13)),
         Delay(0.01, reorder_probability=0.1, reorder_rng=rng(14), correlation_model="gaussian_copula"),
+        Delay(0.01, profile=PiecewiseDelay([0.0, 1.0], [0.0, 0.01])),
+        Delay(0.01, jitter_s=0.002, rng=rng(15), profile=SinusoidDelay(0.0, 0.02, 0.5)),
     ):
         assert d.vectorized and Link([d]).vectorized
 
@@ -284,11 +285,10 @@ def test_a_scene_link_with_jitter_is_decided_in_windows(seed, delay_ms, jitter, 
     assert np.array_equal(fate, fate_ref) and np.array_equal(arrival, arrival_ref)
 
 
-def test_a_scene_link_with_a_ramp_or_copula_jitter_or_reordering_is_refused():
+def test_a_scene_link_with_copula_jitter_or_reordering_is_refused():
     jitter = {"delay_s": 0.01, "jitter_s": 0.002}
     copula = {"correlation_model": "gaussian_copula"}
     for effects in (
-        {"delay": {"delay_s": 0.01, "schedule": {"times_s": [0.0, 1.0], "delays_s": [0.0, 0.01]}}},
         {"delay": jitter, "reorder": {"probability": 0.1, "correlation": 0.25}, **copula},
         {"delay": {**jitter, "correlation": 0.25}, **copula},
     ):
@@ -298,3 +298,41 @@ def test_a_scene_link_with_a_ramp_or_copula_jitter_or_reordering_is_refused():
             link.schedule_all(np.arange(3, dtype=np.int64))
     assert scene_link({"delay": {**jitter, "correlation": 0.25}}, 1).vectorized  # netem's model
     assert scene_link({"delay": jitter, "reorder": {"probability": 0.1, "correlation": 0.25}}, 1).vectorized
+
+
+PROFILES = {
+    "ramp": lambda: PiecewiseDelay([0.5, 2.0, 3.0], [0.0, 0.03, 0.005]),
+    "steps": lambda: PiecewiseDelay([0.5, 2.0, 3.0], [0.0, 0.03, 0.005], interpolation="step"),
+    "sinusoid": lambda: SinusoidDelay(0.0, 0.02, 0.7, phase_s=0.1),
+}
+
+
+@pytest.mark.parametrize("reorder", [False, True], ids=["no_reorder", "reorder"])
+@pytest.mark.parametrize("profile", sorted(PROFILES))
+def test_a_time_varying_delay_is_decided_in_windows(profile, reorder, runs):
+    """A schedule (a trace is one too) or a sinusoid on top of jitter (and reordering): the same
+    arrivals in windows as packet by packet; the profile's values from `profile_run`, the function
+    the profile's own call runs."""
+
+    def link() -> Link:
+        return Link(
+            [
+                BernoulliLoss(0.1, effect_rng(4, "forward", "loss")),
+                Delay(
+                    0.002, jitter_s=0.001, rng=effect_rng(4, "forward", "delay"), profile=PROFILES[profile](),
+                    reorder_probability=0.05 if reorder else 0.0,
+                    reorder_rng=effect_rng(4, "forward", "reorder") if reorder else None,
+                ),
+            ]
+        )  # fmt: skip
+
+    send = send_times(4)
+    arrival_ref, fate_ref = one_by_one(link(), send)
+    arrival, fate = in_windows(link(), send, runs)
+    assert np.array_equal(fate, fate_ref) and np.array_equal(arrival, arrival_ref)
+    got = fate == DELIVERED
+    assert np.ptp(arrival[got] - send[got]) > 15 * MS  # the profile moved the delay
+    p = PROFILES[profile]()
+    out = np.empty(len(send))
+    (runs or {}).get("profile_run", profile_run)(*p.profile_args(), send, out)
+    assert out.tolist() == [p(int(t)) for t in send]

@@ -1,7 +1,8 @@
 """The runs over a window that `Link.schedule_all` hands to its effects, compiled (numba) from
 their one definition: the loss rules' (core/loss.py: the Markov chains' `gilbert_run` and
 `four_state_run`, the netem-correlated Bernoulli loss's `bernoulli_run`, the replayed pattern's
-`trace_run`) and the delay's (core/delay.py `delay_run`: jitter and netem reordering;
+`trace_run`) and the delay's (core/delay.py `delay_run`: jitter, netem reordering and the
+time-varying part `profile_run` gives;
 `token_run`: a rate limit's queue), with the per-packet steps they call, for the compiled loop's
 vectorized network schedule (axis_host.VectorizedSchedule and buffer_schedule.BufferedSchedule hand them to
 `Link.schedule_all`). Each is sequential (a packet's state or arrival depends on the last), so
@@ -22,6 +23,7 @@ RUNS: dict[str, Any] = {
     "bernoulli_run": compile_tree(loss.bernoulli_run),
     "trace_run": compile_tree(loss.trace_run),
     "delay_run": compile_tree(delay.delay_run),
+    "profile_run": compile_tree(delay.profile_run),
     "token_run": compile_tree(delay.token_run),
 }
 
@@ -39,7 +41,11 @@ def warm() -> None:
     arrivals, delivered = np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.bool_)
     RUNS["delay_run"](
         arrivals, delivered, np.zeros(1), 0.25, 0.5, np.zeros(2), 2, 1e6, 1e5, True, 0,
-        np.zeros(1), 0.25, 0.5, 0.1, 3, 0,
+        np.zeros(1), 0.25, 0.5, 0.1, 3, 0, np.zeros(1),
     )  # fmt: skip
+    out = np.zeros(1)
+    RUNS["profile_run"](
+        delay.PROFILE_PIECEWISE, np.zeros(2, dtype=np.int64), np.zeros(2), True, 0.0, 0.0, 0.0, 0.0, arrivals, out
+    )
     tokens = np.zeros(delay.TB_SIZE, dtype=np.int64)
     RUNS["token_run"](tokens, np.zeros(1, dtype=np.int64), arrivals, lost, delivered, 8, 16, 1, 1)
