@@ -23,6 +23,11 @@ CASES = {
     "none_jitter_keep_order_off": ("jitter", [f"{FWD}.buffer.policy=none"]),
     "bandwidth_none": ("bandwidth", []),
     "varying_delay_adaptive": ("varying_delay", [f"{FWD}.buffer.policy=adaptive"]),
+    "percentile_small_window": (
+        "jitter",
+        [f"{FWD}.buffer.policy=percentile", f"{FWD}.buffer.window_packets=50", f"{FWD}.buffer.quantile=0.9"],
+    ),
+    "seed_contact_playout": ("seed_contact_playout", []),
     "adaptive_reorder_correlated_loss": (
         "jitter",
         [
@@ -101,6 +106,11 @@ def test_buffered_schedule_equals_the_ticked_objects(case):
     fates = np.concatenate([r for r in rows_t if r is not None])[:, 3]
     assert np.count_nonzero(released >= 0) > n / 5
     assert np.max(np.concatenate(occ_t)) > 1 or "none" in case  # (none holds nothing past a release)
+    # the buffer objects say the same after the run (counters, playout delay, target)
+    bt, bb = ticked.buf, buffered.buf
+    assert (bt.late, bt.played, bt.duplicates, bt.occupancy) == (bb.late, bb.played, bb.duplicates, bb.occupancy)
+    if not case.startswith(("none", "bandwidth")):
+        assert (bt.playout_delay_ns, bt.target_delay_ns) == (bb.playout_delay_ns, bb.target_delay_ns)
     assert np.count_nonzero(fates == LOST_LATE) > 0 or case in ("long_delay_uniform", "bandwidth_none")
 
 

@@ -21,7 +21,6 @@ functions over arrays, which the compiled loops run too; `percentile`, `transpar
 
 from __future__ import annotations
 
-import math
 from array import array
 from bisect import bisect_left, insort
 from collections import deque
@@ -35,6 +34,7 @@ from haptic_teleop.core.playout_rules import (
     fixed_observe,
     none_push,
     none_release,
+    percentile_target,
     push_begin,
     push_hold,
     sched_release,
@@ -418,7 +418,10 @@ class AdaptiveBuffer(ScheduledBuffer):
 
 
 class Window:
-    """The last `size` relative delays, also kept sorted (insort / bisect: O(log n) + a memmove)."""
+    """The last `size` relative delays, also kept sorted (insort / bisect: O(log n) + a memmove).
+    The compiled schedule keeps the same window over arrays (core/playout_rules.py `window_add`:
+    the same insertion and removal, written as loops; C's list moves are what the interpreter
+    can afford)."""
 
     __slots__ = ("order", "size", "sorted")
 
@@ -446,6 +449,7 @@ class PercentileBuffer(ScheduledBuffer):
     """
 
     name = "percentile"
+    policy = rules.POLICY_PERCENTILE
 
     def __init__(
         self,
@@ -468,12 +472,11 @@ class PercentileBuffer(ScheduledBuffer):
             hysteresis_ns=hysteresis_ns,
         )
         self.quantile = quantile
+        self.E[rules.E_QUANTILE] = quantile
         self._window = Window(window_packets)
 
     def _observe(self, rel_ns: int) -> None:
         w = self._window
         w.add(rel_ns)
         srt = w.sorted
-        n = len(srt)
-        rank = math.ceil(self.quantile * n - 1e-9)  # 1-based nearest rank
-        self._set_target(srt[min(n, max(1, rank)) - 1])
+        self._set_target(percentile_target(srt, len(srt), self.quantile))

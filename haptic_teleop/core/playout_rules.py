@@ -24,6 +24,7 @@ against the first packet's (Q_REF), so a constant clock offset changes no comput
 
 from __future__ import annotations
 
+import math
 from array import array
 from typing import Any
 
@@ -66,7 +67,12 @@ Q_NLATE = 22  # late marks of the last push or release (in `late`)
 Q_PENDING_PUSHED = 23  # none: when the pending packet was pushed
 Q_HAS_REAL = 24  # none: a received packet was played
 Q_LAST_REAL = 25  # none: its seq
-Q_SIZE = 26
+Q_W_HEAD = 26  # percentile, network_adaptive: the window's ring (wv) head
+Q_W_COUNT = 27  # its values
+Q_W_N = 28  # the sorted window's (ws) length
+Q_ALLOW_LOSS = 29  # network_adaptive: L_a, ns
+Q_BUDGET = 30  # network_adaptive: D_a - d0 (at least 0), ns; -1: no delay bound
+Q_SIZE = 31
 
 # E: floats
 E_SLEW = 0  # max slew rate, s/s
@@ -75,13 +81,16 @@ E_B = 2  # 1 - alpha
 E_BETA = 3  # variation factor
 E_D = 4  # d_hat (relative)
 E_V = 5  # v_hat
-E_SIZE = 6
+E_QUANTILE = 6  # percentile: q
+E_SIZE = 7
 
 # policies whose estimator is written here (others set Q_TARGET from Python)
 POLICY_OTHER = 0
 POLICY_FIXED = 1
 POLICY_ADAPTIVE = 2
 POLICY_NONE = 3  # play on arrival: Q_COUNT (0 or 1) and Q_MIN are its pending packet
+POLICY_PERCENTILE = 4
+POLICY_NETWORK_ADAPTIVE = 5
 
 # what a push did
 PUSH_HELD = 0
@@ -199,13 +208,83 @@ def adaptive_observe(Q: Any, E: Any, rel_ns: int) -> None:
     Q[Q_TARGET] = round(d + E[E_BETA] * v)
 
 
-def policy_observe(Q: Any, E: Any, rel_ns: int) -> None:
-    """The estimator of the buffer's policy, when it is written here."""
+def percentile_target(srt: Any, n: int, q: float) -> int:
+    """Policy `percentile`: the nearest-rank q-quantile of the sorted window `srt` (n values): the
+    smallest value with at least a fraction q of the window at or below it."""
+    rank = math.ceil(q * n - 1e-9)  # 1-based nearest rank
+    return srt[min(n, max(1, rank)) - 1]  # type: ignore[no-any-return]
+
+
+def network_adaptive_need(lo: int, hi: int, allow_loss: int, budget: int) -> tuple[int, bool]:
+    """Policy `network_adaptive` (seed 000): the buffering above the window's minimum `lo` that
+    keeps every hold the window predicts within L_a (`allow_loss`), b = max(0, max x - L_a), at
+    most `budget` = D_a - d0 (-1: no bound); and whether the requirement is met within it."""
+    need = hi - lo - allow_loss
+    need = max(need, 0)
+    if budget >= 0 and need > budget:
+        return budget, False
+    return need, True
+
+
+def window_add(Q: Any, wv: Any, ws: Any, x: int) -> None:
+    """The window of the last len(wv) relative delays, in order (the ring wv) and sorted (ws, one
+    longer): `x` inserted after equal values (bisect_right), then the oldest removed when the window
+    is over its size (the first equal value: bisect_left), as the Python buffers' `Window` (a list,
+    C's bisect) keeps it."""
+    n = Q[Q_W_N]
+    lo = 0
+    hi = n
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if x < ws[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    for j in range(n, lo, -1):
+        ws[j] = ws[j - 1]
+    ws[lo] = x
+    n += 1
+    size = len(wv)
+    head = Q[Q_W_HEAD]
+    count = Q[Q_W_COUNT]
+    if count < size:
+        k = head + count
+        wv[k - size if k >= size else k] = x
+        Q[Q_W_COUNT] = count + 1
+    else:
+        old = wv[head]
+        wv[head] = x
+        Q[Q_W_HEAD] = head + 1 if head + 1 < size else 0
+        lo = 0
+        hi = n
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if ws[mid] < old:
+                lo = mid + 1
+            else:
+                hi = mid
+        for j in range(lo, n - 1):
+            ws[j] = ws[j + 1]
+        n -= 1
+    Q[Q_W_N] = n
+
+
+def policy_observe(Q: Any, E: Any, wv: Any, ws: Any, rel_ns: int) -> None:
+    """The estimator of the buffer's policy, when it is written here (`percentile` and
+    `network_adaptive` over the window arrays wv, ws)."""
     policy = Q[Q_POLICY]
     if policy == POLICY_ADAPTIVE:
         adaptive_observe(Q, E, rel_ns)
     elif policy == POLICY_FIXED:
         fixed_observe(Q, rel_ns)
+    elif policy == POLICY_PERCENTILE:
+        window_add(Q, wv, ws, rel_ns)
+        Q[Q_TARGET] = percentile_target(ws, Q[Q_W_N], E[E_QUANTILE])
+    elif policy == POLICY_NETWORK_ADAPTIVE:
+        window_add(Q, wv, ws, rel_ns)
+        lo = ws[0]
+        need, _ = network_adaptive_need(lo, ws[Q[Q_W_N] - 1], Q[Q_ALLOW_LOSS], Q[Q_BUDGET])
+        Q[Q_TARGET] = lo + need
 
 
 def push_begin(Q: Any, seen: Any, seq: int, send_ns: int, now_ns: int) -> int:
@@ -245,13 +324,13 @@ def push_hold(Q: Any, R: Any, seq: int, send_ns: int, now_ns: int) -> int:
     return PUSH_HELD
 
 
-def sched_push(Q: Any, E: Any, seen: Any, R: Any, seq: int, send_ns: int, now_ns: int) -> int:
+def sched_push(Q: Any, E: Any, seen: Any, R: Any, wv: Any, ws: Any, seq: int, send_ns: int, now_ns: int) -> int:
     """A packet's arrival at a buffer whose policy's estimator is written here (`policy_observe`):
     PUSH_HELD, PUSH_DUPLICATE or PUSH_LATE."""
     rel = push_begin(Q, seen, seq, send_ns, now_ns)
     if rel == NO_SEQ:
         return PUSH_DUPLICATE
-    policy_observe(Q, E, rel)
+    policy_observe(Q, E, wv, ws, rel)
     return push_hold(Q, R, seq, send_ns, now_ns)
 
 
@@ -317,13 +396,15 @@ def sched_release(Q: Any, E: Any, R: Any, now_ns: int, late: Any) -> int:
     return best  # type: ignore[no-any-return]
 
 
-def window_push(Q: Any, E: Any, seen: Any, R: Any, late: Any, seq: int, send_ns: int, now_ns: int) -> int:
+def window_push(
+    Q: Any, E: Any, seen: Any, R: Any, wv: Any, ws: Any, late: Any, seq: int, send_ns: int, now_ns: int
+) -> int:
     """An arrival at a buffer whose rules are all written here (`none`, `fixed`, `adaptive`): as
     `none_push` or `sched_push` (late marks of other packets in `late`, Q[Q_NLATE] of them)."""
     if Q[Q_POLICY] == POLICY_NONE:
         return none_push(Q, seen, late, seq, now_ns)
     Q[Q_NLATE] = 0
-    return sched_push(Q, E, seen, R, seq, send_ns, now_ns)
+    return sched_push(Q, E, seen, R, wv, ws, seq, send_ns, now_ns)
 
 
 def window_release(Q: Any, E: Any, R: Any, now_ns: int, late: Any) -> int:
@@ -338,6 +419,8 @@ def buffer_window(
     E: Any,
     seen: Any,
     R: Any,
+    wv: Any,
+    ws: Any,
     late: Any,
     p_seq: Any,
     p_send: Any,
@@ -356,15 +439,15 @@ def buffer_window(
     order the link delivers them, the tick they arrive in, ascending) are pushed, then the buffer
     releases. Writes the seq released at each tick (-1: none), the occupancy after it, the lowest
     seq held after it (a large number: none) and every late mark (its seq and tick, from the
-    start of `late_seq`). Returns (packets pushed, late marks). The policy is `none`, `fixed` or
-    `adaptive` (`window_push`)."""
+    start of `late_seq`). Returns (packets pushed, late marks). The policy is `none`, `fixed`,
+    `adaptive`, `percentile` or `network_adaptive` (`window_push`; wv, ws: the last two's window)."""
     i = 0
     k = 0
     m = len(p_seq)
     for n in range(n0, n1):
         now = n * period_ns
         while i < m and p_tick[i] <= n:
-            if window_push(Q, E, seen, R, late, p_seq[i], p_send[i], now) == PUSH_LATE:
+            if window_push(Q, E, seen, R, wv, ws, late, p_seq[i], p_send[i], now) == PUSH_LATE:
                 late_seq[k] = p_seq[i]
                 late_tick[k] = n
                 k += 1

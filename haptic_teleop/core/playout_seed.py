@@ -10,6 +10,7 @@ import math
 from bisect import bisect_right
 
 from haptic_teleop.core.playout import RETARGET_PACKETS, ScheduledBuffer, Window
+from haptic_teleop.core.playout_rules import POLICY_NETWORK_ADAPTIVE, Q_ALLOW_LOSS, Q_BUDGET, network_adaptive_need
 
 
 class TransparencyBuffer(ScheduledBuffer):
@@ -151,6 +152,7 @@ class NetworkAdaptiveBuffer(ScheduledBuffer):
     """
 
     name = "network_adaptive"
+    policy = POLICY_NETWORK_ADAPTIVE
 
     def __init__(
         self,
@@ -190,12 +192,14 @@ class NetworkAdaptiveBuffer(ScheduledBuffer):
             raise ValueError(f"allowable loss time must be >= 0, got {loss_time_ns}")
         self._allow_delay = delay_ns
         self._allow_loss = loss_time_ns
+        self._bounds()
 
     def set_min_one_way_delay(self, delay_ns: int) -> None:
         """d0: the smallest one-way delay (the engine: the link's; a node: half the minimum round trip)."""
         if delay_ns < 0:
             raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
         self._d0 = delay_ns
+        self._bounds()
 
     @property
     def delay_budget_ns(self) -> int | None:
@@ -207,13 +211,12 @@ class NetworkAdaptiveBuffer(ScheduledBuffer):
         w = self._window
         w.add(rel_ns)
         srt = w.sorted
-        need = srt[-1] - srt[0] - self._allow_loss
-        need = max(need, 0)
-        cap = self.delay_budget_ns
-        if cap is not None and need > cap:
-            self.requirement_met = False
-            need = cap
-        else:
-            self.requirement_met = True
+        need, self.requirement_met = network_adaptive_need(srt[0], srt[-1], self._allow_loss, self.Q[Q_BUDGET])
         self.buffering_ns = need
         self._set_target(srt[0] + need)
+
+    def _bounds(self) -> None:
+        """L_a and D_a - d0 (-1: none) where the rules (and the compiled schedule) read them."""
+        cap = self.delay_budget_ns
+        self.Q[Q_ALLOW_LOSS] = self._allow_loss
+        self.Q[Q_BUDGET] = -1 if cap is None else cap

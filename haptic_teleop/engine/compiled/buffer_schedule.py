@@ -1,6 +1,7 @@
 """One direction's network schedule when its link is decided in batches (`Link.schedule_all`:
 jitter, loss chains, blackouts, constant delay) and its playout buffer's rules are written over
-arrays (`none`, `fixed`, `adaptive`; core/playout_rules.py), without a codec. (A link that
+arrays (`none`, `fixed`, `adaptive`, `percentile`, `network_adaptive`; core/playout_rules.py),
+without a codec. (A link that
 keeps its packets' order into a `none` buffer has the simpler `axis_host.VectorizedSchedule`.)
 
 Window by window: the link decides every packet's fate and arrival at once; the delivered ones
@@ -10,6 +11,10 @@ arrive in and releases, tick by tick, in the engine's order. The result is what 
 gets from the very `Link` and buffer objects ticked one by one: the same released sequence
 numbers, occupancy and packet records, bit for bit (test_buffer_schedule.py), at some tens of
 nanoseconds a packet instead of about 6 us.
+
+The buffer object's integer and float state (its counters, playout delay, target and estimates)
+is copied back after each window: what it says after a run is the state at the end of the last
+window decided.
 
 Records: a packet's row is handed over once its fate is final at the tick the loop has reached
 (neither in flight nor held then), as `stages.settled_records` does; a window decided further
@@ -26,7 +31,8 @@ import numpy as np
 from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import playout_rules as rules
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, taken_tick
-from haptic_teleop.core.playout import AdaptiveBuffer, FixedBuffer, PlayOnArrival, PlayoutBuffer
+from haptic_teleop.core.playout import AdaptiveBuffer, FixedBuffer, PercentileBuffer, PlayOnArrival, PlayoutBuffer
+from haptic_teleop.core.playout_seed import NetworkAdaptiveBuffer
 from haptic_teleop.engine.compiled.records import packet_rows
 
 buffer_window = compile_tree(rules.buffer_window, inline=True, counted=False)
@@ -39,12 +45,17 @@ def warm() -> None:
     buf = AdaptiveBuffer(1)
     Q, E, seen, R = rules.as_arrays(buf.Q, buf.E, buf._seen, buf.R)
     i = np.zeros(1, dtype=np.int64)
-    buffer_window(Q, E, seen, R, i, i[:0], i[:0], i[:0], 0, 1, 1, i, np.zeros(1), i, i, i)
+    w = np.zeros(2, dtype=np.int64)
+    buffer_window(Q, E, seen, R, w[:1], w, i, i[:0], i[:0], i[:0], 0, 1, 1, i, np.zeros(1), i, i, i)
+
+
+# The policies whose rules core/playout_rules.py has whole (transparency's decision is Python).
+COMPILED_BUFFERS = (PlayOnArrival, FixedBuffer, AdaptiveBuffer, PercentileBuffer, NetworkAdaptiveBuffer)
 
 
 def buffered(link: Link, buf: PlayoutBuffer) -> bool:
     """Whether `BufferedSchedule` runs this direction."""
-    return link.vectorized and type(buf) in (PlayOnArrival, FixedBuffer, AdaptiveBuffer) and not buf.extrapolates
+    return link.vectorized and type(buf) in COMPILED_BUFFERS and not buf.extrapolates
 
 
 class BufferedSchedule:
@@ -52,13 +63,15 @@ class BufferedSchedule:
 
     vectorized = True  # decided a long window ahead
 
-    def __init__(
-        self, link: Link, buf: FixedBuffer | AdaptiveBuffer, period_ns: int, size_bytes: int, runs: Any
-    ) -> None:
-        self.link, self.period_ns, self.size_bytes, self.runs = link, period_ns, size_bytes, runs
+    def __init__(self, link: Link, buf: Any, period_ns: int, size_bytes: int, runs: Any) -> None:
+        self.link, self.buf, self.period_ns, self.size_bytes, self.runs = link, buf, period_ns, size_bytes, runs
         # the buffer's state as it is now (no packet yet), as numpy arrays the compiled rules act on
         self.Q, self.E, self.seen, self.R = rules.as_arrays(buf.Q, buf.E, buf._seen, buf.R)
         self.late = np.zeros(rules.SEEN_SLOTS, dtype=np.int64)
+        # the window of `percentile` and `network_adaptive` (its ring and its sorted copy)
+        size = buf._window.size if hasattr(buf, "_window") else 1
+        self.wv = np.zeros(size, dtype=np.int64)
+        self.ws = np.zeros(size + 1, dtype=np.int64)
         # delivered packets on their way, in seq order: seq, send, arrival ns, arrival tick
         self._p = np.zeros((4, 0), dtype=np.int64)
         # records not handed over yet (rows in seq order from self._first), and of the delivered
@@ -94,11 +107,15 @@ class BufferedSchedule:
         late_seq = np.empty(room, dtype=np.int64)
         late_tick = np.empty(room, dtype=np.int64)
         pushed, k = buffer_window(
-            self.Q, self.E, self.seen, self.R, self.late,
+            self.Q, self.E, self.seen, self.R, self.wv, self.ws, self.late,
             p[0, order], p[1, order], p[3, order],
             n0, n1, period, released, occupancy, held_min, late_seq, late_tick,
         )  # fmt: skip
         self._p = p[:, np.sort(order[pushed:])]
+        # the buffer object's counters, playout delay and estimates as they are after the window
+        # (its held packets and window stay empty: the packets are the schedule's)
+        self.buf.Q[:] = self.Q.tolist()
+        self.buf.E[:] = self.E.tolist()
         if k:
             self._late_seq = np.concatenate((self._late_seq, late_seq[:k]))
             self._late_tick = np.concatenate((self._late_tick, late_tick[:k]))
