@@ -28,6 +28,16 @@ CASES = {
         [f"{FWD}.buffer.policy=percentile", f"{FWD}.buffer.window_packets=50", f"{FWD}.buffer.quantile=0.9"],
     ),
     "seed_contact_playout": ("seed_contact_playout", []),
+    "varying_delay_transparency": ("varying_delay", []),
+    "transparency_capped_small_window": (
+        "jitter",
+        [
+            f"{FWD}.buffer.policy=transparency",
+            f"{FWD}.buffer.window_packets=40",
+            f"{FWD}.buffer.allowed_force_error_n=0.05",
+            f"{FWD}.buffer.contact_horizon_s=0.05",
+        ],
+    ),
     "adaptive_reorder_correlated_loss": (
         "jitter",
         [

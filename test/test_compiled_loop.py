@@ -232,7 +232,8 @@ def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, re
 def test_vectorized_network_only_where_it_is_exact():
     """The default network is decided in numpy, window by window, and bursty (Markov) loss too (its
     chain run compiled over the window); jitter with an adaptive buffer too, its buffer's rules
-    compiled (buffer_schedule.py); a time-varying delay is ticked."""
+    compiled (buffer_schedule.py), and a time-varying delay into the transparency buffer; a link
+    that copies packets is ticked."""
     e = Engine(_scene("wall_contact", [f"{FWD}.effects.loss.probability=0.3"]))
     s = axis_host.schedule(e.forward, e.forward_buffer, e.period_ns, 72)
     assert s.vectorized
@@ -244,8 +245,10 @@ def test_vectorized_network_only_where_it_is_exact():
     assert axis_host.schedule(b.forward, b.forward_buffer, b.period_ns, 72).vectorized
     j = Engine(_scene("jitter", []))
     assert type(axis_host.schedule(j.forward, j.forward_buffer, j.period_ns, 72)) is BufferedSchedule
-    v = Engine(_scene("varying_delay", []))
-    assert not axis_host.schedule(v.forward, v.forward_buffer, v.period_ns, 72).vectorized
+    v = Engine(_scene("varying_delay", []))  # a sinusoidal delay and the transparency buffer
+    assert type(axis_host.schedule(v.forward, v.forward_buffer, v.period_ns, 72)) is BufferedSchedule
+    d = Engine(_scene("wall_contact", [f"{BWD}.effects.duplicate.probability=0.05"]))  # copies: packet by packet
+    assert not axis_host.schedule(d.backward, d.backward_buffer, d.period_ns, 72).vectorized
 
 
 def test_settled_records_wait_for_packets_in_flight():

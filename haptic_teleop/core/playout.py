@@ -54,9 +54,7 @@ RAMJEE_SMOOTHING = 0.998002  # alpha of Ramjee et al. (1994), algorithm 1
 _NO_SEQ = rules.NO_SEQ
 
 
-# Transparency policy: a new decision (O(window)) every RETARGET_PACKETS arrivals, and at
-# arrivals 1, 2, 4, ... while the window fills.
-RETARGET_PACKETS = 64
+RETARGET_PACKETS = rules.RETARGET_PACKETS  # transparency: a new decision every this many arrivals
 
 
 @dataclass(slots=True)

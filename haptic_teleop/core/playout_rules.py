@@ -72,7 +72,12 @@ Q_W_COUNT = 27  # its values
 Q_W_N = 28  # the sorted window's (ws) length
 Q_ALLOW_LOSS = 29  # network_adaptive: L_a, ns
 Q_BUDGET = 30  # network_adaptive: D_a - d0 (at least 0), ns; -1: no delay bound
-Q_SIZE = 31
+Q_T_HORIZON = 31  # transparency: the contact horizon H, ns
+Q_T_ALLOW = 32  # transparency: the allowable latency D_allow, ns; -1: no cap
+Q_T_D0 = 33  # transparency: the smallest one-way delay d0, ns
+Q_T_COUNT = 34  # transparency: arrivals observed
+Q_T_DIRTY = 35  # transparency: a parameter changed since the last decision
+Q_SIZE = 36
 
 # E: floats
 E_SLEW = 0  # max slew rate, s/s
@@ -91,6 +96,11 @@ POLICY_ADAPTIVE = 2
 POLICY_NONE = 3  # play on arrival: Q_COUNT (0 or 1) and Q_MIN are its pending packet
 POLICY_PERCENTILE = 4
 POLICY_NETWORK_ADAPTIVE = 5
+POLICY_TRANSPARENCY = 6
+
+# transparency: a new decision (O(window)) every RETARGET_PACKETS arrivals, and at arrivals 1, 2,
+# 4, ... while the window fills
+RETARGET_PACKETS = 64
 
 # what a push did
 PUSH_HELD = 0
@@ -226,6 +236,45 @@ def network_adaptive_need(lo: int, hi: int, allow_loss: int, budget: int) -> tup
     return need, True
 
 
+def retarget_due(count: int, dirty: bool) -> bool:
+    """Policy `transparency`: whether the arrival numbered `count` decides again."""
+    return dirty or count % RETARGET_PACKETS == 0 or (count < RETARGET_PACKETS and count & (count - 1) == 0)
+
+
+def transparency_decide(srt: Any, w: int, horizon_ns: int, allow_ns: int, d0_ns: int) -> tuple[int, float]:
+    """Policy `transparency` (seed 000, docs/playout_seed.md): over the sorted window `srt` (w
+    values) the buffering b above its minimum that minimises e(b) / s - d0 = b + H P(x > b), under
+    the cap d0 + b <= D_allow (`allow_ns`; -1: none). The cost is linear between window values and
+    steps down at each, so the minimum is at b = 0 or at a window value (the last of a run of equal
+    values). Returns (b, its cost)."""
+    lo = srt[0]
+    per_packet = horizon_ns / w  # H * P(x > b) drops by this per value covered
+    cap = math.inf
+    if allow_ns >= 0:
+        cap = max(0, allow_ns - d0_ns)
+    first_above = 0  # bisect_right(srt, lo)
+    hi = w
+    while first_above < hi:
+        mid = (first_above + hi) // 2
+        if lo < srt[mid]:
+            hi = mid
+        else:
+            first_above = mid + 1
+    best_b = 0
+    best_cost = (w - first_above) * per_packet
+    for i in range(first_above, w):
+        b = srt[i] - lo
+        if b > cap or b >= best_cost:
+            break  # the cost is at least b: no larger b can win
+        if i + 1 < w and srt[i + 1] == srt[i]:
+            continue
+        cost = b + (w - 1 - i) * per_packet
+        if cost < best_cost:
+            best_b = b
+            best_cost = cost
+    return best_b, best_cost
+
+
 def window_add(Q: Any, wv: Any, ws: Any, x: int) -> None:
     """The window of the last len(wv) relative delays, in order (the ring wv) and sorted (ws, one
     longer): `x` inserted after equal values (bisect_right), then the oldest removed when the window
@@ -285,6 +334,13 @@ def policy_observe(Q: Any, E: Any, wv: Any, ws: Any, rel_ns: int) -> None:
         lo = ws[0]
         need, _ = network_adaptive_need(lo, ws[Q[Q_W_N] - 1], Q[Q_ALLOW_LOSS], Q[Q_BUDGET])
         Q[Q_TARGET] = lo + need
+    elif policy == POLICY_TRANSPARENCY:
+        window_add(Q, wv, ws, rel_ns)
+        Q[Q_T_COUNT] += 1
+        if retarget_due(Q[Q_T_COUNT], Q[Q_T_DIRTY] != 0):
+            Q[Q_T_DIRTY] = 0
+            b, _ = transparency_decide(ws, Q[Q_W_N], Q[Q_T_HORIZON], Q[Q_T_ALLOW], Q[Q_T_D0])
+            Q[Q_TARGET] = ws[0] + b
 
 
 def push_begin(Q: Any, seen: Any, seq: int, send_ns: int, now_ns: int) -> int:

@@ -7,10 +7,22 @@ transparency analysis against the link's measured delay). Built by core/playout_
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 
-from haptic_teleop.core.playout import RETARGET_PACKETS, ScheduledBuffer, Window
-from haptic_teleop.core.playout_rules import POLICY_NETWORK_ADAPTIVE, Q_ALLOW_LOSS, Q_BUDGET, network_adaptive_need
+from haptic_teleop.core.playout import ScheduledBuffer, Window
+from haptic_teleop.core.playout_rules import (
+    POLICY_NETWORK_ADAPTIVE,
+    POLICY_TRANSPARENCY,
+    Q_ALLOW_LOSS,
+    Q_BUDGET,
+    Q_T_ALLOW,
+    Q_T_COUNT,
+    Q_T_D0,
+    Q_T_DIRTY,
+    Q_T_HORIZON,
+    network_adaptive_need,
+    retarget_due,
+    transparency_decide,
+)
 
 
 class TransparencyBuffer(ScheduledBuffer):
@@ -29,6 +41,7 @@ class TransparencyBuffer(ScheduledBuffer):
     """
 
     name = "transparency"
+    policy = POLICY_TRANSPARENCY
 
     def __init__(
         self,
@@ -57,13 +70,13 @@ class TransparencyBuffer(ScheduledBuffer):
         )
         self.allowed_force_error_n = allowed_force_error_n
         self.contact_horizon_ns = contact_horizon_ns
+        self.Q[Q_T_HORIZON] = contact_horizon_ns
         self._slope: float | None = None
         self._d0 = 0
+        self._bounds()
         self.set_force_slope(force_slope_n_per_s)
         self.set_min_one_way_delay(min_one_way_delay_ns)
         self._window = Window(window_packets)
-        self._count = 0
-        self._dirty = False
         self.buffering_ns = 0  # b: the chosen buffering above the minimum relative delay
         self.expected_hold_ns = 0  # H * P(x > b) at the last decision
         self.expected_force_error_n: float | None = None  # e(b) at the last decision (None: no slope)
@@ -77,7 +90,8 @@ class TransparencyBuffer(ScheduledBuffer):
             raise ValueError(f"force slope must be a finite value >= 0, got {slope_n_per_s}")
         if slope_n_per_s != self._slope:
             self._slope = slope_n_per_s
-            self._dirty = True
+            self._bounds()
+            self.Q[Q_T_DIRTY] = 1
 
     def set_min_one_way_delay(self, delay_ns: int) -> None:
         """d0: the smallest one-way delay (e.g. half the minimum round trip); not observable here."""
@@ -85,7 +99,8 @@ class TransparencyBuffer(ScheduledBuffer):
             raise ValueError(f"min one-way delay must be >= 0, got {delay_ns}")
         if delay_ns != self._d0:
             self._d0 = delay_ns
-            self._dirty = True
+            self._bounds()
+            self.Q[Q_T_DIRTY] = 1
 
     @property
     def allowed_latency_ns(self) -> int | None:
@@ -95,39 +110,27 @@ class TransparencyBuffer(ScheduledBuffer):
             return None
         return min(round(self.allowed_force_error_n / s * 1e9), 1 << 62)
 
+    def _bounds(self) -> None:
+        """D_allow (-1: no cap) and d0 where the rules (and the compiled schedule) read them."""
+        allow = self.allowed_latency_ns
+        self.Q[Q_T_ALLOW] = -1 if allow is None else allow
+        self.Q[Q_T_D0] = self._d0
+
     def _observe(self, rel_ns: int) -> None:
         self._window.add(rel_ns)
-        self._count += 1
-        c = self._count
-        if self._dirty or c % RETARGET_PACKETS == 0 or (c < RETARGET_PACKETS and c & (c - 1) == 0):
+        Q = self.Q
+        Q[Q_T_COUNT] += 1
+        if retarget_due(Q[Q_T_COUNT], Q[Q_T_DIRTY] != 0):
             self._decide()
 
     def _decide(self) -> None:
-        self._dirty = False
+        Q = self.Q
+        Q[Q_T_DIRTY] = 0
         srt = self._window.sorted
-        w = len(srt)
-        lo = srt[0]
-        per_packet = self.contact_horizon_ns / w  # H * P(x > b) drops by this per value covered
-        cap = math.inf
-        allow = self.allowed_latency_ns
-        if allow is not None:
-            cap = max(0, allow - self._d0)
-        # e(b) / s - d0 = b + H * P(x > b): linear between window values, a step down at each, so
-        # the minimum is at b = 0 or at a window value (the last of a run of equal values).
-        first_above = bisect_right(srt, lo)
-        best_b, best_cost = 0, (w - first_above) * per_packet
-        for i in range(first_above, w):
-            b = srt[i] - lo
-            if b > cap or b >= best_cost:
-                break  # the cost is at least b: no larger b can win
-            if i + 1 < w and srt[i + 1] == srt[i]:
-                continue
-            cost = b + (w - 1 - i) * per_packet
-            if cost < best_cost:
-                best_b, best_cost = b, cost
+        best_b, best_cost = transparency_decide(srt, len(srt), Q[Q_T_HORIZON], Q[Q_T_ALLOW], Q[Q_T_D0])
         self.buffering_ns = best_b
         self.expected_hold_ns = round(best_cost) - best_b
-        self._set_target(lo + best_b)
+        self._set_target(srt[0] + best_b)
         s = self._slope
         self.expected_force_error_n = None if s is None else s * (self._d0 + best_cost) * 1e-9
 

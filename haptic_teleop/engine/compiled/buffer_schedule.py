@@ -1,7 +1,7 @@
 """One direction's network schedule when its link is decided in batches (`Link.schedule_all`:
 jitter, loss chains, blackouts, constant delay) and its playout buffer's rules are written over
-arrays (`none`, `fixed`, `adaptive`, `percentile`, `network_adaptive`; core/playout_rules.py),
-without a codec. (A link that
+arrays (every policy: `none`, `fixed`, `adaptive`, `percentile`, `network_adaptive`,
+`transparency`; core/playout_rules.py), without a codec. (A link that
 keeps its packets' order into a `none` buffer has the simpler `axis_host.VectorizedSchedule`.)
 
 Window by window: the link decides every packet's fate and arrival at once; the delivered ones
@@ -32,7 +32,7 @@ from haptic_teleop.compiling import compile_tree
 from haptic_teleop.core import playout_rules as rules
 from haptic_teleop.core.link import DELIVERED, LOST_LATE, Link, taken_tick
 from haptic_teleop.core.playout import AdaptiveBuffer, FixedBuffer, PercentileBuffer, PlayOnArrival, PlayoutBuffer
-from haptic_teleop.core.playout_seed import NetworkAdaptiveBuffer
+from haptic_teleop.core.playout_seed import NetworkAdaptiveBuffer, TransparencyBuffer
 from haptic_teleop.engine.compiled.records import packet_rows
 
 buffer_window = compile_tree(rules.buffer_window, inline=True, counted=False)
@@ -49,8 +49,16 @@ def warm() -> None:
     buffer_window(Q, E, seen, R, w[:1], w, i, i[:0], i[:0], i[:0], 0, 1, 1, i, np.zeros(1), i, i, i)
 
 
-# The policies whose rules core/playout_rules.py has whole (transparency's decision is Python).
-COMPILED_BUFFERS = (PlayOnArrival, FixedBuffer, AdaptiveBuffer, PercentileBuffer, NetworkAdaptiveBuffer)
+# The policies whose rules core/playout_rules.py has whole (every policy; the seed's and any that
+# extrapolates are not compiled: buffered()).
+COMPILED_BUFFERS = (
+    PlayOnArrival,
+    FixedBuffer,
+    AdaptiveBuffer,
+    PercentileBuffer,
+    NetworkAdaptiveBuffer,
+    TransparencyBuffer,
+)
 
 
 def buffered(link: Link, buf: PlayoutBuffer) -> bool:
@@ -68,7 +76,7 @@ class BufferedSchedule:
         # the buffer's state as it is now (no packet yet), as numpy arrays the compiled rules act on
         self.Q, self.E, self.seen, self.R = rules.as_arrays(buf.Q, buf.E, buf._seen, buf.R)
         self.late = np.zeros(rules.SEEN_SLOTS, dtype=np.int64)
-        # the window of `percentile` and `network_adaptive` (its ring and its sorted copy)
+        # the window of `percentile`, `network_adaptive` and `transparency` (its ring and its sorted copy)
         size = buf._window.size if hasattr(buf, "_window") else 1
         self.wv = np.zeros(size, dtype=np.int64)
         self.ws = np.zeros(size + 1, dtype=np.int64)
