@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.core.link import DEFAULT_OVERHEAD_BYTES, DELIVERED, LOST_QUEUE, Packet
+from haptic_teleop.core.sorted_search import bisect_right_in
 from haptic_teleop.core.uniform import (
     DISTRIBUTIONS,
     NetemCorrelatedUniform,
@@ -261,14 +262,7 @@ class SinusoidDelay:
 def piecewise_at(ts: Any, ds: Any, linear: bool, t_ns: int) -> float:
     """`PiecewiseDelay` at `t_ns` (points at times ts, ns, with delays ds, ns): held before the
     first and after the last point, linear or a step in between (bisect_right's index)."""
-    lo, hi = 0, len(ts)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if t_ns < ts[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    i = lo
+    i = bisect_right_in(ts, len(ts), t_ns)
     if i == 0:
         return ds[0]  # type: ignore[no-any-return]
     if i == len(ts) or not linear:

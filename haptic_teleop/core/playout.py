@@ -54,9 +54,6 @@ RAMJEE_SMOOTHING = 0.998002  # alpha of Ramjee et al. (1994), algorithm 1
 _NO_SEQ = rules.NO_SEQ
 
 
-RETARGET_PACKETS = rules.RETARGET_PACKETS  # transparency: a new decision every this many arrivals
-
-
 @dataclass(slots=True)
 class ExtrapolatedPacket(Packet):
     """A sample the buffer made up for an empty slot (`gap: extrapolate`), never received.

@@ -30,9 +30,12 @@ from typing import Any
 
 import numpy as np
 
+from haptic_teleop.core.sorted_search import bisect_left_in, bisect_right_in
+
 SEEN_SLOTS = 1 << 15  # 32.8 s of sequence numbers at 1 kHz
 SEEN_MASK = SEEN_SLOTS - 1
 NO_SEQ = -(1 << 63)
+NONE_HELD = 1 << 62  # buffer_window's lowest held seq after a tick that ends with nothing held
 
 # R's columns
 R_SEQ = 0
@@ -252,14 +255,7 @@ def transparency_decide(srt: Any, w: int, horizon_ns: int, allow_ns: int, d0_ns:
     cap = math.inf
     if allow_ns >= 0:
         cap = max(0, allow_ns - d0_ns)
-    first_above = 0  # bisect_right(srt, lo)
-    hi = w
-    while first_above < hi:
-        mid = (first_above + hi) // 2
-        if lo < srt[mid]:
-            hi = mid
-        else:
-            first_above = mid + 1
+    first_above = bisect_right_in(srt, w, lo)
     best_b = 0
     best_cost = (w - first_above) * per_packet
     for i in range(first_above, w):
@@ -281,14 +277,7 @@ def window_add(Q: Any, wv: Any, ws: Any, x: int) -> None:
     is over its size (the first equal value: bisect_left), as the Python buffers' `Window` (a list,
     C's bisect) keeps it."""
     n = Q[Q_W_N]
-    lo = 0
-    hi = n
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if x < ws[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
+    lo = bisect_right_in(ws, n, x)
     for j in range(n, lo, -1):
         ws[j] = ws[j - 1]
     ws[lo] = x
@@ -304,14 +293,7 @@ def window_add(Q: Any, wv: Any, ws: Any, x: int) -> None:
         old = wv[head]
         wv[head] = x
         Q[Q_W_HEAD] = head + 1 if head + 1 < size else 0
-        lo = 0
-        hi = n
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if ws[mid] < old:
-                lo = mid + 1
-            else:
-                hi = mid
+        lo = bisect_left_in(ws, n, old)
         for j in range(lo, n - 1):
             ws[j] = ws[j + 1]
         n -= 1
@@ -494,7 +476,7 @@ def buffer_window(
     policy's estimator is written here: each tick, the packets that arrive by it (p_*: in the
     order the link delivers them, the tick they arrive in, ascending) are pushed, then the buffer
     releases. Writes the seq released at each tick (-1: none), the occupancy after it, the lowest
-    seq held after it (a large number: none) and every late mark (its seq and tick, from the
+    seq held after it (NONE_HELD: none) and every late mark (its seq and tick, from the
     start of `late_seq`). Returns (packets pushed, late marks). The policy is `none`, `fixed`,
     `adaptive`, `percentile` or `network_adaptive` (`window_push`; wv, ws: the last two's window)."""
     i = 0
@@ -519,5 +501,5 @@ def buffer_window(
             k += 1
         released[n - n0] = -1 if s == NO_SEQ else s
         occupancy[n - n0] = Q[Q_COUNT]
-        held_min[n - n0] = Q[Q_MIN] if Q[Q_COUNT] > 0 else 1 << 62
+        held_min[n - n0] = Q[Q_MIN] if Q[Q_COUNT] > 0 else NONE_HELD
     return i, k

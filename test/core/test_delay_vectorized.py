@@ -7,31 +7,19 @@ one (engine/compiled/link_runs.py)."""
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from windowed import MS, N, in_windows, one_by_one, send_times
 
 from haptic_teleop.core.delay import ConstantDelay, Delay, PiecewiseDelay, SinusoidDelay, profile_run
-from haptic_teleop.core.link import DELIVERED, Link, Packet
+from haptic_teleop.core.link import DELIVERED, Link
 from haptic_teleop.core.loss import BernoulliLoss
 from haptic_teleop.core.netconfig import NetworkEffectsConfig
 from haptic_teleop.core.uniform import NetemCorrelatedUniform, UniformSource, effect_rng
 from haptic_teleop.scene.traces import build_scene_link
 from haptic_teleop.typedconfig import build
-
-MS = 1_000_000
-N = 6000  # more than a block of 4096 numbers
-CUTS = (0, 1, 8, 308, 1308, N)  # windows of 1, 7, 300, 1000 and the rest
-
-
-@pytest.fixture(params=["plain", "compiled"])
-def runs(request):
-    if request.param == "plain":
-        return None
-    return pytest.importorskip("haptic_teleop.engine.compiled.link_runs").RUNS
 
 
 def jitter_link(seed: int, distribution: str, correlation: float, keep_order: bool, jitter_s: float = 0.004) -> Link:
@@ -51,27 +39,6 @@ def jitter_link(seed: int, distribution: str, correlation: float, keep_order: bo
             ),
         ]
     )
-
-
-def one_by_one(link: Link, send_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    for k, t in enumerate(send_ns.tolist()):
-        link.send(Packet(k, t, (), 64))
-    return (
-        np.array([p.arrival_time_ns for p in link.log], dtype=np.int64),
-        np.array([p.fate for p in link.log], dtype=np.int64),
-    )
-
-
-def in_windows(link: Link, send_ns: np.ndarray, runs) -> tuple[np.ndarray, np.ndarray]:
-    assert link.vectorized
-    parts = [link.schedule_all(send_ns[a:b], runs) for a, b in itertools.pairwise(CUTS)]
-    return np.concatenate([a for a, _ in parts]), np.concatenate([f for _, f in parts])
-
-
-def send_times(seed: int) -> np.ndarray:
-    # 1 ms apart with some uneven gaps (a pause, packets at the same time)
-    gaps = np.random.default_rng(seed).choice([0, MS, MS, MS, 7 * MS], size=N)
-    return np.cumsum(gaps).astype(np.int64)
 
 
 @pytest.mark.parametrize("keep_order", [False, True])

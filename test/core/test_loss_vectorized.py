@@ -6,49 +6,18 @@ compiled ones (engine/compiled/link_runs.py). Copula-correlated loss has no vect
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
+from windowed import MS, N, in_windows, one_by_one, send_times
 
 from haptic_teleop.core.delay import ConstantDelay, Delay
-from haptic_teleop.core.link import DELIVERED, LOST_NETWORK, Link, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_NETWORK, Link
 from haptic_teleop.core.loss import BernoulliLoss, Blackout, TraceLoss
 from haptic_teleop.core.netconfig import LinkTraces, NetworkEffectsConfig, build_link
 from haptic_teleop.core.uniform import NetemCorrelatedUniform, effect_rng
 from haptic_teleop.typedconfig import build
 
-MS = 1_000_000
-N = 6000  # more than a block of 4096 numbers
-CUTS = (0, 1, 8, 308, 1308, N)  # windows of 1, 7, 300, 1000 and the rest
 BLACKOUT = [(500 * MS, 700 * MS), (2000 * MS, 2001 * MS)]
-
-
-@pytest.fixture(params=["plain", "compiled"])
-def runs(request):
-    if request.param == "plain":
-        return None
-    return pytest.importorskip("haptic_teleop.engine.compiled.link_runs").RUNS
-
-
-def one_by_one(link: Link, send_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    for k, t in enumerate(send_ns.tolist()):
-        link.send(Packet(k, t, (), 64))
-    return (
-        np.array([p.arrival_time_ns for p in link.log], dtype=np.int64),
-        np.array([p.fate for p in link.log], dtype=np.int64),
-    )
-
-
-def in_windows(link: Link, send_ns: np.ndarray, runs) -> tuple[np.ndarray, np.ndarray]:
-    assert link.vectorized
-    parts = [link.schedule_all(send_ns[a:b], runs) for a, b in itertools.pairwise(CUTS)]
-    return np.concatenate([a for a, _ in parts]), np.concatenate([f for _, f in parts])
-
-
-def send_times(seed: int) -> np.ndarray:
-    gaps = np.random.default_rng(seed).choice([0, MS, MS, MS, 7 * MS], size=N)
-    return np.cumsum(gaps).astype(np.int64)
 
 
 def assert_same(link: Link, ref: Link, send: np.ndarray, runs) -> tuple[np.ndarray, np.ndarray]:

@@ -6,13 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from windowed import in_windows, one_by_one
 
 from haptic_teleop.core.delay import ConstantDelay, TokenBucket
-from haptic_teleop.core.link import DELIVERED, LOST_QUEUE, Link, Packet
+from haptic_teleop.core.link import DELIVERED, LOST_QUEUE, Link
 from haptic_teleop.core.loss import BernoulliLoss
-from haptic_teleop.engine.compiled import link_runs
-
-WINDOWS = (1, 7, 300, 1000)
 
 CASES = {
     # (rate_bps, burst_bytes, queue_limit_packets, size_bytes, send gaps in ns)
@@ -41,29 +39,14 @@ def _send_times(gaps, n, seed=5):
     return np.cumsum(rng.choice(np.array(gaps, dtype=np.int64), size=n)).astype(np.int64)
 
 
-@pytest.mark.parametrize("runs", [None, "compiled"])
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_rate_limit_windows_equal_packet_by_packet(case, runs):
     rate, burst, limit, size, gaps = CASES[case]
     n = 4000
     send = _send_times(gaps, n)
     one, win = _links(rate, burst, limit)
-    packets = [Packet(k, int(t), (), size) for k, t in enumerate(send)]
-    for p in packets:
-        one.send(p)
-    arrival_1 = np.array([p.arrival_time_ns for p in packets])
-    fate_1 = np.array([p.fate for p in packets])
-    arrival_w, fate_w, k = [], [], 0
-    sizes = [*WINDOWS, n]
-    i = 0
-    while k < n:
-        m = min(sizes[i % len(sizes)], n - k)
-        a, f = win.schedule_all(send[k : k + m], link_runs.RUNS if runs else None, size)
-        arrival_w.append(a)
-        fate_w.append(f)
-        k += m
-        i += 1
-    arrival_w, fate_w = np.concatenate(arrival_w), np.concatenate(fate_w)
+    arrival_1, fate_1 = one_by_one(one, send, size)
+    arrival_w, fate_w = in_windows(win, send, runs, size)
     delivered = fate_1 == DELIVERED
     np.testing.assert_array_equal(fate_w, fate_1)
     np.testing.assert_array_equal(arrival_w[delivered], arrival_1[delivered])

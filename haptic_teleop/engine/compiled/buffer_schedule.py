@@ -37,8 +37,6 @@ from haptic_teleop.engine.compiled.records import packet_rows
 
 buffer_window = compile_tree(rules.buffer_window, inline=True, counted=False)
 
-_NONE_HELD = 1 << 62  # buffer_window's held_min where nothing is held
-
 
 def warm() -> None:
     """Compile (or load from numba's cache) `buffer_window` now, on a tick without packets."""
