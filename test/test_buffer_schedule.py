@@ -149,8 +149,8 @@ def test_an_adaptive_buffer_keeps_its_rules_in_arrays_the_compiled_schedule_take
     for k in range(60):
         buf.push(Packet(k, k * PERIOD, (), 0), k * PERIOD + 50 * PERIOD + (k % 7) * 100_000)
         buf.release(k * PERIOD + 50 * PERIOD)
-    Q, E, seen, R = rules.as_arrays(buf.Q, buf.E, buf._seen, buf.R)
-    assert Q[rules.Q_N] == 60 and E[rules.E_V] > 0 and seen[59] == 59
+    Q, E, seen, R, window = buf.rule_arrays()
+    assert Q[rules.Q_N] == 60 and E[rules.E_V] > 0 and seen[59] == 59 and window == 1
     assert Q[rules.Q_COUNT] == buf.occupancy and R[59 * rules.R_WIDTH + rules.R_SEQ] == (
         59 if buf.occupancy else rules.NO_SEQ
     )

@@ -27,6 +27,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
+
 from haptic_teleop.core import playout_rules as rules
 from haptic_teleop.core.link import LOST_LATE, Packet
 from haptic_teleop.core.playout_rules import (
@@ -129,6 +131,13 @@ class BufferBase:
         self._seen = rules.new_seen()
         self._last_real: Packet | None = None
         self._prev_real: Packet | None = None
+
+    def rule_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """The rules' state as numpy copies (core/playout_rules.py: Q, E, the duplicates ring, the
+        held ring) and the size of the policy's window (1 without one), for a compiled schedule
+        that goes on from here (engine/compiled/buffer_schedule.py)."""
+        window = getattr(self, "_window", None)
+        return (*rules.as_arrays(self.Q, self.E, self._seen, self.R), 1 if window is None else window.size)
 
     @property
     def extrapolates(self) -> bool:

@@ -41,7 +41,7 @@ buffer_window = compile_tree(rules.buffer_window, inline=True, counted=False)
 def warm() -> None:
     """Compile (or load from numba's cache) `buffer_window` now, on a tick without packets."""
     buf = AdaptiveBuffer(1)
-    Q, E, seen, R = rules.as_arrays(buf.Q, buf.E, buf._seen, buf.R)
+    Q, E, seen, R, _ = buf.rule_arrays()
     i = np.zeros(1, dtype=np.int64)
     w = np.zeros(2, dtype=np.int64)
     buffer_window(Q, E, seen, R, w[:1], w, i, i[:0], i[:0], i[:0], 0, 1, 1, i, np.zeros(1), i, i, i)
@@ -72,10 +72,9 @@ class BufferedSchedule:
     def __init__(self, link: Link, buf: Any, period_ns: int, size_bytes: int, runs: Any) -> None:
         self.link, self.buf, self.period_ns, self.size_bytes, self.runs = link, buf, period_ns, size_bytes, runs
         # the buffer's state as it is now (no packet yet), as numpy arrays the compiled rules act on
-        self.Q, self.E, self.seen, self.R = rules.as_arrays(buf.Q, buf.E, buf._seen, buf.R)
+        self.Q, self.E, self.seen, self.R, size = buf.rule_arrays()
         self.late = np.zeros(rules.SEEN_SLOTS, dtype=np.int64)
         # the window of `percentile`, `network_adaptive` and `transparency` (its ring and its sorted copy)
-        size = buf._window.size if hasattr(buf, "_window") else 1
         self.wv = np.zeros(size, dtype=np.int64)
         self.ws = np.zeros(size + 1, dtype=np.int64)
         # delivered packets on their way, in seq order: seq, send, arrival ns, arrival tick
