@@ -128,6 +128,7 @@ def record_run(
                 if hasattr(plant, "unmeasured_reads"):  # a real device: its measured effort's reads that
                     # carried no report, the command standing in (docs/hardware_plant.md, "Applied, not commanded")
                     info[f"{side}_unmeasured_torque_reads"] = plant.unmeasured_reads
+                    info[f"{side}_unmeasured_torque_reads_after_first_report"] = plant.unmeasured_after_report
         if collector is not None:
             engine.data = collector.data()
         rec.close(info)  # and the view

@@ -27,7 +27,8 @@ that hold answered (zero before the first write). The engine records it (`/<side
 and sets the energy bound's `held` from it before the bound books the hold's motion. Where the
 device gives no report (`JointSample.measured` False: a UR in task space, a read before a UR's
 first report) it is the port torque last commanded, `torque_measured` is False for that tick and
-`unmeasured_reads` counts it (the run facts carry the count).
+`unmeasured_reads` counts it, `unmeasured_after_report` those after the device's first report (the
+run facts carry both).
 
 The driver starts at the first `read()` (not when the plant is built): the engine builds both
 sides, warms up its kernels and opens the bag before the first tick, longer than a servo's bus
@@ -178,6 +179,8 @@ class HardwareArm:
         self._port = np.zeros(self.n)  # the port torque of the hold that ended at the last read
         self.torque_measured = True  # `port_torque_nm` is the device's report (False: the command)
         self.unmeasured_reads = 0  # reads whose sample carried no report (the command stood in)
+        self.unmeasured_after_report = 0  # of those, the reads after the device's first report
+        self._reported = False  # a read has carried a report
         self._sample_t_s = -math.inf
         self.kinematics.set_q(self._q)
         self.stale_ticks = 0  # ticks whose read failed (the driver repeated its last good sample)
@@ -215,9 +218,11 @@ class HardwareArm:
         self.torque_measured = bool(getattr(s, "measured", True))
         if self.torque_measured:
             self._port = self._tau_measured - self._g_written
+            self._reported = True
         else:
             self._port = self._applied.copy()
             self.unmeasured_reads += 1
+            self.unmeasured_after_report += self._reported
         if not self._lockstep and math.isfinite(self._sample_t_s):
             h = float(s.t_s - self._sample_t_s)
             self.read_interval_s = h

@@ -372,9 +372,12 @@ def test_a_session_with_the_slave_on_the_ur_emulator_in_direct_torque_mode(tmp_p
 
     with BagReader(out / "bag") as r:
         measured = r.read("/slave/measured_effort").values
-        unmeasured = json.loads(r.string("/haptic_teleop/run_info"))["slave_unmeasured_torque_reads"]
+        info = json.loads(r.string("/haptic_teleop/run_info"))
     assert measured.shape[0] == summary["ticks"] and np.any(measured != 0.0)
-    assert unmeasured <= 10  # the start's reads before the first report arrived, if any: a few at most
+    # Reads without a report happen only before the emulator's first torque report arrived (how many
+    # depends on the machine's timing, so only their place is asserted): after it, every read is measured.
+    assert 0 <= info["slave_unmeasured_torque_reads"] < summary["ticks"]
+    assert info["slave_unmeasured_torque_reads_after_first_report"] == 0
     assert json.loads((out / "timing.json").read_text())["realtime"] is True
 
 
