@@ -119,6 +119,28 @@ def test_the_observer_books_the_pooled_joint_power_and_the_budget_spends_what_th
     assert b.energy_j == pytest.approx(0.1 + 0.2 - 0.03)
 
 
+@pytest.mark.parametrize("controller", ["zoh", "velocity"])
+def test_a_restart_starts_a_new_ledger_from_the_energy_it_is_given(controller: str) -> None:
+    """`restart(e)` (a live side at scene time 0, with min(budget, E0)): every count at 0, the
+    budget e, and the next step takes its q as the first (the motion before it is not booked); from
+    there the ledger runs as a new bound with E0 = e would."""
+    b = CoupledTdpaBound(_params(e0=0.1), controller)
+    b.step(np.zeros(3), np.array([1.0, -2.0, 0.5]))
+    b.receive(0.2)
+    b.step(np.array([0.01, 0.01, 0.0]), np.array([0.5, 0.0, 0.0]))
+    assert b.energy_in_j > 0.0 and b.remote_in_j == 0.2
+    b.restart(0.05)
+    assert (b.energy_in_j, b.energy_out_j, b.remote_in_j, b.credit_j, b.sent_j) == (0.0, 0.0, 0.0, 0.0, 0.0)
+    assert b.energy_j == 0.05 and b.initial_energy_j == 0.05
+    fresh = CoupledTdpaBound(_params(e0=0.05), controller)
+    for q, tau in ((np.array([0.5, 0.2, 0.1]), np.array([3.0, 1.0, 0.0])), (np.array([0.51, 0.2, 0.1]), np.zeros(3))):
+        out, want = b.step(q, tau).copy(), fresh.step(q, tau).copy()
+        b.applied(out)
+        fresh.applied(want)
+        assert np.array_equal(out, want)
+        assert (b.energy_j, b.energy_in_j, b.energy_out_j) == (fresh.energy_j, fresh.energy_in_j, fresh.energy_out_j)
+
+
 # --------------------------------------------------------------------------------------------
 # The scene: samples carry the energy, what cannot run is refused.
 

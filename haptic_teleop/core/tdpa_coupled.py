@@ -184,6 +184,7 @@ class CoupledTdpaBound:
         self.remote_in_j = 0.0
         self.credit_j = 0.0
         self.energy_j = params.initial_energy_j
+        self.initial_energy_j = params.initial_energy_j  # E0 of the budget (`restart` lowers it)
         self.scale = 1.0  # "zoh": the factor on the torque vector (1: it passed)
         self.beta = 0.0  # "velocity": the damper it added along the motion (0: none), N m s/rad per T
         k = kernels or {}
@@ -194,6 +195,17 @@ class CoupledTdpaBound:
         """The remote side's cumulative input energy from the newest accepted sample (only grows:
         an older sample released later keeps the larger value)."""
         self.remote_in_j = received1(self.remote_in_j, energy_in_j)
+
+    def restart(self, energy_j: float) -> None:
+        """Start the ledger afresh as a new bound with E0 = `energy_j` (a live node calls it at
+        scene time 0 with min(budget, E0): docs/stabilizers.md, "TDPA live on arms: the restart"):
+        every observed and received energy back to 0, the next `step` takes its q as the first.
+        The samples sent from here carry the new count; the remote side's samples stamped before
+        its own restart carry the old one and must not reach `receive` (the node filters them)."""
+        self.initial_energy_j = float(energy_j)
+        self.energy_j = float(energy_j)
+        self.energy_in_j = self.energy_out_j = self.remote_in_j = self.credit_j = self.sent_j = 0.0
+        self._has_last = False
 
     def constants(self) -> CoupledBoundConstants:
         """The per-joint constants the step uses (copies), as `CoupledEnergyBound.constants`."""
@@ -229,7 +241,7 @@ class CoupledTdpaBound:
         e_in, e_out, credit, w, sent, factor = self._f_step(
             self._out, self._limited, q, self._last_q, self.held, self._dq, self._zero, self.energy_in_j,
             self.energy_out_j, self.remote_in_j, self.credit_j, self._has_last, self._gain, self._bound_gain,
-            self.params.initial_energy_j, self.reflection, self._zoh, self.params.enabled, lo, hi,
+            self.initial_energy_j, self.reflection, self._zoh, self.params.enabled, lo, hi,
         )  # fmt: skip
         self._has_last = True
         self.energy_in_j, self.energy_out_j, self.credit_j, self.energy_j, self.sent_j = e_in, e_out, credit, w, sent

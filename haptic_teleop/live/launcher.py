@@ -198,14 +198,6 @@ def node_plan(
         raise _ConfigError(
             scene.source, "slave.start", "in_contact", "runs in `haptic-teleop run` only; allowed live: free"
         )
-    law = scene.config.controllers.master.eba.law
-    if law == "tdpa" and scene.config.is_arm:  # the live arm samples do not carry the pooled energy yet
-        raise _ConfigError(
-            scene.source,
-            "controllers.master.eba.law",
-            law,
-            "on an arm scene runs in `haptic-teleop run` only; allowed live on arms: reservoir",
-        )
     if device != "plant" and scene.config.is_arm:
         from haptic_teleop.errors import ConfigError
 

@@ -23,19 +23,17 @@ import numpy as np
 from haptic_teleop.nodes.base import LiveNode
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.eba_side import declare_watchdog
-from haptic_teleop.nodes.messages import SpecOut, take_all, take_latest
+from haptic_teleop.nodes.messages import JointStateOut, SpecOut, take_all, take_latest
 from haptic_teleop.nodes.topics import (
     SCENE_START_TOPIC,
-    WIRE_FIELDS,
     latched_qos,
-    payload_fields,
     received_topic,
     sample_topic,
     scene_start_ns,
     sent_topic,
     stream_qos,
-    wire_names,
 )
+from haptic_teleop.nodes.wire import scene_law, wire_of
 from haptic_teleop.record.columns import measured_topic
 
 
@@ -87,9 +85,17 @@ class ArmEbaSide:
         self.limit_n = self.tick.limit
         axes = self.schema.task_axes
         remote = "backward" if role == "master" else "forward"
-        self._read = JointStateReader(
-            payload_fields(remote, axes), [(wire_names(remote, axes), WIRE_FIELDS[remote])], axes
-        )
+        own = "forward" if role == "master" else "backward"
+        # The samples' layouts (nodes/wire.py): with TDPA the sender's pooled input energy rides
+        # last, on a joint of its own (core/tdpa_coupled.py), as in the engine's packets.
+        law = scene_law(config, axes)
+        self.tdpa = law == "tdpa"
+        self._in_wire = rw = wire_of(remote, axes, law)
+        self._read = JointStateReader(rw.want, [(rw.names, rw.fields)], rw.width)
+        self._own_wire = ow = wire_of(own, axes, law)
+        self._wire_out: JointStateOut | None = None  # TDPA: /<own>/sent in the wire's layout (`send`)
+        if self.tdpa and getattr(config.network, own).codec is None:
+            self._wire_out = JointStateOut(node, sent_topic(own), ow.names, ow.fields)
         self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
         specs = topic_specs(self.schema)
         self.out = {t: SpecOut(node, s) for t, s in specs.items() if t in side_topics(role, self.schema)}
@@ -118,16 +124,36 @@ class ArmEbaSide:
         raw = take_latest(self._sub)
         if raw is not None:
             try:
-                payload = self._read(raw)[1]
+                sent_ns, values = self._read(raw)
             except IndexError:  # not an arm payload (fewer values than the task has axes): ignored
                 self.malformed_samples += 1
             else:
+                payload = self._in_wire.payload(values) if self._in_wire.maps else values
                 self.remote_samples += 1
                 if self.side.guard.accept(payload):
                     self.remote = payload
+                    if self.tdpa and self._counts(sent_ns):
+                        self.tick.bound.receive(payload[-1])
                 self.watchdog.feed(stamp_ns)
         self.tick.limit = self.limit_n * self.watchdog.update(stamp_ns)
         return self.tick.torque(x, v, self.remote)
+
+    def _counts(self, sent_ns: int) -> bool:
+        """TDPA: whether a remote sample's energy is of this side's ledger. After the restart at
+        scene time 0 only samples stamped at or after it: the remote side restarted its count at
+        its first tick there, so an earlier sample carries the count before (docs/stabilizers.md,
+        "TDPA live on arms: the restart"). Before the restart every sample counts (it is discarded)."""
+        return self.restarted_j is None or self.restart_ns is None or sent_ns >= self.restart_ns
+
+    def send(self, direction: str, stamp_ns: int, payload: tuple[float, ...]) -> None:
+        """This tick's sample on /<direction>/sent (a direction without a codec): the bag's layout;
+        with TDPA the wire's, the side's pooled input energy last (`sent_j`, as the engine's
+        ArmSideStage), and the bag's layout on /<direction>/sample for the recorder."""
+        if self._wire_out is None:
+            self.publish(sent_topic(direction), stamp_ns, payload)
+            return
+        self.publish_sample(direction, stamp_ns, payload)
+        self._wire_out.publish(stamp_ns, self._own_wire.values((*payload, self.tick.bound.sent_j)))
 
     def _restart(self, stamp_ns: int) -> None:
         if self.restart_ns is None:

@@ -193,7 +193,7 @@ class MasterEba(LiveNode):
             self.codec.send(stamp_ns, (*x.tolist(), *v.tolist()))
             arm.publish_sample("forward", stamp_ns, (*x.tolist(), *v.tolist()))
         else:
-            arm.publish("/forward/sent", stamp_ns, (*x.tolist(), *v.tolist()))
+            arm.send("forward", stamp_ns, (*x.tolist(), *v.tolist()))
         hand = take_latest(self._hand_sub)
         if hand is not None:
             self._hand_dev = maps.force_to_master(np.asarray(self._read_hand(hand)[1]))

@@ -180,7 +180,6 @@ class NetworkRelay(LiveNode):
         from std_msgs.msg import Float64MultiArray, Header
 
         from haptic_teleop.nodes.codec_stage import RELAY_CARRIES, ack_delivered_topic, ack_sent_topic
-        from haptic_teleop.record.layouts import joint_state_size
         from haptic_teleop.scene.traces import build_scene_link
 
         self.carries = str(
@@ -250,13 +249,7 @@ class NetworkRelay(LiveNode):
         self._fields = w.want
         self._read = JointStateReader(w.want, [(w.names, w.fields)], w.width)
         self._remap = w.payload if w.maps else None  # None: the read values are the payload
-        floats = w.floats
-        if axes == 1 or nve_direction(d) is not None:  # the engine's size: joint_state_size(floats, axes, energy)
-            self._size = joint_state_size(floats, axes, w.energy)
-        else:  # the engine's wire size of an arm payload (side.wire_payload_bytes)
-            from haptic_teleop.assembly.side import wire_payload_bytes
-
-            self._size = wire_payload_bytes(axes, floats)
+        self._size = w.packet_bytes()
         self._msgs: dict[int, Any] = {}
         self._newest = 0
         self.delivered = 0

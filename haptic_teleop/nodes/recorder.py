@@ -317,7 +317,10 @@ class Recorder(LiveNode):
             max(1, math.ceil(t / cfg.scene.period_s)) for t in (MARGIN_S, STALL_S, HOLD_S, RELEASES_WAIT_S)
         )
         self.scene_yaml = LoadedScene(config=cfg, source=f"live: node {self.get_name()}", raw={}).to_yaml()
-        plain = tuple(d for d in DIRECTIONS if cfg.is_nve or getattr(cfg.network, d).codec is None)
+        # /<dir>/sent in the bag's layout, a sample per tick: not with a codec (its packets) nor on
+        # an arm with TDPA (the wire's layout, the energy joint last): their sides publish /<dir>/sample
+        tdpa_arm = cfg.is_arm and cfg.controllers.master.eba.law == "tdpa"
+        plain = tuple(d for d in DIRECTIONS if cfg.is_nve or (getattr(cfg.network, d).codec is None and not tdpa_arm))
         self.plan = plan = topic_plan(self.schema, plain, self.operator)
         self._specs = plan.specs
         self._columns = plan.columns

@@ -75,7 +75,7 @@ class SlaveEba(LiveNode):
             self.codec.send(stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
             arm.publish_sample("backward", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
         else:
-            arm.publish("/backward/sent", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
+            arm.send("backward", stamp_ns, (*x.tolist(), *v.tolist(), *f_env.tolist()))
         applied = arm.step(tau)
         arm.applied(applied)
         arm.publish("/slave/joint_states", stamp_ns, (*q.tolist(), *qd.tolist(), *applied.tolist()))

@@ -17,6 +17,10 @@ A one-axis teleoperation scene's layouts depend on its stabilizer (`controllers.
        energy E_in (J; its velocity and effort 0): payloads (x, v, E_in) and (f_env, x, v, E_in)
   wave: the sender's joint, position x, velocity the wave it sends (u or v, sqrt(W): not a
        velocity; the engine's packet has the same size): payload (wave, x) both ways
+
+An arm scene's samples: one joint per task axis (master_x, master_y, master_z; slave_...), payload
+(x[3], v[3]) forward and (x[3], v[3], f_env[3]) backward; with TDPA the energy joint after them,
+its position the sender's pooled input energy (core/tdpa_coupled.py), the payload's last value.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from haptic_teleop.nodes.topics import DIRECTION_JOINT, DIRECTIONS, WIRE_FIELDS, payload_fields, wire_names
-from haptic_teleop.record.layouts import ENERGY_JOINT
+from haptic_teleop.record.layouts import ENERGY_JOINT, joint_state_size
 
 AXIS_LABELS = ("x", "y", "z")
 NVE_UP, NVE_DOWN = "up", "down"
@@ -76,8 +80,10 @@ class Wire:
 
     def payload(self, values: Sequence[float]) -> tuple[float, ...]:
         """Values as read (`want`, `width` each) -> the core payload."""
-        if self.energy:  # read per field (the joint's value, the energy joint's): E_in is position's second
-            return (*values[::2], values[2 * self.want.index("position") + 1])
+        if self.energy:  # read per field (the axes' values, the energy joint's): E_in is position's last
+            a, w = self.axes, self.axes + 1
+            out = [v for k in range(len(self.want)) for v in values[k * w : k * w + a]]
+            return (*out, values[self.want.index("position") * w + a])
         if not self._is_down():
             return tuple(values)
         a = self.axes
@@ -90,14 +96,25 @@ class Wire:
             a = self.axes
             return [*payload[:a], payload[2 * a], *payload[a : 2 * a], 0.0]
         if self.energy:
-            n = len(self.want)
-            by_field = dict(zip(self.want, payload[:n], strict=True))
-            e = payload[n]
-            return [v for f in self.fields for v in (by_field[f], e if f == "position" else 0.0)]
+            a, n = self.axes, len(self.want)
+            per_field = {f: payload[k * a : (k + 1) * a] for k, f in enumerate(self.want)}
+            e = payload[n * a]
+            return [v for f in self.fields for v in (*per_field[f], e if f == "position" else 0.0)]
         if self.axes == 1 and self.direction in DIRECTIONS:
             by_field = dict(zip(self.want, payload, strict=True))
             return [by_field[f] for f in self.fields]
         return list(payload)
+
+    def packet_bytes(self) -> int:
+        """The size the engine gives this direction's packet (its links' rate limits count it): a
+        one-axis or NVE sample's JointState (`record.layouts.joint_state_size`); an arm sample's
+        as the engine's arm loop sizes it (`assembly.side.wire_payload_bytes`: a name per task
+        axis, TDPA's energy joint one more)."""
+        if self.axes == 1 or nve_direction(self.direction) is not None:
+            return joint_state_size(self.floats, self.axes, self.energy)
+        from haptic_teleop.assembly.side import wire_payload_bytes
+
+        return wire_payload_bytes(self.axes + self.energy, self.floats)
 
     def _is_down(self) -> bool:
         nd = nve_direction(self.direction)
@@ -114,15 +131,19 @@ def wire_of(direction: str, axes: int = 1, law: str = "reservoir") -> Wire:
     nd = nve_direction(direction)
     if law not in WIRE_LAWS:
         raise ValueError(f"law {law!r}: allowed: {', '.join(WIRE_LAWS)}")
-    if law in ("tdpa", "wave") and (nd is not None or axes != 1):
+    if law == "wave" and (nd is not None or axes != 1):
         raise ValueError(f"law {law} on the wire: one-axis teleoperation directions only")
+    if law == "tdpa" and nd is not None:
+        raise ValueError(f"law {law} on the wire: teleoperation directions only")
     if nd is None:
         if direction not in DIRECTIONS:
             raise ValueError(f"direction {direction!r}: {direction_problem(direction)}")
         joint = DIRECTION_JOINT[direction]
         if law == "tdpa":
             fields = WIRE_FIELDS[direction]
-            return Wire(direction, 1, (joint, ENERGY_JOINT), fields, payload_fields(direction), 2, len(fields), True)
+            names = (joint,) if axes == 1 else tuple(wire_names(direction, axes))
+            want = payload_fields(direction, axes)
+            return Wire(direction, axes, (*names, ENERGY_JOINT), fields, want, axes + 1, len(fields), True)
         if law == "wave":  # read (velocity, position) = the payload (wave, x)
             return Wire(direction, 1, joint, ("position", "velocity"), ("velocity", "position"), 1, 2)
         floats = 3 if direction == "backward" else 2
@@ -140,9 +161,12 @@ def wire_of(direction: str, axes: int = 1, law: str = "reservoir") -> Wire:
 
 
 def scene_law(cfg: Any, axes: int = 1) -> str:
-    """The stabilizer that shapes a scene's wire (`wire_of`'s `law`): a one-axis teleoperation
-    scene's `controllers.master.eba.law` (both sides run the same); `reservoir` for others (an
-    arm's `axes`: 3)."""
-    if cfg.is_nve or cfg.is_arm or axes != 1:
+    """The stabilizer that shapes a scene's wire (`wire_of`'s `law`): a teleoperation scene's
+    `controllers.master.eba.law` (both sides run the same), on an arm scene (`axes` 3) only
+    TDPA's energy joint (its other laws' samples are the plain ones); `reservoir` for NVE scenes."""
+    if cfg.is_nve:
         return "reservoir"
-    return str(cfg.controllers.master.eba.law)
+    law = str(cfg.controllers.master.eba.law)
+    if cfg.is_arm or axes != 1:
+        return "tdpa" if law == "tdpa" else "reservoir"
+    return law
