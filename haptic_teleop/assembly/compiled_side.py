@@ -191,35 +191,85 @@ def law_code(bound: Any) -> int:
 def compiled_reason_side(side: ArmSide) -> str | None:
     """Why one side's tick cannot run compiled (`CompiledSideTick`), or None if it can."""
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
     from haptic_teleop.plants.arm import MujocoArm
 
     if type(side.plant) is not MujocoArm:
         return "plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
     if side.law.params.law != "position":
         return f"task law {side.law.params.law!r} (compiled: position)"
-    if type(side.bound) is not CoupledEnergyBound:
-        return "stabilizer tdpa (compiled: EBA's reservoir bound)"
+    bound = side.bound
+    if type(bound) is CoupledTdpaBound and bound.controller == "velocity":
+        # its damper along the motion makes a torque that is no scaled copy of the desired one: the
+        # rendered force is solved for by least squares (side.SideTick.rendered), in Python
+        return "TDPA's velocity controller (compiled: EBA's bound, TDPA's zoh controller)"
+    if type(bound) not in (CoupledEnergyBound, CoupledTdpaBound):
+        return f"stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA's zoh controller)"
     return side_unusable()
 
 
 class _Ledger:
-    """The compiled side's energy bound as `SideTick.bound` is used by the nodes: the reservoir,
-    the parameters, `restart`, and `held` (the kernel's own array: writing it is the ledger's input)."""
+    """The compiled side's energy bound as `SideTick.bound` is used by the nodes: the reservoir (or
+    TDPA's budget), the parameters, `restart`, `held` (the kernel's own array: writing it is the
+    ledger's input) and, with TDPA, `receive`, `sent_j` and the counts (`CoupledTdpaBound`'s,
+    kept in the kernel's state from S_EXTRA on in TDPA_EXTRA's order)."""
 
     def __init__(self, side: ArmSide, t: tuple[Any, ...], k: Any) -> None:
         self.params = side.bound.params
         self.held: np.ndarray = t[k.T_HELD]
         self._S: np.ndarray = t[k.T_S]
+        self._F: np.ndarray = t[k.T_F]
         self._k = k
+        self.tdpa = int(t[k.T_I][k.I_LAW]) != int(k.LAW_EBA)
 
     @property
     def energy_j(self) -> float:
         return float(self._S[self._k.S_ENERGY])
 
+    def _extra(self, name: str) -> float:
+        from haptic_teleop.core.tdpa_coupled import TDPA_EXTRA
+
+        return float(self._S[self._k.S_EXTRA + TDPA_EXTRA.index(name)])
+
+    @property
+    def energy_in_j(self) -> float:
+        return self._extra("energy_in_j")
+
+    @property
+    def energy_out_j(self) -> float:
+        return self._extra("energy_out_j")
+
+    @property
+    def remote_in_j(self) -> float:
+        return self._extra("remote_in_j")
+
+    @property
+    def sent_j(self) -> float:
+        return self._extra("sent_j")
+
+    @property
+    def initial_energy_j(self) -> float:
+        return float(self._F[self._k.F_E0]) if self.tdpa else float(self.params.initial_energy_j)
+
+    def receive(self, energy_in_j: float) -> None:
+        """`CoupledTdpaBound.receive`: the remote side's cumulative input energy (`tdpa.received1`)."""
+        from haptic_teleop.core.tdpa import received1
+        from haptic_teleop.core.tdpa_coupled import TDPA_EXTRA
+
+        i = self._k.S_EXTRA + TDPA_EXTRA.index("remote_in_j")
+        self._S[i] = received1(float(self._S[i]), float(energy_in_j))
+
     def restart(self, energy_j: float) -> None:
-        """`CoupledEnergyBound.restart`: the reservoir set, the next tick's q taken as the first."""
-        self._S[self._k.S_ENERGY] = float(energy_j)
-        self._S[self._k.S_HAS_LAST] = 0.0
+        """`CoupledEnergyBound.restart` (the reservoir set, the next tick's q taken as the first);
+        with TDPA `CoupledTdpaBound.restart` (E0 := energy_j, every count 0)."""
+        k = self._k
+        self._S[k.S_ENERGY] = float(energy_j)
+        self._S[k.S_HAS_LAST] = 0.0
+        if self.tdpa:
+            from haptic_teleop.core.tdpa_coupled import TDPA_EXTRA
+
+            self._F[k.F_E0] = float(energy_j)
+            self._S[k.S_EXTRA : k.S_EXTRA + len(TDPA_EXTRA)] = 0.0
 
 
 class CompiledSideTick:
