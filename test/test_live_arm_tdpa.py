@@ -1,4 +1,4 @@
-"""TDPA on a live arm scene (docs/stabilizers.md, "TDPA live on arms: the restart"): the arm samples
+"""TDPA on a live arm scene (docs/stabilizers_arms.md, "TDPA live on arms: the restart"): the arm samples
 carry the sender's pooled input energy on a joint of their own through the real relays and sync
 buffers, the sides restart their ledgers at scene time 0 and take no energy from a sample stamped
 before it, and a composed run keeps the two-port passive as the engine does, judged from the bag's

@@ -184,6 +184,26 @@ def test_live_session_on_the_emulated_bus_is_passive_on_both_ports(session):
     assert margins["master"] >= -1e-9 and margins["slave"] >= -1e-9, margins
 
 
+def test_live_tdpa_with_the_slave_on_the_emulated_bus_keeps_the_two_port_passive(tmp_path):
+    """TDPA (zoh) live with the slave on the emulated servos: the slave's observer books the torque
+    the servos reported and its damping credit stretches over each hold's real length
+    (`CoupledTdpaBound.stretch`); the run ends 0 with torque off, and the two-port margin the
+    analysis takes from the bag (the servos' measured effort) stays >= 0."""
+    tdpa = [a for s in ("master", "slave") for k in ("law=tdpa", "tdpa_controller=zoh")
+            for a in ("--set", f"controllers.{s}.eba.{k}")]  # fmt: skip
+    out = tmp_path / "run"
+    with _start_emulator() as bus:
+        launch = Launch("--set", f"slave.hardware.port={bus.port}", *DURATION, *tdpa, "--record", str(out),
+                        "--no-plots", "--single-process", cwd=tmp_path)  # fmt: skip
+        code = launch.finish()
+        torque = _registers(bus.port, ADDR_TORQUE_ENABLE)
+    assert code == 0, launch.text[-4000:]
+    assert torque == [0, 0, 0]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["slave_energy_torque_topic"] == "/slave/measured_effort"
+    assert summary["two_port_energy_margin_min_j"] >= -ROUNDING_J, summary
+
+
 def test_a_hardware_error_mid_run_is_one_line_exit_1_torque_off_and_the_rest_stops_cleanly(tmp_path):
     """A servo stops answering after scene time 0 (the emulator drops its replies): the slave node
     stops its servos, says why in one line and ends with 1; the other nodes stop cleanly, the

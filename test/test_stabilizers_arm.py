@@ -1,4 +1,4 @@
-"""TDPA on the arm scenes (core/tdpa_coupled.py, docs/stabilizers.md, "Arms"): the pooled rules,
+"""TDPA on the arm scenes (core/tdpa_coupled.py, docs/stabilizers_arms.md, "Pooled joints"): the pooled rules,
 and the arm hard cases of test_hard_cases_arm.py run with TDPA on both sides, recorded to real
 bags and judged from the plant signals: the two-port's energy margin (both sides' joints, the
 damping the simulator really has) stays >= 0 with the "zoh" controller in every case, falls below
@@ -35,7 +35,7 @@ TDPA = ("controllers.master.eba.law=tdpa", "controllers.slave.eba.law=tdpa")
 ZOH = (*TDPA, "controllers.master.eba.tdpa_controller=zoh", "controllers.slave.eba.tdpa_controller=zoh")
 REFLECT = tuple(f"controllers.{side}.eba.tdpa_reflection=0.5" for side in ("master", "slave"))
 VARIANTS = {"zoh": ZOH, "zoh_reflect": (*ZOH, *REFLECT), "velocity": TDPA, "off": ZOH + ha.UNPROTECTED}
-# Where the field's controller makes more than 0.5 J on the arms (docs/stabilizers.md, "Arms").
+# Where the field's controller makes more than 0.5 J on the arms (docs/stabilizers_arms.md, "Pooled joints").
 VELOCITY_FAILS = ("dxl_operator_fast", "ur5e_stiff_wall")
 SIDES = ("master", "slave")
 
@@ -117,6 +117,23 @@ def test_the_observer_books_the_pooled_joint_power_and_the_budget_spends_what_th
     b.step(np.array([0.02, 0.01, 0.0]), np.zeros(3))  # w = 3 * 0.01 = 0.03 out
     assert b.energy_out_j == pytest.approx(0.03)
     assert b.energy_j == pytest.approx(0.1 + 0.2 - 0.03)
+
+
+def test_a_hold_stretched_over_several_periods_credits_the_damping_over_its_real_length() -> None:
+    """A real arm's late tick: the hold the next step books took 4 periods, so the zoh credit is
+    d dq^2 / (4 T) (the least the damping dissipated over that time), not d dq^2 / T; the observer's
+    booking, tau . dq, is the same; the step after it is back to one period."""
+    d = np.array([0.5, 1.0, 2.0])
+    b = CoupledTdpaBound(_params(damping=tuple(d), e0=0.1), "zoh")
+    b.step(np.zeros(3), np.zeros(3))
+    dq = np.array([0.01, -0.02, 0.005])
+    b.stretch(0.004)
+    b.step(dq, np.zeros(3))
+    assert b.credit_j == pytest.approx(float(np.sum(d / 0.001 * dq * dq)) / 4.0, rel=1e-12)
+    before = b.credit_j
+    b.stretch(0.0005)  # shorter than a period: T stays the conservative one
+    b.step(2 * dq, np.zeros(3))
+    assert b.credit_j - before == pytest.approx(float(np.sum(d / 0.001 * dq * dq)), rel=1e-12)
 
 
 @pytest.mark.parametrize("controller", ["zoh", "velocity"])

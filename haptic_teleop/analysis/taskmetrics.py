@@ -405,7 +405,7 @@ class TaskAccumulator:
         self.contact_axis_max = np.maximum(self.contact_axis_max, np.max(np.abs(cf), axis=0))
         self.depth = max(self.depth, float(np.max(penetration(sx, self.plane))))
         both = self.ports["master"].pooled(*master) + self.ports["slave"].pooled(*slave)
-        if both.size:  # the two-port of controllers and channel (docs/stabilizers.md, "Arms")
+        if both.size:  # the two-port of controllers and channel (docs/stabilizers_arms.md, "Pooled joints")
             self.two_port_low = min(self.two_port_low, float(np.min(both)))
         arrays = (mx, sx, mf, sf, cf, ct, *master, *slave)
         self.finite = self.finite and all(bool(np.all(np.isfinite(x))) for x in arrays)

@@ -115,7 +115,7 @@ class _SideTick:
         """The task force the applied torque renders: the desired task force times the ratio of
         the applied to the desired torque (the bound scales the torque vector by one factor), or,
         where a controller adds torque of its own (TDPA's velocity controller), the force whose
-        J^T is the applied torque (least squares, the task frame; docs/stabilizers.md, "Arms")."""
+        J^T is the applied torque (least squares, the task frame; docs/stabilizers_arms.md, "Pooled joints")."""
         return self.ratio * self.force if self.task_force is None else self.task_force
 
 

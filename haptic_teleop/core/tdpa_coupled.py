@@ -1,4 +1,4 @@
-"""TDPA on an arm: the joints of a side are its port, pooled (docs/stabilizers.md, "Arms").
+"""TDPA on an arm: the joints of a side are its port, pooled (docs/stabilizers_arms.md, "Pooled joints").
 
 The one-axis rules of core/tdpa.py on the joint vector: over each hold the observer books the
 energy the held torques gave the joints, w = sum_i tau_i dq_i (`book1`: E_out grows by w > 0, E_in
@@ -20,8 +20,9 @@ The controllers act on the limited torque vector:
 `coupled_tdpa` is one side's whole step over arrays and floats, composed of those rules;
 `CoupledTdpaBound` (the interface of `core.eba_coupled.CoupledEnergyBound` that the Python arm
 tick uses on a simulated arm: `step`, `applied`, `held`, `energy_j`, `scale`, `constants`,
-`state`/`set_state`; a real arm's late-tick `stretch` is not needed: TDPA is refused on real arms)
-calls it, and the compiled arm loop (assembly/side_kernel.py) compiles the same function.
+`state`/`set_state`, and a real arm's `stretch`: a hold that took longer than a period credits
+the damping over its real length) calls it, and the compiled arm loop (assembly/side_kernel.py)
+compiles the same function.
 """
 
 from __future__ import annotations
@@ -177,6 +178,7 @@ class CoupledTdpaBound:
         self._dq = np.zeros(n)
         self._last_q = np.zeros(n)
         self._has_last = False
+        self._stretch = 1.0  # the next booked hold's length, in periods (`stretch`)
         self.held = np.zeros(n)
         self.energy_in_j = 0.0
         self.sent_j = 0.0  # what its samples carry: its input, less what it keeps (`reflected1`)
@@ -196,9 +198,20 @@ class CoupledTdpaBound:
         an older sample released later keeps the larger value)."""
         self.remote_in_j = received1(self.remote_in_j, energy_in_j)
 
+    def stretch(self, elapsed_s: float) -> None:
+        """The hold the next `step` books took `elapsed_s` of wall time (a real arm's late tick):
+        with "zoh" its damping credit is d_i dq_i^2 / elapsed_s, the least the joints' damping
+        dissipated over that time (Cauchy-Schwarz), not d_i dq_i^2 / T (up to elapsed / T times
+        too much), as `CoupledEnergyBound.stretch`. Shorter than a period (or not finite) changes
+        nothing. The observer's booking, sum_i tau_i dq_i, does not depend on the time; the zoh bound
+        budgets a hold of `params.hold_s`, and the plant's guard stops a longer one
+        (docs/stabilizers_arms.md, "TDPA on a real arm")."""
+        periods = elapsed_s / self.params.period_s
+        self._stretch = periods if periods > 1.0 and math.isfinite(periods) else 1.0
+
     def restart(self, energy_j: float) -> None:
         """Start the ledger afresh as a new bound with E0 = `energy_j` (a live node calls it at
-        scene time 0 with min(budget, E0): docs/stabilizers.md, "TDPA live on arms: the restart"):
+        scene time 0 with min(budget, E0): docs/stabilizers_arms.md, "TDPA live on arms: the restart"):
         every observed and received energy back to 0, the next `step` takes its q as the first.
         The samples sent from here carry the new count; the remote side's samples stamped before
         its own restart carry the old one and must not reach `receive` (the node filters them)."""
@@ -238,9 +251,11 @@ class CoupledTdpaBound:
         lo = self._low if low is None else low
         hi = self._high if high is None else high
         self._f_limited(self._limited, tau_desired, lo, hi, True)
+        gain = self._gain if self._stretch == 1.0 else self._gain / self._stretch
+        self._stretch = 1.0
         e_in, e_out, credit, w, sent, factor = self._f_step(
             self._out, self._limited, q, self._last_q, self.held, self._dq, self._zero, self.energy_in_j,
-            self.energy_out_j, self.remote_in_j, self.credit_j, self._has_last, self._gain, self._bound_gain,
+            self.energy_out_j, self.remote_in_j, self.credit_j, self._has_last, gain, self._bound_gain,
             self.initial_energy_j, self.reflection, self._zoh, self.params.enabled, lo, hi,
         )  # fmt: skip
         self._has_last = True

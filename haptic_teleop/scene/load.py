@@ -217,14 +217,6 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                 "allowed for arms: reservoir (the pooled joint bound), tdpa (pooled joints; the two-condition "
                 "law and wave variables are one-axis only)",
             )
-        if law == "tdpa" and getattr(config, side).backend != "mujoco":
-            raise ConfigError(
-                source,
-                f"controllers.{side}.eba.law",
-                law,
-                f"runs on simulated arms only so far ({side}.backend is {getattr(config, side).backend}); "
-                "allowed on a real arm: reservoir",
-            )
         if law == "tdpa" and getattr(config, side).slew_nm_per_s is not None:
             raise ConfigError(source, f"{side}.slew_nm_per_s", getattr(config, side).slew_nm_per_s,
                               "allowed with tdpa: none (its controller has no slew-aware bound)")  # fmt: skip

@@ -112,6 +112,63 @@ def test_a_session_with_one_side_on_the_emulator_is_recorded_analysed_and_passiv
     assert torque_enable(bus, ids) == [0, 0, 0]
 
 
+TDPA_ZOH = (
+    "controllers.master.eba.law=tdpa",
+    "controllers.slave.eba.law=tdpa",
+    "controllers.master.eba.tdpa_controller=zoh",
+    "controllers.slave.eba.tdpa_controller=zoh",
+)
+
+
+@pytest.mark.parametrize("case", [SLAVE, MASTER], ids=["slave_on_servos", "master_on_servos"])
+def test_tdpa_on_a_side_on_the_emulator_keeps_the_two_port_passive_from_what_the_servos_reported(
+    case: tuple[str, str, list[int]], emulator: Any, tmp_path: Path
+) -> None:
+    """TDPA (zoh) with one side on the emulated servos, on the wall clock (lockstep device clock):
+    the side's observer books the torque the servos reported (its measured effort), its damping
+    credit is stretched over each hold's real length; the two-port margin the analysis takes from
+    the bag (the measured effort on the servos' side, the damping the emulated arm really has) stays
+    >= 0, the run reaches the wall, and the servos end with torque off."""
+    name, side, ids = case
+    bus = emulator(name, side, [])
+    proc = _run(name, side, bus, tmp_path / "run", *TDPA_ZOH)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary[f"{side}_energy_torque_topic"] == f"/{side}/measured_effort"
+    assert summary["two_port_energy_margin_min_j"] >= 0.0, summary
+    assert summary["contact_force_max_n"] > 2.0
+    assert torque_enable(bus, ids) == [0, 0, 0]
+
+
+# test_hard_cases_arm.py's dxl_delay_200ms_bursty_loss: 100 ms each way, 10 % Gilbert-Elliott loss,
+# stiff coupling; the unprotected arms make energy there.
+GE_10 = "{model: gilbert_elliott, p: 0.02, r: 0.16, one_minus_h: 0.9, one_minus_k: 0.0}"
+HARD = (
+    "operator.start_s=0.1", "operator.speed_m_per_s=0.1", "operator.distance_m=0.06",
+    *(f"network.{d}.effects.{k}" for d in ("forward", "backward") for k in ("delay.delay_s=0.1", f"loss={GE_10}")),
+    *(f"controllers.{s}.{k}" for s in ("master", "slave") for k in ("stiffness_n_per_m=3000", "damping_n_s_per_m=2")),
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("variant", ["tdpa_zoh", "unprotected"])
+def test_on_a_hard_network_tdpa_on_the_emulated_servos_is_passive_where_the_unprotected_arms_are_not(
+    variant: str, emulator: Any, tmp_path: Path
+) -> None:
+    """The arm hard case with the slave on the emulated servos: with TDPA (zoh) the two-port margin
+    from the bag (the servos' reported torque) stays >= 0; without a stabilizer it goes below 0 (the
+    check can fail)."""
+    name, side, ids = SLAVE
+    bus = emulator(name, side, ["scene.duration_s=4.0"])
+    off = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")
+    sets = TDPA_ZOH if variant == "tdpa_zoh" else off
+    proc = _run(name, side, bus, tmp_path / "run", "scene.duration_s=4.0", *HARD, *sets)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    margin = summary["two_port_energy_margin_min_j"]
+    assert (margin >= 0.0) if variant == "tdpa_zoh" else (margin < 0.0), summary
+    assert torque_enable(bus, ids) == [0, 0, 0]
+
+
 def test_the_slave_contact_estimate_points_out_of_the_wall(emulator: Any, tmp_path: Path) -> None:
     """The quasi-static estimate f = -(J^T)^+ (tau_measured - g) at rest against the wall: along the
     wall's normal, and the servos hold it against the coupling's push."""
