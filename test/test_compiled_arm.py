@@ -38,6 +38,9 @@ HARD = (
 )
 EBA_OFF = ("controllers.master.eba.enabled=false", "controllers.slave.eba.enabled=false")
 TDPA_ZOH = tuple(f"controllers.{s}.eba.{k}" for s in ("master", "slave") for k in ("law=tdpa", "tdpa_controller=zoh"))
+TDPA_VELOCITY = tuple(
+    f"controllers.{s}.eba.{k}" for s in ("master", "slave") for k in ("law=tdpa", "tdpa_controller=velocity")
+)
 
 CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     # constant delay with uncorrelated loss: the vectorized schedule
@@ -65,6 +68,13 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
         "touch_dynamixel_wall",
         (*HARD, *TDPA_ZOH, *(f"controllers.{s}.eba.tdpa_reflection=0.5" for s in ("master", "slave"))),
     ),
+    # TDPA's field controller (velocity): its damper along the motion, the felt force the task force
+    # of the applied torque (core/taskspace.task_force_of); the UR5e's 6-row Jacobian and the Touch's
+    "ur5e_tdpa_velocity": (
+        "touch_ur5e_wall",
+        (*TDPA_VELOCITY, f"{FWD}.effects.loss.probability=0.1", f"{BWD}.effects.delay.delay_s=0.05"),
+    ),
+    "dynamixel_tdpa_velocity_hard": ("touch_dynamixel_wall", (*HARD, *TDPA_VELOCITY)),
     # the master's Jacobian mapped into the task frame by a rotation that is not the identity
     "rotated_scaled_mapping": (
         "touch_dynamixel_wall",

@@ -199,12 +199,8 @@ def compiled_reason_side(side: ArmSide) -> str | None:
     if side.law.params.law != "position":
         return f"task law {side.law.params.law!r} (compiled: position)"
     bound = side.bound
-    if type(bound) is CoupledTdpaBound and bound.controller == "velocity":
-        # its damper along the motion makes a torque that is no scaled copy of the desired one: the
-        # rendered force is solved for by least squares (side.SideTick.rendered), in Python
-        return "TDPA's velocity controller (compiled: EBA's bound, TDPA's zoh controller)"
     if type(bound) not in (CoupledEnergyBound, CoupledTdpaBound):
-        return f"stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA's zoh controller)"
+        return f"stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA)"
     return side_unusable()
 
 
@@ -308,6 +304,12 @@ class CompiledSideTick:
     @property
     def ratio(self) -> float:
         return float(self._S[self.k.S_RATIO])
+
+    @property
+    def rendered(self) -> np.ndarray:
+        """`SideTick.rendered`: the task force the applied torque renders (ratio x desired, or with
+        TDPA's velocity controller the task force of the applied torque), a copy."""
+        return np.array(self.w[self.k.W_FELT])
 
     @property
     def limited_ticks(self) -> int:

@@ -45,6 +45,7 @@ orientation_coupling = compile_tree(taskspace.orientation_coupling)
 jacobian_times = compile_tree(taskspace.jacobian_times)
 jacobian_transpose = compile_tree(taskspace.jacobian_transpose)
 null_space_damping = compile_tree(taskspace.null_space_damping)
+task_force_of = compile_tree(taskspace.task_force_of)
 add_into = compile_tree(taskspace.add_into)
 dot = compile_tree(taskspace.dot)
 matrix_times = compile_tree(taskspace.matrix_times)
@@ -116,6 +117,8 @@ S_ENERGY, S_HAS_LAST, S_HAS_REMOTE, S_HAS_HOLD, S_RATIO, S_REJECTED, S_SCALE, S_
 # TDPA's state (core/tdpa_coupled.TDPA_EXTRA, in its order) from S_EXTRA on
 S_EXTRA = 8
 S_SIZE = 13
+# The work tuple's (`work_arrays`) felt force: what the row records as the side's task force
+W_FELT = 17
 
 
 @inline  # type: ignore[misc]
@@ -241,7 +244,7 @@ def side_torque(
     )
     site_xmat = side[T_XMAT]
     lo, hi, jac, m, tmp = w[0], w[1], w[4], w[8], w[10]
-    wrench, tau, limited, omega, j3, dq = w[11:]
+    wrench, tau, limited, omega, j3, dq, felt = w[11:]
     n = iv[I_N]
     rotational = iv[I_ROTATIONAL] != 0
     # jac: this tick's Jacobian, from `point` (the state has not moved since)
@@ -298,6 +301,15 @@ def side_torque(
         ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
         S[S_RATIO] = ratio * sat
+        if iv[I_LAW] == LAW_TDPA_VELOCITY and iv[I_ENABLED] != 0:
+            # its damper along the motion: the applied torque is no scaled copy of the desired one,
+            # so the felt force is the task force of the applied torque (SideTick.rendered)
+            task_force_of(wrench, jac, out)  # wrench is free again (the desired one is in `force`)
+            for k in range(3):
+                felt[k] = wrench[k]
+        else:
+            for k in range(3):
+                felt[k] = S[S_RATIO] * force[k]
         return
     # CoupledEnergyBound.step
     if S[S_HAS_LAST] != 0.0:
@@ -327,6 +339,8 @@ def side_torque(
     ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
     sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
     S[S_RATIO] = ratio * sat
+    for k in range(3):
+        felt[k] = S[S_RATIO] * force[k]
 
 
 @inline  # type: ignore[misc]
@@ -376,6 +390,7 @@ def work_arrays(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:
         np.zeros(3),  # omega
         np.zeros((3, n)),  # j3
         np.zeros(n),  # dq
+        np.zeros(3),  # felt: the task force the applied torque renders (the row's m/s_force_n)
     )
 
 
@@ -446,6 +461,7 @@ def detach_work(w: Any) -> Any:
         borrowed(w[14]),
         borrowed(w[15]),
         borrowed(w[16]),
+        borrowed(w[17]),
     )
 
 

@@ -285,6 +285,31 @@ def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> N
         out[j] = -out[j]
 
 
+def task_force_of(out: Vec, jac: Mat, tau: Vec) -> None:
+    """out (m values) = the task force (or wrench) F whose J.T F is closest to tau: least squares,
+    from the normal equations (J J.T + eps I) F = J tau with this module's Cholesky; eps = 1e-12
+    trace(J J.T) / m keeps a rank-deficient J solvable (its F then the damped solution) and moves a
+    full-rank one's by about 1e-12 relative. What a torque that is no scaled copy of the desired one
+    renders at the point (TDPA's velocity controller on an arm, docs/stabilizers_arms.md)."""
+    m, n = jac.shape
+    a = np.empty((m, m))
+    trace = 0.0
+    for i in range(m):
+        for k in range(i + 1):
+            s = 0.0
+            for j in range(n):
+                s += jac[i, j] * jac[k, j]
+            a[i, k] = s
+            a[k, i] = s
+        trace += a[i, i]
+    eps = 1e-12 * trace / m if trace > 0.0 else 1e-300
+    for i in range(m):
+        a[i, i] += eps
+    _cholesky(a)
+    jacobian_times(out, jac, tau)
+    _cholesky_solve(a, out)
+
+
 def add_into(out: Vec, x: Vec) -> None:
     """out += x (gravity compensation added to the bounded torque, for example)."""
     for i in range(out.shape[0]):
@@ -325,6 +350,7 @@ KERNEL_FUNCTIONS: tuple[Callable[..., Any], ...] = (
     _cholesky_solve,
     _project,
     null_space_damping,
+    task_force_of,
     add_into,
 )
 

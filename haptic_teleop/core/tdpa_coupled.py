@@ -230,7 +230,9 @@ class CoupledTdpaBound:
         """The state the next `step` goes on from (copies; `extra`: TDPA_EXTRA's values)."""
         extra = (self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j)
         q = self._last_q.copy()
-        return CoupledBoundState(self.energy_j, self.held.copy(), q, self._has_last, self.scale, extra)
+        velocity = not self._zoh and self.params.enabled
+        factor = self.beta if velocity else self.scale  # the controller's factor (the kernel's S_SCALE)
+        return CoupledBoundState(self.energy_j, self.held.copy(), q, self._has_last, factor, extra)
 
     def set_state(self, state: CoupledBoundState) -> None:
         """Restore the state (after a loop that ran this ledger elsewhere: the compiled arm loop)."""
@@ -238,7 +240,10 @@ class CoupledTdpaBound:
         self.held[:] = state.held_nm
         self._last_q[:] = state.last_q_rad
         self._has_last = state.has_last
-        self.scale = state.scale  # (the velocity controller's beta is not carried: it runs in Python only)
+        if self._zoh or not self.params.enabled:
+            self.scale = state.scale
+        else:  # the velocity controller's factor is its beta
+            self.beta = state.scale
         self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j = state.extra
 
     def step(

@@ -242,7 +242,7 @@ class ArmEbaSide:
         """The task force the applied torques realise, the desired one and the reservoir."""
         t = self.tick
         p = self.role
-        self.out[f"/{p}/{'rendered' if p == 'master' else 'applied'}_wrench"].publish(stamp_ns, t.ratio * t.force)
+        self.out[f"/{p}/{'rendered' if p == 'master' else 'applied'}_wrench"].publish(stamp_ns, t.rendered)
         self.out[f"/{p}/eba"].publish(None, (t.bound.energy_j, *t.force.tolist()))
 
     def bound_ms(self) -> float:

@@ -20,6 +20,7 @@ from haptic_teleop.core.taskspace import (
     orientation_coupling,
     orientation_error,
     rotation_from_rpy,
+    task_force_of,
 )
 
 angles = st.floats(-math.pi, math.pi)
@@ -179,6 +180,28 @@ def test_null_space_damping_is_dissipative(seed, m, n, rank_drop, spread, mu):
     assert tau == pytest.approx(-big_n @ (d * (big_n @ qd)), rel=1e-6, abs=1e-9 * scale)
 
 
+@settings(max_examples=200, deadline=None)
+@given(seed=seeds, m=st.sampled_from([3, 6]), n=st.integers(1, 7), rank_drop=st.booleans())
+def test_task_force_of_is_the_least_squares_force_of_a_torque(seed, m, n, rank_drop):
+    """F with J.T F closest to tau: the normal equations' J (J.T F - tau) = 0 up to the 1e-12
+    regularization, for any Jacobian (a singular one too: finite, and the residual's projection
+    small); with full row rank (m <= n) numpy's lstsq solution to 1e-6 relative."""
+    rng = np.random.default_rng(seed)
+    jac = rng.normal(scale=0.3, size=(m, n))
+    if rank_drop and m > 1:
+        jac[-1] = jac[0] * rng.normal()
+    tau = rng.normal(size=n) * 10.0 ** rng.uniform(-2, 1)
+    f = np.empty(m)
+    task_force_of(f, jac, tau)
+    assert np.all(np.isfinite(f))
+    scale = float(np.abs(tau).max()) * float(np.abs(jac).max()) + 1e-300
+    sv = np.linalg.svd(jac, compute_uv=False)
+    if m <= n and not rank_drop and sv.min() > 1e-3 * sv.max():
+        want = np.linalg.lstsq(jac.T, tau, rcond=None)[0]
+        assert f == pytest.approx(want, rel=1e-6, abs=1e-9 * float(np.abs(want).max()))
+        assert np.abs(jac @ (jac.T @ f - tau)).max() <= 1e-8 * scale
+
+
 def test_null_space_damping_damps_self_motion_only():
     """A 3x6 Jacobian of full rank: the null torque is a damper on the self-motion, and nearly
     nothing along the task (N's eigenvalue there is mu^2 / (sigma^2 + mu^2), applied twice)."""
@@ -290,6 +313,8 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
             ("jacobian_times", (np.zeros(3), jac3, tau), 0),
             ("null_space_damping", (np.zeros(n), jac3, dq, d, 0.01), 0),
             ("null_space_damping", (np.zeros(n), jac6, dq, d, 0.01), 0),
+            ("task_force_of", (np.zeros(3), jac3, tau), 0),
+            ("task_force_of", (np.zeros(6), jac6, tau), 0),
             ("map_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
             ("unmap_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
             ("map_vector_back", (np.zeros(3), rot, 0.5, x3), 0),

@@ -116,12 +116,8 @@ def compiled_reason_arm(
         if side.law.params.law != "position":
             return f"{role}: task law {side.law.params.law!r} (compiled: position)"
         bound = side.bound
-        if type(bound) is CoupledTdpaBound and bound.controller == "velocity":
-            # its damper along the motion makes a torque that is no scaled copy of the desired one:
-            # the row's rendered force is solved for by least squares (side.SideTick.rendered)
-            return f"{role}: TDPA's velocity controller (compiled: EBA's bound, TDPA's zoh controller)"
         if type(bound) not in (CoupledEnergyBound, CoupledTdpaBound):
-            return f"{role}: stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA's zoh controller)"
+            return f"{role}: stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA)"
     profile = parts.operator.constants().profile
     if profile not in PROFILE_CODES:
         return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"

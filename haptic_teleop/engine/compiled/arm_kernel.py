@@ -28,7 +28,6 @@ from haptic_teleop.assembly.side_kernel import (
     LAW_EBA,
     S_ENERGY,
     S_EXTRA,
-    S_RATIO,
     T_F,
     T_FORCE,
     T_HELD,
@@ -37,6 +36,7 @@ from haptic_teleop.assembly.side_kernel import (
     T_ROT,
     T_S,
     T_WRENCH,
+    W_FELT,
     detach,
     detach_work,
     guarded,
@@ -207,6 +207,7 @@ def finish_tick(
     xd_t, vd_t, xd, vd = v[V_XD_T], v[V_VD_T], v[V_XD], v[V_VD]
     m_S, s_S = ms[T_S], ss[T_S]
     m_force, s_force = ms[T_FORCE], ss[T_FORCE]
+    m_felt, s_felt = mw[W_FELT], sw[W_FELT]  # ratio x desired, or the task force of the applied torque
     t = n * c[K_PERIOD] - ov[O_START]
     profile = ov[O_PROFILE]
     if profile == 0.0:
@@ -237,11 +238,11 @@ def finish_tick(
         row[cols[C_OP_F] + k] = op_f[k]
         row[cols[C_M_X] + k] = x_m[k]
         row[cols[C_M_V] + k] = v_m[k]
-        row[cols[C_M_F] + k] = m_S[S_RATIO] * m_force[k]
+        row[cols[C_M_F] + k] = m_felt[k]
         row[cols[C_M_FD] + k] = m_force[k]
         row[cols[C_S_X] + k] = xs[k]
         row[cols[C_S_V] + k] = vs[k]
-        row[cols[C_S_F] + k] = s_S[S_RATIO] * s_force[k]
+        row[cols[C_S_F] + k] = s_felt[k]
         row[cols[C_S_FD] + k] = s_force[k]
         row[cols[C_S_CF] + k] = f_env[k]
         row[cols[C_S_CT] + k] = t_env[k]
