@@ -141,8 +141,9 @@ class ArmEbaSide:
     def _counts(self, sent_ns: int) -> bool:
         """TDPA: whether a remote sample's energy is of this side's ledger. After the restart at
         scene time 0 only samples stamped at or after it: the remote side restarted its count at
-        its first tick there, so an earlier sample carries the count before (docs/stabilizers.md,
-        "TDPA live on arms: the restart"). Before the restart every sample counts (it is discarded)."""
+        its first tick there, so an earlier sample carries the count before
+        (docs/stabilizers_arms.md, "TDPA live on arms: the restart"). Before the restart every
+        sample counts (it is discarded)."""
         return self.restarted_j is None or self.restart_ns is None or sent_ns >= self.restart_ns
 
     def send(self, direction: str, stamp_ns: int, payload: tuple[float, ...]) -> None:
