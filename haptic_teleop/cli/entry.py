@@ -20,8 +20,10 @@ from __future__ import annotations
 # signal handling. The early handler is set through the interpreter's built-in `_signal` (no import
 # to run: `os` and `sys` are loaded before any script, and `signal` itself builds enums for tens of
 # microseconds, long enough for a Ctrl-C to land inside it with a traceback, seen in CI).
+# The statements before the handler is set are kept to the fewest and no Python-level call (the
+# check is C string methods): a signal landing in them is CPython's KeyboardInterrupt at this
+# module's first lines, the one window no Python code can close (README, "Exit codes").
 import _signal  # type: ignore[import-not-found]  # built in; typeshed has no stub
-import os
 import sys
 
 _EARLY: list[int] = []
@@ -31,11 +33,13 @@ def _note(signum: int, frame: object) -> None:
     _EARLY.append(signum)
 
 
-if os.path.basename(sys.argv[0] if sys.argv else "") == "haptic-teleop":
+_ARGV0 = sys.argv[0] if sys.argv else ""
+if _ARGV0 == "haptic-teleop" or _ARGV0.endswith("/haptic-teleop"):
     for _sig, _default in ((_signal.SIGINT, _signal.default_int_handler), (_signal.SIGTERM, _signal.SIG_DFL)):
         if _signal.getsignal(_sig) == _default:
             _signal.signal(_sig, _note)
 
+import os  # noqa: E402 (after the early handler)
 import signal  # noqa: E402 (after the early handler)
 
 from haptic_teleop import interrupt  # noqa: E402 (after the early handler: standard library only)
