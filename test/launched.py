@@ -100,7 +100,7 @@ class Launch(Child):
     def loop_table(self) -> str:
         """The launcher's table of each node's loop over the run."""
         i = self.text.find("loops (whole run):")
-        return self.text[i : i + 1200] if i >= 0 else "(no loop table)"
+        return self.text[i : i + 2400] if i >= 0 else "(no loop table)"
 
     def loop_row(self, node: str) -> tuple[int, int, int]:
         """`node`'s row of the loop table: (ticks run, late ticks, skipped ticks). Counts, not rates:
@@ -109,3 +109,11 @@ class Launch(Child):
         m = re.search(rf"^\s+{node}\s+(\d+)\s+[\d.]+\s+(\d+)\s+(\d+)", table, re.MULTILINE)
         assert m, table
         return int(m.group(1)), int(m.group(2)), int(m.group(3))
+
+    def end_late_s(self, node: str) -> float:
+        """`node`'s "latest end" in the loop table (s): the most a tick's work ended after its deadline,
+        so whatever the tick took (inputs, samples) it took no later than that after its deadline."""
+        table = self.loop_table()
+        m = re.search(rf"^\s+{node}\s+\d+\s+[\d.]+\s+\d+\s+\d+\s+([\d.]+)", table, re.MULTILINE)
+        assert m, table
+        return float(m.group(1)) * 1e-3

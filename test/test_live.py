@@ -757,6 +757,35 @@ def test_loop_thread_runs_the_ticks_of_a_stall_late_within_the_bound():
     assert stats.late_ticks >= 5  # the stall's backlog ran a period or more late
 
 
+def test_a_tick_held_inside_its_work_reports_how_late_it_ended():
+    """The loop's "latest end" (LoopStats.end_late_max_ns) counts a tick preempted inside its work,
+    which its wake-up lateness does not see: the stall here happens inside the 10th tick."""
+    from haptic_teleop.nodes.rtloop import SharedLoop
+
+    _, stats = _run_loop_thread(max_catch_up=10, stall_periods=6)
+    woke_late = np.frombuffer(stats.lateness_ns, dtype=np.int64)[:10]
+    assert woke_late.max() < P_NS  # the stalled tick woke on time ...
+    assert stats.end_late_max_ns >= 6 * P_NS  # ... and ended 6 periods late
+    assert stats.report()["end_late_max_us"] >= 6000.0
+    clock = _MadeUpClock()
+    group = SharedLoop(now_ns=clock)
+    done = threading.Event()
+    seen: list[int] = []
+
+    def tick(k: int, stamp_ns: int) -> None:
+        seen.append(k)
+        if len(seen) == 5:
+            clock.stall(3)
+        if len(seen) >= 20:
+            done.set()
+
+    member = group.add("m", P_NS, 0.0, tick, None, None, 10)
+    group.start()
+    assert done.wait(60)
+    group.stop()
+    assert member.stats.end_late_max_ns >= 3 * P_NS
+
+
 def test_loop_thread_skips_beyond_the_bound_and_counts_what_it_skipped():
     for bound, stall in [(0, 6), (10, 30)]:
         ran, stats = _run_loop_thread(max_catch_up=bound, stall_periods=stall)

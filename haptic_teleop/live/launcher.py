@@ -590,15 +590,16 @@ class Launcher:
 def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, Any]]) -> str:
     """The loops of the node set over their whole life, one row per node (`-`: no figures, e.g. a
     node that was killed or has no loop): ticks run, loop rate (ticks per second of wall time),
-    late ticks (run a period or more after their deadline), skipped ticks (overruns); and what a
+    late ticks (run a period or more after their deadline), skipped ticks (overruns), the most a
+    tick's work ended after its deadline (ms: whatever it took, it took no later); and what a
     relay lost and a sync buffer skipped as late, and those that came after their due tick (this
     machine's lateness, not the network's: docs/live_network.md, "Deliveries on the stamp grid") (packets)."""
-    head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks", "packets")
+    head = ("node", "ticks", "rate Hz", "late ticks", "skipped ticks", "latest end ms", "packets")
     rows = [head]
     for name in names:
         f = figures.get(name)
         if f is None:
-            rows.append((name, "-", "-", "-", "-", ""))
+            rows.append((name, "-", "-", "-", "-", "-", ""))
             continue
         rate = f"{float(f['loop_rate_hz']):.1f}"
         notes = []
@@ -610,7 +611,10 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
             notes.append(f"{f['released']} released, {f.get('late', 0)} late")
             if int(f.get("late_by_scheduling", 0)):
                 notes.append(f"{f['late_by_scheduling']} late by scheduling")
-        rows.append((name, str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), "; ".join(notes)))
+        end = f.get("end_late_max_us")
+        end_ms = "-" if end is None else f"{float(end) * 1e-3:.3f}"
+        cells = (str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), end_ms)
+        rows.append((name, *cells, "; ".join(notes)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
     lines = ["loops (whole run):"]
     for r in rows:

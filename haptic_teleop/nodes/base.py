@@ -256,7 +256,8 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
     def loop_figures(self) -> dict[str, Any] | None:
         """The loop's figures over its whole life (for the table at the end of a launch), or None
         for a node without a loop: ticks run, ticks per second of wall time, late ticks (run a
-        period or more after their deadline) and skipped ticks (overruns)."""
+        period or more after their deadline), skipped ticks (overruns) and the most a tick's work
+        ended after its deadline (us: its inputs were taken no later, preemption inside it included)."""
         loop = self.loop
         if loop is None:
             return None
@@ -267,6 +268,7 @@ class LiveNode(_base_node_class()):  # type: ignore[misc]
             "loop_rate_hz": round(st.rate_hz(), 1),
             "late_ticks": st.late_ticks,
             "skipped_ticks": st.overruns,
+            "end_late_max_us": round(st.end_late_max_ns * 1e-3, 1),
             **{k: v for k, v in self.diagnostic_values().items() if k in FINAL_EXTRAS},
         }
 

@@ -134,6 +134,7 @@ class LoopStats:
         self.overruns = 0  # deadlines skipped (not run at all)
         self.late_ticks = 0  # ticks run a whole period or more after their deadline (caught up)
         self.busy_ns = 0  # wall time spent in this loop's ticks
+        self.end_late_max_ns = 0  # the most a tick's work ended after its deadline (its work's lateness)
         self.first_ns = 0
         self.last_ns = 0  # wake time of the newest tick
         self.lateness_ns = array.array("q", bytes(8 * self.RING))
@@ -157,6 +158,12 @@ class LoopStats:
             self.first_ns = woke_ns
         self.last_ns = woke_ns
         self.ticks = n + 1  # last: the entry is written before it is counted
+
+    def ended(self, end_ns: int, deadline_ns: int) -> None:
+        """The tick for `deadline_ns` ended its work at `end_ns`: whatever it took (inputs, a clock)
+        it took at most this late after its deadline, preemption inside the tick included."""
+        late = end_ns - deadline_ns
+        self.end_late_max_ns = max(self.end_late_max_ns, late)
 
     def rate_hz(self) -> float:
         """Ticks run per second of wall time since the first."""
@@ -207,6 +214,7 @@ class LoopStats:
             "overruns": self.overruns,
             "late_ticks": self.late_ticks,
             "last_tick_ns": last_ns,
+            "end_late_max_us": round(self.end_late_max_ns * 1e-3, 1),
             "tick_time_s": round(busy * 1e-9, 6),
             "lateness_hist": " ".join(map(str, self.hist[:top].tolist())),
         }
@@ -327,6 +335,7 @@ class LoopThread:
                 t0 = time.perf_counter_ns()
                 tick(k, k * period)  # the stamp is on the grid; the phase only moves the wake-up
                 stats.busy_ns += time.perf_counter_ns() - t0
+                stats.ended(self._now(), k * period + phase)
                 k += 1
                 if idle is not None:
                     idle(self._simulated or k * period + phase - self._now() >= IDLE_SHARE * period)
@@ -503,3 +512,4 @@ class SharedLoop:
                 raise
         finally:
             st.busy_ns += time.perf_counter_ns() - t0
+            st.ended(self._now(), deadline)
