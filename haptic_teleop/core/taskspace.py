@@ -221,6 +221,30 @@ def _cholesky_solve(low: Mat, b: Vec) -> None:
         b[i] = s / low[i, i]
 
 
+def _gram_of_rows(a: Mat, jac: Mat) -> None:
+    """a (m x m) = J J.T, each entry summed over the joints in order (symmetric: computed once)."""
+    m, n = jac.shape
+    for i in range(m):
+        for k in range(i + 1):
+            s = 0.0
+            for j in range(n):
+                s += jac[i, j] * jac[k, j]
+            a[i, k] = s
+            a[k, i] = s
+
+
+def _gram_of_columns(b: Mat, jac: Mat) -> None:
+    """b (n x n) = J.T J, each entry summed over the task rows in order (symmetric: computed once)."""
+    m, n = jac.shape
+    for i in range(n):
+        for k in range(i + 1):
+            s = 0.0
+            for j in range(m):
+                s += jac[j, i] * jac[j, k]
+            b[i, k] = s
+            b[k, i] = s
+
+
 def _project(out: Vec, jac: Mat, low: Mat, x: Vec, tmp: Vec) -> None:
     """out = N x with N = I - J.T (J J.T + mu^2 I)^-1 J, `low` the Cholesky factor of J J.T + mu^2 I."""
     jacobian_times(tmp, jac, x)
@@ -246,13 +270,8 @@ def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> N
     m, n = jac.shape
     if m >= n:
         b = np.empty((n, n))
+        _gram_of_columns(b, jac)
         for i in range(n):
-            for k in range(i + 1):
-                s = 0.0
-                for j in range(m):
-                    s += jac[j, i] * jac[j, k]
-                b[i, k] = s
-                b[k, i] = s
             b[i, i] += mu * mu
         _cholesky(b)
         for j in range(n):
@@ -266,13 +285,8 @@ def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> N
             out[j] = -out[j]
         return
     a = np.empty((m, m))
+    _gram_of_rows(a, jac)
     for i in range(m):
-        for k in range(i + 1):
-            s = 0.0
-            for j in range(n):
-                s += jac[i, j] * jac[k, j]
-            a[i, k] = s
-            a[k, i] = s
         a[i, i] += mu * mu
     _cholesky(a)
     tmp = np.empty(m)
@@ -291,16 +305,11 @@ def task_force_of(out: Vec, jac: Mat, tau: Vec) -> None:
     trace(J J.T) / m keeps a rank-deficient J solvable (its F then the damped solution) and moves a
     full-rank one's by about 1e-12 relative. What a torque that is no scaled copy of the desired one
     renders at the point (TDPA's velocity controller on an arm, docs/stabilizers_arms.md)."""
-    m, n = jac.shape
+    m = jac.shape[0]
     a = np.empty((m, m))
+    _gram_of_rows(a, jac)
     trace = 0.0
     for i in range(m):
-        for k in range(i + 1):
-            s = 0.0
-            for j in range(n):
-                s += jac[i, j] * jac[k, j]
-            a[i, k] = s
-            a[k, i] = s
         trace += a[i, i]
     eps = 1e-12 * trace / m if trace > 0.0 else 1e-300
     for i in range(m):
