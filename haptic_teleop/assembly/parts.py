@@ -363,16 +363,16 @@ def arm_kernels() -> Mapping[str, Callable[..., Any]] | None:
     Each is compiled once per process and warmed up on the scene's array types by `build_arm_parts`,
     so no compiling happens inside the timed loop."""
     try:
-        import numba
+        import numba  # noqa: F401 - only whether it is here
     except Exception:  # noqa: BLE001 - no numba here: the interpreted functions run
         return None
     from haptic_teleop.compiling import compile_tree
-    from haptic_teleop.core.taskspace import kernels
+    from haptic_teleop.core.taskspace import KERNEL_FUNCTIONS
     from haptic_teleop.core.tdpa_coupled import coupled_tdpa
 
-    # TDPA's pooled step, compiled from its one definition with its callees (the compiled arm
-    # loop's side_kernel.py calls the same compiled function: the same bits)
-    return {**kernels(numba.njit(cache=True, nogil=True)), "coupled_tdpa": compile_tree(coupled_tdpa)}
+    # Each compiled from its one definition with its callees, as the compiled arm loop's
+    # side_kernel.py compiles them (the same compiled functions in one process: the same bits)
+    return {fn.__name__: compile_tree(fn) for fn in (*KERNEL_FUNCTIONS, coupled_tdpa)}
 
 
 def _warm_up(side: ArmSide, config: Scene) -> None:

@@ -331,7 +331,7 @@ class CoupledEnergyBound:
     until the next tick (the object's own array, overwritten every tick). With the bound off,
     the reservoir is still kept and the limited torque passes unscaled.
 
-    kernels: the array functions to call, by name (`haptic_teleop.core.taskspace.kernels(jit)`
+    kernels: the array functions to call, by name (`haptic_teleop.assembly.parts.arm_kernels()`
     gives them compiled); None: this module's, interpreted. Same results either way.
     """
 

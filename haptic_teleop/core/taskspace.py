@@ -18,7 +18,6 @@ of the rotated frame into the reference frame.
 from __future__ import annotations
 
 import math
-import types
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -328,8 +327,9 @@ def add_into(out: Vec, x: Vec) -> None:
 # --------------------------------------------------------------------------------------------
 # Compiling the per-tick functions.
 
-# Every array function of the n-joint tick (eba's bound, this module's laws), callees before
-# callers. `kernels(jit)` compiles them in this order.
+# Every array function of the n-joint tick (eba's bound, this module's laws) that the Python arm
+# tick calls by name; the caller compiles each with its callees (compiling.compile_tree: core does
+# not import numba).
 KERNEL_FUNCTIONS: tuple[Callable[..., Any], ...] = (
     eba.reservoir1,
     eba.bounded1,
@@ -355,31 +355,10 @@ KERNEL_FUNCTIONS: tuple[Callable[..., Any], ...] = (
     orientation_coupling,
     jacobian_times,
     jacobian_transpose,
-    _cholesky,
-    _cholesky_solve,
-    _project,
     null_space_damping,
     task_force_of,
     add_into,
 )
-
-
-def kernels(jit: Callable[[Callable[..., Any]], Callable[..., Any]]) -> dict[str, Callable[..., Any]]:
-    """The functions of `KERNEL_FUNCTIONS` compiled by `jit` (e.g. `numba.njit(cache=True)`), by name.
-
-    A compiled function can only call compiled functions, so each one is compiled from its own
-    code with the names it calls bound to the compiled callees (the module's functions stay as
-    they are). core does not import numba: the caller passes its decorator.
-    """
-    done: dict[str, Callable[..., Any]] = {}
-    for fn in KERNEL_FUNCTIONS:
-        scope = dict(fn.__globals__)
-        scope.update(done)
-        clone = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__)
-        clone.__qualname__ = fn.__qualname__
-        clone.__module__ = fn.__module__
-        done[fn.__name__] = jit(clone)
-    return done
 
 
 # --------------------------------------------------------------------------------------------
@@ -568,7 +547,7 @@ class TaskSpaceLaw:
     energy bound; the caller bounds it with `CoupledEnergyBound` and then adds gravity
     compensation, which is the plant's own potential and not part of the port). The returned
     arrays are the object's own, overwritten every tick. kernels: the array functions by name
-    (`kernels(jit)` gives them compiled); None: this module's, interpreted.
+    (assembly.parts.arm_kernels gives them compiled); None: this module's, interpreted.
     """
 
     __slots__ = (

@@ -283,14 +283,16 @@ def test_bad_task_params_are_refused(kwargs, words):
 
 
 def test_kernels_compile_with_numba_and_give_the_interpreted_results():
-    """Every per-tick array function compiles with numba as it is (`kernels`), and gives what the
-    interpreted function gives on the same inputs (n = 1, 3, 6)."""
-    numba = pytest.importorskip("numba")
+    """Every per-tick array function compiles with numba as it is, with the functions it calls
+    (`assembly.parts.arm_kernels`: compiling.compile_tree), and gives what the interpreted function
+    gives on the same inputs (n = 1, 3, 6)."""
+    pytest.importorskip("numba")
+    from haptic_teleop.assembly.parts import arm_kernels
     from haptic_teleop.core import eba_coupled
     from haptic_teleop.core import taskspace as ts
 
-    k = ts.kernels(numba.njit(cache=False))
-    assert set(k) == {fn.__name__ for fn in ts.KERNEL_FUNCTIONS}
+    k = arm_kernels()
+    assert k is not None and set(k) == {fn.__name__ for fn in ts.KERNEL_FUNCTIONS} | {"coupled_tdpa"}
     rng = np.random.default_rng(11)
     rot = np.array(rotation_from_rpy(0.3, -1.0, 2.0))
     near_pi = _rodrigues((1.0, 2.0, -0.5), math.pi - 1e-7) @ rot
