@@ -613,8 +613,8 @@ def format_loop_table(names: Sequence[str], figures: Mapping[str, Mapping[str, A
                 notes.append(f"{f['late_by_scheduling']} late by scheduling")
         end = f.get("end_late_max_us")
         end_ms = "-" if end is None else f"{float(end) * 1e-3:.3f}"
-        cells = (str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), end_ms)
-        rows.append((name, *cells, "; ".join(notes)))
+        counts = (str(f["ticks"]), rate, str(f["late_ticks"]), str(f["skipped_ticks"]), end_ms)
+        rows.append((name, *counts, "; ".join(notes)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
     lines = ["loops (whole run):"]
     for r in rows:
