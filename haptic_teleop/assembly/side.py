@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from haptic_teleop.core.eba_coupled import joint_limited
-from haptic_teleop.core.taskspace import dot, matrix_times, task_force_of
+from haptic_teleop.core.taskspace import dot, matrix_times, task_force_of, tick_scratch
 from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
 if TYPE_CHECKING:
@@ -77,6 +77,7 @@ class _SideTick:
         self.joint_limited = k["joint_limited"] if k is not None else joint_limited
         self.task_force_of = k["task_force_of"] if k is not None else task_force_of
         self._wrench = np.zeros(6 if side.rotational else 3)  # the velocity controller's solved wrench
+        self._scratch = tick_scratch(self._wrench.shape[0], self.plant.n)
         self.safe = getattr(self.plant, "safe_torque", None)  # HardwareArm's guards; none on MuJoCo
 
     def torque(self, x: np.ndarray, v: np.ndarray, remote: tuple[float, ...] | None) -> np.ndarray:
@@ -104,7 +105,7 @@ class _SideTick:
         # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
         out = self.bound.step(q, self.limited if self.safe is None else self.safe(self.limited))
         if self.task_force is not None:  # TDPA's velocity controller: not a scaled copy of tau
-            self.task_force_of(self._wrench, jac, out)
+            self.task_force_of(self._wrench, jac, out, self._scratch)
             self.task_force[:] = self._wrench[:3]
             return out
         tt = dot(tau, tau)

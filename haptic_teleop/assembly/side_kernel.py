@@ -36,26 +36,31 @@ jit = numba.njit(cache=True, nogil=True)
 # tuples (36 and 17 array structs, by value) onto the stack.
 inline = numba.njit(cache=True, nogil=True, inline="always")
 
-map_point = compile_tree(taskspace.map_point)
-unmap_point = compile_tree(taskspace.unmap_point)
-map_vector = compile_tree(taskspace.map_vector)
-map_vector_back = compile_tree(taskspace.map_vector_back)
-coupling = compile_tree(taskspace.coupling)
+# The tick's small array functions are inlined where they are called (a call between separately
+# compiled functions passes every array's fields by value); the larger ones (the null-space
+# damping, the orientation hold, the felt force, the slew bound, TDPA's step) are compiled once
+# and called.
+small = {"inline": True}
+map_point = compile_tree(taskspace.map_point, **small)
+unmap_point = compile_tree(taskspace.unmap_point, **small)
+map_vector = compile_tree(taskspace.map_vector, **small)
+map_vector_back = compile_tree(taskspace.map_vector_back, **small)
+coupling = compile_tree(taskspace.coupling, **small)
 orientation_coupling = compile_tree(taskspace.orientation_coupling)
-jacobian_times = compile_tree(taskspace.jacobian_times)
-jacobian_transpose = compile_tree(taskspace.jacobian_transpose)
+jacobian_times = compile_tree(taskspace.jacobian_times, **small)
+jacobian_transpose = compile_tree(taskspace.jacobian_transpose, **small)
 null_space_damping = compile_tree(taskspace.null_space_damping)
 task_force_of = compile_tree(taskspace.task_force_of)
-add_into = compile_tree(taskspace.add_into)
-dot = compile_tree(taskspace.dot)
-matrix_times = compile_tree(taskspace.matrix_times)
-cross = compile_tree(taskspace.cross)
-coupled_reservoir = compile_tree(eba_coupled.coupled_reservoir)
-coupled_bounded = compile_tree(eba_coupled.coupled_bounded)
+add_into = compile_tree(taskspace.add_into, **small)
+dot = compile_tree(taskspace.dot, **small)
+matrix_times = compile_tree(taskspace.matrix_times, **small)
+cross = compile_tree(taskspace.cross, **small)
+coupled_reservoir = compile_tree(eba_coupled.coupled_reservoir, **small)
+coupled_bounded = compile_tree(eba_coupled.coupled_bounded, **small)
 slew_bounded = compile_tree(eba_coupled.slew_bounded)
-joint_limited = compile_tree(eba_coupled.joint_limited)
+joint_limited = compile_tree(eba_coupled.joint_limited, **small)
 coupled_tdpa = compile_tree(tdpa_coupled.coupled_tdpa)
-received1 = compile_tree(tdpa.received1)
+received1 = compile_tree(tdpa.received1, **small)
 
 # The side tuple (compiled_side.side_tuple builds it; the kernel unpacks it in this order):
 #   I (int64 scalars, the I_* positions below), qadr, dadr, act (int64, per joint),
@@ -244,7 +249,7 @@ def side_torque(
     )
     site_xmat = side[T_XMAT]
     lo, hi, jac, m, tmp = w[0], w[1], w[4], w[8], w[10]
-    wrench, tau, limited, omega, j3, dq, felt = w[11:]
+    wrench, tau, limited, omega, j3, dq, felt, scratch = w[11:]
     n = iv[I_N]
     rotational = iv[I_ROTATIONAL] != 0
     # jac: this tick's Jacobian, from `point` (the state has not moved since)
@@ -267,10 +272,10 @@ def side_torque(
         for k in range(9):
             m[k // 3, k % 3] = site_xmat[iv[I_SITE], k]
         jacobian_times(omega, jac[3:6], qd)
-        orientation_coupling(wrench[3:6], k_rot, d_rot, r_hold, m, omega)
+        orientation_coupling(wrench[3:6], k_rot, d_rot, r_hold, m, omega, scratch)
     jacobian_transpose(tau, jac, wrench)
     if iv[I_NULL] != 0:
-        null_space_damping(tmp, jac, qd, null_d, F[F_MU])
+        null_space_damping(tmp, jac, qd, null_d, F[F_MU], scratch)
         add_into(tau, tmp)
     # the force limit, the motors' room, the bound
     for k in range(3):
@@ -304,7 +309,7 @@ def side_torque(
         if iv[I_LAW] == LAW_TDPA_VELOCITY and iv[I_ENABLED] != 0:
             # its damper along the motion: the applied torque is no scaled copy of the desired one,
             # so the felt force is the task force of the applied torque (SideTick.rendered)
-            task_force_of(wrench, jac, out)  # wrench is free again (the desired one is in `force`)
+            task_force_of(wrench, jac, out, scratch)  # wrench is free again (the desired one is in `force`)
             for k in range(3):
                 felt[k] = wrench[k]
         else:
@@ -391,6 +396,7 @@ def work_arrays(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:
         np.zeros((3, n)),  # j3
         np.zeros(n),  # dq
         np.zeros(3),  # felt: the task force the applied torque renders (the row's m/s_force_n)
+        np.zeros((max(rows, n, 3) + 2, max(rows, n, 3))),  # scratch: taskspace.tick_scratch's shape
     )
 
 
@@ -462,6 +468,7 @@ def detach_work(w: Any) -> Any:
         borrowed(w[15]),
         borrowed(w[16]),
         borrowed(w[17]),
+        borrowed(w[18]),
     )
 
 

@@ -144,6 +144,22 @@ def joint_limited(
             out[i] = min(max(tau[i], low[i]), high[i])
 
 
+def _slew_segment(
+    out: npt.NDArray[np.float64],
+    tau: npt.NDArray[np.float64],
+    held: npt.NDArray[np.float64],
+    step: npt.NDArray[np.float64],
+    fraction: float,
+) -> None:
+    """out = base + fraction (target - base): the point `fraction` of the way from the fastest
+    descent of `held` (base) to the slew-limited `tau` (target), per joint (`slew_bounded`)."""
+    for i in range(tau.shape[0]):
+        h = held[i]
+        base = 0.0 if abs(h) <= step[i] else (h - step[i] if h > 0.0 else h + step[i])
+        target = min(max(tau[i], h - step[i]), h + step[i])
+        out[i] = base + fraction * (target - base)
+
+
 def slew_bounded(
     out: npt.NDArray[np.float64],
     tau: npt.NDArray[np.float64],
@@ -167,29 +183,22 @@ def slew_bounded(
     if n == 1:
         out[0] = actuator_bounded1(tau[0], ramp_limit1(energy, bound_gain[0], math.inf, step[0]), held[0], step[0])
         return 1.0 if out[0] == tau[0] else 0.0
-    target = np.empty(n)
+    # the slew-limited target (into out), its cost, then the bisection recomputing the segment's
+    # ends (the same arithmetic as with arrays of them: nothing allocated)
     for i in range(n):
-        target[i] = min(max(tau[i], held[i] - step[i]), held[i] + step[i])
-    if coupled_descent_cost(target, step, bound_gain) <= energy:
-        for i in range(n):
-            out[i] = target[i]
+        out[i] = min(max(tau[i], held[i] - step[i]), held[i] + step[i])
+    if coupled_descent_cost(out, step, bound_gain) <= energy:
         return 1.0
-    base = np.empty(n)
-    for i in range(n):
-        h = held[i]
-        base[i] = 0.0 if abs(h) <= step[i] else (h - step[i] if h > 0.0 else h + step[i])
     lo = 0.0
     hi = 1.0
     for _ in range(_SLEW_SEARCH_STEPS):
         mid = 0.5 * (lo + hi)
-        for i in range(n):
-            out[i] = base[i] + mid * (target[i] - base[i])
+        _slew_segment(out, tau, held, step, mid)
         if coupled_descent_cost(out, step, bound_gain) <= energy:
             lo = mid
         else:
             hi = mid
-    for i in range(n):
-        out[i] = base[i] + lo * (target[i] - base[i])
+    _slew_segment(out, tau, held, step, lo)
     return lo
 
 

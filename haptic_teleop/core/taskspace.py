@@ -115,13 +115,23 @@ def force_feedback(out: Vec, gain: float, remote_force: Vec) -> None:
         out[i] = gain * remote_force[i]
 
 
-def orientation_error(out: Vec, r_hold: Mat, r_tool: Mat) -> None:
+def tick_scratch(rows: int, joints: int) -> Mat:
+    """The work array of the tick's functions that need matrices of their own (`null_space_damping`,
+    `task_force_of`, `orientation_coupling`), for a Jacobian of `rows` x `joints`: K + 2 rows of K
+    values, K = max(rows, joints, 3). They allocate nothing, so the compiled loops run them without
+    numba's reference counting."""
+    k = max(rows, joints, 3)
+    return np.zeros((k + 2, k))
+
+
+def orientation_error(out: Vec, r_hold: Mat, r_tool: Mat, work: Mat) -> None:
     """Rotation vector (axis * angle, rad, world frame) that turns the tool's orientation into the held one.
 
     The log map of R = r_hold @ r_tool.T, exact for every angle in [0, pi]: away from pi from the
     skew part (sin(theta) * axis), near pi (where the skew part vanishes) from the symmetric part.
+    work: `tick_scratch` (R in its first 3 x 3, the axis near pi in its fourth row).
     """
-    r = np.empty((3, 3))
+    r = work[:3, :3]
     for i in range(3):
         for j in range(3):
             s = 0.0
@@ -148,7 +158,7 @@ def orientation_error(out: Vec, r_hold: Mat, r_tool: Mat) -> None:
     if r[2, 2] > r[k, k]:
         k = 2
     one_c = 1.0 - cos_t
-    a = np.empty(3)
+    a = work[3, :3]
     for i in range(3):
         a[i] = 0.5 * (r[i, k] + r[k, i]) / one_c
     a[k] = math.sqrt(max((r[k, k] - cos_t) / one_c, 0.0))
@@ -162,9 +172,10 @@ def orientation_error(out: Vec, r_hold: Mat, r_tool: Mat) -> None:
         out[i] = sign * theta * a[i] / norm
 
 
-def orientation_coupling(out: Vec, k_rot: Vec, d_rot: Vec, r_hold: Mat, r_tool: Mat, omega: Vec) -> None:
-    """Moment (N m, world frame) holding the tool at r_hold: k_rot * error - d_rot * omega per axis."""
-    orientation_error(out, r_hold, r_tool)
+def orientation_coupling(out: Vec, k_rot: Vec, d_rot: Vec, r_hold: Mat, r_tool: Mat, omega: Vec, work: Mat) -> None:
+    """Moment (N m, world frame) holding the tool at r_hold: k_rot * error - d_rot * omega per axis
+    (work: `tick_scratch`)."""
+    orientation_error(out, r_hold, r_tool, work)
     for i in range(3):
         out[i] = k_rot[i] * out[i] - d_rot[i] * omega[i]
 
@@ -253,7 +264,7 @@ def _project(out: Vec, jac: Mat, low: Mat, x: Vec, tmp: Vec) -> None:
         out[j] = x[j] - out[j]
 
 
-def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> None:
+def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float, work: Mat) -> None:
     """Damping of the self-motion of a redundant arm: out = -N D N qd (N.T = N), D = diag(d_null).
 
     N = I - J.T J.T+ with the damped pseudo-inverse J.T+ = (J J.T + mu^2 I)^-1 J, that is
@@ -265,10 +276,11 @@ def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> N
     m x m factor of J J.T + mu^2 I (`_project`); otherwise (a square Jacobian, the UR5e's 6 x 6)
     as -mu^4 B^-1 D B^-1 qd with B = J.T J + mu^2 I, two solves with one n x n factor and no
     products with J (0.32 against 0.50 us for a 6 x 6 Jacobian; the two agree to 1e-12 relative).
+    work: `tick_scratch` (the factor in its top left, the projections' vectors in the rows below).
     """
     m, n = jac.shape
     if m >= n:
-        b = np.empty((n, n))
+        b = work[:n, :n]
         _gram_of_columns(b, jac)
         for i in range(n):
             b[i, i] += mu * mu
@@ -283,13 +295,13 @@ def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> N
         for j in range(n):
             out[j] = -out[j]
         return
-    a = np.empty((m, m))
+    a = work[:m, :m]
     _gram_of_rows(a, jac)
     for i in range(m):
         a[i, i] += mu * mu
     _cholesky(a)
-    tmp = np.empty(m)
-    p = np.empty(n)
+    tmp = work[m, :m]
+    p = work[m + 1, :n]
     _project(p, jac, a, qd, tmp)
     for j in range(n):
         p[j] *= d_null[j]
@@ -298,14 +310,15 @@ def null_space_damping(out: Vec, jac: Mat, qd: Vec, d_null: Vec, mu: float) -> N
         out[j] = -out[j]
 
 
-def task_force_of(out: Vec, jac: Mat, tau: Vec) -> None:
+def task_force_of(out: Vec, jac: Mat, tau: Vec, work: Mat) -> None:
     """out (m values) = the task force (or wrench) F whose J.T F is closest to tau: least squares,
     from the normal equations (J J.T + eps I) F = J tau with this module's Cholesky; eps = 1e-12
     trace(J J.T) / m keeps a rank-deficient J solvable (its F then the damped solution) and moves a
     full-rank one's by about 1e-12 relative. What a torque that is no scaled copy of the desired one
-    renders at the point (TDPA's velocity controller on an arm, docs/stabilizers_arms.md)."""
+    renders at the point (TDPA's velocity controller on an arm, docs/stabilizers_arms.md). work:
+    `tick_scratch` (the factor in its top left)."""
     m = jac.shape[0]
-    a = np.empty((m, m))
+    a = work[:m, :m]
     _gram_of_rows(a, jac)
     trace = 0.0
     for i in range(m):
@@ -560,6 +573,7 @@ class TaskSpaceLaw:
         "_null_d",
         "_omega",
         "_tmp",
+        "_work",
         "joints",
         "params",
         "r_hold",
@@ -588,6 +602,7 @@ class TaskSpaceLaw:
         self.wrench = np.zeros(params.wrench_rows)
         self.torque_nm = np.zeros(joints)
         self._tmp = np.zeros(joints)
+        self._work = tick_scratch(params.wrench_rows, joints)
         self._omega = np.zeros(3)
         self.r_hold: Mat | None = None  # the held orientation; None: taken from the first tick
         plain = {fn.__name__: fn for fn in KERNEL_FUNCTIONS}
@@ -637,10 +652,10 @@ class TaskSpaceLaw:
             if self.r_hold is None:
                 self.r_hold = np.array(r_tool, dtype=float)
             f["jacobian_times"](self._omega, jac[3:6], qd)
-            f["orientation_coupling"](w[3:6], self._k_rot, self._d_rot, self.r_hold, r_tool, self._omega)
+            f["orientation_coupling"](w[3:6], self._k_rot, self._d_rot, self.r_hold, r_tool, self._omega, self._work)
         f["jacobian_transpose"](self.torque_nm, jac, w)
         if self._null:
-            f["null_space_damping"](self._tmp, jac, qd, self._null_d, p.pinv_damping_m)
+            f["null_space_damping"](self._tmp, jac, qd, self._null_d, p.pinv_damping_m, self._work)
             f["add_into"](self.torque_nm, self._tmp)
         return self.torque_nm
 

@@ -81,7 +81,8 @@ def velocity_scaled(
     p = joint_power(tau, dq)
     dd = joint_power(dq, dq)
     if dd == 0.0 or p <= budget:
-        out[:] = tau
+        for i in range(n):
+            out[i] = tau[i]
         return 0.0
     beta = (budget - p) / dd  # may overflow to -inf on a tiny motion: the room then decides
     if math.isinf(beta):
@@ -96,7 +97,7 @@ def velocity_scaled(
     else:
         for i in range(n):
             out[i] = tau[i] + beta * dq[i]
-    joint_limited(out, out.copy(), low, high, True)  # within the room; a room that excludes 0
+    joint_limited(out, out, low, high, True)  # within the room (joint by joint: in place); a room that excludes 0
     return beta
 
 

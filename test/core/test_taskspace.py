@@ -21,6 +21,7 @@ from haptic_teleop.core.taskspace import (
     orientation_error,
     rotation_from_rpy,
     task_force_of,
+    tick_scratch,
 )
 
 angles = st.floats(-math.pi, math.pi)
@@ -117,7 +118,7 @@ def test_orientation_error_is_the_rotation_vector(axis, angle, roll, pitch, yaw)
     a = np.asarray(axis) / np.linalg.norm(axis)
     r_hold = _rodrigues(a, angle) @ r_tool
     e = np.empty(3)
-    orientation_error(e, r_hold, r_tool)
+    orientation_error(e, r_hold, r_tool, tick_scratch(3, 3))
     if angle > math.pi - 1e-6:  # at pi, axis and -axis are the same rotation
         assert np.linalg.norm(e) == pytest.approx(angle, abs=1e-6)
         assert abs(float(e @ a)) == pytest.approx(angle, abs=1e-5)
@@ -129,9 +130,13 @@ def test_orientation_coupling_turns_the_tool_towards_the_held_orientation():
     r_tool = np.eye(3)
     r_hold = _rodrigues((0, 0, 1), 0.1)  # held: 0.1 rad about +z from the tool
     m = np.empty(3)
-    orientation_coupling(m, np.array([5.0, 5.0, 5.0]), np.array([0.5, 0.5, 0.5]), r_hold, r_tool, np.zeros(3))
+    orientation_coupling(
+        m, np.array([5.0, 5.0, 5.0]), np.array([0.5, 0.5, 0.5]), r_hold, r_tool, np.zeros(3), tick_scratch(3, 3)
+    )
     assert m == pytest.approx([0.0, 0.0, 0.5], abs=1e-12)
-    orientation_coupling(m, np.zeros(3), np.array([0.5, 0.5, 0.5]), r_tool, r_tool, np.array([1.0, -2.0, 0.0]))
+    orientation_coupling(
+        m, np.zeros(3), np.array([0.5, 0.5, 0.5]), r_tool, r_tool, np.array([1.0, -2.0, 0.0]), tick_scratch(3, 3)
+    )
     assert m == pytest.approx([-0.5, 1.0, 0.0], abs=1e-12)
 
 
@@ -168,7 +173,7 @@ def test_null_space_damping_is_dissipative(seed, m, n, rank_drop, spread, mu):
     qd = rng.normal(size=n) * 10.0 ** rng.uniform(-3, 1)
     d = 10.0 ** rng.uniform(-spread / 2, spread / 2, size=n)
     tau = np.empty(n)
-    null_space_damping(tau, jac, qd, d, mu)
+    null_space_damping(tau, jac, qd, d, mu, tick_scratch(m, n))
     power = float(qd @ tau)
     assert power <= 1e-12 * float(d @ (qd * qd))
     # N from the SVD (accurate however ill-conditioned J.T J + mu^2 I is): eigenvalues mu^2 / (s^2 + mu^2)
@@ -192,7 +197,7 @@ def test_task_force_of_is_the_least_squares_force_of_a_torque(seed, m, n, rank_d
         jac[-1] = jac[0] * rng.normal()
     tau = rng.normal(size=n) * 10.0 ** rng.uniform(-2, 1)
     f = np.empty(m)
-    task_force_of(f, jac, tau)
+    task_force_of(f, jac, tau, tick_scratch(m, n))
     assert np.all(np.isfinite(f))
     scale = float(np.abs(tau).max()) * float(np.abs(jac).max()) + 1e-300
     sv = np.linalg.svd(jac, compute_uv=False)
@@ -213,9 +218,9 @@ def test_null_space_damping_damps_self_motion_only():
     task_motion = vt[0]
     d = np.full(6, 2.0)
     tau = np.empty(6)
-    null_space_damping(tau, jac, self_motion, d, 0.01)
+    null_space_damping(tau, jac, self_motion, d, 0.01, tick_scratch(*jac.shape))
     assert tau == pytest.approx(-2.0 * self_motion, abs=1e-9)
-    null_space_damping(tau, jac, task_motion, d, 0.01)
+    null_space_damping(tau, jac, task_motion, d, 0.01, tick_scratch(*jac.shape))
     leak = 0.01**2 / (s[0] ** 2 + 0.01**2)  # N's eigenvalue along a task direction
     assert leak < 1e-3
     assert tau == pytest.approx(-2.0 * leak**2 * task_motion, rel=1e-6, abs=1e-15)
@@ -238,7 +243,7 @@ def test_task_space_law_torques():
     params = TaskCouplingParams(null_damping_nm_s_per_rad=(1.0, 1.0, 1.0, 1.0))
     law = TaskSpaceLaw(params, 4)
     tau_null = np.empty(4)
-    null_space_damping(tau_null, jac, qd, np.ones(4), params.pinv_damping_m)
+    null_space_damping(tau_null, jac, qd, np.ones(4), params.pinv_damping_m, tick_scratch(*jac.shape))
     assert law.torque(jac, qd, x, v, x, v) == pytest.approx(tau_null, abs=1e-12)
 
 
@@ -296,6 +301,7 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
     rng = np.random.default_rng(11)
     rot = np.array(rotation_from_rpy(0.3, -1.0, 2.0))
     near_pi = _rodrigues((1.0, 2.0, -0.5), math.pi - 1e-7) @ rot
+    turned = _rodrigues((0, 1, 0), 0.4) @ rot
     for n in (1, 3, 6):
         d = 10.0 ** rng.uniform(-2, 1, size=n)
         bg, gain = 4.0 * d / 1e-3, d / 1e-3
@@ -313,16 +319,20 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
             ("joint_limited", (np.zeros(n), tau, low, high, False), 0),
             ("jacobian_transpose", (np.zeros(n), jac6, w6), 0),
             ("jacobian_times", (np.zeros(3), jac3, tau), 0),
-            ("null_space_damping", (np.zeros(n), jac3, dq, d, 0.01), 0),
-            ("null_space_damping", (np.zeros(n), jac6, dq, d, 0.01), 0),
-            ("task_force_of", (np.zeros(3), jac3, tau), 0),
-            ("task_force_of", (np.zeros(6), jac6, tau), 0),
+            ("null_space_damping", (np.zeros(n), jac3, dq, d, 0.01, tick_scratch(3, n)), 0),
+            ("null_space_damping", (np.zeros(n), jac6, dq, d, 0.01, tick_scratch(6, n)), 0),
+            ("task_force_of", (np.zeros(3), jac3, tau, tick_scratch(3, n)), 0),
+            ("task_force_of", (np.zeros(6), jac6, tau, tick_scratch(6, n)), 0),
             ("map_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
             ("unmap_point", (np.zeros(3), rot, 2.0, w3, x3), 0),
             ("map_vector_back", (np.zeros(3), rot, 0.5, x3), 0),
             ("coupling", (np.zeros(3), w3, v3, x3, v3 * 2, w3 * 3, x3), 0),
-            ("orientation_coupling", (np.zeros(3), w3, v3, rot, near_pi, x3), 0),
-            ("orientation_coupling", (np.zeros(3), w3, v3, rot, _rodrigues((0, 1, 0), 0.4) @ rot, x3), 0),
+            ("orientation_coupling", (np.zeros(3), w3, v3, rot, near_pi, x3, tick_scratch(3, 3)), 0),
+            (
+                "orientation_coupling",
+                (np.zeros(3), w3, v3, rot, turned, x3, tick_scratch(3, 3)),
+                0,
+            ),
         ]
         for name, args, out_index in calls:
             fn = getattr(ts, name, None) or getattr(eba_coupled, name)

@@ -35,10 +35,9 @@ from haptic_teleop.engine.compiled.arm_kernel import (
     borrowed,
     forward_sample,
     guarded,
-    tick_own,
+    loop_jit,
 )
 
-jit = numba.njit(cache=True, nogil=True)
 inline = numba.njit(cache=True, nogil=True, inline="always")
 part_jit = codec_link.part_jit  # compiled once, without reference counting
 
@@ -168,7 +167,7 @@ drive_arm_codec = driver.compose(
 )
 
 
-@jit  # type: ignore[misc]
+@loop_jit  # type: ignore[misc]
 def run_ticks_codec(
     n0: int,
     n1: int,
@@ -178,6 +177,7 @@ def run_ticks_codec(
     sw_own: Any,
     ov: np.ndarray,
     cols: np.ndarray,
+    own: np.ndarray,
     fwd_rel: np.ndarray,
     fwd_occ: np.ndarray,
     bwd_rel: np.ndarray,
@@ -212,10 +212,7 @@ def run_ticks_codec(
     direction's codec arrays (codec_host.CodecNet.args, the arm layout); scratch: 3 rows of
     9 (the sample, its rate, the decoder's output), shared by the directions; fX, fW, fA, bX, bW,
     bA: each direction's sample history, scratch and ACK link (CodecNet.history)."""
-    own = tick_own(ms_own, ss_own)
     world = (ms_own, ss_own, mw_own, sw_own, ov, cols, data, d0, own)
     fnet = ((fC, fS, fU, fB, fring, frec, fX, fW, fA), scratch, (fwd_rel, fwd_occ, fwd_hist, w0))
     bnet = ((bC, bS, bU, bB, bring, brec, bX, bW, bA), scratch, (bwd_rel, bwd_occ, bwd_hist, w0))
-    done = drive_arm_codec(n0, n1, world, fnet, bnet)
-    own[0, 0] = 0.0  # `own` lives until here, past every use of its views
-    return done  # type: ignore[no-any-return]
+    return drive_arm_codec(n0, n1, world, fnet, bnet)  # type: ignore[no-any-return]

@@ -213,6 +213,7 @@ class CompiledArm:
         self.sw = self._work(parts.slave)
         self.ov = operator_vector(parts, period_s)
         self.cols = column_starts(parts)
+        self.own = k.tick_array(self.ms, self.ss)
         self.width = len(parts.schema.columns)
 
     def take(self) -> None:
@@ -229,7 +230,7 @@ class CompiledArm:
         """Compile (or load from numba's cache) now, not in the timed loop: zero ticks."""
         rel, occ = np.full(1, -1, dtype=np.int64), np.zeros(1)
         args = (
-            0, 0, self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, rel, occ, rel, occ,
+            0, 0, self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, self.own, rel, occ, rel, occ,
             np.zeros((1, 6)), np.zeros((1, 9)), np.zeros((1, self.width)), 0, 0,
         )  # fmt: skip
         from haptic_teleop.compiling import first_compile
@@ -261,14 +262,14 @@ class CompiledArm:
 
         self.take()
         block = output.block
-        ms, ss, mw, sw, ov, cols = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols
+        ms, ss, mw, sw, ov, cols, own = self.ms, self.ss, self.mw, self.sw, self.ov, self.cols, self.own
         codec = self.codec
         run_ticks = self.ck.run_ticks_codec if codec else self.k.run_ticks
 
         def call(c0: int, c1: int, *network: Any) -> None:
             # (network: the schedules' window, rings, w0, then the codec arrays: `codec_tail`)
             w0, tail = network[-2:]
-            run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, *network[:-2], block, w0, output.start, *tail)
+            run_ticks(c0, c1, ms, ss, mw, sw, ov, cols, own, *network[:-2], block, w0, output.start, *tail)
 
         # the payloads' widths: x, v forward; x, v, f backward; with TDPA the sender's energy last
         extra = 1 if isinstance(self.parts.master.bound, CoupledTdpaBound) else 0

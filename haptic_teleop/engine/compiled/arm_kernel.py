@@ -60,6 +60,10 @@ jit = numba.njit(cache=True, nogil=True)
 # The tick's own helpers take the side tuples: inlined (numba IR), so a call does not copy the
 # tuples (36 and 17 array structs, by value) onto the stack.
 inline = numba.njit(cache=True, nogil=True, inline="always")
+# The tick loops without numba's reference counting (NRT): they allocate nothing (the host makes
+# every array), and the views and arguments of the tick's parts would otherwise be counted in and
+# out with atomic operations every tick (as the 1-DoF kernel's `loop_jit`).
+loop_jit = numba.njit(cache=True, nogil=True, _nrt=False)
 push1 = compile_tree(op.push1)
 sinusoid1 = compile_tree(op.sinusoid1)
 
@@ -357,13 +361,13 @@ drive_arm = driver.compose(
 )
 
 
-@inline  # type: ignore[misc]
-def tick_own(ms_own: Any, ss_own: Any) -> np.ndarray:
-    """The tick's vectors' own array (`arm_begin`), which the entry point keeps alive."""
-    return np.zeros((V_SIZE, max(ms_own[T_I][I_N], ss_own[T_I][I_N], 3)))
+def tick_array(ms: Any, ss: Any) -> np.ndarray:
+    """The tick's vectors (`arm_begin`'s V_* rows), made by the host once and handed to every call:
+    the loop allocates nothing, so it runs without numba's reference counting (`loop_jit`)."""
+    return np.zeros((V_SIZE, max(ms[T_I][I_N], ss[T_I][I_N], 3)))
 
 
-@jit  # type: ignore[misc]
+@loop_jit  # type: ignore[misc]
 def run_ticks(
     n0: int,
     n1: int,
@@ -373,6 +377,7 @@ def run_ticks(
     sw_own: Any,
     ov: np.ndarray,
     cols: np.ndarray,
+    own: np.ndarray,
     fwd_rel: np.ndarray,
     fwd_occ: np.ndarray,
     bwd_rel: np.ndarray,
@@ -383,14 +388,12 @@ def run_ticks(
     w0: int,
     d0: int,
 ) -> int:
-    """Ticks [n0, n1) of an arm scene, the composed tick. fwd_rel, fwd_occ, bwd_rel, bwd_occ hold
-    the window of ticks from w0 on; data the block of ticks from d0 on; the histories are rings (a
-    power of two deep) of the packets' payloads, indexed by seq."""
-    own = tick_own(ms_own, ss_own)
+    """Ticks [n0, n1) of an arm scene, the composed tick. `own`: the tick's vectors
+    (`tick_array`); fwd_rel, fwd_occ, bwd_rel, bwd_occ hold the window of ticks from w0 on; data
+    the block of ticks from d0 on; the histories are rings (a power of two deep) of the packets'
+    payloads, indexed by seq."""
     world = (ms_own, ss_own, mw_own, sw_own, ov, cols, data, d0, own)
-    done = drive_arm(n0, n1, world, (fwd_rel, fwd_occ, fwd_hist, w0), (bwd_rel, bwd_occ, bwd_hist, w0))
-    own[0, 0] = 0.0  # `own` lives until here, past every use of its views
-    return done  # type: ignore[no-any-return]
+    return drive_arm(n0, n1, world, (fwd_rel, fwd_occ, fwd_hist, w0), (bwd_rel, bwd_occ, bwd_hist, w0))  # type: ignore[no-any-return]
 
 
 @jit  # type: ignore[misc]
