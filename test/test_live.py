@@ -704,6 +704,16 @@ def test_next_tick_runs_late_ticks_up_to_the_bound_then_skips_to_the_newest():
     assert next_tick(10, 13 * P_NS + phase, P_NS, phase, 2) == (13, 3)
 
 
+def test_a_check_every_50_ticks_keeps_its_turn_when_the_loop_skips_the_multiples_of_50():
+    from haptic_teleop.nodes.rtloop import Every
+
+    every = Every(50)
+    # A busy loop that runs only odd indices (every 50th index skipped): the check still comes,
+    # once per 50 ticks run or skipped.
+    due = [i for i in range(1, 400, 3) if every(i)]
+    assert due == [1, 52, 103, 154, 205, 256, 307, 358]
+
+
 def test_member_ticks_between_counts_a_slower_members_own_deadlines():
     from haptic_teleop.nodes.rtloop import member_ticks_between
 

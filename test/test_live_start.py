@@ -83,11 +83,12 @@ def test_scene_time_starts_only_once_the_slave_has_sent_a_sample():
         assert slave.get_subscription_count() > 0  # the operator listens for the slave's state
         assert not started, "scene time announced before the slave sent a sample"
         # The slave's first sample: now the graph is up and scene time 0 is announced (latched).
-        assert spin_until(lambda: bool(started), True), "no scene start after the slave's sample"
+        announced = spin_until(lambda: bool(started), True)
     finally:
         proc.terminate()
         out = proc.communicate(timeout=30)[0]
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+    assert announced, f"no scene start after the slave's sample; the operator source printed:\n{out}"
     assert "Traceback" not in out, out
     assert "graph is up" in out, out

@@ -24,6 +24,7 @@ from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.messages import JointStateOut, SpecOut, take_all
 from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.rtloop import Every
 from haptic_teleop.nodes.topics import (
     NVE_OBJECT_STATE,
     READER_DEPTH,
@@ -98,6 +99,7 @@ class NveServer(LiveNode):
         self.start_index: int | None = None
         self.started = False
         self._created_ns = self.now_ns()
+        self._check_graph = Every(50)
         self.received = [0] * len(self.client_names_)  # HIP samples taken, per client
         self.up_rx_seq = [-1] * len(self.client_names_)  # scene tick of the newest HIP sample, per client
         self.setup_loop(period_ns)
@@ -119,7 +121,7 @@ class NveServer(LiveNode):
 
     def tick(self, index: int, stamp_ns: int) -> None:
         if self.start_index is None:
-            if index % 50 == 0 and self._graph_ready():
+            if self._check_graph(index) and self._graph_ready():
                 first = index + max(1, -(-self.start_delay_ns // self.period_ns))
                 self.start_index = first
                 self._publish_start(first * self.period_ns)

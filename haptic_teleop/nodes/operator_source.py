@@ -22,6 +22,7 @@ from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
 from haptic_teleop.nodes.messages import JointStateOut, take_latest
 from haptic_teleop.nodes.params import declare_scene, declare_value
+from haptic_teleop.nodes.rtloop import Every
 from haptic_teleop.nodes.topics import (
     JOINT_ORDER,
     MASTER_JOINT,
@@ -106,6 +107,7 @@ class OperatorSource(LiveNode):
         self.start_index: int | None = None  # the tick of scene time 0, announced once the graph is up
         self.started = False  # scene time has begun
         self._ready_ns: int | None = None
+        self._check_graph = Every(50)
         self._created_ns = self.now_ns()
         self.setup_loop(period_ns)
 
@@ -170,7 +172,7 @@ class OperatorSource(LiveNode):
             x, v = self._read_master(m)[1]
             self._master = ([x], [v])
         if self.start_index is None:
-            if index % 50 == 0 and self._graph_ready():
+            if self._check_graph(index) and self._graph_ready():
                 self._ready_ns = stamp_ns
                 # Scene time 0: the first tick at least start.delay_s after now, announced now (latched)
                 # so every node knows it before it comes (the arm nodes restart their energy ledgers

@@ -50,6 +50,22 @@ def next_tick(k: int, now_ns: int, period_ns: int, phase_ns: int, max_catch_up: 
     return newest, newest - k
 
 
+class Every:
+    """True on the first tick and then once `ticks` ticks on, counted from the index a tick ran
+    at: a test of `index % ticks == 0` would miss its turn whenever the loop skips that index
+    (a busy machine; next_tick), and may then miss it for many turns."""
+
+    def __init__(self, ticks: int) -> None:
+        self.ticks = ticks
+        self.next = 0
+
+    def __call__(self, index: int) -> bool:
+        if index < self.next:
+            return False
+        self.next = index + self.ticks
+        return True
+
+
 def _tight_timer_slack() -> None:
     """Ask Linux for 1 us timer slack on this thread (default 50 us): sleeps end closer to the deadline."""
     try:
