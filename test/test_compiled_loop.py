@@ -84,6 +84,10 @@ CASES = {
         ],
     ),
     "wave_loss": ("wall_contact", [*WAVE, f"{BWD}.effects.loss.probability=0.2"]),
+    "wave_matched_loss": (
+        "wall_contact",
+        [*WAVE, "controllers.slave.eba.wave_matched=true", f"{FWD}.effects.loss.probability=0.2"],
+    ),
     "wave_filtered_drift_jitter": (
         "wall_contact",
         [

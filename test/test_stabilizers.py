@@ -53,6 +53,7 @@ VARIANTS = {
     "off": TDPA + hc.UNPROTECTED,
     "wave": WAVE,
     "wave_filtered": WAVE_FILTERED,
+    "wave_matched": (*WAVE, "controllers.slave.eba.wave_matched=true"),
 }
 # The hard cases TDPA can run: the slew-limit case is refused (the law does not model a slew limit).
 CASES = [c for c in hc.CASES if c.name != "actuator_slew_200_n_per_s"]
@@ -210,6 +211,22 @@ def test_the_slaves_port_delivers_what_the_wave_brought_minus_what_it_sends_back
     assert 0.5 * (u * u - back * back) == pytest.approx(f * xd_dot, rel=1e-7, abs=1e-7 * scale)
 
 
+@given(u=powers, x=st.floats(-0.1, 0.1), v=speeds, dx=st.floats(-0.01, 0.01), b=st.floats(0.1, 1e3))
+def test_the_matched_slaves_port_reflects_nothing_and_its_damper_takes_the_rest(
+    u: float, x: float, v: float, dx: float, b: float
+) -> None:
+    """Matched (a damper b in parallel at the channel's end): the wave back is the robot's force
+    alone, -F / s, and what the wave brought minus what goes back is F xdot_d plus the damper's
+    b xdot_d^2 (docs/stabilizers.md, "Impedance matching")."""
+    s = math.sqrt(2.0 * b)
+    f, back, xd_dot = slave_wave1(u, x, v, x + dx, s, b, 4000.0, 40.0, True)
+    assert back == -f / s
+    scale = u * u + f * f / b + 1e-300
+    assert 0.5 * (u * u - back * back) == pytest.approx((f + b * xd_dot) * xd_dot, rel=1e-7, abs=1e-7 * scale)
+    kept = consistent1(back, u, (f + b * xd_dot) * xd_dot)
+    assert kept == pytest.approx(back, rel=1e-6, abs=1e-6 * (abs(u) + 1e-300))
+
+
 @given(sent=powers, got=powers, power=powers)
 def test_a_consistent_wave_never_carries_more_than_the_port_got(sent: float, got: float, power: float) -> None:
     out = consistent1(sent, got, power)
@@ -291,12 +308,38 @@ def test_tdpa_with_the_zoh_controller_keeps_the_two_port_passive(margins: Any, c
     assert summary["two_port_energy_margin_min_j"] == pytest.approx(float(np.min(margin)), abs=max(eps, 1e-12))
 
 
-@pytest.mark.parametrize("variant", ["wave", "wave_filtered"])
+@pytest.mark.parametrize("variant", ["wave", "wave_filtered", "wave_matched"])
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
 def test_wave_variables_keep_the_two_port_passive(margins: Any, case: hc.Case, variant: str) -> None:
     margin, eps, summary = margins(case, variant)
     assert summary["all_finite"]
     assert float(np.min(margin)) >= -eps, (float(np.min(margin)), eps)
+
+
+def test_a_matched_slave_stops_where_the_unmatched_one_rings(tmp_path: Path) -> None:
+    """A free move over 100 ms each way (the wall out of reach, the hand 3 cm at 0.2 m/s, then
+    still): the unmatched slave returns the master's wave, which comes back to it a round trip
+    later, again and again, so it overshoots and is still moving seconds after the hand stopped;
+    matched, the wave is absorbed at the slave's end. Judged from the bags' positions."""
+    net = [f"network.{d}.effects={{}}" for d in ("forward", "backward")]
+    net += [f"network.{d}.effects.delay={{delay_s: 0.1}}" for d in ("forward", "backward")]
+    move = ["scene.duration_s=4", "slave.wall.position_m=0.5", "operator.start_s=0.2",
+            "operator.speed_m_per_s=0.2", "operator.distance_m=0.03"]  # fmt: skip
+    got = {}
+    for matched in (False, True):
+        scene = load_scene(
+            find_scene("wall_contact"), overrides=[*WAVE, *net, *move, f"controllers.slave.eba.wave_matched={matched}"]
+        )
+        bag = tmp_path / f"matched-{matched}"
+        record_run(scene, bag, parallel=False, handle_sigint=False)
+        summary, sig = analyze_bag(bag)
+        xs = np.asarray(sig.slave_x_m)
+        late = np.arange(xs.size) * sig.period_s > 1.5  # the hand stopped at 0.35 s
+        got[matched] = (float(xs.max() - xs[-1]), float(np.sqrt(np.mean(np.gradient(xs, sig.period_s)[late] ** 2))))
+        assert summary["two_port_energy_margin_min_j"] >= 0.5 - 1e-9
+    (over_u, ring_u), (over_m, ring_m) = got[False], got[True]
+    assert over_u > 5e-3 and ring_u > 1e-3, got  # 13.6 mm over, 6.3 mm/s still
+    assert over_m < 0.1 * over_u and ring_m < 0.01 * ring_u, got  # 0.09 mm, 0.03 mm/s
 
 
 def test_a_saturated_port_that_sent_its_unsaturated_wave_makes_energy(tmp_path: Path, monkeypatch: Any) -> None:
@@ -342,6 +385,7 @@ def test_the_fields_velocity_controller_loses_passivity_over_a_zero_order_hold(m
         (("controllers.slave.eba.law=wave",), "wave on one side only"),
         ((*WAVE, "controllers.slave.eba.wave_impedance_n_s_per_m=5"), "differs from the master's"),
         ((*WAVE, "controllers.master.eba.wave_filter_hz=600"), "below the Nyquist"),
+        ((*WAVE, "controllers.master.eba.wave_matched=true"), "the master's port is not matched"),
     ],
 )
 def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], words: str) -> None:

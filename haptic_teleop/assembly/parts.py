@@ -137,7 +137,8 @@ def build_controller(
     if cfg.eba.law == "wave":
         from haptic_teleop.core.wave import WaveParams
 
-        wave = WaveParams(cfg.eba.wave_impedance_n_s_per_m, cfg.eba.wave_filter_hz, cfg.eba.wave_drift_gain_per_s)
+        e = cfg.eba
+        wave = WaveParams(e.wave_impedance_n_s_per_m, e.wave_filter_hz, e.wave_drift_gain_per_s, e.wave_matched)
     return TeleopController(params, bound, wave)
 
 

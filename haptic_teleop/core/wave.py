@@ -16,6 +16,11 @@ A delay only stores wave energy in transit, so the channel is passive for any co
   pulls the robot toward the reference x_d, whose velocity solves the port equations together
   with the spring's force: xdot_d = (s u - K (x_d - x) + B v) / (b + B), F = K (x_d - x) +
   B (xdot_d - v), and it sends w = u - 2 F / s (`slave_wave1`).
+- **Impedance matching** (optional, slave): the slave's port terminated in the wave impedance, a
+  damper b in parallel at the channel's end, so free motion sends no wave back (the unmatched
+  port returns w = u - 2 F / s, all of u when F = 0: the master feels its own motion again a
+  round trip later, and again, an echo). Matched: xdot_d = (s u - K (x_d - x) + B v) / (2 b + B)
+  and w = -F / s: the wave back carries the robot's force alone (`slave_wave1`, `matched`).
 - **Each received wave is used once.** A tick without a new sample uses 0 (a held wave would
   release its energy again each tick); so loss, jitter, reordering and duplicates never give
   out more wave energy than was sent.
@@ -49,6 +54,7 @@ class WaveParams:
     impedance_n_s_per_m: float  # b
     filter_hz: float | None = None  # the incoming wave's low-pass cutoff; None: no filter
     drift_gain_per_s: float = 0.0  # the slave's drift correction rate; 0: none
+    matched: bool = False  # the slave's port terminated in the wave impedance (no reflection)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.impedance_n_s_per_m < math.inf:
@@ -65,13 +71,16 @@ def master_wave1(w: float, v: float, s: float, b: float) -> tuple[float, float]:
 
 
 def slave_wave1(
-    u: float, x: float, v: float, xd: float, s: float, b: float, k: float, c: float
+    u: float, x: float, v: float, xd: float, s: float, b: float, k: float, c: float, matched: bool = False
 ) -> tuple[float, float, float]:
     """The slave's port with its local spring k and damper c toward the reference xd: (force on the
-    robot, wave sent back, the reference's velocity)."""
-    xd_dot = (s * u - k * (xd - x) + c * v) / (b + c)
+    robot, wave sent back, the reference's velocity). `matched`: a damper b in parallel at the
+    channel's end (the port's force b xdot_d + F), which reflects nothing of u (docs/stabilizers.md,
+    "Impedance matching")."""
+    m = 2.0 * b if matched else b
+    xd_dot = (s * u - k * (xd - x) + c * v) / (m + c)
     f = k * (xd - x) + c * (xd_dot - v)
-    return f, u - 2.0 * f / s, xd_dot
+    return f, (-f / s if matched else u - 2.0 * f / s), xd_dot
 
 
 def consistent1(sent: float, got: float, power: float) -> float:
@@ -114,11 +123,13 @@ def wave1(
     c: float,
     a: float,
     drift_gain: float,
+    matched: bool,
 ) -> tuple[float, float, float, float, float, float]:
     """One side's port, one tick (the rule once: `WaveSide.port1` and the compiled loop run it): the
     ledger books the last hold of `held` (from `last_x` to `x`; the reference starts at `x`), the
     received wave `w_in` is used if `fresh` (else 0), filtered (pole `a`), the master's or the
-    slave's port equations (the slave's drift correction toward `remote_x` at `drift_gain`), the
+    slave's port equations (the slave's drift correction toward `remote_x` at `drift_gain`, its
+    impedance matching if `matched`), the
     force saturated at `limit`, the wave sent kept consistent with the force applied. Returns (the
     ledger, the slave's reference, the filter's state, the port's force, the force applied, the
     wave to send)."""
@@ -137,9 +148,10 @@ def wave1(
     else:
         if drift_gain > 0.0:
             got = drift1(got, (b + c) / s * drift_gain * (remote_x - xd))
-        f, sent, xd_dot = slave_wave1(got, x, v, xd, s, b, k, c)
+        f, sent, xd_dot = slave_wave1(got, x, v, xd, s, b, k, c, matched)
         fa = saturated1(f, limit)
-        sent = consistent1(sent, got, fa * xd_dot)
+        # What the port gave: the force applied, and the matching damper's b xdot_d, at xdot_d.
+        sent = consistent1(sent, got, (fa + b * xd_dot if matched else fa) * xd_dot)
         xd += xd_dot * t
     energy -= 0.5 * sent * sent * t
     return energy, xd, wf, f, fa, sent
@@ -174,6 +186,7 @@ class WaveSide:
         self._k, self._c = stiffness_n_per_m, damping_n_s_per_m
         self.pole = 0.0 if params.filter_hz is None else math.exp(-2.0 * math.pi * params.filter_hz * period_s)
         self._lambda = params.drift_gain_per_s
+        self._matched = params.matched and not master  # a slave's termination (the master's port has none)
         self._w_in = 0.0
         self._fresh = False
         self._remote_x = 0.0
@@ -203,7 +216,7 @@ class WaveSide:
         e, self._xd, self._wf, f, fa, sent = wave1(
             self.master, self.energy_j[0], self._held, self._last_x, self._started, self._xd, self._wf,
             self._w_in, self._fresh, self._remote_x, x, v, min(limit, self.clip_n), self._t, self.s, self._b,
-            self._k, self._c, self.pole, self._lambda,
+            self._k, self._c, self.pole, self._lambda, self._matched,
         )  # fmt: skip
         self.energy_j[0] = e
         self._started = True

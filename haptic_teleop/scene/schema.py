@@ -439,6 +439,13 @@ class EBAConfig:
         default=0.0,
         metadata={"min": 0.0, "max": 1e4, "help": "law wave (slave): the drift correction's rate; 0: none"},
     )
+    wave_matched: bool = field(
+        default=False,
+        metadata={
+            "help": "law wave (slave): terminate the slave's port in the wave impedance, so free motion "
+            'reflects no wave back (docs/stabilizers.md, "Impedance matching")'
+        },
+    )
     tdpa_controller: str = field(
         default="velocity",
         metadata={
@@ -682,6 +689,12 @@ class Scene:
             raise ValueError(
                 f"controllers.slave.eba.wave_impedance_n_s_per_m ({s.wave_impedance_n_s_per_m:g}) differs from the "
                 f"master's ({m.wave_impedance_n_s_per_m:g}); allowed: one wave impedance for the channel"
+            )
+        if m.wave_matched:
+            raise ValueError(
+                "controllers.master.eba.wave_matched: the master's port is not matched (a series damper would halve "
+                'the force the hand feels; docs/stabilizers.md, "Impedance matching"); allowed: '
+                "controllers.slave.eba.wave_matched"
             )
         nyquist = 0.5 / self.scene.period_s
         for side, e in (("master", m), ("slave", s)):

@@ -97,6 +97,7 @@ from haptic_teleop.engine.compiled.layout import (
     P_W,
     P_WAVE_A,
     P_WAVE_B,
+    P_WAVE_MATCHED,
     P_WAVE_S,
     P_X0,
     P_X_END,
@@ -391,6 +392,7 @@ def parameters(parts: AxisParts, period_s: float) -> np.ndarray:
             P[side + P_WAVE_S] = ctrl.wave.s
             P[side + P_WAVE_A] = ctrl.wave.pole
             P[side + P_DRIFT] = w.drift_gain_per_s
+            P[side + P_WAVE_MATCHED] = 1.0 if w.matched and not ctrl.wave.master else 0.0
     o = parts.operator
     oc = o.constants()
     P[OP + P_PROFILE] = PROFILE_CODES[oc.profile]

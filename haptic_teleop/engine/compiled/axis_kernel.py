@@ -57,6 +57,7 @@ from haptic_teleop.engine.compiled.layout import (
     P_W,
     P_WAVE_A,
     P_WAVE_B,
+    P_WAVE_MATCHED,
     P_WAVE_S,
     P_X0,
     P_X_END,
@@ -139,6 +140,7 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
             master, S[side + S_ENERGY], S[side + S_HELD], S[side + S_LAST], S[side + S_HAS_LAST] != 0.0, S[X + 4],
             S[X + 3], S[X], S[X + 1] != 0.0, S[X + 2], x, v, P[side + P_CAP], P[P_PERIOD_S], P[side + P_WAVE_S],
             P[side + P_WAVE_B], P[side + P_C1], P[side + P_C2], P[side + P_WAVE_A], P[side + P_DRIFT],
+            P[side + P_WAVE_MATCHED] != 0.0,
         )  # fmt: skip
         S[X + 1] = 0.0  # each received wave is used once
     else:

@@ -13,8 +13,9 @@ P_GUARD_ON, P_LIM0, P_LIM1, P_LIM2, P_PLANT_LIMIT, P_SUBSTEPS = 8, 9, 10, 11, 12
 P_ACT_LIMIT, P_SLEW_STEP = 14, 15  # the actuator limits the bound models (inf: none)
 # the side's stabilizer (`controllers.<side>.eba.law`, the LAW_* codes) and its constants: TDPA's
 # reflection and force cap, the initial energy; wave variables' s = sqrt(2 b), b, filter pole,
-# drift gain; the guard's fourth limit (a TDPA sample's energy)
+# drift gain; the guard's fourth limit (a TDPA sample's energy); the slave's wave matching (1: on)
 P_LAW, P_REFLECT, P_CAP, P_E0, P_WAVE_S, P_WAVE_B, P_WAVE_A, P_DRIFT, P_LIM3 = 16, 17, 18, 19, 20, 21, 22, 23, 24
+P_WAVE_MATCHED = 25
 # the operator and the clock, in P
 OP = 64
 P_PROFILE, P_X0, P_K, P_B, P_START, P_SPEED, P_T_END, P_X_END, P_AMP, P_W = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9

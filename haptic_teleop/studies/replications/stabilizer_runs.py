@@ -43,6 +43,14 @@ LAWS: dict[str, tuple[str, tuple[str, ...]]] = {
     ),
     "tdpa_velocity": ("TDPA, velocity controller", _TDPA),
     "wave": ("wave variables, b 20 N s/m", ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")),
+    "wave_matched": (
+        "wave variables, the slave matched",
+        (
+            "controllers.master.eba.law=wave",
+            "controllers.slave.eba.law=wave",
+            "controllers.slave.eba.wave_matched=true",
+        ),
+    ),
     "wave_filtered": (
         "wave variables, 50 Hz wave filter, drift 5/s",
         (
