@@ -83,6 +83,25 @@ CASES = {
             f"{BWD}.buffer.policy=fixed",
         ],
     ),
+    # TDPA's admittance placement on both sides, where the controllers act (stiff coupling), with loss.
+    "tdpa_zoh_admittance_stiff_loss": (
+        "wall_contact",
+        [
+            *TDPA,
+            *(
+                f"controllers.{s}.{k}"
+                for s in ("master", "slave")
+                for k in (
+                    "eba.tdpa_controller=zoh",
+                    "eba.tdpa_placement=admittance",
+                    "eba.tdpa_drift_gain_per_s=2",
+                    "stiffness_n_per_m=1e6",
+                    "damping_n_s_per_m=1e4",
+                )
+            ),
+            f"{FWD}.effects.loss.probability=0.2",
+        ],
+    ),
     "wave_loss": ("wall_contact", [*WAVE, f"{BWD}.effects.loss.probability=0.2"]),
     "wave_matched_loss": (
         "wall_contact",

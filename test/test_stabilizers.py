@@ -21,8 +21,9 @@ from hypothesis import strategies as st
 
 from haptic_teleop.analysis.metrics import analyze_bag, port_energy, simulator_damping
 from haptic_teleop.core.controller import ControllerParams, RemoteLimits, TeleopController
+from haptic_teleop.core.eba import coupling1
 from haptic_teleop.core.eba_state import EnergyBoundParams
-from haptic_teleop.core.tdpa import TdpaBound, observe1, reflected1, velocity_pc1, zoh_pc1
+from haptic_teleop.core.tdpa import TdpaBound, observe1, reflected1, slipped1, velocity_pc1, zoh_pc1
 from haptic_teleop.core.wave import consistent1, drift1, filter1, master_wave1, slave_wave1
 from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import ConfigError
@@ -46,8 +47,10 @@ def _reflect(rho: float) -> tuple[str, ...]:
     return tuple(f"controllers.{side}.eba.tdpa_reflection={rho}" for side in ("master", "slave"))
 
 
+ADMITTANCE = ("controllers.slave.eba.tdpa_placement=admittance", "controllers.slave.eba.tdpa_drift_gain_per_s=2")
 VARIANTS = {
     "zoh": ZOH,
+    "zoh_admittance": (*ZOH, *ADMITTANCE),
     "zoh_reflect": (*ZOH, *_reflect(0.5)),
     "velocity": TDPA,
     "off": TDPA + hc.UNPROTECTED,
@@ -227,6 +230,24 @@ def test_the_matched_slaves_port_reflects_nothing_and_its_damper_takes_the_rest(
     assert kept == pytest.approx(back, rel=1e-6, abs=1e-6 * (abs(u) + 1e-300))
 
 
+@given(
+    ra=st.floats(-0.1, 0.1), slip=st.floats(-0.05, 0.05), x=st.floats(-0.1, 0.1), v=speeds, rb=speeds,
+    cut=st.floats(-50.0, 50.0), k=st.floats(1.0, 1e6), c=st.floats(0.0, 1e4),
+)  # fmt: skip
+def test_the_admittance_placement_leaves_the_spring_holding_the_force_let_through(
+    ra: float, slip: float, x: float, v: float, rb: float, cut: float, k: float, c: float
+) -> None:
+    """After `slipped1` (no drift gain) the coupling on the moved reference gives exactly the force
+    the controller let through, whatever it cut (docs/stabilizers.md, "Admittance placement")."""
+    before = coupling1(k, c, ra + slip, rb, x, v)
+    after = before + cut
+    moved = slipped1(slip, before, after, k, 0.0)
+    assert coupling1(k, c, ra + moved, rb, x, v) == pytest.approx(
+        after, rel=1e-6, abs=1e-6 * (abs(before) + abs(cut) + k * 0.3)
+    )
+    assert slipped1(slip, before, after, k, 0.25) == pytest.approx(0.75 * moved)  # a quarter of the way back
+
+
 @given(sent=powers, got=powers, power=powers)
 def test_a_consistent_wave_never_carries_more_than_the_port_got(sent: float, got: float, power: float) -> None:
     out = consistent1(sent, got, power)
@@ -298,7 +319,7 @@ def margins(tmp_path_factory: pytest.TempPathFactory) -> Any:
     return get
 
 
-@pytest.mark.parametrize("variant", ["zoh", "zoh_reflect"])
+@pytest.mark.parametrize("variant", ["zoh", "zoh_reflect", "zoh_admittance"])
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
 def test_tdpa_with_the_zoh_controller_keeps_the_two_port_passive(margins: Any, case: hc.Case, variant: str) -> None:
     margin, eps, summary = margins(case, variant)
@@ -314,6 +335,18 @@ def test_wave_variables_keep_the_two_port_passive(margins: Any, case: hc.Case, v
     margin, eps, summary = margins(case, variant)
     assert summary["all_finite"]
     assert float(np.min(margin)) >= -eps, (float(np.min(margin)), eps)
+
+
+def test_the_admittance_placement_does_not_throw_the_stretched_spring_at_the_wall(margins: Any) -> None:
+    """A stiff coupling (1e6 N/m, the huge-gains case): the slave's impedance-type controller holds
+    the force down while its budget is short, but its spring stays stretched to the received
+    position, and the force comes back in full when energy arrives: the wall gets 21 N. The
+    admittance placement moves the reference instead (a slip, recovered at 2/s), so what comes
+    back is what the budget allows: 3.4 N. Judged from the bags' wall force."""
+    case = next(c for c in CASES if c.name == "huge_coupling_gains")
+    impedance, admittance = (margins(case, v)[2]["contact_force_max_n"] for v in ("zoh", "zoh_admittance"))
+    assert impedance > 10.0, impedance
+    assert admittance < 0.5 * impedance, (admittance, impedance)
 
 
 def test_a_matched_slave_stops_where_the_unmatched_one_rings(tmp_path: Path) -> None:
@@ -386,6 +419,14 @@ def test_the_fields_velocity_controller_loses_passivity_over_a_zero_order_hold(m
         ((*WAVE, "controllers.slave.eba.wave_impedance_n_s_per_m=5"), "differs from the master's"),
         ((*WAVE, "controllers.master.eba.wave_filter_hz=600"), "below the Nyquist"),
         ((*WAVE, "controllers.master.eba.wave_matched=true"), "the master's port is not matched"),
+        (
+            (*ZOH, "controllers.master.law=force", "controllers.master.eba.tdpa_placement=admittance"),
+            "controllers.master.law force has none",
+        ),
+        (
+            (*ZOH, ADMITTANCE[0], "controllers.slave.eba.tdpa_drift_gain_per_s=1000", "scene.period_s=0.002"),
+            "at most 1 / scene.period_s = 500",
+        ),
     ],
 )
 def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], words: str) -> None:

@@ -189,6 +189,7 @@ def test_each_arm_sample_carries_the_senders_pooled_input_energy_last(tmp_path: 
     [
         (("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave"), "controllers.master.eba.law"),
         (("slave.slew_nm_per_s=[100, 100, 100, 100, 100, 100]", *TDPA), "slave.slew_nm_per_s"),
+        ((*TDPA, "controllers.slave.eba.tdpa_placement=admittance"), "controllers.slave.eba.tdpa_placement"),
     ],
 )
 def test_what_tdpa_on_arms_cannot_run_is_refused_naming_the_key(overrides: tuple[str, ...], key: str) -> None:

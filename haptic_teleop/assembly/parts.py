@@ -132,6 +132,8 @@ def build_controller(
         law=cfg.eba.law,
         tdpa_controller=cfg.eba.tdpa_controller,
         tdpa_reflection=cfg.eba.tdpa_reflection,
+        tdpa_placement=cfg.eba.tdpa_placement,
+        tdpa_drift_gain_per_s=cfg.eba.tdpa_drift_gain_per_s,
     )
     wave = None
     if cfg.eba.law == "wave":

@@ -239,6 +239,9 @@ class TeleopController:
         off = self._off
         c1 = self._c1
         c2 = self._c2
+        t = self.tdpa
+        if t is not None and t.admittance:  # the admittance placement's reference: offset by its slip
+            return [coupling1(c1, c2, r[off + i] + t.slip_m[i], r[off + n + i], x[i], v[i]) for i in range(n)]
         return [coupling1(c1, c2, r[off + i], r[off + n + i], x[i], v[i]) for i in range(n)]
 
     def step(self, x: Sequence[float], v: Sequence[float]) -> list[float]:
@@ -250,6 +253,10 @@ class TeleopController:
         sat = [saturated1(f, lim) for f in desired]
         self.force_desired[:] = desired
         applied = self.bound.step(x, sat)
+        t = self.tdpa
+        if t is not None and not self._force_law:
+            for i in range(self._n):
+                t.slip(i, sat[i], applied[i], self._c1)
         self.force_applied[:] = applied
         return applied
 
@@ -269,7 +276,15 @@ class TeleopController:
             desired, f = command1(True, True, self._gain, 0.0, 0.0, r[0], 0.0, x, v, self._limit)
         else:
             off = self._off
-            desired, f = command1(True, False, 0.0, self._c1, self._c2, r[off], r[off + 1], x, v, self._limit)
+            t = self.tdpa
+            ra = r[off] + t.slip_m[0] if t is not None and t.admittance else r[off]  # admittance: its reference
+            desired, f = command1(True, False, 0.0, self._c1, self._c2, ra, r[off + 1], x, v, self._limit)
+            self.force_desired[0] = desired
+            out = self.bound.step1(x, f)
+            if t is not None:
+                t.slip(0, f, out, self._c1)
+            self.force_applied[0] = out
+            return out
         self.force_desired[0] = desired
         f = self.bound.step1(x, f)
         self.force_applied[0] = f

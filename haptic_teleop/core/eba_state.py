@@ -51,6 +51,11 @@ class EnergyBoundParams:
     # sends all of it, the network-aware standard).
     tdpa_controller: str = "velocity"
     tdpa_reflection: float = 0.0
+    # Where TDPA's passivity controller acts: "impedance" (on the force, the field's default) or
+    # "admittance" (on the side's reference position: the coupling's reference slips, and returns
+    # toward the received position at `tdpa_drift_gain_per_s`; core/tdpa.py, docs/stabilizers.md).
+    tdpa_placement: str = "impedance"
+    tdpa_drift_gain_per_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.law not in EBA_LAWS:
@@ -61,6 +66,10 @@ class EnergyBoundParams:
             )
         if not 0.0 <= self.tdpa_reflection <= 1.0:
             raise ValueError(f"tdpa_reflection must be in [0, 1], got {self.tdpa_reflection}")
+        if self.tdpa_placement not in ("impedance", "admittance"):
+            raise ValueError(f"tdpa_placement must be impedance or admittance, got {self.tdpa_placement!r}")
+        if not 0.0 <= self.tdpa_drift_gain_per_s * self.period_s <= 1.0:
+            raise ValueError(f"tdpa_drift_gain_per_s must be in [0, 1 / period_s], got {self.tdpa_drift_gain_per_s}")
         for name in ("force_limit_n", "slew_rate_n_per_s"):
             v = getattr(self, name)
             if v is not None and not 0.0 < v < math.inf:

@@ -21,6 +21,16 @@ Two passivity controllers (`controllers.<side>.eba.tdpa_controller`):
   T can release at most F^2 T / (4 b) beyond what the damper takes, so |F| <= sqrt(4 b W / T).
   This one holds for every motion of the device, whatever the sampling.
 
+Two placements of the passivity controller (`controllers.<side>.eba.tdpa_placement`):
+- "impedance": it acts on the force (the controllers above).
+- "admittance": it acts on the side's reference instead. The coupling's reference is the received
+  position plus a slip; whatever the controller takes off the force moves the slip by that force
+  over the coupling's stiffness, so the spring then holds the force the controller let through,
+  and the slip returns toward the received position at `tdpa_drift_gain_per_s` (`slipped1`). The
+  force held is still the controller's, so the passivity argument is the impedance one; what
+  differs is what follows a shortage: a reference that yielded (drift, recovered gradually)
+  instead of a spring still stretched to the received position (docs/stabilizers.md).
+
 Scalar functions of floats (the rule, written once, for the Python loop and any compiled loop);
 `TdpaBound` is the per-side object with the bound interface `TeleopController` uses.
 """
@@ -37,7 +47,8 @@ TDPA_CONTROLLERS = ("velocity", "zoh")
 # The largest cumulative port energy a packet may carry (J): beyond it a sample is a fault.
 ENERGY_LIMIT_J = 1e9
 # What a one-axis TdpaBound carries beyond `AxisBoundState`'s four values, in `extra`'s order.
-TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j")
+TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j", "slip_m")
+TDPA_PLACEMENTS = ("impedance", "admittance")
 
 
 def observe1(energy_in: float, energy_out: float, held: float, dx: float) -> tuple[float, float]:
@@ -76,6 +87,16 @@ def reflected1(budget: float, energy_in: float, reflection: float) -> tuple[floa
     what its samples carry). Both parts only grow, and no energy is counted on both sides."""
     kept = reflection * energy_in
     return budget + kept, energy_in - kept
+
+
+def slipped1(slip: float, before: float, after: float, stiffness: float, recover: float) -> float:
+    """The admittance-type controller's reference offset after a tick: moved by what the controller
+    took off the force (`after - before`) over the coupling's `stiffness`, so that the spring holds
+    the force let through, then a fraction `recover` (drift gain times T) of the way back to 0
+    (the received position)."""
+    if stiffness > 0.0:
+        slip += (after - before) / stiffness
+    return slip - recover * slip
 
 
 def zoh_pc1(force: float, budget: float, bound_gain: float) -> float:
@@ -143,13 +164,16 @@ class TdpaBound:
         "_last",
         "_reflect",
         "_zoh",
+        "admittance",
         "cap_n",
         "energy_in_j",
         "energy_j",
         "energy_out_j",
         "params",
+        "recover",
         "remote_in_j",
         "sent_j",
+        "slip_m",
     )
 
     def __init__(self, params: EnergyBoundParams, force_cap_n: float, controller: str = "velocity") -> None:
@@ -176,6 +200,16 @@ class TdpaBound:
         self._held = [0.0] * n
         self._last = [0.0] * n
         self._has_last = False
+        # The admittance placement's reference offset per axis (the controller applies it: `slip`).
+        self.admittance = params.tdpa_placement == "admittance"
+        self.recover = params.tdpa_drift_gain_per_s * params.period_s
+        self.slip_m = [0.0] * n
+
+    def slip(self, i: int, before: float, after: float, stiffness: float) -> None:
+        """The admittance placement, axis `i`: the reference's offset after the controller took the
+        force from `before` to `after` (`slipped1`); nothing with the impedance placement."""
+        if self.admittance:
+            self.slip_m[i] = slipped1(self.slip_m[i], before, after, stiffness, self.recover)
 
     def receive(self, energy_in: Sequence[float]) -> None:
         """The remote side's cumulative input energy, per axis, from the newest accepted sample. A
@@ -222,7 +256,10 @@ class TdpaBound:
         """A one-axis bound's state (ValueError for more axes), as `EnergyBound.axis_state`: the
         budget W, the held force, the last position, whether there was one, and `TDPA_EXTRA`."""
         self._one_axis()
-        extra = (self.energy_in_j[0], self.energy_out_j[0], self.remote_in_j[0], self._credit[0], self.sent_j[0])
+        extra = (
+            self.energy_in_j[0], self.energy_out_j[0], self.remote_in_j[0], self._credit[0], self.sent_j[0],
+            self.slip_m[0],
+        )  # fmt: skip
         return AxisBoundState(self.energy_j[0], self._held[0], self._last[0], self._has_last, extra)
 
     def set_axis_state(self, state: AxisBoundState) -> None:
@@ -233,7 +270,7 @@ class TdpaBound:
             state.energy_j, state.held_n, state.last_x_m, state.has_last,
         )  # fmt: skip
         if state.extra:
-            e_in, e_out, self.remote_in_j[0], self._credit[0], sent = state.extra
+            e_in, e_out, self.remote_in_j[0], self._credit[0], sent, self.slip_m[0] = state.extra
             self.energy_in_j[0], self.energy_out_j[0] = e_in, e_out
             self.sent_j[0] = sent
 

@@ -463,6 +463,23 @@ class EBAConfig:
             "(energy reflection) instead of sending it; 0: the network-aware standard (docs/stabilizers.md)",
         },
     )
+    tdpa_placement: str = field(
+        default="impedance",
+        metadata={
+            "choices": ("impedance", "admittance"),
+            "help": "law tdpa: where the passivity controller acts: impedance (on the force) or admittance (on "
+            "the coupling's reference position, which slips and returns at tdpa_drift_gain_per_s; "
+            "docs/stabilizers.md)",
+        },
+    )
+    tdpa_drift_gain_per_s: float = field(
+        default=0.0,
+        metadata={
+            "min": 0.0,
+            "max": 1e3,
+            "help": "law tdpa, admittance placement: the rate its reference returns toward the received position",
+        },
+    )
 
 
 @dataclass(frozen=True)
@@ -672,6 +689,21 @@ class Scene:
             )
         if self.is_nve:
             raise ValueError(f"controllers.<side>.eba.law {law}: not for NVE scenes; allowed there: reservoir")
+        for side in ("master", "slave"):
+            c = getattr(self.controllers, side)
+            if law != "tdpa" or c.eba.tdpa_placement != "admittance":
+                continue
+            if c.law == "force":
+                raise ValueError(
+                    f"controllers.{side}.eba.tdpa_placement admittance moves the coupling's reference; "
+                    f"controllers.{side}.law force has none; allowed: position, or tdpa_placement impedance"
+                )
+            if c.eba.tdpa_drift_gain_per_s * self.scene.period_s > 1.0:
+                raise ValueError(
+                    f"controllers.{side}.eba.tdpa_drift_gain_per_s ({c.eba.tdpa_drift_gain_per_s:g}) returns more "
+                    f"than the whole slip in one period; allowed: at most 1 / scene.period_s = "
+                    f"{1.0 / self.scene.period_s:g}"
+                )
         for name in ("forward", "backward"):
             if getattr(self.network, name).codec is not None:
                 raise ValueError(

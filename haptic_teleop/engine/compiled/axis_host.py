@@ -94,6 +94,8 @@ from haptic_teleop.engine.compiled.layout import (
     P_START,
     P_SUBSTEPS,
     P_T_END,
+    P_TDPA_ADMIT,
+    P_TDPA_RECOVER,
     P_W,
     P_WAVE_A,
     P_WAVE_B,
@@ -385,6 +387,8 @@ def parameters(parts: AxisParts, period_s: float) -> np.ndarray:
         P[side + P_REFLECT] = b.params.tdpa_reflection
         if ctrl.tdpa is not None:
             P[side + P_CAP] = ctrl.tdpa.cap_n
+            P[side + P_TDPA_ADMIT] = 1.0 if ctrl.tdpa.admittance else 0.0
+            P[side + P_TDPA_RECOVER] = ctrl.tdpa.recover
         if ctrl.wave is not None:
             w = ctrl.wave.wave
             P[side + P_CAP] = min(p.force_limit_n, ctrl.wave.clip_n)

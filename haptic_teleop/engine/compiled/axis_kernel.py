@@ -54,6 +54,8 @@ from haptic_teleop.engine.compiled.layout import (
     P_START,
     P_SUBSTEPS,
     P_T_END,
+    P_TDPA_ADMIT,
+    P_TDPA_RECOVER,
     P_W,
     P_WAVE_A,
     P_WAVE_B,
@@ -120,6 +122,7 @@ within3 = jit(eba.within3)
 # TdpaBound.step1 runs) and the wave port (core/wave.py, WaveSide.port1)
 tdpa1 = compile_tree(tdpa.tdpa1)
 received1 = jit(tdpa.received1)
+slipped1 = jit(tdpa.slipped1)
 wave1 = compile_tree(wave.wave1)
 push1 = jit(op.push1)
 sinusoid1 = jit(op.sinusoid1)
@@ -149,6 +152,9 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
         ra, rb = S[side + S_R0], S[side + S_R1]
         if master and not force_law:
             ra, rb = S[side + S_R1], S[side + S_R2]
+        admittance = law != LAW_RESERVOIR and P[side + P_TDPA_ADMIT] != 0.0 and not force_law
+        if admittance:  # TDPA's admittance placement: the reference offset by its slip
+            ra = ra + S[X + 5]
         desired, f = command1(
             has_remote, force_law, P[side + P_GAIN], P[side + P_C1], P[side + P_C2], ra, rb, x, v, P[side + P_LIMIT]
         )
@@ -159,12 +165,15 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
                 S[side + S_HAS_LAST] != 0.0, x, f, P[side + P_EBA_ON] != 0.0, limited, P[side + P_BOUND_GAIN],
                 P[side + P_ACT_LIMIT], P[side + P_SLEW_STEP],
             )  # fmt: skip
-        else:  # TDPA_EXTRA: E_in, E_out, the remote's E_in, the damping credit, what the samples carry
+        else:  # TDPA_EXTRA: E_in, E_out, the remote's E_in, the damping credit, what the samples carry, slip
+            before = f
             S[X], S[X + 1], S[X + 3], S[side + S_ENERGY], S[X + 4], f = tdpa1(
                 S[X], S[X + 1], S[X + 3], S[X + 2], S[side + S_HELD], S[side + S_LAST], S[side + S_HAS_LAST] != 0.0,
                 x, f, P[side + P_E0], P[side + P_EBA_GAIN], P[side + P_BOUND_GAIN], P[side + P_REFLECT],
                 law == LAW_TDPA_ZOH, P[side + P_EBA_ON] != 0.0, P[side + P_CAP],
             )  # fmt: skip
+            if admittance:
+                S[X + 5] = slipped1(S[X + 5], before, f, P[side + P_C1], P[side + P_TDPA_RECOVER])
     S[side + S_HAS_LAST] = 1.0
     S[side + S_LAST] = x
     S[side + S_HELD] = f

@@ -16,6 +16,7 @@ P_ACT_LIMIT, P_SLEW_STEP = 14, 15  # the actuator limits the bound models (inf: 
 # drift gain; the guard's fourth limit (a TDPA sample's energy); the slave's wave matching (1: on)
 P_LAW, P_REFLECT, P_CAP, P_E0, P_WAVE_S, P_WAVE_B, P_WAVE_A, P_DRIFT, P_LIM3 = 16, 17, 18, 19, 20, 21, 22, 23, 24
 P_WAVE_MATCHED = 25
+P_TDPA_ADMIT, P_TDPA_RECOVER = 26, 27  # TDPA's admittance placement (1: on) and its drift gain times T
 # the operator and the clock, in P
 OP = 64
 P_PROFILE, P_X0, P_K, P_B, P_START, P_SPEED, P_T_END, P_X_END, P_AMP, P_W = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
@@ -30,5 +31,5 @@ LAW_RESERVOIR, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH, LAW_WAVE = 0.0, 1.0, 2.0, 3.0
 # wave port's wave to send)
 S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED, S_CONTACT = range(10)
 S_R3, S_OUT, S_X0 = 10, 11, 12
-S_EXTRA = 5  # values from S_X0 on (the longer of TDPA_EXTRA and WAVE_EXTRA)
+S_EXTRA = 6  # values from S_X0 on (the longer of TDPA_EXTRA and WAVE_EXTRA)
 S_SIZE = 64

@@ -41,6 +41,16 @@ LAWS: dict[str, tuple[str, tuple[str, ...]]] = {
             "controllers.slave.eba.tdpa_reflection=0.5",
         ),
     ),
+    "tdpa_zoh_admittance": (
+        "TDPA, ZOH-exact, the slave's on its reference",
+        (
+            *_TDPA,
+            "controllers.master.eba.tdpa_controller=zoh",
+            "controllers.slave.eba.tdpa_controller=zoh",
+            "controllers.slave.eba.tdpa_placement=admittance",
+            "controllers.slave.eba.tdpa_drift_gain_per_s=2",
+        ),
+    ),
     "tdpa_velocity": ("TDPA, velocity controller", _TDPA),
     "wave": ("wave variables, b 20 N s/m", ("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave")),
     "wave_matched": (
