@@ -26,7 +26,8 @@ from haptic_teleop.core.playout_config import build_buffer
 from haptic_teleop.core.playout_seed import NetworkAdaptiveBuffer, TransparencyBuffer
 from haptic_teleop.core.transparency import ContactStart
 from haptic_teleop.scene.contact import contact_start_of, transparency_budget_of
-from haptic_teleop.scene.schema import ControllerConfig, OperatorConfig, SaturationConfig, Scene
+from haptic_teleop.scene.controllers import ControllerConfig
+from haptic_teleop.scene.schema import OperatorConfig, SaturationConfig, Scene
 from haptic_teleop.scene.traces import (
     build_scene_link,  # the link with its trace files' rows
     read_operator_trace,
@@ -480,7 +481,7 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
     xs0 = slave.point()[0]
     mc = config.mapping
     if mc is None:
-        from haptic_teleop.scene.schema import MappingConfig
+        from haptic_teleop.scene.controllers import MappingConfig
 
         mc = MappingConfig()
     rot = rotation_from_rpy(*(math.radians(a) for a in mc.rotation_rpy_deg))
