@@ -61,6 +61,18 @@ class Child:
     def text(self) -> str:
         return "\n".join(self.lines)
 
+    @property
+    def failure(self) -> str:
+        """What an assertion shows: the output's last 4000 characters, after the start of the first
+        native crash report (`Fatal Python error`, its first 3000 characters) when the tail does not
+        hold it: the frames that say where a process aborted come first and the tail cuts them."""
+        text = self.text
+        tail = text[-4000:]
+        at = text.find("Fatal Python error")
+        if at < 0 or at >= len(text) - 4000:
+            return tail
+        return text[at : at + 3000] + "\n[...]\n" + tail
+
     def wait_for(self, pattern: str, timeout_s: float) -> re.Match[str]:
         end = time.monotonic() + timeout_s
         rx = re.compile(pattern)
@@ -72,7 +84,7 @@ class Child:
             if self.proc.poll() is not None:
                 break
             time.sleep(0.05)
-        raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; output:\n{self.text[-4000:]}")
+        raise AssertionError(f"no line matching {pattern!r} within {timeout_s} s; output:\n{self.failure}")
 
     def finish(self, timeout_s: float) -> int:
         try:
@@ -80,7 +92,7 @@ class Child:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-            raise AssertionError(f"still running after {timeout_s} s:\n{self.text[-4000:]}") from None
+            raise AssertionError(f"still running after {timeout_s} s:\n{self.failure}") from None
         self._reader.join(5)
         return code
 

@@ -75,7 +75,7 @@ def _first_messages(bag: Path) -> tuple[dict[str, str], dict[str, object], dict[
 
 def test_arm_scene_runs_live_in_one_process_and_its_bag_has_the_arm_topics_with_joint_names(single):
     code, launch, out = single
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     assert "Traceback" not in launch.text
     types, first, counts = _first_messages(out / "bag")
     assert types["/master/joint_states"] == types["/slave/joint_states"] == "sensor_msgs/msg/JointState"
@@ -106,13 +106,13 @@ def test_live_arm_bag_records_the_sent_velocities_of_handle_and_tool(single):
     (no other live topic carries them): the live recorder takes them from the wire. Each matches
     the rate of change of the position recorded beside it (the same node's tick), over 25 ms."""
     code, launch, out = single
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     check_sent_velocities(out, {"forward": "/forward/sent", "backward": "/backward/sent"})
 
 
 def test_live_arm_bag_analyses_with_the_engine_bags_keys_and_reaches_the_wall(single, engine_summary):
     code, launch, out = single
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     summary = json.loads((out / "summary.json").read_text())
     # `engine_loop` says which engine loop ran (timing, not the bag): the rest is the bag's analysis.
     assert set(summary) == set(engine_summary) - {"engine_loop"}
@@ -131,7 +131,7 @@ def test_live_arm_bag_analyses_with_the_engine_bags_keys_and_reaches_the_wall(si
 
 def test_live_arm_energy_margins_from_the_bag_are_nonnegative(single):
     code, launch, out = single
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     summary = json.loads((out / "summary.json").read_text())
     for side in SIDES:
         assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
@@ -143,7 +143,7 @@ def test_live_arm_energy_margins_from_the_bag_are_nonnegative(single):
 
 def test_arm_scene_runs_live_one_process_per_node(tmp_path):
     code, launch, out = _launch(tmp_path)
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     codes = launch.exit_codes()
     assert set(codes) == {"operator_source", "master_eba", "slave_eba", "forward_relay", "backward_relay",
                           "forward_buffer", "backward_buffer", "recorder"}, codes  # fmt: skip
@@ -164,7 +164,7 @@ def test_ctrl_c_mid_run_leaves_a_readable_arm_bag(tmp_path):
     wait_for_bag_messages(bag, 120)  # the recorder has ticks on disk
     launch.proc.send_signal(signal.SIGINT)
     code = launch.finish(120)
-    assert code == 130, launch.text[-4000:]
+    assert code == 130, launch.failure
     assert "Traceback" not in launch.text
     from haptic_teleop.analysis.stream import summarize_bag
 
@@ -284,7 +284,7 @@ def test_live_slave_at_its_own_period_ticks_half_as_often_and_its_bag_holds_its_
     from haptic_teleop.record.reader import BagReader
 
     code, launch, out = slow_slave
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     assert "Traceback" not in launch.text
     table = launch.loop_table()
     (m_ticks, _, m_skipped), (s_ticks, _, skipped) = launch.loop_row("master_eba"), launch.loop_row("slave_eba")
@@ -325,7 +325,7 @@ def test_live_slave_at_its_own_period_pushes_on_the_wall_as_the_engines_does(slo
     lives through every scene period (stepped twice per tick with its torque held), its ledger and
     the analysis' run at its period."""
     code, launch, out = slow_slave
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     summary = json.loads((out / "summary.json").read_text())
     want = slow_slave_engine
     assert set(summary) == set(want) - {"engine_loop"}
@@ -342,6 +342,6 @@ def test_a_first_launch_on_an_empty_numba_cache_builds_the_side_tick_first_and_c
     launch = Launch(SCENE, "--set", "scene.duration_s=1", "--record", str(out), "--no-plots", cwd=tmp_path,
                     env={"NUMBA_CACHE_DIR": str(tmp_path / "numba")})  # fmt: skip
     code = launch.finish(900)
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     assert "compiling the tick loop side_kernel" in launch.text  # it really compiled, and said so
     assert (out / "summary.json").exists()

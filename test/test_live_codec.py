@@ -157,9 +157,9 @@ def _records_came(rows: np.ndarray, facts: dict) -> bool:
 
 def _clean_exit(run: dict, nodes: tuple[str, ...], code: int = 0) -> None:
     launch = run["launch"]
-    assert run["code"] == code, launch.text[-4000:]
+    assert run["code"] == code, launch.failure
     codes = launch.exit_codes()
-    assert {n: codes.get(n) for n in nodes} == dict.fromkeys(nodes, 0), launch.text[-4000:]
+    assert {n: codes.get(n) for n in nodes} == dict.fromkeys(nodes, 0), launch.failure
     assert "Traceback" not in launch.text
 
 
@@ -339,7 +339,7 @@ def test_live_arm_codec_bag_records_the_sent_velocities(arm_runs):
     tick: the arm sides publish their tick's sample on /<dir>/sample, and the bag's sent rows get
     the handle's and the tool's velocities from it (they were 0.0 on every row before)."""
     live = arm_runs["live"]
-    assert live["code"] == 0, live["launch"].text[-4000:]
+    assert live["code"] == 0, live["launch"].failure
     check_sent_velocities(live["out"], {"forward": "/forward/sample", "backward": "/backward/sample"})
 
 

@@ -104,7 +104,7 @@ def _drive(launch: Launch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         end = time.monotonic() + 600  # discovery and start on a busy machine; a bound, not a rate
         while time.monotonic() < end and launch.proc.poll() is None and not done():
             publish()
-        assert done(), f"{len(got)} commands, slave up: {bool(slave_up)}; launch output:\n{launch.text[-4000:]}"
+        assert done(), f"{len(got)} commands, slave up: {bool(slave_up)}; launch output:\n{launch.failure}"
         launch.proc.send_signal(signal.SIGINT)
         stopped = True
         stop = time.monotonic() + 1.0  # keep publishing while the nodes stop (a driver does not stop with them)
@@ -134,9 +134,9 @@ def session(tmp_path_factory):
 
 def test_every_node_stops_cleanly_on_sigint(session):
     launch = session["launch"]
-    assert session["code"] == 130, launch.text[-4000:]  # 128 + SIGINT: a clean stop asked by a signal
+    assert session["code"] == 130, launch.failure  # 128 + SIGINT: a clean stop asked by a signal
     codes = launch.exit_codes()
-    assert set(codes) == NODES and all(c == 0 for c in codes.values()), (codes, launch.text[-4000:])
+    assert set(codes) == NODES and all(c == 0 for c in codes.values()), (codes, launch.failure)
     assert "Traceback" not in launch.text
     assert "nothing to record" not in launch.text
     assert "bag written" in launch.text

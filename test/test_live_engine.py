@@ -73,7 +73,7 @@ def test_live_composed_bag_equals_the_engine_bag_stream_by_stream(tmp_path, case
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     launch = Launch(scene, "--single-process", "--duration", DURATION, "--record", str(live), "--no-plots",
                     "--sim-time-rate", "0.25", *args, cwd=tmp_path)  # fmt: skip
-    assert launch.finish(600) == 0, launch.text[-4000:]
+    assert launch.finish(600) == 0, launch.failure
     info = json.loads((live / "live_run.json").read_text())
     # Nothing reached its sync buffer after its due tick (else the streams could not be equal).
     assert info["packets_late_by_scheduling"] == {"forward": 0, "backward": 0}, launch.loop_table()

@@ -146,7 +146,7 @@ def session(tmp_path_factory):
 
 def test_live_session_with_the_slave_on_the_emulated_bus_ends_with_torque_off_and_a_readable_bag(session):
     code, launch, out, torque, counters = session
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     assert "Traceback" not in launch.text
     assert torque == [0, 0, 0]  # Torque Enable(64) of every servo, read through the SDK
     ticks, _, _ = launch.loop_row("slave_eba")
@@ -173,7 +173,7 @@ def test_live_session_with_the_slave_on_the_emulated_bus_ends_with_torque_off_an
 
 def test_live_session_on_the_emulated_bus_is_passive_on_both_ports(session):
     code, launch, out, _, _ = session
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_joints"] == list(JOINTS) and summary["ticks"] > 0
     assert summary["slave_energy_torque_topic"] == "/slave/measured_effort"
@@ -197,7 +197,7 @@ def test_live_tdpa_with_the_slave_on_the_emulated_bus_keeps_the_two_port_passive
                         "--no-plots", "--single-process", cwd=tmp_path)  # fmt: skip
         code = launch.finish()
         torque = _registers(bus.port, ADDR_TORQUE_ENABLE)
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     assert torque == [0, 0, 0]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_energy_torque_topic"] == "/slave/measured_effort"
@@ -218,10 +218,10 @@ def test_a_hardware_error_mid_run_is_one_line_exit_1_torque_off_and_the_rest_sto
         bus.inject(servo_id=1, kind="drop_replies", count=20)
         code = launch.finish()
         torque = _registers(bus.port, ADDR_TORQUE_ENABLE)
-    assert code == 1, launch.text[-4000:]
+    assert code == 1, launch.failure
     assert torque == [0, 0, 0]
     errors = [line for line in launch.lines if line.startswith("slave_eba: ")]
-    assert len(errors) == 1 and "servo 1" in errors[0], launch.text[-4000:]
+    assert len(errors) == 1 and "servo 1" in errors[0], launch.failure
     assert "Traceback" not in launch.text and "bad parameter" not in launch.text
     assert (out / "bag" / "metadata.yaml").exists()  # the recorder closed the bag
     summary = json.loads((out / "summary.json").read_text())
@@ -240,7 +240,7 @@ def test_sigint_or_sigterm_to_the_node_process_turns_the_torque_off_and_closes_t
         code = launch.finish()
         torque = _registers(bus.port, ADDR_TORQUE_ENABLE)
         trips = bus.counters()["watchdog_trips"]
-    assert code == exit_code, launch.text[-4000:]
+    assert code == exit_code, launch.failure
     assert torque == [0, 0, 0] and trips == 0
     assert "Traceback" not in launch.text
     summary = json.loads((out / "summary.json").read_text())
@@ -287,7 +287,7 @@ def test_live_session_with_a_dynamixel_leader_arm_as_master(tmp_path):
                                f"master.hardware.max_hold_s={MAX_HOLD}"))  # fmt: skip
         code = launch.finish()
         torque = _registers(bus.port, ADDR_TORQUE_ENABLE, name=name, side="master")
-    assert code == 0, launch.text[-4000:]
+    assert code == 0, launch.failure
     assert "Traceback" not in launch.text
     assert torque == [0, 0, 0]
     from haptic_teleop.record.reader import BagReader

@@ -144,7 +144,7 @@ def push_run(tmp_path_factory):
 
 def test_push_runs_live_and_every_process_exits_0(push_run):
     launch = push_run["launch"]
-    assert push_run["code"] == 0, launch.text[-4000:]
+    assert push_run["code"] == 0, launch.failure
     codes = launch.exit_codes()
     expected = {"nve_server", "nve_client_client", "client_up_relay", "client_up_buffer",
                 "client_down_relay", "client_down_buffer", "recorder"}  # fmt: skip
@@ -278,7 +278,7 @@ def test_sigint_stops_every_nve_process_cleanly(tmp_path):
     time.sleep(0.5)
     launch.proc.send_signal(signal.SIGINT)
     code = launch.finish(60)
-    assert code == 130, launch.text[-4000:]
+    assert code == 130, launch.failure
     codes = launch.exit_codes()
     assert len(codes) == 6 and all(c == 0 for c in codes.values()), codes
     assert "Traceback" not in launch.text
@@ -303,7 +303,7 @@ def test_two_clients_in_three_axes_composed_each_measure_their_own_round_trip(tm
         data = {t: w.messages(t) for t in topics}
     finally:
         w.close()
-    assert code == 143, launch.text[-4000:]
+    assert code == 143, launch.failure
     assert "Traceback" not in launch.text
     medians = {}
     for name, rtt in (("near", 0.02), ("far", 0.3)):

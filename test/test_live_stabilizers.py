@@ -72,7 +72,7 @@ def live_run(request, tmp_path_factory):
 
 
 def test_a_live_run_with_tdpa_or_wave_variables_ends_cleanly_with_a_bag(live_run):
-    assert live_run["code"] == 0, live_run["launch"].text[-4000:]
+    assert live_run["code"] == 0, live_run["launch"].failure
     summary = json.loads((live_run["out"] / "summary.json").read_text())
     assert summary["all_finite"] is True
     assert summary["ticks"] > 0
@@ -87,7 +87,7 @@ def test_live_force_tracking_with_tdpa_or_wave_variables_is_the_engines(live_run
     from haptic_teleop.engine.run import record_run
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    assert live_run["code"] == 0, live_run["launch"].text[-4000:]
+    assert live_run["code"] == 0, live_run["launch"].failure
     live = json.loads((live_run["out"] / "summary.json").read_text())
     overrides = [*LAWS[live_run["law"]], f"scene.duration_s={DURATION_S}"]
     scene = load_scene(find_scene("wall_contact"), overrides=overrides)
@@ -106,7 +106,7 @@ def test_the_live_bag_holds_each_sides_ledger_of_its_law(live_run):
     energy keeps a flat ledger)."""
     from haptic_teleop.analysis.metrics import load_signals
 
-    assert live_run["code"] == 0, live_run["launch"].text[-4000:]
+    assert live_run["code"] == 0, live_run["launch"].failure
     sig = load_signals(live_run["out"] / "bag")
     for name, ledger in (("master", sig.master_reservoir_j), ("slave", sig.slave_reservoir_j)):
         assert ledger is not None, name
