@@ -64,6 +64,20 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
         "touch_ur5e_wall",
         (*TDPA_ZOH, f"{FWD}.effects.loss.probability=0.1", f"{BWD}.effects.delay.delay_s=0.05"),
     ),
+    # TDPA's admittance placement on both sides: each coupling's reference slips (the Dynamixel scene's
+    # slave's controller binds in most ticks)
+    "dynamixel_tdpa_zoh_admittance_hard": (
+        "touch_dynamixel_wall",
+        (
+            *HARD,
+            *TDPA_ZOH,
+            *(
+                f"controllers.{s}.eba.{k}"
+                for s in ("master", "slave")
+                for k in ("tdpa_placement=admittance", "tdpa_drift_gain_per_s=2")
+            ),
+        ),
+    ),
     "dynamixel_tdpa_zoh_reflect_hard": (
         "touch_dynamixel_wall",
         (*HARD, *TDPA_ZOH, *(f"controllers.{s}.eba.tdpa_reflection=0.5" for s in ("master", "slave"))),

@@ -416,7 +416,9 @@ def arm_bound(
     if eba.law == "tdpa":
         from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
-        return CoupledTdpaBound(params, eba.tdpa_controller, kernels, eba.tdpa_reflection)
+        admittance = eba.tdpa_placement == "admittance"
+        recover = eba.tdpa_drift_gain_per_s * params.period_s
+        return CoupledTdpaBound(params, eba.tdpa_controller, kernels, eba.tdpa_reflection, admittance, recover)
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
 
     return CoupledEnergyBound(params, kernels)

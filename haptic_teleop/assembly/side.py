@@ -14,6 +14,7 @@ import numpy as np
 
 from haptic_teleop.core.eba_coupled import joint_limited
 from haptic_teleop.core.taskspace import dot, matrix_times, task_force_of, tick_scratch
+from haptic_teleop.core.tdpa import slipped1
 from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
 if TYPE_CHECKING:
@@ -72,6 +73,9 @@ class _SideTick:
         bound = side.bound
         velocity = isinstance(bound, CoupledTdpaBound) and bound.controller == "velocity" and bound.params.enabled
         self.task_force: np.ndarray | None = np.zeros(3) if velocity else None
+        # TDPA's admittance placement: the coupling's reference offset by the bound's slip
+        self.admittance = isinstance(bound, CoupledTdpaBound) and bound.admittance
+        self._c1 = side.law.constants().stiffness_n_per_m if self.admittance else None
         self.limited_ticks = 0  # ticks a motor's torque limit scaled the torque down
         k = side.kernels
         self.joint_limited = k["joint_limited"] if k is not None else joint_limited
@@ -91,6 +95,8 @@ class _SideTick:
         else:
             rx = np.asarray(remote[0:3])
             rv = np.asarray(remote[3:6])
+            if self.admittance:
+                rx = rx + self.bound.slip_m
         r_tool = plant.orientation() if self.side.rotational else None
         tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
         f = self.law.wrench[:3]
@@ -103,7 +109,8 @@ class _SideTick:
         if not np.array_equal(self.limited, tau):
             self.limited_ticks += 1
         # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
-        out = self.bound.step(q, self.limited if self.safe is None else self.safe(self.limited))
+        into = self.limited if self.safe is None else self.safe(self.limited)
+        out = self.bound.step(q, into)
         if self.task_force is not None:  # TDPA's velocity controller: not a scaled copy of tau
             self.task_force_of(self._wrench, jac, out, self._scratch)
             self.task_force[:] = self._wrench[:3]
@@ -112,6 +119,11 @@ class _SideTick:
         self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
         self.ratio *= sat
+        if self.admittance:  # the task force into the bound against the one out of it (the controller's cut)
+            before = dot(into, tau) / tt * sat if tt > 0.0 else 0.0
+            slip, c1, recover = self.bound.slip_m, self._c1, self.bound.recover
+            for i in range(3):
+                slip[i] = slipped1(slip[i], before * f[i], self.ratio * f[i], c1[i], recover)
         return out
 
     @property

@@ -61,6 +61,7 @@ slew_bounded = compile_tree(eba_coupled.slew_bounded)
 joint_limited = compile_tree(eba_coupled.joint_limited, **small)
 coupled_tdpa = compile_tree(tdpa_coupled.coupled_tdpa)
 received1 = compile_tree(tdpa.received1, **small)
+slipped1 = compile_tree(tdpa.slipped1, **small)
 
 # The side tuple (compiled_side.side_tuple builds it; the kernel unpacks it in this order):
 #   I (int64 scalars, the I_* positions below), qadr, dadr, act (int64, per joint),
@@ -117,11 +118,14 @@ I_LAW = 25
 I_SIZE = 26
 LAW_EBA, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH = 0, 1, 2
 F_LIMIT, F_MU, F_SCALE, F_FORCE_SCALE, F_K_HAND, F_B_HAND, F_E0, F_REFLECT = 0, 1, 2, 3, 4, 5, 6, 7
-F_SIZE = 8
+F_ADMIT, F_RECOVER = 8, 9  # TDPA's admittance placement (1: on) and its drift gain times T
+F_SIZE = 10
 S_ENERGY, S_HAS_LAST, S_HAS_REMOTE, S_HAS_HOLD, S_RATIO, S_REJECTED, S_SCALE, S_LIMITED = 0, 1, 2, 3, 4, 5, 6, 7
-# TDPA's state (core/tdpa_coupled.TDPA_EXTRA, in its order) from S_EXTRA on
+# TDPA's state (core/tdpa_coupled.TDPA_EXTRA, in its order: the admittance placement's slip per
+# task axis last, from S_SLIP) from S_EXTRA on
 S_EXTRA = 8
-S_SIZE = 13
+S_SLIP = S_EXTRA + 5
+S_SIZE = 16
 # The work tuple's (`work_arrays`) felt force: what the row records as the side's task force
 W_FELT = 17
 
@@ -262,6 +266,10 @@ def side_torque(
     if S[S_HAS_REMOTE] == 0.0:
         for k in range(3):
             wrench[k] = 0.0
+    elif F[F_ADMIT] != 0.0:  # TDPA's admittance placement: the received point offset by the slip
+        for k in range(3):
+            felt[k] = remote[k] + S[S_SLIP + k]  # (felt is free until the end of the tick)
+        coupling(wrench, c1, c2, felt, remote[3:6], x, v)
     else:
         coupling(wrench, c1, c2, remote[0:3], remote[3:6], x, v)
     if rotational:
@@ -306,6 +314,10 @@ def side_torque(
         ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
         S[S_RATIO] = ratio * sat
+        if F[F_ADMIT] != 0.0:  # the task force into the bound against the one out of it (SideTick.torque)
+            before = dot(limited, tau) / tt * sat if tt > 0.0 else 0.0
+            for k in range(3):
+                S[S_SLIP + k] = slipped1(S[S_SLIP + k], before * force[k], S[S_RATIO] * force[k], c1[k], F[F_RECOVER])
         if iv[I_LAW] == LAW_TDPA_VELOCITY and iv[I_ENABLED] != 0:
             # its damper along the motion: the applied torque is no scaled copy of the desired one,
             # so the felt force is the task force of the applied torque (SideTick.rendered)

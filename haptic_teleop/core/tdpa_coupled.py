@@ -18,6 +18,11 @@ The controllers act on the limited torque vector:
   bit for bit.
 
 `coupled_tdpa` is one side's whole step over arrays and floats, composed of those rules;
+The admittance placement (`tdpa_placement`, zoh only): the side's coupling works toward the
+received point plus a slip (3 task axes) which moves, per axis, by what the controller took off
+the task force over that axis's stiffness (`core.tdpa.slipped1`, the one-axis rule), and returns at
+the drift gain; the side tick applies it (assembly/side.py, side_kernel.py), the bound keeps it.
+
 `CoupledTdpaBound` (the interface of `core.eba_coupled.CoupledEnergyBound` that the Python arm
 tick uses on a simulated arm: `step`, `applied`, `held`, `energy_j`, `scale`, `constants`,
 `state`/`set_state`, and a real arm's `stretch`: a hold that took longer than a period credits
@@ -47,7 +52,7 @@ from haptic_teleop.core.tdpa import TDPA_CONTROLLERS, book1, received1, reflecte
 # What a side's pooled TDPA carries beyond EBA's bound state (`CoupledBoundState.extra`, in this
 # order): its observed input and output energy, the remote side's input energy it received, the
 # damping credit (zoh), what its samples carry.
-TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j")
+TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j", "slip_x_m", "slip_y_m", "slip_z_m")
 Vec = npt.NDArray[np.float64]
 
 
@@ -156,6 +161,8 @@ class CoupledTdpaBound:
         controller: str = "velocity",
         kernels: Mapping[str, Callable[..., Any]] | None = None,
         reflection: float = 0.0,
+        admittance: bool = False,
+        recover: float = 0.0,
     ) -> None:
         if controller not in TDPA_CONTROLLERS:
             raise ValueError(f"tdpa controller must be one of {', '.join(TDPA_CONTROLLERS)}, got {controller!r}")
@@ -163,6 +170,10 @@ class CoupledTdpaBound:
             raise ValueError("tdpa on an arm: no slew limit (the one-axis law refuses it too)")
         if not 0.0 <= reflection <= 1.0:
             raise ValueError(f"tdpa reflection must be in [0, 1], got {reflection}")
+        if admittance and controller != "zoh":
+            raise ValueError("tdpa on an arm: the admittance placement needs the zoh controller")
+        if not 0.0 <= recover <= 1.0:
+            raise ValueError(f"tdpa recover (drift gain times T) must be in [0, 1], got {recover}")
         self.params = params
         self.controller = controller
         self.reflection = reflection  # the fraction of its input the side keeps (`reflected1`)
@@ -190,6 +201,10 @@ class CoupledTdpaBound:
         self.initial_energy_j = params.initial_energy_j  # E0 of the budget (`restart` lowers it)
         self.scale = 1.0  # "zoh": the factor on the torque vector (1: it passed)
         self.beta = 0.0  # "velocity": the damper it added along the motion (0: none), N m s/rad per T
+        # The admittance placement: the coupling's reference offset per task axis (module docstring).
+        self.admittance = admittance
+        self.recover = recover
+        self.slip_m = np.zeros(3)
         k = kernels or {}
         self._f_limited = k.get("joint_limited", joint_limited)
         self._f_step = k.get("coupled_tdpa", coupled_tdpa)
@@ -219,6 +234,7 @@ class CoupledTdpaBound:
         self.initial_energy_j = float(energy_j)
         self.energy_j = float(energy_j)
         self.energy_in_j = self.energy_out_j = self.remote_in_j = self.credit_j = self.sent_j = 0.0
+        self.slip_m[:] = 0.0
         self._has_last = False
 
     def constants(self) -> CoupledBoundConstants:
@@ -229,7 +245,9 @@ class CoupledTdpaBound:
 
     def state(self) -> CoupledBoundState:
         """The state the next `step` goes on from (copies; `extra`: TDPA_EXTRA's values)."""
-        extra = (self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j)
+        extra = (
+            self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j, *self.slip_m.tolist()
+        )  # fmt: skip
         q = self._last_q.copy()
         velocity = not self._zoh and self.params.enabled
         factor = self.beta if velocity else self.scale  # the controller's factor (the kernel's S_SCALE)
@@ -245,7 +263,8 @@ class CoupledTdpaBound:
             self.scale = state.scale
         else:  # the velocity controller's factor is its beta
             self.beta = state.scale
-        self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j = state.extra
+        self.energy_in_j, self.energy_out_j, self.remote_in_j, self.credit_j, self.sent_j = state.extra[:5]
+        self.slip_m[:] = state.extra[5:8]
 
     def step(
         self,

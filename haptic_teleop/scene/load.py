@@ -217,9 +217,11 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
                 "allowed for arms: reservoir (the pooled joint bound), tdpa (pooled joints; the two-condition "
                 "law and wave variables are one-axis only)",
             )
-        if law == "tdpa" and getattr(config.controllers, side).eba.tdpa_placement != "impedance":
+        eba = getattr(config.controllers, side).eba
+        if law == "tdpa" and eba.tdpa_placement == "admittance" and eba.tdpa_controller != "zoh":
             raise ConfigError(source, f"controllers.{side}.eba.tdpa_placement", "admittance",
-                              "allowed for arms: impedance (the admittance placement is one-axis only)")  # fmt: skip
+                              "allowed for arms with tdpa_controller velocity: impedance (the admittance "
+                              "placement on arms moves the reference by the zoh controller's scale)")  # fmt: skip
         if law == "tdpa" and getattr(config, side).slew_nm_per_s is not None:
             raise ConfigError(source, f"{side}.slew_nm_per_s", getattr(config, side).slew_nm_per_s,
                               "allowed with tdpa: none (its controller has no slew-aware bound)")  # fmt: skip
