@@ -48,7 +48,6 @@ TDPA_CONTROLLERS = ("velocity", "zoh")
 ENERGY_LIMIT_J = 1e9
 # What a one-axis TdpaBound carries beyond `AxisBoundState`'s four values, in `extra`'s order.
 TDPA_EXTRA = ("energy_in_j", "energy_out_j", "remote_in_j", "credit_j", "sent_j", "slip_m")
-TDPA_PLACEMENTS = ("impedance", "admittance")
 
 
 def observe1(energy_in: float, energy_out: float, held: float, dx: float) -> tuple[float, float]:
