@@ -34,6 +34,17 @@ def wait_for_bag_messages(bag: Path, timeout_s: float) -> None:
     raise AssertionError(f"no recorded messages in {bag} within {timeout_s} s")
 
 
+def failure_text(text: str) -> str:
+    """The output's last 4000 characters, after the start of the first native crash report (`Fatal
+    Python error`, its first 3000 characters) when the tail does not hold it: the frames that say
+    where a process aborted come first, and the tail alone cuts them."""
+    tail = text[-4000:]
+    at = text.find("Fatal Python error")
+    if at < 0 or at >= len(text) - 4000:
+        return tail
+    return text[at : at + 3000] + "\n[...]\n" + tail
+
+
 class Child:
     """A command as a child process (stdin closed); its output lines are collected as they come."""
 
@@ -63,15 +74,8 @@ class Child:
 
     @property
     def failure(self) -> str:
-        """What an assertion shows: the output's last 4000 characters, after the start of the first
-        native crash report (`Fatal Python error`, its first 3000 characters) when the tail does not
-        hold it: the frames that say where a process aborted come first and the tail cuts them."""
-        text = self.text
-        tail = text[-4000:]
-        at = text.find("Fatal Python error")
-        if at < 0 or at >= len(text) - 4000:
-            return tail
-        return text[at : at + 3000] + "\n[...]\n" + tail
+        """What an assertion shows (`failure_text` of the output)."""
+        return failure_text(self.text)
 
     def wait_for(self, pattern: str, timeout_s: float) -> re.Match[str]:
         end = time.monotonic() + timeout_s

@@ -714,6 +714,17 @@ def test_a_check_every_50_ticks_keeps_its_turn_when_the_loop_skips_the_multiples
     assert due == [1, 52, 103, 154, 205, 256, 307, 358]
 
 
+def test_a_failed_launchs_output_shows_the_first_crash_report_the_tail_would_cut():
+    from launched import failure_text
+
+    crash = "Fatal Python error: Aborted\n  File recorder.py, line 765 in main\n"
+    text = "start\n" + crash + "x" * 5000 + "\nthe loop table"
+    shown = failure_text(text)
+    assert shown.startswith(crash) and shown.endswith("the loop table")
+    assert failure_text("no crash " + "y" * 5000) == ("no crash " + "y" * 5000)[-4000:]
+    assert failure_text(crash + "short tail") == crash + "short tail"  # already in the tail: once
+
+
 def test_member_ticks_between_counts_a_slower_members_own_deadlines():
     from haptic_teleop.nodes.rtloop import member_ticks_between
 
