@@ -270,22 +270,18 @@ class TeleopController:
             self.force_applied[0] = f
             return f
         r = self._remote
+        t = self.tdpa
         if r is None:
             desired, f = command1(False, False, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, self._limit)
         elif self._force_law:
             desired, f = command1(True, True, self._gain, 0.0, 0.0, r[0], 0.0, x, v, self._limit)
         else:
             off = self._off
-            t = self.tdpa
             ra = r[off] + t.slip_m[0] if t is not None and t.admittance else r[off]  # admittance: its reference
             desired, f = command1(True, False, 0.0, self._c1, self._c2, ra, r[off + 1], x, v, self._limit)
-            self.force_desired[0] = desired
-            out = self.bound.step1(x, f)
-            if t is not None:
-                t.slip(0, f, out, self._c1)
-            self.force_applied[0] = out
-            return out
         self.force_desired[0] = desired
-        f = self.bound.step1(x, f)
-        self.force_applied[0] = f
-        return f
+        out = self.bound.step1(x, f)
+        if t is not None and not self._force_law:  # the admittance placement's slip (`step`, the kernel)
+            t.slip(0, f, out, self._c1)
+        self.force_applied[0] = out
+        return out
