@@ -41,6 +41,7 @@ TDPA_ZOH = tuple(f"controllers.{s}.eba.{k}" for s in ("master", "slave") for k i
 TDPA_VELOCITY = tuple(
     f"controllers.{s}.eba.{k}" for s in ("master", "slave") for k in ("law=tdpa", "tdpa_controller=velocity")
 )
+TWO_CONDITION = tuple(f"controllers.{s}.eba.law=two_condition" for s in ("master", "slave"))
 
 CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     # constant delay with uncorrelated loss: the vectorized schedule
@@ -89,6 +90,14 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
         (*TDPA_VELOCITY, f"{FWD}.effects.loss.probability=0.1", f"{BWD}.effects.delay.delay_s=0.05"),
     ),
     "dynamixel_tdpa_velocity_hard": ("touch_dynamixel_wall", (*HARD, *TDPA_VELOCITY)),
+    # the two conditions joint by joint (core/eba_two_condition_coupled.coupled_two_condition): a
+    # ledger per joint in the kernel's state, each joint within its room, the felt force the task
+    # force of the applied torque; the Dynamixel's small rooms with gravity compensation
+    "ur5e_two_condition": (
+        "touch_ur5e_wall",
+        (*TWO_CONDITION, f"{FWD}.effects.loss.probability=0.1", f"{BWD}.effects.delay.delay_s=0.05"),
+    ),
+    "dynamixel_two_condition_hard": ("touch_dynamixel_wall", (*HARD, *TWO_CONDITION)),
     # the master's Jacobian mapped into the task frame by a rotation that is not the identity
     "rotated_scaled_mapping": (
         "touch_dynamixel_wall",
@@ -302,7 +311,9 @@ def test_compiled_arm_loop_memory_does_not_grow_with_duration(case: str) -> None
     assert peaks[1] <= 1.1 * peaks[0] + 64_000, peaks
 
 
-def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[str, Any]:
+def _step_side(
+    name: str, role: str, compiled: str, ticks: int = 400, overrides: tuple[str, ...] = ()
+) -> dict[str, Any]:
     """One side of an arm scene stepped alone as a live node steps it (nodes/arm_side.py): its own
     plant, remote samples through its guard, the watchdog's gain on the force limit, the ledger's
     restart at scene time 0, the torques the plant applied back into the ledger. `compiled`: "" (the
@@ -311,7 +322,7 @@ def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[st
     from haptic_teleop.assembly.parts import build_arm_parts
     from haptic_teleop.assembly.side import side_ticks
 
-    scene = _scene(name, ())
+    scene = _scene(name, overrides)
     parts = build_arm_parts(scene.config)
     mt, st = side_ticks(parts)
     master = role == "master"
@@ -365,15 +376,22 @@ def _step_side(name: str, role: str, compiled: str, ticks: int = 400) -> dict[st
 
 
 @pytest.mark.parametrize(
-    ("name", "role"), [("touch_ur5e_wall", "master"), ("touch_ur5e_wall", "slave"), ("touch_dynamixel_wall", "slave")]
+    ("name", "role", "law"),
+    [
+        ("touch_ur5e_wall", "master", ()),
+        ("touch_ur5e_wall", "slave", ()),
+        ("touch_dynamixel_wall", "slave", ()),
+        ("touch_dynamixel_wall", "slave", TWO_CONDITION),
+    ],
 )
-def test_the_live_nodes_compiled_side_tick_is_the_python_side_tick(name: str, role: str) -> None:
+def test_the_live_nodes_compiled_side_tick_is_the_python_side_tick(name: str, role: str, law: tuple[str, ...]) -> None:
     """A side stepped alone (the live nodes' per-side tick) gives the same torques, forces,
     reservoirs, joints and wall wrenches, bit for bit, with `CompiledSideTick` (the law alone, or the
-    whole side tick with the plant's read, point and step) as with `SideTick` and the Python plant."""
-    p = _step_side(name, role, "")
+    whole side tick with the plant's read, point and step) as with `SideTick` and the Python plant;
+    with the two-condition law too (its restart: each joint's ledger)."""
+    p = _step_side(name, role, "", overrides=law)
     for mode in ("law", "tick"):
-        c = _step_side(name, role, mode)
+        c = _step_side(name, role, mode, overrides=law)
         for key in c:
             assert np.array_equal(c[key], p[key]), (mode, key)
     assert c["rejected"] == 1

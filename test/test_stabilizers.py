@@ -435,7 +435,7 @@ def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], w
         load_scene(find_scene("wall_contact"), overrides=list(overrides))
 
 
-ARM_WAVE_REFUSED = "allowed for arms: reservoir (the pooled joint bound), tdpa"
+ARM_WAVE_REFUSED = "allowed for arms: reservoir (the pooled joint bound), two_condition (joint by joint), tdpa"
 
 
 @pytest.mark.parametrize(("command", "law", "words"), [("run", WAVE, ARM_WAVE_REFUSED)])

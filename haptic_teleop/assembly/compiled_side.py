@@ -105,7 +105,7 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
     F[k.F_REFLECT] = getattr(bound, "reflection", 0.0)  # TDPA's kept fraction
     F[k.F_ADMIT] = 1.0 if getattr(bound, "admittance", False) else 0.0  # TDPA's admittance placement
     F[k.F_RECOVER] = getattr(bound, "recover", 0.0)
-    S = np.zeros(k.S_SIZE)
+    S = np.zeros(max(k.S_SIZE, k.S_EXTRA + len(bs.extra)))  # the two-condition law: a ledger per joint
     S[k.S_ENERGY] = bs.energy_j
     S[k.S_HAS_LAST] = 1.0 if bs.has_last else 0.0
     S[k.S_REJECTED] = side.guard.rejected
@@ -162,7 +162,7 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
     held orientation, the plant's wall wrench); returns the ticks a motor's room scaled the torque down."""
     k = side_kernel()
     S = t[k.T_S]
-    extra = len(side.bound.state().extra)  # TDPA's state (core/tdpa_coupled.TDPA_EXTRA), or none
+    extra = len(side.bound.state().extra)  # TDPA's state (core/tdpa_coupled.TDPA_EXTRA), the joints' ledgers, or none
     side.bound.set_state(
         CoupledBoundState(
             energy_j=float(S[k.S_ENERGY]),
@@ -181,28 +181,38 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
 
 
 def law_code(bound: Any) -> int:
-    """side_kernel's I_LAW code of a side's bound: EBA's pooled bound, or TDPA's with its controller."""
+    """side_kernel's I_LAW code of a side's bound: EBA's pooled bound, the two conditions joint by
+    joint, or TDPA's with its controller."""
+    from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
     k = side_kernel()
+    if isinstance(bound, CoupledTwoConditionBound):
+        return int(k.LAW_TWO_CONDITION)
     if not isinstance(bound, CoupledTdpaBound):
         return int(k.LAW_EBA)
     return int(k.LAW_TDPA_ZOH if bound.controller == "zoh" else k.LAW_TDPA_VELOCITY)
 
 
+def compiled_bounds() -> tuple[type, ...]:
+    """The arm stabilizers the compiled side runs (side_kernel's I_LAW codes)."""
+    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+    from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
+    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+
+    return (CoupledEnergyBound, CoupledTdpaBound, CoupledTwoConditionBound)
+
+
 def compiled_reason_side(side: ArmSide) -> str | None:
     """Why one side's tick cannot run compiled (`CompiledSideTick`), or None if it can."""
-    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
-    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
     from haptic_teleop.plants.arm import MujocoArm
 
     if type(side.plant) is not MujocoArm:
         return "plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
     if side.law.params.law != "position":
         return f"task law {side.law.params.law!r} (compiled: position)"
-    bound = side.bound
-    if type(bound) not in (CoupledEnergyBound, CoupledTdpaBound):
-        return f"stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA)"
+    if type(side.bound) not in compiled_bounds():
+        return f"stabilizer {type(side.bound).__name__} (compiled: EBA's bounds, TDPA)"
     return side_unusable()
 
 
@@ -218,7 +228,9 @@ class _Ledger:
         self._S: np.ndarray = t[k.T_S]
         self._F: np.ndarray = t[k.T_F]
         self._k = k
-        self.tdpa = int(t[k.T_I][k.I_LAW]) != int(k.LAW_EBA)
+        law = int(t[k.T_I][k.I_LAW])
+        self.tdpa = law in (int(k.LAW_TDPA_VELOCITY), int(k.LAW_TDPA_ZOH))
+        self.joints = side.plant.n if law == int(k.LAW_TWO_CONDITION) else 0  # a ledger per joint
 
     @property
     def energy_j(self) -> float:
@@ -263,6 +275,10 @@ class _Ledger:
         k = self._k
         self._S[k.S_ENERGY] = float(energy_j)
         self._S[k.S_HAS_LAST] = 0.0
+        if self.joints:  # CoupledTwoConditionBound.restart: each joint's ledger E0 / n
+            ledgers = self._S[k.S_EXTRA : k.S_EXTRA + self.joints]
+            ledgers[:] = float(energy_j) / self.joints
+            self._S[k.S_ENERGY] = float(np.sum(ledgers))
         if self.tdpa:
             from haptic_teleop.core.tdpa_coupled import TDPA_EXTRA
 

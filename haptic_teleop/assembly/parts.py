@@ -38,8 +38,12 @@ if TYPE_CHECKING:
 
     from haptic_teleop.core.controller import SampleGuard
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound, CoupledEnergyBoundParams
+    from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.taskspace import TaskSpaceLaw, WorkspaceMapping
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+
+    # An arm side's stabilizer (arm_bound): the interface SideTick and the stages use.
+    ArmBound = CoupledEnergyBound | CoupledTdpaBound | CoupledTwoConditionBound
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.record.columns import TickSchema
@@ -323,7 +327,7 @@ class ArmSide:
 
     plant: MujocoArm | HardwareArm
     law: TaskSpaceLaw
-    bound: CoupledEnergyBound | CoupledTdpaBound
+    bound: ArmBound
     guard: SampleGuard
     force_limit_n: float
     rotational: bool  # the law needs the 6-row Jacobian (orientation held)
@@ -371,12 +375,14 @@ def arm_kernels() -> Mapping[str, Callable[..., Any]] | None:
     except Exception:  # noqa: BLE001 - no numba here: the interpreted functions run
         return None
     from haptic_teleop.compiling import compile_tree
+    from haptic_teleop.core.eba_two_condition_coupled import coupled_two_condition, room_within
     from haptic_teleop.core.taskspace import KERNEL_FUNCTIONS
     from haptic_teleop.core.tdpa_coupled import coupled_tdpa
 
     # Each compiled from its one definition with its callees, as the compiled arm loop's
     # side_kernel.py compiles them (the same compiled functions in one process: the same bits)
-    return {fn.__name__: compile_tree(fn) for fn in (*KERNEL_FUNCTIONS, coupled_tdpa)}
+    laws = (coupled_tdpa, coupled_two_condition, room_within)
+    return {fn.__name__: compile_tree(fn) for fn in (*KERNEL_FUNCTIONS, *laws)}
 
 
 def _warm_up(side: ArmSide, config: Scene) -> None:
@@ -389,19 +395,24 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
     plant, n = side.plant, side.plant.n
     law = TaskSpaceLaw(side.law.params, n, side.kernels)
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
+    from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
     b = side.bound
-    bound: CoupledEnergyBound | CoupledTdpaBound = (
-        CoupledTdpaBound(b.params, b.controller, side.kernels, b.reflection)
-        if isinstance(b, CoupledTdpaBound)
-        else CoupledEnergyBound(b.params, side.kernels)
-    )
+    bound: ArmBound
+    if isinstance(b, CoupledTdpaBound):
+        bound = CoupledTdpaBound(b.params, b.controller, side.kernels, b.reflection)
+    elif isinstance(b, CoupledTwoConditionBound):
+        bound = CoupledTwoConditionBound(b.params, side.kernels)
+    else:
+        bound = CoupledEnergyBound(b.params, side.kernels)
     z3 = np.zeros(3)
     jac = plant.jacobian(rotational=side.rotational)
     tau = law.torque(jac, np.zeros(n), z3, z3, z3, z3, None, plant.orientation() if side.rotational else None)
     bound.step(np.zeros(n), tau)
     bound.step(np.zeros(n), tau)
+    if isinstance(bound, CoupledTwoConditionBound):  # its other signature: the room given
+        bound.step(np.zeros(n), tau, np.zeros(n), np.zeros(n))
     if side.kernels is not None:
         lo, hi = plant.torque_room()
         side.kernels["joint_limited"](np.zeros(n), tau, lo, hi, True)
@@ -409,10 +420,15 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
 
 def arm_bound(
     params: CoupledEnergyBoundParams, config: Scene, role: str, kernels: Mapping[str, Callable[..., Any]] | None
-) -> CoupledEnergyBound | CoupledTdpaBound:
-    """The side's pooled joint stabilizer the scene names (`controllers.<side>.eba.law`): EBA's
-    reservoir bound, or TDPA with its controller (core/tdpa_coupled.py)."""
+) -> ArmBound:
+    """The side's joint stabilizer the scene names (`controllers.<side>.eba.law`): EBA's pooled
+    reservoir bound, the two conditions joint by joint (core/eba_two_condition_coupled.py), or TDPA
+    with its controller (core/tdpa_coupled.py)."""
     eba = getattr(config.controllers, role).eba
+    if eba.law == "two_condition":
+        from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
+
+        return CoupledTwoConditionBound(params, kernels)
     if eba.law == "tdpa":
         from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 

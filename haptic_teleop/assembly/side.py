@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from haptic_teleop.core.eba_coupled import joint_limited
+from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
 from haptic_teleop.core.taskspace import dot, matrix_times, task_force_of, tick_scratch
 from haptic_teleop.core.tdpa import slipped1
 from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
@@ -68,11 +69,16 @@ class _SideTick:
         self.limited = np.zeros(self.plant.n)
         self.force = np.zeros(3)  # the desired task force (before saturation)
         self.ratio = 0.0  # applied / desired torque (direction kept): scales the task force
-        # TDPA's velocity controller adds a damper along the joints' motion: the applied torque is
-        # then no scaled copy of the desired one, and its task force is solved for (`rendered`).
+        # TDPA's velocity controller adds a damper along the joints' motion, and the two-condition
+        # law cuts each joint alone: the applied torque is then no scaled copy of the desired one,
+        # and its task force is solved for (`rendered`).
         bound = side.bound
         velocity = isinstance(bound, CoupledTdpaBound) and bound.controller == "velocity" and bound.params.enabled
-        self.task_force: np.ndarray | None = np.zeros(3) if velocity else None
+        # the two-condition law bounds each joint within the motors' room this tick (its fallback
+        # torque is then one the motor applies)
+        self.per_joint = isinstance(bound, CoupledTwoConditionBound)
+        joints = self.per_joint and bound.params.enabled
+        self.task_force: np.ndarray | None = np.zeros(3) if velocity or joints else None
         # TDPA's admittance placement: the coupling's reference offset by the bound's slip
         self.admittance = isinstance(bound, CoupledTdpaBound) and bound.admittance
         self._c1 = side.law.constants().stiffness_n_per_m if self.admittance else None
@@ -110,15 +116,15 @@ class _SideTick:
             self.limited_ticks += 1
         # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
         into = self.limited if self.safe is None else self.safe(self.limited)
-        out = self.bound.step(q, into)
-        if self.task_force is not None:  # TDPA's velocity controller: not a scaled copy of tau
-            self.task_force_of(self._wrench, jac, out, self._scratch)
-            self.task_force[:] = self._wrench[:3]
-            return out
+        out = self.bound.step(q, into, lo, hi) if self.per_joint else self.bound.step(q, into)
         tt = dot(tau, tau)
         self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
         self.ratio *= sat
+        if self.task_force is not None:  # not a scaled copy of tau (TDPA's velocity controller, two conditions)
+            self.task_force_of(self._wrench, jac, out, self._scratch)
+            self.task_force[:] = self._wrench[:3]
+            return out
         if self.admittance:  # the task force into the bound against the one out of it (the controller's cut)
             before = dot(into, tau) / tt * sat if tt > 0.0 else 0.0
             slip, c1, recover = self.bound.slip_m, self._c1, self.bound.recover
@@ -130,7 +136,8 @@ class _SideTick:
     def rendered(self) -> np.ndarray:
         """The task force the applied torque renders: the desired task force times the ratio of
         the applied to the desired torque (the bound scales the torque vector by one factor), or,
-        where a controller adds torque of its own (TDPA's velocity controller), the force whose
+        where a controller adds torque of its own or cuts joints alone (TDPA's velocity controller,
+        the two-condition law), the force whose
         J^T is the applied torque (least squares, the task frame; docs/stabilizers_arms.md, "Pooled joints")."""
         return self.ratio * self.force if self.task_force is None else self.task_force
 

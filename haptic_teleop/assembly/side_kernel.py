@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from haptic_teleop.compiling import compile_tree
-from haptic_teleop.core import eba_coupled, taskspace, tdpa, tdpa_coupled
+from haptic_teleop.core import eba_coupled, eba_two_condition_coupled, taskspace, tdpa, tdpa_coupled
 from haptic_teleop.plants.mujoco_native import (
     borrowed,
     load_f64,
@@ -60,6 +60,8 @@ coupled_bounded = compile_tree(eba_coupled.coupled_bounded, **small)
 slew_bounded = compile_tree(eba_coupled.slew_bounded)
 joint_limited = compile_tree(eba_coupled.joint_limited, **small)
 coupled_tdpa = compile_tree(tdpa_coupled.coupled_tdpa)
+coupled_two_condition = compile_tree(eba_two_condition_coupled.coupled_two_condition)
+room_within = compile_tree(eba_two_condition_coupled.room_within, **small)
 received1 = compile_tree(tdpa.received1, **small)
 slipped1 = compile_tree(tdpa.slipped1, **small)
 
@@ -112,22 +114,31 @@ T_SIZE = 36
 I_MODEL, I_DATA, I_N, I_SITE, I_SUBSTEPS, I_GRAVITY, I_ROTATIONAL, I_NULL, I_ENABLED = 0, 1, 2, 3, 4, 5, 6, 7, 8
 I_KEEP_DIRECTION, I_SLEW, I_WALL, I_GEOM1, I_GEOM2, I_NCON, I_CONTACT, I_STRIDE = 9, 10, 11, 12, 13, 14, 15, 16
 I_POS, I_FRAME, I_G1, I_G2, I_EFC, I_HAND, I_JAC_SCALE, I_NV = 17, 18, 19, 20, 21, 22, 23, 24
-# I_LAW: the side's stabilizer, LAW_EBA (the pooled reservoir bound) or TDPA's pooled step with its
-# controller (core/tdpa_coupled.py: `coupled_tdpa`); its energy rides last on the side's samples.
+# I_LAW: the side's stabilizer, LAW_EBA (the pooled reservoir bound), TDPA's pooled step with its
+# controller (core/tdpa_coupled.py: `coupled_tdpa`; its energy rides last on the side's samples) or
+# the two conditions joint by joint (core/eba_two_condition_coupled.py: `coupled_two_condition`).
 I_LAW = 25
 I_SIZE = 26
-LAW_EBA, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH = 0, 1, 2
+LAW_EBA, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH, LAW_TWO_CONDITION = 0, 1, 2, 3
 F_LIMIT, F_MU, F_SCALE, F_FORCE_SCALE, F_K_HAND, F_B_HAND, F_E0, F_REFLECT = 0, 1, 2, 3, 4, 5, 6, 7
 F_ADMIT, F_RECOVER = 8, 9  # TDPA's admittance placement (1: on) and its drift gain times T
 F_SIZE = 10
 S_ENERGY, S_HAS_LAST, S_HAS_REMOTE, S_HAS_HOLD, S_RATIO, S_REJECTED, S_SCALE, S_LIMITED = 0, 1, 2, 3, 4, 5, 6, 7
 # TDPA's state (core/tdpa_coupled.TDPA_EXTRA, in its order: the admittance placement's slip per
-# task axis last, from S_SLIP) from S_EXTRA on
+# task axis last, from S_SLIP) from S_EXTRA on; the two-condition law's: each joint's ledger
+# (S is S_SIZE long, or longer for an arm of more joints: compiled_side.side_tuple)
 S_EXTRA = 8
 S_SLIP = S_EXTRA + 5
 S_SIZE = 16
 # The work tuple's (`work_arrays`) felt force: what the row records as the side's task force
 W_FELT = 17
+
+
+@inline  # type: ignore[misc]
+def carries_energy(side: Any) -> bool:
+    """TDPA: the side's pooled input energy rides last on its samples (CoupledTdpaBound.receive)."""
+    law = side[T_I][I_LAW]
+    return law == LAW_TDPA_VELOCITY or law == LAW_TDPA_ZOH  # type: ignore[no-any-return]  # noqa: PLR1714
 
 
 @inline  # type: ignore[misc]
@@ -300,6 +311,26 @@ def side_torque(
         if limited[i] != tau[i]:
             S[S_LIMITED] += 1.0
             break
+    if iv[I_LAW] == LAW_TWO_CONDITION:  # CoupledTwoConditionBound.step: the room within the limits, per joint
+        room_within(lo, hi, blow, bhigh)
+        joint_limited(tmp, limited, lo, hi, True)
+        S[S_ENERGY] = coupled_two_condition(
+            out, tmp, q, last_q, held, S[S_EXTRA : S_EXTRA + n], S[S_HAS_LAST] != 0.0,
+            gain, bound_gain, lo, hi, iv[I_ENABLED] != 0,
+        )  # fmt: skip
+        S[S_HAS_LAST] = 1.0
+        tt = dot(tau, tau)
+        ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
+        sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
+        S[S_RATIO] = ratio * sat
+        if iv[I_ENABLED] != 0:  # each joint cut alone: the felt force is the applied torque's (SideTick.rendered)
+            task_force_of(wrench, jac, out, scratch)
+            for k in range(3):
+                felt[k] = wrench[k]
+        else:
+            for k in range(3):
+                felt[k] = S[S_RATIO] * force[k]
+        return
     if iv[I_LAW] != LAW_EBA:  # CoupledTdpaBound.step: the bound's range, then `coupled_tdpa`
         joint_limited(lo, limited, blow, bhigh, True)
         for i in range(n):
@@ -383,7 +414,7 @@ def guarded(side: Any, sample: np.ndarray) -> None:
     for i in range(lim.shape[0]):
         remote[i] = sample[i]
     S[S_HAS_REMOTE] = 1.0
-    if side[T_I][I_LAW] != LAW_EBA:  # TDPA: the remote side's input energy, last (CoupledTdpaBound.receive)
+    if carries_energy(side):  # TDPA: the remote side's input energy, last (CoupledTdpaBound.receive)
         S[S_EXTRA + 2] = received1(S[S_EXTRA + 2], sample[lim.shape[0] - 1])
 
 

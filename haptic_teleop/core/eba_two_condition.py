@@ -45,9 +45,17 @@ def two_condition_interval1(
     force_limit: the actuator's clip (inf: none). reserve=False drops the controller condition's
     reserve (E_c(n) >= 0 only, the conditions as they are usually stated): the interval the tests
     compare, not one the law uses (it is not passive for every motion, docs/eba_two_condition.md)."""
+    return two_condition_room_interval1(energy, gain, bound_gain, held, dx, -force_limit, force_limit, reserve)
+
+
+def two_condition_room_interval1(
+    energy: float, gain: float, bound_gain: float, held: float, dx: float, low: float, high: float, reserve: bool = True
+) -> tuple[float, float]:
+    """`two_condition_interval1` with the actuator's room [low, high] (low <= 0 <= high) in place of
+    the symmetric clip: an arm's joint, whose motor carries the gravity compensation too."""
     a = gain * dx  # (b/T) dx
-    lo = -force_limit
-    hi = force_limit
+    lo = low
+    hi = high
     # ZOH: -(F - f) dx <= 2 (b/T) dx^2, a half-line bounded at f - 2a.
     z = held - 2.0 * a
     if dx > 0.0:
@@ -80,10 +88,23 @@ def two_condition1(
     When rounding leaves the interval empty by a few ulps (the reserve met with equality), the
     point of the ZOH and clip intervals nearest the reserve's centre -a is returned, which is
     within rounding of the always-admissible f - 2a."""
-    lo, hi = two_condition_interval1(energy, gain, bound_gain, held, dx, force_limit)
+    return two_condition_room1(force, energy, gain, bound_gain, held, dx, -force_limit, force_limit)
+
+
+def two_condition_room1(
+    force: float, energy: float, gain: float, bound_gain: float, held: float, dx: float, low: float, high: float
+) -> float:
+    """`two_condition1` within the actuator's room [low, high] (`two_condition_room_interval1`).
+
+    The interval meets the room whenever the room holds the held force f and its mirror -f (the
+    one-axis proof, docs/eba_two_condition.md); an arm joint's room, its motor's range less its
+    gravity torque, can be smaller than |f| on one side and then leave none: the force is the room's
+    point nearest the reserve's centre within the ZOH condition, what the motor can do
+    (docs/stabilizers_arms.md, "The two conditions, joint by joint")."""
+    lo, hi = two_condition_room_interval1(energy, gain, bound_gain, held, dx, low, high)
     if not lo <= hi:
         a = gain * dx
-        lo, hi = -force_limit, force_limit
+        lo, hi = low, high
         z = held - 2.0 * a
         if dx > 0.0:
             lo = max(lo, z)
@@ -91,10 +112,10 @@ def two_condition1(
             hi = min(hi, z)
         force = -a
     if force > hi:
-        return hi
-    if force < lo:
-        return lo
-    return force
+        force = hi
+    elif force < lo:
+        force = lo
+    return min(max(force, low), high)
 
 
 def controller_energy1(energy: float, held: float, force: float, dx: float) -> float:

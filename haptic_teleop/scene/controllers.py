@@ -16,8 +16,8 @@ class EBAConfig:
         metadata={
             "choices": ("reservoir", "two_condition", "tdpa", "wave"),
             "help": "reservoir: one pooled reservoir; two_condition: the ZOH and controller energy conditions "
-            "(docs/eba.md); tdpa: the time-domain passivity approach; wave: wave variables (both on both sides, "
-            "docs/stabilizers.md)",
+            "(docs/eba.md; on arms joint by joint); tdpa: the time-domain passivity approach; wave: wave variables "
+            "(both on both sides, docs/stabilizers.md)",
         },
     )
     wave_impedance_n_s_per_m: float = field(

@@ -100,8 +100,7 @@ def compiled_reason_arm(
 ) -> str | None:
     """Why the arm scene cannot run in the compiled loop, or None if it can. `period_s`: the
     scene's period (a side whose bound runs at another period ticks in the Python loop only)."""
-    from haptic_teleop.core.eba_coupled import CoupledEnergyBound
-    from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+    from haptic_teleop.assembly.compiled_side import compiled_bounds
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
 
@@ -115,9 +114,8 @@ def compiled_reason_arm(
             return f"{role}: plant effects or a non-MuJoCo backend (only the bare MuJoCo arms are compiled)"
         if side.law.params.law != "position":
             return f"{role}: task law {side.law.params.law!r} (compiled: position)"
-        bound = side.bound
-        if type(bound) not in (CoupledEnergyBound, CoupledTdpaBound):
-            return f"{role}: stabilizer {type(bound).__name__} (compiled: EBA's bound, TDPA)"
+        if type(side.bound) not in compiled_bounds():
+            return f"{role}: stabilizer {type(side.bound).__name__} (compiled: EBA's bounds, TDPA)"
     profile = parts.operator.constants().profile
     if profile not in PROFILE_CODES:
         return f"operator profile {profile!r} (compiled: {', '.join(PROFILE_CODES)})"

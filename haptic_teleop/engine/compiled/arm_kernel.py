@@ -20,12 +20,10 @@ from haptic_teleop.assembly.side_kernel import (
     F_K_HAND,
     F_SCALE,
     I_DATA,
-    I_LAW,
     I_MODEL,
     I_N,
     I_NV,
     I_ROTATIONAL,
-    LAW_EBA,
     S_ENERGY,
     S_EXTRA,
     T_F,
@@ -37,6 +35,7 @@ from haptic_teleop.assembly.side_kernel import (
     T_S,
     T_WRENCH,
     W_FELT,
+    carries_energy,
     detach,
     detach_work,
     guarded,
@@ -169,7 +168,7 @@ def forward_sample(out: np.ndarray, v: Any, ms: Any) -> None:
     for k in range(3):
         out[k] = x[k]
         out[3 + k] = vel[k]
-    if ms[T_I][I_LAW] != LAW_EBA:
+    if carries_energy(ms):
         out[6] = ms[T_S][S_EXTRA + 4]
 
 
@@ -182,7 +181,7 @@ def backward_sample(out: np.ndarray, v: Any, ss: Any) -> None:
         out[k] = x[k]
         out[3 + k] = vel[k]
         out[6 + k] = f[k]
-    if ss[T_I][I_LAW] != LAW_EBA:
+    if carries_energy(ss):
         out[9] = ss[T_S][S_EXTRA + 4]
 
 
