@@ -435,13 +435,18 @@ def test_what_tdpa_cannot_run_is_refused_naming_it(overrides: tuple[str, ...], w
         load_scene(find_scene("wall_contact"), overrides=list(overrides))
 
 
-ARM_WAVE_REFUSED = "allowed for arms: reservoir (the pooled joint bound), two_condition (joint by joint), tdpa"
+ARM_WAVE_REFUSED = "allowed on a real arm: reservoir, tdpa"
 
 
 @pytest.mark.parametrize(("command", "law", "words"), [("run", WAVE, ARM_WAVE_REFUSED)])
-def test_arm_wave_runs_exit_2_in_one_line(tmp_path: Path, command: str, law: tuple[str, ...], words: str) -> None:
-    scene = "touch_ur5e_wall"
-    sets = [a for o in law for a in ("--set", o)]
+def test_an_arm_wave_run_on_a_real_arm_exits_2_in_one_line(
+    tmp_path: Path, command: str, law: tuple[str, ...], words: str
+) -> None:
+    """Wave variables run on simulated arms (test_wave_arm.py); a real arm's side refuses them."""
+    scene = "touch_dynamixel_wall"
+    real = ("slave.backend=dynamixel", "slave.hardware.port=/dev/ttyUSB0", "slave.start_q_rad=[0, 0, 0]",
+            "slave.damping_nm_s_per_rad=[0.1, 0.1, 0.1]")  # fmt: skip
+    sets = [a for o in (*law, *real) for a in ("--set", o)]
     r = subprocess.run(
         [str(Path(sys.executable).parent / "haptic-teleop"), command, scene, *sets],
         capture_output=True, text=True, timeout=120, cwd=tmp_path,

@@ -194,7 +194,6 @@ def test_each_arm_sample_carries_the_senders_pooled_input_energy_last(tmp_path: 
 @pytest.mark.parametrize(
     ("overrides", "key"),
     [
-        (("controllers.master.eba.law=wave", "controllers.slave.eba.law=wave"), "controllers.master.eba.law"),
         (("slave.slew_nm_per_s=[100, 100, 100, 100, 100, 100]", *TDPA), "slave.slew_nm_per_s"),
         ((*TDPA, ADMITTANCE[0]), "controllers.slave.eba.tdpa_placement"),  # with the velocity controller
     ],

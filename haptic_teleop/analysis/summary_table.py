@@ -50,6 +50,10 @@ ROWS = (
 SHOWN_IF_ANY = ("packets_late_by_scheduling_forward", "packets_late_by_scheduling_backward")
 
 
+# A margin below 0 by no more than this is rounding in its sums (a port that gave nothing: -8e-35 J), not a warning.
+ROUNDING_J = 1e-9
+
+
 def format_summary(summary: dict[str, Any]) -> str:
     if summary.get("kind") == "nve":
         from haptic_teleop.analysis.nve_summary import format_nve_summary
@@ -79,6 +83,6 @@ def format_summary(summary: dict[str, Any]) -> str:
             lines.append(f"  {f'{side} energy booked on':<{width}}  {topic} ({what})")
     for side in ("master", "slave"):
         v = summary.get(f"{side}_energy_margin_min_j")
-        if isinstance(v, float) and v < 0:
+        if isinstance(v, float) and v < -ROUNDING_J:
             lines.append(f"  WARNING: the {side} port was not passive (margin {v:.4g} J < 0)")
     return "\n".join(lines)

@@ -105,6 +105,11 @@ def side_tuple(side: ArmSide, parts: ArmParts, master: bool, data: Any = None) -
     F[k.F_REFLECT] = getattr(bound, "reflection", 0.0)  # TDPA's kept fraction
     F[k.F_ADMIT] = 1.0 if getattr(bound, "admittance", False) else 0.0  # TDPA's admittance placement
     F[k.F_RECOVER] = getattr(bound, "recover", 0.0)
+    if law_code(bound) == k.LAW_WAVE:  # CoupledWaveBound's port constants
+        F[k.F_WAVE_B], F[k.F_WAVE_S], F[k.F_WAVE_POLE] = bound.impedance, bound.s, bound.pole
+        F[k.F_WAVE_DRIFT], F[k.F_WAVE_MATCHED] = bound.drift_gain, 1.0 if bound.matched else 0.0
+        F[k.F_WAVE_MASTER] = 1.0 if bound.master else 0.0
+    F[k.F_PERIOD] = bp.period_s
     S = np.zeros(max(k.S_SIZE, k.S_EXTRA + len(bs.extra)))  # the two-condition law: a ledger per joint
     S[k.S_ENERGY] = bs.energy_j
     S[k.S_HAS_LAST] = 1.0 if bs.has_last else 0.0
@@ -182,13 +187,16 @@ def store_side(side: ArmSide, t: tuple[Any, ...]) -> int:
 
 def law_code(bound: Any) -> int:
     """side_kernel's I_LAW code of a side's bound: EBA's pooled bound, the two conditions joint by
-    joint, or TDPA's with its controller."""
+    joint, TDPA's with its controller, or wave variables' ports."""
     from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+    from haptic_teleop.core.wave_coupled import CoupledWaveBound
 
     k = side_kernel()
     if isinstance(bound, CoupledTwoConditionBound):
         return int(k.LAW_TWO_CONDITION)
+    if isinstance(bound, CoupledWaveBound):
+        return int(k.LAW_WAVE)
     if not isinstance(bound, CoupledTdpaBound):
         return int(k.LAW_EBA)
     return int(k.LAW_TDPA_ZOH if bound.controller == "zoh" else k.LAW_TDPA_VELOCITY)
@@ -199,8 +207,9 @@ def compiled_bounds() -> tuple[type, ...]:
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
     from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+    from haptic_teleop.core.wave_coupled import CoupledWaveBound
 
-    return (CoupledEnergyBound, CoupledTdpaBound, CoupledTwoConditionBound)
+    return (CoupledEnergyBound, CoupledTdpaBound, CoupledTwoConditionBound, CoupledWaveBound)
 
 
 def compiled_reason_side(side: ArmSide) -> str | None:
@@ -231,6 +240,7 @@ class _Ledger:
         law = int(t[k.T_I][k.I_LAW])
         self.tdpa = law in (int(k.LAW_TDPA_VELOCITY), int(k.LAW_TDPA_ZOH))
         self.joints = side.plant.n if law == int(k.LAW_TWO_CONDITION) else 0  # a ledger per joint
+        self.wave = law == int(k.LAW_WAVE)
 
     @property
     def energy_j(self) -> float:
@@ -261,8 +271,24 @@ class _Ledger:
     def initial_energy_j(self) -> float:
         return float(self._F[self._k.F_E0]) if self.tdpa else float(self.params.initial_energy_j)
 
-    def receive(self, energy_in_j: float) -> None:
-        """`CoupledTdpaBound.receive`: the remote side's cumulative input energy (`tdpa.received1`)."""
+    @property
+    def sent(self) -> np.ndarray:
+        """`CoupledWaveBound.sent`: the waves this tick sends (a view of the kernel's state)."""
+        from haptic_teleop.core.wave_coupled import AXES, W_SENT
+
+        i = self._k.S_EXTRA + W_SENT
+        return self._S[i : i + AXES]
+
+    def receive(self, sample: Any) -> None:
+        """`CoupledTdpaBound.receive` (the remote side's cumulative input energy, `tdpa.received1`),
+        or with wave variables `CoupledWaveBound.receive` (a whole accepted sample: its waves)."""
+        if self.wave:
+            from haptic_teleop.core.wave_coupled import WAVE_ARM_SIZE, wave_receive
+
+            i = self._k.S_EXTRA
+            wave_receive(self._S[i : i + WAVE_ARM_SIZE], np.asarray(sample[:6], dtype=float))
+            return
+        energy_in_j = float(sample)
         from haptic_teleop.core.tdpa import received1
         from haptic_teleop.core.tdpa_coupled import TDPA_EXTRA
 
@@ -275,6 +301,11 @@ class _Ledger:
         k = self._k
         self._S[k.S_ENERGY] = float(energy_j)
         self._S[k.S_HAS_LAST] = 0.0
+        if self.wave:  # CoupledWaveBound.restart: the port state afresh, its ledger at energy_j
+            from haptic_teleop.core.wave_coupled import W_ENERGY, WAVE_ARM_SIZE
+
+            self._S[k.S_EXTRA : k.S_EXTRA + WAVE_ARM_SIZE] = 0.0
+            self._S[k.S_EXTRA + W_ENERGY] = float(energy_j)
         if self.joints:  # CoupledTwoConditionBound.restart: each joint's ledger E0 / n
             ledgers = self._S[k.S_EXTRA : k.S_EXTRA + self.joints]
             ledgers[:] = float(energy_j) / self.joints

@@ -41,9 +41,10 @@ if TYPE_CHECKING:
     from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.taskspace import TaskSpaceLaw, WorkspaceMapping
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+    from haptic_teleop.core.wave_coupled import CoupledWaveBound
 
     # An arm side's stabilizer (arm_bound): the interface SideTick and the stages use.
-    ArmBound = CoupledEnergyBound | CoupledTdpaBound | CoupledTwoConditionBound
+    ArmBound = CoupledEnergyBound | CoupledTdpaBound | CoupledTwoConditionBound | CoupledWaveBound
     from haptic_teleop.plants.arm import MujocoArm
     from haptic_teleop.plants.hardware_arm import HardwareArm
     from haptic_teleop.record.columns import TickSchema
@@ -378,10 +379,11 @@ def arm_kernels() -> Mapping[str, Callable[..., Any]] | None:
     from haptic_teleop.core.eba_two_condition_coupled import coupled_two_condition, room_within
     from haptic_teleop.core.taskspace import KERNEL_FUNCTIONS
     from haptic_teleop.core.tdpa_coupled import coupled_tdpa
+    from haptic_teleop.core.wave_coupled import wave_ports_begin, wave_ports_end
 
     # Each compiled from its one definition with its callees, as the compiled arm loop's
     # side_kernel.py compiles them (the same compiled functions in one process: the same bits)
-    laws = (coupled_tdpa, coupled_two_condition, room_within)
+    laws = (coupled_tdpa, coupled_two_condition, room_within, wave_ports_begin, wave_ports_end)
     return {fn.__name__: compile_tree(fn) for fn in (*KERNEL_FUNCTIONS, *laws)}
 
 
@@ -397,11 +399,14 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
     from haptic_teleop.core.eba_coupled import CoupledEnergyBound
     from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
     from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+    from haptic_teleop.core.wave_coupled import CoupledWaveBound
 
     b = side.bound
     bound: ArmBound
     if isinstance(b, CoupledTdpaBound):
         bound = CoupledTdpaBound(b.params, b.controller, side.kernels, b.reflection)
+    elif isinstance(b, CoupledWaveBound):
+        bound = CoupledWaveBound(b.params, b.wave, b.master, b.k, b.c, side.kernels)
     elif isinstance(b, CoupledTwoConditionBound):
         bound = CoupledTwoConditionBound(b.params, side.kernels)
     else:
@@ -409,6 +414,9 @@ def _warm_up(side: ArmSide, config: Scene) -> None:
     z3 = np.zeros(3)
     jac = plant.jacobian(rotational=side.rotational)
     tau = law.torque(jac, np.zeros(n), z3, z3, z3, z3, None, plant.orientation() if side.rotational else None)
+    if isinstance(bound, CoupledWaveBound):  # its two halves around the torque
+        bound.begin(z3, z3)
+        bound.end(1.0)
     bound.step(np.zeros(n), tau)
     bound.step(np.zeros(n), tau)
     if isinstance(bound, CoupledTwoConditionBound):  # its other signature: the room given
@@ -429,6 +437,18 @@ def arm_bound(
         from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
 
         return CoupledTwoConditionBound(params, kernels)
+    if eba.law == "wave":
+        import numpy as np
+
+        from haptic_teleop.core.wave import WaveParams
+        from haptic_teleop.core.wave_coupled import CoupledWaveBound
+
+        ctrl = getattr(config.controllers, role)
+        wave = WaveParams(eba.wave_impedance_n_s_per_m, eba.wave_filter_hz, eba.wave_drift_gain_per_s, eba.wave_matched)
+        # the slave's local spring and damper: the task coupling's gains (the master's port has none)
+        k = np.array(ctrl.stiffness_axes_n_per_m or (ctrl.stiffness_n_per_m,) * 3, dtype=float)
+        c = np.array(ctrl.damping_axes_n_s_per_m or (ctrl.damping_n_s_per_m,) * 3, dtype=float)
+        return CoupledWaveBound(params, wave, role == "master", k, c, kernels)
     if eba.law == "tdpa":
         from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 
@@ -548,6 +568,11 @@ def build_arm_parts(config: Scene, compiled: bool = True) -> ArmParts:
         # Remote payloads (task frame): master receives (x, v, f_contact), slave (x, v); with
         # TDPA, the sender's pooled input energy last (core/tdpa_coupled.py).
         kinds = (limits.position_m, limits.velocity_m_per_s, limits.force_n)
+        if cfg.eba.law == "wave":  # (x, waves[, f_env]): the waves where the velocities were
+            from haptic_teleop.core.wave import wave_limit
+
+            wave = wave_limit(cfg.eba.wave_impedance_n_s_per_m, limits.velocity_m_per_s, limits.force_n)
+            kinds = (limits.position_m, wave, limits.force_n)
         per = kinds if role == "master" else kinds[:2]
         energy = (ENERGY_LIMIT_J,) if cfg.eba.law == "tdpa" else ()
         guard = SampleGuard([*(k for k in per for _ in range(3)), *energy])

@@ -17,6 +17,7 @@ from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBoun
 from haptic_teleop.core.taskspace import dot, matrix_times, task_force_of, tick_scratch
 from haptic_teleop.core.tdpa import slipped1
 from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+from haptic_teleop.core.wave_coupled import CoupledWaveBound
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -77,6 +78,9 @@ class _SideTick:
         # the two-condition law bounds each joint within the motors' room this tick (its fallback
         # torque is then one the motor applies)
         self.per_joint = isinstance(bound, CoupledTwoConditionBound)
+        # wave variables: the ports make the task force (before the torque) and cut their waves to
+        # the force the motors' limits let through (after it): core/wave_coupled.py
+        self.wave = isinstance(bound, CoupledWaveBound)
         joints = self.per_joint and bound.params.enabled
         self.task_force: np.ndarray | None = np.zeros(3) if velocity or joints else None
         # TDPA's admittance placement: the coupling's reference offset by the bound's slip
@@ -104,7 +108,8 @@ class _SideTick:
             if self.admittance:
                 rx = rx + self.bound.slip_m
         r_tool = plant.orientation() if self.side.rotational else None
-        tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool)
+        port = self.bound.begin(x, v) if self.wave else None
+        tau = self.law.torque(jac, qd, x, v, rx, rv, None, r_tool, port)
         f = self.law.wrench[:3]
         self.force[:] = f
         norm = float(np.sqrt(dot(f, f)))
@@ -121,6 +126,8 @@ class _SideTick:
         self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
         sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
         self.ratio *= sat
+        if self.wave:
+            self.bound.end(self.ratio)
         if self.task_force is not None:  # not a scaled copy of tau (TDPA's velocity controller, two conditions)
             self.task_force_of(self._wrench, jac, out, self._scratch)
             self.task_force[:] = self._wrench[:3]

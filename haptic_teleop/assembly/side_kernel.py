@@ -18,7 +18,8 @@ import numba
 import numpy as np
 
 from haptic_teleop.compiling import compile_tree
-from haptic_teleop.core import eba_coupled, eba_two_condition_coupled, taskspace, tdpa, tdpa_coupled
+from haptic_teleop.core import eba_coupled, eba_two_condition_coupled, taskspace, tdpa, tdpa_coupled, wave_coupled
+from haptic_teleop.core.wave_coupled import W_SENT, WAVE_ARM_SIZE
 from haptic_teleop.plants.mujoco_native import (
     borrowed,
     load_f64,
@@ -62,6 +63,9 @@ joint_limited = compile_tree(eba_coupled.joint_limited, **small)
 coupled_tdpa = compile_tree(tdpa_coupled.coupled_tdpa)
 coupled_two_condition = compile_tree(eba_two_condition_coupled.coupled_two_condition)
 room_within = compile_tree(eba_two_condition_coupled.room_within, **small)
+wave_ports_begin = compile_tree(wave_coupled.wave_ports_begin)
+wave_ports_end = compile_tree(wave_coupled.wave_ports_end)
+wave_receive = compile_tree(wave_coupled.wave_receive, **small)
 received1 = compile_tree(tdpa.received1, **small)
 slipped1 = compile_tree(tdpa.slipped1, **small)
 
@@ -116,17 +120,22 @@ I_KEEP_DIRECTION, I_SLEW, I_WALL, I_GEOM1, I_GEOM2, I_NCON, I_CONTACT, I_STRIDE 
 I_POS, I_FRAME, I_G1, I_G2, I_EFC, I_HAND, I_JAC_SCALE, I_NV = 17, 18, 19, 20, 21, 22, 23, 24
 # I_LAW: the side's stabilizer, LAW_EBA (the pooled reservoir bound), TDPA's pooled step with its
 # controller (core/tdpa_coupled.py: `coupled_tdpa`; its energy rides last on the side's samples) or
-# the two conditions joint by joint (core/eba_two_condition_coupled.py: `coupled_two_condition`).
+# the two conditions joint by joint (core/eba_two_condition_coupled.py: `coupled_two_condition`), or
+# wave variables' ports per task axis (core/wave_coupled.py; its waves ride where the velocities were).
 I_LAW = 25
 I_SIZE = 26
-LAW_EBA, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH, LAW_TWO_CONDITION = 0, 1, 2, 3
+LAW_EBA, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH, LAW_TWO_CONDITION, LAW_WAVE = 0, 1, 2, 3, 4
 F_LIMIT, F_MU, F_SCALE, F_FORCE_SCALE, F_K_HAND, F_B_HAND, F_E0, F_REFLECT = 0, 1, 2, 3, 4, 5, 6, 7
 F_ADMIT, F_RECOVER = 8, 9  # TDPA's admittance placement (1: on) and its drift gain times T
-F_SIZE = 10
+# wave variables (CoupledWaveBound's): the impedance b, s = sqrt(2 b), the filter's pole, the drift
+# gain, matched (1: on), the master's port (1) or the slave's (0), the side's period T
+F_WAVE_B, F_WAVE_S, F_WAVE_POLE, F_WAVE_DRIFT, F_WAVE_MATCHED, F_WAVE_MASTER, F_PERIOD = 10, 11, 12, 13, 14, 15, 16
+F_SIZE = 17
 S_ENERGY, S_HAS_LAST, S_HAS_REMOTE, S_HAS_HOLD, S_RATIO, S_REJECTED, S_SCALE, S_LIMITED = 0, 1, 2, 3, 4, 5, 6, 7
 # TDPA's state (core/tdpa_coupled.TDPA_EXTRA, in its order: the admittance placement's slip per
-# task axis last, from S_SLIP) from S_EXTRA on; the two-condition law's: each joint's ledger
-# (S is S_SIZE long, or longer for an arm of more joints: compiled_side.side_tuple)
+# task axis last, from S_SLIP) from S_EXTRA on; the two-condition law's: each joint's ledger; wave
+# variables': the port state (core/wave_coupled.py's W_* layout; S is S_SIZE long, or as long as
+# the law's state needs: compiled_side.side_tuple)
 S_EXTRA = 8
 S_SLIP = S_EXTRA + 5
 S_SIZE = 16
@@ -274,7 +283,12 @@ def side_torque(
     if iv[I_JAC_SCALE] != 0:
         matrix_times(jac[:3], jac_scale, j3)
     # TaskSpaceLaw.torque
-    if S[S_HAS_REMOTE] == 0.0:
+    if iv[I_LAW] == LAW_WAVE:  # CoupledWaveBound.begin: the ports make the task force
+        wave_ports_begin(
+            S[S_EXTRA : S_EXTRA + WAVE_ARM_SIZE], wrench, x, v, F[F_WAVE_MASTER] != 0.0, F[F_WAVE_S], F[F_WAVE_B],
+            c1, c2, F[F_WAVE_POLE], F[F_WAVE_DRIFT], F[F_WAVE_MATCHED] != 0.0, F[F_PERIOD],
+        )  # fmt: skip
+    elif S[S_HAS_REMOTE] == 0.0:
         for k in range(3):
             wrench[k] = 0.0
     elif F[F_ADMIT] != 0.0:  # TDPA's admittance placement: the received point offset by the slip
@@ -311,6 +325,23 @@ def side_torque(
         if limited[i] != tau[i]:
             S[S_LIMITED] += 1.0
             break
+    if iv[I_LAW] == LAW_WAVE:  # CoupledWaveBound.step (the torque limits), then its `end` with the ratio
+        joint_limited(out, limited, blow, bhigh, True)
+        for i in range(n):
+            held[i] = out[i]
+            last_q[i] = q[i]
+        S[S_HAS_LAST] = 1.0
+        tt = dot(tau, tau)
+        ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
+        sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
+        S[S_RATIO] = ratio * sat
+        S[S_ENERGY] = wave_ports_end(
+            S[S_EXTRA : S_EXTRA + WAVE_ARM_SIZE], S[S_RATIO], F[F_WAVE_MASTER] != 0.0, F[F_WAVE_B],
+            F[F_WAVE_MATCHED] != 0.0, F[F_PERIOD],
+        )  # fmt: skip
+        for k in range(3):
+            felt[k] = S[S_RATIO] * force[k]
+        return
     if iv[I_LAW] == LAW_TWO_CONDITION:  # CoupledTwoConditionBound.step: the room within the limits, per joint
         room_within(lo, hi, blow, bhigh)
         joint_limited(tmp, limited, lo, hi, True)
@@ -416,6 +447,17 @@ def guarded(side: Any, sample: np.ndarray) -> None:
     S[S_HAS_REMOTE] = 1.0
     if carries_energy(side):  # TDPA: the remote side's input energy, last (CoupledTdpaBound.receive)
         S[S_EXTRA + 2] = received1(S[S_EXTRA + 2], sample[lim.shape[0] - 1])
+    elif side[T_I][I_LAW] == LAW_WAVE:  # its waves, to be used once (CoupledWaveBound.receive)
+        wave_receive(S[S_EXTRA : S_EXTRA + WAVE_ARM_SIZE], sample)
+
+
+@inline  # type: ignore[misc]
+def sample_velocity(side: Any, v: np.ndarray, k: int) -> float:
+    """What a side's sample carries in its velocities' place on axis k: the velocity, or with wave
+    variables the wave the side sends (ArmSideStage.tick)."""
+    if side[T_I][I_LAW] == LAW_WAVE:
+        return side[T_S][S_EXTRA + W_SENT + k]  # type: ignore[no-any-return]
+    return v[k]  # type: ignore[no-any-return]
 
 
 def work_arrays(n: int, nv: int, rows: int) -> tuple[np.ndarray, ...]:

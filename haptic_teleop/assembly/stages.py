@@ -25,6 +25,7 @@ from haptic_teleop.core.link import Link, Packet
 from haptic_teleop.core.operator import imposed_force1
 from haptic_teleop.core.playout import PlayoutBuffer
 from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
+from haptic_teleop.core.wave_coupled import CoupledWaveBound
 
 if TYPE_CHECKING:
     from haptic_teleop.assembly.parts import ArmParts, ArmSide
@@ -225,6 +226,7 @@ class ArmSideStage:
         self.due = True
         self.remote: Payload | None = None  # the newest accepted remote sample
         self.tdpa = isinstance(side.bound, CoupledTdpaBound)  # its energy rides on the samples
+        self.wave = isinstance(side.bound, CoupledWaveBound)  # its waves ride where the velocities were
         # the tick's arrays (joints, the point in the task frame, the master's handle in the
         # device's frame for the hand, the slave's contact force and torque): set at the first sense
         self.q: Any = None
@@ -264,17 +266,21 @@ class ArmSideStage:
             self.tau = self.side_tick.torque(self.x, self.v, self.remote)
         elif self.master and not self.real:  # the operator's hand meets the simulated handle where it is now
             self.hand_x, self.hand_v = plant.point()
-        # TDPA: the side's pooled input energy rides last on its samples (core/tdpa_coupled.py).
+        # TDPA: the side's pooled input energy rides last on its samples (core/tdpa_coupled.py);
+        # wave variables: the side's waves in the velocities' place (core/wave_coupled.py).
         e = (self.side_tick.bound.sent_j,) if self.tdpa else ()
+        v = self.side_tick.bound.sent if self.wave else self.v
         if self.master:
-            return (*self.x.tolist(), *self.v.tolist(), *e)
-        return (*self.x.tolist(), *self.v.tolist(), *self.f_env.tolist(), *e)
+            return (*self.x.tolist(), *v.tolist(), *e)
+        return (*self.x.tolist(), *v.tolist(), *self.f_env.tolist(), *e)
 
     def take(self, payload: Payload) -> None:
         if self.guard.accept(payload):
             self.remote = payload
             if self.tdpa:
                 self.side_tick.bound.receive(payload[-1])
+            elif self.wave:
+                self.side_tick.bound.receive(payload)
 
     def actuate(self, n: int, hand: Any) -> None:
         hand = hand if self.hand_on else None

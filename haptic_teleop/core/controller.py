@@ -15,7 +15,7 @@ from haptic_teleop.core.eba import EnergyBound, command1, coupling1, saturated1,
 from haptic_teleop.core.eba_state import EnergyBoundParams
 from haptic_teleop.core.eba_two_condition import TwoConditionBound
 from haptic_teleop.core.tdpa import ENERGY_LIMIT_J, TdpaBound
-from haptic_teleop.core.wave import WaveParams, WaveSide
+from haptic_teleop.core.wave import WaveParams, WaveSide, wave_limit
 
 LAWS = ("position", "force")
 
@@ -163,8 +163,7 @@ class TeleopController:
             if self.tdpa is not None:
                 per_kind = (*per_kind, ENERGY_LIMIT_J)
             if wave is not None and self.wave is not None:  # (wave, the sender's position)
-                sq = math.sqrt(2.0 * wave.impedance_n_s_per_m)
-                per_kind = (sq * lim.velocity_m_per_s + 2.0 * lim.force_n / sq, lim.position_m)
+                per_kind = (wave_limit(wave.impedance_n_s_per_m, lim.velocity_m_per_s, lim.force_n), lim.position_m)
             self.guard = SampleGuard([k for k in per_kind for _ in range(self._n)])
 
     @property

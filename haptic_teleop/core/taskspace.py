@@ -624,6 +624,7 @@ class TaskSpaceLaw:
         remote_v: Vec | None,
         remote_force: Vec | None = None,
         r_tool: Mat | None = None,
+        port_force: Vec | None = None,
     ) -> Vec:
         """Desired joint torques for one tick.
 
@@ -631,13 +632,16 @@ class TaskSpaceLaw:
         under the positional ones when the orientation is held); x, v: the point's position and
         velocity in the frame of the remote sample; remote_x/remote_v (law "position") or
         remote_force (law "force"): the newest remote sample, None before the first one (no
-        coupling force then); r_tool: the tool's orientation (orientation "hold").
+        coupling force then); r_tool: the tool's orientation (orientation "hold"); port_force: the
+        task force made elsewhere (wave variables' ports, core/wave_coupled.py) in place of the law's.
         """
         p = self.params
         w = self.wrench
         f = self._f
         d = p.axes
-        if p.law == "force":
+        if port_force is not None:
+            w[:d] = port_force
+        elif p.law == "force":
             if remote_force is None:
                 w[:d] = 0.0
             else:

@@ -65,6 +65,13 @@ class WaveParams:
             raise ValueError(f"drift_gain_per_s must be finite and >= 0, got {self.drift_gain_per_s}")
 
 
+def wave_limit(impedance_n_s_per_m: float, velocity_limit: float, force_limit: float) -> float:
+    """The largest plausible wave a sample can carry (a remote sample's guard), from the largest
+    plausible velocity and force: |u| = |b v + F| / s <= s v_max + 2 F_max / s."""
+    s = math.sqrt(2.0 * impedance_n_s_per_m)
+    return s * velocity_limit + 2.0 * force_limit / s
+
+
 def master_wave1(w: float, v: float, s: float, b: float) -> tuple[float, float]:
     """The master's port: (force on the handle, wave sent) from the wave received and its velocity."""
     return s * w - b * v, s * v - w

@@ -90,11 +90,13 @@ class ArmEbaSide:
         # last, on a joint of its own (core/tdpa_coupled.py), as in the engine's packets.
         law = scene_law(config, axes)
         self.tdpa = law == "tdpa"
+        # wave variables: the side's waves ride where the velocities were (core/wave_coupled.py)
+        self.wave = config.controllers.master.eba.law == "wave"
         self._in_wire = rw = wire_of(remote, axes, law)
         self._read = JointStateReader(rw.want, [(rw.names, rw.fields)], rw.width)
         self._own_wire = ow = wire_of(own, axes, law)
-        self._wire_out: JointStateOut | None = None  # TDPA: /<own>/sent in the wire's layout (`send`)
-        if self.tdpa and getattr(config.network, own).codec is None:
+        self._wire_out: JointStateOut | None = None  # TDPA, wave: /<own>/sent in the wire's layout (`send`)
+        if (self.tdpa or self.wave) and getattr(config.network, own).codec is None:
             self._wire_out = JointStateOut(node, sent_topic(own), ow.names, ow.fields)
         self._sub = node.create_polled_subscription(JointState, received_topic(remote), stream_qos(), raw=True)
         specs = topic_specs(self.schema)
@@ -134,14 +136,16 @@ class ArmEbaSide:
                     self.remote = payload
                     if self.tdpa and self._counts(sent_ns):
                         self.tick.bound.receive(payload[-1])
+                    elif self.wave and self._counts(sent_ns):  # its waves, used once
+                        self.tick.bound.receive(payload)
                 self.watchdog.feed(stamp_ns)
         self.tick.limit = self.limit_n * self.watchdog.update(stamp_ns)
         return self.tick.torque(x, v, self.remote)
 
     def _counts(self, sent_ns: int) -> bool:
-        """TDPA: whether a remote sample's energy is of this side's ledger. After the restart at
-        scene time 0 only samples stamped at or after it: the remote side restarted its count at
-        its first tick there, so an earlier sample carries the count before
+        """TDPA, wave variables: whether a remote sample's energy (its count, its waves) is of this
+        side's ledger. After the restart at scene time 0 only samples stamped at or after it: the
+        remote side restarted its ledger at its first tick there, so an earlier sample carries energy from before
         (docs/stabilizers_arms.md, "TDPA live on arms: the restart"). Before the restart every
         sample counts (it is discarded)."""
         return self.restarted_j is None or self.restart_ns is None or sent_ns >= self.restart_ns
@@ -149,12 +153,18 @@ class ArmEbaSide:
     def send(self, direction: str, stamp_ns: int, payload: tuple[float, ...]) -> None:
         """This tick's sample on /<direction>/sent (a direction without a codec): the bag's layout;
         with TDPA the wire's, the side's pooled input energy last (`sent_j`, as the engine's
-        ArmSideStage), and the bag's layout on /<direction>/sample for the recorder."""
+        ArmSideStage), with wave variables its waves in the velocities' place (`sent`), and the bag's
+        layout on /<direction>/sample for the recorder."""
         if self._wire_out is None:
             self.publish(sent_topic(direction), stamp_ns, payload)
             return
         self.publish_sample(direction, stamp_ns, payload)
-        self._wire_out.publish(stamp_ns, self._own_wire.values((*payload, self.tick.bound.sent_j)))
+        bound = self.tick.bound
+        if self.wave:
+            wire = (*payload[:3], *bound.sent.tolist(), *payload[6:])
+        else:
+            wire = (*payload, bound.sent_j)
+        self._wire_out.publish(stamp_ns, self._own_wire.values(wire))
 
     def _restart(self, stamp_ns: int) -> None:
         if self.restart_ns is None:

@@ -209,24 +209,16 @@ def _check_arm_scene(config: Scene, source: str, emulate: bool = False, identify
         if getattr(config.controllers, side).law != "position":
             raise ConfigError(source, f"controllers.{side}.law", "force", "allowed for arms: position")
         law = getattr(config.controllers, side).eba.law
-        if law not in ("reservoir", "two_condition", "tdpa"):
-            raise ConfigError(
-                source,
-                f"controllers.{side}.eba.law",
-                law,
-                "allowed for arms: reservoir (the pooled joint bound), two_condition (joint by joint), tdpa "
-                "(pooled joints; wave variables are one-axis only)",
-            )
-        if law == "two_condition" and backend(getattr(config, side).backend).real:
+        if law in ("two_condition", "wave") and backend(getattr(config, side).backend).real:
             raise ConfigError(source, f"controllers.{side}.eba.law", law,
-                              "allowed on a real arm: reservoir, tdpa (the two-condition law credits the damping "
-                              "over one period; a real clock's late ticks need a hold budget)")  # fmt: skip
+                              f"allowed on a real arm: reservoir, tdpa ({law} counts one period per tick; a real "
+                              "clock's late ticks need the hold budget those two keep)")  # fmt: skip
         eba = getattr(config.controllers, side).eba
         if law == "tdpa" and eba.tdpa_placement == "admittance" and eba.tdpa_controller != "zoh":
             raise ConfigError(source, f"controllers.{side}.eba.tdpa_placement", "admittance",
                               "allowed for arms with tdpa_controller velocity: impedance (the admittance "
                               "placement on arms moves the reference by the zoh controller's scale)")  # fmt: skip
-        if law in ("tdpa", "two_condition") and getattr(config, side).slew_nm_per_s is not None:
+        if law in ("tdpa", "two_condition", "wave") and getattr(config, side).slew_nm_per_s is not None:
             raise ConfigError(source, f"{side}.slew_nm_per_s", getattr(config, side).slew_nm_per_s,
                               f"allowed with {law}: none (its bound is not slew-aware)")  # fmt: skip
     from haptic_teleop.plants.arm import MujocoArm

@@ -297,7 +297,9 @@ def test_kernels_compile_with_numba_and_give_the_interpreted_results():
     from haptic_teleop.core import taskspace as ts
 
     k = arm_kernels()
-    assert k is not None and set(k) == {fn.__name__ for fn in ts.KERNEL_FUNCTIONS} | {"coupled_tdpa"}
+    # the laws' steps too (run through the arm loops: test_compiled_arm.py's cases, compiled = Python)
+    laws = {"coupled_tdpa", "coupled_two_condition", "room_within", "wave_ports_begin", "wave_ports_end"}
+    assert k is not None and set(k) == {fn.__name__ for fn in ts.KERNEL_FUNCTIONS} | laws
     rng = np.random.default_rng(11)
     rot = np.array(rotation_from_rpy(0.3, -1.0, 2.0))
     near_pi = _rodrigues((1.0, 2.0, -0.5), math.pi - 1e-7) @ rot

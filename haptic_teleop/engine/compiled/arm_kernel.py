@@ -46,6 +46,7 @@ from haptic_teleop.assembly.side_kernel import (
     plant_step,
     point,
     read_joints,
+    sample_velocity,
     side_torque,
     unmap_point,
     work,
@@ -167,7 +168,7 @@ def forward_sample(out: np.ndarray, v: Any, ms: Any) -> None:
     x, vel = v[V_XM], v[V_VM]
     for k in range(3):
         out[k] = x[k]
-        out[3 + k] = vel[k]
+        out[3 + k] = sample_velocity(ms, vel, k)
     if carries_energy(ms):
         out[6] = ms[T_S][S_EXTRA + 4]
 
@@ -179,7 +180,7 @@ def backward_sample(out: np.ndarray, v: Any, ss: Any) -> None:
     x, vel, f = v[V_XS], v[V_VS], v[V_F_ENV]
     for k in range(3):
         out[k] = x[k]
-        out[3 + k] = vel[k]
+        out[3 + k] = sample_velocity(ss, vel, k)
         out[6 + k] = f[k]
     if carries_energy(ss):
         out[9] = ss[T_S][S_EXTRA + 4]
