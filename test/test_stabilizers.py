@@ -495,10 +495,13 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
     assert (out / "stabilizers.png").stat().st_size > 10_000
     assert "TDPA, ZOH-exact controller" in (out / "stabilizers.md").read_text()
     assert len(list(csv.DictReader((out / "stabilizers.csv").open()))) == 12
-    # The arm scene: the laws it runs (wave variables are one-axis only), every run a bag.
+    # The arm scene: the laws it runs (every one named here), every run a bag.
     arm = list(csv.DictReader((out / "stabilizers_arm_runs.csv").open()))
     assert sorted((x["law"], float(x["delay_s"]), x["loss"]) for x in arm) == sorted(
-        (law, d, loss) for law in ("reservoir", "tdpa_zoh") for d in (0.0, 0.1) for loss in ("none", "bursty_30")
+        (law, d, loss)
+        for law in ("reservoir", "tdpa_zoh", "wave")
+        for d in (0.0, 0.1)
+        for loss in ("none", "bursty_30")
     )
     for x in arm:
         bag = out / "arm_bags" / x["law"] / f"delay_{float(x['delay_s']) * 1e3:g}ms-{x['loss']}" / "seed_1" / "bag"

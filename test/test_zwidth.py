@@ -130,3 +130,30 @@ def test_the_z_width_sweep_writes_a_bag_per_wall_and_tables_measured_from_them(t
         span = f"{min(ok):.3g}..{max(ok):.3g}" if ok else "none"
         assert f"| {LAWS[law][0]} | {span} | {len(ok)}/4 |" in text
     assert (kept / "zwidth.png").stat().st_size > 10_000
+    # The same sweep on the arm scene (the arm laws among --laws), measured along the table's normal.
+    from haptic_teleop.analysis.stream import summarize_bag
+    from haptic_teleop.analysis.taskmetrics import load_task_signals
+
+    arm = list(csv.DictReader((kept / "zwidth_arm_runs.csv").open()))
+    assert sorted((x["law"], float(x["wall_stiffness_n_per_m"]), float(x["wall_damping_n_s_per_m"])) for x in arm) == (
+        sorted((law, k, b) for law in ("reservoir", "tdpa_zoh") for k in (1000.0, 30000.0) for b in (0.0, 10.0))
+    )
+    for x in arm:
+        bag = (
+            kept / "zwidth_arm_bags" / x["law"] / "delay_100ms"
+            / f"k_{float(x['wall_stiffness_n_per_m']):g}-b_{float(x['wall_damping_n_s_per_m']):g}" / "bag"
+        )  # fmt: skip
+        sig = load_task_signals(bag)
+        assert sig.scene["scene"]["name"] == "touch_ur5e_wall"
+        assert sig.scene["slave"]["wall"]["stiffness_n_per_m"] == float(x["wall_stiffness_n_per_m"])
+        assert float(x["two_port_margin_min_j"]) == summarize_bag(bag)["two_port_energy_margin_min_j"] >= 0.0
+        late = sig.t_s >= float(x["late_window_start_s"])
+        n = np.array([0.0, 0.0, 1.0])  # the table's normal
+        depth = float(np.mean((np.asarray(sig.scene["slave"]["wall"]["point_m"]) - sig.master_x_m[late]) @ n))
+        static = float(np.mean(np.abs(sig.master_force_n[late] @ n))) / depth if depth >= 1e-4 else math.nan
+        assert _float(x["felt_static_stiffness_n_per_m"]) == pytest.approx(static, rel=1e-12, nan_ok=True)
+        speed = np.linalg.norm(np.gradient(sig.master_x_m, sig.t_s, axis=0), axis=1)[late]
+        assert float(x["late_master_velocity_rms_m_per_s"]) == pytest.approx(math.sqrt(np.mean(speed**2)), rel=0.05)
+    assert "## Z-width on touch_ur5e_wall" in (kept / "zwidth_arm.md").read_text()
+    assert (kept / "zwidth_arm.png").stat().st_size > 10_000
+    assert (discarded / "zwidth_arm_runs.csv").read_text() == (kept / "zwidth_arm_runs.csv").read_text()

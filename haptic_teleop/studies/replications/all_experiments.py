@@ -178,6 +178,7 @@ JOBS: tuple[Job, ...] = (
             ("stabilizers.png", "stabilizers.png"),
             ("stabilizers_arm.png", "stabilizers_arm.png"),
             ("zwidth.png", "zwidth.png"),
+            ("zwidth_arm.png", "zwidth_arm.png"),
         ),
         checks=(
             _c("stabilizers.csv", {"law": "reservoir", "delay_s": "0.5", "loss": "none"},
@@ -194,8 +195,15 @@ JOBS: tuple[Job, ...] = (
                "force_rms_error_vs_wall_n_mean", 7.59, 0.005, _ST),
             _c("stabilizers.csv", {"law": "tdpa_velocity", "delay_s": "0.5", "loss": "none"},
                "two_port_margin_min_j_mean", -0.197, 0.0005, _ST),
+            _c("stabilizers_arm.csv", {"law": "two_condition", "delay_s": "0.5", "loss": "none"},
+               "force_rms_error_vs_wall_n_mean", 16.2, 0.05, _ST),
+            _c("stabilizers_arm.csv", {"law": "wave", "delay_s": "0.1", "loss": "none"},
+               "force_rms_error_vs_wall_n_mean", 1.44, 0.005, _ST),
+            _c("zwidth_arm_runs.csv", {"law": "wave", "delay_s": "0.1", "wall_stiffness_n_per_m": "100000.0",
+                                       "wall_damping_n_s_per_m": "0.0"},
+               "felt_static_stiffness_n_per_m", 181, 0.5, _ST),
         ),
-        scenes=("wall_contact", "touch_ur5e_wall"), seeds="1-2", minutes=3.2,
+        scenes=("wall_contact", "touch_ur5e_wall"), seeds="1-2", minutes=2.6,
     ),
 )  # fmt: skip
 

@@ -90,7 +90,7 @@ CONTACT_N = 0.1  # the slave touches the wall while its contact force exceeds th
 # compared here: the damper it adds along the joints' motion is no task force (through the Touch's
 # Jacobian it reads as 1e5 N), so its force columns would not be forces (docs/stabilizers_compared.md).
 ARM_SCENE = "touch_ur5e_wall"
-ARM_LAWS = ("reservoir", "tdpa_zoh", "tdpa_zoh_reflect")
+ARM_LAWS = ("reservoir", "two_condition", "tdpa_zoh", "tdpa_zoh_reflect", "wave", "wave_matched", "wave_filtered")
 
 
 def scene(overrides: Sequence[str], base: str = BASE_SCENE) -> Any:

@@ -258,10 +258,11 @@ def main(args: argparse.Namespace) -> int:
         scene((*LAWS[law][1], *arm_extra, *network_overrides(delays[-1], losses[-1])), ARM_SCENE)
     if sweep is not None:
         zwidth.check_scenes(laws, sweep, extra)
+        zwidth.check_scenes(arm_laws, sweep, arm_extra, arm=True)
     out = Path(args.out) if args.out else default_out("stabilizers")
     check_out_dir(out)
     per_law = 1 + len(delays) * len(losses) * seeds
-    total = (len(laws) + len(arm_laws)) * per_law + (zwidth.count(laws, sweep) if sweep else 0)
+    total = (len(laws) + len(arm_laws)) * per_law + (zwidth.count([*laws, *arm_laws], sweep) if sweep else 0)
     from tqdm import tqdm
 
     with tqdm(total=total, unit="run", disable=args.quiet, desc="stabilizers") as bar:
@@ -270,6 +271,11 @@ def main(args: argparse.Namespace) -> int:
             arm_laws, delays, losses, range(1, seeds + 1), arm_extra, out / "arm_bags", args.discard_bags, bar, True
         )
         z_rows = zwidth.run_sweep(laws, *sweep, extra, out / "zwidth_bags", args.discard_bags, bar) if sweep else []
+        z_arm = (
+            zwidth.run_sweep(arm_laws, *sweep, arm_extra, out / "zwidth_arm_bags", args.discard_bags, bar, True)
+            if sweep
+            else []
+        )
     if args.discard_bags:
         shutil.rmtree(out / "bags", ignore_errors=True)
         shutil.rmtree(out / "arm_bags", ignore_errors=True)
@@ -280,6 +286,8 @@ def main(args: argparse.Namespace) -> int:
         texts.append(_write(arm_rows, arm_laws, losses, wall, out, "stabilizers_arm"))
     if sweep:
         texts.append(zwidth.write(z_rows, laws, sweep, duration, out) + f"{out / 'zwidth.png'}\n")
+    if sweep and arm_laws:
+        texts.append(zwidth.write(z_arm, arm_laws, sweep, duration, out, arm=True) + f"{out / 'zwidth_arm.png'}\n")
     if not args.quiet:
         sys.stdout.write("\n".join(texts))
     return 0

@@ -42,6 +42,8 @@ from typing import Any
 import numpy as np
 
 from haptic_teleop.studies.replications.stabilizer_runs import (
+    ARM_SCENE,
+    BASE_SCENE,
     CONTACT_N,
     GEOMETRY,
     LAWS,
@@ -118,12 +120,14 @@ def grid(args: argparse.Namespace) -> Sweep | None:
 
 
 def scene_overrides(
-    law: str, stiffness_n_per_m: float, damping_n_s_per_m: float, delay_s: float, extra: Sequence[str]
-) -> list[str]:
-    """One run's overrides of the base scene: the geometry, the law, `extra` (duration, --set),
-    then the sweep's wall, network and seed (these win over a --set of the same keys)."""
+    law: str, stiffness_n_per_m: float, damping_n_s_per_m: float, delay_s: float, extra: Sequence[str],
+    arm: bool = False,
+) -> list[str]:  # fmt: skip
+    """One run's overrides of the base scene: the geometry (the one-axis scene's; an arm scene keeps
+    its own), the law, `extra` (duration, --set), then the sweep's wall, network and seed (these win
+    over a --set of the same keys)."""
     return [
-        *GEOMETRY, *LAWS[law][1], *extra,
+        *(() if arm else GEOMETRY), *LAWS[law][1], *extra,
         f"slave.wall.stiffness_n_per_m={stiffness_n_per_m!r}", f"slave.wall.damping_n_s_per_m={damping_n_s_per_m!r}",
         *network_overrides(delay_s, "none"), f"scene.seed={SEED}",
     ]  # fmt: skip
@@ -197,6 +201,39 @@ def measure(bag: Path) -> dict[str, Any]:
     }
 
 
+def measure_arm(bag: Path) -> dict[str, Any]:
+    """`measure` for an arm scene's bag, along the wall's normal n (task frame): the master's speed
+    (the norm of its handle's velocity, from its positions), the contact force's norm, the static
+    felt stiffness (the master's mean force along n over its mean depth beyond the wall's point
+    along -n, in the late window; the mapping is 1:1 on the bundled arm scene) and the slope over
+    the whole contact."""
+    from haptic_teleop.analysis.stream import summarize_bag
+    from haptic_teleop.analysis.taskmetrics import load_task_signals
+
+    summary = summarize_bag(bag)
+    sig = load_task_signals(bag)
+    wall = sig.scene["slave"]["wall"]
+    n = np.asarray(wall["normal"], dtype=float)
+    n = n / np.linalg.norm(n)
+    t = np.asarray(sig.t_s, dtype=float)
+    x = np.asarray(sig.master_x_m, dtype=float)
+    force = np.asarray(sig.master_force_n, dtype=float) @ n
+    speed = np.linalg.norm(np.gradient(x, t, axis=0), axis=1)
+    contact = np.linalg.norm(np.asarray(sig.contact_n, dtype=float), axis=1)
+    margin = float(summary["two_port_energy_margin_min_j"])
+    judged = judge(t, speed, contact, margin, push_end_s(sig.scene))
+    late = t >= judged["late_start_s"]
+    depth = float(np.mean((np.asarray(wall["point_m"], dtype=float) - x[late]) @ n))
+    stiffness = float(np.mean(np.abs(force[late]))) / depth if depth >= 1e-4 else math.nan
+    return {
+        "margin_j": margin,
+        "slope": felt_stiffness(-(x @ n), force, contact),
+        "stiffness": stiffness,
+        "contact_max_n": float(summary["contact_force_max_n"]),
+        **judged,
+    }
+
+
 def bag_path(bags: Path, law: str, delay_s: float, stiffness: float, damping: float) -> Path:
     return bags / law / f"delay_{delay_s * 1e3:g}ms" / f"k_{stiffness:g}-b_{damping:g}" / "bag"
 
@@ -210,15 +247,17 @@ def run_sweep(
     bags: Path,
     discard: bool,
     progress: Any = None,
+    arm: bool = False,
 ) -> list[list[Any]]:
-    """Every law over every delay and wall: rows of RUNS_HEADER."""
+    """Every law over every delay and wall: rows of RUNS_HEADER (`arm`: on the arm scene ARM_SCENE)."""
     rows: list[list[Any]] = []
+    base, measure_bag = (ARM_SCENE, measure_arm) if arm else (BASE_SCENE, measure)
     for law in laws:
         for delay in delays:
             for k in stiffness:
                 for b in damping:
                     bag = bag_path(bags, law, delay, k, b)
-                    m = record(scene_overrides(law, k, b, delay, extra), bag, measure)
+                    m = record(scene_overrides(law, k, b, delay, extra, arm), bag, measure_bag, base)
                     if discard:
                         shutil.rmtree(bag.parent)
                     rows.append(
@@ -239,7 +278,7 @@ def count(laws: Sequence[str], sweep: Sweep) -> int:
     return len(laws) * len(sweep[0]) * len(sweep[1]) * len(sweep[2])
 
 
-def check_scenes(laws: Sequence[str], sweep: Sweep, extra: Sequence[str]) -> None:
+def check_scenes(laws: Sequence[str], sweep: Sweep, extra: Sequence[str], arm: bool = False) -> None:
     """Load every wall of the sweep with every law (at its last delay): a wall the scene refuses
     (too stiff for the simulator's step) fails here, in one line naming the options, before
     anything is written."""
@@ -249,10 +288,11 @@ def check_scenes(laws: Sequence[str], sweep: Sweep, extra: Sequence[str]) -> Non
         for k in sweep[0]:
             for b in sweep[1]:
                 try:
-                    scene(scene_overrides(law, k, b, sweep[2][-1], extra))
+                    scene(scene_overrides(law, k, b, sweep[2][-1], extra, arm), ARM_SCENE if arm else BASE_SCENE)
                 except ConfigError as exc:
+                    where = f" on {ARM_SCENE}" if arm else ""
                     raise InputError(
-                        f"--z-width-stiffness {k:g} with --z-width-damping {b:g}: the scene refuses this wall: "
+                        f"--z-width-stiffness {k:g} with --z-width-damping {b:g}: the scene{where} refuses this wall: "
                         f"{exc.allowed}"
                     ) from None
 
@@ -285,11 +325,12 @@ def markdown_text(
     laws: Sequence[str],
     sweep: Sweep,
     duration_s: float,
+    where: str = "",
 ) -> str:
     stiffness, damping, delays = sweep
     at = _index(rows)
     out = [
-        "## Z-width: wall stiffness x wall damping\n\n",
+        f"## Z-width{where}: wall stiffness x wall damping\n\n",
         f"Seed {SEED}, {duration_s:g} s runs, no loss. A cell: the status and the static felt stiffness (N/m); "
         "a column: wall stiffness (N/m) / wall damping (N s/m). "
         f"{SYMBOLS['ok']} ok: passive (two-port margin min >= {-PASSIVE_TOLERANCE_J:g} J), the master's late "
@@ -398,10 +439,13 @@ def write(
     sweep: Sweep,
     duration_s: float,
     out: Path,
+    arm: bool = False,
 ) -> str:
-    """zwidth_runs.csv, zwidth.md and zwidth.png into `out`; returns the markdown."""
-    text = markdown_text(rows, laws, sweep, duration_s)
-    write_csv(out / "zwidth_runs.csv", RUNS_HEADER, rows)
-    (out / "zwidth.md").write_text(text)
-    plot(rows, laws, sweep, out / "zwidth.png")
+    """STEM_runs.csv, STEM.md and STEM.png into `out` (STEM: zwidth, or zwidth_arm for the arm
+    scene); returns the markdown."""
+    stem = "zwidth_arm" if arm else "zwidth"
+    text = markdown_text(rows, laws, sweep, duration_s, f" on {ARM_SCENE}" if arm else "")
+    write_csv(out / f"{stem}_runs.csv", RUNS_HEADER, rows)
+    (out / f"{stem}.md").write_text(text)
+    plot(rows, laws, sweep, out / f"{stem}.png")
     return text
