@@ -103,6 +103,17 @@ CASES = {
         ],
     ),
     "wave_loss": ("wall_contact", [*WAVE, f"{BWD}.effects.loss.probability=0.2"]),
+    # EBA's published two conditions (core/eba_two_condition.two_condition_bound1), with the
+    # controllers' force limits and loss; the slave alone on it at a stiff wall
+    "two_condition_limit_loss": (
+        "wall_contact",
+        [
+            *(f"controllers.{s}.eba.law=two_condition" for s in ("master", "slave")),
+            "controllers.master.force_limit_n=0.5",
+            f"{FWD}.effects.loss.probability=0.2",
+        ],
+    ),
+    "two_condition_slave_stiff": ("stiff_wall", ["controllers.slave.eba.law=two_condition"]),
     "wave_matched_loss": (
         "wall_contact",
         [*WAVE, "controllers.slave.eba.wave_matched=true", f"{FWD}.effects.loss.probability=0.2"],
@@ -239,7 +250,6 @@ def test_bound_with_actuator_limits_is_the_same_in_both_loops():
         (["slave.effects.noise.force_std_n=0.1"], "plant effects"),
         ([f"{FWD}.effects.corrupt.probability=0.01"], "corrupts payloads"),
         ([f"{BWD}.buffer.gap=extrapolate"], "extrapolates"),
-        (["controllers.slave.eba.law=two_condition"], "energy bound law two_condition on the slave side"),
     ],
 )
 def test_scenes_the_compiled_loop_cannot_run_fall_back_and_say_why(overrides, reason):

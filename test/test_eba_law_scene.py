@@ -9,7 +9,7 @@ import pytest
 
 from haptic_teleop.core.eba_two_condition import TwoConditionBound, contact_force_slope_n_per_s
 from haptic_teleop.engine.lockstep import COL, Engine
-from haptic_teleop.errors import ConfigError, InputError
+from haptic_teleop.errors import ConfigError
 from haptic_teleop.scene.load import find_scene, load_scene
 
 BOTH = ("controllers.master.eba.law=two_condition", "controllers.slave.eba.law=two_condition")
@@ -40,18 +40,19 @@ def test_a_slew_limit_is_refused():
         )
 
 
-def test_auto_runs_it_in_python_and_compiled_refuses_it():
-    scene = load_scene(find_scene("wall_contact"), overrides=[*BOTH, "scene.duration_s=0.1"])
+def test_auto_runs_it_compiled_with_the_python_loops_bits():
+    """The compiled one-axis loop runs the law (core/eba_two_condition.two_condition_bound1, the
+    Python bound's step): the same columns, bit for bit (test_compiled_loop.py has more cases)."""
+    scene = load_scene(find_scene("wall_contact"), overrides=[*BOTH, "scene.duration_s=0.5"])
     engine = Engine(scene)
-    assert engine.loop_kind == "python"
+    assert engine.loop_kind == "compiled"
     assert isinstance(engine.master_ctrl.bound, TwoConditionBound)
     assert isinstance(engine.slave_ctrl.bound, TwoConditionBound)
-    assert "two_condition" in str(engine.compiled_reason)
-    with pytest.raises(InputError, match="energy bound law two_condition on the master side"):
-        Engine(scene, loop="compiled")
-    one = load_scene(find_scene("wall_contact"), overrides=["controllers.slave.eba.law=two_condition"])
-    with pytest.raises(InputError, match="energy bound law two_condition on the slave side"):
-        Engine(one, loop="compiled")
+    engine.run(handle_sigint=False)
+    python = Engine(scene, loop="python")
+    python.run(handle_sigint=False)
+    assert np.array_equal(engine.data, python.data, equal_nan=True)
+    assert engine.master_ctrl.bound.energy_j == python.master_ctrl.bound.energy_j
 
 
 @pytest.fixture(scope="module")

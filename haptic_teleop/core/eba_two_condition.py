@@ -123,6 +123,17 @@ def controller_energy1(energy: float, held: float, force: float, dx: float) -> f
     return energy - 0.5 * (held + force) * dx
 
 
+def two_condition_bound1(
+    energy: float, held: float, dx: float, force_desired: float, enabled: bool, gain: float, bound_gain: float,
+    force_limit: float,
+) -> tuple[float, float]:  # fmt: skip
+    """One axis, one tick of the law (`TwoConditionBound.step1`, and the compiled one-axis loop):
+    the force held next (`two_condition1`; disabled: the desired force) and the ledger after it,
+    (E_c(n), F)."""
+    f = two_condition1(force_desired, energy, gain, bound_gain, held, dx, force_limit) if enabled else force_desired
+    return controller_energy1(energy, held, f, dx), f
+
+
 def contact_force_slope_n_per_s(
     law: str,
     coupling_stiffness_n_per_m: float,
@@ -196,13 +207,10 @@ class TwoConditionBound:
         return self._axis(0, dx, force_desired)
 
     def _axis(self, i: int, dx: float, force_desired: float) -> float:
-        e = self.energy_j[i]
-        held = self._held[i]
-        if self._enabled:
-            f = two_condition1(force_desired, e, self._gain[i], self._bound_gain[i], held, dx, self._force_limit)
-        else:
-            f = force_desired
-        self.energy_j[i] = controller_energy1(e, held, f, dx)
+        self.energy_j[i], f = two_condition_bound1(
+            self.energy_j[i], self._held[i], dx, force_desired, self._enabled, self._gain[i], self._bound_gain[i],
+            self._force_limit,
+        )  # fmt: skip
         self._held[i] = f
         return f
 

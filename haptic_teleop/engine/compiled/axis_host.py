@@ -60,6 +60,7 @@ from haptic_teleop.engine.compiled.layout import (
     LAW_RESERVOIR,
     LAW_TDPA_VELOCITY,
     LAW_TDPA_ZOH,
+    LAW_TWO_CONDITION,
     LAW_WAVE,
     MASTER,
     OP,
@@ -124,7 +125,7 @@ if TYPE_CHECKING:
 
 
 # The stabilizers (`controllers.<side>.eba.law`) the compiled 1-DoF loop runs.
-COMPILED_LAWS = ("reservoir", "tdpa", "wave")
+COMPILED_LAWS = ("reservoir", "two_condition", "tdpa", "wave")
 
 
 def law_code(ctrl: Any) -> float:
@@ -134,6 +135,8 @@ def law_code(ctrl: Any) -> float:
         return LAW_WAVE
     if b.params.law == "tdpa":
         return LAW_TDPA_ZOH if b.params.tdpa_controller == "zoh" else LAW_TDPA_VELOCITY
+    if b.params.law == "two_condition":
+        return LAW_TWO_CONDITION
     return LAW_RESERVOIR
 
 

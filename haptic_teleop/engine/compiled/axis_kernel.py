@@ -13,12 +13,14 @@ import numba
 import numpy as np
 
 from haptic_teleop.compiling import compile_tree
-from haptic_teleop.core import eba, tdpa, wave
+from haptic_teleop.core import eba, eba_two_condition, tdpa, wave
 from haptic_teleop.core import operator as op
 from haptic_teleop.engine.compiled import driver
 from haptic_teleop.engine.compiled.layout import (
     LAW_RESERVOIR,
+    LAW_TDPA_VELOCITY,
     LAW_TDPA_ZOH,
+    LAW_TWO_CONDITION,
     LAW_WAVE,
     MASTER,
     OP,
@@ -124,6 +126,7 @@ tdpa1 = compile_tree(tdpa.tdpa1)
 received1 = jit(tdpa.received1)
 slipped1 = jit(tdpa.slipped1)
 wave1 = compile_tree(wave.wave1)
+two_condition_bound1 = compile_tree(eba_two_condition.two_condition_bound1)  # TwoConditionBound.step1
 push1 = jit(op.push1)
 sinusoid1 = jit(op.sinusoid1)
 hand1 = jit(op.hand1)
@@ -152,7 +155,8 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
         ra, rb = S[side + S_R0], S[side + S_R1]
         if master and not force_law:
             ra, rb = S[side + S_R1], S[side + S_R2]
-        admittance = law != LAW_RESERVOIR and P[side + P_TDPA_ADMIT] != 0.0 and not force_law
+        tdpa_law = law == LAW_TDPA_VELOCITY or law == LAW_TDPA_ZOH  # noqa: PLR1714 (numba: plain comparisons)
+        admittance = tdpa_law and P[side + P_TDPA_ADMIT] != 0.0 and not force_law
         if admittance:  # TDPA's admittance placement: the reference offset by its slip
             ra = ra + S[X + 5]
         desired, f = command1(
@@ -164,6 +168,12 @@ def control(P: np.ndarray, S: np.ndarray, side: int, x: float, v: float, master:
                 S[side + S_ENERGY], P[side + P_EBA_GAIN], S[side + S_HELD], S[side + S_LAST],
                 S[side + S_HAS_LAST] != 0.0, x, f, P[side + P_EBA_ON] != 0.0, limited, P[side + P_BOUND_GAIN],
                 P[side + P_ACT_LIMIT], P[side + P_SLEW_STEP],
+            )  # fmt: skip
+        elif law == LAW_TWO_CONDITION:
+            dx = x - S[side + S_LAST] if S[side + S_HAS_LAST] != 0.0 else 0.0
+            S[side + S_ENERGY], f = two_condition_bound1(
+                S[side + S_ENERGY], S[side + S_HELD], dx, f, P[side + P_EBA_ON] != 0.0, P[side + P_EBA_GAIN],
+                P[side + P_BOUND_GAIN], P[side + P_ACT_LIMIT],
             )  # fmt: skip
         else:  # TDPA_EXTRA: E_in, E_out, the remote's E_in, the damping credit, what the samples carry, slip
             before = f
@@ -246,7 +256,7 @@ def put_sample(
     hist[j, 1] = b
     if n == 3:
         hist[j, 2] = c
-    if law != LAW_RESERVOIR:
+    if law == LAW_TDPA_VELOCITY or law == LAW_TDPA_ZOH:  # noqa: PLR1714, SIM109 (numba: plain comparisons)
         hist[j, n] = S[side + S_X0 + 4]
 
 
@@ -259,7 +269,7 @@ def forward_sample(P: np.ndarray, S: np.ndarray, hist: np.ndarray, j: int, x_m: 
 def forward_accept(P: np.ndarray, S: np.ndarray, h: np.ndarray) -> None:
     # The slave takes a released forward sample (`forward_sample`'s layout).
     law = P[SLAVE + P_LAW]
-    if law == LAW_RESERVOIR:
+    if law == LAW_RESERVOIR or law == LAW_TWO_CONDITION:  # noqa: PLR1714, SIM109 (numba: plain comparisons)
         accept2(P, S, h[0], h[1])
     elif law == LAW_WAVE:
         accept_wave(P, S, SLAVE, h[0], h[1])
@@ -282,7 +292,7 @@ def backward_sample(
 def backward_accept(P: np.ndarray, S: np.ndarray, h: np.ndarray) -> None:
     # The master takes a released backward sample (`backward_sample`'s layout).
     law = P[MASTER + P_LAW]
-    if law == LAW_RESERVOIR:
+    if law == LAW_RESERVOIR or law == LAW_TWO_CONDITION:  # noqa: PLR1714, SIM109 (numba: plain comparisons)
         accept3(P, S, h[0], h[1], h[2])
     elif law == LAW_WAVE:
         accept_wave(P, S, MASTER, h[0], h[1])

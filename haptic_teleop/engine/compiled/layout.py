@@ -26,7 +26,7 @@ P_SIZE = 81
 PROFILE_CODES = {"push": 0, "sinusoid": 1, "hold": 2, "imposed": 3}
 # The stabilizers the compiled loop runs: EBA's reservoir; TDPA with its velocity or zoh
 # controller (core/tdpa.py); wave variables (core/wave.py).
-LAW_RESERVOIR, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH, LAW_WAVE = 0.0, 1.0, 2.0, 3.0
+LAW_RESERVOIR, LAW_TDPA_VELOCITY, LAW_TDPA_ZOH, LAW_WAVE, LAW_TWO_CONDITION = 0.0, 1.0, 2.0, 3.0, 4.0
 # per side, in S (S_X0 on: the law's `AxisBoundState.extra`, TDPA_EXTRA or WAVE_EXTRA; S_OUT: a
 # wave port's wave to send)
 S_ENERGY, S_HELD, S_LAST, S_HAS_LAST, S_HAS_REMOTE, S_R0, S_R1, S_R2, S_REJECTED, S_CONTACT = range(10)
