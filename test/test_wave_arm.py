@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,18 +20,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from haptic_teleop.analysis.stream import summarize_bag
 from haptic_teleop.core.eba_coupled import CoupledEnergyBoundParams
 from haptic_teleop.core.wave import WaveParams, wave1
 from haptic_teleop.core.wave_coupled import W_ENERGY, W_GOT, CoupledWaveBound
-from haptic_teleop.engine.lockstep import Engine
 from haptic_teleop.engine.run import record_run
 from haptic_teleop.errors import ConfigError
 from haptic_teleop.scene.load import find_scene, load_scene
 
 sys.path.insert(0, str(Path(__file__).parent))
 import test_hard_cases_arm as ha
-from test_stabilizers_arm import _two_port_from_columns
+from test_stabilizers_arm import Runs, assert_passive, recorded_cases
 
 T = 0.001
 B = 20.0
@@ -187,28 +184,13 @@ def test_what_wave_variables_on_arms_cannot_run_is_refused_naming_the_key(overri
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, str], tuple[dict[str, Any], Engine]]:
-    cache: dict[tuple[str, str], tuple[dict[str, Any], Engine]] = {}
-
-    def get(name: str, variant: str) -> tuple[dict[str, Any], Engine]:
-        if (name, variant) not in cache:
-            case = ha.CASE[name]
-            overrides = [f"scene.duration_s={case.duration_s}", *ha.GEOMETRY, *case.overrides, *VARIANTS[variant]]
-            bag = tmp_path_factory.mktemp(f"{name}_{variant}") / "bag"
-            engine, _ = record_run(
-                load_scene(find_scene(case.scene), overrides), bag, parallel=False, handle_sigint=False, keep=True
-            )
-            cache[(name, variant)] = (summarize_bag(bag), engine)
-        return cache[(name, variant)]
-
-    return get
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Runs:
+    return recorded_cases(tmp_path_factory, VARIANTS)
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
 @pytest.mark.parametrize("name", [c.name for c in ha.CASES])
 def test_wave_variables_keep_the_arms_two_port_passive(runs: Any, name: str, variant: str) -> None:
     summary, engine = runs(name, variant)
-    assert summary["all_finite"]
-    assert summary["two_port_energy_margin_min_j"] >= -1e-9, summary["two_port_energy_margin_min_j"]
-    assert _two_port_from_columns(engine) == pytest.approx(summary["two_port_energy_margin_min_j"], abs=1e-9)
+    assert_passive(summary, engine)
     assert engine.loop_kind == "compiled"

@@ -14,7 +14,7 @@ import numpy as np
 
 from haptic_teleop.core.eba_coupled import joint_limited
 from haptic_teleop.core.eba_two_condition_coupled import CoupledTwoConditionBound
-from haptic_teleop.core.taskspace import dot, matrix_times, task_force_of, tick_scratch
+from haptic_teleop.core.taskspace import dot, matrix_times, rendered_ratio, task_force_of, tick_scratch
 from haptic_teleop.core.tdpa import slipped1
 from haptic_teleop.core.tdpa_coupled import CoupledTdpaBound
 from haptic_teleop.core.wave_coupled import CoupledWaveBound
@@ -122,10 +122,7 @@ class _SideTick:
         # A real arm's safety guards (core/safety.py) shrink the torque before the bound.
         into = self.limited if self.safe is None else self.safe(self.limited)
         out = self.bound.step(q, into, lo, hi) if self.per_joint else self.bound.step(q, into)
-        tt = dot(tau, tau)
-        self.ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
-        sat = min(1.0, self.limit / norm) if norm > 0.0 else 0.0
-        self.ratio *= sat
+        self.ratio = rendered_ratio(out, tau, self.limit, norm)
         if self.wave:
             self.bound.end(self.ratio)
         if self.task_force is not None:  # not a scaled copy of tau (TDPA's velocity controller, two conditions)
@@ -133,7 +130,7 @@ class _SideTick:
             self.task_force[:] = self._wrench[:3]
             return out
         if self.admittance:  # the task force into the bound against the one out of it (the controller's cut)
-            before = dot(into, tau) / tt * sat if tt > 0.0 else 0.0
+            before = rendered_ratio(into, tau, self.limit, norm)
             slip, c1, recover = self.bound.slip_m, self._c1, self.bound.recover
             for i in range(3):
                 slip[i] = slipped1(slip[i], before * f[i], self.ratio * f[i], c1[i], recover)

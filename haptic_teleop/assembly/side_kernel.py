@@ -56,6 +56,7 @@ add_into = compile_tree(taskspace.add_into, **small)
 dot = compile_tree(taskspace.dot, **small)
 matrix_times = compile_tree(taskspace.matrix_times, **small)
 cross = compile_tree(taskspace.cross, **small)
+rendered_ratio = compile_tree(taskspace.rendered_ratio, **small)
 coupled_reservoir = compile_tree(eba_coupled.coupled_reservoir, **small)
 coupled_bounded = compile_tree(eba_coupled.coupled_bounded, **small)
 slew_bounded = compile_tree(eba_coupled.slew_bounded)
@@ -331,10 +332,7 @@ def side_torque(
             held[i] = out[i]
             last_q[i] = q[i]
         S[S_HAS_LAST] = 1.0
-        tt = dot(tau, tau)
-        ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
-        sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
-        S[S_RATIO] = ratio * sat
+        S[S_RATIO] = rendered_ratio(out, tau, limit, norm)
         S[S_ENERGY] = wave_ports_end(
             S[S_EXTRA : S_EXTRA + WAVE_ARM_SIZE], S[S_RATIO], F[F_WAVE_MASTER] != 0.0, F[F_WAVE_B],
             F[F_WAVE_MATCHED] != 0.0, F[F_PERIOD],
@@ -350,10 +348,7 @@ def side_torque(
             gain, bound_gain, lo, hi, iv[I_ENABLED] != 0,
         )  # fmt: skip
         S[S_HAS_LAST] = 1.0
-        tt = dot(tau, tau)
-        ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
-        sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
-        S[S_RATIO] = ratio * sat
+        S[S_RATIO] = rendered_ratio(out, tau, limit, norm)
         if iv[I_ENABLED] != 0:  # each joint cut alone: the felt force is the applied torque's (SideTick.rendered)
             task_force_of(wrench, jac, out, scratch)
             for k in range(3):
@@ -372,12 +367,9 @@ def side_torque(
             gain, bound_gain, F[F_E0], F[F_REFLECT], iv[I_LAW] == LAW_TDPA_ZOH, iv[I_ENABLED] != 0, blow, bhigh,
         )  # fmt: skip
         S[S_HAS_LAST] = 1.0
-        tt = dot(tau, tau)
-        ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
-        sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
-        S[S_RATIO] = ratio * sat
+        S[S_RATIO] = rendered_ratio(out, tau, limit, norm)
         if F[F_ADMIT] != 0.0:  # the task force into the bound against the one out of it (SideTick.torque)
-            before = dot(limited, tau) / tt * sat if tt > 0.0 else 0.0
+            before = rendered_ratio(limited, tau, limit, norm)
             for k in range(3):
                 S[S_SLIP + k] = slipped1(S[S_SLIP + k], before * force[k], S[S_RATIO] * force[k], c1[k], F[F_RECOVER])
         if iv[I_LAW] == LAW_TDPA_VELOCITY and iv[I_ENABLED] != 0:
@@ -414,10 +406,7 @@ def side_torque(
         S[S_SCALE] = slew_bounded(out, lo, held, S[S_ENERGY], step, bound_gain)
     for i in range(n):
         held[i] = out[i]
-    tt = dot(tau, tau)
-    ratio = dot(out, tau) / tt if tt > 0.0 else 0.0
-    sat = min(1.0, limit / norm) if norm > 0.0 else 0.0
-    S[S_RATIO] = ratio * sat
+    S[S_RATIO] = rendered_ratio(out, tau, limit, norm)
     for k in range(3):
         felt[k] = S[S_RATIO] * force[k]
 

@@ -672,6 +672,17 @@ def dot(a: Vec, b: Vec) -> float:
     return s
 
 
+def rendered_ratio(applied: Vec, desired: Vec, force_limit: float, norm: float) -> float:
+    """The factor on the desired task force that a torque scaled along the desired one renders:
+    (applied . desired) / |desired|^2 (0 without a desired torque) times the force limit's
+    saturation min(1, force_limit / norm) of the desired force's norm (0 without a force). The arm
+    tick's felt force (`SideTick.ratio`) and TDPA's admittance slip use it."""
+    tt = dot(desired, desired)
+    ratio = dot(applied, desired) / tt if tt > 0.0 else 0.0
+    sat = min(1.0, force_limit / norm) if norm > 0.0 else 0.0
+    return ratio * sat
+
+
 def matrix_times(out: Mat, a: Mat, b: Mat) -> None:
     """out = a @ b for matrices, each entry summed in index order (`out` must not be `b`)."""
     m, k = a.shape
