@@ -148,7 +148,13 @@ def _own_ros_domain():
     Several modules kill node processes on purpose; Fast DDS leaves their shared-memory port
     segments behind, and a later participant of the same domain that reopens one can crash in
     Fast DDS (a segfault at start, seen once in CI). Ports are per domain: a new domain per
-    module keeps one module's kills from reaching the next."""
+    module keeps one module's kills from reaching the next. Not all of them: each participant also
+    opens a port numbered from 7000 up, counted over the whole host whatever its domain (seen in
+    /dev/shm during a live launch), so a module also starts by removing the stale groups of files
+    the modules before it left (test/shm_clean.py: nobody holds their lock or maps them; 2 s old,
+    nothing being created now). A CI run saw a live launch whose backward link never carried a
+    sample before scene time 0, in a module that ran after such kills."""
+    remove_stale(min_age_s=2.0)
     if _USER_DOMAIN is not None:
         yield
         return

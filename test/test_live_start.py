@@ -21,13 +21,14 @@ rclpy = pytest.importorskip("rclpy")
 TIMEOUT_S = 60.0
 
 
-def _operator() -> subprocess.Popen[str]:
+def _operator(**override: str) -> subprocess.Popen[str]:
     params = {
         "start.wait_for_publishers": "['/slave/joint_states']",
         "start.min_subscribers": "0",
         "start.delay_s": "0.0",
         "start.timeout_s": "600.0",
         "stop_at_end": "false",
+        **override,
     }
     args = [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
     return subprocess.Popen(
@@ -92,3 +93,43 @@ def test_scene_time_starts_only_once_the_slave_has_sent_a_sample():
     assert announced, f"no scene start after the slave's sample; the operator source printed:\n{out}"
     assert "Traceback" not in out, out
     assert "graph is up" in out, out
+
+
+def test_a_graph_that_never_comes_up_is_named_part_by_part():
+    """Alone, with its default wait list and a 1 s start timeout (its own clock), the operator source
+    exits 1 with one line (no traceback) that names each part of the graph still missing: the master's and the
+    slave's samples, its subscriber, the publishers it waits for (a CI run once ended with a bare
+    "not up within 30 s" and nothing saying which link was down)."""
+    from haptic_teleop.nodes.topics import MASTER_STATE, OPERATOR_STATE, SLAVE_STATE, received_topic
+
+    proc = _operator(**{"start.wait_for_publishers": "['/slave/joint_states', '/forward/received']",
+                        "start.min_subscribers": "1", "start.timeout_s": "1.0"})  # fmt: skip
+    out = proc.communicate(timeout=TIMEOUT_S)[0]
+    assert proc.returncode == 1, out
+    line = next(ln for ln in out.splitlines() if "was not up within start.timeout_s=1 s" in ln)
+    missing = line.split("still missing: ")[1]
+    assert f"a sample of {MASTER_STATE}" in missing
+    assert f"a sample of {SLAVE_STATE}" in missing
+    assert f"1 subscribers of {OPERATOR_STATE} (has 0)" in missing
+    assert f"a publisher of {received_topic('forward')}" in missing
+    assert f"a publisher of {SLAVE_STATE}" in missing
+    assert "Traceback" not in out, out
+
+
+def test_an_nve_graph_that_never_comes_up_is_named_part_by_part():
+    """The NVE server alone, one client, a 1 s start timeout: exit 1, one line naming each missing
+    node end of the client's links (its node, relays and buffers), no traceback."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "haptic_teleop.nodes.nve_server", "--ros-args",
+         "-p", "start.timeout_s:=1.0", "-p", "nve.client_names:=['c1']"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    out = proc.communicate(timeout=TIMEOUT_S)[0]
+    assert proc.returncode == 1, out
+    line = next(ln for ln in out.splitlines() if "NVE node graph was not up within start.timeout_s=1 s" in ln)
+    missing = set(line.split("still missing: ")[1].split("; "))
+    assert missing == {
+        "a publisher of /c1/up/sent", "a subscriber of /c1/up/sent", "a publisher of /c1/up/received",
+        "a subscriber of /c1/down/sent", "a publisher of /c1/down/received", "a subscriber of /c1/down/received",
+    }  # fmt: skip
+    assert "Traceback" not in out, out

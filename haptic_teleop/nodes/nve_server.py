@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
@@ -105,31 +106,37 @@ class NveServer(LiveNode):
         self.setup_loop(period_ns)
         self.get_logger().info(f"NVE server: {len(self.client_names_)} client(s) {self.client_names_}, {a} axis/axes")
 
-    def _graph_ready(self) -> bool:
-        """Every client's node, its relays and its buffers are there (and the recorder, if asked)."""
-        if self.count_subscribers(NVE_OBJECT_STATE) < self.min_subscribers:
-            return False
+    def _graph_missing(self) -> list[str]:
+        """What is not there yet of every client's node, its relays and its buffers (and the
+        recorder, if asked); empty once the graph is up."""
+        missing = []
+        n = self.count_subscribers(NVE_OBJECT_STATE)
+        if n < self.min_subscribers:
+            missing.append(f"{self.min_subscribers} subscribers of {NVE_OBJECT_STATE} (has {n})")
         for c in self.client_names_:
             up, down = f"{c}/{NVE_UP}", f"{c}/{NVE_DOWN}"
-            if self.count_publishers(sent_topic(up)) < 1 or self.count_subscribers(received_topic(down)) < 1:
-                return False  # the client node
-            if self.count_subscribers(sent_topic(up)) < 1 or self.count_publishers(received_topic(up)) < 1:
-                return False  # up relay and buffer
-            if self.count_subscribers(sent_topic(down)) < 1 or self.count_publishers(received_topic(down)) < 1:
-                return False  # down relay and buffer
-        return True
+            need = (
+                ("a publisher", self.count_publishers, sent_topic(up)),  # the client node
+                ("a subscriber", self.count_subscribers, received_topic(down)),
+                ("a subscriber", self.count_subscribers, sent_topic(up)),  # up relay and buffer
+                ("a publisher", self.count_publishers, received_topic(up)),
+                ("a subscriber", self.count_subscribers, sent_topic(down)),  # down relay and buffer
+                ("a publisher", self.count_publishers, received_topic(down)),
+            )
+            missing += [f"{what} of {topic}" for what, count, topic in need if count(topic) < 1]
+        return missing
 
     def tick(self, index: int, stamp_ns: int) -> None:
         if self.start_index is None:
-            if self._check_graph(index) and self._graph_ready():
+            if self._check_graph(index) and not self._graph_missing():
                 first = index + max(1, -(-self.start_delay_ns // self.period_ns))
                 self.start_index = first
                 self._publish_start(first * self.period_ns)
                 self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
             elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
-                raise RuntimeError(
-                    f"the NVE node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
-                    f"(waiting for the nodes, relays and buffers of clients {self.client_names_})"
+                raise HapticTeleopError(
+                    f"the NVE node graph was not up within start.timeout_s={self.start_timeout_s:g} s; "
+                    f"still missing: {'; '.join(self._graph_missing())}"
                 )
             return
         if index < self.start_index:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from haptic_teleop.errors import HapticTeleopError
 from haptic_teleop.nodes import SCENE_SECTIONS
 from haptic_teleop.nodes.base import LiveNode, NodeStopped, node_main
 from haptic_teleop.nodes.cdr import JointStateReader
@@ -34,6 +35,7 @@ from haptic_teleop.nodes.topics import (
     latched_qos,
     received_topic,
     scene_start_header,
+    sent_topic,
     stream_qos,
 )
 
@@ -119,7 +121,7 @@ class OperatorSource(LiveNode):
 
         from haptic_teleop.assembly.parts import build_arm_parts
         from haptic_teleop.nodes.messages import SpecOut
-        from haptic_teleop.nodes.topics import WIRE_FIELDS, sent_topic, wire_names
+        from haptic_teleop.nodes.topics import WIRE_FIELDS, wire_names
         from haptic_teleop.record.layouts import topic_specs
 
         self.arm = parts = build_arm_parts(cfg)
@@ -153,14 +155,20 @@ class OperatorSource(LiveNode):
         xd_t, vd_t, f_dev = operator_hand(self.arm, t, self._x_dev, self._v_dev)
         self.out.publish(stamp_ns, (*xd_t, *vd_t, *self.arm.maps.force_to_task(f_dev).tolist()))
 
-    def _graph_ready(self) -> bool:
+    def _graph_missing(self) -> list[str]:
+        """What the graph still lacks before scene time 0 can be announced (empty once it is up)."""
         if not self._slave_heard and self._slave_sub is not None:
             self._slave_heard = take_latest(self._slave_sub) is not None
-        if self._master is None or not self._slave_heard:
-            return False
-        if self.count_subscribers(OPERATOR_STATE) < self.min_subscribers:
-            return False
-        return all(self.count_publishers(t) > 0 for t in self.wait_for)
+        missing = []
+        if self._master is None:
+            missing.append(f"a sample of {sent_topic('forward') if self.arm is not None else MASTER_STATE}")
+        if not self._slave_heard:
+            missing.append(f"a sample of {SLAVE_STATE}")
+        n = self.count_subscribers(OPERATOR_STATE)
+        if n < self.min_subscribers:
+            missing.append(f"{self.min_subscribers} subscribers of {OPERATOR_STATE} (has {n})")
+        missing += [f"a publisher of {t}" for t in self.wait_for if self.count_publishers(t) == 0]
+        return missing
 
     def tick(self, index: int, stamp_ns: int) -> None:
         if self.arm is not None:
@@ -172,7 +180,7 @@ class OperatorSource(LiveNode):
             x, v = self._read_master(m)[1]
             self._master = ([x], [v])
         if self.start_index is None:
-            if self._check_graph(index) and self._graph_ready():
+            if self._check_graph(index) and not self._graph_missing():
                 self._ready_ns = stamp_ns
                 # Scene time 0: the first tick at least start.delay_s after now, announced now (latched)
                 # so every node knows it before it comes (the arm nodes restart their energy ledgers
@@ -182,11 +190,9 @@ class OperatorSource(LiveNode):
                 self._publish_start(self.start_index * self.period_ns)
                 self.get_logger().info(f"graph is up; scene time starts in {self.start_delay_ns * 1e-9:g} s")
             elif (stamp_ns - self._created_ns) * 1e-9 > self.start_timeout_s:
-                raise RuntimeError(
-                    f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s "
-                    f"(waiting for /master/joint_states, a sample of {SLAVE_STATE} if listed, publishers of "
-                    f"{self.wait_for}, "
-                    f"{self.min_subscribers} subscribers of {OPERATOR_STATE})"
+                raise HapticTeleopError(
+                    f"the node graph was not up within start.timeout_s={self.start_timeout_s:g} s; "
+                    f"still missing: {'; '.join(self._graph_missing())}"
                 )
             return
         if index < self.start_index:
