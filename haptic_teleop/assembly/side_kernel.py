@@ -249,8 +249,9 @@ def plant_step(side: Any, tau: np.ndarray, hand: np.ndarray, applied: np.ndarray
     for _ in range(iv[I_SUBSTEPS] - 1):
         mj_step(iv[I_MODEL], iv[I_DATA])
         contact(side, wrench6, f6, f, r, m)
-    for k in range(6):
-        wrench6[k] = wrench6[k] / iv[I_SUBSTEPS]
+    if iv[I_SUBSTEPS] != 1:  # (x / 1 is x: one substep, no divisions)
+        for k in range(6):
+            wrench6[k] = wrench6[k] / iv[I_SUBSTEPS]
 
 
 @inline  # type: ignore[misc]

@@ -130,15 +130,19 @@ def tick_vectors(own: np.ndarray, nm: int, ns: int) -> Any:
 
 
 # The run's constants the tick reads (`run_constants`), in this order.
-K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS = range(7)
+K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS, K_INV_SCALE, K_INV_FORCE_SCALE = range(9)
 
 
 @inline  # type: ignore[misc]
 def run_constants(ms: Any, ss: Any, ov: np.ndarray) -> Any:
     """What the tick reads of the parameters, read once before the loop: the mapping's scales, the
-    hand's stiffness and damping, the period, both sides' joint counts."""
+    hand's stiffness and damping, the period, both sides' joint counts, the scales' inverses."""
     MF = ms[T_F]
-    return (MF[F_SCALE], MF[F_FORCE_SCALE], MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N])
+    scale, force_scale = MF[F_SCALE], MF[F_FORCE_SCALE]
+    return (
+        scale, force_scale, MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N],
+        1.0 / scale, 1.0 / force_scale,
+    )  # fmt: skip
 
 
 @inline  # type: ignore[misc]
@@ -203,7 +207,7 @@ def finish_tick(
     """Step 6 of the tick, after both sides' torques and the network: the operator, both plants'
     steps (the hand force on the master), the held torques, the tick's row."""
     rot, offset = ms[T_ROT], ms[T_OFFSET]
-    scale, force_scale, k_h, b_h, nm, ns = c[K_SCALE], c[K_FORCE_SCALE], c[K_K_HAND], c[K_B_HAND], c[K_NM], c[K_NS]
+    scale, k_h, b_h, nm, ns = c[K_SCALE], c[K_K_HAND], c[K_B_HAND], c[K_NM], c[K_NS]
     qm, qdm, qs, qds = v[V_QM], v[V_QDM], v[V_QS], v[V_QDS]
     app_m, app_s = v[V_APP_M], v[V_APP_S]
     xm_dev, vm_dev, x_m, v_m, xs, vs = v[V_XM_DEV], v[V_VM_DEV], v[V_XM], v[V_VM], v[V_XS], v[V_VS]
@@ -225,7 +229,7 @@ def finish_tick(
         xd_t[k] = ov[O_ORIGIN + k] + s1 * ov[O_DIR + k]
         vd_t[k] = vd1 * ov[O_DIR + k]
     unmap_point(xd, rot, scale, offset, xd_t)
-    map_vector_back(vd, rot, 1.0 / scale, vd_t)
+    map_vector_back(vd, rot, c[K_INV_SCALE], vd_t)
     for k in range(3):
         f_hand[k] = k_h * (xd[k] - xm_dev[k]) + b_h * (vd[k] - vm_dev[k])
     plant_step(ms, v[V_TAU_M], f_hand, app_m, mw)
@@ -235,7 +239,7 @@ def finish_tick(
         held_m[i] = app_m[i]
     for i in range(ns):
         held_s[i] = app_s[i]
-    map_vector(op_f, rot, 1.0 / force_scale, f_hand)
+    map_vector(op_f, rot, c[K_INV_FORCE_SCALE], f_hand)
     for k in range(3):
         row[cols[C_OP_X] + k] = xd_t[k]
         row[cols[C_OP_V] + k] = vd_t[k]
