@@ -87,6 +87,7 @@ GROUPS = (
     C_S_Q, C_S_QD, C_S_TAU, C_S_X, C_S_V, C_S_F, C_S_FD, C_S_E,
     C_S_CF, C_S_CT, C_FRX, C_BRX, C_FOCC, C_BOCC,
 ) = range(len(GROUPS))  # fmt: skip
+assert len(GROUPS) == 25, "column_starts lists 25 group starts"
 
 
 # The tick's vectors (`tick_vectors`), in this order: joints, torques and points of both sides,
@@ -131,6 +132,17 @@ def tick_vectors(own: np.ndarray, nm: int, ns: int) -> Any:
 
 # The run's constants the tick reads (`run_constants`), in this order.
 K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS, K_INV_SCALE, K_INV_FORCE_SCALE = range(9)
+
+
+@inline  # type: ignore[misc]
+def column_starts(cols: np.ndarray) -> Any:
+    """The row's group starts (GROUPS, in COLS) as a tuple, read once a call: values, not loads
+    that each store into the row would make the compiler repeat (the row and `cols` may alias)."""
+    return (
+        cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6], cols[7], cols[8], cols[9], cols[10],
+        cols[11], cols[12], cols[13], cols[14], cols[15], cols[16], cols[17], cols[18], cols[19], cols[20],
+        cols[21], cols[22], cols[23], cols[24],
+    )  # fmt: skip
 
 
 @inline  # type: ignore[misc]
@@ -201,11 +213,12 @@ def released(side: Any, seq: int, hist: np.ndarray, mask: int) -> int:
 
 @inline  # type: ignore[misc]
 def finish_tick(
-    n: int, ms: Any, ss: Any, mw: Any, sw: Any, ov: np.ndarray, cols: np.ndarray, v: Any, c: Any,
+    n: int, ms: Any, ss: Any, mw: Any, sw: Any, ov: np.ndarray, cols: Any, v: Any, c: Any,
     row: np.ndarray, frx: float, brx: float, focc: float, bocc: float,
 ) -> None:  # fmt: skip
     """Step 6 of the tick, after both sides' torques and the network: the operator, both plants'
-    steps (the hand force on the master), the held torques, the tick's row."""
+    steps (the hand force on the master), the held torques, the tick's row. `cols`: the row's
+    group starts as a tuple (`column_starts`)."""
     rot, offset = ms[T_ROT], ms[T_OFFSET]
     scale, k_h, b_h, nm, ns = c[K_SCALE], c[K_K_HAND], c[K_B_HAND], c[K_NM], c[K_NS]
     qm, qdm, qs, qds = v[V_QM], v[V_QDM], v[V_QS], v[V_QDS]
@@ -290,7 +303,7 @@ def arm_begin(world: Any) -> Any:
         detach_work(mw_own),
         detach_work(sw_own),
         ovb,
-        borrowed(cols),
+        column_starts(cols),
         borrowed(data),
         d0,
         v,
