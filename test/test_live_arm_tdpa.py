@@ -175,3 +175,19 @@ def test_a_live_arm_run_with_tdpa_keeps_the_two_port_passive_as_the_engine(live_
         # rules it depends on are tested in lockstep (the stamp filter above, the engine's TDPA cases).
         a, b = live_budget[side], sim_budget[side]
         assert min(a.size, b.size) > 0.9 * b.size and np.all(np.isfinite(a)), side
+
+
+def test_a_live_arm_bags_tdpa_budgets_are_what_its_own_signals_give(live_zoh):
+    """The honest report (analysis/tdpa_ledger.py): each row of the live bag's budgets is the one the
+    side had at that tick, judged from the bag alone: with the budget's own joints' booking taken
+    out, what remains is exactly a value the other side sent (to 1e-9 J), sent no later, never
+    falling. Before the recorder placed the unstamped EBA arrays on their node's tick (they went by
+    write time), late ticks moved them by 1 to 4 rows and this failed (1.5e-5 and 3.1e-4 J off)."""
+    from test_tdpa_ledger import arm_gains
+
+    from haptic_teleop.analysis.tdpa_ledger import check_bag
+
+    assert live_zoh["code"] == 0, live_zoh["launch"].failure
+    checks = check_bag(live_zoh["out"] / "bag", arm_gains(_scene()))
+    for side, c in checks.items():
+        assert c.ticks > 2500 and c.holds(1e-9), c

@@ -74,6 +74,7 @@ from haptic_teleop.nodes.messages import take_all, take_all_published_ns
 from haptic_teleop.nodes.params import declare_scene, declare_value
 from haptic_teleop.nodes.recorder_facts import schema_and_facts, side_every
 from haptic_teleop.nodes.recorder_grid import _on_grid, as_delivered, mark_late
+from haptic_teleop.nodes.recorder_placement import WriterTicks
 from haptic_teleop.nodes.topics import (
     DIRECTIONS,
     MASTER_EBA,
@@ -349,6 +350,15 @@ class Recorder(LiveNode):
                 msg_type, qos = self._ros_type(self._specs[topic].layout.msgtype), stream_qos(RECORDER_DEPTH)
             self._subs[topic] = self.create_polled_subscription(msg_type, topic, qos, raw=True)
         self.received_count = {t: 0 for t in self._queues}
+        # Arrays without a header go on the tick of the stamped state their node wrote before them
+        # (nodes/recorder_placement.py): topic -> that state's topic, and each such writer's clock.
+        self._written_after = {
+            t: f"/{t.split('/')[1]}/joint_states"
+            for t in self._columns
+            if self._specs[t].layout.sec_offset < 0 and f"/{t.split('/')[1]}/joint_states" in self._columns
+        }
+        self._writers = {s: WriterTicks(self.grid_ns) for s in self._written_after.values()}
+        self._closing = False
         self.start_tick: int | None = None  # absolute tick of scene time 0: plan.first's first sample
         self.written = 0  # absolute tick up to which (exclusive) the bag holds the grid
         self.packets_written = {d: 0 for d in plan.directions}
@@ -455,7 +465,12 @@ class Recorder(LiveNode):
         """Decode what `topic`'s queue holds."""
         period = self.grid_ns
         times, q = self._queues[topic]
-        n = len(q)
+        writer = self._written_after.get(topic) if not self.simulated_time else None
+        if writer is not None:  # its writer's stamped messages first, then those arrays it places
+            self._drain_topic(writer)
+            n = self._writers[writer].placeable(times, self._closing)
+        else:
+            n = len(q)
         if n == 0:
             return
         raws = q[:n]
@@ -472,7 +487,15 @@ class Recorder(LiveNode):
             keep = plan.values.get(topic)
             if keep is not None:
                 vals = vals[:, list(keep)]
-            self._pending[topic].add((stamps if stamps is not None else recv) // period, vals)
+            if stamps is not None:
+                if topic in self._writers and not self.simulated_time:
+                    self._writers[topic].stamped(recv, stamps)
+                idx = stamps // period
+            elif writer is not None:
+                idx = self._writers[writer].ticks_of(recv)
+            else:
+                idx = recv // period
+            self._pending[topic].add(idx, vals)
 
     def _decode_fixed(self, topic: str, raws: list[bytes]) -> tuple[np.ndarray, np.ndarray | None]:
         layout = self._specs[topic].layout
@@ -686,6 +709,7 @@ class Recorder(LiveNode):
             time.sleep(0.02)
         super().close()
         self._take()
+        self._closing = True  # every array is placed with what is known
         self._drain()
         try:
             path = self.finish()
