@@ -141,6 +141,27 @@ def test_live_arm_energy_margins_from_the_bag_are_nonnegative(single):
     assert "Traceback" not in launch.text
 
 
+def _reservoirs_as_booked(bag: Path) -> None:
+    """Each row of each side's reservoir is the one before it booked over the bag's own joint
+    motion and applied torque (analysis/ledgers.py, `reservoir_residuals`): the bag holds what the
+    side had at every tick. With the recorder placing the reservoir by its write time (before
+    2026-12-03), late ticks moved it by 1 to 4 rows and this failed."""
+    from test_ledgers import arm_gains
+
+    from haptic_teleop.analysis.ledgers import read_signals, reservoir_residuals
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    residuals = reservoir_residuals(read_signals(bag), arm_gains(load_scene(find_scene(SCENE))))
+    for side, r in residuals.items():
+        assert r.size > 1000 and np.max(np.abs(r)) <= ROUNDING_J, (side, np.max(np.abs(r)), np.argmax(np.abs(r)))
+
+
+def test_live_arm_bags_reservoirs_are_what_the_sides_booked_row_by_row(single):
+    code, launch, out = single
+    assert code == 0, launch.failure
+    _reservoirs_as_booked(out / "bag")
+
+
 def test_arm_scene_runs_live_one_process_per_node(tmp_path):
     code, launch, out = _launch(tmp_path)
     assert code == 0, launch.failure
@@ -153,6 +174,7 @@ def test_arm_scene_runs_live_one_process_per_node(tmp_path):
     assert summary["contact_force_max_n"] > 1.0  # the master's motion reached the slave over the relays
     for side in SIDES:
         assert summary[f"{side}_energy_margin_simulator_min_j"] >= -ROUNDING_J, (side, summary)
+    _reservoirs_as_booked(out / "bag")
 
 
 def test_ctrl_c_mid_run_leaves_a_readable_arm_bag(tmp_path):

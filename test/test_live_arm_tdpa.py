@@ -178,14 +178,14 @@ def test_a_live_arm_run_with_tdpa_keeps_the_two_port_passive_as_the_engine(live_
 
 
 def test_a_live_arm_bags_tdpa_budgets_are_what_its_own_signals_give(live_zoh):
-    """The honest report (analysis/tdpa_ledger.py): each row of the live bag's budgets is the one the
+    """The honest report (analysis/ledgers.py): each row of the live bag's budgets is the one the
     side had at that tick, judged from the bag alone: with the budget's own joints' booking taken
     out, what remains is exactly a value the other side sent (to 1e-9 J), sent no later, never
     falling. Before the recorder placed the unstamped EBA arrays on their node's tick (they went by
     write time), late ticks moved them by 1 to 4 rows and this failed (1.5e-5 and 3.1e-4 J off)."""
-    from test_tdpa_ledger import arm_gains
+    from test_ledgers import arm_gains
 
-    from haptic_teleop.analysis.tdpa_ledger import check_bag
+    from haptic_teleop.analysis.ledgers import check_bag
 
     assert live_zoh["code"] == 0, live_zoh["launch"].failure
     checks = check_bag(live_zoh["out"] / "bag", arm_gains(_scene()))

@@ -1,22 +1,27 @@
-"""Whether a bag's TDPA budgets are the ones its own signals give (an arm with pooled TDPA, "zoh").
+"""Whether a bag's energy ledgers are the ones its own signals give, row by row (arm bags).
 
-Each side's budget, as recorded (/<side>/eba, first column), is W = E0 + R - E_out + C
-(core/tdpa_coupled.py): E_out and the damping credit C follow from that side's own joint
-positions and applied torques (/<side>/joint_states: the torque applied at tick k - 1 over the
-motion to tick k, `book1` and `coupled_reservoir`, the rules the sides run), E0 is the budget at
-the first tick (before any motion is booked), and R is the remote side's cumulative input energy
-as last received. Which sample a side had taken at a tick is a matter of timing on a live run,
-so R is not recomputed from the received samples' times; instead, for every tick, the R that the
-recorded budget implies must be
+**EBA's pooled reservoir** (the default law): each side's recorded reservoir (/<side>/eba, first
+column) must go from one row to the next exactly as `coupled_reservoir` takes it, with the torque
+applied at tick k - 1 (/<side>/joint_states' effort) over the motion to tick k:
+E(k) = E(k-1) + sum_i (d_i/T) dq_i^2 - tau_i dq_i. A side computes this from the very values the
+bag holds, so an honest bag meets it bit for bit (`reservoir_residuals`).
+
+**TDPA** ("zoh", no reflection): each side's budget is W = E0 + R - E_out + C (core/tdpa_coupled.py):
+E_out and the damping credit C follow from that side's own joint positions and applied torques
+(`book1` and `coupled_reservoir`, the rules the sides run), E0 is the budget at the first tick
+(before any motion is booked), and R is the remote side's cumulative input energy as last
+received. Which sample a side had taken at a tick is a matter of timing on a live run, so R is not
+recomputed from the received samples' times; instead, for every tick, the R that the recorded
+budget implies must be
 
 - exactly one of the values the remote side sent: its own input energy E_in after some tick j,
   recomputed from its signals the same way (or 0, nothing received yet);
 - sent no later than the tick that used it (j <= k: no energy from the future);
 - never less than at the tick before (a cumulative count only grows: `received1`).
 
-In lockstep the engine's bags meet this to rounding (1e-16 J). A live bag meets it only if each
-row holds what the side had at that tick: its recorder placed the unstamped EBA arrays by write
-time before 2026-12-03, and late ticks moved them by 1 to 4 rows (nodes/recorder_placement.py).
+In lockstep the engine's bags meet both to rounding (0 and 1e-16 J). A live bag meets them only if
+each row holds what the side had at that tick: its recorder placed the unstamped EBA arrays by
+write time before 2026-12-03, and late ticks moved them by 1 to 4 rows (nodes/recorder_placement.py).
 """
 
 from __future__ import annotations
@@ -105,6 +110,23 @@ def check_signals(signals: Signals, gains: dict[str, npt.NDArray[np.float64]]) -
             float(worst.max()) if worst.size else 0.0,
             int(np.count_nonzero(first > k)),
             int(np.count_nonzero(np.diff(implied) < -1e-12)),
+        )
+    return out
+
+
+def reservoir_residuals(
+    signals: Signals, gains: dict[str, npt.NDArray[np.float64]]
+) -> dict[str, npt.NDArray[np.float64]]:
+    """Each side's recorded reservoir at ticks 1.. less `coupled_reservoir` of its row before (zeros
+    for an honest bag recorded with EBA's reservoir law)."""
+    out = {}
+    for side in SIDES:
+        q, tau, energy = signals[side]
+        out[side] = np.array(
+            [
+                energy[k] - coupled_reservoir(energy[k - 1], gains[side], tau[k - 1], q[k] - q[k - 1])
+                for k in range(1, q.shape[0])
+            ]
         )
     return out
 
