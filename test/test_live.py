@@ -249,6 +249,26 @@ def test_default_scene_runs_live_and_ends_cleanly(default_run):
     assert "[launcher] started" not in launch.text  # composed: no child process per node
 
 
+def test_default_scenes_live_reservoirs_are_what_the_sides_booked_row_by_row(default_run):
+    """Each row of each side's reservoir in the live bag of the default scene is the row before
+    booked over the bag's own motion and applied force (analysis/ledgers.py, `reservoir_residuals`,
+    with one joint `reservoir1`'s bits): the bag holds each side's reservoir at each tick. With the
+    recorder placing the unstamped EBA arrays by write time (before 2026-12-03) a late tick moved
+    them by rows, and an arm bag failed this (2.1e-4 J)."""
+    from haptic_teleop.analysis.ledgers import read_signals, reservoir_residuals
+    from haptic_teleop.assembly.parts import side_controller
+    from haptic_teleop.scene.load import find_scene, load_scene
+
+    assert default_run["code"] == 0, default_run["launch"].failure
+    config = load_scene(find_scene("wall_contact")).config
+    sides = ("master", "slave")
+    gains = {s: np.asarray(side_controller(config, s, None).bound.params.reservoir_gains()) for s in sides}
+    signals = read_signals(default_run["out"] / "bag")
+    for side, r in reservoir_residuals(signals, gains).items():
+        assert r.size > 4000 and np.max(np.abs(r)) <= 1e-12, (side, np.max(np.abs(r)), np.argmax(np.abs(r)))
+    assert np.ptp(signals["master"][2]) > 1e-3  # the master's reservoir moves
+
+
 @pytest.mark.parametrize("side", ["master", "slave"])
 def test_independent_subscriber_sees_grid_stamps_in_order_and_the_bag_holds_them(default_run, side):
     """What load cannot change (no rate is asserted: `bench live` measures rates). This test's own

@@ -463,7 +463,8 @@ def test_a_real_clock_stretches_the_ledger_over_the_time_each_tick_took(emulator
     for clock in ("lockstep", "real"):
         bus = emulator(*SLAVE[:2], [])
         sets = ["slave.backend=dynamixel", f"slave.hardware.port={bus.port}", f"slave.hardware.device_clock={clock}"]
-        sets.append("slave.hardware.max_hold_s=0.1")  # this machine's holds: tens of ms (docs/eba_many_joints.md)
+        # this machine's holds: tens of ms, 109 ms once in CI (docs/eba_many_joints.md): the guard is not tested here
+        sets.append("slave.hardware.max_hold_s=0.5")
         scene = load_scene(find_scene(SLAVE[0]), [*sets, "scene.duration_s=1.0"])
         engine, _ = record_run(scene, tmp_path / clock, parallel=False, handle_sigint=False, keep=True)
         assert engine.slave.read_interval_s >= (0.0 if clock == "real" else 0.001)
