@@ -1,12 +1,13 @@
-"""Whether a bag's energy ledgers are the ones its own signals give, row by row (arm bags).
+"""Whether a bag's energy ledgers are the ones its own signals give, row by row.
 
-**EBA's pooled reservoir** (the default law): each side's recorded reservoir (/<side>/eba, first
-column) must go from one row to the next exactly as `coupled_reservoir` takes it, with the torque
-applied at tick k - 1 (/<side>/joint_states' effort) over the motion to tick k:
-E(k) = E(k-1) + sum_i (d_i/T) dq_i^2 - tau_i dq_i. A side computes this from the very values the
-bag holds, so an honest bag meets it bit for bit (`reservoir_residuals`).
+**EBA's reservoir** (the default law; an arm's pooled one, or one axis's, whose joint state holds
+x, v and the applied force and whose `coupled_reservoir` of one joint is `reservoir1`'s bits): each
+side's recorded reservoir (/<side>/eba, first column) must go from one row to the next exactly as
+`coupled_reservoir` takes it, with the torque applied at tick k - 1 (/<side>/joint_states' effort)
+over the motion to tick k: E(k) = E(k-1) + sum_i (d_i/T) dq_i^2 - tau_i dq_i. A side computes this
+from the very values the bag holds, so an honest bag meets it bit for bit (`reservoir_residuals`).
 
-**TDPA** ("zoh", no reflection): each side's budget is W = E0 + R - E_out + C (core/tdpa_coupled.py):
+**TDPA** on an arm ("zoh", no reflection): each side's budget is W = E0 + R - E_out + C (core/tdpa_coupled.py):
 E_out and the damping credit C follow from that side's own joint positions and applied torques
 (`book1` and `coupled_reservoir`, the rules the sides run), E0 is the budget at the first tick
 (before any motion is booked), and R is the remote side's cumulative input energy as last

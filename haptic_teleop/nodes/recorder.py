@@ -350,12 +350,10 @@ class Recorder(LiveNode):
                 msg_type, qos = self._ros_type(self._specs[topic].layout.msgtype), stream_qos(RECORDER_DEPTH)
             self._subs[topic] = self.create_polled_subscription(msg_type, topic, qos, raw=True)
         self.received_count = {t: 0 for t in self._queues}
-        # Arrays without a header go on the tick of the stamped state their node wrote before them
-        # (nodes/recorder_placement.py): topic -> that state's topic, and each such writer's clock.
+        # The EBA arrays (no header) go on the tick of the stamped state their side wrote just before
+        # them (nodes/recorder_placement.py): array topic -> that state's topic, and each side's clock.
         self._written_after = {
-            t: f"/{t.split('/')[1]}/joint_states"
-            for t in self._columns
-            if self._specs[t].layout.sec_offset < 0 and f"/{t.split('/')[1]}/joint_states" in self._columns
+            t: state for t, state in ((MASTER_EBA, MASTER_STATE), (SLAVE_EBA, SLAVE_STATE)) if t in self._columns
         }
         self._writers = {s: WriterTicks(self.grid_ns) for s in self._written_after.values()}
         self._closing = False

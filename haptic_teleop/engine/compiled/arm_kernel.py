@@ -131,7 +131,7 @@ def tick_vectors(own: np.ndarray, nm: int, ns: int) -> Any:
 
 
 # The run's constants the tick reads (`run_constants`), in this order.
-K_SCALE, K_FORCE_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS, K_INV_SCALE, K_INV_FORCE_SCALE = range(9)
+K_SCALE, K_K_HAND, K_B_HAND, K_PERIOD, K_NM, K_NS, K_INV_SCALE, K_INV_FORCE_SCALE = range(8)
 
 
 @inline  # type: ignore[misc]
@@ -150,10 +150,10 @@ def run_constants(ms: Any, ss: Any, ov: np.ndarray) -> Any:
     """What the tick reads of the parameters, read once before the loop: the mapping's scales, the
     hand's stiffness and damping, the period, both sides' joint counts, the scales' inverses."""
     MF = ms[T_F]
-    scale, force_scale = MF[F_SCALE], MF[F_FORCE_SCALE]
+    scale = MF[F_SCALE]
     return (
-        scale, force_scale, MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N],
-        1.0 / scale, 1.0 / force_scale,
+        scale, MF[F_K_HAND], MF[F_B_HAND], ov[O_PERIOD], ms[T_I][I_N], ss[T_I][I_N],
+        1.0 / scale, 1.0 / MF[F_FORCE_SCALE],
     )  # fmt: skip
 
 
