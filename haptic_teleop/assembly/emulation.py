@@ -30,8 +30,9 @@ model's (ur5e.xml's dof_damping), so the scene must assume no more (touch_ur5e_w
 Its ports are fixed, so one UR side at a time.
 
 `emulated(...)` starts them, yields the `--set` overrides that point the drivers at them
-(`<side>.hardware.port=PTY` for servos, `<side>.hardware.host=127.0.0.1` for the UR), and stops
-them on the way out, whatever happens.
+(`<side>.hardware.port=PTY` for servos, `<side>.hardware.host=127.0.0.1` for the UR; for servos
+also `read_timeout_s`, EMULATED_READ_TIMEOUT_S, unless the scene sets one), and stops them on the
+way out, whatever happens.
 """
 
 from __future__ import annotations
@@ -54,6 +55,11 @@ EMULATED_BACKENDS = ("dynamixel", "ur")
 # PolyScope version the UR emulator reports for a side in control_mode torque: ur_rtde's control
 # script calls direct_torque() from 5.26 on.
 UR_TORQUE_VERSION = (5.0, 26.0, 0.0, 0.0)
+# How long a read waits for an emulated bus's replies when the scene does not say. The emulator is
+# a process on a shared machine, not a servo that answers within microseconds: with the SDK's
+# default (its 16 ms latency timer and the packet's time) three reads in a row gave up once on a
+# busy 2-core CI machine, and the session stopped on "the replies come late".
+EMULATED_READ_TIMEOUT_S = 0.5
 
 
 def emulated_sides(config: Scene) -> tuple[str, ...]:
@@ -217,4 +223,6 @@ def emulated(config: Scene, time_mode: str = "lockstep") -> Iterator[list[str]]:
                 f"{side}.hardware.port={bus.port}",
                 f"{side}.hardware.device_clock={time_mode.replace('realtime', 'real')}",
             ]
+            if getattr(config, side).hardware.read_timeout_s is None:
+                overrides.append(f"{side}.hardware.read_timeout_s={EMULATED_READ_TIMEOUT_S}")
         yield overrides

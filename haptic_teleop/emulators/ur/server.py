@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import select
 import socket
 import struct
 import threading
@@ -210,7 +211,22 @@ class Controller:
             return True
 
     # ------------------------------------------------------------------ the cycle
-    def cycle(self) -> None:
+    def input_waiting(self) -> bool:
+        """Whether an RTDE client's socket holds bytes this process has not read yet: the host sent
+        them while the emulator was not running. The emulator is no real-time controller; a stall
+        of its own process must not count against the host as a silence."""
+        socks = [c.sock for c in self.clients if c.kind == "rtde" and c.alive and c.inputs]
+        if not socks:
+            return False
+        try:
+            readable, _, _ = select.select(socks, [], [], 0.0)
+        except (OSError, ValueError):  # a socket closed meanwhile
+            return False
+        return bool(readable)
+
+    def cycle(self, late: bool = False) -> None:
+        """One controller cycle. `late`: the emulator's own loop runs behind its clock (its process
+        stalled and is catching up): the RTDE watchdog is not judged until it is on time again."""
         with self.lock:
             s = self.script
             if s is not None and s.running:
@@ -221,7 +237,7 @@ class Controller:
                 if s.running and s.watchdog_hz > 0.0:
                     name = f"input_int_register_{s.script.reg_offset}"
                     last = self.input_stamp.get(name, 0.0)
-                    if self.t_s - last > 1.0 / s.watchdog_hz:
+                    if self.t_s - last > 1.0 / s.watchdog_hz and not late and not self.input_waiting():
                         self.stop_program(f"RTDE watchdog: no update of {name} for {self.t_s - last:.3f} s")
                         self.message(f"RTDE input watchdog expired on {name}: program stopped", w.ERROR_MESSAGE)
             self.robot.cycle()
@@ -337,11 +353,13 @@ class Server:
     def _loop(self) -> None:
         period = self.ctl.period_s
         t_next = time.monotonic()
+        late = False
         while not self._stop.is_set():
-            self.ctl.cycle()
+            self.ctl.cycle(late)
             self._publish()
             t_next += period
             delay = t_next - time.monotonic()
+            late = delay < -period  # the next cycle starts more than a period behind the clock
             if delay > 0:
                 time.sleep(delay)
             elif delay < -20 * period:
