@@ -471,17 +471,15 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
     out = tmp_path / "st"
     r = subprocess.run(
         [str(Path(sys.executable).parent / "haptic-teleop"), "experiment", "stabilizers", "--quick", "--quiet",
-         "--laws", "reservoir,tdpa_zoh,wave", "--no-z-width", "--out", str(out)],
+         "--laws", "tdpa_zoh,wave", "--no-z-width", "--out", str(out)],
         capture_output=True, text=True, timeout=600, cwd=tmp_path,
     )  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     runs = list(csv.DictReader((out / "stabilizers_runs.csv").open()))
-    # quick: 1 seed, delays 0 and 100 ms, no loss and bursty loss: 4 runs per law
+    # quick: 1 seed, delays 0 and 100 ms, no loss and bursty loss: 4 runs per law (two laws: the
+    # reservoir's runs are every other test's; the suite's longest test, 164 s with three in CI)
     assert sorted((x["law"], float(x["delay_s"]), x["loss"]) for x in runs) == sorted(
-        (law, d, loss)
-        for law in ("reservoir", "tdpa_zoh", "wave")
-        for d in (0.0, 0.1)
-        for loss in ("none", "bursty_30")
+        (law, d, loss) for law in ("tdpa_zoh", "wave") for d in (0.0, 0.1) for loss in ("none", "bursty_30")
     )
     for x in runs:
         bag = out / "bags" / x["law"] / f"delay_{float(x['delay_s']) * 1e3:g}ms-{x['loss']}" / "seed_1" / "bag"
@@ -494,14 +492,11 @@ def test_the_stabilizers_experiment_writes_a_bag_per_run_and_tables_measured_fro
             assert float(x["force_rms_error_vs_reference_n"]) > 0.0
     assert (out / "stabilizers.png").stat().st_size > 10_000
     assert "TDPA, ZOH-exact controller" in (out / "stabilizers.md").read_text()
-    assert len(list(csv.DictReader((out / "stabilizers.csv").open()))) == 12
+    assert len(list(csv.DictReader((out / "stabilizers.csv").open()))) == 2 * 4  # a row per law, delay and loss
     # The arm scene: the laws it runs (every one named here), every run a bag.
     arm = list(csv.DictReader((out / "stabilizers_arm_runs.csv").open()))
     assert sorted((x["law"], float(x["delay_s"]), x["loss"]) for x in arm) == sorted(
-        (law, d, loss)
-        for law in ("reservoir", "tdpa_zoh", "wave")
-        for d in (0.0, 0.1)
-        for loss in ("none", "bursty_30")
+        (law, d, loss) for law in ("tdpa_zoh", "wave") for d in (0.0, 0.1) for loss in ("none", "bursty_30")
     )
     for x in arm:
         bag = out / "arm_bags" / x["law"] / f"delay_{float(x['delay_s']) * 1e3:g}ms-{x['loss']}" / "seed_1" / "bag"
