@@ -151,9 +151,21 @@ def _reservoirs_as_booked(bag: Path) -> None:
     from haptic_teleop.analysis.ledgers import read_signals, reservoir_residuals
     from haptic_teleop.scene.load import find_scene, load_scene
 
-    residuals = reservoir_residuals(read_signals(bag), arm_gains(load_scene(find_scene(SCENE))))
+    signals = read_signals(bag)
+    residuals = reservoir_residuals(signals, arm_gains(load_scene(find_scene(SCENE))))
     for side, r in residuals.items():
-        assert r.size > 1000 and np.max(np.abs(r)) <= ROUNDING_J, (side, np.max(np.abs(r)), np.argmax(np.abs(r)))
+        # A row the recorder held over for want of a sample (counted in samples_filled) repeats the
+        # row before; a booking across one spans two ticks. Checked: the rows where both the side's
+        # state and its reservoir are fresh at the tick and the one before (a sample on the wrong
+        # row is fresh, and fails this).
+        q, _, energy = signals[side]
+        held = np.zeros(q.shape[0], dtype=bool)
+        held[1:] = np.all(q[1:] == q[:-1], axis=1) | (energy[1:] == energy[:-1])
+        fresh = ~held[1:] & ~held[:-1]
+        print(f"{side}: {int(fresh.sum())} of {r.size} bookings between fresh rows")
+        assert r.size > 1000 and fresh.sum() >= 100, (side, r.size, int(fresh.sum()))
+        bad = np.abs(r) * fresh
+        assert np.max(bad) <= ROUNDING_J, (side, np.max(bad), np.argmax(bad))
 
 
 def test_live_arm_bags_reservoirs_are_what_the_sides_booked_row_by_row(single):

@@ -52,3 +52,14 @@ def test_states_taken_out_of_order_are_sorted_by_write_time():
     w.stamped(np.array([2_100_000]), np.array([2 * MS]))
     w.stamped(np.array([1_100_000]), np.array([MS]))
     assert w.ticks_of(np.array([1_500_000, 2_500_000])).tolist() == [1, 2]
+
+
+def test_the_arrays_between_two_known_states_fill_the_ticks_of_the_states_missing_between():
+    """Tick 2's state lost (or not taken) on a busy machine: its array, written after it, is tick 2's,
+    not tick 1's (which would put it one row early and leave tick 2 to a held-over value)."""
+    w = WriterTicks(MS)
+    w.stamped(np.array([1_100_000, 3_100_000]), np.array([MS, 3 * MS]))  # ticks 1 and 3; 2 missing
+    arrays = np.array([1_150_000, 2_150_000])  # the arrays of ticks 1 and 2
+    assert w.ticks_of(arrays).tolist() == [1, 2]
+    # a tick the node skipped (no state, no array): the one array after tick 1's state is tick 1's
+    assert w.ticks_of(arrays[:1]).tolist() == [1]

@@ -123,6 +123,7 @@ OFFERED_QOS = {
     "/haptic_teleop/run_info": [_LATCHED],
     **{packets_topic(d): [_BATCH] for d in DIRECTIONS},
 }
+MASTER_WRENCH_CLOCK, SLAVE_WRENCH_CLOCK = "/master/rendered_wrench", "/slave/applied_wrench"  # (see _clock_of)
 MAIN = (OPERATOR_STATE, MASTER_STATE, SLAVE_STATE, SLAVE_CONTACT)  # the streams that define the grid's end
 # Per-tick topics of a tick schema the recorder does not take as state: the released samples
 # (/<dir>/received: the release column RECEIVED, filled from the buffers' /<dir>/playout rows).
@@ -356,6 +357,11 @@ class Recorder(LiveNode):
             t: state for t, state in ((MASTER_EBA, MASTER_STATE), (SLAVE_EBA, SLAVE_STATE)) if t in self._columns
         }
         self._writers = {s: WriterTicks(self.grid_ns) for s in self._written_after.values()}
+        # Each side's clock also reads the stamped wrench an arm side writes just before its array
+        self._clock_of = dict(self._writers)
+        for state, wrench in ((MASTER_STATE, MASTER_WRENCH_CLOCK), (SLAVE_STATE, SLAVE_WRENCH_CLOCK)):
+            if state in self._writers and wrench in self._columns:
+                self._clock_of[wrench] = self._writers[state]
         self._closing = False
         self.start_tick: int | None = None  # absolute tick of scene time 0: plan.first's first sample
         self.written = 0  # absolute tick up to which (exclusive) the bag holds the grid
@@ -466,6 +472,9 @@ class Recorder(LiveNode):
         writer = self._written_after.get(topic) if not self.simulated_time else None
         if writer is not None:  # its writer's stamped messages first, then those arrays it places
             self._drain_topic(writer)
+            for clock, ticks in self._clock_of.items():
+                if clock != writer and ticks is self._writers[writer]:
+                    self._drain_topic(clock)
             n = self._writers[writer].placeable(times, self._closing)
         else:
             n = len(q)
@@ -486,8 +495,8 @@ class Recorder(LiveNode):
             if keep is not None:
                 vals = vals[:, list(keep)]
             if stamps is not None:
-                if topic in self._writers and not self.simulated_time:
-                    self._writers[topic].stamped(recv, stamps)
+                if topic in self._clock_of and not self.simulated_time:
+                    self._clock_of[topic].stamped(recv, stamps)
                 idx = stamps // period
             elif writer is not None:
                 idx = self._writers[writer].ticks_of(recv)

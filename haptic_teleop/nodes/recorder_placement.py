@@ -51,11 +51,25 @@ class WriterTicks:
         return int(np.searchsorted(np.asarray(times, dtype=np.int64), self.times[-1], side="left"))
 
     def ticks_of(self, times: np.ndarray) -> np.ndarray:
-        """The tick of each array written at `times`: that of the writer's last stamped message
-        written at or before it; by its own write time where none was."""
+        """The tick of each array written at `times` (ascending): that of the writer's last stamped
+        message written at or before it; by its own write time where none was. Where stamped
+        messages are missing between two known ones (lost or not taken: ticks a and b > a + 1
+        known) and exactly b - a arrays were written between them, they are the arrays of ticks
+        a .. b - 1 in order (each tick writes its state, then its array): on a busy machine the
+        recorder lost a state and put the next tick's array on the tick before, one row early."""
         times = np.asarray(times, dtype=np.int64)
         j = np.searchsorted(self.times, times, side="right") - 1
         own = times // self.period_ns
         if self.ticks.size == 0:
             return own
-        return np.where(j >= 0, self.ticks[np.maximum(j, 0)], own)
+        out = np.where(j >= 0, self.ticks[np.maximum(j, 0)], own)
+        inside = (j >= 0) & (j + 1 < self.ticks.size)
+        if inside.any() and bool(np.all(np.diff(j) >= 0)):  # (taken out of order: the rule above alone)
+            k = np.minimum(np.maximum(j, 0) + 1, self.ticks.size - 1)
+            gap = np.where(inside, self.ticks[k] - out, 1)
+            first = np.searchsorted(j, j, side="left")  # each array's rank among those after the same state
+            count = np.searchsorted(j, j, side="right") - first
+            rank = np.arange(j.size) - first
+            whole = inside & (gap > 1) & (count == gap)
+            out = np.where(whole, out + rank, out)
+        return out
