@@ -46,6 +46,7 @@ def _sets(port: str, max_hold_s: float, duration_s: float) -> list[str]:
         f"master.hardware.max_hold_s={max_hold_s}",
         "master.hardware.start_tolerance_rad=1.0",
         "master.hardware.read_timeout_s=1.0",
+        "master.hardware.bus_watchdog_s=0.5",  # a loaded CI run once left the servos 100 ms without a packet
         f"scene.duration_s={duration_s}",
     ]
 
