@@ -358,10 +358,11 @@ class Recorder(LiveNode):
         }
         self._writers = {s: WriterTicks(self.grid_ns) for s in self._written_after.values()}
         # Each side's clock also reads the stamped wrench an arm side writes just before its array
-        self._clock_of = dict(self._writers)
-        for state, wrench in ((MASTER_STATE, MASTER_WRENCH_CLOCK), (SLAVE_STATE, SLAVE_WRENCH_CLOCK)):
-            if state in self._writers and wrench in self._columns:
-                self._clock_of[wrench] = self._writers[state]
+        self._wrench_clock = {
+            s: w for s, w in ((MASTER_STATE, MASTER_WRENCH_CLOCK), (SLAVE_STATE, SLAVE_WRENCH_CLOCK))
+            if s in self._writers and w in self._columns
+        }  # fmt: skip
+        self._clock_of = {**self._writers, **{w: self._writers[s] for s, w in self._wrench_clock.items()}}
         self._closing = False
         self.start_tick: int | None = None  # absolute tick of scene time 0: plan.first's first sample
         self.written = 0  # absolute tick up to which (exclusive) the bag holds the grid
@@ -472,9 +473,8 @@ class Recorder(LiveNode):
         writer = self._written_after.get(topic) if not self.simulated_time else None
         if writer is not None:  # its writer's stamped messages first, then those arrays it places
             self._drain_topic(writer)
-            for clock, ticks in self._clock_of.items():
-                if clock != writer and ticks is self._writers[writer]:
-                    self._drain_topic(clock)
+            if writer in self._wrench_clock:
+                self._drain_topic(self._wrench_clock[writer])
             n = self._writers[writer].placeable(times, self._closing)
         else:
             n = len(q)

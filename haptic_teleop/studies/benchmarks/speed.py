@@ -369,6 +369,7 @@ def tick_costs_us(scene: Any, repeat: int, every: int = 100, stride: int = SAMPL
     runs = [per_tick_us(cost_run(scene, every, stride)) for _ in range(repeat)]
     ratios = [r[0] / r[1] for r in runs]
     return {
+        "stride": stride,
         "after_ratio": statistics.median(r[3] / r[1] for r in runs),
         "tick_us": statistics.median(r[0] for r in runs),
         "bare_us": statistics.median(r[1] for r in runs),
@@ -380,7 +381,10 @@ def tick_costs_us(scene: Any, repeat: int, every: int = 100, stride: int = SAMPL
 
 def print_tick_costs(c: dict[str, Any], arm: bool) -> None:
     lo, hi = c["ratio_range"]
-    print("compiled tick against MuJoCo alone, in the same runs (state copied from the loop every 500 ticks):")
+    print(
+        f"compiled tick against MuJoCo alone, in the same runs (state copied from the loop every {100 * c['stride']} "
+        "ticks):"
+    )
     print(f"  compiled tick (steady state, no bag)     {c['tick_us']:8.2f} us")
     if arm:
         print(f"  its MuJoCo calls (step1, jacSite, step2) {c['calls_us']:8.2f} us")
