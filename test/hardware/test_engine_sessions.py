@@ -335,7 +335,8 @@ def test_run_emulate_serves_a_ur_slave_from_the_bundled_scene(tmp_path: Path) ->
         "touch_ur5e_wall", "--set", "slave.backend=ur", "--set", "scene.duration_s=1.0", "--emulate",
         # the hold guard (tested in test_late_holds_emulated.py) budgets 0.5 s: a 210.8 ms hold stopped
         # this run once in an idle CI run
-        "--set", "slave.hardware.max_hold_s=0.5", "--out", str(out), "--quiet", "--no-plots",
+        "--set", "slave.hardware.max_hold_s=0.5", "--set", "slave.hardware.rtde_watchdog_s=0.5",
+        "--out", str(out), "--quiet", "--no-plots",
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     timing = json.loads((out / "timing.json").read_text())
@@ -415,6 +416,7 @@ def test_a_session_with_the_slave_on_the_ur_emulator_in_direct_torque_mode(tmp_p
             "slave.hardware.control_mode=torque",
             "slave.damping_nm_s_per_rad=[3.0, 3.0, 3.0, 0.5, 0.5, 0.5]",  # ur5e.xml's dof_damping
             "slave.hardware.max_hold_s=0.5",  # holds of tens of ms, 210 ms once in CI (docs/eba_many_joints.md)
+            "slave.hardware.rtde_watchdog_s=0.5",  # the same stalls over ur_rtde's 0.1 s stop the script (docs/ur.md)
         ]
         out = tmp_path / "run"
         proc = run_cli("touch_ur5e_wall", *[a for s in sets for a in ("--set", s)], "--out", str(out), "--quiet")

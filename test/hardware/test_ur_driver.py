@@ -8,6 +8,11 @@ tests assert what the driver concludes and says, never the physics of the run.""
 
 from __future__ import annotations
 
+import os
+import re
+import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 
@@ -177,6 +182,55 @@ def test_a_program_stopped_from_outside_the_session_is_not_blamed_on_the_watchdo
             run_for(d, 30.0, lambda s: d.kick())  # the host keeps sending
         st = ur.state()
         assert not st["program_running"] and st["mode"] == "hold"
+
+
+# A host session in its own process, commanding at 500 Hz until the driver raises (the test stops it).
+HOST_SESSION = """
+import sys, time
+from haptic_teleop.plants.hardware import HardwareError
+from haptic_teleop.plants.ur.driver import URDriver
+d = URDriver(sys.argv[1], watchdog_hz=10.0, stale_s=0.8)
+d.start()
+print("started", flush=True)
+try:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30.0:
+        d.kick()
+        d.state()
+        time.sleep(0.002)
+    print("no stop")
+except HardwareError as e:
+    print(e)
+finally:
+    d.stop()
+"""
+
+
+def test_a_host_that_stalls_past_the_watchdog_is_told_it_was_the_watchdog():
+    """The whole host process stops for 1 s (SIGSTOP: a machine under load, a debugger), over the
+    10 Hz watchdog and the driver's 0.8 s staleness limit. The network is quiet over the stall and
+    until 0.1 s after the host wakes (the emulator frozen): the SDK's receive thread has no newer data
+    than before the stall, so the host's first command after it is accepted and its reads are stale.
+    The driver must name the watchdog and the stall, not a stop from outside (the send gap that just
+    ended is the cause), nor a lost connection (the staleness window starts when the host wakes, not
+    before its own stall). With either rule undone, every round or about half of them misname it."""
+    with start_ur() as ur:
+        for _ in range(3):
+            p = subprocess.Popen(
+                [sys.executable, "-c", HOST_SESSION, ur.host], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+            assert p.stdout is not None and p.stdout.readline().strip() == "started", p.stderr
+            time.sleep(0.2)
+            ur.inject("freeze")
+            os.kill(p.pid, signal.SIGSTOP)
+            time.sleep(1.0)
+            os.kill(p.pid, signal.SIGCONT)
+            time.sleep(0.1)
+            ur.inject("freeze", on=False)
+            out, err = p.communicate(timeout=SAFETY_NET_S)
+            m = re.search(r"stopped by its RTDE watchdog: no command for (\d+\.\d+) s", out)
+            assert m is not None and float(m.group(1)) >= 1.0, out + err
+            assert ur.state()["stop_reason"].startswith("RTDE watchdog")
 
 
 @pytest.mark.parametrize("how", ["drop_connections", "kill"])

@@ -46,6 +46,7 @@ def _run(mode: str, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
         DAMPING,
         "slave.period_s=0.002",  # the e-Series' 500 Hz; the haptic side at the scene's 1 kHz
         "slave.hardware.max_hold_s=0.5",  # holds of tens of ms, 210 ms once in CI (docs/eba_many_joints.md)
+        "slave.hardware.rtde_watchdog_s=0.5",  # the same stalls over ur_rtde's 0.1 s stop the script (docs/ur.md)
         "scene.duration_s=2.5",
         *extra,
     ]
@@ -92,10 +93,11 @@ def test_a_session_with_the_ur_slave_in_a_task_space_mode_is_recorded_analysed_a
     out = tmp_path / "run"
     with start_ur(_ur_config()) as ur:
         proc = _run(mode, out, "slave.hardware.force_mode_damping=0.05")
-        assert proc.returncode == 0, proc.stderr
         st = ur.state()
+        assert proc.returncode == 0, f"{proc.stderr}\nthe emulator's stop reason: {st['stop_reason']!r}"
     # every exit path stops the robot: the control script ended, the arm holds
     assert st["program_running"] is False and st["mode"] == "hold"
+    assert st["watchdog_hz"] == pytest.approx(2.0)  # slave.hardware.rtde_watchdog_s reached the controller
     if mode == "force_mode":
         assert st["force_mode_damping"] == pytest.approx(0.05)  # the scene key reached the controller
     summary = json.loads((out / "summary.json").read_text())
@@ -232,6 +234,7 @@ def test_sigterm_mid_session_in_the_admittance_mode_stops_the_robot_and_keeps_th
         DAMPING,
         "slave.period_s=0.002",
         "slave.hardware.max_hold_s=0.5",  # holds of tens of ms, 210 ms once in CI (docs/eba_many_joints.md)
+        "slave.hardware.rtde_watchdog_s=0.5",  # the same stalls over ur_rtde's 0.1 s stop the script (docs/ur.md)
     ]
     with start_ur(_ur_config()) as ur:
         proc = subprocess.Popen(
@@ -314,8 +317,8 @@ def test_an_admittance_damping_below_k_t_over_2_is_not_seen_by_the_ledger_and_th
             "slave.hardware.admittance_damping_n_s_per_m=10.0",
             "slave.hardware.admittance_mass_kg=0.2",
         )
-        assert proc.returncode == 0, proc.stderr
         st = ur.state()
+        assert proc.returncode == 0, f"{proc.stderr}\nthe emulator's stop reason: {st['stop_reason']!r}"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["slave_energy_margin_min_j"] >= 0.0
     assert st["program_running"] is False and st["mode"] == "hold"

@@ -27,6 +27,15 @@ class URConfig(HardwareConfig):
         default=None,
         metadata={"choices": CONTROL_MODES, "help": "how the side's command reaches the robot (docs/hardware.md)"},
     )
+    rtde_watchdog_s: float = field(
+        default=0.1,
+        metadata={
+            "gt": 0.0,
+            "max": 10.0,
+            "help": "the controller stops the control script when no command arrives for this long (ur_rtde "
+            "setWatchdog at 1 / this; the default 0.1 s is ur_rtde's 10 Hz)",
+        },
+    )
     force_mode_damping: float = field(
         default=0.025,
         metadata={
@@ -122,7 +131,10 @@ def arm_driver(hw: URConfig, kin: Any, torque_limit_nm: Sequence[float] | None, 
     assert hw.host is not None
     if hw.control_mode == "torque":
         ur = URTorqueDriver(
-            hw.host, applied_tolerance_nm=hw.applied_tolerance_nm, applied_mismatch_reads=hw.applied_mismatch_reads
+            hw.host,
+            watchdog_hz=1.0 / hw.rtde_watchdog_s,
+            applied_tolerance_nm=hw.applied_tolerance_nm,
+            applied_mismatch_reads=hw.applied_mismatch_reads,
         )
         return ArmDriver(ur, True, lambda: ur.ur.state().tcp_wrench, hw.host)
     lin, rot = hw.admittance_mass_kg, hw.admittance_inertia_kg_m2
@@ -132,6 +144,7 @@ def arm_driver(hw: URConfig, kin: Any, torque_limit_nm: Sequence[float] | None, 
         str(hw.control_mode),
         lambda: kin.jacobian(rotational=True),
         period_s,
+        watchdog_hz=1.0 / hw.rtde_watchdog_s,
         force_mode_damping=hw.force_mode_damping,
         speed_limits=hw.force_mode_speed_limits,
         admittance_mass=(lin, lin, lin, rot, rot, rot),

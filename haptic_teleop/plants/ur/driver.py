@@ -50,6 +50,9 @@ APPLIED_OUTPUT = "actual_current_as_torque"  # N m per joint, gravity excluded; 
 APPLIED_REL = 0.2  # a fifth of the command on top of the absolute tolerance (the Dynamixel driver's rule)
 APPLIED_TOLERANCE_NM = tuple(0.02 * t for t in UR5E_TORQUE_LIMIT_NM)  # 2 % of the rated torque (docs/ur.md)
 APPLIED_MISMATCH_READS = 25  # 50 ms of fresh reads at the controller's 500 Hz
+# A send gap over the watchdog's period that ended this recently explains a program's end: the host
+# stalled, sent again when it woke, and only then read that the controller had stopped the program.
+OVERRUN_SEEN_WITHIN_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -145,8 +148,10 @@ class URDriver:
         self._stopped = False
         self._last_ts = -1.0
         self._last_change = 0.0
+        self._last_poll_s = 0.0  # host time of the previous state() (a gap longer than stale_s is the host's own)
         self._connection_lost = False
         self._last_sent_s = 0.0  # host time of the last command the controller accepted (the watchdog's input)
+        self._overrun: tuple[float, float] | None = None  # (host time it ended, length): the last send gap > 1/hz
         self.applied_tolerance_nm = np.broadcast_to(np.asarray(applied_tolerance_nm, dtype=float), (6,)).copy()
         self.applied_mismatch_reads = int(applied_mismatch_reads)
         self._applied: RTDEOutputReader | None = None
@@ -185,6 +190,7 @@ class URDriver:
         if self.control:
             self._start_control()
         self._last_ts, self._last_change = first.timestamp_s, time.monotonic()
+        self._last_poll_s = self._last_change
         return first
 
     def _check_ready(self, s: URState) -> None:
@@ -276,6 +282,11 @@ class URDriver:
             )
         s = self._read()
         now = time.monotonic()
+        if now - self._last_poll_s > self.stale_s:
+            # the host itself was away (stalled, stopped) longer than the staleness limit: the SDK's
+            # receive thread stalled with it, so the data gets a fresh window from now, not a verdict
+            self._last_change = now
+        self._last_poll_s = now
         if s.timestamp_s != self._last_ts:
             self._last_ts, self._last_change = s.timestamp_s, now
         elif now - self._last_change > self.stale_s:
@@ -298,11 +309,14 @@ class URDriver:
         command reached the controller for longer than its period (the host stalled or stopped
         sending), else a stop from outside the session."""
         quiet_s = now_s - self._last_sent_s
+        if self._overrun is not None and now_s - self._overrun[0] < OVERRUN_SEEN_WITHIN_S:
+            quiet_s = max(quiet_s, self._overrun[1])  # the host stalled, sent again, then saw the program end
         if self.watchdog_hz > 0.0 and quiet_s > 1.0 / self.watchdog_hz:
             return (
                 f"the control script on {self.host} was stopped by its RTDE watchdog: no command for {quiet_s:.2f} s, "
                 f"over the watchdog's {1.0 / self.watchdog_hz:.2f} s (the host stalled or stopped sending); give the "
-                "loop a core of its own and keep other load off the machine, then start again; the robot was stopped"
+                "loop a core of its own and keep other load off the machine, or raise hardware.rtde_watchdog_s, then "
+                "start again; the robot was stopped"
             )
         return (
             f"the control script on {self.host} was stopped from outside the session (the teach pendant, the "
@@ -448,7 +462,10 @@ class URDriver:
             self.state()  # names the fault if there is one
             self._diagnose()
             self._fail(f"the controller at {self.host} refused {what}")
-        self._last_sent_s = time.monotonic()
+        now = time.monotonic()
+        if self.watchdog_hz > 0.0 and now - self._last_sent_s > 1.0 / self.watchdog_hz:
+            self._overrun = (now, now - self._last_sent_s)
+        self._last_sent_s = now
 
     def force_mode(
         self,
