@@ -365,17 +365,3 @@ def test_live_slave_at_its_own_period_pushes_on_the_wall_as_the_engines_does(slo
     assert set(summary) == set(want) - {"engine_loop"}
     peak, ref = summary["contact_force_max_n"], want["contact_force_max_n"]
     assert ref > 1.0 and abs(peak - ref) <= 0.1 * ref, (peak, ref)
-
-
-def test_a_first_launch_on_an_empty_numba_cache_builds_the_side_tick_first_and_comes_up(tmp_path):
-    """A fresh install's first live arm launch: the launcher compiles the side tick the arm nodes
-    run before it starts them, and says so, so no node spends its start-up compiling while the
-    others wait past their start timeout (before: "the node graph was not up within
-    start.timeout_s=30 s"). numba's cache is a new empty directory for this launch alone."""
-    out = tmp_path / "run"
-    launch = Launch(SCENE, "--set", "scene.duration_s=1", "--record", str(out), "--no-plots", cwd=tmp_path,
-                    env={"NUMBA_CACHE_DIR": str(tmp_path / "numba")})  # fmt: skip
-    code = launch.finish(900)
-    assert code == 0, launch.failure
-    assert "compiling the tick loop side_kernel" in launch.text  # it really compiled, and said so
-    assert (out / "summary.json").exists()
