@@ -282,10 +282,14 @@ class URDriver:
             )
         s = self._read()
         now = time.monotonic()
-        if now - self._last_poll_s > self.stale_s:
-            # the host itself was away (stalled, stopped) longer than the staleness limit: the SDK's
-            # receive thread stalled with it, so the data gets a fresh window from now, not a verdict
-            self._last_change = now
+        if s.timestamp_s == self._last_ts and now - self._last_poll_s > self.stale_s:
+            # the host itself was away (stalled, stopped, or polls slowly) longer than the staleness
+            # limit: the SDK's receive thread may have stalled with it, so it gets stale_s to catch
+            # up before the verdict (a frozen stream is still found, stale_s later)
+            deadline = now + self.stale_s
+            while s.timestamp_s == self._last_ts and now < deadline:
+                time.sleep(0.002)
+                s, now = self._read(), time.monotonic()
         self._last_poll_s = now
         if s.timestamp_s != self._last_ts:
             self._last_ts, self._last_change = s.timestamp_s, now
