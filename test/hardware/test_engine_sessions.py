@@ -75,6 +75,9 @@ def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.Complet
 
 def _run(name: str, side: str, bus: DynamixelBus, out: Path, *sets: str) -> subprocess.CompletedProcess[str]:
     on = (f"{side}.backend=dynamixel", f"{side}.hardware.port={bus.port}", f"{side}.hardware.device_clock=lockstep")
+    # the emulated bus's replies under load: --emulate's 0.5 s (EMULATED_READ_TIMEOUT_S; a loaded CI
+    # run saw 3 late replies in a row with the SDK's default); a test's own value comes later and wins
+    on = (*on, f"{side}.hardware.read_timeout_s=0.5")
     flags = [a for s in (*on, *sets) for a in ("--set", s)]
     return run_cli(name, *flags, "--out", str(out), "--quiet")
 
